@@ -1,0 +1,7 @@
+"""One module per `rvis` subcommand; each exposes `register(subparsers)`.
+
+The command line (app/cli.py) imports the modules listed in COMMANDS, in order. A command's
+`register` adds its parser and sets `func(args) -> int` as the default handler.
+"""
+
+COMMANDS: tuple[str, ...] = ()

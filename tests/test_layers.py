@@ -1,0 +1,50 @@
+"""The dependency rule of DESIGN.md section 3, checked on the source (AST imports)."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+LAYERS = ("app", "calib", "vision", "drivers", "fakes")
+FORBIDDEN = {
+    "calib": {"app", "drivers", "fakes"},
+    "vision": {"app", "drivers", "fakes"},
+    "drivers": {"app", "calib", "vision"},
+}
+
+
+def imported_layers(path: Path) -> set[tuple[str, int]]:
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    found: set[tuple[str, int]] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names = [node.module]
+        else:
+            continue
+        for name in names:
+            top = name.split(".")[0]
+            if top in LAYERS:
+                found.add((top, node.lineno))
+    return found
+
+
+@pytest.mark.parametrize("layer", sorted(FORBIDDEN))
+def test_layer_imports_only_what_it_may(layer: str) -> None:
+    bad = [
+        f"{path.relative_to(ROOT)}:{line} imports {top}"
+        for path in sorted((ROOT / layer).rglob("*.py"))
+        for top, line in sorted(imported_layers(path))
+        if top in FORBIDDEN[layer]
+    ]
+    assert not bad, "\n".join(bad)
+
+
+def test_rule_checker_sees_a_violation(tmp_path: Path) -> None:
+    bad = tmp_path / "m.py"
+    bad.write_text("import numpy\nfrom app.cli import main\nimport drivers.base as b\n")
+    assert imported_layers(bad) == {("app", 2), ("drivers", 3)}
