@@ -1,0 +1,173 @@
+"""Identification of the model parameters from sphere measurements (paper section 3.2).
+
+Residuals: for each measurement i, Delta P_i = T_part_sensor(q_i; x) C_i - P_i^tracker [mm],
+stacked x, y, z. Levenberg-Marquardt (`scipy.optimize.least_squares`, method "lm") with the
+analytic Jacobian; with a robust loss the trust-region method "trf" (LM does not take one).
+Inputs are never mutated; "did not converge" is reported in the result, not raised.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import least_squares
+
+from calib.errors import InsufficientData
+from calib.model import INDEX, PAPER_30, SystemModel, check_active
+from calib.observability import Observability, require_full_rank
+
+F64 = NDArray[np.float64]
+LOSSES = ("linear", "huber", "soft_l1", "cauchy", "arctan")
+
+
+@dataclass(frozen=True)
+class Measurements:
+    """Sphere measurements: controller angles `q_deg` (m, 6), centres in the sensor frame
+    `c_sensor_mm` (m, 3), the tracker's centres in the part frame `p_part_mm` (m, 3) and the
+    sphere ids `targets` (m,)."""
+
+    q_deg: F64
+    c_sensor_mm: F64
+    p_part_mm: F64
+    targets: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        m = len(self.targets)
+        shapes = {"q_deg": (m, 6), "c_sensor_mm": (m, 3), "p_part_mm": (m, 3)}
+        for name, shape in shapes.items():
+            arr = np.asarray(getattr(self, name))
+            if arr.shape != shape:
+                raise InsufficientData(f"{name} has shape {arr.shape}, expected {shape}")
+            if not np.all(np.isfinite(arr)):
+                raise InsufficientData(f"{name} holds a NaN or infinite value")
+
+    def __len__(self) -> int:
+        return len(self.targets)
+
+    def subset(self, rows: ArrayLike) -> Measurements:
+        r = np.asarray(rows)
+        return Measurements(
+            self.q_deg[r], self.c_sensor_mm[r], self.p_part_mm[r],
+            tuple(self.targets[i] for i in np.arange(len(self))[r]),
+        )  # fmt: skip
+
+
+def residuals(model: SystemModel, x: F64, data: Measurements) -> F64:
+    """Position errors (m, 3) [mm] of the model at parameters x (full vector)."""
+    out: F64 = model.points_part(x, data.q_deg, data.c_sensor_mm) - data.p_part_mm
+    return out
+
+
+def stacked_jacobian(
+    model: SystemModel, x: F64, data: Measurements, active: Sequence[str]
+) -> F64:
+    """The identification Jacobian (3m, L): d(stacked residuals) / d(active parameters)."""
+    J = model.point_jacobian(x, data.q_deg, data.c_sensor_mm, active)
+    out: F64 = J.reshape(-1, len(active))
+    return out
+
+
+@dataclass(frozen=True)
+class IdentificationResult:
+    """Outcome of `identify`. `x` is the full parameter vector (37,), `active` the identified
+    names, `std` their standard uncertainties (residual variance times (J^T J)^-1), `corr`
+    their correlation matrix, `residuals_mm` (m, 3) at the solution."""
+
+    x: F64
+    x_start: F64
+    active: tuple[str, ...]
+    std: F64
+    corr: F64
+    residuals_mm: F64
+    rms_mm: float
+    max_mm: float
+    sigma_mm: float
+    observability: Observability
+    success: bool
+    status: int
+    message: str
+    nfev: int
+
+    def value(self, name: str) -> float:
+        return float(self.x[INDEX[name]])
+
+
+def identify(
+    model: SystemModel,
+    data: Measurements,
+    *,
+    active: Sequence[str] = PAPER_30,
+    x0: F64 | None = None,
+    loss: str = "linear",
+    f_scale_mm: float = 0.05,
+    max_nfev: int = 200,
+    jac: str = "analytic",
+) -> IdentificationResult:
+    """Identify the `active` parameters from `data`, starting at x0 (default: nominal).
+
+    Raises InsufficientData for fewer equations than parameters and NotIdentifiable (naming
+    the parameters of each null-space direction) for a rank-deficient problem at the start.
+    `jac="2-point"` or `"3-point"` uses finite differences instead (the benchmark's reference).
+    """
+    names = check_active(active)
+    if loss not in LOSSES:
+        raise ValueError(f"unknown loss '{loss}' (choose from {', '.join(LOSSES)})")
+    if 3 * len(data) < len(names):
+        raise InsufficientData(
+            f"{len(data)} measurements give {3 * len(data)} equations for {len(names)} "
+            f"parameters: at least {-(-len(names) // 3)} measurements are needed"
+        )
+    x_start = model.nominal_x() if x0 is None else np.array(x0, dtype=float)
+    cols = np.array([INDEX[n] for n in names])
+    require_full_rank(stacked_jacobian(model, x_start, data, names), names)
+
+    def full(xa: F64) -> F64:
+        x = x_start.copy()
+        x[cols] = xa
+        return x
+
+    def fun(xa: F64) -> F64:
+        return residuals(model, full(xa), data).ravel()
+
+    def jacobian(xa: F64) -> F64:
+        return stacked_jacobian(model, full(xa), data, names)
+
+    method = "lm" if loss == "linear" else "trf"
+    sol = least_squares(
+        fun, x_start[cols], jac=jacobian if jac == "analytic" else jac,  # type: ignore[arg-type]
+        method=method, loss=loss, f_scale=f_scale_mm, x_scale="jac", max_nfev=max_nfev,
+    )  # fmt: skip
+    x = full(sol.x)
+    return _result(model, data, names, x, x_start, sol)
+
+
+def _result(
+    model: SystemModel,
+    data: Measurements,
+    names: tuple[str, ...],
+    x: F64,
+    x_start: F64,
+    sol: object,
+) -> IdentificationResult:
+    res = residuals(model, x, data)
+    J = stacked_jacobian(model, x, data, names)
+    dof = max(res.size - len(names), 1)
+    s2 = float(np.sum(res**2)) / dof
+    _, sv, Vt = np.linalg.svd(J, full_matrices=False)
+    inv_sv2 = np.where(sv > 1e-12 * sv[0], 1.0 / sv**2, 0.0)
+    cov = (Vt.T * inv_sv2) @ Vt * s2
+    std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    denom = np.outer(std, std)
+    corr = np.divide(cov, denom, out=np.zeros_like(cov), where=denom > 0)
+    obs = require_full_rank(J, names)
+    e = np.linalg.norm(res, axis=1)
+    return IdentificationResult(
+        x=x, x_start=x_start, active=names, std=std, corr=corr, residuals_mm=res,
+        rms_mm=float(np.sqrt(np.mean(e**2))), max_mm=float(e.max()), sigma_mm=float(np.sqrt(s2)),
+        observability=obs, success=bool(getattr(sol, "success", False)),
+        status=int(getattr(sol, "status", 0)), message=str(getattr(sol, "message", "")),
+        nfev=int(getattr(sol, "nfev", 0)),
+    )  # fmt: skip

@@ -1,0 +1,144 @@
+"""The true robot of the simulated cell: a URDF-style chain with its own errors.
+
+Deliberately independent of calib/: joint origins (xyz + roll-pitch-yaw) and joint axes as in
+the ROS-Industrial `m710ic50_macro.xacro`, each origin perturbed by a seeded 6-DoF error, encoder
+zero offsets, an unmodelled gravity compliance of J2 and J3, and thermal growth of the link
+vectors with the cell temperature. An error in calib's model cannot hide behind this one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+F64 = NDArray[np.float64]
+
+#: URDF joint origins [mm] and axes (base_link -> link_6), then link_6 -> tool0 rpy.
+URDF_XYZ_MM = np.array(
+    [[0, 0, 565], [150, 0, 0], [0, 0, 870], [0, 0, 170], [1016, 0, 0], [175, 0, 0]], float
+)
+URDF_AXES = np.array([[0, 0, 1], [0, 1, 0], [0, -1, 0], [-1, 0, 0], [0, -1, 0], [-1, 0, 0]], float)
+TOOL0_RPY_RAD = np.array([np.pi, -np.pi / 2, 0.0])
+#: FANUC World frame above base_link [mm].
+WORLD_Z_MM = 565.0
+#: Link masses [kg] (upper arm, forearm with wrist, sensor) and gravity, for the compliance.
+LINK_MASS_KG = (60.0, 45.0, 6.0)
+GRAVITY_M_S2 = 9.81
+
+
+def _rot(axis: F64, angle: F64) -> F64:
+    """Rotations (..., 3, 3) about a unit axis (3,) by angles (...) [rad] (Rodrigues)."""
+    a = np.asarray(angle, dtype=float)[..., None, None]
+    K = np.array(
+        [[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]], dtype=float
+    )
+    out: F64 = np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * (K @ K)
+    return out
+
+
+def _rpy(rpy: ArrayLike) -> F64:
+    r, p, y = np.asarray(rpy, dtype=float)
+    X = _rot(np.array([1.0, 0, 0]), np.array(r))
+    Y = _rot(np.array([0, 1.0, 0]), np.array(p))
+    Z = _rot(np.array([0, 0, 1.0]), np.array(y))
+    out: F64 = Z @ Y @ X
+    return out
+
+
+def homogeneous(R: F64, t: ArrayLike) -> F64:
+    T = np.zeros((*R.shape[:-2], 4, 4))
+    T[..., :3, :3] = R
+    T[..., :3, 3] = t
+    T[..., 3, 3] = 1.0
+    return T
+
+
+@dataclass(frozen=True)
+class TrueRobot:
+    """A URDF chain with errors. `origin_xyz_mm` (6, 3), `origin_rpy_rad` (6, 3) are the joint
+    origins; `zero_offset_rad` (6,) the encoder zero errors (URDF joint angle = controller
+    mapping + offset); `compliance_rad_per_nm` (J2, J3); `expansion_per_k` the linear thermal
+    expansion coefficient of the links, about `reference_temp_c`."""
+
+    origin_xyz_mm: F64 = field(default_factory=lambda: URDF_XYZ_MM.copy())
+    origin_rpy_rad: F64 = field(default_factory=lambda: np.zeros((6, 3)))
+    zero_offset_rad: F64 = field(default_factory=lambda: np.zeros(6))
+    compliance_rad_per_nm: tuple[float, float] = (0.0, 0.0)
+    expansion_per_k: float = 0.0
+    reference_temp_c: float = 20.0
+
+    @staticmethod
+    def perturbed(
+        rng: np.random.Generator,
+        *,
+        origin_mm: float = 0.15,
+        origin_rad: float = 2e-4,
+        zero_rad: float = 4e-4,
+        compliance_rad_per_nm: tuple[float, float] = (5e-8, 5e-8),
+        expansion_per_k: float = 11.5e-6,
+    ) -> TrueRobot:
+        """A robot with seeded 6-DoF errors on every joint origin (standard deviations)."""
+        return TrueRobot(
+            origin_xyz_mm=URDF_XYZ_MM + rng.normal(0.0, origin_mm, (6, 3)),
+            origin_rpy_rad=rng.normal(0.0, origin_rad, (6, 3)),
+            zero_offset_rad=rng.normal(0.0, zero_rad, 6),
+            compliance_rad_per_nm=compliance_rad_per_nm,
+            expansion_per_k=expansion_per_k,
+        )
+
+    def rigid(self) -> TrueRobot:
+        """The same robot with compliance and thermal growth switched off."""
+        return replace(self, compliance_rad_per_nm=(0.0, 0.0), expansion_per_k=0.0)
+
+    def urdf_angles(self, q_deg: ArrayLike) -> F64:
+        """Controller angles (N, 6) [deg] -> URDF joint angles (N, 6) [rad] (q3 = J3 + J2)."""
+        q = np.radians(np.atleast_2d(np.asarray(q_deg, dtype=float)))
+        u = q.copy()
+        u[:, 2] = q[:, 2] + q[:, 1]
+        out: F64 = u + self.zero_offset_rad
+        return out
+
+    def link_frames(self, q_urdf: F64, temp_c: float) -> F64:
+        """World-frame poses (N, 7, 4, 4) of link_1..link_6 and tool0 [mm]."""
+        scale = 1.0 + self.expansion_per_k * (temp_c - self.reference_temp_c)
+        n = q_urdf.shape[0]
+        T = np.broadcast_to(homogeneous(np.eye(3), [0, 0, -WORLD_Z_MM]), (n, 4, 4)).copy()
+        frames = np.zeros((n, 7, 4, 4))
+        for j in range(6):
+            origin = homogeneous(_rpy(self.origin_rpy_rad[j]), self.origin_xyz_mm[j] * scale)
+            T = T @ origin @ homogeneous(_rot(URDF_AXES[j], q_urdf[:, j]), np.zeros(3))
+            frames[:, j] = T
+        frames[:, 6] = T @ homogeneous(_rpy(TOOL0_RPY_RAD), np.zeros(3))
+        return frames
+
+    def T_world_tool0(self, q_deg: ArrayLike, temp_c: float = 20.0) -> F64:
+        """Flange poses (N, 4, 4) in the World frame, with gravity deflection of J2, J3."""
+        q_u = self.urdf_angles(q_deg)
+        frames = self.link_frames(q_u, temp_c)
+        if any(self.compliance_rad_per_nm):
+            q_u = q_u + self._deflection(frames)
+            frames = self.link_frames(q_u, temp_c)
+        out: F64 = frames[:, 6]
+        return out
+
+    def _deflection(self, frames: F64) -> F64:
+        """Joint deflections (N, 6) [rad] of J2 and J3 under gravity (static, linear springs)."""
+        o2, o3 = frames[:, 1, :3, 3], frames[:, 2, :3, 3]
+        wrist, flange = frames[:, 4, :3, 3], frames[:, 6, :3, 3]
+        m_up, m_fore, m_tool = LINK_MASS_KG
+        # torque about a horizontal joint axis a through o of a mass m at c: ((c - o) x m g) . a
+        g = np.array([0.0, 0.0, -GRAVITY_M_S2])
+        masses_j3 = [(m_fore, 0.5 * (o3 + wrist)), (m_tool, flange)]
+        masses_j2 = [(m_up, 0.5 * (o2 + o3)), *masses_j3]
+        dq = np.zeros((frames.shape[0], 6))
+        for col, origin, masses, axis_frame, k in (
+            (1, o2, masses_j2, frames[:, 1], self.compliance_rad_per_nm[0]),
+            (2, o3, masses_j3, frames[:, 2], self.compliance_rad_per_nm[1]),
+        ):
+            axis = axis_frame[:, :3, :3] @ URDF_AXES[col]
+            tau = sum(np.einsum("ni,ni->n", np.cross((c - origin) / 1000.0, m * g), axis)
+                      for m, c in masses)
+            dq[:, col] = k * tau
+        return dq
