@@ -91,9 +91,10 @@ def random_configurations(
         if len(qs) >= n:
             break
         k = 4 * n
-        R = look_rotations(random_view_directions(rng, k, max_tilt_deg), rng.uniform(-np.pi, np.pi, k))
-        off = rng.uniform(-1.0, 1.0, (k, 3)) * np.asarray(max_offset_mm)
-        c = off + [0.0, 0.0, IDEAL_STANDOFF_MM]
+        views = random_view_directions(rng, k, max_tilt_deg)
+        R = look_rotations(views, rng.uniform(-np.pi, np.pi, k))
+        c = rng.uniform(-1.0, 1.0, (k, 3)) * np.asarray(max_offset_mm)
+        c[:, 2] += IDEAL_STANDOFF_MM
         sols = ik.solve(flange_poses(model, x, p_part_mm, R, c), model.limits)
         for i in rng.permutation(k):
             options = sols.for_pose(int(i))

@@ -1,0 +1,33 @@
+"""Loading a calibration or validation data set from the two CSV files, with every calib
+error about the data translated into an InputError that names the measurements file."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import TypeVar
+
+from app.errors import InputError
+from app.files import match_targets, read_measurements, read_targets
+from calib.errors import CalibError
+from calib.identify import Measurements
+from calib.robot import JointLimits
+
+T = TypeVar("T")
+
+
+def load_dataset(
+    measurements: str | Path, targets: str | Path, limits: JointLimits | None = None
+) -> Measurements:
+    targets_path = Path(targets)
+    rows = read_measurements(measurements, limits)
+    centres = match_targets(rows, read_targets(targets_path), targets_path)
+    return Measurements(rows.q_deg, rows.c_sensor_mm, centres, tuple(rows.targets))
+
+
+def as_input_error(path: str | Path, work: Callable[[], T]) -> T:
+    """Run `work`; a CalibError (bad or degenerate data) becomes an InputError naming path."""
+    try:
+        return work()
+    except CalibError as exc:
+        raise InputError(str(exc), file=path) from exc

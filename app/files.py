@@ -1,0 +1,173 @@
+"""The file contracts of DESIGN.md section 5: measurements, targets and errors CSV, parameters
+JSON. Every reader validates and reports a bad value as an InputError naming file, line (the
+header is line 1) and field."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from app.errors import InputError
+from calib.robot import JointLimits
+
+F64 = NDArray[np.float64]
+
+MEASUREMENT_COLUMNS = (
+    "target", "j1_deg", "j2_deg", "j3_deg", "j4_deg", "j5_deg", "j6_deg",
+    "sx_mm", "sy_mm", "sz_mm",
+)  # fmt: skip
+TARGET_COLUMNS = ("target", "x_mm", "y_mm", "z_mm")
+ERROR_COLUMNS = ("target", "x_mm", "y_mm", "z_mm", "ex_mm", "ey_mm", "ez_mm", "e_mm")
+
+
+def _rows(path: Path, columns: Sequence[str]) -> Iterator[tuple[int, dict[str, str]]]:
+    """(line number, row) of a CSV file whose header must hold `columns`."""
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        raise InputError(f"cannot read file: {reason}", file=path) from exc
+    reader = csv.reader(text.splitlines())
+    header = [h.strip() for h in next(reader, [])]
+    if not header:
+        raise InputError("empty file: expected a header " + ",".join(columns), file=path, line=1)
+    for col in columns:
+        if col not in header:
+            raise InputError("missing column", file=path, line=1, field=col)
+    for line, raw in enumerate(reader, start=2):
+        if not raw or all(not cell.strip() for cell in raw):
+            continue
+        if len(raw) != len(header):
+            raise InputError(
+                f"{len(raw)} fields where the header has {len(header)}", file=path, line=line
+            )
+        yield line, {h: cell.strip() for h, cell in zip(header, raw, strict=True)}
+
+
+def _number(row: dict[str, str], field: str, path: Path, line: int) -> float:
+    text = row[field]
+    try:
+        value = float(text)
+    except ValueError:
+        raise InputError(f"'{text}' is not a number", file=path, line=line, field=field) from None
+    if not math.isfinite(value):
+        raise InputError(f"'{text}' is not a finite number", file=path, line=line, field=field)
+    return value
+
+
+def _target_id(row: dict[str, str], path: Path, line: int) -> str:
+    tid = row["target"]
+    if not tid:
+        raise InputError("empty target id", file=path, line=line, field="target")
+    return tid
+
+
+def read_targets(path: str | Path) -> dict[str, F64]:
+    """Targets CSV -> {target id: centre in the part frame (3,) [mm]}."""
+    path = Path(path)
+    out: dict[str, F64] = {}
+    for line, row in _rows(path, TARGET_COLUMNS):
+        tid = _target_id(row, path, line)
+        if tid in out:
+            raise InputError(f"duplicate target '{tid}'", file=path, line=line, field="target")
+        out[tid] = np.array([_number(row, f, path, line) for f in TARGET_COLUMNS[1:]])
+    if not out:
+        raise InputError("no targets in file", file=path)
+    return out
+
+
+class MeasurementRows:
+    """Measurements CSV contents: ids (m,), q_deg (m, 6), c_sensor_mm (m, 3), line numbers."""
+
+    def __init__(
+        self, path: Path, targets: list[str], q_deg: F64, c_sensor_mm: F64, lines: list[int]
+    ) -> None:
+        self.path, self.targets, self.q_deg, self.c_sensor_mm, self.lines = (
+            path, targets, q_deg, c_sensor_mm, lines,
+        )  # fmt: skip
+
+
+def read_measurements(path: str | Path, limits: JointLimits | None = None) -> MeasurementRows:
+    """Measurements CSV; joint angles are checked against the limits (controller angles)."""
+    path = Path(path)
+    limits = limits or JointLimits()
+    ids: list[str] = []
+    qs: list[list[float]] = []
+    cs: list[list[float]] = []
+    lines: list[int] = []
+    for line, row in _rows(path, MEASUREMENT_COLUMNS):
+        ids.append(_target_id(row, path, line))
+        q = [_number(row, f, path, line) for f in MEASUREMENT_COLUMNS[1:7]]
+        for j, value in enumerate(q):
+            if not limits.lower_deg[j] <= value <= limits.upper_deg[j]:
+                raise InputError(
+                    f"{value:g} deg is outside the joint limits "
+                    f"[{limits.lower_deg[j]:g}, {limits.upper_deg[j]:g}]",
+                    file=path, line=line, field=MEASUREMENT_COLUMNS[1 + j],
+                )  # fmt: skip
+        qs.append(q)
+        cs.append([_number(row, f, path, line) for f in MEASUREMENT_COLUMNS[7:]])
+        lines.append(line)
+    if not ids:
+        raise InputError("no measurements in file", file=path)
+    return MeasurementRows(path, ids, np.array(qs), np.array(cs), lines)
+
+
+def match_targets(rows: MeasurementRows, targets: dict[str, F64], targets_path: Path) -> F64:
+    """Tracker centres (m, 3) for each measurement row; unknown ids name their line."""
+    out = np.zeros((len(rows.targets), 3))
+    for k, (tid, line) in enumerate(zip(rows.targets, rows.lines, strict=True)):
+        if tid not in targets:
+            raise InputError(
+                f"unknown target id '{tid}' (not in {targets_path})",
+                file=rows.path, line=line, field="target",
+            )  # fmt: skip
+        out[k] = targets[tid]
+    return out
+
+
+def write_csv(path: str | Path, columns: Sequence[str], rows: Sequence[Sequence[Any]]) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(columns)
+        for row in rows:
+            writer.writerow([f"{v:.6f}" if isinstance(v, float) else v for v in row])
+
+
+def write_measurements(path: str | Path, targets: Sequence[str], q_deg: F64, c_mm: F64) -> None:
+    rows = [
+        [t, *map(float, q), *map(float, c)] for t, q, c in zip(targets, q_deg, c_mm, strict=True)
+    ]
+    write_csv(path, MEASUREMENT_COLUMNS, rows)
+
+
+def write_targets(path: str | Path, targets: dict[str, F64]) -> None:
+    write_csv(path, TARGET_COLUMNS, [[t, *map(float, p)] for t, p in targets.items()])
+
+
+def read_json(path: str | Path) -> dict[str, Any]:
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise InputError(f"cannot read file: {exc.strerror or exc}", file=path) from exc
+    except json.JSONDecodeError as exc:
+        raise InputError(f"invalid JSON: {exc.msg}", file=path, line=exc.lineno) from exc
+    if not isinstance(data, dict):
+        raise InputError("expected a JSON object", file=path, line=1)
+    return data
+
+
+def write_json(path: str | Path, data: dict[str, Any]) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
