@@ -173,12 +173,22 @@ def _resolve(r: _Reader) -> CellConfig:
             raise r.fail("spheres", "positions_mm", f"sphere {tid}: expected [x, y, z] in mm")
         p = np.array(value, dtype=float)
         spheres[str(tid)] = apply(T_pb, p) if frame == "base" else p
-    plate = tuple(r.number("base_plate", k) for k in ("x_min_mm", "x_max_mm", "y_min_mm", "y_max_mm"))
+    plate = tuple(
+        r.number("base_plate", k) for k in ("x_min_mm", "x_max_mm", "y_min_mm", "y_max_mm")
+    )
     sensor = {k: r.number("sensor", k) for k in m["sensor"]}
     devices = {k: str(v) for k, v in m["devices"].items()}
     return CellConfig(
-        T_part_base=T_pb, T_flange_sensor=T_fs, limits=JointLimits(lower, upper),
-        spheres_part_mm=spheres, base_plate_mm=plate,  # type: ignore[arg-type]
-        sensor=sensor, simulation=dict(m["simulation"]), calibration=dict(m["calibration"]),
-        devices=devices, service=dict(m["service"]), source=r.path, raw=m,
-    )  # fmt: skip
+        T_part_base=T_pb,
+        T_flange_sensor=T_fs,
+        limits=JointLimits(lower, upper),
+        spheres_part_mm=spheres,
+        base_plate_mm=plate,  # type: ignore[arg-type]
+        sensor=sensor,
+        simulation=dict(m["simulation"]),
+        calibration=dict(m["calibration"]),
+        devices=devices,
+        service=dict(m["service"]),
+        source=r.path,
+        raw=m,
+    )

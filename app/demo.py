@@ -67,12 +67,14 @@ def error_breakdown(
     out["compliance_alone"] = _rmse(residuals(model, clean.x, val_truth))
     rigid = make_cell(cfg, seed=seed, compliance=False)
     m = cal.measurements
-    c_rigid = np.array([rigid.centre_in_sensor(q, p)[0]
-                        for q, p in zip(m.q_deg, cal.truth_p_part_mm, strict=True)])  # fmt: skip
+    c_rigid = np.array(
+        [rigid.centre_in_sensor(q, p)[0] for q, p in zip(m.q_deg, cal.truth_p_part_mm, strict=True)]
+    )
     noisy = identify(model, _truth_set(cal, c_rigid, with_noise=True))
     v = val.measurements
-    c_val_rigid = np.array([rigid.centre_in_sensor(q, p)[0]
-                            for q, p in zip(v.q_deg, val.truth_p_part_mm, strict=True)])  # fmt: skip
+    c_val_rigid = np.array(
+        [rigid.centre_in_sensor(q, p)[0] for q, p in zip(v.q_deg, val.truth_p_part_mm, strict=True)]
+    )
     val_rigid = Measurements(v.q_deg, c_val_rigid, val.truth_p_part_mm, v.targets)
     out["noise_alone"] = _rmse(residuals(model, noisy.x, val_rigid))
     out["validation_measurement_noise"] = _rmse(
@@ -129,12 +131,13 @@ def summary_text(demo: DemoResult) -> str:
     b = demo.breakdown_mm
     obs = demo.result.observability
     lines = [
-        "Validation at %d positions (mm):" % s["identified"].n,
+        f"Validation at {s['identified'].n} positions (mm):",
         text_table(STATS_HEADER, stats_rows(s)),
         "",
         f"RMSE improved {s['nominal'].rmse_mm / s['identified'].rmse_mm:.1f}x.",
         "What remains (RMSE, mm): identified parameters alone "
-        f"{b['parameters_alone']:.4f}; of it, unmodelled compliance alone {b['compliance_alone']:.4f}"
+        f"{b['parameters_alone']:.4f}; of it, unmodelled compliance alone "
+        f"{b['compliance_alone']:.4f}"
         f" and measurement noise alone {b['noise_alone']:.4f}; the validation measurements' own "
         f"noise adds {b['validation_measurement_noise']:.4f}.",
         f"Identification: {len(demo.result.residuals_mm)} measurements, rank {obs.rank}, "
@@ -145,15 +148,20 @@ def summary_text(demo: DemoResult) -> str:
 
 
 def markdown_report(demo: DemoResult, model: SystemModel) -> str:
-    return "\n\n".join([
-        "# rvis demo — simulated cell",
-        summary_text(demo).split("\n", 1)[0],
-        markdown_table(STATS_HEADER, stats_rows(demo.stats)),
-        summary_text(demo).split("\n\n", 1)[1],
-        "## Identified parameters (angles in degrees)",
-        markdown_table(PARAM_HEADER, parameter_rows(model, demo.result)),
-        "![validation errors](validation_errors.png)",
-    ]) + "\n"  # fmt: skip
+    return (
+        "\n\n".join(
+            [
+                "# rvis demo — simulated cell",
+                summary_text(demo).split("\n", 1)[0],
+                markdown_table(STATS_HEADER, stats_rows(demo.stats)),
+                summary_text(demo).split("\n\n", 1)[1],
+                "## Identified parameters (angles in degrees)",
+                markdown_table(PARAM_HEADER, parameter_rows(model, demo.result)),
+                "![validation errors](validation_errors.png)",
+            ]
+        )
+        + "\n"
+    )
 
 
 __all__ = ["DemoResult", "run_demo", "summary_text"]

@@ -20,9 +20,17 @@ from calib.robot import JointLimits
 F64 = NDArray[np.float64]
 
 MEASUREMENT_COLUMNS = (
-    "target", "j1_deg", "j2_deg", "j3_deg", "j4_deg", "j5_deg", "j6_deg",
-    "sx_mm", "sy_mm", "sz_mm",
-)  # fmt: skip
+    "target",
+    "j1_deg",
+    "j2_deg",
+    "j3_deg",
+    "j4_deg",
+    "j5_deg",
+    "j6_deg",
+    "sx_mm",
+    "sy_mm",
+    "sz_mm",
+)
 TARGET_COLUMNS = ("target", "x_mm", "y_mm", "z_mm")
 ERROR_COLUMNS = ("target", "x_mm", "y_mm", "z_mm", "ex_mm", "ey_mm", "ez_mm", "e_mm")
 
@@ -90,8 +98,12 @@ class MeasurementRows:
         self, path: Path, targets: list[str], q_deg: F64, c_sensor_mm: F64, lines: list[int]
     ) -> None:
         self.path, self.targets, self.q_deg, self.c_sensor_mm, self.lines = (
-            path, targets, q_deg, c_sensor_mm, lines,
-        )  # fmt: skip
+            path,
+            targets,
+            q_deg,
+            c_sensor_mm,
+            lines,
+        )
 
 
 def read_measurements(path: str | Path, limits: JointLimits | None = None) -> MeasurementRows:
@@ -110,8 +122,10 @@ def read_measurements(path: str | Path, limits: JointLimits | None = None) -> Me
                 raise InputError(
                     f"{value:g} deg is outside the joint limits "
                     f"[{limits.lower_deg[j]:g}, {limits.upper_deg[j]:g}]",
-                    file=path, line=line, field=MEASUREMENT_COLUMNS[1 + j],
-                )  # fmt: skip
+                    file=path,
+                    line=line,
+                    field=MEASUREMENT_COLUMNS[1 + j],
+                )
         qs.append(q)
         cs.append([_number(row, f, path, line) for f in MEASUREMENT_COLUMNS[7:]])
         lines.append(line)
@@ -127,8 +141,10 @@ def match_targets(rows: MeasurementRows, targets: dict[str, F64], targets_path: 
         if tid not in targets:
             raise InputError(
                 f"unknown target id '{tid}' (not in {targets_path})",
-                file=rows.path, line=line, field="target",
-            )  # fmt: skip
+                file=rows.path,
+                line=line,
+                field="target",
+            )
         out[k] = targets[tid]
     return out
 

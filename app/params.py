@@ -25,12 +25,16 @@ def to_json(model: SystemModel, result: IdentificationResult) -> dict[str, Any]:
     std = dict(zip(result.active, result.std, strict=True))
     params = [
         {
-            "name": name, "group": group_of(name), "unit": unit_of(name),
-            "identified": name in std, "nominal": float(nominal[k]), "value": float(result.x[k]),
+            "name": name,
+            "group": group_of(name),
+            "unit": unit_of(name),
+            "identified": name in std,
+            "nominal": float(nominal[k]),
+            "value": float(result.x[k]),
             "std": float(std[name]) if name in std else 0.0,
         }
         for k, name in enumerate(ALL_NAMES)
-    ]  # fmt: skip
+    ]
     obs = result.observability
     return {
         "format": FORMAT,
@@ -46,8 +50,10 @@ def to_json(model: SystemModel, result: IdentificationResult) -> dict[str, Any]:
         "parameters": params,
         "residuals": {
             "n_measurements": int(result.residuals_mm.shape[0]),
-            "rms_mm": result.rms_mm, "max_mm": result.max_mm, "sigma_mm": result.sigma_mm,
-        },  # fmt: skip
+            "rms_mm": result.rms_mm,
+            "max_mm": result.max_mm,
+            "sigma_mm": result.sigma_mm,
+        },
         "rank": obs.rank,
         "n_parameters": obs.n_params,
         "condition": obs.condition,
@@ -69,16 +75,21 @@ def from_json(path: str | Path) -> tuple[SystemModel, F64]:
         return obj[key]
 
     if data.get("format") != FORMAT:
-        raise InputError(f"not an rvis parameters file (format {data.get('format')!r})",
-                         file=path, field="format")  # fmt: skip
+        raise InputError(
+            f"not an rvis parameters file (format {data.get('format')!r})",
+            file=path,
+            field="format",
+        )
     m = need(data, "model", "")
     try:
         model = SystemModel(
             np.array(need(m, "T_part_base_nominal", "model."), dtype=float).reshape(4, 4),
             np.array(need(m, "T_flange_sensor_nominal", "model."), dtype=float).reshape(4, 4),
-            JointLimits(np.array(need(m, "joint_lower_deg", "model."), dtype=float),
-                        np.array(need(m, "joint_upper_deg", "model."), dtype=float)),
-        )  # fmt: skip
+            JointLimits(
+                np.array(need(m, "joint_lower_deg", "model."), dtype=float),
+                np.array(need(m, "joint_upper_deg", "model."), dtype=float),
+            ),
+        )
     except (ValueError, TypeError) as exc:
         raise InputError(f"bad model: {exc}", file=path, field="model") from exc
     x = model.nominal_x()
@@ -88,8 +99,9 @@ def from_json(path: str | Path) -> tuple[SystemModel, F64]:
             raise InputError(f"unknown parameter {name!r}", file=path, field=f"parameters[{k}]")
         value = p.get("value")
         if not isinstance(value, int | float) or not np.isfinite(value):
-            raise InputError("value is not a finite number", file=path,
-                             field=f"parameters[{k}].value")  # fmt: skip
+            raise InputError(
+                "value is not a finite number", file=path, field=f"parameters[{k}].value"
+            )
         x[INDEX[name]] = float(value)
     return model, x
 

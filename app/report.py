@@ -30,8 +30,17 @@ def parameter_rows(model: SystemModel, result: IdentificationResult) -> list[lis
         nom, unit = _display(name, float(nominal[k]))
         val, _ = _display(name, float(result.x[k]))
         s, _ = _display(name, float(std))
-        rows.append([group_of(name), name, unit, f"{nom:.5f}", f"{val:.5f}",
-                     f"{val - nom:+.5f}", f"{s:.5f}"])  # fmt: skip
+        rows.append(
+            [
+                group_of(name),
+                name,
+                unit,
+                f"{nom:.5f}",
+                f"{val:.5f}",
+                f"{val - nom:+.5f}",
+                f"{s:.5f}",
+            ]
+        )
     return rows
 
 
@@ -61,10 +70,17 @@ STATS_HEADER = ["", "n", "RMSE", "mean", "median", "max", "rms x", "rms y", "rms
 
 def stats_rows(stats: Mapping[str, ErrorStats]) -> list[list[str]]:
     return [
-        [label, str(s.n), f"{s.rmse_mm:.4f}", f"{s.mean_mm:.4f}", f"{s.median_mm:.4f}",
-         f"{s.max_mm:.4f}", *(f"{v:.4f}" for v in s.axis_rms_mm)]
+        [
+            label,
+            str(s.n),
+            f"{s.rmse_mm:.4f}",
+            f"{s.mean_mm:.4f}",
+            f"{s.median_mm:.4f}",
+            f"{s.max_mm:.4f}",
+            *(f"{v:.4f}" for v in s.axis_rms_mm),
+        ]
         for label, s in stats.items()
-    ]  # fmt: skip
+    ]
 
 
 def index_rows(indices: Mapping[str, Mapping[str, float]]) -> list[list[str]]:
@@ -83,8 +99,14 @@ def plot_errors(path: Path, errors_mm: Mapping[str, F64], title: str) -> None:
     for label, e in errors_mm.items():
         d = np.linalg.norm(np.asarray(e).reshape(-1, 3), axis=1)
         rmse = float(np.sqrt(np.mean(d**2)))
-        ax.plot(np.arange(1, d.size + 1), d, marker="o", ms=3, lw=1,
-                label=f"{label} (RMSE {rmse:.3f} mm)")  # fmt: skip
+        ax.plot(
+            np.arange(1, d.size + 1),
+            d,
+            marker="o",
+            ms=3,
+            lw=1,
+            label=f"{label} (RMSE {rmse:.3f} mm)",
+        )
     ax.set_xlabel("validation position index")
     ax.set_ylabel("Euclidean position error [mm]")
     ax.set_yscale("log")

@@ -86,9 +86,11 @@ def collect(
             p_true.append(p)
             got += 1
     meas = Measurements(
-        np.array(qs).reshape(-1, 6), np.array(cs).reshape(-1, 3),
-        np.array(ps).reshape(-1, 3), tuple(ids),
-    )  # fmt: skip
+        np.array(qs).reshape(-1, 6),
+        np.array(cs).reshape(-1, 3),
+        np.array(ps).reshape(-1, 3),
+        tuple(ids),
+    )
     return DataSet(meas, targets, np.array(c_true).reshape(-1, 3), np.array(p_true).reshape(-1, 3))
 
 
@@ -146,7 +148,8 @@ def _concat(sets: list[DataSet]) -> DataSet:
     )
     targets = {k: v for s in sets for k, v in s.targets.items()}
     return DataSet(
-        meas, targets,
+        meas,
+        targets,
         np.concatenate([s.truth_c_sensor_mm for s in sets]),
         np.concatenate([s.truth_p_part_mm for s in sets]),
-    )  # fmt: skip
+    )

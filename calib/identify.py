@@ -50,9 +50,11 @@ class Measurements:
     def subset(self, rows: ArrayLike) -> Measurements:
         r = np.asarray(rows)
         return Measurements(
-            self.q_deg[r], self.c_sensor_mm[r], self.p_part_mm[r],
+            self.q_deg[r],
+            self.c_sensor_mm[r],
+            self.p_part_mm[r],
             tuple(self.targets[i] for i in np.arange(len(self))[r]),
-        )  # fmt: skip
+        )
 
 
 def residuals(model: SystemModel, x: F64, data: Measurements) -> F64:
@@ -61,9 +63,7 @@ def residuals(model: SystemModel, x: F64, data: Measurements) -> F64:
     return out
 
 
-def stacked_jacobian(
-    model: SystemModel, x: F64, data: Measurements, active: Sequence[str]
-) -> F64:
+def stacked_jacobian(model: SystemModel, x: F64, data: Measurements, active: Sequence[str]) -> F64:
     """The identification Jacobian (3m, L): d(stacked residuals) / d(active parameters)."""
     J = model.point_jacobian(x, data.q_deg, data.c_sensor_mm, active)
     out: F64 = J.reshape(-1, len(active))
@@ -137,9 +137,15 @@ def identify(
 
     method = "lm" if loss == "linear" else "trf"
     sol = least_squares(
-        fun, x_start[cols], jac=jacobian if jac == "analytic" else jac,  # type: ignore[arg-type]
-        method=method, loss=loss, f_scale=f_scale_mm, x_scale="jac", max_nfev=max_nfev,
-    )  # fmt: skip
+        fun,
+        x_start[cols],
+        jac=jacobian if jac == "analytic" else jac,
+        method=method,
+        loss=loss,
+        f_scale=f_scale_mm,
+        x_scale="jac",
+        max_nfev=max_nfev,
+    )
     x = full(sol.x)
     return _result(model, data, names, x, x_start, sol)
 
@@ -165,9 +171,18 @@ def _result(
     obs = require_full_rank(J, names)
     e = np.linalg.norm(res, axis=1)
     return IdentificationResult(
-        x=x, x_start=x_start, active=names, std=std, corr=corr, residuals_mm=res,
-        rms_mm=float(np.sqrt(np.mean(e**2))), max_mm=float(e.max()), sigma_mm=float(np.sqrt(s2)),
-        observability=obs, success=bool(getattr(sol, "success", False)),
-        status=int(getattr(sol, "status", 0)), message=str(getattr(sol, "message", "")),
+        x=x,
+        x_start=x_start,
+        active=names,
+        std=std,
+        corr=corr,
+        residuals_mm=res,
+        rms_mm=float(np.sqrt(np.mean(e**2))),
+        max_mm=float(e.max()),
+        sigma_mm=float(np.sqrt(s2)),
+        observability=obs,
+        success=bool(getattr(sol, "success", False)),
+        status=int(getattr(sol, "status", 0)),
+        message=str(getattr(sol, "message", "")),
         nfev=int(getattr(sol, "nfev", 0)),
-    )  # fmt: skip
+    )

@@ -65,13 +65,26 @@ INDEX = {name: k for k, name in enumerate(ALL_NAMES)}
 #: The paper's 30 identifiable parameters (rank 30 checked numerically in the tests).
 PAPER_30: tuple[str, ...] = (
     *BASE_NAMES,
-    "a1", "alpha1",
-    "dtheta2", "d2", "a2", "alpha2",
-    "dtheta3", "beta2", "a3", "alpha3",
-    "dtheta4", "d4", "a4", "alpha4",
-    "dtheta5", "d5", "a5", "alpha5",
+    "a1",
+    "alpha1",
+    "dtheta2",
+    "d2",
+    "a2",
+    "alpha2",
+    "dtheta3",
+    "beta2",
+    "a3",
+    "alpha3",
+    "dtheta4",
+    "d4",
+    "a4",
+    "alpha4",
+    "dtheta5",
+    "d5",
+    "a5",
+    "alpha5",
     *SENSOR_NAMES,
-)  # fmt: skip
+)
 
 
 def unit_of(name: str) -> str:
@@ -221,9 +234,7 @@ class SystemModel:
         self._sensor_columns(J, want, x, A, c_s)
         return J
 
-    def _base_columns(
-        self, J: F64, want: dict[str, int], x: F64, T_pb: F64, p: F64
-    ) -> None:
+    def _base_columns(self, J: F64, want: dict[str, int], x: F64, T_pb: F64, p: F64) -> None:
         R = T_pb[:3, :3]
         for k in range(3):
             if (col := want.get(BASE_NAMES[k])) is not None:
@@ -236,9 +247,7 @@ class SystemModel:
                 if col is not None:
                     J[:, :, col] = D[:, :, k]
 
-    def _sensor_columns(
-        self, J: F64, want: dict[str, int], x: F64, A: F64, c_s: F64
-    ) -> None:
+    def _sensor_columns(self, J: F64, want: dict[str, int], x: F64, A: F64, c_s: F64) -> None:
         R_a = A[:, :3, :3]
         for k in range(3):
             if (col := want.get(SENSOR_NAMES[k])) is not None:

@@ -83,7 +83,7 @@ def observability(J: F64, n_configs: int) -> Observability:
     if J.ndim != 2 or J.shape[0] < 1:
         raise InsufficientData("the identification Jacobian is empty")
     Js, _ = column_scaled(J)
-    sigma = np.linalg.svd(Js, compute_uv=False)
+    sigma: F64 = np.asarray(np.linalg.svd(Js, compute_uv=False), dtype=np.float64)
     if sigma.size < J.shape[1]:
         sigma = np.concatenate([sigma, np.zeros(J.shape[1] - sigma.size)])
     rank = int(np.sum(sigma > RCOND * sigma[0])) if sigma[0] > 0 else 0

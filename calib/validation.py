@@ -39,4 +39,3 @@ class ErrorStats:
             axis_rms_mm=(float(rms[0]), float(rms[1]), float(rms[2])),
             axis_mean_mm=(float(mean[0]), float(mean[1]), float(mean[2])),
         )
-

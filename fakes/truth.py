@@ -138,7 +138,9 @@ class TrueRobot:
             (2, o3, masses_j3, frames[:, 2], self.compliance_rad_per_nm[1]),
         ):
             axis = axis_frame[:, :3, :3] @ URDF_AXES[col]
-            tau = sum(np.einsum("ni,ni->n", np.cross((c - origin) / 1000.0, m * g), axis)
-                      for m, c in masses)
+            tau = sum(
+                np.einsum("ni,ni->n", np.cross((c - origin) / 1000.0, m * g), axis)
+                for m, c in masses
+            )
             dq[:, col] = k * tau
         return dq

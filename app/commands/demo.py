@@ -11,7 +11,7 @@ from app.demo import run_demo, summary_text
 from app.report import parameter_table
 
 
-def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="simulate, identify, validate and report on the simulated cell")
     p.add_argument("--seed", type=int, default=0, help="seed of the simulated cell (default 0)")
     p.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")
@@ -28,6 +28,8 @@ def run(args: argparse.Namespace) -> int:
     print(parameter_table(cfg.model(), demo.result))
     print()
     print(summary_text(demo))
-    print(f"\nReport written to {out}/ (report.md, report.json, params.json, "
-          f"validation_errors.png, CSV files) in {demo.seconds:.1f} s")  # fmt: skip
+    print(
+        f"\nReport written to {out}/ (report.md, report.json, params.json, "
+        f"validation_errors.png, CSV files) in {demo.seconds:.1f} s"
+    )
     return 0

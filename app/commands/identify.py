@@ -15,15 +15,20 @@ from calib.identify import LOSSES, identify
 from calib.model import ALL_NAMES, PAPER_30
 
 
-def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("identify", help="identify the kinematic parameters from measurements")
     p.add_argument("--targets", required=True, help="targets CSV (tracker centres, part frame)")
     p.add_argument("--measurements", required=True, help="measurements CSV")
     p.add_argument("--out", required=True, help="parameters JSON to write")
     p.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")
     p.add_argument("--loss", default="linear", choices=LOSSES, help="robust loss (default linear)")
-    p.add_argument("--add-param", action="append", default=[], metavar="NAME",
-                   help="identify an extra model parameter too (e.g. d3)")  # fmt: skip
+    p.add_argument(
+        "--add-param",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="identify an extra model parameter too (e.g. d3)",
+    )
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=run)
 

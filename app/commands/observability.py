@@ -13,7 +13,7 @@ from calib.model import PAPER_30
 from calib.observability import INDEX_NAMES, null_space_groups, observability
 
 
-def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("observability", help="rank, condition and O1..O5 of measurements")
     p.add_argument("--measurements", required=True, help="measurements CSV")
     p.add_argument("--params", help="parameters JSON to evaluate at (default: nominal)")
@@ -33,12 +33,23 @@ def run(args: argparse.Namespace) -> int:
     obs = as_input_error(args.measurements, lambda: observability(J, len(rows.targets)))
     groups = null_space_groups(J, PAPER_30) if obs.rank < len(PAPER_30) else []
     if args.json:
-        print(json.dumps({"rank": obs.rank, "n_parameters": obs.n_params,
-                          "n_measurements": obs.n_configs, "condition": obs.condition,
-                          "indices": obs.indices, "not_identifiable": groups}))  # fmt: skip
+        print(
+            json.dumps(
+                {
+                    "rank": obs.rank,
+                    "n_parameters": obs.n_params,
+                    "n_measurements": obs.n_configs,
+                    "condition": obs.condition,
+                    "indices": obs.indices,
+                    "not_identifiable": groups,
+                }
+            )
+        )
     else:
-        print(f"measurements {obs.n_configs}, parameters {obs.n_params}, rank {obs.rank}, "
-              f"condition {obs.condition:.4g} (column-scaled)")  # fmt: skip
+        print(
+            f"measurements {obs.n_configs}, parameters {obs.n_params}, rank {obs.rank}, "
+            f"condition {obs.condition:.4g} (column-scaled)"
+        )
         for name in INDEX_NAMES:
             print(f"  {name} = {obs.indices[name]:.6g}")
         for g in groups:

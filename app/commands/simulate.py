@@ -12,7 +12,7 @@ from app.files import write_measurements, write_targets
 from app.simulation import collect, make_cell, validation_set
 
 
-def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="write simulated calibration and validation sets")
     p.add_argument("--out", required=True, help="folder to write the CSV files into")
     p.add_argument("--seed", type=int, default=0, help="seed of the simulated cell (default 0)")
@@ -35,6 +35,8 @@ def run(args: argparse.Namespace) -> int:
         m = ds.measurements
         write_measurements(out / f"{name}_measurements.csv", m.targets, m.q_deg, m.c_sensor_mm)
         write_targets(out / f"{name}_targets.csv", ds.targets)
-        print(f"{name}: {len(m)} measurements of {len(ds.targets)} targets -> "
-              f"{out / f'{name}_measurements.csv'}, {out / f'{name}_targets.csv'}")  # fmt: skip
+        print(
+            f"{name}: {len(m)} measurements of {len(ds.targets)} targets -> "
+            f"{out / f'{name}_measurements.csv'}, {out / f'{name}_targets.csv'}"
+        )
     return 0

@@ -16,7 +16,7 @@ from calib.identify import residuals
 from calib.validation import ErrorStats
 
 
-def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("validate", help="errors of a parameter set at validation positions")
     p.add_argument("--params", required=True, help="parameters JSON (from rvis identify)")
     p.add_argument("--targets", required=True, help="validation targets CSV")
@@ -35,8 +35,10 @@ def run(args: argparse.Namespace) -> int:
     if args.out:
         p = model.points_part(x, data.q_deg, data.c_sensor_mm)
         d = np.linalg.norm(e_id, axis=1)
-        rows = [[t, *map(float, p[i]), *map(float, e_id[i]), float(d[i])]
-                for i, t in enumerate(data.targets)]  # fmt: skip
+        rows = [
+            [t, *map(float, p[i]), *map(float, e_id[i]), float(d[i])]
+            for i, t in enumerate(data.targets)
+        ]
         write_csv(args.out, ERROR_COLUMNS, rows)
     if args.json:
         print(json.dumps({k: asdict(v) for k, v in stats.items()}))
