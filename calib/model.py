@@ -102,8 +102,7 @@ def group_of(name: str) -> str:
         return "flange->sensor"
     if name == "beta2":
         return "joint 3"
-    digit = int(name[-1])
-    return f"joint {digit + 1 if name.startswith(('a', 'alpha')) else digit}"
+    return f"joint {int(name[-1])}"
 
 
 # The elementary operations of the chain, in order: (kind, parameter name, joint index).

@@ -1,0 +1,171 @@
+"""The command line: the offline workflow end to end, and every bad input as a one-line error
+with exit code 2 naming file, line and field."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from app.cli import main
+
+
+@pytest.fixture(scope="module")
+def simdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("sim")
+    assert main(["simulate", "--out", str(out), "--seed", "4", "--validation", "40"]) == 0
+    return out
+
+
+def run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    code = main(argv)
+    cap = capsys.readouterr()
+    return code, cap.out, cap.err
+
+
+def test_offline_workflow(simdir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    params = tmp_path / "params.json"
+    code, out, _ = run(
+        ["identify", "--targets", str(simdir / "calibration_targets.csv"),
+         "--measurements", str(simdir / "calibration_measurements.csv"), "--out", str(params)],
+        capsys,
+    )  # fmt: skip
+    assert code == 0 and "rank 30" in out
+    doc = json.loads(params.read_text())
+    assert doc["rank"] == 30 and len([p for p in doc["parameters"] if p["identified"]]) == 30
+    errors = tmp_path / "errors.csv"
+    code, out, _ = run(
+        ["validate", "--params", str(params), "--json", "--out", str(errors),
+         "--targets", str(simdir / "validation_targets.csv"),
+         "--measurements", str(simdir / "validation_measurements.csv")],
+        capsys,
+    )  # fmt: skip
+    stats = json.loads(out)
+    assert code == 0 and stats["identified"]["n"] == 40
+    assert stats["nominal"]["rmse_mm"] / stats["identified"]["rmse_mm"] > 20
+    assert errors.read_text().splitlines()[0] == "target,x_mm,y_mm,z_mm,ex_mm,ey_mm,ez_mm,e_mm"
+    code, out, _ = run(
+        ["observability", "--json", "--measurements", str(simdir / "calibration_measurements.csv")],
+        capsys,
+    )
+    obs = json.loads(out)
+    assert code == 0 and obs["rank"] == 30 and set(obs["indices"]) == {"O1", "O2", "O3", "O4", "O5"}
+
+
+def corrupt(src: Path, dst: Path, line: int, column: str, value: str) -> Path:
+    rows = src.read_text().splitlines()
+    header = rows[0].split(",")
+    cells = rows[line - 1].split(",")
+    cells[header.index(column)] = value
+    rows[line - 1] = ",".join(cells)
+    dst.write_text("\n".join(rows) + "\n")
+    return dst
+
+
+def identify_args(simdir: Path, tmp_path: Path, meas: Path | None = None,
+                  targets: Path | None = None) -> list[str]:  # fmt: skip
+    return [
+        "identify",
+        "--targets", str(targets or simdir / "calibration_targets.csv"),
+        "--measurements", str(meas or simdir / "calibration_measurements.csv"),
+        "--out", str(tmp_path / "p.json"),
+    ]  # fmt: skip
+
+
+BAD_MEASUREMENTS = [
+    ("j2_deg", 5, "abc", "m.csv:5: field 'j2_deg': 'abc' is not a number"),
+    ("sz_mm", 3, "nan", "m.csv:3: field 'sz_mm': 'nan' is not a finite number"),
+    ("target", 4, "P9", "m.csv:4: field 'target': unknown target id 'P9'"),
+    ("j5_deg", 6, "130", "m.csv:6: field 'j5_deg': 130 deg is outside the joint limits"),
+]
+
+
+@pytest.mark.parametrize(("column", "line", "value", "message"), BAD_MEASUREMENTS)
+def test_bad_measurement_values(
+    simdir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+    column: str, line: int, value: str, message: str,
+) -> None:  # fmt: skip
+    bad = corrupt(simdir / "calibration_measurements.csv", tmp_path / "m.csv", line, column, value)
+    code, _, err = run(identify_args(simdir, tmp_path, meas=bad), capsys)
+    assert code == 2
+    assert message in err and str(tmp_path) in err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+def test_missing_column(simdir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    src = (simdir / "calibration_measurements.csv").read_text().replace("sy_mm", "sy")
+    (tmp_path / "m.csv").write_text(src)
+    code, _, err = run(identify_args(simdir, tmp_path, meas=tmp_path / "m.csv"), capsys)
+    assert code == 2 and "m.csv:1: field 'sy_mm': missing column" in err
+
+
+def test_duplicate_target(simdir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    rows = (simdir / "calibration_targets.csv").read_text().splitlines()
+    (tmp_path / "t.csv").write_text("\n".join([*rows, rows[2]]) + "\n")
+    code, _, err = run(identify_args(simdir, tmp_path, targets=tmp_path / "t.csv"), capsys)
+    assert code == 2 and "t.csv:6: field 'target': duplicate target 'P2'" in err
+
+
+def test_too_few_measurements(
+    simdir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    rows = (simdir / "calibration_measurements.csv").read_text().splitlines()
+    (tmp_path / "m.csv").write_text("\n".join(rows[:8]) + "\n")
+    code, _, err = run(identify_args(simdir, tmp_path, meas=tmp_path / "m.csv"), capsys)
+    assert code == 2 and "7 measurements give 21 equations for 30 parameters" in err
+
+
+def test_degenerate_configurations(
+    simdir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    rows = (simdir / "calibration_measurements.csv").read_text().splitlines()
+    firsts = [rows[1 + 6 * k] for k in range(4)]
+    (tmp_path / "m.csv").write_text("\n".join([rows[0]] + [r for r in firsts for _ in range(6)]))
+    code, _, err = run(identify_args(simdir, tmp_path, meas=tmp_path / "m.csv"), capsys)
+    assert code == 2 and "m.csv: identification Jacobian has rank" in err
+    assert "not identifiable together" in err
+
+
+def test_redundant_parameter_named(
+    simdir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code, _, err = run([*identify_args(simdir, tmp_path), "--add-param", "d3"], capsys)
+    assert code == 2 and "{d3, d2}" in err.replace("{d2, d3}", "{d3, d2}")
+
+
+def test_unreadable_file(simdir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code, _, err = run(identify_args(simdir, tmp_path, meas=tmp_path / "nope.csv"), capsys)
+    assert code == 2 and "nope.csv: cannot read file: No such file or directory" in err
+    (tmp_path / "bin.csv").write_bytes(b"\xff\xfe\x00garbage")
+    code, _, err = run(identify_args(simdir, tmp_path, meas=tmp_path / "bin.csv"), capsys)
+    assert code == 2 and "bin.csv" in err and "Traceback" not in err
+
+
+def test_bad_params_json(simdir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / "p.json").write_text('{"format": "rvis-parameters",\n "model": ')
+    code, _, err = run(
+        ["validate", "--params", str(tmp_path / "p.json"),
+         "--targets", str(simdir / "validation_targets.csv"),
+         "--measurements", str(simdir / "validation_measurements.csv")],
+        capsys,
+    )  # fmt: skip
+    assert code == 2 and "p.json:2: invalid JSON" in err
+
+
+def test_bad_cell_file(simdir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / "cell.toml").write_text("[frames]\n\npart_base_xyz_mm = [1, 2]\n")
+    code, _, err = run([*identify_args(simdir, tmp_path), "--cell", str(tmp_path / "cell.toml")],
+                       capsys)  # fmt: skip
+    assert code == 2 and "cell.toml:3: field 'frames.part_base_xyz_mm'" in err
+
+
+def test_demo_writes_a_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, _ = run(["demo", "--out", str(tmp_path / "run"), "--validation", "30"], capsys)
+    assert code == 0 and "RMSE improved" in out
+    report = json.loads((tmp_path / "run" / "report.json").read_text())
+    assert report["improvement_factor"] > 20 and report["rank"] == 30
+    for name in ("report.md", "params.json", "validation_errors.png"):
+        assert (tmp_path / "run" / name).stat().st_size > 0
+    b = report["remaining_error_breakdown_rmse_mm"]
+    assert b["compliance_alone"] > 0 and b["noise_alone"] > 0
