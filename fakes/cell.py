@@ -7,6 +7,7 @@ the rendered-image path goes through `fakes.render` and vision/.
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
@@ -114,6 +115,7 @@ class SimulatedCell:
         self._noise = np.random.default_rng([s.seed, 1])
         self._spheres = {k: np.asarray(v, dtype=float) for k, v in spec.spheres_part_mm.items()}
         self._q_deg = np.array([0.0, 0.0, 0.0, 0.0, -90.0, 0.0])
+        self._lock = threading.Lock()  # device fakes call from their own threads
 
     # -- truth ---------------------------------------------------------------------------
     def T_part_sensor(self, q_deg: ArrayLike) -> F64:
@@ -148,10 +150,13 @@ class SimulatedCell:
 
     # -- the World protocol of the device fakes --------------------------------------------
     def set_joints_deg(self, q_deg: ArrayLike) -> None:
-        self._q_deg = np.asarray(q_deg, dtype=float).reshape(6).copy()
+        q = np.asarray(q_deg, dtype=float).reshape(6).copy()
+        with self._lock:
+            self._q_deg = q
 
     def joints_deg(self) -> F64:
-        return self._q_deg.copy()
+        with self._lock:
+            return self._q_deg.copy()
 
     def target_ids(self) -> list[str]:
         return sorted(self._spheres)
@@ -161,4 +166,4 @@ class SimulatedCell:
 
     def measure_target(self, target_id: str) -> F64:
         """Sensor measurement of a named sphere from the current joints."""
-        return self.measure_point(self._q_deg, self._spheres[target_id])
+        return self.measure_point(self.joints_deg(), self._spheres[target_id])
