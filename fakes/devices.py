@@ -277,6 +277,7 @@ class FakePlc(Plc):
         super().__init__(**kw)
         self.cycle = cycle or ClampCycle()
         self.received = PlcOutputs()
+        self.history: list[PlcOutputs] = []  # every change of busy/done/fault, in order
         self.heartbeat_frozen = False
         self._t0 = time.monotonic()
 
@@ -296,4 +297,7 @@ class FakePlc(Plc):
         return self.cycle.inputs(time.monotonic() - self._t0, self.heartbeat_frozen)
 
     def _write_outputs(self, outputs: PlcOutputs) -> None:
+        old = self.received
+        if (outputs.busy, outputs.done, outputs.fault) != (old.busy, old.done, old.fault):
+            self.history.append(outputs)
         self.received = replace(outputs)
