@@ -59,7 +59,7 @@ class Device(ABC):
         """Connect to the device (idempotent). Returns self."""
         with self._lock:
             if not self._is_open:
-                self._open()
+                self._open_or_clean_up()
                 self._is_open = True
                 with _OPEN_LOCK:
                     _OPEN.add(self)
@@ -124,7 +124,16 @@ class Device(ABC):
             self._close()
         except Exception as exc:
             self.log.debug("%s: close before reconnect failed: %s", self.name, exc)
-        self._open()
+        self._open_or_clean_up()
+
+    def _open_or_clean_up(self) -> None:
+        """``_open()``; if it fails half-way, release what it had already acquired."""
+        try:
+            self._open()
+        except BaseException:
+            with contextlib.suppress(Exception):
+                self._close()
+            raise
 
     def _read_retrying(self, request: Callable[[], T]) -> T:
         """Run a read-only request; after a communication error reconnect once and retry.
