@@ -30,6 +30,16 @@ pick_python() {
     return 1
 }
 
+# System packages a caller asks for (RVIS_APT, e.g. scripts/test: Aravis + the PyGObject build).
+# Without root they cannot be installed: say so and drop the `aravis` extra (its tests skip).
+if [ -n "${RVIS_APT:-}" ]; then
+    # shellcheck disable=SC2086  # a word list on purpose
+    if ! apt_install $RVIS_APT; then
+        echo "rvis setup: continuing without the aravis extra (Aravis camera tests are skipped)" >&2
+        EXTRAS="$(echo ",$EXTRAS," | sed 's/,aravis,/,/; s/^,//; s/,$//')"
+    fi
+fi
+
 PY="$(pick_python)"
 if ! "$PY" -c 'import venv, ensurepip' >/dev/null 2>&1; then
     apt_install python3-venv

@@ -4,4 +4,11 @@ The command line (app/cli.py) imports the modules listed in COMMANDS, in order. 
 `register` adds its parser and sets `func(args) -> int` as the default handler.
 """
 
-COMMANDS: tuple[str, ...] = ("demo", "simulate", "identify", "validate", "observability")
+COMMANDS: tuple[str, ...] = (
+    "demo",
+    "simulate",
+    "identify",
+    "validate",
+    "observability",
+    "devices",
+)

@@ -1,0 +1,172 @@
+"""`rvis devices check [--cell cell.toml] [--json]`: connect to each configured device, probe it
+and print a status table.
+
+Without ``--cell`` it checks every backend against the fakes out of the box: the protocol peers
+(RMI controller, Modbus TP mailbox, tracker side-car, line PLC, SCPI DAC on a pty, Aravis GigE
+fake camera) are started on 127.0.0.1 with ephemeral ports, plus the in-process ``fake://``
+backends. With ``--cell`` it reads the ``[devices]`` table (keys camera, galvo, robot, tracker,
+plc; values device URLs). Exit 0 when every device answered, 1 when one failed, 2 on bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tomllib
+from collections.abc import Callable
+from contextlib import ExitStack
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from app.errors import InputError
+from drivers import DeviceConfigError, DeviceError, create_device
+from drivers.registry import FAMILIES
+from fakes.world import StaticWorld
+
+
+@dataclass
+class Row:
+    family: str
+    url: str
+    status: str  # OK, FAIL, SKIP
+    detail: str
+
+
+def register(sub: Any) -> None:
+    parser = sub.add_parser("devices", help="check the configured devices")
+    actions = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
+    check = actions.add_parser("check", help="connect to each device and print a status table")
+    check.add_argument("--cell", type=Path, help="cell configuration (TOML) with a [devices] table")
+    check.add_argument("--timeout", type=float, default=3.0, help="per-device timeout [s]")
+    check.add_argument("--json", action="store_true", help="print the table as JSON")
+    check.set_defaults(func=run_check)
+
+
+def run_check(args: argparse.Namespace) -> int:
+    if args.timeout <= 0:
+        raise InputError("must be > 0", field="--timeout")
+    world = StaticWorld()
+    with ExitStack() as stack:
+        if args.cell is None:
+            devices = _start_peers(world, stack)
+        else:
+            devices = [(f, u, None) for f, u in read_cell_devices(args.cell).items()]
+        rows = [_check(f, u, skip, world, args.timeout, args.cell) for f, u, skip in devices]
+    if args.json:
+        print(json.dumps([asdict(r) for r in rows], indent=2))
+    else:
+        _print_table(rows)
+    return 0 if all(r.status != "FAIL" for r in rows) else 1
+
+
+def read_cell_devices(path: Path) -> dict[str, str]:
+    """The ``[devices]`` table of a cell file; InputError naming the file and field."""
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise InputError(f"cannot read: {exc.strerror or exc}", file=path) from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"not valid TOML: {exc}", file=path) from exc
+    table = data.get("devices")
+    if not isinstance(table, dict) or not table:
+        raise InputError("missing or empty [devices] table", file=path, field="devices")
+    for key, url in table.items():
+        if key not in FAMILIES:
+            raise InputError(f"unknown device; one of {', '.join(FAMILIES)}", file=path,
+                             field=f"devices.{key}")
+        if not isinstance(url, str):
+            raise InputError("must be a URL string", file=path, field=f"devices.{key}")
+    return dict(table)
+
+
+def _start_peers(world: StaticWorld, stack: ExitStack) -> list[tuple[str, str, str | None]]:
+    from fakes.modbus_robot import ModbusRobotServer
+    from fakes.plc import PlcServer
+    from fakes.rmi_controller import RmiController
+    from fakes.scpi_dac import ScpiDac
+    from fakes.tracker_service import TrackerService
+
+    rmi = stack.enter_context(RmiController(world))
+    mbx = stack.enter_context(ModbusRobotServer(world))
+    trk = stack.enter_context(TrackerService(world))
+    plc = stack.enter_context(PlcServer())
+    dac = stack.enter_context(ScpiDac())
+    out: list[tuple[str, str, str | None]] = [(f, "fake://", None) for f in FAMILIES]
+    out += [
+        ("robot", f"rmi://127.0.0.1:{rmi.port}", None),
+        ("robot", f"modbus://127.0.0.1:{mbx.port}", None),
+        ("tracker", f"tracker+tcp://127.0.0.1:{trk.port}", None),
+        ("plc", f"plc+modbus://127.0.0.1:{plc.port}", None),
+        ("galvo", f"scpi+serial://{dac.port}", None),
+    ]
+    try:
+        from fakes.gv_camera import GvCamera
+
+        gv = stack.enter_context(GvCamera(world))
+        out.append(("camera", f"aravis://{gv.camera_id}", None))
+    except (ImportError, ValueError, RuntimeError) as exc:
+        out.append(("camera", "aravis://127.0.0.1", f"Aravis unavailable: {exc}"))
+    return out
+
+
+def _check(
+    family: str, url: str, skip: str | None, world: StaticWorld, timeout: float,
+    cell: Path | None,
+) -> Row:
+    if skip:
+        return Row(family, url, "SKIP", skip)
+    options: dict[str, Any] = {"timeout_s": timeout}
+    if url.startswith("fake://"):
+        options["world"] = world
+    try:
+        device = create_device(family, url, **options)
+    except DeviceConfigError as exc:
+        if cell is None:
+            return Row(family, url, "FAIL", str(exc))
+        raise InputError(str(exc), file=cell, field=f"devices.{family}") from exc
+    try:
+        with device:
+            return Row(family, url, "OK", f"{device.describe()}; {PROBES[family](device)}")
+    except DeviceError as exc:
+        return Row(family, url, "FAIL", f"{type(exc).__name__}: {exc}")
+
+
+def _probe_robot(robot: Any) -> str:
+    q = ", ".join(f"{v:.2f}" for v in robot.joints_deg())
+    return f"J1..J6 = {q} deg; servo ready {robot.status().servo_ready}"
+
+
+def _probe_camera(camera: Any) -> str:
+    frame = camera.grab()
+    h, w = frame.image.shape
+    return f"frame {frame.frame_id} {w}x{h} {frame.image.dtype}"
+
+
+def _probe_galvo(galvo: Any) -> str:
+    return f"angle {galvo.angle_deg() + 0.0:.3f} deg"
+
+
+def _probe_tracker(tracker: Any) -> str:
+    status = tracker.status()
+    return f"{len(tracker.targets())} targets; target in beam {status.target_in_beam}"
+
+
+def _probe_plc(plc: Any) -> str:
+    inputs = plc.poll()
+    return f"window {inputs.window_open}, line {inputs.line_running}, beat {inputs.heartbeat}"
+
+
+PROBES: dict[str, Callable[[Any], str]] = {
+    "robot": _probe_robot,
+    "camera": _probe_camera,
+    "galvo": _probe_galvo,
+    "tracker": _probe_tracker,
+    "plc": _probe_plc,
+}
+
+
+def _print_table(rows: list[Row]) -> None:
+    widths = [max(len(getattr(r, k)) for r in rows) for k in ("family", "url", "status")]
+    for r in rows:
+        print(f"{r.family:<{widths[0]}}  {r.url:<{widths[1]}}  {r.status:<{widths[2]}}  {r.detail}")

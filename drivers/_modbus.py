@@ -1,0 +1,89 @@
+"""A blocking Modbus TCP link (pymodbus 3.16, pinned) with its errors translated, and the float32
+word packing shared by the robot mailbox and the PLC register map.
+
+pymodbus does not follow semantic versioning (3.10 renamed ``slave=`` to ``device_id=``); this is
+the only module of drivers/ that calls it, so a pin bump is checked here.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Sequence
+from typing import Literal
+
+from pymodbus.client import ModbusTcpClient
+from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+
+from drivers.errors import DeviceConnectionError, DeviceFault, DeviceTimeout, ProtocolError
+
+WordOrder = Literal["big", "little"]
+
+
+def floats_to_words(values: Sequence[float], word_order: WordOrder = "little") -> list[int]:
+    """IEEE float32 values -> 16-bit words (two per value; FANUC SNPX REAL: low word first)."""
+    words: list[int] = []
+    for v in values:
+        hi, lo = struct.unpack(">HH", struct.pack(">f", float(v)))
+        words += [lo, hi] if word_order == "little" else [hi, lo]
+    return words
+
+
+def words_to_floats(words: Sequence[int], word_order: WordOrder = "little") -> list[float]:
+    if len(words) % 2:
+        raise ProtocolError(f"odd number of words for float32: {len(words)}")
+    out = []
+    for i in range(0, len(words), 2):
+        a, b = words[i], words[i + 1]
+        hi, lo = (b, a) if word_order == "little" else (a, b)
+        out.append(struct.unpack(">f", struct.pack(">HH", hi, lo))[0])
+    return out
+
+
+class ModbusLink:
+    """Holding-register reads and writes to one unit; every failure is a device error."""
+
+    def __init__(self, host: str, port: int, *, unit: int, timeout_s: float) -> None:
+        self.where = f"{host}:{port}"
+        self.unit = unit
+        self._client = ModbusTcpClient(host, port=port, timeout=timeout_s, retries=0)
+
+    def connect(self) -> None:
+        try:
+            ok = self._client.connect()
+        except ModbusException as exc:
+            raise DeviceConnectionError(f"{self.where}: cannot connect: {exc}") from exc
+        if not ok:
+            self._client.close()
+            raise DeviceConnectionError(f"{self.where}: cannot connect")
+
+    def close(self) -> None:
+        self._client.close()
+
+    def read(self, address: int, count: int) -> list[int]:
+        try:
+            rr = self._client.read_holding_registers(address, count=count, device_id=self.unit)
+        except ModbusException as exc:
+            raise self._translate(exc) from exc
+        if rr.isError():
+            raise DeviceFault(f"{self.where}: read {address}+{count}: {rr}",
+                              code=int(getattr(rr, "exception_code", 0)))
+        if len(rr.registers) != count:
+            raise ProtocolError(f"{self.where}: asked {count} registers, got {len(rr.registers)}")
+        return list(rr.registers)
+
+    def write(self, address: int, values: Sequence[int]) -> None:
+        try:
+            rr = self._client.write_registers(address, list(values), device_id=self.unit)
+        except ModbusException as exc:
+            raise self._translate(exc) from exc
+        if rr.isError():
+            raise DeviceFault(f"{self.where}: write {address}: {rr}",
+                              code=int(getattr(rr, "exception_code", 0)))
+
+    def _translate(self, exc: ModbusException) -> Exception:
+        self._client.close()  # resynchronise the transaction ids on the next connect
+        if isinstance(exc, ConnectionException):
+            return DeviceConnectionError(f"{self.where}: {exc}")
+        if isinstance(exc, ModbusIOException):
+            return DeviceTimeout(f"{self.where}: no valid reply: {exc}")
+        return ProtocolError(f"{self.where}: {exc}")

@@ -1,0 +1,203 @@
+"""FANUC Remote Motion Interface (RMI, option R912 on R-30iB Plus): ``rmi://host:16001``.
+
+JSON objects terminated by CRLF over TCP. ``FRC_Connect`` on port 16001 names the session port
+(``PortNumber``); all further packets go there. Commands (FRC_Initialize, FRC_Abort, FRC_Reset,
+FRC_GetStatus, FRC_ReadJointAngles) are answered at once; instructions (FRC_JointMotionJRep) carry
+consecutive ``SequenceID`` values from 1 and are answered when executed. Every reply carries
+``ErrorID`` (0 = ok; 2556928 + N is RMIT-N). The controller may send ``FRC_SystemFault`` or
+``FRC_Terminate`` at any time.
+
+Mapping to the device errors: socket errors -> DeviceConnectionError/DeviceTimeout, bad JSON or
+missing fields -> ProtocolError, ErrorID != 0 -> DeviceFault(code=ErrorID), FRC_SystemFault ->
+DeviceFault (latched), FRC_Terminate -> DeviceConnectionError. One motion at a time: the driver
+waits for each instruction's reply before it sends the next.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from drivers._linesock import LineJsonSocket
+from drivers.errors import (
+    DeviceConnectionError,
+    DeviceError,
+    DeviceFault,
+    DeviceTimeout,
+    ProtocolError,
+)
+from drivers.registry import DeviceUrl
+from drivers.robot import FloatArray, Robot, RobotStatus
+from drivers.safety import SafetyGuard
+
+DEFAULT_PORT = 16001
+RMIT_BASE = 2556928
+JOINTS = ("J1", "J2", "J3", "J4", "J5", "J6")
+
+
+def rmit_name(code: int) -> str:
+    return f"RMIT-{code - RMIT_BASE:03d}" if code >= RMIT_BASE else f"error {code}"
+
+
+class RmiRobot(Robot):
+    """``RmiRobot("10.0.0.5", 16001, guard=SafetyGuard(...))``; open() connects."""
+
+    def __init__(
+        self,
+        host: str,
+        port: int = DEFAULT_PORT,
+        *,
+        guard: SafetyGuard | None = None,
+        timeout_s: float = 5.0,
+        motion_timeout_s: float = 120.0,
+        name: str = "",
+    ) -> None:
+        super().__init__(
+            guard=guard, timeout_s=timeout_s, motion_timeout_s=motion_timeout_s,
+            name=name or f"rmi://{host}:{port}",
+        )
+        self.host, self.port = host, int(port)
+        self._sock: LineJsonSocket | None = None
+        self._seq = 1
+        self._initialized = False
+        self.version = ""
+
+    @classmethod
+    def from_url(cls, url: DeviceUrl, **options: Any) -> RmiRobot:
+        host, port = url.address(DEFAULT_PORT)
+        return cls(host, port, **options)
+
+    # -- life cycle ---------------------------------------------------------------------------
+    def _open(self) -> None:
+        hello = LineJsonSocket(self.host, self.port, timeout_s=self.timeout_s, terminator=b"\r\n")
+        hello.connect()
+        try:
+            hello.send({"Communication": "FRC_Connect"})
+            reply = self._expect(hello, "Communication", "FRC_Connect", self.timeout_s)
+        finally:
+            hello.close()
+        session_port = reply.get("PortNumber")
+        if not isinstance(session_port, int) or not 0 < session_port < 65536:
+            raise ProtocolError(f"{self.name}: FRC_Connect reply without a valid PortNumber")
+        self.version = f"{reply.get('MajorVersion', '?')}.{reply.get('MinorVersion', '?')}"
+        sock = LineJsonSocket(self.host, session_port, timeout_s=self.timeout_s, terminator=b"\r\n")
+        sock.connect()
+        self._sock, self._initialized = sock, False
+
+    def _close(self) -> None:
+        sock, self._sock = self._sock, None
+        if sock is None:
+            return
+        try:
+            sock.send({"Communication": "FRC_Disconnect"})
+            self._expect(sock, "Communication", "FRC_Disconnect", min(self.timeout_s, 1.0))
+        except DeviceError as exc:
+            self.log.debug("%s: disconnect: %s", self.name, exc)
+        finally:
+            sock.close()
+
+    def describe(self) -> str:
+        self._check_open()
+        return f"FANUC RMI {self.version} at {self.host}:{self.port}"
+
+    # -- primitives ---------------------------------------------------------------------------
+    def _read_joints(self) -> FloatArray:
+        reply = self._command("FRC_ReadJointAngles", Group=1)
+        angles = reply.get("JointAngle")
+        try:
+            return np.array([float(angles[j]) for j in JOINTS])  # type: ignore[index]
+        except (TypeError, KeyError, ValueError) as exc:
+            raise ProtocolError(f"{self.name}: bad JointAngle in {reply}") from exc
+
+    def _status(self) -> RobotStatus:
+        r = self._command("FRC_GetStatus")
+        try:
+            servo, motion = int(r["ServoReady"]), int(r["RMIMotionStatus"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ProtocolError(f"{self.name}: bad FRC_GetStatus reply {r}") from exc
+        return RobotStatus(servo_ready=servo == 1, moving=motion != 0, fault=servo != 1)
+
+    def _move(self, q_deg: FloatArray, speed_pct: float, timeout_s: float) -> None:
+        if not self._initialized:
+            self._initialize()
+        seq = self._seq
+        packet = {
+            "Instruction": "FRC_JointMotionJRep",
+            "SequenceID": seq,
+            "JointAngle": {j: round(float(v), 4) for j, v in zip(JOINTS, q_deg, strict=True)}
+            | {"J7": 0.0, "J8": 0.0, "J9": 0.0},
+            "SpeedType": "Percent",
+            "Speed": max(1, round(speed_pct)),
+            "TermType": "FINE",
+            "TermValue": 0,
+        }
+        self._seq += 1
+        sock = self._session()
+        sock.send(packet)
+        try:
+            self._expect(sock, "Instruction", "FRC_JointMotionJRep", timeout_s, seq=seq)
+        except DeviceTimeout:
+            self._best_effort_abort()
+            raise
+
+    def _abort(self) -> None:
+        self._command("FRC_Abort")
+        self._initialized = False
+
+    def _reset(self) -> None:
+        self._command("FRC_Reset")
+        self._initialize()
+
+    # -- packets ------------------------------------------------------------------------------
+    def _initialize(self) -> None:
+        if int(self._command("FRC_GetStatus").get("RMIMotionStatus", 0)) != 0:
+            self._command("FRC_Abort")
+        self._command("FRC_Initialize", GroupMask=1)
+        self._seq, self._initialized = 1, True
+
+    def _best_effort_abort(self) -> None:
+        try:
+            self._abort()
+        except DeviceError as exc:
+            self.log.warning("%s: abort after timeout failed: %s", self.name, exc)
+
+    def _session(self) -> LineJsonSocket:
+        if self._sock is None:
+            raise DeviceConnectionError(f"{self.name}: no session")
+        return self._sock
+
+    def _command(self, name: str, **fields: Any) -> dict[str, Any]:
+        sock = self._session()
+        sock.send({"Command": name, **fields})
+        return self._expect(sock, "Command", name, self.timeout_s)
+
+    def _expect(
+        self, sock: LineJsonSocket, kind: str, name: str, timeout_s: float, seq: int | None = None
+    ) -> dict[str, Any]:
+        """Read until the reply to (kind, name[, seq]); handle unsolicited packets."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            msg = sock.recv(max(deadline - time.monotonic(), 0.0))
+            unsolicited = msg.get("Communication")
+            if unsolicited == "FRC_SystemFault" and name != "FRC_SystemFault":
+                self._initialized = False
+                fault = DeviceFault(f"{self.name}: controller system fault (SequenceID "
+                                    f"{msg.get('SequenceID')})", code=-1)
+                self._latch_fault(fault)
+                raise fault
+            if unsolicited == "FRC_Terminate":
+                sock.close()
+                raise DeviceConnectionError(f"{self.name}: controller terminated the session")
+            if msg.get(kind) != name or (seq is not None and msg.get("SequenceID") != seq):
+                self.log.debug("%s: ignoring %s", self.name, msg)
+                continue
+            code = msg.get("ErrorID")
+            if not isinstance(code, int):
+                raise ProtocolError(f"{self.name}: {name} reply without ErrorID: {msg}")
+            if code != 0:
+                if kind == "Instruction":
+                    self._initialized = False
+                raise DeviceFault(f"{self.name}: {name} failed: {rmit_name(code)}", code=code)
+            return msg

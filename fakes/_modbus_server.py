@@ -1,0 +1,105 @@
+"""A pymodbus 3.16 TCP server on loopback with a block of holding registers and a hook that runs
+the device logic on every access (the way a PLC or TP program scans its registers).
+
+pymodbus calls the SimDevice ``action`` before it applies a write, with the live register list;
+subclasses implement ``scan(now, regs, written)``: ``regs`` is that list (address 0 = index 0),
+``written`` maps the addresses of a write request to their new values (empty for a read). State
+therefore advances lazily, driven by the client's polling and the clock: no background task.
+
+Fault injection (one-shot): ``fail_next(mode)`` with "exception" (Modbus exception 4, device
+failure), "drop" (close every client connection) or "mute" (hold the reply past any timeout),
+optionally only for one function code.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from typing import Self
+
+from pymodbus.constants import ExcCodes
+from pymodbus.server import ModbusTcpServer
+from pymodbus.simulator import DataType, SimData, SimDevice
+
+from fakes._loop import LoopThread
+
+
+class RegisterServer:
+    """Base of the Modbus peers; subclasses implement ``scan``."""
+
+    def __init__(self, *, size: int, host: str = "127.0.0.1", port: int = 0) -> None:
+        self.host, self._want_port, self.size = host, port, size
+        self.port = 0
+        self._faults: list[tuple[str, int | None]] = []
+        self._server: ModbusTcpServer | None = None
+        self._loop: LoopThread | None = None
+        self.t0 = time.monotonic()
+
+    def start(self) -> Self:
+        self._loop = LoopThread(type(self).__name__)
+        self._loop.run(self._start())
+        self.t0 = time.monotonic()
+        return self
+
+    async def _start(self) -> None:
+        device = SimDevice(
+            id=0,
+            simdata=[SimData(0, count=self.size, values=0, datatype=DataType.REGISTERS)],
+            action=self._action,
+        )
+        self._server = ModbusTcpServer([device], address=(self.host, self._want_port))
+        await self._server.serve_forever(background=True)
+        self.port = self._server.transport.sockets[0].getsockname()[1]  # type: ignore[attr-defined]
+
+    def close(self) -> None:
+        if self._loop is not None:
+            if self._server is not None:
+                self._loop.run(self._server.shutdown())
+            self._loop.stop()
+            self._loop = None
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def fail_next(self, mode: str, *, function_code: int | None = None) -> None:
+        """Fail the next request (of ``function_code`` only, e.g. 16 = write registers)."""
+        self._faults.append((mode, function_code))
+
+    def drop_connections(self) -> None:
+        assert self._loop is not None and self._server is not None
+        server = self._server
+
+        def _drop() -> None:
+            for connection in list(server.active_connections.values()):
+                connection.close()
+
+        self._loop.call(_drop)
+
+    async def _action(
+        self,
+        function_code: int,
+        start_address: int,
+        address: int,
+        count: int,
+        registers: list[int],
+        values: list[int] | list[bool] | None,
+    ) -> ExcCodes | None:
+        if self._faults and self._faults[0][1] in (None, function_code):
+            mode = self._faults.pop(0)[0]
+            if mode == "exception":
+                return ExcCodes.DEVICE_FAILURE
+            if mode == "drop":
+                self.drop_connections()
+                await asyncio.sleep(3600)  # never answered: the connection is gone
+            if mode == "mute":
+                await asyncio.sleep(3600)
+        base = address - start_address
+        written = {base + i: int(v) for i, v in enumerate(values or [])}
+        self.scan(time.monotonic(), registers, written)
+        return None
+
+    def scan(self, now: float, regs: list[int], written: dict[int, int]) -> None:
+        raise NotImplementedError

@@ -1,0 +1,303 @@
+"""In-process fake backends (the ``fake://`` scheme) on a shared World.
+
+They are real backends of the driver families, not mocks: the family base classes apply the same
+policy (safety guard, fault latch, limits) and the fakes raise the same errors as hardware.
+Fault injection is explicit (``inject_fault``), never patched in.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from dataclasses import dataclass, replace
+from datetime import UTC, datetime
+from typing import Any
+
+import numpy as np
+
+from drivers.camera import Camera, CameraSettings, Frame
+from drivers.errors import DeviceConfigError, DeviceFault, DeviceTimeout
+from drivers.galvo import Galvo
+from drivers.plc import Plc, PlcInputs, PlcOutputs
+from drivers.registry import DeviceUrl
+from drivers.robot import FloatArray, Robot, RobotStatus
+from drivers.tracker import Tracker, TrackerMeasurement, TrackerStatus
+from fakes.world import World
+
+SENSOR_WH = (1296, 966)  # Basler acA1300-30um, Sony ICX445
+
+
+def _world(url: DeviceUrl, options: dict[str, Any]) -> World:
+    world = options.pop("world", None)
+    if not isinstance(world, World):
+        raise DeviceConfigError(f"{url.raw} needs a world= (a fakes.world.World)")
+    return world
+
+
+def move_along(
+    world: World, target: FloatArray, duration_s: float, stop: threading.Event
+) -> bool:
+    """Interpolate the world's joints to ``target`` over ``duration_s``; False if stopped."""
+    start = world.joints_deg()
+    t0 = time.monotonic()
+    while (frac := (time.monotonic() - t0) / duration_s if duration_s > 0 else 1.0) < 1.0:
+        world.set_joints_deg(start + frac * (target - start))
+        if stop.wait(min(0.02, duration_s / 10)):
+            return False
+    world.set_joints_deg(target)
+    return True
+
+
+class FakeRobot(Robot):
+    """Moves the world's robot in joint space; motion time = max |dq| / speed x time_scale."""
+
+    def __init__(self, world: World, *, time_scale: float = 1.0, **kw: Any) -> None:
+        super().__init__(**kw)
+        self.world, self.time_scale = world, float(time_scale)
+        self._stop = threading.Event()
+        self._pending: DeviceFault | None = None
+
+    @classmethod
+    def from_url(cls, url: DeviceUrl, **options: Any) -> FakeRobot:
+        return cls(_world(url, options), **options)
+
+    def inject_fault(self, code: int, message: str = "SRVO-050 collision detect") -> None:
+        """The next motion fails with this controller error (as a collision would)."""
+        self._pending = DeviceFault(message, code=code)
+
+    def _open(self) -> None:
+        self._stop.clear()
+
+    def _close(self) -> None:
+        self._stop.set()
+
+    def _read_joints(self) -> FloatArray:
+        return self.world.joints_deg()
+
+    def _status(self) -> RobotStatus:
+        return RobotStatus(servo_ready=True, moving=False, fault=self._pending is not None)
+
+    def _move(self, q_deg: FloatArray, speed_pct: float, timeout_s: float) -> None:
+        if self._pending is not None:
+            raise self._pending
+        self._stop.clear()
+        duration = self.guard.duration_s(self.world.joints_deg(), q_deg, speed_pct)
+        if duration * self.time_scale > timeout_s:
+            raise DeviceTimeout(f"{self.name}: motion would take {duration:.1f} s")
+        if not move_along(self.world, q_deg, duration * self.time_scale, self._stop):
+            raise DeviceFault(f"{self.name}: motion aborted")
+
+    def _abort(self) -> None:
+        self._stop.set()
+
+    def _reset(self) -> None:
+        self._pending = None
+
+
+class FakeGalvo(Galvo):
+    """A DAC in memory: stores the voltage, rejects voltages outside +-10 V like the board."""
+
+    def __init__(self, world: World | None = None, **kw: Any) -> None:
+        super().__init__(**kw)
+        self.volts = 0.0
+        self._queue: list[tuple[int, str]] = []
+
+    @classmethod
+    def from_url(cls, url: DeviceUrl, **options: Any) -> FakeGalvo:
+        options.pop("world", None)
+        return cls(**options)
+
+    def _open(self) -> None:
+        self.volts = 0.0
+
+    def _close(self) -> None:
+        pass
+
+    def _identify(self) -> str:
+        return "rvis,FakeDAC,0,1.0"
+
+    def _set_volts(self, volts: float) -> None:
+        if abs(volts) > 10.0:
+            self._queue.append((-222, "Data out of range"))
+        else:
+            self.volts = volts
+
+    def _get_volts(self) -> float:
+        return self.volts
+
+    def _errors(self) -> list[tuple[int, str]]:
+        errors, self._queue = self._queue, []
+        return errors
+
+
+class FakeCamera(Camera):
+    """Renders the world's frame at each trigger; ``fire_line_trigger()`` is the hardware line."""
+
+    def __init__(self, world: World, *, galvo: Galvo | None = None, **kw: Any) -> None:
+        super().__init__(**kw)
+        self.world, self.galvo = world, galvo
+        self._frames: queue.Queue[Frame] = queue.Queue()
+        self._frame_id = 0
+
+    @classmethod
+    def from_url(cls, url: DeviceUrl, **options: Any) -> FakeCamera:
+        return cls(_world(url, options), **options)
+
+    def _open(self) -> None:
+        self._frames = queue.Queue()
+
+    def _close(self) -> None:
+        pass
+
+    def _sensor_size(self) -> tuple[int, int]:
+        return SENSOR_WH
+
+    def _apply(self, settings: CameraSettings) -> CameraSettings:
+        return settings
+
+    def _render(self) -> Frame:
+        s = self.settings
+        assert s.region is not None
+        x, y, w, h = s.region
+        galvo = self.galvo.angle_deg() if self.galvo is not None and self.galvo.is_open else None
+        full = self.world.render_frame(*SENSOR_WH, s.exposure_us, s.gain_db, galvo)
+        top = {"Mono8": 255, "Mono12": 4095, "Mono16": 65535}[s.pixel_format]
+        scaled = np.round(np.clip(full[y : y + h, x : x + w], 0, 1) * top)
+        image = scaled.astype(np.uint8) if top == 255 else scaled.astype(np.uint16)
+        self._frame_id += 1
+        return Frame(image, self._frame_id, time.time_ns(), s.exposure_us, s.gain_db)
+
+    def fire_line_trigger(self) -> None:
+        """An edge on the hardware trigger line (only honoured in hardware trigger mode)."""
+        if self.is_open and self.settings.trigger == "hardware":
+            self._frames.put(self._render())
+
+    def _trigger(self) -> None:
+        self._frames.put(self._render())
+
+    def _grab(self, timeout_s: float) -> Frame:
+        if self.settings.trigger == "free":
+            return self._render()
+        try:
+            return self._frames.get(timeout=timeout_s)
+        except queue.Empty as exc:
+            raise DeviceTimeout(f"{self.name}: no frame within {timeout_s:g} s") from exc
+
+
+class FakeTracker(Tracker):
+    """Measures the world's targets with seeded Gaussian noise (``noise_mm`` per axis)."""
+
+    def __init__(
+        self,
+        world: World,
+        *,
+        seed: int = 0,
+        noise_mm: float = 0.005,
+        temperature_c: float = 20.0,
+        pressure_hpa: float = 1013.25,
+        **kw: Any,
+    ) -> None:
+        super().__init__(**kw)
+        self.world, self.noise_mm = world, float(noise_mm)
+        self.temperature_c, self.pressure_hpa = temperature_c, pressure_hpa
+        self._rng = np.random.default_rng(seed)
+        self.in_beam = True
+
+    @classmethod
+    def from_url(cls, url: DeviceUrl, **options: Any) -> FakeTracker:
+        return cls(_world(url, options), **options)
+
+    def _open(self) -> None:
+        pass
+
+    def _close(self) -> None:
+        pass
+
+    def _targets(self) -> list[str]:
+        return self.world.target_ids()
+
+    def _status(self) -> TrackerStatus:
+        return TrackerStatus(ready=True, target_in_beam=self.in_beam)
+
+    def _measure(self, target_id: str, timeout_s: float) -> TrackerMeasurement:
+        return measure_target(
+            self.world, target_id, self._rng, self.noise_mm, self.temperature_c, self.pressure_hpa
+        )
+
+
+def measure_target(
+    world: World,
+    target_id: str,
+    rng: np.random.Generator,
+    noise_mm: float,
+    temperature_c: float,
+    pressure_hpa: float,
+) -> TrackerMeasurement:
+    """A noisy tracker measurement of a world target (DeviceFault for an unknown id)."""
+    try:
+        true = world.target_true_mm(target_id)
+    except KeyError as exc:
+        raise DeviceFault(f"unknown target {target_id!r}", code=404) from exc
+    samples = true + rng.normal(0.0, noise_mm, size=(16, 3))
+    point = samples.mean(axis=0)
+    rms = float(np.sqrt(np.mean(np.sum((samples - point) ** 2, axis=1))))
+    now = datetime.now(UTC).isoformat(timespec="milliseconds")
+    return TrackerMeasurement(target_id, point, rms, now, temperature_c, pressure_hpa)
+
+
+@dataclass(frozen=True)
+class ClampCycle:
+    """The line's clamp cycle: every ``period_s`` the window is open for ``window_s`` (at the
+    end of the period). ``time_scale`` < 1 compresses time for tests; the PLC heartbeat ticks
+    every ``beat_s``. Pure: the state is a function of the elapsed time."""
+
+    period_s: float = 60.0
+    window_s: float = 8.0
+    beat_s: float = 0.5
+    time_scale: float = 1.0
+    line_running: bool = True
+
+    def __post_init__(self) -> None:
+        if not (0 < self.window_s < self.period_s and self.beat_s > 0 and self.time_scale > 0):
+            raise DeviceConfigError("clamp cycle needs 0 < window_s < period_s, beat_s > 0")
+
+    def inputs(self, elapsed_s: float, heartbeat_frozen: bool = False) -> PlcInputs:
+        t = elapsed_s / self.time_scale
+        phase = t % self.period_s
+        window = self.line_running and phase >= self.period_s - self.window_s
+        beat = 0 if heartbeat_frozen else int(t / self.beat_s) & 0xFFFF
+        return PlcInputs(window_open=window, line_running=self.line_running, heartbeat=beat)
+
+
+class FakePlc(Plc):
+    """A PLC in memory running a ClampCycle from the moment it is opened."""
+
+    def __init__(self, cycle: ClampCycle | None = None, **kw: Any) -> None:
+        super().__init__(**kw)
+        self.cycle = cycle or ClampCycle()
+        self.received = PlcOutputs()
+        self.history: list[PlcOutputs] = []  # every change of busy/done/fault, in order
+        self.heartbeat_frozen = False
+        self._t0 = time.monotonic()
+
+    @classmethod
+    def from_url(cls, url: DeviceUrl, **options: Any) -> FakePlc:
+        options.pop("world", None)
+        return cls(**options)
+
+    def _open(self) -> None:
+        self._t0 = time.monotonic()
+        self._open_handshake()
+
+    def _close(self) -> None:
+        pass
+
+    def _read_inputs(self) -> PlcInputs:
+        return self.cycle.inputs(time.monotonic() - self._t0, self.heartbeat_frozen)
+
+    def _write_outputs(self, outputs: PlcOutputs) -> None:
+        old = self.received
+        if (outputs.busy, outputs.done, outputs.fault) != (old.busy, old.done, old.fault):
+            self.history.append(outputs)
+        self.received = replace(outputs)

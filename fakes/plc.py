@@ -1,0 +1,49 @@
+"""A pymodbus server playing the line PLC (register map in drivers/plc_modbus.py): it runs a
+ClampCycle (for example an 8 s window every 60 s, compressed by ``time_scale`` in tests) and
+records what the app writes. ``heartbeat_frozen = True`` simulates a stalled PLC.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from drivers.plc import PlcOutputs
+from drivers.plc_modbus import (
+    APP_STATUS,
+    LINE_RUNNING,
+    PLC_HEARTBEAT,
+    PLC_STATUS,
+    REGISTER_COUNT,
+    WINDOW_OPEN,
+    decode_outputs,
+)
+from fakes._modbus_server import RegisterServer
+from fakes.devices import ClampCycle
+
+
+class PlcServer(RegisterServer):
+    """``with PlcServer(ClampCycle(time_scale=0.01)) as plc: ModbusPlc("127.0.0.1", plc.port)``"""
+
+    def __init__(self, cycle: ClampCycle | None = None, *, base: int = 0, **kw: Any) -> None:
+        super().__init__(size=base + REGISTER_COUNT, **kw)
+        self.cycle = cycle or ClampCycle()
+        self.base = base
+        self.heartbeat_frozen = False
+        self.received = PlcOutputs()
+        self.history: list[PlcOutputs] = []  # every change the app made, in order
+
+    def scan(self, now: float, regs: list[int], written: dict[int, int]) -> None:
+        inputs = self.cycle.inputs(now - self.t0, self.heartbeat_frozen)
+        bits = (WINDOW_OPEN if inputs.window_open else 0) | (
+            LINE_RUNNING if inputs.line_running else 0
+        )
+        regs[self.base + PLC_STATUS] = bits
+        regs[self.base + PLC_HEARTBEAT] = inputs.heartbeat
+        a = self.base + APP_STATUS
+        if a in written:
+            out = decode_outputs([written.get(a, regs[a]), written.get(a + 1, regs[a + 1])])
+            changed = (out.busy, out.done, out.fault) != (
+                self.received.busy, self.received.done, self.received.fault)
+            if changed:
+                self.history.append(out)
+            self.received = out

@@ -1,0 +1,287 @@
+"""An asyncio FANUC RMI controller on loopback that moves a World's robot.
+
+Speaks the subset of RMI the driver uses (drivers/rmi.py): FRC_Connect on the connect port names
+the session port; commands FRC_Initialize, FRC_Abort, FRC_Reset, FRC_GetStatus,
+FRC_ReadJointAngles; instruction FRC_JointMotionJRep (answered when the motion is done, after
+max |dq| / speed x time_scale seconds, moving the World's joints along the way); unsolicited
+FRC_SystemFault and FRC_Terminate. Like the controller it refuses out-of-order SequenceIDs,
+motion before FRC_Initialize, motion outside the joint limits and motion while an alarm is active
+(until FRC_Reset).
+
+Fault injection (one-shot, for the fault tests): ``fail_next(packet_name, mode)`` with mode
+"drop" (close the connection on receipt), "mute" (never answer), "garble" (answer non-JSON),
+"truncate" (half an answer, then close), "system_fault" (for a motion: start it, then raise an
+alarm half-way), or an int ErrorID to answer with.
+
+    with RmiController(world, time_scale=0.01) as ctrl:
+        robot = RmiRobot("127.0.0.1", ctrl.port)
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+from typing import Any, Self
+
+import numpy as np
+
+from drivers.safety import JointLimits
+from fakes._loop import LoopThread
+from fakes.world import World
+
+RMIT_BASE = 2556928
+ERR_NOT_INITIALIZED = RMIT_BASE + 3  # illustrative RMIT numbers: the fake's own
+ERR_SEQUENCE = RMIT_BASE + 29
+ERR_ALARM = RMIT_BASE + 14
+ERR_LIMIT = RMIT_BASE + 17
+ERR_UNKNOWN = RMIT_BASE + 2
+JOINTS = ("J1", "J2", "J3", "J4", "J5", "J6")
+Mode = str | int
+
+
+class RmiController:
+    """The fake controller; ``start()`` binds ephemeral ports on ``host``."""
+
+    def __init__(
+        self,
+        world: World,
+        *,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        time_scale: float = 1.0,
+        limits: JointLimits | None = None,
+    ) -> None:
+        self.world, self.host, self._want_port = world, host, port
+        self.time_scale = float(time_scale)
+        self.limits = limits or JointLimits.m710ic50()
+        self.port = 0
+        self.session_port = 0
+        self.alarm = False
+        self.received: list[dict[str, Any]] = []
+        self._faults: dict[str, Mode] = {}
+        self._initialized = False
+        self._next_seq = 1
+        self._motion: asyncio.Task[None] | None = None
+        self._writers: set[asyncio.StreamWriter] = set()
+        self._servers: list[asyncio.Server] = []
+        self._loop: LoopThread | None = None
+
+    # -- life cycle ---------------------------------------------------------------------------
+    def start(self) -> Self:
+        self._loop = LoopThread("rmi-controller")
+        self._loop.run(self._start())
+        return self
+
+    async def _start(self) -> None:
+        hello = await asyncio.start_server(self._hello, self.host, self._want_port)
+        session = await asyncio.start_server(self._session, self.host, 0)
+        self._servers = [hello, session]
+        self.port = hello.sockets[0].getsockname()[1]
+        self.session_port = session.sockets[0].getsockname()[1]
+
+    def close(self) -> None:
+        if self._loop is not None:
+            self._loop.run(self._shutdown())
+            self._loop.stop()
+            self._loop = None
+
+    async def _shutdown(self) -> None:
+        for server in self._servers:
+            server.close()
+        for writer in list(self._writers):
+            writer.close()
+        for server in self._servers:
+            await server.wait_closed()
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- test controls (thread-safe) ----------------------------------------------------------
+    def fail_next(self, packet: str, mode: Mode) -> None:
+        self._faults[packet] = mode
+
+    def terminate_sessions(self) -> None:
+        """Send FRC_Terminate to every session and close it (the controller's timeout)."""
+        assert self._loop is not None
+        self._loop.run(self._broadcast({"Communication": "FRC_Terminate"}, close=True))
+
+    def raise_system_fault(self) -> None:
+        assert self._loop is not None
+        self._loop.run(self._system_fault())
+
+    # -- protocol -----------------------------------------------------------------------------
+    async def _hello(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        await self._serve(reader, writer)
+
+    async def _session(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        await self._serve(reader, writer)
+
+    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        self._writers.add(writer)
+        try:
+            while line := await reader.readline():
+                if not await self._handle(line, writer):
+                    break
+        except (ConnectionError, asyncio.IncompleteReadError):
+            pass
+        finally:
+            self._writers.discard(writer)
+            writer.close()
+            with contextlib.suppress(ConnectionError):
+                await writer.wait_closed()
+
+    async def _handle(self, line: bytes, writer: asyncio.StreamWriter) -> bool:
+        try:
+            msg = json.loads(line)
+        except json.JSONDecodeError:
+            await self._send(writer, {"Communication": "FRC_Unknown", "ErrorID": ERR_UNKNOWN})
+            return True
+        self.received.append(msg)
+        kind = next((k for k in ("Communication", "Command", "Instruction") if k in msg), "")
+        name = str(msg.get(kind, ""))
+        mode = self._faults.pop(name, None)
+        if mode == "drop":
+            return False
+        if mode == "mute":
+            return True
+        if mode in ("garble", "truncate"):
+            data = b"{not json\r\n" if mode == "garble" else b'{"Command": "' + name.encode()
+            writer.write(data)
+            await writer.drain()
+            return mode == "garble"
+        if isinstance(mode, int):
+            await self._send(writer, {kind: name, "ErrorID": mode, **self._seq_of(msg)})
+            return True
+        if kind == "Instruction":
+            self._instruction(msg, writer, system_fault=mode == "system_fault")
+            return True
+        reply = self._reply(kind, name, msg)
+        await self._send(writer, {kind: name, **reply})
+        return name != "FRC_Disconnect"
+
+    @staticmethod
+    def _seq_of(msg: dict[str, Any]) -> dict[str, Any]:
+        return {"SequenceID": msg["SequenceID"]} if "SequenceID" in msg else {}
+
+    def _reply(self, kind: str, name: str, msg: dict[str, Any]) -> dict[str, Any]:
+        if name == "FRC_Connect":
+            return {"ErrorID": 0, "PortNumber": self.session_port, "MajorVersion": 1,
+                    "MinorVersion": 0}
+        if name == "FRC_Disconnect":
+            return {"ErrorID": 0}
+        if name == "FRC_GetStatus":
+            return {"ErrorID": 0, "ServoReady": 0 if self.alarm else 1, "TPMode": 1,
+                    "RMIMotionStatus": 1 if self._initialized else 0, "ProgramStatus": 0,
+                    "SingleStepMode": 0, "NumberUTool": 10, "NextSequenceID": self._next_seq,
+                    "NumberUFrame": 9, "Override": 100}
+        if name == "FRC_ReadJointAngles":
+            q = self.world.joints_deg()
+            angles = {j: float(v) for j, v in zip(JOINTS, q, strict=True)}
+            return {"ErrorID": 0, "TimeTag": 0, "Group": 1,
+                    "JointAngle": angles | {"J7": 0.0, "J8": 0.0, "J9": 0.0}}
+        if name == "FRC_Initialize":
+            if self.alarm:
+                return {"ErrorID": ERR_ALARM, "GroupMask": 1}
+            self._initialized, self._next_seq = True, 1
+            return {"ErrorID": 0, "GroupMask": 1}
+        if name == "FRC_Abort":
+            self._stop_motion()
+            self._initialized = False
+            return {"ErrorID": 0}
+        if name == "FRC_Reset":
+            self.alarm = False
+            return {"ErrorID": 0}
+        return {"ErrorID": ERR_UNKNOWN}
+
+    def _instruction(
+        self, msg: dict[str, Any], writer: asyncio.StreamWriter, *, system_fault: bool
+    ) -> None:
+        name, seq = msg.get("Instruction"), msg.get("SequenceID")
+        error = self._check_instruction(msg)
+        if error:
+            self._spawn(self._send(writer, {"Instruction": name, "ErrorID": error,
+                                            "SequenceID": seq}))
+            return
+        self._next_seq += 1
+        target = np.array([float(msg["JointAngle"][j]) for j in JOINTS])
+        previous = self._motion
+        self._motion = self._spawn(
+            self._run_motion(previous, target, float(msg["Speed"]), writer, seq, system_fault)
+        )
+
+    def _check_instruction(self, msg: dict[str, Any]) -> int:
+        if msg.get("Instruction") != "FRC_JointMotionJRep":
+            return ERR_UNKNOWN
+        if self.alarm:
+            return ERR_ALARM
+        if not self._initialized:
+            return ERR_NOT_INITIALIZED
+        if msg.get("SequenceID") != self._next_seq:
+            return ERR_SEQUENCE
+        try:
+            q = np.array([float(msg["JointAngle"][j]) for j in JOINTS])
+            speed = float(msg["Speed"])
+        except (KeyError, TypeError, ValueError):
+            return ERR_UNKNOWN
+        inside = bool(self.limits.contains(q[None])[0])
+        return 0 if inside and 0 < speed <= 100 else ERR_LIMIT
+
+    async def _run_motion(
+        self,
+        previous: asyncio.Task[None] | None,
+        target: np.ndarray,
+        speed_pct: float,
+        writer: asyncio.StreamWriter,
+        seq: Any,
+        system_fault: bool,
+    ) -> None:
+        if previous is not None:
+            with contextlib.suppress(asyncio.CancelledError):
+                await previous
+        start = self.world.joints_deg()
+        speeds = np.asarray(self.limits.speed_deg_s) * speed_pct / 100.0
+        duration = float(np.max(np.abs(target - start) / speeds)) * self.time_scale
+        steps = max(1, int(duration / 0.01))
+        for i in range(1, steps + 1):
+            if system_fault and i > steps // 2:
+                await self._system_fault()
+                return
+            await asyncio.sleep(duration / steps)
+            self.world.set_joints_deg(start + (target - start) * i / steps)
+        await self._send(writer, {"Instruction": "FRC_JointMotionJRep", "ErrorID": 0,
+                                  "SequenceID": seq})
+
+    async def _system_fault(self) -> None:
+        self.alarm, self._initialized = True, False
+        current = asyncio.current_task()
+        if self._motion is not None and self._motion is not current:
+            self._motion.cancel()
+        await self._broadcast({"Communication": "FRC_SystemFault",
+                               "SequenceID": self._next_seq - 1})
+
+    def _stop_motion(self) -> None:
+        if self._motion is not None:
+            self._motion.cancel()
+            self._motion = None
+
+    def _spawn(self, coro: Any) -> asyncio.Task[None]:
+        return asyncio.get_running_loop().create_task(coro)
+
+    async def _broadcast(self, msg: dict[str, Any], close: bool = False) -> None:
+        for writer in list(self._writers):
+            with contextlib.suppress(ConnectionError):
+                await self._send(writer, msg)
+            if close:
+                writer.close()
+
+    @staticmethod
+    async def _send(writer: asyncio.StreamWriter, msg: dict[str, Any]) -> None:
+        if writer.is_closing():
+            return
+        writer.write(json.dumps(msg).encode() + b"\r\n")
+        with contextlib.suppress(ConnectionError):
+            await writer.drain()

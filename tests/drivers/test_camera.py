@@ -1,0 +1,110 @@
+"""Camera contract: fake:// in-process and Aravis against its GigE Vision fake camera on
+127.0.0.1 over real UDP (skipped where Aravis/PyGObject are not installed)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import ExitStack
+
+import numpy as np
+import pytest
+
+from drivers import DeviceConfigError, DeviceTimeout, open_camera
+from drivers.camera import Camera, CameraSettings
+from fakes.devices import FakeCamera, FakeGalvo
+from fakes.world import StaticWorld
+
+
+def _aravis_available() -> bool:
+    try:
+        import drivers.aravis_camera  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+ARAVIS = pytest.mark.skipif(not _aravis_available(), reason="Aravis 0.8 / PyGObject missing")
+SETTINGS = CameraSettings(region=(0, 0, 320, 240), exposure_us=10_000.0, gain_db=0.0)
+
+
+@pytest.fixture(params=["fake", pytest.param("aravis", marks=ARAVIS)])
+def camera(request: pytest.FixtureRequest, world: StaticWorld) -> Iterator[Camera]:
+    with ExitStack() as stack:
+        if request.param == "fake":
+            url, opts = "fake://", {"world": world}
+        else:
+            from fakes.gv_camera import GvCamera
+
+            gv = stack.enter_context(GvCamera(world))
+            url, opts = f"aravis://{gv.camera_id}", {}
+        yield stack.enter_context(open_camera(url, settings=SETTINGS, timeout_s=2.0, **opts))
+
+
+def expected(world: StaticWorld, w: int, h: int, top: int) -> np.ndarray:
+    return np.round(np.clip(world.render_frame(w, h, 10_000.0, 0.0, None), 0, 1) * top)
+
+
+def test_software_triggered_frames_carry_the_rendered_image(
+    camera: Camera, world: StaticWorld
+) -> None:
+    first, second = camera.grab(), camera.grab()
+    assert first.image.shape == (240, 320) and first.image.dtype == np.uint8
+    assert second.frame_id != first.frame_id and second.timestamp_ns >= first.timestamp_ns
+    if isinstance(camera, FakeCamera):  # the fake renders the full sensor and crops the region
+        return
+    np.testing.assert_array_equal(second.image, expected(world, 320, 240, 255))
+
+
+def test_region_exposure_and_16_bit(camera: Camera, world: StaticWorld) -> None:
+    applied = camera.configure(
+        CameraSettings(region=(0, 0, 160, 120), exposure_us=5000.0, pixel_format="Mono16")
+    )
+    assert applied.region == (0, 0, 160, 120)
+    assert applied.exposure_us == pytest.approx(5000.0)
+    frame = camera.grab()
+    assert frame.image.shape == (120, 160) and frame.image.dtype == np.uint16
+    assert frame.image.max() > 255
+
+
+def test_bad_settings_are_configuration_errors(camera: Camera) -> None:
+    w, h = camera.sensor_size()
+    with pytest.raises(DeviceConfigError):
+        camera.configure(CameraSettings(region=(0, 0, w + 1, h)))
+    with pytest.raises(DeviceConfigError):
+        camera.configure(CameraSettings(exposure_us=-1))
+    assert camera.settings.region == (0, 0, 320, 240)  # unchanged
+
+
+def test_hardware_trigger_without_an_edge_times_out(camera: Camera) -> None:
+    camera.configure(CameraSettings(region=(0, 0, 64, 48), trigger="hardware"))
+    with pytest.raises(DeviceTimeout):
+        camera.grab(timeout_s=0.2)
+
+
+def test_fake_hardware_trigger_and_galvo_line(world: StaticWorld) -> None:
+    settings = CameraSettings(trigger="hardware")
+    with FakeGalvo() as galvo, FakeCamera(world, galvo=galvo, settings=settings) as cam:
+        galvo.set_angle_deg(0.0)
+        cam.fire_line_trigger()
+        frame = cam.grab(timeout_s=0.5)
+        column = int(np.argmax(frame.image.mean(axis=0)))
+        assert abs(column - (frame.image.shape[1] - 1) / 2) <= 2
+
+
+@ARAVIS
+def test_aravis_unknown_camera_is_a_connection_error() -> None:
+    from drivers import DeviceConnectionError
+
+    with pytest.raises(DeviceConnectionError, match="not found"):
+        open_camera("aravis://no-such-camera-0000", timeout_s=0.5)
+
+
+@ARAVIS
+def test_aravis_mono12_refused_when_not_offered(world: StaticWorld) -> None:
+    from fakes.gv_camera import GvCamera
+
+    with ExitStack() as stack:
+        gv = stack.enter_context(GvCamera(world))
+        cam = stack.enter_context(open_camera(f"aravis://{gv.camera_id}", settings=SETTINGS))
+        with pytest.raises(DeviceConfigError, match="Mono12"):
+            cam.configure(CameraSettings(pixel_format="Mono12"))

@@ -1,0 +1,93 @@
+"""PLC contract (fake:// and the pymodbus PLC peer): clamp-window handshake and heartbeat."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import ExitStack
+from typing import Any
+
+import pytest
+
+from drivers import DeviceFault, DeviceTimeout, open_plc
+from drivers.plc import Plc
+from fakes.devices import ClampCycle, FakePlc
+
+# 60 s cycle with an 8 s window, compressed 500x: 120 ms period, 16 ms window, 1 ms beat
+CYCLE = ClampCycle(period_s=60.0, window_s=8.0, beat_s=0.5, time_scale=0.002)
+OPTS: dict[str, Any] = {"poll_s": 0.001, "heartbeat_timeout_s": 0.05, "timeout_s": 0.5}
+
+
+def _open(kind: str, cycle: ClampCycle, stack: ExitStack) -> tuple[Plc, Any]:
+    if kind == "fake":
+        plc = stack.enter_context(open_plc("fake://", cycle=cycle, **OPTS))
+        assert isinstance(plc, FakePlc)
+        return plc, plc
+    from fakes.plc import PlcServer
+
+    server = stack.enter_context(PlcServer(cycle))
+    return stack.enter_context(open_plc(f"plc+modbus://127.0.0.1:{server.port}", **OPTS)), server
+
+
+@pytest.fixture(params=["fake", "modbus"])
+def kind(request: pytest.FixtureRequest) -> str:
+    return str(request.param)
+
+
+@pytest.fixture
+def plc_and_peer(kind: str) -> Iterator[tuple[Plc, Any]]:
+    with ExitStack() as stack:
+        yield _open(kind, CYCLE, stack)
+
+
+def test_waits_for_the_window_and_signals_busy_then_done(plc_and_peer: tuple[Plc, Any]) -> None:
+    plc, peer = plc_and_peer
+    with plc.window(timeout_s=1.0) as inputs:
+        assert inputs.window_open and inputs.line_running
+        assert peer.received.busy and not peer.received.done
+    assert peer.received.done and not peer.received.busy
+    assert [(o.busy, o.done) for o in peer.history][-2:] == [(True, False), (False, True)]
+
+
+def test_heartbeats_flow_both_ways(plc_and_peer: tuple[Plc, Any]) -> None:
+    plc, peer = plc_and_peer
+    plc.wait_window(timeout_s=1.0)
+    first = peer.received.heartbeat
+    plc.poll()
+    assert peer.received.heartbeat == (first + 1) & 0xFFFF
+    assert plc.heartbeat_alive()
+
+
+def test_an_error_inside_the_window_signals_fault(plc_and_peer: tuple[Plc, Any]) -> None:
+    plc, peer = plc_and_peer
+    with pytest.raises(RuntimeError), plc.window(timeout_s=1.0):
+        raise RuntimeError("measurement failed")
+    assert peer.received.fault and not peer.received.busy and not peer.received.done
+
+
+def test_lost_plc_heartbeat_means_not_ready(plc_and_peer: tuple[Plc, Any]) -> None:
+    plc, peer = plc_and_peer
+    peer.heartbeat_frozen = True
+    with pytest.raises(DeviceTimeout, match="heartbeat lost"):
+        plc.wait_window(timeout_s=0.3)
+
+
+def test_line_stopped_never_opens_a_window(kind: str) -> None:
+    stopped = ClampCycle(period_s=60.0, window_s=8.0, time_scale=0.002, line_running=False)
+    with ExitStack() as stack:
+        plc, _ = _open(kind, stopped, stack)
+        with pytest.raises(DeviceTimeout, match="line not running"):
+            plc.wait_window(timeout_s=0.2)
+
+
+def test_modbus_plc_faults() -> None:
+    from fakes.plc import PlcServer
+
+    with PlcServer(CYCLE) as server, open_plc(
+        f"plc+modbus://127.0.0.1:{server.port}", **OPTS
+    ) as plc:
+        server.fail_next("exception")
+        with pytest.raises(DeviceFault):
+            plc.poll()
+        server.fail_next("drop", function_code=3)
+        plc.poll()  # a read: reconnect and retry
+        plc.wait_window(timeout_s=1.0)

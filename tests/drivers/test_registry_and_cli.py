@@ -1,0 +1,93 @@
+"""Registry (lazy imports, URL parsing, exported names) and `rvis devices check`."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import drivers
+from app.cli import main
+from drivers import DeviceConfigError, parse_url
+from drivers.registry import BACKENDS, backend_class
+
+
+def test_import_drivers_imports_no_vendor_library() -> None:
+    code = ("import sys, drivers, drivers.registry; "
+            "print([m for m in ('pymodbus', 'serial', 'gi') if m in sys.modules])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_exported_names_are_pinned() -> None:
+    assert set(drivers.__all__) == {
+        "CartesianBox", "CommunicationError", "DeviceClosedError", "DeviceConfigError",
+        "DeviceConnectionError", "DeviceError", "DeviceFault", "DeviceTimeout", "Envelope",
+        "FaultLatched", "JointBox", "JointLimits", "MotionRefused", "ProtocolError",
+        "SafetyGuard", "create_device", "open_camera", "open_device", "open_galvo", "open_plc",
+        "open_robot", "open_tracker", "parse_url",
+    }
+
+
+@pytest.mark.parametrize("family", sorted(BACKENDS))
+def test_every_backend_resolves(family: str) -> None:
+    for scheme in BACKENDS[family]:
+        try:
+            cls = backend_class(family, scheme)
+        except DeviceConfigError as exc:  # only Aravis may be missing from a machine
+            assert scheme == "aravis", exc
+            continue
+        assert cls.family == family
+
+
+def test_url_parsing() -> None:
+    u = parse_url("scpi+serial:///dev/ttyACM0?baud=115200")
+    assert (u.scheme, u.path, u.number("baud", 0)) == ("scpi+serial", "/dev/ttyACM0", 115200)
+    assert parse_url("tracker+file://targets.csv").location == "targets.csv"
+    assert parse_url("rmi://10.0.0.5:16001").address(1) == ("10.0.0.5", 16001)
+    assert parse_url("aravis://Basler-21234567").host == "Basler-21234567"
+    for bad in ("robot", "rmi://h:99999"):
+        with pytest.raises(DeviceConfigError):
+            parse_url(bad)
+    with pytest.raises(DeviceConfigError, match="known: fake://, rmi://, modbus://"):
+        backend_class("robot", "ftp")
+
+
+def test_devices_check_against_the_fakes(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["devices", "check", "--json", "--timeout", "2"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert {r["status"] for r in rows} <= {"OK", "SKIP"}
+    assert {r["url"].split("://")[0] for r in rows} >= {
+        "fake", "rmi", "modbus", "tracker+tcp", "plc+modbus", "scpi+serial"}
+
+
+def test_devices_check_with_a_cell_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    cell = tmp_path / "cell.toml"
+    cell.write_text('[devices]\nrobot = "fake://"\ntracker = "rmi://127.0.0.1:1"\n')
+    assert main(["devices", "check", "--cell", str(cell)]) == 2  # rmi is not a tracker
+    assert "devices.tracker" in capsys.readouterr().err
+    cell.write_text('[devices]\nrobot = "rmi://127.0.0.1:1"\nplc = "fake://"\n')
+    assert main(["devices", "check", "--cell", str(cell), "--timeout", "0.5"]) == 1
+    out = capsys.readouterr().out
+    assert "FAIL" in out and "DeviceConnectionError" in out
+
+
+@pytest.mark.parametrize(
+    ("text", "needle"),
+    [("[devices\n", "not valid TOML"), ("[other]\n", "field 'devices'"),
+     ('[devices]\nlaser = "fake://"\n', "field 'devices.laser'")],
+)
+def test_bad_cell_file_is_one_line_exit_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str, needle: str
+) -> None:
+    cell = tmp_path / "cell.toml"
+    cell.write_text(text)
+    assert main(["devices", "check", "--cell", str(cell)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert needle in err and len(err.splitlines()) == 1 and str(cell) in err
+    assert main(["devices", "check", "--cell", str(tmp_path / "missing.toml")]) == 2

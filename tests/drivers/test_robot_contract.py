@@ -1,0 +1,91 @@
+"""Robot contract: written once, run on every backend (fake://, RMI peer, Modbus peer)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from contextlib import ExitStack
+
+import numpy as np
+import pytest
+
+from drivers import DeviceClosedError, FaultLatched, MotionRefused, open_robot
+from drivers.robot import Robot
+from fakes.world import StaticWorld
+
+FAST = 0.002  # time compression: a 90 deg move at 100 % takes about 1 ms
+
+
+def _fake(world: StaticWorld, stack: ExitStack) -> str:
+    return "fake://"
+
+
+def _rmi(world: StaticWorld, stack: ExitStack) -> str:
+    from fakes.rmi_controller import RmiController
+
+    ctrl = stack.enter_context(RmiController(world, time_scale=FAST))
+    return f"rmi://127.0.0.1:{ctrl.port}"
+
+
+def _modbus(world: StaticWorld, stack: ExitStack) -> str:
+    from fakes.modbus_robot import ModbusRobotServer
+
+    server = stack.enter_context(ModbusRobotServer(world, time_scale=FAST))
+    return f"modbus://127.0.0.1:{server.port}"
+
+
+BACKENDS: dict[str, Callable[[StaticWorld, ExitStack], str]] = {
+    "fake": _fake,
+    "rmi": _rmi,
+    "modbus": _modbus,
+}
+
+
+@pytest.fixture(params=sorted(BACKENDS))
+def robot(request: pytest.FixtureRequest, world: StaticWorld) -> Iterator[Robot]:
+    with ExitStack() as stack:
+        url = BACKENDS[request.param](world, stack)
+        options = {"world": world, "time_scale": FAST} if url == "fake://" else {}
+        dev = stack.enter_context(open_robot(url, timeout_s=2.0, **options))
+        yield dev
+
+
+def test_reads_the_worlds_joints(robot: Robot, world: StaticWorld) -> None:
+    np.testing.assert_allclose(robot.joints_deg(), world.joints_deg(), atol=1e-3)
+    assert robot.status().servo_ready
+    assert robot.describe()
+
+
+def test_moves_the_worlds_robot(robot: Robot, world: StaticWorld) -> None:
+    target = np.array([30.0, 10.0, -20.0, 45.0, -60.0, 90.0])
+    reached = robot.move_joints(target, speed_pct=100)
+    np.testing.assert_allclose(reached, target, atol=1e-3)
+    np.testing.assert_allclose(world.joints_deg(), target, atol=1e-3)
+    second = np.array([-30.0, 0.0, 0.0, 0.0, -90.0, 0.0])
+    np.testing.assert_allclose(robot.move_joints(second, speed_pct=50), second, atol=1e-3)
+
+
+def test_refused_motion_sends_nothing(robot: Robot, world: StaticWorld) -> None:
+    before = world.moves
+    with pytest.raises(MotionRefused, match="J2="):
+        robot.move_joints([0, 140, 0, 0, 0, 0])
+    with pytest.raises(MotionRefused):
+        robot.move_joints([0, 0, 0, 0, np.nan, 0])
+    assert world.moves == before
+    assert robot.fault is None  # a refusal is not a fault
+
+
+def test_closed_robot_refuses_everything(robot: Robot) -> None:
+    robot.close()
+    robot.close()  # idempotent
+    with pytest.raises(DeviceClosedError):
+        robot.joints_deg()
+    with pytest.raises(DeviceClosedError):
+        robot.move_joints([0, 0, 0, 0, -90, 0])
+
+
+def test_latched_fault_blocks_motion_until_reset(robot: Robot) -> None:
+    robot._latch_fault(FaultLatched("test fault"))
+    with pytest.raises(FaultLatched):
+        robot.move_joints([10, 0, 0, 0, -90, 0], speed_pct=100)
+    robot.reset()
+    robot.move_joints([10, 0, 0, 0, -90, 0], speed_pct=100)

@@ -1,0 +1,117 @@
+"""Safety guard: joint limits and envelope checked before a motion leaves the process (property
+tests with hypothesis)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from drivers import CartesianBox, Envelope, JointBox, JointLimits, MotionRefused, SafetyGuard
+from drivers.errors import DeviceConfigError
+
+LIMITS = JointLimits.m710ic50()
+LO, HI = np.array(LIMITS.lower_deg), np.array(LIMITS.upper_deg)
+
+
+def joints_within(lo: np.ndarray, hi: np.ndarray) -> st.SearchStrategy[np.ndarray]:
+    cols = [st.floats(float(a), float(b), allow_nan=False) for a, b in zip(lo, hi, strict=True)]
+    return st.tuples(*cols).map(lambda t: np.array(t))
+
+
+@given(joints_within(LO, HI))
+def test_every_target_inside_the_limits_is_accepted(q: np.ndarray) -> None:
+    np.testing.assert_array_equal(SafetyGuard().check(q), q)
+
+
+@given(
+    joints_within(LO, HI),
+    st.integers(0, 5),
+    st.floats(1e-6, 1e4, allow_nan=False),
+    st.booleans(),
+)
+def test_any_joint_beyond_its_limit_is_refused(
+    q: np.ndarray, joint: int, excess: float, above: bool
+) -> None:
+    q = q.copy()
+    q[joint] = HI[joint] + excess if above else LO[joint] - excess
+    with pytest.raises(MotionRefused, match=f"J{joint + 1}="):
+        SafetyGuard().check(q)
+
+
+@given(joints_within(LO, HI), st.integers(0, 5), st.sampled_from([np.nan, np.inf, -np.inf]))
+def test_non_finite_targets_are_refused(q: np.ndarray, joint: int, bad: float) -> None:
+    q = q.copy()
+    q[joint] = bad
+    with pytest.raises(MotionRefused, match="finite"):
+        SafetyGuard().check(q)
+
+
+@pytest.mark.parametrize("value", [[0, 0, 0], np.zeros((2, 6)), "abc", None])
+def test_wrong_shapes_are_refused(value: object) -> None:
+    with pytest.raises(MotionRefused):
+        SafetyGuard().check(value)  # type: ignore[arg-type]
+
+
+KEEP_OUT = JointBox((-30, -90, -160, -360, -125, -360), (30, 135, 280, 360, 125, 360))
+GUARD_OUT = SafetyGuard(envelope=Envelope(keep_out=(KEEP_OUT,)))
+
+
+@settings(max_examples=60)
+@given(st.floats(35, 180), st.floats(-180, -35))
+def test_a_path_crossing_a_keep_out_box_is_refused_though_both_ends_are_outside(
+    start_j1: float, end_j1: float
+) -> None:
+    start = np.array([start_j1, 0, 0, 0, -90, 0])
+    end = np.array([end_j1, 0, 0, 0, -90, 0])
+    GUARD_OUT.check(end)  # the target alone is fine
+    with pytest.raises(MotionRefused, match="path enters keep-out"):
+        GUARD_OUT.check(end, current_deg=start)
+
+
+@given(joints_within(LO, HI), joints_within(LO, HI))
+def test_keep_in_box_bounds_targets_and_paths(q: np.ndarray, cur: np.ndarray) -> None:
+    box = JointBox((-90, -45, -60, -180, -120, -180), (90, 90, 120, 180, 120, 180))
+    guard = SafetyGuard(envelope=Envelope(keep_in=box))
+    inside = bool(box.contains(q[None])[0] and box.contains(cur[None])[0])
+    if inside:  # a box is convex: the straight joint path stays inside
+        np.testing.assert_array_equal(guard.check(q, current_deg=cur), q)
+    elif not box.contains(q[None])[0]:
+        with pytest.raises(MotionRefused):
+            guard.check(q, current_deg=cur)
+
+
+@given(joints_within(LO, HI), st.floats(0.5, 30))
+def test_max_step_limits_the_move(q: np.ndarray, step: float) -> None:
+    guard = SafetyGuard(envelope=Envelope(max_step_deg=(step,) * 6))
+    cur = np.clip(q + 2 * step, LO, HI)
+    if np.any(np.abs(q - cur) > step):
+        with pytest.raises(MotionRefused, match="max step"):
+            guard.check(q, current_deg=cur)
+
+
+def test_cartesian_envelope_uses_the_injected_points_function() -> None:
+    def flange_mm(q: np.ndarray) -> np.ndarray:  # a stand-in "kinematics": x follows J1
+        return np.stack([q[:, 0] * 10.0, np.zeros(len(q)), np.full(len(q), 500.0)], axis=-1)
+
+    env = Envelope(cartesian=CartesianBox((-1000, -1000, 0), (1000, 1000, 2000)))
+    guard = SafetyGuard(envelope=env, points_mm=flange_mm)
+    guard.check([90, 0, 0, 0, 0, 0], current_deg=[0, 0, 0, 0, 0, 0])
+    with pytest.raises(MotionRefused, match="Cartesian"):
+        guard.check([120, 0, 0, 0, 0, 0], current_deg=[0, 0, 0, 0, 0, 0])
+    with pytest.raises(DeviceConfigError):
+        SafetyGuard(envelope=env)
+
+
+def test_bad_limits_are_a_configuration_error() -> None:
+    with pytest.raises(DeviceConfigError):
+        JointLimits((0,) * 6, (-1,) * 6)
+    with pytest.raises(DeviceConfigError):
+        JointLimits((0,) * 5, (1,) * 5)
+
+
+def test_duration_is_the_slowest_joint() -> None:
+    guard = SafetyGuard()
+    t = guard.duration_s([0] * 6, [175, 0, 0, 0, 0, 355], speed_pct=50)
+    assert t == pytest.approx(2.0)
