@@ -55,7 +55,7 @@ class DeviceConnectionError(CommunicationError):
     """Cannot connect, the peer closed the connection, or an I/O error occurred."""
 
 
-class DeviceTimeout(CommunicationError):  # noqa: N818 - reads better at the call site
+class DeviceTimeout(CommunicationError):
     """No (complete) reply arrived within the timeout."""
 
 
@@ -63,7 +63,7 @@ class ProtocolError(CommunicationError):
     """The peer sent a malformed, truncated or unexpected reply."""
 
 
-class DeviceFault(DeviceError):  # noqa: N818
+class DeviceFault(DeviceError):
     """The device reported an error. ``code`` is the device's own error number (0 if none)."""
 
     def __init__(self, message: str, *, code: int = 0) -> None:
@@ -76,5 +76,5 @@ class FaultLatched(DeviceFault):
     """A command was refused because an earlier fault has not been cleared by reset()."""
 
 
-class MotionRefused(DeviceError, ValueError):  # noqa: N818
+class MotionRefused(DeviceError, ValueError):
     """A command (robot motion, galvo angle) was refused before it left the process."""
