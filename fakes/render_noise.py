@@ -9,6 +9,7 @@ margin) so that dark frames cost only the read noise.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -54,15 +55,16 @@ def speckle_field(shape: tuple[int, int], noise: NoiseSettings,
     re = rng.standard_normal(shape, dtype=np.float32)
     im = rng.standard_normal(shape, dtype=np.float32)
     s = noise.speckle_grain_px
-    re = cv2.GaussianBlur(re, (0, 0), s)
-    im = cv2.GaussianBlur(im, (0, 0), s)
-    inten = re * re + im * im
+    re_b = np.asarray(cv2.GaussianBlur(re, (0, 0), s), dtype=np.float32)
+    im_b = np.asarray(cv2.GaussianBlur(im, (0, 0), s), dtype=np.float32)
+    inten = re_b * re_b + im_b * im_b
     inten /= np.float32(max(float(inten.mean()), 1e-12))
     c = np.float32(noise.speckle_contrast)
     return np.asarray(1.0 + c * (inten - 1.0), dtype=np.float32)
 
 
-def form_image(irr: F32, noise: NoiseSettings, rng: np.random.Generator) -> NDArray[np.uint16]:
+def form_image(irr: F32, noise: NoiseSettings, rng: np.random.Generator
+               ) -> NDArray[np.integer[Any]]:
     """Irradiance (fraction of full well, shape=(H, W)) -> digital frame (uint8 or uint16)."""
     img = irr.astype(np.float32, copy=True)
     margin = int(4 * max(noise.blur_sigma_px, noise.speckle_grain_px)) + 2
@@ -70,7 +72,7 @@ def form_image(irr: F32, noise: NoiseSettings, rng: np.random.Generator) -> NDAr
     if box is not None:
         crop = img[box]
         if noise.speckle_contrast > 0:
-            crop *= speckle_field(crop.shape, noise, rng)  # type: ignore[arg-type]
+            crop *= speckle_field((crop.shape[0], crop.shape[1]), noise, rng)
         if noise.blur_sigma_px > 0:
             crop[...] = cv2.GaussianBlur(crop, (0, 0), noise.blur_sigma_px)
     electrons = img * np.float32(noise.full_well_e) + np.float32(noise.ambient_e)
@@ -81,4 +83,4 @@ def form_image(irr: F32, noise: NoiseSettings, rng: np.random.Generator) -> NDAr
     top = (1 << noise.bits) - 1
     dn = electrons * np.float32(top / noise.full_well_e) + np.float32(noise.black_level_dn)
     np.clip(np.rint(dn), 0, top, out=dn)
-    return dn.astype(np.uint8 if noise.bits <= 8 else np.uint16)  # type: ignore[return-value]
+    return dn.astype(np.uint8 if noise.bits <= 8 else np.uint16)

@@ -70,7 +70,7 @@ class TrueSensor:
         """True laser planes for commands [V]: normals shape=(n, 3), offsets shape=(n,) [mm]."""
         u = _unit(self.axis_dir)
         cmd = np.atleast_1d(np.asarray(command_v, dtype=np.float64))
-        theta = np.polynomial.polynomial.polyval(cmd, self.angle_poly_rad)
+        theta = np.asarray(np.polynomial.polynomial.polyval(cmd, self.angle_poly_rad), np.float64)
         m = _rodrigues(self.mirror_normal0, u, theta)
         n_in = _unit(np.cross(u, self.fan_dir))
         d_in = float(n_in @ self.axis_point_mm)

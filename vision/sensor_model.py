@@ -225,8 +225,9 @@ def dumps_sensor_model(model: SensorModel) -> str:
     K, cam, las = model.camera.K, model.camera, model.laser
     lines = [f'format = "{FORMAT}"', f"name = {json.dumps(model.name)}", "",
              "[camera]", f"width_px = {cam.width_px}", f"height_px = {cam.height_px}",
-             f"fx_px = {K[0, 0]!r}", f"fy_px = {K[1, 1]!r}", f"cx_px = {K[0, 2]!r}",
-             f"cy_px = {K[1, 2]!r}", f"dist = {_fmt(cam.dist)}"]
+             f"fx_px = {float(K[0, 0])!r}", f"fy_px = {float(K[1, 1])!r}",
+             f"cx_px = {float(K[0, 2])!r}",
+             f"cy_px = {float(K[1, 2])!r}", f"dist = {_fmt(cam.dist)}"]
     if cam.rms_reprojection_px is not None:
         lines.append(f"rms_reprojection_px = {cam.rms_reprojection_px!r}")
     lines += ["", "[laser]", f"axis_point_mm = {_fmt(las.axis_point_mm)}",

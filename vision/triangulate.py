@@ -23,7 +23,8 @@ def pixel_rays(camera: CameraModel, uv_px: F64) -> F64:
         return np.zeros((0, 3))
     pts = np.ascontiguousarray(uv_px, dtype=np.float64).reshape(-1, 1, 2)
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
-    xy = cv2.undistortPointsIter(pts, camera.K, camera.dist, None, None, crit).reshape(-1, 2)
+    xy = np.asarray(cv2.undistortPointsIter(pts, camera.K, camera.dist, None, None,  # type: ignore[call-overload]
+                                           crit)).reshape(-1, 2)
     return np.column_stack([xy, np.ones(len(xy))])
 
 
