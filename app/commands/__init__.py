@@ -4,4 +4,4 @@ The command line (app/cli.py) imports the modules listed in COMMANDS, in order. 
 `register` adds its parser and sets `func(args) -> int` as the default handler.
 """
 
-COMMANDS: tuple[str, ...] = ()
+COMMANDS: tuple[str, ...] = ("sensor",)
