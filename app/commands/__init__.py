@@ -11,4 +11,5 @@ COMMANDS: tuple[str, ...] = (
     "validate",
     "observability",
     "devices",
+    "sensor",
 )

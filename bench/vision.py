@@ -1,0 +1,165 @@
+"""Benchmark of the sensor pipeline (not run by the tests): timings and accuracy vs the truth.
+
+    .venv/bin/python bench/vision.py [--poses 50] [--frames 48] [--repeats 30] [--calib-seeds 3]
+
+Prints medians of repeated runs (one OpenCV thread): stripe extraction per 1296x966 frame in both
+modes, triangulation + sphere fit per sweep, the renderer apart; then the centre error of 50
+sphere poses over the field of view with a perfect sensor model, and the absolute error left
+after calibrating the sensor from rendered chessboards and target sweeps, split into what the
+intrinsics and what the laser calibration contribute.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+# run as a script, this file's folder comes first on sys.path and its name shadows the `vision`
+# package: put the repository root there instead
+_HERE = Path(__file__).resolve().parent
+sys.path[:] = [str(_HERE.parent)] + [p for p in sys.path if Path(p or ".").resolve() != _HERE]
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+from numpy.typing import NDArray  # noqa: E402
+
+from fakes.render import default_sweep_commands, render_sphere_sweep  # noqa: E402
+from fakes.render_sensor import TrueSensor, default_true_sensor, to_sensor_model  # noqa: E402
+from fakes.render_targets import CalibrationSet, render_calibration_set  # noqa: E402
+from vision.calibrate import calibrate_camera, calibrate_laser, laser_points, target_plane  # noqa: E402
+from vision.measure import measure_sphere_from_sweep  # noqa: E402
+from vision.sensor_model import CameraModel, SensorModel  # noqa: E402
+from vision.spherefit import fit_sphere  # noqa: E402
+from vision.stripe import extract_stripe  # noqa: E402
+from vision.triangulate import triangulate_sweep  # noqa: E402
+
+F64 = NDArray[np.float64]
+
+
+def median_ms(fn: Callable[[], object], repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return 1000.0 * float(np.median(times))
+
+
+def bench_timings(sensor: TrueSensor, model: SensorModel, n_frames: int, repeats: int) -> None:
+    rng = np.random.default_rng(1)
+    cmds = default_sweep_commands(n_frames, 3.2)
+    c = np.array([0.0, 0.0, 130.0])
+    t = time.perf_counter()
+    frames, _, _ = render_sphere_sweep(c, 15.0, sensor, rng, commands_v=cmds)
+    render_s = time.perf_counter() - t
+    mid = frames[n_frames // 2]
+    print("== timings (median, 1 OpenCV thread)")
+    fast_ms = median_ms(lambda: extract_stripe(mid), repeats)
+    print(f"stripe fast     per 1296x966 frame : {fast_ms:7.2f} ms")
+    print(f"stripe precise  per 1296x966 frame : "
+          f"{median_ms(lambda: extract_stripe(mid, 'precise'), repeats):7.2f} ms")
+    for mode in ("fast", "precise"):
+        stripes = [extract_stripe(f, mode) for f in frames]
+        n_pts = sum(len(s) for s in stripes)
+
+        def tri_fit(stripes: list = stripes) -> None:  # type: ignore[type-arg]
+            X, _ = triangulate_sweep(stripes, cmds, model)
+            fit_sphere(X, 15.0)
+
+        print(f"triangulation + fit per sweep ({mode:7s}, {n_frames} frames, {n_pts} points): "
+              f"{median_ms(tri_fit, max(repeats // 3, 5)):7.2f} ms")
+    whole = median_ms(lambda: measure_sphere_from_sweep(frames, cmds, model), 5)
+    print(f"whole measurement per sweep (fast, extraction included)   : {whole:7.1f} ms")
+    print(f"renderer (apart): {1000 * render_s / n_frames:.1f} ms per frame, "
+          f"{render_s:.2f} s per {n_frames}-frame sweep")
+
+
+def poses(rng: np.random.Generator, n: int) -> F64:
+    """Sphere centres spread over the measuring volume around (0, 0, 130) mm."""
+    return np.array([0.0, 0.0, 130.0]) + rng.uniform([-4, -3, -4], [4, 3, 4], size=(n, 3))
+
+
+def render_sweeps(sensor: TrueSensor, centres: F64, n_frames: int, seed: int) -> list:  # type: ignore[type-arg]
+    rng = np.random.default_rng(seed)
+    cmds = default_sweep_commands(n_frames, 3.2)
+    return [render_sphere_sweep(c, 15.0, sensor, rng, commands_v=cmds)[:2] for c in centres]
+
+
+def centre_errors(sweeps: list, centres: F64, model: SensorModel, mode: str = "fast") -> F64:  # type: ignore[type-arg]
+    return np.array([measure_sphere_from_sweep(f, c, model, mode=mode).c_sensor_mm
+                     for f, c in sweeps]) - centres
+
+
+def rigid_residual(measured: F64, true: F64) -> F64:
+    """Residuals after the best rigid transform measured -> true (what hand-eye absorbs)."""
+    mm, mt = measured.mean(axis=0), true.mean(axis=0)
+    U, _, Vt = np.linalg.svd((measured - mm).T @ (true - mt))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    R = Vt.T @ D @ U.T
+    return np.asarray((measured - mm) @ R.T + mt - true)
+
+
+def report(name: str, err_mm: F64) -> None:
+    e = err_mm * 1000.0
+    print(f"{name}: bias um {np.array2string(e.mean(0), precision=2)}  std um "
+          f"{np.array2string(e.std(0), precision=2)}  max |e| um {np.abs(e).max():.1f}")
+
+
+def laser_with(camera: CameraModel, cset: CalibrationSet) -> SensorModel:
+    pts = [laser_points(frames, target_plane(board, camera), camera)
+           for board, frames in cset.targets]
+    return SensorModel(camera=camera, laser=calibrate_laser(pts, cset.commands_v))
+
+
+def bench_calibration(sensor: TrueSensor, sweeps: list, centres: F64, seed: int) -> None:  # type: ignore[type-arg]
+    rng = np.random.default_rng(seed)
+    t = time.perf_counter()
+    cset = render_calibration_set(sensor, rng)
+    t_render = time.perf_counter() - t
+    t = time.perf_counter()
+    camera, _ = calibrate_camera(cset.chessboards)
+    full = laser_with(camera, cset)
+    t_cal = time.perf_counter() - t
+    truth = to_sensor_model(sensor)
+    laser_only = laser_with(truth.camera, cset)
+    K = camera.K
+    print(f"-- calibration seed {seed}: render {t_render:.1f} s, calibrate {t_cal:.2f} s; "
+          f"fx {100 * (K[0, 0] / sensor.fx_px - 1):+.3f} %, fy "
+          f"{100 * (K[1, 1] / sensor.fy_px - 1):+.3f} %, cx {K[0, 2] - sensor.cx_px:+.2f} px, "
+          f"cy {K[1, 2] - sensor.cy_px:+.2f} px, reprojection {camera.rms_reprojection_px:.3f} "
+          f"px, laser plane rms {full.laser.rms_plane_mm * 1000:.1f} um")
+    e_full = centre_errors(sweeps, centres, full)
+    report("   calibrated sensor (absolute)          ", e_full)
+    report("   same, after best rigid transform      ", rigid_residual(e_full + centres, centres))
+    report("   true intrinsics, calibrated laser only", centre_errors(sweeps, centres, laser_only))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--poses", type=int, default=50)
+    parser.add_argument("--frames", type=int, default=48)
+    parser.add_argument("--repeats", type=int, default=30)
+    parser.add_argument("--calib-seeds", type=int, default=3)
+    args = parser.parse_args()
+    cv2.setNumThreads(1)
+    sensor = default_true_sensor()
+    model = to_sensor_model(sensor)
+    bench_timings(sensor, model, args.frames, args.repeats)
+    centres = poses(np.random.default_rng(50), args.poses)
+    t = time.perf_counter()
+    sweeps = render_sweeps(sensor, centres, args.frames, seed=51)
+    print(f"== accuracy: {args.poses} sphere poses over the field of view, {args.frames} frames "
+          f"per sweep, default noise + speckle (rendered in {time.perf_counter() - t:.0f} s)")
+    for mode in ("fast", "precise"):
+        report(f"perfect sensor model, {mode:7s}", centre_errors(sweeps, centres, model, mode))
+    print("== sensor calibrated from rendered chessboards (12 views) and target sweeps "
+          "(4 poses x 15 commands)")
+    for seed in range(args.calib_seeds):
+        bench_calibration(sensor, sweeps, centres, seed=100 + seed)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,275 @@
+"""Physically based renderer of the laser-line sensor's images, with the truth it knows.
+
+Ray casting through every pixel of the true camera (fakes.render_sensor.TrueSensor) onto a sphere
+or a plane, lit by the true laser sheet at each mirror command: Gaussian sheet profile across the
+plane, Lambertian shading toward the mirror, optional specular glint and a ghost (second
+reflection); then speckle, blur, shot/read noise and quantisation (fakes.render_noise).
+
+Public functions (all lengths mm in the sensor frame S = camera frame, commands in volts):
+
+- render_sphere_sweep(c_sensor_mm, radius_mm, sensor, rng, ...) -> (frames, commands_v, truth)
+- render_plane_sweep(T_camera_target, sensor, rng, ...)          -> (frames, commands_v, truth)
+- render_chessboard(T_camera_target, sensor, rng, ...)           -> (frame, corners_px, object_mm)
+- default_sweep_commands(n_frames)                                -> commands_v
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fakes.render_noise import NoiseSettings, form_image
+from fakes.render_sensor import TrueSensor
+
+F64 = NDArray[np.float64]
+Frames = NDArray[np.generic]
+
+
+@dataclass(frozen=True)
+class Lighting:
+    """Laser and scene photometry: sheet_sigma_mm is the Gaussian sheet profile across the plane
+    (1/e^2 half width = 2 sigma); power is the irradiance at normal incidence as a fraction of
+    full well; glint_gain/glint_shininess a Phong specular lobe; ghost_gain/ghost_shift_px a
+    shifted copy of the stripe (second reflection)."""
+
+    sheet_sigma_mm: float = 0.05
+    power: float = 0.35
+    albedo: float = 1.0
+    glint_gain: float = 0.0
+    glint_shininess: float = 300.0
+    ghost_gain: float = 0.0
+    ghost_shift_px: int = 60
+
+
+@dataclass(frozen=True, eq=False)
+class SweepTruth:
+    """What the renderer knows: the true laser planes per frame (n . X = d), the sphere (or the
+    target plane) and, per frame, the true stripe centre line as a pixel polyline (u, v)."""
+
+    commands_v: F64
+    plane_normals: F64
+    plane_offsets_mm: F64
+    stripe_uv: list[F64] = field(default_factory=list)
+    c_sensor_mm: F64 | None = None
+    radius_mm: float | None = None
+    target_normal: F64 | None = None
+    target_offset_mm: float | None = None
+
+    def stripe_columns(self, frame: int, rows: F64) -> F64:
+        """True stripe column at the given rows of a frame (NaN where the stripe is absent)."""
+        uv = self.stripe_uv[frame]
+        if len(uv) < 2:
+            return np.full(np.shape(rows), np.nan)
+        order = np.argsort(uv[:, 1])
+        return np.interp(rows, uv[order, 1], uv[order, 0], left=np.nan, right=np.nan)
+
+
+def default_sweep_commands(n_frames: int = 60, span_v: float = 3.4) -> F64:
+    """Mirror commands [V] that sweep the stripe across the field of view at 120-130 mm."""
+    return np.linspace(-span_v, span_v, n_frames)
+
+
+def _axis_foot(sensor: TrueSensor, X: F64) -> F64:
+    """Closest points on the mirror axis to X shape=(n, 3): where the light comes from."""
+    u = sensor.axis_dir / np.linalg.norm(sensor.axis_dir)
+    p = sensor.axis_point_mm
+    return np.asarray(p + np.outer((X - p) @ u, u))
+
+
+def _surface_terms(sensor: TrueSensor, X: F64, N: F64, light: Lighting) -> tuple[F64, F64]:
+    """Per surface point: Lambertian factor albedo*max(0, N.l) and the Phong glint factor."""
+    to_light = _axis_foot(sensor, X) - X
+    to_light /= np.linalg.norm(to_light, axis=1, keepdims=True)
+    lam = light.albedo * np.clip(np.einsum("ij,ij->i", N, to_light), 0.0, None)
+    glint = np.zeros(len(X))
+    if light.glint_gain > 0:
+        h = to_light - X / np.linalg.norm(X, axis=1, keepdims=True)
+        h /= np.linalg.norm(h, axis=1, keepdims=True)
+        nh = np.clip(np.einsum("ij,ij->i", N, h), 0.0, None)
+        glint = light.glint_gain * nh**light.glint_shininess * (lam > 0)
+    return lam, glint
+
+
+def _render_frames(sensor: TrueSensor, flat_idx: NDArray[np.intp], X: F64, N: F64,
+                   normals: F64, offsets: F64, light: Lighting, noise: NoiseSettings,
+                   rng: np.random.Generator) -> Frames:
+    """Frames for surface points X (visible at pixels flat_idx) under each laser plane."""
+    h, w = sensor.height_px, sensor.width_px
+    lam, glint = _surface_terms(sensor, X, N, light)
+    shade = light.power * (lam + glint)
+    cut = 5.0 * light.sheet_sigma_mm
+    frames = []
+    for n, d in zip(normals, offsets, strict=True):
+        s = X @ n - d
+        near = np.flatnonzero(np.abs(s) < cut)
+        irr = np.zeros(h * w, dtype=np.float32)
+        irr[flat_idx[near]] = shade[near] * np.exp(-0.5 * (s[near] / light.sheet_sigma_mm) ** 2)
+        img = irr.reshape(h, w)
+        if light.ghost_gain > 0:
+            k = light.ghost_shift_px
+            img[:, k:] += np.float32(light.ghost_gain) * img[:, :-k].copy()
+        frames.append(form_image(img, noise, rng))
+    return np.stack(frames)
+
+
+def _circle_polyline(sensor: TrueSensor, c: F64, r: float, n: F64, d: float,
+                     facing: bool = True) -> F64:
+    """True stripe centre line: plane-sphere circle, visible and lit part, projected (m, 2)."""
+    dist = float(n @ c - d)
+    if abs(dist) >= r:
+        return np.zeros((0, 2))
+    q = c - dist * n
+    rho = np.sqrt(r * r - dist * dist)
+    e1 = np.cross(n, [0.0, 0.0, 1.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(n, e1)
+    phi = np.linspace(0.0, 2 * np.pi, 20000, endpoint=False)
+    P = q + rho * (np.outer(np.cos(phi), e1) + np.outer(np.sin(phi), e2))
+    Nrm = (P - c) / r
+    keep = np.einsum("ij,ij->i", Nrm, -P) > 0
+    keep &= np.einsum("ij,ij->i", Nrm, _axis_foot(sensor, P) - P) > 0
+    if not np.any(keep):
+        return np.zeros((0, 2))
+    # start the arc at a hidden point so the visible part is contiguous
+    start = int(np.argmin(keep)) if not np.all(keep) else 0
+    P, keep = np.roll(P, -start, axis=0), np.roll(keep, -start)
+    return np.asarray(sensor.project(P[keep]))
+
+
+def render_sphere_sweep(
+    c_sensor_mm: F64, radius_mm: float, sensor: TrueSensor, rng: np.random.Generator, *,
+    commands_v: F64 | None = None, noise: NoiseSettings | None = None,
+    light: Lighting | None = None, angle_noise_rad: float = 0.0,
+) -> tuple[Frames, F64, SweepTruth]:
+    """Render one galvo sweep over a sphere.
+
+    c_sensor_mm: true sphere centre shape=(3,) [mm] in S; radius_mm: true radius; sensor: true
+    geometry; rng: the only source of randomness; commands_v: mirror commands shape=(n,) [V]
+    (default `default_sweep_commands()`); angle_noise_rad: mirror angle repeatability (RMS,
+    added to the true angle of each frame, the commands returned are the nominal ones).
+    Returns frames shape=(n, H, W) uint8 (uint16 for 12 bit), the commands, and the truth.
+    """
+    noise = noise or NoiseSettings()
+    light = light or Lighting()
+    cmds = default_sweep_commands() if commands_v is None else np.asarray(commands_v, float)
+    c = np.asarray(c_sensor_mm, dtype=np.float64)
+    rays = sensor.pixel_rays.reshape(-1, 3)
+    b = rays @ c
+    disc = b * b - (c @ c - radius_mm**2)
+    flat_idx = np.flatnonzero(disc > 0)
+    t = b[flat_idx] - np.sqrt(disc[flat_idx])
+    X = rays[flat_idx] * t[:, None]
+    N = (X - c) / radius_mm
+    jitter = angle_noise_rad * rng.standard_normal(len(cmds))
+    normals, offsets = _planes_with_jitter(sensor, cmds, jitter)
+    frames = _render_frames(sensor, flat_idx, X, N, normals, offsets, light, noise, rng)
+    stripes = [_circle_polyline(sensor, c, radius_mm, n, d) for n, d in zip(normals, offsets,
+                                                                             strict=True)]
+    truth = SweepTruth(commands_v=cmds, plane_normals=normals, plane_offsets_mm=offsets,
+                       stripe_uv=stripes, c_sensor_mm=c, radius_mm=radius_mm)
+    return frames, cmds, truth
+
+
+def _planes_with_jitter(sensor: TrueSensor, cmds: F64, jitter: F64) -> tuple[F64, F64]:
+    """True planes for commands, the mirror angle perturbed by `jitter` [rad] per frame."""
+    if not np.any(jitter):
+        return sensor.laser_planes(cmds)
+    # a mirror-angle error equals a command error of jitter / (d theta / d command)
+    slope = np.polynomial.polynomial.polyval(cmds, np.polynomial.polynomial.polyder(
+        sensor.angle_poly_rad))
+    return sensor.laser_planes(cmds + jitter / slope)
+
+
+def _plane_hits(sensor: TrueSensor, T_camera_target: F64) -> tuple[NDArray[np.intp], F64, F64,
+                                                                    F64]:
+    """Pixels seeing the target plane (z = 0 of the target), their points and distances."""
+    n = T_camera_target[:3, 2]
+    p0 = T_camera_target[:3, 3]
+    rays = sensor.pixel_rays.reshape(-1, 3)
+    denom = rays @ n
+    t = (p0 @ n) / np.where(np.abs(denom) > 1e-9, denom, np.nan)
+    flat_idx = np.flatnonzero(t > 0)
+    X = rays[flat_idx] * t[flat_idx, None]
+    return flat_idx, X, t[flat_idx], denom[flat_idx]
+
+
+def render_plane_sweep(
+    T_camera_target: F64, sensor: TrueSensor, rng: np.random.Generator, *,
+    commands_v: F64 | None = None, noise: NoiseSettings | None = None,
+    light: Lighting | None = None,
+) -> tuple[Frames, F64, SweepTruth]:
+    """Render a galvo sweep over a flat, uniformly white calibration target.
+
+    T_camera_target: 4x4 pose of the target (its plane is the target's z = 0) in the camera
+    frame. Returns frames shape=(n, H, W), the commands [V] and the truth (planes, stripe lines).
+    """
+    noise = noise or NoiseSettings()
+    light = light or Lighting(albedo=0.8)
+    cmds = default_sweep_commands() if commands_v is None else np.asarray(commands_v, float)
+    flat_idx, X, _, _ = _plane_hits(sensor, T_camera_target)
+    n_t = T_camera_target[:3, 2]
+    N = np.broadcast_to(-n_t if n_t[2] > 0 else n_t, X.shape)
+    normals, offsets = sensor.laser_planes(cmds)
+    frames = _render_frames(sensor, flat_idx, X, np.ascontiguousarray(N), normals, offsets,
+                            light, noise, rng)
+    stripes = [_plane_line(sensor, T_camera_target, n, d) for n, d in zip(normals, offsets,
+                                                                          strict=True)]
+    truth = SweepTruth(commands_v=cmds, plane_normals=normals, plane_offsets_mm=offsets,
+                       stripe_uv=stripes, target_normal=n_t,
+                       target_offset_mm=float(n_t @ T_camera_target[:3, 3]))
+    return frames, cmds, truth
+
+
+def _plane_line(sensor: TrueSensor, T_camera_target: F64, n: F64, d: float) -> F64:
+    """True stripe on the target: the line of the two planes, projected, clipped to the frame."""
+    n_t, d_t = T_camera_target[:3, 2], float(T_camera_target[:3, 2] @ T_camera_target[:3, 3])
+    direction = np.cross(n, n_t)
+    direction /= np.linalg.norm(direction)
+    A = np.stack([n, n_t, direction])
+    p = np.linalg.solve(A, np.array([d, d_t, direction @ T_camera_target[:3, 3]]))
+    P = p + np.outer(np.linspace(-40.0, 40.0, 8001), direction)
+    uv = sensor.project(P)
+    inside = (uv[:, 0] > -1) & (uv[:, 0] < sensor.width_px) & (uv[:, 1] > -1) & (
+        uv[:, 1] < sensor.height_px) & (P[:, 2] > 0)
+    return np.asarray(uv[inside])
+
+
+def render_chessboard(
+    T_camera_target: F64, sensor: TrueSensor, rng: np.random.Generator, *,
+    pattern: tuple[int, int] = (9, 6), square_mm: float = 2.5,
+    noise: NoiseSettings | None = None, white: float = 0.7, black: float = 0.06,
+) -> tuple[Frames, F64, F64]:
+    """Render a chessboard under ambient light (no laser).
+
+    pattern: inner corners (columns, rows); the first inner corner is the target origin, squares
+    along the target's +x (columns) and +y (rows). Returns the frame shape=(H, W), the true
+    corner pixels shape=(cols*rows, 2) in OpenCV's row-major order and the corners' target
+    coordinates shape=(cols*rows, 3) [mm].
+    """
+    noise = noise or NoiseSettings(speckle_contrast=0.0)
+    flat_idx, X, t, cosang = _plane_hits(sensor, T_camera_target)
+    R, p0 = T_camera_target[:3, :3], T_camera_target[:3, 3]
+    local = (X - p0) @ R  # target coordinates
+    half_px_mm = 0.5 * t / sensor.fx_px / np.sqrt(np.maximum(np.abs(cosang), 0.2))
+    cols, rows = pattern
+
+    def ramp(x: F64, n_sq: int) -> F64:
+        ph = x / square_mm + 1.0  # squares from -1 .. n_sq
+        frac = ph - np.floor(ph)
+        edge = np.minimum(frac, 1.0 - frac) * square_mm
+        sign = np.where(np.floor(ph) % 2 == 0, 1.0, -1.0)
+        inside = (ph > 0) & (ph < n_sq)
+        return np.asarray(np.where(inside, sign * np.clip(edge / half_px_mm, 0.0, 1.0), np.nan))
+
+    su, sv = ramp(local[:, 0], cols + 1), ramp(local[:, 1], rows + 1)
+    val = 0.5 + 0.5 * su * sv
+    albedo = np.where(np.isnan(val), white, black + (white - black) * val)
+    irr = np.zeros(sensor.height_px * sensor.width_px, dtype=np.float32)
+    irr[flat_idx] = albedo
+    frame = form_image(irr.reshape(sensor.height_px, sensor.width_px), noise, rng)
+    gx, gy = np.meshgrid(np.arange(cols) * square_mm, np.arange(rows) * square_mm)
+    obj = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], axis=1)
+    corners = sensor.project(obj @ R.T + p0)
+    return frame, corners, obj

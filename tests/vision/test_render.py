@@ -1,0 +1,77 @@
+"""The renderer's own geometry is consistent: its truth is what the estimators are judged by."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fakes.render import Lighting, render_chessboard, render_sphere_sweep
+from fakes.render_noise import NoiseSettings
+from fakes.render_sensor import TrueSensor
+
+
+def test_pixel_rays_invert_the_projection(true_sensor: TrueSensor) -> None:
+    rays = true_sensor.pixel_rays
+    v, u = np.mgrid[0:966:37, 0:1296:41]
+    uv = true_sensor.project(rays[v, u] * 125.0)
+    assert np.abs(uv - np.stack([u, v], axis=-1)).max() < 1e-8
+
+
+def _bilinear(grid: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    u0 = np.clip(np.floor(uv[:, 0]).astype(int), 0, grid.shape[1] - 2)
+    v0 = np.clip(np.floor(uv[:, 1]).astype(int), 0, grid.shape[0] - 2)
+    fu, fv = (uv[:, 0] - u0)[:, None], (uv[:, 1] - v0)[:, None]
+    return np.asarray((1 - fv) * ((1 - fu) * grid[v0, u0] + fu * grid[v0, u0 + 1])
+                      + fv * ((1 - fu) * grid[v0 + 1, u0] + fu * grid[v0 + 1, u0 + 1]))
+
+
+def test_true_stripe_lies_on_sphere_and_plane(true_sensor: TrueSensor,
+                                              rng: np.random.Generator) -> None:
+    c = np.array([1.0, -2.0, 131.0])
+    frames, _, truth = render_sphere_sweep(c, 15.0, true_sensor, rng,
+                                              commands_v=np.array([-1.0, 0.0, 1.5]))
+    assert frames.shape == (3, 966, 1296) and frames.dtype == np.uint8
+    for k in range(3):
+        uv = truth.stripe_uv[k]
+        assert len(uv) > 100
+        # back-project the true stripe pixels onto the true laser plane: they lie on the sphere
+        rays = _bilinear(true_sensor.pixel_rays, uv)
+        t = truth.plane_offsets_mm[k] / (rays @ truth.plane_normals[k])
+        radius = np.linalg.norm(rays * t[:, None] - c, axis=1)
+        assert np.median(np.abs(radius - 15.0)) < 1e-4  # interpolation error only
+        # the image is bright where the truth says the stripe is
+        rows = np.arange(200, 760, 40)
+        cols = np.rint(truth.stripe_columns(k, rows)).astype(int)
+        assert np.median(frames[k][rows, cols]) > 20
+
+
+def test_noise_quantisation_and_saturation(true_sensor: TrueSensor,
+                                           rng: np.random.Generator) -> None:
+    c = np.array([0.0, 0.0, 130.0])
+    dim, _, _ = render_sphere_sweep(c, 15.0, true_sensor, rng, commands_v=np.array([0.0]),
+                                    noise=NoiseSettings(bits=12))
+    hot, _, _ = render_sphere_sweep(c, 15.0, true_sensor, rng, commands_v=np.array([0.0]),
+                                    light=Lighting(power=50.0))
+    assert dim.dtype == np.uint16 and dim.max() > 300
+    assert np.count_nonzero(dim == 4095) < 20  # speckle peaks may touch the top, rarely
+    assert hot.max() == 255 and np.count_nonzero(hot == 255) > 1000
+    background = dim[0, :100, :100].astype(float)
+    assert 10 < background.mean() < 40  # black level + ambient, in 12-bit DN
+    assert background.std() > 1.0  # read noise is present
+
+
+def test_chessboard_truth_projects_onto_the_corners(true_sensor: TrueSensor,
+                                                    rng: np.random.Generator) -> None:
+    import cv2
+
+    T = np.eye(4)
+    T[:3, 3] = [-10.0, -6.0, 122.0]
+    frame, corners, obj = render_chessboard(T, true_sensor, rng)
+    found, det = cv2.findChessboardCorners(frame, (9, 6))
+    assert found
+    det = cv2.cornerSubPix(frame, det, (5, 5), (-1, -1),
+                           (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4))
+    det = det.reshape(-1, 2)
+    if np.linalg.norm(det[0] - corners[0]) > np.linalg.norm(det[-1] - corners[0]):
+        det = det[::-1]
+    assert np.abs(det - corners).max() < 0.15
+    assert obj.shape == (54, 3)
