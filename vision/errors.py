@@ -29,11 +29,11 @@ class SensorFileError(VisionError):
         super().__init__(f"field '{field}': {reason}" if field else reason)
 
 
-class NoStripe(VisionError):  # noqa: N818 (named for the caller's decision)
+class NoStripe(VisionError):
     """No frame of the sweep holds a valid laser stripe."""
 
 
-class TooFewPoints(VisionError):  # noqa: N818 (named for the caller's decision)
+class TooFewPoints(VisionError):
     """The sweep gives fewer valid 3D points than the fit needs."""
 
     def __init__(self, n_points: int, n_required: int) -> None:
@@ -42,7 +42,7 @@ class TooFewPoints(VisionError):  # noqa: N818 (named for the caller's decision)
         super().__init__(f"{n_points} valid stripe points, at least {n_required} needed")
 
 
-class SphereFitRejected(VisionError):  # noqa: N818 (named for the caller's decision)
+class SphereFitRejected(VisionError):
     """The sphere fit converged but failed a quality threshold; `quality` says which."""
 
     def __init__(self, reason: str, quality: Any = None) -> None:
@@ -51,5 +51,5 @@ class SphereFitRejected(VisionError):  # noqa: N818 (named for the caller's deci
         super().__init__(reason)
 
 
-class CalibrationFailed(VisionError):  # noqa: N818 (named for the caller's decision)
+class CalibrationFailed(VisionError):
     """The calibration images or sweeps do not determine the sensor model."""
