@@ -17,7 +17,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.errors import InputError
+from calib.detmax import METHODS
 from calib.model import SystemModel
+from calib.observability import INDEX_NAMES
+from calib.plan import PLACEMENTS
 from calib.robot import JointLimits
 from calib.transforms import apply, pose, rotvec_to_matrix
 
@@ -60,6 +63,26 @@ DEFAULTS: dict[str, dict[str, Any]] = {
         "temp_c": 20.0,
     },
     "calibration": {"configs_per_sphere": 6, "loss": "linear", "max_rms_mm": 0.25},
+    "planning": {
+        "criterion": "O1",
+        "method": "detmax",
+        "placement": "sequential",
+        "grid_step_deg": 5.0,
+        "search_step_deg": 30.0,
+        "max_tilt_deg": 80.0,
+        "fov_offsets": "spread",
+        "swarm_size": 50,
+        "iterations": 30,
+        "clearance_above_sphere_mm": 30.0,
+        "floor_z_mm": -565.0,
+        "clearance_above_floor_mm": 150.0,
+        "workspace_mm": [-2000.0, 2000.0, -2000.0, 2000.0],
+        "reach_mm": 2000.0,
+        "plate_margin_mm": 50.0,
+        "min_separation_mm": 300.0,
+        "seed": 0,
+        "workers": 2,
+    },
     "devices": {
         "robot": "fake://",
         "camera": "fake://",
@@ -83,6 +106,7 @@ class CellConfig:
     sensor: dict[str, float]
     simulation: dict[str, Any]
     calibration: dict[str, Any]
+    planning: dict[str, Any]
     devices: dict[str, str]
     service: dict[str, Any]
     source: str = "<embedded default>"
@@ -147,6 +171,45 @@ def load_cell(path: str | Path | None = None) -> CellConfig:
     return _resolve(_Reader(merged, source, text))
 
 
+_PLAN_CHOICES = {
+    "criterion": INDEX_NAMES,
+    "method": METHODS,
+    "placement": PLACEMENTS,
+    "fov_offsets": ("spread", "centre"),
+}
+_PLAN_INTEGERS = {"swarm_size": 2, "iterations": 1, "seed": 0, "workers": 1}
+
+
+def _planning(r: _Reader) -> dict[str, Any]:
+    """The [planning] section, each value checked (choices, integers, numbers)."""
+    out: dict[str, Any] = {}
+    for key, value in r.merged["planning"].items():
+        if key in _PLAN_CHOICES:
+            if value not in _PLAN_CHOICES[key]:
+                choices = ", ".join(_PLAN_CHOICES[key])
+                raise r.fail("planning", key, f"expected one of {choices}, got {value!r}")
+            out[key] = value
+        elif key in _PLAN_INTEGERS:
+            if not isinstance(value, int) or isinstance(value, bool) or value < _PLAN_INTEGERS[key]:
+                raise r.fail("planning", key, f"expected an integer >= {_PLAN_INTEGERS[key]}")
+            out[key] = value
+        elif key == "workspace_mm":
+            box = r.vector("planning", key, 4)
+            if box[0] >= box[1] or box[2] >= box[3]:
+                raise r.fail("planning", key, "expected [x_min, x_max, y_min, y_max], min < max")
+            out[key] = tuple(float(v) for v in box)
+        else:
+            out[key] = r.number("planning", key)
+    step = out["grid_step_deg"]
+    if not 0.0 < step <= 90.0 or not 0.0 < out["search_step_deg"] <= 90.0:
+        raise r.fail("planning", "grid_step_deg", "grid steps must lie in (0, 90] deg")
+    if not 0.0 <= out["max_tilt_deg"] <= 90.0:
+        raise r.fail(
+            "planning", "max_tilt_deg", "the view must not point upward: 0..90 deg from down"
+        )
+    return out
+
+
 def _resolve(r: _Reader) -> CellConfig:
     m = r.merged
     lower = r.vector("robot", "joint_lower_deg", 6)
@@ -177,6 +240,7 @@ def _resolve(r: _Reader) -> CellConfig:
         r.number("base_plate", k) for k in ("x_min_mm", "x_max_mm", "y_min_mm", "y_max_mm")
     )
     sensor = {k: r.number("sensor", k) for k in m["sensor"]}
+    planning = _planning(r)
     devices = {k: str(v) for k, v in m["devices"].items()}
     return CellConfig(
         T_part_base=T_pb,
@@ -187,6 +251,7 @@ def _resolve(r: _Reader) -> CellConfig:
         sensor=sensor,
         simulation=dict(m["simulation"]),
         calibration=dict(m["calibration"]),
+        planning=planning,
         devices=devices,
         service=dict(m["service"]),
         source=r.path,

@@ -102,3 +102,136 @@ def random_configurations(
                 qs.append(options[rng.integers(len(options))])
                 cs.append(c[i])
     return ViewSample(np.array(qs).reshape(-1, 6), np.array(cs).reshape(-1, 3))
+
+
+# -- the candidate set of one sphere (paper section 4.2, step 2) ------------------------------
+
+#: Where the sphere may appear in the field of view [mm, offsets from (0, 0, standoff)]: the
+#: centre and four off-axis points (about half the half-field, depth +-2 mm). Off-axis views
+#: make the sensor's roll about its optical axis observable (on the axis its column is zero).
+FOV_SPREAD_MM: tuple[tuple[float, float, float], ...] = (
+    (0.0, 0.0, 0.0),
+    (8.0, 5.0, 2.0),
+    (-8.0, 5.0, -2.0),
+    (8.0, -5.0, -2.0),
+    (-8.0, -5.0, 2.0),
+)
+FOV_CENTRE_MM: tuple[tuple[float, float, float], ...] = ((0.0, 0.0, 0.0),)
+
+
+@dataclass(frozen=True)
+class ViewGrid:
+    """Sensor orientations on a grid: the view direction (sensor z) at tilts 0..max_tilt from
+    straight down in steps of step_deg, azimuths spaced step_deg along each tilt circle, and
+    the roll about the view direction in steps of roll_step_deg (default step_deg). Each
+    orientation takes the next of `offsets_mm` in turn (where the sphere appears)."""
+
+    step_deg: float = 5.0
+    max_tilt_deg: float = 80.0
+    roll_step_deg: float | None = None
+    offsets_mm: tuple[tuple[float, float, float], ...] = FOV_SPREAD_MM
+    standoff_mm: float = IDEAL_STANDOFF_MM
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.step_deg <= 90.0:
+            raise ValueError(f"grid step {self.step_deg} deg: expected 0 < step <= 90")
+        if not 0.0 <= self.max_tilt_deg <= 90.0:
+            raise ValueError(
+                f"maximum tilt {self.max_tilt_deg} deg: the view direction must not point "
+                "upward (0..90 deg from straight down)"
+            )
+        if not self.offsets_mm:
+            raise ValueError("no field-of-view offsets given")
+
+    def views(self) -> tuple[F64, F64]:
+        """(R_base_sensor (K, 3, 3), c_sensor_mm (K, 3)) of the whole grid."""
+        return _grid_views(
+            self.step_deg,
+            self.max_tilt_deg,
+            self.roll_step_deg or self.step_deg,
+            self.offsets_mm,
+            self.standoff_mm,
+        )
+
+
+def _grid_views(
+    step_deg: float,
+    max_tilt_deg: float,
+    roll_step_deg: float,
+    offsets: tuple[tuple[float, float, float], ...],
+    standoff_mm: float,
+) -> tuple[F64, F64]:
+    dirs: list[tuple[float, float, float]] = []
+    n_tilt = int(np.floor(max_tilt_deg / step_deg + 1e-9))
+    for i in range(n_tilt + 1):
+        tilt = np.radians(i * step_deg)
+        n_az = max(1, round(360.0 * np.sin(tilt) / step_deg))
+        for az in np.linspace(0.0, 2.0 * np.pi, n_az, endpoint=False):
+            dirs.append((np.sin(tilt) * np.cos(az), np.sin(tilt) * np.sin(az), -np.cos(tilt)))
+    rolls = np.radians(np.arange(0.0, 360.0 - 1e-9, roll_step_deg))
+    d = np.repeat(np.array(dirs), rolls.size, axis=0)
+    R = look_rotations(d, np.tile(rolls, len(dirs)))
+    off = np.asarray(offsets, dtype=float)
+    c = off[np.arange(R.shape[0]) % off.shape[0]] + np.array([0.0, 0.0, standoff_mm])
+    return R, c
+
+
+@dataclass(frozen=True)
+class Clearance:
+    """Keep-out rule for a view: the sensor origin and the flange stay at least
+    `above_sphere_mm` above the sphere centre (the stand is below it) and `above_floor_mm`
+    above the base plate's top face at `floor_z_mm` (robot base frame)."""
+
+    above_sphere_mm: float = 30.0
+    floor_z_mm: float = -565.0
+    above_floor_mm: float = 150.0
+
+    def allows(self, z_base_mm: F64, sphere_z_base_mm: float) -> NDArray[np.bool_]:
+        ok: NDArray[np.bool_] = (z_base_mm >= sphere_z_base_mm + self.above_sphere_mm) & (
+            z_base_mm >= self.floor_z_mm + self.above_floor_mm
+        )
+        return ok
+
+
+@dataclass(frozen=True)
+class Candidates:
+    """Candidate configurations of one sphere: controller angles q_deg (M, 6) and where the
+    sphere then appears, c_sensor_mm (M, 3); p_part_mm (3,) the sphere."""
+
+    p_part_mm: F64
+    q_deg: F64
+    c_sensor_mm: F64
+
+    def __len__(self) -> int:
+        return int(self.q_deg.shape[0])
+
+    def take(self, rows: ArrayLike) -> Candidates:
+        r = np.asarray(rows, dtype=int)
+        return Candidates(self.p_part_mm, self.q_deg[r], self.c_sensor_mm[r])
+
+
+def sphere_candidates(
+    model: SystemModel,
+    x: F64,
+    p_part_mm: ArrayLike,
+    grid: ViewGrid,
+    *,
+    clearance: Clearance | None = None,
+) -> Candidates:
+    """Every grid view of the sphere at p_part_mm that the robot reaches within its limits and
+    that keeps the clearance: flange poses through the (pre-calibrated) part->base and
+    hand-eye pieces of x, then the closed-form IK (one solution per branch, no whole-turn
+    duplicates: they have the same Jacobian)."""
+    clearance = clearance or Clearance()
+    p = np.asarray(p_part_mm, dtype=float).reshape(3)
+    R, c = grid.views()
+    T_flange = flange_poses(model, x, p, R, c)
+    p_base = apply(inverse(model.T_part_base(x)), p)
+    sensor_z = p_base[2] - np.einsum("kj,kj->k", R[:, 2, :], c)
+    ok = clearance.allows(sensor_z, float(p_base[2])) & clearance.allows(
+        T_flange[:, 2, 3], float(p_base[2])
+    )
+    keep = np.nonzero(ok)[0]
+    sols = ik.solve(T_flange[keep], model.limits, turn_alternatives=False)
+    rows = keep[sols.pose_index]
+    return Candidates(p, sols.q_deg, c[rows])

@@ -2,8 +2,11 @@
 
     CalibError                 root
     ├── InsufficientData       fewer equations than parameters, empty or malformed arrays
-    └── NotIdentifiable        the identification Jacobian is rank deficient; `groups` names
-                               the parameters that move together in each null-space direction
+    ├── NotIdentifiable        the identification Jacobian is rank deficient; `groups` names
+    │                          the parameters that move together in each null-space direction
+    └── PlanningError          measurement planning cannot proceed
+        ├── NoCandidates       no configuration sees a sphere (unreachable, all filtered out)
+        └── EmptyRegion        the feasible region for the spheres contains nothing
 
 Did-not-converge is not an error: the result objects carry `success`, `status`, `message`.
 """
@@ -28,3 +31,15 @@ class NotIdentifiable(CalibError):
         self.rank = rank
         self.n_params = n_params
         super().__init__(message)
+
+
+class PlanningError(CalibError):
+    """Measurement planning cannot proceed with these inputs."""
+
+
+class NoCandidates(PlanningError):
+    """No (or too few) reachable configurations see a sphere."""
+
+
+class EmptyRegion(PlanningError):
+    """The feasible region for sphere placement is empty."""

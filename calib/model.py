@@ -217,19 +217,32 @@ class SystemModel:
         want = {name: j for j, name in enumerate(active)}
         J = np.zeros((q.shape[0], 3, len(active)))
         phi = self.joint_phi(x, q)
+        c_phi, s_phi = np.cos(phi), np.sin(phi)
         T_pb = self.T_part_base(x)
         self._base_columns(J, want, x, T_pb, p)
+        # The frame before each elementary operation is A @ P: A (N, 4, 4) changes only at
+        # the joints, P (4, 4) collects the constant operations since the last joint.
         A = np.broadcast_to(T_pb, (q.shape[0], 4, 4)).copy()
+        P = np.eye(4)
         for kind, name, joint in CHAIN[1:-1]:
+            if kind == "rz":
+                A = A @ P
+                P = np.eye(4)
             col = want.get(name)
             if col is not None:
-                axis_p = A[:, :3, _AXIS[kind]]
+                axis_p = A[:, :3, :3] @ P[:3, _AXIS[kind]]
                 if kind[0] == "r":
-                    J[:, :, col] = np.cross(axis_p, p - A[:, :3, 3])
+                    origin = A[:, :3, :3] @ P[:3, 3] + A[:, :3, 3]
+                    J[:, :, col] = np.cross(axis_p, p - origin)
                 else:
                     J[:, :, col] = axis_p
-            value = phi[:, joint] if kind == "rz" else x[INDEX[name]]
-            A = A @ _batched_elementary(kind, value, q.shape[0])
+            if kind == "rz":
+                col0 = A[:, :, 0].copy()
+                A[:, :, 0] = col0 * c_phi[:, joint, None] + A[:, :, 1] * s_phi[:, joint, None]
+                A[:, :, 1] = A[:, :, 1] * c_phi[:, joint, None] - col0 * s_phi[:, joint, None]
+            else:
+                P = P @ _elementary(kind, x[INDEX[name]])
+        A = A @ P
         self._sensor_columns(J, want, x, A, c_s)
         return J
 

@@ -10,6 +10,7 @@ COMMANDS: tuple[str, ...] = (
     "identify",
     "validate",
     "observability",
+    "plan",
     "devices",
     "sensor",
 )

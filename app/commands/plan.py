@@ -1,0 +1,107 @@
+"""`rvis plan`: where the spheres should stand and from which configurations to measure them."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from app.config import load_cell
+from app.errors import InputError
+from app.params import from_json
+from app.planning import ProgressLine, plan_to_json, run_plan, write_plan
+from app.report import index_rows, text_table
+from calib.detmax import METHODS
+from calib.observability import INDEX_NAMES
+from calib.plan import PLACEMENTS
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "plan", help="plan sphere positions (PSO) and measurement configurations (DETMAX)"
+    )
+    p.add_argument("--out", required=True, help="plan JSON to write")
+    p.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")
+    p.add_argument("--params", help="pre-calibrated parameters JSON to plan on (default: nominal)")
+    p.add_argument("--placement", choices=PLACEMENTS, help="sequential (paper), joint, fixed")
+    p.add_argument("--criterion", help=f"selection criterion, one of {', '.join(INDEX_NAMES)}")
+    p.add_argument("--method", choices=METHODS, help="selection method (default detmax)")
+    p.add_argument("--iterations", type=int, help="PSO iterations (default 30)")
+    p.add_argument("--swarm", type=int, dest="swarm_size", help="PSO swarm size (default 50)")
+    p.add_argument("--grid-step", type=float, dest="grid_step_deg", help="final grid [deg]")
+    p.add_argument("--search-step", type=float, dest="search_step_deg", help="PSO grid [deg]")
+    p.add_argument("--workers", type=int, help="processes for the swarm (default 2)")
+    p.add_argument("--seed", type=int, help="seed (default 0)")
+    p.add_argument("--json", action="store_true", help="print the plan summary as JSON")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    cfg = load_cell(args.cell)
+    model, x = from_json(args.params) if args.params else (cfg.model(), cfg.model().nominal_x())
+    overrides = {
+        k: getattr(args, k)
+        for k in (
+            "placement",
+            "criterion",
+            "method",
+            "iterations",
+            "swarm_size",
+            "grid_step_deg",
+            "search_step_deg",
+            "workers",
+            "seed",
+        )
+    }
+    if args.criterion is not None and args.criterion not in INDEX_NAMES:
+        raise InputError(
+            f"unknown criterion '{args.criterion}' (choose from {', '.join(INDEX_NAMES)})",
+            field="--criterion",
+        )
+    for key in ("iterations", "swarm_size", "workers"):
+        value = overrides[key]
+        if value is not None and value < 1:
+            raise InputError(f"must be >= 1, got {value}", field=f"--{key.replace('_', '-')}")
+    progress = ProgressLine(sys.stderr, str(args.criterion or cfg.planning["criterion"]))
+    if not args.json:
+        print(
+            f"rvis plan: {cfg.source}, planning on {args.params or 'nominal parameters'}",
+            flush=True,
+        )
+    result = run_plan(cfg, model, x, progress=progress, **overrides)
+    doc = plan_to_json(cfg, model, x, result)
+    write_plan(args.out, doc)
+    if args.json:
+        print(
+            json.dumps({k: doc[k] for k in ("spheres", "observability", "random_plan", "seconds")})
+        )
+        return 0
+    rows = [
+        [sp["name"], *(f"{v:.1f}" for v in sp["position_base_mm"]), str(sp["n_candidates"])]
+        for sp in doc["spheres"]
+    ]
+    print(text_table(["sphere", "x_base_mm", "y_base_mm", "z_base_mm", "candidates"], rows))
+    print()
+    conf_rows = []
+    for sp in doc["spheres"]:
+        for c in sp["configurations"]:
+            conf_rows.append(
+                [
+                    sp["name"],
+                    *(f"{v:.2f}" for v in c["q_deg"]),
+                    *(f"{v:.1f}" for v in c["c_sensor_mm"]),
+                ]
+            )
+    header = ["sphere", *(f"J{i}_deg" for i in range(1, 7)), "sx_mm", "sy_mm", "sz_mm"]
+    print(text_table(header, conf_rows))
+    print()
+    idx = {"planned": doc["observability"], "random, same positions": doc["random_plan"]}
+    print(text_table(["configurations", *INDEX_NAMES], index_rows(idx)))
+    cond = {k: v["condition"] for k, v in idx.items()}
+    print(
+        f"\nrank {doc['observability']['rank']}, condition planned {cond['planned']:.1f}, "
+        f"random {cond['random, same positions']:.1f}; "
+        + ", ".join(f"{k} {v:.1f} s" for k, v in result.seconds.items())
+    )
+    print(f"written {args.out}")
+    return 0

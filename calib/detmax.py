@@ -1,0 +1,278 @@
+"""Choosing n measurement configurations from a sphere's candidates (paper section 4.3).
+
+Each configuration contributes a 3-row block G_c (3, L) of the identification Jacobian, with
+columns scaled by fixed factors d (one per parameter: the inverse RMS over the candidate pool
+and the fixed configurations of the column's per-configuration norm, so that mm and rad
+columns weigh alike). The information matrix of a selection S and the fixed configurations F
+(those already chosen for other spheres) is
+
+    M(S) = lambda I + sum_{c in F} G_c^T G_c + sum_{c in S} G_c^T G_c
+
+with a tiny ridge lambda so that the partial plans of the first spheres (rank < L) still
+compare. Criteria, each as a log value to maximise:
+
+    O1  log det M                       (D-optimality; monotone in O1 at fixed scaling)
+    O2  log sigma_r / sigma_1           O3  log sigma_r
+    O4  log sigma_r^2 / sigma_1         O5  -log sum 1/sigma_i   (i <= r)
+
+sigma_i = sqrt of the eigenvalues of M, descending; r is the rank that the fixed
+configurations and the whole pool can reach together (so O2..O5 look at the observable
+directions while the plan is partial).
+
+O1 uses the matrix determinant lemma for every candidate at once:
+det(M + G_c^T G_c) = det M det(I_3 + G_c M^-1 G_c^T), and det(M - G_s^T G_s) likewise:
+one (3M x L) x (L x L) product and M 3x3 determinants per sweep instead of an SVD per
+candidate. O2..O5 evaluate the exact spectrum (batched eigvalsh) on a shortlist of the
+candidates with the largest determinant gain and the largest first-order gain along the
+weakest direction.
+
+Methods: DETMAX (Mitchell 1974) with excursions of growing depth; exchange-add-exchange (Sun &
+Hollerbach 2008); random selection as the baseline. Seeded through the rng passed in.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from calib.errors import NoCandidates
+from calib.observability import INDEX_NAMES, check_index_name
+
+F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
+
+METHODS = ("detmax", "eae", "random")
+RIDGE = 1e-6
+#: An improvement of the log criterion below this ends the search.
+TOL = 1e-9
+SHORTLIST = 256
+
+
+def check_method(name: str) -> str:
+    if name not in METHODS:
+        raise ValueError(f"unknown selection method '{name}' (choose from {', '.join(METHODS)})")
+    return name
+
+
+def column_scale(J_blocks: F64) -> F64:
+    """Scale factors d (L,) from configuration blocks (K, 3, L): 1 / RMS block column norm."""
+    ms = np.mean(np.sum(J_blocks**2, axis=1), axis=0)
+    d: F64 = np.where(ms > 0.0, 1.0 / np.sqrt(np.where(ms > 0.0, ms, 1.0)), 0.0)
+    return d
+
+
+@dataclass(frozen=True)
+class Selection:
+    """The chosen candidate rows `indices` (n,), the log criterion value, how many candidate
+    sweeps it took."""
+
+    indices: I64
+    log_value: float
+    criterion: str
+    method: str
+    sweeps: int
+
+
+class _Information:
+    """The information matrix of fixed blocks plus a selection, with its inverse."""
+
+    def __init__(self, G: F64, G_fixed: F64, criterion: str, rank: int) -> None:
+        L = G.shape[2]
+        self.G = G
+        self.G_rows = [np.ascontiguousarray(G[:, r, :]) for r in range(3)]
+        self.criterion = criterion
+        self.rank = rank
+        self.M0 = RIDGE * np.eye(L) + np.einsum("kil,kim->lm", G_fixed, G_fixed)
+        self.sweeps = 0
+        self.all_rows = np.arange(G.shape[0], dtype=np.int64)
+
+    def matrix(self, sel: list[int]) -> F64:
+        Gs = self.G[sel]
+        M: F64 = self.M0 + np.einsum("kil,kim->lm", Gs, Gs)
+        return M
+
+    def log_value(self, M: F64) -> float:
+        if self.criterion == "O1":
+            return float(np.linalg.slogdet(M)[1])
+        lam = np.asarray(np.linalg.eigvalsh(M), dtype=np.float64)[None, :]
+        return float(self._spectral(lam)[0])
+
+    def _spectral(self, lam: F64) -> F64:
+        """Log criterion from eigenvalues (B, L) ascending."""
+        sig = np.sqrt(np.clip(lam[:, ::-1][:, : self.rank], RIDGE, None))
+        s1, sr = sig[:, 0], sig[:, -1]
+        out: F64
+        if self.criterion == "O2":
+            out = np.log(sr / s1)
+        elif self.criterion == "O3":
+            out = np.log(sr)
+        elif self.criterion == "O4":
+            out = np.log(sr**2 / s1)
+        else:  # O5
+            out = -np.log(np.sum(1.0 / sig, axis=1))
+        return out
+
+    def if_added(self, sel: list[int], M: F64, pool: I64) -> F64:
+        """Log criterion after adding each candidate of pool (P,) to sel."""
+        self.sweeps += 1
+        gains = self._gains(M, pool, +1.0)
+        base = float(np.linalg.slogdet(M)[1])
+        if self.criterion == "O1":
+            out: F64 = base + gains
+            return out
+        Gp = self.G[pool]
+        _, vec = np.linalg.eigh(M)
+        weak = vec[:, -self.rank]  # the weakest observable direction
+        first_order = np.sum((Gp @ weak) ** 2, axis=1)
+        short = np.union1d(np.argsort(-gains)[:SHORTLIST], np.argsort(-first_order)[:SHORTLIST])
+        values = np.full(pool.size, -np.inf)
+        Ms = M + np.einsum("kil,kim->klm", Gp[short], Gp[short])
+        values[short] = self._spectral(np.linalg.eigvalsh(Ms))
+        return values
+
+    def _gains(self, M: F64, rows: I64, sign: float) -> F64:
+        """log det(I_3 + sign G_c M^-1 G_c^T) for the blocks `rows` (matrix determinant lemma):
+        with M^-1 = C C^T, W = G_c C and the six distinct entries of W W^T."""
+        C = np.linalg.cholesky(np.linalg.inv(M))
+        all_rows = rows.size == self.G.shape[0]
+        W = [(self.G_rows[r] if all_rows else self.G_rows[r][rows]) @ C for r in range(3)]
+        s = [[np.einsum("pl,pl->p", W[a], W[b]) * sign for b in range(3)] for a in range(3)]
+        det = (
+            (1 + s[0][0]) * ((1 + s[1][1]) * (1 + s[2][2]) - s[1][2] ** 2)
+            - s[0][1] * (s[0][1] * (1 + s[2][2]) - s[1][2] * s[0][2])
+            + s[0][2] * (s[0][1] * s[1][2] - (1 + s[1][1]) * s[0][2])
+        )
+        out: F64 = np.log(np.where(det > 0.0, det, np.nan))
+        return np.nan_to_num(out, nan=-np.inf)
+
+    def if_removed(self, sel: list[int], M: F64, removable: list[int]) -> F64:
+        """Log criterion after removing each of `removable` (positions in sel)."""
+        rows = np.array([sel[i] for i in removable], dtype=np.int64)
+        Gr = self.G[rows]
+        if self.criterion == "O1":
+            out: F64 = float(np.linalg.slogdet(M)[1]) + self._gains(M, rows, -1.0)
+            return out
+        Ms = M - np.einsum("kil,kim->klm", Gr, Gr)
+        return self._spectral(np.linalg.eigvalsh(Ms))
+
+
+def select(
+    J_candidates: F64,
+    n: int,
+    rng: np.random.Generator,
+    *,
+    J_fixed: F64 | None = None,
+    criterion: str = "O1",
+    method: str = "detmax",
+    max_depth: int = 4,
+    scale: F64 | None = None,
+    start: str = "greedy",
+) -> Selection:
+    """Choose n of the candidates (blocks J_candidates (M, 3, L)) that maximise the
+    criterion together with the fixed blocks J_fixed (F, 3, L). DETMAX and exchange-add-
+    exchange start from `start`: "greedy" (n best single additions, deterministic) or
+    "random" (n random candidates, as Mitchell's DETMAX)."""
+    check_index_name(criterion)
+    check_method(method)
+    J_candidates = np.asarray(J_candidates, dtype=float)
+    m_cand, L = J_candidates.shape[0], J_candidates.shape[2]
+    if n < 1:
+        raise ValueError(f"number of configurations to choose must be >= 1, got {n}")
+    if m_cand < n:
+        raise NoCandidates(f"{m_cand} candidate configurations, {n} needed")
+    J_fix = np.zeros((0, 3, L)) if J_fixed is None else np.asarray(J_fixed, dtype=float)
+    d = column_scale(np.concatenate([J_fix, J_candidates])) if scale is None else scale
+    G, G_fix = J_candidates * d, J_fix * d
+    rank = L
+    if criterion != "O1":
+        pool_info = np.einsum("kil,kim->lm", G, G) + np.einsum("kil,kim->lm", G_fix, G_fix)
+        lam = np.linalg.eigvalsh(pool_info)
+        rank = max(1, int(np.sum(lam > 1e-9 * lam[-1])))
+    info = _Information(G, G_fix, criterion, rank)
+    if start not in ("greedy", "random"):
+        raise ValueError(f"unknown start '{start}' (choose from greedy, random)")
+    first = [int(i) for i in rng.choice(m_cand, size=n, replace=False)]
+    if method == "random":
+        sel = first
+    elif method == "detmax":
+        sel = _greedy(info, n) if start == "greedy" else first
+        sel = _detmax(info, sel, max_depth)
+    else:
+        k = max(1, (n + 1) // 2)
+        sel = _eae(info, _greedy(info, k) if start == "greedy" else first[:k], n)
+    value = info.log_value(info.matrix(sel))
+    return Selection(np.array(sel, dtype=np.int64), value, criterion, method, info.sweeps)
+
+
+def _greedy(info: _Information, n: int) -> list[int]:
+    sel: list[int] = []
+    for _ in range(n):
+        sel = _add_best(info, sel)
+    return sel
+
+
+def _add_best(info: _Information, sel: list[int]) -> list[int]:
+    M = info.matrix(sel)
+    values = info.if_added(sel, M, info.all_rows)
+    values[sel] = -np.inf
+    return [*sel, int(np.argmax(values))]
+
+
+def _remove_best(info: _Information, sel: list[int]) -> list[int]:
+    """Remove the member whose removal lowers the criterion least."""
+    M = info.matrix(sel)
+    values = info.if_removed(sel, M, list(range(len(sel))))
+    k = int(np.argmax(values))
+    return sel[:k] + sel[k + 1 :]
+
+
+def _detmax(info: _Information, sel: list[int], max_depth: int) -> list[int]:
+    """Mitchell's DETMAX: excursions that add then remove `depth` points; a failed excursion
+    is retried one level deeper; stop when no excursion up to max_depth improves."""
+    current = info.log_value(info.matrix(sel))
+    for _ in range(200 * len(sel)):
+        for depth in range(1, max_depth + 1):
+            trial = list(sel)
+            for _ in range(depth):
+                trial = _add_best(info, trial)
+            for _ in range(depth):
+                trial = _remove_best(info, trial)
+            value = info.log_value(info.matrix(trial))
+            if value > current + TOL and sorted(trial) != sorted(sel):
+                sel, current = trial, value
+                break
+        else:
+            return sel
+    return sel
+
+
+def _exchange(info: _Information, sel: list[int]) -> list[int]:
+    """Best single swaps (member out, candidate in) until none improves."""
+    current = info.log_value(info.matrix(sel))
+    for _ in range(200 * max(len(sel), 1)):
+        best = (current + TOL, -1, -1)
+        for k in range(len(sel)):
+            rest = sel[:k] + sel[k + 1 :]
+            values = info.if_added(rest, info.matrix(rest), info.all_rows)
+            values[sel] = -np.inf
+            j = int(np.argmax(values))
+            if values[j] > best[0]:
+                best = (float(values[j]), k, j)
+        if best[1] < 0:
+            return sel
+        sel = [*sel[:best[1]], best[2], *sel[best[1] + 1:]]
+        current = info.log_value(info.matrix(sel))
+    return sel
+
+
+def _eae(info: _Information, sel: list[int], n: int) -> list[int]:
+    """Exchange-add-exchange: exchange to convergence, add the best, exchange again, until n."""
+    sel = _exchange(info, sel)
+    while len(sel) < n:
+        sel = _exchange(info, _add_best(info, sel))
+    return sel
+
+
+__all__ = ["INDEX_NAMES", "METHODS", "Selection", "column_scale", "select"]

@@ -1,0 +1,418 @@
+"""Measurement planning: where the spheres stand and from which configurations the robot
+measures them (paper section 4, Fig. 6).
+
+For a sphere position: the candidate configurations on an orientation grid (calib.candidates),
+their identification-Jacobian blocks on the pre-calibrated model, and DETMAX (calib.detmax)
+choosing n of them together with the configurations already chosen for the other spheres.
+Positions: particle swarm optimisation (calib.pso) of each sphere's (x, y) in the robot base
+frame with its height fixed, inside the feasible region (outside the base plate: the paper's
+Eqs. 17-18), either one sphere after the other as in the paper or all four jointly. The
+fitness is minus the criterion index of all configurations chosen so far.
+
+Coarse to fine: the swarm's fitness uses a coarse orientation grid (`search_grid`); the final
+configurations at the chosen positions come from the full grid (`grid`, default 5 degrees).
+
+Partial plans: while fewer spheres are placed the Jacobian cannot reach rank L (one sphere
+gives at most 27 of the 30 directions, two 29), so the fitness takes the r largest singular
+values of the column-scaled Jacobian, r the rank that the fixed configurations and the whole
+candidate pool reach together; with four spheres r = L and the index is the usual one.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from calib import detmax
+from calib.candidates import (
+    Candidates,
+    Clearance,
+    ViewGrid,
+    random_configurations,
+    sphere_candidates,
+)
+from calib.errors import EmptyRegion, NoCandidates
+from calib.model import PAPER_30, SystemModel
+from calib.observability import (
+    Observability,
+    check_index_name,
+    column_scaled,
+    index_from_singular_values,
+    observability,
+)
+from calib.pso import SwarmSettings, minimize
+from calib.transforms import apply, inverse
+
+F64 = NDArray[np.float64]
+PLACEMENTS = ("sequential", "joint", "fixed")
+#: Progress callback: (stage, step, steps, best fitness so far).
+Progress = Callable[[str, int, int, float], None]
+#: A map over particles, e.g. a process pool's `map` (default: the builtin).
+MapFn = Callable[[Callable[[F64], float], Iterable[F64]], Iterable[float]]
+
+
+@dataclass(frozen=True)
+class FeasibleRegion:
+    """Where a sphere may stand, x-y in the robot base frame [mm]: inside `box_mm`
+    (x_min, x_max, y_min, y_max), within `r_max_mm` of the J1 axis, and outside the base plate
+    `plate_mm` grown by `plate_margin_mm` (the paper's regions Q1 and Q2)."""
+
+    plate_mm: tuple[float, float, float, float] = (-750.0, 750.0, -750.0, 750.0)
+    box_mm: tuple[float, float, float, float] = (-2000.0, 2000.0, -2000.0, 2000.0)
+    r_max_mm: float = 2000.0
+    plate_margin_mm: float = 50.0
+
+    def contains(self, xy_mm: ArrayLike) -> NDArray[np.bool_]:
+        xy = np.atleast_2d(np.asarray(xy_mm, dtype=float))
+        x, y = xy[:, 0], xy[:, 1]
+        bx0, bx1, by0, by1 = self.box_mm
+        px0, px1, py0, py1 = self.plate_mm
+        m = self.plate_margin_mm
+        in_box = (x >= bx0) & (x <= bx1) & (y >= by0) & (y <= by1)
+        in_reach = np.hypot(x, y) <= self.r_max_mm
+        on_plate = (x > px0 - m) & (x < px1 + m) & (y > py0 - m) & (y < py1 + m)
+        ok: NDArray[np.bool_] = in_box & in_reach & ~on_plate
+        return ok
+
+    def sample(self, rng: np.random.Generator, n: int) -> F64:
+        """n uniform positions (n, 2) in the region; EmptyRegion when it holds nothing."""
+        bx0, bx1, by0, by1 = self.box_mm
+        out: list[F64] = []
+        for _ in range(100):
+            xy = rng.uniform([bx0, by0], [bx1, by1], (max(4 * n, 1000), 2))
+            out.extend(xy[self.contains(xy)])
+            if len(out) >= n:
+                return np.array(out[:n])
+        raise EmptyRegion(
+            f"the feasible region for the spheres is empty: box {self.box_mm} mm, reach "
+            f"{self.r_max_mm} mm, base plate {self.plate_mm} mm + {self.plate_margin_mm} mm"
+        )
+
+
+@dataclass(frozen=True)
+class PlanSettings:
+    n_per_sphere: int = 6
+    criterion: str = "O1"
+    method: str = "detmax"
+    placement: str = "sequential"
+    grid: ViewGrid = field(default_factory=ViewGrid)
+    search_grid: ViewGrid = field(default_factory=lambda: ViewGrid(step_deg=30.0))
+    swarm: SwarmSettings = field(default_factory=SwarmSettings)
+    clearance: Clearance = field(default_factory=Clearance)
+    min_separation_mm: float = 300.0
+    active: tuple[str, ...] = PAPER_30
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        check_index_name(self.criterion)
+        detmax.check_method(self.method)
+        if self.placement not in PLACEMENTS:
+            raise ValueError(
+                f"unknown placement '{self.placement}' (choose from {', '.join(PLACEMENTS)})"
+            )
+        if self.n_per_sphere < 1:
+            raise ValueError(f"configurations per sphere {self.n_per_sphere}: expected >= 1")
+
+
+@dataclass(frozen=True)
+class SpherePlan:
+    """One sphere: its centre (part frame), the chosen configurations q_deg (n, 6) and where
+    the sphere appears in the field of view from each, c_sensor_mm (n, 3)."""
+
+    name: str
+    p_part_mm: F64
+    q_deg: F64
+    c_sensor_mm: F64
+    n_candidates: int
+
+
+@dataclass(frozen=True)
+class Plan:
+    spheres: tuple[SpherePlan, ...]
+    observability: Observability
+    random_observability: Observability
+    random_q_deg: dict[str, F64]
+    random_c_sensor_mm: dict[str, F64]
+    settings: PlanSettings
+    fitness_history: dict[str, F64]
+    seconds: dict[str, float]
+
+    def q_by_sphere(self) -> dict[str, F64]:
+        return {s.name: s.q_deg for s in self.spheres}
+
+    def positions_part_mm(self) -> dict[str, F64]:
+        return {s.name: s.p_part_mm for s in self.spheres}
+
+
+# -- one sphere --------------------------------------------------------------------------
+def candidate_blocks(
+    model: SystemModel,
+    x: F64,
+    p_part_mm: F64,
+    grid: ViewGrid,
+    settings: PlanSettings,
+) -> tuple[Candidates, F64]:
+    """Candidates of a sphere and their Jacobian blocks (M, 3, L)."""
+    cand = sphere_candidates(model, x, p_part_mm, grid, clearance=settings.clearance)
+    J = model.point_jacobian(x, cand.q_deg, cand.c_sensor_mm, settings.active)
+    return cand, J
+
+
+def choose(
+    model: SystemModel,
+    x: F64,
+    p_part_mm: F64,
+    grid: ViewGrid,
+    J_fixed: F64,
+    settings: PlanSettings,
+) -> tuple[Candidates, F64, int]:
+    """The n configurations of one sphere chosen with the fixed blocks, their blocks and the
+    number of candidates; NoCandidates when fewer than n views are reachable."""
+    cand, J = candidate_blocks(model, x, p_part_mm, grid, settings)
+    if len(cand) < settings.n_per_sphere:
+        raise NoCandidates(
+            f"sphere at {np.round(p_part_mm, 1).tolist()} mm (part frame): {len(cand)} "
+            f"reachable views that keep the clearance, {settings.n_per_sphere} needed"
+        )
+    rng = np.random.default_rng(settings.seed)
+    sel = detmax.select(
+        J,
+        settings.n_per_sphere,
+        rng,
+        J_fixed=J_fixed,
+        criterion=settings.criterion,
+        method=settings.method,
+    )
+    return cand.take(sel.indices), J[sel.indices], len(cand)
+
+
+def plan_index(J_blocks: F64, name: str, rank: int | None = None) -> float:
+    """The index `name` of configuration blocks (K, 3, L) from their r largest singular
+    values (r = rank, default L), column-scaled as calib.observability states."""
+    K, _, L = J_blocks.shape
+    Js, _ = column_scaled(J_blocks.reshape(-1, L))
+    sigma = np.linalg.svd(Js, compute_uv=False)
+    r = L if rank is None else rank
+    sigma = np.concatenate([sigma, np.zeros(max(0, L - sigma.size))])[:r]
+    sigma = np.maximum(sigma, 1e-9 * max(float(sigma[0]), 1e-300))
+    return index_from_singular_values(name, sigma, K)
+
+
+def _reachable_rank(J_fixed: F64, J_pool: F64) -> int:
+    blocks = np.concatenate([J_fixed, J_pool])
+    Js, _ = column_scaled(blocks.reshape(-1, blocks.shape[2]))
+    lam = np.linalg.eigvalsh(Js.T @ Js)
+    return max(1, int(np.sum(lam > 1e-12 * lam[-1])))
+
+
+# -- positions ---------------------------------------------------------------------------
+def _part_from_base(model: SystemModel, x: F64, xy: F64, z_base_mm: float) -> F64:
+    return apply(model.T_part_base(x), np.array([xy[0], xy[1], z_base_mm]))
+
+
+@dataclass(frozen=True)
+class _Fitness:
+    """Picklable fitness of particles (for process pools): minus the index of all chosen
+    configurations for spheres at the particle's x-y (one sphere, or all for the joint
+    placement), +inf where infeasible or unreachable."""
+
+    model: SystemModel
+    x: F64
+    z_base_mm: tuple[float, ...]
+    placed_xy_mm: F64  # (k, 2) spheres placed before (their blocks in J_fixed)
+    J_fixed: F64
+    settings: PlanSettings
+    region: FeasibleRegion
+    rank: int
+
+    def __call__(self, particle: F64) -> float:
+        xy = np.asarray(particle, dtype=float).reshape(-1, 2)
+        if not np.all(self.region.contains(xy)):
+            return float("inf")
+        every = np.concatenate([self.placed_xy_mm, xy])
+        gaps = np.linalg.norm(every[:, None, :] - every[None, :, :], axis=2)
+        if np.any(gaps[np.triu_indices(len(every), 1)] < self.settings.min_separation_mm):
+            return float("inf")
+        J = self.J_fixed
+        grid = self.settings.search_grid
+        try:
+            for (px, py), z in zip(xy, self.z_base_mm, strict=True):
+                p = _part_from_base(self.model, self.x, np.array([px, py]), z)
+                _, J_sel, _ = choose(self.model, self.x, p, grid, J, self.settings)
+                J = np.concatenate([J, J_sel])
+        except NoCandidates:
+            return float("inf")
+        return -plan_index(J, self.settings.criterion, self.rank)
+
+
+def _swarm(
+    fitness: _Fitness,
+    region: FeasibleRegion,
+    n_spheres: int,
+    initial_xy: F64,
+    stage: str,
+    progress: Progress | None,
+    map_fn: MapFn,
+) -> tuple[F64, F64]:
+    s = fitness.settings
+    rng = np.random.default_rng([s.seed, n_spheres, len(fitness.placed_xy_mm)])
+    bx0, bx1, by0, by1 = region.box_mm
+    lower = np.tile([bx0, by0], n_spheres)
+    upper = np.tile([bx1, by1], n_spheres)
+    start = region.sample(rng, s.swarm.n_particles * n_spheres).reshape(s.swarm.n_particles, -1)
+    start[0] = initial_xy.reshape(-1)  # the current positions are one of the particles
+
+    def f_batch(particles: F64) -> F64:
+        return np.array(list(map_fn(fitness, list(particles))), dtype=float)
+
+    def report(it: int, n_it: int, best: float) -> None:
+        if progress:
+            progress(stage, it, n_it, -best)
+
+    res = minimize(f_batch, lower, upper, rng, s.swarm, initial=start, progress=report)
+    if not np.isfinite(res.f_best):
+        raise NoCandidates(
+            f"{stage}: no particle of the swarm found a feasible, reachable position "
+            f"({res.n_evaluations} evaluated)"
+        )
+    return res.x_best.reshape(n_spheres, 2), -res.history
+
+
+# -- the whole plan ------------------------------------------------------------------
+def select_configurations(
+    model: SystemModel,
+    x: F64,
+    spheres_part_mm: Mapping[str, ArrayLike],
+    settings: PlanSettings,
+    grid: ViewGrid | None = None,
+    J_fixed: F64 | None = None,
+) -> tuple[list[SpherePlan], F64]:
+    """The configurations of each sphere at fixed positions, in order, each choice counting
+    the ones before; returns the sphere plans and all their Jacobian blocks."""
+    L = len(settings.active)
+    J = np.zeros((0, 3, L)) if J_fixed is None else J_fixed
+    plans: list[SpherePlan] = []
+    for name, p in spheres_part_mm.items():
+        p_arr = np.asarray(p, dtype=float).reshape(3)
+        try:
+            chosen, J_sel, n_cand = choose(model, x, p_arr, grid or settings.grid, J, settings)
+        except NoCandidates as exc:
+            raise NoCandidates(f"sphere {name}: {exc}") from None
+        J = np.concatenate([J, J_sel])
+        plans.append(SpherePlan(name, p_arr, chosen.q_deg, chosen.c_sensor_mm, n_cand))
+    return plans, J
+
+
+def plan(
+    model: SystemModel,
+    x: F64,
+    spheres_part_mm: Mapping[str, ArrayLike],
+    settings: PlanSettings | None = None,
+    region: FeasibleRegion | None = None,
+    *,
+    progress: Progress | None = None,
+    map_fn: MapFn | None = None,
+) -> Plan:
+    """Plan sphere positions (heights kept from spheres_part_mm, which also gives the start)
+    and their configurations on the pre-calibrated parameters x."""
+    s = settings or PlanSettings()
+    region = region or FeasibleRegion()
+    mapper: MapFn = map_fn or map
+    names = list(spheres_part_mm)
+    T_base_part = inverse(model.T_part_base(x))
+    start_base = np.array(
+        [apply(T_base_part, np.asarray(spheres_part_mm[k], float)) for k in names]
+    )
+    z_base = tuple(float(z) for z in start_base[:, 2])
+    L = len(s.active)
+    seconds: dict[str, float] = {}
+    history: dict[str, F64] = {}
+    t0 = time.perf_counter()
+    xy = start_base[:, :2].copy()
+    if s.placement != "fixed":
+        region.sample(np.random.default_rng(0), 1)  # EmptyRegion early
+    if s.placement == "sequential":
+        J_fixed = np.zeros((0, 3, L))
+        for k, name in enumerate(names):
+            t = time.perf_counter()
+            fit = _fitness(model, x, (z_base[k],), xy[:k], J_fixed, s, region, xy[k])
+            best, history[name] = _swarm(fit, region, 1, xy[k], f"place {name}", progress, mapper)
+            xy[k] = best[0]
+            p = _part_from_base(model, x, xy[k], z_base[k])
+            _, J_sel, _ = choose(model, x, p, s.grid, J_fixed, s)
+            J_fixed = np.concatenate([J_fixed, J_sel])
+            seconds[f"place {name}"] = time.perf_counter() - t
+    elif s.placement == "joint":
+        t = time.perf_counter()
+        fit = _fitness(model, x, z_base, np.zeros((0, 2)), np.zeros((0, 3, L)), s, region, xy)
+        xy, history["joint"] = _swarm(fit, region, len(names), xy, "place all", progress, mapper)
+        seconds["place all"] = time.perf_counter() - t
+    t = time.perf_counter()
+    positions = {n: _part_from_base(model, x, xy[k], z_base[k]) for k, n in enumerate(names)}
+    if progress:
+        progress("configurations", 0, 1, float("nan"))
+    spheres, J_all = select_configurations(model, x, positions, s)
+    obs = observability(J_all.reshape(-1, L), J_all.shape[0])
+    if progress:
+        progress("configurations", 1, 1, obs.indices[s.criterion])
+    seconds["configurations"] = time.perf_counter() - t
+    rq, rc, r_obs = random_plan(model, x, positions, s)
+    seconds["total"] = time.perf_counter() - t0
+    return Plan(tuple(spheres), obs, r_obs, rq, rc, s, history, seconds)
+
+
+def _fitness(
+    model: SystemModel,
+    x: F64,
+    z_base: tuple[float, ...],
+    placed_xy: F64,
+    J_fixed: F64,
+    s: PlanSettings,
+    region: FeasibleRegion,
+    xy_start: F64,
+) -> _Fitness:
+    """The fitness of a stage, with the rank reachable from the start position."""
+    J_pool = [J_fixed]
+    for (px, py), z in zip(np.reshape(xy_start, (-1, 2)), z_base, strict=True):
+        _, J = candidate_blocks(
+            model, x, _part_from_base(model, x, np.array([px, py]), z), s.search_grid, s
+        )
+        J_pool.append(J)
+    pool = np.concatenate(J_pool)
+    rank = _reachable_rank(np.zeros((0, 3, pool.shape[2])), pool) if len(pool) else len(s.active)
+    return _Fitness(
+        model, x, z_base, np.asarray(placed_xy).reshape(-1, 2), J_fixed, s, region, rank
+    )
+
+
+def random_plan(
+    model: SystemModel,
+    x: F64,
+    spheres_part_mm: Mapping[str, ArrayLike],
+    settings: PlanSettings,
+) -> tuple[dict[str, F64], dict[str, F64], Observability]:
+    """The baseline at the same positions: n random configurations per sphere."""
+    rng = np.random.default_rng([settings.seed, 7])
+    qs: dict[str, F64] = {}
+    cs: dict[str, F64] = {}
+    blocks = []
+    for name, p in spheres_part_mm.items():
+        v = random_configurations(model, x, p, settings.n_per_sphere, rng)
+        qs[name], cs[name] = v.q_deg, v.c_planned_mm
+        blocks.append(model.point_jacobian(x, v.q_deg, v.c_planned_mm, settings.active))
+    J = np.concatenate(blocks)
+    return qs, cs, observability(J.reshape(-1, J.shape[2]), J.shape[0])
+
+
+def indices_of(
+    model: SystemModel, x: F64, q_deg: F64, c_sensor_mm: F64, active: Sequence[str] = PAPER_30
+) -> dict[str, Any]:
+    """O1..O5, rank and condition of configurations (for reports)."""
+    J = model.point_jacobian(x, q_deg, c_sensor_mm, active)
+    obs = observability(J.reshape(-1, J.shape[2]), J.shape[0])
+    return {**obs.indices, "rank": obs.rank, "condition": obs.condition}
