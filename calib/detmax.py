@@ -36,6 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.linalg import solve_triangular
 
 from calib.errors import NoCandidates
 from calib.observability import INDEX_NAMES, check_index_name
@@ -134,11 +135,15 @@ class _Information:
 
     def _gains(self, M: F64, rows: I64, sign: float) -> F64:
         """log det(I_3 + sign G_c M^-1 G_c^T) for the blocks `rows` (matrix determinant lemma):
-        with M^-1 = C C^T, W = G_c C and the six distinct entries of W W^T."""
-        C = np.linalg.cholesky(np.linalg.inv(M))
+        with M = C C^T (Cholesky), W_r = C^-1 G_r^T and the six distinct entries of W^T W."""
+        C = np.linalg.cholesky(M)
         all_rows = rows.size == self.G.shape[0]
-        W = [(self.G_rows[r] if all_rows else self.G_rows[r][rows]) @ C for r in range(3)]
-        s = [[np.einsum("pl,pl->p", W[a], W[b]) * sign for b in range(3)] for a in range(3)]
+        W = [
+            solve_triangular(C, (self.G_rows[r] if all_rows else self.G_rows[r][rows]).T,
+                             lower=True, check_finite=False)
+            for r in range(3)
+        ]
+        s = [[np.einsum("lp,lp->p", W[a], W[b]) * sign for b in range(3)] for a in range(3)]
         det = (
             (1 + s[0][0]) * ((1 + s[1][1]) * (1 + s[2][2]) - s[1][2] ** 2)
             - s[0][1] * (s[0][1] * (1 + s[2][2]) - s[1][2] * s[0][2])

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as app/__init__.py; before numpy loads
+
 from functools import cache
 
 import numpy as np

@@ -1,0 +1,93 @@
+"""`rvis plan`: the plan file, reproducibility over processes, and its bad inputs (exit 2)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from app.cli import main
+from app.planning import read_plan
+
+FAST = ["--iterations", "1", "--swarm", "4", "--grid-step", "30", "--search-step", "30"]
+
+
+def run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    code = main(argv)
+    cap = capsys.readouterr()
+    return code, cap.out, cap.err
+
+
+def test_plan_writes_a_plan_and_is_the_same_on_two_processes(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    one, two = tmp_path / "one.json", tmp_path / "two.json"
+    code, out, err = run(["plan", "--out", str(one), "--workers", "1", *FAST], capsys)
+    assert code == 0, err
+    assert "random, same positions" in out and "place P4" in err  # table and progress
+    code, _, err = run(["plan", "--out", str(two), "--workers", "2", *FAST], capsys)
+    assert code == 0, err
+    positions, qs, cs = read_plan(one)
+    positions2, qs2, _ = read_plan(two)
+    assert list(positions) == ["P1", "P2", "P3", "P4"]
+    for name in positions:
+        assert qs[name].shape == (6, 6) and cs[name].shape == (6, 3)
+        assert np.allclose(positions[name], positions2[name]) and np.allclose(qs[name], qs2[name])
+    doc = json.loads(one.read_text())
+    assert doc["observability"]["rank"] == 30
+    assert doc["observability"]["O1"] > doc["random_plan"]["O1"]
+
+
+def test_fixed_placement_keeps_the_cell_positions(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "plan.json"
+    code, text, _ = run(
+        ["plan", "--out", str(out), "--placement", "fixed", "--json", *FAST], capsys
+    )
+    assert code == 0
+    base = {s["name"]: s["position_base_mm"] for s in json.loads(text)["spheres"]}
+    assert np.allclose(base["P1"], [-647.14, 1254.27, -289.37])
+
+
+def _cell(tmp_path: Path, text: str) -> str:
+    path = tmp_path / "cell.toml"
+    path.write_text(text)
+    return str(path)
+
+
+@pytest.mark.parametrize(
+    ("argv", "cell", "message"),
+    [
+        (["--criterion", "O9"], None, "field '--criterion': unknown criterion 'O9'"),
+        (["--iterations", "0"], None, "field '--iterations': must be >= 1"),
+        ([], '[planning]\ncriterion = "O7"\n', "cell.toml:2: field 'planning.criterion'"),
+        ([], "[planning]\nmax_tilt_deg = 120.0\n", "must not point upward"),
+        (
+            [],
+            "[planning]\nworkspace_mm = [-600.0, 600.0, -600.0, 600.0]\n",
+            "feasible region for the spheres is empty",
+        ),
+        (
+            ["--placement", "fixed"],
+            '[spheres]\nframe = "base"\n[spheres.positions_mm]\nP1 = [3500.0, 0.0, 0.0]\n',
+            "sphere P1: sphere at",
+        ),
+    ],
+)
+def test_bad_plan_inputs_exit_2(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    argv: list[str],
+    cell: str | None,
+    message: str,
+) -> None:
+    cell_args = ["--cell", _cell(tmp_path, cell)] if cell else []
+    code, _, err = run(
+        ["plan", "--out", str(tmp_path / "p.json"), *FAST, *cell_args, *argv], capsys
+    )
+    assert code == 2
+    assert message in err and "Traceback" not in err
+    assert len(err.strip().splitlines()[-1]) > 0

@@ -1,0 +1,222 @@
+"""Measurement planning: candidate grid, DETMAX, PSO placement, the whole plan."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.config import CellConfig
+from calib import detmax
+from calib.candidates import (
+    FOV_CENTRE_MM,
+    FOV_SPREAD_MM,
+    Clearance,
+    ViewGrid,
+    sphere_candidates,
+)
+from calib.errors import EmptyRegion, NoCandidates
+from calib.model import PAPER_30
+from calib.observability import null_space_groups, observability
+from calib.plan import FeasibleRegion, PlanSettings, choose, plan, select_configurations
+from calib.pso import SwarmSettings, minimize
+from calib.transforms import apply, inverse
+
+COARSE = ViewGrid(step_deg=20.0)
+
+
+def test_grid_never_looks_upward_and_has_the_expected_size() -> None:
+    R, c = ViewGrid(step_deg=5.0).views()
+    assert np.all(R[:, 2, 2] <= 1e-12)  # sensor z axis (view direction) points down or level
+    assert np.allclose(np.einsum("kji,kjl->kil", R, R), np.eye(3), atol=1e-12)
+    assert 45_000 < len(R) < 55_000  # ~680 directions x 72 rolls
+    assert set(map(tuple, c - [0, 0, 130.0])) == set(FOV_SPREAD_MM)
+    tilt = np.degrees(np.arccos(-R[:, 2, 2]))
+    assert tilt.max() == pytest.approx(80.0)
+    with pytest.raises(ValueError, match="upward"):
+        ViewGrid(max_tilt_deg=100.0)
+
+
+def test_candidates_see_the_sphere_where_planned(cfg: CellConfig) -> None:
+    model = cfg.model()
+    x = model.nominal_x()
+    p = cfg.spheres_part_mm["P2"]
+    cand = sphere_candidates(model, x, p, COARSE)
+    assert len(cand) > 500
+    assert model.limits.contains(cand.q_deg).all()
+    T = model.fk(x, cand.q_deg)
+    c = apply(inverse(T), p)  # the sphere in each candidate's sensor frame
+    assert np.abs(c - cand.c_sensor_mm).max() < 1e-8
+    # clearance: sensor origin and flange above the sphere centre by 30 mm, above the floor
+    T_base = inverse(model.T_part_base(x))
+    p_base = apply(T_base, p)
+    for frames in (T, model.fk(x, cand.q_deg, flange=True)):
+        z = (T_base @ frames)[:, 2, 3]
+        assert z.min() >= p_base[2] + 30.0 - 1e-9
+        assert z.min() >= -565.0 + 150.0 - 1e-9
+    # one solution per branch and view: no whole-turn duplicates
+    assert len(np.unique(np.round(cand.q_deg, 6), axis=0)) == len(cand)
+
+
+def test_unreachable_sphere_has_no_candidates(cfg: CellConfig) -> None:
+    model = cfg.model()
+    x = model.nominal_x()
+    far = apply(model.T_part_base(x), np.array([3500.0, 0.0, 0.0]))
+    assert len(sphere_candidates(model, x, far, COARSE)) == 0
+    with pytest.raises(NoCandidates, match="reachable views"):
+        choose(model, x, far, COARSE, np.zeros((0, 3, 30)), PlanSettings())
+    # a clearance that forbids everything: no candidates either
+    p = cfg.spheres_part_mm["P1"]
+    blocked = Clearance(above_sphere_mm=5000.0)
+    assert len(sphere_candidates(model, x, p, COARSE, clearance=blocked)) == 0
+
+
+def _blocks(cfg: CellConfig, name: str, grid: ViewGrid = COARSE) -> np.ndarray:
+    model = cfg.model()
+    x = model.nominal_x()
+    cand = sphere_candidates(model, x, cfg.spheres_part_mm[name], grid)
+    return model.point_jacobian(x, cand.q_deg, cand.c_sensor_mm, PAPER_30)
+
+
+@pytest.mark.parametrize("n_fixed", [0, 18])
+def test_determinant_lemma_gains_equal_direct_log_determinants(
+    cfg: CellConfig, n_fixed: int
+) -> None:
+    """Rank-3 updates agree with a determinant per candidate, for a rank-deficient partial
+    plan (one sphere, 6 configurations: rank 18 of 30) and a full-rank one."""
+    J = _blocks(cfg, "P1")[:200]
+    fixed = np.concatenate([_blocks(cfg, n)[:: 97][:6] for n in ("P2", "P3", "P4")])[:n_fixed]
+    d = detmax.column_scale(np.concatenate([fixed, J]))
+    G = J * d
+    info = detmax._Information(G, fixed * d, "O1", 30)
+    sel = [3, 50, 90, 120, 160, 199]
+    M = info.matrix(sel)
+    fast = info.if_added(sel, M, info.all_rows)
+    direct = [np.linalg.slogdet(M + G[k].T @ G[k])[1] for k in range(len(G))]
+    assert np.allclose(fast, direct, rtol=0.0, atol=1e-6)
+    removed = info.if_removed(sel, M, list(range(len(sel))))
+    direct_rm = [np.linalg.slogdet(M - G[s].T @ G[s])[1] for s in sel]
+    assert np.allclose(removed, direct_rm, rtol=0.0, atol=1e-6)
+
+
+def _logdet(G: np.ndarray, G_fixed: np.ndarray, sel: list[int]) -> float:
+    blocks = np.concatenate([G_fixed, G[sel]]).reshape(-1, G.shape[2])
+    return float(np.linalg.slogdet(detmax.RIDGE * np.eye(G.shape[2]) + blocks.T @ blocks)[1])
+
+
+def test_exchange_ends_where_no_single_exchange_improves(cfg: CellConfig) -> None:
+    J1, J2 = _blocks(cfg, "P1")[::7], _blocks(cfg, "P2")[::5]
+    fixed = J1[[0, 10, 20, 30, 40, 50]]
+    sel = detmax.select(J2, 6, np.random.default_rng(0), J_fixed=fixed, method="eae")
+    dm = detmax.select(J2, 6, np.random.default_rng(0), J_fixed=fixed, start="random")
+    assert dm.log_value > sel.log_value - 0.5  # DETMAX's excursions end close to it
+    d = detmax.column_scale(np.concatenate([fixed, J2]))
+    G, Gf = J2 * d, fixed * d
+    best = _logdet(G, Gf, list(sel.indices))
+    assert best == pytest.approx(sel.log_value, abs=1e-9)
+    chosen = list(sel.indices)
+    for k in range(6):  # brute force: every single exchange
+        for c in range(len(G)):
+            if c in chosen:
+                continue
+            trial = [*chosen[:k], c, *chosen[k + 1:]]
+            assert _logdet(G, Gf, trial) <= best + 1e-7
+
+
+def test_selection_methods_beat_random_and_are_reproducible(cfg: CellConfig) -> None:
+    J = _blocks(cfg, "P3")
+    fixed = _blocks(cfg, "P1")[[5, 105, 205, 305, 405, 505]]
+    values = {}
+    for method in detmax.METHODS:
+        a = detmax.select(J, 6, np.random.default_rng(1), J_fixed=fixed, method=method)
+        b = detmax.select(J, 6, np.random.default_rng(1), J_fixed=fixed, method=method)
+        assert np.array_equal(a.indices, b.indices)
+        assert len(set(a.indices.tolist())) == 6
+        values[method] = a.log_value
+    assert values["detmax"] > values["random"] + 1.0
+    assert values["eae"] > values["random"] + 1.0
+    with pytest.raises(ValueError, match="unknown observability index 'O9'"):
+        detmax.select(J, 6, np.random.default_rng(1), criterion="O9")
+    with pytest.raises(NoCandidates):
+        detmax.select(J[:4], 6, np.random.default_rng(1))
+
+
+@pytest.mark.parametrize("criterion", ["O2", "O3", "O4", "O5"])
+def test_spectral_criteria_improve_their_own_index(cfg: CellConfig, criterion: str) -> None:
+    J = {n: _blocks(cfg, n, ViewGrid(step_deg=30.0)) for n in cfg.spheres_part_mm}
+    fixed = np.concatenate([J[n][:: max(1, len(J[n]) // 6)][:6] for n in ("P1", "P2", "P3")])
+    rng = np.random.default_rng(2)
+    planned = detmax.select(J["P4"], 6, rng, J_fixed=fixed, criterion=criterion)
+    rand = detmax.select(J["P4"], 6, rng, J_fixed=fixed, criterion=criterion, method="random")
+    assert planned.log_value > rand.log_value
+
+
+def test_on_axis_views_leave_the_sensor_roll_unobservable(cfg: CellConfig) -> None:
+    model = cfg.model()
+    x = model.nominal_x()
+    out = {}
+    for label, offsets in (("centre", FOV_CENTRE_MM), ("spread", FOV_SPREAD_MM)):
+        grid = ViewGrid(step_deg=30.0, offsets_mm=offsets)
+        s = PlanSettings(grid=grid)
+        _, J = select_configurations(model, x, cfg.spheres_part_mm, s)
+        out[label] = observability(J.reshape(-1, 30), len(J))
+        roll = J[:, :, PAPER_30.index("rz_FS")]
+        if label == "centre":
+            assert np.abs(roll).max() < 1e-9  # an all-zero Jacobian column
+            J_centre = J
+    # always the same point of the sensor frame: the hand-eye shows only where that point is
+    # on the flange, so its rotations about x and y mix with translations and the roll is lost
+    groups = null_space_groups(J_centre.reshape(-1, 30), PAPER_30)
+    assert out["centre"].rank == 27 and out["centre"].indices["O1"] == 0.0
+    assert {n for g in groups for n in g} == {"rx_FS", "ry_FS", "rz_FS", "x_FS", "y_FS"}
+    assert out["spread"].rank == 30 and out["spread"].indices["O1"] > 0.1
+
+
+def test_pso_finds_the_minimum_and_respects_infeasibility() -> None:
+    target = np.array([1.5, -2.0])
+
+    def f(p: np.ndarray) -> np.ndarray:
+        val = np.sum((p - target) ** 2, axis=1)
+        return np.where(p[:, 0] < 0.0, np.inf, val)  # left half infeasible
+
+    res = minimize(f, [-5, -5], [5, 5], np.random.default_rng(0), SwarmSettings(20, 40))
+    assert np.linalg.norm(res.x_best - target) < 1e-2
+    assert np.all(np.diff(res.history) <= 0.0)
+    assert res.n_evaluations == 20 * 41
+
+
+def test_feasible_region_is_outside_the_base_plate() -> None:
+    region = FeasibleRegion()
+    xy = region.sample(np.random.default_rng(0), 2000)
+    assert np.all(region.contains(xy))
+    on_plate = (np.abs(xy[:, 0]) < 800.0) & (np.abs(xy[:, 1]) < 800.0)
+    assert not on_plate.any()
+    assert np.hypot(xy[:, 0], xy[:, 1]).max() <= 2000.0
+    empty = FeasibleRegion(box_mm=(-500.0, 500.0, -500.0, 500.0))
+    with pytest.raises(EmptyRegion, match="empty"):
+        empty.sample(np.random.default_rng(0), 1)
+
+
+def test_plan_places_spheres_feasibly_and_beats_random(cfg: CellConfig) -> None:
+    model = cfg.model()
+    x = model.nominal_x()
+    s = PlanSettings(
+        grid=ViewGrid(step_deg=20.0),
+        search_grid=ViewGrid(step_deg=30.0),
+        swarm=SwarmSettings(n_particles=8, n_iterations=2),
+    )
+    seen: list[str] = []
+    result = plan(model, x, cfg.spheres_part_mm, s, progress=lambda st, *_: seen.append(st))
+    again = plan(model, x, cfg.spheres_part_mm, s)
+    T_base_part = inverse(model.T_part_base(x))
+    xy = np.array([apply(T_base_part, sp.p_part_mm) for sp in result.spheres])
+    z0 = np.array([apply(T_base_part, p) for p in cfg.spheres_part_mm.values()])[:, 2]
+    assert np.allclose(xy[:, 2], z0)  # heights stay
+    assert np.all(FeasibleRegion().contains(xy[:, :2]))
+    gaps = np.linalg.norm(xy[:, None, :2] - xy[None, :, :2], axis=2)
+    assert gaps[np.triu_indices(4, 1)].min() >= 300.0
+    assert result.observability.rank == 30
+    assert result.observability.indices["O1"] > result.random_observability.indices["O1"]
+    assert all(len(sp.q_deg) == 6 for sp in result.spheres)
+    for a, b in zip(result.spheres, again.spheres, strict=True):
+        assert np.array_equal(a.q_deg, b.q_deg)  # seeded: reproducible
+    assert {"place P1", "place P4", "configurations"} <= set(seen)
