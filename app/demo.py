@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from app.config import CellConfig
 from app.files import write_json, write_measurements, write_targets
 from app.params import to_json
+from app.planning import plan_to_json, run_plan
 from app.report import (
     PARAM_HEADER,
     STATS_HEADER,
@@ -31,9 +32,21 @@ from app.report import (
 from app.simulation import DataSet, collect, make_cell, validation_set
 from calib.identify import IdentificationResult, Measurements, identify, residuals
 from calib.model import SystemModel
+from calib.plan import Plan, Progress
 from calib.validation import ErrorStats
+from fakes.cell import SimulatedCell
 
 F64 = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class PlannedRun:
+    """Calibration with the planned configurations (and positions) on the same cell."""
+
+    plan: Plan
+    data: DataSet
+    result: IdentificationResult
+    placement: str
 
 
 @dataclass(frozen=True)
@@ -43,6 +56,8 @@ class DemoResult:
     result: IdentificationResult
     run_dir: Path
     seconds: float
+    cfg: CellConfig
+    planned: PlannedRun | None = None
 
 
 def _truth_set(ds: DataSet, c_sensor_mm: F64, with_noise: bool) -> Measurements:
@@ -83,7 +98,17 @@ def error_breakdown(
     return out
 
 
-def run_demo(cfg: CellConfig, seed: int, run_dir: Path, n_validation: int = 100) -> DemoResult:
+def run_demo(
+    cfg: CellConfig,
+    seed: int,
+    run_dir: Path,
+    n_validation: int = 100,
+    placement: str | None = "fixed",
+    progress: Progress | None = None,
+) -> DemoResult:
+    """The demo; with `placement` (fixed, sequential, joint) it also plans on the
+    pre-calibrated parameters and calibrates again with the planned configurations (None:
+    random configurations only)."""
     t0 = time.perf_counter()
     cell = make_cell(cfg, seed=seed)
     model = cfg.model()
@@ -97,9 +122,36 @@ def run_demo(cfg: CellConfig, seed: int, run_dir: Path, n_validation: int = 100)
     e_after = residuals(model, result.x, val.measurements)
     stats = {"nominal": ErrorStats.of(e_before), "identified": ErrorStats.of(e_after)}
     breakdown = error_breakdown(cfg, seed, model, cal, val, result.x)
-    demo = DemoResult(stats, breakdown, result, run_dir, time.perf_counter() - t0)
-    _write_run(demo, model, cal, val, {"nominal": e_before, "identified": e_after})
+    errors = {"nominal": e_before, "identified": e_after}
+    planned = None
+    if placement is not None:
+        planned = planned_run(cfg, cell, model, result.x, placement, n_each, rng, progress)
+        errors = {"nominal": e_before, "random configurations": e_after}
+        errors["planned configurations"] = residuals(model, planned.result.x, val.measurements)
+        stats["planned"] = ErrorStats.of(errors["planned configurations"])
+    demo = DemoResult(stats, breakdown, result, run_dir, time.perf_counter() - t0, cfg, planned)
+    _write_run(demo, model, cal, val, errors)
     return demo
+
+
+def planned_run(
+    cfg: CellConfig,
+    cell: SimulatedCell,
+    model: SystemModel,
+    x_pre: F64,
+    placement: str,
+    n_each: int,
+    rng: np.random.Generator,
+    progress: Progress | None = None,
+) -> PlannedRun:
+    """Plan on the pre-calibrated parameters, move the spheres to the planned positions
+    (tracker-measured), measure from the planned configurations, identify."""
+    plan = run_plan(cfg, model, x_pre, placement=placement, progress=progress)
+    data = collect(
+        cell, model, x_pre, plan.positions_part_mm(), n_each, rng, q_by_target=plan.q_by_sphere()
+    )
+    result = identify(model, data.measurements, loss=str(cfg.calibration["loss"]))
+    return PlannedRun(plan, data, result, placement)
 
 
 def _write_run(
@@ -112,6 +164,13 @@ def _write_run(
         write_measurements(d / f"{name}_measurements.csv", m.targets, m.q_deg, m.c_sensor_mm)
         write_targets(d / f"{name}_targets.csv", ds.targets)
     write_json(d / "params.json", to_json(model, demo.result))
+    pr = demo.planned
+    if pr is not None:
+        m = pr.data.measurements
+        write_measurements(d / "planned_measurements.csv", m.targets, m.q_deg, m.c_sensor_mm)
+        write_targets(d / "planned_targets.csv", pr.data.targets)
+        write_json(d / "params_planned.json", to_json(model, pr.result))
+        write_json(d / "plan.json", plan_to_json(demo.cfg, model, demo.result.x, pr.plan))
     report: dict[str, Any] = {
         "validation": {k: asdict(v) for k, v in demo.stats.items()},
         "improvement_factor": demo.stats["nominal"].rmse_mm / demo.stats["identified"].rmse_mm,
@@ -121,6 +180,18 @@ def _write_run(
         "condition": demo.result.observability.condition,
         "seconds": demo.seconds,
     }
+    if pr is not None:
+        report["planned"] = {
+            "placement": pr.placement,
+            "n_measurements": len(pr.data.measurements),
+            "observability": pr.result.observability.indices,
+            "plan_observability": pr.plan.observability.indices,
+            "rank": pr.result.observability.rank,
+            "condition": pr.result.observability.condition,
+            "rmse_reduction_vs_random": 1.0
+            - demo.stats["planned"].rmse_mm / demo.stats["identified"].rmse_mm,
+            "plan_seconds": pr.plan.seconds,
+        }
     write_json(d / "report.json", report)
     plot_errors(d / "validation_errors.png", errors, "Validation errors at 100 positions")
     (d / "report.md").write_text(markdown_report(demo, model), encoding="utf-8")
@@ -144,6 +215,23 @@ def summary_text(demo: DemoResult) -> str:
         f"condition {obs.condition:.1f}, "
         + ", ".join(f"{k} {v:.4g}" for k, v in obs.indices.items()),
     ]
+    pr = demo.planned
+    if pr is not None:
+        where = {
+            "fixed": "spheres where the cell has them",
+            "sequential": "spheres placed one by one (PSO)",
+            "joint": "spheres placed jointly (PSO)",
+        }[pr.placement]
+        o_r, o_p = obs.indices["O1"], pr.result.observability.indices["O1"]
+        r_r, r_p = s["identified"].rmse_mm, s["planned"].rmse_mm
+        lines += [
+            "",
+            f"Planned configurations ({where}; DETMAX on the pre-calibrated parameters): "
+            f"{len(pr.data.measurements)} measurements, O1 {o_r:.4f} (random) -> {o_p:.4f} "
+            f"(planned); validation RMSE {r_r:.4f} -> {r_p:.4f} mm "
+            f"({100.0 * (r_p / r_r - 1.0):+.1f} %); planning took "
+            f"{pr.plan.seconds['total']:.1f} s.",
+        ]
     return "\n".join(lines)
 
 

@@ -169,3 +169,9 @@ def test_demo_writes_a_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]
         assert (tmp_path / "run" / name).stat().st_size > 0
     b = report["remaining_error_breakdown_rmse_mm"]
     assert b["compliance_alone"] > 0 and b["noise_alone"] > 0
+    planned = report["planned"]
+    assert planned["placement"] == "fixed" and planned["n_measurements"] == 24
+    assert planned["observability"]["O1"] > report["observability"]["O1"]
+    assert planned["rank"] == 30
+    for name in ("plan.json", "params_planned.json", "planned_measurements.csv"):
+        assert (tmp_path / "run" / name).stat().st_size > 0
