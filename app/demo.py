@@ -60,7 +60,7 @@ class DemoResult:
     planned: PlannedRun | None = None
 
 
-def _truth_set(ds: DataSet, c_sensor_mm: F64, with_noise: bool) -> Measurements:
+def truth_set(ds: DataSet, c_sensor_mm: F64, with_noise: bool) -> Measurements:
     """The data set with true sensor centres (plus the original noise if with_noise)."""
     m = ds.measurements
     c = c_sensor_mm + (m.c_sensor_mm - ds.truth_c_sensor_mm if with_noise else 0.0)
@@ -76,16 +76,16 @@ def error_breakdown(
     cfg: CellConfig, seed: int, model: SystemModel, cal: DataSet, val: DataSet, x_id: F64
 ) -> dict[str, float]:
     """RMSE [mm] of: the identified parameters alone; compliance alone; noise alone."""
-    val_truth = _truth_set(val, val.truth_c_sensor_mm, with_noise=False)
+    val_truth = truth_set(val, val.truth_c_sensor_mm, with_noise=False)
     out = {"parameters_alone": _rmse(residuals(model, x_id, val_truth))}
-    clean = identify(model, _truth_set(cal, cal.truth_c_sensor_mm, with_noise=False))
+    clean = identify(model, truth_set(cal, cal.truth_c_sensor_mm, with_noise=False))
     out["compliance_alone"] = _rmse(residuals(model, clean.x, val_truth))
     rigid = make_cell(cfg, seed=seed, compliance=False)
     m = cal.measurements
     c_rigid = np.array(
         [rigid.centre_in_sensor(q, p)[0] for q, p in zip(m.q_deg, cal.truth_p_part_mm, strict=True)]
     )
-    noisy = identify(model, _truth_set(cal, c_rigid, with_noise=True))
+    noisy = identify(model, truth_set(cal, c_rigid, with_noise=True))
     v = val.measurements
     c_val_rigid = np.array(
         [rigid.centre_in_sensor(q, p)[0] for q, p in zip(v.q_deg, val.truth_p_part_mm, strict=True)]

@@ -11,6 +11,7 @@ COMMANDS: tuple[str, ...] = (
     "validate",
     "observability",
     "plan",
+    "experiment",
     "devices",
     "sensor",
 )

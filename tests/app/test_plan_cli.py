@@ -91,3 +91,22 @@ def test_bad_plan_inputs_exit_2(
     assert code == 2
     assert message in err and "Traceback" not in err
     assert len(err.strip().splitlines()[-1]) > 0
+
+
+def test_experiment_paper_writes_table_and_figure(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "exp"
+    code, text, err = run(
+        ["experiment", "paper", "--seeds", "1", "--validation", "20", "--no-criteria",
+         "--out", str(out), "--workers", "1", *FAST],
+        capsys,
+    )  # fmt: skip
+    assert code == 0, err
+    assert "validation RMSE reduction, median" in text and "18.6 %" in text
+    seeds = json.loads((out / "seeds.json").read_text())["seeds"]
+    assert len(seeds) == 1 and seeds[0]["n_measurements"] == {"random": 24, "planned": 24}
+    assert seeds[0]["o1"]["planned"] > seeds[0]["o1"]["random"]
+    assert (out / "fig11.png").stat().st_size > 10_000 and (out / "experiment.md").exists()
+    code, _, err = run(["experiment", "paper", "--seeds", "0"], capsys)
+    assert code == 2 and "--seeds" in err

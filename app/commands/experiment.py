@@ -1,0 +1,68 @@
+"""`rvis experiment paper`: the paper's experiment on the simulated cell over many seeds."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from app.config import load_cell
+from app.errors import InputError
+from app.experiment import run_experiment, summary_text
+from calib.plan import PLACEMENTS
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("experiment", help="reproduce the paper's experiment on the simulated cell")
+    p.add_argument("name", choices=("paper",), help="which experiment")
+    p.add_argument("--seeds", type=int, default=20, help="number of seeds (20)")
+    p.add_argument("--first-seed", type=int, default=0, help="first seed (0)")
+    p.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")
+    p.add_argument("--out", help="output folder (default runs/experiment-<time>)")
+    p.add_argument("--validation", type=int, default=100, help="validation positions (100)")
+    p.add_argument("--placement", choices=PLACEMENTS, help="sphere placement (sequential)")
+    p.add_argument("--iterations", type=int, help="PSO iterations")
+    p.add_argument("--swarm", type=int, dest="swarm_size", help="PSO swarm size")
+    p.add_argument("--grid-step", type=float, dest="grid_step_deg", help="final grid [deg]")
+    p.add_argument("--search-step", type=float, dest="search_step_deg", help="PSO grid [deg]")
+    p.add_argument("--workers", type=int, help="processes for the swarm")
+    p.add_argument(
+        "--no-criteria", action="store_true", help="skip ranking O1..O5 as selection criteria"
+    )
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    for key in ("seeds", "validation", "iterations", "swarm_size", "workers"):
+        value = getattr(args, key)
+        if value is not None and value < 1:
+            raise InputError(f"must be >= 1, got {value}", field=f"--{key.replace('_', '-')}")
+    cfg = load_cell(args.cell)
+    out = Path(args.out or f"runs/experiment-{time.strftime('%Y%m%d-%H%M%S')}")
+    overrides = {
+        k: getattr(args, k)
+        for k in (
+            "placement",
+            "iterations",
+            "swarm_size",
+            "grid_step_deg",
+            "search_step_deg",
+            "workers",
+        )
+        if getattr(args, k) is not None
+    }
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    print(f"rvis experiment paper: {len(seeds)} seeds, writing to {out}/", flush=True)
+    summary = run_experiment(
+        cfg,
+        seeds,
+        out,
+        n_validation=args.validation,
+        criteria=not args.no_criteria,
+        log=lambda s: print(s, flush=True),
+        **overrides,
+    )
+    print()
+    print(summary_text(summary))
+    print(f"\nwritten {out}/experiment.md, fig11.png, seeds.json in {summary.seconds:.0f} s")
+    return 0

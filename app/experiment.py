@@ -1,0 +1,263 @@
+"""The paper's experiment on the simulated cell, over many seeds (paper section 5).
+
+Per seed: a new simulated cell (its own robot errors and noise); pre-calibration with 6 random
+configurations at each Table 1 position; the plan on the pre-calibrated parameters (positions
+by PSO, configurations by DETMAX); calibration with the planned configurations at the planned
+positions; both validated on the same 100 positions. Then, at the planned positions, each of
+O1..O5 as the DETMAX criterion and a random selection, to rank the indices by the validation
+RMSE they give (the question Joubair and Bonev answered for serial robots: O1).
+
+Validation RMSE is reported twice: against the simulated tracker (what the paper measures, it
+includes the validation measurements' own noise) and against the truth (the identified
+parameters' error alone).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from app.config import CellConfig
+from app.demo import truth_set
+from app.files import write_json
+from app.planning import plan_settings, run_plan
+from app.report import markdown_table, text_table
+from app.simulation import DataSet, collect, make_cell, validation_set
+from calib.identify import identify, residuals
+from calib.model import SystemModel
+from calib.observability import INDEX_NAMES
+from calib.plan import select_configurations
+
+F64 = NDArray[np.float64]
+PAPER_O1 = (0.0472, 0.086)
+PAPER_RMSE_REDUCTION = 0.186
+
+
+@dataclass(frozen=True)
+class SeedOutcome:
+    seed: int
+    o1: dict[str, float]  # random (Table 1), planned, and per criterion at planned positions
+    rmse_mm: dict[str, float]  # against the tracker
+    rmse_truth_mm: dict[str, float]  # parameters alone, against the truth
+    n_measurements: dict[str, int]
+    plan_seconds: float
+    positions_base_mm: dict[str, list[float]]
+    errors_mm: dict[str, list[float]]  # Euclidean validation error per position
+
+
+def _rmse(e: F64) -> float:
+    return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
+
+
+def run_seed(
+    cfg: CellConfig,
+    seed: int,
+    n_validation: int = 100,
+    criteria: bool = True,
+    progress: Callable[[str, int, int, float], None] | None = None,
+    **plan_overrides: Any,
+) -> SeedOutcome:
+    cell = make_cell(cfg, seed=seed)
+    model = cfg.model()
+    x0 = model.nominal_x()
+    rng = np.random.default_rng([seed, 2])
+    n_each = int(cfg.calibration["configs_per_sphere"])
+    pre_data = collect(cell, model, x0, cfg.spheres_part_mm, n_each, rng)
+    val = validation_set(cell, cfg, model, x0, n_validation, rng)
+    val_truth = truth_set(val, val.truth_c_sensor_mm, with_noise=False)
+    loss = str(cfg.calibration["loss"])
+    runs: dict[str, DataSet] = {"random": pre_data}
+    pre = identify(model, pre_data.measurements, loss=loss)
+    plan = run_plan(cfg, model, pre.x, progress=progress, seed=seed, **plan_overrides)
+    positions = plan.positions_part_mm()
+    runs["planned"] = collect(
+        cell, model, pre.x, positions, n_each, rng, q_by_target=plan.q_by_sphere()
+    )
+    if criteria:
+        settings, _ = plan_settings(cfg, seed=seed, **plan_overrides)
+        for name in INDEX_NAMES:
+            s = replace(settings, criterion=name)
+            spheres, _ = select_configurations(model, pre.x, positions, s)
+            q_by = {sp.name: sp.q_deg for sp in spheres}
+            runs[name] = collect(cell, model, pre.x, positions, n_each, rng, q_by_target=q_by)
+        runs["random at planned positions"] = collect(cell, model, pre.x, positions, n_each, rng)
+    o1, rmse, rmse_truth, counts, errors = {}, {}, {}, {}, {}
+    for label, data in runs.items():
+        res = pre if label == "random" else identify(model, data.measurements, loss=loss)
+        e = residuals(model, res.x, val.measurements)
+        o1[label] = res.observability.indices["O1"]
+        rmse[label] = _rmse(e)
+        rmse_truth[label] = _rmse(residuals(model, res.x, val_truth))
+        counts[label] = len(data.measurements)
+        errors[label] = np.linalg.norm(e, axis=1).tolist()
+    base = _base_positions(model, pre.x, positions)
+    return SeedOutcome(seed, o1, rmse, rmse_truth, counts, plan.seconds["total"], base, errors)
+
+
+def _base_positions(
+    model: SystemModel, x: F64, positions: dict[str, F64]
+) -> dict[str, list[float]]:
+    T = np.linalg.inv(model.T_part_base(x))
+    return {k: (T[:3, :3] @ p + T[:3, 3]).round(1).tolist() for k, p in positions.items()}
+
+
+@dataclass(frozen=True)
+class ExperimentSummary:
+    outcomes: list[SeedOutcome]
+    seconds: float
+
+    def reductions(self, key: str = "rmse_mm", label: str = "planned") -> F64:
+        vals = [getattr(o, key) for o in self.outcomes]
+        return np.array([1.0 - v[label] / v["random"] for v in vals])
+
+    def table_rows(self) -> list[list[str]]:
+        o1_r = np.median([o.o1["random"] for o in self.outcomes])
+        o1_p = np.median([o.o1["planned"] for o in self.outcomes])
+        red = self.reductions()
+        red_t = self.reductions("rmse_truth_mm")
+        q = np.percentile(red, [25, 75])
+        return [
+            ["O1, random configurations (Table 1)", f"{PAPER_O1[0]:.4f}", f"{o1_r:.4f}"],
+            ["O1, planned", f"{PAPER_O1[1]:.4f}", f"{o1_p:.4f}"],
+            ["O1 ratio planned / random", f"{PAPER_O1[1] / PAPER_O1[0]:.2f}", f"{o1_p / o1_r:.2f}"],
+            [
+                "validation RMSE reduction, median",
+                f"{100 * PAPER_RMSE_REDUCTION:.1f} %",
+                f"{100 * np.median(red):.1f} %",
+            ],
+            ["  quartiles", "-", f"{100 * q[0]:.1f} % .. {100 * q[1]:.1f} %"],
+            ["  min .. max", "-", f"{100 * red.min():.1f} % .. {100 * red.max():.1f} %"],
+            ["  seeds where planned is better", "-", f"{int(np.sum(red > 0))}/{red.size}"],
+            ["RMSE reduction vs truth, median", "-", f"{100 * np.median(red_t):.1f} %"],
+            [
+                "validation RMSE random -> planned, median",
+                "-",
+                f"{np.median([o.rmse_mm['random'] for o in self.outcomes]):.4f} -> "
+                f"{np.median([o.rmse_mm['planned'] for o in self.outcomes]):.4f} mm",
+            ],
+        ]
+
+    def criteria_rows(self) -> list[list[str]]:
+        labels = [*INDEX_NAMES, "random at planned positions"]
+        if not all(lbl in self.outcomes[0].rmse_mm for lbl in labels):
+            return []
+        rmse = np.array([[o.rmse_mm[lbl] for lbl in labels] for o in self.outcomes])
+        truth = np.array([[o.rmse_truth_mm[lbl] for lbl in labels] for o in self.outcomes])
+        ranks = np.argsort(np.argsort(rmse, axis=1), axis=1) + 1
+        order = np.argsort(np.median(rmse, axis=0))
+        return [
+            [
+                labels[k],
+                f"{np.median(rmse[:, k]):.4f}",
+                f"{np.median(truth[:, k]):.4f}",
+                f"{np.mean(ranks[:, k]):.2f}",
+                str(int(np.sum(ranks[:, k] == 1))),
+            ]
+            for k in order
+        ]
+
+
+TABLE_HEADER = ["", "paper", "rvis (simulated)"]
+CRITERIA_HEADER = ["criterion", "median RMSE mm", "median vs truth mm", "mean rank", "wins"]
+
+
+def run_experiment(
+    cfg: CellConfig,
+    seeds: list[int],
+    out_dir: Path,
+    *,
+    n_validation: int = 100,
+    criteria: bool = True,
+    log: Callable[[str], None] = print,
+    **plan_overrides: Any,
+) -> ExperimentSummary:
+    t0 = time.perf_counter()
+    outcomes: list[SeedOutcome] = []
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for k, seed in enumerate(seeds):
+        t = time.perf_counter()
+        o = run_seed(cfg, seed, n_validation, criteria, **plan_overrides)
+        outcomes.append(o)
+        log(
+            f"seed {seed} ({k + 1}/{len(seeds)}): O1 {o.o1['random']:.4f} -> {o.o1['planned']:.4f}"
+            f", RMSE {o.rmse_mm['random']:.4f} -> {o.rmse_mm['planned']:.4f} mm "
+            f"({100 * (o.rmse_mm['planned'] / o.rmse_mm['random'] - 1):+.1f} %), "
+            f"{time.perf_counter() - t:.0f} s"
+        )
+        write_json(out_dir / "seeds.json", {"seeds": [asdict(x) for x in outcomes]})
+    summary = ExperimentSummary(outcomes, time.perf_counter() - t0)
+    _write(summary, out_dir, plan_overrides)
+    return summary
+
+
+def summary_text(summary: ExperimentSummary) -> str:
+    parts = [text_table(TABLE_HEADER, summary.table_rows())]
+    rows = summary.criteria_rows()
+    if rows:
+        parts += [
+            "Selection criteria at the planned positions (ranked by median validation RMSE):",
+            text_table(CRITERIA_HEADER, rows),
+        ]
+    return "\n\n".join(parts)
+
+
+def _write(summary: ExperimentSummary, out_dir: Path, overrides: dict[str, Any]) -> None:
+    md = [
+        "# The paper's experiment on the simulated cell",
+        f"{len(summary.outcomes)} seeds, planning settings overrides: {overrides or 'none'}; "
+        f"{summary.seconds:.0f} s.",
+        markdown_table(TABLE_HEADER, summary.table_rows()),
+    ]
+    rows = summary.criteria_rows()
+    if rows:
+        md += ["## Selection criteria", markdown_table(CRITERIA_HEADER, rows)]
+    md.append("![validation errors](fig11.png)")
+    (out_dir / "experiment.md").write_text("\n\n".join(md) + "\n", encoding="utf-8")
+    plot_fig11(summary, out_dir / "fig11.png")
+
+
+def plot_fig11(summary: ExperimentSummary, path: Path) -> None:
+    """Like the paper's Fig. 11: the Euclidean validation error per position, random vs
+    planned, for the median seed; beside it the RMSE of every seed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    red = summary.reductions()
+    median_seed = summary.outcomes[int(np.argsort(red)[len(red) // 2])]
+    fig, (ax, bx) = plt.subplots(
+        1, 2, figsize=(12, 4.5), dpi=110, gridspec_kw={"width_ratios": [2.2, 1]}
+    )
+    for label, style in (("random", "o-"), ("planned", "s-")):
+        e = np.array(median_seed.errors_mm[label])
+        ax.plot(
+            np.arange(1, e.size + 1),
+            e,
+            style,
+            ms=3,
+            lw=1,
+            label=f"{label} configurations (RMSE {np.sqrt(np.mean(e**2)):.3f} mm)",
+        )
+    ax.set_xlabel("validation position")
+    ax.set_ylabel("Euclidean error [mm]")
+    ax.set_title(f"seed {median_seed.seed} (median improvement)")
+    ax.legend()
+    ax.grid(True, alpha=0.3)
+    r = np.array([[o.rmse_mm["random"], o.rmse_mm["planned"]] for o in summary.outcomes])
+    for row in r:
+        bx.plot([0, 1], row, "-", color="0.7", lw=0.8)
+    bx.boxplot([r[:, 0], r[:, 1]], positions=[0, 1], widths=0.35)
+    bx.set_xticks([0, 1], ["random", "planned"])
+    bx.set_ylabel("validation RMSE [mm]")
+    bx.set_title(f"{len(r)} seeds: median {100 * np.median(red):.1f} % lower")
+    bx.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
