@@ -139,8 +139,12 @@ class _Information:
         C = np.linalg.cholesky(M)
         all_rows = rows.size == self.G.shape[0]
         W = [
-            solve_triangular(C, (self.G_rows[r] if all_rows else self.G_rows[r][rows]).T,
-                             lower=True, check_finite=False)
+            solve_triangular(
+                C,
+                (self.G_rows[r] if all_rows else self.G_rows[r][rows]).T,
+                lower=True,
+                check_finite=False,
+            )
             for r in range(3)
         ]
         s = [[np.einsum("lp,lp->p", W[a], W[b]) * sign for b in range(3)] for a in range(3)]
@@ -174,11 +178,14 @@ def select(
     max_depth: int = 4,
     scale: F64 | None = None,
     start: str = "greedy",
+    updates: str = "rank3",
 ) -> Selection:
     """Choose n of the candidates (blocks J_candidates (M, 3, L)) that maximise the
     criterion together with the fixed blocks J_fixed (F, 3, L). DETMAX and exchange-add-
     exchange start from `start`: "greedy" (n best single additions, deterministic) or
-    "random" (n random candidates, as Mitchell's DETMAX)."""
+    "random" (n random candidates, as Mitchell's DETMAX). `updates="svd"` evaluates every
+    candidate with a full SVD instead of the rank-3 update (the straightforward reference,
+    for benchmarks and tests; O1 only)."""
     check_index_name(criterion)
     check_method(method)
     J_candidates = np.asarray(J_candidates, dtype=float)
@@ -195,7 +202,9 @@ def select(
         pool_info = np.einsum("kil,kim->lm", G, G) + np.einsum("kil,kim->lm", G_fix, G_fix)
         lam = np.linalg.eigvalsh(pool_info)
         rank = max(1, int(np.sum(lam > 1e-9 * lam[-1])))
-    info = _Information(G, G_fix, criterion, rank)
+    if updates not in ("rank3", "svd"):
+        raise ValueError(f"unknown update scheme '{updates}' (choose from rank3, svd)")
+    info = (_SvdInformation if updates == "svd" else _Information)(G, G_fix, criterion, rank)
     if start not in ("greedy", "random"):
         raise ValueError(f"unknown start '{start}' (choose from greedy, random)")
     first = [int(i) for i in rng.choice(m_cand, size=n, replace=False)]
@@ -209,6 +218,35 @@ def select(
         sel = _eae(info, _greedy(info, k) if start == "greedy" else first[:k], n)
     value = info.log_value(info.matrix(sel))
     return Selection(np.array(sel, dtype=np.int64), value, criterion, method, info.sweeps)
+
+
+class _SvdInformation(_Information):
+    """The straightforward reference: a full SVD of the stacked scaled Jacobian per candidate
+    (log det M = 2 sum log sigma of [sqrt(lambda) I; G_fixed; G_selected; G_candidate])."""
+
+    def __init__(self, G: F64, G_fixed: F64, criterion: str, rank: int) -> None:
+        if criterion != "O1":
+            raise ValueError("the SVD reference implements O1 only")
+        super().__init__(G, G_fixed, criterion, rank)
+        L = G.shape[2]
+        self.rows0 = np.concatenate([np.sqrt(RIDGE) * np.eye(L), G_fixed.reshape(-1, L)])
+
+    def _logdet_rows(self, blocks: F64) -> float:
+        A = np.concatenate([self.rows0, blocks.reshape(-1, self.G.shape[2])])
+        sigma = np.linalg.svd(A, compute_uv=False)
+        return float(2.0 * np.sum(np.log(sigma)))
+
+    def if_added(self, sel: list[int], M: F64, pool: I64) -> F64:
+        self.sweeps += 1
+        chosen = self.G[sel]
+        return np.array(
+            [self._logdet_rows(np.concatenate([chosen, self.G[c : c + 1]])) for c in pool]
+        )
+
+    def if_removed(self, sel: list[int], M: F64, removable: list[int]) -> F64:
+        return np.array(
+            [self._logdet_rows(self.G[[s for j, s in enumerate(sel) if j != i]]) for i in removable]
+        )
 
 
 def _greedy(info: _Information, n: int) -> list[int]:
@@ -267,7 +305,7 @@ def _exchange(info: _Information, sel: list[int]) -> list[int]:
                 best = (float(values[j]), k, j)
         if best[1] < 0:
             return sel
-        sel = [*sel[:best[1]], best[2], *sel[best[1] + 1:]]
+        sel = [*sel[: best[1]], best[2], *sel[best[1] + 1 :]]
         current = info.log_value(info.matrix(sel))
     return sel
 

@@ -220,3 +220,12 @@ def test_plan_places_spheres_feasibly_and_beats_random(cfg: CellConfig) -> None:
     for a, b in zip(result.spheres, again.spheres, strict=True):
         assert np.array_equal(a.q_deg, b.q_deg)  # seeded: reproducible
     assert {"place P1", "place P4", "configurations"} <= set(seen)
+
+
+def test_rank3_updates_choose_what_an_svd_per_candidate_chooses(cfg: CellConfig) -> None:
+    J = _blocks(cfg, "P4", ViewGrid(step_deg=30.0))
+    fixed = _blocks(cfg, "P2", ViewGrid(step_deg=30.0))[[1, 40, 80, 120, 160, 200]]
+    fast = detmax.select(J, 6, np.random.default_rng(3), J_fixed=fixed)
+    slow = detmax.select(J, 6, np.random.default_rng(3), J_fixed=fixed, updates="svd")
+    assert np.array_equal(fast.indices, slow.indices)
+    assert fast.log_value == pytest.approx(slow.log_value, abs=1e-8)

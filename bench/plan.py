@@ -1,0 +1,132 @@
+"""Benchmark of measurement planning (issue 3). Prints medians of repeated runs.
+
+  1. DETMAX choosing 6 of 20k candidates (with 6 fixed configurations of another sphere):
+     rank-3 determinant updates vs the straightforward full SVD per candidate, same run,
+     same selection.
+  2. The full four-sphere plan with the default settings (swarm 50, 30 iterations, PSO fitness
+     on the 30 deg grid, final configurations on the 5 deg grid, 2 processes); aim <= 60 s.
+  3. Coarse to fine: with a small swarm, the final O1 when the swarm's fitness uses the
+     30 deg grid vs the full 5 deg grid (aim: within 2 %).
+  4. Closed-form IK throughput vs py-opw-kinematics (bench/ik.py), same poses, same run.
+
+    .venv/bin/python bench/plan.py [--repeats N] [--skip-svd] [--skip-grid-check]
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from app.config import load_cell
+from app.planning import plan_settings, run_plan
+from calib import detmax
+from calib.candidates import ViewGrid
+from calib.plan import candidate_blocks
+
+
+def timed(fn: Callable[[], Any], repeats: int) -> tuple[float, Any]:
+    times, out = [], None
+    for _ in range(repeats):
+        t = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t)
+    return statistics.median(times), out
+
+
+def bench_detmax(skip_svd: bool, repeats: int) -> None:
+    cfg = load_cell(None)
+    model = cfg.model()
+    x = model.nominal_x()
+    settings, _ = plan_settings(cfg)
+    _, J_all = candidate_blocks(model, x, cfg.spheres_part_mm["P2"], ViewGrid(5.0), settings)
+    pick = np.random.default_rng(0).choice(len(J_all), 20_000, replace=False)
+    J = J_all[pick]
+    _, J1 = candidate_blocks(model, x, cfg.spheres_part_mm["P1"], ViewGrid(30.0), settings)
+    fixed = J1[:: max(1, len(J1) // 6)][:6]
+
+    def run(updates: str) -> detmax.Selection:
+        return detmax.select(J, 6, np.random.default_rng(0), J_fixed=fixed, updates=updates)
+
+    t_fast, fast = timed(lambda: run("rank3"), repeats)
+    print(f"{'DETMAX, 20k candidates, rank-3 updates':52s} {t_fast:9.3f} s "
+          f"({fast.sweeps} candidate sweeps)")  # fmt: skip
+    if skip_svd:
+        return
+    t_slow, slow = timed(lambda: run("svd"), 1)
+    same = np.array_equal(np.sort(fast.indices), np.sort(slow.indices))
+    print(f"{'DETMAX, 20k candidates, SVD per candidate (ref.)':52s} {t_slow:9.3f} s "
+          f"(single run; same selection: {same})")  # fmt: skip
+    print(f"{'  rank-3 updates vs SVD per candidate':52s} {t_slow / t_fast:9.1f}x faster")
+
+
+def bench_full_plan(repeats: int) -> None:
+    cfg = load_cell(None)
+    model = cfg.model()
+    x = model.nominal_x()
+    t, plan = timed(lambda: run_plan(cfg, model, x), repeats)
+    o, r = plan.observability.indices, plan.random_observability.indices
+    print(f"{'full plan, default settings (aim <= 60 s)':52s} {t:9.1f} s (median of {repeats})")
+    stages = ", ".join(f"{k} {v:.1f} s" for k, v in plan.seconds.items())
+    print(f"  stages of the last run: {stages}")
+    print(f"  O1 planned {o['O1']:.4f} vs random at the same positions {r['O1']:.4f}; "
+          f"condition {plan.observability.condition:.1f} vs "
+          f"{plan.random_observability.condition:.1f}")  # fmt: skip
+
+
+def bench_grid_check() -> None:
+    cfg = load_cell(None)
+    model = cfg.model()
+    x = model.nominal_x()
+    small = {"swarm_size": 10, "iterations": 3}
+    out = {}
+    for step in (30.0, 5.0):
+        t0 = time.perf_counter()
+        plan = run_plan(cfg, model, x, search_step_deg=step, **small)
+        out[step] = (plan.observability.indices["O1"], time.perf_counter() - t0)
+        print(f"  swarm 10 x 3 iterations, PSO fitness on the {step:g} deg grid: final O1 "
+              f"{out[step][0]:.4f} in {out[step][1]:.0f} s")  # fmt: skip
+    ratio = out[30.0][0] / out[5.0][0]
+    print(f"{'coarse (30 deg) vs full (5 deg) fitness, final O1':52s} {100 * (ratio - 1):+8.2f} %"
+          " (aim: within 2 %)")  # fmt: skip
+
+
+def bench_ik() -> None:
+    try:
+        from bench import ik as ik_bench
+    except ImportError as exc:
+        print(f"IK benchmark unavailable: {exc}")
+        return
+    ik_bench.main()
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--skip-svd", action="store_true")
+    ap.add_argument("--skip-grid-check", action="store_true")
+    ap.add_argument("--skip-full", action="store_true")
+    args = ap.parse_args()
+    print(f"{'what':52s} {'median':>11s}")
+    bench_detmax(args.skip_svd, args.repeats)
+    if not args.skip_full:
+        bench_full_plan(args.repeats)
+    if not args.skip_grid_check:
+        bench_grid_check()
+    bench_ik()
+
+
+if __name__ == "__main__":
+    main()
