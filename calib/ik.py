@@ -82,11 +82,17 @@ def solve(
     Solutions come pose by pose (`pose_index` ascending), within a pose by branch id."""
     T = np.asarray(T_base_flange, dtype=float).reshape(-1, 4, 4)
     limits = limits or robot.JointLimits()
+    return _solve(T, limits, turn_alternatives)
+
+
+def _solve(T: F64, limits: robot.JointLimits, turn_alternatives: bool) -> IKSolutions:
     n = T.shape[0]
     Z, keep = _branches(T)  # (6, 8, N) [deg], (8, N): joint, branch code, pose
     lo = limits.lower_deg - LIMIT_TOL_DEG
     hi = limits.upper_deg + LIMIT_TOL_DEG
     table = _turn_table(tuple(limits.lower_deg), tuple(limits.upper_deg), turn_alternatives)
+    if table.n_turns == 0:  # a joint whose limits no whole turn of [-180, 180) reaches
+        return IKSolutions(np.zeros((0, 6)), np.zeros(0, np.int64), np.zeros(0, np.int64))
     for j in table.single:
         a = Z[j] + table.single_shift_deg[j]
         keep &= (a >= lo[j]) & (a <= hi[j])
