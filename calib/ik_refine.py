@@ -145,15 +145,28 @@ def solve_on_model(
     # a wider window for the closed form: refinement moves the angles by a little
     widened = robot.JointLimits(limits.lower_deg - 1.0, limits.upper_deg + 1.0)
     sols = ik.solve(T_base_flange, widened, turn_alternatives=turn_alternatives)
-    ref = refine(model, x, T[sols.pose_index], sols.q_deg, limits=limits, max_iter=max_iter)
+    # whole-turn alternatives of one branch share the refinement step (FK is 360-periodic in
+    # every controller angle): refine one per (pose, branch code), shift the others alike
+    n_turns = len(ik.turn_shifts(widened)) if turn_alternatives else 1
+    group = sols.pose_index * ik.N_BRANCHES + sols.branch // n_turns
+    _, first, inv = np.unique(group, return_index=True, return_inverse=True)
+    # a representative inside [-180, 180] keeps the damped steps away from the limit test
+    q_first = sols.q_deg[first]
+    ref = refine(model, x, T[sols.pose_index[first]], q_first, limits=_NO_LIMITS,
+                 max_iter=max_iter)  # fmt: skip
+    q_deg = sols.q_deg + (ref.q_deg - q_first)[inv]
+    converged = ref.converged[inv] & limits.contains(q_deg)
     return RefinedSolutions(
-        ref.q_deg,
+        q_deg,
         sols.pose_index,
         sols.branch,
-        ref.position_error_mm,
-        ref.rotation_error_rad,
-        ref.converged,
+        ref.position_error_mm[inv],
+        ref.rotation_error_rad[inv],
+        converged,
     )
+
+
+_NO_LIMITS = robot.JointLimits(np.full(6, -1e9), np.full(6, 1e9))
 
 
 def _chain(consts: list[F64], phi: F64) -> tuple[F64, F64, F64]:
