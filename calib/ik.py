@@ -9,14 +9,23 @@ distance of W from the J1 axis and z its height,
 L = hypot(1016, 170), delta = atan2(170, 1016): a two-link problem with two elbow branches for
 each of the two J1 branches (front and back). The wrist is spherical: with R_3_6 from the arm,
 Rx(90) R_3_6 = Rz(theta4) Ry(-theta5) Rz(theta6), two branches (theta5 of either sign). Each
-of J3, J4 and J6 also has its +-360 deg turn alternatives where the limits allow.
+of J1, J3, J4 and J6 also has its +-360 deg turn alternatives where the limits allow.
 
 Singular poses (wrist centre on the J1 axis, theta5 = 0) and unreachable ones give no solution;
 the output never holds NaN.
+
+Speed (bench/ik.py): everything is element-wise on contiguous rows of the pose entries, all
+eight branches at once by broadcasting over (shoulder, elbow) axes; the angles come from
+products and sums of sines and cosines already at hand (no rotation-matrix products, one atan2
+per joint and arm branch; the wrist flip is J4 -+ 180, -J5, J6 -+ 180). The whole-turn
+alternatives are counted per joint (the limits are a box, so the valid alternatives of a
+branch are a product of per-joint ranges) and expanded with one `np.repeat`, not by testing
+every combination of turns.
 """
 
 from __future__ import annotations
 
+import functools
 import itertools
 from dataclasses import dataclass
 
@@ -24,7 +33,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from calib import robot
-from calib.transforms import rot_x, rot_z
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -32,14 +40,26 @@ I64 = NDArray[np.int64]
 _A1, _C2, _A3, _D4, _D6 = 150.0, 870.0, 170.0, 1016.0, 175.0
 _L = float(np.hypot(_D4, _A3))
 _DELTA = float(np.arctan2(_A3, _D4))
+_COS_DELTA, _SIN_DELTA = _D4 / _L, _A3 / _L
 SINGULAR_TOL = 1e-9
+#: Tolerance of the joint-limit test [deg] (as `robot.JointLimits.contains`).
+LIMIT_TOL_DEG = 1e-9
+#: Number of branches (J1 front/back x elbow x wrist flip); branch code = 4 back + 2 elbow + flip.
+N_BRANCHES = 8
+#: Poses per chunk of the branch computation.
+CHUNK = 2048
+
+_SHOULDER_SIGN = np.array([1.0, -1.0]).reshape(2, 1, 1)
+_ELBOW_SIGN = np.array([1.0, -1.0]).reshape(1, 2, 1)
+_DEG = 180.0 / np.pi
 
 
 @dataclass(frozen=True)
 class IKSolutions:
     """All solutions of a batch: `q_deg` (M, 6) controller angles, `pose_index` (M,) the index
     of the flange pose each solves, `branch` (M,) an id of the branch (J1 front/back, elbow,
-    wrist flip) and the whole-turn alternative."""
+    wrist flip) and the whole-turn alternative: code * n_turns + k, code = 4 back + 2 elbow +
+    flip, k the index of the turn combination in `turn_shifts(limits)`."""
 
     q_deg: F64
     pose_index: I64
@@ -57,71 +77,212 @@ def solve(
     *,
     turn_alternatives: bool = True,
 ) -> IKSolutions:
-    """Every controller-angle solution within the limits for flange poses (N, 4, 4) [mm]."""
+    """Every controller-angle solution within the limits for flange poses (N, 4, 4) [mm].
+
+    Solutions come pose by pose (`pose_index` ascending), within a pose by branch id."""
     T = np.asarray(T_base_flange, dtype=float).reshape(-1, 4, 4)
     limits = limits or robot.JointLimits()
-    w = T[:, :3, 3] - _D6 * T[:, :3, 2]
-    rho = np.hypot(w[:, 0], w[:, 1])
-    turns = _turn_shifts(limits) if turn_alternatives else [np.zeros(6)]
-    sols, idx, branches = [], [], []
-    for back in (0, 1):
-        j1 = np.arctan2(w[:, 1], w[:, 0]) + (np.pi if back else 0.0)
-        u = (-rho if back else rho) - _A1
-        v = w[:, 2]
-        cos_e = (u**2 + v**2 - _C2**2 - _L**2) / (2.0 * _C2 * _L)
-        arm_ok = (np.abs(cos_e) <= 1.0 + 1e-12) & (rho > SINGULAR_TOL)
-        e0 = np.arccos(np.clip(cos_e, -1.0, 1.0))
-        for elbow in (0, 1):
-            e = e0 if elbow == 0 else -e0
-            phi2 = np.arctan2(v, u) - np.arctan2(_L * np.sin(e), _C2 + _L * np.cos(e))
-            j2 = np.pi / 2 - phi2
-            j3 = phi2 + e - _DELTA
-            for flip in (0, 1):
-                wrist, ok = _wrist(T[:, :3, :3], j1, j2, j3, flip)
-                q = np.column_stack([j1, j2, j3, wrist])
-                q_deg = _wrap180(np.degrees(q))
-                good = arm_ok & ok
-                code = back * 4 + elbow * 2 + flip
-                for k, shift in enumerate(turns):
-                    qq = q_deg + shift
-                    keep = good & limits.contains(qq)
-                    sols.append(qq[keep])
-                    idx.append(np.nonzero(keep)[0])
-                    branches.append(np.full(int(keep.sum()), code * len(turns) + k))
+    return _solve(T, limits, turn_alternatives)
+
+
+def _solve(T: F64, limits: robot.JointLimits, turn_alternatives: bool) -> IKSolutions:
+    n = T.shape[0]
+    Z, keep = _branches(T)  # (6, 8, N) [deg], (8, N): joint, branch code, pose
+    lo = limits.lower_deg - LIMIT_TOL_DEG
+    hi = limits.upper_deg + LIMIT_TOL_DEG
+    table = _turn_table(tuple(limits.lower_deg), tuple(limits.upper_deg), turn_alternatives)
+    if table.n_turns == 0:  # a joint whose limits no whole turn of [-180, 180) reaches
+        return IKSolutions(np.zeros((0, 6)), np.zeros(0, np.int64), np.zeros(0, np.int64))
+    for j in table.single:
+        a = Z[j] + table.single_shift_deg[j]
+        keep &= (a >= lo[j]) & (a <= hi[j])
+    if not table.multi:  # one turn combination: a plain range test
+        row = np.flatnonzero(keep.T)  # row = pose * 8 + code
+        turn = np.zeros(len(row), dtype=np.int64)
+    else:
+        # per multi-turn joint the valid whole turns are a range [i_min, i_max] of indices
+        # into its list of turns; the pair is one code, the codes of all joints one pattern
+        pattern = np.zeros((N_BRANCHES, n))
+        for m, j in enumerate(table.multi):
+            k0, nk = table.k_first[m], table.n_k[m]
+            i_min = np.ceil((lo[j] - Z[j]) * (1.0 / 360.0)) - k0
+            i_max = np.floor((hi[j] - Z[j]) * (1.0 / 360.0)) - k0
+            np.clip(i_min, 0.0, nk, out=i_min)
+            np.clip(i_max, -1.0, nk - 1.0, out=i_max)
+            pattern += (i_min * (nk + 1.0) + i_max + 1.0) * table.radix[m]
+        kept = np.flatnonzero(keep.T)  # row = pose * 8 + code
+        index = pattern.T.ravel()[kept].astype(np.intp)
+        flat = np.flatnonzero(table.valid[index])
+        turn = flat % table.n_turns
+        flat //= table.n_turns
+        row = np.take(kept, flat)
+        del flat
+    q_rows = np.ascontiguousarray(Z.transpose(2, 1, 0)).reshape(-1, 6)
+    q_deg: F64 = np.take(q_rows, row, axis=0)
+    for j in table.multi:  # whole turns, column by column (no (M, 6) temporary)
+        q_deg[:, j] += np.take(table.shifts_deg[:, j], turn)
+    for j, shift in table.single_shift_deg.items():
+        if shift:
+            q_deg[:, j] += shift
+    # in place, to touch as little fresh memory as possible: branch = code * n_turns + turn
+    branch = np.bitwise_and(row, N_BRANCHES - 1, out=turn if table.n_turns == 1 else None)
+    if table.n_turns > 1:
+        branch *= table.n_turns
+        branch += turn
+    pose_index = np.right_shift(row, 3, out=row)  # row // N_BRANCHES
     return IKSolutions(
-        np.concatenate(sols).reshape(-1, 6),
-        np.concatenate(idx).astype(np.int64),
-        np.concatenate(branches).astype(np.int64),
+        q_deg, pose_index.astype(np.int64, copy=False), branch.astype(np.int64, copy=False)
     )
 
 
-def _turn_shifts(limits: robot.JointLimits) -> list[F64]:
+@dataclass(frozen=True)
+class _TurnTable:
+    """How whole-turn alternatives expand under given limits (built once per limits)."""
+
+    n_turns: int  # number of turn combinations (`turn_shifts`)
+    shifts_deg: F64  # (n_turns, 6)
+    single: tuple[int, ...]  # joints with exactly one possible turn
+    single_shift_deg: dict[int, float]
+    multi: list[int]  # joints with several possible turns
+    k_first: F64  # (m,) lowest turn of each multi joint
+    n_k: F64  # (m,) number of possible turns of each multi joint
+    radix: F64  # (m,) pattern = sum(code_j * radix_j)
+    valid: NDArray[np.bool_]  # (n_patterns, n_turns)
+
+
+@functools.lru_cache(maxsize=16)
+def _turn_table(
+    lower_deg: tuple[float, ...], upper_deg: tuple[float, ...], turn_alternatives: bool
+) -> _TurnTable:
+    limits = robot.JointLimits(np.array(lower_deg), np.array(upper_deg))
+    ks = _turn_ks(limits) if turn_alternatives else [[0]] * 6
+    shifts = 360.0 * np.array(list(itertools.product(*ks)), dtype=float).reshape(-1, 6)
+    single = tuple(j for j in range(6) if len(ks[j]) == 1)
+    multi = [j for j in range(6) if len(ks[j]) > 1]
+    # valid[pattern, combination]: outer product over the multi joints (in joint order, so
+    # the combinations come in `itertools.product` order) of per-joint tables
+    valid = np.ones((1, 1), dtype=bool)
+    codes = []
+    for j in multi:
+        s = len(ks[j])
+        i_min, i_max = np.divmod(np.arange((s + 1) ** 2), s + 1)
+        i_max = i_max - 1
+        idx = np.arange(s)
+        vj = (i_min[:, None] <= idx) & (idx <= i_max[:, None])  # ((s+1)^2, s)
+        valid = (valid[:, None, :, None] & vj[None, :, None, :]).reshape(
+            valid.shape[0] * vj.shape[0], valid.shape[1] * s
+        )
+        codes.append((s + 1) ** 2)
+    if not all(ks):  # a joint no turn brings inside its limits: nothing is ever valid
+        valid = np.zeros((1, 0), dtype=bool)
+    radix = np.ones(len(multi))
+    for m in range(len(multi) - 2, -1, -1):
+        radix[m] = radix[m + 1] * codes[m + 1]
+    return _TurnTable(
+        n_turns=len(shifts),
+        shifts_deg=shifts,
+        single=single,
+        single_shift_deg={j: 360.0 * ks[j][0] for j in single},
+        multi=multi,
+        k_first=np.array([ks[j][0] for j in multi], dtype=float),
+        n_k=np.array([len(ks[j]) for j in multi], dtype=float),
+        radix=radix,
+        valid=valid,
+    )
+
+
+def _branches(T: F64) -> tuple[F64, NDArray[np.bool_]]:
+    """All eight branches of every pose: controller angles Z (6, 8, N) [deg] over (joint,
+    branch code = 4 back + 2 elbow + flip, pose), each in [-180, 180], and where they are
+    regular (8, N). Chunks of poses keep the temporaries small (cache, no page faults)."""
+    n = T.shape[0]
+    E = np.ascontiguousarray(T.reshape(n, 16).T)  # E[4 i + j] = T[:, i, j], contiguous rows
+    Z = np.empty((6, 2, 2, 2, n))  # joint, back, elbow, flip, pose
+    keep = np.empty((2, 2, 2, n), dtype=bool)
+    for start in range(0, n, CHUNK):
+        stop = min(start + CHUNK, n)
+        _branches_chunk(E[:, start:stop], Z[..., start:stop], keep[..., start:stop])
+    return Z.reshape(6, N_BRANCHES, n), keep.reshape(N_BRANCHES, n)
+
+
+def _branches_chunk(E: F64, Z: F64, keep: NDArray[np.bool_]) -> None:
+    r00, r01, r02, px, r10, r11, r12, py, r20, r21, r22, pz = E[:12]
+    wx, wy, wz = px - _D6 * r02, py - _D6 * r12, pz - _D6 * r22
+    rho = np.hypot(wx, wy)
+    regular = rho > SINGULAR_TOL
+    rho_safe = np.where(regular, rho, 1.0)
+    c1, s1 = wx / rho_safe, wy / rho_safe
+    # Rz(-J1) R of the front shoulder (the back one negates rows 0 and 1): row 0 and R'[1, 2]
+    p0, p1, p2 = c1 * r00 + s1 * r10, c1 * r01 + s1 * r11, c1 * r02 + s1 * r12
+    q12 = c1 * r12 - s1 * r02
+    j1 = np.arctan2(wy, wx)
+
+    # arm, broadcast over (shoulder, elbow, pose)
+    sig = _SHOULDER_SIGN
+    u = sig * rho - _A1  # (2, 1, N)
+    r2 = u * u + wz * wz
+    cos_e = (r2 - (_C2 * _C2 + _L * _L)) * (0.5 / (_C2 * _L))
+    arm_ok = (np.abs(cos_e) <= 1.0 + 1e-12) & regular
+    np.clip(cos_e, -1.0, 1.0, out=cos_e)
+    sin_e = _ELBOW_SIGN * np.sqrt(1.0 - cos_e * cos_e)  # (2, 2, N)
+    # phi2 = atan2(z, u) - atan2(L sin e, C2 + L cos e) as one angle: (X, Y) = r2 (cos, sin)
+    k1, k2 = _C2 + _L * cos_e, _L * sin_e
+    X = u * k1 + wz * k2
+    Y = wz * k1 - u * k2
+    j2 = np.arctan2(X, Y)  # J2 = 90 deg - phi2
+    # J3 = phi2 + e - delta, by its cosine and sine
+    ced = cos_e * _COS_DELTA + sin_e * _SIN_DELTA
+    sed = sin_e * _COS_DELTA - cos_e * _SIN_DELTA
+    inv_r2 = 1.0 / np.where(r2 > 0.0, r2, 1.0)
+    cphi, sphi = X * inv_r2, Y * inv_r2
+    cos3 = cphi * ced - sphi * sed
+    sin3 = sphi * ced + cphi * sed
+    j3 = np.arctan2(sin3, cos3)
+
+    # wrist: M = Rx(90) R_b3^T R with theta23 = -90 deg - J3; Rx(90) M = Rz Ry Rz
+    sp2 = sig * p2
+    m02 = cos3 * r22 - sin3 * sp2
+    m12 = -sig * q12  # (2, 1, N)
+    m22 = cos3 * sp2 + sin3 * r22
+    m20 = cos3 * (sig * p0) + sin3 * r20
+    m21 = cos3 * (sig * p1) + sin3 * r21
+    s5 = np.hypot(m02, m12)
+    ok = arm_ok & (s5 > SINGULAR_TOL)  # (2, 2, N)
+    j4 = np.arctan2(-m12, m02)  # J4 = -theta4
+    j5 = np.arctan2(s5, m22)  # J5 = -theta5
+    j6 = np.arctan2(-m21, -m20)  # J6 = -theta6
+
+    j1_deg = j1 * _DEG
+    Z[0, 0] = j1_deg
+    Z[0, 1] = j1_deg - np.copysign(180.0, j1_deg)
+    np.multiply(j2[..., None, :], _DEG, out=Z[1])
+    np.multiply(j3[..., None, :], _DEG, out=Z[2])
+    for col, angle in ((3, j4), (5, j6)):
+        np.multiply(angle, _DEG, out=Z[col, :, :, 0])
+        Z[col, :, :, 1] = Z[col, :, :, 0] - np.copysign(180.0, Z[col, :, :, 0])
+    np.multiply(j5, _DEG, out=Z[4, :, :, 0])
+    np.negative(Z[4, :, :, 0], out=Z[4, :, :, 1])
+    keep[...] = ok[:, :, None, :]
+
+
+def _turn_ks(limits: robot.JointLimits) -> list[list[int]]:
+    """Per joint, the whole turns k that can bring an angle in [-180, 180) inside the limits."""
+    return [
+        [k for k in (-1, 0, 1) if lo <= 180.0 + 360.0 * k and hi >= -180.0 + 360.0 * k]
+        for lo, hi in zip(limits.lower_deg, limits.upper_deg, strict=True)
+    ]
+
+
+def _n_turns(limits: robot.JointLimits) -> int:
+    return int(np.prod([len(k) for k in _turn_ks(limits)]))
+
+
+def turn_shifts(limits: robot.JointLimits) -> list[F64]:
     """Every combination of whole turns (+-360 deg) that can bring a joint angle wrapped to
-    [-180, 180) inside the limits (J3, J4, J6 of this robot have such alternatives)."""
-    per_joint = []
-    for lo, hi in zip(limits.lower_deg, limits.upper_deg, strict=True):
-        ks = [k for k in (-1, 0, 1) if lo <= 180.0 + 360.0 * k and hi >= -180.0 + 360.0 * k]
-        per_joint.append([360.0 * k for k in ks])
+    [-180, 180) inside the limits (J1 at +-180, J3, J4, J6 of this robot have such
+    alternatives); `IKSolutions.branch % len(turn_shifts(limits))` indexes this list."""
+    per_joint = [[360.0 * k for k in ks] for ks in _turn_ks(limits)]
     return [np.array(c) for c in itertools.product(*per_joint)]
 
 
-def _wrap180(a_deg: F64) -> F64:
-    wrapped: F64 = (a_deg + 180.0) % 360.0 - 180.0
-    return wrapped
-
-
-def _wrist(
-    R_base_flange: F64, j1: F64, j2: F64, j3: F64, flip: int
-) -> tuple[F64, NDArray[np.bool_]]:
-    """theta4..6 -> controller J4..J6 [rad] of one wrist branch, and where it is regular."""
-    theta23 = (j2 - np.pi / 2) - (j2 + j3)
-    R_b3 = rot_z(j1) @ rot_x(-np.pi / 2) @ rot_z(theta23)
-    M = rot_x(np.pi / 2) @ np.swapaxes(R_b3, 1, 2) @ R_base_flange
-    s5 = np.hypot(M[:, 0, 2], M[:, 1, 2])
-    sign = 1.0 if flip == 0 else -1.0
-    b = np.arctan2(sign * s5, M[:, 2, 2])  # = -theta5
-    th4 = np.arctan2(sign * M[:, 1, 2], sign * M[:, 0, 2])
-    th6 = np.arctan2(sign * M[:, 2, 1], -sign * M[:, 2, 0])
-    ok = s5 > SINGULAR_TOL
-    # theta4 = -J4, theta5 = -J5 = b, theta6 = -J6 (calib.robot)
-    return np.column_stack([-th4, b, -th6]), ok
+_turn_shifts = turn_shifts  # the former private name

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy.optimize import least_squares
 
 from calib import ik, robot
@@ -61,3 +62,69 @@ def test_brute_force_numeric_solver_finds_nothing_new() -> None:
             if np.abs(sol.fun).max() > 1e-6 or not limits.contains(sol.x):
                 continue
             assert np.abs(closed - sol.x).max(axis=1).min() < 1e-4, sol.x
+
+
+def test_multistart_newton_finds_no_branch_the_closed_form_misses() -> None:
+    """Brute force: damped Newton (calib.ik_refine on the nominal model) from 300 random seeds
+    per pose; every distinct solution within the limits is among the closed-form ones
+    (which include the whole-turn alternatives), and the search finds several branches."""
+    from calib import ik_refine
+
+    rng = np.random.default_rng(11)
+    limits = robot.JointLimits()
+    for q in random_q(rng, 6):
+        T = MODEL.fk(X0, q[None])[0]
+        closed = ik.solve(MODEL.fk(X0, q[None], flange=True)).q_deg
+        seeds = random_q(rng, 300)
+        ref = ik_refine.refine(MODEL, X0, T, seeds, max_iter=60, limits=limits)
+        found = ref.q_deg[ref.converged]
+        assert len(found) > 0
+        d = np.abs(found[:, None, :] - closed[None, :, :]).max(axis=2).min(axis=1)
+        # near the wrist singularity J4/J6 are ill-conditioned: compare poses there
+        assert np.all(d < 1e-4), found[d >= 1e-4]
+        distinct = np.unique(np.round(found, 3), axis=0)
+        assert len(distinct) >= 2
+
+
+def test_agrees_with_py_opw_kinematics() -> None:
+    pytest.importorskip("py_opw_kinematics")
+    from bench.ik import opw_robot, opw_solutions_within_limits
+
+    rob = opw_robot()
+    q = random_q(np.random.default_rng(7), 2000)
+    T = MODEL.fk(X0, q, flange=True)
+    ours = ik.solve(T, turn_alternatives=False)
+    theirs = opw_solutions_within_limits(rob, T)
+    for i in range(len(q)):
+        a, b = ours.for_pose(i), theirs[i]
+        assert len(a) == len(b), i
+        if len(a):
+            d = np.abs(((a[:, None, :] - b[None, :, :]) + 180.0) % 360.0 - 180.0).max(axis=2)
+            assert d.min(axis=1).max() < 1e-6 and d.min(axis=0).max() < 1e-6
+
+
+def test_degenerate_input_never_nan() -> None:
+    rng = np.random.default_rng(3)
+    T = MODEL.fk(X0, random_q(rng, 50), flange=True)
+    T[0, :3, 3] = [0.0, 0.0, 500.0] + 175.0 * T[0, :3, 2]  # wrist centre on the J1 axis
+    T[1, :3, 3] = [1e5, 0.0, 0.0]  # far out of reach
+    T[2, :3, 3] = np.nan  # garbage in
+    T[3] = np.eye(4)  # base origin: inside the J1 axis
+    for turns in (True, False):
+        sols = ik.solve(T, turn_alternatives=turns)
+        assert np.all(np.isfinite(sols.q_deg))
+        assert not np.isin([0, 1, 2, 3], sols.pose_index).any()
+        assert np.all(np.diff(sols.pose_index) >= 0)  # pose by pose
+
+
+def test_branch_ids_index_the_turn_shifts() -> None:
+    lim = robot.JointLimits()
+    q = random_q(np.random.default_rng(8), 200)
+    sols = ik.solve(MODEL.fk(X0, q, flange=True))
+    shifts = np.array(ik.turn_shifts(lim))
+    base = ik.solve(MODEL.fk(X0, q, flange=True), turn_alternatives=False)
+    assert set(np.unique(sols.branch // len(shifts))) <= set(range(ik.N_BRANCHES))
+    # subtracting the shift gives an angle in [-180, 180]
+    unshifted = sols.q_deg - shifts[sols.branch % len(shifts)]
+    assert np.all(np.abs(unshifted) <= 180.0 + 1e-9)
+    assert len(base.q_deg) <= len(sols.q_deg)
