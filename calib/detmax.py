@@ -26,8 +26,10 @@ candidate. O2..O5 evaluate the exact spectrum (batched eigvalsh) on a shortlist 
 candidates with the largest determinant gain and the largest first-order gain along the
 weakest direction.
 
-Methods: DETMAX (Mitchell 1974) with excursions of growing depth; exchange-add-exchange (Sun &
-Hollerbach 2008); random selection as the baseline. Seeded through the rng passed in.
+Methods: DETMAX (Mitchell 1974) with excursions of growing depth, finished by single exchanges
+until none improves (the greedy excursions alone can stop where one exchange still gains);
+exchange-add-exchange (Sun & Hollerbach 2008); random selection as the baseline. Seeded
+through the rng passed in.
 """
 
 from __future__ import annotations
@@ -212,7 +214,7 @@ def select(
         sel = first
     elif method == "detmax":
         sel = _greedy(info, n) if start == "greedy" else first
-        sel = _detmax(info, sel, max_depth)
+        sel = _exchange(info, _detmax(info, sel, max_depth))
     else:
         k = max(1, (n + 1) // 2)
         sel = _eae(info, _greedy(info, k) if start == "greedy" else first[:k], n)

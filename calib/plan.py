@@ -37,6 +37,7 @@ from calib.candidates import (
     sphere_candidates,
 )
 from calib.errors import EmptyRegion, NoCandidates
+from calib.ik_refine import refine
 from calib.model import PAPER_30, SystemModel
 from calib.observability import (
     Observability,
@@ -129,6 +130,7 @@ class SpherePlan:
     q_deg: F64
     c_sensor_mm: F64
     n_candidates: int
+    n_unrefined: int = 0  # configurations the refinement on the model did not converge for
 
 
 @dataclass(frozen=True)
@@ -303,9 +305,27 @@ def select_configurations(
             chosen, J_sel, n_cand = choose(model, x, p_arr, grid or settings.grid, J, settings)
         except NoCandidates as exc:
             raise NoCandidates(f"sphere {name}: {exc}") from None
+        q, ok = refine_on_model(model, x, chosen.q_deg)
+        J_sel = model.point_jacobian(x, q, chosen.c_sensor_mm, settings.active)
         J = np.concatenate([J, J_sel])
-        plans.append(SpherePlan(name, p_arr, chosen.q_deg, chosen.c_sensor_mm, n_cand))
+        plans.append(
+            SpherePlan(name, p_arr, q, chosen.c_sensor_mm, n_cand, int(np.sum(~ok)))
+        )
     return plans, J
+
+
+def refine_on_model(model: SystemModel, x: F64, q_deg: F64) -> tuple[F64, NDArray[np.bool_]]:
+    """The closed form solves the nominal joints with x's part->base and hand-eye: refine its
+    configurations on the whole model x so that the sensor reaches the pose the closed form
+    aimed at (the sphere then appears where planned). Keeps the closed-form angles where the
+    refinement does not converge; returns (q_deg, converged)."""
+    x_frames = model.nominal_x()
+    frames = [*range(6), *range(len(x) - 6, len(x))]
+    x_frames[frames] = x[frames]
+    target = model.fk(x_frames, q_deg)
+    r = refine(model, x, target, q_deg)
+    q = np.where(r.converged[:, None], r.q_deg, q_deg)
+    return q, r.converged
 
 
 def plan(
