@@ -9,7 +9,7 @@ measurement noise causes (identification on the same noise with a rigid robot).
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -28,7 +28,15 @@ from app.report import (
     stats_rows,
     text_table,
 )
-from app.simulation import DataSet, collect, make_cell, validation_set
+from app.simulation import (
+    DataSet,
+    GeometricMeasurement,
+    Measurement,
+    collect,
+    make_cell,
+    measurement_report,
+    validation_set,
+)
 from calib.identify import IdentificationResult, Measurements, identify, residuals
 from calib.model import SystemModel
 from calib.validation import ErrorStats
@@ -43,6 +51,7 @@ class DemoResult:
     result: IdentificationResult
     run_dir: Path
     seconds: float
+    measurement: dict[str, Any] = field(default_factory=dict)
 
 
 def _truth_set(ds: DataSet, c_sensor_mm: F64, with_noise: bool) -> Measurements:
@@ -83,21 +92,25 @@ def error_breakdown(
     return out
 
 
-def run_demo(cfg: CellConfig, seed: int, run_dir: Path, n_validation: int = 100) -> DemoResult:
+def run_demo(cfg: CellConfig, seed: int, run_dir: Path, n_validation: int = 100,
+             measurement: Measurement | None = None) -> DemoResult:
+    """measurement: how sphere centres are measured (default: geometric; `rvis demo` renders)."""
     t0 = time.perf_counter()
     cell = make_cell(cfg, seed=seed)
     model = cfg.model()
     x0 = model.nominal_x()
     rng = np.random.default_rng([seed, 2])
     n_each = int(cfg.calibration["configs_per_sphere"])
-    cal = collect(cell, model, x0, cfg.spheres_part_mm, n_each, rng)
-    val = validation_set(cell, cfg, model, x0, n_validation, rng)
+    cal = collect(cell, model, x0, cfg.spheres_part_mm, n_each, rng, measurement=measurement)
+    val = validation_set(cell, cfg, model, x0, n_validation, rng, measurement)
     result = identify(model, cal.measurements, loss=str(cfg.calibration["loss"]))
     e_before = residuals(model, x0, val.measurements)
     e_after = residuals(model, result.x, val.measurements)
     stats = {"nominal": ErrorStats.of(e_before), "identified": ErrorStats.of(e_after)}
     breakdown = error_breakdown(cfg, seed, model, cal, val, result.x)
-    demo = DemoResult(stats, breakdown, result, run_dir, time.perf_counter() - t0)
+    info = measurement_report(measurement or GeometricMeasurement(),
+                              {"calibration": cal, "validation": val})
+    demo = DemoResult(stats, breakdown, result, run_dir, time.perf_counter() - t0, info)
     _write_run(demo, model, cal, val, {"nominal": e_before, "identified": e_after})
     return demo
 
@@ -120,6 +133,7 @@ def _write_run(
         "rank": demo.result.observability.rank,
         "condition": demo.result.observability.condition,
         "seconds": demo.seconds,
+        "measurement": demo.measurement,
     }
     write_json(d / "report.json", report)
     plot_errors(d / "validation_errors.png", errors, "Validation errors at 100 positions")
@@ -143,8 +157,31 @@ def summary_text(demo: DemoResult) -> str:
         f"Identification: {len(demo.result.residuals_mm)} measurements, rank {obs.rank}, "
         f"condition {obs.condition:.1f}, "
         + ", ".join(f"{k} {v:.4g}" for k, v in obs.indices.items()),
+        *measurement_lines(demo.measurement),
     ]
     return "\n".join(lines)
+
+
+def measurement_lines(info: dict[str, Any]) -> list[str]:
+    """The report's lines on how the sphere centres were measured."""
+    if not info:
+        return []
+    cal, val = info["calibration"], info["validation"]
+    how = ("rendered sweeps measured by the vision pipeline" if info["path"] == "rendered"
+           else "geometric (true centre plus Gaussian noise)")
+    lines = [
+        f"Measurements: {how}; centre error vs truth RMS {cal['centre_error_rms_um']:.1f} um "
+        f"(calibration), {val['centre_error_rms_um']:.1f} um (validation); rejected views "
+        f"{cal['rejected']} (calibration), {val['rejected']} (validation)."
+    ]
+    r = info.get("rendered")
+    if r:
+        lines.append(
+            f"Rendering: {r['sweeps']} sweeps of {r['frames_per_sweep']} frames, per sweep "
+            f"{r['render_ms_per_sweep']:.0f} ms render + {r['measure_ms_per_sweep']:.0f} ms "
+            f"measure, {r['wall_s']:.1f} s wall on {r['workers']} worker(s)."
+        )
+    return lines
 
 
 def markdown_report(demo: DemoResult, model: SystemModel) -> str:

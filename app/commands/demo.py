@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import argparse
+import os
 import time
+from contextlib import closing, nullcontext
 from pathlib import Path
 
 from app.config import load_cell
 from app.demo import run_demo, summary_text
+from app.errors import InputError
 from app.report import parameter_table
+from app.simulation import GeometricMeasurement, RenderedMeasurement
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -17,14 +21,29 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")
     p.add_argument("--out", help="run folder (default runs/demo-<time>)")
     p.add_argument("--validation", type=int, default=100, help="validation positions (100)")
+    p.add_argument("--geometric", action="store_true",
+                   help="fast geometric measurements (true centre plus noise) instead of "
+                        "rendered sweeps measured by the vision pipeline")
+    p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
+                   help="processes rendering sweeps (default: up to 2)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     cfg = load_cell(args.cell)
     out = Path(args.out or f"runs/demo-{time.strftime('%Y%m%d-%H%M%S')}")
-    print(f"rvis demo: simulated cell, seed {args.seed}; running ...", flush=True)
-    demo = run_demo(cfg, args.seed, out, args.validation)
+    if args.workers < 1:
+        raise InputError(f"--workers must be >= 1, got {args.workers}")
+    measurement: GeometricMeasurement | RenderedMeasurement
+    if args.geometric:
+        measurement, how = GeometricMeasurement(), "geometric measurements"
+    else:
+        measurement = RenderedMeasurement(workers=args.workers,
+                                          progress=lambda line: print(line, flush=True))
+        how = f"rendered sweeps on {args.workers} worker(s)"
+    print(f"rvis demo: simulated cell, seed {args.seed}, {how}; running ...", flush=True)
+    with closing(measurement) if isinstance(measurement, RenderedMeasurement) else nullcontext():
+        demo = run_demo(cfg, args.seed, out, args.validation, measurement)
     print(parameter_table(cfg.model(), demo.result))
     print()
     print(summary_text(demo))
