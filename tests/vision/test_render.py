@@ -4,7 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from fakes.render import Lighting, render_chessboard, render_sphere_sweep, sphere_hits
+from fakes.render import (
+    Lighting,
+    _render_frames,
+    render_chessboard,
+    render_sphere_sweep,
+    sphere_hits,
+)
 from fakes.render_noise import NoiseSettings, _form, dark_frame
 from fakes.render_sensor import TrueSensor
 
@@ -102,3 +108,15 @@ def test_dark_pixels_follow_the_noise_model(rng: np.random.Generator) -> None:
         assert abs(table.mean() - model.mean()) < 0.01 * max(model.std(), 1.0)
         assert abs(table.std() / model.std() - 1) < 0.01
         assert np.abs(hist_t - hist_m).max() < 0.005
+
+
+def test_tile_culling_changes_no_pixel(true_sensor: TrueSensor) -> None:
+    """Skipping the tiles far from each laser plane renders exactly the same frames."""
+    c = np.array([-6.0, 4.0, 127.0])
+    idx, X = sphere_hits(true_sensor, c, 15.0)
+    normals, offsets = true_sensor.laser_planes(np.linspace(-3.2, 3.2, 6))
+    frames = [_render_frames(true_sensor, idx, X, (X - c) / 15.0, normals, offsets,
+                             Lighting(ghost_gain=0.3), NoiseSettings(),
+                             np.random.default_rng(5), cull=cull) for cull in (False, True)]
+    assert int(frames[0].max()) > 100
+    np.testing.assert_array_equal(frames[0], frames[1])
