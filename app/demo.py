@@ -9,7 +9,7 @@ measurement noise causes (identification on the same noise with a rigid robot).
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +29,15 @@ from app.report import (
     stats_rows,
     text_table,
 )
-from app.simulation import DataSet, collect, make_cell, validation_set
+from app.simulation import (
+    DataSet,
+    GeometricMeasurement,
+    Measurement,
+    collect,
+    make_cell,
+    measurement_report,
+    validation_set,
+)
 from calib.identify import IdentificationResult, Measurements, identify, residuals
 from calib.model import SystemModel
 from calib.plan import Plan, Progress
@@ -57,6 +65,7 @@ class DemoResult:
     run_dir: Path
     seconds: float
     cfg: CellConfig
+    measurement: dict[str, Any] = field(default_factory=dict)
     planned: PlannedRun | None = None
 
 
@@ -105,8 +114,10 @@ def run_demo(
     n_validation: int = 100,
     placement: str | None = "fixed",
     progress: Progress | None = None,
+    measurement: Measurement | None = None,
 ) -> DemoResult:
-    """The demo; with `placement` (fixed, sequential, joint) it also plans on the
+    """The demo. measurement: how sphere centres are measured (default: geometric; `rvis
+    demo` renders). With `placement` (fixed, sequential, joint) it also plans on the
     pre-calibrated parameters and calibrates again with the planned configurations (None:
     random configurations only)."""
     t0 = time.perf_counter()
@@ -115,8 +126,8 @@ def run_demo(
     x0 = model.nominal_x()
     rng = np.random.default_rng([seed, 2])
     n_each = int(cfg.calibration["configs_per_sphere"])
-    cal = collect(cell, model, x0, cfg.spheres_part_mm, n_each, rng)
-    val = validation_set(cell, cfg, model, x0, n_validation, rng)
+    cal = collect(cell, model, x0, cfg.spheres_part_mm, n_each, rng, measurement=measurement)
+    val = validation_set(cell, cfg, model, x0, n_validation, rng, measurement)
     result = identify(model, cal.measurements, loss=str(cfg.calibration["loss"]))
     e_before = residuals(model, x0, val.measurements)
     e_after = residuals(model, result.x, val.measurements)
@@ -124,12 +135,19 @@ def run_demo(
     breakdown = error_breakdown(cfg, seed, model, cal, val, result.x)
     errors = {"nominal": e_before, "identified": e_after}
     planned = None
+    sets = {"calibration": cal, "validation": val}
     if placement is not None:
-        planned = planned_run(cfg, cell, model, result.x, placement, n_each, rng, progress)
+        planned = planned_run(
+            cfg, cell, model, result.x, placement, n_each, rng, progress, measurement
+        )
+        sets["planned"] = planned.data
         errors = {"nominal": e_before, "random configurations": e_after}
         errors["planned configurations"] = residuals(model, planned.result.x, val.measurements)
         stats["planned"] = ErrorStats.of(errors["planned configurations"])
-    demo = DemoResult(stats, breakdown, result, run_dir, time.perf_counter() - t0, cfg, planned)
+    info = measurement_report(measurement or GeometricMeasurement(), sets)
+    demo = DemoResult(
+        stats, breakdown, result, run_dir, time.perf_counter() - t0, cfg, info, planned
+    )
     _write_run(demo, model, cal, val, errors)
     return demo
 
@@ -143,12 +161,20 @@ def planned_run(
     n_each: int,
     rng: np.random.Generator,
     progress: Progress | None = None,
+    measurement: Measurement | None = None,
 ) -> PlannedRun:
     """Plan on the pre-calibrated parameters, move the spheres to the planned positions
     (tracker-measured), measure from the planned configurations, identify."""
     plan = run_plan(cfg, model, x_pre, placement=placement, progress=progress)
     data = collect(
-        cell, model, x_pre, plan.positions_part_mm(), n_each, rng, q_by_target=plan.q_by_sphere()
+        cell,
+        model,
+        x_pre,
+        plan.positions_part_mm(),
+        n_each,
+        rng,
+        q_by_target=plan.q_by_sphere(),
+        measurement=measurement,
     )
     result = identify(model, data.measurements, loss=str(cfg.calibration["loss"]))
     return PlannedRun(plan, data, result, placement)
@@ -179,6 +205,7 @@ def _write_run(
         "rank": demo.result.observability.rank,
         "condition": demo.result.observability.condition,
         "seconds": demo.seconds,
+        "measurement": demo.measurement,
     }
     if pr is not None:
         report["planned"] = {
@@ -214,6 +241,7 @@ def summary_text(demo: DemoResult) -> str:
         f"Identification: {len(demo.result.residuals_mm)} measurements, rank {obs.rank}, "
         f"condition {obs.condition:.1f}, "
         + ", ".join(f"{k} {v:.4g}" for k, v in obs.indices.items()),
+        *measurement_lines(demo.measurement),
     ]
     pr = demo.planned
     if pr is not None:
@@ -233,6 +261,28 @@ def summary_text(demo: DemoResult) -> str:
             f"{pr.plan.seconds['total']:.1f} s.",
         ]
     return "\n".join(lines)
+
+
+def measurement_lines(info: dict[str, Any]) -> list[str]:
+    """The report's lines on how the sphere centres were measured."""
+    if not info:
+        return []
+    cal, val = info["calibration"], info["validation"]
+    how = ("rendered sweeps measured by the vision pipeline" if info["path"] == "rendered"
+           else "geometric (true centre plus Gaussian noise)")
+    lines = [
+        f"Measurements: {how}; centre error vs truth RMS {cal['centre_error_rms_um']:.1f} um "
+        f"(calibration), {val['centre_error_rms_um']:.1f} um (validation); rejected views "
+        f"{cal['rejected']} (calibration), {val['rejected']} (validation)."
+    ]
+    r = info.get("rendered")
+    if r:
+        lines.append(
+            f"Rendering: {r['sweeps']} sweeps of {r['frames_per_sweep']} frames, per sweep "
+            f"{r['render_ms_per_sweep']:.0f} ms render + {r['measure_ms_per_sweep']:.0f} ms "
+            f"measure, {r['wall_s']:.1f} s wall on {r['workers']} worker(s)."
+        )
+    return lines
 
 
 def markdown_report(demo: DemoResult, model: SystemModel) -> str:

@@ -1,12 +1,16 @@
 """Benchmark of the sensor pipeline (not run by the tests): timings and accuracy vs the truth.
 
     .venv/bin/python bench/vision.py [--poses 50] [--frames 48] [--repeats 30] [--calib-seeds 3]
+                                     [--cell-sweeps 16] [--workers 2]
 
 Prints medians of repeated runs (one OpenCV thread): stripe extraction per 1296x966 frame in both
 modes, triangulation + sphere fit per sweep, the renderer apart; then the centre error of 50
 sphere poses over the field of view with a perfect sensor model, and the absolute error left
 after calibrating the sensor from rendered chessboards and target sweeps, split into what the
-intrinsics and what the laser calibration contribute.
+intrinsics and what the laser calibration contribute. Last, the simulated cell measured through
+rendered images as `rvis demo` does it (24-frame sweeps from random views of the four spheres):
+render and measure time per sweep (wall and CPU) in this process, then the wall time per sweep
+with a pool of worker processes.
 """
 
 from __future__ import annotations
@@ -137,14 +141,62 @@ def bench_calibration(sensor: TrueSensor, sweeps: list, centres: F64, seed: int)
     report("   true intrinsics, calibrated laser only", centre_errors(sweeps, centres, laser_only))
 
 
+def bench_cell(n_sweeps: int, workers: int) -> None:
+    from app.config import load_cell
+    from app.simulation import RenderedMeasurement, make_cell, render_and_measure
+    from calib import candidates
+
+    cfg = load_cell(None)
+    model = cfg.model()
+    x = model.nominal_x()
+    cell = make_cell(cfg, seed=0)
+    rng = np.random.default_rng(0)
+    views = [(q, p) for p in cfg.spheres_part_mm.values()
+             for q in candidates.random_configurations(model, x, p, n_sweeps, rng).q_deg
+             if cell.sees(q, p)]
+    views = [views[i] for i in np.linspace(0, len(views) - 1, n_sweeps).astype(int)]
+    _ = cell.sensor.pixel_rays
+    model_s = RenderedMeasurement().sensor_model
+    render, measure, wall, cpu, err = [], [], [], [], []
+    for q, p in views:
+        job = cell.sweep_job(q, p)
+        t, c = time.perf_counter(), time.process_time()
+        o = render_and_measure(job, cell.sensor, model_s)
+        wall.append(time.perf_counter() - t)
+        cpu.append(time.process_time() - c)
+        render.append(o.render_s)
+        measure.append(o.measure_s)
+        if o.c_sensor_mm is not None:
+            err.append(1000 * np.linalg.norm(o.c_sensor_mm - job.c_sensor_mm))
+    print(f"== rendered cell measurement per sweep ({n_sweeps} sweeps of "
+          f"{len(cell.sweep_commands_v)} frames, median)")
+    print(f"in process: render {1000 * np.median(render):.0f} ms + measure "
+          f"{1000 * np.median(measure):.0f} ms = wall {1000 * np.median(wall):.0f} ms "
+          f"(CPU {1000 * np.median(cpu):.0f} ms); centre error 3D RMS "
+          f"{np.sqrt(np.mean(np.square(err))):.1f} um, {n_sweeps - len(err)} rejected")
+    if workers > 1:
+        with RenderedMeasurement(workers=workers) as m:
+            m.measure(cell, views[:workers])  # start the workers (pixel rays ~1 s each)
+            t = time.perf_counter()
+            m.measure(cell, views)
+            per_sweep_ms = 1000 * (time.perf_counter() - t) / n_sweeps
+            print(f"{workers} worker processes: wall {per_sweep_ms:.0f} ms per sweep")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--poses", type=int, default=50)
     parser.add_argument("--frames", type=int, default=48)
     parser.add_argument("--repeats", type=int, default=30)
     parser.add_argument("--calib-seeds", type=int, default=3)
+    parser.add_argument("--cell-sweeps", type=int, default=16)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--only-cell", action="store_true", help="only the cell measurement")
     args = parser.parse_args()
     cv2.setNumThreads(1)
+    if args.only_cell:
+        bench_cell(args.cell_sweeps, args.workers)
+        return
     sensor = default_true_sensor()
     model = to_sensor_model(sensor)
     bench_timings(sensor, model, args.frames, args.repeats)
@@ -159,6 +211,7 @@ def main() -> None:
           "(4 poses x 15 commands)")
     for seed in range(args.calib_seeds):
         bench_calibration(sensor, sweeps, centres, seed=100 + seed)
+    bench_cell(args.cell_sweeps, args.workers)
 
 
 if __name__ == "__main__":

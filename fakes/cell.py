@@ -1,12 +1,20 @@
 """The simulated cell: the true robot, part frame, sensor mount, spheres, tracker and sensor.
 
 It knows the truth and is seeded. Its kinematics are `fakes.truth` (URDF chain), never calib's
-model. Sphere measurements here are geometric (true centre in the sensor frame plus noise);
-the rendered-image path goes through `fakes.render` and vision/.
+model. Two ways to measure a sphere:
+
+- geometric: `measure_point` returns the true centre in the sensor frame plus Gaussian noise;
+- rendered: `render_sweep` (or `sweep_job(...).render(cell.sensor)`) renders the galvo sweep the
+  true sensor (`fakes.render_sensor.TrueSensor`) records from the true pose; app/ measures the
+  frames with vision/ (this module never imports vision/).
+
+`render_frame` is the camera hook of the device fakes' World protocol: the frame the camera sees
+at the current joints and the current galvo command.
 """
 
 from __future__ import annotations
 
+import math
 import threading
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
@@ -14,6 +22,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from fakes.render import Frames, Lighting, SweepTruth, default_sweep_commands, render_sphere_sweep
+from fakes.render_noise import NoiseSettings, dark_frame
+from fakes.render_sensor import TrueSensor, default_true_sensor
 from fakes.truth import TrueRobot, _rot, homogeneous
 
 F64 = NDArray[np.float64]
@@ -86,6 +97,33 @@ class SimSettings:
     mount_error_rad: float = 2e-3
 
 
+#: Mirror commands [V] of one measurement sweep: 24 frames over +-3.2 V put the stripe on a
+#: sphere anywhere in the measuring volume about every 1.3 mm (bench/vision.py, tests).
+SWEEP_FRAMES = 24
+SWEEP_SPAN_V = 3.2
+#: Exposure [us] at which the renderer's laser power and ambient light are specified.
+REFERENCE_EXPOSURE_US = 10_000.0
+
+
+@dataclass(frozen=True, eq=False)
+class SweepJob:
+    """One galvo sweep as the cell records it, as plain data (picklable, so a process pool can
+    render it): the true sphere centre in the sensor frame [mm], its true radius, the mirror
+    commands [V] and the seed of this sweep's image noise. Rendering is deterministic."""
+
+    c_sensor_mm: F64
+    radius_mm: float
+    commands_v: F64
+    seed: tuple[int, ...]
+
+    def render(self, sensor: TrueSensor, *, stripe_truth: bool = False
+               ) -> tuple[Frames, F64, SweepTruth]:
+        """Frames shape=(n, H, W) uint8, the commands [V] and the renderer's truth."""
+        return render_sphere_sweep(self.c_sensor_mm, self.radius_mm, sensor,
+                                   np.random.default_rng(list(self.seed)),
+                                   commands_v=self.commands_v, stripe_truth=stripe_truth)
+
+
 def _small_pose(rng: np.random.Generator, sigma_mm: float, sigma_rad: float) -> F64:
     rv = rng.normal(0.0, sigma_rad, 3)
     angle = float(np.linalg.norm(rv))
@@ -96,8 +134,10 @@ def _small_pose(rng: np.random.Generator, sigma_mm: float, sigma_rad: float) -> 
 class SimulatedCell:
     """The true cell. `temp_c` may be changed between measurements (thermal drift)."""
 
-    def __init__(self, spec: CellSpec, settings: SimSettings | None = None) -> None:
+    def __init__(self, spec: CellSpec, settings: SimSettings | None = None,
+                 sensor: TrueSensor | None = None) -> None:
         self.spec = spec
+        self._sensor = sensor
         self.settings = settings or SimSettings()
         rng = np.random.default_rng(self.settings.seed)
         robot = TrueRobot.perturbed(rng)
@@ -116,6 +156,18 @@ class SimulatedCell:
         self._spheres = {k: np.asarray(v, dtype=float) for k, v in spec.spheres_part_mm.items()}
         self._q_deg = np.array([0.0, 0.0, 0.0, 0.0, -90.0, 0.0])
         self._lock = threading.Lock()  # device fakes call from their own threads
+        self._render_lock = threading.Lock()
+        self._sweeps = 0  # sweeps handed out: the index in each sweep's noise seed
+        self._camera_rng = np.random.default_rng([s.seed, 4])
+        self.sweep_commands_v = default_sweep_commands(SWEEP_FRAMES, SWEEP_SPAN_V)
+
+    @property
+    def sensor(self) -> TrueSensor:
+        """The true sensor (camera + galvo laser); its pixel rays take ~1 s on first use."""
+        with self._render_lock:
+            if self._sensor is None:
+                self._sensor = default_true_sensor()
+            return self._sensor
 
     # -- truth ---------------------------------------------------------------------------
     def T_part_sensor(self, q_deg: ArrayLike) -> F64:
@@ -133,14 +185,41 @@ class SimulatedCell:
         return out
 
     # -- instruments ---------------------------------------------------------------------
-    def measure_point(self, q_deg: ArrayLike, p_part_mm: ArrayLike) -> F64:
-        """One geometric sensor measurement (3,) [mm] of a sphere at p_part_mm from q_deg;
-        raises NotVisible outside the measuring volume."""
+    def sees(self, q_deg: ArrayLike, p_part_mm: ArrayLike) -> bool:
+        """Whether the sphere at p_part_mm lies in the measuring volume from q_deg."""
+        c = self.centre_in_sensor(np.atleast_2d(q_deg)[:1], p_part_mm)[0]
+        return bool(self.spec.volume.contains(c)[0])
+
+    def _visible_centre(self, q_deg: ArrayLike, p_part_mm: ArrayLike) -> F64:
         c = self.centre_in_sensor(np.atleast_2d(q_deg)[:1], p_part_mm)[0]
         if not self.spec.volume.contains(c)[0]:
             raise NotVisible(f"sphere centre at {np.round(c, 1)} mm in the sensor frame")
+        return c
+
+    def measure_point(self, q_deg: ArrayLike, p_part_mm: ArrayLike) -> F64:
+        """One geometric sensor measurement (3,) [mm] of a sphere at p_part_mm from q_deg;
+        raises NotVisible outside the measuring volume."""
+        c = self._visible_centre(q_deg, p_part_mm)
         out: F64 = c + self._noise.normal(0.0, self.settings.sensor_noise_mm, 3)
         return out
+
+    def sweep_job(self, q_deg: ArrayLike, p_part_mm: ArrayLike) -> SweepJob:
+        """The sweep the sensor records of the sphere at p_part_mm from q_deg (to render);
+        raises NotVisible outside the measuring volume. Each call is a new sweep with its own
+        noise seed (cell seed, sweep index), so results do not depend on where it is rendered."""
+        c = self._visible_centre(q_deg, p_part_mm)
+        with self._render_lock:
+            k = self._sweeps
+            self._sweeps += 1
+        return SweepJob(c, self.spec.sphere_radius_mm, self.sweep_commands_v.copy(),
+                        (self.settings.seed, 3, k))
+
+    def render_sweep(self, q_deg: ArrayLike, p_part_mm: ArrayLike, *, stripe_truth: bool = False
+                     ) -> tuple[Frames, F64, SweepTruth]:
+        """Render the sweep of the sphere at p_part_mm from q_deg: frames shape=(n, H, W)
+        uint8, mirror commands shape=(n,) [V], the renderer's truth (true centre in S, planes).
+        Raises NotVisible outside the measuring volume."""
+        return self.sweep_job(q_deg, p_part_mm).render(self.sensor, stripe_truth=stripe_truth)
 
     def track_point(self, p_part_mm: ArrayLike) -> F64:
         """Laser-tracker measurement (3,) [mm] of a point in the part frame."""
@@ -167,3 +246,57 @@ class SimulatedCell:
     def measure_target(self, target_id: str) -> F64:
         """Sensor measurement of a named sphere from the current joints."""
         return self.measure_point(self.joints_deg(), self._spheres[target_id])
+
+    def render_frame(
+        self, width: int, height: int, exposure_us: float, gain_db: float, galvo_deg: float | None
+    ) -> F64:
+        """The frame the camera sees now (World protocol): the nearest sphere in front of the
+        sensor at the current joints, lit by the laser plane of the commanded mirror angle.
+
+        galvo_deg: commanded mechanical mirror angle [deg] (None: no galvo, the mirror rests at
+        0); the true mirror angle follows the sensor's own command-to-angle curve, whose linear
+        term converts it to the renderer's command. Exposure scales the laser and the ambient
+        light (linear in exposure, reference 10 ms); gain multiplies the digital numbers. Rendered
+        in 12 bits and returned as float64 in [0, 1], shape (height, width): the top-left part of
+        the 1296 x 966 sensor when smaller (the region's offset is not passed).
+        """
+        sensor = self.sensor
+        if width > sensor.width_px or height > sensor.height_px:
+            raise ValueError(f"frame {width}x{height} exceeds the sensor's "
+                             f"{sensor.width_px}x{sensor.height_px}")
+        exposure = exposure_us / REFERENCE_EXPOSURE_US
+        gain = 10.0 ** (gain_db / 20.0)
+        base = NoiseSettings(bits=12)
+        noise = replace(base, full_well_e=base.full_well_e / gain,
+                        ambient_e=base.ambient_e * exposure)
+        light = replace(Lighting(), power=Lighting().power * exposure * gain)
+        slope_deg_per_v = math.degrees(float(sensor.angle_poly_rad[1]))
+        command_v = 0.0 if galvo_deg is None else float(galvo_deg) / slope_deg_per_v
+        c = self._sphere_in_view()
+        with self._render_lock:
+            if c is None:
+                frame = dark_frame((sensor.height_px, sensor.width_px), noise, self._camera_rng)
+            else:
+                frame = render_sphere_sweep(
+                    c, self.spec.sphere_radius_mm, sensor, self._camera_rng,
+                    commands_v=np.array([command_v]), noise=noise, light=light,
+                    stripe_truth=False)[0][0]
+        out: F64 = frame[:height, :width].astype(np.float64) / 4095.0
+        return out
+
+    def _sphere_in_view(self) -> F64 | None:
+        """True centre in the sensor frame [mm] of the nearest sphere wholly in front of the
+        sensor (the spheres stand metres apart: at most one is ever in the field of view)."""
+        q = self.joints_deg()
+        ids = self.target_ids()
+        if not ids:
+            return None
+        pts = np.array([self._spheres[k] for k in ids])
+        T = self.T_part_sensor(q[None, :])[0]
+        c = (pts - T[:3, 3]) @ T[:3, :3]
+        front = c[:, 2] > self.spec.sphere_radius_mm
+        if not np.any(front):
+            return None
+        dist = np.where(front, np.linalg.norm(c, axis=1), np.inf)
+        out: F64 = c[int(np.argmin(dist))]
+        return out

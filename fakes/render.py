@@ -20,7 +20,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from fakes.render_noise import NoiseSettings, form_image
+from fakes.render_noise import (
+    LIT_THRESHOLD,
+    NoiseSettings,
+    dark_frame,
+    form_image,
+    form_image_in_box,
+    margin_px,
+)
 from fakes.render_sensor import TrueSensor
 
 F64 = NDArray[np.float64]
@@ -92,26 +99,127 @@ def _surface_terms(sensor: TrueSensor, X: F64, N: F64, light: Lighting) -> tuple
     return lam, glint
 
 
+class _Tiles:
+    """Surface points grouped by 16 x 16 pixel tiles, with each tile's bounding box [mm]."""
+
+    SIZE = 16
+
+    def __init__(self, flat_idx: NDArray[np.intp], X: F64, width_px: int) -> None:
+        rows, cols = np.divmod(flat_idx, width_px)
+        per_row = -(-width_px // self.SIZE)
+        tid = (rows // self.SIZE) * per_row + cols // self.SIZE
+        if tid.size and tid.max() < 65536:
+            tid = tid.astype(np.uint16)  # radix sort
+        self.order = np.argsort(tid, kind="stable")
+        t = tid[self.order]
+        self.starts = np.flatnonzero(np.r_[True, t[1:] != t[:-1]]) if t.size else np.zeros(0, int)
+        self.ends = np.r_[self.starts[1:], t.size].astype(np.intp)
+        Xs = X[self.order]
+        self.lo = np.minimum.reduceat(Xs, self.starts, axis=0) if t.size else np.zeros((0, 3))
+        self.hi = np.maximum.reduceat(Xs, self.starts, axis=0) if t.size else np.zeros((0, 3))
+
+    def candidates(self, n: F64, d: float, cut: float) -> NDArray[np.intp]:
+        """Indices (into the tile-ordered points) of every tile that may hold points within
+        `cut` of the plane n . X = d."""
+        s_min = np.where(n > 0, self.lo * n, self.hi * n).sum(axis=1) - d
+        s_max = np.where(n > 0, self.hi * n, self.lo * n).sum(axis=1) - d
+        hit = np.flatnonzero((s_min < cut + 1e-9) & (s_max > -cut - 1e-9))
+        if hit.size == 0:
+            return np.zeros(0, dtype=np.intp)
+        lengths = self.ends[hit] - self.starts[hit]
+        shift = np.repeat(self.starts[hit] - np.r_[0, np.cumsum(lengths)[:-1]], lengths)
+        return np.asarray(np.arange(int(lengths.sum())) + shift, dtype=np.intp)
+
+
 def _render_frames(sensor: TrueSensor, flat_idx: NDArray[np.intp], X: F64, N: F64,
                    normals: F64, offsets: F64, light: Lighting, noise: NoiseSettings,
-                   rng: np.random.Generator) -> Frames:
-    """Frames for surface points X (visible at pixels flat_idx) under each laser plane."""
+                   rng: np.random.Generator, cull: bool = True) -> Frames:
+    """Frames for surface points X (visible at pixels flat_idx) under each laser plane.
+
+    Only the points within 5 sheet sigmas of a frame's plane are shaded; they are found tile by
+    tile (16 x 16 pixels: a tile whose points' bounding box lies farther from the plane is
+    skipped, exactly, since the distance is linear). The image formation runs in full inside
+    their bounding box (plus the speckle/blur margin and the ghost's shift), the rest of the
+    frame is dark (`form_image_in_box`)."""
     h, w = sensor.height_px, sensor.width_px
-    lam, glint = _surface_terms(sensor, X, N, light)
-    shade = light.power * (lam + glint)
+    tiles = _Tiles(flat_idx, X, w) if cull else None
+    if tiles is not None:
+        flat_idx, X, N = flat_idx[tiles.order], X[tiles.order], N[tiles.order]
+    rows, cols = np.divmod(flat_idx, w)
     cut = 5.0 * light.sheet_sigma_mm
+    margin = margin_px(noise)
+    ghost = light.ghost_shift_px if light.ghost_gain > 0 else 0
     frames = []
     for n, d in zip(normals, offsets, strict=True):
-        s = X @ n - d
-        near = np.flatnonzero(np.abs(s) < cut)
-        irr = np.zeros(h * w, dtype=np.float32)
-        irr[flat_idx[near]] = shade[near] * np.exp(-0.5 * (s[near] / light.sheet_sigma_mm) ** 2)
-        img = irr.reshape(h, w)
-        if light.ghost_gain > 0:
-            k = light.ghost_shift_px
-            img[:, k:] += np.float32(light.ghost_gain) * img[:, :-k].copy()
-        frames.append(form_image(img, noise, rng))
+        if tiles is None:
+            s = X @ n - d
+            near = np.flatnonzero(np.abs(s) < cut)
+        else:
+            cand = tiles.candidates(n, float(d), cut)
+            s_c = X[cand] @ n - d
+            keep = np.abs(s_c) < cut
+            near, s = cand[keep], np.zeros(len(X))
+            s[near] = s_c[keep]
+        lam, glint = _surface_terms(sensor, X[near], N[near], light)
+        irr = light.power * (lam + glint) * np.exp(-0.5 * (s[near] / light.sheet_sigma_mm) ** 2)
+        lit = irr > LIT_THRESHOLD
+        if not np.any(lit):
+            frames.append(dark_frame((h, w), noise, rng))
+            continue
+        r, c = rows[near], cols[near]
+        r0, r1 = max(int(r[lit].min()) - margin, 0), min(int(r[lit].max()) + margin + 1, h)
+        c0 = max(int(c[lit].min()) - margin, 0)
+        c1 = min(int(c[lit].max()) + margin + ghost + 1, w)
+        inside = (r >= r0) & (r < r1) & (c >= c0) & (c < c1)
+        crop = np.zeros((r1 - r0, c1 - c0), dtype=np.float32)
+        crop[r[inside] - r0, c[inside] - c0] = irr[inside]
+        if ghost and ghost < crop.shape[1]:
+            crop[:, ghost:] += np.float32(light.ghost_gain) * crop[:, :-ghost].copy()
+        frames.append(form_image_in_box((h, w), (slice(r0, r1), slice(c0, c1)), crop, noise,
+                                        rng))
     return np.stack(frames)
+
+
+def _sphere_box(sensor: TrueSensor, c: F64, r: float) -> tuple[slice, slice]:
+    """Pixel box (rows, columns) that holds the sphere's image: its silhouette (the circle
+    where the viewing cone touches the sphere) projected, plus 4 pixels; the whole frame when
+    the silhouette reaches behind the camera."""
+    h, w = sensor.height_px, sensor.width_px
+    dist = float(np.linalg.norm(c))
+    if dist <= r * 1.0001:
+        return slice(0, h), slice(0, w)
+    k = c / dist
+    centre = c * (1.0 - (r / dist) ** 2)
+    rho = r * np.sqrt(1.0 - (r / dist) ** 2)
+    e1 = np.cross(k, [1.0, 0.0, 0.0] if abs(k[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(k, e1)
+    phi = np.linspace(0.0, 2 * np.pi, 720, endpoint=False)
+    P = centre + rho * (np.outer(np.cos(phi), e1) + np.outer(np.sin(phi), e2))
+    if np.min(P[:, 2]) <= 1e-3 * dist:
+        return slice(0, h), slice(0, w)
+    uv = sensor.project(P)
+    u0, u1 = int(np.floor(uv[:, 0].min())) - 4, int(np.ceil(uv[:, 0].max())) + 5
+    v0, v1 = int(np.floor(uv[:, 1].min())) - 4, int(np.ceil(uv[:, 1].max())) + 5
+    return slice(min(max(v0, 0), h), min(max(v1, 0), h)), slice(min(max(u0, 0), w),
+                                                                min(max(u1, 0), w))
+
+
+def sphere_hits(sensor: TrueSensor, c_sensor_mm: F64, radius_mm: float, *, roi: bool = True
+                ) -> tuple[NDArray[np.intp], F64]:
+    """Pixels that see the sphere (flat indices into the frame) and the surface points they
+    see [mm]; with roi, rays are cast only inside the sphere's image box (`_sphere_box`)."""
+    c = np.asarray(c_sensor_mm, dtype=np.float64)
+    h, w = sensor.height_px, sensor.width_px
+    rs, cs = _sphere_box(sensor, c, radius_mm) if roi else (slice(0, h), slice(0, w))
+    rays = sensor.pixel_rays[rs, cs].reshape(-1, 3)
+    b = rays @ c
+    disc = b * b - (c @ c - radius_mm**2)
+    local = np.flatnonzero(disc > 0)
+    t = b[local] - np.sqrt(disc[local])
+    bw = cs.stop - cs.start
+    flat_idx = (rs.start + local // bw) * w + cs.start + local % bw
+    return flat_idx, rays[local] * t[:, None]
 
 
 def _circle_polyline(sensor: TrueSensor, c: F64, r: float, n: F64, d: float,
@@ -141,32 +249,30 @@ def _circle_polyline(sensor: TrueSensor, c: F64, r: float, n: F64, d: float,
 def render_sphere_sweep(
     c_sensor_mm: F64, radius_mm: float, sensor: TrueSensor, rng: np.random.Generator, *,
     commands_v: F64 | None = None, noise: NoiseSettings | None = None,
-    light: Lighting | None = None, angle_noise_rad: float = 0.0,
+    light: Lighting | None = None, angle_noise_rad: float = 0.0, stripe_truth: bool = True,
 ) -> tuple[Frames, F64, SweepTruth]:
     """Render one galvo sweep over a sphere.
 
     c_sensor_mm: true sphere centre shape=(3,) [mm] in S; radius_mm: true radius; sensor: true
     geometry; rng: the only source of randomness; commands_v: mirror commands shape=(n,) [V]
     (default `default_sweep_commands()`); angle_noise_rad: mirror angle repeatability (RMS,
-    added to the true angle of each frame, the commands returned are the nominal ones).
+    added to the true angle of each frame, the commands returned are the nominal ones);
+    stripe_truth: compute the true stripe polylines (False leaves truth.stripe_uv empty, which
+    saves a few ms per frame when only the centre matters).
     Returns frames shape=(n, H, W) uint8 (uint16 for 12 bit), the commands, and the truth.
     """
     noise = noise or NoiseSettings()
     light = light or Lighting()
     cmds = default_sweep_commands() if commands_v is None else np.asarray(commands_v, float)
     c = np.asarray(c_sensor_mm, dtype=np.float64)
-    rays = sensor.pixel_rays.reshape(-1, 3)
-    b = rays @ c
-    disc = b * b - (c @ c - radius_mm**2)
-    flat_idx = np.flatnonzero(disc > 0)
-    t = b[flat_idx] - np.sqrt(disc[flat_idx])
-    X = rays[flat_idx] * t[:, None]
+    flat_idx, X = sphere_hits(sensor, c, radius_mm)
     N = (X - c) / radius_mm
     jitter = angle_noise_rad * rng.standard_normal(len(cmds))
     normals, offsets = _planes_with_jitter(sensor, cmds, jitter)
     frames = _render_frames(sensor, flat_idx, X, N, normals, offsets, light, noise, rng)
     stripes = [_circle_polyline(sensor, c, radius_mm, n, d) for n, d in zip(normals, offsets,
-                                                                             strict=True)]
+                                                                             strict=True)
+               ] if stripe_truth else []
     truth = SweepTruth(commands_v=cmds, plane_normals=normals, plane_offsets_mm=offsets,
                        stripe_uv=stripes, c_sensor_mm=c, radius_mm=radius_mm)
     return frames, cmds, truth

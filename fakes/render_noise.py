@@ -2,18 +2,23 @@
 
 The input is the noise-free irradiance of one frame as a fraction of the full-well capacity
 (float32, shape=(H, W)); the output the camera's digital numbers (uint8 or uint16 for 12 bit),
-saturating at the top code. Speckle and blur are only computed inside the lit region (plus a
-margin) so that dark frames cost only the read noise.
+saturating at the top code. Speckle, blur and the per-pixel noise model are only computed
+inside the lit region (plus a margin); the dark rest of the frame is drawn, pixel by pixel and
+independently in every frame, from the exact distribution of a dark pixel's digital number
+(ambient light, shot and read noise, black level, rounding, clipping) through a quantile table:
+a frame with a thin stripe costs a few milliseconds instead of tens.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+from scipy.special import ndtri
 
 F32 = NDArray[np.float32]
 
@@ -36,6 +41,15 @@ class NoiseSettings:
     black_level_dn: float = 4.0
     bits: int = 8
     shot_noise: bool = True
+
+
+#: Irradiance (fraction of full well) below which a pixel counts as dark: < 1 electron.
+LIT_THRESHOLD = 1e-4
+
+
+def margin_px(noise: NoiseSettings) -> int:
+    """Margin around the lit pixels that speckle grain and blur may reach."""
+    return int(4 * max(noise.blur_sigma_px, noise.speckle_grain_px)) + 2
 
 
 def lit_box(img: F32, threshold: float, margin: int) -> tuple[slice, slice] | None:
@@ -63,18 +77,66 @@ def speckle_field(shape: tuple[int, int], noise: NoiseSettings,
     return np.asarray(1.0 + c * (inten - 1.0), dtype=np.float32)
 
 
+@lru_cache(maxsize=16)
+def _dark_quantiles(noise: NoiseSettings) -> NDArray[np.integer[Any]]:
+    """Digital number of a dark pixel at each of 65536 equally spaced quantiles.
+
+    A dark pixel holds ambient_e electrons plus Gaussian noise (shot noise of the ambient light
+    and read noise, as in `form_image`), then gain, black level, rounding and clipping: a
+    monotonic map of one standard normal variable, so the quantiles of the digital number are
+    the map of the normal quantiles. Sampling a uniform 16-bit index reproduces the distribution
+    to 1/65536 in probability (tails beyond 4.2 sigma fold onto the last table entry).
+    """
+    z = ndtri((np.arange(65536) + 0.5) / 65536.0)
+    sigma = np.sqrt(noise.ambient_e + noise.read_noise_e**2) if noise.shot_noise else (
+        noise.read_noise_e)
+    top = (1 << noise.bits) - 1
+    dn = (noise.ambient_e + sigma * z) * (top / noise.full_well_e) + noise.black_level_dn
+    out = np.clip(np.rint(dn), 0, top).astype(np.uint8 if noise.bits <= 8 else np.uint16)
+    out.flags.writeable = False
+    return out
+
+
+def dark_frame(shape: tuple[int, int], noise: NoiseSettings, rng: np.random.Generator
+               ) -> NDArray[np.integer[Any]]:
+    """A frame without any laser light: independent dark pixels (see `_dark_quantiles`)."""
+    idx = rng.integers(0, 65536, size=shape, dtype=np.uint16)
+    return np.take(_dark_quantiles(noise), idx)
+
+
+def form_image_in_box(shape: tuple[int, int], box: tuple[slice, slice] | None, irr_box: F32,
+                      noise: NoiseSettings, rng: np.random.Generator
+                      ) -> NDArray[np.integer[Any]]:
+    """A frame of `shape` whose irradiance is `irr_box` inside `box` (row and column slices,
+    irr_box of the box's shape) and zero outside: the full image formation inside the box,
+    dark pixels outside. The box must include the speckle and blur margin."""
+    out = dark_frame(shape, noise, rng)
+    if box is not None:
+        out[box] = _form(np.asarray(irr_box, dtype=np.float32), noise, rng)
+    return out
+
+
 def form_image(irr: F32, noise: NoiseSettings, rng: np.random.Generator
                ) -> NDArray[np.integer[Any]]:
-    """Irradiance (fraction of full well, shape=(H, W)) -> digital frame (uint8 or uint16)."""
+    """Irradiance (fraction of full well, shape=(H, W)) -> digital frame (uint8 or uint16).
+
+    Pixels outside the lit box (irradiance < 1e-4 of full well, i.e. < 1 electron, plus the
+    speckle and blur margin) are formed as dark pixels."""
+    img = np.asarray(irr, dtype=np.float32)
+    box = lit_box(img, LIT_THRESHOLD, margin_px(noise))
+    shape = (img.shape[0], img.shape[1])
+    return form_image_in_box(shape, box, img[box] if box is not None else img[:0, :0], noise,
+                             rng)
+
+
+def _form(irr: F32, noise: NoiseSettings, rng: np.random.Generator) -> NDArray[np.integer[Any]]:
+    """The full image formation of a lit region (speckle, blur, shot and read noise, gain,
+    black level, quantisation with saturation)."""
     img = irr.astype(np.float32, copy=True)
-    margin = int(4 * max(noise.blur_sigma_px, noise.speckle_grain_px)) + 2
-    box = lit_box(img, 1e-4, margin)
-    if box is not None:
-        crop = img[box]
-        if noise.speckle_contrast > 0:
-            crop *= speckle_field((crop.shape[0], crop.shape[1]), noise, rng)
-        if noise.blur_sigma_px > 0:
-            crop[...] = cv2.GaussianBlur(crop, (0, 0), noise.blur_sigma_px)
+    if noise.speckle_contrast > 0:
+        img *= speckle_field((img.shape[0], img.shape[1]), noise, rng)
+    if noise.blur_sigma_px > 0:
+        img = np.asarray(cv2.GaussianBlur(img, (0, 0), noise.blur_sigma_px), dtype=np.float32)
     electrons = img * np.float32(noise.full_well_e) + np.float32(noise.ambient_e)
     sigma = np.float32(noise.read_noise_e)
     if noise.shot_noise:

@@ -3,14 +3,18 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
+from contextlib import closing, nullcontext
 from pathlib import Path
 
 from app.config import load_cell
 from app.demo import run_demo, summary_text
+from app.errors import InputError
 from app.planning import ProgressLine
 from app.report import parameter_table
+from app.simulation import GeometricMeasurement, RenderedMeasurement
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -27,17 +31,38 @@ def register(sub: argparse._SubParsersAction) -> None:
         "(fixed, default), with the spheres placed by PSO one by one as in the paper "
         "(sequential) or jointly; none: random configurations only",
     )
+    p.add_argument("--geometric", action="store_true",
+                   help="fast geometric measurements (true centre plus noise) instead of "
+                        "rendered sweeps measured by the vision pipeline")
+    p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
+                   help="processes rendering sweeps (default: up to 2)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     cfg = load_cell(args.cell)
     out = Path(args.out or f"runs/demo-{time.strftime('%Y%m%d-%H%M%S')}")
-    print(f"rvis demo: simulated cell, seed {args.seed}; running ...", flush=True)
-    placement = None if args.placement == "none" else args.placement
-    demo = run_demo(
-        cfg, args.seed, out, args.validation, placement, progress=ProgressLine(sys.stderr)
-    )
+    if args.workers < 1:
+        raise InputError(f"--workers must be >= 1, got {args.workers}")
+    measurement: GeometricMeasurement | RenderedMeasurement
+    if args.geometric:
+        measurement, how = GeometricMeasurement(), "geometric measurements"
+    else:
+        measurement = RenderedMeasurement(
+            workers=args.workers, progress=lambda line: print(line, flush=True)
+        )
+        how = f"rendered sweeps on {args.workers} worker(s)"
+    print(f"rvis demo: simulated cell, seed {args.seed}, {how}; running ...", flush=True)
+    with closing(measurement) if isinstance(measurement, RenderedMeasurement) else nullcontext():
+        demo = run_demo(
+            cfg,
+            args.seed,
+            out,
+            args.validation,
+            None if args.placement == "none" else args.placement,
+            progress=ProgressLine(sys.stderr),
+            measurement=measurement,
+        )
     print(parameter_table(cfg.model(), demo.result))
     print()
     print(summary_text(demo))

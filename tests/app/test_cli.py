@@ -161,7 +161,8 @@ def test_bad_cell_file(simdir: Path, tmp_path: Path, capsys: pytest.CaptureFixtu
 
 
 def test_demo_writes_a_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    code, out, _ = run(["demo", "--out", str(tmp_path / "run"), "--validation", "30"], capsys)
+    code, out, _ = run(["demo", "--out", str(tmp_path / "run"), "--validation", "30",
+                        "--geometric"], capsys)
     assert code == 0 and "RMSE improved" in out
     report = json.loads((tmp_path / "run" / "report.json").read_text())
     assert report["improvement_factor"] > 20 and report["rank"] == 30
@@ -175,3 +176,37 @@ def test_demo_writes_a_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     assert planned["rank"] == 30
     for name in ("plan.json", "params_planned.json", "planned_measurements.csv"):
         assert (tmp_path / "run" / name).stat().st_size > 0
+    m = report["measurement"]
+    assert m["path"] == "geometric" and "rendered" not in m
+    # the cell's geometric noise: 20 um per axis, about 35 um in 3D
+    assert 20 < m["validation"]["centre_error_rms_um"] < 50
+    assert "Measurements: geometric" in out
+
+
+def test_demo_renders_by_default(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Rendered sweeps measured by the vision pipeline (4 x 4 calibration + 3 validation sweeps
+    in this process): the centres agree with the cell's truth to a few um, the report says so."""
+    cell = tmp_path / "cell.toml"
+    cell.write_text("[calibration]\nconfigs_per_sphere = 4\n")
+    code, out, _ = run(["demo", "--out", str(tmp_path / "run"), "--validation", "3",
+                        "--workers", "1", "--cell", str(cell), "--placement", "none"], capsys)
+    assert code == 0 and "rendered sweeps on 1 worker" in out
+    assert "rendered and measured 10 sweeps" in out  # progress
+    report = json.loads((tmp_path / "run" / "report.json").read_text())
+    m = report["measurement"]
+    assert m["path"] == "rendered"
+    assert m["calibration"]["n"] == 16 and m["validation"]["n"] == 3
+    assert m["calibration"]["centre_error_rms_um"] < 10
+    r = m["rendered"]
+    rejected = m["calibration"]["rejected"] + m["validation"]["rejected"]
+    assert r["sweeps"] == 19 + rejected and r["rejected"] == rejected
+    assert r["frames_per_sweep"] == 24 and r["render_ms_per_sweep"] > 0
+    assert report["rank"] == 30 and report["improvement_factor"] > 20
+    assert "Measurements: rendered sweeps" in out and "Rendering: " in out
+    md = (tmp_path / "run" / "report.md").read_text()
+    assert "rejected views" in md
+
+
+def test_demo_bad_workers(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code, _, err = run(["demo", "--out", str(tmp_path / "run"), "--workers", "0"], capsys)
+    assert code == 2 and "--workers" in err

@@ -4,8 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from fakes.render import Lighting, render_chessboard, render_sphere_sweep
-from fakes.render_noise import NoiseSettings
+from fakes.render import (
+    Lighting,
+    _render_frames,
+    render_chessboard,
+    render_sphere_sweep,
+    sphere_hits,
+)
+from fakes.render_noise import NoiseSettings, _form, dark_frame
 from fakes.render_sensor import TrueSensor
 
 
@@ -75,3 +81,42 @@ def test_chessboard_truth_projects_onto_the_corners(true_sensor: TrueSensor,
         det = det[::-1]
     assert np.abs(det - corners).max() < 0.15
     assert obj.shape == (54, 3)
+
+
+def test_sphere_box_loses_no_pixel(true_sensor: TrueSensor) -> None:
+    """Casting rays only inside the sphere's image box finds exactly the pixels a full-frame
+    cast finds, also for spheres cut by the frame's edge."""
+    for c in ([0.0, 0.0, 130.0], [13.0, -10.0, 125.0], [-18.5, 13.5, 135.0], [30.0, 0.0, 128.0]):
+        roi, X_roi = sphere_hits(true_sensor, np.array(c), 15.0)
+        full, X_full = sphere_hits(true_sensor, np.array(c), 15.0, roi=False)
+        np.testing.assert_array_equal(np.sort(roi), full)
+        np.testing.assert_allclose(X_roi[np.argsort(roi)], X_full)
+
+
+def test_dark_pixels_follow_the_noise_model(rng: np.random.Generator) -> None:
+    """Dark pixels drawn from the quantile table have the digital-number distribution of the
+    full model (Gaussian shot + read noise around the ambient level, gain, black level, rounding)
+    that the lit box uses."""
+    for noise in (NoiseSettings(), NoiseSettings(bits=12), NoiseSettings(shot_noise=False)):
+        table = dark_frame((400, 500), noise, rng).astype(float).ravel()
+        model = _form(np.zeros((400, 500), np.float32), NoiseSettings(
+            speckle_contrast=0.0, blur_sigma_px=0.0, bits=noise.bits,
+            shot_noise=noise.shot_noise), rng).astype(float).ravel()
+        top = (1 << noise.bits) - 1
+        hist_t = np.bincount(table.astype(int), minlength=top + 1) / table.size
+        hist_m = np.bincount(model.astype(int), minlength=top + 1) / model.size
+        assert abs(table.mean() - model.mean()) < 0.01 * max(model.std(), 1.0)
+        assert abs(table.std() / model.std() - 1) < 0.01
+        assert np.abs(hist_t - hist_m).max() < 0.005
+
+
+def test_tile_culling_changes_no_pixel(true_sensor: TrueSensor) -> None:
+    """Skipping the tiles far from each laser plane renders exactly the same frames."""
+    c = np.array([-6.0, 4.0, 127.0])
+    idx, X = sphere_hits(true_sensor, c, 15.0)
+    normals, offsets = true_sensor.laser_planes(np.linspace(-3.2, 3.2, 6))
+    frames = [_render_frames(true_sensor, idx, X, (X - c) / 15.0, normals, offsets,
+                             Lighting(ghost_gain=0.3), NoiseSettings(),
+                             np.random.default_rng(5), cull=cull) for cull in (False, True)]
+    assert int(frames[0].max()) > 100
+    np.testing.assert_array_equal(frames[0], frames[1])
