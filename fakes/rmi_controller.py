@@ -22,12 +22,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
-from typing import Any, Self
+from typing import Any
 
 import numpy as np
 
 from drivers.safety import JointLimits
-from fakes._loop import LoopThread
+from fakes._lineserver import LineServer
 from fakes.world import World
 
 RMIT_BASE = 2556928
@@ -37,103 +37,45 @@ ERR_ALARM = RMIT_BASE + 14
 ERR_LIMIT = RMIT_BASE + 17
 ERR_UNKNOWN = RMIT_BASE + 2
 JOINTS = ("J1", "J2", "J3", "J4", "J5", "J6")
-Mode = str | int
 
 
-class RmiController:
+class RmiController(LineServer):
     """The fake controller; ``start()`` binds ephemeral ports on ``host``."""
+
+    terminator = b"\r\n"
 
     def __init__(
         self,
         world: World,
         *,
-        host: str = "127.0.0.1",
-        port: int = 0,
         time_scale: float = 1.0,
         limits: JointLimits | None = None,
+        **kw: Any,  # host, port: see LineServer
     ) -> None:
-        self.world, self.host, self._want_port = world, host, port
+        super().__init__(**kw)
+        self.world = world
         self.time_scale = float(time_scale)
         self.limits = limits or JointLimits.m710ic50()
-        self.port = 0
         self.session_port = 0
         self.alarm = False
         self.received: list[dict[str, Any]] = []
-        self._faults: dict[str, Mode] = {}
         self._initialized = False
         self._next_seq = 1
         self._motion: asyncio.Task[None] | None = None
-        self._writers: set[asyncio.StreamWriter] = set()
-        self._servers: list[asyncio.Server] = []
-        self._loop: LoopThread | None = None
-
-    # -- life cycle ---------------------------------------------------------------------------
-    def start(self) -> Self:
-        self._loop = LoopThread("rmi-controller")
-        self._loop.run(self._start())
-        return self
 
     async def _start(self) -> None:
-        hello = await asyncio.start_server(self._hello, self.host, self._want_port)
-        session = await asyncio.start_server(self._session, self.host, 0)
-        self._servers = [hello, session]
-        self.port = hello.sockets[0].getsockname()[1]
-        self.session_port = session.sockets[0].getsockname()[1]
-
-    def close(self) -> None:
-        if self._loop is not None:
-            self._loop.run(self._shutdown())
-            self._loop.stop()
-            self._loop = None
-
-    async def _shutdown(self) -> None:
-        for server in self._servers:
-            server.close()
-        for writer in list(self._writers):
-            writer.close()
-        for server in self._servers:
-            await server.wait_closed()
-
-    def __enter__(self) -> Self:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+        await super()._start()
+        self.session_port = await self._listen(0)
 
     # -- test controls (thread-safe) ----------------------------------------------------------
-    def fail_next(self, packet: str, mode: Mode) -> None:
-        self._faults[packet] = mode
-
     def terminate_sessions(self) -> None:
         """Send FRC_Terminate to every session and close it (the controller's timeout)."""
-        assert self._loop is not None
-        self._loop.run(self._broadcast({"Communication": "FRC_Terminate"}, close=True))
+        self._run(self._broadcast({"Communication": "FRC_Terminate"}, close=True))
 
     def raise_system_fault(self) -> None:
-        assert self._loop is not None
-        self._loop.run(self._system_fault())
+        self._run(self._system_fault())
 
     # -- protocol -----------------------------------------------------------------------------
-    async def _hello(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        await self._serve(reader, writer)
-
-    async def _session(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        await self._serve(reader, writer)
-
-    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        self._writers.add(writer)
-        try:
-            while line := await reader.readline():
-                if not await self._handle(line, writer):
-                    break
-        except (ConnectionError, asyncio.IncompleteReadError):
-            pass
-        finally:
-            self._writers.discard(writer)
-            writer.close()
-            with contextlib.suppress(ConnectionError):
-                await writer.wait_closed()
-
     async def _handle(self, line: bytes, writer: asyncio.StreamWriter) -> bool:
         try:
             msg = json.loads(line)
@@ -144,15 +86,9 @@ class RmiController:
         kind = next((k for k in ("Communication", "Command", "Instruction") if k in msg), "")
         name = str(msg.get(kind, ""))
         mode = self._faults.pop(name, None)
-        if mode == "drop":
-            return False
-        if mode == "mute":
-            return True
-        if mode in ("garble", "truncate"):
-            data = b"{not json\r\n" if mode == "garble" else b'{"Command": "' + name.encode()
-            writer.write(data)
-            await writer.drain()
-            return mode == "garble"
+        keep = await self._transport_fault(mode, writer, truncated=b'{"Command": "' + name.encode())
+        if keep is not None:
+            return keep
         if isinstance(mode, int):
             await self._send(writer, {kind: name, "ErrorID": mode, **self._seq_of(msg)})
             return True
@@ -277,11 +213,3 @@ class RmiController:
                 await self._send(writer, msg)
             if close:
                 writer.close()
-
-    @staticmethod
-    async def _send(writer: asyncio.StreamWriter, msg: dict[str, Any]) -> None:
-        if writer.is_closing():
-            return
-        writer.write(json.dumps(msg).encode() + b"\r\n")
-        with contextlib.suppress(ConnectionError):
-            await writer.drain()
