@@ -2,8 +2,10 @@
 
 Speaks the subset of RMI the driver uses (drivers/rmi.py): FRC_Connect on the connect port names
 the session port; commands FRC_Initialize, FRC_Abort, FRC_Reset, FRC_GetStatus,
-FRC_ReadJointAngles; instruction FRC_JointMotionJRep (answered when the motion is done, after
-max |dq| / speed x time_scale seconds, moving the World's joints along the way); unsolicited
+FRC_ReadJointAngles, FRC_SetOverRide (``Value`` 1..100, kept across sessions like the controller's
+general override); instruction FRC_JointMotionJRep (answered when the motion is done, after
+max |dq| / (speed x override) x time_scale seconds, moving the World's joints along the way; each
+motion's duration is appended to ``motion_durations_s``); unsolicited
 FRC_SystemFault and FRC_Terminate. Like the controller it refuses out-of-order SequenceIDs,
 motion before FRC_Initialize, motion outside the joint limits and motion while an alarm is active
 (until FRC_Reset).
@@ -36,6 +38,7 @@ ERR_SEQUENCE = RMIT_BASE + 29
 ERR_ALARM = RMIT_BASE + 14
 ERR_LIMIT = RMIT_BASE + 17
 ERR_UNKNOWN = RMIT_BASE + 2
+ERR_VALUE = RMIT_BASE + 7
 JOINTS = ("J1", "J2", "J3", "J4", "J5", "J6")
 
 
@@ -58,7 +61,9 @@ class RmiController(LineServer):
         self.limits = limits or JointLimits.m710ic50()
         self.session_port = 0
         self.alarm = False
+        self.override_pct = 100
         self.received: list[dict[str, Any]] = []
+        self.motion_durations_s: list[float] = []
         self._initialized = False
         self._next_seq = 1
         self._motion: asyncio.Task[None] | None = None
@@ -113,7 +118,7 @@ class RmiController(LineServer):
             return {"ErrorID": 0, "ServoReady": 0 if self.alarm else 1, "TPMode": 1,
                     "RMIMotionStatus": 1 if self._initialized else 0, "ProgramStatus": 0,
                     "SingleStepMode": 0, "NumberUTool": 10, "NextSequenceID": self._next_seq,
-                    "NumberUFrame": 9, "Override": 100}
+                    "NumberUFrame": 9, "Override": self.override_pct}
         if name == "FRC_ReadJointAngles":
             q = self.world.joints_deg()
             angles = {j: float(v) for j, v in zip(JOINTS, q, strict=True)}
@@ -127,6 +132,12 @@ class RmiController(LineServer):
         if name == "FRC_Abort":
             self._stop_motion()
             self._initialized = False
+            return {"ErrorID": 0}
+        if name == "FRC_SetOverRide":
+            value = msg.get("Value")
+            if not (isinstance(value, int) and 1 <= value <= 100):
+                return {"ErrorID": ERR_VALUE}
+            self.override_pct = value
             return {"ErrorID": 0}
         if name == "FRC_Reset":
             self.alarm = False
@@ -179,8 +190,9 @@ class RmiController(LineServer):
             with contextlib.suppress(asyncio.CancelledError):
                 await previous
         start = self.world.joints_deg()
-        speeds = np.asarray(self.limits.speed_deg_s) * speed_pct / 100.0
+        speeds = np.asarray(self.limits.speed_deg_s) * speed_pct * self.override_pct / 1e4
         duration = float(np.max(np.abs(target - start) / speeds)) * self.time_scale
+        self.motion_durations_s.append(duration)
         steps = max(1, int(duration / 0.01))
         for i in range(1, steps + 1):
             if system_fault and i > steps // 2:
