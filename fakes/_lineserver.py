@@ -59,8 +59,13 @@ class LineServer:
     async def _shutdown(self) -> None:
         for server in self._servers:
             server.close()
-        for writer in list(self._writers):
+        await asyncio.sleep(0)  # clients accepted but not served yet register their writers
+        writers = list(self._writers)
+        for writer in writers:
             writer.close()
+        for writer in writers:  # let the transports finish closing before the loop stops
+            with contextlib.suppress(ConnectionError):
+                await writer.wait_closed()
         for server in self._servers:
             await server.wait_closed()
         self._servers = []

@@ -154,3 +154,35 @@ def test_override_survives_a_lost_session(ctrl: RmiController, robot: RmiRobot) 
     assert ctrl.override_pct == 60
     assert len(sent(ctrl, "FRC_Connect")) == 2
 
+
+def test_controller_gone_and_back(world: StaticWorld) -> None:
+    ctrl = RmiController(world, time_scale=0.002).start()
+    try:
+        with RmiRobot("127.0.0.1", ctrl.port, timeout_s=0.5, motion_timeout_s=2.0) as robot:
+            np.testing.assert_allclose(robot.joints_deg(), HOME)
+            port = ctrl.port
+            ctrl.close()  # the controller vanishes mid-session
+            with pytest.raises(DeviceConnectionError):
+                robot.joints_deg()  # the retry's reconnect is refused too
+            with pytest.raises(DeviceConnectionError):
+                robot.reset()
+            ctrl = RmiController(world, time_scale=0.002, port=port).start()
+            robot.reset()  # reconnects to the new session
+            np.testing.assert_allclose(robot.move_joints(A, speed_pct=100), A, atol=1e-3)
+    finally:
+        ctrl.close()
+
+
+@pytest.mark.parametrize("mode", ["mute", "garble", "truncate"])
+def test_bad_motion_reply_blocks_motion_until_reset(
+    ctrl: RmiController, robot: RmiRobot, mode: str
+) -> None:
+    ctrl.fail_next("FRC_JointMotionJRep", mode)
+    with pytest.raises(DeviceTimeout if mode == "mute" else ProtocolError):
+        robot.move_joints(A, speed_pct=100, timeout_s=0.2)
+    motions = len(sent(ctrl, "FRC_JointMotionJRep"))
+    with pytest.raises(FaultLatched):
+        robot.move_joints(HOME, speed_pct=100)
+    assert len(sent(ctrl, "FRC_JointMotionJRep")) == motions  # nothing sent
+    robot.reset()
+    np.testing.assert_allclose(robot.move_joints(HOME, speed_pct=100), HOME, atol=1e-3)
