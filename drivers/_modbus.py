@@ -39,6 +39,14 @@ def words_to_floats(words: Sequence[int], word_order: WordOrder = "little") -> l
     return out
 
 
+def require_link(link: ModbusLink | None, name: str) -> ModbusLink:
+    """The device's link, or DeviceConnectionError when an earlier reconnect failed (so the
+    read-retry policy reconnects again instead of tripping over a missing link)."""
+    if link is None:
+        raise DeviceConnectionError(f"{name}: not connected")
+    return link
+
+
 class ModbusLink:
     """Holding-register reads and writes to one unit; every failure is a device error."""
 

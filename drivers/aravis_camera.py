@@ -6,6 +6,12 @@ GenICam standard features through ArvCamera: region, ExposureTime, Gain, PixelFo
 Mono12, Mono16 as the camera offers), TriggerMode/TriggerSource ("Software" or a line).
 Frames come through an ArvStream with a pool of ``settings.buffers`` buffers; a frame is copied
 out and its buffer returned to the pool at once. GLib.Error is translated at this boundary.
+
+A control request that times out (Aravis has already retried it: 5 x 500 ms for GigE Vision,
+fixed when Aravis is built) means the camera is gone: the camera is marked lost, every further
+call raises DeviceConnectionError at once instead of waiting again, and close() does not try to
+stop the acquisition. Close and reopen it when the camera is back. Aravis's own finalisers still
+say goodbye to the camera, so closing while it is unreachable takes those retries once more.
 """
 
 from __future__ import annotations
@@ -53,6 +59,7 @@ class AravisCamera(Camera):
         self.camera_id, self.packet_size = camera_id, packet_size
         self._cam: Any = None
         self._stream: Any = None
+        self._lost = False
 
     @classmethod
     def from_url(cls, url: DeviceUrl, **options: Any) -> AravisCamera:
@@ -63,12 +70,22 @@ class AravisCamera(Camera):
         return cls(url.host, **options)
 
     def _call(self, what: str, fn: Any, *args: Any) -> Any:
+        self._check_not_lost(what)
         try:
             return fn(*args)
         except GLib.Error as exc:
-            raise _translate(f"{self.name}: {what}", exc) from exc
+            error = _translate(f"{self.name}: {what}", exc)
+            if self._cam is not None and isinstance(error, (DeviceTimeout, DeviceConnectionError)):
+                self._lost = True
+                self.log.error("%s: camera lost: %s", self.name, error)
+            raise error from exc
+
+    def _check_not_lost(self, what: str) -> None:
+        if self._lost:
+            raise DeviceConnectionError(f"{self.name}: {what}: camera lost; close and reopen it")
 
     def _open(self) -> None:
+        self._lost = False
         self._cam = self._call("open", Aravis.Camera.new, self.camera_id)
         if self._call("is_gv_device", self._cam.is_gv_device):
             if self.packet_size:
@@ -78,7 +95,7 @@ class AravisCamera(Camera):
 
     def _close(self) -> None:
         cam, self._cam, self._stream = self._cam, None, None
-        if cam is not None:
+        if cam is not None and not self._lost:
             try:
                 cam.stop_acquisition()
             except GLib.Error as exc:
@@ -138,6 +155,7 @@ class AravisCamera(Camera):
         self._call("software trigger", self._cam.software_trigger)
 
     def _grab(self, timeout_s: float) -> Frame:
+        self._check_not_lost("grab")
         buf = self._stream.timeout_pop_buffer(int(timeout_s * 1e6))
         if buf is None:
             raise DeviceTimeout(f"{self.name}: no frame within {timeout_s:g} s")

@@ -24,7 +24,13 @@ from typing import Any
 
 import numpy as np
 
-from drivers._modbus import ModbusLink, WordOrder, floats_to_words, words_to_floats
+from drivers._modbus import (
+    ModbusLink,
+    WordOrder,
+    floats_to_words,
+    require_link,
+    words_to_floats,
+)
 from drivers.errors import DeviceFault, DeviceTimeout
 from drivers.registry import DeviceUrl
 from drivers.robot import FloatArray, Robot, RobotStatus
@@ -148,9 +154,9 @@ class ModbusRobot(Robot):
         return value
 
     def _floats(self, offset: int, words: int) -> list[float]:
-        assert self._link is not None
-        return words_to_floats(self._link.read(self.base + offset, words), self.word_order)
+        link = require_link(self._link, self.name)
+        return words_to_floats(link.read(self.base + offset, words), self.word_order)
 
     def _write_floats(self, offset: int, values: list[float]) -> None:
-        assert self._link is not None
-        self._link.write(self.base + offset, floats_to_words(values, self.word_order))
+        link = require_link(self._link, self.name)
+        link.write(self.base + offset, floats_to_words(values, self.word_order))

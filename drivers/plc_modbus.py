@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from drivers._modbus import ModbusLink
+from drivers._modbus import ModbusLink, require_link
 from drivers.plc import Plc, PlcInputs, PlcOutputs
 from drivers.registry import DeviceUrl
 
@@ -72,11 +72,9 @@ class ModbusPlc(Plc):
             link.close()
 
     def _read_inputs(self) -> PlcInputs:
-        assert self._link is not None
-        status, beat = self._link.read(self.base + PLC_STATUS, 2)
+        status, beat = require_link(self._link, self.name).read(self.base + PLC_STATUS, 2)
         return PlcInputs(window_open=bool(status & WINDOW_OPEN),
                          line_running=bool(status & LINE_RUNNING), heartbeat=beat)
 
     def _write_outputs(self, outputs: PlcOutputs) -> None:
-        assert self._link is not None
-        self._link.write(self.base + APP_STATUS, encode_outputs(outputs))
+        require_link(self._link, self.name).write(self.base + APP_STATUS, encode_outputs(outputs))

@@ -2,8 +2,9 @@
 
 JSON objects terminated by CRLF over TCP. ``FRC_Connect`` on port 16001 names the session port
 (``PortNumber``); all further packets go there. Commands (FRC_Initialize, FRC_Abort, FRC_Reset,
-FRC_GetStatus, FRC_ReadJointAngles) are answered at once; instructions (FRC_JointMotionJRep) carry
-consecutive ``SequenceID`` values from 1 and are answered when executed. Every reply carries
+FRC_GetStatus, FRC_ReadJointAngles, FRC_SetOverRide with ``Value`` 1..100) are answered at once;
+instructions (FRC_JointMotionJRep) carry consecutive ``SequenceID`` values from 1 and are
+answered when executed. Every reply carries
 ``ErrorID`` (0 = ok; 2556928 + N is RMIT-N). The controller may send ``FRC_SystemFault`` or
 ``FRC_Terminate`` at any time.
 
@@ -117,7 +118,12 @@ class RmiRobot(Robot):
             servo, motion = int(r["ServoReady"]), int(r["RMIMotionStatus"])
         except (KeyError, TypeError, ValueError) as exc:
             raise ProtocolError(f"{self.name}: bad FRC_GetStatus reply {r}") from exc
-        return RobotStatus(servo_ready=servo == 1, moving=motion != 0, fault=servo != 1)
+        override = r.get("Override")
+        return RobotStatus(servo_ready=servo == 1, moving=motion != 0, fault=servo != 1,
+                           override_pct=override if isinstance(override, int) else None)
+
+    def _set_override(self, override_pct: int) -> None:
+        self._command("FRC_SetOverRide", Value=override_pct)
 
     def _move(self, q_deg: FloatArray, speed_pct: float, timeout_s: float) -> None:
         if not self._initialized:

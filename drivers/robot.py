@@ -7,6 +7,7 @@ owns the policy; a backend implements the private primitives:
 - ``_status() -> RobotStatus``        read-only; retried once after a reconnect
 - ``_move(q_deg, speed_pct, timeout_s)``  one joint move, returns when the robot has arrived
 - ``_abort()`` and ``_reset()``
+- ``_set_override(override_pct)``    optional; the controller's general speed override
 
 Policy: every target goes through the SafetyGuard first (joint limits, envelope, path); a motion
 is never retried; any fault or communication error during a motion latches a fault, and every
@@ -38,6 +39,7 @@ class RobotStatus:
     fault: bool
     error_code: int = 0
     detail: str = ""
+    override_pct: int | None = None  # the general speed override, None if the backend has none
 
 
 class Robot(Device):
@@ -100,6 +102,20 @@ class Robot(Device):
                 raise
         return self.joints_deg()
 
+    def set_override_pct(self, override_pct: int) -> None:
+        """Set the controller's general speed override [%], an integer in 1..100: every later
+        motion runs at ``speed_pct`` x ``override_pct`` / 100. Not a motion, so allowed with a
+        latched fault; idempotent, so retried once after a reconnect. DeviceConfigError for a
+        value outside 1..100 (nothing sent) or a backend without an override."""
+        self._check_open()
+        valid_type = isinstance(override_pct, int | np.integer) and not isinstance(
+            override_pct, bool)
+        if not (valid_type and 1 <= override_pct <= 100):
+            raise DeviceConfigError(
+                f"override_pct must be an integer in 1..100, got {override_pct!r}")
+        self._read_retrying(lambda: self._set_override(int(override_pct)))
+        self.log.info("%s: speed override %d %%", self.name, override_pct)
+
     def abort(self) -> None:
         """Stop the current motion (the robot decelerates)."""
         self._check_open()
@@ -131,6 +147,9 @@ class Robot(Device):
 
     @abstractmethod
     def _move(self, q_deg: FloatArray, speed_pct: float, timeout_s: float) -> None: ...
+
+    def _set_override(self, override_pct: int) -> None:
+        raise DeviceConfigError(f"{self.name}: this backend has no speed override")
 
     @abstractmethod
     def _abort(self) -> None: ...

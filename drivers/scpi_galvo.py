@@ -3,8 +3,9 @@
 Commands (LF-terminated): ``*IDN?`` (identity), ``SOUR:VOLT <v>`` (set the output voltage),
 ``SOUR:VOLT?`` (read it back), ``SYST:ERR?`` (pop the error queue: ``0,"No error"`` or
 ``-222,"Data out of range"``). pyserial URLs work too (``loop://``, ``socket://host:port``).
-serial.SerialException -> DeviceConnectionError, no line within the timeout -> DeviceTimeout,
-an unparsable answer -> ProtocolError.
+serial.SerialException (and the OSError or termios.error pyserial lets through when the port
+vanishes while it is opened or drained) -> DeviceConnectionError, no line within the timeout ->
+DeviceTimeout, an unparsable answer -> ProtocolError.
 """
 
 from __future__ import annotations
@@ -19,6 +20,16 @@ from drivers.galvo import Galvo
 from drivers.registry import DeviceUrl
 
 _ERR = re.compile(r'^\s*([+-]?\d+)\s*,\s*"?(.*?)"?\s*$')
+
+# What pyserial raises when the port fails or vanishes (termios.error is not an OSError).
+_PORT_ERRORS: tuple[type[Exception], ...] = (serial.SerialException, OSError)
+try:
+    import termios
+
+    _PORT_ERRORS += (termios.error,)
+except ImportError:  # Windows: pyserial does not use termios there
+    pass
+_OPEN_ERRORS: tuple[type[Exception], ...] = (*_PORT_ERRORS, ValueError)  # bad settings
 
 
 class ScpiGalvo(Galvo):
@@ -44,9 +55,9 @@ class ScpiGalvo(Galvo):
                 self.port, baudrate=self.baud, timeout=self.timeout_s,
                 write_timeout=self.timeout_s,
             )
-        except (serial.SerialException, ValueError) as exc:
+            self._serial.reset_input_buffer()
+        except _OPEN_ERRORS as exc:
             raise DeviceConnectionError(f"{self.name}: cannot open: {exc}") from exc
-        self._serial.reset_input_buffer()
         self.identity = self._identify()
         self._errors()  # drain errors left from before
 
@@ -93,7 +104,7 @@ class ScpiGalvo(Galvo):
             self._serial.flush()
         except serial.SerialTimeoutException as exc:
             raise DeviceTimeout(f"{self.name}: write timed out") from exc
-        except (serial.SerialException, OSError) as exc:
+        except _PORT_ERRORS as exc:
             raise DeviceConnectionError(f"{self.name}: write failed: {exc}") from exc
 
     def _query(self, command: str) -> str:
@@ -101,7 +112,7 @@ class ScpiGalvo(Galvo):
         assert self._serial is not None
         try:
             line = self._serial.readline()
-        except (serial.SerialException, OSError) as exc:
+        except _PORT_ERRORS as exc:
             raise DeviceConnectionError(f"{self.name}: read failed: {exc}") from exc
         if not line.endswith(b"\n"):
             if line:

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from drivers._linesock import LineJsonSocket
-from drivers.errors import DeviceFault, ProtocolError
+from drivers.errors import DeviceConnectionError, DeviceFault, ProtocolError
 from drivers.registry import DeviceUrl
 from drivers.tracker import Tracker, TrackerMeasurement, TrackerStatus
 
@@ -84,7 +84,7 @@ class TcpTracker(Tracker):
 
     def _request(self, cmd: str, timeout_s: float | None = None, **fields: Any) -> dict[str, Any]:
         if self._sock is None:
-            raise ProtocolError(f"{self.name}: not connected")
+            raise DeviceConnectionError(f"{self.name}: not connected")
         rid = next(self._ids)
         wait = self._sock.timeout_s if timeout_s is None else timeout_s + self._sock.timeout_s
         self._sock.send({"id": rid, "cmd": cmd, **fields})

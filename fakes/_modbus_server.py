@@ -7,8 +7,9 @@ subclasses implement ``scan(now, regs, written)``: ``regs`` is that list (addres
 therefore advances lazily, driven by the client's polling and the clock: no background task.
 
 Fault injection (one-shot): ``fail_next(mode)`` with "exception" (Modbus exception 4, device
-failure), "drop" (close every client connection) or "mute" (hold the reply past any timeout),
-optionally only for one function code.
+failure), "drop" (close every client connection), "mute" (hold the reply past any timeout) or
+"garble" (send a frame with a wrong protocol id, then hold the reply: the client's stream is out
+of step, as after a corrupted or truncated frame), optionally only for one function code.
 """
 
 from __future__ import annotations
@@ -22,6 +23,9 @@ from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from fakes._loop import LoopThread
+
+# An MBAP header with protocol id 0x0B0B instead of 0, and a stray register: not a reply.
+_GARBLED = bytes([0x00, 0x01, 0x0B, 0x0B, 0x00, 0x05, 0x01, 0x03, 0x02, 0xFF])
 
 
 class RegisterServer:
@@ -78,6 +82,12 @@ class RegisterServer:
 
         self._loop.call(_drop)
 
+    def _write_to_clients(self, data: bytes) -> None:
+        assert self._server is not None
+        for connection in list(self._server.active_connections.values()):
+            if isinstance(connection.transport, asyncio.WriteTransport):
+                connection.transport.write(data)
+
     async def _action(
         self,
         function_code: int,
@@ -94,7 +104,9 @@ class RegisterServer:
             if mode == "drop":
                 self.drop_connections()
                 await asyncio.sleep(3600)  # never answered: the connection is gone
-            if mode == "mute":
+            if mode == "garble":
+                self._write_to_clients(_GARBLED)
+            if mode in ("mute", "garble"):
                 await asyncio.sleep(3600)
         base = address - start_address
         written = {base + i: int(v) for i, v in enumerate(values or [])}

@@ -50,13 +50,16 @@ def move_along(
 
 
 class FakeRobot(Robot):
-    """Moves the world's robot in joint space; motion time = max |dq| / speed x time_scale."""
+    """Moves the world's robot in joint space; motion time = max |dq| / (speed x override) x
+    time_scale, each appended to ``motion_durations_s``."""
 
     def __init__(self, world: World, *, time_scale: float = 1.0, **kw: Any) -> None:
         super().__init__(**kw)
         self.world, self.time_scale = world, float(time_scale)
         self._stop = threading.Event()
         self._pending: DeviceFault | None = None
+        self.override_pct = 100
+        self.motion_durations_s: list[float] = []
 
     @classmethod
     def from_url(cls, url: DeviceUrl, **options: Any) -> FakeRobot:
@@ -76,15 +79,21 @@ class FakeRobot(Robot):
         return self.world.joints_deg()
 
     def _status(self) -> RobotStatus:
-        return RobotStatus(servo_ready=True, moving=False, fault=self._pending is not None)
+        return RobotStatus(servo_ready=True, moving=False, fault=self._pending is not None,
+                           override_pct=self.override_pct)
+
+    def _set_override(self, override_pct: int) -> None:
+        self.override_pct = override_pct
 
     def _move(self, q_deg: FloatArray, speed_pct: float, timeout_s: float) -> None:
         if self._pending is not None:
             raise self._pending
         self._stop.clear()
         duration = self.guard.duration_s(self.world.joints_deg(), q_deg, speed_pct)
+        duration *= 100.0 / self.override_pct
         if duration * self.time_scale > timeout_s:
             raise DeviceTimeout(f"{self.name}: motion would take {duration:.1f} s")
+        self.motion_durations_s.append(duration * self.time_scale)
         if not move_along(self.world, q_deg, duration * self.time_scale, self._stop):
             raise DeviceFault(f"{self.name}: motion aborted")
 

@@ -2,8 +2,10 @@
 
 Speaks the subset of RMI the driver uses (drivers/rmi.py): FRC_Connect on the connect port names
 the session port; commands FRC_Initialize, FRC_Abort, FRC_Reset, FRC_GetStatus,
-FRC_ReadJointAngles; instruction FRC_JointMotionJRep (answered when the motion is done, after
-max |dq| / speed x time_scale seconds, moving the World's joints along the way); unsolicited
+FRC_ReadJointAngles, FRC_SetOverRide (``Value`` 1..100, kept across sessions like the controller's
+general override); instruction FRC_JointMotionJRep (answered when the motion is done, after
+max |dq| / (speed x override) x time_scale seconds, moving the World's joints along the way; each
+motion's duration is appended to ``motion_durations_s``); unsolicited
 FRC_SystemFault and FRC_Terminate. Like the controller it refuses out-of-order SequenceIDs,
 motion before FRC_Initialize, motion outside the joint limits and motion while an alarm is active
 (until FRC_Reset).
@@ -22,12 +24,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
-from typing import Any, Self
+from typing import Any
 
 import numpy as np
 
 from drivers.safety import JointLimits
-from fakes._loop import LoopThread
+from fakes._lineserver import LineServer
 from fakes.world import World
 
 RMIT_BASE = 2556928
@@ -36,104 +38,49 @@ ERR_SEQUENCE = RMIT_BASE + 29
 ERR_ALARM = RMIT_BASE + 14
 ERR_LIMIT = RMIT_BASE + 17
 ERR_UNKNOWN = RMIT_BASE + 2
+ERR_VALUE = RMIT_BASE + 7
 JOINTS = ("J1", "J2", "J3", "J4", "J5", "J6")
-Mode = str | int
 
 
-class RmiController:
+class RmiController(LineServer):
     """The fake controller; ``start()`` binds ephemeral ports on ``host``."""
+
+    terminator = b"\r\n"
 
     def __init__(
         self,
         world: World,
         *,
-        host: str = "127.0.0.1",
-        port: int = 0,
         time_scale: float = 1.0,
         limits: JointLimits | None = None,
+        **kw: Any,  # host, port: see LineServer
     ) -> None:
-        self.world, self.host, self._want_port = world, host, port
+        super().__init__(**kw)
+        self.world = world
         self.time_scale = float(time_scale)
         self.limits = limits or JointLimits.m710ic50()
-        self.port = 0
         self.session_port = 0
         self.alarm = False
+        self.override_pct = 100
         self.received: list[dict[str, Any]] = []
-        self._faults: dict[str, Mode] = {}
+        self.motion_durations_s: list[float] = []
         self._initialized = False
         self._next_seq = 1
         self._motion: asyncio.Task[None] | None = None
-        self._writers: set[asyncio.StreamWriter] = set()
-        self._servers: list[asyncio.Server] = []
-        self._loop: LoopThread | None = None
-
-    # -- life cycle ---------------------------------------------------------------------------
-    def start(self) -> Self:
-        self._loop = LoopThread("rmi-controller")
-        self._loop.run(self._start())
-        return self
 
     async def _start(self) -> None:
-        hello = await asyncio.start_server(self._hello, self.host, self._want_port)
-        session = await asyncio.start_server(self._session, self.host, 0)
-        self._servers = [hello, session]
-        self.port = hello.sockets[0].getsockname()[1]
-        self.session_port = session.sockets[0].getsockname()[1]
-
-    def close(self) -> None:
-        if self._loop is not None:
-            self._loop.run(self._shutdown())
-            self._loop.stop()
-            self._loop = None
-
-    async def _shutdown(self) -> None:
-        for server in self._servers:
-            server.close()
-        for writer in list(self._writers):
-            writer.close()
-        for server in self._servers:
-            await server.wait_closed()
-
-    def __enter__(self) -> Self:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+        await super()._start()
+        self.session_port = await self._listen(0)
 
     # -- test controls (thread-safe) ----------------------------------------------------------
-    def fail_next(self, packet: str, mode: Mode) -> None:
-        self._faults[packet] = mode
-
     def terminate_sessions(self) -> None:
         """Send FRC_Terminate to every session and close it (the controller's timeout)."""
-        assert self._loop is not None
-        self._loop.run(self._broadcast({"Communication": "FRC_Terminate"}, close=True))
+        self._run(self._broadcast({"Communication": "FRC_Terminate"}, close=True))
 
     def raise_system_fault(self) -> None:
-        assert self._loop is not None
-        self._loop.run(self._system_fault())
+        self._run(self._system_fault())
 
     # -- protocol -----------------------------------------------------------------------------
-    async def _hello(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        await self._serve(reader, writer)
-
-    async def _session(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        await self._serve(reader, writer)
-
-    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        self._writers.add(writer)
-        try:
-            while line := await reader.readline():
-                if not await self._handle(line, writer):
-                    break
-        except (ConnectionError, asyncio.IncompleteReadError):
-            pass
-        finally:
-            self._writers.discard(writer)
-            writer.close()
-            with contextlib.suppress(ConnectionError):
-                await writer.wait_closed()
-
     async def _handle(self, line: bytes, writer: asyncio.StreamWriter) -> bool:
         try:
             msg = json.loads(line)
@@ -144,15 +91,9 @@ class RmiController:
         kind = next((k for k in ("Communication", "Command", "Instruction") if k in msg), "")
         name = str(msg.get(kind, ""))
         mode = self._faults.pop(name, None)
-        if mode == "drop":
-            return False
-        if mode == "mute":
-            return True
-        if mode in ("garble", "truncate"):
-            data = b"{not json\r\n" if mode == "garble" else b'{"Command": "' + name.encode()
-            writer.write(data)
-            await writer.drain()
-            return mode == "garble"
+        keep = await self._transport_fault(mode, writer, truncated=b'{"Command": "' + name.encode())
+        if keep is not None:
+            return keep
         if isinstance(mode, int):
             await self._send(writer, {kind: name, "ErrorID": mode, **self._seq_of(msg)})
             return True
@@ -177,7 +118,7 @@ class RmiController:
             return {"ErrorID": 0, "ServoReady": 0 if self.alarm else 1, "TPMode": 1,
                     "RMIMotionStatus": 1 if self._initialized else 0, "ProgramStatus": 0,
                     "SingleStepMode": 0, "NumberUTool": 10, "NextSequenceID": self._next_seq,
-                    "NumberUFrame": 9, "Override": 100}
+                    "NumberUFrame": 9, "Override": self.override_pct}
         if name == "FRC_ReadJointAngles":
             q = self.world.joints_deg()
             angles = {j: float(v) for j, v in zip(JOINTS, q, strict=True)}
@@ -191,6 +132,12 @@ class RmiController:
         if name == "FRC_Abort":
             self._stop_motion()
             self._initialized = False
+            return {"ErrorID": 0}
+        if name == "FRC_SetOverRide":
+            value = msg.get("Value")
+            if not (isinstance(value, int) and 1 <= value <= 100):
+                return {"ErrorID": ERR_VALUE}
+            self.override_pct = value
             return {"ErrorID": 0}
         if name == "FRC_Reset":
             self.alarm = False
@@ -243,8 +190,9 @@ class RmiController:
             with contextlib.suppress(asyncio.CancelledError):
                 await previous
         start = self.world.joints_deg()
-        speeds = np.asarray(self.limits.speed_deg_s) * speed_pct / 100.0
+        speeds = np.asarray(self.limits.speed_deg_s) * speed_pct * self.override_pct / 1e4
         duration = float(np.max(np.abs(target - start) / speeds)) * self.time_scale
+        self.motion_durations_s.append(duration)
         steps = max(1, int(duration / 0.01))
         for i in range(1, steps + 1):
             if system_fault and i > steps // 2:
@@ -277,11 +225,3 @@ class RmiController:
                 await self._send(writer, msg)
             if close:
                 writer.close()
-
-    @staticmethod
-    async def _send(writer: asyncio.StreamWriter, msg: dict[str, Any]) -> None:
-        if writer.is_closing():
-            return
-        writer.write(json.dumps(msg).encode() + b"\r\n")
-        with contextlib.suppress(ConnectionError):
-            await writer.drain()

@@ -8,14 +8,13 @@ Test controls: ``in_beam`` (False: measure answers error 11), ``fail_next(cmd, m
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import json
-from typing import Any, Self
+from typing import Any
 
 import numpy as np
 
 from drivers.errors import DeviceFault
-from fakes._loop import LoopThread
+from fakes._lineserver import LineServer
 from fakes.devices import measure_target
 from fakes.world import World
 
@@ -23,75 +22,25 @@ PROTOCOL = "rvis-tracker/1"
 E_UNKNOWN_COMMAND, E_BAD_REQUEST, E_UNKNOWN_TARGET, E_NOT_IN_BEAM = 1, 2, 10, 11
 
 
-class TrackerService:
+class TrackerService(LineServer):
     """``with TrackerService(world, seed=1) as svc: TcpTracker("127.0.0.1", svc.port)``"""
 
     def __init__(
         self,
         world: World,
         *,
-        host: str = "127.0.0.1",
-        port: int = 0,
         seed: int = 0,
         noise_mm: float = 0.005,
         temperature_c: float = 20.5,
         pressure_hpa: float = 1009.0,
+        **kw: Any,  # host, port: see LineServer
     ) -> None:
-        self.world, self.host, self._want_port = world, host, port
+        super().__init__(**kw)
+        self.world = world
         self.noise_mm, self.temperature_c, self.pressure_hpa = noise_mm, temperature_c, pressure_hpa
         self.rng = np.random.default_rng(seed)
         self.in_beam = True
-        self.port = 0
         self.requests: list[dict[str, Any]] = []
-        self._faults: dict[str, str | int] = {}
-        self._server: asyncio.Server | None = None
-        self._writers: set[asyncio.StreamWriter] = set()
-        self._loop: LoopThread | None = None
-
-    def start(self) -> Self:
-        self._loop = LoopThread("tracker-service")
-        self._loop.run(self._start())
-        return self
-
-    async def _start(self) -> None:
-        self._server = await asyncio.start_server(self._client, self.host, self._want_port)
-        self.port = self._server.sockets[0].getsockname()[1]
-
-    def close(self) -> None:
-        if self._loop is not None:
-            self._loop.run(self._shutdown())
-            self._loop.stop()
-            self._loop = None
-
-    async def _shutdown(self) -> None:
-        if self._server is not None:
-            self._server.close()
-            for writer in list(self._writers):
-                writer.close()
-            await self._server.wait_closed()
-
-    def __enter__(self) -> Self:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def fail_next(self, cmd: str, mode: str | int) -> None:
-        self._faults[cmd] = mode
-
-    async def _client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        self._writers.add(writer)
-        try:
-            while line := await reader.readline():
-                if not await self._handle(line, writer):
-                    break
-        except ConnectionError:
-            pass
-        finally:
-            self._writers.discard(writer)
-            writer.close()
-            with contextlib.suppress(ConnectionError):
-                await writer.wait_closed()
 
     async def _handle(self, line: bytes, writer: asyncio.StreamWriter) -> bool:
         try:
@@ -104,15 +53,10 @@ class TrackerService:
         self.requests.append(req)
         cmd = str(req.get("cmd"))
         mode = self._faults.pop(cmd, None)
-        if mode == "drop":
-            return False
-        if mode == "mute":
-            return True
-        if mode in ("garble", "truncate"):
-            partial = b'{"id": ' + str(req.get("id")).encode()
-            writer.write(b"<html>\n" if mode == "garble" else partial)
-            await writer.drain()
-            return mode == "garble"
+        partial = b'{"id": ' + str(req.get("id")).encode()
+        keep = await self._transport_fault(mode, writer, truncated=partial)
+        if keep is not None:
+            return keep
         if isinstance(mode, int):
             reply = {"ok": False, "error": {"code": mode, "message": "injected"}}
         else:
@@ -141,12 +85,6 @@ class TrackerService:
                     "rms_mm": m.rms_mm, "time_utc": m.time_utc,
                     "temperature_c": m.temperature_c, "pressure_hpa": m.pressure_hpa}
         return _error(E_UNKNOWN_COMMAND, f"unknown command {cmd!r}")
-
-    @staticmethod
-    async def _send(writer: asyncio.StreamWriter, msg: dict[str, Any]) -> None:
-        writer.write(json.dumps(msg).encode() + b"\n")
-        with contextlib.suppress(ConnectionError):
-            await writer.drain()
 
 
 def _error(code: int, message: str) -> dict[str, Any]:

@@ -9,7 +9,7 @@ from contextlib import ExitStack
 import numpy as np
 import pytest
 
-from drivers import DeviceConfigError, DeviceTimeout, open_camera
+from drivers import DeviceConfigError, DeviceConnectionError, DeviceTimeout, open_camera
 from drivers.camera import Camera, CameraSettings
 from fakes.devices import FakeCamera, FakeGalvo
 from fakes.world import StaticWorld
@@ -93,8 +93,6 @@ def test_fake_hardware_trigger_and_galvo_line(world: StaticWorld) -> None:
 
 @ARAVIS
 def test_aravis_unknown_camera_is_a_connection_error() -> None:
-    from drivers import DeviceConnectionError
-
     with pytest.raises(DeviceConnectionError, match="not found"):
         open_camera("aravis://no-such-camera-0000", timeout_s=0.5)
 
@@ -108,3 +106,50 @@ def test_aravis_mono12_refused_when_not_offered(world: StaticWorld) -> None:
         cam = stack.enter_context(open_camera(f"aravis://{gv.camera_id}", settings=SETTINGS))
         with pytest.raises(DeviceConfigError, match="Mono12"):
             cam.configure(CameraSettings(pixel_format="Mono12"))
+
+
+@ARAVIS
+def test_aravis_stream_stops_when_the_camera_vanishes(world: StaticWorld) -> None:
+    from fakes.gv_camera import GvCamera
+
+    settings = CameraSettings(region=(0, 0, 64, 48), trigger="free", buffers=2)
+    url = "aravis://127.0.0.1"
+    gv = GvCamera(world).start()
+    try:
+        with open_camera(url, settings=settings, timeout_s=0.3) as cam:
+            cam.grab()
+            gv.close()  # gone mid-acquisition: what is queued drains, then nothing comes
+            with pytest.raises(DeviceTimeout):
+                for _ in range(settings.buffers + 2):
+                    cam.grab()
+            gv = GvCamera(world).start()  # back (power-cycled): the old stream stays silent
+        with open_camera(url, settings=settings, timeout_s=1.0) as cam:
+            np.testing.assert_array_equal(cam.grab().image, expected(world, 64, 48, 255))
+    finally:
+        gv.close()
+
+
+@ARAVIS
+def test_aravis_lost_control_channel_fails_fast_until_reopened(world: StaticWorld) -> None:
+    """A software trigger to a vanished camera times out once (Aravis's own GVCP retries,
+    about 2.5 s); after that the camera is lost and calls fail at once, with no stop request."""
+    from fakes.gv_camera import GvCamera
+
+    settings = CameraSettings(region=(0, 0, 64, 48), trigger="software")
+    url = "aravis://127.0.0.1"
+    gv = GvCamera(world).start()
+    try:
+        with open_camera(url, settings=settings, timeout_s=0.3) as cam:
+            cam.grab()
+            gv.close()
+            with pytest.raises(DeviceTimeout, match="software trigger"):
+                cam.grab()
+            with pytest.raises(DeviceConnectionError, match="lost"):
+                cam.grab()
+            with pytest.raises(DeviceConnectionError, match="lost"):
+                cam.configure(settings)
+            gv = GvCamera(world).start()
+        with open_camera(url, settings=settings, timeout_s=1.0) as cam:
+            np.testing.assert_array_equal(cam.grab().image, expected(world, 64, 48, 255))
+    finally:
+        gv.close()

@@ -2,14 +2,22 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import ExitStack
+from pathlib import Path
 
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from drivers import DeviceFault, DeviceTimeout, MotionRefused, ProtocolError, open_galvo
+from drivers import (
+    DeviceConnectionError,
+    DeviceFault,
+    DeviceTimeout,
+    MotionRefused,
+    ProtocolError,
+    open_galvo,
+)
 from drivers.errors import DeviceConfigError
 from drivers.galvo import Galvo, GalvoCalibration
 from drivers.scpi_galvo import ScpiGalvo
@@ -98,3 +106,32 @@ def test_bad_answers_are_protocol_errors(dac: ScpiDac, scpi: ScpiGalvo, mode: st
     dac.fail_next("SOUR:VOLT?", mode)
     with pytest.raises(ProtocolError):
         scpi._get_volts()
+
+
+def _operation(galvo: ScpiGalvo, command: str) -> Callable[[], float]:
+    """The public call that sends ``command``: a read-back, or a set (SOUR:VOLT + SYST:ERR?)."""
+    if command == "SOUR:VOLT?":
+        return galvo.angle_deg
+    return lambda: galvo.set_angle_deg(3.0)
+
+
+@pytest.mark.parametrize("command", ["SOUR:VOLT?", "SOUR:VOLT", "SYST:ERR?", "between commands"])
+def test_board_vanishing_is_a_connection_error_until_it_is_back(
+    tmp_path: Path, command: str
+) -> None:
+    with ScpiDac(link=tmp_path / "ttyDAC") as dac, ScpiGalvo(dac.port, timeout_s=0.2) as galvo:
+        galvo.set_angle_deg(2.0)
+        if command == "between commands":
+            dac.unplug()
+            command = "SOUR:VOLT"
+        else:
+            dac.fail_next(command, "drop")  # the pty closes while the driver waits for it
+        operation = _operation(galvo, command)
+        with pytest.raises(DeviceConnectionError):
+            operation()  # the retry's reconnect finds no port either
+        assert not dac.plugged and galvo.is_open
+        with pytest.raises(DeviceConnectionError):
+            operation()  # still typed, still no hang
+        dac.replug()  # back under the same name: the next call reconnects
+        assert galvo.set_angle_deg(3.0) == pytest.approx(1.5)
+        assert dac.volts == pytest.approx(1.5) and galvo.angle_deg() == pytest.approx(3.0)

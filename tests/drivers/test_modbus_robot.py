@@ -7,7 +7,13 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from drivers import DeviceConnectionError, DeviceFault, DeviceTimeout, FaultLatched
+from drivers import (
+    CommunicationError,
+    DeviceConnectionError,
+    DeviceFault,
+    DeviceTimeout,
+    FaultLatched,
+)
 from drivers._modbus import floats_to_words, words_to_floats
 from drivers.modbus_robot import ModbusRobot
 from fakes.modbus_robot import ERR_LIMIT, ModbusRobotServer
@@ -92,3 +98,45 @@ def test_peer_disconnect_mid_motion_latches(
 def test_cannot_connect() -> None:
     with pytest.raises(DeviceConnectionError):
         ModbusRobot("127.0.0.1", 1, timeout_s=0.3).open()
+
+
+def test_garbled_reply_is_a_communication_error_and_a_read_retries(
+    server: ModbusRobotServer, robot: ModbusRobot
+) -> None:
+    server.fail_next("garble")
+    with pytest.raises(CommunicationError):  # pymodbus drops the bad frame, then times out
+        robot._read_joints()
+    server.fail_next("garble")
+    np.testing.assert_allclose(robot.joints_deg(), HOME, atol=1e-4)  # reconnect + retry
+
+
+def test_garbled_reply_mid_motion_latches_until_reset(
+    server: ModbusRobotServer, robot: ModbusRobot, world: StaticWorld
+) -> None:
+    server.fail_next("garble", function_code=16)
+    with pytest.raises(CommunicationError):
+        robot.move_joints(A, speed_pct=100)
+    moves = world.moves
+    with pytest.raises(FaultLatched):
+        robot.move_joints(A, speed_pct=100)
+    assert world.moves == moves  # nothing sent after the fault
+    robot.reset()
+    np.testing.assert_allclose(robot.move_joints(A, speed_pct=100), A, atol=1e-4)
+
+
+def test_controller_gone_and_back(world: StaticWorld) -> None:
+    server = ModbusRobotServer(world, time_scale=0.002).start()
+    try:
+        with ModbusRobot("127.0.0.1", server.port, timeout_s=0.5, poll_s=0.002) as robot:
+            port = server.port
+            server.close()
+            with pytest.raises(DeviceConnectionError):
+                robot.joints_deg()  # the retry's reconnect is refused too
+            with pytest.raises(DeviceConnectionError):
+                robot.move_joints(A, speed_pct=100)  # the guard cannot read where it is
+            assert robot.fault is None  # nothing was sent: no latch
+            server = ModbusRobotServer(world, time_scale=0.002, port=port).start()
+            np.testing.assert_allclose(robot.joints_deg(), HOME, atol=1e-4)
+            np.testing.assert_allclose(robot.move_joints(A, speed_pct=100), A, atol=1e-4)
+    finally:
+        server.close()

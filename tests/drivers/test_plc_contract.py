@@ -8,7 +8,7 @@ from typing import Any
 
 import pytest
 
-from drivers import DeviceFault, DeviceTimeout, open_plc
+from drivers import DeviceConnectionError, DeviceFault, DeviceTimeout, open_plc
 from drivers.plc import Plc
 from fakes.devices import ClampCycle, FakePlc
 
@@ -91,3 +91,36 @@ def test_modbus_plc_faults() -> None:
         server.fail_next("drop", function_code=3)
         plc.poll()  # a read: reconnect and retry
         plc.wait_window(timeout_s=1.0)
+
+
+@pytest.mark.parametrize("mode", ["mute", "garble"])
+def test_modbus_plc_silent_or_garbled_peer(mode: str) -> None:
+    from fakes.plc import PlcServer
+
+    fast = OPTS | {"timeout_s": 0.2}
+    with PlcServer(CYCLE) as server, open_plc(
+        f"plc+modbus://127.0.0.1:{server.port}", **fast
+    ) as plc:
+        server.fail_next(mode, function_code=3)
+        plc.poll()  # one bad exchange: reconnect and read again
+        server.fail_next(mode, function_code=3)
+        server.fail_next(mode, function_code=3)
+        with pytest.raises(DeviceTimeout):  # still bad after the reconnect: typed, no hang
+            plc.poll()
+        plc.wait_window(timeout_s=1.0)  # the next poll reconnects
+        assert server.received.heartbeat == plc.outputs.heartbeat
+
+
+def test_modbus_plc_peer_gone_and_back() -> None:
+    from fakes.plc import PlcServer
+
+    with PlcServer(CYCLE) as server, open_plc(
+        f"plc+modbus://127.0.0.1:{server.port}", **OPTS
+    ) as plc:
+        plc.poll()
+        port = server.port
+        server.close()
+        with pytest.raises(DeviceConnectionError):
+            plc.poll()
+        with PlcServer(CYCLE, port=port):
+            plc.wait_window(timeout_s=1.0)

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from drivers import (
+    DeviceConfigError,
     DeviceConnectionError,
     DeviceFault,
     DeviceTimeout,
@@ -15,7 +16,7 @@ from drivers import (
     ProtocolError,
 )
 from drivers.rmi import RMIT_BASE, RmiRobot
-from fakes.rmi_controller import ERR_LIMIT, RmiController
+from fakes.rmi_controller import ERR_LIMIT, ERR_VALUE, RmiController
 from fakes.world import StaticWorld
 
 HOME = np.array([0.0, 0.0, 0.0, 0.0, -90.0, 0.0])
@@ -122,3 +123,66 @@ def test_terminate_from_controller(ctrl: RmiController, robot: RmiRobot) -> None
 def test_cannot_connect_is_a_connection_error() -> None:
     with pytest.raises(DeviceConnectionError):
         RmiRobot("127.0.0.1", 1, timeout_s=0.5).open()
+
+
+def test_override_scales_the_controllers_motion_time(ctrl: RmiController, robot: RmiRobot) -> None:
+    robot.move_joints(A, speed_pct=100)
+    robot.set_override_pct(25)
+    robot.move_joints(HOME, speed_pct=100)  # the same joint distance back
+    assert sent(ctrl, "FRC_SetOverRide") == [{"Command": "FRC_SetOverRide", "Value": 25}]
+    full, quarter = ctrl.motion_durations_s
+    assert quarter == pytest.approx(4 * full)
+    assert ctrl.override_pct == 25 and robot.status().override_pct == 25
+
+
+def test_override_refused_by_the_controller_is_a_fault_not_a_motion_fault(
+    ctrl: RmiController, robot: RmiRobot
+) -> None:
+    ctrl.fail_next("FRC_SetOverRide", ERR_VALUE)
+    with pytest.raises(DeviceFault) as info:
+        robot.set_override_pct(30)
+    assert info.value.code == ERR_VALUE and ctrl.override_pct == 100
+    assert robot.fault is None  # nothing moved: no latch
+    with pytest.raises(DeviceConfigError):
+        robot.set_override_pct(0)
+    assert len(sent(ctrl, "FRC_SetOverRide")) == 1  # the refused value never left the process
+
+
+def test_override_survives_a_lost_session(ctrl: RmiController, robot: RmiRobot) -> None:
+    ctrl.fail_next("FRC_SetOverRide", "drop")
+    robot.set_override_pct(60)  # idempotent: reconnected and sent again
+    assert ctrl.override_pct == 60
+    assert len(sent(ctrl, "FRC_Connect")) == 2
+
+
+def test_controller_gone_and_back(world: StaticWorld) -> None:
+    ctrl = RmiController(world, time_scale=0.002).start()
+    try:
+        with RmiRobot("127.0.0.1", ctrl.port, timeout_s=0.5, motion_timeout_s=2.0) as robot:
+            np.testing.assert_allclose(robot.joints_deg(), HOME)
+            port = ctrl.port
+            ctrl.close()  # the controller vanishes mid-session
+            with pytest.raises(DeviceConnectionError):
+                robot.joints_deg()  # the retry's reconnect is refused too
+            with pytest.raises(DeviceConnectionError):
+                robot.reset()
+            ctrl = RmiController(world, time_scale=0.002, port=port).start()
+            robot.reset()  # reconnects to the new session
+            np.testing.assert_allclose(robot.move_joints(A, speed_pct=100), A, atol=1e-3)
+    finally:
+        ctrl.close()
+
+
+@pytest.mark.parametrize("mode", ["mute", "garble", "truncate"])
+def test_bad_motion_reply_blocks_motion_until_reset(
+    ctrl: RmiController, robot: RmiRobot, mode: str
+) -> None:
+    ctrl.fail_next("FRC_JointMotionJRep", mode)
+    with pytest.raises(DeviceTimeout if mode == "mute" else ProtocolError):
+        robot.move_joints(A, speed_pct=100, timeout_s=0.2)
+    motions = len(sent(ctrl, "FRC_JointMotionJRep"))
+    with pytest.raises(FaultLatched):
+        robot.move_joints(HOME, speed_pct=100)
+    assert len(sent(ctrl, "FRC_JointMotionJRep")) == motions  # nothing sent
+    robot.reset()
+    np.testing.assert_allclose(robot.move_joints(HOME, speed_pct=100), HOME, atol=1e-3)

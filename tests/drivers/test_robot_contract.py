@@ -8,8 +8,9 @@ from contextlib import ExitStack
 import numpy as np
 import pytest
 
-from drivers import DeviceClosedError, FaultLatched, MotionRefused, open_robot
+from drivers import DeviceClosedError, DeviceConfigError, FaultLatched, MotionRefused, open_robot
 from drivers.robot import Robot
+from fakes.devices import FakeRobot
 from fakes.world import StaticWorld
 
 FAST = 0.002  # time compression: a 90 deg move at 100 % takes about 1 ms
@@ -89,3 +90,30 @@ def test_latched_fault_blocks_motion_until_reset(robot: Robot) -> None:
         robot.move_joints([10, 0, 0, 0, -90, 0], speed_pct=100)
     robot.reset()
     robot.move_joints([10, 0, 0, 0, -90, 0], speed_pct=100)
+
+
+@pytest.mark.parametrize("bad", [0, 101, -20, 50.5, True, "50", None])
+def test_override_outside_1_to_100_is_refused(robot: Robot, bad: object) -> None:
+    with pytest.raises(DeviceConfigError, match=r"1\.\.100"):
+        robot.set_override_pct(bad)  # type: ignore[arg-type]
+
+
+def test_speed_override(robot: Robot) -> None:
+    if robot.describe().startswith("FANUC Modbus"):  # the TP mailbox has no override register
+        with pytest.raises(DeviceConfigError, match="no speed override"):
+            robot.set_override_pct(50)
+        return
+    robot.set_override_pct(40)
+    assert robot.status().override_pct == 40
+    robot._latch_fault(FaultLatched("test fault"))
+    robot.set_override_pct(np.int64(20))  # type: ignore[arg-type]  # not a motion
+    assert robot.status().override_pct == 20
+
+
+def test_fake_override_scales_the_motion_time(world: StaticWorld) -> None:
+    with FakeRobot(world, time_scale=FAST) as robot:
+        robot.move_joints([20, 0, 0, 0, -90, 0], speed_pct=100)
+        robot.set_override_pct(25)
+        robot.move_joints([0, 0, 0, 0, -90, 0], speed_pct=100)
+        full, quarter = robot.motion_durations_s
+        assert quarter == pytest.approx(4 * full)

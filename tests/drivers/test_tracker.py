@@ -9,7 +9,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers import DeviceConfigError, DeviceFault, DeviceTimeout, ProtocolError, open_tracker
+from drivers import (
+    DeviceConfigError,
+    DeviceConnectionError,
+    DeviceFault,
+    DeviceTimeout,
+    ProtocolError,
+    open_tracker,
+)
 from drivers.tracker import Tracker
 from drivers.tracker_tcp import TcpTracker
 from fakes.tracker_service import E_NOT_IN_BEAM, TrackerService
@@ -136,3 +143,19 @@ def test_bad_csv_names_file_line_and_field(tmp_path: Path, text: str, where: str
 def test_missing_csv(tmp_path: Path) -> None:
     with pytest.raises(DeviceConfigError, match="cannot read"):
         open_tracker(f"tracker+file://{tmp_path / 'none.csv'}")
+
+
+def test_side_car_gone_and_back(world: StaticWorld) -> None:
+    svc = TrackerService(world).start()
+    try:
+        with TcpTracker("127.0.0.1", svc.port, timeout_s=0.3) as tcp:
+            port = svc.port
+            svc.close()
+            with pytest.raises(DeviceConnectionError):
+                tcp.measure("S1")  # the retry's reconnect is refused too
+            with pytest.raises(DeviceConnectionError):
+                tcp.status()  # no socket left: still typed
+            svc = TrackerService(world, port=port).start()
+            assert tcp.measure("S1").target_id == "S1"  # reconnected
+    finally:
+        svc.close()
