@@ -11,6 +11,7 @@ Plan file:
 
 from __future__ import annotations
 
+import argparse
 import multiprocessing
 import sys
 from collections.abc import Callable, Iterable, Iterator, Mapping
@@ -27,16 +28,60 @@ from app.config import CellConfig
 from app.errors import InputError
 from app.files import read_json, write_json
 from calib.candidates import FOV_CENTRE_MM, FOV_SPREAD_MM, Clearance, ViewGrid
+from calib.detmax import METHODS
 from calib.errors import PlanningError
 from calib.model import SystemModel
-from calib.observability import Observability
-from calib.plan import FeasibleRegion, MapFn, Plan, PlanSettings, plan
+from calib.observability import INDEX_NAMES, Observability
+from calib.plan import PLACEMENTS, FeasibleRegion, MapFn, Plan, PlanSettings, plan
 from calib.pso import SwarmSettings
 from calib.transforms import apply, inverse
 
 F64 = NDArray[np.float64]
 FORMAT = "rvis-plan"
 FORMAT_VERSION = 1
+
+
+PLAN_OPTIONS = (
+    "placement",
+    "criterion",
+    "method",
+    "iterations",
+    "swarm_size",
+    "grid_step_deg",
+    "search_step_deg",
+    "workers",
+)
+
+
+def add_plan_options(p: argparse.ArgumentParser) -> None:
+    """The command-line options that override the cell's [planning] table."""
+    p.add_argument("--placement", choices=PLACEMENTS, help="sequential (paper), joint, fixed")
+    p.add_argument("--criterion", help=f"selection criterion, one of {', '.join(INDEX_NAMES)}")
+    p.add_argument("--method", choices=METHODS, help="selection method (default detmax)")
+    p.add_argument("--iterations", type=int, help="PSO iterations (default 30)")
+    p.add_argument("--swarm", type=int, dest="swarm_size", help="PSO swarm size (default 50)")
+    p.add_argument("--grid-step", type=float, dest="grid_step_deg", help="final grid [deg]")
+    p.add_argument("--search-step", type=float, dest="search_step_deg", help="PSO grid [deg]")
+    p.add_argument("--workers", type=int, help="processes for the swarm (default 2)")
+
+
+def plan_overrides(args: argparse.Namespace) -> dict[str, Any]:
+    """The planning options given on the command line, checked (InputError naming the option)."""
+    out = {k: getattr(args, k) for k in PLAN_OPTIONS if getattr(args, k, None) is not None}
+    if "criterion" in out and out["criterion"] not in INDEX_NAMES:
+        raise InputError(
+            f"unknown criterion '{out['criterion']}' (choose from {', '.join(INDEX_NAMES)})",
+            field="--criterion",
+        )
+    for key in ("iterations", "swarm_size", "workers"):
+        if key in out and out[key] < 1:
+            option = "--swarm" if key == "swarm_size" else f"--{key}"
+            raise InputError(f"must be >= 1, got {out[key]}", field=option)
+    for key in ("grid_step_deg", "search_step_deg"):
+        if key in out and not 0.0 < out[key] <= 90.0:
+            option = "--" + key.removesuffix("_deg").replace("_", "-")
+            raise InputError(f"must lie in (0, 90] deg, got {out[key]}", field=option)
+    return out
 
 
 def plan_settings(cfg: CellConfig, **overrides: Any) -> tuple[PlanSettings, FeasibleRegion]:

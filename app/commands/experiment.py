@@ -9,7 +9,7 @@ from pathlib import Path
 from app.config import load_cell
 from app.errors import InputError
 from app.experiment import run_experiment, summary_text
-from calib.plan import PLACEMENTS
+from app.planning import add_plan_options, plan_overrides
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -20,12 +20,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")
     p.add_argument("--out", help="output folder (default runs/experiment-<time>)")
     p.add_argument("--validation", type=int, default=100, help="validation positions (100)")
-    p.add_argument("--placement", choices=PLACEMENTS, help="sphere placement (sequential)")
-    p.add_argument("--iterations", type=int, help="PSO iterations")
-    p.add_argument("--swarm", type=int, dest="swarm_size", help="PSO swarm size")
-    p.add_argument("--grid-step", type=float, dest="grid_step_deg", help="final grid [deg]")
-    p.add_argument("--search-step", type=float, dest="search_step_deg", help="PSO grid [deg]")
-    p.add_argument("--workers", type=int, help="processes for the swarm")
+    add_plan_options(p)
     p.add_argument(
         "--no-criteria", action="store_true", help="skip ranking O1..O5 as selection criteria"
     )
@@ -33,24 +28,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    for key in ("seeds", "validation", "iterations", "swarm_size", "workers"):
+    for key in ("seeds", "validation"):
         value = getattr(args, key)
         if value is not None and value < 1:
             raise InputError(f"must be >= 1, got {value}", field=f"--{key.replace('_', '-')}")
     cfg = load_cell(args.cell)
     out = Path(args.out or f"runs/experiment-{time.strftime('%Y%m%d-%H%M%S')}")
-    overrides = {
-        k: getattr(args, k)
-        for k in (
-            "placement",
-            "iterations",
-            "swarm_size",
-            "grid_step_deg",
-            "search_step_deg",
-            "workers",
-        )
-        if getattr(args, k) is not None
-    }
+    overrides = plan_overrides(args)
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     print(f"rvis experiment paper: {len(seeds)} seeds, writing to {out}/", flush=True)
     summary = run_experiment(

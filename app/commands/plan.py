@@ -7,13 +7,17 @@ import json
 import sys
 
 from app.config import load_cell
-from app.errors import InputError
 from app.params import from_json
-from app.planning import ProgressLine, plan_to_json, run_plan, write_plan
+from app.planning import (
+    ProgressLine,
+    add_plan_options,
+    plan_overrides,
+    plan_to_json,
+    run_plan,
+    write_plan,
+)
 from app.report import index_rows, text_table
-from calib.detmax import METHODS
 from calib.observability import INDEX_NAMES
-from calib.plan import PLACEMENTS
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -23,14 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="plan JSON to write")
     p.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")
     p.add_argument("--params", help="pre-calibrated parameters JSON to plan on (default: nominal)")
-    p.add_argument("--placement", choices=PLACEMENTS, help="sequential (paper), joint, fixed")
-    p.add_argument("--criterion", help=f"selection criterion, one of {', '.join(INDEX_NAMES)}")
-    p.add_argument("--method", choices=METHODS, help="selection method (default detmax)")
-    p.add_argument("--iterations", type=int, help="PSO iterations (default 30)")
-    p.add_argument("--swarm", type=int, dest="swarm_size", help="PSO swarm size (default 50)")
-    p.add_argument("--grid-step", type=float, dest="grid_step_deg", help="final grid [deg]")
-    p.add_argument("--search-step", type=float, dest="search_step_deg", help="PSO grid [deg]")
-    p.add_argument("--workers", type=int, help="processes for the swarm (default 2)")
+    add_plan_options(p)
     p.add_argument("--seed", type=int, help="seed (default 0)")
     p.add_argument("--json", action="store_true", help="print the plan summary as JSON")
     p.set_defaults(func=run)
@@ -39,29 +36,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     cfg = load_cell(args.cell)
     model, x = from_json(args.params) if args.params else (cfg.model(), cfg.model().nominal_x())
-    overrides = {
-        k: getattr(args, k)
-        for k in (
-            "placement",
-            "criterion",
-            "method",
-            "iterations",
-            "swarm_size",
-            "grid_step_deg",
-            "search_step_deg",
-            "workers",
-            "seed",
-        )
-    }
-    if args.criterion is not None and args.criterion not in INDEX_NAMES:
-        raise InputError(
-            f"unknown criterion '{args.criterion}' (choose from {', '.join(INDEX_NAMES)})",
-            field="--criterion",
-        )
-    for key in ("iterations", "swarm_size", "workers"):
-        value = overrides[key]
-        if value is not None and value < 1:
-            raise InputError(f"must be >= 1, got {value}", field=f"--{key.replace('_', '-')}")
+    overrides = plan_overrides(args)
+    if args.seed is not None:
+        overrides["seed"] = args.seed
     progress = ProgressLine(sys.stderr, str(args.criterion or cfg.planning["criterion"]))
     if not args.json:
         print(
