@@ -61,6 +61,7 @@ def run_seed(
     n_validation: int = 100,
     criteria: bool = True,
     progress: Callable[[str, int, int, float], None] | None = None,
+    criteria_grid_step_deg: float | None = None,
     **plan_overrides: Any,
 ) -> SeedOutcome:
     cell = make_cell(cfg, seed=seed)
@@ -80,7 +81,8 @@ def run_seed(
         cell, model, pre.x, positions, n_each, rng, q_by_target=plan.q_by_sphere()
     )
     if criteria:
-        settings, _ = plan_settings(cfg, seed=seed, **plan_overrides)
+        step = {} if criteria_grid_step_deg is None else {"grid_step_deg": criteria_grid_step_deg}
+        settings, _ = plan_settings(cfg, seed=seed, **{**plan_overrides, **step})
         for name in INDEX_NAMES:
             s = replace(settings, criterion=name)
             spheres, _ = select_configurations(model, pre.x, positions, s)
@@ -174,6 +176,7 @@ def run_experiment(
     *,
     n_validation: int = 100,
     criteria: bool = True,
+    criteria_grid_step_deg: float | None = None,
     log: Callable[[str], None] = print,
     **plan_overrides: Any,
 ) -> ExperimentSummary:
@@ -182,7 +185,14 @@ def run_experiment(
     out_dir.mkdir(parents=True, exist_ok=True)
     for k, seed in enumerate(seeds):
         t = time.perf_counter()
-        o = run_seed(cfg, seed, n_validation, criteria, **plan_overrides)
+        o = run_seed(
+            cfg,
+            seed,
+            n_validation,
+            criteria,
+            criteria_grid_step_deg=criteria_grid_step_deg,
+            **plan_overrides,
+        )
         outcomes.append(o)
         log(
             f"seed {seed} ({k + 1}/{len(seeds)}): O1 {o.o1['random']:.4f} -> {o.o1['planned']:.4f}"
@@ -192,7 +202,7 @@ def run_experiment(
         )
         write_json(out_dir / "seeds.json", {"seeds": [asdict(x) for x in outcomes]})
     summary = ExperimentSummary(outcomes, time.perf_counter() - t0)
-    _write(summary, out_dir, plan_overrides)
+    _write(summary, out_dir, {**plan_overrides, "criteria_grid_step_deg": criteria_grid_step_deg})
     return summary
 
 

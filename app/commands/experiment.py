@@ -22,6 +22,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--validation", type=int, default=100, help="validation positions (100)")
     add_plan_options(p)
     p.add_argument(
+        "--criteria-grid-step",
+        type=float,
+        help="grid [deg] for ranking O1..O5 as criteria (default: the plan's grid)",
+    )
+    p.add_argument(
         "--no-criteria", action="store_true", help="skip ranking O1..O5 as selection criteria"
     )
     p.set_defaults(func=run)
@@ -43,6 +48,7 @@ def run(args: argparse.Namespace) -> int:
         out,
         n_validation=args.validation,
         criteria=not args.no_criteria,
+        criteria_grid_step_deg=args.criteria_grid_step,
         log=lambda s: print(s, flush=True),
         **overrides,
     )
