@@ -32,7 +32,7 @@ from fakes.cell import CellSpec, MeasuringVolume, SimSettings, SimulatedCell, Sw
 from fakes.render_sensor import TrueSensor
 from vision.errors import VisionError
 from vision.measure import measure_sphere_from_sweep
-from vision.sensor_model import SensorModel, default_sensor_model
+from vision.sensor_model import CameraModel, LaserModel, SensorModel, default_sensor_model
 
 F64 = NDArray[np.float64]
 
@@ -377,3 +377,26 @@ def measurement_report(measurement: Measurement, sets: Mapping[str, DataSet]) ->
             "wall_s": measurement.wall_s,
         }
     return out
+
+
+def true_sensor_model(true: TrueSensor) -> SensorModel:
+    """The simulated sensor's truth as a vision SensorModel (a perfect calibration), for tests,
+    benchmarks and the demo. Exact when the mirror offset is zero; otherwise the laser plane
+    at angle 0 serves as the reference."""
+    K = np.array([[true.fx_px, 0, true.cx_px], [0, true.fy_px, true.cy_px], [0, 0, 1.0]])
+    u = true.axis_dir / np.linalg.norm(true.axis_dir)
+    n_ref, _ = true.laser_planes(np.array([0.0]))
+    n0 = n_ref[0] - u * (u @ n_ref[0])
+    n0 = n0 / np.linalg.norm(n0)
+    if n0[0] < 0:
+        n0 = -n0
+    laser = LaserModel(
+        axis_point_mm=true.axis_point_mm.copy(),
+        axis_dir=u,
+        ref_normal=n0,
+        angle_poly_rad=true.angle_poly_rad.copy(),
+    )
+    camera = CameraModel(
+        K=K, dist=true.dist.copy(), width_px=true.width_px, height_px=true.height_px
+    )
+    return SensorModel(camera=camera, laser=laser, name="simulated truth")

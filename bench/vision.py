@@ -30,8 +30,9 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
+from app.simulation import true_sensor_model  # noqa: E402
 from fakes.render import default_sweep_commands, render_sphere_sweep  # noqa: E402
-from fakes.render_sensor import TrueSensor, default_true_sensor, to_sensor_model  # noqa: E402
+from fakes.render_sensor import TrueSensor, default_true_sensor  # noqa: E402
 from fakes.render_targets import CalibrationSet, render_calibration_set  # noqa: E402
 from vision.calibrate import calibrate_camera, calibrate_laser, laser_points, target_plane  # noqa: E402
 from vision.measure import measure_sphere_from_sweep  # noqa: E402
@@ -127,7 +128,7 @@ def bench_calibration(sensor: TrueSensor, sweeps: list, centres: F64, seed: int)
     camera, _ = calibrate_camera(cset.chessboards)
     full = laser_with(camera, cset)
     t_cal = time.perf_counter() - t
-    truth = to_sensor_model(sensor)
+    truth = true_sensor_model(sensor)
     laser_only = laser_with(truth.camera, cset)
     K = camera.K
     print(f"-- calibration seed {seed}: render {t_render:.1f} s, calibrate {t_cal:.2f} s; "
@@ -198,7 +199,7 @@ def main() -> None:
         bench_cell(args.cell_sweeps, args.workers)
         return
     sensor = default_true_sensor()
-    model = to_sensor_model(sensor)
+    model = true_sensor_model(sensor)
     bench_timings(sensor, model, args.frames, args.repeats)
     centres = poses(np.random.default_rng(50), args.poses)
     t = time.perf_counter()

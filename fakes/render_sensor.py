@@ -3,7 +3,8 @@
 This deliberately does not reuse the estimators' model (vision/): the laser plane at each mirror
 angle is obtained by reflecting the projector's fan plane in the rotated mirror (Householder
 reflection), and pixel rays are obtained by inverting the distortion with its own iteration.
-Only `to_sensor_model` touches vision/, to hand the truth over as plain data for tests.
+Nothing here imports vision/: `app.simulation.true_sensor_model` hands the truth over to the
+estimators' data types (tests, the demo).
 
 Frame: the camera frame (OpenCV convention), which is also the sensor frame S.
 """
@@ -16,8 +17,6 @@ from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
-
-from vision.sensor_model import CameraModel, LaserModel, SensorModel
 
 F64 = NDArray[np.float64]
 
@@ -121,21 +120,3 @@ class TrueSensor:
 def default_true_sensor() -> TrueSensor:
     """The simulated sensor as built (matches vision.sensor_model.default_sensor_model)."""
     return TrueSensor()
-
-
-def to_sensor_model(true: TrueSensor) -> SensorModel:
-    """The truth as a vision SensorModel (a 'perfect' calibration), for tests and the demo.
-
-    Exact when mirror_offset_mm == 0; otherwise the plane at angle 0 is used as reference.
-    """
-    K = np.array([[true.fx_px, 0, true.cx_px], [0, true.fy_px, true.cy_px], [0, 0, 1.0]])
-    u = _unit(true.axis_dir)
-    n_ref, _ = true.laser_planes(np.array([0.0]))
-    n0 = _unit(n_ref[0] - u * (u @ n_ref[0]))
-    if n0[0] < 0:
-        n0 = -n0
-    laser = LaserModel(axis_point_mm=true.axis_point_mm.copy(), axis_dir=u, ref_normal=n0,
-                       angle_poly_rad=true.angle_poly_rad.copy())
-    camera = CameraModel(K=K, dist=true.dist.copy(), width_px=true.width_px,
-                         height_px=true.height_px)
-    return SensorModel(camera=camera, laser=laser, name="simulated truth")

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fakes.render_sensor import TrueSensor, default_true_sensor, to_sensor_model
+from app.simulation import true_sensor_model
+from fakes.render_sensor import TrueSensor, default_true_sensor
 from vision.sensor_model import SensorModel
 
 
@@ -18,7 +19,7 @@ def true_sensor() -> TrueSensor:
 
 @pytest.fixture(scope="session")
 def perfect_model(true_sensor: TrueSensor) -> SensorModel:
-    return to_sensor_model(true_sensor)
+    return true_sensor_model(true_sensor)
 
 
 @pytest.fixture()
