@@ -90,7 +90,7 @@ def bench_grid_check() -> None:
     cfg = load_cell(None)
     model = cfg.model()
     x = model.nominal_x()
-    small = {"swarm_size": 10, "iterations": 3}
+    small = {"swarm_size": 10, "iterations": 3, "workers": 1}
     out = {}
     for step in (30.0, 5.0):
         t0 = time.perf_counter()
@@ -118,14 +118,18 @@ def main() -> None:
     ap.add_argument("--skip-svd", action="store_true")
     ap.add_argument("--skip-grid-check", action="store_true")
     ap.add_argument("--skip-full", action="store_true")
+    ap.add_argument("--skip-detmax", action="store_true")
+    ap.add_argument("--skip-ik", action="store_true")
     args = ap.parse_args()
     print(f"{'what':52s} {'median':>11s}")
-    bench_detmax(args.skip_svd, args.repeats)
+    if not args.skip_detmax:
+        bench_detmax(args.skip_svd, args.repeats)
     if not args.skip_full:
         bench_full_plan(args.repeats)
     if not args.skip_grid_check:
         bench_grid_check()
-    bench_ik()
+    if not args.skip_ik:
+        bench_ik()
 
 
 if __name__ == "__main__":
