@@ -30,6 +30,8 @@ from calib.identify import Measurements
 from calib.model import SystemModel
 from fakes.cell import CellSpec, MeasuringVolume, SimSettings, SimulatedCell, SweepJob
 from fakes.render_sensor import TrueSensor
+from fakes.render_targets import render_calibration_set
+from vision.calibrate_sensor import calibrate_sensor
 from vision.errors import VisionError
 from vision.measure import measure_sphere_from_sweep
 from vision.sensor_model import CameraModel, LaserModel, SensorModel, default_sensor_model
@@ -400,3 +402,23 @@ def true_sensor_model(true: TrueSensor) -> SensorModel:
         K=K, dist=true.dist.copy(), width_px=true.width_px, height_px=true.height_px
     )
     return SensorModel(camera=camera, laser=laser, name="simulated truth")
+
+
+def calibrated_sensor_model(true: TrueSensor, seed: int) -> tuple[SensorModel, dict[str, float]]:
+    """The sensor calibrated the way the line would (vision.calibrate_sensor from 12 rendered
+    chessboards and 4 flat-target sweeps of 9 commands), and how far it is from the truth:
+    focal length and principal point errors [px], reprojection RMS [px]."""
+    cs = render_calibration_set(
+        true, np.random.default_rng([seed, 11]), n_chessboards=12, n_targets=4, n_commands=9
+    )
+    targets = [(board, list(frames)) for board, frames in cs.targets]
+    model = calibrate_sensor(cs.chessboards, targets, cs.commands_v)
+    K = model.camera.K
+    info = {
+        "fx_error_px": float(K[0, 0] - true.fx_px),
+        "fy_error_px": float(K[1, 1] - true.fy_px),
+        "cx_error_px": float(K[0, 2] - true.cx_px),
+        "cy_error_px": float(K[1, 2] - true.cy_px),
+        "reprojection_rms_px": float(model.camera.rms_reprojection_px or float("nan")),
+    }
+    return model, info

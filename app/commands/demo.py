@@ -14,7 +14,13 @@ from app.demo import run_demo, summary_text
 from app.errors import InputError
 from app.planning import ProgressLine
 from app.report import parameter_table
-from app.simulation import GeometricMeasurement, RenderedMeasurement
+from app.simulation import (
+    GeometricMeasurement,
+    RenderedMeasurement,
+    calibrated_sensor_model,
+    true_sensor_model,
+)
+from fakes.render_sensor import default_true_sensor
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -34,6 +40,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--geometric", action="store_true",
                    help="fast geometric measurements (true centre plus noise) instead of "
                         "rendered sweeps measured by the vision pipeline")
+    p.add_argument(
+        "--sensor-model",
+        choices=("calibrated", "truth"),
+        default="calibrated",
+        help="rendered path: measure with a sensor model calibrated from rendered chessboards "
+        "and target sweeps (default, as on the line) or with the simulated truth",
+    )
     p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
                    help="processes rendering sweeps (default: up to 2)")
     p.set_defaults(func=run)
@@ -48,10 +61,21 @@ def run(args: argparse.Namespace) -> int:
     if args.geometric:
         measurement, how = GeometricMeasurement(), "geometric measurements"
     else:
+        if args.sensor_model == "calibrated":
+            sensor_model, info = calibrated_sensor_model(default_true_sensor(), args.seed)
+            how = (
+                "sensor calibrated from 12 rendered chessboards and 4 target sweeps (focal "
+                f"length off by {info['fx_error_px']:+.2f} px, principal point by "
+                f"({info['cx_error_px']:+.2f}, {info['cy_error_px']:+.2f}) px); "
+            )
+        else:
+            sensor_model, how = true_sensor_model(default_true_sensor()), "true sensor model; "
         measurement = RenderedMeasurement(
-            workers=args.workers, progress=lambda line: print(line, flush=True)
+            sensor_model=sensor_model,
+            workers=args.workers,
+            progress=lambda line: print(line, flush=True),
         )
-        how = f"rendered sweeps on {args.workers} worker(s)"
+        how += f"rendered sweeps on {args.workers} worker(s)"
     print(f"rvis demo: simulated cell, seed {args.seed}, {how}; running ...", flush=True)
     with closing(measurement) if isinstance(measurement, RenderedMeasurement) else nullcontext():
         demo = run_demo(

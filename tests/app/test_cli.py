@@ -189,7 +189,8 @@ def test_demo_renders_by_default(tmp_path: Path, capsys: pytest.CaptureFixture[s
     cell = tmp_path / "cell.toml"
     cell.write_text("[calibration]\nconfigs_per_sphere = 4\n")
     code, out, _ = run(["demo", "--out", str(tmp_path / "run"), "--validation", "3",
-                        "--workers", "1", "--cell", str(cell), "--placement", "none"], capsys)
+                        "--workers", "1", "--cell", str(cell), "--placement", "none",
+                        "--sensor-model", "truth"], capsys)
     assert code == 0 and "rendered sweeps on 1 worker" in out
     assert "rendered and measured 10 sweeps" in out  # progress
     report = json.loads((tmp_path / "run" / "report.json").read_text())

@@ -152,3 +152,16 @@ def test_fake_camera_sees_the_stripe_on_a_sphere(cell: SimulatedCell, cfg: CellC
         cell.set_joints_deg(np.array([0.0, 0.0, 0.0, 0.0, -90.0, 0.0]))
         dark = camera.grab().image
         assert len(extract_stripe(dark)) == 0 and dark.max() < 100
+
+
+def test_the_demo_sensor_calibration_is_close_to_the_truth() -> None:
+    """`rvis demo` measures with a sensor calibrated from rendered chessboards and target
+    sweeps (as the line would), not with the truth: a few px at most off in K."""
+    from app.simulation import calibrated_sensor_model
+    from fakes.render_sensor import default_true_sensor
+
+    model, info = calibrated_sensor_model(default_true_sensor(), seed=0)
+    assert abs(info["fx_error_px"]) < 0.002 * 4266.7  # 0.2 % of the focal length
+    assert abs(info["cx_error_px"]) < 8 and abs(info["cy_error_px"]) < 8
+    assert info["reprojection_rms_px"] < 0.1
+    assert model.camera.K[0, 0] != default_true_sensor().fx_px  # a real estimate
