@@ -158,6 +158,8 @@ class RenderedMeasurement:
     """
 
     sensor_model: SensorModel = field(default_factory=default_sensor_model)
+    #: False when sensor_model is an estimate (its frame is not exactly the true sensor's)
+    sensor_frame_exact: bool = True
     workers: int = 1
     mode: str = "fast"
     progress: Callable[[str], None] | None = None

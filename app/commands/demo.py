@@ -72,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
             sensor_model, how = true_sensor_model(default_true_sensor()), "true sensor model; "
         measurement = RenderedMeasurement(
             sensor_model=sensor_model,
+            sensor_frame_exact=args.sensor_model == "truth",
             workers=args.workers,
             progress=lambda line: print(line, flush=True),
         )
