@@ -172,6 +172,8 @@ def choose(
     grid: ViewGrid,
     J_fixed: F64,
     settings: PlanSettings,
+    *,
+    polish: bool = True,
 ) -> tuple[Candidates, F64, int]:
     """The n configurations of one sphere chosen with the fixed blocks, their blocks and the
     number of candidates; NoCandidates when fewer than n views are reachable."""
@@ -189,6 +191,7 @@ def choose(
         J_fixed=J_fixed,
         criterion=settings.criterion,
         method=settings.method,
+        polish=polish,
     )
     return cand.take(sel.indices), J[sel.indices], len(cand)
 
@@ -245,7 +248,7 @@ class _Fitness:
         try:
             for (px, py), z in zip(xy, self.z_base_mm, strict=True):
                 p = _part_from_base(self.model, self.x, np.array([px, py]), z)
-                _, J_sel, _ = choose(self.model, self.x, p, grid, J, self.settings)
+                _, J_sel, _ = choose(self.model, self.x, p, grid, J, self.settings, polish=False)
                 J = np.concatenate([J, J_sel])
         except NoCandidates:
             return float("inf")
@@ -308,9 +311,7 @@ def select_configurations(
         q, ok = refine_on_model(model, x, chosen.q_deg)
         J_sel = model.point_jacobian(x, q, chosen.c_sensor_mm, settings.active)
         J = np.concatenate([J, J_sel])
-        plans.append(
-            SpherePlan(name, p_arr, q, chosen.c_sensor_mm, n_cand, int(np.sum(~ok)))
-        )
+        plans.append(SpherePlan(name, p_arr, q, chosen.c_sensor_mm, n_cand, int(np.sum(~ok))))
     return plans, J
 
 
