@@ -21,9 +21,8 @@ candidate pool reach together; with four spheres r = L and the index is the usua
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -428,12 +427,3 @@ def random_plan(
         blocks.append(model.point_jacobian(x, v.q_deg, v.c_planned_mm, settings.active))
     J = np.concatenate(blocks)
     return qs, cs, observability(J.reshape(-1, J.shape[2]), J.shape[0])
-
-
-def indices_of(
-    model: SystemModel, x: F64, q_deg: F64, c_sensor_mm: F64, active: Sequence[str] = PAPER_30
-) -> dict[str, Any]:
-    """O1..O5, rank and condition of configurations (for reports)."""
-    J = model.point_jacobian(x, q_deg, c_sensor_mm, active)
-    obs = observability(J.reshape(-1, J.shape[2]), J.shape[0])
-    return {**obs.indices, "rank": obs.rank, "condition": obs.condition}
