@@ -9,7 +9,13 @@ import numpy as np
 import pytest
 
 from app.cli import main
+from app.config import CellConfig
+from app.files import write_json
+from app.params import from_json, to_json
 from app.planning import read_plan
+from calib.identify import identify
+from calib.transforms import apply, inverse
+from tests.conftest import simulated
 
 FAST = ["--iterations", "1", "--swarm", "4", "--grid-step", "30", "--search-step", "30"]
 
@@ -110,3 +116,28 @@ def test_experiment_paper_writes_table_and_figure(
     assert (out / "fig11.png").stat().st_size > 10_000 and (out / "experiment.md").exists()
     code, _, err = run(["experiment", "paper", "--seeds", "0"], capsys)
     assert code == 2 and "--seeds" in err
+
+
+def test_plan_on_pre_calibrated_parameters(
+    cfg: CellConfig, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--params: the plan's configurations are refined on the identified parameters, so the
+    sphere appears where planned on that model (and not on the nominal one)."""
+    cal, _ = simulated(0)
+    result = identify(cfg.model(), cal.measurements)
+    params = tmp_path / "params.json"
+    write_json(params, to_json(cfg.model(), result))
+    out = tmp_path / "plan.json"
+    code, _, err = run(
+        ["plan", "--params", str(params), "--out", str(out), "--placement", "fixed", *FAST],
+        capsys,
+    )
+    assert code == 0, err
+    model, x = from_json(params)
+    positions, qs, cs = read_plan(out)
+    for name, p in positions.items():
+        c_model = apply(inverse(model.fk(x, qs[name])), p)
+        assert np.abs(c_model - cs[name]).max() < 1e-6
+        c_nominal = apply(inverse(model.fk(model.nominal_x(), qs[name])), p)
+        assert np.abs(c_nominal - cs[name]).max() > 0.1
+
