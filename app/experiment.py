@@ -33,6 +33,7 @@ from calib.identify import identify, residuals
 from calib.model import SystemModel
 from calib.observability import INDEX_NAMES
 from calib.plan import select_configurations
+from calib.transforms import apply, inverse
 
 F64 = NDArray[np.float64]
 PAPER_O1 = (0.0472, 0.086)
@@ -105,8 +106,8 @@ def run_seed(
 def _base_positions(
     model: SystemModel, x: F64, positions: dict[str, F64]
 ) -> dict[str, list[float]]:
-    T = np.linalg.inv(model.T_part_base(x))
-    return {k: (T[:3, :3] @ p + T[:3, 3]).round(1).tolist() for k, p in positions.items()}
+    T_base_part = inverse(model.T_part_base(x))
+    return {k: apply(T_base_part, p).round(1).tolist() for k, p in positions.items()}
 
 
 @dataclass(frozen=True)

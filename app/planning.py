@@ -3,10 +3,10 @@ a progress display, and the plan file (JSON, format `rvis-plan`).
 
 Plan file:
     {"format": "rvis-plan", "format_version": 1, "cell": <source>, "settings": {...},
-     "spheres": [{"name", "position_part_mm", "position_base_mm", "n_candidates",
+     "spheres": [{"name", "position_part_mm", "position_base_mm", "n_candidates", "n_unrefined",
                   "configurations": [{"q_deg": [6], "c_sensor_mm": [3]}, ...]}, ...],
      "observability": {O1..O5, rank, condition}, "random_plan": {O1..O5, rank, condition,
-     "configurations": {name: [[6], ...]}}, "seconds": {...}}
+     "configurations": {name: [{"q_deg", "c_sensor_mm"}, ...]}}, "seconds": {...}}
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 
 from app.config import CellConfig
 from app.errors import InputError
-from app.files import read_json, write_json
+from app.files import read_json
 from calib.candidates import FOV_CENTRE_MM, FOV_SPREAD_MM, Clearance, ViewGrid
 from calib.detmax import METHODS
 from calib.errors import PlanningError
@@ -200,6 +200,7 @@ def plan_to_json(cfg: CellConfig, model: SystemModel, x: F64, result: Plan) -> d
                 "position_part_mm": sp.p_part_mm.tolist(),
                 "position_base_mm": apply(T_base_part, sp.p_part_mm).tolist(),
                 "n_candidates": sp.n_candidates,
+                "n_unrefined": sp.n_unrefined,
                 "configurations": [
                     {"q_deg": q.tolist(), "c_sensor_mm": c.tolist()}
                     for q, c in zip(sp.q_deg, sp.c_sensor_mm, strict=True)
@@ -210,7 +211,13 @@ def plan_to_json(cfg: CellConfig, model: SystemModel, x: F64, result: Plan) -> d
         "observability": _indices(result.observability),
         "random_plan": {
             **_indices(result.random_observability),
-            "configurations": {k: v.tolist() for k, v in result.random_q_deg.items()},
+            "configurations": {
+                k: [
+                    {"q_deg": q.tolist(), "c_sensor_mm": c.tolist()}
+                    for q, c in zip(v, result.random_c_sensor_mm[k], strict=True)
+                ]
+                for k, v in result.random_q_deg.items()
+            },
         },
         "fitness_history": {k: v.tolist() for k, v in result.fitness_history.items()},
         "seconds": result.seconds,
@@ -250,6 +257,3 @@ def _array(value: Any, shape: tuple[int, ...]) -> F64:
         raise ValueError(f"expected {shape[0]} finite numbers")
     return a
 
-
-def write_plan(path: str | Path, doc: dict[str, Any]) -> None:
-    write_json(path, doc)

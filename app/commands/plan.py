@@ -7,6 +7,7 @@ import json
 import sys
 
 from app.config import load_cell
+from app.files import write_json
 from app.params import from_json
 from app.planning import (
     ProgressLine,
@@ -14,7 +15,6 @@ from app.planning import (
     plan_overrides,
     plan_to_json,
     run_plan,
-    write_plan,
 )
 from app.report import index_rows, text_table
 from calib.observability import INDEX_NAMES
@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
         )
     result = run_plan(cfg, model, x, progress=progress, **overrides)
     doc = plan_to_json(cfg, model, x, result)
-    write_plan(args.out, doc)
+    write_json(args.out, doc)
     if args.json:
         print(
             json.dumps({k: doc[k] for k in ("spheres", "observability", "random_plan", "seconds")})
