@@ -277,8 +277,11 @@ def measurement_lines(info: dict[str, Any]) -> list[str]:
     if not info:
         return []
     cal, val = info["calibration"], info["validation"]
-    how = ("rendered sweeps measured by the vision pipeline" if info["path"] == "rendered"
-           else "geometric (true centre plus Gaussian noise)")
+    how = (
+        "rendered sweeps measured by the vision pipeline"
+        if info["path"] == "rendered"
+        else "geometric (true centre plus Gaussian noise)"
+    )
     lines = [
         f"Measurements: {how}; centre error vs truth RMS {cal['centre_error_rms_um']:.1f} um "
         f"(calibration), {val['centre_error_rms_um']:.1f} um (validation); rejected views "

@@ -256,4 +256,3 @@ def _array(value: Any, shape: tuple[int, ...]) -> F64:
     if a.shape != shape or not np.all(np.isfinite(a)):
         raise ValueError(f"expected {shape[0]} finite numbers")
     return a
-

@@ -39,8 +39,13 @@ from vision.sensor_model import CameraModel, LaserModel, SensorModel, default_se
 F64 = NDArray[np.float64]
 
 
-def make_cell(cfg: CellConfig, seed: int | None = None, *, sensor: TrueSensor | None = None,
-              **overrides: object) -> SimulatedCell:
+def make_cell(
+    cfg: CellConfig,
+    seed: int | None = None,
+    *,
+    sensor: TrueSensor | None = None,
+    **overrides: object,
+) -> SimulatedCell:
     """The simulated cell of a configuration; `overrides` replace SimSettings fields; sensor:
     the true sensor (default: built on first use, its pixel rays take ~1 s)."""
     s = cfg.sensor
@@ -117,8 +122,9 @@ class GeometricMeasurement:
         return [Outcome(cell.measure_point(q, p)) for q, p in views]
 
 
-def render_and_measure(job: SweepJob, sensor: TrueSensor, sensor_model: SensorModel,
-                       mode: str = "fast") -> Outcome:
+def render_and_measure(
+    job: SweepJob, sensor: TrueSensor, sensor_model: SensorModel, mode: str = "fast"
+) -> Outcome:
     """Render one sweep with the true sensor and measure it with the sensor model."""
     t0 = time.perf_counter()
     frames, commands_v, _ = job.render(sensor)
@@ -194,8 +200,10 @@ class RenderedMeasurement:
         return out
 
     def status(self, wall_s: float) -> str:
-        return (f"  rendered and measured {self.sweeps} sweeps ({self.rejected} rejected) in "
-                f"{wall_s:.1f} s")
+        return (
+            f"  rendered and measured {self.sweeps} sweeps ({self.rejected} rejected) in "
+            f"{wall_s:.1f} s"
+        )
 
     def _run(self, cell: SimulatedCell, jobs: list[SweepJob]) -> Iterator[Outcome]:
         if self.workers <= 1 or len(jobs) <= 1:
@@ -205,9 +213,11 @@ class RenderedMeasurement:
             self.close()
             self._pool_sensor = cell.sensor
             self._pool = ProcessPoolExecutor(
-                self.workers, mp_context=multiprocessing.get_context("forkserver"),
+                self.workers,
+                mp_context=multiprocessing.get_context("forkserver"),
                 initializer=_init_worker,
-                initargs=(replace(cell.sensor), self.sensor_model, self.mode))  # no ray cache
+                initargs=(replace(cell.sensor), self.sensor_model, self.mode),
+            )  # no ray cache
         return self._pool.map(_worker_task, jobs)
 
     def close(self) -> None:
@@ -282,8 +292,13 @@ def collect(
         np.array(ps).reshape(-1, 3),
         tuple(ids),
     )
-    return DataSet(meas, targets, np.array(c_true).reshape(-1, 3),
-                   np.array(p_true).reshape(-1, 3), tuple(rejected))
+    return DataSet(
+        meas,
+        targets,
+        np.array(c_true).reshape(-1, 3),
+        np.array(p_true).reshape(-1, 3),
+        tuple(rejected),
+    )
 
 
 def validation_points(cfg: CellConfig, n: int, rng: np.random.Generator) -> dict[str, F64]:
@@ -318,8 +333,7 @@ def validation_set(
             break
         points = validation_points(cfg, 2 * (n - have), rng)
         points = {f"V{have + k + 1:03d}": p for k, p in enumerate(points.values())}
-        ds = collect(cell, model, x, points, 1, rng, measurement=measurement,
-                     max_total=n - have)
+        ds = collect(cell, model, x, points, 1, rng, measurement=measurement, max_total=n - have)
         keep = [i for i in range(len(ds.measurements))][: n - have]
         sets.append(_take(ds, keep, have))
         have += len(keep)
@@ -331,10 +345,11 @@ def _take(ds: DataSet, rows: list[int], start: int) -> DataSet:
     rename = {old: f"V{start + k + 1:03d}" for k, old in enumerate(m.targets)}
     meas = Measurements(m.q_deg, m.c_sensor_mm, m.p_part_mm, tuple(rename[t] for t in m.targets))
     targets = {rename[t]: ds.targets[t] for t in m.targets}
-    rejected = tuple(replace(r, target=rename.get(r.target, f"{r.target} (position dropped)"))
-                     for r in ds.rejected)
-    return DataSet(meas, targets, ds.truth_c_sensor_mm[rows], ds.truth_p_part_mm[rows],
-                   rejected)
+    rejected = tuple(
+        replace(r, target=rename.get(r.target, f"{r.target} (position dropped)"))
+        for r in ds.rejected
+    )
+    return DataSet(meas, targets, ds.truth_c_sensor_mm[rows], ds.truth_p_part_mm[rows], rejected)
 
 
 def _concat(sets: list[DataSet]) -> DataSet:

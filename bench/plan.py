@@ -1,15 +1,15 @@
 """Benchmark of measurement planning (issue 3). Prints medians of repeated runs.
 
-  1. DETMAX choosing 6 of 20k candidates (with 6 fixed configurations of another sphere):
-     rank-3 determinant updates vs the straightforward full SVD per candidate, same run,
-     same selection.
-  2. The full four-sphere plan with the default settings (swarm 50, 30 iterations, PSO fitness
-     on the 30 deg grid, final configurations on the 5 deg grid, 2 processes); aim <= 60 s.
-  3. Coarse to fine: with a small swarm, the final O1 when the swarm's fitness uses the
-     30 deg grid vs the full 5 deg grid (aim: within 2 %).
-  4. Closed-form IK throughput vs py-opw-kinematics (bench/ik.py), same poses, same run.
+1. DETMAX choosing 6 of 20k candidates (with 6 fixed configurations of another sphere):
+   rank-3 determinant updates vs the straightforward full SVD per candidate, same run,
+   same selection.
+2. The full four-sphere plan with the default settings (swarm 50, 30 iterations, PSO fitness
+   on the 30 deg grid, final configurations on the 5 deg grid, 2 processes); aim <= 60 s.
+3. Coarse to fine: with a small swarm, the final O1 when the swarm's fitness uses the
+   30 deg grid vs the full 5 deg grid (aim: within 2 %).
+4. Closed-form IK throughput vs py-opw-kinematics (bench/ik.py), same poses, same run.
 
-    .venv/bin/python bench/plan.py [--repeats N] [--skip-svd] [--skip-grid-check]
+  .venv/bin/python bench/plan.py [--repeats N] [--skip-svd] [--skip-grid-check]
 """
 
 from __future__ import annotations

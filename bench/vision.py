@@ -64,8 +64,10 @@ def bench_timings(sensor: TrueSensor, model: SensorModel, n_frames: int, repeats
     print("== timings (median, 1 OpenCV thread)")
     fast_ms = median_ms(lambda: extract_stripe(mid), repeats)
     print(f"stripe fast     per 1296x966 frame : {fast_ms:7.2f} ms")
-    print(f"stripe precise  per 1296x966 frame : "
-          f"{median_ms(lambda: extract_stripe(mid, 'precise'), repeats):7.2f} ms")
+    print(
+        f"stripe precise  per 1296x966 frame : "
+        f"{median_ms(lambda: extract_stripe(mid, 'precise'), repeats):7.2f} ms"
+    )
     for mode in ("fast", "precise"):
         stripes = [extract_stripe(f, mode) for f in frames]
         n_pts = sum(len(s) for s in stripes)
@@ -74,12 +76,16 @@ def bench_timings(sensor: TrueSensor, model: SensorModel, n_frames: int, repeats
             X, _ = triangulate_sweep(stripes, cmds, model)
             fit_sphere(X, 15.0)
 
-        print(f"triangulation + fit per sweep ({mode:7s}, {n_frames} frames, {n_pts} points): "
-              f"{median_ms(tri_fit, max(repeats // 3, 5)):7.2f} ms")
+        print(
+            f"triangulation + fit per sweep ({mode:7s}, {n_frames} frames, {n_pts} points): "
+            f"{median_ms(tri_fit, max(repeats // 3, 5)):7.2f} ms"
+        )
     whole = median_ms(lambda: measure_sphere_from_sweep(frames, cmds, model), 5)
     print(f"whole measurement per sweep (fast, extraction included)   : {whole:7.1f} ms")
-    print(f"renderer (apart): {1000 * render_s / n_frames:.1f} ms per frame, "
-          f"{render_s:.2f} s per {n_frames}-frame sweep")
+    print(
+        f"renderer (apart): {1000 * render_s / n_frames:.1f} ms per frame, "
+        f"{render_s:.2f} s per {n_frames}-frame sweep"
+    )
 
 
 def poses(rng: np.random.Generator, n: int) -> F64:
@@ -94,8 +100,10 @@ def render_sweeps(sensor: TrueSensor, centres: F64, n_frames: int, seed: int) ->
 
 
 def centre_errors(sweeps: list, centres: F64, model: SensorModel, mode: str = "fast") -> F64:  # type: ignore[type-arg]
-    return np.array([measure_sphere_from_sweep(f, c, model, mode=mode).c_sensor_mm
-                     for f, c in sweeps]) - centres
+    return (
+        np.array([measure_sphere_from_sweep(f, c, model, mode=mode).c_sensor_mm for f, c in sweeps])
+        - centres
+    )
 
 
 def rigid_residual(measured: F64, true: F64) -> F64:
@@ -109,13 +117,16 @@ def rigid_residual(measured: F64, true: F64) -> F64:
 
 def report(name: str, err_mm: F64) -> None:
     e = err_mm * 1000.0
-    print(f"{name}: bias um {np.array2string(e.mean(0), precision=2)}  std um "
-          f"{np.array2string(e.std(0), precision=2)}  max |e| um {np.abs(e).max():.1f}")
+    print(
+        f"{name}: bias um {np.array2string(e.mean(0), precision=2)}  std um "
+        f"{np.array2string(e.std(0), precision=2)}  max |e| um {np.abs(e).max():.1f}"
+    )
 
 
 def laser_with(camera: CameraModel, cset: CalibrationSet) -> SensorModel:
-    pts = [laser_points(frames, target_plane(board, camera), camera)
-           for board, frames in cset.targets]
+    pts = [
+        laser_points(frames, target_plane(board, camera), camera) for board, frames in cset.targets
+    ]
     return SensorModel(camera=camera, laser=calibrate_laser(pts, cset.commands_v))
 
 
@@ -131,11 +142,13 @@ def bench_calibration(sensor: TrueSensor, sweeps: list, centres: F64, seed: int)
     truth = true_sensor_model(sensor)
     laser_only = laser_with(truth.camera, cset)
     K = camera.K
-    print(f"-- calibration seed {seed}: render {t_render:.1f} s, calibrate {t_cal:.2f} s; "
-          f"fx {100 * (K[0, 0] / sensor.fx_px - 1):+.3f} %, fy "
-          f"{100 * (K[1, 1] / sensor.fy_px - 1):+.3f} %, cx {K[0, 2] - sensor.cx_px:+.2f} px, "
-          f"cy {K[1, 2] - sensor.cy_px:+.2f} px, reprojection {camera.rms_reprojection_px:.3f} "
-          f"px, laser plane rms {full.laser.rms_plane_mm * 1000:.1f} um")
+    print(
+        f"-- calibration seed {seed}: render {t_render:.1f} s, calibrate {t_cal:.2f} s; "
+        f"fx {100 * (K[0, 0] / sensor.fx_px - 1):+.3f} %, fy "
+        f"{100 * (K[1, 1] / sensor.fy_px - 1):+.3f} %, cx {K[0, 2] - sensor.cx_px:+.2f} px, "
+        f"cy {K[1, 2] - sensor.cy_px:+.2f} px, reprojection {camera.rms_reprojection_px:.3f} "
+        f"px, laser plane rms {full.laser.rms_plane_mm * 1000:.1f} um"
+    )
     e_full = centre_errors(sweeps, centres, full)
     report("   calibrated sensor (absolute)          ", e_full)
     report("   same, after best rigid transform      ", rigid_residual(e_full + centres, centres))
@@ -152,9 +165,12 @@ def bench_cell(n_sweeps: int, workers: int) -> None:
     x = model.nominal_x()
     cell = make_cell(cfg, seed=0)
     rng = np.random.default_rng(0)
-    views = [(q, p) for p in cfg.spheres_part_mm.values()
-             for q in candidates.random_configurations(model, x, p, n_sweeps, rng).q_deg
-             if cell.sees(q, p)]
+    views = [
+        (q, p)
+        for p in cfg.spheres_part_mm.values()
+        for q in candidates.random_configurations(model, x, p, n_sweeps, rng).q_deg
+        if cell.sees(q, p)
+    ]
     views = [views[i] for i in np.linspace(0, len(views) - 1, n_sweeps).astype(int)]
     _ = cell.sensor.pixel_rays
     model_s = RenderedMeasurement().sensor_model
@@ -169,12 +185,16 @@ def bench_cell(n_sweeps: int, workers: int) -> None:
         measure.append(o.measure_s)
         if o.c_sensor_mm is not None:
             err.append(1000 * np.linalg.norm(o.c_sensor_mm - job.c_sensor_mm))
-    print(f"== rendered cell measurement per sweep ({n_sweeps} sweeps of "
-          f"{len(cell.sweep_commands_v)} frames, median)")
-    print(f"in process: render {1000 * np.median(render):.0f} ms + measure "
-          f"{1000 * np.median(measure):.0f} ms = wall {1000 * np.median(wall):.0f} ms "
-          f"(CPU {1000 * np.median(cpu):.0f} ms); centre error 3D RMS "
-          f"{np.sqrt(np.mean(np.square(err))):.1f} um, {n_sweeps - len(err)} rejected")
+    print(
+        f"== rendered cell measurement per sweep ({n_sweeps} sweeps of "
+        f"{len(cell.sweep_commands_v)} frames, median)"
+    )
+    print(
+        f"in process: render {1000 * np.median(render):.0f} ms + measure "
+        f"{1000 * np.median(measure):.0f} ms = wall {1000 * np.median(wall):.0f} ms "
+        f"(CPU {1000 * np.median(cpu):.0f} ms); centre error 3D RMS "
+        f"{np.sqrt(np.mean(np.square(err))):.1f} um, {n_sweeps - len(err)} rejected"
+    )
     if workers > 1:
         with RenderedMeasurement(workers=workers) as m:
             m.measure(cell, views[:workers])  # start the workers (pixel rays ~1 s each)
@@ -204,12 +224,16 @@ def main() -> None:
     centres = poses(np.random.default_rng(50), args.poses)
     t = time.perf_counter()
     sweeps = render_sweeps(sensor, centres, args.frames, seed=51)
-    print(f"== accuracy: {args.poses} sphere poses over the field of view, {args.frames} frames "
-          f"per sweep, default noise + speckle (rendered in {time.perf_counter() - t:.0f} s)")
+    print(
+        f"== accuracy: {args.poses} sphere poses over the field of view, {args.frames} frames "
+        f"per sweep, default noise + speckle (rendered in {time.perf_counter() - t:.0f} s)"
+    )
     for mode in ("fast", "precise"):
         report(f"perfect sensor model, {mode:7s}", centre_errors(sweeps, centres, model, mode))
-    print("== sensor calibrated from rendered chessboards (12 views) and target sweeps "
-          "(4 poses x 15 commands)")
+    print(
+        "== sensor calibrated from rendered chessboards (12 views) and target sweeps "
+        "(4 poses x 15 commands)"
+    )
     for seed in range(args.calib_seeds):
         bench_calibration(sensor, sweeps, centres, seed=100 + seed)
     bench_cell(args.cell_sweeps, args.workers)

@@ -73,8 +73,10 @@ class ModbusLink:
         except ModbusException as exc:
             raise self._translate(exc) from exc
         if rr.isError():
-            raise DeviceFault(f"{self.where}: read {address}+{count}: {rr}",
-                              code=int(getattr(rr, "exception_code", 0)))
+            raise DeviceFault(
+                f"{self.where}: read {address}+{count}: {rr}",
+                code=int(getattr(rr, "exception_code", 0)),
+            )
         if len(rr.registers) != count:
             raise ProtocolError(f"{self.where}: asked {count} registers, got {len(rr.registers)}")
         return list(rr.registers)
@@ -85,8 +87,9 @@ class ModbusLink:
         except ModbusException as exc:
             raise self._translate(exc) from exc
         if rr.isError():
-            raise DeviceFault(f"{self.where}: write {address}: {rr}",
-                              code=int(getattr(rr, "exception_code", 0)))
+            raise DeviceFault(
+                f"{self.where}: write {address}: {rr}", code=int(getattr(rr, "exception_code", 0))
+            )
 
     def _translate(self, exc: ModbusException) -> Exception:
         self._client.close()  # resynchronise the transaction ids on the next connect

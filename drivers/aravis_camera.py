@@ -104,9 +104,11 @@ class AravisCamera(Camera):
     def describe(self) -> str:
         self._check_open()
         cam = self._cam
-        return (f"{self._call('vendor', cam.get_vendor_name)} "
-                f"{self._call('model', cam.get_model_name)} "
-                f"s/n {self._call('serial', cam.get_device_serial_number)}")
+        return (
+            f"{self._call('vendor', cam.get_vendor_name)} "
+            f"{self._call('model', cam.get_model_name)} "
+            f"s/n {self._call('serial', cam.get_device_serial_number)}"
+        )
 
     def _sensor_size(self) -> tuple[int, int]:
         w, h = self._call("sensor size", self._cam.get_sensor_size)
@@ -136,7 +138,9 @@ class AravisCamera(Camera):
             region=(int(x), int(y), int(w), int(h)),
             exposure_us=float(self._call("exposure", cam.get_exposure_time)),
             gain_db=float(self._call("gain", cam.get_gain)) if s.gain_db else s.gain_db,
-            pixel_format=s.pixel_format, trigger=s.trigger, trigger_line=s.trigger_line,
+            pixel_format=s.pixel_format,
+            trigger=s.trigger,
+            trigger_line=s.trigger_line,
             buffers=s.buffers,
         )
         self._start_stream(applied.buffers)

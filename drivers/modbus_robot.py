@@ -79,8 +79,12 @@ class ModbusRobot(Robot):
         motion_timeout_s: float = 120.0,
         name: str = "",
     ) -> None:
-        super().__init__(guard=guard, timeout_s=timeout_s, motion_timeout_s=motion_timeout_s,
-                         name=name or f"modbus://{host}:{port}")
+        super().__init__(
+            guard=guard,
+            timeout_s=timeout_s,
+            motion_timeout_s=motion_timeout_s,
+            name=name or f"modbus://{host}:{port}",
+        )
         self.host, self.port, self.unit, self.base = host, int(port), int(unit), int(base)
         self.word_order: WordOrder = word_order
         self.poll_s = float(poll_s)
@@ -116,9 +120,13 @@ class ModbusRobot(Robot):
 
     def _status(self) -> RobotStatus:
         status, error = (int(v) for v in self._floats(MAILBOX.STATUS, 4))
-        return RobotStatus(servo_ready=status != STATUS_FAULT, moving=status == STATUS_MOVING,
-                           fault=status == STATUS_FAULT, error_code=error,
-                           detail=f"TP error {error}" if error else "")
+        return RobotStatus(
+            servo_ready=status != STATUS_FAULT,
+            moving=status == STATUS_MOVING,
+            fault=status == STATUS_FAULT,
+            error_code=error,
+            detail=f"TP error {error}" if error else "",
+        )
 
     def _move(self, q_deg: FloatArray, speed_pct: float, timeout_s: float) -> None:
         self._write_floats(MAILBOX.SPEED, [speed_pct, *q_deg])

@@ -33,8 +33,9 @@ def encode_outputs(out: PlcOutputs) -> list[int]:
 
 def decode_outputs(words: list[int]) -> PlcOutputs:
     bits, beat = words
-    return PlcOutputs(busy=bool(bits & BUSY), done=bool(bits & DONE), fault=bool(bits & FAULT),
-                      heartbeat=beat)
+    return PlcOutputs(
+        busy=bool(bits & BUSY), done=bool(bits & DONE), fault=bool(bits & FAULT), heartbeat=beat
+    )
 
 
 class ModbusPlc(Plc):
@@ -73,8 +74,11 @@ class ModbusPlc(Plc):
 
     def _read_inputs(self) -> PlcInputs:
         status, beat = require_link(self._link, self.name).read(self.base + PLC_STATUS, 2)
-        return PlcInputs(window_open=bool(status & WINDOW_OPEN),
-                         line_running=bool(status & LINE_RUNNING), heartbeat=beat)
+        return PlcInputs(
+            window_open=bool(status & WINDOW_OPEN),
+            line_running=bool(status & LINE_RUNNING),
+            heartbeat=beat,
+        )
 
     def _write_outputs(self, outputs: PlcOutputs) -> None:
         require_link(self._link, self.name).write(self.base + APP_STATUS, encode_outputs(outputs))

@@ -56,7 +56,9 @@ class RmiRobot(Robot):
         name: str = "",
     ) -> None:
         super().__init__(
-            guard=guard, timeout_s=timeout_s, motion_timeout_s=motion_timeout_s,
+            guard=guard,
+            timeout_s=timeout_s,
+            motion_timeout_s=motion_timeout_s,
             name=name or f"rmi://{host}:{port}",
         )
         self.host, self.port = host, int(port)
@@ -119,8 +121,12 @@ class RmiRobot(Robot):
         except (KeyError, TypeError, ValueError) as exc:
             raise ProtocolError(f"{self.name}: bad FRC_GetStatus reply {r}") from exc
         override = r.get("Override")
-        return RobotStatus(servo_ready=servo == 1, moving=motion != 0, fault=servo != 1,
-                           override_pct=override if isinstance(override, int) else None)
+        return RobotStatus(
+            servo_ready=servo == 1,
+            moving=motion != 0,
+            fault=servo != 1,
+            override_pct=override if isinstance(override, int) else None,
+        )
 
     def _set_override(self, override_pct: int) -> None:
         self._command("FRC_SetOverRide", Value=override_pct)
@@ -189,8 +195,10 @@ class RmiRobot(Robot):
             unsolicited = msg.get("Communication")
             if unsolicited == "FRC_SystemFault" and name != "FRC_SystemFault":
                 self._initialized = False
-                fault = DeviceFault(f"{self.name}: controller system fault (SequenceID "
-                                    f"{msg.get('SequenceID')})", code=-1)
+                fault = DeviceFault(
+                    f"{self.name}: controller system fault (SequenceID {msg.get('SequenceID')})",
+                    code=-1,
+                )
                 self._latch_fault(fault)
                 raise fault
             if unsolicited == "FRC_Terminate":

@@ -109,10 +109,12 @@ class Robot(Device):
         value outside 1..100 (nothing sent) or a backend without an override."""
         self._check_open()
         valid_type = isinstance(override_pct, int | np.integer) and not isinstance(
-            override_pct, bool)
+            override_pct, bool
+        )
         if not (valid_type and 1 <= override_pct <= 100):
             raise DeviceConfigError(
-                f"override_pct must be an integer in 1..100, got {override_pct!r}")
+                f"override_pct must be an integer in 1..100, got {override_pct!r}"
+            )
         self._read_retrying(lambda: self._set_override(int(override_pct)))
         self.log.info("%s: speed override %d %%", self.name, override_pct)
 

@@ -52,7 +52,9 @@ class ScpiGalvo(Galvo):
     def _open(self) -> None:
         try:
             self._serial = serial.serial_for_url(
-                self.port, baudrate=self.baud, timeout=self.timeout_s,
+                self.port,
+                baudrate=self.baud,
+                timeout=self.timeout_s,
                 write_timeout=self.timeout_s,
             )
             self._serial.reset_input_buffer()

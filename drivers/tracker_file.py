@@ -63,8 +63,12 @@ def _row(
         raise DeviceConfigError(f"{path}:{line}: field 'target': duplicate {target!r}")
     point = np.array([number("x_mm"), number("y_mm"), number("z_mm")])
     return target, TrackerMeasurement(
-        target, point, number("rms_mm", 0.0), str(row.get("time_utc") or ""),
-        number("temperature_c", 20.0), number("pressure_hpa", 1013.25),
+        target,
+        point,
+        number("rms_mm", 0.0),
+        str(row.get("time_utc") or ""),
+        number("temperature_c", 20.0),
+        number("pressure_hpa", 1013.25),
     )
 
 

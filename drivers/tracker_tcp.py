@@ -39,8 +39,9 @@ class TcpTracker(Tracker):
         return cls(host, port, **options)
 
     def _open(self) -> None:
-        sock = LineJsonSocket(self.host, self.port, timeout_s=min(self.timeout_s, 5.0),
-                              terminator=b"\n")
+        sock = LineJsonSocket(
+            self.host, self.port, timeout_s=min(self.timeout_s, 5.0), terminator=b"\n"
+        )
         sock.connect()
         self._sock = sock
         hello = self._request("hello", protocol=PROTOCOL)
@@ -65,17 +66,24 @@ class TcpTracker(Tracker):
 
     def _status(self) -> TrackerStatus:
         r = self._request("status")
-        return TrackerStatus(ready=bool(r.get("ready")),
-                             target_in_beam=bool(r.get("target_in_beam")),
-                             detail=str(r.get("detail", "")))
+        return TrackerStatus(
+            ready=bool(r.get("ready")),
+            target_in_beam=bool(r.get("target_in_beam")),
+            detail=str(r.get("detail", "")),
+        )
 
     def _measure(self, target_id: str, timeout_s: float) -> TrackerMeasurement:
         r = self._request("measure", timeout_s=timeout_s, target=target_id)
         try:
             point = np.array([float(r["x_mm"]), float(r["y_mm"]), float(r["z_mm"])])
-            m = TrackerMeasurement(str(r["target"]), point, float(r["rms_mm"]),
-                                   str(r["time_utc"]), float(r["temperature_c"]),
-                                   float(r["pressure_hpa"]))
+            m = TrackerMeasurement(
+                str(r["target"]),
+                point,
+                float(r["rms_mm"]),
+                str(r["time_utc"]),
+                float(r["temperature_c"]),
+                float(r["pressure_hpa"]),
+            )
         except (KeyError, TypeError, ValueError) as exc:
             raise ProtocolError(f"{self.name}: incomplete measurement {r}") from exc
         if m.target_id != target_id or not np.all(np.isfinite(point)):
@@ -99,6 +107,8 @@ class TcpTracker(Tracker):
         error = reply.get("error")
         if reply.get("ok") is False and isinstance(error, dict):
             code = error.get("code", 0)
-            raise DeviceFault(f"{self.name}: {cmd}: {error.get('message', '?')}",
-                              code=code if isinstance(code, int) else 0)
+            raise DeviceFault(
+                f"{self.name}: {cmd}: {error.get('message', '?')}",
+                code=code if isinstance(code, int) else 0,
+            )
         raise ProtocolError(f"{self.name}: malformed reply {reply}")

@@ -116,12 +116,18 @@ class SweepJob:
     commands_v: F64
     seed: tuple[int, ...]
 
-    def render(self, sensor: TrueSensor, *, stripe_truth: bool = False
-               ) -> tuple[Frames, F64, SweepTruth]:
+    def render(
+        self, sensor: TrueSensor, *, stripe_truth: bool = False
+    ) -> tuple[Frames, F64, SweepTruth]:
         """Frames shape=(n, H, W) uint8, the commands [V] and the renderer's truth."""
-        return render_sphere_sweep(self.c_sensor_mm, self.radius_mm, sensor,
-                                   np.random.default_rng(list(self.seed)),
-                                   commands_v=self.commands_v, stripe_truth=stripe_truth)
+        return render_sphere_sweep(
+            self.c_sensor_mm,
+            self.radius_mm,
+            sensor,
+            np.random.default_rng(list(self.seed)),
+            commands_v=self.commands_v,
+            stripe_truth=stripe_truth,
+        )
 
 
 def _small_pose(rng: np.random.Generator, sigma_mm: float, sigma_rad: float) -> F64:
@@ -134,8 +140,9 @@ def _small_pose(rng: np.random.Generator, sigma_mm: float, sigma_rad: float) -> 
 class SimulatedCell:
     """The true cell. `temp_c` may be changed between measurements (thermal drift)."""
 
-    def __init__(self, spec: CellSpec, settings: SimSettings | None = None,
-                 sensor: TrueSensor | None = None) -> None:
+    def __init__(
+        self, spec: CellSpec, settings: SimSettings | None = None, sensor: TrueSensor | None = None
+    ) -> None:
         self.spec = spec
         self._sensor = sensor
         self.settings = settings or SimSettings()
@@ -211,11 +218,13 @@ class SimulatedCell:
         with self._render_lock:
             k = self._sweeps
             self._sweeps += 1
-        return SweepJob(c, self.spec.sphere_radius_mm, self.sweep_commands_v.copy(),
-                        (self.settings.seed, 3, k))
+        return SweepJob(
+            c, self.spec.sphere_radius_mm, self.sweep_commands_v.copy(), (self.settings.seed, 3, k)
+        )
 
-    def render_sweep(self, q_deg: ArrayLike, p_part_mm: ArrayLike, *, stripe_truth: bool = False
-                     ) -> tuple[Frames, F64, SweepTruth]:
+    def render_sweep(
+        self, q_deg: ArrayLike, p_part_mm: ArrayLike, *, stripe_truth: bool = False
+    ) -> tuple[Frames, F64, SweepTruth]:
         """Render the sweep of the sphere at p_part_mm from q_deg: frames shape=(n, H, W)
         uint8, mirror commands shape=(n,) [V], the renderer's truth (true centre in S, planes).
         Raises NotVisible outside the measuring volume."""
@@ -262,13 +271,15 @@ class SimulatedCell:
         """
         sensor = self.sensor
         if width > sensor.width_px or height > sensor.height_px:
-            raise ValueError(f"frame {width}x{height} exceeds the sensor's "
-                             f"{sensor.width_px}x{sensor.height_px}")
+            raise ValueError(
+                f"frame {width}x{height} exceeds the sensor's {sensor.width_px}x{sensor.height_px}"
+            )
         exposure = exposure_us / REFERENCE_EXPOSURE_US
         gain = 10.0 ** (gain_db / 20.0)
         base = NoiseSettings(bits=12)
-        noise = replace(base, full_well_e=base.full_well_e / gain,
-                        ambient_e=base.ambient_e * exposure)
+        noise = replace(
+            base, full_well_e=base.full_well_e / gain, ambient_e=base.ambient_e * exposure
+        )
         light = replace(Lighting(), power=Lighting().power * exposure * gain)
         slope_deg_per_v = math.degrees(float(sensor.angle_poly_rad[1]))
         command_v = 0.0 if galvo_deg is None else float(galvo_deg) / slope_deg_per_v
@@ -278,9 +289,15 @@ class SimulatedCell:
                 frame = dark_frame((sensor.height_px, sensor.width_px), noise, self._camera_rng)
             else:
                 frame = render_sphere_sweep(
-                    c, self.spec.sphere_radius_mm, sensor, self._camera_rng,
-                    commands_v=np.array([command_v]), noise=noise, light=light,
-                    stripe_truth=False)[0][0]
+                    c,
+                    self.spec.sphere_radius_mm,
+                    sensor,
+                    self._camera_rng,
+                    commands_v=np.array([command_v]),
+                    noise=noise,
+                    light=light,
+                    stripe_truth=False,
+                )[0][0]
         out: F64 = frame[:height, :width].astype(np.float64) / 4095.0
         return out
 

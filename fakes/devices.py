@@ -35,9 +35,7 @@ def _world(url: DeviceUrl, options: dict[str, Any]) -> World:
     return world
 
 
-def move_along(
-    world: World, target: FloatArray, duration_s: float, stop: threading.Event
-) -> bool:
+def move_along(world: World, target: FloatArray, duration_s: float, stop: threading.Event) -> bool:
     """Interpolate the world's joints to ``target`` over ``duration_s``; False if stopped."""
     start = world.joints_deg()
     t0 = time.monotonic()
@@ -79,8 +77,12 @@ class FakeRobot(Robot):
         return self.world.joints_deg()
 
     def _status(self) -> RobotStatus:
-        return RobotStatus(servo_ready=True, moving=False, fault=self._pending is not None,
-                           override_pct=self.override_pct)
+        return RobotStatus(
+            servo_ready=True,
+            moving=False,
+            fault=self._pending is not None,
+            override_pct=self.override_pct,
+        )
 
     def _set_override(self, override_pct: int) -> None:
         self.override_pct = override_pct

@@ -43,7 +43,10 @@ class PlcServer(RegisterServer):
         if a in written:
             out = decode_outputs([written.get(a, regs[a]), written.get(a + 1, regs[a + 1])])
             changed = (out.busy, out.done, out.fault) != (
-                self.received.busy, self.received.done, self.received.fault)
+                self.received.busy,
+                self.received.done,
+                self.received.fault,
+            )
             if changed:
                 self.history.append(out)
             self.received = out

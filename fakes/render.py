@@ -131,9 +131,18 @@ class _Tiles:
         return np.asarray(np.arange(int(lengths.sum())) + shift, dtype=np.intp)
 
 
-def _render_frames(sensor: TrueSensor, flat_idx: NDArray[np.intp], X: F64, N: F64,
-                   normals: F64, offsets: F64, light: Lighting, noise: NoiseSettings,
-                   rng: np.random.Generator, cull: bool = True) -> Frames:
+def _render_frames(
+    sensor: TrueSensor,
+    flat_idx: NDArray[np.intp],
+    X: F64,
+    N: F64,
+    normals: F64,
+    offsets: F64,
+    light: Lighting,
+    noise: NoiseSettings,
+    rng: np.random.Generator,
+    cull: bool = True,
+) -> Frames:
     """Frames for surface points X (visible at pixels flat_idx) under each laser plane.
 
     Only the points within 5 sheet sigmas of a frame's plane are shaded; they are found tile by
@@ -175,8 +184,7 @@ def _render_frames(sensor: TrueSensor, flat_idx: NDArray[np.intp], X: F64, N: F6
         crop[r[inside] - r0, c[inside] - c0] = irr[inside]
         if ghost and ghost < crop.shape[1]:
             crop[:, ghost:] += np.float32(light.ghost_gain) * crop[:, :-ghost].copy()
-        frames.append(form_image_in_box((h, w), (slice(r0, r1), slice(c0, c1)), crop, noise,
-                                        rng))
+        frames.append(form_image_in_box((h, w), (slice(r0, r1), slice(c0, c1)), crop, noise, rng))
     return np.stack(frames)
 
 
@@ -201,12 +209,14 @@ def _sphere_box(sensor: TrueSensor, c: F64, r: float) -> tuple[slice, slice]:
     uv = sensor.project(P)
     u0, u1 = int(np.floor(uv[:, 0].min())) - 4, int(np.ceil(uv[:, 0].max())) + 5
     v0, v1 = int(np.floor(uv[:, 1].min())) - 4, int(np.ceil(uv[:, 1].max())) + 5
-    return slice(min(max(v0, 0), h), min(max(v1, 0), h)), slice(min(max(u0, 0), w),
-                                                                min(max(u1, 0), w))
+    return slice(min(max(v0, 0), h), min(max(v1, 0), h)), slice(
+        min(max(u0, 0), w), min(max(u1, 0), w)
+    )
 
 
-def sphere_hits(sensor: TrueSensor, c_sensor_mm: F64, radius_mm: float, *, roi: bool = True
-                ) -> tuple[NDArray[np.intp], F64]:
+def sphere_hits(
+    sensor: TrueSensor, c_sensor_mm: F64, radius_mm: float, *, roi: bool = True
+) -> tuple[NDArray[np.intp], F64]:
     """Pixels that see the sphere (flat indices into the frame) and the surface points they
     see [mm]; with roi, rays are cast only inside the sphere's image box (`_sphere_box`)."""
     c = np.asarray(c_sensor_mm, dtype=np.float64)
@@ -222,8 +232,9 @@ def sphere_hits(sensor: TrueSensor, c_sensor_mm: F64, radius_mm: float, *, roi: 
     return flat_idx, rays[local] * t[:, None]
 
 
-def _circle_polyline(sensor: TrueSensor, c: F64, r: float, n: F64, d: float,
-                     facing: bool = True) -> F64:
+def _circle_polyline(
+    sensor: TrueSensor, c: F64, r: float, n: F64, d: float, facing: bool = True
+) -> F64:
     """True stripe centre line: plane-sphere circle, visible and lit part, projected (m, 2)."""
     dist = float(n @ c - d)
     if abs(dist) >= r:
@@ -247,9 +258,16 @@ def _circle_polyline(sensor: TrueSensor, c: F64, r: float, n: F64, d: float,
 
 
 def render_sphere_sweep(
-    c_sensor_mm: F64, radius_mm: float, sensor: TrueSensor, rng: np.random.Generator, *,
-    commands_v: F64 | None = None, noise: NoiseSettings | None = None,
-    light: Lighting | None = None, angle_noise_rad: float = 0.0, stripe_truth: bool = True,
+    c_sensor_mm: F64,
+    radius_mm: float,
+    sensor: TrueSensor,
+    rng: np.random.Generator,
+    *,
+    commands_v: F64 | None = None,
+    noise: NoiseSettings | None = None,
+    light: Lighting | None = None,
+    angle_noise_rad: float = 0.0,
+    stripe_truth: bool = True,
 ) -> tuple[Frames, F64, SweepTruth]:
     """Render one galvo sweep over a sphere.
 
@@ -270,11 +288,22 @@ def render_sphere_sweep(
     jitter = angle_noise_rad * rng.standard_normal(len(cmds))
     normals, offsets = _planes_with_jitter(sensor, cmds, jitter)
     frames = _render_frames(sensor, flat_idx, X, N, normals, offsets, light, noise, rng)
-    stripes = [_circle_polyline(sensor, c, radius_mm, n, d) for n, d in zip(normals, offsets,
-                                                                             strict=True)
-               ] if stripe_truth else []
-    truth = SweepTruth(commands_v=cmds, plane_normals=normals, plane_offsets_mm=offsets,
-                       stripe_uv=stripes, c_sensor_mm=c, radius_mm=radius_mm)
+    stripes = (
+        [
+            _circle_polyline(sensor, c, radius_mm, n, d)
+            for n, d in zip(normals, offsets, strict=True)
+        ]
+        if stripe_truth
+        else []
+    )
+    truth = SweepTruth(
+        commands_v=cmds,
+        plane_normals=normals,
+        plane_offsets_mm=offsets,
+        stripe_uv=stripes,
+        c_sensor_mm=c,
+        radius_mm=radius_mm,
+    )
     return frames, cmds, truth
 
 
@@ -283,13 +312,13 @@ def _planes_with_jitter(sensor: TrueSensor, cmds: F64, jitter: F64) -> tuple[F64
     if not np.any(jitter):
         return sensor.laser_planes(cmds)
     # a mirror-angle error equals a command error of jitter / (d theta / d command)
-    slope = np.polynomial.polynomial.polyval(cmds, np.polynomial.polynomial.polyder(
-        sensor.angle_poly_rad))
+    slope = np.polynomial.polynomial.polyval(
+        cmds, np.polynomial.polynomial.polyder(sensor.angle_poly_rad)
+    )
     return sensor.laser_planes(cmds + jitter / slope)
 
 
-def _plane_hits(sensor: TrueSensor, T_camera_target: F64) -> tuple[NDArray[np.intp], F64, F64,
-                                                                    F64]:
+def _plane_hits(sensor: TrueSensor, T_camera_target: F64) -> tuple[NDArray[np.intp], F64, F64, F64]:
     """Pixels seeing the target plane (z = 0 of the target), their points and distances."""
     n = T_camera_target[:3, 2]
     p0 = T_camera_target[:3, 3]
@@ -302,8 +331,12 @@ def _plane_hits(sensor: TrueSensor, T_camera_target: F64) -> tuple[NDArray[np.in
 
 
 def render_plane_sweep(
-    T_camera_target: F64, sensor: TrueSensor, rng: np.random.Generator, *,
-    commands_v: F64 | None = None, noise: NoiseSettings | None = None,
+    T_camera_target: F64,
+    sensor: TrueSensor,
+    rng: np.random.Generator,
+    *,
+    commands_v: F64 | None = None,
+    noise: NoiseSettings | None = None,
     light: Lighting | None = None,
 ) -> tuple[Frames, F64, SweepTruth]:
     """Render a galvo sweep over a flat, uniformly white calibration target.
@@ -318,13 +351,20 @@ def render_plane_sweep(
     n_t = T_camera_target[:3, 2]
     N = np.broadcast_to(-n_t if n_t[2] > 0 else n_t, X.shape)
     normals, offsets = sensor.laser_planes(cmds)
-    frames = _render_frames(sensor, flat_idx, X, np.ascontiguousarray(N), normals, offsets,
-                            light, noise, rng)
-    stripes = [_plane_line(sensor, T_camera_target, n, d) for n, d in zip(normals, offsets,
-                                                                          strict=True)]
-    truth = SweepTruth(commands_v=cmds, plane_normals=normals, plane_offsets_mm=offsets,
-                       stripe_uv=stripes, target_normal=n_t,
-                       target_offset_mm=float(n_t @ T_camera_target[:3, 3]))
+    frames = _render_frames(
+        sensor, flat_idx, X, np.ascontiguousarray(N), normals, offsets, light, noise, rng
+    )
+    stripes = [
+        _plane_line(sensor, T_camera_target, n, d) for n, d in zip(normals, offsets, strict=True)
+    ]
+    truth = SweepTruth(
+        commands_v=cmds,
+        plane_normals=normals,
+        plane_offsets_mm=offsets,
+        stripe_uv=stripes,
+        target_normal=n_t,
+        target_offset_mm=float(n_t @ T_camera_target[:3, 3]),
+    )
     return frames, cmds, truth
 
 
@@ -337,15 +377,26 @@ def _plane_line(sensor: TrueSensor, T_camera_target: F64, n: F64, d: float) -> F
     p = np.linalg.solve(A, np.array([d, d_t, direction @ T_camera_target[:3, 3]]))
     P = p + np.outer(np.linspace(-40.0, 40.0, 8001), direction)
     uv = sensor.project(P)
-    inside = (uv[:, 0] > -1) & (uv[:, 0] < sensor.width_px) & (uv[:, 1] > -1) & (
-        uv[:, 1] < sensor.height_px) & (P[:, 2] > 0)
+    inside = (
+        (uv[:, 0] > -1)
+        & (uv[:, 0] < sensor.width_px)
+        & (uv[:, 1] > -1)
+        & (uv[:, 1] < sensor.height_px)
+        & (P[:, 2] > 0)
+    )
     return np.asarray(uv[inside])
 
 
 def render_chessboard(
-    T_camera_target: F64, sensor: TrueSensor, rng: np.random.Generator, *,
-    pattern: tuple[int, int] = (9, 6), square_mm: float = 2.5,
-    noise: NoiseSettings | None = None, white: float = 0.7, black: float = 0.06,
+    T_camera_target: F64,
+    sensor: TrueSensor,
+    rng: np.random.Generator,
+    *,
+    pattern: tuple[int, int] = (9, 6),
+    square_mm: float = 2.5,
+    noise: NoiseSettings | None = None,
+    white: float = 0.7,
+    black: float = 0.06,
 ) -> tuple[Frames, F64, F64]:
     """Render a chessboard under ambient light (no laser).
 

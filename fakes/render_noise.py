@@ -59,12 +59,13 @@ def lit_box(img: F32, threshold: float, margin: int) -> tuple[slice, slice] | No
         return None
     cols = np.flatnonzero(img[rows[0] : rows[-1] + 1].max(axis=0) > threshold)
     h, w = img.shape
-    return (slice(max(rows[0] - margin, 0), min(rows[-1] + margin + 1, h)),
-            slice(max(cols[0] - margin, 0), min(cols[-1] + margin + 1, w)))
+    return (
+        slice(max(rows[0] - margin, 0), min(rows[-1] + margin + 1, h)),
+        slice(max(cols[0] - margin, 0), min(cols[-1] + margin + 1, w)),
+    )
 
 
-def speckle_field(shape: tuple[int, int], noise: NoiseSettings,
-                  rng: np.random.Generator) -> F32:
+def speckle_field(shape: tuple[int, int], noise: NoiseSettings, rng: np.random.Generator) -> F32:
     """Multiplicative speckle of mean 1: |low-passed complex Gaussian|^2 mixed to the contrast."""
     re = rng.standard_normal(shape, dtype=np.float32)
     im = rng.standard_normal(shape, dtype=np.float32)
@@ -88,8 +89,11 @@ def _dark_quantiles(noise: NoiseSettings) -> NDArray[np.integer[Any]]:
     to 1/65536 in probability (tails beyond 4.2 sigma fold onto the last table entry).
     """
     z = ndtri((np.arange(65536) + 0.5) / 65536.0)
-    sigma = np.sqrt(noise.ambient_e + noise.read_noise_e**2) if noise.shot_noise else (
-        noise.read_noise_e)
+    sigma = (
+        np.sqrt(noise.ambient_e + noise.read_noise_e**2)
+        if noise.shot_noise
+        else (noise.read_noise_e)
+    )
     top = (1 << noise.bits) - 1
     dn = (noise.ambient_e + sigma * z) * (top / noise.full_well_e) + noise.black_level_dn
     out = np.clip(np.rint(dn), 0, top).astype(np.uint8 if noise.bits <= 8 else np.uint16)
@@ -97,16 +101,21 @@ def _dark_quantiles(noise: NoiseSettings) -> NDArray[np.integer[Any]]:
     return out
 
 
-def dark_frame(shape: tuple[int, int], noise: NoiseSettings, rng: np.random.Generator
-               ) -> NDArray[np.integer[Any]]:
+def dark_frame(
+    shape: tuple[int, int], noise: NoiseSettings, rng: np.random.Generator
+) -> NDArray[np.integer[Any]]:
     """A frame without any laser light: independent dark pixels (see `_dark_quantiles`)."""
     idx = rng.integers(0, 65536, size=shape, dtype=np.uint16)
     return np.take(_dark_quantiles(noise), idx)
 
 
-def form_image_in_box(shape: tuple[int, int], box: tuple[slice, slice] | None, irr_box: F32,
-                      noise: NoiseSettings, rng: np.random.Generator
-                      ) -> NDArray[np.integer[Any]]:
+def form_image_in_box(
+    shape: tuple[int, int],
+    box: tuple[slice, slice] | None,
+    irr_box: F32,
+    noise: NoiseSettings,
+    rng: np.random.Generator,
+) -> NDArray[np.integer[Any]]:
     """A frame of `shape` whose irradiance is `irr_box` inside `box` (row and column slices,
     irr_box of the box's shape) and zero outside: the full image formation inside the box,
     dark pixels outside. The box must include the speckle and blur margin."""
@@ -116,8 +125,9 @@ def form_image_in_box(shape: tuple[int, int], box: tuple[slice, slice] | None, i
     return out
 
 
-def form_image(irr: F32, noise: NoiseSettings, rng: np.random.Generator
-               ) -> NDArray[np.integer[Any]]:
+def form_image(
+    irr: F32, noise: NoiseSettings, rng: np.random.Generator
+) -> NDArray[np.integer[Any]]:
     """Irradiance (fraction of full well, shape=(H, W)) -> digital frame (uint8 or uint16).
 
     Pixels outside the lit box (irradiance < 1e-4 of full well, i.e. < 1 electron, plus the
@@ -125,8 +135,7 @@ def form_image(irr: F32, noise: NoiseSettings, rng: np.random.Generator
     img = np.asarray(irr, dtype=np.float32)
     box = lit_box(img, LIT_THRESHOLD, margin_px(noise))
     shape = (img.shape[0], img.shape[1])
-    return form_image_in_box(shape, box, img[box] if box is not None else img[:0, :0], noise,
-                             rng)
+    return form_image_in_box(shape, box, img[box] if box is not None else img[:0, :0], noise, rng)
 
 
 def _form(irr: F32, noise: NoiseSettings, rng: np.random.Generator) -> NDArray[np.integer[Any]]:

@@ -52,8 +52,10 @@ class TrueSensor:
     axis_dir: F64 = field(default_factory=lambda: _unit(np.array([0.0, 1.0, 0.01])))
     fan_dir: F64 = field(default_factory=lambda: np.array([-1.0, 0.0, 0.0]))
     out_dir0: F64 = field(
-        default_factory=lambda: np.array([-math.sin(math.radians(30)), 0.0,
-                                          math.cos(math.radians(30))]))
+        default_factory=lambda: np.array(
+            [-math.sin(math.radians(30)), 0.0, math.cos(math.radians(30))]
+        )
+    )
     mirror_offset_mm: float = 0.0
     angle_poly_rad: F64 = field(default_factory=lambda: np.radians([0.0, 1.0, 0.004, 0.0]))
 

@@ -41,9 +41,14 @@ class CalibrationSet:
     target_poses: list[F64]
 
 
-def render_calibration_set(sensor: TrueSensor, rng: np.random.Generator, *,
-                           n_chessboards: int = 12, n_targets: int = 4,
-                           n_commands: int = 15) -> CalibrationSet:
+def render_calibration_set(
+    sensor: TrueSensor,
+    rng: np.random.Generator,
+    *,
+    n_chessboards: int = 12,
+    n_targets: int = 4,
+    n_commands: int = 15,
+) -> CalibrationSet:
     """Chessboards at 115-132 mm tilted up to 25 deg; flat targets at 118-134 mm tilted 10-15
     deg about alternating axes (never parallel), each swept with the same commands."""
     boards, board_poses = [], []
@@ -62,5 +67,10 @@ def render_calibration_set(sensor: TrueSensor, rng: np.random.Generator, *,
         frames, _, _ = render_plane_sweep(T, sensor, rng, commands_v=cmds)
         targets.append((render_chessboard(T, sensor, rng)[0], frames))
         target_poses.append(T)
-    return CalibrationSet(chessboards=boards, targets=targets, commands_v=cmds,
-                          chessboard_poses=board_poses, target_poses=target_poses)
+    return CalibrationSet(
+        chessboards=boards,
+        targets=targets,
+        commands_v=cmds,
+        chessboard_poses=board_poses,
+        target_poses=target_poses,
+    )

@@ -110,20 +110,36 @@ class RmiController(LineServer):
 
     def _reply(self, kind: str, name: str, msg: dict[str, Any]) -> dict[str, Any]:
         if name == "FRC_Connect":
-            return {"ErrorID": 0, "PortNumber": self.session_port, "MajorVersion": 1,
-                    "MinorVersion": 0}
+            return {
+                "ErrorID": 0,
+                "PortNumber": self.session_port,
+                "MajorVersion": 1,
+                "MinorVersion": 0,
+            }
         if name == "FRC_Disconnect":
             return {"ErrorID": 0}
         if name == "FRC_GetStatus":
-            return {"ErrorID": 0, "ServoReady": 0 if self.alarm else 1, "TPMode": 1,
-                    "RMIMotionStatus": 1 if self._initialized else 0, "ProgramStatus": 0,
-                    "SingleStepMode": 0, "NumberUTool": 10, "NextSequenceID": self._next_seq,
-                    "NumberUFrame": 9, "Override": self.override_pct}
+            return {
+                "ErrorID": 0,
+                "ServoReady": 0 if self.alarm else 1,
+                "TPMode": 1,
+                "RMIMotionStatus": 1 if self._initialized else 0,
+                "ProgramStatus": 0,
+                "SingleStepMode": 0,
+                "NumberUTool": 10,
+                "NextSequenceID": self._next_seq,
+                "NumberUFrame": 9,
+                "Override": self.override_pct,
+            }
         if name == "FRC_ReadJointAngles":
             q = self.world.joints_deg()
             angles = {j: float(v) for j, v in zip(JOINTS, q, strict=True)}
-            return {"ErrorID": 0, "TimeTag": 0, "Group": 1,
-                    "JointAngle": angles | {"J7": 0.0, "J8": 0.0, "J9": 0.0}}
+            return {
+                "ErrorID": 0,
+                "TimeTag": 0,
+                "Group": 1,
+                "JointAngle": angles | {"J7": 0.0, "J8": 0.0, "J9": 0.0},
+            }
         if name == "FRC_Initialize":
             if self.alarm:
                 return {"ErrorID": ERR_ALARM, "GroupMask": 1}
@@ -150,8 +166,9 @@ class RmiController(LineServer):
         name, seq = msg.get("Instruction"), msg.get("SequenceID")
         error = self._check_instruction(msg)
         if error:
-            self._spawn(self._send(writer, {"Instruction": name, "ErrorID": error,
-                                            "SequenceID": seq}))
+            self._spawn(
+                self._send(writer, {"Instruction": name, "ErrorID": error, "SequenceID": seq})
+            )
             return
         self._next_seq += 1
         target = np.array([float(msg["JointAngle"][j]) for j in JOINTS])
@@ -200,16 +217,18 @@ class RmiController(LineServer):
                 return
             await asyncio.sleep(duration / steps)
             self.world.set_joints_deg(start + (target - start) * i / steps)
-        await self._send(writer, {"Instruction": "FRC_JointMotionJRep", "ErrorID": 0,
-                                  "SequenceID": seq})
+        await self._send(
+            writer, {"Instruction": "FRC_JointMotionJRep", "ErrorID": 0, "SequenceID": seq}
+        )
 
     async def _system_fault(self) -> None:
         self.alarm, self._initialized = True, False
         current = asyncio.current_task()
         if self._motion is not None and self._motion is not current:
             self._motion.cancel()
-        await self._broadcast({"Communication": "FRC_SystemFault",
-                               "SequenceID": self._next_seq - 1})
+        await self._broadcast(
+            {"Communication": "FRC_SystemFault", "SequenceID": self._next_seq - 1}
+        )
 
     def _stop_motion(self) -> None:
         if self._motion is not None:

@@ -47,8 +47,10 @@ class TrackerService(LineServer):
             req = json.loads(line)
             assert isinstance(req, dict)
         except (json.JSONDecodeError, AssertionError):
-            await self._send(writer, {"id": None, "ok": False,
-                                      "error": {"code": E_BAD_REQUEST, "message": "bad JSON"}})
+            await self._send(
+                writer,
+                {"id": None, "ok": False, "error": {"code": E_BAD_REQUEST, "message": "bad JSON"}},
+            )
             return True
         self.requests.append(req)
         cmd = str(req.get("cmd"))
@@ -66,8 +68,12 @@ class TrackerService(LineServer):
 
     def _answer(self, cmd: str, req: dict[str, Any]) -> dict[str, Any]:
         if cmd == "hello":
-            return {"ok": True, "protocol": PROTOCOL, "tracker": "rvis fake tracker",
-                    "serial": "FAKE-0001"}
+            return {
+                "ok": True,
+                "protocol": PROTOCOL,
+                "tracker": "rvis fake tracker",
+                "serial": "FAKE-0001",
+            }
         if cmd == "status":
             return {"ok": True, "ready": True, "target_in_beam": self.in_beam, "detail": ""}
         if cmd == "targets":
@@ -76,14 +82,28 @@ class TrackerService(LineServer):
             if not self.in_beam:
                 return _error(E_NOT_IN_BEAM, "target not in beam")
             try:
-                m = measure_target(self.world, str(req.get("target")), self.rng, self.noise_mm,
-                                   self.temperature_c, self.pressure_hpa)
+                m = measure_target(
+                    self.world,
+                    str(req.get("target")),
+                    self.rng,
+                    self.noise_mm,
+                    self.temperature_c,
+                    self.pressure_hpa,
+                )
             except DeviceFault as exc:
                 return _error(E_UNKNOWN_TARGET, str(exc))
             x, y, z = (float(v) for v in m.point_mm)
-            return {"ok": True, "target": m.target_id, "x_mm": x, "y_mm": y, "z_mm": z,
-                    "rms_mm": m.rms_mm, "time_utc": m.time_utc,
-                    "temperature_c": m.temperature_c, "pressure_hpa": m.pressure_hpa}
+            return {
+                "ok": True,
+                "target": m.target_id,
+                "x_mm": x,
+                "y_mm": y,
+                "z_mm": z,
+                "rms_mm": m.rms_mm,
+                "time_utc": m.time_utc,
+                "temperature_c": m.temperature_c,
+                "pressure_hpa": m.pressure_hpa,
+            }
         return _error(E_UNKNOWN_COMMAND, f"unknown command {cmd!r}")
 
 

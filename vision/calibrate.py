@@ -50,17 +50,22 @@ class Chessboard:
 def find_corners(image: Image, board: Chessboard) -> NDArray[np.float32] | None:
     """Sub-pixel chessboard corners shape=(n, 1, 2), or None when the board is not found."""
     raw = np.asarray(image, dtype=np.float64)
-    img8 = np.asarray(image, dtype=np.uint8) if image.dtype == np.uint8 else np.asarray(
-        np.clip(raw * (255.0 / max(float(raw.max()), 1.0)), 0, 255), dtype=np.uint8)
+    img8 = (
+        np.asarray(image, dtype=np.uint8)
+        if image.dtype == np.uint8
+        else np.asarray(np.clip(raw * (255.0 / max(float(raw.max()), 1.0)), 0, 255), dtype=np.uint8)
+    )
     found, corners = cv2.findChessboardCorners(
-        img8, board.pattern, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
+        img8, board.pattern, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+    )
     if not found:
         return None
     return np.asarray(cv2.cornerSubPix(img8, corners, (5, 5), (-1, -1), _SUBPIX))
 
 
-def calibrate_camera(images: Sequence[Image], board: Chessboard | None = None,
-                     fix_k3: bool = True) -> tuple[CameraModel, list[int]]:
+def calibrate_camera(
+    images: Sequence[Image], board: Chessboard | None = None, fix_k3: bool = True
+) -> tuple[CameraModel, list[int]]:
     """Intrinsics from chessboard images (all the same size).
 
     fix_k3: keep k3 = 0; with a 16 mm lens (+-8.7 deg field) k3 is not observable and trades
@@ -81,17 +86,25 @@ def calibrate_camera(images: Sequence[Image], board: Chessboard | None = None,
             img.append(corners)
             used.append(i)
     if len(used) < 5:
-        raise CalibrationFailed(f"chessboard {board.pattern} found in {len(used)} of "
-                                f"{len(images)} images, at least 5 needed")
+        raise CalibrationFailed(
+            f"chessboard {board.pattern} found in {len(used)} of "
+            f"{len(images)} images, at least 5 needed"
+        )
     flags = cv2.CALIB_FIX_K3 if fix_k3 else 0
     rms, K, dist, _, _ = cv2.calibrateCamera(obj, img, (w, h), None, None, flags=flags)
-    camera = CameraModel(K=np.asarray(K, np.float64), dist=np.asarray(dist, np.float64).ravel()[:5],
-                         width_px=w, height_px=h, rms_reprojection_px=float(rms))
+    camera = CameraModel(
+        K=np.asarray(K, np.float64),
+        dist=np.asarray(dist, np.float64).ravel()[:5],
+        width_px=w,
+        height_px=h,
+        rms_reprojection_px=float(rms),
+    )
     return camera, used
 
 
-def target_plane(image: Image, camera: CameraModel, board: Chessboard | None = None
-                 ) -> tuple[F64, float]:
+def target_plane(
+    image: Image, camera: CameraModel, board: Chessboard | None = None
+) -> tuple[F64, float]:
     """The target's plane n . X = d in the camera frame (n toward the camera's +z side)."""
     board = board or Chessboard()
     corners = find_corners(image, board)
@@ -114,8 +127,13 @@ def _fit_plane(X: F64) -> tuple[F64, float, float]:
     return n, float(n @ m), float(s[2] / np.sqrt(len(X)))
 
 
-def laser_points(frames: Sequence[Image], plane: tuple[F64, float], camera: CameraModel,
-                 mode: str = "fast", settings: StripeSettings | None = None) -> list[F64]:
+def laser_points(
+    frames: Sequence[Image],
+    plane: tuple[F64, float],
+    camera: CameraModel,
+    mode: str = "fast",
+    settings: StripeSettings | None = None,
+) -> list[F64]:
     """Stripe points of each frame of a target sweep, on the target plane: list of (n_i, 3)."""
     out = []
     for frame in frames:
@@ -126,16 +144,18 @@ def laser_points(frames: Sequence[Image], plane: tuple[F64, float], camera: Came
     return out
 
 
-def calibrate_laser(points_per_pose: Sequence[Sequence[F64]], commands_v: F64,
-                    min_points: int = 200) -> LaserModel:
+def calibrate_laser(
+    points_per_pose: Sequence[Sequence[F64]], commands_v: F64, min_points: int = 200
+) -> LaserModel:
     """Laser model from target sweeps: points_per_pose[k][i] are the 3D points [mm, camera
     frame] of command commands_v[i] on target pose k (all poses swept with the same commands).
     """
     cmds = np.asarray(commands_v, dtype=np.float64)
     normals, offsets, used, rms = [], [], [], []
     for i in range(len(cmds)):
-        X = np.concatenate([pose[i] for pose in points_per_pose if len(pose[i])] or
-                           [np.zeros((0, 3))])
+        X = np.concatenate(
+            [pose[i] for pose in points_per_pose if len(pose[i])] or [np.zeros((0, 3))]
+        )
         lines = sum(1 for pose in points_per_pose if len(pose[i]) >= 20)
         if len(X) < min_points or lines < 2:
             continue
@@ -145,8 +165,10 @@ def calibrate_laser(points_per_pose: Sequence[Sequence[F64]], commands_v: F64,
         used.append(cmds[i])
         rms.append(r)
     if len(used) < 5:
-        raise CalibrationFailed(f"laser planes determined for {len(used)} commands, "
-                                "at least 5 needed (two non-parallel target poses per command)")
+        raise CalibrationFailed(
+            f"laser planes determined for {len(used)} commands, "
+            "at least 5 needed (two non-parallel target poses per command)"
+        )
     N, D, C = np.array(normals), np.array(offsets), np.array(used)
     _, _, vt = np.linalg.svd(N)
     u = vt[2] if vt[2][1] >= 0 else -vt[2]
@@ -157,5 +179,10 @@ def calibrate_laser(points_per_pose: Sequence[Sequence[F64]], commands_v: F64,
     n0 = rotate_about_axis(base, u, float(coef[0]))
     poly = np.concatenate([[0.0], coef[1:] / 2.0])
     n0 = n0 - u * (u @ n0)
-    return LaserModel(axis_point_mm=p, axis_dir=u, ref_normal=n0 / np.linalg.norm(n0),
-                      angle_poly_rad=poly, rms_plane_mm=float(np.sqrt(np.mean(np.square(rms)))))
+    return LaserModel(
+        axis_point_mm=p,
+        axis_dir=u,
+        ref_normal=n0 / np.linalg.norm(n0),
+        angle_poly_rad=poly,
+        rms_plane_mm=float(np.sqrt(np.mean(np.square(rms)))),
+    )

@@ -19,10 +19,15 @@ from vision.sensor_model import SensorModel
 Image = NDArray[np.generic]
 
 
-def calibrate_sensor(chessboards: Sequence[Image],
-                     targets: Sequence[tuple[Image, Sequence[Image]]],
-                     commands_v: NDArray[np.float64], *, board: Chessboard | None = None,
-                     mode: str = "fast", name: str = "calibrated") -> SensorModel:
+def calibrate_sensor(
+    chessboards: Sequence[Image],
+    targets: Sequence[tuple[Image, Sequence[Image]]],
+    commands_v: NDArray[np.float64],
+    *,
+    board: Chessboard | None = None,
+    mode: str = "fast",
+    name: str = "calibrated",
+) -> SensorModel:
     """Calibrate the sensor.
 
     chessboards: images for the intrinsics; targets: per flat-target pose, its chessboard image

@@ -66,18 +66,28 @@ def measure_sphere_from_sweep(
     cam = sensor_model.camera
     for i, f in enumerate(frames):
         if f.shape != (cam.height_px, cam.width_px):
-            raise ValueError(f"frame {i} has shape {f.shape}, the sensor model expects "
-                             f"{(cam.height_px, cam.width_px)}")
+            raise ValueError(
+                f"frame {i} has shape {f.shape}, the sensor model expects "
+                f"{(cam.height_px, cam.width_px)}"
+            )
     stripes = [extract_stripe(np.asarray(f), mode, stripe_settings) for f in frames]
     n_sat = sum(s.n_saturated for s in stripes)
     n_multi = sum(s.n_multi_peak for s in stripes)
     n_wide = sum(s.n_too_wide for s in stripes)
     if sum(len(s) for s in stripes) == 0:
-        raise NoStripe(f"no valid stripe in {len(frames)} frames (rows rejected: {n_sat} "
-                       f"saturated, {n_multi} multi-peak, {n_wide} too wide)")
+        raise NoStripe(
+            f"no valid stripe in {len(frames)} frames (rows rejected: {n_sat} "
+            f"saturated, {n_multi} multi-peak, {n_wide} too wide)"
+        )
     X, _ = triangulate_sweep(stripes, cmds, sensor_model)
     fit = fit_sphere(X, certified_radius_mm, thresholds)
     return SphereMeasurement(
-        c_sensor_mm=fit.centre_mm, cov_mm2=fit.cov_mm2, radius_mm=fit.radius_mm,
-        quality=fit.quality, n_frames_used=sum(1 for s in stripes if len(s) > 0),
-        n_saturated=n_sat, n_multi_peak=n_multi, n_too_wide=n_wide)
+        c_sensor_mm=fit.centre_mm,
+        cov_mm2=fit.cov_mm2,
+        radius_mm=fit.radius_mm,
+        quality=fit.quality,
+        n_frames_used=sum(1 for s in stripes if len(s) > 0),
+        n_saturated=n_sat,
+        n_multi_peak=n_multi,
+        n_too_wide=n_wide,
+    )

@@ -108,9 +108,7 @@ def rotate_about_axis(v: F64, axis: F64, angle_rad: F64 | float) -> F64:
     """Rodrigues: rotate vector v shape=(3,) about unit `axis` by angle(s); shape=(..., 3)."""
     a = np.asarray(angle_rad, dtype=np.float64)[..., None]
     k = axis / np.linalg.norm(axis)
-    return np.asarray(
-        v * np.cos(a) + np.cross(k, v) * np.sin(a) + k * (k @ v) * (1.0 - np.cos(a))
-    )
+    return np.asarray(v * np.cos(a) + np.cross(k, v) * np.sin(a) + k * (k @ v) * (1.0 - np.cos(a)))
 
 
 def default_sensor_model() -> SensorModel:
@@ -177,13 +175,22 @@ def sensor_model_from_dict(doc: dict[str, Any]) -> SensorModel:
     fx, fy = _num(cam, "fx_px", "camera"), _num(cam, "fy_px", "camera")
     if fx <= 0 or fy <= 0:
         raise SensorFileError("focal lengths must be positive", field="camera.fx_px")
-    K = np.array([[fx, 0.0, _num(cam, "cx_px", "camera")],
-                  [0.0, fy, _num(cam, "cy_px", "camera")], [0.0, 0.0, 1.0]])
+    K = np.array(
+        [
+            [fx, 0.0, _num(cam, "cx_px", "camera")],
+            [0.0, fy, _num(cam, "cy_px", "camera")],
+            [0.0, 0.0, 1.0],
+        ]
+    )
     width, height = _num(cam, "width_px", "camera"), _num(cam, "height_px", "camera")
     rms_px = cam.get("rms_reprojection_px")
-    camera = CameraModel(K=K, dist=_vec(cam, "dist", 5, "camera"), width_px=int(width),
-                         height_px=int(height),
-                         rms_reprojection_px=None if rms_px is None else float(rms_px))
+    camera = CameraModel(
+        K=K,
+        dist=_vec(cam, "dist", 5, "camera"),
+        width_px=int(width),
+        height_px=int(height),
+        rms_reprojection_px=None if rms_px is None else float(rms_px),
+    )
     axis_dir = _unit(_vec(las, "axis_dir", 3, "laser"), "laser.axis_dir")
     n0 = _unit(_vec(las, "ref_normal", 3, "laser"), "laser.ref_normal")
     if abs(float(n0 @ axis_dir)) > 1e-3:
@@ -191,18 +198,24 @@ def sensor_model_from_dict(doc: dict[str, Any]) -> SensorModel:
     n0 = _unit(n0 - axis_dir * (n0 @ axis_dir), "laser.ref_normal")
     poly = _vec(las, "angle_poly_deg", 0, "laser")
     rms_mm = las.get("rms_plane_mm")
-    laser = LaserModel(axis_point_mm=_vec(las, "axis_point_mm", 3, "laser"), axis_dir=axis_dir,
-                       ref_normal=n0, angle_poly_rad=np.radians(poly),
-                       rms_plane_mm=None if rms_mm is None else float(rms_mm))
+    laser = LaserModel(
+        axis_point_mm=_vec(las, "axis_point_mm", 3, "laser"),
+        axis_dir=axis_dir,
+        ref_normal=n0,
+        angle_poly_rad=np.radians(poly),
+        rms_plane_mm=None if rms_mm is None else float(rms_mm),
+    )
     T = np.eye(4)
     sensor = doc.get("sensor", {})
     if isinstance(sensor, dict) and "T_sensor_camera" in sensor:
         T = np.asarray(sensor["T_sensor_camera"], dtype=np.float64)
         if T.shape != (4, 4) or not np.allclose(T[3], [0, 0, 0, 1]):
-            raise SensorFileError("expected a 4x4 homogeneous matrix",
-                                  field="sensor.T_sensor_camera")
-    return SensorModel(camera=camera, laser=laser, T_sensor_camera=T,
-                       name=str(doc.get("name", "unnamed")))
+            raise SensorFileError(
+                "expected a 4x4 homogeneous matrix", field="sensor.T_sensor_camera"
+            )
+    return SensorModel(
+        camera=camera, laser=laser, T_sensor_camera=T, name=str(doc.get("name", "unnamed"))
+    )
 
 
 def load_sensor_model(path: str | Path) -> SensorModel:
@@ -223,16 +236,29 @@ def _fmt(values: F64) -> str:
 def dumps_sensor_model(model: SensorModel) -> str:
     """The model as `rvis-sensor/1` TOML text (floats written with full precision)."""
     K, cam, las = model.camera.K, model.camera, model.laser
-    lines = [f'format = "{FORMAT}"', f"name = {json.dumps(model.name)}", "",
-             "[camera]", f"width_px = {cam.width_px}", f"height_px = {cam.height_px}",
-             f"fx_px = {float(K[0, 0])!r}", f"fy_px = {float(K[1, 1])!r}",
-             f"cx_px = {float(K[0, 2])!r}",
-             f"cy_px = {float(K[1, 2])!r}", f"dist = {_fmt(cam.dist)}"]
+    lines = [
+        f'format = "{FORMAT}"',
+        f"name = {json.dumps(model.name)}",
+        "",
+        "[camera]",
+        f"width_px = {cam.width_px}",
+        f"height_px = {cam.height_px}",
+        f"fx_px = {float(K[0, 0])!r}",
+        f"fy_px = {float(K[1, 1])!r}",
+        f"cx_px = {float(K[0, 2])!r}",
+        f"cy_px = {float(K[1, 2])!r}",
+        f"dist = {_fmt(cam.dist)}",
+    ]
     if cam.rms_reprojection_px is not None:
         lines.append(f"rms_reprojection_px = {cam.rms_reprojection_px!r}")
-    lines += ["", "[laser]", f"axis_point_mm = {_fmt(las.axis_point_mm)}",
-              f"axis_dir = {_fmt(las.axis_dir)}", f"ref_normal = {_fmt(las.ref_normal)}",
-              f"angle_poly_deg = {_fmt(np.degrees(las.angle_poly_rad))}"]
+    lines += [
+        "",
+        "[laser]",
+        f"axis_point_mm = {_fmt(las.axis_point_mm)}",
+        f"axis_dir = {_fmt(las.axis_dir)}",
+        f"ref_normal = {_fmt(las.ref_normal)}",
+        f"angle_poly_deg = {_fmt(np.degrees(las.angle_poly_rad))}",
+    ]
     if las.rms_plane_mm is not None:
         lines.append(f"rms_plane_mm = {las.rms_plane_mm!r}")
     rows = ", ".join(_fmt(row) for row in model.T_sensor_camera)

@@ -102,8 +102,9 @@ def _weights(r: F64, scale: float, *, cauchy: bool) -> F64:
     return np.asarray(1.0 / np.sqrt(1.0 + (r / (2.0 * scale)) ** 2))
 
 
-def fit_sphere_geometric(X: F64, centre0: F64, radius_mm: float, *, fixed_radius: bool,
-                         max_iter: int = 30) -> tuple[F64, float, F64, F64, int]:
+def fit_sphere_geometric(
+    X: F64, centre0: F64, radius_mm: float, *, fixed_radius: bool, max_iter: int = 30
+) -> tuple[F64, float, F64, F64, int]:
     """Robust geometric fit minimising sum rho(|X - c| - R) by IRLS (see `_weights`).
 
     Returns centre, radius, final residuals shape=(n,), the weighted normal matrix inverse
@@ -118,8 +119,11 @@ def fit_sphere_geometric(X: F64, centre0: F64, radius_mm: float, *, fixed_radius
         if it == 1 or it % 3 == 0:
             scale = _robust_scale(r)
         w = _weights(r, scale, cauchy=it > 4)
-        J = -D / d[:, None] if fixed_radius else np.column_stack([-D / d[:, None],
-                                                                  -np.ones(len(d))])
+        J = (
+            -D / d[:, None]
+            if fixed_radius
+            else np.column_stack([-D / d[:, None], -np.ones(len(d))])
+        )
         JW = J * w[:, None]
         step = np.linalg.solve(JW.T @ J, -(JW.T @ r))
         c += step[:3]
@@ -152,8 +156,9 @@ def _correlation_inflation(r: F64) -> float:
     return (1.0 + rho) / (1.0 - rho)
 
 
-def fit_sphere(X: F64, certified_radius_mm: float | None = None,
-               thresholds: FitThresholds | None = None) -> SphereFit:
+def fit_sphere(
+    X: F64, certified_radius_mm: float | None = None, thresholds: FitThresholds | None = None
+) -> SphereFit:
     """Fit a sphere to points X shape=(n, 3) [mm] (ordered as acquired) and check its quality.
 
     With a certified radius the reported centre is the fixed-radius fit and the free fit is the
@@ -167,18 +172,24 @@ def fit_sphere(X: F64, certified_radius_mm: float | None = None,
     c, radius, cov_c = c_free, r_free, cov[:3, :3]
     shift, dev = 0.0, 0.0
     if certified_radius_mm is not None:
-        c, radius, res, cov_c, it2 = fit_sphere_geometric(X, c_free, certified_radius_mm,
-                                                          fixed_radius=True)
+        c, radius, res, cov_c, it2 = fit_sphere_geometric(
+            X, c_free, certified_radius_mm, fixed_radius=True
+        )
         iters += it2
         shift = float(np.linalg.norm(c - c_free))
         dev = r_free - certified_radius_mm
     scale = _robust_scale(res)
     inl = np.abs(res) < 4.0 * scale
     quality = FitQuality(
-        n_points=len(X), n_inliers=int(inl.sum()),
+        n_points=len(X),
+        n_inliers=int(inl.sum()),
         rms_mm=float(np.sqrt(np.mean(res[inl] ** 2))) if inl.any() else float("inf"),
         coverage_deg=_coverage_deg(X[inl], c) if inl.any() else 0.0,
-        radius_free_mm=r_free, radius_dev_mm=dev, centre_shift_mm=shift, iterations=iters)
+        radius_free_mm=r_free,
+        radius_dev_mm=dev,
+        centre_shift_mm=shift,
+        iterations=iters,
+    )
     _check(quality, th)
     cov_c = cov_c * _correlation_inflation(res)
     return SphereFit(centre_mm=c, radius_mm=radius, cov_mm2=cov_c, quality=quality)
@@ -188,15 +199,23 @@ def _check(q: FitQuality, th: FitThresholds) -> None:
     """Raise SphereFitRejected naming the first failed threshold."""
     checks = [
         (q.n_inliers >= th.min_points, f"{q.n_inliers} inliers < {th.min_points}"),
-        (q.n_inliers >= th.min_inlier_fraction * q.n_points,
-         f"inlier fraction {q.n_inliers / max(q.n_points, 1):.2f} < {th.min_inlier_fraction}"),
+        (
+            q.n_inliers >= th.min_inlier_fraction * q.n_points,
+            f"inlier fraction {q.n_inliers / max(q.n_points, 1):.2f} < {th.min_inlier_fraction}",
+        ),
         (q.rms_mm <= th.max_rms_mm, f"RMS residual {q.rms_mm:.4f} mm > {th.max_rms_mm}"),
-        (q.coverage_deg >= th.min_coverage_deg,
-         f"cap coverage {q.coverage_deg:.1f} deg < {th.min_coverage_deg}"),
-        (abs(q.radius_dev_mm) <= th.max_radius_dev_mm,
-         f"free radius deviates {q.radius_dev_mm:+.4f} mm from the certified radius"),
-        (q.centre_shift_mm <= th.max_centre_shift_mm,
-         f"free and certified-radius centres differ by {q.centre_shift_mm:.4f} mm"),
+        (
+            q.coverage_deg >= th.min_coverage_deg,
+            f"cap coverage {q.coverage_deg:.1f} deg < {th.min_coverage_deg}",
+        ),
+        (
+            abs(q.radius_dev_mm) <= th.max_radius_dev_mm,
+            f"free radius deviates {q.radius_dev_mm:+.4f} mm from the certified radius",
+        ),
+        (
+            q.centre_shift_mm <= th.max_centre_shift_mm,
+            f"free and certified-radius centres differ by {q.centre_shift_mm:.4f} mm",
+        ),
     ]
     for ok, reason in checks:
         if not ok:

@@ -78,8 +78,9 @@ def _empty() -> StripePoints:
     return StripePoints(z, z, z, z)
 
 
-def extract_fast(frame: NDArray[np.generic], settings: StripeSettings | None = None
-                 ) -> StripePoints:
+def extract_fast(
+    frame: NDArray[np.generic], settings: StripeSettings | None = None
+) -> StripePoints:
     """Windowed grey centroid per row, background-subtracted; see the module docstring."""
     s = settings or StripeSettings()
     h, w = frame.shape
@@ -132,8 +133,11 @@ def _derivative_kernels(sigma: float) -> tuple[F64, F64, F64]:
     return g, g1, g2
 
 
-def extract_precise(frame: NDArray[np.generic], settings: StripeSettings | None = None,
-                    coarse: StripePoints | None = None) -> StripePoints:
+def extract_precise(
+    frame: NDArray[np.generic],
+    settings: StripeSettings | None = None,
+    coarse: StripePoints | None = None,
+) -> StripePoints:
     """Steger's Hessian method in the band around the fast result (same rows, same rejections).
 
     Returns points whose (u, v) is the sub-pixel line centre along the local normal.
@@ -179,13 +183,20 @@ def extract_precise(frame: NDArray[np.generic], settings: StripeSettings | None 
         best_u = np.where(better, uu + px + c0, best_u)
         best_v = np.where(better, vv + py + r0, best_v)
     good = best_off <= 0.6
-    return StripePoints(u_px=best_u[good], v_px=best_v[good], peak_dn=fast.peak_dn[good],
-                        width_px=fast.width_px[good], n_saturated=fast.n_saturated,
-                        n_multi_peak=fast.n_multi_peak, n_too_wide=fast.n_too_wide)
+    return StripePoints(
+        u_px=best_u[good],
+        v_px=best_v[good],
+        peak_dn=fast.peak_dn[good],
+        width_px=fast.width_px[good],
+        n_saturated=fast.n_saturated,
+        n_multi_peak=fast.n_multi_peak,
+        n_too_wide=fast.n_too_wide,
+    )
 
 
-def extract_stripe(frame: NDArray[np.generic], mode: str = "fast",
-                   settings: StripeSettings | None = None) -> StripePoints:
+def extract_stripe(
+    frame: NDArray[np.generic], mode: str = "fast", settings: StripeSettings | None = None
+) -> StripePoints:
     """Stripe points of one frame shape=(H, W); mode "fast" or "precise"."""
     if frame.ndim != 2:
         raise ValueError(f"frame must be 2-D, got shape {frame.shape}")

@@ -23,8 +23,16 @@ def pixel_rays(camera: CameraModel, uv_px: F64) -> F64:
         return np.zeros((0, 3))
     pts = np.ascontiguousarray(uv_px, dtype=np.float64).reshape(-1, 1, 2)
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
-    xy = np.asarray(cv2.undistortPointsIter(pts, camera.K, camera.dist, None, None,  # type: ignore[call-overload]
-                                           crit)).reshape(-1, 2)
+    xy = np.asarray(
+        cv2.undistortPointsIter(
+            pts,
+            camera.K,
+            camera.dist,
+            None,
+            None,  # type: ignore[call-overload]
+            crit,
+        )
+    ).reshape(-1, 2)
     return np.column_stack([xy, np.ones(len(xy))])
 
 
@@ -36,8 +44,9 @@ def intersect_planes(rays: F64, normals: F64, offsets: F64) -> F64:
     return np.asarray(rays * t[:, None])
 
 
-def triangulate_sweep(stripes: list[StripePoints], commands_v: F64,
-                      model: SensorModel) -> tuple[F64, NDArray[np.intp]]:
+def triangulate_sweep(
+    stripes: list[StripePoints], commands_v: F64, model: SensorModel
+) -> tuple[F64, NDArray[np.intp]]:
     """All stripe points of a sweep as 3D points in S.
 
     stripes: one StripePoints per frame; commands_v: shape=(n_frames,) [V].
@@ -46,12 +55,16 @@ def triangulate_sweep(stripes: list[StripePoints], commands_v: F64,
     """
     if len(stripes) != len(commands_v):
         raise ValueError(f"{len(stripes)} frames but {len(commands_v)} commands")
-    frame_of = np.concatenate([np.full(len(s), i, dtype=np.intp) for i, s in enumerate(stripes)]
-                              ) if stripes else np.zeros(0, dtype=np.intp)
+    frame_of = (
+        np.concatenate([np.full(len(s), i, dtype=np.intp) for i, s in enumerate(stripes)])
+        if stripes
+        else np.zeros(0, dtype=np.intp)
+    )
     if frame_of.size == 0:
         return np.zeros((0, 3)), frame_of
-    uv = np.column_stack([np.concatenate([s.u_px for s in stripes]),
-                          np.concatenate([s.v_px for s in stripes])])
+    uv = np.column_stack(
+        [np.concatenate([s.u_px for s in stripes]), np.concatenate([s.v_px for s in stripes])]
+    )
     normals, offsets = model.laser.planes(np.asarray(commands_v, dtype=np.float64))
     rays = pixel_rays(model.camera, uv)
     X_cam = intersect_planes(rays, normals[frame_of], offsets[frame_of])

@@ -37,9 +37,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "(fixed, default), with the spheres placed by PSO one by one as in the paper "
         "(sequential) or jointly; none: random configurations only",
     )
-    p.add_argument("--geometric", action="store_true",
-                   help="fast geometric measurements (true centre plus noise) instead of "
-                        "rendered sweeps measured by the vision pipeline")
+    p.add_argument(
+        "--geometric",
+        action="store_true",
+        help="fast geometric measurements (true centre plus noise) instead of "
+        "rendered sweeps measured by the vision pipeline",
+    )
     p.add_argument(
         "--sensor-model",
         choices=("calibrated", "truth"),
@@ -47,8 +50,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="rendered path: measure with a sensor model calibrated from rendered chessboards "
         "and target sweeps (default, as on the line) or with the simulated truth",
     )
-    p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
-                   help="processes rendering sweeps (default: up to 2)")
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=min(2, os.cpu_count() or 1),
+        help="processes rendering sweeps (default: up to 2)",
+    )
     p.set_defaults(func=run)
 
 

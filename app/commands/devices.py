@@ -73,8 +73,9 @@ def read_cell_devices(path: Path) -> dict[str, str]:
         raise InputError("missing or empty [devices] table", file=path, field="devices")
     for key, url in table.items():
         if key not in FAMILIES:
-            raise InputError(f"unknown device; one of {', '.join(FAMILIES)}", file=path,
-                             field=f"devices.{key}")
+            raise InputError(
+                f"unknown device; one of {', '.join(FAMILIES)}", file=path, field=f"devices.{key}"
+            )
         if not isinstance(url, str):
             raise InputError("must be a URL string", file=path, field=f"devices.{key}")
     return dict(table)
@@ -111,7 +112,11 @@ def _start_peers(world: StaticWorld, stack: ExitStack) -> list[tuple[str, str, s
 
 
 def _check(
-    family: str, url: str, skip: str | None, world: StaticWorld, timeout: float,
+    family: str,
+    url: str,
+    skip: str | None,
+    world: StaticWorld,
+    timeout: float,
     cell: Path | None,
 ) -> Row:
     if skip:

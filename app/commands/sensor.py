@@ -53,8 +53,12 @@ def register(subparsers: Any) -> None:
     mea = sub.add_parser("measure", help="measure a sphere centre from one recorded sweep")
     mea.add_argument("sweep_dir", type=Path, help="folder with commands.csv and the PNG frames")
     mea.add_argument("--sensor", type=Path, help="sensor calibration TOML (default: simulated)")
-    mea.add_argument("--radius-mm", type=float, default=15.0,
-                     help="certified sphere radius [mm]; 0 fits a free radius")
+    mea.add_argument(
+        "--radius-mm",
+        type=float,
+        default=15.0,
+        help="certified sphere radius [mm]; 0 fits a free radius",
+    )
     mea.add_argument("--mode", choices=["fast", "precise"], default="fast")
     mea.add_argument("--json", action="store_true", help="print the result as JSON")
     mea.set_defaults(func=run_measure)
@@ -91,8 +95,9 @@ def read_sweep(sweep_dir: Path) -> tuple[list[NDArray[np.generic]], NDArray[np.f
             try:
                 value = float(row[1])
             except ValueError:
-                raise InputError(f"not a number: {row[1]!r}", file=csv_path, line=line,
-                                 field="command_v") from None
+                raise InputError(
+                    f"not a number: {row[1]!r}", file=csv_path, line=line, field="command_v"
+                ) from None
             if not np.isfinite(value):
                 raise InputError("not finite", file=csv_path, line=line, field="command_v")
             frames.append(read_image(sweep_dir / row[0].strip()))
@@ -115,8 +120,11 @@ def _check_size(frames: list[NDArray[np.generic]], model: SensorModel, where: Pa
     want = (model.camera.height_px, model.camera.width_px)
     for frame in frames:
         if frame.shape != want:
-            raise InputError(f"frame size {frame.shape[1]}x{frame.shape[0]} differs from the "
-                             f"sensor's {want[1]}x{want[0]}", file=where)
+            raise InputError(
+                f"frame size {frame.shape[1]}x{frame.shape[0]} differs from the "
+                f"sensor's {want[1]}x{want[0]}",
+                file=where,
+            )
 
 
 def run_measure(args: argparse.Namespace) -> int:
@@ -126,21 +134,33 @@ def run_measure(args: argparse.Namespace) -> int:
     _check_size(frames, model, args.sweep_dir)
     radius = args.radius_mm if args.radius_mm > 0 else None
     try:
-        m = measure_sphere_from_sweep(frames, commands, model, certified_radius_mm=radius,
-                                      mode=args.mode)
+        m = measure_sphere_from_sweep(
+            frames, commands, model, certified_radius_mm=radius, mode=args.mode
+        )
     except VisionError as exc:
         raise QualityError(f"{args.sweep_dir}: measurement rejected: {exc}") from exc
     sigma_um = np.sqrt(np.diag(m.cov_mm2)) * 1000.0
     q = m.quality
     if args.json:
-        print(json.dumps({"c_sensor_mm": m.c_sensor_mm.tolist(), "cov_mm2": m.cov_mm2.tolist(),
-                          "radius_mm": m.radius_mm, "status": m.status,
-                          "quality": q.__dict__, "n_frames_used": m.n_frames_used}))
+        print(
+            json.dumps(
+                {
+                    "c_sensor_mm": m.c_sensor_mm.tolist(),
+                    "cov_mm2": m.cov_mm2.tolist(),
+                    "radius_mm": m.radius_mm,
+                    "status": m.status,
+                    "quality": q.__dict__,
+                    "n_frames_used": m.n_frames_used,
+                }
+            )
+        )
     else:
         x, y, z = m.c_sensor_mm
-        print(f"centre_sensor_mm {x:.4f} {y:.4f} {z:.4f}  sigma_um {sigma_um[0]:.1f} "
-              f"{sigma_um[1]:.1f} {sigma_um[2]:.1f}  points {q.n_points}  rms_um "
-              f"{q.rms_mm * 1000:.1f}  free_radius_mm {q.radius_free_mm:.4f}")
+        print(
+            f"centre_sensor_mm {x:.4f} {y:.4f} {z:.4f}  sigma_um {sigma_um[0]:.1f} "
+            f"{sigma_um[1]:.1f} {sigma_um[2]:.1f}  points {q.n_points}  rms_um "
+            f"{q.rms_mm * 1000:.1f}  free_radius_mm {q.radius_free_mm:.4f}"
+        )
     return 0
 
 
@@ -165,20 +185,29 @@ def run_calibrate(args: argparse.Namespace) -> int:
     for pose_dir in sorted(p for p in target_dir.iterdir() if p.is_dir()):
         frames, cmds = read_sweep(pose_dir)
         if commands is not None and not np.array_equal(cmds, commands):
-            raise InputError("all target sweeps must use the same commands",
-                             file=pose_dir / "commands.csv")
+            raise InputError(
+                "all target sweeps must use the same commands", file=pose_dir / "commands.csv"
+            )
         commands = cmds
         targets.append((read_image(pose_dir / "board.png"), frames))
     if commands is None:
         raise InputError("no target poses found", file=target_dir)
     try:
-        model = calibrate_sensor(boards, targets, commands, board=board, mode=args.mode,
-                                 name=f"calibrated from {args.dir.name}")
+        model = calibrate_sensor(
+            boards,
+            targets,
+            commands,
+            board=board,
+            mode=args.mode,
+            name=f"calibrated from {args.dir.name}",
+        )
     except CalibrationFailed as exc:
         raise InputError(f"calibration failed: {exc}", file=args.dir) from exc
     save_sensor_model(model, args.out)
     K = model.camera.K
-    print(f"wrote {args.out}: fx {K[0, 0]:.2f} px, fy {K[1, 1]:.2f} px, reprojection "
-          f"{model.camera.rms_reprojection_px:.3f} px, laser plane rms "
-          f"{model.laser.rms_plane_mm:.4f} mm")
+    print(
+        f"wrote {args.out}: fx {K[0, 0]:.2f} px, fy {K[1, 1]:.2f} px, reprojection "
+        f"{model.camera.rms_reprojection_px:.3f} px, laser plane rms "
+        f"{model.laser.rms_plane_mm:.4f} mm"
+    )
     return 0

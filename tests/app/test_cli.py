@@ -161,8 +161,9 @@ def test_bad_cell_file(simdir: Path, tmp_path: Path, capsys: pytest.CaptureFixtu
 
 
 def test_demo_writes_a_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    code, out, _ = run(["demo", "--out", str(tmp_path / "run"), "--validation", "30",
-                        "--geometric"], capsys)
+    code, out, _ = run(
+        ["demo", "--out", str(tmp_path / "run"), "--validation", "30", "--geometric"], capsys
+    )
     assert code == 0 and "RMSE improved" in out
     report = json.loads((tmp_path / "run" / "report.json").read_text())
     assert report["improvement_factor"] > 20 and report["rank"] == 30
@@ -188,9 +189,24 @@ def test_demo_renders_by_default(tmp_path: Path, capsys: pytest.CaptureFixture[s
     in this process): the centres agree with the cell's truth to a few um, the report says so."""
     cell = tmp_path / "cell.toml"
     cell.write_text("[calibration]\nconfigs_per_sphere = 4\n")
-    code, out, _ = run(["demo", "--out", str(tmp_path / "run"), "--validation", "3",
-                        "--workers", "1", "--cell", str(cell), "--placement", "none",
-                        "--sensor-model", "truth"], capsys)
+    code, out, _ = run(
+        [
+            "demo",
+            "--out",
+            str(tmp_path / "run"),
+            "--validation",
+            "3",
+            "--workers",
+            "1",
+            "--cell",
+            str(cell),
+            "--placement",
+            "none",
+            "--sensor-model",
+            "truth",
+        ],
+        capsys,
+    )
     assert code == 0 and "rendered sweeps on 1 worker" in out
     assert "rendered and measured 10 sweeps" in out  # progress
     report = json.loads((tmp_path / "run" / "report.json").read_text())

@@ -140,4 +140,3 @@ def test_plan_on_pre_calibrated_parameters(
         assert np.abs(c_model - cs[name]).max() < 1e-6
         c_nominal = apply(inverse(model.fk(model.nominal_x(), qs[name])), p)
         assert np.abs(c_nominal - cs[name]).max() > 0.1
-

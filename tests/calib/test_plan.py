@@ -84,7 +84,7 @@ def test_determinant_lemma_gains_equal_direct_log_determinants(
     """Rank-3 updates agree with a determinant per candidate, for a rank-deficient partial
     plan (one sphere, 6 configurations: rank 18 of 30) and a full-rank one."""
     J = _blocks(cfg, "P1")[:200]
-    fixed = np.concatenate([_blocks(cfg, n)[:: 97][:6] for n in ("P2", "P3", "P4")])[:n_fixed]
+    fixed = np.concatenate([_blocks(cfg, n)[::97][:6] for n in ("P2", "P3", "P4")])[:n_fixed]
     d = detmax.column_scale(np.concatenate([fixed, J]))
     G = J * d
     info = detmax._Information(G, fixed * d, "O1", 30)
@@ -121,7 +121,7 @@ def test_selection_ends_where_no_single_exchange_improves(
         for c in range(len(G)):
             if c in chosen:
                 continue
-            trial = [*chosen[:k], c, *chosen[k + 1:]]
+            trial = [*chosen[:k], c, *chosen[k + 1 :]]
             assert _logdet(G, Gf, trial) <= best + 1e-7
 
 

@@ -85,10 +85,12 @@ def test_error_from_the_board_is_a_device_fault(dac: ScpiDac, scpi: ScpiGalvo) -
 
 
 def test_out_of_range_voltage_reported_by_the_board(dac: ScpiDac) -> None:
-    wide = GalvoCalibration(coefficients=(0.0, 0.5), angle_limits_deg=(-22, 22),
-                            volt_limits=(-12, 12))
-    with ScpiGalvo(dac.port, calibration=wide, timeout_s=0.2) as g, pytest.raises(
-        DeviceFault, match="out of range"
+    wide = GalvoCalibration(
+        coefficients=(0.0, 0.5), angle_limits_deg=(-22, 22), volt_limits=(-12, 12)
+    )
+    with (
+        ScpiGalvo(dac.port, calibration=wide, timeout_s=0.2) as g,
+        pytest.raises(DeviceFault, match="out of range"),
     ):
         g.set_angle_deg(21.0)
 

@@ -84,9 +84,7 @@ def test_no_reply_is_a_timeout_and_a_read_retries(
     np.testing.assert_allclose(robot.joints_deg(), HOME, atol=1e-4)  # reconnect + retry
 
 
-def test_peer_disconnect_mid_motion_latches(
-    server: ModbusRobotServer, robot: ModbusRobot
-) -> None:
+def test_peer_disconnect_mid_motion_latches(server: ModbusRobotServer, robot: ModbusRobot) -> None:
     server.fail_next("drop", function_code=16)  # the speed/target write of the next move
     with pytest.raises((DeviceConnectionError, DeviceTimeout)):
         robot.move_joints(A, speed_pct=100)

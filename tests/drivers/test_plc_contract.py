@@ -82,9 +82,10 @@ def test_line_stopped_never_opens_a_window(kind: str) -> None:
 def test_modbus_plc_faults() -> None:
     from fakes.plc import PlcServer
 
-    with PlcServer(CYCLE) as server, open_plc(
-        f"plc+modbus://127.0.0.1:{server.port}", **OPTS
-    ) as plc:
+    with (
+        PlcServer(CYCLE) as server,
+        open_plc(f"plc+modbus://127.0.0.1:{server.port}", **OPTS) as plc,
+    ):
         server.fail_next("exception")
         with pytest.raises(DeviceFault):
             plc.poll()
@@ -98,9 +99,10 @@ def test_modbus_plc_silent_or_garbled_peer(mode: str) -> None:
     from fakes.plc import PlcServer
 
     fast = OPTS | {"timeout_s": 0.2}
-    with PlcServer(CYCLE) as server, open_plc(
-        f"plc+modbus://127.0.0.1:{server.port}", **fast
-    ) as plc:
+    with (
+        PlcServer(CYCLE) as server,
+        open_plc(f"plc+modbus://127.0.0.1:{server.port}", **fast) as plc,
+    ):
         server.fail_next(mode, function_code=3)
         plc.poll()  # one bad exchange: reconnect and read again
         server.fail_next(mode, function_code=3)
@@ -114,9 +116,10 @@ def test_modbus_plc_silent_or_garbled_peer(mode: str) -> None:
 def test_modbus_plc_peer_gone_and_back() -> None:
     from fakes.plc import PlcServer
 
-    with PlcServer(CYCLE) as server, open_plc(
-        f"plc+modbus://127.0.0.1:{server.port}", **OPTS
-    ) as plc:
+    with (
+        PlcServer(CYCLE) as server,
+        open_plc(f"plc+modbus://127.0.0.1:{server.port}", **OPTS) as plc,
+    ):
         plc.poll()
         port = server.port
         server.close()

@@ -16,19 +16,39 @@ from drivers.registry import BACKENDS, backend_class
 
 
 def test_import_drivers_imports_no_vendor_library() -> None:
-    code = ("import sys, drivers, drivers.registry; "
-            "print([m for m in ('pymodbus', 'serial', 'gi') if m in sys.modules])")
+    code = (
+        "import sys, drivers, drivers.registry; "
+        "print([m for m in ('pymodbus', 'serial', 'gi') if m in sys.modules])"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
 
 
 def test_exported_names_are_pinned() -> None:
     assert set(drivers.__all__) == {
-        "CartesianBox", "CommunicationError", "DeviceClosedError", "DeviceConfigError",
-        "DeviceConnectionError", "DeviceError", "DeviceFault", "DeviceTimeout", "Envelope",
-        "FaultLatched", "JointBox", "JointLimits", "MotionRefused", "ProtocolError",
-        "SafetyGuard", "create_device", "open_camera", "open_device", "open_galvo", "open_plc",
-        "open_robot", "open_tracker", "parse_url",
+        "CartesianBox",
+        "CommunicationError",
+        "DeviceClosedError",
+        "DeviceConfigError",
+        "DeviceConnectionError",
+        "DeviceError",
+        "DeviceFault",
+        "DeviceTimeout",
+        "Envelope",
+        "FaultLatched",
+        "JointBox",
+        "JointLimits",
+        "MotionRefused",
+        "ProtocolError",
+        "SafetyGuard",
+        "create_device",
+        "open_camera",
+        "open_device",
+        "open_galvo",
+        "open_plc",
+        "open_robot",
+        "open_tracker",
+        "parse_url",
     }
 
 
@@ -61,12 +81,16 @@ def test_devices_check_against_the_fakes(capsys: pytest.CaptureFixture[str]) -> 
     rows = json.loads(capsys.readouterr().out)
     assert {r["status"] for r in rows} <= {"OK", "SKIP"}
     assert {r["url"].split("://")[0] for r in rows} >= {
-        "fake", "rmi", "modbus", "tracker+tcp", "plc+modbus", "scpi+serial"}
+        "fake",
+        "rmi",
+        "modbus",
+        "tracker+tcp",
+        "plc+modbus",
+        "scpi+serial",
+    }
 
 
-def test_devices_check_with_a_cell_file(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_devices_check_with_a_cell_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     cell = tmp_path / "cell.toml"
     cell.write_text('[devices]\nrobot = "fake://"\ntracker = "rmi://127.0.0.1:1"\n')
     assert main(["devices", "check", "--cell", str(cell)]) == 2  # rmi is not a tracker
@@ -79,8 +103,11 @@ def test_devices_check_with_a_cell_file(
 
 @pytest.mark.parametrize(
     ("text", "needle"),
-    [("[devices\n", "not valid TOML"), ("[other]\n", "field 'devices'"),
-     ('[devices]\nlaser = "fake://"\n', "field 'devices.laser'")],
+    [
+        ("[devices\n", "not valid TOML"),
+        ("[other]\n", "field 'devices'"),
+        ('[devices]\nlaser = "fake://"\n', "field 'devices.laser'"),
+    ],
 )
 def test_bad_cell_file_is_one_line_exit_2(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str, needle: str

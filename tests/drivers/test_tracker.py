@@ -86,9 +86,11 @@ def test_target_not_in_beam(svc: TrackerService, tcp: TcpTracker) -> None:
 
 
 def test_noisy_point_fails_the_quality_gate(world: StaticWorld) -> None:
-    with TrackerService(world, noise_mm=0.5) as svc, TcpTracker(
-        "127.0.0.1", svc.port, max_rms_mm=0.05
-    ) as t, pytest.raises(DeviceFault, match="RMS"):
+    with (
+        TrackerService(world, noise_mm=0.5) as svc,
+        TcpTracker("127.0.0.1", svc.port, max_rms_mm=0.05) as t,
+        pytest.raises(DeviceFault, match="RMS"),
+    ):
         t.measure("S1")
 
 

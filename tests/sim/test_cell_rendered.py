@@ -43,13 +43,15 @@ def cell(cfg: CellConfig, sensor: TrueSensor) -> SimulatedCell:
     return make_cell(cfg, seed=7, sensor=sensor)
 
 
-def views_of(cell: SimulatedCell, cfg: CellConfig, target: str, n: int, seed: int = 0
-             ) -> list[np.ndarray]:
+def views_of(
+    cell: SimulatedCell, cfg: CellConfig, target: str, n: int, seed: int = 0
+) -> list[np.ndarray]:
     """n configurations (controller angles) from which the cell sees the target."""
     model = cfg.model()
     p = cfg.spheres_part_mm[target]
-    qs = candidates.random_configurations(model, model.nominal_x(), p, 4 * n,
-                                          np.random.default_rng(seed)).q_deg
+    qs = candidates.random_configurations(
+        model, model.nominal_x(), p, 4 * n, np.random.default_rng(seed)
+    ).q_deg
     seen = [q for q in qs if cell.sees(q, p)]
     assert len(seen) >= n
     return seen[:n]
@@ -67,8 +69,7 @@ def test_rendered_sweep_is_of_the_true_pose(cell: SimulatedCell, cfg: CellConfig
     assert sum(lit) >= 10  # the stripe crosses the sphere in most frames
 
 
-def test_rendered_measurements_agree_with_the_truth(cell: SimulatedCell, cfg: CellConfig
-                                                   ) -> None:
+def test_rendered_measurements_agree_with_the_truth(cell: SimulatedCell, cfg: CellConfig) -> None:
     p = cfg.spheres_part_mm["P1"]
     rendered = RenderedMeasurement()
     qs = views_of(cell, cfg, "P1", 3, seed=1)
@@ -84,13 +85,21 @@ def test_rendered_measurements_agree_with_the_truth(cell: SimulatedCell, cfg: Ce
 def test_collect_through_rendered_images(cell: SimulatedCell, cfg: CellConfig) -> None:
     model = cfg.model()
     points = {"P3": cfg.spheres_part_mm["P3"]}
-    ds = collect(cell, model, model.nominal_x(), points, 2, np.random.default_rng(3),
-                 measurement=RenderedMeasurement())
+    ds = collect(
+        cell,
+        model,
+        model.nominal_x(),
+        points,
+        2,
+        np.random.default_rng(3),
+        measurement=RenderedMeasurement(),
+    )
     assert len(ds.measurements) == 2 and not ds.rejected
     err = np.linalg.norm(ds.measurements.c_sensor_mm - ds.truth_c_sensor_mm, axis=1)
     assert np.all(err < TOL_MM)
-    np.testing.assert_allclose(ds.truth_c_sensor_mm,
-                               cell.centre_in_sensor(ds.measurements.q_deg, points["P3"]))
+    np.testing.assert_allclose(
+        ds.truth_c_sensor_mm, cell.centre_in_sensor(ds.measurements.q_deg, points["P3"])
+    )
 
 
 def test_rejected_sweeps_are_counted_never_used(cfg: CellConfig, sensor: TrueSensor) -> None:
@@ -98,11 +107,21 @@ def test_rejected_sweeps_are_counted_never_used(cfg: CellConfig, sensor: TrueSen
     sweep; collect returns no measurement and lists every rejected view with its reason."""
     good = make_cell(cfg, seed=7, sensor=sensor)
     spec = good.spec
-    big = SimulatedCell(CellSpec(spec.T_part_base, spec.T_flange_sensor, spec.spheres_part_mm,
-                                 15.3, spec.volume), good.settings, sensor)
+    big = SimulatedCell(
+        CellSpec(spec.T_part_base, spec.T_flange_sensor, spec.spheres_part_mm, 15.3, spec.volume),
+        good.settings,
+        sensor,
+    )
     model = cfg.model()
-    ds = collect(big, model, model.nominal_x(), {"P4": cfg.spheres_part_mm["P4"]}, 1,
-                 np.random.default_rng(4), measurement=RenderedMeasurement())
+    ds = collect(
+        big,
+        model,
+        model.nominal_x(),
+        {"P4": cfg.spheres_part_mm["P4"]},
+        1,
+        np.random.default_rng(4),
+        measurement=RenderedMeasurement(),
+    )
     assert len(ds.measurements) == 0
     assert 1 <= len(ds.rejected) <= 3  # every view that was tried (3 drawn per wanted one)
     assert all(r.target == "P4" and "SphereFitRejected" in r.reason for r in ds.rejected)
@@ -113,8 +132,7 @@ def test_geometric_strategy_is_the_old_path(cfg: CellConfig) -> None:
     p = cfg.spheres_part_mm["P1"]
     qs = views_of(a, cfg, "P1", 3)
     got = GeometricMeasurement().measure(a, [(q, p) for q in qs])
-    np.testing.assert_array_equal([o.c_sensor_mm for o in got],
-                                  [b.measure_point(q, p) for q in qs])
+    np.testing.assert_array_equal([o.c_sensor_mm for o in got], [b.measure_point(q, p) for q in qs])
 
 
 def test_worker_pool_gives_the_same_centres(cfg: CellConfig, sensor: TrueSensor) -> None:
@@ -129,8 +147,9 @@ def test_worker_pool_gives_the_same_centres(cfg: CellConfig, sensor: TrueSensor)
     np.testing.assert_allclose(results[0], results[1], rtol=0, atol=1e-9)
 
 
-def test_fake_camera_sees_the_stripe_on_a_sphere(cell: SimulatedCell, cfg: CellConfig,
-                                                  sensor: TrueSensor) -> None:
+def test_fake_camera_sees_the_stripe_on_a_sphere(
+    cell: SimulatedCell, cfg: CellConfig, sensor: TrueSensor
+) -> None:
     """The fake:// camera backed by the cell: at a configuration that sees P2, with the galvo
     at 1 deg, the extracted stripe lies where the renderer's truth puts it; looking away, the
     frame is dark."""
@@ -143,8 +162,9 @@ def test_fake_camera_sees_the_stripe_on_a_sphere(cell: SimulatedCell, cfg: CellC
         assert frame.image.shape == (966, 1296) and frame.image.dtype == np.uint16
         stripe = extract_stripe(frame.image)
         c = cell.centre_in_sensor(q, cfg.spheres_part_mm["P2"])[0]
-        _, _, truth = render_sphere_sweep(c, 15.0, sensor, np.random.default_rng(0),
-                                          commands_v=np.array([1.0]))
+        _, _, truth = render_sphere_sweep(
+            c, 15.0, sensor, np.random.default_rng(0), commands_v=np.array([1.0])
+        )
         u_true = truth.stripe_columns(0, stripe.v_px)
         ok = ~np.isnan(u_true)
         assert len(stripe) > 200 and ok.mean() > 0.95

@@ -17,8 +17,9 @@ from vision.sensor_model import SensorModel
 
 @pytest.fixture(scope="module")
 def calib_set(true_sensor: TrueSensor) -> CalibrationSet:
-    return render_calibration_set(true_sensor, np.random.default_rng(11), n_chessboards=12,
-                                  n_targets=4, n_commands=9)
+    return render_calibration_set(
+        true_sensor, np.random.default_rng(11), n_chessboards=12, n_targets=4, n_commands=9
+    )
 
 
 @pytest.fixture(scope="module")
@@ -34,8 +35,9 @@ def test_intrinsics(calibrated: SensorModel, true_sensor: TrueSensor) -> None:
     assert calibrated.camera.rms_reprojection_px < 0.1
 
 
-def test_target_plane_from_the_chessboard(calib_set: CalibrationSet,
-                                          calibrated: SensorModel) -> None:
+def test_target_plane_from_the_chessboard(
+    calib_set: CalibrationSet, calibrated: SensorModel
+) -> None:
     T = calib_set.target_poses[0]
     n, d = target_plane(calib_set.targets[0][0], calibrated.camera)
     n_true = T[:3, 2] * np.sign(T[2, 2])
@@ -56,19 +58,22 @@ def test_laser_planes_match_the_truth(calibrated: SensorModel, true_sensor: True
     assert gap.max() < 0.25
 
 
-def test_calibrated_sensor_measures_spheres(calibrated: SensorModel, true_sensor: TrueSensor
-                                            ) -> None:
+def test_calibrated_sensor_measures_spheres(
+    calibrated: SensorModel, true_sensor: TrueSensor
+) -> None:
     rng = np.random.default_rng(3)
     c = np.array([1.0, -1.0, 129.0])
-    frames, cmds, _ = render_sphere_sweep(c, 15.0, true_sensor, rng,
-                                          commands_v=default_sweep_commands(20, 3.2))
+    frames, cmds, _ = render_sphere_sweep(
+        c, 15.0, true_sensor, rng, commands_v=default_sweep_commands(20, 3.2)
+    )
     m = measure_sphere_from_sweep(frames, cmds, calibrated)
     # absolute error: dominated by the intrinsics (focal length, principal point); see the bench
     assert np.linalg.norm(m.c_sensor_mm - c) < 0.15
 
 
-def test_insufficient_data_is_a_typed_error(calib_set: CalibrationSet,
-                                            calibrated: SensorModel) -> None:
+def test_insufficient_data_is_a_typed_error(
+    calib_set: CalibrationSet, calibrated: SensorModel
+) -> None:
     with pytest.raises(CalibrationFailed, match="at least 5"):
         calibrate_camera(calib_set.chessboards[:3])
     blank = np.zeros_like(calib_set.chessboards[0])

@@ -31,9 +31,14 @@ def write_sweep(folder: Path, frames: np.ndarray, commands: np.ndarray) -> None:
 @pytest.fixture(scope="module")
 def sweep_dir(tmp_path_factory: pytest.TempPathFactory, true_sensor: TrueSensor) -> Path:
     folder = tmp_path_factory.mktemp("sweep")
-    frames, cmds, _ = render_sphere_sweep(CENTRE, 15.0, true_sensor, np.random.default_rng(4),
-                                          commands_v=default_sweep_commands(20, 3.2),
-                                          noise=NoiseSettings(bits=12))
+    frames, cmds, _ = render_sphere_sweep(
+        CENTRE,
+        15.0,
+        true_sensor,
+        np.random.default_rng(4),
+        commands_v=default_sweep_commands(20, 3.2),
+        noise=NoiseSettings(bits=12),
+    )
     write_sweep(folder, frames, cmds)
     return folder
 
@@ -60,16 +65,20 @@ def _copy(src: Path, dst: Path) -> Path:
     [
         (lambda d: (d / "commands.csv").unlink(), "commands.csv: sweep file not found"),
         (lambda d: (d / "commands.csv").write_text("frame,volts\n"), "commands.csv:1: header"),
-        (lambda d: (d / "commands.csv").write_text("frame,command_v\nframe_000.png,x\n"),
-         "commands.csv:2: field 'command_v': not a number"),
-        (lambda d: (d / "frame_000.png").write_bytes(b"not a png"),
-         "frame_000.png: not a readable image"),
+        (
+            lambda d: (d / "commands.csv").write_text("frame,command_v\nframe_000.png,x\n"),
+            "commands.csv:2: field 'command_v': not a number",
+        ),
+        (
+            lambda d: (d / "frame_000.png").write_bytes(b"not a png"),
+            "frame_000.png: not a readable image",
+        ),
         (lambda d: (d / "frame_001.png").unlink(), "frame_001.png: image file not found"),
     ],
 )
-def test_bad_sweeps_give_one_line_and_exit_2(sweep_dir: Path, tmp_path: Path, edit: object,
-                                             expect: str,
-                                             capsys: pytest.CaptureFixture[str]) -> None:
+def test_bad_sweeps_give_one_line_and_exit_2(
+    sweep_dir: Path, tmp_path: Path, edit: object, expect: str, capsys: pytest.CaptureFixture[str]
+) -> None:
     bad = _copy(sweep_dir, tmp_path / "bad")
     edit(bad)  # type: ignore[operator]
     assert main(["sensor", "measure", str(bad)]) == 2
@@ -77,16 +86,18 @@ def test_bad_sweeps_give_one_line_and_exit_2(sweep_dir: Path, tmp_path: Path, ed
     assert expect in err and err.count("\n") == 1 and "Traceback" not in err
 
 
-def test_bad_sensor_file_exit_2(sweep_dir: Path, tmp_path: Path,
-                                capsys: pytest.CaptureFixture[str]) -> None:
+def test_bad_sensor_file_exit_2(
+    sweep_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     bad = tmp_path / "sensor.toml"
     bad.write_text('format = "rvis-sensor/1"\n[camera]\n[laser]\n')
     assert main(["sensor", "measure", str(sweep_dir), "--sensor", str(bad)]) == 2
     assert "field 'camera.fx_px'" in capsys.readouterr().err
 
 
-def test_rejected_measurement_exit_3(sweep_dir: Path, tmp_path: Path,
-                                     capsys: pytest.CaptureFixture[str]) -> None:
+def test_rejected_measurement_exit_3(
+    sweep_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     dark = _copy(sweep_dir, tmp_path / "dark")
     for png in dark.glob("*.png"):
         cv2.imwrite(str(png), np.full((966, 1296), 20, np.uint16))
@@ -94,11 +105,12 @@ def test_rejected_measurement_exit_3(sweep_dir: Path, tmp_path: Path,
     assert "measurement rejected: no valid stripe" in capsys.readouterr().err
 
 
-def test_calibrate_writes_a_usable_sensor_file(tmp_path: Path, true_sensor: TrueSensor,
-                                               sweep_dir: Path,
-                                               capsys: pytest.CaptureFixture[str]) -> None:
-    cset = render_calibration_set(true_sensor, np.random.default_rng(8), n_chessboards=10,
-                                  n_targets=3, n_commands=7)
+def test_calibrate_writes_a_usable_sensor_file(
+    tmp_path: Path, true_sensor: TrueSensor, sweep_dir: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    cset = render_calibration_set(
+        true_sensor, np.random.default_rng(8), n_chessboards=10, n_targets=3, n_commands=7
+    )
     root = tmp_path / "calib"
     (root / "chessboards").mkdir(parents=True)
     for i, img in enumerate(cset.chessboards):

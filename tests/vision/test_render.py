@@ -26,15 +26,19 @@ def _bilinear(grid: np.ndarray, uv: np.ndarray) -> np.ndarray:
     u0 = np.clip(np.floor(uv[:, 0]).astype(int), 0, grid.shape[1] - 2)
     v0 = np.clip(np.floor(uv[:, 1]).astype(int), 0, grid.shape[0] - 2)
     fu, fv = (uv[:, 0] - u0)[:, None], (uv[:, 1] - v0)[:, None]
-    return np.asarray((1 - fv) * ((1 - fu) * grid[v0, u0] + fu * grid[v0, u0 + 1])
-                      + fv * ((1 - fu) * grid[v0 + 1, u0] + fu * grid[v0 + 1, u0 + 1]))
+    return np.asarray(
+        (1 - fv) * ((1 - fu) * grid[v0, u0] + fu * grid[v0, u0 + 1])
+        + fv * ((1 - fu) * grid[v0 + 1, u0] + fu * grid[v0 + 1, u0 + 1])
+    )
 
 
-def test_true_stripe_lies_on_sphere_and_plane(true_sensor: TrueSensor,
-                                              rng: np.random.Generator) -> None:
+def test_true_stripe_lies_on_sphere_and_plane(
+    true_sensor: TrueSensor, rng: np.random.Generator
+) -> None:
     c = np.array([1.0, -2.0, 131.0])
-    frames, _, truth = render_sphere_sweep(c, 15.0, true_sensor, rng,
-                                              commands_v=np.array([-1.0, 0.0, 1.5]))
+    frames, _, truth = render_sphere_sweep(
+        c, 15.0, true_sensor, rng, commands_v=np.array([-1.0, 0.0, 1.5])
+    )
     assert frames.shape == (3, 966, 1296) and frames.dtype == np.uint8
     for k in range(3):
         uv = truth.stripe_uv[k]
@@ -50,13 +54,16 @@ def test_true_stripe_lies_on_sphere_and_plane(true_sensor: TrueSensor,
         assert np.median(frames[k][rows, cols]) > 20
 
 
-def test_noise_quantisation_and_saturation(true_sensor: TrueSensor,
-                                           rng: np.random.Generator) -> None:
+def test_noise_quantisation_and_saturation(
+    true_sensor: TrueSensor, rng: np.random.Generator
+) -> None:
     c = np.array([0.0, 0.0, 130.0])
-    dim, _, _ = render_sphere_sweep(c, 15.0, true_sensor, rng, commands_v=np.array([0.0]),
-                                    noise=NoiseSettings(bits=12))
-    hot, _, _ = render_sphere_sweep(c, 15.0, true_sensor, rng, commands_v=np.array([0.0]),
-                                    light=Lighting(power=50.0))
+    dim, _, _ = render_sphere_sweep(
+        c, 15.0, true_sensor, rng, commands_v=np.array([0.0]), noise=NoiseSettings(bits=12)
+    )
+    hot, _, _ = render_sphere_sweep(
+        c, 15.0, true_sensor, rng, commands_v=np.array([0.0]), light=Lighting(power=50.0)
+    )
     assert dim.dtype == np.uint16 and dim.max() > 300
     assert np.count_nonzero(dim == 4095) < 20  # speckle peaks may touch the top, rarely
     assert hot.max() == 255 and np.count_nonzero(hot == 255) > 1000
@@ -65,8 +72,9 @@ def test_noise_quantisation_and_saturation(true_sensor: TrueSensor,
     assert background.std() > 1.0  # read noise is present
 
 
-def test_chessboard_truth_projects_onto_the_corners(true_sensor: TrueSensor,
-                                                    rng: np.random.Generator) -> None:
+def test_chessboard_truth_projects_onto_the_corners(
+    true_sensor: TrueSensor, rng: np.random.Generator
+) -> None:
     import cv2
 
     T = np.eye(4)
@@ -74,8 +82,9 @@ def test_chessboard_truth_projects_onto_the_corners(true_sensor: TrueSensor,
     frame, corners, obj = render_chessboard(T, true_sensor, rng)
     found, det = cv2.findChessboardCorners(frame, (9, 6))
     assert found
-    det = cv2.cornerSubPix(frame, det, (5, 5), (-1, -1),
-                           (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4))
+    det = cv2.cornerSubPix(
+        frame, det, (5, 5), (-1, -1), (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
+    )
     det = det.reshape(-1, 2)
     if np.linalg.norm(det[0] - corners[0]) > np.linalg.norm(det[-1] - corners[0]):
         det = det[::-1]
@@ -99,9 +108,20 @@ def test_dark_pixels_follow_the_noise_model(rng: np.random.Generator) -> None:
     that the lit box uses."""
     for noise in (NoiseSettings(), NoiseSettings(bits=12), NoiseSettings(shot_noise=False)):
         table = dark_frame((400, 500), noise, rng).astype(float).ravel()
-        model = _form(np.zeros((400, 500), np.float32), NoiseSettings(
-            speckle_contrast=0.0, blur_sigma_px=0.0, bits=noise.bits,
-            shot_noise=noise.shot_noise), rng).astype(float).ravel()
+        model = (
+            _form(
+                np.zeros((400, 500), np.float32),
+                NoiseSettings(
+                    speckle_contrast=0.0,
+                    blur_sigma_px=0.0,
+                    bits=noise.bits,
+                    shot_noise=noise.shot_noise,
+                ),
+                rng,
+            )
+            .astype(float)
+            .ravel()
+        )
         top = (1 << noise.bits) - 1
         hist_t = np.bincount(table.astype(int), minlength=top + 1) / table.size
         hist_m = np.bincount(model.astype(int), minlength=top + 1) / model.size
@@ -115,8 +135,20 @@ def test_tile_culling_changes_no_pixel(true_sensor: TrueSensor) -> None:
     c = np.array([-6.0, 4.0, 127.0])
     idx, X = sphere_hits(true_sensor, c, 15.0)
     normals, offsets = true_sensor.laser_planes(np.linspace(-3.2, 3.2, 6))
-    frames = [_render_frames(true_sensor, idx, X, (X - c) / 15.0, normals, offsets,
-                             Lighting(ghost_gain=0.3), NoiseSettings(),
-                             np.random.default_rng(5), cull=cull) for cull in (False, True)]
+    frames = [
+        _render_frames(
+            true_sensor,
+            idx,
+            X,
+            (X - c) / 15.0,
+            normals,
+            offsets,
+            Lighting(ghost_gain=0.3),
+            NoiseSettings(),
+            np.random.default_rng(5),
+            cull=cull,
+        )
+        for cull in (False, True)
+    ]
     assert int(frames[0].max()) > 100
     np.testing.assert_array_equal(frames[0], frames[1])

@@ -11,8 +11,9 @@ from vision.spherefit import fit_sphere, fit_sphere_geometric, fit_sphere_pratt
 C_TRUE = np.array([1.0, -2.0, 130.0])
 
 
-def _cap(rng: np.random.Generator, half_angle_deg: float, n: int = 4000,
-         noise_mm: float = 0.0) -> np.ndarray:
+def _cap(
+    rng: np.random.Generator, half_angle_deg: float, n: int = 4000, noise_mm: float = 0.0
+) -> np.ndarray:
     """Points on the camera-facing cap of the true sphere (radius 15)."""
     cos_min = np.cos(np.radians(half_angle_deg))
     z = rng.uniform(cos_min, 1.0, n)
@@ -63,8 +64,9 @@ def test_covariance_matches_the_scatter(rng: np.random.Generator) -> None:
 def test_too_few_points_and_plane_are_rejected(rng: np.random.Generator) -> None:
     with pytest.raises(TooFewPoints):
         fit_sphere(_cap(rng, 60.0, n=100), 15.0)
-    plane = np.column_stack([rng.uniform(-5, 5, 2000), rng.uniform(-5, 5, 2000),
-                             np.full(2000, 120.0)])
+    plane = np.column_stack(
+        [rng.uniform(-5, 5, 2000), rng.uniform(-5, 5, 2000), np.full(2000, 120.0)]
+    )
     with pytest.raises(SphereFitRejected):
         fit_sphere(plane, 15.0)
 

@@ -13,11 +13,21 @@ from vision.stripe import extract_stripe
 CLEAN = NoiseSettings(speckle_contrast=0.0)
 
 
-def _sweep(sensor: TrueSensor, rng: np.random.Generator, noise: NoiseSettings | None = None,
-           light: Lighting | None = None) -> tuple[np.ndarray, SweepTruth]:
-    frames, _, truth = render_sphere_sweep(np.array([0.5, 0.3, 129.0]), 15.0, sensor, rng,
-                                           commands_v=np.array([-1.5, 0.0, 1.5]),
-                                           noise=noise, light=light)
+def _sweep(
+    sensor: TrueSensor,
+    rng: np.random.Generator,
+    noise: NoiseSettings | None = None,
+    light: Lighting | None = None,
+) -> tuple[np.ndarray, SweepTruth]:
+    frames, _, truth = render_sphere_sweep(
+        np.array([0.5, 0.3, 129.0]),
+        15.0,
+        sensor,
+        rng,
+        commands_v=np.array([-1.5, 0.0, 1.5]),
+        noise=noise,
+        light=light,
+    )
     return frames, truth
 
 
@@ -31,8 +41,9 @@ def _errors(frames: np.ndarray, truth: SweepTruth, mode: str) -> np.ndarray:
 
 
 @pytest.mark.parametrize("mode", ["fast", "precise"])
-def test_sub_pixel_without_speckle(true_sensor: TrueSensor, rng: np.random.Generator,
-                                   mode: str) -> None:
+def test_sub_pixel_without_speckle(
+    true_sensor: TrueSensor, rng: np.random.Generator, mode: str
+) -> None:
     frames, truth = _sweep(true_sensor, rng, noise=CLEAN)
     e = _errors(frames, truth, mode)
     assert len(e) > 1500
@@ -41,8 +52,9 @@ def test_sub_pixel_without_speckle(true_sensor: TrueSensor, rng: np.random.Gener
 
 
 @pytest.mark.parametrize("mode", ["fast", "precise"])
-def test_speckle_is_noise_not_bias(true_sensor: TrueSensor, rng: np.random.Generator,
-                                   mode: str) -> None:
+def test_speckle_is_noise_not_bias(
+    true_sensor: TrueSensor, rng: np.random.Generator, mode: str
+) -> None:
     frames, truth = _sweep(true_sensor, rng)
     e = _errors(frames, truth, mode)
     assert len(e) > 1500
@@ -64,8 +76,9 @@ def test_saturated_rows_are_rejected(true_sensor: TrueSensor, rng: np.random.Gen
     assert pts.n_saturated > 500 and len(pts) < 50
 
 
-def test_two_stripes_are_rejected_not_averaged(true_sensor: TrueSensor,
-                                               rng: np.random.Generator) -> None:
+def test_two_stripes_are_rejected_not_averaged(
+    true_sensor: TrueSensor, rng: np.random.Generator
+) -> None:
     frames, truth = _sweep(true_sensor, rng, noise=CLEAN, light=Lighting(ghost_gain=1.0))
     pts = extract_stripe(frames[1])
     assert pts.n_multi_peak > 500
