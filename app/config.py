@@ -1,259 +1,349 @@
-"""Cell configuration: read once from TOML into frozen, validated objects.
+"""Cell configuration: the cell TOML read once into frozen, typed, validated sections.
 
-The embedded default is the simulated cell (spheres at the paper's Table 1 positions). A cell
-file overrides any of its keys; unknown keys and wrong types are input errors naming the file,
-the line and the field (`section.key`).
+The embedded default is the simulated cell (spheres at the paper's Table 1 positions); a cell
+file overrides any of its keys. Every section is a frozen dataclass whose fields are the keys,
+their defaults the embedded cell and their metadata the checks (type, range, choices, length).
+A wrong key, type or value is an InputError `file:line: [section] key: reason` (exit code 2),
+with the close key name suggested on a typo. Sections also read like mappings
+(`cfg.planning["criterion"]`), so code that merges them with command-line overrides keeps working.
 """
 
 from __future__ import annotations
 
-import re
-import tomllib
+import dataclasses
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 from app.errors import InputError
-from calib.detmax import METHODS
-from calib.model import SystemModel
-from calib.observability import INDEX_NAMES
-from calib.plan import PLACEMENTS
-from calib.robot import JointLimits
-from calib.transforms import apply, pose, rotvec_to_matrix
+from calib import robot as nominal_robot
 
 F64 = NDArray[np.float64]
+Vec = tuple[float, ...]
 
 PAPER_TABLE1_BASE_MM = {
-    "P1": [-647.14, 1254.27, -289.37],
-    "P2": [1742.87, 1138.35, -260.87],
-    "P3": [1428.57, -1347.92, 102.31],
-    "P4": [-704.45, -1265.87, 680.54],
+    "P1": (-647.14, 1254.27, -289.37),
+    "P2": (1742.87, 1138.35, -260.87),
+    "P3": (1428.57, -1347.92, 102.31),
+    "P4": (-704.45, -1265.87, 680.54),
 }
+MAX_COORD_MM = 1e5
+MAX_ANGLE_DEG = 720.0
+# names of the choice lists live with the algorithms; importing calib/ here would load numpy-heavy
+# modules for every command, so they are listed here and a test checks them against calib/
+CRITERIA = ("O1", "O2", "O3", "O4", "O5")
+METHODS = ("detmax", "eae", "random")
+PLACEMENTS = ("fixed", "sequential", "joint", "none")
+LOSSES = ("linear", "huber", "soft_l1", "cauchy", "arctan")
+ROBOT_MODELS = ("fanuc-m710ic50",)
 
-DEFAULTS: dict[str, dict[str, Any]] = {
-    "robot": {
-        "model": "fanuc-m710ic50",
-        "joint_lower_deg": [-180.0, -90.0, -160.0, -360.0, -125.0, -360.0],
-        "joint_upper_deg": [180.0, 135.0, 280.0, 360.0, 125.0, 360.0],
-    },
-    "frames": {
-        "part_base_xyz_mm": [1500.0, -2500.0, 700.0],
-        "part_base_rotvec_deg": [0.0, 0.0, 90.0],
-        "flange_sensor_xyz_mm": [0.0, -90.0, 160.0],
-        "flange_sensor_rotvec_deg": [0.0, 0.0, 0.0],
-    },
-    "base_plate": {"x_min_mm": -750.0, "x_max_mm": 750.0, "y_min_mm": -750.0, "y_max_mm": 750.0},
-    "sensor": {
-        "standoff_mm": 130.0,
-        "half_fov_x_mm": 18.5,
-        "half_fov_y_mm": 13.5,
-        "half_depth_mm": 5.0,
-        "sphere_radius_mm": 15.0,
-    },
-    "spheres": {"frame": "base", "positions_mm": PAPER_TABLE1_BASE_MM},
-    "simulation": {
-        "seed": 0,
-        "tracker_noise_mm": 0.01,
-        "sensor_noise_mm": 0.02,
-        "compliance": True,
-        "thermal": True,
-        "temp_c": 20.0,
-    },
-    "calibration": {"configs_per_sphere": 6, "loss": "linear", "max_rms_mm": 0.25},
-    "planning": {
-        "criterion": "O1",
-        "method": "detmax",
-        "placement": "sequential",
-        "grid_step_deg": 5.0,
-        "search_step_deg": 30.0,
-        "max_tilt_deg": 80.0,
-        "fov_offsets": "spread",
-        "swarm_size": 50,
-        "iterations": 30,
-        "clearance_above_sphere_mm": 30.0,
-        "floor_z_mm": -565.0,
-        "clearance_above_floor_mm": 150.0,
-        "workspace_mm": [-2000.0, 2000.0, -2000.0, 2000.0],
-        "reach_mm": 2000.0,
-        "plate_margin_mm": 50.0,
-        "min_separation_mm": 300.0,
-        "seed": 0,
-        "workers": 2,
-    },
-    "devices": {
-        "robot": "fake://",
-        "camera": "fake://",
-        "galvo": "fake://",
-        "tracker": "fake://",
-        "plc": "fake://",
-    },
-    "service": {"database": "rvis.sqlite"},
-}
+
+def opt(
+    default: Any,
+    *,
+    lo: float | None = None,
+    hi: float | None = None,
+    gt: float | None = None,
+    choices: tuple[str, ...] | None = None,
+    n: int | None = None,
+) -> Any:
+    """A config key: its default and its checks (inclusive lo/hi, exclusive gt, choices,
+    vector length n)."""
+    meta = {"lo": lo, "hi": hi, "gt": gt, "choices": choices, "n": n}
+    if isinstance(default, list | dict):
+        frozen = tuple(default) if isinstance(default, list) else dict(default)
+        return field(default_factory=lambda: frozen, metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+class Section(Mapping[str, Any]):
+    """Read-only mapping view of a section dataclass (keys = its fields)."""
+
+    name: ClassVar[str] = ""
+
+    def __getitem__(self, key: str) -> Any:
+        if key not in self._keys():
+            raise KeyError(key)
+        return getattr(self, key)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._keys())
+
+    def __len__(self) -> int:
+        return len(self._keys())
+
+    @classmethod
+    def _keys(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in dataclasses.fields(cls))  # type: ignore[arg-type]
+
+
+_J = nominal_robot.JointLimits()
+
+
+@dataclass(frozen=True)
+class RobotSection(Section):
+    name = "robot"
+    model: str = opt("fanuc-m710ic50", choices=ROBOT_MODELS)
+    joint_lower_deg: Vec = opt(list(map(float, _J.lower_deg)), lo=-720, hi=720, n=6)
+    joint_upper_deg: Vec = opt(list(map(float, _J.upper_deg)), lo=-720, hi=720, n=6)
+
+
+@dataclass(frozen=True)
+class FramesSection(Section):
+    name = "frames"
+    part_base_xyz_mm: Vec = opt([1500.0, -2500.0, 700.0], lo=-1e5, hi=1e5, n=3)
+    part_base_rotvec_deg: Vec = opt([0.0, 0.0, 90.0], lo=-360, hi=360, n=3)
+    flange_sensor_xyz_mm: Vec = opt([0.0, -90.0, 160.0], lo=-2000, hi=2000, n=3)
+    flange_sensor_rotvec_deg: Vec = opt([0.0, 0.0, 0.0], lo=-360, hi=360, n=3)
+
+
+@dataclass(frozen=True)
+class BasePlateSection(Section):
+    name = "base_plate"
+    x_min_mm: float = opt(-750.0, lo=-1e5, hi=1e5)
+    x_max_mm: float = opt(750.0, lo=-1e5, hi=1e5)
+    y_min_mm: float = opt(-750.0, lo=-1e5, hi=1e5)
+    y_max_mm: float = opt(750.0, lo=-1e5, hi=1e5)
+
+
+@dataclass(frozen=True)
+class SensorSection(Section):
+    name = "sensor"
+    standoff_mm: float = opt(130.0, gt=0, hi=2000)
+    half_fov_x_mm: float = opt(18.5, gt=0, hi=1000)
+    half_fov_y_mm: float = opt(13.5, gt=0, hi=1000)
+    half_depth_mm: float = opt(5.0, gt=0, hi=1000)
+    sphere_radius_mm: float = opt(15.0, gt=0, hi=500)
+
+
+@dataclass(frozen=True)
+class SpheresSection(Section):
+    name = "spheres"
+    frame: str = opt("base", choices=("base", "part"))
+    positions_mm: dict[str, Vec] = opt(PAPER_TABLE1_BASE_MM, lo=-1e5, hi=1e5, n=3)
+
+
+@dataclass(frozen=True)
+class SimulationSection(Section):
+    name = "simulation"
+    seed: int = opt(0, lo=0, hi=2**32 - 1)
+    tracker_noise_mm: float = opt(0.01, lo=0, hi=10)
+    sensor_noise_mm: float = opt(0.02, lo=0, hi=10)
+    compliance: bool = opt(True)
+    thermal: bool = opt(True)
+    temp_c: float = opt(20.0, lo=-40, hi=80)
+
+
+@dataclass(frozen=True)
+class CalibrationSection(Section):
+    """Identification and its quality gates (calib.gates): a result is used only when it
+    converged, has rank 30, finite values, RMS <= max_rms_mm, condition <= max_condition and
+    every parameter within the allowed change from its reference."""
+
+    name = "calibration"
+    configs_per_sphere: int = opt(6, lo=1, hi=1000)
+    loss: str = opt("linear", choices=LOSSES)
+    max_rms_mm: float = opt(0.25, gt=0, hi=100)
+    max_condition: float = opt(1000.0, gt=1)
+    max_joint_change_mm: float = opt(5.0, gt=0, hi=1000)
+    max_joint_change_deg: float = opt(1.0, gt=0, hi=180)
+    max_sensor_change_mm: float = opt(20.0, gt=0, hi=1000)
+    max_sensor_change_deg: float = opt(5.0, gt=0, hi=180)
+
+
+@dataclass(frozen=True)
+class PlanningSection(Section):
+    name = "planning"
+    criterion: str = opt("O1", choices=CRITERIA)
+    method: str = opt("detmax", choices=METHODS)
+    placement: str = opt("sequential", choices=PLACEMENTS)
+    grid_step_deg: float = opt(5.0, gt=0, hi=90)
+    search_step_deg: float = opt(30.0, gt=0, hi=90)
+    max_tilt_deg: float = opt(80.0, lo=0, hi=90)
+    fov_offsets: str = opt("spread", choices=("spread", "centre"))
+    swarm_size: int = opt(50, lo=2, hi=10000)
+    iterations: int = opt(30, lo=1, hi=10000)
+    clearance_above_sphere_mm: float = opt(30.0, lo=0, hi=1e4)
+    floor_z_mm: float = opt(-565.0, lo=-1e5, hi=1e5)
+    clearance_above_floor_mm: float = opt(150.0, lo=0, hi=1e4)
+    workspace_mm: Vec = opt([-2000.0, 2000.0, -2000.0, 2000.0], lo=-1e5, hi=1e5, n=4)
+    reach_mm: float = opt(2000.0, gt=0, hi=1e5)
+    plate_margin_mm: float = opt(50.0, lo=0, hi=1e4)
+    min_separation_mm: float = opt(300.0, lo=0, hi=1e5)
+    seed: int = opt(0, lo=0, hi=2**32 - 1)
+    workers: int = opt(2, lo=1, hi=256)
+
+
+@dataclass(frozen=True)
+class DevicesSection(Section):
+    """Device URLs (drivers.registry); optional: without it every device is the fake."""
+
+    name = "devices"
+    robot: str = opt("fake://")
+    camera: str = opt("fake://")
+    galvo: str = opt("fake://")
+    tracker: str = opt("fake://")
+    plc: str = opt("fake://")
+
+
+@dataclass(frozen=True)
+class ServiceSection(Section):
+    """The in-line service (`rvis run`): where it keeps its state and how it recalibrates."""
+
+    name = "service"
+    state_dir: str = opt("rvis-state")
+    mode: str = opt("auto", choices=("auto", "approve"))
+    rolling_size: int = opt(24, lo=4, hi=100000)
+    holdout_size: int = opt(4, lo=0, hi=1000)
+    raw_sweeps_keep: int = opt(0, lo=0, hi=100000)
+
+
+@dataclass(frozen=True)
+class LineSection(Section):
+    """The line handshake and motion-time model of the service's cycle."""
+
+    name = "line"
+    poll_s: float = opt(0.01, gt=0, hi=10)
+    heartbeat_timeout_s: float = opt(3.0, gt=0, hi=600)
+    override_pct: int = opt(100, lo=1, hi=100)
+    speed_pct: float = opt(100.0, gt=0, hi=100)
+    joint_speed_deg_s: Vec = opt([175.0, 175.0, 175.0, 250.0, 250.0, 355.0], gt=0, hi=2000, n=6)
+    accel_s: float = opt(0.4, lo=0, hi=60)
+    settle_s: float = opt(0.2, lo=0, hi=60)
+    home_deg: Vec = opt([0.0, 0.0, 0.0, 0.0, -90.0, 0.0], lo=-720, hi=720, n=6)
+
+
+SECTIONS: tuple[type[Section], ...] = (
+    RobotSection,
+    FramesSection,
+    BasePlateSection,
+    SensorSection,
+    SpheresSection,
+    SimulationSection,
+    CalibrationSection,
+    PlanningSection,
+    DevicesSection,
+    ServiceSection,
+    LineSection,
+)
+BY_NAME = {s.name: s for s in SECTIONS}
+
+
+def _defaults() -> dict[str, dict[str, Any]]:
+    return {s.name: dict(s()) for s in SECTIONS}
+
+
+#: The embedded default cell, section -> key -> value (README: any key may be overridden).
+DEFAULTS = _defaults()
 
 
 @dataclass(frozen=True)
 class CellConfig:
-    """The resolved cell: nominal frames, limits, spheres (part frame), settings."""
+    """The resolved cell: nominal frames, limits, spheres (part frame) and every section."""
 
     T_part_base: F64
     T_flange_sensor: F64
-    limits: JointLimits
+    limits: nominal_robot.JointLimits
     spheres_part_mm: dict[str, F64]
-    base_plate_mm: tuple[float, float, float, float]
-    sensor: dict[str, float]
-    simulation: dict[str, Any]
-    calibration: dict[str, Any]
-    planning: dict[str, Any]
-    devices: dict[str, str]
-    service: dict[str, Any]
+    robot: RobotSection
+    frames: FramesSection
+    base_plate: BasePlateSection
+    sensor: SensorSection
+    spheres: SpheresSection
+    simulation: SimulationSection
+    calibration: CalibrationSection
+    planning: PlanningSection
+    devices: DevicesSection
+    service: ServiceSection
+    line: LineSection
     source: str = "<embedded default>"
-    raw: dict[str, dict[str, Any]] = field(default_factory=dict, repr=False)
 
-    def model(self) -> SystemModel:
-        """The nominal system model of this cell."""
+    @property
+    def base_plate_mm(self) -> tuple[float, float, float, float]:
+        b = self.base_plate
+        return (b.x_min_mm, b.x_max_mm, b.y_min_mm, b.y_max_mm)
+
+    def model(self) -> Any:
+        """The nominal system model of this cell (calib.model.SystemModel)."""
+        from calib.model import SystemModel
+
         return SystemModel(self.T_part_base, self.T_flange_sensor, self.limits)
 
 
-def _line_of(text: str, key: str) -> int | None:
-    for n, line in enumerate(text.splitlines(), start=1):
-        if re.match(rf"\s*{re.escape(key)}\s*=", line):
-            return n
-    return None
-
-
-class _Reader:
-    def __init__(self, merged: dict[str, dict[str, Any]], path: str, text: str) -> None:
-        self.merged, self.path, self.text = merged, path, text
-
-    def fail(self, section: str, key: str, reason: str) -> InputError:
-        line = _line_of(self.text, key) if self.text else None
-        return InputError(reason, file=self.path, line=line, field=f"{section}.{key}")
-
-    def vector(self, section: str, key: str, n: int) -> F64:
-        value = self.merged[section][key]
-        ok = isinstance(value, list) and len(value) == n
-        if not ok or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value):
-            raise self.fail(section, key, f"expected a list of {n} numbers")
-        return np.array(value, dtype=float)
-
-    def number(self, section: str, key: str) -> float:
-        value = self.merged[section][key]
-        if not isinstance(value, int | float) or isinstance(value, bool):
-            raise self.fail(section, key, f"expected a number, got {value!r}")
-        return float(value)
-
-
 def load_cell(path: str | Path | None = None) -> CellConfig:
-    """The default cell, overridden by the TOML file at `path` if given."""
-    merged = {k: dict(v) for k, v in DEFAULTS.items()}
-    text, source = "", "<embedded default>"
-    if path is not None:
-        source = str(path)
-        try:
-            text = Path(path).read_text(encoding="utf-8")
-            user = tomllib.loads(text)
-        except OSError as exc:
-            raise InputError(f"cannot read file: {exc.strerror or exc}", file=path) from exc
-        except tomllib.TOMLDecodeError as exc:
-            raise InputError(f"invalid TOML: {exc}", file=path) from exc
-        for section, values in user.items():
-            if section not in merged or not isinstance(values, dict):
-                raise InputError("unknown section", file=path, field=section)
-            for key, value in values.items():
-                if key not in merged[section]:
-                    raise InputError(
-                        "unknown key", file=path, line=_line_of(text, key), field=f"{section}.{key}"
-                    )
-                merged[section][key] = value
-    return _resolve(_Reader(merged, source, text))
+    """The embedded default cell, overridden by the TOML file at `path` if given."""
+    from app.configcheck import SectionReader
+    from app.tomlfile import key_lines, read_toml
+
+    if path is None:
+        return _resolve({s.name: s() for s in SECTIONS}, "<embedded default>")
+    doc, text = read_toml(path)
+    reader = SectionReader(str(path), key_lines(text))
+    sections: dict[str, Section] = {}
+    for name in doc:
+        if name not in BY_NAME or not isinstance(doc[name], dict):
+            raise reader.unknown_section(name, tuple(BY_NAME))
+    for cls in SECTIONS:
+        sections[cls.name] = reader.section(cls, doc.get(cls.name, {}))
+    return _resolve(sections, str(path), reader)
 
 
-_PLAN_CHOICES = {
-    "criterion": INDEX_NAMES,
-    "method": METHODS,
-    "placement": PLACEMENTS,
-    "fov_offsets": ("spread", "centre"),
-}
-_PLAN_INTEGERS = {"swarm_size": 2, "iterations": 1, "seed": 0, "workers": 1}
+def _resolve(s: dict[str, Section], source: str, reader: Any = None) -> CellConfig:
+    from calib.transforms import apply, pose, rotvec_to_matrix
 
+    def fail(section: str, key: str, reason: str) -> InputError:
+        if reader is None:
+            return InputError(f"[{section}] {key}: {reason}", file=source)
+        return reader.fail(section, key, reason)
 
-def _planning(r: _Reader) -> dict[str, Any]:
-    """The [planning] section, each value checked (choices, integers, numbers)."""
-    out: dict[str, Any] = {}
-    for key, value in r.merged["planning"].items():
-        if key in _PLAN_CHOICES:
-            if value not in _PLAN_CHOICES[key]:
-                choices = ", ".join(_PLAN_CHOICES[key])
-                raise r.fail("planning", key, f"expected one of {choices}, got {value!r}")
-            out[key] = value
-        elif key in _PLAN_INTEGERS:
-            if not isinstance(value, int) or isinstance(value, bool) or value < _PLAN_INTEGERS[key]:
-                raise r.fail("planning", key, f"expected an integer >= {_PLAN_INTEGERS[key]}")
-            out[key] = value
-        elif key == "workspace_mm":
-            box = r.vector("planning", key, 4)
-            if box[0] >= box[1] or box[2] >= box[3]:
-                raise r.fail("planning", key, "expected [x_min, x_max, y_min, y_max], min < max")
-            out[key] = tuple(float(v) for v in box)
-        else:
-            out[key] = r.number("planning", key)
-    step = out["grid_step_deg"]
-    if not 0.0 < step <= 90.0 or not 0.0 < out["search_step_deg"] <= 90.0:
-        raise r.fail("planning", "grid_step_deg", "grid steps must lie in (0, 90] deg")
-    if not 0.0 <= out["max_tilt_deg"] <= 90.0:
-        raise r.fail(
-            "planning", "max_tilt_deg", "the view must not point upward: 0..90 deg from down"
-        )
-    return out
-
-
-def _resolve(r: _Reader) -> CellConfig:
-    m = r.merged
-    lower = r.vector("robot", "joint_lower_deg", 6)
-    upper = r.vector("robot", "joint_upper_deg", 6)
+    rb, fr = s["robot"], s["frames"]
+    assert isinstance(rb, RobotSection) and isinstance(fr, FramesSection)
+    lower, upper = np.array(rb.joint_lower_deg), np.array(rb.joint_upper_deg)
     if np.any(lower >= upper):
-        raise r.fail("robot", "joint_upper_deg", "every upper limit must exceed its lower limit")
-    T_pb = pose(
-        rotvec_to_matrix(np.radians(r.vector("frames", "part_base_rotvec_deg", 3))),
-        r.vector("frames", "part_base_xyz_mm", 3),
-    )
-    T_fs = pose(
-        rotvec_to_matrix(np.radians(r.vector("frames", "flange_sensor_rotvec_deg", 3))),
-        r.vector("frames", "flange_sensor_xyz_mm", 3),
-    )
-    frame = m["spheres"]["frame"]
-    if frame not in ("base", "part"):
-        raise r.fail("spheres", "frame", f"expected 'base' or 'part', got {frame!r}")
-    positions = m["spheres"]["positions_mm"]
-    if not isinstance(positions, dict) or not positions:
-        raise r.fail("spheres", "positions_mm", "expected a table of sphere ids -> [x, y, z]")
-    spheres: dict[str, F64] = {}
-    for tid, value in positions.items():
-        if not (isinstance(value, list) and len(value) == 3):
-            raise r.fail("spheres", "positions_mm", f"sphere {tid}: expected [x, y, z] in mm")
-        p = np.array(value, dtype=float)
-        spheres[str(tid)] = apply(T_pb, p) if frame == "base" else p
-    plate = tuple(
-        r.number("base_plate", k) for k in ("x_min_mm", "x_max_mm", "y_min_mm", "y_max_mm")
-    )
-    sensor = {k: r.number("sensor", k) for k in m["sensor"]}
-    planning = _planning(r)
-    devices = {k: str(v) for k, v in m["devices"].items()}
+        raise fail("robot", "joint_upper_deg", "every upper limit must exceed its lower limit")
+    plate = s["base_plate"]
+    if plate["x_min_mm"] >= plate["x_max_mm"] or plate["y_min_mm"] >= plate["y_max_mm"]:
+        raise fail("base_plate", "x_max_mm", "expected x_min < x_max and y_min < y_max")
+    box = s["planning"]["workspace_mm"]
+    if box[0] >= box[1] or box[2] >= box[3]:
+        raise fail("planning", "workspace_mm", "expected [x_min, x_max, y_min, y_max], min < max")
+    sp = s["spheres"]
+    if not sp["positions_mm"]:
+        raise fail("spheres", "positions_mm", "expected a table of sphere ids -> [x, y, z]")
+    for family, url in s["devices"].items():
+        reason = _url_problem(family, url)
+        if reason:
+            raise fail("devices", family, reason)
+    T_pb = pose(rotvec_to_matrix(np.radians(fr.part_base_rotvec_deg)), fr.part_base_xyz_mm)
+    T_fs = pose(rotvec_to_matrix(np.radians(fr.flange_sensor_rotvec_deg)), fr.flange_sensor_xyz_mm)
+    spheres = {
+        tid: apply(T_pb, np.array(p)) if sp["frame"] == "base" else np.array(p, dtype=float)
+        for tid, p in sp["positions_mm"].items()
+    }
     return CellConfig(
         T_part_base=T_pb,
         T_flange_sensor=T_fs,
-        limits=JointLimits(lower, upper),
+        limits=nominal_robot.JointLimits(lower, upper),
         spheres_part_mm=spheres,
-        base_plate_mm=plate,  # type: ignore[arg-type]
-        sensor=sensor,
-        simulation=dict(m["simulation"]),
-        calibration=dict(m["calibration"]),
-        planning=planning,
-        devices=devices,
-        service=dict(m["service"]),
-        source=r.path,
-        raw=m,
+        source=source,
+        **s,  # type: ignore[arg-type]
     )
+
+
+def _url_problem(family: str, url: str) -> str:
+    """Why `url` cannot select a `family` backend ("" when it can); imports no backend."""
+    from drivers.errors import DeviceConfigError
+    from drivers.registry import BACKENDS, parse_url
+
+    try:
+        scheme = parse_url(url).scheme
+    except DeviceConfigError as exc:
+        return str(exc)
+    if scheme not in BACKENDS[family]:
+        known = ", ".join(f"{k}://" for k in BACKENDS[family])
+        return f"no {family} backend for {scheme}:// (known: {known})"
+    return ""

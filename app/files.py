@@ -4,9 +4,14 @@ header is line 1) and field."""
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import errno
+import io
 import json
 import math
+import os
+import tempfile
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -33,6 +38,9 @@ MEASUREMENT_COLUMNS = (
 )
 TARGET_COLUMNS = ("target", "x_mm", "y_mm", "z_mm")
 ERROR_COLUMNS = ("target", "x_mm", "y_mm", "z_mm", "ex_mm", "ey_mm", "ez_mm", "e_mm")
+#: Magnitudes beyond these are typing errors, not measurements (a cell is a few metres wide).
+MAX_COORD_MM = 1e5
+MAX_ANGLE_DEG = 720.0
 
 
 def _rows(path: Path, columns: Sequence[str]) -> Iterator[tuple[int, dict[str, str]]]:
@@ -60,6 +68,7 @@ def _rows(path: Path, columns: Sequence[str]) -> Iterator[tuple[int, dict[str, s
 
 
 def _number(row: dict[str, str], field: str, path: Path, line: int) -> float:
+    """The finite number in `field`, within the magnitude its unit allows (_deg, _mm)."""
     text = row[field]
     try:
         value = float(text)
@@ -67,6 +76,12 @@ def _number(row: dict[str, str], field: str, path: Path, line: int) -> float:
         raise InputError(f"'{text}' is not a number", file=path, line=line, field=field) from None
     if not math.isfinite(value):
         raise InputError(f"'{text}' is not a finite number", file=path, line=line, field=field)
+    limit = MAX_ANGLE_DEG if field.endswith("_deg") else MAX_COORD_MM
+    if abs(value) > limit:
+        unit = "deg" if field.endswith("_deg") else "mm"
+        raise InputError(
+            f"{value:g} {unit} is beyond +-{limit:g} {unit}", file=path, line=line, field=field
+        )
     return value
 
 
@@ -114,7 +129,12 @@ def read_measurements(path: str | Path, limits: JointLimits | None = None) -> Me
     qs: list[list[float]] = []
     cs: list[list[float]] = []
     lines: list[int] = []
+    seen: dict[tuple[str, ...], int] = {}
     for line, row in _rows(path, MEASUREMENT_COLUMNS):
+        key = tuple(row[c] for c in MEASUREMENT_COLUMNS)
+        if key in seen:
+            raise InputError(f"duplicate of line {seen[key]}", file=path, line=line)
+        seen[key] = line
         ids.append(_target_id(row, path, line))
         q = [_number(row, f, path, line) for f in MEASUREMENT_COLUMNS[1:7]]
         for j, value in enumerate(q):
@@ -149,14 +169,61 @@ def match_targets(rows: MeasurementRows, targets: dict[str, F64], targets_path: 
     return out
 
 
-def write_csv(path: str | Path, columns: Sequence[str], rows: Sequence[Sequence[Any]]) -> None:
+def _write_reason(exc: OSError) -> str:
+    if exc.errno == errno.ENOSPC:
+        return "no space left on the device"
+    return exc.strerror or str(exc)
+
+
+def write_bytes(path: str | Path, data: bytes) -> None:
+    """Write `data` to `path` atomically: a temporary file in the same directory, fsync,
+    rename over `path`, fsync the directory. A failed or interrupted write leaves `path` as it
+    was; any problem with the path is an InputError naming it (exit code 2). Missing parent
+    directories are created."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="", encoding="utf-8") as fh:
-        writer = csv.writer(fh)
-        writer.writerow(columns)
-        for row in rows:
-            writer.writerow([f"{v:.6f}" if isinstance(v, float) else v for v in row])
+    if path.is_dir():
+        raise InputError("is a directory, expected a file name", file=path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        mode = path.stat().st_mode & 0o777 if path.exists() else 0o644
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                os.fchmod(fh.fileno(), mode)
+                fh.write(data)
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+            raise
+        fsync_dir(path.parent)
+    except OSError as exc:
+        raise InputError(f"cannot write: {_write_reason(exc)}", file=path) from None
+
+
+def fsync_dir(directory: str | Path) -> None:
+    """Make a rename in `directory` durable."""
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def write_text(path: str | Path, text: str) -> None:
+    """`write_bytes` of UTF-8 text with LF line ends."""
+    write_bytes(path, text.encode("utf-8"))
+
+
+def write_csv(path: str | Path, columns: Sequence[str], rows: Sequence[Sequence[Any]]) -> None:
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(columns)
+    for row in rows:
+        writer.writerow([f"{v:.6f}" if isinstance(v, float) else v for v in row])
+    write_text(path, buf.getvalue())
 
 
 def write_measurements(path: str | Path, targets: Sequence[str], q_deg: F64, c_mm: F64) -> None:
@@ -183,7 +250,21 @@ def read_json(path: str | Path) -> dict[str, Any]:
     return data
 
 
+def finite_json(data: Any) -> Any:
+    """`data` with every NaN or infinite float replaced by None (JSON has no such numbers)."""
+    if isinstance(data, float):
+        return data if math.isfinite(data) else None
+    if isinstance(data, dict):
+        return {k: finite_json(v) for k, v in data.items()}
+    if isinstance(data, list | tuple):
+        return [finite_json(v) for v in data]
+    return data
+
+
+def dumps_json(data: Any, indent: int | None = None) -> str:
+    """Strict JSON text: never NaN or Infinity."""
+    return json.dumps(finite_json(data), indent=indent, allow_nan=False)
+
+
 def write_json(path: str | Path, data: dict[str, Any]) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
+    write_text(path, dumps_json(data, indent=2) + "\n")

@@ -16,8 +16,9 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
 from calib.errors import InsufficientData
-from calib.model import INDEX, PAPER_30, SystemModel, check_active
+from calib.model import BASE_NAMES, INDEX, PAPER_30, SystemModel, check_active
 from calib.observability import Observability, require_full_rank
+from calib.transforms import matrix_to_rotvec
 
 F64 = NDArray[np.float64]
 LOSSES = ("linear", "huber", "soft_l1", "cauchy", "arctan")
@@ -105,12 +106,16 @@ def identify(
     f_scale_mm: float = 0.05,
     max_nfev: int = 200,
     jac: str = "analytic",
+    align: bool = True,
 ) -> IdentificationResult:
     """Identify the `active` parameters from `data`, starting at x0 (default: nominal).
 
     Raises InsufficientData for fewer equations than parameters and NotIdentifiable (naming
     the parameters of each null-space direction) for a rank-deficient problem at the start.
     `jac="2-point"` or `"3-point"` uses finite differences instead (the benchmark's reference).
+    With `align` (default) and the part->base pose identified, the start is first moved to the
+    closed-form alignment of the measured centres onto the tracker's (`align_part_base`), so
+    that a part->base guess off by any rotation still converges.
     """
     names = check_active(active)
     if loss not in LOSSES:
@@ -121,6 +126,8 @@ def identify(
             f"parameters: at least {-(-len(names) // 3)} measurements are needed"
         )
     x_start = model.nominal_x() if x0 is None else np.array(x0, dtype=float)
+    if align and set(BASE_NAMES) <= set(names):
+        x_start = align_part_base(model, x_start, data)
     cols = np.array([INDEX[n] for n in names])
     require_full_rank(stacked_jacobian(model, x_start, data, names), names)
 
@@ -186,3 +193,33 @@ def _result(
         message=str(getattr(sol, "message", "")),
         nfev=int(getattr(sol, "nfev", 0)),
     )
+
+
+def kabsch(a: F64, b: F64) -> tuple[F64, F64] | None:
+    """(R, t) minimising sum |R a_i + t - b_i|^2 (Kabsch/Horn, proper rotation), for point sets
+    (n, 3); None when b spans less than a plane (fewer than 3 distinct, non-collinear points)."""
+    ca, cb = a.mean(axis=0), b.mean(axis=0)
+    sv_b = np.linalg.svd(b - cb, compute_uv=False)
+    if sv_b.size < 2 or sv_b[1] < 1e-6 * max(sv_b[0], 1.0) or sv_b[1] < 1e-3:
+        return None
+    U, _, Vt = np.linalg.svd((a - ca).T @ (b - cb))
+    d = np.sign(np.linalg.det(Vt.T @ U.T))
+    R: F64 = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+    return R, cb - R @ ca
+
+
+def align_part_base(model: SystemModel, x: F64, data: Measurements) -> F64:
+    """x with its part->base pose replaced by the rigid transform that best maps the measured
+    centres, carried to the base frame with the rest of x, onto the tracker's centres. The
+    joints and the hand-eye stay as they are; x is returned unchanged when the targets do not
+    span a plane."""
+    T_pb = model.T_part_base(x)
+    p_base = (model.points_part(x, data.q_deg, data.c_sensor_mm) - T_pb[:3, 3]) @ T_pb[:3, :3]
+    fit = kabsch(p_base, data.p_part_mm)
+    if fit is None:
+        return x
+    R, t = fit
+    out = x.copy()
+    out[0:3] = t
+    out[3:6] = matrix_to_rotvec(model.T_part_base_nominal[:3, :3].T @ R)
+    return out

@@ -121,10 +121,25 @@ def test_degenerate_configurations(
 ) -> None:
     rows = (simdir / "calibration_measurements.csv").read_text().splitlines()
     firsts = [rows[1 + 6 * k] for k in range(4)]
-    (tmp_path / "m.csv").write_text("\n".join([rows[0]] + [r for r in firsts for _ in range(6)]))
+
+    def nudged(row: str, k: int) -> str:  # the same configuration, another reading
+        *head, sz = row.split(",")
+        return ",".join([*head, f"{float(sz) + 0.001 * k:.6f}"])
+
+    body = [nudged(r, k) for r in firsts for k in range(6)]
+    (tmp_path / "m.csv").write_text("\n".join([rows[0], *body]))
     code, _, err = run(identify_args(simdir, tmp_path, meas=tmp_path / "m.csv"), capsys)
     assert code == 2 and "m.csv: identification Jacobian has rank" in err
     assert "not identifiable together" in err
+
+
+def test_duplicate_rows_named(
+    simdir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    rows = (simdir / "calibration_measurements.csv").read_text().splitlines()
+    (tmp_path / "m.csv").write_text("\n".join([*rows, rows[3]]) + "\n")
+    code, _, err = run(identify_args(simdir, tmp_path, meas=tmp_path / "m.csv"), capsys)
+    assert code == 2 and f"m.csv:{len(rows) + 1}: duplicate of line 4" in err
 
 
 def test_redundant_parameter_named(
@@ -157,7 +172,9 @@ def test_bad_cell_file(simdir: Path, tmp_path: Path, capsys: pytest.CaptureFixtu
     (tmp_path / "cell.toml").write_text("[frames]\n\npart_base_xyz_mm = [1, 2]\n")
     code, _, err = run([*identify_args(simdir, tmp_path), "--cell", str(tmp_path / "cell.toml")],
                        capsys)  # fmt: skip
-    assert code == 2 and "cell.toml:3: field 'frames.part_base_xyz_mm'" in err
+    assert (
+        code == 2 and "cell.toml:3: [frames] part_base_xyz_mm: expected a list of 3 numbers" in err
+    )
 
 
 def test_demo_writes_a_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -94,7 +94,7 @@ def test_devices_check_with_a_cell_file(tmp_path: Path, capsys: pytest.CaptureFi
     cell = tmp_path / "cell.toml"
     cell.write_text('[devices]\nrobot = "fake://"\ntracker = "rmi://127.0.0.1:1"\n')
     assert main(["devices", "check", "--cell", str(cell)]) == 2  # rmi is not a tracker
-    assert "devices.tracker" in capsys.readouterr().err
+    assert "[devices] tracker: no tracker backend for rmi://" in capsys.readouterr().err
     cell.write_text('[devices]\nrobot = "rmi://127.0.0.1:1"\nplc = "fake://"\n')
     assert main(["devices", "check", "--cell", str(cell), "--timeout", "0.5"]) == 1
     out = capsys.readouterr().out
@@ -104,9 +104,10 @@ def test_devices_check_with_a_cell_file(tmp_path: Path, capsys: pytest.CaptureFi
 @pytest.mark.parametrize(
     ("text", "needle"),
     [
-        ("[devices\n", "not valid TOML"),
-        ("[other]\n", "field 'devices'"),
-        ('[devices]\nlaser = "fake://"\n', "field 'devices.laser'"),
+        ("[devices\n", "invalid TOML"),
+        ("[other]\n", "[other]: unknown section"),
+        ('[devices]\nlaser = "fake://"\n', "[devices] laser: unknown key"),
+        ("[devices]\nrobot = 5\n", "[devices] robot: expected a string"),
     ],
 )
 def test_bad_cell_file_is_one_line_exit_2(

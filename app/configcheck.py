@@ -1,0 +1,107 @@
+"""Checking the values of one cell-file section against its dataclass (app/config.py): the
+type from the annotation, the range, choices and vector length from the field's metadata.
+Every failure is an InputError `file:line: [section] key: reason`."""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+from typing import Any, get_type_hints
+
+from app.errors import InputError
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+class SectionReader:
+    """Builds section dataclasses from a parsed cell file; knows each key's line."""
+
+    def __init__(self, path: str, lines: dict[tuple[str, str], int]) -> None:
+        self.path, self.lines = path, lines
+
+    def fail(self, section: str, key: str, reason: str) -> InputError:
+        line = self.lines.get((section, key), self.lines.get((section, "")))
+        return InputError(f"[{section}] {key}: {reason}", file=self.path, line=line)
+
+    def unknown_section(self, name: str, known: tuple[str, ...]) -> InputError:
+        hint = _hint(name, known)
+        line = self.lines.get((name, ""))
+        return InputError(f"[{name}]: unknown section{hint}", file=self.path, line=line)
+
+    def section(self, cls: Any, values: dict[str, Any]) -> Any:
+        fields = {f.name: f for f in dataclasses.fields(cls)}
+        hints = get_type_hints(cls)
+        out: dict[str, Any] = {}
+        for key, value in values.items():
+            if key not in fields:
+                raise self.fail(cls.name, key, "unknown key" + _hint(key, tuple(fields)))
+            out[key] = self._value(cls.name, key, value, hints[key], fields[key].metadata)
+        return cls(**out)
+
+    def _value(self, section: str, key: str, value: Any, kind: Any, meta: Any) -> Any:
+        text = str(kind)
+        if kind is bool:
+            if not isinstance(value, bool):
+                raise self.fail(section, key, f"expected true or false, got {value!r}")
+            return value
+        if kind is str:
+            return self._string(section, key, value, meta)
+        if kind is int:
+            if not isinstance(value, int) or isinstance(value, bool):
+                raise self.fail(section, key, f"expected an integer, got {value!r}")
+            self._range(section, key, value, meta)
+            return value
+        if kind is float:
+            return self._number(section, key, value, meta)
+        if text.startswith("dict"):
+            if not isinstance(value, dict) or not value:
+                raise self.fail(section, key, "expected a table of ids -> [x, y, z]")
+            return {str(k): self._vector(section, key, v, meta, f"{k}: ") for k, v in value.items()}
+        return self._vector(section, key, value, meta, "")
+
+    def _string(self, section: str, key: str, value: Any, meta: Any) -> str:
+        if not isinstance(value, str):
+            raise self.fail(section, key, f"expected a string, got {value!r}")
+        choices = meta.get("choices")
+        if choices and value not in choices:
+            raise self.fail(
+                section,
+                key,
+                f"expected one of {', '.join(choices)}, got {value!r}" + _hint(value, choices),
+            )
+        if not choices and not value.strip():
+            raise self.fail(section, key, "expected a non-empty string")
+        return value
+
+    def _number(self, section: str, key: str, value: Any, meta: Any, what: str = "") -> float:
+        if not _is_number(value):
+            raise self.fail(section, key, f"{what}expected a number, got {value!r}")
+        if not math.isfinite(value):
+            raise self.fail(section, key, f"{what}expected a finite number, got {value!r}")
+        self._range(section, key, value, meta, what)
+        return float(value)
+
+    def _vector(
+        self, section: str, key: str, value: Any, meta: Any, what: str
+    ) -> tuple[float, ...]:
+        n = meta.get("n")
+        if not isinstance(value, list) or (n is not None and len(value) != n):
+            raise self.fail(section, key, f"{what}expected a list of {n} numbers")
+        return tuple(self._number(section, key, v, meta, what) for v in value)
+
+    def _range(self, section: str, key: str, value: float, meta: Any, what: str = "") -> None:
+        lo, hi, gt = meta.get("lo"), meta.get("hi"), meta.get("gt")
+        if gt is not None and not value > gt:
+            raise self.fail(section, key, f"{what}must be > {gt:g}, got {value!r}")
+        if lo is not None and value < lo:
+            raise self.fail(section, key, f"{what}must be >= {lo:g}, got {value!r}")
+        if hi is not None and value > hi:
+            raise self.fail(section, key, f"{what}must be <= {hi:g}, got {value!r}")
+
+
+def _hint(word: str, known: tuple[str, ...]) -> str:
+    close = difflib.get_close_matches(word, known, n=1, cutoff=0.6)
+    return f" (did you mean '{close[0]}'?)" if close else ""
