@@ -1,10 +1,15 @@
 """The `rvis` command line: parses arguments, runs one subcommand, turns user errors into a
-one-line message and exit code 2 (never a traceback for a user mistake)."""
+one-line message and exit code 2 (never a traceback for a user mistake).
+
+Only the chosen command's module is imported (the others are listed from
+app.commands.COMMANDS), so `rvis --help` starts fast and loads no numerical library.
+"""
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
 from collections.abc import Sequence
 
@@ -12,26 +17,56 @@ from app.commands import COMMANDS
 from app.errors import RvisError
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse exits with 2 on usage errors already; keep its one-line message."""
+def _chosen(argv: Sequence[str]) -> str | None:
+    """The subcommand named in argv (the first word that is not an option), if any."""
+    for word in argv:
+        if not word.startswith("-"):
+            return word if word in COMMANDS else None
+    return None
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(
+def _version() -> str:
+    from app.meta import git_commit, version
+
+    commit = git_commit()
+    return f"rvis {version()}" + (f" ({commit})" if commit else "")
+
+
+class _VersionAction(argparse.Action):
+    def __init__(self, option_strings: Sequence[str], dest: str, **kw: object) -> None:
+        super().__init__(option_strings, dest, nargs=0, help="print the version and exit")
+
+    def __call__(self, parser: argparse.ArgumentParser, *args: object, **kw: object) -> None:
+        print(_version())
+        parser.exit()
+
+
+def build_parser(argv: Sequence[str] = ()) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
         prog="rvis",
         description="In-line self-calibration of a robotic visual inspection system.",
     )
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    parser.add_argument("--version", action=_VersionAction)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
-    for name in COMMANDS:
-        module = importlib.import_module(f"app.commands.{name}")
-        module.register(sub)
+    chosen = _chosen(argv)
+    for name, help_text in COMMANDS.items():
+        if name == chosen:
+            importlib.import_module(f"app.commands.{name}").register(sub)
+        else:
+            sub.add_parser(name, help=help_text, add_help=False)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    from app.threads import limit_blas_threads
+
+    limit_blas_threads()
+    if argv is None:
+        argv = sys.argv[1:]
+        # `rvis ... | head`: a closed pipe ends the process quietly, as for any Unix tool
+        signal.signal(signal.SIGPIPE, signal.SIG_DFL)
+    args = build_parser(argv).parse_args(argv)
     try:
         code: int = args.func(args)
     except RvisError as exc:

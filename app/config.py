@@ -154,6 +154,21 @@ class CalibrationSection(Section):
     max_sensor_change_mm: float = opt(20.0, gt=0, hi=1000)
     max_sensor_change_deg: float = opt(5.0, gt=0, hi=180)
 
+    def gates(self) -> Any:
+        """The calib.gates.Gates of this section (offline: the part->base pose unbounded)."""
+        import math
+
+        from calib.gates import Gates
+
+        return Gates(
+            max_rms_mm=self.max_rms_mm,
+            max_condition=self.max_condition,
+            max_joint_change_mm=self.max_joint_change_mm,
+            max_joint_change_rad=math.radians(self.max_joint_change_deg),
+            max_sensor_change_mm=self.max_sensor_change_mm,
+            max_sensor_change_rad=math.radians(self.max_sensor_change_deg),
+        )
+
 
 @dataclass(frozen=True)
 class PlanningSection(Section):

@@ -19,10 +19,18 @@ T = TypeVar("T")
 def load_dataset(
     measurements: str | Path, targets: str | Path, limits: JointLimits | None = None
 ) -> Measurements:
+    """The measurements matched to their targets."""
+    return load_dataset_lines(measurements, targets, limits)[0]
+
+
+def load_dataset_lines(
+    measurements: str | Path, targets: str | Path, limits: JointLimits | None = None
+) -> tuple[Measurements, list[int]]:
+    """(the measurements matched to their targets, the file line of each measurement)."""
     targets_path = Path(targets)
     rows = read_measurements(measurements, limits)
     centres = match_targets(rows, read_targets(targets_path), targets_path)
-    return Measurements(rows.q_deg, rows.c_sensor_mm, centres, tuple(rows.targets))
+    return Measurements(rows.q_deg, rows.c_sensor_mm, centres, tuple(rows.targets)), rows.lines
 
 
 def as_input_error(path: str | Path, work: Callable[[], T]) -> T:

@@ -11,8 +11,9 @@ from numpy.typing import NDArray
 
 from app.errors import InputError
 from app.files import read_json
+from calib.gates import GateReport
 from calib.identify import IdentificationResult
-from calib.model import ALL_NAMES, INDEX, SystemModel, group_of, unit_of
+from calib.model import ALL_NAMES, INDEX, PAPER_30, SystemModel, group_of, unit_of
 from calib.robot import JointLimits
 
 F64 = NDArray[np.float64]
@@ -20,7 +21,14 @@ FORMAT = "rvis-parameters"
 FORMAT_VERSION = 1
 
 
-def to_json(model: SystemModel, result: IdentificationResult) -> dict[str, Any]:
+def to_json(
+    model: SystemModel,
+    result: IdentificationResult,
+    gates: GateReport | None = None,
+    provenance: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """The parameters document. `success` is true only when the optimiser converged and the
+    quality gates passed (`gates`; without them only convergence is known)."""
     nominal = model.nominal_x()
     std = dict(zip(result.active, result.std, strict=True))
     params = [
@@ -59,50 +67,95 @@ def to_json(model: SystemModel, result: IdentificationResult) -> dict[str, Any]:
         "condition": obs.condition,
         "observability": obs.indices,
         "correlation": result.corr.round(6).tolist(),
-        "success": result.success,
+        "success": bool(result.success and (gates is None or gates.passed)),
+        "converged": result.success,
+        "gates": None if gates is None else gates.to_json(),
         "status": result.status,
-        "message": result.message,
+        "message": result.message if gates is None else gates.reason,
+        "provenance": provenance,
     }
 
 
-def from_json(path: str | Path) -> tuple[SystemModel, F64]:
-    """(model, full parameter vector) from a parameters JSON file."""
+def _need(data: dict[str, Any], key: str, path: Path, where: str = "") -> Any:
+    if key not in data:
+        raise InputError("missing field", file=path, field=f"{where}{key}")
+    return data[key]
+
+
+def _finite(value: Any, path: Path, field: str) -> float:
+    if not isinstance(value, int | float) or isinstance(value, bool) or not np.isfinite(value):
+        raise InputError(f"{value!r} is not a finite number", file=path, field=field)
+    return float(value)
+
+
+def _model(data: dict[str, Any], path: Path) -> SystemModel:
+    m = _need(data, "model", path)
+    if not isinstance(m, dict):
+        raise InputError("expected an object", file=path, field="model")
+    if m.get("name") != SystemModel.name:
+        raise InputError(
+            f"model {m.get('name')!r} is not {SystemModel.name!r}", file=path, field="model.name"
+        )
+    try:
+        arrays = [
+            np.array(_need(m, k, path, "model."), dtype=float)
+            for k in ("T_part_base_nominal", "T_flange_sensor_nominal")
+        ]
+        limits = [
+            np.array(_need(m, k, path, "model."), dtype=float)
+            for k in ("joint_lower_deg", "joint_upper_deg")
+        ]
+        if any(not np.all(np.isfinite(a)) for a in (*arrays, *limits)):
+            raise ValueError("non-finite values")
+        return SystemModel(arrays[0].reshape(4, 4), arrays[1].reshape(4, 4), JointLimits(*limits))
+    except (ValueError, TypeError) as exc:
+        raise InputError(f"bad model: {exc}", file=path, field="model") from exc
+
+
+def from_json(path: str | Path, *, allow_failed: bool = False) -> tuple[SystemModel, F64]:
+    """(model, full parameter vector) from a parameters JSON file, validated: format and
+    version, the model, every parameter of the paper's 30 exactly once with a finite value and
+    uncertainty, and `success` true (a failed identification is refused unless
+    `allow_failed`)."""
+    path = Path(path)
     data = read_json(path)
-
-    def need(obj: dict[str, Any], key: str, where: str) -> Any:
-        if key not in obj:
-            raise InputError("missing field", file=path, field=f"{where}{key}")
-        return obj[key]
-
     if data.get("format") != FORMAT:
         raise InputError(
             f"not an rvis parameters file (format {data.get('format')!r})",
             file=path,
             field="format",
         )
-    m = need(data, "model", "")
-    try:
-        model = SystemModel(
-            np.array(need(m, "T_part_base_nominal", "model."), dtype=float).reshape(4, 4),
-            np.array(need(m, "T_flange_sensor_nominal", "model."), dtype=float).reshape(4, 4),
-            JointLimits(
-                np.array(need(m, "joint_lower_deg", "model."), dtype=float),
-                np.array(need(m, "joint_upper_deg", "model."), dtype=float),
-            ),
+    if data.get("format_version") != FORMAT_VERSION:
+        raise InputError(
+            f"format_version {data.get('format_version')!r} is not {FORMAT_VERSION}",
+            file=path,
+            field="format_version",
         )
-    except (ValueError, TypeError) as exc:
-        raise InputError(f"bad model: {exc}", file=path, field="model") from exc
+    if data.get("success") is not True and not allow_failed:
+        raise InputError(
+            f"a failed identification ({data.get('message', 'success is not true')}); "
+            "use --allow-failed to read it anyway",
+            file=path,
+            field="success",
+        )
+    model = _model(data, path)
     x = model.nominal_x()
-    for k, p in enumerate(need(data, "parameters", "")):
+    params = _need(data, "parameters", path)
+    if not isinstance(params, list):
+        raise InputError("expected a list", file=path, field="parameters")
+    seen: set[str] = set()
+    for k, p in enumerate(params):
         name = p.get("name") if isinstance(p, dict) else None
         if name not in INDEX:
             raise InputError(f"unknown parameter {name!r}", file=path, field=f"parameters[{k}]")
-        value = p.get("value")
-        if not isinstance(value, int | float) or not np.isfinite(value):
-            raise InputError(
-                "value is not a finite number", file=path, field=f"parameters[{k}].value"
-            )
-        x[INDEX[name]] = float(value)
+        if name in seen:
+            raise InputError(f"parameter {name!r} twice", file=path, field=f"parameters[{k}]")
+        seen.add(name)
+        x[INDEX[name]] = _finite(p.get("value"), path, f"parameters[{k}].value")
+        _finite(p.get("std", 0.0), path, f"parameters[{k}].std")
+    missing = [n for n in PAPER_30 if n not in seen]
+    if missing:
+        raise InputError(f"missing parameters: {', '.join(missing)}", file=path, field="parameters")
     return model, x
 
 

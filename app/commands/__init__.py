@@ -1,17 +1,19 @@
 """One module per `rvis` subcommand; each exposes `register(subparsers)`.
 
-The command line (app/cli.py) imports the modules listed in COMMANDS, in order. A command's
-`register` adds its parser and sets `func(args) -> int` as the default handler.
+COMMANDS lists every subcommand with its one-line help, in the order `rvis --help` shows them.
+The command line (app/cli.py) imports only the module of the command being run (so `rvis --help`
+imports none of numpy, OpenCV or the fakes); a command's `register` adds its parser and sets
+`func(args) -> int` as the default handler.
 """
 
-COMMANDS: tuple[str, ...] = (
-    "demo",
-    "simulate",
-    "identify",
-    "validate",
-    "observability",
-    "plan",
-    "experiment",
-    "devices",
-    "sensor",
-)
+COMMANDS: dict[str, str] = {
+    "demo": "simulate, identify, validate and report on the simulated cell",
+    "simulate": "write simulated calibration and validation sets",
+    "identify": "identify the kinematic parameters from measurements",
+    "validate": "errors of a parameter set at validation positions",
+    "observability": "rank, condition and O1..O5 of measurements",
+    "plan": "plan sphere positions and measurement configurations",
+    "experiment": "reproduce the paper's experiment on the simulated cell",
+    "devices": "check the configured devices",
+    "sensor": "laser-line sensor: calibrate, measure",
+}

@@ -18,13 +18,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--measurements", required=True, help="measurements CSV")
     p.add_argument("--params", help="parameters JSON to evaluate at (default: nominal)")
     p.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")
+    p.add_argument(
+        "--allow-failed", action="store_true", help="read a parameters file that failed its gates"
+    )
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     if args.params:
-        model, x = from_json(args.params)
+        model, x = from_json(args.params, allow_failed=args.allow_failed)
     else:
         model = load_cell(args.cell).model()
         x = model.nominal_x()

@@ -27,6 +27,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="plan JSON to write")
     p.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")
     p.add_argument("--params", help="pre-calibrated parameters JSON to plan on (default: nominal)")
+    p.add_argument(
+        "--allow-failed", action="store_true", help="plan on parameters that failed their gates"
+    )
     add_plan_options(p)
     p.add_argument("--seed", type=int, help="seed (default 0)")
     p.add_argument("--json", action="store_true", help="print the plan summary as JSON")
@@ -35,7 +38,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     cfg = load_cell(args.cell)
-    model, x = from_json(args.params) if args.params else (cfg.model(), cfg.model().nominal_x())
+    if args.params:
+        model, x = from_json(args.params, allow_failed=args.allow_failed)
+    else:
+        model = cfg.model()
+        x = model.nominal_x()
     overrides = plan_overrides(args)
     if args.seed is not None:
         overrides["seed"] = args.seed

@@ -22,12 +22,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--targets", required=True, help="validation targets CSV")
     p.add_argument("--measurements", required=True, help="validation measurements CSV")
     p.add_argument("--out", help="errors CSV to write")
+    p.add_argument(
+        "--allow-failed", action="store_true", help="read a parameters file that failed its gates"
+    )
     p.add_argument("--json", action="store_true", help="print the statistics as JSON")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    model, x = from_json(args.params)
+    model, x = from_json(args.params, allow_failed=args.allow_failed)
     data = load_dataset(args.measurements, args.targets, model.limits)
     e_id = residuals(model, x, data)
     e_nom = residuals(model, model.nominal_x(), data)

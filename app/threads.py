@@ -1,0 +1,20 @@
+"""Thread settings of the numerical libraries, applied by the entry points (the `rvis` command
+and the benchmarks) before numpy is imported, never at import time of a library module.
+
+The numerics multiply small matrices (30 x 30, 3 x 30 blocks) very many times: OpenBLAS's thread
+pool only adds overhead there, and on a busy 2-core machine it stalls (measured 3-8x slower
+planning). rvis parallelises over processes instead.
+"""
+
+from __future__ import annotations
+
+import os
+
+BLAS_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def limit_blas_threads(n: int = 1) -> None:
+    """One BLAS thread per process unless the user set the variable; must run before numpy
+    is imported to take effect."""
+    for name in BLAS_VARIABLES:
+        os.environ.setdefault(name, str(n))
