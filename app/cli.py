@@ -12,6 +12,7 @@ import importlib
 import signal
 import sys
 from collections.abc import Sequence
+from typing import NoReturn
 
 from app.commands import COMMANDS
 from app.errors import RvisError
@@ -32,6 +33,13 @@ def _version() -> str:
     return f"rvis {version()}" + (f" ({commit})" if commit else "")
 
 
+class _Parser(argparse.ArgumentParser):
+    """Usage errors as one line (`rvis identify: error: ...`), exit code 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 class _VersionAction(argparse.Action):
     def __init__(self, option_strings: Sequence[str], dest: str, **kw: object) -> None:
         super().__init__(option_strings, dest, nargs=0, help="print the version and exit")
@@ -42,12 +50,12 @@ class _VersionAction(argparse.Action):
 
 
 def build_parser(argv: Sequence[str] = ()) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="rvis",
         description="In-line self-calibration of a robotic visual inspection system.",
     )
     parser.add_argument("--version", action=_VersionAction)
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
     chosen = _chosen(argv)
     for name, help_text in COMMANDS.items():

@@ -240,7 +240,7 @@ def write_targets(path: str | Path, targets: dict[str, F64]) -> None:
 def read_json(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = json.loads(path.read_text(encoding="utf-8-sig"))
     except OSError as exc:
         raise InputError(f"cannot read file: {exc.strerror or exc}", file=path) from exc
     except json.JSONDecodeError as exc:

@@ -73,10 +73,10 @@ def plan_overrides(args: argparse.Namespace) -> dict[str, Any]:
             f"unknown criterion '{out['criterion']}' (choose from {', '.join(INDEX_NAMES)})",
             field="--criterion",
         )
-    for key in ("iterations", "swarm_size", "workers"):
-        if key in out and out[key] < 1:
+    for key, lo in (("iterations", 1), ("swarm_size", 2), ("workers", 1)):
+        if key in out and out[key] < lo:
             option = "--swarm" if key == "swarm_size" else f"--{key}"
-            raise InputError(f"must be >= 1, got {out[key]}", field=option)
+            raise InputError(f"must be >= {lo}, got {out[key]}", field=option)
     for key in ("grid_step_deg", "search_step_deg"):
         if key in out and not 0.0 < out[key] <= 90.0:
             option = "--" + key.removesuffix("_deg").replace("_", "-")

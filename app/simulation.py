@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.config import CellConfig
+from app.errors import InputError
 from calib import candidates
 from calib.identify import Measurements
 from calib.model import SystemModel
@@ -306,13 +307,40 @@ def validation_points(cfg: CellConfig, n: int, rng: np.random.Generator) -> dict
     axis, -300..700 mm in height, outside the base plate."""
     x0, x1, y0, y1 = cfg.base_plate_mm
     out: dict[str, F64] = {}
-    while len(out) < n:
+    for _ in range(1000 * n):
+        if len(out) == n:
+            break
         r, a, z = rng.uniform(900.0, 1900.0), rng.uniform(-np.pi, np.pi), rng.uniform(-300, 700)
         p_base = np.array([r * np.cos(a), r * np.sin(a), z])
         if x0 <= p_base[0] <= x1 and y0 <= p_base[1] <= y1:
             continue
         out[f"V{len(out) + 1:03d}"] = cfg.T_part_base[:3, :3] @ p_base + cfg.T_part_base[:3, 3]
+    if len(out) < n:
+        raise InputError(
+            "[base_plate]: the plate covers the validation region (900-1900 mm from the J1 axis)",
+            file=cfg.source,
+        )
     return out
+
+
+def check_complete(
+    ds: DataSet, wanted: Mapping[str, int], source: str, total: int | None = None
+) -> None:
+    """InputError unless every target has its wanted number of measurements (and the set
+    `total` rows), all finite: a sphere that no view reaches is named, never left out."""
+    m = ds.measurements
+    counts = {t: m.targets.count(t) for t in wanted}
+    short = [f"{t} ({counts[t]} of {n})" for t, n in wanted.items() if counts[t] < n]
+    if total is not None and len(m) < total:
+        raise InputError(
+            f"only {len(m)} of {total} validation positions could be measured", file=source
+        )
+    if short and total is None:
+        raise InputError(
+            "[spheres] positions_mm: too few views reach sphere " + ", ".join(short), file=source
+        )
+    if not all(np.all(np.isfinite(a)) for a in (m.q_deg, m.c_sensor_mm, m.p_part_mm)):
+        raise InputError("the simulation produced non-finite values", file=source)
 
 
 def validation_set(

@@ -144,11 +144,22 @@ def laser_points(
     return out
 
 
+def _spread_mm(X: F64) -> float:
+    """RMS extent of points (n, 3) across their main line [mm]: ~0 when they are collinear."""
+    s = np.linalg.svd(X - X.mean(axis=0), compute_uv=False)
+    return float(s[1] / np.sqrt(len(X)))
+
+
 def calibrate_laser(
-    points_per_pose: Sequence[Sequence[F64]], commands_v: F64, min_points: int = 200
+    points_per_pose: Sequence[Sequence[F64]],
+    commands_v: F64,
+    min_points: int = 200,
+    min_spread_mm: float = 0.5,
 ) -> LaserModel:
     """Laser model from target sweeps: points_per_pose[k][i] are the 3D points [mm, camera
     frame] of command commands_v[i] on target pose k (all poses swept with the same commands).
+    A command's plane is fitted only when its points span it (at least `min_spread_mm` RMS
+    across their main line: the target poses must not be identical or parallel).
     """
     cmds = np.asarray(commands_v, dtype=np.float64)
     normals, offsets, used, rms = [], [], [], []
@@ -157,8 +168,8 @@ def calibrate_laser(
             [pose[i] for pose in points_per_pose if len(pose[i])] or [np.zeros((0, 3))]
         )
         lines = sum(1 for pose in points_per_pose if len(pose[i]) >= 20)
-        if len(X) < min_points or lines < 2:
-            continue
+        if len(X) < min_points or lines < 2 or _spread_mm(X) < min_spread_mm:
+            continue  # identical or parallel target poses put every point on one line
         n, d, r = _fit_plane(X)
         normals.append(n)
         offsets.append(d)

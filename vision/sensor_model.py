@@ -221,9 +221,11 @@ def sensor_model_from_dict(doc: dict[str, Any]) -> SensorModel:
 def load_sensor_model(path: str | Path) -> SensorModel:
     """Read a sensor-calibration TOML file; SensorFileError names the bad field."""
     try:
-        doc = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+        doc = tomllib.loads(Path(path).read_text(encoding="utf-8-sig"))
     except OSError as exc:
         raise SensorFileError(f"cannot read: {exc.strerror}") from exc
+    except UnicodeDecodeError as exc:
+        raise SensorFileError(f"not UTF-8 text ({exc.reason})") from exc
     except tomllib.TOMLDecodeError as exc:
         raise SensorFileError(f"not valid TOML ({exc})") from exc
     return sensor_model_from_dict(doc)

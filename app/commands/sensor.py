@@ -24,7 +24,10 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from app.cliargs import float_in
 from app.errors import InputError, QualityError
+from app.files import write_text
+from app.tomlfile import read_toml
 from vision.calibrate import Chessboard
 from vision.calibrate_sensor import calibrate_sensor
 from vision.errors import CalibrationFailed, SensorFileError, VisionError
@@ -32,8 +35,8 @@ from vision.measure import measure_sphere_from_sweep
 from vision.sensor_model import (
     SensorModel,
     default_sensor_model,
-    load_sensor_model,
-    save_sensor_model,
+    dumps_sensor_model,
+    sensor_model_from_dict,
 )
 
 SWEEP_HEADER = ["frame", "command_v"]
@@ -47,7 +50,9 @@ def register(subparsers: Any) -> None:
     cal.add_argument("dir", type=Path, help="folder with chessboards/ and targets/<pose>/")
     cal.add_argument("--out", type=Path, required=True, help="sensor calibration TOML to write")
     cal.add_argument("--pattern", default="9x6", help="inner corners COLSxROWS (default 9x6)")
-    cal.add_argument("--square-mm", type=float, default=2.5, help="square size [mm]")
+    cal.add_argument(
+        "--square-mm", type=float_in(0.0, 1000.0), default=2.5, help="square size [mm]"
+    )
     cal.add_argument("--mode", choices=["fast", "precise"], default="fast")
     cal.set_defaults(func=run_calibrate)
     mea = sub.add_parser("measure", help="measure a sphere centre from one recorded sweep")
@@ -55,7 +60,7 @@ def register(subparsers: Any) -> None:
     mea.add_argument("--sensor", type=Path, help="sensor calibration TOML (default: simulated)")
     mea.add_argument(
         "--radius-mm",
-        type=float,
+        type=float_in(0.0, 1000.0, open_lo=False),
         default=15.0,
         help="certified sphere radius [mm]; 0 fits a free radius",
     )
@@ -110,8 +115,9 @@ def read_sweep(sweep_dir: Path) -> tuple[list[NDArray[np.generic]], NDArray[np.f
 def _load_model(path: Path | None) -> SensorModel:
     if path is None:
         return default_sensor_model()
+    doc, _ = read_toml(path)
     try:
-        return load_sensor_model(path)
+        return sensor_model_from_dict(doc)
     except SensorFileError as exc:
         raise InputError(exc.reason, file=path, field=exc.field) from exc
 
@@ -203,7 +209,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         )
     except CalibrationFailed as exc:
         raise InputError(f"calibration failed: {exc}", file=args.dir) from exc
-    save_sensor_model(model, args.out)
+    write_text(args.out, dumps_sensor_model(model))
     K = model.camera.K
     print(
         f"wrote {args.out}: fx {K[0, 0]:.2f} px, fy {K[1, 1]:.2f} px, reprojection "

@@ -1,36 +1,52 @@
-"""`rvis simulate`: write a calibration and a validation set of the simulated cell."""
+"""`rvis simulate`: write a calibration and a validation set of the simulated cell.
+
+Every sphere must be measured from the requested number of configurations and every value
+must be finite; otherwise nothing is written and the command says which sphere could not be
+measured (exit code 2: the cell file asks for something the simulated robot cannot do)."""
 
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-import numpy as np
-
-from app.config import load_cell
-from app.files import write_measurements, write_targets
-from app.simulation import collect, make_cell, validation_set
+from app.cliargs import int_at_least
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="write simulated calibration and validation sets")
     p.add_argument("--out", required=True, help="folder to write the CSV files into")
-    p.add_argument("--seed", type=int, default=0, help="seed of the simulated cell (default 0)")
+    p.add_argument("--seed", type=int_at_least(0), help="default: [simulation] seed")
     p.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")
-    p.add_argument("--configs-per-sphere", type=int, default=6, help="default 6 (paper)")
-    p.add_argument("--validation", type=int, default=100, help="validation positions (100)")
+    p.add_argument(
+        "--configs-per-sphere", type=int_at_least(1), help="default: [calibration] (paper: 6)"
+    )
+    p.add_argument("--validation", type=int_at_least(1), default=100, help="positions (100)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    import numpy as np
+
+    from app.config import load_cell
+    from app.errors import InputError
+    from app.files import write_measurements, write_targets
+    from app.simulation import check_complete, collect, make_cell, validation_set
+
     cfg = load_cell(args.cell)
-    cell = make_cell(cfg, seed=args.seed)
+    seed = cfg.simulation.seed if args.seed is None else args.seed
+    n_each = args.configs_per_sphere or cfg.calibration.configs_per_sphere
+    cell = make_cell(cfg, seed=seed)
     model = cfg.model()
     x0 = model.nominal_x()
-    rng = np.random.default_rng([args.seed, 2])
+    rng = np.random.default_rng([seed, 2])
     out = Path(args.out)
-    cal = collect(cell, model, x0, cfg.spheres_part_mm, args.configs_per_sphere, rng)
+    if out.exists() and not out.is_dir():
+        raise InputError("exists and is not a folder", file=out)
+    cal = collect(cell, model, x0, cfg.spheres_part_mm, n_each, rng)
+    check_complete(cal, {t: n_each for t in cfg.spheres_part_mm}, cfg.source)
     val = validation_set(cell, cfg, model, x0, args.validation, rng)
+    check_complete(val, {t: 1 for t in val.targets}, cfg.source, total=args.validation)
     for name, ds in (("calibration", cal), ("validation", val)):
         m = ds.measurements
         write_measurements(out / f"{name}_measurements.csv", m.targets, m.q_deg, m.c_sensor_mm)

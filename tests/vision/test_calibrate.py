@@ -83,3 +83,14 @@ def test_insufficient_data_is_a_typed_error(
     one_pose = [laser_points(frames, target_plane(image, calibrated.camera), calibrated.camera)]
     with pytest.raises(CalibrationFailed, match="non-parallel"):
         calibrate_laser(one_pose, calib_set.commands_v)
+
+
+def test_identical_target_poses_do_not_determine_the_laser(
+    calib_set: CalibrationSet, calibrated: SensorModel
+) -> None:
+    """The same target pose recorded twice puts every command's points on one line: no plane,
+    so the calibration fails instead of writing a degenerate laser model."""
+    image, frames = calib_set.targets[0]
+    pose = laser_points(frames, target_plane(image, calibrated.camera), calibrated.camera)
+    with pytest.raises(CalibrationFailed, match="non-parallel"):
+        calibrate_laser([pose, [p.copy() for p in pose]], calib_set.commands_v)
