@@ -17,7 +17,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.config import CellConfig
-from app.files import write_json, write_measurements, write_targets
+from app.files import write_json, write_measurements, write_targets, write_text
+from app.meta import provenance
 from app.params import to_json
 from app.planning import plan_to_json, run_plan
 from app.report import (
@@ -38,6 +39,7 @@ from app.simulation import (
     measurement_report,
     validation_set,
 )
+from calib.gates import GateReport, check_identification
 from calib.identify import IdentificationResult, Measurements, identify, residuals
 from calib.model import SystemModel
 from calib.plan import Plan, Progress
@@ -67,6 +69,13 @@ class DemoResult:
     cfg: CellConfig
     measurement: dict[str, Any] = field(default_factory=dict)
     planned: PlannedRun | None = None
+    seed: int = 0
+
+    def gates(self, result: IdentificationResult) -> GateReport:
+        """The cell's quality gates of an identification of this run (offline: vs nominal)."""
+        return check_identification(
+            result, self.cfg.model().nominal_x(), self.cfg.calibration.gates()
+        )
 
 
 def truth_set(ds: DataSet, c_sensor_mm: F64, with_noise: bool) -> Measurements:
@@ -149,7 +158,7 @@ def run_demo(
         stats["planned"] = ErrorStats.of(errors["planned configurations"])
     info = measurement_report(measurement or GeometricMeasurement(), sets)
     demo = DemoResult(
-        stats, breakdown, result, run_dir, time.perf_counter() - t0, cfg, info, planned
+        stats, breakdown, result, run_dir, time.perf_counter() - t0, cfg, info, planned, seed
     )
     _write_run(demo, model, cal, val, errors)
     return demo
@@ -192,15 +201,21 @@ def _write_run(
         m = ds.measurements
         write_measurements(d / f"{name}_measurements.csv", m.targets, m.q_deg, m.c_sensor_mm)
         write_targets(d / f"{name}_targets.csv", ds.targets)
-    write_json(d / "params.json", to_json(model, demo.result))
+    meta = provenance(demo.seed)
+    write_json(d / "params.json", to_json(model, demo.result, demo.gates(demo.result), meta))
     pr = demo.planned
     if pr is not None:
         m = pr.data.measurements
         write_measurements(d / "planned_measurements.csv", m.targets, m.q_deg, m.c_sensor_mm)
         write_targets(d / "planned_targets.csv", pr.data.targets)
-        write_json(d / "params_planned.json", to_json(model, pr.result))
-        write_json(d / "plan.json", plan_to_json(demo.cfg, model, demo.result.x, pr.plan))
+        write_json(
+            d / "params_planned.json", to_json(model, pr.result, demo.gates(pr.result), meta)
+        )
+        plan_doc = plan_to_json(demo.cfg, model, demo.result.x, pr.plan)
+        write_json(d / "plan.json", {**plan_doc, "provenance": meta})
     report: dict[str, Any] = {
+        "provenance": meta,
+        "quality_gates": demo.gates(demo.result).to_json(),
         "validation": {k: asdict(v) for k, v in demo.stats.items()},
         "improvement_factor": demo.stats["nominal"].rmse_mm / demo.stats["identified"].rmse_mm,
         "remaining_error_breakdown_rmse_mm": demo.breakdown_mm,
@@ -224,7 +239,7 @@ def _write_run(
         }
     write_json(d / "report.json", report)
     plot_errors(d / "validation_errors.png", errors, "Validation errors at 100 positions")
-    (d / "report.md").write_text(markdown_report(demo, model), encoding="utf-8")
+    write_text(d / "report.md", markdown_report(demo, model, meta))
 
 
 def summary_text(demo: DemoResult) -> str:
@@ -297,11 +312,15 @@ def measurement_lines(info: dict[str, Any]) -> list[str]:
     return lines
 
 
-def markdown_report(demo: DemoResult, model: SystemModel) -> str:
+def markdown_report(demo: DemoResult, model: SystemModel, meta: dict[str, Any]) -> str:
+    commit = f", commit {meta['git_commit']}" if meta["git_commit"] else ""
     return (
         "\n\n".join(
             [
                 "# rvis demo — simulated cell",
+                f"rvis {meta['rvis_version']}{commit}; seed {meta['seed']}; "
+                f"{meta['utc_time']}; `{meta['command_line']}`",
+                f"Quality gates of the identification: {demo.gates(demo.result).reason}.",
                 summary_text(demo).split("\n", 1)[0],
                 markdown_table(STATS_HEADER, stats_rows(demo.stats)),
                 summary_text(demo).split("\n\n", 1)[1],

@@ -25,9 +25,10 @@ from numpy.typing import NDArray
 
 from app.config import CellConfig
 from app.demo import truth_set
-from app.files import write_json
+from app.files import write_json, write_text
+from app.meta import provenance
 from app.planning import plan_settings, run_plan
-from app.report import markdown_table, text_table
+from app.report import markdown_table, save_figure, text_table
 from app.simulation import DataSet, collect, make_cell, validation_set
 from calib.identify import identify, residuals
 from calib.model import SystemModel
@@ -201,7 +202,10 @@ def run_experiment(
             f"({100 * (o.rmse_mm['planned'] / o.rmse_mm['random'] - 1):+.1f} %), "
             f"{time.perf_counter() - t:.0f} s"
         )
-        write_json(out_dir / "seeds.json", {"seeds": [asdict(x) for x in outcomes]})
+        write_json(
+            out_dir / "seeds.json",
+            {"provenance": provenance(), "seeds": [asdict(x) for x in outcomes]},
+        )
     summary = ExperimentSummary(outcomes, time.perf_counter() - t0)
     _write(summary, out_dir, {**plan_overrides, "criteria_grid_step_deg": criteria_grid_step_deg})
     return summary
@@ -219,8 +223,11 @@ def summary_text(summary: ExperimentSummary) -> str:
 
 
 def _write(summary: ExperimentSummary, out_dir: Path, overrides: dict[str, Any]) -> None:
+    meta = provenance()
     md = [
         "# The paper's experiment on the simulated cell",
+        f"rvis {meta['rvis_version']} ({meta['git_commit'] or 'no git checkout'}); "
+        f"{meta['utc_time']}; `{meta['command_line']}`",
         f"{len(summary.outcomes)} seeds, planning settings overrides: {overrides or 'none'}; "
         f"{summary.seconds:.0f} s.",
         markdown_table(TABLE_HEADER, summary.table_rows()),
@@ -229,7 +236,7 @@ def _write(summary: ExperimentSummary, out_dir: Path, overrides: dict[str, Any])
     if rows:
         md += ["## Selection criteria", markdown_table(CRITERIA_HEADER, rows)]
     md.append("![validation errors](fig11.png)")
-    (out_dir / "experiment.md").write_text("\n\n".join(md) + "\n", encoding="utf-8")
+    write_text(out_dir / "experiment.md", "\n\n".join(md) + "\n")
     plot_fig11(summary, out_dir / "fig11.png")
 
 
@@ -270,5 +277,4 @@ def plot_fig11(summary: ExperimentSummary, path: Path) -> None:
     bx.set_title(f"{len(r)} seeds: median {100 * np.median(red):.1f} % lower")
     bx.grid(True, alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    save_figure(fig, path)

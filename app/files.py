@@ -237,14 +237,23 @@ def write_targets(path: str | Path, targets: dict[str, F64]) -> None:
     write_csv(path, TARGET_COLUMNS, [[t, *map(float, p)] for t, p in targets.items()])
 
 
+def _no_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not a JSON number")
+
+
 def read_json(path: str | Path) -> dict[str, Any]:
+    """A JSON object from `path` (UTF-8, BOM accepted; NaN and Infinity refused)."""
     path = Path(path)
     try:
-        data = json.loads(path.read_text(encoding="utf-8-sig"))
+        data = json.loads(path.read_text(encoding="utf-8-sig"), parse_constant=_no_constant)
     except OSError as exc:
         raise InputError(f"cannot read file: {exc.strerror or exc}", file=path) from exc
+    except UnicodeDecodeError as exc:
+        raise InputError(f"not UTF-8 text ({exc.reason})", file=path) from None
     except json.JSONDecodeError as exc:
         raise InputError(f"invalid JSON: {exc.msg}", file=path, line=exc.lineno) from exc
+    except ValueError as exc:
+        raise InputError(f"invalid JSON: {exc}", file=path) from exc
     if not isinstance(data, dict):
         raise InputError("expected a JSON object", file=path, line=1)
     return data

@@ -9,6 +9,7 @@ import time
 from contextlib import closing, nullcontext
 from pathlib import Path
 
+from app.cliargs import int_at_least
 from app.config import load_cell
 from app.demo import run_demo, summary_text
 from app.errors import InputError
@@ -25,7 +26,7 @@ from fakes.render_sensor import default_true_sensor
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="simulate, identify, validate and report on the simulated cell")
-    p.add_argument("--seed", type=int, default=0, help="seed of the simulated cell (default 0)")
+    p.add_argument("--seed", type=int_at_least(0), help="seed (default: [simulation] seed)")
     p.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")
     p.add_argument("--out", help="run folder (default runs/demo-<time>)")
     p.add_argument("--validation", type=int, default=100, help="validation positions (100)")
@@ -61,6 +62,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     cfg = load_cell(args.cell)
+    if args.seed is None:
+        args.seed = cfg.simulation.seed
     out = Path(args.out or f"runs/demo-{time.strftime('%Y%m%d-%H%M%S')}")
     if args.workers < 1:
         raise InputError(f"--workers must be >= 1, got {args.workers}")

@@ -8,6 +8,7 @@ import sys
 
 from app.config import load_cell
 from app.files import write_json
+from app.meta import provenance
 from app.params import from_json
 from app.planning import (
     ProgressLine,
@@ -53,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
             flush=True,
         )
     result = run_plan(cfg, model, x, progress=progress, **overrides)
-    doc = plan_to_json(cfg, model, x, result)
+    doc = {**plan_to_json(cfg, model, x, result), "provenance": provenance(result.settings.seed)}
     write_json(args.out, doc)
     if args.json:
         print(
