@@ -37,7 +37,7 @@ from app.simulation import (
     collect,
     make_cell,
     measurement_report,
-    validation_set,
+    simulated_sets,
 )
 from calib.gates import GateReport, check_identification
 from calib.identify import IdentificationResult, Measurements, identify, residuals
@@ -130,13 +130,10 @@ def run_demo(
     pre-calibrated parameters and calibrates again with the planned configurations (None:
     random configurations only)."""
     t0 = time.perf_counter()
-    cell = make_cell(cfg, seed=seed)
-    model = cfg.model()
+    sim = simulated_sets(cfg, seed, n_validation=n_validation, measurement=measurement)
+    cell, model, rng, cal, val = sim.cell, sim.model, sim.rng, sim.calibration, sim.validation
     x0 = model.nominal_x()
-    rng = np.random.default_rng([seed, 2])
-    n_each = int(cfg.calibration["configs_per_sphere"])
-    cal = collect(cell, model, x0, cfg.spheres_part_mm, n_each, rng, measurement=measurement)
-    val = validation_set(cell, cfg, model, x0, n_validation, rng, measurement)
+    n_each = cfg.calibration.configs_per_sphere
     result = identify(model, cal.measurements, loss=str(cfg.calibration["loss"]))
     e_before = residuals(model, x0, val.measurements)
     e_after = residuals(model, result.x, val.measurements)

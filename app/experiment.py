@@ -29,7 +29,7 @@ from app.files import write_json, write_text
 from app.meta import provenance
 from app.planning import plan_settings, run_plan
 from app.report import markdown_table, save_figure, text_table
-from app.simulation import DataSet, collect, make_cell, validation_set
+from app.simulation import DataSet, collect, simulated_sets
 from calib.identify import identify, residuals
 from calib.model import SystemModel
 from calib.observability import INDEX_NAMES
@@ -66,13 +66,9 @@ def run_seed(
     criteria_grid_step_deg: float | None = None,
     **plan_overrides: Any,
 ) -> SeedOutcome:
-    cell = make_cell(cfg, seed=seed)
-    model = cfg.model()
-    x0 = model.nominal_x()
-    rng = np.random.default_rng([seed, 2])
-    n_each = int(cfg.calibration["configs_per_sphere"])
-    pre_data = collect(cell, model, x0, cfg.spheres_part_mm, n_each, rng)
-    val = validation_set(cell, cfg, model, x0, n_validation, rng)
+    sim = simulated_sets(cfg, seed, n_validation=n_validation)
+    cell, model, rng, pre_data, val = sim.cell, sim.model, sim.rng, sim.calibration, sim.validation
+    n_each = cfg.calibration.configs_per_sphere
     val_truth = truth_set(val, val.truth_c_sensor_mm, with_noise=False)
     loss = str(cfg.calibration["loss"])
     runs: dict[str, DataSet] = {"random": pre_data}

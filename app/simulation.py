@@ -72,6 +72,40 @@ def make_cell(
 
 
 @dataclass(frozen=True)
+class SimulatedSets:
+    """The simulated cell of a seed with its pre-calibration set (random configurations at the
+    configured spheres) and its validation set; `rng` continues the seed's random stream."""
+
+    cell: SimulatedCell
+    model: SystemModel
+    rng: np.random.Generator
+    calibration: DataSet
+    validation: DataSet
+
+
+def simulated_sets(
+    cfg: CellConfig,
+    seed: int,
+    *,
+    n_each: int | None = None,
+    n_validation: int = 100,
+    measurement: Measurement | None = None,
+    **overrides: object,
+) -> SimulatedSets:
+    """The one set-up of the simulated cell shared by demo, experiment, simulate and the tests:
+    n_each (default: [calibration] configs_per_sphere) random views of every sphere, then
+    n_validation validation positions, measured with `measurement` (default geometric)."""
+    cell = make_cell(cfg, seed=seed, **overrides)  # type: ignore[arg-type]
+    model = cfg.model()
+    x0 = model.nominal_x()
+    rng = np.random.default_rng([seed, 2])
+    n = cfg.calibration.configs_per_sphere if n_each is None else n_each
+    cal = collect(cell, model, x0, cfg.spheres_part_mm, n, rng, measurement=measurement)
+    val = validation_set(cell, cfg, model, x0, n_validation, rng, measurement)
+    return SimulatedSets(cell, model, rng, cal, val)
+
+
+@dataclass(frozen=True)
 class Rejection:
     """A view whose sweep the vision quality checks rejected: which target, from where, why."""
 

@@ -2,17 +2,16 @@
 
 from __future__ import annotations
 
-import os
+from app.threads import limit_blas_threads
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as app/__init__.py; before numpy loads
+limit_blas_threads()  # as the rvis entry point does, before numpy loads
 
-from functools import cache
+from functools import cache  # noqa: E402
 
-import numpy as np
-import pytest
+import pytest  # noqa: E402
 
-from app.config import CellConfig, load_cell
-from app.simulation import DataSet, collect, make_cell, validation_set
+from app.config import CellConfig, load_cell  # noqa: E402
+from app.simulation import DataSet, simulated_sets  # noqa: E402
 
 
 @pytest.fixture(scope="session")
@@ -23,11 +22,5 @@ def cfg() -> CellConfig:
 @cache
 def simulated(seed: int, n_validation: int = 60, **overrides: object) -> tuple[DataSet, DataSet]:
     """(calibration set of 4 x 6, validation set) of the simulated cell."""
-    cfg = load_cell(None)
-    cell = make_cell(cfg, seed=seed, **overrides)
-    model = cfg.model()
-    rng = np.random.default_rng([seed, 2])
-    x0 = model.nominal_x()
-    cal = collect(cell, model, x0, cfg.spheres_part_mm, 6, rng)
-    val = validation_set(cell, cfg, model, x0, n_validation, rng)
-    return cal, val
+    sim = simulated_sets(load_cell(None), seed, n_each=6, n_validation=n_validation, **overrides)
+    return sim.calibration, sim.validation

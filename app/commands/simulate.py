@@ -26,26 +26,20 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    import numpy as np
-
     from app.config import load_cell
     from app.errors import InputError
     from app.files import write_measurements, write_targets
-    from app.simulation import check_complete, collect, make_cell, validation_set
+    from app.simulation import check_complete, simulated_sets
 
     cfg = load_cell(args.cell)
     seed = cfg.simulation.seed if args.seed is None else args.seed
     n_each = args.configs_per_sphere or cfg.calibration.configs_per_sphere
-    cell = make_cell(cfg, seed=seed)
-    model = cfg.model()
-    x0 = model.nominal_x()
-    rng = np.random.default_rng([seed, 2])
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise InputError("exists and is not a folder", file=out)
-    cal = collect(cell, model, x0, cfg.spheres_part_mm, n_each, rng)
+    sim = simulated_sets(cfg, seed, n_each=n_each, n_validation=args.validation)
+    cal, val = sim.calibration, sim.validation
     check_complete(cal, {t: n_each for t in cfg.spheres_part_mm}, cfg.source)
-    val = validation_set(cell, cfg, model, x0, args.validation, rng)
     check_complete(val, {t: 1 for t in val.targets}, cfg.source, total=args.validation)
     for name, ds in (("calibration", cal), ("validation", val)):
         m = ds.measurements
