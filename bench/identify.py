@@ -8,18 +8,18 @@ configurations. Prints medians of repeated runs.
 from __future__ import annotations
 
 import statistics
-import sys
 import time
 from collections.abc import Callable
-from pathlib import Path
 
-import numpy as np
+from app.threads import limit_blas_threads
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+limit_blas_threads()  # as the rvis entry point, before numpy loads
 
-from app.config import load_cell
-from app.simulation import collect, make_cell
-from calib.identify import identify
+import numpy as np  # noqa: E402
+
+from app.config import load_cell  # noqa: E402
+from app.simulation import collect, make_cell  # noqa: E402
+from calib.identify import identify  # noqa: E402
 
 
 def median_seconds(fn: Callable[[], object], repeats: int) -> float:

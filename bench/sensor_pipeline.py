@@ -1,7 +1,7 @@
 """Benchmark of the sensor pipeline (not run by the tests): timings and accuracy vs the truth.
 
-    .venv/bin/python bench/vision.py [--poses 50] [--frames 48] [--repeats 30] [--calib-seeds 3]
-                                     [--cell-sweeps 16] [--workers 2]
+    .venv/bin/python bench/sensor_pipeline.py [--poses 50] [--frames 48] [--repeats 30]
+                                              [--calib-seeds 3] [--cell-sweeps 16] [--workers 2]
 
 Prints medians of repeated runs (one OpenCV thread): stripe extraction per 1296x966 frame in both
 modes, triangulation + sphere fit per sweep, the renderer apart; then the centre error of 50
@@ -16,15 +16,12 @@ with a pool of worker processes.
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from collections.abc import Callable
-from pathlib import Path
 
-# run as a script, this file's folder comes first on sys.path and its name shadows the `vision`
-# package: put the repository root there instead
-_HERE = Path(__file__).resolve().parent
-sys.path[:] = [str(_HERE.parent)] + [p for p in sys.path if Path(p or ".").resolve() != _HERE]
+from app.threads import limit_blas_threads
+
+limit_blas_threads()  # as the rvis entry point, before numpy loads
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
