@@ -15,20 +15,7 @@ import pytest
 from app.cli import main
 from app.errors import InputError
 from app.files import write_bytes
-
-
-@pytest.fixture(scope="module")
-def sim(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("sim")
-    assert main(["simulate", "--out", str(out), "--seed", "3", "--validation", "30"]) == 0
-    return out
-
-
-def run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
-    code = main(argv)
-    cap = capsys.readouterr()
-    assert "Traceback" not in cap.err
-    return code, cap.out, cap.err
+from tests.app.conftest import Cli
 
 
 def one_line(err: str) -> str:
@@ -46,13 +33,13 @@ def edited(src: Path, dst: Path, line: int, column: int, value: str) -> Path:
     return dst
 
 
-def identify(sim: Path, out: Path, meas: Path | None = None, *extra: str) -> list[str]:
+def identify(simdir: Path, out: Path, meas: Path | None = None, *extra: str) -> list[str]:
     return [
         "identify",
         "--targets",
-        str(sim / "calibration_targets.csv"),
+        str(simdir / "calibration_targets.csv"),
         "--measurements",
-        str(meas or sim / "calibration_measurements.csv"),
+        str(meas or simdir / "calibration_measurements.csv"),
         "--out",
         str(out),
         *extra,
@@ -60,13 +47,13 @@ def identify(sim: Path, out: Path, meas: Path | None = None, *extra: str) -> lis
 
 
 def test_a_gross_error_fails_the_gates_and_writes_nothing(
-    sim: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    simdir: Path, tmp_path: Path, cli: Cli
 ) -> None:
-    meas = edited(sim / "calibration_measurements.csv", tmp_path / "m.csv", 5, 7, "505.0")
+    meas = edited(simdir / "calibration_measurements.csv", tmp_path / "m.csv", 5, 7, "505.0")
     out = tmp_path / "params.json"
     out.write_text("previous version\n")
     kept = tmp_path / "failed.json"
-    code, _, err = run(identify(sim, out, meas, "--keep-failed", str(kept)), capsys)
+    code, _, err = cli(identify(simdir, out, meas, "--keep-failed", str(kept)))
     line = one_line(err)
     assert code == 3 and "calibration rejected: residual RMS" in line
     assert f"{meas}:5" in line  # the worst measurement's line
@@ -75,41 +62,35 @@ def test_a_gross_error_fails_the_gates_and_writes_nothing(
     assert doc["success"] is False and doc["converged"] is True
     assert any("max_rms_mm" in f for f in doc["gates"]["failures"])
     # a failed parameters file is refused by every reader unless asked for
-    val = ["--targets", str(sim / "validation_targets.csv")]
-    val += ["--measurements", str(sim / "validation_measurements.csv")]
-    code, _, err = run(["validate", "--params", str(kept), *val], capsys)
+    val = ["--targets", str(simdir / "validation_targets.csv")]
+    val += ["--measurements", str(simdir / "validation_measurements.csv")]
+    code, _, err = cli(["validate", "--params", str(kept), *val])
     assert code == 2 and "field 'success': a failed identification" in one_line(err)
-    code, _, err = run(
-        ["observability", "--params", str(kept), "--measurements", str(meas)], capsys
-    )
+    code, _, err = cli(["observability", "--params", str(kept), "--measurements", str(meas)])
     assert code == 2 and "failed identification" in err
-    assert run(["validate", "--params", str(kept), "--allow-failed", *val], capsys)[0] == 0
+    assert cli(["validate", "--params", str(kept), "--allow-failed", *val])[0] == 0
 
 
-def test_a_good_identification_passes_its_gates(
-    sim: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_a_good_identification_passes_its_gates(simdir: Path, tmp_path: Path, cli: Cli) -> None:
     out = tmp_path / "params.json"
-    code, text, _ = run([*identify(sim, out), "--json"], capsys)
+    code, text, _ = cli([*identify(simdir, out), "--json"])
     doc = json.loads(text)
     assert code == 0 and doc["success"] and doc["gates"] == {"passed": True, "failures": []}
     written = json.loads(out.read_text())
     assert written["provenance"]["rvis_version"] and written["provenance"]["command_line"]
-    assert b"\r\n" not in (sim / "calibration_measurements.csv").read_bytes()
+    assert b"\r\n" not in (simdir / "calibration_measurements.csv").read_bytes()
 
 
 @pytest.mark.parametrize("rotation_deg", [90.0, 180.0, -135.0])
 def test_any_part_base_guess_converges(
-    sim: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], rotation_deg: float
+    simdir: Path, tmp_path: Path, cli: Cli, rotation_deg: float
 ) -> None:
     """The cell file's part->base orientation is off by a large rotation: the closed-form
     alignment brings LM to the same solution as from the right guess."""
     cell = tmp_path / "cell.toml"
     cell.write_text(f"[frames]\npart_base_rotvec_deg = [0.0, 0.0, {90.0 + rotation_deg}]\n")
-    code, text, _ = run(
-        [*identify(sim, tmp_path / "p.json"), "--cell", str(cell), "--json"], capsys
-    )
-    ref_code, ref_text, _ = run([*identify(sim, tmp_path / "ref.json"), "--json"], capsys)
+    code, text, _ = cli([*identify(simdir, tmp_path / "p.json"), "--cell", str(cell), "--json"])
+    ref_code, ref_text, _ = cli([*identify(simdir, tmp_path / "ref.json"), "--json"])
     assert code == ref_code == 0
     rms, ref = json.loads(text)["residuals"]["rms_mm"], json.loads(ref_text)["residuals"]["rms_mm"]
     assert rms == pytest.approx(ref, rel=1e-6)
@@ -124,26 +105,24 @@ def test_any_part_base_guess_converges(
     ],
 )
 def test_magnitudes_in_csv(
-    sim: Path,
+    simdir: Path,
     tmp_path: Path,
-    capsys: pytest.CaptureFixture[str],
+    cli: Cli,
     line: int,
     column: int,
     value: str,
     message: str,
 ) -> None:
-    meas = edited(sim / "calibration_measurements.csv", tmp_path / "m.csv", line, column, value)
-    code, _, err = run(identify(sim, tmp_path / "p.json", meas), capsys)
+    meas = edited(simdir / "calibration_measurements.csv", tmp_path / "m.csv", line, column, value)
+    code, _, err = cli(identify(simdir, tmp_path / "p.json", meas))
     assert code == 2 and f"m.csv:{line}: {message}" in one_line(err)
 
 
-def test_target_coordinate_1e300(
-    sim: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    targets = edited(sim / "calibration_targets.csv", tmp_path / "t.csv", 2, 1, "1e300")
-    argv = identify(sim, tmp_path / "p.json")
+def test_target_coordinate_1e300(simdir: Path, tmp_path: Path, cli: Cli) -> None:
+    targets = edited(simdir / "calibration_targets.csv", tmp_path / "t.csv", 2, 1, "1e300")
+    argv = identify(simdir, tmp_path / "p.json")
     argv[argv.index("--targets") + 1] = str(targets)
-    code, _, err = run(argv, capsys)
+    code, _, err = cli(argv)
     assert code == 2 and "t.csv:2: field 'x_mm': 1e+300 mm is beyond" in one_line(err)
     assert not (tmp_path / "p.json").exists()
 
@@ -166,49 +145,43 @@ def test_target_coordinate_1e300(
         ('[service]\nstate_dir = "\xff"\n', "cell.toml:2: not UTF-8"),
     ],
 )
-def test_bad_cell_file(
-    sim: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str, message: str
-) -> None:
+def test_bad_cell_file(simdir: Path, tmp_path: Path, cli: Cli, text: str, message: str) -> None:
     cell = tmp_path / "cell.toml"
     cell.write_bytes(text.encode("latin-1"))
-    code, _, err = run([*identify(sim, tmp_path / "p.json"), "--cell", str(cell)], capsys)
+    code, _, err = cli([*identify(simdir, tmp_path / "p.json"), "--cell", str(cell)])
     assert code == 2 and message in one_line(err)
-    code, _, err = run(["simulate", "--out", str(tmp_path / "s"), "--cell", str(cell)], capsys)
+    code, _, err = cli(["simulate", "--out", str(tmp_path / "s"), "--cell", str(cell)])
     assert code == 2 and message in one_line(err)
     assert not (tmp_path / "s").exists()
 
 
-def test_bom_accepted_by_every_reader(
-    sim: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_bom_accepted_by_every_reader(simdir: Path, tmp_path: Path, cli: Cli) -> None:
     bom = b"\xef\xbb\xbf"
     cell = tmp_path / "cell.toml"
     cell.write_bytes(bom + b"[calibration]\nmax_rms_mm = 0.3\n")
     meas = tmp_path / "m.csv"
-    meas.write_bytes(bom + (sim / "calibration_measurements.csv").read_bytes())
+    meas.write_bytes(bom + (simdir / "calibration_measurements.csv").read_bytes())
     out = tmp_path / "p.json"
-    assert run([*identify(sim, out, meas), "--cell", str(cell)], capsys)[0] == 0
+    assert cli([*identify(simdir, out, meas), "--cell", str(cell)])[0] == 0
     out.write_bytes(bom + out.read_bytes())
-    assert run(["observability", "--params", str(out), "--measurements", str(meas)], capsys)[0] == 0
+    assert cli(["observability", "--params", str(out), "--measurements", str(meas)])[0] == 0
 
 
-def test_simulate_names_an_unreachable_sphere(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_simulate_names_an_unreachable_sphere(tmp_path: Path, cli: Cli) -> None:
     cell = tmp_path / "cell.toml"
     cell.write_text('[spheres]\nframe = "base"\npositions_mm = { P1 = [5000.0, 0.0, 0.0] }\n')
-    code, _, err = run(["simulate", "--out", str(tmp_path / "s"), "--cell", str(cell)], capsys)
+    code, _, err = cli(["simulate", "--out", str(tmp_path / "s"), "--cell", str(cell)])
     assert code == 2 and "too few views reach sphere P1 (0 of 6)" in one_line(err)
     assert not (tmp_path / "s").exists()
 
 
-def test_validation_sampling_is_bounded(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_validation_sampling_is_bounded(tmp_path: Path, cli: Cli) -> None:
     cell = tmp_path / "cell.toml"
     cell.write_text(
         "[base_plate]\nx_min_mm = -5000.0\nx_max_mm = 5000.0\ny_min_mm = -5000.0\n"
         "y_max_mm = 5000.0\n[planning]\nplate_margin_mm = 0.0\n"
     )
-    code, _, err = run(["simulate", "--out", str(tmp_path / "s"), "--cell", str(cell)], capsys)
+    code, _, err = cli(["simulate", "--out", str(tmp_path / "s"), "--cell", str(cell)])
     assert code == 2 and "[base_plate]" in one_line(err)
 
 
@@ -239,12 +212,10 @@ def test_bad_options(
 
 
 @pytest.mark.parametrize("kind", ["directory", "under a file"])
-def test_bad_output_paths(
-    sim: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], kind: str
-) -> None:
+def test_bad_output_paths(simdir: Path, tmp_path: Path, cli: Cli, kind: str) -> None:
     (tmp_path / "file").write_text("x")
     out = tmp_path if kind == "directory" else tmp_path / "file" / "p.json"
-    code, _, err = run(identify(sim, out), capsys)
+    code, _, err = cli(identify(simdir, out))
     reason = "is a directory" if kind == "directory" else "cannot write"
     assert code == 2 and reason in one_line(err) and str(out) in err
 

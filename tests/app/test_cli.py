@@ -8,46 +8,29 @@ from pathlib import Path
 
 import pytest
 
-from app.cli import main
+from tests.app.conftest import Cli
 
 
-@pytest.fixture(scope="module")
-def simdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("sim")
-    assert main(["simulate", "--out", str(out), "--seed", "4", "--validation", "40"]) == 0
-    return out
-
-
-def run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
-    code = main(argv)
-    cap = capsys.readouterr()
-    return code, cap.out, cap.err
-
-
-def test_offline_workflow(simdir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_offline_workflow(simdir: Path, tmp_path: Path, cli: Cli) -> None:
     params = tmp_path / "params.json"
-    code, out, _ = run(
+    code, out, _ = cli(
         ["identify", "--targets", str(simdir / "calibration_targets.csv"),
-         "--measurements", str(simdir / "calibration_measurements.csv"), "--out", str(params)],
-        capsys,
-    )  # fmt: skip
+         "--measurements", str(simdir / "calibration_measurements.csv"),
+         "--out", str(params)])  # fmt: skip
     assert code == 0 and "rank 30" in out
     doc = json.loads(params.read_text())
     assert doc["rank"] == 30 and len([p for p in doc["parameters"] if p["identified"]]) == 30
     errors = tmp_path / "errors.csv"
-    code, out, _ = run(
+    code, out, _ = cli(
         ["validate", "--params", str(params), "--json", "--out", str(errors),
          "--targets", str(simdir / "validation_targets.csv"),
-         "--measurements", str(simdir / "validation_measurements.csv")],
-        capsys,
-    )  # fmt: skip
+         "--measurements", str(simdir / "validation_measurements.csv")])  # fmt: skip
     stats = json.loads(out)
     assert code == 0 and stats["identified"]["n"] == 40
     assert stats["nominal"]["rmse_mm"] / stats["identified"]["rmse_mm"] > 20
     assert errors.read_text().splitlines()[0] == "target,x_mm,y_mm,z_mm,ex_mm,ey_mm,ez_mm,e_mm"
-    code, out, _ = run(
-        ["observability", "--json", "--measurements", str(simdir / "calibration_measurements.csv")],
-        capsys,
+    code, out, _ = cli(
+        ["observability", "--json", "--measurements", str(simdir / "calibration_measurements.csv")]
     )
     obs = json.loads(out)
     assert code == 0 and obs["rank"] == 30 and set(obs["indices"]) == {"O1", "O2", "O3", "O4", "O5"}
@@ -83,42 +66,38 @@ BAD_MEASUREMENTS = [
 
 @pytest.mark.parametrize(("column", "line", "value", "message"), BAD_MEASUREMENTS)
 def test_bad_measurement_values(
-    simdir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+    simdir: Path, tmp_path: Path, cli: Cli,
     column: str, line: int, value: str, message: str,
 ) -> None:  # fmt: skip
     bad = corrupt(simdir / "calibration_measurements.csv", tmp_path / "m.csv", line, column, value)
-    code, _, err = run(identify_args(simdir, tmp_path, meas=bad), capsys)
+    code, _, err = cli(identify_args(simdir, tmp_path, meas=bad))
     assert code == 2
     assert message in err and str(tmp_path) in err
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
 
 
-def test_missing_column(simdir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_missing_column(simdir: Path, tmp_path: Path, cli: Cli) -> None:
     src = (simdir / "calibration_measurements.csv").read_text().replace("sy_mm", "sy")
     (tmp_path / "m.csv").write_text(src)
-    code, _, err = run(identify_args(simdir, tmp_path, meas=tmp_path / "m.csv"), capsys)
+    code, _, err = cli(identify_args(simdir, tmp_path, meas=tmp_path / "m.csv"))
     assert code == 2 and "m.csv:1: field 'sy_mm': missing column" in err
 
 
-def test_duplicate_target(simdir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_duplicate_target(simdir: Path, tmp_path: Path, cli: Cli) -> None:
     rows = (simdir / "calibration_targets.csv").read_text().splitlines()
     (tmp_path / "t.csv").write_text("\n".join([*rows, rows[2]]) + "\n")
-    code, _, err = run(identify_args(simdir, tmp_path, targets=tmp_path / "t.csv"), capsys)
+    code, _, err = cli(identify_args(simdir, tmp_path, targets=tmp_path / "t.csv"))
     assert code == 2 and "t.csv:6: field 'target': duplicate target 'P2'" in err
 
 
-def test_too_few_measurements(
-    simdir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_too_few_measurements(simdir: Path, tmp_path: Path, cli: Cli) -> None:
     rows = (simdir / "calibration_measurements.csv").read_text().splitlines()
     (tmp_path / "m.csv").write_text("\n".join(rows[:8]) + "\n")
-    code, _, err = run(identify_args(simdir, tmp_path, meas=tmp_path / "m.csv"), capsys)
+    code, _, err = cli(identify_args(simdir, tmp_path, meas=tmp_path / "m.csv"))
     assert code == 2 and "7 measurements give 21 equations for 30 parameters" in err
 
 
-def test_degenerate_configurations(
-    simdir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_degenerate_configurations(simdir: Path, tmp_path: Path, cli: Cli) -> None:
     rows = (simdir / "calibration_measurements.csv").read_text().splitlines()
     firsts = [rows[1 + 6 * k] for k in range(4)]
 
@@ -128,58 +107,52 @@ def test_degenerate_configurations(
 
     body = [nudged(r, k) for r in firsts for k in range(6)]
     (tmp_path / "m.csv").write_text("\n".join([rows[0], *body]))
-    code, _, err = run(identify_args(simdir, tmp_path, meas=tmp_path / "m.csv"), capsys)
+    code, _, err = cli(identify_args(simdir, tmp_path, meas=tmp_path / "m.csv"))
     assert code == 2 and "m.csv: identification Jacobian has rank" in err
     assert "not identifiable together" in err
 
 
-def test_duplicate_rows_named(
-    simdir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_duplicate_rows_named(simdir: Path, tmp_path: Path, cli: Cli) -> None:
     rows = (simdir / "calibration_measurements.csv").read_text().splitlines()
     (tmp_path / "m.csv").write_text("\n".join([*rows, rows[3]]) + "\n")
-    code, _, err = run(identify_args(simdir, tmp_path, meas=tmp_path / "m.csv"), capsys)
+    code, _, err = cli(identify_args(simdir, tmp_path, meas=tmp_path / "m.csv"))
     assert code == 2 and f"m.csv:{len(rows) + 1}: duplicate of line 4" in err
 
 
-def test_redundant_parameter_named(
-    simdir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    code, _, err = run([*identify_args(simdir, tmp_path), "--add-param", "d3"], capsys)
+def test_redundant_parameter_named(simdir: Path, tmp_path: Path, cli: Cli) -> None:
+    code, _, err = cli([*identify_args(simdir, tmp_path), "--add-param", "d3"])
     assert code == 2 and "{d3, d2}" in err.replace("{d2, d3}", "{d3, d2}")
 
 
-def test_unreadable_file(simdir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    code, _, err = run(identify_args(simdir, tmp_path, meas=tmp_path / "nope.csv"), capsys)
+def test_unreadable_file(simdir: Path, tmp_path: Path, cli: Cli) -> None:
+    code, _, err = cli(identify_args(simdir, tmp_path, meas=tmp_path / "nope.csv"))
     assert code == 2 and "nope.csv: cannot read file: No such file or directory" in err
     (tmp_path / "bin.csv").write_bytes(b"\xff\xfe\x00garbage")
-    code, _, err = run(identify_args(simdir, tmp_path, meas=tmp_path / "bin.csv"), capsys)
+    code, _, err = cli(identify_args(simdir, tmp_path, meas=tmp_path / "bin.csv"))
     assert code == 2 and "bin.csv" in err and "Traceback" not in err
 
 
-def test_bad_params_json(simdir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_bad_params_json(simdir: Path, tmp_path: Path, cli: Cli) -> None:
     (tmp_path / "p.json").write_text('{"format": "rvis-parameters",\n "model": ')
-    code, _, err = run(
+    code, _, err = cli(
         ["validate", "--params", str(tmp_path / "p.json"),
          "--targets", str(simdir / "validation_targets.csv"),
-         "--measurements", str(simdir / "validation_measurements.csv")],
-        capsys,
-    )  # fmt: skip
+         "--measurements", str(simdir / "validation_measurements.csv")])  # fmt: skip
     assert code == 2 and "p.json:2: invalid JSON" in err
 
 
-def test_bad_cell_file(simdir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_bad_cell_file(simdir: Path, tmp_path: Path, cli: Cli) -> None:
     (tmp_path / "cell.toml").write_text("[frames]\n\npart_base_xyz_mm = [1, 2]\n")
-    code, _, err = run([*identify_args(simdir, tmp_path), "--cell", str(tmp_path / "cell.toml")],
-                       capsys)  # fmt: skip
+    cell = str(tmp_path / "cell.toml")
+    code, _, err = cli([*identify_args(simdir, tmp_path), "--cell", cell])
     assert (
         code == 2 and "cell.toml:3: [frames] part_base_xyz_mm: expected a list of 3 numbers" in err
     )
 
 
-def test_demo_writes_a_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    code, out, _ = run(
-        ["demo", "--out", str(tmp_path / "run"), "--validation", "30", "--geometric"], capsys
+def test_demo_writes_a_report(tmp_path: Path, cli: Cli) -> None:
+    code, out, _ = cli(
+        ["demo", "--out", str(tmp_path / "run"), "--validation", "30", "--geometric"]
     )
     assert code == 0 and "RMSE improved" in out
     report = json.loads((tmp_path / "run" / "report.json").read_text())
@@ -201,12 +174,12 @@ def test_demo_writes_a_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     assert "Measurements: geometric" in out
 
 
-def test_demo_renders_by_default(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_demo_renders_by_default(tmp_path: Path, cli: Cli) -> None:
     """Rendered sweeps measured by the vision pipeline (4 x 4 calibration + 3 validation sweeps
     in this process): the centres agree with the cell's truth to a few um, the report says so."""
     cell = tmp_path / "cell.toml"
     cell.write_text("[calibration]\nconfigs_per_sphere = 4\n")
-    code, out, _ = run(
+    code, out, _ = cli(
         [
             "demo",
             "--out",
@@ -221,8 +194,7 @@ def test_demo_renders_by_default(tmp_path: Path, capsys: pytest.CaptureFixture[s
             "none",
             "--sensor-model",
             "truth",
-        ],
-        capsys,
+        ]
     )
     assert code == 0 and "rendered sweeps on 1 worker" in out
     assert "rendered and measured 10 sweeps" in out  # progress
@@ -241,6 +213,6 @@ def test_demo_renders_by_default(tmp_path: Path, capsys: pytest.CaptureFixture[s
     assert "rejected views" in md
 
 
-def test_demo_bad_workers(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    code, _, err = run(["demo", "--out", str(tmp_path / "run"), "--workers", "0"], capsys)
+def test_demo_bad_workers(tmp_path: Path, cli: Cli) -> None:
+    code, _, err = cli(["demo", "--out", str(tmp_path / "run"), "--workers", "0"])
     assert code == 2 and "--workers" in err
