@@ -87,26 +87,29 @@ def read_sweep(sweep_dir: Path) -> tuple[list[NDArray[np.generic]], NDArray[np.f
     if not csv_path.is_file():
         raise InputError("sweep file not found (expected commands.csv)", file=csv_path)
     frames, commands = [], []
-    with csv_path.open(newline="", encoding="utf-8") as fh:
-        reader = csv.reader(fh)
-        header = next(reader, None)
-        if header is None or [h.strip() for h in header] != SWEEP_HEADER:
-            raise InputError(f"header must be '{','.join(SWEEP_HEADER)}'", file=csv_path, line=1)
-        for line, row in enumerate(reader, start=2):
-            if not row:
-                continue
-            if len(row) != 2:
-                raise InputError("expected 2 fields", file=csv_path, line=line)
-            try:
-                value = float(row[1])
-            except ValueError:
-                raise InputError(
-                    f"not a number: {row[1]!r}", file=csv_path, line=line, field="command_v"
-                ) from None
-            if not np.isfinite(value):
-                raise InputError("not finite", file=csv_path, line=line, field="command_v")
-            frames.append(read_image(sweep_dir / row[0].strip()))
-            commands.append(value)
+    try:
+        text = csv_path.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read file: {exc}", file=csv_path) from None
+    reader = csv.reader(text.splitlines())
+    header = next(reader, None)
+    if header is None or [h.strip() for h in header] != SWEEP_HEADER:
+        raise InputError(f"header must be '{','.join(SWEEP_HEADER)}'", file=csv_path, line=1)
+    for line, row in enumerate(reader, start=2):
+        if not row:
+            continue
+        if len(row) != 2:
+            raise InputError("expected 2 fields", file=csv_path, line=line)
+        try:
+            value = float(row[1])
+        except ValueError:
+            raise InputError(
+                f"not a number: {row[1]!r}", file=csv_path, line=line, field="command_v"
+            ) from None
+        if not np.isfinite(value):
+            raise InputError("not finite", file=csv_path, line=line, field="command_v")
+        frames.append(read_image(sweep_dir / row[0].strip()))
+        commands.append(value)
     if not frames:
         raise InputError("no frames listed", file=csv_path)
     return frames, np.array(commands)
