@@ -20,7 +20,7 @@ def cfg() -> CellConfig:
 
 
 @cache
-def simulated(seed: int, n_validation: int = 60, **overrides: object) -> tuple[DataSet, DataSet]:
+def simulated(seed: int, n_validation: int = 60, **overrides: bool) -> tuple[DataSet, DataSet]:
     """(calibration set of 4 x 6, validation set) of the simulated cell."""
-    sim = simulated_sets(load_cell(None), seed, n_each=6, n_validation=n_validation, **overrides)
+    sim = simulated_sets(load_cell(None), seed, n_each=6, n_validation=n_validation, **overrides)  # type: ignore[arg-type]
     return sim.calibration, sim.validation

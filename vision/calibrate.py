@@ -15,7 +15,7 @@ At least two target poses that are not parallel are needed (one pose gives one l
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -128,7 +128,7 @@ def _fit_plane(X: F64) -> tuple[F64, float, float]:
 
 
 def laser_points(
-    frames: Sequence[Image],
+    frames: Iterable[Image],
     plane: tuple[F64, float],
     camera: CameraModel,
     mode: str = "fast",

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -21,7 +21,7 @@ Image = NDArray[np.generic]
 
 def calibrate_sensor(
     chessboards: Sequence[Image],
-    targets: Sequence[tuple[Image, Sequence[Image]]],
+    targets: Sequence[tuple[Image, Iterable[Image]]],
     commands_v: NDArray[np.float64],
     *,
     board: Chessboard | None = None,

@@ -143,7 +143,8 @@ def test_worker_pool_gives_the_same_centres(cfg: CellConfig, sensor: TrueSensor)
         cell = make_cell(cfg, seed=9, sensor=sensor)
         qs = views_of(cell, cfg, "P2", 2, seed=2)
         with RenderedMeasurement(workers=workers) as m:
-            results.append([o.c_sensor_mm for o in m.measure(cell, [(q, p) for q in qs])])
+            outcomes = m.measure(cell, [(q, p) for q in qs])
+            results.append(np.array([o.c_sensor_mm for o in outcomes], dtype=float))
     np.testing.assert_allclose(results[0], results[1], rtol=0, atol=1e-9)
 
 

@@ -114,11 +114,11 @@ def test_calibrate_writes_a_usable_sensor_file(
     root = tmp_path / "calib"
     (root / "chessboards").mkdir(parents=True)
     for i, img in enumerate(cset.chessboards):
-        cv2.imwrite(str(root / "chessboards" / f"cb_{i:02d}.png"), img)
+        cv2.imwrite(str(root / "chessboards" / f"cb_{i:02d}.png"), np.asarray(img, np.uint8))
     for k, (board, frames) in enumerate(cset.targets):
         pose = root / "targets" / f"pose_{k}"
         write_sweep(pose, frames, cset.commands_v)
-        cv2.imwrite(str(pose / "board.png"), board)
+        cv2.imwrite(str(pose / "board.png"), np.asarray(board, np.uint8))
     out = tmp_path / "sensor.toml"
     assert main(["sensor", "calibrate", str(root), "--out", str(out)]) == 0
     model = load_sensor_model(out)

@@ -49,9 +49,10 @@ def test_true_stripe_lies_on_sphere_and_plane(
         radius = np.linalg.norm(rays * t[:, None] - c, axis=1)
         assert np.median(np.abs(radius - 15.0)) < 1e-4  # interpolation error only
         # the image is bright where the truth says the stripe is
-        rows = np.arange(200, 760, 40)
+        rows = np.arange(200, 760, 40).astype(float)
         cols = np.rint(truth.stripe_columns(k, rows)).astype(int)
-        assert np.median(frames[k][rows, cols]) > 20
+        rows_i = rows.astype(int)
+        assert np.median(frames[k][rows_i, cols]) > 20
 
 
 def test_noise_quantisation_and_saturation(
@@ -79,7 +80,8 @@ def test_chessboard_truth_projects_onto_the_corners(
 
     T = np.eye(4)
     T[:3, 3] = [-10.0, -6.0, 122.0]
-    frame, corners, obj = render_chessboard(T, true_sensor, rng)
+    frame8, corners, obj = render_chessboard(T, true_sensor, rng)
+    frame = np.asarray(frame8, dtype=np.uint8)
     found, det = cv2.findChessboardCorners(frame, (9, 6))
     assert found
     det = cv2.cornerSubPix(
