@@ -1,0 +1,40 @@
+"""Start-up time of the `rvis` command line (not run by the tests): `rvis --help` and
+`rvis --version` as subprocesses, against a bare Python start-up measured in the same run.
+Prints medians of repeated runs (target for `rvis --help`: <= 0.25 s).
+
+    .venv/bin/python bench/cli_startup.py [--repeats 21]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import subprocess
+import sys
+import time
+
+
+def median_s(argv: list[str], repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        subprocess.run(argv, stdout=subprocess.DEVNULL, check=True)
+        times.append(time.perf_counter() - t)
+    return statistics.median(times)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--repeats", type=int, default=21)
+    args = parser.parse_args()
+    rvis = [sys.executable, "-m", "app.cli"]
+    bare = median_s([sys.executable, "-c", "pass"], args.repeats)
+    print(f"{'command':<28}{'median s':>10}{'vs python -c pass':>20}")
+    print(f"{'python -c pass':<28}{bare:>10.3f}{1.0:>19.1f}x")
+    for extra in (["--help"], ["--version"], ["identify", "--help"]):
+        t = median_s([*rvis, *extra], args.repeats)
+        print(f"{'rvis ' + ' '.join(extra):<28}{t:>10.3f}{t / bare:>19.1f}x")
+
+
+if __name__ == "__main__":
+    main()
