@@ -172,6 +172,8 @@ def match_targets(rows: MeasurementRows, targets: dict[str, F64], targets_path: 
 def _write_reason(exc: OSError) -> str:
     if exc.errno == errno.ENOSPC:
         return "no space left on the device"
+    if exc.errno in (errno.EEXIST, errno.ENOTDIR):
+        return "a parent of this path is a file, not a folder"
     return exc.strerror or str(exc)
 
 
