@@ -205,6 +205,22 @@ def write_bytes(path: str | Path, data: bytes) -> None:
         raise InputError(f"cannot write: {_write_reason(exc)}", file=path) from None
 
 
+def check_output(path: str | Path) -> Path:
+    """Fail early (before any work) when `path` cannot become a file: it is a folder, a parent
+    is a file, or the nearest existing folder is not writable. Returns the path."""
+    path = Path(path)
+    if path.is_dir():
+        raise InputError("is a directory, expected a file name", file=path)
+    parent = path.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise InputError("cannot write: a parent of this path is a file, not a folder", file=path)
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"cannot write: folder {parent} is not writable", file=path)
+    return path
+
+
 def fsync_dir(directory: str | Path) -> None:
     """Make a rename in `directory` durable."""
     fd = os.open(directory, os.O_RDONLY)

@@ -38,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     from app.config import load_cell
     from app.dataio import as_input_error, load_dataset_lines
     from app.errors import InputError
-    from app.files import dumps_json, write_json
+    from app.files import check_output, dumps_json, write_json
     from app.meta import provenance
     from app.params import to_json
     from app.report import parameter_table
@@ -46,6 +46,9 @@ def run(args: argparse.Namespace) -> int:
     from calib.identify import identify
     from calib.model import ALL_NAMES, PAPER_30
 
+    check_output(args.out)
+    if args.keep_failed:
+        check_output(args.keep_failed)
     cfg = load_cell(args.cell)
     model = cfg.model()
     for name in args.add_param:

@@ -7,7 +7,7 @@ import json
 import sys
 
 from app.config import load_cell
-from app.files import write_json
+from app.files import check_output, write_json
 from app.meta import provenance
 from app.params import from_json
 from app.planning import (
@@ -38,6 +38,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output(args.out)
     cfg = load_cell(args.cell)
     if args.params:
         model, x = from_json(args.params, allow_failed=args.allow_failed)

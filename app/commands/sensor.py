@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 
 from app.cliargs import float_in
 from app.errors import InputError, QualityError
-from app.files import write_text
+from app.files import check_output, write_text
 from app.tomlfile import read_toml
 from vision.calibrate import Chessboard
 from vision.calibrate_sensor import calibrate_sensor
@@ -185,6 +185,7 @@ def _parse_pattern(text: str) -> tuple[int, int]:
 
 def run_calibrate(args: argparse.Namespace) -> int:
     """Calibrate from CALIB_DIR and write the sensor TOML."""
+    check_output(args.out)
     board = Chessboard(pattern=_parse_pattern(args.pattern), square_mm=args.square_mm)
     board_dir, target_dir = args.dir / "chessboards", args.dir / "targets"
     if not board_dir.is_dir() or not target_dir.is_dir():

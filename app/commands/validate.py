@@ -9,7 +9,7 @@ from dataclasses import asdict
 import numpy as np
 
 from app.dataio import load_dataset
-from app.files import ERROR_COLUMNS, write_csv
+from app.files import ERROR_COLUMNS, check_output, write_csv
 from app.params import from_json
 from app.report import STATS_HEADER, stats_rows, text_table
 from calib.identify import residuals
@@ -30,6 +30,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.out:
+        check_output(args.out)
     model, x = from_json(args.params, allow_failed=args.allow_failed)
     data = load_dataset(args.measurements, args.targets, model.limits)
     e_id = residuals(model, x, data)

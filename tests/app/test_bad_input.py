@@ -215,9 +215,10 @@ def test_bad_options(
 def test_bad_output_paths(simdir: Path, tmp_path: Path, cli: Cli, kind: str) -> None:
     (tmp_path / "file").write_text("x")
     out = tmp_path if kind == "directory" else tmp_path / "file" / "p.json"
-    code, _, err = cli(identify(simdir, out))
-    reason = "is a directory" if kind == "directory" else "cannot write"
+    code, text, err = cli(identify(simdir, out))
+    reason = "is a directory" if kind == "directory" else "a parent of this path is a file"
     assert code == 2 and reason in one_line(err) and str(out) in err
+    assert text == ""  # refused before any work
 
 
 def test_a_failed_write_leaves_the_old_file(
