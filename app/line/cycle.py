@@ -1,0 +1,202 @@
+"""One clamp window (README "Line PLC" handshake):
+
+    wait for a fresh window (window bit rising, line running, PLC heartbeat alive)
+    -> pick the next schedule slot that fits the remaining window -> busy
+    -> move -> sweep + grabs -> vision -> store (committed) -> home -> done
+
+While the robot is out, a watcher polls the PLC; if the window is withdrawn (or the line stops,
+or the heartbeat is lost) it aborts the motion at once and the robot goes home: busy drops
+without done. A sweep the vision rejects is stored as rejected and the window still ends with
+done. A device error propagates (the service goes to FAULT); so does nothing else.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from app.line.clock import Clock
+from app.line.measure import Reading, Rejected, SphereMeasurer
+from app.line.schedule import Schedule, Slot
+from app.line.settings import LineSettings
+from drivers.errors import DeviceError
+from drivers.plc import Plc, PlcInputs
+
+#: record(slot, window, reading or None, reason) -> stored row id; must commit before returning
+Recorder = Callable[[Slot, int, Reading | None, str], int]
+
+
+class WindowWatch:
+    """The PLC inputs seen through the service's clock: heartbeat age, window edges."""
+
+    def __init__(self, plc: Plc, clock: Clock, line: LineSettings) -> None:
+        self.plc, self.clock, self.line = plc, clock, line
+        self.inputs: PlcInputs | None = None
+        self._beat: int | None = None
+        self._beat_t = 0.0
+        self._seen_closed = False
+        self.opened_t: float | None = None  # clock time of the window's rising edge
+        self.used_t: float | None = None  # rising edge of the last window measured in
+
+    def poll(self) -> PlcInputs:
+        """One exchange with the PLC (sends our heartbeat too)."""
+        inputs = self.plc.poll()
+        now = self.clock.monotonic()
+        if inputs.heartbeat != self._beat:
+            self._beat, self._beat_t = inputs.heartbeat, now
+        if not inputs.window_open:
+            self._seen_closed, self.opened_t = True, None
+        elif self._seen_closed and self.opened_t is None:
+            self.opened_t = now  # a window seen from its start: its remaining time is known
+        self.inputs = inputs
+        return inputs
+
+    @property
+    def alive(self) -> bool:
+        age = self.clock.monotonic() - self._beat_t
+        return self._beat is not None and age <= self.line.heartbeat_timeout_s
+
+    def ready(self) -> bool:
+        i = self.inputs
+        return i is not None and i.window_open and i.line_running and self.alive
+
+    def fresh_window(self) -> bool:
+        """Ready, seen from its rising edge, and not measured in yet."""
+        return self.ready() and self.opened_t is not None and self.opened_t != self.used_t
+
+    def remaining_s(self) -> float:
+        if self.opened_t is None:
+            return 0.0
+        return self.line.window_s - (self.clock.monotonic() - self.opened_t)
+
+
+class Withdrawal:
+    """Watches the PLC from a thread while the robot is out; on a withdrawn window it aborts
+    the robot once and latches `withdrawn` (with `why`)."""
+
+    def __init__(self, watch: WindowWatch, abort: Callable[[], None]) -> None:
+        self.watch, self._abort = watch, abort
+        self.withdrawn = False
+        self.why = ""
+        self.error: BaseException | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="rvis-window-watch", daemon=True)
+
+    def __enter__(self) -> Withdrawal:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join()
+
+    def _run(self) -> None:
+        w = self.watch
+        while not w.clock.wait(self._stop, w.line.poll_s):
+            try:
+                w.poll()
+            except DeviceError as exc:  # the PLC link itself failed: stop the robot too
+                self.error = exc
+            if self.error is not None or not w.ready():
+                self.why = self._reason()
+                self.withdrawn = True
+                try:
+                    self._abort()
+                except DeviceError as exc:
+                    self.error = self.error or exc
+                return
+
+    def _reason(self) -> str:
+        w, i = self.watch, self.watch.inputs
+        if self.error is not None:
+            return f"PLC link lost: {self.error}"
+        if not w.alive:
+            return "PLC heartbeat lost"
+        if i is not None and not i.line_running:
+            return "line stopped"
+        return "window withdrawn"
+
+
+@dataclass
+class WindowReport:
+    """What happened in one window."""
+
+    window: int
+    slots: list[int] = field(default_factory=list)
+    measured: int = 0
+    rejected: int = 0
+    withdrawn: str = ""  # why, when the PLC took the window back
+    overrun: bool = False  # home only after the window's expected end
+    note: str = ""
+
+    def to_json(self) -> dict[str, object]:
+        return dict(self.__dict__)
+
+
+class Cycle:
+    """Runs windows: `run_window` once `watch.fresh_window()` is true."""
+
+    def __init__(
+        self,
+        watch: WindowWatch,
+        measurer: SphereMeasurer,
+        schedule: Schedule,
+        position: Callable[[], int],
+        record: Recorder,
+    ) -> None:
+        self.watch, self.measurer, self.schedule = watch, measurer, schedule
+        self.position, self.record = position, record
+        self.plc, self.clock, self.line = watch.plc, watch.clock, watch.line
+
+    def run_window(self, window: int) -> WindowReport:
+        """Measure in the open window and come home; raises a DeviceError for a fault."""
+        report = WindowReport(window)
+        assert self.watch.opened_t is not None
+        end_t = self.watch.opened_t + self.line.window_s
+        self.watch.used_t = self.watch.opened_t
+        self.plc.set_signals(busy=True, done=False, fault=False)
+        with Withdrawal(self.watch, self.measurer.robot.abort) as guard:
+            try:
+                self._slots(window, guard, report)
+            except DeviceError:
+                if not guard.withdrawn:
+                    raise
+        if guard.error is not None:
+            raise guard.error
+        if guard.withdrawn:
+            report.withdrawn = guard.why
+            if self.measurer.robot.fault is not None:
+                self.measurer.robot.reset()  # our own abort latched it
+        self.measurer.go_home()
+        report.overrun = self.clock.monotonic() > end_t
+        self.plc.set_signals(busy=False, done=not guard.withdrawn, fault=False)
+        return report
+
+    def _slots(self, window: int, guard: Withdrawal, report: WindowReport) -> None:
+        sensor_s = self.measurer.sensor.duration_s
+        if not self.measurer.at_home():  # back from a fault: first come home in a window
+            report.note = "robot brought home"
+            return
+        for _ in range(self.line.slots_per_window):
+            q_now = self.measurer.robot.joints_deg()
+            remaining = self.watch.remaining_s()
+            slot = self.schedule.next_fitting(self.position(), q_now, remaining, sensor_s)
+            if slot is None or guard.withdrawn:
+                report.note = report.note or ("" if guard.withdrawn else "no slot fits")
+                return
+            self._slot(slot, window, guard, report)
+
+    def _slot(self, slot: Slot, window: int, guard: Withdrawal, report: WindowReport) -> None:
+        self.measurer.move_to(slot.q_deg)
+        if guard.withdrawn:
+            return
+        try:
+            reading: Reading | None = self.measurer.sensor.measure(slot.target)
+            reason = ""
+        except Rejected as exc:
+            reading, reason = None, str(exc)
+        self.record(slot, window, reading, reason)  # committed before done
+        report.slots.append(slot.index)
+        report.measured += reading is not None
+        report.rejected += reading is None

@@ -1,0 +1,206 @@
+"""The operator's commands of the service (the control socket calls `request`).
+
+`status` and `subscribe` are answered at once from any thread; every other command is queued
+and executed by the service loop between windows (so a reply can wait for the end of a running
+window), and written to the audit log (`actions` table) with the peer's uid, its arguments,
+and whether it succeeded.
+
+    pause | resume | reset | recalibrate | approve [calibration] | reject [calibration]
+    rollback version | ack alarm | shelve alarm reason [minutes]
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from concurrent.futures import Future
+from queue import Empty, Queue
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from app.line.service import Service
+
+MUTATING = (
+    "pause",
+    "resume",
+    "reset",
+    "recalibrate",
+    "approve",
+    "reject",
+    "rollback",
+    "ack",
+    "shelve",
+)
+COMMANDS = ("status", "subscribe", *MUTATING)
+
+
+class CommandError(Exception):
+    """A command that cannot be done now (the reply's `error`)."""
+
+
+def _int(args: dict[str, Any], key: str) -> int:
+    value = args.get(key)
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise CommandError(f"'{key}' must be an integer")
+    return value
+
+
+class OperatorCommands:
+    """Mixin of Service: the command queue and the handlers."""
+
+    _commands: Queue[tuple[str, dict[str, Any], int | None, Future[dict[str, Any]]]]
+    _wake: threading.Event
+
+    def request(
+        self, cmd: str, args: dict[str, Any] | None = None, uid: int | None = None
+    ) -> Future[dict[str, Any]]:
+        """Queue a command; the future's result is the reply body ({"ok": ...})."""
+        future: Future[dict[str, Any]] = Future()
+        args = dict(args or {})
+        if cmd not in COMMANDS or cmd == "subscribe":
+            future.set_result({"ok": False, "error": f"unknown command {cmd!r}"})
+        elif cmd == "status":
+            future.set_result({"ok": True, **self.status()})
+        else:
+            self._commands.put((cmd, args, uid, future))
+            self._wake.set()
+        return future
+
+    def status(self) -> dict[str, Any]:
+        svc: Service = self  # type: ignore[assignment]
+        w = svc.watch
+        return {
+            "state": svc.state.value,
+            "paused": svc.paused,
+            "params_version": svc.version,
+            "pending_calibration": svc.pending_calibration,
+            "recalibrating": svc.recalibrator.busy,
+            "mode": svc.settings.recalib.mode,
+            "counters": dict(svc.counters),
+            "measurements": svc.store.counts(),
+            "schedule": {"position": svc.store.schedule_position()[0], "slots": len(svc.schedule)},
+            "plc": None
+            if w.inputs is None
+            else {
+                "window_open": w.inputs.window_open,
+                "line_running": w.inputs.line_running,
+                "heartbeat_alive": w.alive,
+            },
+            "alarms": [
+                {k: a[k] for k in ("id", "code", "priority", "message", "state")}
+                for a in svc.store.active_alarms()
+            ],
+            "drift": svc.drift.state(),
+        }
+
+    def _run_commands(self) -> None:
+        svc: Service = self  # type: ignore[assignment]
+        while True:
+            try:
+                cmd, args, uid, future = self._commands.get_nowait()
+            except Empty:
+                return
+            handler: Callable[[dict[str, Any], int | None], dict[str, Any]]
+            handler = getattr(self, f"_cmd_{cmd}")
+            try:
+                reply = {"ok": True, **handler(args, uid)}
+            except CommandError as exc:
+                reply = {"ok": False, "error": str(exc)}
+            detail = reply.get("error", "") or str(reply.get("detail", ""))
+            svc.store.add_action(svc.clock.time(), uid, cmd, args, bool(reply["ok"]), detail)
+            svc.bus.emit("operator", {"cmd": cmd, "args": args, "uid": uid, "ok": reply["ok"]})
+            future.set_result(reply)
+
+    # -- handlers (run in the service loop, between windows) -------------------------------
+    def _cmd_pause(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
+        from app.line.service import State
+
+        svc: Service = self  # type: ignore[assignment]
+        svc.paused = True
+        if svc.state == State.IDLE:
+            svc._set_state(State.PAUSED)
+        return {"detail": "paused", "state": svc.state.value}
+
+    def _cmd_resume(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
+        from app.line.service import State
+
+        svc: Service = self  # type: ignore[assignment]
+        svc.paused = False
+        if svc.state == State.PAUSED:
+            svc._set_state(State.IDLE)
+        return {"detail": "resumed", "state": svc.state.value}
+
+    def _cmd_reset(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
+        from app.line.service import State
+        from drivers.errors import DeviceError
+
+        svc: Service = self  # type: ignore[assignment]
+        if svc.state != State.FAULT:
+            raise CommandError(f"nothing to reset in state {svc.state.value}")
+        try:
+            svc.station.robot.reset()
+            svc.station.plc.set_signals(busy=False, done=False, fault=False)
+        except DeviceError as exc:
+            raise CommandError(f"reset failed: {type(exc).__name__}: {exc}") from exc
+        t = svc.clock.time()
+        for code in ("device_fault", "robot_not_home"):
+            svc.store.clear_alarms(t, code)
+        svc._set_state(State.PAUSED if svc.paused else State.IDLE)
+        home = svc.measurer.at_home()
+        note = "" if home else "; the robot comes home in the next window"
+        return {"detail": f"reset{note}", "state": svc.state.value}
+
+    def _cmd_recalibrate(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
+        svc: Service = self  # type: ignore[assignment]
+        svc.force_recal = True
+        return {"detail": "recalibration requested"}
+
+    def _pending_id(self, args: dict[str, Any]) -> int:
+        svc: Service = self  # type: ignore[assignment]
+        cal_id = _int(args, "calibration") if "calibration" in args else svc.pending_calibration
+        if cal_id is None or cal_id != svc.pending_calibration:
+            raise CommandError(f"calibration {cal_id} is not pending")
+        return cal_id
+
+    def _cmd_approve(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
+        svc: Service = self  # type: ignore[assignment]
+        cal_id = self._pending_id(args)
+        version = svc._apply_calibration(cal_id, uid, "approved")
+        return {"detail": f"calibration {cal_id} applied as version {version}", "version": version}
+
+    def _cmd_reject(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
+        svc: Service = self  # type: ignore[assignment]
+        cal_id = self._pending_id(args)
+        svc.store.decide_calibration(cal_id, "rejected", svc.clock.time(), uid)
+        svc.pending_calibration = None
+        return {"detail": f"calibration {cal_id} rejected"}
+
+    def _cmd_rollback(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
+        svc: Service = self  # type: ignore[assignment]
+        version = _int(args, "version")
+        if version not in svc.params.versions():
+            raise CommandError(f"no parameters version {version}")
+        svc.params.rollback(version)
+        svc._in_force(version, None, "rollback", uid)
+        return {"detail": f"parameters version {version} in force", "version": version}
+
+    def _cmd_ack(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
+        svc: Service = self  # type: ignore[assignment]
+        alarm_id = _int(args, "alarm")
+        if not svc.store.ack_alarm(alarm_id, svc.clock.time(), uid):
+            raise CommandError(f"no raised alarm {alarm_id}")
+        return {"detail": f"alarm {alarm_id} acknowledged"}
+
+    def _cmd_shelve(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
+        svc: Service = self  # type: ignore[assignment]
+        alarm_id = _int(args, "alarm")
+        reason = args.get("reason")
+        if not isinstance(reason, str) or not reason.strip():
+            raise CommandError("shelving needs a 'reason'")
+        minutes = args.get("minutes", 60)
+        if isinstance(minutes, bool) or not isinstance(minutes, int | float) or minutes <= 0:
+            raise CommandError("'minutes' must be a positive number")
+        until = svc.clock.time() + 60.0 * float(minutes)
+        if not svc.store.shelve_alarm(alarm_id, until, reason):
+            raise CommandError(f"no active alarm {alarm_id}")
+        return {"detail": f"alarm {alarm_id} shelved for {minutes:g} min"}

@@ -1,0 +1,127 @@
+"""The applied parameters: `state_dir/params/current.json` and a numbered history.
+
+Every version is written once to `params/history/NNNN.json` and then made current by replacing
+`current.json` atomically (temporary file in the same directory, fsync, os.replace, fsync of the
+directory): after a crash at any moment `current.json` is one complete version of the history.
+A rollback makes an earlier history file current again. Documents are app.params' parameters
+JSON (readable by `app.params.from_json`) with one more key, `history_version`.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from app.errors import InputError
+from app.params import FORMAT, FORMAT_VERSION, from_json
+from calib.model import ALL_NAMES, SystemModel, group_of, unit_of
+
+F64 = NDArray[np.float64]
+
+
+def atomic_write_json(path: Path, doc: dict[str, Any]) -> None:
+    """Write `doc` to `path` so that readers see the old file or the new one, never a part."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            json.dump(doc, f, indent=1)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    dir_fd = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(dir_fd)  # the rename itself must survive a power loss
+    finally:
+        os.close(dir_fd)
+
+
+def plain_document(model: SystemModel, x: F64, source: str) -> dict[str, Any]:
+    """A parameters document for values that come from no identification here (the nominal
+    model, or a file imported at first start); readable by app.params.from_json."""
+    nominal = model.nominal_x()
+    return {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "model": {
+            "name": model.name,
+            "version": model.version,
+            "T_part_base_nominal": model.T_part_base_nominal.tolist(),
+            "T_flange_sensor_nominal": model.T_flange_sensor_nominal.tolist(),
+            "joint_lower_deg": model.limits.lower_deg.tolist(),
+            "joint_upper_deg": model.limits.upper_deg.tolist(),
+        },
+        "parameters": [
+            {
+                "name": name,
+                "group": group_of(name),
+                "unit": unit_of(name),
+                "identified": False,
+                "nominal": float(nominal[k]),
+                "value": float(x[k]),
+                "std": 0.0,
+            }
+            for k, name in enumerate(ALL_NAMES)
+        ],
+        "success": True,
+        "message": source,
+        "provenance": {"source": source},
+    }
+
+
+class ParamsStore:
+    """`state_dir/params`: apply a document as a new version, read the current one, roll back."""
+
+    def __init__(self, state_dir: str | Path) -> None:
+        self.dir = Path(state_dir) / "params"
+        self.history = self.dir / "history"
+        self.history.mkdir(parents=True, exist_ok=True)
+        self.current_path = self.dir / "current.json"
+        for stale in self.dir.glob(".*.tmp"):  # left by a crash before os.replace
+            stale.unlink(missing_ok=True)
+        for stale in self.history.glob(".*.tmp"):
+            stale.unlink(missing_ok=True)
+
+    def _path(self, version: int) -> Path:
+        return self.history / f"{version:04d}.json"
+
+    def versions(self) -> list[int]:
+        return sorted(int(p.stem) for p in self.history.glob("[0-9][0-9][0-9][0-9].json"))
+
+    def apply(self, doc: dict[str, Any]) -> int:
+        """Write `doc` as the next history version and make it current; returns the version."""
+        version = max(self.versions(), default=0) + 1
+        doc = {**doc, "history_version": version}
+        atomic_write_json(self._path(version), doc)
+        atomic_write_json(self.current_path, doc)
+        return version
+
+    def rollback(self, version: int) -> int:
+        """Make history version `version` current again (InputError if there is none)."""
+        path = self._path(version)
+        if not path.is_file():
+            raise InputError(f"no parameters version {version}", file=path)
+        atomic_write_json(self.current_path, json.loads(path.read_text(encoding="utf-8")))
+        return version
+
+    def current_version(self) -> int | None:
+        if not self.current_path.is_file():
+            return None
+        doc = json.loads(self.current_path.read_text(encoding="utf-8"))
+        return int(doc["history_version"])
+
+    def current(self) -> tuple[int, SystemModel, F64] | None:
+        """(version, model, parameter vector) in force, or None before the first apply."""
+        version = self.current_version()
+        if version is None:
+            return None
+        model, x = from_json(self.current_path)
+        return version, model, x

@@ -1,0 +1,181 @@
+"""Recalibration: rolling measurement set -> identification in a worker process -> gates.
+
+The set is the last `rolling_size` good measurements before the `holdout_size` most recent ones
+(only measurements after the last drift onset when drift was flagged); it must hold every sphere
+and every configuration of the schedule. The identification (calib.identify, starting from the
+parameters in force) runs in a separate process, so the cycle never waits for it; `poll()`
+collects the outcome between windows. The gates (`check_candidate`, the one place to fold into
+calib.gates later): the calib.gates checks (converged, finite, rank, RMS <= max_rms_mm,
+condition, bounded change from the parameters in force) plus "better than the parameters in
+force on the held-out measurements" (RMS ratio <= max_holdout_ratio).
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import Executor, Future, ProcessPoolExecutor
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from app.line.settings import GateSettings, RecalibSettings
+from app.params import to_json
+from calib.errors import CalibError
+from calib.gates import check_identification
+from calib.identify import IdentificationResult, Measurements, identify, residuals
+from calib.model import SystemModel
+
+F64 = NDArray[np.float64]
+
+
+@dataclass(frozen=True, eq=False)
+class RecalJob:
+    """Everything the worker needs (picklable)."""
+
+    model: SystemModel
+    x_current: F64
+    train: Measurements
+    holdout: Measurements
+    gates: GateSettings
+    max_nfev: int
+    first_id: int
+    last_id: int
+
+
+@dataclass(frozen=True, eq=False)
+class RecalOutcome:
+    """The candidate and its gates: `passed` with no failures, else the reasons."""
+
+    passed: bool
+    failures: tuple[str, ...]
+    x: F64 | None
+    document: dict[str, Any] | None
+    rms_mm: float | None
+    holdout_rms_mm: float | None
+    current_holdout_rms_mm: float
+    n_measurements: int
+    first_id: int
+    last_id: int
+
+
+def as_measurements(rows: Sequence[Mapping[str, Any]], spheres: Mapping[str, F64]) -> Measurements:
+    """Stored measurement rows -> calib Measurements against the spheres' known centres."""
+    return Measurements(
+        np.array([r["q_deg"] for r in rows], dtype=float).reshape(-1, 6),
+        np.array([r["c_sensor_mm"] for r in rows], dtype=float).reshape(-1, 3),
+        np.array([spheres[r["target"]] for r in rows], dtype=float).reshape(-1, 3),
+        tuple(str(r["target"]) for r in rows),
+    )
+
+
+def select_rolling(
+    rows: Sequence[Mapping[str, Any]], n_slots: int, targets: Sequence[str], s: RecalibSettings
+) -> tuple[list[Mapping[str, Any]], list[Mapping[str, Any]]] | None:
+    """(training rows, held-out rows) from good measurement rows in id order, or None when the
+    rolling set is not complete (too few, or a sphere or a schedule slot missing)."""
+    if len(rows) < s.rolling_size + s.holdout_size:
+        return None
+    holdout = list(rows[len(rows) - s.holdout_size :])
+    train = list(rows[len(rows) - s.holdout_size - s.rolling_size : len(rows) - s.holdout_size])
+    if {r["target"] for r in train} < set(targets):
+        return None
+    if len({r["slot"] for r in train}) < min(n_slots, s.rolling_size):
+        return None
+    return train, holdout
+
+
+def rms_mm(model: SystemModel, x: F64, data: Measurements) -> float:
+    e = np.linalg.norm(residuals(model, x, data), axis=1)
+    return float(np.sqrt(np.mean(e**2)))
+
+
+def check_candidate(result: IdentificationResult, job: RecalJob) -> tuple[list[str], float, float]:
+    """The gates of a candidate: (failures, candidate held-out RMS, current held-out RMS)."""
+    report = check_identification(result, job.x_current, job.gates.calib_gates())
+    failures = list(report.failures)
+    cand = rms_mm(job.model, result.x, job.holdout)
+    cur = rms_mm(job.model, job.x_current, job.holdout)
+    if not cand <= job.gates.max_holdout_ratio * cur:
+        failures.append(
+            f"held-out RMS {cand:.4f} mm not better than the parameters in force ({cur:.4f} mm)"
+        )
+    return failures, cand, cur
+
+
+def run_recalibration(job: RecalJob) -> RecalOutcome:
+    """Identify from the rolling set and gate the result (runs in the worker process)."""
+    cur = rms_mm(job.model, job.x_current, job.holdout)
+    n = len(job.train)
+    try:
+        result = identify(job.model, job.train, x0=job.x_current, max_nfev=job.max_nfev)
+    except CalibError as exc:
+        failure = f"identification failed: {exc}"
+        return RecalOutcome(
+            False, (failure,), None, None, None, None, cur, n, job.first_id, job.last_id
+        )
+    failures, cand, cur = check_candidate(result, job)
+    report = check_identification(result, job.x_current, job.gates.calib_gates())
+    doc = to_json(
+        job.model, result, report, {"source": "rvis run", "ids": [job.first_id, job.last_id]}
+    )
+    return RecalOutcome(
+        not failures,
+        tuple(failures),
+        result.x,
+        doc,
+        result.rms_mm,
+        cand,
+        cur,
+        n,
+        job.first_id,
+        job.last_id,
+    )
+
+
+def process_executor() -> Executor:
+    """One worker process (forkserver: no threads or sockets of the service are inherited)."""
+    return ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("forkserver"))
+
+
+class Recalibrator:
+    """Runs one recalibration at a time in the background; `poll()` never blocks."""
+
+    def __init__(self, executor_factory: Callable[[], Executor] = process_executor) -> None:
+        self._factory = executor_factory
+        self._executor: Executor | None = None
+        self._future: Future[RecalOutcome] | None = None
+
+    @property
+    def busy(self) -> bool:
+        return self._future is not None
+
+    def submit(self, job: RecalJob) -> bool:
+        """Start `job` unless one is running; True if started."""
+        if self._future is not None:
+            return False
+        if self._executor is None:
+            self._executor = self._factory()
+        self._future = self._executor.submit(run_recalibration, job)
+        return True
+
+    def poll(self) -> RecalOutcome | None:
+        """The finished outcome, once; None while running or idle."""
+        if self._future is None or not self._future.done():
+            return None
+        future, self._future = self._future, None
+        return future.result()
+
+    def wait(self, timeout_s: float) -> RecalOutcome | None:
+        """Block until the running job is done (tests and shutdown only)."""
+        if self._future is None:
+            return None
+        self._future.exception(timeout=timeout_s)
+        return self.poll()
+
+    def close(self) -> None:
+        if self._executor is not None:
+            self._executor.shutdown(wait=True, cancel_futures=True)
+            self._executor = None

@@ -1,0 +1,159 @@
+"""The service's settings: frozen dataclasses with defaults, one per concern.
+
+Names follow the cell file's `[service]` and `[line]` sections (app/config.py) where those exist;
+`from_cell(cfg)` reads them. Times are in the clock's seconds, angles at this boundary in degrees.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from calib.gates import Gates
+
+JOINT_SPEED_DEG_S = (175.0, 175.0, 175.0, 250.0, 250.0, 355.0)  # M-710iC/50 data sheet
+HOME_DEG = (0.0, 0.0, 0.0, 0.0, -90.0, 0.0)
+
+
+@dataclass(frozen=True)
+class LineSettings:
+    """The PLC handshake and the motion-time model of one window."""
+
+    poll_s: float = 0.01
+    heartbeat_timeout_s: float = 3.0
+    override_pct: int = 100
+    speed_pct: float = 100.0
+    joint_speed_deg_s: tuple[float, ...] = JOINT_SPEED_DEG_S
+    accel_s: float = 0.4  # per move: acceleration and deceleration allowance
+    settle_s: float = 0.2  # per move: settling at FINE
+    home_deg: tuple[float, ...] = HOME_DEG
+    home_tol_deg: float = 0.05
+    window_s: float = 8.0  # how long a clamp window lasts (the PLC sends only the bit)
+    margin_s: float = 0.5  # kept free at the end of every window
+    slots_per_window: int = 1
+
+    def __post_init__(self) -> None:
+        if len(self.joint_speed_deg_s) != 6 or len(self.home_deg) != 6:
+            raise ValueError("joint_speed_deg_s and home_deg need 6 values")
+        if not (self.poll_s > 0 and self.window_s > 0 and 1 <= self.override_pct <= 100):
+            raise ValueError("poll_s, window_s > 0 and override_pct in 1..100")
+        if self.slots_per_window < 1:
+            raise ValueError("slots_per_window must be >= 1")
+
+
+@dataclass(frozen=True)
+class SweepSettings:
+    """The galvo sweep of one measurement: commands [V] evenly over +-span_v."""
+
+    n_frames: int = 24
+    span_v: float = 3.2
+    frame_s: float = 0.05  # per frame: set the galvo, settle, expose, transfer (estimate)
+    grab_timeout_s: float = 1.0
+
+    def commands_v(self) -> tuple[float, ...]:
+        return tuple(float(v) for v in np.linspace(-self.span_v, self.span_v, self.n_frames))
+
+    @property
+    def duration_s(self) -> float:
+        return self.n_frames * self.frame_s
+
+
+@dataclass(frozen=True)
+class GateSettings:
+    """Gates of an in-line identification (calib.gates) plus the held-out comparison."""
+
+    max_rms_mm: float = 0.25
+    max_condition: float = 1000.0
+    max_joint_change_mm: float = 5.0
+    max_joint_change_deg: float = 1.0
+    max_sensor_change_mm: float = 5.0
+    max_sensor_change_deg: float = 2.0
+    max_base_change_mm: float = 5.0
+    max_base_change_deg: float = 1.0
+    max_holdout_ratio: float = 1.0  # candidate RMS / current RMS on the held-out measurements
+
+    def calib_gates(self) -> Gates:
+        return Gates(
+            max_rms_mm=self.max_rms_mm,
+            max_condition=self.max_condition,
+            max_joint_change_mm=self.max_joint_change_mm,
+            max_joint_change_rad=float(np.radians(self.max_joint_change_deg)),
+            max_sensor_change_mm=self.max_sensor_change_mm,
+            max_sensor_change_rad=float(np.radians(self.max_sensor_change_deg)),
+            max_base_change_mm=self.max_base_change_mm,
+            max_base_change_rad=float(np.radians(self.max_base_change_deg)),
+        )
+
+
+@dataclass(frozen=True)
+class DriftSettings:
+    """EWMA and CUSUM of the residuals (REFERENCE.md "Drift charts")."""
+
+    ewma_lambda: float = 0.2
+    ewma_l: float = 3.0  # limit in sigmas of the EWMA's asymptotic spread
+    cusum_k: float = 0.5  # slack in sigmas
+    cusum_h: float = 5.0  # decision interval in sigmas
+    baseline_n: int = 8  # samples after each applied calibration that set mean and sigma
+    min_sigma_mm: float = 0.01  # floor of the learned sigma (noise-free baselines)
+
+    def __post_init__(self) -> None:
+        if not (0 < self.ewma_lambda <= 1 and self.baseline_n >= 2):
+            raise ValueError("ewma_lambda in (0, 1] and baseline_n >= 2")
+
+
+@dataclass(frozen=True)
+class RecalibSettings:
+    """When and how the service recalibrates."""
+
+    mode: Literal["auto", "approve"] = "auto"
+    rolling_size: int = 24
+    holdout_size: int = 4
+    every_n: int = 24  # new measurements between scheduled recalibrations
+    max_nfev: int = 200
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("auto", "approve"):
+            raise ValueError("mode must be auto or approve")
+        if self.rolling_size < 10 or self.holdout_size < 1 or self.every_n < 1:
+            raise ValueError("rolling_size >= 10, holdout_size >= 1, every_n >= 1")
+
+
+@dataclass(frozen=True)
+class ServiceSettings:
+    """Everything the service needs besides its devices, clock, plan and spheres."""
+
+    state_dir: Path = Path("rvis-state")
+    raw_sweeps_keep: int = 0
+    line: LineSettings = field(default_factory=LineSettings)
+    sweep: SweepSettings = field(default_factory=SweepSettings)
+    gates: GateSettings = field(default_factory=GateSettings)
+    drift: DriftSettings = field(default_factory=DriftSettings)
+    recalib: RecalibSettings = field(default_factory=RecalibSettings)
+
+
+def from_cell(cfg: Any, state_dir: str | Path | None = None) -> ServiceSettings:
+    """ServiceSettings from a resolved cell configuration's [service] and [line] sections
+    (app.config.CellConfig); the keys not in the file keep their defaults."""
+    svc, ln = cfg.service, cfg.line
+    line = LineSettings(
+        poll_s=float(ln.poll_s),
+        heartbeat_timeout_s=float(ln.heartbeat_timeout_s),
+        override_pct=int(ln.override_pct),
+        speed_pct=float(ln.speed_pct),
+        joint_speed_deg_s=tuple(float(v) for v in ln.joint_speed_deg_s),
+        accel_s=float(ln.accel_s),
+        settle_s=float(ln.settle_s),
+        home_deg=tuple(float(v) for v in ln.home_deg),
+    )
+    recal = RecalibSettings(
+        mode=svc.mode, rolling_size=int(svc.rolling_size), holdout_size=int(svc.holdout_size)
+    )
+    return ServiceSettings(
+        state_dir=Path(state_dir if state_dir is not None else svc.state_dir),
+        raw_sweeps_keep=int(svc.raw_sweeps_keep),
+        line=line,
+        recalib=recal,
+    )

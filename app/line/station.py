@@ -1,0 +1,99 @@
+"""The station: every device of the cell opened from its URL (drivers.registry), with the
+safety guard on the robot, and closed together.
+
+    with Station.open(cfg.devices, guard=SafetyGuard()) as st: ...
+    Station(robot=..., plc=..., camera=..., galvo=...)   # from devices opened elsewhere (tests)
+
+`options` passes backend keyword arguments per family (e.g. `world=` for `fake://`). A device
+that fails to open closes those opened before it and the error propagates (a typed
+drivers.errors.DeviceError).
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Mapping
+from dataclasses import dataclass
+from types import TracebackType
+from typing import Any, Self, cast
+
+from drivers.base import Device
+from drivers.camera import Camera
+from drivers.galvo import Galvo
+from drivers.plc import Plc
+from drivers.registry import open_device
+from drivers.robot import Robot
+from drivers.safety import SafetyGuard
+from drivers.tracker import Tracker
+
+#: Opened in this order (closed in the reverse one): the PLC first, so a fault can be signalled.
+ORDER = ("plc", "robot", "galvo", "camera", "tracker")
+
+
+@dataclass
+class Station:
+    """The devices of one cell; `camera`, `galvo` and `tracker` are optional (a geometric
+    sensor needs neither camera nor galvo)."""
+
+    robot: Robot
+    plc: Plc
+    camera: Camera | None = None
+    galvo: Galvo | None = None
+    tracker: Tracker | None = None
+
+    @classmethod
+    def open(
+        cls,
+        urls: Mapping[str, str],
+        *,
+        guard: SafetyGuard | None = None,
+        options: Mapping[str, Mapping[str, Any]] | None = None,
+    ) -> Station:
+        """Open the devices named in `urls` (family -> URL); robot and plc are required."""
+        opened: dict[str, Device] = {}
+        options = options or {}
+        try:
+            for family in ORDER:
+                if family not in urls:
+                    continue
+                kw = dict(options.get(family, {}))
+                if family == "robot":
+                    kw.setdefault("guard", guard or SafetyGuard())
+                if family == "camera" and "galvo" in opened and urls[family] == "fake://":
+                    kw.setdefault("galvo", opened["galvo"])  # the fake renders the galvo's angle
+                opened[family] = open_device(family, urls[family], **kw)
+            return cls(
+                robot=cast(Robot, opened["robot"]),
+                plc=cast(Plc, opened["plc"]),
+                camera=cast(Camera | None, opened.get("camera")),
+                galvo=cast(Galvo | None, opened.get("galvo")),
+                tracker=cast(Tracker | None, opened.get("tracker")),
+            )
+        except BaseException:
+            for device in reversed(opened.values()):
+                device.close()
+            raise
+
+    def devices(self) -> dict[str, Device]:
+        out: dict[str, Device | None] = {
+            "plc": self.plc,
+            "robot": self.robot,
+            "galvo": self.galvo,
+            "camera": self.camera,
+            "tracker": self.tracker,
+        }
+        return {k: v for k, v in out.items() if v is not None}
+
+    def close(self) -> None:
+        """Close every device (never raises)."""
+        for device in reversed(list(self.devices().values())):
+            with contextlib.suppress(Exception):
+                device.close()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self, t: type[BaseException] | None, e: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()

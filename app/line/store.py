@@ -1,0 +1,316 @@
+"""SQLite persistence of the service: the only code in rvis that writes SQL.
+
+One file `state_dir/rvis.db` in WAL mode. Every write is one `BEGIN IMMEDIATE` transaction with
+`synchronous=FULL`, so a row is on disk before the caller acknowledges it to anyone (the PLC's
+`done` comes after `add_measurement` returns). The schema version is `PRAGMA user_version`;
+`MIGRATIONS[k]` brings version k to k + 1, each in its own transaction. Readers such as
+`rvis status` or the TUI open the file read-only (`Store.read_only`).
+
+Tables: measurements (ok and rejected, with their quality), calibrations (gates, status
+pending/applied/rejected), applied (parameter versions in force, in order), alarms (ISA-18.2
+life cycle: raised, acked, cleared, shelved with reason and expiry), events, actions (operator
+audit with the peer's uid), schedule (the position to resume from).
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import threading
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+MIGRATIONS: tuple[tuple[str, ...], ...] = (
+    (
+        """CREATE TABLE measurements (
+            id INTEGER PRIMARY KEY, t REAL NOT NULL, window INTEGER NOT NULL,
+            slot INTEGER NOT NULL, target TEXT NOT NULL, q_deg TEXT NOT NULL,
+            c_sensor_mm TEXT, status TEXT NOT NULL CHECK (status IN ('ok', 'rejected')),
+            reason TEXT NOT NULL DEFAULT '', quality TEXT NOT NULL DEFAULT '{}',
+            params_version INTEGER, residual_mm REAL)""",
+        "CREATE INDEX measurements_status ON measurements (status, id)",
+        """CREATE TABLE calibrations (
+            id INTEGER PRIMARY KEY, t REAL NOT NULL,
+            status TEXT NOT NULL CHECK (status IN ('pending', 'applied', 'rejected')),
+            n_measurements INTEGER NOT NULL, first_id INTEGER, last_id INTEGER,
+            rms_mm REAL, holdout_rms_mm REAL, current_holdout_rms_mm REAL,
+            gates TEXT NOT NULL, reason TEXT NOT NULL, document TEXT,
+            version INTEGER, decided_t REAL, decided_uid INTEGER)""",
+        """CREATE TABLE applied (
+            id INTEGER PRIMARY KEY, t REAL NOT NULL, version INTEGER NOT NULL,
+            calibration_id INTEGER, source TEXT NOT NULL, uid INTEGER)""",
+        """CREATE TABLE alarms (
+            id INTEGER PRIMARY KEY, code TEXT NOT NULL, priority TEXT NOT NULL,
+            message TEXT NOT NULL, state TEXT NOT NULL
+                CHECK (state IN ('raised', 'acked', 'cleared', 'shelved')),
+            t_raised REAL NOT NULL, t_acked REAL, acked_uid INTEGER, t_cleared REAL,
+            shelved_until REAL, shelve_reason TEXT)""",
+        """CREATE TABLE events (
+            id INTEGER PRIMARY KEY, t REAL NOT NULL, kind TEXT NOT NULL, data TEXT NOT NULL)""",
+        """CREATE TABLE actions (
+            id INTEGER PRIMARY KEY, t REAL NOT NULL, uid INTEGER, cmd TEXT NOT NULL,
+            args TEXT NOT NULL, ok INTEGER NOT NULL, detail TEXT NOT NULL)""",
+        """CREATE TABLE schedule (
+            id INTEGER PRIMARY KEY CHECK (id = 1), position INTEGER NOT NULL,
+            window INTEGER NOT NULL)""",
+        "INSERT INTO schedule (id, position, window) VALUES (1, 0, 0)",
+    ),
+)
+SCHEMA_VERSION = len(MIGRATIONS)
+ACTIVE_ALARM_STATES = ("raised", "acked", "shelved")
+
+
+def _dumps(value: Any) -> str:
+    return json.dumps(value, separators=(",", ":"))
+
+
+class Store:
+    """`Store(path)` opens (creating and migrating) the database; thread-safe; close() it."""
+
+    def __init__(self, path: str | Path, *, read_only: bool = False) -> None:
+        self.path = Path(path)
+        self._lock = threading.Lock()
+        if read_only:
+            uri = f"file:{self.path.resolve()}?mode=ro"
+            self._db = sqlite3.connect(uri, uri=True, check_same_thread=False)
+        else:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
+            self._db.execute("PRAGMA journal_mode=WAL")
+            self._db.execute("PRAGMA synchronous=FULL")
+            self._db.execute("PRAGMA busy_timeout=5000")
+            self.migrate()
+        self._db.row_factory = sqlite3.Row
+
+    @classmethod
+    def read_only(cls, path: str | Path) -> Store:
+        return cls(path, read_only=True)
+
+    def close(self) -> None:
+        with self._lock:
+            self._db.close()
+
+    # -- transactions and schema ----------------------------------------------------------
+    @contextmanager
+    def _tx(self) -> Iterator[sqlite3.Connection]:
+        """One writer transaction: BEGIN IMMEDIATE ... COMMIT (ROLLBACK on any error)."""
+        with self._lock:
+            self._db.execute("BEGIN IMMEDIATE")
+            try:
+                yield self._db
+            except BaseException:
+                self._db.execute("ROLLBACK")
+                raise
+            self._db.execute("COMMIT")
+
+    def version(self) -> int:
+        with self._lock:
+            return int(self._db.execute("PRAGMA user_version").fetchone()[0])
+
+    def migrate(self, migrations: Sequence[Sequence[str]] = MIGRATIONS) -> int:
+        """Apply the missing migrations, each atomically with its version bump."""
+        for k in range(self.version(), len(migrations)):
+            with self._tx() as db:
+                for statement in migrations[k]:
+                    db.execute(statement)
+                db.execute(f"PRAGMA user_version = {k + 1}")
+        return self.version()
+
+    def integrity_ok(self) -> bool:
+        with self._lock:
+            return bool(self._db.execute("PRAGMA integrity_check").fetchone()[0] == "ok")
+
+    def _rows(self, sql: str, args: Sequence[Any] = ()) -> list[dict[str, Any]]:
+        with self._lock:
+            return [dict(r) for r in self._db.execute(sql, tuple(args)).fetchall()]
+
+    def _insert(self, sql: str, args: Sequence[Any]) -> int:
+        with self._tx() as db:
+            row_id = db.execute(sql, tuple(args)).lastrowid
+        assert row_id is not None
+        return int(row_id)
+
+    # -- measurements -----------------------------------------------------------------------
+    def add_measurement(self, row: dict[str, Any]) -> int:
+        """Store one measurement and its new schedule position in one transaction; returns its
+        id once committed to disk. `row`: t, window, slot, target, q_deg, c_sensor_mm (None if
+        rejected), status, reason, quality, params_version, residual_mm, next_position."""
+        with self._tx() as db:
+            cur = db.execute(
+                "INSERT INTO measurements (t, window, slot, target, q_deg, c_sensor_mm, status,"
+                " reason, quality, params_version, residual_mm)"
+                " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                (
+                    row["t"],
+                    row["window"],
+                    row["slot"],
+                    row["target"],
+                    _dumps(list(row["q_deg"])),
+                    None if row["c_sensor_mm"] is None else _dumps(list(row["c_sensor_mm"])),
+                    row["status"],
+                    row.get("reason", ""),
+                    _dumps(row.get("quality", {})),
+                    row.get("params_version"),
+                    row.get("residual_mm"),
+                ),
+            )
+            db.execute(
+                "UPDATE schedule SET position = ?, window = ? WHERE id = 1",
+                (row["next_position"], row["window"]),
+            )
+        assert cur.lastrowid is not None
+        return int(cur.lastrowid)
+
+    def measurements(self, *, status: str = "ok", since_id: int = 0) -> list[dict[str, Any]]:
+        rows = self._rows(
+            "SELECT * FROM measurements WHERE status = ? AND id > ? ORDER BY id",
+            (status, since_id),
+        )
+        for r in rows:
+            r["q_deg"] = json.loads(r["q_deg"])
+            r["c_sensor_mm"] = None if r["c_sensor_mm"] is None else json.loads(r["c_sensor_mm"])
+            r["quality"] = json.loads(r["quality"])
+        return rows
+
+    def counts(self) -> dict[str, int]:
+        out = {"ok": 0, "rejected": 0}
+        for r in self._rows("SELECT status, COUNT(*) AS n FROM measurements GROUP BY status"):
+            out[r["status"]] = int(r["n"])
+        return out
+
+    def schedule_position(self) -> tuple[int, int]:
+        """(next schedule position, last window number)."""
+        r = self._rows("SELECT position, window FROM schedule WHERE id = 1")[0]
+        return int(r["position"]), int(r["window"])
+
+    def set_window(self, window: int) -> None:
+        with self._tx() as db:
+            db.execute("UPDATE schedule SET window = ? WHERE id = 1", (window,))
+
+    # -- calibrations and applied versions --------------------------------------------------
+    def add_calibration(self, row: dict[str, Any]) -> int:
+        return self._insert(
+            "INSERT INTO calibrations (t, status, n_measurements, first_id, last_id, rms_mm,"
+            " holdout_rms_mm, current_holdout_rms_mm, gates, reason, document)"
+            " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            (
+                row["t"],
+                row["status"],
+                row["n_measurements"],
+                row.get("first_id"),
+                row.get("last_id"),
+                row.get("rms_mm"),
+                row.get("holdout_rms_mm"),
+                row.get("current_holdout_rms_mm"),
+                _dumps(row.get("gates", [])),
+                row["reason"],
+                None if row.get("document") is None else _dumps(row["document"]),
+            ),
+        )
+
+    def decide_calibration(
+        self, cal_id: int, status: str, t: float, uid: int | None, version: int | None = None
+    ) -> None:
+        with self._tx() as db:
+            db.execute(
+                "UPDATE calibrations SET status = ?, decided_t = ?, decided_uid = ?, version = ?"
+                " WHERE id = ?",
+                (status, t, uid, version, cal_id),
+            )
+
+    def calibrations(self, status: str | None = None) -> list[dict[str, Any]]:
+        where, args = ("WHERE status = ?", (status,)) if status else ("", ())
+        rows = self._rows(f"SELECT * FROM calibrations {where} ORDER BY id", args)
+        for r in rows:
+            r["gates"] = json.loads(r["gates"])
+            r["document"] = None if r["document"] is None else json.loads(r["document"])
+        return rows
+
+    def add_applied(
+        self, t: float, version: int, calibration_id: int | None, source: str, uid: int | None
+    ) -> int:
+        return self._insert(
+            "INSERT INTO applied (t, version, calibration_id, source, uid) VALUES (?, ?, ?, ?, ?)",
+            (t, version, calibration_id, source, uid),
+        )
+
+    def applied(self) -> list[dict[str, Any]]:
+        return self._rows("SELECT * FROM applied ORDER BY id")
+
+    # -- alarms, events, audit ----------------------------------------------------------------
+    def raise_alarm(self, t: float, code: str, message: str, priority: str = "high") -> int:
+        """A new alarm, unless one with this code is active already (returns its id)."""
+        live = self.active_alarms(code=code)
+        if live:
+            return int(live[0]["id"])
+        return self._insert(
+            "INSERT INTO alarms (code, priority, message, state, t_raised)"
+            " VALUES (?, ?, ?, 'raised', ?)",
+            (code, priority, message, t),
+        )
+
+    def ack_alarm(self, alarm_id: int, t: float, uid: int | None) -> bool:
+        with self._tx() as db:
+            n = db.execute(
+                "UPDATE alarms SET state = 'acked', t_acked = ?, acked_uid = ?"
+                " WHERE id = ? AND state = 'raised'",
+                (t, uid, alarm_id),
+            ).rowcount
+        return n == 1
+
+    def shelve_alarm(self, alarm_id: int, until_t: float, reason: str) -> bool:
+        with self._tx() as db:
+            n = db.execute(
+                "UPDATE alarms SET state = 'shelved', shelved_until = ?, shelve_reason = ?"
+                " WHERE id = ? AND state IN ('raised', 'acked')",
+                (until_t, reason, alarm_id),
+            ).rowcount
+        return n == 1
+
+    def clear_alarms(self, t: float, code: str | None = None) -> int:
+        """Clear the active alarms (of one code); returns how many."""
+        sql = "UPDATE alarms SET state = 'cleared', t_cleared = ? WHERE state != 'cleared'"
+        args: tuple[Any, ...] = (t,)
+        if code is not None:
+            sql, args = sql + " AND code = ?", (t, code)
+        with self._tx() as db:
+            return int(db.execute(sql, args).rowcount)
+
+    def active_alarms(self, code: str | None = None) -> list[dict[str, Any]]:
+        sql = "SELECT * FROM alarms WHERE state IN ('raised', 'acked', 'shelved')"
+        args: tuple[Any, ...] = ()
+        if code is not None:
+            sql, args = sql + " AND code = ?", (code,)
+        return self._rows(sql + " ORDER BY id", args)
+
+    def alarms(self) -> list[dict[str, Any]]:
+        return self._rows("SELECT * FROM alarms ORDER BY id")
+
+    def add_event(self, t: float, kind: str, data: dict[str, Any]) -> int:
+        return self._insert(
+            "INSERT INTO events (t, kind, data) VALUES (?, ?, ?)", (t, kind, _dumps(data))
+        )
+
+    def events(self, kind: str | None = None) -> list[dict[str, Any]]:
+        where, args = ("WHERE kind = ?", (kind,)) if kind else ("", ())
+        rows = self._rows(f"SELECT * FROM events {where} ORDER BY id", args)
+        for r in rows:
+            r["data"] = json.loads(r["data"])
+        return rows
+
+    def add_action(
+        self, t: float, uid: int | None, cmd: str, args: dict[str, Any], ok: bool, detail: str
+    ) -> int:
+        return self._insert(
+            "INSERT INTO actions (t, uid, cmd, args, ok, detail) VALUES (?, ?, ?, ?, ?, ?)",
+            (t, uid, cmd, _dumps(args), int(ok), detail),
+        )
+
+    def actions(self) -> list[dict[str, Any]]:
+        rows = self._rows("SELECT * FROM actions ORDER BY id")
+        for r in rows:
+            r["args"] = json.loads(r["args"])
+            r["ok"] = bool(r["ok"])
+        return rows

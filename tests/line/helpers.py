@@ -1,0 +1,158 @@
+"""Helpers of the service tests: a scaled clock, the simulated line of in-process fakes on a
+SimulatedCell (geometric sensor), and waiting on the service's events (never sleeping)."""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from app.config import load_cell
+from app.line.measure import GeometricSensor
+from app.line.schedule import Schedule
+from app.line.service import Service
+from app.line.settings import LineSettings, RecalibSettings, ServiceSettings
+from app.line.station import Station
+from app.simulation import make_cell
+from calib import candidates
+from calib.model import SystemModel
+from fakes.cell import SimulatedCell
+from fakes.devices import ClampCycle, FakePlc, FakeRobot
+
+F64 = NDArray[np.float64]
+SCALE = 0.02  # real seconds per simulated second
+
+
+class ScaledClock:
+    """Simulated seconds = real seconds / scale (the simulated line's clock has this duck type)."""
+
+    def __init__(self, scale: float) -> None:
+        self.scale = scale
+
+    def monotonic(self) -> float:
+        return time.monotonic() / self.scale
+
+    def time(self) -> float:
+        return time.time()
+
+    def sleep(self, s: float) -> None:
+        time.sleep(max(0.0, s) * self.scale)
+
+    def wait(self, event: threading.Event, s: float) -> bool:
+        return event.wait(max(0.0, s) * self.scale)
+
+
+@cache
+def plan_for(seed: int, n_each: int = 6) -> dict[str, F64]:
+    """n_each configurations per sphere that the nominal model plans and the true cell sees."""
+    cfg = load_cell(None)
+    cell = make_cell(cfg, seed)
+    model = cfg.model()
+    x0 = model.nominal_x()
+    rng = np.random.default_rng([seed, 9])
+    out = {}
+    for tid, p in cfg.spheres_part_mm.items():
+        q = candidates.random_configurations(model, x0, p, 4 * n_each, rng).q_deg
+        out[tid] = np.array([qi for qi in q if cell.sees(qi, p)][:n_each])
+        assert len(out[tid]) == n_each
+    return out
+
+
+@dataclass
+class Line:
+    """A service on fakes: cell (truth), robot, plc, clock, settings, service."""
+
+    cell: SimulatedCell
+    model: SystemModel
+    robot: FakeRobot
+    plc: FakePlc
+    service: Service
+    clock: ScaledClock
+    thread: threading.Thread | None = None
+    events: queue.Queue[dict[str, Any]] = field(default_factory=queue.Queue)
+
+    def start(self) -> Line:
+        self.events = self.service.bus.subscribe()
+        self.thread = threading.Thread(target=self.service.run, daemon=True)
+        self.thread.start()
+        return self
+
+    def stop(self) -> None:
+        self.service.stop()
+        if self.thread is not None:
+            self.thread.join(20)
+            assert not self.thread.is_alive()
+
+    def wait(self, pred: Callable[[dict[str, Any]], bool], timeout_s: float = 10.0) -> dict[str, Any]:
+        """The first event from now on that satisfies pred (AssertionError after timeout)."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            remaining = deadline - time.monotonic()
+            assert remaining > 0, "timed out waiting for a service event"
+            try:
+                ev = self.events.get(timeout=remaining)
+            except queue.Empty:
+                continue
+            if pred(ev):
+                return ev
+
+    def windows(self, n: int, timeout_s: float = 15.0) -> list[dict[str, Any]]:
+        return [self.wait(lambda e: e["event"] == "window", timeout_s) for _ in range(n)]
+
+    def close(self) -> None:
+        if self.thread is not None and self.thread.is_alive():
+            self.stop()
+        self.robot.close()
+        self.plc.close()
+
+
+def line_settings(**kw: Any) -> LineSettings:
+    base = LineSettings(poll_s=0.25, heartbeat_timeout_s=10.0, window_s=8.0, margin_s=0.5)
+    return replace(base, **kw)
+
+
+def make_line(
+    state_dir: Path,
+    *,
+    seed: int = 3,
+    cycle: ClampCycle | None = None,
+    line: LineSettings | None = None,
+    recalib: RecalibSettings | None = None,
+    plc_class: type[FakePlc] = FakePlc,
+    x_initial: F64 | None = None,
+    **cell_overrides: Any,
+) -> Line:
+    cfg = load_cell(None)
+    cell = make_cell(cfg, seed, **cell_overrides)
+    model = cfg.model()
+    clock = ScaledClock(SCALE)
+    cycle = cycle or ClampCycle(period_s=12.0, window_s=8.0, beat_s=0.5, time_scale=SCALE)
+    robot = FakeRobot(cell, time_scale=SCALE).open()
+    plc = plc_class(cycle).open()
+    settings = ServiceSettings(
+        state_dir=state_dir,
+        line=line or line_settings(window_s=cycle.window_s),
+        recalib=recalib or RecalibSettings(),
+    )
+    sensor = GeometricSensor(cell.measure_target, duration_s=1.2)
+    schedule = Schedule(plan_for(seed), settings.line)
+    x0 = model.nominal_x() if x_initial is None else x_initial
+    service = Service(
+        Station(robot=robot, plc=plc),
+        sensor,
+        schedule,
+        cfg.spheres_part_mm,
+        model,
+        x0,
+        clock=clock,
+        settings=settings,
+    )
+    return Line(cell, model, robot, plc, service, clock)
