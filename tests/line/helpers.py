@@ -91,7 +91,9 @@ class Line:
             self.thread.join(20)
             assert not self.thread.is_alive()
 
-    def wait(self, pred: Callable[[dict[str, Any]], bool], timeout_s: float = 10.0) -> dict[str, Any]:
+    def wait(
+        self, pred: Callable[[dict[str, Any]], bool], timeout_s: float = 10.0
+    ) -> dict[str, Any]:
         """The first event from now on that satisfies pred (AssertionError after timeout)."""
         deadline = time.monotonic() + timeout_s
         while True:

@@ -1,0 +1,58 @@
+"""The schedule: interleaved slots, the motion-time model against the fake robot's own motion
+time, and the slot choice that fits the remaining window."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.line.schedule import Schedule, motion_time_s
+from app.line.settings import LineSettings
+from drivers.safety import SafetyGuard
+
+HOME = np.array([0.0, 0.0, 0.0, 0.0, -90.0, 0.0])
+
+
+def _q(j1: float) -> list[float]:
+    return [j1, 0.0, 0.0, 0.0, -90.0, 0.0]
+
+
+def test_slots_interleave_the_spheres() -> None:
+    s = Schedule({"A": [_q(10), _q(20)], "B": [_q(-10), _q(-20)], "C": [_q(30)]}, LineSettings())
+    assert [(sl.target, sl.q_deg[0]) for sl in s.slots] == [
+        ("A", 10),
+        ("B", -10),
+        ("C", 30),
+        ("A", 20),
+        ("B", -20),
+    ]
+    assert s.targets == ("A", "B", "C") and len(s) == 5
+
+
+def test_motion_time_is_the_slowest_joint_at_speed_times_override_plus_allowances() -> None:
+    line = LineSettings(speed_pct=50.0, override_pct=80, accel_s=0.4, settle_s=0.2)
+    b = HOME + np.array([70.0, 0, 0, 0, 0, 142.0])  # J1 70/(175*.4) = 1.0 s, J6 142/(355*.4) = 1.0
+    a = HOME + np.array([87.5, 0, 0, 0, 0, 0])  # 1.25 s
+    assert motion_time_s(HOME, b, line) == pytest.approx(1.0 + 0.6)
+    assert motion_time_s(HOME, a, line) == pytest.approx(1.25 + 0.6)
+    assert motion_time_s(HOME, HOME, line) == 0.0
+    # the fake robot's motion time (drivers.safety) never exceeds the estimate
+    rng = np.random.default_rng(5)
+    guard = SafetyGuard()
+    for _ in range(50):
+        q = HOME + rng.uniform(-60, 60, 6)
+        actual = guard.duration_s(HOME, q, 50.0) * 100 / 80
+        assert actual <= motion_time_s(HOME, q, line) - 0.6 + 1e-12
+
+
+def test_next_fitting_takes_the_first_slot_that_fits_from_the_position() -> None:
+    line = LineSettings(accel_s=0.0, settle_s=0.0, margin_s=0.5)
+    # round trips from home: 1, 2, 3 s of motion each way at 175 deg/s
+    s = Schedule({"A": [_q(175.0)], "B": [_q(350.0 / 2)], "C": [_q(87.5)]}, line)
+    sensor_s = 1.0
+    assert s.slot_time_s(HOME, s.slots[2], sensor_s) == pytest.approx(0.5 + 1.0 + 0.5)
+    assert s.next_fitting(0, HOME, 10.0, sensor_s) is s.slots[0]
+    assert s.next_fitting(1, HOME, 10.0, sensor_s) is s.slots[1]
+    # 2.6 s left: only C (0.5 + 1 + 0.5 = 2.0 s, plus the margin 0.5) fits, found cyclically
+    assert s.next_fitting(0, HOME, 2.6, sensor_s) is s.slots[2]
+    assert s.next_fitting(0, HOME, 2.4, sensor_s) is None

@@ -1,0 +1,125 @@
+"""The SQLite store: migrations, round trips, alarm life cycle, and crash safety (kill -9 of a
+writer: every acknowledged row is there and the file is intact)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from app.line.store import MIGRATIONS, SCHEMA_VERSION, Store
+
+
+def _row(k: int) -> dict[str, object]:
+    return {
+        "t": float(k),
+        "window": k,
+        "slot": k % 24,
+        "target": f"P{k % 4 + 1}",
+        "q_deg": [float(k), 0, 0, 0, -90, 0],
+        "c_sensor_mm": [1.0, 2.0, 130.0 + k],
+        "status": "ok",
+        "quality": {"rms_mm": 0.01},
+        "params_version": 1,
+        "residual_mm": 0.05,
+        "next_position": (k + 1) % 24,
+    }
+
+
+def test_new_database_is_migrated_to_the_schema_version_in_wal_mode(tmp_path: Path) -> None:
+    store = Store(tmp_path / "rvis.db")
+    assert store.version() == SCHEMA_VERSION == len(MIGRATIONS)
+    store.close()
+    db = sqlite3.connect(tmp_path / "rvis.db")
+    tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+    assert {"measurements", "calibrations", "applied", "alarms", "events", "actions"} <= tables
+    assert db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+    db.close()
+
+
+def test_a_failing_migration_leaves_the_previous_version(tmp_path: Path) -> None:
+    store = Store(tmp_path / "rvis.db")
+    bad = (*MIGRATIONS, ("CREATE TABLE extra (a INTEGER)", "THIS IS NOT SQL"))
+    with pytest.raises(sqlite3.OperationalError):
+        store.migrate(bad)
+    assert store.version() == SCHEMA_VERSION
+    good = (*MIGRATIONS, ("CREATE TABLE extra (a INTEGER)",))
+    assert store.migrate(good) == SCHEMA_VERSION + 1
+    store.close()
+    assert Store(tmp_path / "rvis.db").version() == SCHEMA_VERSION + 1  # reopening: no-op
+
+
+def test_measurements_round_trip_and_move_the_schedule_position(tmp_path: Path) -> None:
+    store = Store(tmp_path / "rvis.db")
+    ids = [store.add_measurement(_row(k)) for k in range(3)]
+    rejected = {**_row(3), "status": "rejected", "c_sensor_mm": None, "reason": "NoStripe"}
+    store.add_measurement(rejected)
+    rows = store.measurements()
+    assert [r["id"] for r in rows] == ids
+    assert rows[2]["c_sensor_mm"] == [1.0, 2.0, 132.0] and rows[2]["q_deg"][0] == 2.0
+    assert store.measurements(status="rejected")[0]["reason"] == "NoStripe"
+    assert store.counts() == {"ok": 3, "rejected": 1}
+    assert store.schedule_position() == (4, 3)
+    reader = Store.read_only(tmp_path / "rvis.db")  # a committed row is visible to others
+    assert len(reader.measurements()) == 3
+    with pytest.raises(sqlite3.OperationalError):
+        reader.add_event(0.0, "x", {})
+    reader.close()
+    store.close()
+
+
+def test_alarm_life_cycle(tmp_path: Path) -> None:
+    store = Store(tmp_path / "rvis.db")
+    a = store.raise_alarm(1.0, "drift", "drift of P1", "medium")
+    assert store.raise_alarm(2.0, "drift", "again") == a  # one active alarm per code
+    assert store.ack_alarm(a, 3.0, uid=1000) and not store.ack_alarm(a, 4.0, uid=1000)
+    assert store.shelve_alarm(a, 100.0, "maintenance")
+    assert store.active_alarms()[0]["state"] == "shelved"
+    assert store.clear_alarms(5.0, "drift") == 1
+    assert store.active_alarms() == []
+    (row,) = store.alarms()
+    assert (row["acked_uid"], row["shelve_reason"], row["state"]) == (
+        1000,
+        "maintenance",
+        "cleared",
+    )
+    store.close()
+
+
+WRITER = """
+import sys
+from app.line.store import Store
+from tests.line.test_store import _row
+store = Store(sys.argv[1])
+k = 0
+while True:
+    row_id = store.add_measurement(_row(k))
+    print(row_id, flush=True)   # the acknowledgement comes after the commit
+    k += 1
+"""
+
+
+@pytest.mark.parametrize("n_acks", [1, 7, 40])
+def test_kill_9_loses_no_acknowledged_measurement(tmp_path: Path, n_acks: int) -> None:
+    path = tmp_path / "rvis.db"
+    Store(path).close()
+    root = Path(__file__).resolve().parents[2]
+    proc = subprocess.Popen(
+        [sys.executable, "-c", WRITER, str(path)], stdout=subprocess.PIPE, cwd=root, text=True
+    )
+    assert proc.stdout is not None
+    acked = [int(proc.stdout.readline()) for _ in range(n_acks)]
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    proc.stdout.close()
+    store = Store(path)
+    assert store.integrity_ok()
+    stored = {r["id"] for r in store.measurements()}
+    assert set(acked) <= stored
+    assert store.schedule_position()[1] >= max(acked) - 1  # position committed with the row
+    store.close()
