@@ -60,4 +60,4 @@ def test_residual_is_the_distance_to_the_known_sphere() -> None:
     c = np.array([1.0, -2.0, 130.0])
     p = model.points_part(x, q[None], c[None])[0]
     assert residual_mm(model, x, q, c, p) < 1e-9
-    assert abs(residual_mm(model, x, q, c, p + [0.0, 0.3, 0.4]) - 0.5) < 1e-9
+    assert abs(residual_mm(model, x, q, c, p + np.array([0.0, 0.3, 0.4])) - 0.5) < 1e-9

@@ -65,7 +65,7 @@ def test_a_sweep_without_a_sphere_is_rejected_and_the_robot_comes_home(
     sensor = SweepSensor(camera, galvo, default_sensor_model(), SweepSettings(n_frames=4))
     measurer = SphereMeasurer(robot, sensor, LineSettings())
     q_nothing = np.array([0.0, 10.0, 0.0, 0.0, -90.0, 0.0])  # looking at no sphere
-    with pytest.raises(Rejected, match="NoStripe|TooFewPoints|SphereFit"):
+    with pytest.raises(Rejected, match=r"NoStripe|TooFewPoints|SphereFit"):
         measurer.measure_one(q_nothing, "P1")
     assert measurer.at_home()
 

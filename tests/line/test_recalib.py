@@ -11,8 +11,8 @@ import pytest
 
 from app.config import load_cell
 from app.line.recalib import (
-    RecalJob,
     Recalibrator,
+    RecalJob,
     as_measurements,
     rms_mm,
     run_recalibration,
@@ -58,7 +58,7 @@ def test_a_candidate_worse_on_the_held_out_measurements_is_rejected() -> None:
     train, holdout = _sets()
     model = load_cell(None).model()
     x_good = identify(model, train).x
-    biased = replace(train, c_sensor_mm=train.c_sensor_mm + [0.0, 0.0, 0.15])
+    biased = replace(train, c_sensor_mm=train.c_sensor_mm + np.array([0.0, 0.0, 0.15]))
     out = run_recalibration(_job(biased, holdout, x_good))
     assert not out.passed
     assert out.failures == (out.failures[0],) and "held-out RMS" in out.failures[0]
