@@ -4,6 +4,7 @@ SimulatedCell (geometric sensor), and waiting on the service's events (never sle
 from __future__ import annotations
 
 import queue
+import sqlite3
 import threading
 import time
 from collections.abc import Callable
@@ -25,6 +26,7 @@ from app.simulation import make_cell
 from calib import candidates
 from calib.model import SystemModel
 from fakes.cell import SimulatedCell
+from drivers.plc import PlcInputs, PlcOutputs
 from fakes.devices import ClampCycle, FakePlc, FakeRobot
 
 F64 = NDArray[np.float64]
@@ -50,6 +52,48 @@ class ScaledClock:
         return event.wait(max(0.0, s) * self.scale)
 
 
+class LinePlc(FakePlc):
+    """The fake PLC plus what the tests watch: window edges (a condition to wait on), the
+    number of stored measurements at each `done` edge, and a window withdrawn as soon as the
+    robot leaves home (`withdraw_on_motion`)."""
+
+    def __init__(self, cycle: ClampCycle | None = None, **kw: Any) -> None:
+        super().__init__(cycle, **kw)
+        self.edges = 0
+        self.changed = threading.Condition()
+        self.rows_at_done: list[int] = []
+        self.db_path: Path | None = None
+        self.world: SimulatedCell | None = None
+        self.withdraw_on_motion = False
+        self._was_open = False
+
+    def _read_inputs(self) -> PlcInputs:
+        inputs = super()._read_inputs()
+        if self.withdraw_on_motion and self.world is not None and inputs.window_open:
+            home = np.array(LineSettings().home_deg)
+            if np.max(np.abs(self.world.joints_deg() - home)) > 1.0:
+                inputs = replace(inputs, window_open=False)
+        if inputs.window_open and not self._was_open:
+            with self.changed:
+                self.edges += 1
+                self.changed.notify_all()
+        self._was_open = inputs.window_open
+        return inputs
+
+    def _write_outputs(self, outputs: PlcOutputs) -> None:
+        if outputs.done and not self.received.done and self.db_path is not None:
+            db = sqlite3.connect(f"file:{self.db_path}?mode=ro", uri=True)
+            self.rows_at_done.append(db.execute("SELECT COUNT(*) FROM measurements").fetchone()[0])
+            db.close()
+        super()._write_outputs(outputs)
+
+    def wait_edges(self, n: int, timeout_s: float = 10.0) -> None:
+        """Wait until `n` more windows have opened."""
+        with self.changed:
+            target = self.edges + n
+            assert self.changed.wait_for(lambda: self.edges >= target, timeout_s)
+
+
 @cache
 def plan_for(seed: int, n_each: int = 6) -> dict[str, F64]:
     """n_each configurations per sphere that the nominal model plans and the true cell sees."""
@@ -73,7 +117,7 @@ class Line:
     cell: SimulatedCell
     model: SystemModel
     robot: FakeRobot
-    plc: FakePlc
+    plc: LinePlc
     service: Service
     clock: ScaledClock
     thread: threading.Thread | None = None
@@ -128,7 +172,6 @@ def make_line(
     cycle: ClampCycle | None = None,
     line: LineSettings | None = None,
     recalib: RecalibSettings | None = None,
-    plc_class: type[FakePlc] = FakePlc,
     x_initial: F64 | None = None,
     **cell_overrides: Any,
 ) -> Line:
@@ -138,7 +181,9 @@ def make_line(
     clock = ScaledClock(SCALE)
     cycle = cycle or ClampCycle(period_s=12.0, window_s=8.0, beat_s=0.5, time_scale=SCALE)
     robot = FakeRobot(cell, time_scale=SCALE).open()
-    plc = plc_class(cycle).open()
+    plc = LinePlc(cycle)
+    plc.open()
+    plc.world, plc.db_path = cell, state_dir / "rvis.db"
     settings = ServiceSettings(
         state_dir=state_dir,
         line=line or line_settings(window_s=cycle.window_s),

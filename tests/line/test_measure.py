@@ -35,7 +35,8 @@ def rig(cell: SimulatedCell) -> Iterator[tuple[FakeRobot, FakeGalvo, FakeCamera]
     cal = GalvoCalibration((0.0, 1.0 / slope_deg_per_v), (-9.0, 9.0))
     robot = FakeRobot(cell, time_scale=0.001).open()
     galvo = FakeGalvo(calibration=cal).open()
-    camera = FakeCamera(cell, galvo=galvo).open()
+    camera = FakeCamera(cell, galvo=galvo)
+    camera.open()
     cell.set_joints_deg(LineSettings().home_deg)
     yield robot, galvo, camera
     for d in (camera, galvo, robot):

@@ -1,0 +1,211 @@
+"""The service on in-process fakes on a SimulatedCell (geometric sensor, scaled clock): windows
+measured, stored and acknowledged after the commit, a recalibration that lowers the true error,
+a withdrawn window, device faults, the robot away from home at start, a lost PLC heartbeat, and
+a restart that resumes the schedule. Waits are on events and conditions, never sleeps."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from app.config import load_cell
+from app.line.service import State
+from app.line.settings import RecalibSettings
+from app.line.store import Store
+from app.simulation import validation_set
+from fakes.devices import ClampCycle
+from tests.line.helpers import SCALE, Line, line_settings, make_line
+
+LONG = ClampCycle(period_s=40.0, window_s=32.0, beat_s=0.5, time_scale=SCALE)
+
+
+@pytest.fixture()
+def lines() -> Iterator[list[Line]]:
+    made: list[Line] = []
+    yield made
+    for ln in made:
+        ln.close()
+
+
+def test_windows_are_measured_stored_and_done_only_after_the_commit(
+    tmp_path: Path, lines: list[Line]
+) -> None:
+    ln = make_line(tmp_path)
+    lines.append(ln)
+    reports = ln.start().windows(4)
+    ln.stop()
+    assert [r["measured"] for r in reports] == [1, 1, 1, 1]
+    assert not any(r["overrun"] or r["withdrawn"] for r in reports)
+    # every done edge saw its measurement (and all before it) already committed
+    assert ln.plc.rows_at_done[:4] == [1, 2, 3, 4]
+    flags = [(o.busy, o.done, o.fault) for o in ln.plc.history]
+    assert flags[:4] == [(True, False, False), (False, True, False)] * 2
+    store = Store.read_only(tmp_path / "rvis.db")
+    rows = store.measurements()
+    store.close()
+    assert [r["slot"] for r in rows[:4]] == [0, 1, 2, 3]
+    for r in rows[:4]:  # the stored centre is the cell's measurement from the slot's pose
+        q = np.array(r["q_deg"])
+        truth = ln.cell.centre_in_sensor(q[None], ln.cell.target_true_mm(r["target"]))[0]
+        assert np.linalg.norm(np.array(r["c_sensor_mm"]) - truth) < 0.1
+        assert r["residual_mm"] > 0.3  # nominal parameters: millimetres off
+    assert np.allclose(ln.robot.joints_deg(), ln.service.measurer.home_deg)
+
+
+def test_recalibration_applied_between_windows_lowers_the_true_error(
+    tmp_path: Path, lines: list[Line]
+) -> None:
+    ln = make_line(tmp_path, cycle=LONG, line=line_settings(window_s=32.0, slots_per_window=8))
+    lines.append(ln)
+    cfg = load_cell(None)
+    val = validation_set(ln.cell, cfg, ln.model, ln.model.nominal_x(), 30, np.random.default_rng(1))
+
+    def true_rms(x: np.ndarray) -> float:
+        p = ln.model.points_part(x, val.measurements.q_deg, val.truth_c_sensor_mm)
+        return float(np.sqrt(np.mean(np.sum((p - val.truth_p_part_mm) ** 2, axis=1))))
+
+    ln.start()
+    cal = ln.wait(lambda e: e["event"] == "calibration", 60.0)
+    applied = ln.wait(lambda e: e["event"] == "parameters_applied", 10.0)
+    status = ln.service.status()
+    ln.stop()
+    assert cal["status"] == "pending" and cal["failures"] == []
+    assert applied["version"] == 2 and applied["source"] == "auto"
+    assert status["params_version"] == 2 and status["counters"]["overruns"] == 0
+    x_new = ln.service.x
+    before, after = true_rms(ln.model.nominal_x()), true_rms(x_new)
+    assert after < 0.2 and after < before / 10, (before, after)
+    current = ln.service.params.current()
+    assert current is not None and np.array_equal(current[2], x_new)
+
+
+def test_a_withdrawn_window_aborts_and_brings_the_robot_home(
+    tmp_path: Path, lines: list[Line]
+) -> None:
+    ln = make_line(tmp_path)
+    lines.append(ln)
+    ln.plc.withdraw_on_motion = True
+    (report,) = ln.start().windows(1)
+    assert report["withdrawn"] == "window withdrawn" and report["measured"] == 0
+    assert not report["overrun"]
+    ln.plc.withdraw_on_motion = False
+    (after,) = ln.windows(1)
+    assert after["measured"] == 1  # the service carries on
+    assert ln.service.state in (State.IDLE, State.MEASURING)
+    ln.stop()
+    flags = [(o.busy, o.done, o.fault) for o in ln.plc.history]
+    assert flags[:2] == [(True, False, False), (False, False, False)]  # no done for it
+    assert ln.plc.rows_at_done[0] == 1  # only the later window's measurement was stored
+
+
+def test_a_device_fault_stops_everything_until_an_operator_resets(
+    tmp_path: Path, lines: list[Line]
+) -> None:
+    ln = make_line(tmp_path)
+    lines.append(ln)
+    ln.robot.inject_fault(code=4, message="SRVO-050 collision detect")
+    ln.start()
+    alarm = ln.wait(lambda e: e["event"] == "alarm")
+    assert alarm["code"] == "device_fault" and "SRVO-050" in alarm["message"]
+    assert ln.service.state == State.FAULT
+    assert ln.plc.received.fault and not ln.plc.received.busy
+    moves = len(ln.robot.motion_durations_s)
+    ln.plc.wait_edges(3)  # three windows open and pass: nothing moves
+    assert len(ln.robot.motion_durations_s) == moves
+    assert ln.service.store.counts() == {"ok": 0, "rejected": 0}
+    reply = ln.service.request("reset", uid=1234).result(10)
+    assert reply["ok"], reply
+    assert not ln.plc.received.fault
+    (report,) = ln.windows(1)
+    assert report["measured"] == 1
+    assert ln.service.status()["alarms"] == []
+    ln.stop()
+
+
+def test_robot_away_from_home_at_start_is_a_fault_and_comes_home_after_reset(
+    tmp_path: Path, lines: list[Line]
+) -> None:
+    ln = make_line(tmp_path)
+    lines.append(ln)
+    ln.cell.set_joints_deg([20.0, 10.0, 0.0, 0.0, -90.0, 0.0])
+    ln.start()
+    alarm = ln.wait(lambda e: e["event"] == "alarm")
+    assert alarm["code"] == "robot_not_home"
+    ln.plc.wait_edges(2)
+    assert ln.robot.motion_durations_s == []  # no motion before the reset
+    assert ln.service.request("reset", uid=7).result(10)["ok"]
+    first, second = ln.windows(2)
+    assert first["note"] == "robot brought home" and first["measured"] == 0
+    assert second["measured"] == 1
+    ln.stop()
+
+
+def test_a_lost_plc_heartbeat_raises_an_alarm_and_uses_no_window(
+    tmp_path: Path, lines: list[Line]
+) -> None:
+    ln = make_line(tmp_path)
+    lines.append(ln)
+    ln.plc.heartbeat_frozen = True
+    ln.start()
+    alarm = ln.wait(lambda e: e["event"] == "alarm")
+    assert alarm["code"] == "plc_heartbeat"
+    ln.plc.wait_edges(2)
+    assert ln.robot.motion_durations_s == [] and ln.service.counters["windows"] == 0
+    ln.plc.heartbeat_frozen = False
+    ln.wait(lambda e: e["event"] == "alarm_cleared")
+    ln.windows(1)
+    ln.stop()
+
+
+def test_a_restart_resumes_the_schedule_and_keeps_the_parameters(
+    tmp_path: Path, lines: list[Line]
+) -> None:
+    first = make_line(tmp_path)
+    lines.append(first)
+    first.start().windows(3)
+    first.stop()
+    first.close()
+    again = make_line(tmp_path)
+    lines.append(again)
+    again.start()
+    m = again.wait(lambda e: e["event"] == "measurement")
+    assert m["slot"] == 3
+    assert again.service.version == 1
+    again.stop()
+    store = Store.read_only(tmp_path / "rvis.db")
+    assert len(store.applied()) == 1  # the initial parameters were not applied twice
+    store.close()
+
+
+def test_approve_mode_waits_for_the_operator_and_rollback_restores(
+    tmp_path: Path, lines: list[Line]
+) -> None:
+    ln = make_line(
+        tmp_path,
+        cycle=LONG,
+        line=line_settings(window_s=32.0, slots_per_window=8),
+        recalib=RecalibSettings(mode="approve"),
+    )
+    lines.append(ln)
+    ln.start()
+    cal = ln.wait(lambda e: e["event"] == "calibration", 60.0)
+    assert cal["status"] == "pending"
+    ln.windows(1)
+    assert ln.service.version == 1 and ln.service.pending_calibration == cal["id"]
+    reply = ln.service.request("approve", uid=501).result(10)
+    assert reply["ok"] and reply["version"] == 2
+    assert ln.service.version == 2
+    reply = ln.service.request("rollback", {"version": 1}, uid=502).result(10)
+    assert reply["ok"] and ln.service.version == 1
+    assert np.array_equal(ln.service.x, ln.model.nominal_x())
+    assert not ln.service.request("rollback", {"version": 9}, uid=503).result(10)["ok"]
+    actions = ln.service.store.actions()
+    ln.stop()
+    assert [(a["cmd"], a["uid"], a["ok"]) for a in actions] == [
+        ("approve", 501, True),
+        ("rollback", 502, True),
+        ("rollback", 503, False),
+    ]
