@@ -25,8 +25,8 @@ from app.line.station import Station
 from app.simulation import make_cell
 from calib import candidates
 from calib.model import SystemModel
-from fakes.cell import SimulatedCell
 from drivers.plc import PlcInputs, PlcOutputs
+from fakes.cell import SimulatedCell
 from fakes.devices import ClampCycle, FakePlc, FakeRobot
 
 F64 = NDArray[np.float64]
