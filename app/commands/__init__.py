@@ -16,4 +16,7 @@ COMMANDS: dict[str, str] = {
     "experiment": "reproduce the paper's experiment on the simulated cell",
     "devices": "check the configured devices",
     "sensor": "laser-line sensor: calibrate, measure",
+    "run": "the unattended in-line service",
+    "status": "state of the in-line service",
+    "ctl": "send a command to the in-line service",
 }

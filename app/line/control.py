@@ -178,7 +178,11 @@ class ControlClient:
         self.path = Path(path)
         self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         self.sock.settimeout(timeout_s)
-        self.sock.connect(str(self.path))
+        try:
+            self.sock.connect(str(self.path))
+        except BaseException:
+            self.sock.close()
+            raise
         self._lines = self.sock.makefile("rb")
         self._id = 0
 

@@ -29,7 +29,7 @@ def served(tmp_path: Path) -> Iterator[tuple[Line, Path]]:
 
 
 def test_socket_mode_and_status(served: tuple[Line, Path]) -> None:
-    ln, path = served
+    _ln, path = served
     assert stat.S_IMODE(path.stat().st_mode) == 0o660
     with ControlClient(path) as c:
         reply = c.request("status")
@@ -73,12 +73,16 @@ def test_bad_request_lines_get_an_error_and_the_connection_stays(
         c.sock.sendall(b"this is not json\n")
         assert c.read()["error"].startswith("bad request")
         c.sock.sendall(b'{"id": 5, "cmd": "status", "args": [1]}\n')
-        assert c.read() == {"id": None, "ok": False, "error": 'bad request: "args" must be an object'}
+        assert c.read() == {
+            "id": None,
+            "ok": False,
+            "error": 'bad request: "args" must be an object',
+        }
         assert c.request("status")["ok"]
 
 
 def test_subscribe_streams_the_events(served: tuple[Line, Path]) -> None:
-    ln, path = served
+    _ln, path = served
     with ControlClient(path) as sub, ControlClient(path) as c:
         assert sub.request("subscribe") == {"id": 1, "ok": True}
         kinds = set()

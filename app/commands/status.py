@@ -1,0 +1,94 @@
+"""`rvis status [--state-dir DIR] [--json]`: the state of the in-line service, from its control
+socket; when no service is running, what its database and parameters say."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from app.errors import InputError
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser("status", help="state of the in-line service")
+    p.add_argument("--cell", help="cell configuration TOML (for [service] state_dir)")
+    p.add_argument("--state-dir", help="state directory (default: [service] state_dir)")
+    p.add_argument("--json", action="store_true", help="print the status as JSON")
+    p.set_defaults(func=run)
+
+
+def state_dir_of(args: argparse.Namespace) -> Path:
+    if args.state_dir:
+        return Path(args.state_dir)
+    from app.config import load_cell
+
+    return Path(load_cell(args.cell).service.state_dir)
+
+
+def offline_status(state_dir: Path) -> dict[str, Any]:
+    """What the files say when the service is not running (read-only)."""
+    from app.line.params_store import ParamsStore
+    from app.line.store import Store
+
+    db = state_dir / "rvis.db"
+    if not db.is_file():
+        raise InputError("no service state here (no rvis.db)", file=state_dir)
+    store = Store.read_only(db)
+    try:
+        alarms = [
+            {k: a[k] for k in ("id", "code", "priority", "message", "state")}
+            for a in store.active_alarms()
+        ]
+        pending = [c["id"] for c in store.calibrations("pending")]
+        out = {
+            "state": "not running",
+            "params_version": ParamsStore(state_dir).current_version(),
+            "pending_calibration": pending[-1] if pending else None,
+            "measurements": store.counts(),
+            "schedule": {"position": store.schedule_position()[0]},
+            "alarms": alarms,
+        }
+    finally:
+        store.close()
+    return out
+
+
+def fetch_status(state_dir: Path) -> dict[str, Any]:
+    from app.line.control import ControlClient
+    from app.line.launch import SOCKET_NAME
+
+    try:
+        with ControlClient(state_dir / SOCKET_NAME, timeout_s=10.0) as client:
+            reply = client.request("status")
+    except (FileNotFoundError, ConnectionRefusedError):
+        return offline_status(state_dir)
+    reply.pop("id", None)
+    reply.pop("ok", None)
+    return reply
+
+
+def run(args: argparse.Namespace) -> int:
+    status = fetch_status(state_dir_of(args))
+    if args.json:
+        print(json.dumps(status, indent=2))
+        return 0
+    m = status.get("measurements", {})
+    lines = [
+        f"state               {status['state']}" + (" (paused)" if status.get("paused") else ""),
+        f"parameters version  {status.get('params_version')}",
+        f"pending calibration {status.get('pending_calibration') or '-'}",
+        f"measurements        {m.get('ok', 0)} ok, {m.get('rejected', 0)} rejected",
+    ]
+    counters = status.get("counters")
+    if counters:
+        lines.append(
+            f"windows             {counters['windows']} ({counters['overruns']} overruns, "
+            f"{counters['withdrawn']} withdrawn)"
+        )
+    alarms = status.get("alarms", [])
+    lines.append(f"alarms              {len(alarms) or 'none'}")
+    lines += [f"  #{a['id']} {a['priority']:<7} {a['state']:<8} {a['message']}" for a in alarms]
+    print("\n".join(lines))
+    return 0
