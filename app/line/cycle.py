@@ -35,6 +35,7 @@ class WindowWatch:
         self.inputs: PlcInputs | None = None
         self._beat: int | None = None
         self._beat_t = 0.0
+        self._changed = False
         self._seen_closed = False
         self.opened_t: float | None = None  # clock time of the window's rising edge
         self.used_t: float | None = None  # rising edge of the last window measured in
@@ -44,6 +45,7 @@ class WindowWatch:
         inputs = self.plc.poll()
         now = self.clock.monotonic()
         if inputs.heartbeat != self._beat:
+            self._changed = self._beat is not None  # the first value read is not a beat
             self._beat, self._beat_t = inputs.heartbeat, now
         if not inputs.window_open:
             self._seen_closed, self.opened_t = True, None
@@ -53,9 +55,16 @@ class WindowWatch:
         return inputs
 
     @property
-    def alive(self) -> bool:
+    def lost(self) -> bool:
+        """No beat for longer than the timeout (counted from the first reading)."""
         age = self.clock.monotonic() - self._beat_t
-        return self._beat is not None and age <= self.line.heartbeat_timeout_s
+        return self._beat is not None and age > self.line.heartbeat_timeout_s
+
+    @property
+    def alive(self) -> bool:
+        """A beat seen within the timeout."""
+        age = self.clock.monotonic() - self._beat_t
+        return self._changed and age <= self.line.heartbeat_timeout_s
 
     def ready(self) -> bool:
         i = self.inputs
@@ -157,11 +166,7 @@ class Cycle:
         self.watch.used_t = self.watch.opened_t
         self.plc.set_signals(busy=True, done=False, fault=False)
         with Withdrawal(self.watch, self.measurer.robot.abort) as guard:
-            try:
-                self._slots(window, guard, report)
-            except DeviceError:
-                if not guard.withdrawn:
-                    raise
+            self._slots(window, guard, report)
         if guard.error is not None:
             raise guard.error
         if guard.withdrawn:
@@ -188,7 +193,12 @@ class Cycle:
             self._slot(slot, window, guard, report)
 
     def _slot(self, slot: Slot, window: int, guard: Withdrawal, report: WindowReport) -> None:
-        self.measurer.move_to(slot.q_deg)
+        try:
+            self.measurer.move_to(slot.q_deg)
+        except DeviceError:
+            if not guard.withdrawn:
+                raise
+            return  # the motion error of our own abort
         if guard.withdrawn:
             return
         try:

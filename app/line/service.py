@@ -194,7 +194,7 @@ class Service(OperatorCommands):
 
     def _watch_heartbeat(self) -> None:
         alarms = self.store.active_alarms(code="plc_heartbeat")
-        if self.watch.inputs is not None and not self.watch.alive and not alarms:
+        if self.watch.lost and not alarms:
             self._alarm("plc_heartbeat", "PLC heartbeat lost: no window is used until it returns")
         elif self.watch.alive and alarms:
             self.store.clear_alarms(self.clock.time(), "plc_heartbeat")

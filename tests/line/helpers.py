@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.config import load_cell
-from app.line.measure import GeometricSensor
+from app.line.measure import GeometricSensor, SphereSensor
 from app.line.schedule import Schedule
 from app.line.service import Service
 from app.line.settings import LineSettings, RecalibSettings, ServiceSettings
@@ -173,6 +173,7 @@ def make_line(
     line: LineSettings | None = None,
     recalib: RecalibSettings | None = None,
     x_initial: F64 | None = None,
+    sensor: Callable[[SimulatedCell], SphereSensor] | None = None,
     **cell_overrides: Any,
 ) -> Line:
     cfg = load_cell(None)
@@ -189,12 +190,14 @@ def make_line(
         line=line or line_settings(window_s=cycle.window_s),
         recalib=recalib or RecalibSettings(),
     )
-    sensor = GeometricSensor(cell.measure_target, duration_s=1.2)
+    sphere_sensor = (
+        GeometricSensor(cell.measure_target, duration_s=1.2) if sensor is None else sensor(cell)
+    )
     schedule = Schedule(plan_for(seed), settings.line)
     x0 = model.nominal_x() if x_initial is None else x_initial
     service = Service(
         Station(robot=robot, plc=plc),
-        sensor,
+        sphere_sensor,
         schedule,
         cfg.spheres_part_mm,
         model,

@@ -1,0 +1,117 @@
+"""Device faults in a window through the sweep sensor: a camera that times out and a galvo DAC
+that reports an SCPI error put the service in FAULT with the cause, the PLC fault bit set, and
+no motion until a reset; the robot comes home in the next window after it. A frame lost once is
+re-triggered and the sweep completes."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from app.line.measure import SweepSensor
+from app.line.service import State
+from app.line.settings import SweepSettings
+from drivers.errors import DeviceTimeout
+from fakes.cell import SimulatedCell
+from fakes.devices import FakeCamera, FakeGalvo
+from fakes.world import StaticWorld
+from tests.line.helpers import Line, make_line
+from vision.sensor_model import default_sensor_model
+
+
+class DeadCamera(FakeCamera):
+    """Never delivers a frame (a cable pulled)."""
+
+    def _trigger(self) -> None:
+        pass
+
+    def _grab(self, timeout_s: float) -> object:  # type: ignore[override]
+        raise DeviceTimeout(f"{self.name}: no frame within {timeout_s:g} s")
+
+
+class LosingCamera(FakeCamera):
+    """Loses the frame of its first trigger only."""
+
+    lost = 0
+
+    def _trigger(self) -> None:
+        if self.lost == 0:
+            self.lost += 1
+            return
+        super()._trigger()
+
+
+class ErrorGalvo(FakeGalvo):
+    """The DAC answers every command with an SCPI error."""
+
+    def _set_volts(self, volts: float) -> None:
+        self._queue.append((-350, "Queue overflow"))
+
+
+@pytest.fixture()
+def opened() -> Iterator[list[object]]:
+    devices: list[object] = []
+    yield devices
+    for d in devices:
+        d.close()  # type: ignore[attr-defined]
+
+
+def _sweep(
+    camera_cls: type[FakeCamera], galvo_cls: type[FakeGalvo], opened: list[object]
+) -> Callable[[SimulatedCell], SweepSensor]:
+    def build(cell: SimulatedCell) -> SweepSensor:
+        galvo = galvo_cls()
+        galvo.open()
+        camera = camera_cls(cell, galvo=galvo)
+        camera.open()
+        opened.extend([camera, galvo])
+        return SweepSensor(camera, galvo, default_sensor_model(), SweepSettings(n_frames=4))
+
+    return build
+
+
+@pytest.mark.parametrize(
+    ("camera_cls", "galvo_cls", "cause"),
+    [(DeadCamera, FakeGalvo, "DeviceTimeout"), (FakeCamera, ErrorGalvo, "DAC error -350")],
+)
+def test_a_sensor_device_fault_in_a_window(
+    tmp_path: Path,
+    opened: list[object],
+    camera_cls: type[FakeCamera],
+    galvo_cls: type[FakeGalvo],
+    cause: str,
+) -> None:
+    ln: Line = make_line(tmp_path, sensor=_sweep(camera_cls, galvo_cls, opened))
+    try:
+        ln.start()
+        alarm = ln.wait(lambda e: e["event"] == "alarm")
+        assert alarm["code"] == "device_fault" and cause in alarm["message"]
+        assert ln.service.state == State.FAULT
+        assert ln.plc.received.fault and not ln.plc.received.done
+        moves = len(ln.robot.motion_durations_s)
+        assert moves == 1  # it was moved to the sphere, then the sensor failed
+        ln.plc.wait_edges(2)
+        assert len(ln.robot.motion_durations_s) == moves  # no motion until reset
+        assert ln.service.store.counts() == {"ok": 0, "rejected": 0}
+        assert ln.service.request("reset", uid=1).result(10)["ok"]
+        report = ln.wait(lambda e: e["event"] == "window")
+        assert report["note"] == "robot brought home"
+        assert ln.service.measurer.at_home()
+    finally:
+        ln.close()
+
+
+def test_a_frame_lost_once_is_retriggered(opened: list[object]) -> None:
+    world = StaticWorld()
+    galvo = FakeGalvo()
+    galvo.open()
+    camera = LosingCamera(world, galvo=galvo)
+    camera.open()
+    opened += [camera, galvo]
+    sensor = SweepSensor(
+        camera, galvo, default_sensor_model(), SweepSettings(n_frames=3, grab_timeout_s=0.01)
+    )
+    frames, commands = sensor.grab_sweep()
+    assert camera.lost == 1 and frames.shape[0] == 3 and len(commands) == 3
