@@ -1,0 +1,90 @@
+"""A knock on the sensor mount during service: the drift charts flag it within a few
+measurements, the next recalibration uses only measurements after it, and the accuracy at
+validation positions (the cell knows the truth) comes back to its pre-knock level."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from app.config import load_cell
+from app.simulation import validation_set
+from calib.identify import Measurements, identify
+from fakes.cell import _small_pose
+from fakes.devices import ClampCycle
+from tests.line.helpers import SCALE, line_settings, make_line, plan_for
+
+SEED = 3
+
+
+def _calibrated_x(cell: object) -> np.ndarray:
+    """Parameters identified from the plan's 24 views of the cell (as a past service did)."""
+    cfg = load_cell(None)
+    qs, cs, ps, ids = [], [], [], []
+    for tid, q_all in plan_for(SEED).items():
+        for q in q_all:
+            p = cfg.spheres_part_mm[tid]
+            qs.append(q)
+            cs.append(cell.measure_point(q, p))  # type: ignore[attr-defined]
+            ps.append(p)
+            ids.append(tid)
+    data = Measurements(np.array(qs), np.array(cs), np.array(ps), tuple(ids))
+    return identify(cfg.model(), data).x
+
+
+@pytest.mark.slow
+def test_a_knock_is_flagged_and_the_recalibration_restores_the_accuracy(tmp_path: Path) -> None:
+    cycle = ClampCycle(period_s=40.0, window_s=32.0, beat_s=0.5, time_scale=SCALE)
+    probe = make_line(tmp_path / "probe")
+    x_good = _calibrated_x(probe.cell)
+    probe.close()
+    ln = make_line(
+        tmp_path / "state",
+        cycle=cycle,
+        line=line_settings(window_s=32.0, slots_per_window=8),
+        x_initial=x_good,
+    )
+    try:
+        cfg = load_cell(None)
+        rng = np.random.default_rng(4)
+        val = validation_set(ln.cell, cfg, ln.model, x_good, 30, rng)
+
+        def true_rms(x: np.ndarray) -> float:
+            q = val.measurements.q_deg
+            c = np.array(
+                [
+                    ln.cell.centre_in_sensor(qi[None], p)[0]
+                    for qi, p in zip(q, val.truth_p_part_mm, strict=True)
+                ]
+            )
+            e = ln.model.points_part(x, q, c) - val.truth_p_part_mm
+            return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
+
+        before = true_rms(x_good)
+        ln.start()
+        for _ in range(2):  # the charts learn their baseline (8 residuals) and watch
+            ln.wait(lambda e: e["event"] == "window")
+        n_before = ln.service.store.counts()["ok"]
+        # the knock: the sensor mount moves by 0.3 mm and 0.05 deg
+        knock = _small_pose(np.random.default_rng(7), 0.0, 0.0)
+        knock[:3, 3] = [0.3, 0.0, 0.0]
+        c, s = np.cos(np.radians(0.05)), np.sin(np.radians(0.05))
+        knock[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+        ln.cell.T_tool0_sensor = ln.cell.T_tool0_sensor @ knock
+        knocked = true_rms(x_good)
+        alarm = ln.wait(lambda e: e["event"] == "alarm" and e["code"] == "drift", 20.0)
+        flagged_at = ln.service.drift_onset_id
+        applied = ln.wait(lambda e: e["event"] == "parameters_applied", 60.0)
+        cal = ln.service.store.calibrations("applied")[-1]
+        ln.stop()
+        assert flagged_at is not None and flagged_at - n_before <= 3, (flagged_at, n_before)
+        assert "drift" in alarm["message"]
+        assert cal["first_id"] >= flagged_at  # only measurements after the knock
+        after = true_rms(ln.service.x)
+        assert knocked > 3 * before
+        assert after <= 1.2 * before + 0.01, (before, knocked, after)
+        assert applied["version"] == 2
+    finally:
+        ln.close()
