@@ -170,6 +170,7 @@ class Service(OperatorCommands):
             self._wake.clear()
             return
         self._watch_heartbeat()
+        self._unshelve()
         if self.state == State.IDLE and not self.paused and self.watch.fresh_window():
             self._window()
             return
@@ -191,6 +192,10 @@ class Service(OperatorCommands):
         self.bus.emit("window", report.to_json())
         self._set_state(State.PAUSED if self.paused else State.IDLE)
         self._between_windows()
+
+    def _unshelve(self) -> None:
+        for alarm_id in self.store.unshelve_expired(self.clock.time()):
+            self.bus.emit("alarm_unshelved", {"id": alarm_id}, level=logging.WARNING)
 
     def _watch_heartbeat(self) -> None:
         alarms = self.store.active_alarms(code="plc_heartbeat")

@@ -269,6 +269,20 @@ class Store:
             ).rowcount
         return n == 1
 
+    def unshelve_expired(self, t: float) -> list[int]:
+        """Shelved alarms whose time is up are raised again; their ids (a read when none)."""
+        due = self._rows(
+            "SELECT id FROM alarms WHERE state = 'shelved' AND shelved_until <= ?", (t,)
+        )
+        ids = [int(r["id"]) for r in due]
+        if ids:
+            with self._tx() as db:
+                db.executemany(
+                    "UPDATE alarms SET state = 'raised' WHERE id = ? AND state = 'shelved'",
+                    [(i,) for i in ids],
+                )
+        return ids
+
     def clear_alarms(self, t: float, code: str | None = None) -> int:
         """Clear the active alarms (of one code); returns how many."""
         sql = "UPDATE alarms SET state = 'cleared', t_cleared = ? WHERE state != 'cleared'"

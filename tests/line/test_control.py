@@ -92,3 +92,19 @@ def test_subscribe_streams_the_events(served: tuple[Line, Path]) -> None:
         while (ev := sub.read())["event"] != "operator":
             pass
         assert ev["cmd"] == "pause" and ev["uid"] == os.getuid()
+
+
+def test_an_alarm_is_acknowledged_and_shelved_with_a_reason(served: tuple[Line, Path]) -> None:
+    ln, path = served
+    ln.plc.heartbeat_frozen = True
+    alarm = ln.wait(lambda e: e["event"] == "alarm")
+    with ControlClient(path) as c:
+        assert c.request("ack", {"alarm": alarm["id"]})["ok"]
+        assert c.request("shelve", {"alarm": alarm["id"]})["error"] == "shelving needs a 'reason'"
+        reply = c.request("shelve", {"alarm": alarm["id"], "reason": "PLC update", "minutes": 5})
+        assert reply["ok"], reply
+        (shown,) = c.request("status")["alarms"]
+    assert (shown["code"], shown["state"]) == ("plc_heartbeat", "shelved")
+    (row,) = ln.service.store.active_alarms()
+    assert row["acked_uid"] == os.getuid() and row["shelve_reason"] == "PLC update"
+    assert row["shelved_until"] - row["t_raised"] == pytest.approx(300.0, abs=60.0)

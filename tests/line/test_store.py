@@ -123,3 +123,14 @@ def test_kill_9_loses_no_acknowledged_measurement(tmp_path: Path, n_acks: int) -
     assert set(acked) <= stored
     assert store.schedule_position()[1] >= max(acked) - 1  # position committed with the row
     store.close()
+
+
+def test_shelved_alarms_return_when_their_time_is_up(tmp_path: Path) -> None:
+    store = Store(tmp_path / "rvis.db")
+    a = store.raise_alarm(0.0, "drift", "drift of P1")
+    b = store.raise_alarm(0.0, "plc_heartbeat", "lost")
+    assert store.shelve_alarm(a, 100.0, "known") and store.shelve_alarm(b, 200.0, "known")
+    assert store.unshelve_expired(99.0) == []
+    assert store.unshelve_expired(150.0) == [a]
+    assert [r["state"] for r in store.active_alarms()] == ["raised", "shelved"]
+    store.close()
