@@ -65,6 +65,7 @@ class LinePlc(FakePlc):
         self.db_path: Path | None = None
         self.world: SimulatedCell | None = None
         self.withdraw_on_motion = False
+        self.on_done: Callable[[int], None] | None = None  # called with the rows at done
         self._was_open = False
 
     def _read_inputs(self) -> PlcInputs:
@@ -83,8 +84,11 @@ class LinePlc(FakePlc):
     def _write_outputs(self, outputs: PlcOutputs) -> None:
         if outputs.done and not self.received.done and self.db_path is not None:
             db = sqlite3.connect(f"file:{self.db_path}?mode=ro", uri=True)
-            self.rows_at_done.append(db.execute("SELECT COUNT(*) FROM measurements").fetchone()[0])
+            rows = int(db.execute("SELECT COUNT(*) FROM measurements").fetchone()[0])
             db.close()
+            self.rows_at_done.append(rows)
+            if self.on_done is not None:
+                self.on_done(rows)
         super()._write_outputs(outputs)
 
     def wait_edges(self, n: int, timeout_s: float = 10.0) -> None:
