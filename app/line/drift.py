@@ -128,5 +128,5 @@ class DriftMonitor:
                 "cusum_mm": c.s_hi,
                 "drifting": c.drifting,
             }
-            for k, c in self.charts.items()
+            for k, c in list(self.charts.items())  # read from the control socket's threads
         }

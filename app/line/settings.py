@@ -151,9 +151,12 @@ def from_cell(cfg: Any, state_dir: str | Path | None = None) -> ServiceSettings:
     recal = RecalibSettings(
         mode=svc.mode, rolling_size=int(svc.rolling_size), holdout_size=int(svc.holdout_size)
     )
+    cal = cfg.calibration  # the in-line change bounds stay tighter than the offline ones
+    gates = GateSettings(max_rms_mm=float(cal.max_rms_mm), max_condition=float(cal.max_condition))
     return ServiceSettings(
         state_dir=Path(state_dir if state_dir is not None else svc.state_dir),
         raw_sweeps_keep=int(svc.raw_sweeps_keep),
         line=line,
+        gates=gates,
         recalib=recal,
     )
