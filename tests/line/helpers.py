@@ -178,6 +178,7 @@ def make_line(
     recalib: RecalibSettings | None = None,
     x_initial: F64 | None = None,
     sensor: Callable[[SimulatedCell], SphereSensor] | None = None,
+    robot_class: type[FakeRobot] = FakeRobot,
     **cell_overrides: Any,
 ) -> Line:
     cfg = load_cell(None)
@@ -185,7 +186,7 @@ def make_line(
     model = cfg.model()
     clock = ScaledClock(SCALE)
     cycle = cycle or ClampCycle(period_s=12.0, window_s=8.0, beat_s=0.5, time_scale=SCALE)
-    robot = FakeRobot(cell, time_scale=SCALE).open()
+    robot = robot_class(cell, time_scale=SCALE).open()
     plc = LinePlc(cycle)
     plc.open()
     plc.world, plc.db_path = cell, state_dir / "rvis.db"

@@ -13,9 +13,10 @@ import pytest
 from app.line.measure import SweepSensor
 from app.line.service import State
 from app.line.settings import SweepSettings
-from drivers.errors import DeviceTimeout
+from drivers.errors import DeviceConnectionError, DeviceTimeout
+from drivers.robot import FloatArray
 from fakes.cell import SimulatedCell
-from fakes.devices import FakeCamera, FakeGalvo
+from fakes.devices import FakeCamera, FakeGalvo, FakeRobot
 from fakes.world import StaticWorld
 from tests.line.helpers import Line, make_line
 from vision.sensor_model import default_sensor_model
@@ -115,3 +116,40 @@ def test_a_frame_lost_once_is_retriggered(opened: list[object]) -> None:
     )
     frames, commands = sensor.grab_sweep()
     assert camera.lost == 1 and frames.shape[0] == 3 and len(commands) == 3
+
+
+class DisconnectingRobot(FakeRobot):
+    """The controller connection drops half-way through the first move."""
+
+    dropped = False
+
+    def _move(self, q_deg: FloatArray, speed_pct: float, timeout_s: float) -> None:
+        if not self.dropped:
+            self.dropped = True
+            start = self.world.joints_deg()
+            self.world.set_joints_deg(start + 0.5 * (q_deg - start))
+            raise DeviceConnectionError(f"{self.name}: connection reset by peer")
+        super()._move(q_deg, speed_pct, timeout_s)
+
+
+def test_a_robot_disconnect_mid_move_is_a_fault_and_the_robot_comes_home_after_reset(
+    tmp_path: Path,
+) -> None:
+    ln = make_line(tmp_path, robot_class=DisconnectingRobot)
+    try:
+        ln.start()
+        alarm = ln.wait(lambda e: e["event"] == "alarm")
+        assert (
+            "DeviceConnectionError" in alarm["message"] and "connection reset" in alarm["message"]
+        )
+        assert ln.service.state == State.FAULT and ln.plc.received.fault
+        assert not ln.service.measurer.at_home()  # stopped half-way
+        assert ln.robot.fault is not None  # the driver latched it too
+        ln.plc.wait_edges(2)
+        assert ln.robot.motion_durations_s == []
+        assert ln.service.request("reset", uid=1).result(10)["ok"]
+        report = ln.wait(lambda e: e["event"] == "window")
+        assert report["note"] == "robot brought home" and ln.service.measurer.at_home()
+        assert ln.wait(lambda e: e["event"] == "window")["measured"] == 1
+    finally:
+        ln.close()
