@@ -102,6 +102,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--rounds", type=int, default=50)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--max-delay", type=float, default=3.0, help="latest kill after start [s]")
     p.add_argument("--state-dir", default="runs/line-crash")
     p.add_argument("--child", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
@@ -114,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
     state = Path(args.state_dir)
     failures = 0
     for k in range(args.rounds):
-        delay = float(rng.uniform(0.05, 3.0))
+        delay = float(rng.uniform(0.05, args.max_delay))
         r = round_(state, delay)
         bad = not r["ok"]
         failures += bad
