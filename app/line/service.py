@@ -104,6 +104,9 @@ class Service(OperatorCommands):
         current = self.params.current()
         if current is not None:
             version, model, x = current
+            applied = self.store.applied()
+            if not applied or applied[-1]["version"] != version:  # killed while applying
+                self.store.add_applied(self.clock.time(), version, None, "recovered", None)
             return model, x, version
         version = self.params.apply(plain_document(model, x0, "initial parameters"))
         self.store.add_applied(self.clock.time(), version, None, "initial", None)

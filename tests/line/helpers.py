@@ -160,6 +160,8 @@ class Line:
     def close(self) -> None:
         if self.thread is not None and self.thread.is_alive():
             self.stop()
+        if self.thread is None:  # never run: run() closes the database itself
+            self.service.store.close()
         self.robot.close()
         self.plc.close()
 

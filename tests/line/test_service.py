@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from app.config import load_cell
+from app.line.params_store import ParamsStore, plain_document
 from app.line.service import State
 from app.line.settings import RecalibSettings
 from app.line.store import Store
@@ -208,4 +209,20 @@ def test_approve_mode_waits_for_the_operator_and_rollback_restores(
         ("approve", 501, True),
         ("rollback", 502, True),
         ("rollback", 503, False),
+    ]
+
+
+def test_parameters_applied_just_before_a_crash_are_recorded_at_restart(
+    tmp_path: Path, lines: list[Line]
+) -> None:
+    first = make_line(tmp_path)
+    first.close()  # never started: the initial version 1 is applied and recorded
+    doc = plain_document(first.model, first.model.nominal_x() + 1e-4, "candidate")
+    assert ParamsStore(tmp_path).apply(doc) == 2  # the file replaced, then the process died
+    again = make_line(tmp_path)
+    lines.append(again)
+    assert again.service.version == 2
+    assert [(a["version"], a["source"]) for a in again.service.store.applied()] == [
+        (1, "initial"),
+        (2, "recovered"),
     ]
