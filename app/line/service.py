@@ -301,8 +301,10 @@ class Service(OperatorCommands):
         if self.recalibrator.busy or self.pending_calibration is not None or not self._recal_due():
             return
         since = 0 if self.drift_onset_id is None else self.drift_onset_id - 1
-        rows = self.store.measurements(status="ok", since_id=since)
         r = self.settings.recalib
+        rows = self.store.measurements(
+            status="ok", since_id=since, last=r.rolling_size + r.holdout_size
+        )
         chosen = select_rolling(rows, len(self.schedule), self.schedule.targets, r)
         if chosen is None:
             return

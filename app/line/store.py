@@ -163,11 +163,15 @@ class Store:
         assert cur.lastrowid is not None
         return int(cur.lastrowid)
 
-    def measurements(self, *, status: str = "ok", since_id: int = 0) -> list[dict[str, Any]]:
-        rows = self._rows(
-            "SELECT * FROM measurements WHERE status = ? AND id > ? ORDER BY id",
-            (status, since_id),
-        )
+    def measurements(
+        self, *, status: str = "ok", since_id: int = 0, last: int | None = None
+    ) -> list[dict[str, Any]]:
+        """Rows of `status` after `since_id` in id order (only the `last` n when given)."""
+        sql = "SELECT * FROM measurements WHERE status = ? AND id > ? ORDER BY id DESC"
+        args: tuple[Any, ...] = (status, since_id)
+        if last is not None:
+            sql, args = sql + " LIMIT ?", (*args, last)
+        rows = self._rows(sql, args)[::-1]
         for r in rows:
             r["q_deg"] = json.loads(r["q_deg"])
             r["c_sensor_mm"] = None if r["c_sensor_mm"] is None else json.loads(r["c_sensor_mm"])

@@ -61,6 +61,8 @@ def test_measurements_round_trip_and_move_the_schedule_position(tmp_path: Path) 
     store.add_measurement(rejected)
     rows = store.measurements()
     assert [r["id"] for r in rows] == ids
+    assert [r["id"] for r in store.measurements(last=2)] == ids[1:]
+    assert [r["id"] for r in store.measurements(since_id=ids[0], last=5)] == ids[1:]
     assert rows[2]["c_sensor_mm"] == [1.0, 2.0, 132.0] and rows[2]["q_deg"][0] == 2.0
     assert store.measurements(status="rejected")[0]["reason"] == "NoStripe"
     assert store.counts() == {"ok": 3, "rejected": 1}
