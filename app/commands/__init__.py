@@ -16,4 +16,5 @@ COMMANDS: dict[str, str] = {
     "experiment": "reproduce the paper's experiment on the simulated cell",
     "devices": "check the configured devices",
     "sensor": "laser-line sensor: calibrate, measure",
+    "tui": "the operator's terminal of a running service",
 }
