@@ -143,7 +143,7 @@ def fit_sphere_geometric(
     r = np.sqrt(np.einsum("ij,ij->i", D, D)) - R
     w = _weights(r, scale, cauchy=True)
     sigma2 = float((w * r * r).sum() / max(w.sum() - n_col, 1.0))
-    cov: F64 = np.linalg.inv((J * w[:, None]).T @ J) * sigma2
+    cov = np.asarray(np.linalg.inv((J * w[:, None]).T @ J) * sigma2, dtype=np.float64)
     return c, R, r, cov, it
 
 
