@@ -14,4 +14,6 @@ COMMANDS: tuple[str, ...] = (
     "experiment",
     "devices",
     "sensor",
+    "compensate",
+    "export",
 )
