@@ -47,7 +47,7 @@ class CompensationSettings:
 
     max_joint_change_deg: float = 20.0
     roundtrip_tol_deg: float = 1e-6
-    start_q_deg: tuple[float, float, float, float, float, float] = (0, 0, 0, 0, -90, 0)
+    start_q_deg: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, -90.0, 0.0)
 
     def __post_init__(self) -> None:
         if not 0.0 < self.max_joint_change_deg <= 180.0:
