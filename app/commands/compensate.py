@@ -10,11 +10,14 @@ an input error naming the file, line and target: nothing is written then.
 from __future__ import annotations
 
 import argparse
+import time
 from pathlib import Path
 
 import numpy as np
 
+from app import compensation_check as check
 from app.api import Calibration, command_xyzwpr
+from app.config import load_cell
 from app.errors import InputError
 from app.program_files import LsSettings, Targets, read_targets, write_ls, write_result_csv
 from calib.compensate import Compensation, CompensationSettings
@@ -97,3 +100,24 @@ def _refuse_bad_rows(t: Targets, result: Compensation) -> None:
 def _lines(t: Targets, rows: np.ndarray) -> str:
     shown = ", ".join(str(t.lines[int(k)]) for k in rows[:10])
     return shown + (", ..." if rows.size > 10 else "")
+
+
+def run_compensation_experiment(args: argparse.Namespace) -> int:
+    """`rvis experiment compensation`: nominal vs compensated pose error of the true robot of
+    the simulated cell (app/compensation_check.py); writes compensation.md to --out."""
+    cfg = load_cell(args.cell)
+    out = Path(args.out or f"runs/experiment-{time.strftime('%Y%m%d-%H%M%S')}")
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    print(f"rvis experiment compensation: {len(seeds)} seeds x {args.validation} poses")
+    results = check.run(cfg, seeds, args.validation, log=lambda s: print(s, flush=True))
+    command = (
+        f"rvis experiment compensation --seeds {args.seeds} --first-seed {args.first_seed} "
+        f"--validation {args.validation}"
+    )
+    text = check.markdown(results, command)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "compensation.md").write_text(text, encoding="utf-8")
+    print()
+    print(text)
+    print(f"written {out}/compensation.md")
+    return 0
