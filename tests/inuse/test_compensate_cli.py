@@ -140,6 +140,11 @@ def test_bad_inputs_are_one_line_errors_naming_the_row(
     code, _, err = run([*base, "--targets", str(write_joints(tmp_path / "j.csv", q))], capsys)
     assert code == 2 and "j.csv:3: field 'j2_deg': 150 deg is outside the joint limits" in err
     assert not (tmp_path / "o.csv").exists()
+    ls_base = [*base[:-1], str(tmp_path / "1st.ls"), "--targets", str(tmp_path / "j.csv")]
+    q[1, 1] = 100.0
+    write_joints(tmp_path / "j.csv", q)
+    code, _, err = run(ls_base, capsys)
+    assert code == 2 and "1st.ls: the program name (from the file name) must start" in err
 
 
 def test_parameters_of_another_model_are_refused(
