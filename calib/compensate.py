@@ -176,9 +176,23 @@ def _compensate(
     reasons: list[str],
     settings: CompensationSettings,
 ) -> Compensation:
-    n = T.shape[0]
+    q_id = _identified_joints(model, x, T, q_nom, reasons, settings)
+    q, T_cmd = _controller_joints(model, q_id, reasons, settings)
     ok = np.array([not r for r in reasons], dtype=bool)
-    # 1. the identified robot's joints for the intended poses, nearest the original joints
+    return Compensation(T, q_nom, q, T_cmd, ok, tuple(reasons))
+
+
+def _identified_joints(
+    model: SystemModel,
+    x: F64,
+    T: F64,
+    q_nom: F64,
+    reasons: list[str],
+    settings: CompensationSettings,
+) -> F64:
+    """Step 1: the identified robot's joints for the intended poses, nearest the original
+    joints; rows without one within max_joint_change_deg get their reason."""
+    ok = np.array([not r for r in reasons], dtype=bool)
     sols = ik_refine.solve_on_model(model, x, T, model.limits)
     q_id, change = _nearest(sols.q_deg, sols.pose_index, sols.converged, np.nan_to_num(q_nom))
     for i in np.flatnonzero(ok & ~np.isfinite(change)):
@@ -189,22 +203,28 @@ def _compensate(
             f"joints (more than {settings.max_joint_change_deg:g} deg: another branch or a "
             "singularity)"
         )
-    ok &= change <= settings.max_joint_change_deg
-    # 2. the Cartesian command a nominal controller needs, 3. its own inverse kinematics
-    x0 = model.nominal_x()
-    T_cmd = np.full((n, 4, 4), np.nan)
-    T_cmd[ok] = model.fk(x0, q_id[ok])
-    q = np.full((n, 6), np.nan)
-    if np.any(ok):
-        back = ik.solve(nominal_base_flange(model, T_cmd[ok]), model.limits)
-        keep = np.ones(back.q_deg.shape[0], dtype=bool)
-        q_ok, gap = _nearest(back.q_deg, back.pose_index, keep, q_id[ok])
-        q[ok] = q_ok
-        for k, i in enumerate(np.flatnonzero(ok)):
-            if not gap[k] <= settings.roundtrip_tol_deg:
-                reasons[i] = (
-                    "the nominal inverse kinematics of the compensated pose does not return "
-                    f"the compensated joints (gap {gap[k]:.2g} deg): a singular pose"
-                )
+    return q_id
+
+
+def _controller_joints(
+    model: SystemModel, q_id: F64, reasons: list[str], settings: CompensationSettings
+) -> tuple[F64, F64]:
+    """Steps 2 and 3: the Cartesian command T_cmd = FK_nominal(q_id) and the nominal inverse
+    kinematics of it nearest q_id (the controller's own computation): (joints, T_cmd)."""
     ok = np.array([not r for r in reasons], dtype=bool)
-    return Compensation(T, q_nom, q, T_cmd, ok, tuple(reasons))
+    n = q_id.shape[0]
+    T_cmd = np.full((n, 4, 4), np.nan)
+    q = np.full((n, 6), np.nan)
+    if not np.any(ok):
+        return q, T_cmd
+    T_cmd[ok] = model.fk(model.nominal_x(), q_id[ok])
+    back = ik.solve(nominal_base_flange(model, T_cmd[ok]), model.limits)
+    keep = np.ones(back.q_deg.shape[0], dtype=bool)
+    q[ok], gap = _nearest(back.q_deg, back.pose_index, keep, q_id[ok])
+    for k, i in enumerate(np.flatnonzero(ok)):
+        if not gap[k] <= settings.roundtrip_tol_deg:
+            reasons[i] = (
+                "the nominal inverse kinematics of the compensated pose does not return the "
+                f"compensated joints (gap {gap[k]:.2g} deg): a singular pose"
+            )
+    return q, T_cmd
