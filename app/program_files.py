@@ -9,7 +9,8 @@ Targets CSV, one of two kinds, told apart by the header:
 
 Every bad value is an InputError naming file, line (header = line 1) and field. The `.ls`
 program has one joint move per target and the P[] positions in joint representation
-(`P[1:"id"]{ GP1: UF : 0, UT : 0, J1= ... deg, ... };`), which a controller runs as they are:
+(`P[1:"id"]{ GP1: UF : 0, UT : 0, J1=     0.000 deg, ... };`, the layout a controller
+exports), which a controller runs as they are:
 no inverse kinematics on the controller, so no branch to get wrong.
 """
 
@@ -169,26 +170,29 @@ def ls_program(
         "      PAUSE_REQUEST\t= 0;", "DEFAULT_GROUP\t= 1,*,*,*,*;",
         "CONTROL_CODE\t= 00000000 00000000;", "/MN",
     ]  # fmt: skip
-    labels = [_label(k + 1, tid) for k, tid in enumerate(ids)]
+    comments = [_comment(tid) for tid in ids]
     moves = [
-        f"{k + 1:4d}:J {label} {settings.speed_percent}% {settings.termination}    ;"
-        for k, label in enumerate(labels)
+        f"{k + 1:4d}:J P[{k + 1}:{c}] {settings.speed_percent}% {settings.termination}    ;"
+        for k, c in enumerate(comments)
     ]
     positions = [
         "/POS",
-        *(_position(label, q, settings) for label, q in zip(labels, q_deg, strict=True)),
+        *(
+            _position(f'P[{k + 1}:"{c}"]', q, settings)
+            for k, (c, q) in enumerate(zip(comments, q_deg, strict=True))
+        ),
     ]
     return "\n".join([*head, *moves, *positions, "/END"]) + "\n"
 
 
-def _label(k: int, tid: str) -> str:
-    # position comments: at most 16 characters, no double quotes
-    comment = tid.replace('"', "'")[:16]
-    return f'P[{k}:"{comment}"]'
+def _comment(tid: str) -> str:
+    # a position comment: at most 16 characters; quoted in /POS, bare in /MN (as the
+    # controller writes them), so no quotes, brackets or semicolons inside
+    return re.sub(r'["\[\];]', "_", tid)[:16]
 
 
 def _position(label: str, q: F64, s: LsSettings) -> str:
-    j = [f"J{i + 1}={q[i]:{s.decimals + 6}.{s.decimals}f} deg" for i in range(6)]
+    j = [f"J{i + 1}={q[i]:{s.decimals + 7}.{s.decimals}f} deg" for i in range(6)]
     return (
         f"{label}{{\n   GP1:\n\tUF : {s.uframe}, UT : {s.utool},\t\n"
         f"\t{j[0]},\t{j[1]},\t{j[2]},\n\t{j[3]},\t{j[4]},\t{j[5]}\n}};"

@@ -64,11 +64,14 @@ def run(args: argparse.Namespace) -> int:
     targets = read_targets(args.targets, cal.model.limits)
     result = _compensate(cal, targets, settings)
     _refuse_bad_rows(targets, result)
-    if fmt == "ls":
-        write_ls(out, targets.ids, result.q_deg, ls)
-    else:
-        xyzwpr = command_xyzwpr(result)
-        write_result_csv(out, targets.ids, result.q_deg, xyzwpr, result.q_nominal_deg)
+    try:
+        if fmt == "ls":
+            write_ls(out, targets.ids, result.q_deg, ls)
+        else:
+            xyzwpr = command_xyzwpr(result)
+            write_result_csv(out, targets.ids, result.q_deg, xyzwpr, result.q_nominal_deg)
+    except OSError as exc:
+        raise InputError(f"cannot write: {exc.strerror or exc}", file=out) from exc
     change = result.joint_change_deg
     print(
         f"compensated {len(targets.ids)} {targets.kind} targets with {args.params}: joint "

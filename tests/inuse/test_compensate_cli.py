@@ -106,7 +106,7 @@ def test_ls_program_holds_the_compensated_joints(
     text = ls_out.read_text()
     assert text.startswith("/PROG  INSP_01\n/ATTR\n") and text.endswith("/END\n")
     assert "LINE_COUNT\t= 5;" in text
-    moves = re.findall(r"^\s+(\d+):J P\[(\d+):\"(T\d+)\"\] 25% FINE\s+;$", text, re.M)
+    moves = re.findall(r"^\s+(\d+):J P\[(\d+):(T\d+)\] 25% FINE    ;$", text, re.M)
     assert [m[:2] for m in moves] == [(str(k), str(k)) for k in range(1, 6)]
     positions = re.findall(
         r'P\[(\d+):"(T\d+)"\]\{\n   GP1:\n\tUF : 0, UT : 0,\t\n\t'
