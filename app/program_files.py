@@ -75,11 +75,12 @@ def read_targets(path: str | Path, limits: JointLimits) -> Targets:
     lines: list[int] = []
     values: list[list[float]] = []
     hints: list[F64] = []
+    seen: set[str] = set()
     for line, row in _rows(path, columns):
         tid = row["id"]
         if not tid:
             raise InputError("empty id", file=path, line=line, field="id")
-        if tid in ids:
+        if tid in seen:
             raise InputError(f"duplicate id '{tid}'", file=path, line=line, field="id")
         v = [_number(row, f, path, line) for f in columns[1:]]
         if kind == "joints":
@@ -89,6 +90,7 @@ def read_targets(path: str | Path, limits: JointLimits) -> Targets:
             hint = np.array([_number(row, f, path, line) for f in JOINT_COLUMNS[1:]])
             _check_limits(hint, limits, path, line)
         ids.append(tid)
+        seen.add(tid)
         lines.append(line)
         values.append(v)
         hints.append(hint)

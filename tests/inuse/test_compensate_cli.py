@@ -135,6 +135,9 @@ def test_bad_inputs_are_one_line_errors_naming_the_row(
     bad = write_poses(tmp_path / "bad.csv", wpr, extra="\nP09,1,2,abc,0,0,0\n")
     code, _, err = run([*base, "--targets", str(bad)], capsys)
     assert code == 2 and "bad.csv:5: field 'z_mm': 'abc' is not a number" in err
+    dup = write_poses(tmp_path / "dup.csv", wpr, extra="\nP01,1,2,3,0,0,0\n")
+    code, _, err = run([*base, "--targets", str(dup)], capsys)
+    assert code == 2 and "dup.csv:5: field 'id': duplicate id 'P01'" in err
     q = c.views_deg[:2].copy()
     q[1, 1] = 150.0  # J2 limit 135
     code, _, err = run([*base, "--targets", str(write_joints(tmp_path / "j.csv", q))], capsys)
