@@ -21,8 +21,6 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from app.errors import InputError
-from app.files import read_json
 from app.params import from_json
 from calib import compensate, urdf
 from calib.model import SystemModel
@@ -37,15 +35,8 @@ MODEL_VERSION = 1
 
 
 def load_parameters(path: str | Path) -> tuple[SystemModel, F64]:
-    """(model, parameters (37,)) of a parameters JSON, refusing one of another model."""
-    m = read_json(path).get("model")
-    if isinstance(m, dict) and (m.get("name"), m.get("version")) != (MODEL_NAME, MODEL_VERSION):
-        raise InputError(
-            f"parameters of model {m.get('name')!r} version {m.get('version')!r}; "
-            f"rvis needs {MODEL_NAME!r} version {MODEL_VERSION}",
-            file=path,
-            field="model.name",
-        )
+    """(model, parameters (37,)) of a parameters JSON (app.params.from_json: validated,
+    refusing another model or a failed identification)."""
     return from_json(path)
 
 

@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.errors import InputError
-from app.files import _number, _rows, write_csv
+from app.files import csv_number, csv_rows, write_csv
 from calib.robot import JointLimits
 
 F64 = NDArray[np.float64]
@@ -76,18 +76,18 @@ def read_targets(path: str | Path, limits: JointLimits) -> Targets:
     values: list[list[float]] = []
     hints: list[F64] = []
     seen: set[str] = set()
-    for line, row in _rows(path, columns):
+    for line, row in csv_rows(path, columns):
         tid = row["id"]
         if not tid:
             raise InputError("empty id", file=path, line=line, field="id")
         if tid in seen:
             raise InputError(f"duplicate id '{tid}'", file=path, line=line, field="id")
-        v = [_number(row, f, path, line) for f in columns[1:]]
+        v = [csv_number(row, f, path, line) for f in columns[1:]]
         if kind == "joints":
             _check_limits(np.array(v), limits, path, line)
         hint = np.full(6, np.nan)
         if has_hint and any(row[f] for f in JOINT_COLUMNS[1:]):
-            hint = np.array([_number(row, f, path, line) for f in JOINT_COLUMNS[1:]])
+            hint = np.array([csv_number(row, f, path, line) for f in JOINT_COLUMNS[1:]])
             _check_limits(hint, limits, path, line)
         ids.append(tid)
         seen.add(tid)
