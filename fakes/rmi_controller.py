@@ -219,10 +219,10 @@ class RmiController(LineServer):
         t0 = self.clock.monotonic()
         # the joints follow the clock (not a count of sleeps, whose overheads would add up)
         while (frac := (self.clock.monotonic() - t0) / duration if duration > 0 else 1.0) < 1.0:
+            self.world.set_joints_deg(start + (target - start) * frac)
             if half_way is not None and frac >= 0.5:
                 await self._half_way_fault(half_way)
                 return
-            self.world.set_joints_deg(start + (target - start) * frac)
             left_real_s = (1.0 - frac) * duration / self.clock.scale
             await asyncio.sleep(min(0.01, left_real_s))
         if half_way is not None:  # a move too short to be seen half-way still fails

@@ -1,0 +1,38 @@
+"""Fixtures for the simulated line: the true sensor built once per session (its pixel rays take
+seconds), cells built from the default configuration, and the drivers' leak check (a test that
+leaves a device open fails)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import pytest
+
+from app.config import CellConfig
+from app.simulation import make_cell
+from drivers.base import open_devices
+from fakes.cell import SimulatedCell
+from fakes.render_sensor import TrueSensor, default_true_sensor
+
+
+@pytest.fixture(autouse=True)
+def _no_device_left_open() -> Iterator[None]:
+    before = set(map(id, open_devices()))
+    yield
+    leaked = [d for d in open_devices() if id(d) not in before]
+    for device in leaked:
+        device.close()
+    assert not leaked, f"test left devices open: {[d.name for d in leaked]}"
+
+
+@pytest.fixture(scope="session")
+def true_sensor() -> TrueSensor:
+    sensor = default_true_sensor()
+    _ = sensor.pixel_rays
+    return sensor
+
+
+@pytest.fixture()
+def line_cell(cfg: CellConfig, true_sensor: TrueSensor) -> SimulatedCell:
+    """A fresh simulated cell (seed 11) sharing the session's true sensor."""
+    return make_cell(cfg, seed=11, sensor=true_sensor)
