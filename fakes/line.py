@@ -130,6 +130,8 @@ class SimLine:
 
     # -- life cycle -------------------------------------------------------------------------
     def start(self) -> Self:
+        if self._started:
+            raise RuntimeError("the simulated line is already started")
         s = self.settings
         self.cell.set_timeline(self.clock, warmup=s.warmup, knock=s.knock)
         try:

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from app.config import CellConfig
-from app.simulation import make_cell
+from app.simulation import collect, make_cell
+from calib.identify import identify
 from fakes.cell import SimulatedCell
 from fakes.clock import ScaledClock
 from fakes.line_truth import LineTruth, validation_positions
@@ -86,3 +87,29 @@ def test_validation_positions_are_seen_and_spread_over_the_workspace(cfg: CellCo
     # after the knock and 3 h of warm-up a perfect sensor sees every position elsewhere
     moved = np.linalg.norm(truth.validation_centres_sensor_mm(3 * HOUR_S) - c0, axis=1)
     assert np.all(moved > 0.05) and np.all(moved < 1.5)
+
+
+def true_validation_rms_mm(cfg: CellConfig, truth: LineTruth, x: np.ndarray, t_s: float) -> float:
+    """How the app computes the true error of parameters x at the validation positions."""
+    v = truth.validation
+    e = cfg.model().points_part(x, v.q_deg, truth.validation_centres_sensor_mm(t_s)) - v.p_part_mm
+    return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
+
+
+def test_the_app_can_compute_the_true_error_of_identified_parameters_over_time(
+    cfg: CellConfig,
+) -> None:
+    knock = Knock(at_s=2 * HOUR_S)
+    cell = timed_cell(cfg, 6, warmup=Warmup(), knock=knock)  # the clock stands at sim 0
+    model = cfg.model()
+    x0 = model.nominal_x()
+    cal = collect(cell, model, x0, cfg.spheres_part_mm, 6, np.random.default_rng(0))
+    x = identify(model, cal.measurements).x
+    truth = LineTruth(cell, validation_positions(cell, 100, np.random.default_rng(1)))
+    calibrated = true_validation_rms_mm(cfg, truth, x, 0.0)
+    assert true_validation_rms_mm(cfg, truth, x0, 0.0) > 5 * calibrated  # calibration helps
+    assert calibrated < 0.15
+    warm = true_validation_rms_mm(cfg, truth, x, knock.at_s - 1.0)
+    knocked = true_validation_rms_mm(cfg, truth, x, knock.at_s)
+    assert warm > calibrated  # the warm-up degrades the calibration of the cold cell ...
+    assert knocked > warm + 0.1  # ... and the knock does, by about its 0.3 mm
