@@ -106,11 +106,13 @@ def main() -> None:
     _ = cell.sensor.pixel_rays
     print("| what | median |")
     print("|---|---|")
-    for camera in (False, True):
-        s = median_of(
-            lambda: timed(lambda: SimLine(cell, LineSettings(camera=camera)).start().close()), 5
-        )
-        print(f"| SimLine start + close, camera={camera} | {1000 * s:.0f} ms |")
+    for settings in (LineSettings(camera=False), LineSettings(camera=True)):
+
+        def start_close(settings: LineSettings = settings) -> float:
+            return timed(lambda: SimLine(cell, settings).start().close())
+
+        s = median_of(start_close, 5)
+        print(f"| SimLine start + close, camera={settings.camera} | {1000 * s:.0f} ms |")
     for scale in (1.0, 10.0, 60.0):
         e = motion_error_s(cell, scale)
         print(f"| move_joints sim time - motion time, scale {scale:g} | {1000 * e:.0f} sim ms |")
