@@ -23,7 +23,15 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from fakes.clock import Clock
-from fakes.render import Frames, Lighting, SweepTruth, default_sweep_commands, render_sphere_sweep
+from fakes.render import (
+    Frames,
+    Lighting,
+    SphereScene,
+    SweepTruth,
+    default_sweep_commands,
+    render_sphere_sweep,
+    sphere_scene,
+)
 from fakes.render_noise import NoiseSettings, dark_frame
 from fakes.render_sensor import TrueSensor, default_true_sensor
 from fakes.truth import Knock, TrueRobot, Warmup, _rot, homogeneous
@@ -104,6 +112,10 @@ SWEEP_FRAMES = 24
 SWEEP_SPAN_V = 3.2
 #: Exposure [us] at which the renderer's laser power and ambient light are specified.
 REFERENCE_EXPOSURE_US = 10_000.0
+#: A camera frame reuses the previous frame's sphere scene (the costly, laser-independent part of
+#: rendering) while the sphere has moved less than this in the sensor frame [mm]: during a sweep
+#: the robot stands still and only the warm-up moves the sphere, by nanometres per frame.
+SCENE_REUSE_MM = 1e-4
 
 
 @dataclass(frozen=True, eq=False)
@@ -170,6 +182,7 @@ class SimulatedCell:
         self._render_lock = threading.Lock()
         self._sweeps = 0  # sweeps handed out: the index in each sweep's noise seed
         self._camera_rng = np.random.default_rng([s.seed, 4])
+        self._scene: SphereScene | None = None
         self.sweep_commands_v = default_sweep_commands(SWEEP_FRAMES, SWEEP_SPAN_V)
 
     @property
@@ -345,18 +358,28 @@ class SimulatedCell:
             if c is None:
                 frame = dark_frame((sensor.height_px, sensor.width_px), noise, self._camera_rng)
             else:
+                scene = self._scene_of(sensor, c)
                 frame = render_sphere_sweep(
-                    c,
-                    self.spec.sphere_radius_mm,
+                    scene.c_sensor_mm,
+                    scene.radius_mm,
                     sensor,
                     self._camera_rng,
                     commands_v=np.array([command_v]),
                     noise=noise,
                     light=light,
                     stripe_truth=False,
+                    scene=scene,
                 )[0][0]
         out: F64 = frame[:height, :width].astype(np.float64) / 4095.0
         return out
+
+    def _scene_of(self, sensor: TrueSensor, c_sensor_mm: F64) -> SphereScene:
+        """The sphere scene at c_sensor_mm: the last one if the sphere moved less than
+        SCENE_REUSE_MM since (the frame's centre then lags the truth by less than that)."""
+        last = self._scene
+        if last is None or np.max(np.abs(last.c_sensor_mm - c_sensor_mm)) >= SCENE_REUSE_MM:
+            last = self._scene = sphere_scene(sensor, c_sensor_mm, self.spec.sphere_radius_mm)
+        return last
 
     def _sphere_in_view(self) -> F64 | None:
         """True centre in the sensor frame [mm] of the nearest sphere wholly in front of the
