@@ -122,11 +122,15 @@ class FaultScheduler:
         while not self._stopping:
             with self._lock:
                 due = self._planned[0] if self._planned else None
-            wait_s = 3600.0 if due is None else due.at_s - self._clock.monotonic()
+            if due is None:  # nothing planned: sleep until plan() or close(), no polling
+                self._wake.wait()
+                self._wake.clear()
+                continue
+            wait_s = due.at_s - self._clock.monotonic()
             if wait_s > 0 and self._clock.wait(self._wake, wait_s):
                 self._wake.clear()
                 continue
-            if due is None or self._stopping:
+            if self._stopping:
                 continue
             with self._lock:
                 self._planned.remove(due)
