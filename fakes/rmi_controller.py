@@ -4,8 +4,9 @@ Speaks the subset of RMI the driver uses (drivers/rmi.py): FRC_Connect on the co
 the session port; commands FRC_Initialize, FRC_Abort, FRC_Reset, FRC_GetStatus,
 FRC_ReadJointAngles, FRC_SetOverRide (``Value`` 1..100, kept across sessions like the controller's
 general override); instruction FRC_JointMotionJRep (answered when the motion is done, after
-max |dq| / (speed x override) x time_scale seconds, moving the World's joints along the way; each
-motion's duration is appended to ``motion_durations_s``); unsolicited
+max |dq| / (speed x override) x time_scale seconds of ``clock`` (real time by default), moving
+the World's joints along the way; each motion's duration is appended to ``motion_durations_s``);
+unsolicited
 FRC_SystemFault and FRC_Terminate. Like the controller it refuses out-of-order SequenceIDs,
 motion before FRC_Initialize, motion outside the joint limits and motion while an alarm is active
 (until FRC_Reset).
@@ -13,7 +14,8 @@ motion before FRC_Initialize, motion outside the joint limits and motion while a
 Fault injection (one-shot, for the fault tests): ``fail_next(packet_name, mode)`` with mode
 "drop" (close the connection on receipt), "mute" (never answer), "garble" (answer non-JSON),
 "truncate" (half an answer, then close), "system_fault" (for a motion: start it, then raise an
-alarm half-way), or an int ErrorID to answer with.
+alarm half-way), "disconnect" (for a motion: start it, then close every session half-way, as a
+cable pulled mid-move), or an int ErrorID to answer with.
 
     with RmiController(world, time_scale=0.01) as ctrl:
         robot = RmiRobot("127.0.0.1", ctrl.port)
@@ -30,6 +32,7 @@ import numpy as np
 
 from drivers.safety import JointLimits
 from fakes._lineserver import LineServer
+from fakes.clock import RealClock, SimClock
 from fakes.world import World
 
 RMIT_BASE = 2556928
@@ -53,11 +56,13 @@ class RmiController(LineServer):
         *,
         time_scale: float = 1.0,
         limits: JointLimits | None = None,
+        clock: SimClock | None = None,
         **kw: Any,  # host, port: see LineServer
     ) -> None:
         super().__init__(**kw)
         self.world = world
         self.time_scale = float(time_scale)
+        self.clock: SimClock = clock if clock is not None else RealClock()
         self.limits = limits or JointLimits.m710ic50()
         self.session_port = 0
         self.alarm = False
@@ -98,7 +103,8 @@ class RmiController(LineServer):
             await self._send(writer, {kind: name, "ErrorID": mode, **self._seq_of(msg)})
             return True
         if kind == "Instruction":
-            self._instruction(msg, writer, system_fault=mode == "system_fault")
+            half_way = mode if mode in ("system_fault", "disconnect") else None
+            self._instruction(msg, writer, half_way=half_way)
             return True
         reply = self._reply(kind, name, msg)
         await self._send(writer, {kind: name, **reply})
@@ -161,7 +167,7 @@ class RmiController(LineServer):
         return {"ErrorID": ERR_UNKNOWN}
 
     def _instruction(
-        self, msg: dict[str, Any], writer: asyncio.StreamWriter, *, system_fault: bool
+        self, msg: dict[str, Any], writer: asyncio.StreamWriter, *, half_way: str | None
     ) -> None:
         name, seq = msg.get("Instruction"), msg.get("SequenceID")
         error = self._check_instruction(msg)
@@ -174,7 +180,7 @@ class RmiController(LineServer):
         target = np.array([float(msg["JointAngle"][j]) for j in JOINTS])
         previous = self._motion
         self._motion = self._spawn(
-            self._run_motion(previous, target, float(msg["Speed"]), writer, seq, system_fault)
+            self._run_motion(previous, target, float(msg["Speed"]), writer, seq, half_way)
         )
 
     def _check_instruction(self, msg: dict[str, Any]) -> int:
@@ -201,7 +207,7 @@ class RmiController(LineServer):
         speed_pct: float,
         writer: asyncio.StreamWriter,
         seq: Any,
-        system_fault: bool,
+        half_way: str | None,
     ) -> None:
         if previous is not None:
             with contextlib.suppress(asyncio.CancelledError):
@@ -210,16 +216,29 @@ class RmiController(LineServer):
         speeds = np.asarray(self.limits.speed_deg_s) * speed_pct * self.override_pct / 1e4
         duration = float(np.max(np.abs(target - start) / speeds)) * self.time_scale
         self.motion_durations_s.append(duration)
-        steps = max(1, int(duration / 0.01))
-        for i in range(1, steps + 1):
-            if system_fault and i > steps // 2:
-                await self._system_fault()
+        t0 = self.clock.monotonic()
+        # the joints follow the clock (not a count of sleeps, whose overheads would add up)
+        while (frac := (self.clock.monotonic() - t0) / duration if duration > 0 else 1.0) < 1.0:
+            self.world.set_joints_deg(start + (target - start) * frac)
+            if half_way is not None and frac >= 0.5:
+                await self._half_way_fault(half_way)
                 return
-            await asyncio.sleep(duration / steps)
-            self.world.set_joints_deg(start + (target - start) * i / steps)
+            left_real_s = (1.0 - frac) * duration / self.clock.scale
+            await asyncio.sleep(min(0.01, left_real_s))
+        if half_way is not None:  # a move too short to be seen half-way still fails
+            await self._half_way_fault(half_way)
+            return
+        self.world.set_joints_deg(target)
         await self._send(
             writer, {"Instruction": "FRC_JointMotionJRep", "ErrorID": 0, "SequenceID": seq}
         )
+
+    async def _half_way_fault(self, mode: str) -> None:
+        if mode == "system_fault":
+            await self._system_fault()
+            return
+        for writer in list(self._writers):  # "disconnect": the sessions vanish, no goodbye
+            writer.close()
 
     async def _system_fault(self) -> None:
         self.alarm, self._initialized = True, False
