@@ -16,6 +16,7 @@ waits for each instruction's reply before it sends the next.
 
 from __future__ import annotations
 
+import threading
 import time
 from typing import Any
 
@@ -66,6 +67,13 @@ class RmiRobot(Robot):
         self._seq = 1
         self._initialized = False
         self.version = ""
+        # abort() runs in another thread while _move waits for its reply: the motion thread is
+        # the only reader of the socket then; _io guards the sends and the in-motion state
+        self._io = threading.Lock()
+        self._in_motion = False
+        self._abort_sent = False
+        self._abort_acked = threading.Event()
+        self._abort_code = 0
 
     @classmethod
     def from_url(cls, url: DeviceUrl, **options: Any) -> RmiRobot:
@@ -147,16 +155,53 @@ class RmiRobot(Robot):
         }
         self._seq += 1
         sock = self._session()
-        sock.send(packet)
+        with self._io:
+            sock.send(packet)
+            self._in_motion = True
         try:
             self._expect(sock, "Instruction", "FRC_JointMotionJRep", timeout_s, seq=seq)
         except DeviceTimeout:
-            self._best_effort_abort()
+            with self._io:
+                self._in_motion = False
+            if not self._abort_sent:
+                self._best_effort_abort()
             raise
+        finally:
+            with self._io:
+                self._in_motion = False
+            self._await_abort_reply(sock)
 
     def _abort(self) -> None:
-        self._command("FRC_Abort")
-        self._initialized = False
+        with self._io:
+            in_motion = self._in_motion
+            if in_motion:  # the motion thread reads the reply; send now, wait for its ack
+                self._abort_acked.clear()
+                self._abort_sent = True
+                self._session().send({"Command": "FRC_Abort"})
+        if in_motion:
+            if not self._abort_acked.wait(self.timeout_s):
+                raise DeviceTimeout(f"{self.name}: FRC_Abort not answered in {self.timeout_s:g} s")
+            self._initialized = False
+            if self._abort_code:
+                code = self._abort_code
+                raise DeviceFault(f"{self.name}: FRC_Abort failed: {rmit_name(code)}", code=code)
+            return
+        with self._lock:
+            self._command("FRC_Abort")
+            self._initialized = False
+
+    def _await_abort_reply(self, sock: LineJsonSocket) -> None:
+        """After a motion ended while an abort was in flight, read the FRC_Abort reply (the
+        motion thread is the socket's only reader until then)."""
+        if not self._abort_sent or self._abort_acked.is_set():
+            return
+        try:
+            self._expect(sock, "Command", "FRC_Abort", self.timeout_s)
+        except DeviceError as exc:
+            self.log.warning("%s: no FRC_Abort reply: %s", self.name, exc)
+        finally:
+            self._abort_sent = False
+            self._abort_acked.set()
 
     def _reset(self) -> None:
         self._command("FRC_Reset")
@@ -204,6 +249,11 @@ class RmiRobot(Robot):
             if unsolicited == "FRC_Terminate":
                 sock.close()
                 raise DeviceConnectionError(f"{self.name}: controller terminated the session")
+            if self._abort_sent and msg.get("Command") == "FRC_Abort":
+                self._abort_reply(msg)
+                if name != "FRC_Abort":
+                    raise DeviceFault(f"{self.name}: {name} aborted", code=0)
+                return msg
             if msg.get(kind) != name or (seq is not None and msg.get("SequenceID") != seq):
                 self.log.debug("%s: ignoring %s", self.name, msg)
                 continue
@@ -215,3 +265,9 @@ class RmiRobot(Robot):
                     self._initialized = False
                 raise DeviceFault(f"{self.name}: {name} failed: {rmit_name(code)}", code=code)
             return msg
+
+    def _abort_reply(self, msg: dict[str, Any]) -> None:
+        code = msg.get("ErrorID")
+        self._abort_code = code if isinstance(code, int) else 0
+        self._abort_sent = False
+        self._abort_acked.set()
