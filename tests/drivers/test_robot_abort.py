@@ -25,7 +25,7 @@ class WatchedWorld(StaticWorld):
     """A world that signals when the robot has moved away from where it started."""
 
     def __init__(self) -> None:
-        super().__init__(q_deg=START)
+        super().__init__(q_deg=tuple(START))
         self.moving = threading.Event()
 
     def set_joints_deg(self, q_deg: ArrayLike) -> None:
