@@ -10,7 +10,7 @@ from __future__ import annotations
 import queue
 import threading
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
 
@@ -19,7 +19,7 @@ import numpy as np
 from drivers.camera import Camera, CameraSettings, Frame
 from drivers.errors import DeviceConfigError, DeviceFault, DeviceTimeout
 from drivers.galvo import Galvo
-from drivers.plc import Plc, PlcInputs, PlcOutputs
+from drivers.plc import Plc, PlcInputs, PlcOutputs, decode_outputs, encode_inputs
 from drivers.registry import DeviceUrl
 from drivers.robot import FloatArray, Robot, RobotStatus
 from drivers.tracker import Tracker, TrackerMeasurement, TrackerStatus
@@ -297,18 +297,17 @@ class FakePlc(Plc):
         options.pop("world", None)
         return cls(**options)
 
-    def _open(self) -> None:
+    def _connect(self) -> None:
         self._t0 = time.monotonic()
-        self._open_handshake()
 
     def _close(self) -> None:
         pass
 
-    def _read_inputs(self) -> PlcInputs:
-        return self.cycle.inputs(time.monotonic() - self._t0, self.heartbeat_frozen)
+    def _read_input_words(self) -> tuple[int, int]:
+        return encode_inputs(self.cycle.inputs(time.monotonic() - self._t0, self.heartbeat_frozen))
 
-    def _write_outputs(self, outputs: PlcOutputs) -> None:
-        old = self.received
+    def _write_output_words(self, words: tuple[int, int]) -> None:
+        outputs, old = decode_outputs(words), self.received
         if (outputs.busy, outputs.done, outputs.fault) != (old.busy, old.done, old.fault):
             self.history.append(outputs)
-        self.received = replace(outputs)
+        self.received = outputs
