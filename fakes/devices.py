@@ -107,11 +107,13 @@ class FakeRobot(Robot):
 
 
 class FakeGalvo(Galvo):
-    """A DAC in memory: stores the voltage, rejects voltages outside +-10 V like the board."""
+    """A DAC in memory: stores the command [V], rejects voltages outside +-10 V like the board.
+    The camera hands the command to the world, whose true sensor turns it into the mirror angle
+    (fakes/render_sensor.py)."""
 
     def __init__(self, world: World | None = None, **kw: Any) -> None:
         super().__init__(**kw)
-        self.volts = 0.0
+        self.output_v = 0.0
         self._queue: list[tuple[int, str]] = []
 
     @classmethod
@@ -120,7 +122,7 @@ class FakeGalvo(Galvo):
         return cls(**options)
 
     def _open(self) -> None:
-        self.volts = 0.0
+        self.output_v = 0.0
 
     def _close(self) -> None:
         pass
@@ -132,10 +134,10 @@ class FakeGalvo(Galvo):
         if abs(volts) > 10.0:
             self._queue.append((-222, "Data out of range"))
         else:
-            self.volts = volts
+            self.output_v = volts
 
     def _get_volts(self) -> float:
-        return self.volts
+        return self.output_v
 
     def _errors(self) -> list[tuple[int, str]]:
         errors, self._queue = self._queue, []
@@ -171,8 +173,8 @@ class FakeCamera(Camera):
         s = self.settings
         assert s.region is not None
         x, y, w, h = s.region
-        galvo = self.galvo.angle_deg() if self.galvo is not None and self.galvo.is_open else None
-        full = self.world.render_frame(*SENSOR_WH, s.exposure_us, s.gain_db, galvo)
+        galvo_v = self.galvo.volts() if self.galvo is not None and self.galvo.is_open else None
+        full = self.world.render_frame(*SENSOR_WH, s.exposure_us, s.gain_db, galvo_v)
         top = {"Mono8": 255, "Mono12": 4095, "Mono16": 65535}[s.pixel_format]
         scaled = np.round(np.clip(full[y : y + h, x : x + w], 0, 1) * top)
         image = scaled.astype(np.uint8) if top == 255 else scaled.astype(np.uint16)
