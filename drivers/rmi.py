@@ -2,16 +2,24 @@
 
 JSON objects terminated by CRLF over TCP. ``FRC_Connect`` on port 16001 names the session port
 (``PortNumber``); all further packets go there. Commands (FRC_Initialize, FRC_Abort, FRC_Reset,
-FRC_GetStatus, FRC_ReadJointAngles, FRC_SetOverRide with ``Value`` 1..100) are answered at once;
-instructions (FRC_JointMotionJRep) carry consecutive ``SequenceID`` values from 1 and are
-answered when executed. Every reply carries
-``ErrorID`` (0 = ok; 2556928 + N is RMIT-N). The controller may send ``FRC_SystemFault`` or
-``FRC_Terminate`` at any time.
+FRC_GetStatus, FRC_ReadError, FRC_ReadJointAngles, FRC_SetOverRide with ``Value`` 1..100) are
+answered at once; instructions (FRC_JointMotionJRep) carry consecutive ``SequenceID`` values from
+1 and are answered when executed.
 
-Mapping to the device errors: socket errors -> DeviceConnectionError/DeviceTimeout, bad JSON or
-missing fields -> ProtocolError, ErrorID != 0 -> DeviceFault(code=ErrorID), FRC_SystemFault ->
-DeviceFault (latched), FRC_Terminate -> DeviceConnectionError. One motion at a time: the driver
-waits for each instruction's reply before it sends the next.
+Every reply the manual (B-84184EN) defines maps to a typed error at once:
+
+- ``ErrorID`` != 0 in the reply -> DeviceFault(code=ErrorID) (``RMIT-N`` = 2556928 + N, named
+  from drivers/rmi_errors.py); a motion's fault is latched by the Robot base class;
+- the unknown-packet reply ``{"Command": "Unknown", "ErrorID": N}`` (the controller did not
+  understand what we sent) -> DeviceFault(code=N), not a wait for a reply that never comes;
+- unsolicited ``FRC_SystemFault`` (an alarm stopped the robot) -> DeviceFault, latched, with the
+  controller's alarm text (FRC_ReadError) when it can be read;
+- unsolicited ``FRC_Terminate`` (the controller closed the session) -> DeviceConnectionError;
+- socket errors -> DeviceConnectionError / DeviceTimeout; bad JSON or a reply without ErrorID ->
+  ProtocolError.
+
+One motion at a time: the driver waits for each instruction's reply before it sends the next;
+``abort()`` may come from another thread during that wait (see drivers/robot.py).
 """
 
 from __future__ import annotations
@@ -31,16 +39,13 @@ from drivers.errors import (
     ProtocolError,
 )
 from drivers.registry import DeviceUrl
+from drivers.rmi_errors import RMIT_BASE, describe_error
 from drivers.robot import FloatArray, Robot, RobotStatus
 from drivers.safety import SafetyGuard
 
 DEFAULT_PORT = 16001
-RMIT_BASE = 2556928
 JOINTS = ("J1", "J2", "J3", "J4", "J5", "J6")
-
-
-def rmit_name(code: int) -> str:
-    return f"RMIT-{code - RMIT_BASE:03d}" if code >= RMIT_BASE else f"error {code}"
+__all__ = ["DEFAULT_PORT", "RMIT_BASE", "RmiRobot"]
 
 
 class RmiRobot(Robot):
@@ -184,10 +189,13 @@ class RmiRobot(Robot):
             self._initialized = False
             if self._abort_code:
                 code = self._abort_code
-                raise DeviceFault(f"{self.name}: FRC_Abort failed: {rmit_name(code)}", code=code)
+                raise DeviceFault(
+                    f"{self.name}: FRC_Abort failed: {describe_error(code)}", code=code
+                )
             return
-        with self._lock:
-            self._command("FRC_Abort")
+        with self._lock:  # no motion: stop RMI_MOVE if it runs (aborting nothing is RMIT-014)
+            if int(self._command("FRC_GetStatus").get("RMIMotionStatus", 0)) != 0:
+                self._command("FRC_Abort")
             self._initialized = False
 
     def _await_abort_reply(self, sock: LineJsonSocket) -> None:
@@ -237,11 +245,20 @@ class RmiRobot(Robot):
         deadline = time.monotonic() + timeout_s
         while True:
             msg = sock.recv(max(deadline - time.monotonic(), 0.0))
+            if "Unknown" in (msg.get("Command"), msg.get("Instruction"), msg.get("Communication")):
+                code = msg.get("ErrorID")
+                code = code if isinstance(code, int) else 0
+                raise DeviceFault(
+                    f"{self.name}: the controller did not understand {name}: "
+                    f"{describe_error(code)}",
+                    code=code,
+                )
             unsolicited = msg.get("Communication")
-            if unsolicited == "FRC_SystemFault" and name != "FRC_SystemFault":
+            if unsolicited == "FRC_SystemFault":
                 self._initialized = False
                 fault = DeviceFault(
-                    f"{self.name}: controller system fault (SequenceID {msg.get('SequenceID')})",
+                    f"{self.name}: controller system fault (SequenceID {msg.get('SequenceID')})"
+                    f"{self._alarm_text(sock)}",
                     code=-1,
                 )
                 self._latch_fault(fault)
@@ -263,8 +280,19 @@ class RmiRobot(Robot):
             if code != 0:
                 if kind == "Instruction":
                     self._initialized = False
-                raise DeviceFault(f"{self.name}: {name} failed: {rmit_name(code)}", code=code)
+                raise DeviceFault(f"{self.name}: {name} failed: {describe_error(code)}", code=code)
             return msg
+
+    def _alarm_text(self, sock: LineJsonSocket) -> str:
+        """``: <alarm>`` from FRC_ReadError after a system fault, or "" if it cannot be read."""
+        try:
+            sock.send({"Command": "FRC_ReadError"})
+            reply = self._expect(sock, "Command", "FRC_ReadError", min(self.timeout_s, 1.0))
+        except DeviceError as exc:
+            self.log.debug("%s: FRC_ReadError: %s", self.name, exc)
+            return ""
+        text = reply.get("ErrorData")
+        return f": {text}" if isinstance(text, str) and text else ""
 
     def _abort_reply(self, msg: dict[str, Any]) -> None:
         code = msg.get("ErrorID")
