@@ -178,7 +178,9 @@ def test_peer_packets_clients_use(
     before = world.joints_deg()
     reply = client.ask(Instruction="FRC_JointRelativeJRep", SequenceID=1, JointAngle=rel, **MOTION)
     assert reply["ErrorID"] == 0
-    np.testing.assert_allclose(world.joints_deg(), before + np.array([5.0, 0, 0, 0, 0, 0]), atol=1e-9)
+    np.testing.assert_allclose(
+        world.joints_deg(), before + np.array([5.0, 0, 0, 0, 0, 0]), atol=1e-9
+    )
     assert client.ask(Instruction="FRC_WaitTime", SequenceID=2, Time=0.5)["ErrorID"] == 0
     assert client.ask(Instruction="FRC_SetUTool", SequenceID=3, ToolNumber=4)["ErrorID"] == 0
     cart = client.ask(Command="FRC_ReadCartesianPosition")
