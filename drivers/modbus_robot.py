@@ -1,6 +1,6 @@
 """FANUC robot through a register mailbox over Modbus TCP: ``modbus://host:502?unit=1&base=0``.
 
-For controllers without RMI: option R553 (HMI Device / SNPX) exposes R[] registers as Modbus
+For controllers without RMI: the controller's Modbus TCP server option exposes R[] registers as
 holding registers, and the TP program RVIS_MBX (docs/fanuc-modbus-mailbox.md, listing
 docs/RVIS_MBX.ls) serves the mailbox: it waits for a new command counter, moves, and acknowledges.
 Every R[] is a REAL in two words (low word first). Word offsets from ``base``:
