@@ -124,6 +124,8 @@ class ModbusRobot(Robot):
 
     def _status(self) -> RobotStatus:
         status, error = (int(v) for v in self._floats(MAILBOX.STATUS, 4))
+        if self._aborted and status == STATUS_FAULT:  # our own abort, cleared before the next move
+            return RobotStatus(servo_ready=True, moving=False, fault=False, detail="aborted")
         return RobotStatus(
             servo_ready=status != STATUS_FAULT,
             moving=status == STATUS_MOVING,

@@ -83,6 +83,8 @@ def test_abort_during_a_long_move_stops_the_robot_at_once(
     stopped = world.joints_deg()
     assert 0.05 < stopped[0] < FAR[0] - 10.0  # short of the target, by far
     assert robot.fault is None  # an abort is not a fault
+    status = robot.status()
+    assert not status.fault and not status.moving and robot.fault is None
     np.testing.assert_allclose(robot.joints_deg(), stopped, atol=1e-3)  # it stays there
     back = robot.move_joints(START, speed_pct=100)  # and moves again without a reset
     np.testing.assert_allclose(back, START, atol=1e-3)
