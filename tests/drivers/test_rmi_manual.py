@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import socket
+import threading
 import time
 from collections.abc import Iterator
 from typing import Any
@@ -12,7 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from drivers import DeviceFault, FaultLatched
+from drivers import DeviceConnectionError, DeviceFault, FaultLatched
 from drivers import rmi_errors as rmi
 from drivers.rmi import RmiRobot
 from fakes.rmi_controller import ERR_RMI_MOVE_SELECTED, RmiController
@@ -202,3 +203,48 @@ def test_cartesian_position_needs_the_kinematics(world: StaticWorld) -> None:
             assert c.ask(Command="FRC_ReadCartesianPosition")["ErrorID"] == rmi.INTERNAL_ERROR
         finally:
             c.close()
+
+
+class _MovingWorld(StaticWorld):
+    def __init__(self) -> None:
+        super().__init__()
+        self.moved = threading.Event()
+
+    def set_joints_deg(self, q_deg: Any) -> None:
+        super().set_joints_deg(q_deg)
+        self.moved.set()
+
+
+def test_terminate_during_a_motion_is_a_connection_error_at_once() -> None:
+    world = _MovingWorld()
+    with (
+        RmiController(world, time_scale=1.0) as slow,  # the move takes seconds
+        RmiRobot("127.0.0.1", slow.port, timeout_s=1.0, motion_timeout_s=10.0) as robot,
+    ):
+        failure: list[BaseException] = []
+        moving = threading.Thread(target=lambda: _move_catching(robot, A, failure))
+        moving.start()
+        assert world.moved.wait(2.0), "the motion never started"
+        t0 = time.monotonic()
+        slow.terminate_sessions()
+        moving.join(2.0)
+        assert time.monotonic() - t0 < 0.5
+        assert len(failure) == 1 and isinstance(failure[0], DeviceConnectionError)
+        assert isinstance(robot.fault, DeviceConnectionError)  # the robot's state is unknown
+
+
+def test_unsolicited_system_fault_while_idle_is_reported_by_the_next_request(
+    ctrl: RmiController, robot: RmiRobot
+) -> None:
+    robot.joints_deg()
+    ctrl.raise_system_fault()
+    with pytest.raises(DeviceFault, match="system fault.*SRVO-050"):
+        robot.joints_deg()
+    assert isinstance(robot.fault, DeviceFault)
+
+
+def _move_catching(robot: RmiRobot, q: np.ndarray, out: list[BaseException]) -> None:
+    try:
+        robot.move_joints(q, speed_pct=10)
+    except BaseException as exc:
+        out.append(exc)
