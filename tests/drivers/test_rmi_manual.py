@@ -238,7 +238,7 @@ def test_unsolicited_system_fault_while_idle_is_reported_by_the_next_request(
 ) -> None:
     robot.joints_deg()
     ctrl.raise_system_fault()
-    with pytest.raises(DeviceFault, match="system fault.*SRVO-050"):
+    with pytest.raises(DeviceFault, match=r"system fault.*SRVO-050"):
         robot.joints_deg()
     assert isinstance(robot.fault, DeviceFault)
 
