@@ -78,7 +78,7 @@ class RmiRobot(Robot):
         self._in_motion = False
         self._abort_sent = False
         self._abort_acked = threading.Event()
-        self._abort_code = 0
+        self._abort_failure: DeviceError | None = None
 
     @classmethod
     def from_url(cls, url: DeviceUrl, **options: Any) -> RmiRobot:
@@ -181,17 +181,14 @@ class RmiRobot(Robot):
             in_motion = self._in_motion
             if in_motion:  # the motion thread reads the reply; send now, wait for its ack
                 self._abort_acked.clear()
-                self._abort_sent = True
+                self._abort_sent, self._abort_failure = True, None
                 self._session().send({"Command": "FRC_Abort"})
         if in_motion:
             if not self._abort_acked.wait(self.timeout_s):
                 raise DeviceTimeout(f"{self.name}: FRC_Abort not answered in {self.timeout_s:g} s")
             self._initialized = False
-            if self._abort_code:
-                code = self._abort_code
-                raise DeviceFault(
-                    f"{self.name}: FRC_Abort failed: {describe_error(code)}", code=code
-                )
+            if self._abort_failure is not None:
+                raise self._abort_failure
             return
         with self._lock:  # no motion: stop RMI_MOVE if it runs (aborting nothing is RMIT-014)
             if int(self._command("FRC_GetStatus").get("RMIMotionStatus", 0)) != 0:
@@ -207,6 +204,7 @@ class RmiRobot(Robot):
             self._expect(sock, "Command", "FRC_Abort", self.timeout_s)
         except DeviceError as exc:
             self.log.warning("%s: no FRC_Abort reply: %s", self.name, exc)
+            self._abort_failure = exc
         finally:
             self._abort_sent = False
             self._abort_acked.set()
@@ -296,6 +294,10 @@ class RmiRobot(Robot):
 
     def _abort_reply(self, msg: dict[str, Any]) -> None:
         code = msg.get("ErrorID")
-        self._abort_code = code if isinstance(code, int) else 0
+        if code != 0:
+            code = code if isinstance(code, int) else -1
+            self._abort_failure = DeviceFault(
+                f"{self.name}: FRC_Abort failed: {describe_error(code)}", code=code
+            )
         self._abort_sent = False
         self._abort_acked.set()

@@ -34,6 +34,7 @@ from drivers.errors import (
     CommunicationError,
     DeviceConfigError,
     DeviceError,
+    DeviceFault,
     FaultLatched,
     MotionAborted,
 )
@@ -113,7 +114,8 @@ class Robot(Device):
             try:
                 self._move(target, float(speed_pct), timeout)
             except DeviceError as exc:
-                if self._abort_requested.is_set():
+                # the controller reported the stop: a known state; a lost link stays a fault
+                if self._abort_requested.is_set() and isinstance(exc, DeviceFault):
                     raise MotionAborted(f"{self.name}: motion aborted") from exc
                 self._latch_fault(exc)
                 raise

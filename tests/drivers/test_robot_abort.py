@@ -97,3 +97,33 @@ def test_abort_without_a_motion_is_harmless(setup: tuple[Robot, WatchedWorld]) -
     target = START + np.array([5.0, 0, 0, 0, 0, 0])
     np.testing.assert_allclose(robot.move_joints(target, speed_pct=100), target, atol=1e-3)
     assert robot.fault is None
+
+
+def test_a_link_lost_during_the_abort_stays_a_fault() -> None:
+    """If the controller cannot confirm the stop, the robot's state is unknown: the motion ends
+    in a latched communication fault, not in MotionAborted."""
+    from drivers import DeviceConnectionError
+    from fakes.rmi_controller import RmiController
+
+    world = WatchedWorld()
+    with (
+        RmiController(world, time_scale=1.0) as ctrl,
+        open_robot(f"rmi://127.0.0.1:{ctrl.port}", timeout_s=1.0) as robot,
+    ):
+        outcome: list[BaseException] = []
+        mover = threading.Thread(target=lambda: _move(robot, outcome))
+        mover.start()
+        assert world.moving.wait(2.0)
+        ctrl.fail_next("FRC_Abort", "drop")  # the controller vanishes on receipt
+        with pytest.raises(DeviceConnectionError):
+            robot.abort()
+        mover.join(2.0)
+        assert len(outcome) == 1 and isinstance(outcome[0], DeviceConnectionError)
+        assert isinstance(robot.fault, DeviceConnectionError)
+
+
+def _move(robot: Robot, out: list[BaseException]) -> None:
+    try:
+        robot.move_joints(FAR, speed_pct=10)
+    except BaseException as exc:
+        out.append(exc)
