@@ -56,7 +56,7 @@ def view_of(cell: SimulatedCell, cfg: CellConfig, target: str) -> np.ndarray:
 
 
 def set_volts(galvo: Galvo, volts: float) -> None:
-    galvo.set_angle_deg(galvo.calibration.volts_to_angle(volts))
+    galvo.set_volts(volts)
 
 
 def motion_error_s(cell: SimulatedCell, scale: float) -> float:

@@ -5,7 +5,9 @@ pymodbus calls the SimDevice ``action`` before it applies a write, with the live
 subclasses implement ``scan(now, regs, written)``: ``regs`` is that list (address 0 = index 0),
 ``written`` maps the addresses of a write request to their new values (empty for a read). State
 therefore advances lazily, driven by the client's polling and the clock (``clock=``, real time by
-default): no background task.
+default): no background task. A single-register write (FC6) is answered with the request's
+echo, as Modbus requires: pymodbus reads the register back to build that reply, and no scan runs
+between the write and that read.
 
 Fault injection (one-shot): ``fail_next(mode)`` with "exception" (Modbus exception 4, device
 failure), "drop" (close every client connection), "mute" (hold the reply past any timeout) or
@@ -112,6 +114,8 @@ class RegisterServer:
                 self._write_to_clients(_GARBLED)
             if mode in ("mute", "garble"):
                 await asyncio.sleep(3600)
+        if function_code == 6 and not values:
+            return None  # pymodbus reading back a single write to echo it: no scan in between
         base = address - start_address
         written = {base + i: int(v) for i, v in enumerate(values or [])}
         self.scan(self.clock.monotonic(), registers, written)

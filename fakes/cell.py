@@ -14,7 +14,6 @@ at the current joints and the current galvo command.
 
 from __future__ import annotations
 
-import math
 import threading
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
@@ -320,20 +319,19 @@ class SimulatedCell:
         return self.measure_point(self.joints_deg(), self._spheres[target_id])
 
     def render_frame(
-        self, width: int, height: int, exposure_us: float, gain_db: float, galvo_deg: float | None
+        self, width: int, height: int, exposure_us: float, gain_db: float, galvo_v: float | None
     ) -> F64:
         """The frame the camera sees now (World protocol): the nearest sphere in front of the
-        sensor at the current joints, lit by the laser plane of the commanded mirror angle.
+        sensor at the current joints, lit by the laser plane of the galvo command.
 
-        galvo_deg: commanded mechanical mirror angle [deg] (None: no galvo, the mirror rests at
-        0); the true mirror angle follows the sensor's own command-to-angle curve, whose linear
-        term converts it to the renderer's command. Exposure scales the laser and the ambient
-        light (linear in exposure, reference 10 ms); gain multiplies the digital numbers. Rendered
-        in 12 bits and returned as float64 in [0, 1], shape (height, width): the top-left part of
-        the 1296 x 966 sensor when smaller (the region's offset is not passed).
+        galvo_v: the galvo command [V] (None: no galvo, command 0 V); the true mirror angle
+        follows the true sensor's own command-to-angle curve (fakes/render_sensor.py). Exposure
+        scales the laser and the ambient light (linear in exposure, reference 10 ms); gain
+        multiplies the digital numbers. Rendered in 12 bits and returned as float64 in [0, 1],
+        shape (height, width): the top-left part of the 1296 x 966 sensor when smaller (the
+        region's offset is not passed).
         """
-        slope_deg_per_v = math.degrees(float(self.sensor.angle_poly_rad[1]))
-        command_v = 0.0 if galvo_deg is None else float(galvo_deg) / slope_deg_per_v
+        command_v = 0.0 if galvo_v is None else float(galvo_v)
         return self.render_frame_v(width, height, exposure_us, gain_db, command_v)
 
     def render_frame_v(

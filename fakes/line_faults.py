@@ -21,7 +21,8 @@ import threading
 from dataclasses import dataclass, field
 from typing import Any
 
-from drivers.plc_modbus import PLC_STATUS, WINDOW_OPEN
+from drivers.plc import WINDOW_OPEN
+from drivers.plc_modbus import PLC_STATUS
 from fakes.clock import Clock
 from fakes.devices import ClampCycle
 from fakes.plc import PlcServer

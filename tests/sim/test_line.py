@@ -50,11 +50,7 @@ def stripe_offset_px(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def command_volts(galvo: Galvo, volts: float) -> None:
-    set_volts = getattr(galvo, "set_volts", None)  # the volts-only galvo API, once it lands
-    if set_volts is not None:
-        set_volts(volts)
-    else:
-        galvo.set_angle_deg(galvo.calibration.volts_to_angle(volts))
+    galvo.set_volts(volts)
 
 
 def test_the_plc_window_opens_and_closes_on_the_sim_clock(line: SimLine) -> None:

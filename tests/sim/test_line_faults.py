@@ -83,10 +83,10 @@ def test_galvo_scpi_error_is_a_device_fault_with_the_dac_code(line: SimLine) -> 
     with registry.open_galvo(line.urls["galvo"]) as galvo:
         line.inject(Fault.GALVO_ERROR)
         with pytest.raises(DeviceFault) as err:
-            galvo.set_angle_deg(1.0)
+            galvo.set_volts(0.5)
         assert err.value.code == GALVO_ERROR_CODE and line.dac.volts == 0.0  # not executed
-        galvo.set_angle_deg(1.0)
-        assert line.dac.volts == pytest.approx(galvo.calibration.angle_to_volts(1.0))
+        galvo.set_volts(0.5)
+        assert line.dac.volts == pytest.approx(0.5)
 
 
 def test_camera_timeout_until_cleared(line_cell: SimulatedCell) -> None:
