@@ -54,9 +54,10 @@ def opt(
     """A config key: its default and its checks (inclusive lo/hi, exclusive gt, choices,
     vector length n)."""
     meta = {"lo": lo, "hi": hi, "gt": gt, "choices": choices, "n": n}
-    if isinstance(default, list | dict):
-        frozen = tuple(default) if isinstance(default, list) else dict(default)
-        return field(default_factory=lambda: frozen, metadata=meta)
+    if isinstance(default, list):
+        return field(default=tuple(default), metadata=meta)
+    if isinstance(default, dict):
+        return field(default_factory=lambda: dict(default), metadata=meta)
     return field(default=default, metadata=meta)
 
 

@@ -43,7 +43,7 @@ MAX_COORD_MM = 1e5
 MAX_ANGLE_DEG = 720.0
 
 
-def _rows(path: Path, columns: Sequence[str]) -> Iterator[tuple[int, dict[str, str]]]:
+def csv_rows(path: Path, columns: Sequence[str]) -> Iterator[tuple[int, dict[str, str]]]:
     """(line number, row) of a CSV file whose header must hold `columns`."""
     try:
         text = path.read_text(encoding="utf-8-sig")
@@ -67,7 +67,7 @@ def _rows(path: Path, columns: Sequence[str]) -> Iterator[tuple[int, dict[str, s
         yield line, {h: cell.strip() for h, cell in zip(header, raw, strict=True)}
 
 
-def _number(row: dict[str, str], field: str, path: Path, line: int) -> float:
+def csv_number(row: dict[str, str], field: str, path: Path, line: int) -> float:
     """The finite number in `field`, within the magnitude its unit allows (_deg, _mm)."""
     text = row[field]
     try:
@@ -96,11 +96,11 @@ def read_targets(path: str | Path) -> dict[str, F64]:
     """Targets CSV -> {target id: centre in the part frame (3,) [mm]}."""
     path = Path(path)
     out: dict[str, F64] = {}
-    for line, row in _rows(path, TARGET_COLUMNS):
+    for line, row in csv_rows(path, TARGET_COLUMNS):
         tid = _target_id(row, path, line)
         if tid in out:
             raise InputError(f"duplicate target '{tid}'", file=path, line=line, field="target")
-        out[tid] = np.array([_number(row, f, path, line) for f in TARGET_COLUMNS[1:]])
+        out[tid] = np.array([csv_number(row, f, path, line) for f in TARGET_COLUMNS[1:]])
     if not out:
         raise InputError("no targets in file", file=path)
     return out
@@ -130,13 +130,13 @@ def read_measurements(path: str | Path, limits: JointLimits | None = None) -> Me
     cs: list[list[float]] = []
     lines: list[int] = []
     seen: dict[tuple[str, ...], int] = {}
-    for line, row in _rows(path, MEASUREMENT_COLUMNS):
+    for line, row in csv_rows(path, MEASUREMENT_COLUMNS):
         key = tuple(row[c] for c in MEASUREMENT_COLUMNS)
         if key in seen:
             raise InputError(f"duplicate of line {seen[key]}", file=path, line=line)
         seen[key] = line
         ids.append(_target_id(row, path, line))
-        q = [_number(row, f, path, line) for f in MEASUREMENT_COLUMNS[1:7]]
+        q = [csv_number(row, f, path, line) for f in MEASUREMENT_COLUMNS[1:7]]
         for j, value in enumerate(q):
             if not limits.lower_deg[j] <= value <= limits.upper_deg[j]:
                 raise InputError(
@@ -147,7 +147,7 @@ def read_measurements(path: str | Path, limits: JointLimits | None = None) -> Me
                     field=MEASUREMENT_COLUMNS[1 + j],
                 )
         qs.append(q)
-        cs.append([_number(row, f, path, line) for f in MEASUREMENT_COLUMNS[7:]])
+        cs.append([csv_number(row, f, path, line) for f in MEASUREMENT_COLUMNS[7:]])
         lines.append(line)
     if not ids:
         raise InputError("no measurements in file", file=path)

@@ -92,9 +92,12 @@ def _model(data: dict[str, Any], path: Path) -> SystemModel:
     m = _need(data, "model", path)
     if not isinstance(m, dict):
         raise InputError("expected an object", file=path, field="model")
-    if m.get("name") != SystemModel.name:
+    if (m.get("name"), m.get("version")) != (SystemModel.name, SystemModel.version):
         raise InputError(
-            f"model {m.get('name')!r} is not {SystemModel.name!r}", file=path, field="model.name"
+            f"parameters of model {m.get('name')!r} version {m.get('version')!r}; rvis needs "
+            f"{SystemModel.name!r} version {SystemModel.version}",
+            file=path,
+            field="model.name",
         )
     try:
         arrays = [

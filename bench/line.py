@@ -36,7 +36,7 @@ from app.line.service import Service  # noqa: E402
 from app.line.settings import LineSettings, ServiceSettings  # noqa: E402
 from app.line.station import Station  # noqa: E402
 from app.simulation import make_cell  # noqa: E402
-from drivers.plc import Plc, PlcInputs, PlcOutputs  # noqa: E402
+from drivers.plc import Plc, PlcInputs, decode_outputs, encode_inputs  # noqa: E402
 from drivers.robot import FloatArray  # noqa: E402
 from fakes.devices import FakeRobot  # noqa: E402
 from tests.line.helpers import plan_for  # noqa: E402
@@ -51,17 +51,18 @@ class BenchPlc(Plc):
         self.opened_t = 0.0
         self.done = threading.Event()
 
-    def _open(self) -> None:
-        self._open_handshake()
+    def _connect(self) -> None:
+        pass
 
     def _close(self) -> None:
         pass
 
-    def _read_inputs(self) -> PlcInputs:
+    def _read_input_words(self) -> tuple[int, int]:
         self.beat = (self.beat + 1) & 0xFFFF
-        return PlcInputs(self.window_bit, True, self.beat)
+        return encode_inputs(PlcInputs(self.window_bit, True, self.beat))
 
-    def _write_outputs(self, outputs: PlcOutputs) -> None:
+    def _write_output_words(self, words: tuple[int, int]) -> None:
+        outputs = decode_outputs(words)
         if outputs.done and not self.last_done:
             self.done.set()
         self.last_done = outputs.done

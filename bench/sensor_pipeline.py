@@ -213,7 +213,8 @@ def main() -> None:
     args = parser.parse_args()
     cv2.setNumThreads(1)
     if args.only_cell:
-        bench_cell(args.cell_sweeps, args.workers)
+        if args.cell_sweeps > 0:
+            bench_cell(args.cell_sweeps, args.workers)
         return
     sensor = default_true_sensor()
     model = true_sensor_model(sensor)
@@ -233,7 +234,8 @@ def main() -> None:
     )
     for seed in range(args.calib_seeds):
         bench_calibration(sensor, sweeps, centres, seed=100 + seed)
-    bench_cell(args.cell_sweeps, args.workers)
+    if args.cell_sweeps > 0:
+        bench_cell(args.cell_sweeps, args.workers)
 
 
 if __name__ == "__main__":

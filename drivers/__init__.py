@@ -18,6 +18,7 @@ from drivers.errors import (
     DeviceFault,
     DeviceTimeout,
     FaultLatched,
+    MotionAborted,
     MotionRefused,
     ProtocolError,
 )
@@ -46,6 +47,7 @@ __all__ = [
     "FaultLatched",
     "JointBox",
     "JointLimits",
+    "MotionAborted",
     "MotionRefused",
     "ProtocolError",
     "SafetyGuard",

@@ -34,6 +34,9 @@ class LineJsonSocket:
             raise DeviceTimeout(f"{self.where}: connect timed out") from exc
         except OSError as exc:
             raise DeviceConnectionError(f"{self.where}: cannot connect: {exc}") from exc
+        # small request/reply lines: without this, Nagle holds a second line (an abort sent
+        # while a motion's reply is pending) until the peer's delayed ACK, tens of ms
+        self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self._buf = b""
 
     def close(self) -> None:

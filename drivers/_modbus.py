@@ -20,7 +20,7 @@ WordOrder = Literal["big", "little"]
 
 
 def floats_to_words(values: Sequence[float], word_order: WordOrder = "little") -> list[int]:
-    """IEEE float32 values -> 16-bit words (two per value; FANUC SNPX REAL: low word first)."""
+    """IEEE float32 values -> 16-bit words (two per value; the mailbox's REALs: low word first)."""
     words: list[int] = []
     for v in values:
         hi, lo = struct.unpack(">HH", struct.pack(">f", float(v)))

@@ -9,6 +9,7 @@
     │   └── ProtocolError            malformed, truncated or unexpected reply
     ├── DeviceFault                  the device reported an error (``code``, ``message``)
     │   └── FaultLatched             refused: an earlier fault must be cleared by reset()
+    ├── MotionAborted                the motion was stopped by abort(); no fault latched
     └── MotionRefused                a command outside its limits was refused; nothing sent
                                      (also a ValueError)
 
@@ -30,6 +31,7 @@ __all__ = [
     "DeviceFault",
     "DeviceTimeout",
     "FaultLatched",
+    "MotionAborted",
     "MotionRefused",
     "ProtocolError",
 ]
@@ -74,6 +76,11 @@ class DeviceFault(DeviceError):
 
 class FaultLatched(DeviceFault):
     """A command was refused because an earlier fault has not been cleared by reset()."""
+
+
+class MotionAborted(DeviceError):
+    """The motion was stopped by ``abort()`` before it reached its target: the robot stands
+    where it stopped (known to the controller), and no fault is latched."""
 
 
 class MotionRefused(DeviceError, ValueError):

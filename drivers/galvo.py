@@ -1,89 +1,64 @@
-"""The galvanometer family: set the mirror angle through a DAC voltage.
+"""The galvanometer family: the laser sweep is commanded in DAC volts.
 
-``GalvoCalibration`` maps the mirror angle [deg] to the DAC command [V] with a polynomial (the
-command-to-angle calibration; REFERENCE.md: calibrate the nonlinearity with a polynomial or a
-table) and holds the angle and voltage limits. Backend primitives: ``_identify()``,
-``_set_volts(v)``, ``_get_volts()``, ``_errors() -> list[(code, message)]`` (the DAC's error
-queue). Policy here: limits (MotionRefused, nothing sent), error-queue check after every set,
-retry after a reconnect (setting a voltage is idempotent).
+One source of truth for the command model: the driver knows volts and volt limits only. How a
+command [V] turns into the laser plane is the sensor's calibration (the sensor file's
+``angle_poly_deg``, vision/sensor_model.py, format rvis-sensor/1, maps volts to the laser-plane
+angle), which the vision pipeline applies; the drivers never import it.
+
+Backend primitives: ``_identify()``, ``_set_volts(v)``, ``_get_volts()``, ``_errors() ->
+list[(code, message)]`` (the DAC's error queue). Policy here: the volt limits (MotionRefused,
+nothing sent), error-queue check after every set, retry after a reconnect (setting a voltage is
+idempotent).
 """
 
 from __future__ import annotations
 
+import math
 from abc import abstractmethod
 from dataclasses import dataclass
-
-import numpy as np
 
 from drivers.base import Device
 from drivers.errors import DeviceConfigError, DeviceFault, MotionRefused
 
 
 @dataclass(frozen=True)
-class GalvoCalibration:
-    """volts = sum(c[k] * angle_deg**k); monotonic increasing inside the angle limits."""
+class GalvoSettings:
+    """The command range [V] the galvo accepts: inside the DAC's range and the mirror's
+    mechanical travel (cell file ``[galvo]`` ``volt_min``, ``volt_max``)."""
 
-    coefficients: tuple[float, ...] = (0.0, 0.5)  # 0.5 V per mechanical degree
-    angle_limits_deg: tuple[float, float] = (-20.0, 20.0)
-    volt_limits: tuple[float, float] = (-10.0, 10.0)
+    volt_min: float = -10.0
+    volt_max: float = 10.0
 
     def __post_init__(self) -> None:
-        lo, hi = self.angle_limits_deg
-        if not (lo < hi and len(self.coefficients) >= 2):
-            raise DeviceConfigError("galvo calibration needs lo < hi and a degree >= 1 polynomial")
-        grid = np.linspace(lo, hi, 257)
-        volts = self._poly(grid)
-        if np.any(np.diff(volts) <= 0):
-            raise DeviceConfigError("galvo calibration is not monotonic inside the angle limits")
-        if volts[0] < self.volt_limits[0] or volts[-1] > self.volt_limits[1]:
-            raise DeviceConfigError("galvo angle limits exceed the DAC voltage range")
-
-    def _poly(self, angle_deg: np.ndarray) -> np.ndarray:
-        return np.polynomial.polynomial.polyval(angle_deg, self.coefficients)
-
-    def angle_to_volts(self, angle_deg: float) -> float:
-        return float(self._poly(np.asarray(angle_deg, dtype=np.float64)))
-
-    def volts_to_angle(self, volts: float) -> float:
-        """Inverse map by bisection on the monotonic polynomial (to 1e-9 deg)."""
-        lo, hi = self.angle_limits_deg
-        v_lo, v_hi = self.angle_to_volts(lo), self.angle_to_volts(hi)
-        if not v_lo - 1e-9 <= volts <= v_hi + 1e-9:
-            raise DeviceFault(f"DAC reads {volts} V, outside the calibrated range")
-        for _ in range(60):
-            mid = 0.5 * (lo + hi)
-            if self.angle_to_volts(mid) < volts:
-                lo = mid
-            else:
-                hi = mid
-        return 0.5 * (lo + hi)
+        finite = math.isfinite(self.volt_min) and math.isfinite(self.volt_max)
+        if not (finite and self.volt_min < self.volt_max):
+            raise DeviceConfigError(
+                f"galvo volt limits need volt_min < volt_max, got {self.volt_min}, {self.volt_max}"
+            )
 
 
 class Galvo(Device):
-    """A one-mirror galvanometer commanded by a DAC voltage."""
+    """A one-mirror galvanometer commanded by a DAC voltage [V]."""
 
     family = "galvo"
 
     def __init__(
-        self,
-        *,
-        calibration: GalvoCalibration | None = None,
-        timeout_s: float = 1.0,
-        name: str = "",
+        self, *, settings: GalvoSettings | None = None, timeout_s: float = 1.0, name: str = ""
     ) -> None:
         super().__init__(timeout_s=timeout_s, name=name)
-        self.calibration = calibration or GalvoCalibration()
+        self.settings = settings or GalvoSettings()
 
     def describe(self) -> str:
         return self._read_retrying(self._identify)
 
-    def set_angle_deg(self, angle_deg: float) -> float:
-        """Command the mirror angle [deg]; returns the voltage sent."""
+    def set_volts(self, command_v: float) -> float:
+        """Command the mirror [V]; returns the voltage sent. MotionRefused outside the limits
+        (nothing sent); DeviceFault when the DAC reports an error."""
         self._check_open()
-        lo, hi = self.calibration.angle_limits_deg
-        if not (np.isfinite(angle_deg) and lo <= angle_deg <= hi):
-            raise MotionRefused(f"galvo angle {angle_deg} outside [{lo}, {hi}] deg")
-        volts = self.calibration.angle_to_volts(float(angle_deg))
+        lo, hi = self.settings.volt_min, self.settings.volt_max
+        if not (math.isfinite(command_v) and lo <= command_v <= hi):
+            raise MotionRefused(f"galvo command {command_v} V outside [{lo}, {hi}] V")
+        volts = float(command_v)
 
         def _set() -> None:
             self._set_volts(volts)
@@ -92,9 +67,9 @@ class Galvo(Device):
         self._read_retrying(_set)  # idempotent: safe to repeat after a reconnect
         return volts
 
-    def angle_deg(self) -> float:
-        """The mirror angle [deg] the DAC is commanding now."""
-        return self.calibration.volts_to_angle(self._read_retrying(self._get_volts))
+    def volts(self) -> float:
+        """The command [V] the DAC is outputting now (read back from the device)."""
+        return float(self._read_retrying(self._get_volts))
 
     def _raise_errors(self) -> None:
         errors = self._errors()

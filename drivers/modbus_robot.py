@@ -1,6 +1,6 @@
 """FANUC robot through a register mailbox over Modbus TCP: ``modbus://host:502?unit=1&base=0``.
 
-For controllers without RMI: option R553 (HMI Device / SNPX) exposes R[] registers as Modbus
+For controllers without RMI: the controller's Modbus TCP server option exposes R[] registers as
 holding registers, and the TP program RVIS_MBX (docs/fanuc-modbus-mailbox.md, listing
 docs/RVIS_MBX.ls) serves the mailbox: it waits for a new command counter, moves, and acknowledges.
 Every R[] is a REAL in two words (low word first). Word offsets from ``base``:
@@ -18,6 +18,7 @@ counter before its data), then poll until DONE == CMD (or STATUS == 2: DeviceFau
 
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -90,6 +91,9 @@ class ModbusRobot(Robot):
         self.poll_s = float(poll_s)
         self._link: ModbusLink | None = None
         self._counters = {"CMD": 0, "RESET": 0, "ABORT": 0}
+        # abort() writes from another thread between the motion's polls: one request at a time
+        self._io = threading.RLock()
+        self._aborted = False
 
     @classmethod
     def from_url(cls, url: DeviceUrl, **options: Any) -> ModbusRobot:
@@ -120,6 +124,8 @@ class ModbusRobot(Robot):
 
     def _status(self) -> RobotStatus:
         status, error = (int(v) for v in self._floats(MAILBOX.STATUS, 4))
+        if self._aborted and status == STATUS_FAULT:  # our own abort, cleared before the next move
+            return RobotStatus(servo_ready=True, moving=False, fault=False, detail="aborted")
         return RobotStatus(
             servo_ready=status != STATUS_FAULT,
             moving=status == STATUS_MOVING,
@@ -129,6 +135,8 @@ class ModbusRobot(Robot):
         )
 
     def _move(self, q_deg: FloatArray, speed_pct: float, timeout_s: float) -> None:
+        if self._aborted:  # the TP program reports an abort as a fault: clear it first
+            self._reset()
         self._write_floats(MAILBOX.SPEED, [speed_pct, *q_deg])
         cmd = self._bump("CMD")
         deadline = time.monotonic() + timeout_s
@@ -145,9 +153,11 @@ class ModbusRobot(Robot):
 
     def _abort(self) -> None:
         self._bump("ABORT")
+        self._aborted = True
 
     def _reset(self) -> None:
         self._bump("RESET")
+        self._aborted = False
         deadline = time.monotonic() + self.timeout_s
         while int(self._floats(MAILBOX.STATUS, 2)[0]) == STATUS_FAULT:
             if time.monotonic() >= deadline:
@@ -156,15 +166,18 @@ class ModbusRobot(Robot):
 
     # -- registers ----------------------------------------------------------------------------
     def _bump(self, name: str) -> int:
-        value = self._counters[name] % COUNTER_WRAP + 1
-        self._write_floats(getattr(MAILBOX, name), [value])
-        self._counters[name] = value
+        with self._io:
+            value = self._counters[name] % COUNTER_WRAP + 1
+            self._write_floats(getattr(MAILBOX, name), [value])
+            self._counters[name] = value
         return value
 
     def _floats(self, offset: int, words: int) -> list[float]:
-        link = require_link(self._link, self.name)
-        return words_to_floats(link.read(self.base + offset, words), self.word_order)
+        with self._io:
+            link = require_link(self._link, self.name)
+            return words_to_floats(link.read(self.base + offset, words), self.word_order)
 
     def _write_floats(self, offset: int, values: list[float]) -> None:
-        link = require_link(self._link, self.name)
-        link.write(self.base + offset, floats_to_words(values, self.word_order))
+        with self._io:
+            link = require_link(self._link, self.name)
+            link.write(self.base + offset, floats_to_words(values, self.word_order))

@@ -1,19 +1,23 @@
 """The line-PLC family: the clamp-window handshake (process signals only; safety interlocks stay
 in the safety PLC).
 
-Signals (see README "Connecting real hardware" for the register table):
+Signals, as two 16-bit words each way (the register map of every backend; README "Connecting
+real hardware"):
 
-    PLC -> app   window_open   the clamps leave the robot a window to measure
-                 line_running  the line is in automatic
+    PLC -> app   status word   bit 0 window_open (the clamps leave the robot a window to measure),
+                               bit 1 line_running (the line is in automatic)
                  heartbeat     a counter the PLC increments (at least every second)
-    app -> PLC   busy          the robot is out of its home position / measuring
-                 done          the measurement finished and the robot is home
-                 fault         the app has a fault; the PLC must not wait for done
+    app -> PLC   status word   bit 0 busy (the robot is out of home / measuring), bit 1 done (the
+                               measurement finished and the robot is home), bit 2 fault (the app
+                               has a fault; the PLC must not wait for done)
                  heartbeat     a counter the app increments on every poll
 
-A PLC heartbeat that has not changed for ``heartbeat_timeout_s`` means "not ready". Backend
-primitives: ``_read_inputs() -> PlcInputs`` and ``_write_outputs(PlcOutputs)``. Waiting polls with
-a deadline (``poll_s``).
+The whole handshake is here: decoding and encoding the words, the heartbeat counter and the
+heartbeat-alive check (a PLC heartbeat unchanged for ``heartbeat_timeout_s`` means "not ready"),
+the window wait (polls with a deadline, ``poll_s``), busy/done/fault around a window, and the
+outputs reset to zero on every connect. A backend implements only the transport and two
+register-level primitives: ``_connect()``, ``_close()``, ``_read_input_words() -> (status,
+heartbeat)`` and ``_write_output_words((status, heartbeat))``.
 """
 
 from __future__ import annotations
@@ -26,6 +30,9 @@ from dataclasses import dataclass, replace
 
 from drivers.base import Device
 from drivers.errors import DeviceConfigError, DeviceTimeout
+
+WINDOW_OPEN, LINE_RUNNING = 0x1, 0x2  # PLC status word bits
+BUSY, DONE, FAULT = 0x1, 0x2, 0x4  # app status word bits
 
 
 @dataclass(frozen=True)
@@ -41,6 +48,35 @@ class PlcOutputs:
     done: bool = False
     fault: bool = False
     heartbeat: int = 0
+
+
+def decode_inputs(words: tuple[int, int]) -> PlcInputs:
+    status, beat = words
+    return PlcInputs(
+        window_open=bool(status & WINDOW_OPEN),
+        line_running=bool(status & LINE_RUNNING),
+        heartbeat=int(beat) & 0xFFFF,
+    )
+
+
+def encode_inputs(inputs: PlcInputs) -> tuple[int, int]:
+    bits = (WINDOW_OPEN if inputs.window_open else 0) | (LINE_RUNNING if inputs.line_running else 0)
+    return bits, inputs.heartbeat & 0xFFFF
+
+
+def encode_outputs(out: PlcOutputs) -> tuple[int, int]:
+    bits = (BUSY if out.busy else 0) | (DONE if out.done else 0) | (FAULT if out.fault else 0)
+    return bits, out.heartbeat & 0xFFFF
+
+
+def decode_outputs(words: tuple[int, int]) -> PlcOutputs:
+    bits, beat = words
+    return PlcOutputs(
+        busy=bool(bits & BUSY),
+        done=bool(bits & DONE),
+        fault=bool(bits & FAULT),
+        heartbeat=int(beat) & 0xFFFF,
+    )
 
 
 class Plc(Device):
@@ -70,7 +106,7 @@ class Plc(Device):
 
     def poll(self) -> PlcInputs:
         """Read the inputs and send our heartbeat (one exchange)."""
-        inputs = self._read_retrying(self._read_inputs)
+        inputs = decode_inputs(self._read_retrying(self._read_input_words))
         now = time.monotonic()
         if self._last_beat is None or self._last_beat[0] != inputs.heartbeat:
             self._last_beat = (inputs.heartbeat, now)
@@ -119,16 +155,25 @@ class Plc(Device):
 
     def _send(self, outputs: PlcOutputs) -> None:
         self._check_open()
-        self._read_retrying(lambda: self._write_outputs(outputs))  # idempotent: a register image
+        words = encode_outputs(outputs)
+        self._read_retrying(lambda: self._write_output_words(words))  # idempotent: an image
         self._out = outputs
 
-    def _open_handshake(self) -> None:
-        """Reset the outputs on connect: not busy, not done, no fault."""
+    def _open(self) -> None:
+        """Connect, then reset the outputs: not busy, not done, no fault, heartbeat 0."""
+        self._connect()
         self._out = PlcOutputs()
         self._last_beat = None
+        self._write_output_words(encode_outputs(self._out))
 
     @abstractmethod
-    def _read_inputs(self) -> PlcInputs: ...
+    def _connect(self) -> None:
+        """Open the transport (the base class resets the outputs after it)."""
 
     @abstractmethod
-    def _write_outputs(self, outputs: PlcOutputs) -> None: ...
+    def _read_input_words(self) -> tuple[int, int]:
+        """The PLC's (status word, heartbeat word)."""
+
+    @abstractmethod
+    def _write_output_words(self, words: tuple[int, int]) -> None:
+        """Write the app's (status word, heartbeat word) in one request."""

@@ -2,20 +2,29 @@
 
 JSON objects terminated by CRLF over TCP. ``FRC_Connect`` on port 16001 names the session port
 (``PortNumber``); all further packets go there. Commands (FRC_Initialize, FRC_Abort, FRC_Reset,
-FRC_GetStatus, FRC_ReadJointAngles, FRC_SetOverRide with ``Value`` 1..100) are answered at once;
-instructions (FRC_JointMotionJRep) carry consecutive ``SequenceID`` values from 1 and are
-answered when executed. Every reply carries
-``ErrorID`` (0 = ok; 2556928 + N is RMIT-N). The controller may send ``FRC_SystemFault`` or
-``FRC_Terminate`` at any time.
+FRC_GetStatus, FRC_ReadError, FRC_ReadJointAngles, FRC_SetOverRide with ``Value`` 1..100) are
+answered at once; instructions (FRC_JointMotionJRep) carry consecutive ``SequenceID`` values from
+1 and are answered when executed.
 
-Mapping to the device errors: socket errors -> DeviceConnectionError/DeviceTimeout, bad JSON or
-missing fields -> ProtocolError, ErrorID != 0 -> DeviceFault(code=ErrorID), FRC_SystemFault ->
-DeviceFault (latched), FRC_Terminate -> DeviceConnectionError. One motion at a time: the driver
-waits for each instruction's reply before it sends the next.
+Every reply the manual (B-84184EN) defines maps to a typed error at once:
+
+- ``ErrorID`` != 0 in the reply -> DeviceFault(code=ErrorID) (``RMIT-N`` = 2556928 + N, named
+  from drivers/rmi_errors.py); a motion's fault is latched by the Robot base class;
+- the unknown-packet reply ``{"Command": "Unknown", "ErrorID": N}`` (the controller did not
+  understand what we sent) -> DeviceFault(code=N), not a wait for a reply that never comes;
+- unsolicited ``FRC_SystemFault`` (an alarm stopped the robot) -> DeviceFault, latched, with the
+  controller's alarm text (FRC_ReadError) when it can be read;
+- unsolicited ``FRC_Terminate`` (the controller closed the session) -> DeviceConnectionError;
+- socket errors -> DeviceConnectionError / DeviceTimeout; bad JSON or a reply without ErrorID ->
+  ProtocolError.
+
+One motion at a time: the driver waits for each instruction's reply before it sends the next;
+``abort()`` may come from another thread during that wait (see drivers/robot.py).
 """
 
 from __future__ import annotations
 
+import threading
 import time
 from typing import Any
 
@@ -30,16 +39,13 @@ from drivers.errors import (
     ProtocolError,
 )
 from drivers.registry import DeviceUrl
+from drivers.rmi_errors import RMIT_BASE, describe_error
 from drivers.robot import FloatArray, Robot, RobotStatus
 from drivers.safety import SafetyGuard
 
 DEFAULT_PORT = 16001
-RMIT_BASE = 2556928
 JOINTS = ("J1", "J2", "J3", "J4", "J5", "J6")
-
-
-def rmit_name(code: int) -> str:
-    return f"RMIT-{code - RMIT_BASE:03d}" if code >= RMIT_BASE else f"error {code}"
+__all__ = ["DEFAULT_PORT", "RMIT_BASE", "RmiRobot"]
 
 
 class RmiRobot(Robot):
@@ -66,6 +72,13 @@ class RmiRobot(Robot):
         self._seq = 1
         self._initialized = False
         self.version = ""
+        # abort() runs in another thread while _move waits for its reply: the motion thread is
+        # the only reader of the socket then; _io guards the sends and the in-motion state
+        self._io = threading.Lock()
+        self._in_motion = False
+        self._abort_sent = False
+        self._abort_acked = threading.Event()
+        self._abort_failure: DeviceError | None = None
 
     @classmethod
     def from_url(cls, url: DeviceUrl, **options: Any) -> RmiRobot:
@@ -147,16 +160,54 @@ class RmiRobot(Robot):
         }
         self._seq += 1
         sock = self._session()
-        sock.send(packet)
+        with self._io:
+            sock.send(packet)
+            self._in_motion = True
         try:
             self._expect(sock, "Instruction", "FRC_JointMotionJRep", timeout_s, seq=seq)
         except DeviceTimeout:
-            self._best_effort_abort()
+            with self._io:
+                self._in_motion = False
+            if not self._abort_sent:
+                self._best_effort_abort()
             raise
+        finally:
+            with self._io:
+                self._in_motion = False
+            self._await_abort_reply(sock)
 
     def _abort(self) -> None:
-        self._command("FRC_Abort")
-        self._initialized = False
+        with self._io:
+            in_motion = self._in_motion
+            if in_motion:  # the motion thread reads the reply; send now, wait for its ack
+                self._abort_acked.clear()
+                self._abort_sent, self._abort_failure = True, None
+                self._session().send({"Command": "FRC_Abort"})
+        if in_motion:
+            if not self._abort_acked.wait(self.timeout_s):
+                raise DeviceTimeout(f"{self.name}: FRC_Abort not answered in {self.timeout_s:g} s")
+            self._initialized = False
+            if self._abort_failure is not None:
+                raise self._abort_failure
+            return
+        with self._lock:  # no motion: stop RMI_MOVE if it runs (aborting nothing is RMIT-014)
+            if int(self._command("FRC_GetStatus").get("RMIMotionStatus", 0)) != 0:
+                self._command("FRC_Abort")
+            self._initialized = False
+
+    def _await_abort_reply(self, sock: LineJsonSocket) -> None:
+        """After a motion ended while an abort was in flight, read the FRC_Abort reply (the
+        motion thread is the socket's only reader until then)."""
+        if not self._abort_sent or self._abort_acked.is_set():
+            return
+        try:
+            self._expect(sock, "Command", "FRC_Abort", self.timeout_s)
+        except DeviceError as exc:
+            self.log.warning("%s: no FRC_Abort reply: %s", self.name, exc)
+            self._abort_failure = exc
+        finally:
+            self._abort_sent = False
+            self._abort_acked.set()
 
     def _reset(self) -> None:
         self._command("FRC_Reset")
@@ -192,11 +243,20 @@ class RmiRobot(Robot):
         deadline = time.monotonic() + timeout_s
         while True:
             msg = sock.recv(max(deadline - time.monotonic(), 0.0))
+            if "Unknown" in (msg.get("Command"), msg.get("Instruction"), msg.get("Communication")):
+                code = msg.get("ErrorID")
+                code = code if isinstance(code, int) else 0
+                raise DeviceFault(
+                    f"{self.name}: the controller did not understand {name}: "
+                    f"{describe_error(code)}",
+                    code=code,
+                )
             unsolicited = msg.get("Communication")
-            if unsolicited == "FRC_SystemFault" and name != "FRC_SystemFault":
+            if unsolicited == "FRC_SystemFault":
                 self._initialized = False
                 fault = DeviceFault(
-                    f"{self.name}: controller system fault (SequenceID {msg.get('SequenceID')})",
+                    f"{self.name}: controller system fault (SequenceID {msg.get('SequenceID')})"
+                    f"{self._alarm_text(sock)}",
                     code=-1,
                 )
                 self._latch_fault(fault)
@@ -204,6 +264,11 @@ class RmiRobot(Robot):
             if unsolicited == "FRC_Terminate":
                 sock.close()
                 raise DeviceConnectionError(f"{self.name}: controller terminated the session")
+            if self._abort_sent and msg.get("Command") == "FRC_Abort":
+                self._abort_reply(msg)
+                if name != "FRC_Abort":
+                    raise DeviceFault(f"{self.name}: {name} aborted", code=0)
+                return msg
             if msg.get(kind) != name or (seq is not None and msg.get("SequenceID") != seq):
                 self.log.debug("%s: ignoring %s", self.name, msg)
                 continue
@@ -213,5 +278,26 @@ class RmiRobot(Robot):
             if code != 0:
                 if kind == "Instruction":
                     self._initialized = False
-                raise DeviceFault(f"{self.name}: {name} failed: {rmit_name(code)}", code=code)
+                raise DeviceFault(f"{self.name}: {name} failed: {describe_error(code)}", code=code)
             return msg
+
+    def _alarm_text(self, sock: LineJsonSocket) -> str:
+        """``: <alarm>`` from FRC_ReadError after a system fault, or "" if it cannot be read."""
+        try:
+            sock.send({"Command": "FRC_ReadError"})
+            reply = self._expect(sock, "Command", "FRC_ReadError", min(self.timeout_s, 1.0))
+        except DeviceError as exc:
+            self.log.debug("%s: FRC_ReadError: %s", self.name, exc)
+            return ""
+        text = reply.get("ErrorData")
+        return f": {text}" if isinstance(text, str) and text else ""
+
+    def _abort_reply(self, msg: dict[str, Any]) -> None:
+        code = msg.get("ErrorID")
+        if code != 0:
+            code = code if isinstance(code, int) else -1
+            self._abort_failure = DeviceFault(
+                f"{self.name}: FRC_Abort failed: {describe_error(code)}", code=code
+            )
+        self._abort_sent = False
+        self._abort_acked.set()

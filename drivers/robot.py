@@ -6,17 +6,23 @@ owns the policy; a backend implements the private primitives:
 - ``_read_joints() -> (6,)``          read-only; retried once after a reconnect
 - ``_status() -> RobotStatus``        read-only; retried once after a reconnect
 - ``_move(q_deg, speed_pct, timeout_s)``  one joint move, returns when the robot has arrived
-- ``_abort()`` and ``_reset()``
+- ``_abort()``                       called from any thread WITHOUT the device lock, while
+                                      ``_move`` may be running in another thread: it must reach
+                                      the controller at once and make ``_move`` return (raise)
+- ``_reset()``
 - ``_set_override(override_pct)``    optional; the controller's general speed override
 
 Policy: every target goes through the SafetyGuard first (joint limits, envelope, path); a motion
 is never retried; any fault or communication error during a motion latches a fault, and every
 further motion raises FaultLatched until ``reset()`` succeeds. Backends that receive unsolicited
-fault messages call ``_latch_fault``.
+fault messages call ``_latch_fault``. ``abort()`` does not wait for the motion in progress (which
+holds the device lock until it ends): it stops the robot at once, and the interrupted
+``move_joints`` raises MotionAborted (not a fault: the robot stands still where it stopped).
 """
 
 from __future__ import annotations
 
+import threading
 from abc import abstractmethod
 from dataclasses import dataclass
 
@@ -24,7 +30,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from drivers.base import Device
-from drivers.errors import CommunicationError, DeviceConfigError, DeviceError, FaultLatched
+from drivers.errors import (
+    CommunicationError,
+    DeviceConfigError,
+    DeviceError,
+    DeviceFault,
+    FaultLatched,
+    MotionAborted,
+)
 from drivers.safety import SafetyGuard
 
 FloatArray = NDArray[np.float64]
@@ -61,6 +74,7 @@ class Robot(Device):
         self.guard = guard if guard is not None else SafetyGuard()
         self.motion_timeout_s = float(motion_timeout_s)
         self._fault: DeviceError | None = None
+        self._abort_requested = threading.Event()
 
     @property
     def fault(self) -> DeviceError | None:
@@ -85,7 +99,8 @@ class Robot(Device):
         """Move to ``q_deg`` (controller angles [deg]) and return the joints reached.
 
         Raises MotionRefused (nothing sent), FaultLatched (reset first), DeviceFault, or a
-        CommunicationError (the fault is latched: the state of the robot is unknown)."""
+        CommunicationError (the fault is latched: the state of the robot is unknown), or
+        MotionAborted when ``abort()`` stopped it (no fault latched)."""
         self._check_open()
         if not 0 < speed_pct <= 100:
             raise DeviceConfigError(f"speed_pct must be in (0, 100], got {speed_pct!r}")
@@ -95,9 +110,13 @@ class Robot(Device):
         timeout = self.motion_timeout_s if timeout_s is None else float(timeout_s)
         self.log.info("%s: move to %s at %g %%", self.name, np.round(target, 4), speed_pct)
         with self._lock:
+            self._abort_requested.clear()
             try:
                 self._move(target, float(speed_pct), timeout)
             except DeviceError as exc:
+                # the controller reported the stop: a known state; a lost link stays a fault
+                if self._abort_requested.is_set() and isinstance(exc, DeviceFault):
+                    raise MotionAborted(f"{self.name}: motion aborted") from exc
                 self._latch_fault(exc)
                 raise
         return self.joints_deg()
@@ -119,10 +138,15 @@ class Robot(Device):
         self.log.info("%s: speed override %d %%", self.name, override_pct)
 
     def abort(self) -> None:
-        """Stop the current motion (the robot decelerates)."""
+        """Stop the current motion at once (the robot decelerates); callable from any thread.
+
+        Does not wait for the motion in progress: the stop reaches the controller immediately
+        and the interrupted ``move_joints`` raises MotionAborted. Without a motion in progress it
+        is a plain stop command."""
         self._check_open()
-        with self._lock:
-            self._abort()
+        self._abort_requested.set()
+        self.log.warning("%s: abort", self.name)
+        self._abort()
 
     def reset(self) -> None:
         """Clear the controller's alarms and the latched fault; reconnects if needed."""

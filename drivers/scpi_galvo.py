@@ -1,11 +1,14 @@
 """Galvo DAC speaking SCPI over a serial port: ``scpi+serial:///dev/ttyACM0?baud=115200``.
 
-Commands (LF-terminated): ``*IDN?`` (identity), ``SOUR:VOLT <v>`` (set the output voltage),
-``SOUR:VOLT?`` (read it back), ``SYST:ERR?`` (pop the error queue: ``0,"No error"`` or
-``-222,"Data out of range"``). pyserial URLs work too (``loop://``, ``socket://host:port``).
-serial.SerialException (and the OSError or termios.error pyserial lets through when the port
-vanishes while it is opened or drained) -> DeviceConnectionError, no line within the timeout ->
-DeviceTimeout, an unparsable answer -> ProtocolError.
+Works with any SCPI / IEEE 488.2 conforming board, using only what the standards require:
+``*CLS`` on open (clear the error queue and the status), ``*IDN?`` (identity), ``:SOUR:VOLT <v>``
+(set the output voltage; the short forms of ``[:SOURce]:VOLTage``), ``:SOUR:VOLT?`` (read it back:
+any NR1/NR2/NR3 number), ``:SYST:ERR?`` (pop the error queue until ``0,"No error"``, with or
+without a sign, quoted or not). Messages end with LF; answers with LF or CR LF. pyserial URLs work
+too (``loop://``, ``socket://host:port``). serial.SerialException (and the OSError or
+termios.error pyserial lets through when the port vanishes while it is opened or drained) ->
+DeviceConnectionError, no line within the timeout -> DeviceTimeout, an unparsable answer ->
+ProtocolError.
 """
 
 from __future__ import annotations
@@ -33,7 +36,7 @@ _OPEN_ERRORS: tuple[type[Exception], ...] = (*_PORT_ERRORS, ValueError)  # bad s
 
 
 class ScpiGalvo(Galvo):
-    """``ScpiGalvo("/dev/ttyACM0", baud=115200, calibration=GalvoCalibration(...))``."""
+    """``ScpiGalvo("/dev/ttyACM0", baud=115200, settings=GalvoSettings(-10.0, 10.0))``."""
 
     def __init__(self, port: str, *, baud: int = 115200, **kw: Any) -> None:
         kw.setdefault("name", f"scpi+serial://{port}")
@@ -60,8 +63,8 @@ class ScpiGalvo(Galvo):
             self._serial.reset_input_buffer()
         except _OPEN_ERRORS as exc:
             raise DeviceConnectionError(f"{self.name}: cannot open: {exc}") from exc
+        self._write("*CLS")  # errors and events left from before are not ours
         self.identity = self._identify()
-        self._errors()  # drain errors left from before
 
     def _close(self) -> None:
         port, self._serial = self._serial, None
@@ -76,10 +79,10 @@ class ScpiGalvo(Galvo):
         return self._query("*IDN?")
 
     def _set_volts(self, volts: float) -> None:
-        self._write(f"SOUR:VOLT {volts:.6f}")
+        self._write(f":SOUR:VOLT {volts:.6f}")
 
     def _get_volts(self) -> float:
-        answer = self._query("SOUR:VOLT?")
+        answer = self._query(":SOUR:VOLT?")
         try:
             return float(answer)
         except ValueError as exc:
@@ -88,7 +91,7 @@ class ScpiGalvo(Galvo):
     def _errors(self) -> list[tuple[int, str]]:
         errors = []
         for _ in range(32):  # the queue is finite; do not loop forever on a broken device
-            answer = self._query("SYST:ERR?")
+            answer = self._query(":SYST:ERR?")
             match = _ERR.match(answer)
             if match is None:
                 raise ProtocolError(f"{self.name}: SYST:ERR? answered {answer!r}")

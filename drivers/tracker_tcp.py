@@ -90,11 +90,12 @@ class TcpTracker(Tracker):
             raise ProtocolError(f"{self.name}: measurement does not answer {target_id}: {r}")
         return m
 
-    def _request(self, cmd: str, timeout_s: float | None = None, **fields: Any) -> dict[str, Any]:
+    def _request(self, cmd: str, **fields: Any) -> dict[str, Any]:
+        """Send one request; a ``timeout_s`` field (measure) extends the wait for its reply."""
         if self._sock is None:
             raise DeviceConnectionError(f"{self.name}: not connected")
         rid = next(self._ids)
-        wait = self._sock.timeout_s if timeout_s is None else timeout_s + self._sock.timeout_s
+        wait = self._sock.timeout_s + float(fields.get("timeout_s", 0.0))
         self._sock.send({"id": rid, "cmd": cmd, **fields})
         deadline = time.monotonic() + wait
         while True:

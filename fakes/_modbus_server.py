@@ -4,7 +4,10 @@ the device logic on every access (the way a PLC or TP program scans its register
 pymodbus calls the SimDevice ``action`` before it applies a write, with the live register list;
 subclasses implement ``scan(now, regs, written)``: ``regs`` is that list (address 0 = index 0),
 ``written`` maps the addresses of a write request to their new values (empty for a read). State
-therefore advances lazily, driven by the client's polling and the clock: no background task.
+therefore advances lazily, driven by the client's polling and the clock (``clock=``, real time by
+default): no background task. A single-register write (FC6) is answered with the request's
+echo, as Modbus requires: pymodbus reads the register back to build that reply, and no scan runs
+between the write and that read.
 
 Fault injection (one-shot): ``fail_next(mode)`` with "exception" (Modbus exception 4, device
 failure), "drop" (close every client connection), "mute" (hold the reply past any timeout) or
@@ -15,7 +18,6 @@ of step, as after a corrupted or truncated frame), optionally only for one funct
 from __future__ import annotations
 
 import asyncio
-import time
 from typing import Self
 
 from pymodbus.constants import ExcCodes
@@ -23,6 +25,7 @@ from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from fakes._loop import LoopThread
+from fakes.clock import Clock, RealClock
 
 # An MBAP header with protocol id 0x0B0B instead of 0, and a stray register: not a reply.
 _GARBLED = bytes([0x00, 0x01, 0x0B, 0x0B, 0x00, 0x05, 0x01, 0x03, 0x02, 0xFF])
@@ -31,18 +34,21 @@ _GARBLED = bytes([0x00, 0x01, 0x0B, 0x0B, 0x00, 0x05, 0x01, 0x03, 0x02, 0xFF])
 class RegisterServer:
     """Base of the Modbus peers; subclasses implement ``scan``."""
 
-    def __init__(self, *, size: int, host: str = "127.0.0.1", port: int = 0) -> None:
+    def __init__(
+        self, *, size: int, host: str = "127.0.0.1", port: int = 0, clock: Clock | None = None
+    ) -> None:
         self.host, self._want_port, self.size = host, port, size
+        self.clock: Clock = clock if clock is not None else RealClock()  # scan() gets its time
         self.port = 0
         self._faults: list[tuple[str, int | None]] = []
         self._server: ModbusTcpServer | None = None
         self._loop: LoopThread | None = None
-        self.t0 = time.monotonic()
+        self.t0 = self.clock.monotonic()
 
     def start(self) -> Self:
         self._loop = LoopThread(type(self).__name__)
         self._loop.run(self._start())
-        self.t0 = time.monotonic()
+        self.t0 = self.clock.monotonic()
         return self
 
     async def _start(self) -> None:
@@ -108,9 +114,11 @@ class RegisterServer:
                 self._write_to_clients(_GARBLED)
             if mode in ("mute", "garble"):
                 await asyncio.sleep(3600)
+        if function_code == 6 and not values:
+            return None  # pymodbus reading back a single write to echo it: no scan in between
         base = address - start_address
         written = {base + i: int(v) for i, v in enumerate(values or [])}
-        self.scan(time.monotonic(), registers, written)
+        self.scan(self.clock.monotonic(), registers, written)
         return None
 
     def scan(self, now: float, regs: list[int], written: dict[int, int]) -> None:

@@ -14,7 +14,6 @@ at the current joints and the current galvo command.
 
 from __future__ import annotations
 
-import math
 import threading
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
@@ -22,10 +21,19 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from fakes.render import Frames, Lighting, SweepTruth, default_sweep_commands, render_sphere_sweep
+from fakes.clock import Clock
+from fakes.render import (
+    Frames,
+    Lighting,
+    SphereScene,
+    SweepTruth,
+    default_sweep_commands,
+    render_sphere_sweep,
+    sphere_scene,
+)
 from fakes.render_noise import NoiseSettings, dark_frame
 from fakes.render_sensor import TrueSensor, default_true_sensor
-from fakes.truth import TrueRobot, _rot, homogeneous
+from fakes.truth import Knock, TrueRobot, Warmup, _rot, homogeneous
 
 F64 = NDArray[np.float64]
 
@@ -103,6 +111,10 @@ SWEEP_FRAMES = 24
 SWEEP_SPAN_V = 3.2
 #: Exposure [us] at which the renderer's laser power and ambient light are specified.
 REFERENCE_EXPOSURE_US = 10_000.0
+#: A camera frame reuses the previous frame's sphere scene (the costly, laser-independent part of
+#: rendering) while the sphere has moved less than this in the sensor frame [mm]: during a sweep
+#: the robot stands still and only the warm-up moves the sphere, by nanometres per frame.
+SCENE_REUSE_MM = 1e-4
 
 
 @dataclass(frozen=True, eq=False)
@@ -138,7 +150,8 @@ def _small_pose(rng: np.random.Generator, sigma_mm: float, sigma_rad: float) -> 
 
 
 class SimulatedCell:
-    """The true cell. `temp_c` may be changed between measurements (thermal drift)."""
+    """The true cell. `temp_c` may be changed between measurements (thermal drift); with a
+    timeline (`set_timeline`) the temperature and the sensor mount follow a clock instead."""
 
     def __init__(
         self, spec: CellSpec, settings: SimSettings | None = None, sensor: TrueSensor | None = None
@@ -155,10 +168,12 @@ class SimulatedCell:
         self.robot = robot
         s = self.settings
         self.T_part_world = spec.T_part_base @ _small_pose(rng, s.base_error_mm, s.base_error_rad)
-        self.T_tool0_sensor = spec.T_flange_sensor @ _small_pose(
-            rng, s.mount_error_mm, s.mount_error_rad
-        )
-        self.temp_c = s.temp_c
+        self._T_mount = spec.T_flange_sensor @ _small_pose(rng, s.mount_error_mm, s.mount_error_rad)
+        self._ambient_c = s.temp_c
+        self._clock: Clock | None = None
+        self.warmup: Warmup | None = None
+        self.knock: Knock | None = None
+        self._T_knock = np.eye(4)
         self._noise = np.random.default_rng([s.seed, 1])
         self._spheres = {k: np.asarray(v, dtype=float) for k, v in spec.spheres_part_mm.items()}
         self._q_deg = np.array([0.0, 0.0, 0.0, 0.0, -90.0, 0.0])
@@ -166,6 +181,7 @@ class SimulatedCell:
         self._render_lock = threading.Lock()
         self._sweeps = 0  # sweeps handed out: the index in each sweep's noise seed
         self._camera_rng = np.random.default_rng([s.seed, 4])
+        self._scene: SphereScene | None = None
         self.sweep_commands_v = default_sweep_commands(SWEEP_FRAMES, SWEEP_SPAN_V)
 
     @property
@@ -176,16 +192,62 @@ class SimulatedCell:
                 self._sensor = default_true_sensor()
             return self._sensor
 
+    # -- truth over time -------------------------------------------------------------------
+    def set_timeline(
+        self, clock: Clock, *, warmup: Warmup | None = None, knock: Knock | None = None
+    ) -> None:
+        """Let the truth follow `clock`: the temperature warms up from the ambient `temp_c`,
+        the sensor mount moves at the knock (its direction drawn from the cell's seed)."""
+        self._clock, self.warmup, self.knock = clock, warmup, knock
+        rng = np.random.default_rng([self.settings.seed, 5])
+        self._T_knock = np.eye(4) if knock is None else knock.T_mount_knocked(rng)
+
+    def now_s(self) -> float:
+        """The cell's sim time [s] (0 without a timeline)."""
+        return 0.0 if self._clock is None else self._clock.monotonic()
+
+    def _at(self, t_s: float | None) -> float:
+        return self.now_s() if t_s is None else float(t_s)
+
+    def temp_at(self, t_s: float | None = None) -> float:
+        """The cell temperature [deg C] at sim time t_s (default: now)."""
+        warm = 0.0 if self.warmup is None else self.warmup.delta_k(self._at(t_s))
+        return self._ambient_c + warm
+
+    @property
+    def temp_c(self) -> float:
+        """The temperature now [deg C]; setting it sets the ambient the warm-up starts from."""
+        return self.temp_at()
+
+    @temp_c.setter
+    def temp_c(self, value: float) -> None:
+        self._ambient_c = float(value)
+
+    def mount_at(self, t_s: float | None = None) -> F64:
+        """The true sensor mount T_tool0_sensor (4, 4) at sim time t_s (default: now)."""
+        if self.knock is not None and self._at(t_s) >= self.knock.at_s:
+            knocked: F64 = self._T_mount @ self._T_knock
+            return knocked
+        return self._T_mount.copy()
+
+    @property
+    def T_tool0_sensor(self) -> F64:
+        return self.mount_at()
+
     # -- truth ---------------------------------------------------------------------------
-    def T_part_sensor(self, q_deg: ArrayLike) -> F64:
-        """True sensor poses (N, 4, 4) in the part frame for controller angles (N, 6)."""
-        T_wt = self.robot.T_world_tool0(q_deg, self.temp_c)
-        out: F64 = self.T_part_world @ T_wt @ self.T_tool0_sensor
+    def T_part_sensor(self, q_deg: ArrayLike, t_s: float | None = None) -> F64:
+        """True sensor poses (N, 4, 4) in the part frame for controller angles (N, 6) at sim
+        time t_s (default: now)."""
+        t = self._at(t_s)
+        T_wt = self.robot.T_world_tool0(q_deg, self.temp_at(t))
+        out: F64 = self.T_part_world @ T_wt @ self.mount_at(t)
         return out
 
-    def centre_in_sensor(self, q_deg: ArrayLike, p_part_mm: ArrayLike) -> F64:
-        """True sphere centres (N, 3) in the sensor frame."""
-        T = self.T_part_sensor(q_deg)
+    def centre_in_sensor(
+        self, q_deg: ArrayLike, p_part_mm: ArrayLike, t_s: float | None = None
+    ) -> F64:
+        """True sphere centres (N, 3) in the sensor frame at sim time t_s (default: now)."""
+        T = self.T_part_sensor(q_deg, t_s)
         p = np.broadcast_to(np.asarray(p_part_mm, dtype=float), (T.shape[0], 3))
         R_t = np.swapaxes(T[:, :3, :3], 1, 2)
         out: F64 = np.einsum("nij,nj->ni", R_t, p - T[:, :3, 3])
@@ -257,18 +319,26 @@ class SimulatedCell:
         return self.measure_point(self.joints_deg(), self._spheres[target_id])
 
     def render_frame(
-        self, width: int, height: int, exposure_us: float, gain_db: float, galvo_deg: float | None
+        self, width: int, height: int, exposure_us: float, gain_db: float, galvo_v: float | None
     ) -> F64:
         """The frame the camera sees now (World protocol): the nearest sphere in front of the
-        sensor at the current joints, lit by the laser plane of the commanded mirror angle.
+        sensor at the current joints, lit by the laser plane of the galvo command.
 
-        galvo_deg: commanded mechanical mirror angle [deg] (None: no galvo, the mirror rests at
-        0); the true mirror angle follows the sensor's own command-to-angle curve, whose linear
-        term converts it to the renderer's command. Exposure scales the laser and the ambient
-        light (linear in exposure, reference 10 ms); gain multiplies the digital numbers. Rendered
-        in 12 bits and returned as float64 in [0, 1], shape (height, width): the top-left part of
-        the 1296 x 966 sensor when smaller (the region's offset is not passed).
+        galvo_v: the galvo command [V] (None: no galvo, command 0 V); the true mirror angle
+        follows the true sensor's own command-to-angle curve (fakes/render_sensor.py). Exposure
+        scales the laser and the ambient light (linear in exposure, reference 10 ms); gain
+        multiplies the digital numbers. Rendered in 12 bits and returned as float64 in [0, 1],
+        shape (height, width): the top-left part of the 1296 x 966 sensor when smaller (the
+        region's offset is not passed).
         """
+        command_v = 0.0 if galvo_v is None else float(galvo_v)
+        return self.render_frame_v(width, height, exposure_us, gain_db, command_v)
+
+    def render_frame_v(
+        self, width: int, height: int, exposure_us: float, gain_db: float, command_v: float
+    ) -> F64:
+        """As `render_frame`, for a mirror command in volts (the DAC's output): the true
+        mirror angle follows the true sensor's command-to-angle polynomial."""
         sensor = self.sensor
         if width > sensor.width_px or height > sensor.height_px:
             raise ValueError(
@@ -281,25 +351,33 @@ class SimulatedCell:
             base, full_well_e=base.full_well_e / gain, ambient_e=base.ambient_e * exposure
         )
         light = replace(Lighting(), power=Lighting().power * exposure * gain)
-        slope_deg_per_v = math.degrees(float(sensor.angle_poly_rad[1]))
-        command_v = 0.0 if galvo_deg is None else float(galvo_deg) / slope_deg_per_v
         c = self._sphere_in_view()
         with self._render_lock:
             if c is None:
                 frame = dark_frame((sensor.height_px, sensor.width_px), noise, self._camera_rng)
             else:
+                scene = self._scene_of(sensor, c)
                 frame = render_sphere_sweep(
-                    c,
-                    self.spec.sphere_radius_mm,
+                    scene.c_sensor_mm,
+                    scene.radius_mm,
                     sensor,
                     self._camera_rng,
                     commands_v=np.array([command_v]),
                     noise=noise,
                     light=light,
                     stripe_truth=False,
+                    scene=scene,
                 )[0][0]
         out: F64 = frame[:height, :width].astype(np.float64) / 4095.0
         return out
+
+    def _scene_of(self, sensor: TrueSensor, c_sensor_mm: F64) -> SphereScene:
+        """The sphere scene at c_sensor_mm: the last one if the sphere moved less than
+        SCENE_REUSE_MM since (the frame's centre then lags the truth by less than that)."""
+        last = self._scene
+        if last is None or np.max(np.abs(last.c_sensor_mm - c_sensor_mm)) >= SCENE_REUSE_MM:
+            last = self._scene = sphere_scene(sensor, c_sensor_mm, self.spec.sphere_radius_mm)
+        return last
 
     def _sphere_in_view(self) -> F64 | None:
         """True centre in the sensor frame [mm] of the nearest sphere wholly in front of the

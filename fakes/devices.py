@@ -10,7 +10,7 @@ from __future__ import annotations
 import queue
 import threading
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
 
@@ -19,7 +19,7 @@ import numpy as np
 from drivers.camera import Camera, CameraSettings, Frame
 from drivers.errors import DeviceConfigError, DeviceFault, DeviceTimeout
 from drivers.galvo import Galvo
-from drivers.plc import Plc, PlcInputs, PlcOutputs
+from drivers.plc import Plc, PlcInputs, PlcOutputs, decode_outputs, encode_inputs
 from drivers.registry import DeviceUrl
 from drivers.robot import FloatArray, Robot, RobotStatus
 from drivers.tracker import Tracker, TrackerMeasurement, TrackerStatus
@@ -107,11 +107,13 @@ class FakeRobot(Robot):
 
 
 class FakeGalvo(Galvo):
-    """A DAC in memory: stores the voltage, rejects voltages outside +-10 V like the board."""
+    """A DAC in memory: stores the command [V], rejects voltages outside +-10 V like the board.
+    The camera hands the command to the world, whose true sensor turns it into the mirror angle
+    (fakes/render_sensor.py)."""
 
     def __init__(self, world: World | None = None, **kw: Any) -> None:
         super().__init__(**kw)
-        self.volts = 0.0
+        self.output_v = 0.0
         self._queue: list[tuple[int, str]] = []
 
     @classmethod
@@ -120,7 +122,7 @@ class FakeGalvo(Galvo):
         return cls(**options)
 
     def _open(self) -> None:
-        self.volts = 0.0
+        self.output_v = 0.0
 
     def _close(self) -> None:
         pass
@@ -132,10 +134,10 @@ class FakeGalvo(Galvo):
         if abs(volts) > 10.0:
             self._queue.append((-222, "Data out of range"))
         else:
-            self.volts = volts
+            self.output_v = volts
 
     def _get_volts(self) -> float:
-        return self.volts
+        return self.output_v
 
     def _errors(self) -> list[tuple[int, str]]:
         errors, self._queue = self._queue, []
@@ -171,8 +173,8 @@ class FakeCamera(Camera):
         s = self.settings
         assert s.region is not None
         x, y, w, h = s.region
-        galvo = self.galvo.angle_deg() if self.galvo is not None and self.galvo.is_open else None
-        full = self.world.render_frame(*SENSOR_WH, s.exposure_us, s.gain_db, galvo)
+        galvo_v = self.galvo.volts() if self.galvo is not None and self.galvo.is_open else None
+        full = self.world.render_frame(*SENSOR_WH, s.exposure_us, s.gain_db, galvo_v)
         top = {"Mono8": 255, "Mono12": 4095, "Mono16": 65535}[s.pixel_format]
         scaled = np.round(np.clip(full[y : y + h, x : x + w], 0, 1) * top)
         image = scaled.astype(np.uint8) if top == 255 else scaled.astype(np.uint16)
@@ -297,18 +299,17 @@ class FakePlc(Plc):
         options.pop("world", None)
         return cls(**options)
 
-    def _open(self) -> None:
+    def _connect(self) -> None:
         self._t0 = time.monotonic()
-        self._open_handshake()
 
     def _close(self) -> None:
         pass
 
-    def _read_inputs(self) -> PlcInputs:
-        return self.cycle.inputs(time.monotonic() - self._t0, self.heartbeat_frozen)
+    def _read_input_words(self) -> tuple[int, int]:
+        return encode_inputs(self.cycle.inputs(time.monotonic() - self._t0, self.heartbeat_frozen))
 
-    def _write_outputs(self, outputs: PlcOutputs) -> None:
-        old = self.received
+    def _write_output_words(self, words: tuple[int, int]) -> None:
+        outputs, old = decode_outputs(words), self.received
         if (outputs.busy, outputs.done, outputs.fault) != (old.busy, old.done, old.fault):
             self.history.append(outputs)
-        self.received = replace(outputs)
+        self.received = outputs

@@ -4,10 +4,17 @@
 loopback (GVCP port 3956: one fake per address). Its image content comes from a fill callback
 registered through ctypes (``arv_fake_camera_set_fill_pattern``): a PyGObject callback would be
 freed too early and crash. The callback renders ``world.render_frame`` at the requested region
-size (offsets are not passed to the callback) and quantises it to the pixel format.
+size (offsets are not passed to the callback) and quantises it to the pixel format. With
+``sensor_wh=(w, h)`` the fake reports that sensor size (the rendered camera's, instead of
+Aravis's 2048 x 2048) and the callback renders the full sensor and crops the region at the
+offsets it reads from the fake's registers.
 
     with GvCamera(world) as gv:
         camera = AravisCamera(gv.camera_id)     # "127.0.0.1"
+
+``stall()`` makes the camera stop sending frames while it still answers its control channel (a
+camera that times out); ``resume()`` brings the frames back without a stale one for a trigger
+that came in meanwhile.
 """
 
 from __future__ import annotations
@@ -21,6 +28,19 @@ from fakes.world import World
 
 _FILL = ctypes.CFUNCTYPE(
     None, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_uint32, ctypes.c_uint32, ctypes.c_uint32
+)
+
+
+#: Registers of Aravis's fake camera (its GenICam XML): acquisition (1 streaming, 0 stopped),
+#: sensor and region size, region offsets.
+_ACQUISITION_REGISTER = 0x124
+_SENSOR_W, _SENSOR_H, _WIDTH, _HEIGHT, _OFFSET_X, _OFFSET_Y = (
+    0x11C,
+    0x118,
+    0x100,
+    0x104,
+    0x130,
+    0x134,
 )
 
 
@@ -51,9 +71,15 @@ class GvCamera:
     """A GigE Vision fake camera bound to ``address`` that renders ``world`` (or a test card)."""
 
     def __init__(
-        self, world: World | None = None, *, address: str = "127.0.0.1", serial: str = "RVIS0001"
+        self,
+        world: World | None = None,
+        *,
+        address: str = "127.0.0.1",
+        serial: str = "RVIS0001",
+        sensor_wh: tuple[int, int] | None = None,
     ) -> None:
         self.world, self.address, self.serial = world, address, serial
+        self.sensor_wh = sensor_wh
         self.camera_id = address
         self.frames_filled = 0
         self.failed = False
@@ -68,6 +94,10 @@ class GvCamera:
         if not self._gv.is_running():
             raise RuntimeError(f"GvFakeCamera could not bind {self.address}")
         self._fake = self._gv.get_fake_camera()
+        if self.sensor_wh is not None:
+            w, h = self.sensor_wh
+            for register, value in ((_SENSOR_W, w), (_SENSOR_H, h), (_WIDTH, w), (_HEIGHT, h)):
+                self._fake.write_register(register, value)
         if self.world is not None:
             self._callback = _FILL(self._fill)
             self._lib.arv_fake_camera_set_fill_pattern(_gpointer(self._fake), self._callback, None)
@@ -83,6 +113,17 @@ class GvCamera:
         gc.collect()
         self._callback = None
 
+    def stall(self) -> None:
+        """Stop streaming (the fake's acquisition register off): grabs time out."""
+        if self._fake is not None:
+            self._fake.write_register(_ACQUISITION_REGISTER, 0)
+
+    def resume(self) -> None:
+        """Stream again; a software trigger received while stalled is dropped, not answered."""
+        if self._fake is not None:
+            self._fake.check_and_acknowledge_software_trigger()
+            self._fake.write_register(_ACQUISITION_REGISTER, 1)
+
     def __enter__(self) -> Self:
         return self.start()
 
@@ -97,7 +138,7 @@ class GvCamera:
             h = self._lib.arv_buffer_get_image_height(buffer)
             bits = (pixel_format >> 16) & 0xFF
             ptr = self._lib.arv_buffer_get_data(buffer, ctypes.byref(ctypes.c_size_t()))
-            image = self.world.render_frame(w, h, float(exposure_us), float(gain), None)
+            image = self._render(w, h, float(exposure_us), float(gain))
             top, dtype = (255, np.uint8) if bits == 8 else (65535, np.dtype("<u2"))
             values = np.round(np.clip(image, 0.0, 1.0) * top).astype(dtype)
             raw = (ctypes.c_uint8 * (w * h * (bits // 8))).from_address(ptr)
@@ -105,3 +146,12 @@ class GvCamera:
             self.frames_filled += 1
         except Exception:
             self.failed = True
+
+    def _render(self, w: int, h: int, exposure_us: float, gain: float) -> Any:
+        assert self.world is not None and self._fake is not None
+        if self.sensor_wh is None:
+            return self.world.render_frame(w, h, exposure_us, gain, None)
+        full = self.world.render_frame(*self.sensor_wh, exposure_us, gain, None)
+        x = int(self._fake.read_register(_OFFSET_X)[1])
+        y = int(self._fake.read_register(_OFFSET_Y)[1])
+        return full[y : y + h, x : x + w]

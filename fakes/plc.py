@@ -7,16 +7,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from drivers.plc import PlcOutputs
-from drivers.plc_modbus import (
-    APP_STATUS,
-    LINE_RUNNING,
-    PLC_HEARTBEAT,
-    PLC_STATUS,
-    REGISTER_COUNT,
-    WINDOW_OPEN,
-    decode_outputs,
-)
+from drivers.plc import PlcOutputs, decode_outputs, encode_inputs
+from drivers.plc_modbus import APP_STATUS, PLC_STATUS, REGISTER_COUNT
 from fakes._modbus_server import RegisterServer
 from fakes.devices import ClampCycle
 
@@ -34,14 +26,11 @@ class PlcServer(RegisterServer):
 
     def scan(self, now: float, regs: list[int], written: dict[int, int]) -> None:
         inputs = self.cycle.inputs(now - self.t0, self.heartbeat_frozen)
-        bits = (WINDOW_OPEN if inputs.window_open else 0) | (
-            LINE_RUNNING if inputs.line_running else 0
-        )
-        regs[self.base + PLC_STATUS] = bits
-        regs[self.base + PLC_HEARTBEAT] = inputs.heartbeat
+        p = self.base + PLC_STATUS
+        regs[p : p + 2] = encode_inputs(inputs)
         a = self.base + APP_STATUS
-        if a in written:
-            out = decode_outputs([written.get(a, regs[a]), written.get(a + 1, regs[a + 1])])
+        if a in written or a + 1 in written:
+            out = decode_outputs((written.get(a, regs[a]), written.get(a + 1, regs[a + 1])))
             changed = (out.busy, out.done, out.fault) != (
                 self.received.busy,
                 self.received.done,

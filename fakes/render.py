@@ -8,6 +8,8 @@ reflection); then speckle, blur, shot/read noise and quantisation (fakes.render_
 Public functions (all lengths mm in the sensor frame S = camera frame, commands in volts):
 
 - render_sphere_sweep(c_sensor_mm, radius_mm, sensor, rng, ...) -> (frames, commands_v, truth)
+- sphere_scene(sensor, c_sensor_mm, radius_mm) -> SphereScene (the laser-independent part of a
+  sphere's rendering, to reuse across frames at one pose: `render_sphere_sweep(..., scene=)`)
 - render_plane_sweep(T_camera_target, sensor, rng, ...)          -> (frames, commands_v, truth)
 - render_chessboard(T_camera_target, sensor, rng, ...)           -> (frame, corners_px, object_mm)
 - default_sweep_commands(n_frames)                                -> commands_v
@@ -142,6 +144,7 @@ def _render_frames(
     noise: NoiseSettings,
     rng: np.random.Generator,
     cull: bool = True,
+    tiles: _Tiles | None = None,
 ) -> Frames:
     """Frames for surface points X (visible at pixels flat_idx) under each laser plane.
 
@@ -149,10 +152,11 @@ def _render_frames(
     tile (16 x 16 pixels: a tile whose points' bounding box lies farther from the plane is
     skipped, exactly, since the distance is linear). The image formation runs in full inside
     their bounding box (plus the speckle/blur margin and the ghost's shift), the rest of the
-    frame is dark (`form_image_in_box`)."""
+    frame is dark (`form_image_in_box`). `tiles`: the points come already ordered by these tiles
+    (a SphereScene's)."""
     h, w = sensor.height_px, sensor.width_px
-    tiles = _Tiles(flat_idx, X, w) if cull else None
-    if tiles is not None:
+    if tiles is None and cull:
+        tiles = _Tiles(flat_idx, X, w)
         flat_idx, X, N = flat_idx[tiles.order], X[tiles.order], N[tiles.order]
     rows, cols = np.divmod(flat_idx, w)
     cut = 5.0 * light.sheet_sigma_mm
@@ -257,6 +261,30 @@ def _circle_polyline(
     return np.asarray(sensor.project(P[keep]))
 
 
+@dataclass(frozen=True, eq=False)
+class SphereScene:
+    """What the camera sees of one sphere, whatever the laser does: the pixels that see it
+    (flat indices), their surface points X and normals N (ordered by 16 x 16 pixel tiles) and
+    the tiles. The costly, laser-independent part of rendering a frame."""
+
+    c_sensor_mm: F64
+    radius_mm: float
+    flat_idx: NDArray[np.intp]
+    X: F64
+    N: F64
+    tiles: _Tiles
+
+
+def sphere_scene(sensor: TrueSensor, c_sensor_mm: F64, radius_mm: float) -> SphereScene:
+    """The scene of the sphere of centre c_sensor_mm (3,) [mm] in S and radius radius_mm."""
+    c = np.array(c_sensor_mm, dtype=np.float64)
+    flat_idx, X = sphere_hits(sensor, c, radius_mm)
+    N = (X - c) / radius_mm
+    tiles = _Tiles(flat_idx, X, sensor.width_px)
+    o = tiles.order
+    return SphereScene(c, float(radius_mm), flat_idx[o], X[o], N[o], tiles)
+
+
 def render_sphere_sweep(
     c_sensor_mm: F64,
     radius_mm: float,
@@ -268,6 +296,7 @@ def render_sphere_sweep(
     light: Lighting | None = None,
     angle_noise_rad: float = 0.0,
     stripe_truth: bool = True,
+    scene: SphereScene | None = None,
 ) -> tuple[Frames, F64, SweepTruth]:
     """Render one galvo sweep over a sphere.
 
@@ -276,18 +305,32 @@ def render_sphere_sweep(
     (default `default_sweep_commands()`); angle_noise_rad: mirror angle repeatability (RMS,
     added to the true angle of each frame, the commands returned are the nominal ones);
     stripe_truth: compute the true stripe polylines (False leaves truth.stripe_uv empty, which
-    saves a few ms per frame when only the centre matters).
+    saves a few ms per frame when only the centre matters); scene: `sphere_scene` of this very
+    sphere, computed once for several renders at one pose (the frames are the same as without).
     Returns frames shape=(n, H, W) uint8 (uint16 for 12 bit), the commands, and the truth.
     """
     noise = noise or NoiseSettings()
     light = light or Lighting()
     cmds = default_sweep_commands() if commands_v is None else np.asarray(commands_v, float)
     c = np.asarray(c_sensor_mm, dtype=np.float64)
-    flat_idx, X = sphere_hits(sensor, c, radius_mm)
-    N = (X - c) / radius_mm
+    if scene is None:
+        scene = sphere_scene(sensor, c, radius_mm)
+    elif scene.radius_mm != radius_mm or not np.array_equal(scene.c_sensor_mm, c):
+        raise ValueError("the scene is of another sphere")
     jitter = angle_noise_rad * rng.standard_normal(len(cmds))
     normals, offsets = _planes_with_jitter(sensor, cmds, jitter)
-    frames = _render_frames(sensor, flat_idx, X, N, normals, offsets, light, noise, rng)
+    frames = _render_frames(
+        sensor,
+        scene.flat_idx,
+        scene.X,
+        scene.N,
+        normals,
+        offsets,
+        light,
+        noise,
+        rng,
+        tiles=scene.tiles,
+    )
     stripes = (
         [
             _circle_polyline(sensor, c, radius_mm, n, d)

@@ -1,11 +1,16 @@
 """A SCPI DAC board behind a pty pair: the galvo driver opens a real serial port (``.port``).
 
-Answers ``*IDN?``, ``SOUR:VOLT <v>``, ``SOUR:VOLT?``, ``SYST:ERR?`` like the board: a voltage
-outside +-10 V or an unknown command queues an error (-222 / -113). A daemon thread serves the
-master side. Test controls: ``fail_next(command, mode)`` with mode "mute" (no answer), "garble"
-(non-numeric answer), "truncate" (answer without its LF), "drop" (the board vanishes on receipt,
-as a USB-CDC device unplugged mid-command), or an int error code queued in place of executing
-the command. ``unplug()`` removes the board at once, ``replug()`` brings it back.
+A conforming SCPI / IEEE 488.2 instrument (the message layer is fakes/_scpi.py: long and short
+forms, any case, leading colon, compound ``;`` messages, the mandatory common commands, the
+standard error numbers). Its own command: ``[:SOURce]:VOLTage[:LEVel][:IMMediate][:AMPLitude]
+<numeric value>`` and its query (NR3 answer); a voltage outside +-10 V is -222 "Data out of range"
+and leaves the output unchanged; ``*RST`` sets 0 V. A daemon thread serves the master side; a
+program message ends with LF (a CR before it is ignored). Test controls: ``fail_next(command,
+mode)`` for a command key (``SOUR:VOLT``, ``SOUR:VOLT?``, ``SYST:ERR?``, ``*IDN?``, whatever form
+the client used) with mode "mute" (no answer), "garble" (non-numeric answer), "truncate" (answer
+without its LF), "drop" (the board vanishes on receipt, as a USB-CDC device unplugged
+mid-command), or an int error code queued in place of executing the command. ``unplug()`` removes
+the board at once, ``replug()`` brings it back.
 
 With ``link=`` (a path), ``.port`` is a symlink to the pty, re-pointed on ``replug()``: the stable
 name udev gives a USB serial device (/dev/serial/by-id/...), so the driver can reopen the same
@@ -22,7 +27,9 @@ import os
 import select
 import threading
 import tty
-from typing import Self
+from typing import ClassVar, Self
+
+from fakes._scpi import ScpiError, ScpiInstrument, parse_number
 
 IDN = "rvis,FakeDAC-1,0001,1.0"
 
@@ -31,13 +38,23 @@ class _Vanished(Exception):
     """Raised inside the serving thread when a "drop" fault removes the board."""
 
 
-class ScpiDac:
+class _Muted(Exception):
+    """A "mute" fault: the unit is swallowed without an answer."""
+
+
+class ScpiDac(ScpiInstrument):
+    commands: ClassVar[tuple[tuple[str, str], ...]] = (
+        ("[:SOURce]:VOLTage[:LEVel][:IMMediate][:AMPLitude]", "_voltage"),
+    )
+    identity = IDN
+
     def __init__(self, *, volt_limit: float = 10.0, link: str | os.PathLike[str] | None = None):
+        super().__init__()
         self.volt_limit = volt_limit
         self.volts = 0.0
-        self.commands: list[str] = []
-        self._errors: list[tuple[int, str]] = []
+        self.commands_received: list[str] = []
         self._faults: dict[str, str | int] = {}
+        self._reply_mode: str | None = None
         self._link = os.fspath(link) if link is not None else None
         self._master = self._slave = -1
         self._stop_r = self._stop_w = -1
@@ -133,43 +150,54 @@ class ScpiDac:
                     os.write(master, answer)
 
     def _execute(self, line: str) -> bytes | None:
-        self.commands.append(line)
-        header = line.split(" ", 1)[0].upper()
-        mode = self._faults.pop(header, None)
-        if mode == "mute":
-            return None
-        if mode == "drop":
-            raise _Vanished(line)
-        if isinstance(mode, int):
-            self._errors.append((mode, "Injected error"))
-            return b"0\n" if header.endswith("?") else None
-        answer = self._answer(header, line)
+        self.commands_received.append(line)
+        self._reply_mode = None
+        answer = self.execute(line)
         if answer is None:
             return None
-        if mode == "garble":
+        if self._reply_mode == "garble":
             return b"\xff?!\n"
-        if mode == "truncate":
+        if self._reply_mode == "truncate":
             return answer.encode()[: max(1, len(answer) // 2)]
         return answer.encode() + b"\n"
 
-    def _answer(self, header: str, line: str) -> str | None:
-        if header == "*IDN?":
-            return IDN
-        if header in ("SOUR:VOLT?", "SOURCE:VOLTAGE?"):
-            return f"{self.volts:.6f}"
-        if header == "SYST:ERR?":
-            code, msg = self._errors.pop(0) if self._errors else (0, "No error")
-            return f'{code},"{msg}"'
-        if header in ("SOUR:VOLT", "SOURCE:VOLTAGE"):
-            try:
-                value = float(line.split(" ", 1)[1])
-            except (IndexError, ValueError):
-                self._errors.append((-104, "Data type error"))
-                return None
-            if abs(value) > self.volt_limit:
-                self._errors.append((-222, "Data out of range"))
-            else:
-                self.volts = value
+    def execute(self, message: str) -> str | None:
+        try:
+            return super().execute(message)
+        except _Muted:
             return None
-        self._errors.append((-113, "Undefined header"))
+
+    # -- the instrument -----------------------------------------------------------------------
+    def key_of(self, handler: str) -> str:
+        return "SOUR:VOLT" if handler == "_voltage" else super().key_of(handler)
+
+    def before_unit(self, key: str) -> None:
+        mode = self._faults.pop(key, None)
+        if mode == "mute":
+            raise _Muted(key)
+        if mode == "drop":
+            raise _Vanished(key)
+        if isinstance(mode, int):
+            raise ScpiError(mode, "Injected error")
+        if mode in ("garble", "truncate"):
+            self._reply_mode = mode
+
+    def reset(self) -> None:
+        self.volts = 0.0
+
+    def _voltage(self, query: bool, params: list[str]) -> str | None:
+        if query:
+            if params and params[0].upper() not in ("MIN", "MINIMUM", "MAX", "MAXIMUM"):
+                raise ScpiError(-108)
+            if params:
+                return f"{(-1 if params[0].upper().startswith('MIN') else 1) * self.volt_limit:E}"
+            return f"{self.volts:E}"
+        if not params:
+            raise ScpiError(-109)
+        if len(params) > 1:
+            raise ScpiError(-108)
+        value = parse_number(params[0], -self.volt_limit, self.volt_limit, 0.0)
+        if abs(value) > self.volt_limit:
+            raise ScpiError(-222)
+        self.volts = value
         return None

@@ -1,6 +1,11 @@
 """The tracker side-car (docs/tracker-sidecar.md) on loopback, measuring a World's targets with
 seeded noise. A real side-car wraps the vendor SDK behind the same protocol.
 
+As strict as its document: a request that is not a JSON object, lacks an integer ``id`` or a
+string ``cmd``, a ``hello`` without ``protocol: "rvis-tracker/1"``, or a ``measure`` without a
+string ``target`` and a positive number ``timeout_s`` is answered with code 2 "bad request"
+(echoing the ``id`` when there is an integer one, else ``null``); an unknown ``cmd`` with code 1.
+
 Test controls: ``in_beam`` (False: measure answers error 11), ``fail_next(cmd, mode)`` with mode
 "drop", "mute", "garble", "truncate" or an int error code.
 """
@@ -45,15 +50,18 @@ class TrackerService(LineServer):
     async def _handle(self, line: bytes, writer: asyncio.StreamWriter) -> bool:
         try:
             req = json.loads(line)
-            assert isinstance(req, dict)
-        except (json.JSONDecodeError, AssertionError):
-            await self._send(
-                writer,
-                {"id": None, "ok": False, "error": {"code": E_BAD_REQUEST, "message": "bad JSON"}},
-            )
+        except (json.JSONDecodeError, UnicodeDecodeError):
+            req = None
+        if not isinstance(req, dict):
+            await self._send(writer, {"id": None, **_error(E_BAD_REQUEST, "not a JSON object")})
             return True
         self.requests.append(req)
-        cmd = str(req.get("cmd"))
+        problem = _bad_request(req)
+        if problem:
+            rid = req.get("id") if _is_int(req.get("id")) else None
+            await self._send(writer, {"id": rid, **_error(E_BAD_REQUEST, problem)})
+            return True
+        cmd = str(req["cmd"])
         mode = self._faults.pop(cmd, None)
         partial = b'{"id": ' + str(req.get("id")).encode()
         keep = await self._transport_fault(mode, writer, truncated=partial)
@@ -105,6 +113,31 @@ class TrackerService(LineServer):
                 "pressure_hpa": m.pressure_hpa,
             }
         return _error(E_UNKNOWN_COMMAND, f"unknown command {cmd!r}")
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _bad_request(req: dict[str, Any]) -> str:
+    """Why the request breaks docs/tracker-sidecar.md ("" when it does not)."""
+    if not _is_int(req.get("id")):
+        return "every request needs an integer id"
+    if not isinstance(req.get("cmd"), str):
+        return "cmd must be a string"
+    if req["cmd"] == "hello" and req.get("protocol") != PROTOCOL:
+        return f"protocol must be {PROTOCOL!r}, got {req.get('protocol')!r}"
+    if req["cmd"] == "measure":
+        if not isinstance(req.get("target"), str):
+            return "measure needs a string target"
+        timeout = req.get("timeout_s")
+        if not (isinstance(timeout, int | float) and _is_number(timeout) and timeout > 0):
+            return f"measure needs a positive number timeout_s, got {timeout!r}"
+    return ""
 
 
 def _error(code: int, message: str) -> dict[str, Any]:

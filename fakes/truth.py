@@ -144,3 +144,47 @@ class TrueRobot:
             )
             dq[:, col] = k * tau
         return dq
+
+
+# -- the cell's truth over time ---------------------------------------------------------------
+@dataclass(frozen=True)
+class Warmup:
+    """First-order warm-up of the cell: the temperature rises by ``rise_k`` [K] towards its
+    asymptote with time constant ``tau_s`` [sim s] from ``start_s``: about +7.6 K after 3 h with
+    the defaults (95 % of 8 K at three time constants)."""
+
+    rise_k: float = 8.0
+    tau_s: float = 3600.0
+    start_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (self.tau_s > 0 and np.isfinite(self.rise_k)):
+            raise ValueError("warm-up needs tau_s > 0 and a finite rise_k")
+
+    def delta_k(self, t_s: float) -> float:
+        """Temperature above ambient [K] at sim time t_s."""
+        dt = max(t_s - self.start_s, 0.0)
+        return float(self.rise_k * -np.expm1(-dt / self.tau_s))
+
+
+@dataclass(frozen=True)
+class Knock:
+    """A knock on the sensor mount at sim time ``at_s``: the sensor moves by ``shift_mm`` [mm]
+    and tilts by ``tilt_deg`` [deg] about its own origin, in directions drawn from the seed."""
+
+    at_s: float
+    shift_mm: float = 0.3
+    tilt_deg: float = 0.05
+
+    def T_mount_knocked(self, rng: np.random.Generator) -> F64:
+        """The knock as a pose (4, 4) in the sensor frame: T_sensorBefore_sensorAfter."""
+        direction = _unit_vector(rng)
+        axis = _unit_vector(rng)
+        R = _rot(axis, np.array(np.radians(self.tilt_deg)))
+        return homogeneous(R, self.shift_mm * direction)
+
+
+def _unit_vector(rng: np.random.Generator) -> F64:
+    v = rng.normal(0.0, 1.0, 3)
+    out: F64 = v / np.linalg.norm(v)
+    return out

@@ -14,9 +14,10 @@ thread-safe for these calls):
 - ``target_ids()``: the ids of the fixed targets (spheres), e.g. ``["S1", "S2", "S3", "S4"]``.
 - ``target_true_mm(target_id)``: the target's true centre [mm] in the part frame, shape (3,);
   KeyError for an unknown id. The fake tracker adds its own noise.
-- ``render_frame(width, height, exposure_us, gain_db, galvo_deg)``: the image the camera sees
+- ``render_frame(width, height, exposure_us, gain_db, galvo_v)``: the image the camera sees
   now, shape (height, width), float64 in [0, 1] (the fake camera quantises it to the pixel
-  format). ``galvo_deg`` is the commanded mirror angle (None when no galvo is attached).
+  format). ``galvo_v`` is the galvo command in DAC volts (None when no galvo is attached); the
+  world's true sensor turns it into the mirror angle with its own model.
 """
 
 from __future__ import annotations
@@ -42,12 +43,13 @@ class World(Protocol):
     def target_true_mm(self, target_id: str) -> FloatArray: ...
 
     def render_frame(
-        self, width: int, height: int, exposure_us: float, gain_db: float, galvo_deg: float | None
+        self, width: int, height: int, exposure_us: float, gain_db: float, galvo_v: float | None
     ) -> FloatArray: ...
 
 
 class StaticWorld:
-    """Joints stored, targets given; frames are a gradient with a bright line at the galvo angle.
+    """Joints stored, targets given; frames are a gradient with a bright line at a column
+    proportional to the galvo command (-10 V left edge, +10 V right edge).
 
     ``StaticWorld({"S1": (1000, 0, -300)}, q_deg=(0, 0, 0, 0, -90, 0))``.
     """
@@ -88,11 +90,11 @@ class StaticWorld:
         return self._targets[target_id].copy()
 
     def render_frame(
-        self, width: int, height: int, exposure_us: float, gain_db: float, galvo_deg: float | None
+        self, width: int, height: int, exposure_us: float, gain_db: float, galvo_v: float | None
     ) -> FloatArray:
         gain = exposure_us / 10_000.0 * 10 ** (gain_db / 20.0)
         ramp = np.linspace(0.05, 0.25, width)[None, :].repeat(height, axis=0)
-        if galvo_deg is not None:
-            col = round((galvo_deg + 20.0) / 40.0 * (width - 1))
+        if galvo_v is not None:
+            col = round((galvo_v + 10.0) / 20.0 * (width - 1))
             ramp[:, max(col - 1, 0) : col + 2] = 0.9
         return np.clip(ramp * gain, 0.0, 1.0)

@@ -103,38 +103,47 @@ def _weights(r: F64, scale: float, *, cauchy: bool) -> F64:
 
 
 def fit_sphere_geometric(
-    X: F64, centre0: F64, radius_mm: float, *, fixed_radius: bool, max_iter: int = 30
+    X: F64,
+    centre0: F64,
+    radius_mm: float,
+    *,
+    fixed_radius: bool,
+    max_iter: int = 30,
+    tol_mm: float = 1e-7,
 ) -> tuple[F64, float, F64, F64, int]:
-    """Robust geometric fit minimising sum rho(|X - c| - R) by IRLS (see `_weights`).
+    """Robust geometric fit minimising sum rho(|X - c| - R) by IRLS (see `_weights`), until
+    a step moves the centre and radius by less than `tol_mm` (0.1 nm: far below any sensor's
+    resolution).
 
     Returns centre, radius, final residuals shape=(n,), the weighted normal matrix inverse
     (centre block first) times the residual variance, and the number of iterations.
     """
     c, R = centre0.astype(np.float64).copy(), float(radius_mm)
     scale = 0.0
+    n_col = 3 if fixed_radius else 4
+    J = np.empty((len(X), n_col))
+    if not fixed_radius:
+        J[:, 3] = -1.0
     for it in range(1, max_iter + 1):
         D = X - c
-        d = np.linalg.norm(D, axis=1)
+        d = np.sqrt(np.einsum("ij,ij->i", D, D))
         r = d - R
         if it == 1 or it % 3 == 0:
             scale = _robust_scale(r)
         w = _weights(r, scale, cauchy=it > 4)
-        J = (
-            -D / d[:, None]
-            if fixed_radius
-            else np.column_stack([-D / d[:, None], -np.ones(len(d))])
-        )
+        np.divide(D, -d[:, None], out=J[:, :3])
         JW = J * w[:, None]
         step = np.linalg.solve(JW.T @ J, -(JW.T @ r))
         c += step[:3]
         if not fixed_radius:
             R += float(step[3])
-        if float(np.max(np.abs(step))) < 1e-9:
+        if float(np.max(np.abs(step))) < tol_mm:
             break
-    r = np.linalg.norm(X - c, axis=1) - R
+    D = X - c
+    r = np.sqrt(np.einsum("ij,ij->i", D, D)) - R
     w = _weights(r, scale, cauchy=True)
-    sigma2 = float((w * r * r).sum() / max(w.sum() - J.shape[1], 1.0))
-    cov = np.linalg.inv((J * w[:, None]).T @ J) * sigma2
+    sigma2 = float((w * r * r).sum() / max(w.sum() - n_col, 1.0))
+    cov = np.asarray(np.linalg.inv((J * w[:, None]).T @ J) * sigma2, dtype=np.float64)
     return c, R, r, cov, it
 
 

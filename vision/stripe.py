@@ -59,11 +59,26 @@ class StripePoints:
         return int(self.u_px.shape[0])
 
 
+def _median_of_codes(codes: NDArray[np.integer]) -> float:
+    """np.median of non-negative integers, from their histogram (no sort)."""
+    cum = np.cumsum(np.bincount(codes.ravel()))
+    n = codes.size
+    lo = np.searchsorted(cum, (n - 1) // 2, side="right")
+    hi = np.searchsorted(cum, n // 2, side="right")
+    return 0.5 * float(lo + hi)
+
+
 def _background(frame: NDArray[np.generic]) -> tuple[float, float]:
     """Background level and noise sigma [DN] from a sparse sample (the stripe is thin)."""
-    sample = frame[::7, ::9].astype(np.float32).ravel()
-    med = float(np.median(sample))
-    mad = float(np.median(np.abs(sample - med)))
+    sample = frame[::7, ::9]
+    if sample.dtype.kind != "u":
+        sample_f = sample.astype(np.float32).ravel()
+        med = float(np.median(sample_f))
+        mad = float(np.median(np.abs(sample_f - med)))
+        return med, max(1.4826 * mad, 0.5)
+    codes = sample.astype(np.int64)
+    med = _median_of_codes(codes)
+    mad = 0.5 * _median_of_codes(np.abs(2 * codes - int(2 * med)))  # exact for half codes
     return med, max(1.4826 * mad, 0.5)
 
 

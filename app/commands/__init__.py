@@ -14,9 +14,12 @@ COMMANDS: dict[str, str] = {
     "observability": "rank, condition and O1..O5 of measurements",
     "plan": "plan sphere positions and measurement configurations",
     "experiment": "reproduce the paper's experiment on the simulated cell",
+    "compensate": "compensated joint targets for the controller (CSV or .ls)",
+    "export": "export the identified system (URDF)",
     "devices": "check the configured devices",
     "sensor": "laser-line sensor: calibrate, measure",
     "run": "the unattended in-line service",
     "status": "state of the in-line service",
     "ctl": "send a command to the in-line service",
+    "tui": "the operator's terminal of a running service",
 }

@@ -134,7 +134,7 @@ def _probe_camera(camera: Any) -> str:
 
 
 def _probe_galvo(galvo: Any) -> str:
-    return f"angle {galvo.angle_deg() + 0.0:.3f} deg"
+    return f"command {galvo.volts() + 0.0:.3f} V"
 
 
 def _probe_tracker(tracker: Any) -> str:

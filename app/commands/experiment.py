@@ -1,4 +1,6 @@
-"""`rvis experiment paper`: the paper's experiment on the simulated cell over many seeds."""
+"""`rvis experiment paper`: the paper's experiment on the simulated cell over many seeds;
+`rvis experiment compensation`: compensated targets on the simulated cell (in
+app/commands/compensate.py)."""
 
 from __future__ import annotations
 
@@ -6,6 +8,7 @@ import argparse
 import time
 from pathlib import Path
 
+from app.commands.compensate import run_compensation_experiment
 from app.config import load_cell
 from app.errors import InputError
 from app.experiment import run_experiment, summary_text
@@ -14,12 +17,12 @@ from app.planning import add_plan_options, plan_overrides
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("experiment", help="reproduce the paper's experiment on the simulated cell")
-    p.add_argument("name", choices=("paper",), help="which experiment")
+    p.add_argument("name", choices=("paper", "compensation"), help="which experiment")
     p.add_argument("--seeds", type=int, default=20, help="number of seeds (20)")
     p.add_argument("--first-seed", type=int, default=0, help="first seed (0)")
     p.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")
     p.add_argument("--out", help="output folder (default runs/experiment-<time>)")
-    p.add_argument("--validation", type=int, default=100, help="validation positions (100)")
+    p.add_argument("--validation", type=int, default=100, help="validation positions / poses (100)")
     add_plan_options(p)
     p.add_argument(
         "--criteria-grid-step",
@@ -37,6 +40,8 @@ def run(args: argparse.Namespace) -> int:
         value = getattr(args, key)
         if value is not None and value < 1:
             raise InputError(f"must be >= 1, got {value}", field=f"--{key.replace('_', '-')}")
+    if args.name == "compensation":
+        return run_compensation_experiment(args)
     cfg = load_cell(args.cell)
     out = Path(args.out or f"runs/experiment-{time.strftime('%Y%m%d-%H%M%S')}")
     overrides = plan_overrides(args)

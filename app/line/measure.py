@@ -60,13 +60,9 @@ class SphereSensor(Protocol):
 
 
 def set_galvo_volts(galvo: Galvo, volts: float) -> None:
-    """Command the galvo DAC in volts. Uses the driver's volts interface when it has one; the
-    angle interface otherwise, through its own calibration (so the DAC receives `volts`)."""
-    set_volts = getattr(galvo, "set_volts", None)
-    if callable(set_volts):
-        set_volts(volts)
-    else:
-        galvo.set_angle_deg(galvo.calibration.volts_to_angle(volts))
+    """Command the galvo DAC in volts (the one command model; vision's sensor model maps volts
+    to the laser plane)."""
+    galvo.set_volts(volts)
 
 
 class SweepSensor:

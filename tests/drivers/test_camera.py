@@ -84,11 +84,11 @@ def test_hardware_trigger_without_an_edge_times_out(camera: Camera) -> None:
 def test_fake_hardware_trigger_and_galvo_line(world: StaticWorld) -> None:
     settings = CameraSettings(trigger="hardware")
     with FakeGalvo() as galvo, FakeCamera(world, galvo=galvo, settings=settings) as cam:
-        galvo.set_angle_deg(0.0)
+        galvo.set_volts(5.0)
         cam.fire_line_trigger()
         frame = cam.grab(timeout_s=0.5)
         column = int(np.argmax(frame.image.mean(axis=0)))
-        assert abs(column - (frame.image.shape[1] - 1) / 2) <= 2
+        assert abs(column - 0.75 * (frame.image.shape[1] - 1)) <= 2  # +5 V: 3/4 across
 
 
 @ARAVIS

@@ -19,11 +19,11 @@ from drivers import (
     open_galvo,
 )
 from drivers.errors import DeviceConfigError
-from drivers.galvo import Galvo, GalvoCalibration
+from drivers.galvo import Galvo, GalvoSettings
 from drivers.scpi_galvo import ScpiGalvo
 from fakes.scpi_dac import ScpiDac
 
-CAL = GalvoCalibration(coefficients=(0.1, 0.45, 0.002), angle_limits_deg=(-15.0, 15.0))
+LIMITS = GalvoSettings(volt_min=-7.5, volt_max=7.5)
 
 
 @pytest.fixture(params=["fake", "scpi"])
@@ -34,33 +34,31 @@ def galvo(request: pytest.FixtureRequest) -> Iterator[Galvo]:
         else:
             dac = stack.enter_context(ScpiDac())
             url = f"scpi+serial://{dac.port}?baud=115200"
-        yield stack.enter_context(open_galvo(url, calibration=CAL, timeout_s=0.3))
+        yield stack.enter_context(open_galvo(url, settings=LIMITS, timeout_s=0.3))
 
 
-def test_angle_round_trip(galvo: Galvo) -> None:
-    for angle in (-15.0, -3.25, 0.0, 7.5, 15.0):
-        volts = galvo.set_angle_deg(angle)
-        assert volts == pytest.approx(CAL.angle_to_volts(angle))
-        assert galvo.angle_deg() == pytest.approx(angle, abs=1e-4)
+def test_volts_round_trip(galvo: Galvo) -> None:
+    for command_v in (-7.5, -3.25, 0.0, 1.234567, 7.5):
+        assert galvo.set_volts(command_v) == command_v
+        assert galvo.volts() == pytest.approx(command_v, abs=1e-6)
     assert galvo.describe()
 
 
-def test_angles_outside_the_limits_are_refused(galvo: Galvo) -> None:
-    galvo.set_angle_deg(1.0)
-    for bad in (15.01, -40.0, float("nan")):
+def test_commands_outside_the_limits_are_refused(galvo: Galvo) -> None:
+    galvo.set_volts(1.0)
+    for bad in (7.51, -40.0, float("nan"), float("inf")):
         with pytest.raises(MotionRefused):
-            galvo.set_angle_deg(bad)
-    assert galvo.angle_deg() == pytest.approx(1.0, abs=1e-4)
+            galvo.set_volts(bad)
+    assert galvo.volts() == pytest.approx(1.0, abs=1e-6)
 
 
-@given(st.floats(-15, 15))
-def test_calibration_inverse(angle: float) -> None:
-    assert CAL.volts_to_angle(CAL.angle_to_volts(angle)) == pytest.approx(angle, abs=1e-7)
-
-
-def test_non_monotonic_calibration_is_rejected() -> None:
-    with pytest.raises(DeviceConfigError, match="monotonic"):
-        GalvoCalibration(coefficients=(0.0, 0.1, 0.05), angle_limits_deg=(-10, 10))
+@given(st.floats(-20, 20), st.floats(-20, 20))
+def test_settings_need_an_ordered_range(lo: float, hi: float) -> None:
+    if lo < hi:
+        assert GalvoSettings(lo, hi).volt_max == hi
+    else:
+        with pytest.raises(DeviceConfigError):
+            GalvoSettings(lo, hi)
 
 
 @pytest.fixture
@@ -78,21 +76,21 @@ def scpi(dac: ScpiDac) -> Iterator[ScpiGalvo]:
 def test_error_from_the_board_is_a_device_fault(dac: ScpiDac, scpi: ScpiGalvo) -> None:
     dac.fail_next("SOUR:VOLT", -222)
     with pytest.raises(DeviceFault, match="-222") as info:
-        scpi.set_angle_deg(2.0)
+        scpi.set_volts(1.0)
     assert info.value.code == -222
-    scpi.set_angle_deg(2.0)
+    assert dac.volts == 0.0  # not executed
+    scpi.set_volts(1.0)
     assert dac.volts == pytest.approx(1.0)
 
 
 def test_out_of_range_voltage_reported_by_the_board(dac: ScpiDac) -> None:
-    wide = GalvoCalibration(
-        coefficients=(0.0, 0.5), angle_limits_deg=(-22, 22), volt_limits=(-12, 12)
-    )
-    with (
-        ScpiGalvo(dac.port, calibration=wide, timeout_s=0.2) as g,
-        pytest.raises(DeviceFault, match="out of range"),
-    ):
-        g.set_angle_deg(21.0)
+    wide = GalvoSettings(volt_min=-12.0, volt_max=12.0)
+    with ScpiGalvo(dac.port, settings=wide, timeout_s=0.2) as g:
+        g.set_volts(2.0)
+        with pytest.raises(DeviceFault, match="out of range") as info:
+            g.set_volts(11.0)
+        assert info.value.code == -222
+        assert dac.volts == pytest.approx(2.0)  # the board kept its output
 
 
 def test_silence_is_a_timeout_and_retried(dac: ScpiDac, scpi: ScpiGalvo) -> None:
@@ -100,7 +98,7 @@ def test_silence_is_a_timeout_and_retried(dac: ScpiDac, scpi: ScpiGalvo) -> None
     with pytest.raises(DeviceTimeout):
         scpi._get_volts()
     dac.fail_next("SOUR:VOLT?", "mute")
-    assert scpi.angle_deg() == pytest.approx(0.0)  # reopened and asked again
+    assert scpi.volts() == pytest.approx(0.0)  # reopened and asked again
 
 
 @pytest.mark.parametrize("mode", ["garble", "truncate"])
@@ -113,8 +111,8 @@ def test_bad_answers_are_protocol_errors(dac: ScpiDac, scpi: ScpiGalvo, mode: st
 def _operation(galvo: ScpiGalvo, command: str) -> Callable[[], float]:
     """The public call that sends ``command``: a read-back, or a set (SOUR:VOLT + SYST:ERR?)."""
     if command == "SOUR:VOLT?":
-        return galvo.angle_deg
-    return lambda: galvo.set_angle_deg(3.0)
+        return galvo.volts
+    return lambda: galvo.set_volts(1.5)
 
 
 @pytest.mark.parametrize("command", ["SOUR:VOLT?", "SOUR:VOLT", "SYST:ERR?", "between commands"])
@@ -122,7 +120,7 @@ def test_board_vanishing_is_a_connection_error_until_it_is_back(
     tmp_path: Path, command: str
 ) -> None:
     with ScpiDac(link=tmp_path / "ttyDAC") as dac, ScpiGalvo(dac.port, timeout_s=0.2) as galvo:
-        galvo.set_angle_deg(2.0)
+        galvo.set_volts(1.0)
         if command == "between commands":
             dac.unplug()
             command = "SOUR:VOLT"
@@ -135,5 +133,5 @@ def test_board_vanishing_is_a_connection_error_until_it_is_back(
         with pytest.raises(DeviceConnectionError):
             operation()  # still typed, still no hang
         dac.replug()  # back under the same name: the next call reconnects
-        assert galvo.set_angle_deg(3.0) == pytest.approx(1.5)
-        assert dac.volts == pytest.approx(1.5) and galvo.angle_deg() == pytest.approx(3.0)
+        assert galvo.set_volts(1.5) == pytest.approx(1.5)
+        assert dac.volts == pytest.approx(1.5) and galvo.volts() == pytest.approx(1.5)

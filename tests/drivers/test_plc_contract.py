@@ -1,7 +1,9 @@
-"""PLC contract (fake:// and the pymodbus PLC peer): clamp-window handshake and heartbeat."""
+"""PLC contract (fake:// and the pymodbus PLC peer): the clamp-window handshake and heartbeat of
+the base class, over each backend's register-level primitives."""
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 from contextlib import ExitStack
 from typing import Any
@@ -9,7 +11,19 @@ from typing import Any
 import pytest
 
 from drivers import DeviceConnectionError, DeviceFault, DeviceTimeout, open_plc
-from drivers.plc import Plc
+from drivers.plc import (
+    BUSY,
+    FAULT,
+    LINE_RUNNING,
+    WINDOW_OPEN,
+    Plc,
+    PlcInputs,
+    PlcOutputs,
+    decode_inputs,
+    decode_outputs,
+    encode_inputs,
+    encode_outputs,
+)
 from fakes.devices import ClampCycle, FakePlc
 
 # 60 s cycle with an 8 s window, compressed 500x: 120 ms period, 16 ms window, 1 ms beat
@@ -127,3 +141,34 @@ def test_modbus_plc_peer_gone_and_back() -> None:
             plc.poll()
         with PlcServer(CYCLE, port=port):
             plc.wait_window(timeout_s=1.0)
+
+
+def test_every_connect_resets_the_outputs(plc_and_peer: tuple[Plc, Any]) -> None:
+    plc, peer = plc_and_peer
+    plc.poll()
+    plc.set_signals(busy=True, done=False, fault=True)
+    assert peer.received.busy and peer.received.fault and peer.received.heartbeat > 0
+    plc.close()
+    plc.open()  # the handshake of the base class: outputs back to zero, heartbeat from 0
+    assert peer.received == PlcOutputs()
+    assert plc.outputs == PlcOutputs()
+    assert not plc.heartbeat_alive()  # no PLC heartbeat seen on this connection yet
+
+
+def test_a_withdrawn_window_is_seen_at_once(plc_and_peer: tuple[Plc, Any]) -> None:
+    plc, _ = plc_and_peer
+    opened = plc.wait_window(timeout_s=1.0)
+    assert opened.window_open
+    deadline = time.monotonic() + 1.0
+    while plc.ready():  # the 16 ms window closes; ready() follows the PLC's status word
+        assert time.monotonic() < deadline, "the window never closed"
+    assert plc.heartbeat_alive()
+
+
+def test_the_words_on_the_wire_follow_the_register_map() -> None:
+    out = PlcOutputs(busy=True, done=False, fault=True, heartbeat=0x1_0005)
+    assert encode_outputs(out) == (BUSY | FAULT, 5)
+    assert decode_outputs(encode_outputs(out)) == PlcOutputs(True, False, True, 5)
+    inputs = decode_inputs((WINDOW_OPEN | LINE_RUNNING, 77))
+    assert inputs == PlcInputs(window_open=True, line_running=True, heartbeat=77)
+    assert encode_inputs(inputs) == (WINDOW_OPEN | LINE_RUNNING, 77)

@@ -38,6 +38,7 @@ def test_exported_names_are_pinned() -> None:
         "FaultLatched",
         "JointBox",
         "JointLimits",
+        "MotionAborted",
         "MotionRefused",
         "ProtocolError",
         "SafetyGuard",

@@ -16,7 +16,9 @@ from drivers import (
     ProtocolError,
 )
 from drivers.rmi import RMIT_BASE, RmiRobot
-from fakes.rmi_controller import ERR_LIMIT, ERR_VALUE, RmiController
+from drivers.rmi_errors import INVALID_DESTINATION as ERR_LIMIT
+from drivers.rmi_errors import INVALID_OVERRIDE as ERR_VALUE
+from fakes.rmi_controller import RmiController
 from fakes.world import StaticWorld
 
 HOME = np.array([0.0, 0.0, 0.0, 0.0, -90.0, 0.0])
@@ -57,7 +59,7 @@ def test_error_code_from_the_controller_is_a_device_fault(
     ctrl: RmiController, robot: RmiRobot
 ) -> None:
     ctrl.fail_next("FRC_JointMotionJRep", ERR_LIMIT)
-    with pytest.raises(DeviceFault, match="RMIT-017") as info:
+    with pytest.raises(DeviceFault, match="RMIT-036 Invalid Destination Position") as info:
         robot.move_joints(A, speed_pct=100)
     assert info.value.code == ERR_LIMIT and ERR_LIMIT > RMIT_BASE
     with pytest.raises(FaultLatched):  # no motion after a fault ...

@@ -25,7 +25,7 @@ from app.line.station import Station
 from app.simulation import make_cell
 from calib import candidates
 from calib.model import SystemModel
-from drivers.plc import PlcInputs, PlcOutputs
+from drivers.plc import decode_inputs, decode_outputs, encode_inputs
 from fakes.cell import SimulatedCell
 from fakes.devices import ClampCycle, FakePlc, FakeRobot
 
@@ -68,8 +68,8 @@ class LinePlc(FakePlc):
         self.on_done: Callable[[int], None] | None = None  # called with the rows at done
         self._was_open = False
 
-    def _read_inputs(self) -> PlcInputs:
-        inputs = super()._read_inputs()
+    def _read_input_words(self) -> tuple[int, int]:
+        inputs = decode_inputs(super()._read_input_words())
         if self.withdraw_on_motion and self.world is not None and inputs.window_open:
             home = np.array(LineSettings().home_deg)
             if np.max(np.abs(self.world.joints_deg() - home)) > 1.0:
@@ -79,9 +79,10 @@ class LinePlc(FakePlc):
                 self.edges += 1
                 self.changed.notify_all()
         self._was_open = inputs.window_open
-        return inputs
+        return encode_inputs(inputs)
 
-    def _write_outputs(self, outputs: PlcOutputs) -> None:
+    def _write_output_words(self, words: tuple[int, int]) -> None:
+        outputs = decode_outputs(words)
         if outputs.done and not self.received.done and self.db_path is not None:
             db = sqlite3.connect(f"file:{self.db_path}?mode=ro", uri=True)
             rows = int(db.execute("SELECT COUNT(*) FROM measurements").fetchone()[0])
@@ -89,7 +90,7 @@ class LinePlc(FakePlc):
             self.rows_at_done.append(rows)
             if self.on_done is not None:
                 self.on_done(rows)
-        super()._write_outputs(outputs)
+        super()._write_output_words(words)
 
     def wait_edges(self, n: int, timeout_s: float = 10.0) -> None:
         """Wait until `n` more windows have opened."""

@@ -12,8 +12,8 @@ import pytest
 from app.config import load_cell
 from app.simulation import validation_set
 from calib.identify import Measurements, identify
-from fakes.cell import _small_pose
 from fakes.devices import ClampCycle
+from fakes.truth import Knock
 from tests.line.helpers import SCALE, line_settings, make_line, plan_for
 
 SEED = 3
@@ -67,12 +67,8 @@ def test_a_knock_is_flagged_and_the_recalibration_restores_the_accuracy(tmp_path
         for _ in range(2):  # the charts learn their baseline (8 residuals) and watch
             ln.wait(lambda e: e["event"] == "window")
         n_before = ln.service.store.counts()["ok"]
-        # the knock: the sensor mount moves by 0.3 mm and 0.05 deg
-        knock = _small_pose(np.random.default_rng(7), 0.0, 0.0)
-        knock[:3, 3] = [0.3, 0.0, 0.0]
-        c, s = np.cos(np.radians(0.05)), np.sin(np.radians(0.05))
-        knock[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
-        ln.cell.T_tool0_sensor = ln.cell.T_tool0_sensor @ knock
+        # the knock, now: the sensor mount moves by 0.3 mm and tilts by 0.05 deg
+        ln.cell.set_timeline(ln.clock, knock=Knock(at_s=ln.clock.monotonic()))
         knocked = true_rms(x_good)
         alarm = ln.wait(lambda e: e["event"] == "alarm" and e["code"] == "drift", 20.0)
         flagged_at = ln.service.drift_onset_id

@@ -4,7 +4,6 @@ cell knows the true centre. Also the geometric seam, a rejected sweep and the wa
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterator
 
 import numpy as np
@@ -14,7 +13,6 @@ from app.config import load_cell
 from app.line.measure import GeometricSensor, Rejected, SphereMeasurer, SweepSensor
 from app.line.settings import LineSettings, SweepSettings
 from app.simulation import make_cell
-from drivers.galvo import GalvoCalibration
 from fakes.cell import SimulatedCell
 from fakes.devices import FakeCamera, FakeGalvo, FakeRobot
 from tests.line.helpers import plan_for
@@ -30,11 +28,8 @@ def cell() -> SimulatedCell:
 
 @pytest.fixture()
 def rig(cell: SimulatedCell) -> Iterator[tuple[FakeRobot, FakeGalvo, FakeCamera]]:
-    # the DAC's volts -> mirror angle as the true sensor has it (one source of truth: volts)
-    slope_deg_per_v = math.degrees(float(cell.sensor.angle_poly_rad[1]))
-    cal = GalvoCalibration((0.0, 1.0 / slope_deg_per_v), (-9.0, 9.0))
     robot = FakeRobot(cell, time_scale=0.001).open()
-    galvo = FakeGalvo(calibration=cal).open()
+    galvo = FakeGalvo().open()
     camera = FakeCamera(cell, galvo=galvo)
     camera.open()
     cell.set_joints_deg(LineSettings().home_deg)
@@ -55,7 +50,7 @@ def test_sweep_sensor_measures_the_true_centre(
     assert np.linalg.norm(reading.c_sensor_mm - truth) < 0.1
     assert reading.frames is not None and reading.frames.shape[0] == 24
     assert reading.quality["n_frames_used"] >= 5
-    assert abs(galvo.volts) < 1e-9  # parked after the sweep
+    assert galvo.output_v == 0.0  # parked after the sweep
     assert measurer.at_home()
 
 

@@ -152,13 +152,13 @@ def test_fake_camera_sees_the_stripe_on_a_sphere(
     cell: SimulatedCell, cfg: CellConfig, sensor: TrueSensor
 ) -> None:
     """The fake:// camera backed by the cell: at a configuration that sees P2, with the galvo
-    at 1 deg, the extracted stripe lies where the renderer's truth puts it; looking away, the
-    frame is dark."""
+    commanded at 1 V, the extracted stripe lies where the renderer's truth puts it; looking away,
+    the frame is dark."""
     q = views_of(cell, cfg, "P2", 1, seed=5)[0]
     settings = CameraSettings(pixel_format="Mono12")
     with FakeGalvo() as galvo, FakeCamera(cell, galvo=galvo, settings=settings) as camera:
         cell.set_joints_deg(q)
-        galvo.set_angle_deg(1.0)
+        galvo.set_volts(1.0)
         frame = camera.grab()
         assert frame.image.shape == (966, 1296) and frame.image.dtype == np.uint16
         stripe = extract_stripe(frame.image)

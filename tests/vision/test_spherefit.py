@@ -81,3 +81,17 @@ def test_wrong_radius_is_rejected_not_reported(rng: np.random.Generator) -> None
 def test_narrow_cap_is_rejected(rng: np.random.Generator) -> None:
     with pytest.raises(SphereFitRejected, match="coverage"):
         fit_sphere(_cap(rng, 12.0, noise_mm=0.005), 15.0)
+
+
+@pytest.mark.parametrize("fixed_radius", [True, False])
+def test_stopping_at_a_tenth_of_a_nanometre_changes_nothing_measurable(
+    rng: np.random.Generator, fixed_radius: bool
+) -> None:
+    """The IRLS stops when a step is below 0.1 nm (fewer iterations than iterating to 1e-12 mm);
+    the centre differs from the fully converged one by far less than a micrometre."""
+    X = _cap(rng, 40.0, noise_mm=0.02)
+    c0, _ = fit_sphere_pratt(X)
+    fast = fit_sphere_geometric(X, c0, 15.0, fixed_radius=fixed_radius)
+    full = fit_sphere_geometric(X, c0, 15.0, fixed_radius=fixed_radius, tol_mm=1e-12, max_iter=200)
+    assert np.max(np.abs(fast[0] - full[0])) < 1e-5 and abs(fast[1] - full[1]) < 1e-5
+    assert fast[4] < full[4]

@@ -1,0 +1,126 @@
+"""`rvis compensate`: compensated joint targets for a controller that runs its nominal model.
+
+Reads intended sensor poses (part frame, FANUC W/P/R) or joint targets taught on the nominal
+model (app/program_files.py), compensates them with the identified parameters
+(calib/compensate.py) and writes a CSV or a FANUC `.ls` program in joint representation. A row
+that cannot be compensated (out of reach, no solution within the limits, a branch change) is
+an input error naming the file, line and target: nothing is written then.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from app import compensation_check as check
+from app.api import Calibration, command_xyzwpr
+from app.config import load_cell
+from app.errors import InputError
+from app.program_files import LsSettings, Targets, read_targets, write_ls, write_result_csv
+from calib.compensate import Compensation, CompensationSettings
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "compensate", help="compensated joint targets for the controller (CSV or .ls)"
+    )
+    p.add_argument("--params", required=True, help="parameters JSON (from rvis identify)")
+    p.add_argument(
+        "--targets",
+        required=True,
+        help="CSV of poses (id,x_mm,y_mm,z_mm,w_deg,p_deg,r_deg [,j1_deg..j6_deg hint]) "
+        "or joints (id,j1_deg..j6_deg)",
+    )
+    p.add_argument("--out", required=True, help="output file (.csv or .ls)")
+    p.add_argument(
+        "--format", choices=("csv", "ls"), help="output format (default: from --out, else csv)"
+    )
+    d = CompensationSettings()
+    p.add_argument(
+        "--max-joint-change",
+        type=float,
+        default=d.max_joint_change_deg,
+        help=f"largest joint change [deg] before a row is refused ({d.max_joint_change_deg:g})",
+    )
+    ls = LsSettings()
+    p.add_argument("--speed", type=int, default=ls.speed_percent, help="joint speed [%%] (.ls)")
+    p.add_argument("--uframe", type=int, default=ls.uframe, help="UF recorded in .ls positions")
+    p.add_argument("--utool", type=int, default=ls.utool, help="UT recorded in .ls positions")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        settings = CompensationSettings(max_joint_change_deg=args.max_joint_change)
+        ls = LsSettings(speed_percent=args.speed, uframe=args.uframe, utool=args.utool)
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+    out = Path(args.out)
+    fmt = args.format or ("ls" if out.suffix.lower() == ".ls" else "csv")
+    cal = Calibration.load(args.params)
+    targets = read_targets(args.targets, cal.model.limits)
+    result = _compensate(cal, targets, settings)
+    _refuse_bad_rows(targets, result)
+    try:
+        if fmt == "ls":
+            write_ls(out, targets.ids, result.q_deg, ls)
+        else:
+            xyzwpr = command_xyzwpr(result)
+            write_result_csv(out, targets.ids, result.q_deg, xyzwpr, result.q_nominal_deg)
+    except OSError as exc:
+        raise InputError(f"cannot write: {exc.strerror or exc}", file=out) from exc
+    change = result.joint_change_deg
+    print(
+        f"compensated {len(targets.ids)} {targets.kind} targets with {args.params}: joint "
+        f"change median {np.median(change):.4f} deg, largest {change.max():.4f} deg; "
+        f"wrote {out} ({fmt})"
+    )
+    return 0
+
+
+def _compensate(cal: Calibration, t: Targets, settings: CompensationSettings) -> Compensation:
+    if t.kind == "joints":
+        return cal.compensate_joints(t.values, settings)
+    return cal.compensate_poses(t.values, t.q_hint_deg, settings)
+
+
+def _refuse_bad_rows(t: Targets, result: Compensation) -> None:
+    bad = np.flatnonzero(~result.ok)
+    if bad.size == 0:
+        return
+    first = int(bad[0])
+    more = f" (and {bad.size - 1} more rows, lines {_lines(t, bad[1:])})" if bad.size > 1 else ""
+    raise InputError(
+        f"target '{t.ids[first]}': {result.reason[first]}{more}",
+        file=t.path,
+        line=t.lines[first],
+    )
+
+
+def _lines(t: Targets, rows: np.ndarray) -> str:
+    shown = ", ".join(str(t.lines[int(k)]) for k in rows[:10])
+    return shown + (", ..." if rows.size > 10 else "")
+
+
+def run_compensation_experiment(args: argparse.Namespace) -> int:
+    """`rvis experiment compensation`: nominal vs compensated pose error of the true robot of
+    the simulated cell (app/compensation_check.py); writes compensation.md to --out."""
+    cfg = load_cell(args.cell)
+    out = Path(args.out or f"runs/experiment-{time.strftime('%Y%m%d-%H%M%S')}")
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    print(f"rvis experiment compensation: {len(seeds)} seeds x {args.validation} poses")
+    results = check.run(cfg, seeds, args.validation, log=lambda s: print(s, flush=True))
+    command = (
+        f"rvis experiment compensation --seeds {args.seeds} --first-seed {args.first_seed} "
+        f"--validation {args.validation}"
+    )
+    text = check.markdown(results, command)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "compensation.md").write_text(text, encoding="utf-8")
+    print()
+    print(text)
+    print(f"written {out}/compensation.md")
+    return 0

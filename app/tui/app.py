@@ -1,0 +1,399 @@
+"""The operator's terminal: six panes (Overview, Measurements, Calibrations, Alarms, Devices,
+Log) over one service. Keyboard first (bindings in the footer); socket and database work run in
+workers so the screen never waits; every action that moves the robot or changes the applied
+parameters asks first and shows the service's answer."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, ClassVar
+
+from textual import work
+from textual.app import App, ComposeResult
+from textual.binding import Binding, BindingType
+from textual.containers import Horizontal, Vertical, VerticalScroll
+from textual.theme import Theme
+from textual.widgets import (
+    DataTable,
+    Footer,
+    Input,
+    Label,
+    Sparkline,
+    Static,
+    TabbedContent,
+    TabPane,
+)
+
+from app.tui import view
+from app.tui.client import Event, ServiceClient, ServiceUnavailable
+from app.tui.history import HistoryReader
+from app.tui.modals import ConfirmScreen, ShelveScreen
+
+#: ISA-101: a quiet grey screen; the only colours are the alarm priorities (and error toasts)
+ISA101 = Theme(
+    name="isa101",
+    primary="#8a8a8a",
+    secondary="#767676",
+    accent="#9e9e9e",
+    warning="#ffaf00",
+    error="#d70000",
+    success="#8a8a8a",
+    foreground="#e4e4e4",
+    background="#3a3a3a",
+    surface="#444444",
+    panel="#4e4e4e",
+    dark=True,
+)
+
+PANES = ("overview", "measurements", "calibrations", "alarms", "devices", "log")
+
+CSS = """
+Screen { background: #3a3a3a; color: #d7d7d7; }
+#status { height: 1; background: #4e4e4e; color: #ffffff; padding: 0 1; }
+#status.disconnected { background: #5f005f; color: #ffffff; text-style: bold; }
+#banner { height: 1; padding: 0 1; display: none; }
+#banner.shown { display: block; }
+.alarm-high { background: #d70000; color: #ffffff; text-style: bold; }
+.alarm-medium { background: #ffaf00; color: #000000; text-style: bold; }
+.alarm-low { background: #5f87af; color: #000000; }
+DataTable { background: #3a3a3a; height: 1fr; }
+TabbedContent { height: 1fr; }
+#overview-text { height: auto; }
+.drift-row { height: 1; }
+.drift-row Label { width: 22; }
+.drift-row Sparkline { width: 1fr; }
+#pending { height: auto; max-height: 50%; }
+.dialog { width: 70; height: auto; border: solid #8a8a8a; background: #4e4e4e; padding: 1; }
+ModalScreen { align: center middle; }
+.buttons { height: auto; }
+Input { background: #4e4e4e; }
+Sparkline > .sparkline--max-color { color: #e4e4e4; }
+Sparkline > .sparkline--min-color { color: #808080; }
+FooterKey .footer-key--key { color: #ffffff; background: #5f5f5f; }
+"""
+
+
+class RvisTui(App[None]):
+    """`RvisTui(state_dir)`: attach to the service of that state directory."""
+
+    CSS = CSS
+    TITLE = "rvis"
+    BINDINGS: ClassVar[list[BindingType]] = [
+        *(Binding(str(k + 1), f"show('{p}')", p.title(), show=False) for k, p in enumerate(PANES)),
+        Binding("p", "pause_resume", "Pause"),
+        Binding("r", "reset", "Reset"),
+        Binding("c", "recalibrate", "Recal"),
+        Binding("a", "approve", "Approve"),
+        Binding("x", "reject", "Reject"),
+        Binding("b", "rollback", "Rollback"),
+        Binding("k", "ack", "Ack"),
+        Binding("s", "shelve", "Shelve"),
+        Binding("q", "quit", "Quit"),
+    ]
+
+    def __init__(self, state_dir: str | Path) -> None:
+        super().__init__()
+        self.state_dir = Path(state_dir)
+        self.history = HistoryReader(self.state_dir / "rvis.db")
+        self.client = ServiceClient(self.state_dir / "rvis.sock", self._on_event, self._on_link)
+        self.status: dict[str, Any] | None = None
+        self.connection = (False, "connecting ...")
+        self.events_seen = 0
+
+    # -- layout ------------------------------------------------------------------------------
+    def compose(self) -> ComposeResult:
+        yield Static("DISCONNECTED - connecting ...", id="status", classes="disconnected")
+        yield Static("", id="banner")
+        with TabbedContent(initial="overview"):
+            with TabPane("1 Overview", id="overview"), VerticalScroll():
+                yield Static("", id="overview-text")
+                yield Label("Residual per sphere (recent measurements, mm):")
+                yield Vertical(id="drift")
+            with TabPane("2 Measurements", id="measurements"), Vertical():
+                yield Input(placeholder="filter by sphere (e.g. P2), Enter", id="sphere-filter")
+                yield DataTable(id="measurements-table", cursor_type="row")
+            with TabPane("3 Calibrations", id="calibrations"), Vertical():
+                yield Static("no calibration pending", id="pending-title")
+                yield DataTable(id="pending", cursor_type="row")
+                yield DataTable(id="calibrations-table", cursor_type="row")
+            with TabPane("4 Alarms", id="alarms"):
+                yield DataTable(id="alarms-table", cursor_type="row")
+            with TabPane("5 Devices", id="devices"):
+                yield DataTable(id="devices-table", cursor_type="row")
+            with TabPane("6 Log", id="log"), Vertical():
+                yield Input(placeholder="filter events, Enter", id="log-filter")
+                yield DataTable(id="log-table", cursor_type="row")
+        yield Footer(compact=True)
+
+    def on_mount(self) -> None:
+        self.register_theme(ISA101)
+        self.theme = "isa101"
+        columns = {
+            "measurements-table": ("id", "time (UTC)", "sphere", "status", "residual mm", "note"),
+            "pending": ("parameter", "unit", "current", "pending", "change", "std", "|chg|/std"),
+            "calibrations-table": ("version", "time (UTC)", "status", "RMS mm", "gates"),
+            "alarms-table": ("id", "prio", "state", "raised (UTC)", "alarm", "shelved"),
+            "devices-table": ("device", "URL", "state", "last error"),
+            "log-table": ("time (UTC)", "event", "detail"),
+        }
+        for table_id, cols in columns.items():
+            self.query_one(f"#{table_id}", DataTable).add_columns(*cols)
+        self.run_worker(self.client.run(), group="client", exit_on_error=False)
+        self.set_interval(2.0, self.refresh_all)
+
+    # -- data in -----------------------------------------------------------------------------
+    async def _on_link(self, connected: bool, detail: str) -> None:
+        self.connection = (connected, detail)
+        if connected:
+            self.refresh_all()
+        else:
+            self._show_status()
+
+    async def _on_event(self, event: Event) -> None:
+        self.events_seen += 1
+        self.refresh_all()
+
+    @work(group="refresh", exclusive=True, exit_on_error=False)
+    async def refresh_all(self) -> None:
+        """Status from the socket, history from the database (in a thread), then the screen."""
+        if self.client.connected:
+            try:
+                reply = await self.client.request("status")
+                self.status = reply if reply.get("ok") else self.status
+            except ServiceUnavailable:
+                pass
+        sphere = self.query_one("#sphere-filter", Input).value.strip() or None
+        text = self.query_one("#log-filter", Input).value.strip()
+        hist = await asyncio.to_thread(self._read_history, sphere, text)
+        self._show_status()
+        self._show_history(hist)
+
+    def _read_history(self, sphere: str | None, text: str) -> dict[str, list[dict[str, Any]]]:
+        return {
+            "measurements": self.history.measurements(200, sphere),
+            "recent": self.history.measurements(400),
+            "calibrations": self.history.calibrations(),
+            "alarms": self.history.alarms(),
+            "events": self.history.events(300, text),
+        }
+
+    # -- data out ----------------------------------------------------------------------------
+    def _show_status(self) -> None:
+        connected, detail = self.connection
+        status_bar = self.query_one("#status", Static)
+        status_bar.update(view.status_line(self.status, connected, detail))
+        status_bar.set_class(not connected, "disconnected")
+        text, cls = view.banner(self.status if connected else None)
+        banner = self.query_one("#banner", Static)
+        banner.update(text)
+        banner.set_classes(f"shown {cls}" if text else "")
+        self.query_one("#overview-text", Static).update(self._overview_text())
+        _fill(self.query_one("#devices-table", DataTable), view.device_rows(self.status))
+        self._show_pending()
+
+    def _overview_text(self) -> str:
+        s = self.status or {}
+        win, counts = s.get("window") or {}, s.get("counters") or {}
+        window = "closed"
+        if win.get("open"):
+            window = "OPEN " + view.num(win.get("remaining_s"), ".0f", " s left")
+        heartbeat = "alive" if win.get("heartbeat_alive") else "LOST"
+        lines = [
+            f"Service   {s.get('state', '-')}   step: {s.get('step', '-')}",
+            f"Line      running {_yes(win.get('line_running'))}, PLC heartbeat {heartbeat}, "
+            f"window {window}",
+        ]
+        devices = view.device_rows(self.status)
+        bad = [f"{d[0]} {d[2]}" for d in devices if d[2] not in ("OK", "OPEN")]
+        lines.append("Devices   " + (", ".join(bad) if bad else f"all {len(devices)} OK"))
+        lines.append("Counters  " + ", ".join(f"{k} {v}" for k, v in counts.items()))
+        return "\n".join(lines)
+
+    def _show_pending(self) -> None:
+        pending = (self.status or {}).get("pending")
+        title = self.query_one("#pending-title", Static)
+        if not pending:
+            title.update("no calibration pending")
+            _fill(self.query_one("#pending", DataTable), [])
+            return
+        gates = pending.get("gates") or {}
+        verdict = (
+            "passed" if gates.get("passed") else "FAILED: " + "; ".join(gates.get("failures", []))
+        )
+        title.update(
+            f"PENDING calibration {pending.get('id')}: RMS {view.num(pending.get('rms_mm'))} mm, "
+            f"held-out {view.num(pending.get('holdout_rms_mm'))} mm; gates {verdict}. "
+            "a approve, x reject"
+        )
+        _fill(self.query_one("#pending", DataTable), view.parameter_diff_rows(pending))
+
+    def _show_history(self, hist: dict[str, list[dict[str, Any]]]) -> None:
+        _fill(
+            self.query_one("#measurements-table", DataTable),
+            [
+                (
+                    str(m.get("id")),
+                    _time(m.get("utc")),
+                    str(m.get("sphere", "")),
+                    str(m.get("status", "")).upper(),
+                    view.num(m.get("residual_mm"), ".4f"),
+                    str(m.get("reason") or ""),
+                )
+                for m in hist["measurements"]
+            ],
+        )
+        _fill(
+            self.query_one("#calibrations-table", DataTable),
+            [
+                (
+                    str(c.get("version") or c.get("id")),
+                    _time(c.get("utc")),
+                    str(c.get("status", "")).upper(),
+                    view.num(c.get("rms_mm"), ".4f"),
+                    str(c.get("gates") or ""),
+                )
+                for c in hist["calibrations"]
+            ],
+        )
+        alarms = hist["alarms"] or list((self.status or {}).get("alarms") or [])
+        _fill(self.query_one("#alarms-table", DataTable), view.alarm_rows(alarms))
+        _fill(
+            self.query_one("#log-table", DataTable),
+            [
+                (
+                    str(e.get("utc", ""))[:19].replace("T", " "),
+                    str(e.get("kind", "")),
+                    str(e.get("detail", "")),
+                )
+                for e in hist["events"]
+            ],
+        )
+        self._show_drift(hist["recent"])
+
+    def _show_drift(self, recent: list[dict[str, Any]]) -> None:
+        by_sphere: dict[str, list[float]] = {}
+        for m in reversed(recent):
+            r = m.get("residual_mm")
+            if isinstance(r, int | float):
+                by_sphere.setdefault(str(m.get("sphere")), []).append(float(r))
+        box = self.query_one("#drift", Vertical)
+        for sphere, values in sorted(by_sphere.items()):
+            row_id = f"drift-{sphere}"
+            rows = box.query(f"#{row_id}")
+            label = f"{sphere} last {values[-1]:.3f}"
+            if rows:
+                row = rows.first()
+                row.query_one(Label).update(label)
+                row.query_one(Sparkline).data = values[-60:]
+            else:
+                box.mount(
+                    Horizontal(
+                        Label(label), Sparkline(values[-60:]), id=row_id, classes="drift-row"
+                    )
+                )
+
+    # -- actions -----------------------------------------------------------------------------
+    def action_show(self, pane: str) -> None:
+        self.query_one(TabbedContent).active = pane
+
+    def on_input_submitted(self) -> None:
+        self.refresh_all()
+
+    def action_pause_resume(self) -> None:
+        if (self.status or {}).get("state") == "PAUSED":
+            self._command("resume", "Resume the service? The robot will move in the next window.")
+        else:
+            self._command("pause", None)
+
+    def action_reset(self) -> None:
+        self._command("reset", "Reset the fault? The robot may move in the next window.")
+
+    def action_recalibrate(self) -> None:
+        self._command("recalibrate", "Start a recalibration now?")
+
+    def action_approve(self) -> None:
+        pending = (self.status or {}).get("pending")
+        if not pending:
+            self.notify("no calibration pending", severity="warning")
+            return
+        self._command(
+            "approve", f"Apply pending calibration {pending.get('id')}?", id=pending.get("id")
+        )
+
+    def action_reject(self) -> None:
+        pending = (self.status or {}).get("pending")
+        if not pending:
+            self.notify("no calibration pending", severity="warning")
+            return
+        self._command("reject", f"Reject calibration {pending.get('id')}?", id=pending.get("id"))
+
+    def action_rollback(self) -> None:
+        version = _selected(self.query_one("#calibrations-table", DataTable))
+        if version is None:
+            self.notify("select a version in Calibrations first", severity="warning")
+            return
+        self._command(
+            "rollback", f"Roll the parameters back to version {version}?", version=int(version)
+        )
+
+    def action_ack(self) -> None:
+        alarm = _selected(self.query_one("#alarms-table", DataTable))
+        alarm = alarm or next((str(a["id"]) for a in view.active_alarms(self.status)), None)
+        if alarm is None:
+            self.notify("no alarm to acknowledge", severity="warning")
+            return
+        self._command("ack", None, alarm=int(alarm))
+
+    @work(group="actions", exit_on_error=False)
+    async def action_shelve(self) -> None:
+        alarm = _selected(self.query_one("#alarms-table", DataTable))
+        if alarm is None:
+            self.notify("select an alarm in Alarms first", severity="warning")
+            return
+        answer = await self.push_screen_wait(ShelveScreen(f"alarm {alarm}"))
+        if answer is not None:
+            reason, minutes = answer
+            await self._send("shelve", alarm=int(alarm), reason=reason, minutes=minutes)
+
+    @work(group="actions", exit_on_error=False)
+    async def _command(self, cmd: str, question: str | None, **args: Any) -> None:
+        if question is not None and not await self.push_screen_wait(ConfirmScreen(question)):
+            return
+        await self._send(cmd, **args)
+
+    async def _send(self, cmd: str, **args: Any) -> None:
+        try:
+            reply = await self.client.request(cmd, **args)
+        except ServiceUnavailable as exc:
+            self.notify(str(exc), title=cmd, severity="error")
+            return
+        if reply.get("ok"):
+            self.notify(str(reply.get("message") or "done"), title=cmd)
+        else:
+            self.notify(f"refused: {reply.get('error')}", title=cmd, severity="error")
+        self.refresh_all()
+
+
+def _fill(table: DataTable[Any], rows: Sequence[Sequence[Any]]) -> None:
+    """Replace a table's rows, keeping the cursor on the same row index."""
+    cursor = table.cursor_row
+    table.clear()
+    table.add_rows(rows)
+    if rows:
+        table.move_cursor(row=min(cursor, len(rows) - 1))
+
+
+def _selected(table: DataTable[Any]) -> str | None:
+    if table.row_count == 0:
+        return None
+    return str(table.get_row_at(table.cursor_row)[0])
+
+
+def _time(utc: Any) -> str:
+    return str(utc or "")[:19].replace("T", " ")
+
+
+def _yes(value: Any) -> str:
+    return "yes" if value else "NO"

@@ -1,0 +1,146 @@
+"""What the operator's screens show, as plain text and table rows: pure functions of the
+service's status (the socket's `status` reply) and of its history (the database), so that the
+Textual widgets only place them. Abnormal values carry a style class; normal ones none
+(ISA-101: colour only for the abnormal, and never colour alone: the text says it too).
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from typing import Any
+
+from rich.text import Text
+
+PRIORITY_CLASS = {"high": "alarm-high", "medium": "alarm-medium", "low": "alarm-low"}
+PRIORITY_TEXT = {"high": "HIGH", "medium": "MED", "low": "LOW"}
+ACTIVE_ALARM_STATES = ("raised", "acked")
+
+
+def age_text(utc: str | None, now: datetime | None = None) -> str:
+    """'3 h 12 min ago' from an ISO UTC time; '-' when unknown."""
+    if not utc:
+        return "-"
+    try:
+        then = datetime.fromisoformat(utc)
+    except ValueError:
+        return utc
+    if then.tzinfo is None:
+        then = then.replace(tzinfo=UTC)
+    s = max(0, int(((now or datetime.now(UTC)) - then).total_seconds()))
+    if s < 60:
+        return f"{s} s ago"
+    if s < 3600:
+        return f"{s // 60} min ago"
+    return f"{s // 3600} h {s % 3600 // 60} min ago"
+
+
+def num(value: Any, fmt: str = ".3f", unit: str = "") -> str:
+    if isinstance(value, int | float) and not isinstance(value, bool):
+        return f"{value:{fmt}}{unit}"
+    return "-"
+
+
+def status_line(status: dict[str, Any] | None, connected: bool, detail: str) -> str:
+    """The one-line summary at the top of every screen (fits 80 columns when normal)."""
+    if not connected or status is None:
+        return f"DISCONNECTED - {detail}"
+    win = status.get("window") or {}
+    window = (
+        f"window {num(win.get('remaining_s'), '.0f', ' s')}" if win.get("open") else ("no window")
+    )
+    cal = status.get("calibration") or {}
+    version = cal.get("version")
+    calib = (
+        "no calibration"
+        if version is None
+        else (
+            f"cal v{version} {age_text(cal.get('applied_utc')).removesuffix(' ago')} old, "
+            f"{num(cal.get('rms_mm'), '.3f', ' mm')}"
+        )
+    )
+    return f"{status.get('state', '?')} ({status.get('step') or '-'}) | {window} | {calib}"
+
+
+def active_alarms(status: dict[str, Any] | None) -> list[dict[str, Any]]:
+    alarms = (status or {}).get("alarms") or []
+    order = {"high": 0, "medium": 1, "low": 2}
+    active = [a for a in alarms if a.get("state") in ACTIVE_ALARM_STATES]
+    return sorted(active, key=lambda a: (order.get(a.get("priority", "low"), 3), a.get("id", 0)))
+
+
+def banner(status: dict[str, Any] | None) -> tuple[str, str]:
+    """(text, style class) of the alarm banner: the most urgent active alarm, or ('', '')."""
+    alarms = active_alarms(status)
+    if not alarms:
+        return "", ""
+    top = alarms[0]
+    prio = top.get("priority", "low")
+    more = f"  (+{len(alarms) - 1} more)" if len(alarms) > 1 else ""
+    acked = " [acknowledged]" if top.get("state") == "acked" else ""
+    text = f"ALARM {PRIORITY_TEXT.get(prio, prio)}: {top.get('text', '')}{acked}{more}"
+    return text, PRIORITY_CLASS.get(prio, "alarm-low")
+
+
+def device_rows(status: dict[str, Any] | None) -> list[tuple[str, str, str, str]]:
+    """(family, URL, state, last error) per device."""
+    devices = (status or {}).get("devices") or {}
+    return [
+        (family, str(d.get("url", "")), str(d.get("state", "?")).upper(), d.get("last_error") or "")
+        for family, d in devices.items()
+    ]
+
+
+def alarm_rows(alarms: list[dict[str, Any]]) -> list[tuple[Any, ...]]:
+    """(id, priority, state, raised, text, shelved until/reason) per alarm, newest first."""
+    rows = []
+    for a in sorted(alarms, key=lambda a: a.get("id", 0), reverse=True):
+        shelved = a.get("shelved_until_utc") or ""
+        if shelved:
+            shelved = f"until {shelved[11:16]}: {a.get('shelve_reason', '')}"
+        rows.append(
+            (
+                str(a.get("id", "")),
+                priority_cell(str(a.get("priority", "")), str(a.get("state", ""))),
+                str(a.get("state", "")).upper(),
+                str(a.get("raised_utc", ""))[:19].replace("T", " "),
+                str(a.get("text", "")),
+                shelved,
+            )
+        )
+    return rows
+
+
+PRIORITY_STYLE = {
+    "high": "bold #ffffff on #d70000",
+    "medium": "bold #000000 on #ffaf00",
+    "low": "#000000 on #5f87af",
+}
+
+
+def priority_cell(priority: str, state: str) -> Text:
+    """The priority as text, coloured only while the alarm is active (raised or acked)."""
+    style = PRIORITY_STYLE.get(priority, "") if state in ACTIVE_ALARM_STATES else ""
+    return Text(f" {PRIORITY_TEXT.get(priority, priority)} ", style=style)
+
+
+def parameter_diff_rows(pending: dict[str, Any]) -> list[tuple[str, ...]]:
+    """(name, unit, current, pending, change, std, change/std) of a pending calibration."""
+    rows: list[tuple[str, ...]] = []
+    for p in pending.get("parameters", []):
+        cur, new, std = p.get("current"), p.get("value"), p.get("std")
+        change = (
+            new - cur if isinstance(new, float | int) and isinstance(cur, float | int) else None
+        )
+        ratio = abs(change) / std if change is not None and std else None
+        rows.append(
+            (
+                str(p.get("name", "")),
+                str(p.get("unit", "")),
+                num(cur, ".5f"),
+                num(new, ".5f"),
+                num(change, "+.5f"),
+                num(std, ".5f"),
+                num(ratio, ".1f"),
+            )
+        )
+    return rows

@@ -1,0 +1,230 @@
+"""The simulated line: one simulated cell driving every protocol peer on 127.0.0.1.
+
+    with SimLine(cell, LineSettings(scale=60, knock=Knock(at_s=4 * 3600))) as line:
+        robot = open_robot(line.urls["robot"])          # the real drivers, over loopback
+        ...
+        line.truth.validation_centres_sensor_mm()       # the truth now, for the app's report
+
+What runs, all on the line's clock (`ScaledClock`: `scale` sim seconds per real second, sim time 0
+at the start; the cell's warm-up and knock follow it):
+
+    plc      plc+modbus://127.0.0.1:PORT   Modbus PLC with the clamp cycle (a window of
+                                           `window_s` at the end of every `period_s`)
+    robot    rmi://127.0.0.1:PORT          RMI controller moving the cell's joints; motion time
+                                           = max |dq| / (joint speed x speed% x override)
+    galvo    scpi+serial:///dev/pts/N      SCPI DAC on a pty; the camera renders its voltage
+    camera   aravis://127.0.0.1            Aravis's fake GigE camera streaming frames rendered
+                                           from the cell at the current joints and DAC voltage
+                                           (off with `camera=False`: geometric runs)
+    tracker  tracker+tcp://127.0.0.1:PORT  side-car measuring the true sphere centres + noise
+
+`geometric_centre(target_id)` is the shortcut of long runs (`--geometric`): the true centre in the
+true sensor frame at the robot's current joints plus the cell's sensor noise, no rendering.
+Faults: `inject`, `clear`, `schedule` (fakes.line_faults). Every thread, socket, pty and the GigE
+fake are released by `close()` (also when `start()` fails half-way).
+"""
+
+from __future__ import annotations
+
+import threading
+from contextlib import ExitStack
+from dataclasses import dataclass, field
+from typing import Self
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from fakes.cell import SimulatedCell
+from fakes.clock import ScaledClock
+from fakes.devices import ClampCycle
+from fakes.gv_camera import GvCamera
+from fakes.line_faults import GALVO_ERROR_CODE, Fault, FaultScheduler, LinePlc, window_bounds_s
+from fakes.line_truth import LineTruth, validation_positions
+from fakes.rmi_controller import RmiController
+from fakes.scpi_dac import ScpiDac
+from fakes.tracker_service import TrackerService
+from fakes.truth import Knock, Warmup
+
+F64 = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class LineSettings:
+    """The simulated line. Times in sim seconds; `scale` sim seconds pass per real second."""
+
+    scale: float = 60.0
+    start_epoch: float | None = None  # Unix time of sim time 0 (None: now)
+    period_s: float = 60.0  # clamp cycle: one window a minute ...
+    window_s: float = 20.0  # ... open for its last window_s
+    beat_s: float = 0.5  # PLC heartbeat period
+    warmup: Warmup | None = field(default_factory=Warmup)
+    knock: Knock | None = None
+    camera: bool = True  # start the GigE fake (False: geometric runs, no rendering)
+    camera_address: str = "127.0.0.1"
+    n_validation: int = 100
+
+    def __post_init__(self) -> None:
+        if not (0 < self.window_s < self.period_s and self.beat_s > 0 and self.scale > 0):
+            raise ValueError("line needs 0 < window_s < period_s, beat_s > 0 and scale > 0")
+        if self.n_validation < 1:
+            raise ValueError("n_validation must be >= 1")
+
+    @property
+    def cycle(self) -> ClampCycle:
+        return ClampCycle(period_s=self.period_s, window_s=self.window_s, beat_s=self.beat_s)
+
+
+class _LineWorld:
+    """The cell as the peers' World, with the camera rendering the DAC's voltage (the GigE
+    fake passes no galvo command: the mirror is driven by the DAC, not by the camera)."""
+
+    def __init__(self, cell: SimulatedCell, dac: ScpiDac) -> None:
+        self.cell, self.dac = cell, dac
+
+    def set_joints_deg(self, q_deg: ArrayLike) -> None:
+        self.cell.set_joints_deg(q_deg)
+
+    def joints_deg(self) -> F64:
+        return self.cell.joints_deg()
+
+    def target_ids(self) -> list[str]:
+        return self.cell.target_ids()
+
+    def target_true_mm(self, target_id: str) -> F64:
+        return self.cell.target_true_mm(target_id)
+
+    def render_frame(
+        self, width: int, height: int, exposure_us: float, gain_db: float, galvo_deg: float | None
+    ) -> F64:
+        return self.cell.render_frame_v(width, height, exposure_us, gain_db, self.dac.volts)
+
+
+class SimLine:
+    """Every peer of the line on loopback, driven by one simulated cell (module docstring)."""
+
+    def __init__(self, cell: SimulatedCell, settings: LineSettings | None = None) -> None:
+        self.cell = cell
+        self.settings = settings or LineSettings()
+        # sim time 0 is when every peer is up (start), not when the line object is built
+        self.clock = ScaledClock(self.settings.scale, self.settings.start_epoch, started=False)
+        self._stack = ExitStack()
+        self.dac = ScpiDac()
+        self.world = _LineWorld(cell, self.dac)
+        seed = cell.settings.seed
+        self.plc = LinePlc(self.settings.cycle, self.clock)
+        self.controller = RmiController(self.world, clock=self.clock)
+        self.tracker = TrackerService(
+            self.world, seed=_derived_seed(seed, 6), noise_mm=cell.settings.tracker_noise_mm
+        )
+        self.camera: GvCamera | None = None
+        if self.settings.camera:
+            _ = cell.sensor.pixel_rays  # built once (~1-3 s) now, not inside the first grab
+            sensor_wh = (cell.sensor.width_px, cell.sensor.height_px)
+            self.camera = GvCamera(
+                self.world, address=self.settings.camera_address, sensor_wh=sensor_wh
+            )
+        rng = np.random.default_rng([seed, 8])
+        self.truth = LineTruth(cell, validation_positions(cell, self.settings.n_validation, rng))
+        self.faults = FaultScheduler(self.clock, self.inject)
+        self._started = False
+
+    # -- life cycle -------------------------------------------------------------------------
+    def start(self) -> Self:
+        if self._started:
+            raise RuntimeError("the simulated line is already started")
+        s = self.settings
+        self.cell.set_timeline(self.clock, warmup=s.warmup, knock=s.knock)
+        try:
+            for peer in (self.plc, self.controller, self.dac, self.tracker, self.camera):
+                if peer is not None:
+                    self._stack.enter_context(peer)
+            self.faults.start()
+            self._stack.callback(self.faults.close)
+            self.clock.start()
+        except BaseException:
+            self._stack.close()
+            raise
+        self._started = True
+        return self
+
+    def close(self) -> None:
+        """Stop every peer (idempotent)."""
+        if self.camera is not None:
+            self.camera.resume()  # a stalled fake camera still closes cleanly; resume anyway
+        self._stack.close()
+        self._started = False
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def urls(self) -> dict[str, str]:
+        """Device URLs for the cell file's [devices] table (family -> URL)."""
+        if not self._started:
+            raise RuntimeError("the simulated line is not started")
+        host = "127.0.0.1"
+        urls = {
+            "plc": f"plc+modbus://{host}:{self.plc.port}",
+            "robot": f"rmi://{host}:{self.controller.port}",
+            "galvo": f"scpi+serial://{self.dac.port}",
+            "tracker": f"tracker+tcp://{host}:{self.tracker.port}",
+        }
+        if self.camera is not None:
+            urls["camera"] = f"aravis://{self.camera.camera_id}"
+        return urls
+
+    # -- measuring without images -----------------------------------------------------------
+    def geometric_centre(self, target_id: str) -> F64:
+        """The true centre (3,) [mm] of sphere `target_id` in the true sensor frame at the
+        robot's current joints and the current sim time, plus the cell's sensor noise.
+        Raises fakes.cell.NotVisible outside the measuring volume."""
+        return self.cell.measure_target(target_id)
+
+    # -- clamp windows ----------------------------------------------------------------------
+    def window_bounds_s(self, k: int) -> tuple[float, float]:
+        """Sim times at which clamp window k opens and closes (the PLC's own schedule)."""
+        return window_bounds_s(self.settings.cycle, k)
+
+    # -- faults -----------------------------------------------------------------------------
+    def inject(self, fault: Fault | str) -> None:
+        """Play a fault now (see fakes.line_faults for what each one does)."""
+        fault = Fault(fault)
+        if fault is Fault.PLC_HEARTBEAT_LOSS:
+            self.plc.heartbeat_frozen = True
+        elif fault is Fault.WINDOW_WITHDRAWN:
+            self.plc.withdraw_window()
+        elif fault is Fault.ROBOT_DISCONNECT:
+            self.controller.fail_next("FRC_JointMotionJRep", "disconnect")
+        elif fault is Fault.CONTROLLER_ALARM:
+            self.controller.fail_next("FRC_JointMotionJRep", "system_fault")
+        elif fault is Fault.CAMERA_TIMEOUT:
+            if self.camera is None:
+                raise ValueError("camera_timeout needs the camera (LineSettings.camera)")
+            self.camera.stall()
+        elif fault is Fault.GALVO_ERROR:
+            self.dac.fail_next("SOUR:VOLT", GALVO_ERROR_CODE)
+
+    def clear(self, fault: Fault | str) -> None:
+        """End a lasting fault (heartbeat, withdrawn window, camera); the one-shot faults end
+        when they have been played."""
+        fault = Fault(fault)
+        if fault is Fault.PLC_HEARTBEAT_LOSS:
+            self.plc.heartbeat_frozen = False
+        elif fault is Fault.WINDOW_WITHDRAWN:
+            self.plc.restore_window()
+        elif fault is Fault.CAMERA_TIMEOUT and self.camera is not None:
+            self.camera.resume()
+
+    def schedule(self, fault: Fault | str, *, window: int, after_s: float = 0.0) -> threading.Event:
+        """Play `fault` `after_s` sim seconds after clamp window `window` opens; returns an
+        event set once it has been played."""
+        opens, _ = self.window_bounds_s(window)
+        return self.faults.plan(Fault(fault), opens + after_s)
+
+
+def _derived_seed(seed: int, stream: int) -> int:
+    """An int seed for a peer that takes one, derived from the cell's seed and a stream id."""
+    return int(np.random.default_rng([seed, stream]).integers(2**31))

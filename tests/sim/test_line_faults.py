@@ -1,0 +1,122 @@
+"""Fault injection on the simulated line: each fault, played by the peer the real driver talks
+to, gives the typed driver error (or, for a withdrawn window, the PLC signal), and the device
+works again once the fault is cleared or reset."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from drivers import registry
+from drivers.errors import DeviceConnectionError, DeviceFault, DeviceTimeout, FaultLatched
+from fakes.cell import SimulatedCell
+from fakes.line import LineSettings, SimLine
+from fakes.line_faults import GALVO_ERROR_CODE, Fault
+
+HOME = np.array([0.0, 0.0, 0.0, 0.0, -90.0, 0.0])
+AWAY = HOME + np.array([60.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # 3.43 sim s at 10 %
+
+
+@pytest.fixture()
+def line(line_cell: SimulatedCell) -> Iterator[SimLine]:
+    with SimLine(line_cell, LineSettings(scale=120.0, camera=False)) as sim:
+        yield sim
+
+
+def test_plc_heartbeat_loss_is_a_timeout_waiting_for_the_window(line: SimLine) -> None:
+    with registry.open_plc(line.urls["plc"], poll_s=0.005, heartbeat_timeout_s=0.1) as plc:
+        line.inject(Fault.PLC_HEARTBEAT_LOSS)
+        with pytest.raises(DeviceTimeout, match="heartbeat lost"):
+            plc.wait_window(timeout_s=0.8)  # > one clamp period (0.5 s real)
+        assert not plc.heartbeat_alive()
+        line.clear(Fault.PLC_HEARTBEAT_LOSS)
+        assert plc.wait_window(timeout_s=1.0).window_open and plc.heartbeat_alive()
+
+
+def test_a_withdrawn_window_closes_early_and_the_next_one_opens(line: SimLine) -> None:
+    with registry.open_plc(line.urls["plc"], poll_s=0.002) as plc:
+        plc.wait_window(timeout_s=2.0)
+        k = int(line.clock.monotonic() // line.settings.period_s)
+        _, closes = line.window_bounds_s(k)
+        line.inject(Fault.WINDOW_WITHDRAWN)
+        inputs = plc.poll()
+        withdrawn_at = line.clock.monotonic()
+        assert not inputs.window_open and inputs.line_running
+        assert withdrawn_at < closes - 5.0  # the PLC's cycle would still have it open
+        assert not plc.ready()
+        plc.wait_window(timeout_s=2.0)
+        assert line.clock.monotonic() >= line.window_bounds_s(k + 1)[0]
+
+
+def test_robot_disconnect_mid_move_is_a_connection_error_and_latches(
+    line: SimLine, line_cell: SimulatedCell
+) -> None:
+    with registry.open_robot(line.urls["robot"]) as robot:
+        line.inject(Fault.ROBOT_DISCONNECT)
+        with pytest.raises(DeviceConnectionError):
+            robot.move_joints(AWAY, speed_pct=10)
+        j1 = line_cell.joints_deg()[0]
+        assert 30.0 <= j1 < 50.0  # stopped after half-way (a clock tick late at most), not at 60
+        with pytest.raises(FaultLatched):
+            robot.move_joints(HOME, speed_pct=10)
+        robot.reset()  # reconnects: the sessions are gone
+        np.testing.assert_allclose(robot.move_joints(AWAY, speed_pct=100), AWAY, atol=1e-4)
+
+
+def test_controller_alarm_mid_move_is_a_device_fault_until_reset(
+    line: SimLine, line_cell: SimulatedCell
+) -> None:
+    with registry.open_robot(line.urls["robot"]) as robot:
+        line.inject(Fault.CONTROLLER_ALARM)
+        with pytest.raises(DeviceFault, match="system fault"):
+            robot.move_joints(AWAY, speed_pct=10)
+        assert line.controller.alarm and robot.status().fault
+        assert 30.0 <= line_cell.joints_deg()[0] < 50.0
+        robot.reset()
+        assert not line.controller.alarm
+        np.testing.assert_allclose(robot.move_joints(AWAY, speed_pct=100), AWAY, atol=1e-4)
+
+
+def test_galvo_scpi_error_is_a_device_fault_with_the_dac_code(line: SimLine) -> None:
+    with registry.open_galvo(line.urls["galvo"]) as galvo:
+        line.inject(Fault.GALVO_ERROR)
+        with pytest.raises(DeviceFault) as err:
+            galvo.set_volts(0.5)
+        assert err.value.code == GALVO_ERROR_CODE and line.dac.volts == 0.0  # not executed
+        galvo.set_volts(0.5)
+        assert line.dac.volts == pytest.approx(0.5)
+
+
+def test_camera_timeout_until_cleared(line_cell: SimulatedCell) -> None:
+    with (
+        SimLine(line_cell, LineSettings(scale=60.0)) as sim,
+        registry.open_camera(sim.urls["camera"], timeout_s=0.3) as camera,
+    ):
+        first = camera.grab()
+        sim.inject(Fault.CAMERA_TIMEOUT)
+        with pytest.raises(DeviceTimeout):
+            camera.grab()  # the driver re-triggers once, then gives up
+        sim.clear(Fault.CAMERA_TIMEOUT)
+        again = camera.grab(timeout_s=2.0)
+        assert again.frame_id > first.frame_id
+        with pytest.raises(DeviceTimeout):  # no stale frame left over for the lost triggers
+            camera._grab(0.3)
+
+
+def test_a_fault_scheduled_in_a_window_is_played_when_that_window_opens(line: SimLine) -> None:
+    played = line.schedule(Fault.CONTROLLER_ALARM, window=1, after_s=2.0)
+    opens, _ = line.window_bounds_s(1)
+    with (
+        registry.open_plc(line.urls["plc"], poll_s=0.002) as plc,
+        registry.open_robot(line.urls["robot"]) as robot,
+    ):
+        robot.move_joints(AWAY, speed_pct=100)  # nothing armed yet
+        plc.wait_window(timeout_s=2.0)  # window 0 (40 sim s): too early for the fault
+        assert not played.is_set()
+        assert played.wait(2.0)
+        ((fault, at_s),) = line.faults.played
+        assert fault is Fault.CONTROLLER_ALARM and opens + 2.0 <= at_s < opens + 4.0
+        with pytest.raises(DeviceFault, match="system fault"):
+            robot.move_joints(HOME, speed_pct=10)
