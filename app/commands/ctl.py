@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(reply))
     elif reply.get("ok"):
-        print(reply.get("detail", "ok"))
+        print(reply.get("message", "ok"))
     else:
         raise RvisError(str(reply.get("error")))
     return 0 if reply.get("ok") else 1

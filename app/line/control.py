@@ -3,7 +3,7 @@
 
     -> {"id": 1, "cmd": "status"}
     <- {"id": 1, "ok": true, "state": "idle", ...}
-    -> {"id": 2, "cmd": "ack", "args": {"alarm": 3}}
+    -> {"id": 2, "cmd": "ack", "args": {"alarm": 3}}     (or {"id": 2, "cmd": "ack", "alarm": 3})
     <- {"id": 2, "ok": false, "error": "no raised alarm 3"}
     -> {"id": 3, "cmd": "subscribe"}
     <- {"id": 3, "ok": true}   then one {"event": ..., "t": ..., ...} per line until closed
@@ -139,7 +139,9 @@ class ControlServer:
             req = json.loads(raw)
             if not isinstance(req, dict) or not isinstance(req.get("cmd"), str):
                 raise ValueError('expected an object with a "cmd"')
-            args = req.get("args", {})
+            args = req.get("args")
+            if args is None:  # the arguments may also stand next to "cmd"
+                args = {k: v for k, v in req.items() if k not in ("id", "cmd")}
             if not isinstance(args, dict):
                 raise ValueError('"args" must be an object')
         except ValueError as exc:

@@ -106,7 +106,7 @@ class OperatorCommands:
                 reply = {"ok": True, **handler(args, uid)}
             except CommandError as exc:
                 reply = {"ok": False, "error": str(exc)}
-            detail = reply.get("error", "") or str(reply.get("detail", ""))
+            detail = reply.get("error", "") or str(reply.get("message", ""))
             svc.store.add_action(svc.clock.time(), uid, cmd, args, bool(reply["ok"]), detail)
             svc.bus.emit("operator", {"cmd": cmd, "args": args, "uid": uid, "ok": reply["ok"]})
             future.set_result(reply)
@@ -119,7 +119,7 @@ class OperatorCommands:
         svc.paused = True
         if svc.state == State.IDLE:
             svc._set_state(State.PAUSED)
-        return {"detail": "paused", "state": svc.state.value}
+        return {"message": "paused", "state": svc.state.value}
 
     def _cmd_resume(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
         from app.line.service import State
@@ -128,7 +128,7 @@ class OperatorCommands:
         svc.paused = False
         if svc.state == State.PAUSED:
             svc._set_state(State.IDLE)
-        return {"detail": "resumed", "state": svc.state.value}
+        return {"message": "resumed", "state": svc.state.value}
 
     def _cmd_reset(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
         from app.line.service import State
@@ -148,12 +148,12 @@ class OperatorCommands:
         svc._set_state(State.PAUSED if svc.paused else State.IDLE)
         home = svc.measurer.at_home()
         note = "" if home else "; the robot comes home in the next window"
-        return {"detail": f"reset{note}", "state": svc.state.value}
+        return {"message": f"reset{note}", "state": svc.state.value}
 
     def _cmd_recalibrate(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
         svc: Service = self  # type: ignore[assignment]
         svc.force_recal = True
-        return {"detail": "recalibration requested"}
+        return {"message": "recalibration requested"}
 
     def _pending_id(self, args: dict[str, Any]) -> int:
         svc: Service = self  # type: ignore[assignment]
@@ -166,14 +166,14 @@ class OperatorCommands:
         svc: Service = self  # type: ignore[assignment]
         cal_id = self._pending_id(args)
         version = svc._apply_calibration(cal_id, uid, "approved")
-        return {"detail": f"calibration {cal_id} applied as version {version}", "version": version}
+        return {"message": f"calibration {cal_id} applied as version {version}", "version": version}
 
     def _cmd_reject(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
         svc: Service = self  # type: ignore[assignment]
         cal_id = self._pending_id(args)
         svc.store.decide_calibration(cal_id, "rejected", svc.clock.time(), uid)
         svc.pending_calibration = None
-        return {"detail": f"calibration {cal_id} rejected"}
+        return {"message": f"calibration {cal_id} rejected"}
 
     def _cmd_rollback(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
         svc: Service = self  # type: ignore[assignment]
@@ -182,14 +182,14 @@ class OperatorCommands:
             raise CommandError(f"no parameters version {version}")
         svc.params.rollback(version)
         svc._in_force(version, None, "rollback", uid)
-        return {"detail": f"parameters version {version} in force", "version": version}
+        return {"message": f"parameters version {version} in force", "version": version}
 
     def _cmd_ack(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
         svc: Service = self  # type: ignore[assignment]
         alarm_id = _int(args, "alarm")
         if not svc.store.ack_alarm(alarm_id, svc.clock.time(), uid):
             raise CommandError(f"no raised alarm {alarm_id}")
-        return {"detail": f"alarm {alarm_id} acknowledged"}
+        return {"message": f"alarm {alarm_id} acknowledged"}
 
     def _cmd_shelve(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
         svc: Service = self  # type: ignore[assignment]
@@ -203,4 +203,4 @@ class OperatorCommands:
         until = svc.clock.time() + 60.0 * float(minutes)
         if not svc.store.shelve_alarm(alarm_id, until, reason):
             raise CommandError(f"no active alarm {alarm_id}")
-        return {"detail": f"alarm {alarm_id} shelved for {minutes:g} min"}
+        return {"message": f"alarm {alarm_id} shelved for {minutes:g} min"}

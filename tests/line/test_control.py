@@ -41,7 +41,7 @@ def test_socket_mode_and_status(served: tuple[Line, Path]) -> None:
 def test_commands_are_executed_and_audited_with_the_peer_uid(served: tuple[Line, Path]) -> None:
     ln, path = served
     with ControlClient(path) as c:
-        assert c.request("pause") == {"id": 1, "ok": True, "detail": "paused", "state": "paused"}
+        assert c.request("pause") == {"id": 1, "ok": True, "message": "paused", "state": "paused"}
         assert ln.service.state == State.PAUSED
         ln.plc.wait_edges(2)  # paused: windows pass unused
         windows = ln.service.counters["windows"]
@@ -79,6 +79,8 @@ def test_bad_request_lines_get_an_error_and_the_connection_stays(
             "error": 'bad request: "args" must be an object',
         }
         assert c.request("status")["ok"]
+        c.sock.sendall(b'{"id": 9, "cmd": "ack", "alarm": 99}\n')  # arguments next to cmd
+        assert c.read() == {"id": 9, "ok": False, "error": "no raised alarm 99"}
 
 
 def test_subscribe_streams_the_events(served: tuple[Line, Path]) -> None:
