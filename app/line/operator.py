@@ -86,11 +86,26 @@ class OperatorCommands:
                 "line_running": w.inputs.line_running,
                 "heartbeat_alive": w.alive,
             },
+            "window": self._window_status(),
+            "calibration": {"version": svc.version, "pending": svc.pending_calibration},
             "alarms": [
                 {k: a[k] for k in ("id", "code", "priority", "message", "state")}
                 for a in svc.store.active_alarms()
             ],
             "drift": svc.drift.state(),
+        }
+
+    def _window_status(self) -> dict[str, Any]:
+        """The line as the TUI shows it: window open and the time left, line, heartbeat."""
+        svc: Service = self  # type: ignore[assignment]
+        w = svc.watch
+        i = w.inputs
+        is_open = bool(i is not None and i.window_open)
+        return {
+            "open": is_open,
+            "remaining_s": w.remaining_s() if is_open and w.opened_t is not None else None,
+            "line_running": bool(i is not None and i.line_running),
+            "heartbeat_alive": w.alive,
         }
 
     def _run_commands(self) -> None:

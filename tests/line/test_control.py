@@ -36,6 +36,9 @@ def test_socket_mode_and_status(served: tuple[Line, Path]) -> None:
     assert reply["id"] == 1 and reply["ok"] is True
     assert reply["state"] in ("idle", "measuring") and reply["params_version"] == 1
     assert reply["schedule"]["slots"] == 24
+    assert reply["calibration"] == {"version": 1, "pending": None}
+    assert reply["window"]["line_running"] is True
+    assert isinstance(reply["window"]["heartbeat_alive"], bool)
 
 
 def test_commands_are_executed_and_audited_with_the_peer_uid(served: tuple[Line, Path]) -> None:
