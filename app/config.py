@@ -208,14 +208,26 @@ class DevicesSection(Section):
 
 @dataclass(frozen=True)
 class ServiceSection(Section):
-    """The in-line service (`rvis run`): where it keeps its state and how it recalibrates."""
+    """The in-line service (`rvis run`): where it keeps its state, how it recalibrates and the
+    gates of an in-line identification (change bounds from the parameters in force, tighter
+    than [calibration]'s offline ones; the candidate must also beat the parameters in force on
+    held-out recent measurements by max_holdout_ratio)."""
 
     name = "service"
     state_dir: str = opt("rvis-state")
     mode: str = opt("auto", choices=("auto", "approve"))
-    rolling_size: int = opt(24, lo=4, hi=100000)
-    holdout_size: int = opt(4, lo=0, hi=1000)
+    rolling_size: int = opt(24, lo=10, hi=100000)
+    holdout_size: int = opt(4, lo=1, hi=1000)
+    every_n: int = opt(24, lo=1, hi=100000)
+    max_nfev: int = opt(200, lo=10, hi=10000)
     raw_sweeps_keep: int = opt(0, lo=0, hi=100000)
+    max_joint_change_mm: float = opt(5.0, gt=0, hi=1000)
+    max_joint_change_deg: float = opt(1.0, gt=0, hi=180)
+    max_sensor_change_mm: float = opt(5.0, gt=0, hi=1000)
+    max_sensor_change_deg: float = opt(2.0, gt=0, hi=180)
+    max_base_change_mm: float = opt(5.0, gt=0, hi=1000)
+    max_base_change_deg: float = opt(1.0, gt=0, hi=180)
+    max_holdout_ratio: float = opt(1.0, gt=0, hi=10)
 
 
 @dataclass(frozen=True)
@@ -231,6 +243,55 @@ class LineSection(Section):
     accel_s: float = opt(0.4, lo=0, hi=60)
     settle_s: float = opt(0.2, lo=0, hi=60)
     home_deg: Vec = opt([0.0, 0.0, 0.0, 0.0, -90.0, 0.0], lo=-720, hi=720, n=6)
+    home_tol_deg: float = opt(0.05, gt=0, hi=5)
+    window_s: float = opt(8.0, gt=0, hi=3600)
+    margin_s: float = opt(0.5, lo=0, hi=60)
+    slots_per_window: int = opt(1, lo=1, hi=100)
+
+
+@dataclass(frozen=True)
+class SweepSection(Section):
+    """One measurement's galvo sweep: n_frames commands evenly over +-span_v [V]."""
+
+    name = "sweep"
+    n_frames: int = opt(24, lo=3, hi=1000)
+    span_v: float = opt(3.2, gt=0, hi=10)
+    frame_s: float = opt(0.05, gt=0, hi=10)
+    grab_timeout_s: float = opt(1.0, gt=0, hi=60)
+
+
+@dataclass(frozen=True)
+class DriftSection(Section):
+    """Drift charts of the residuals (REFERENCE.md): EWMA (lambda, limit L sigma) and upper
+    CUSUM (slack k, decision h, in sigmas), sigma learned from baseline_n measurements after
+    each applied calibration."""
+
+    name = "drift"
+    ewma_lambda: float = opt(0.2, gt=0, hi=1)
+    ewma_l: float = opt(3.0, gt=0, hi=10)
+    cusum_k: float = opt(0.5, lo=0, hi=5)
+    cusum_h: float = opt(5.0, gt=0, hi=50)
+    baseline_n: int = opt(16, lo=2, hi=1000)
+    min_sigma_mm: float = opt(0.01, gt=0, hi=10)
+
+
+@dataclass(frozen=True)
+class SimLineSection(Section):
+    """The simulated line of `rvis run --sim` (fakes/line.py): time scale, clamp cycle, the
+    cell's warm-up and a knock of the sensor mount (knock_at_s < 0: none)."""
+
+    name = "simline"
+    scale: float = opt(60.0, gt=0, hi=10000)
+    period_s: float = opt(60.0, gt=0, hi=86400)
+    window_s: float = opt(20.0, gt=0, hi=86400)
+    beat_s: float = opt(0.5, gt=0, hi=60)
+    warmup_k: float = opt(8.0, lo=-50, hi=50)
+    warmup_tau_s: float = opt(3600.0, gt=0, hi=1e6)
+    warmup_start_s: float = opt(0.0, lo=0, hi=1e6)
+    knock_at_s: float = opt(-1.0, lo=-1, hi=1e7)
+    knock_mm: float = opt(0.3, lo=0, hi=100)
+    knock_deg: float = opt(0.05, lo=0, hi=90)
+    n_validation: int = opt(100, lo=1, hi=10000)
 
 
 SECTIONS: tuple[type[Section], ...] = (
@@ -245,6 +306,9 @@ SECTIONS: tuple[type[Section], ...] = (
     DevicesSection,
     ServiceSection,
     LineSection,
+    SweepSection,
+    DriftSection,
+    SimLineSection,
 )
 BY_NAME = {s.name: s for s in SECTIONS}
 
@@ -276,6 +340,9 @@ class CellConfig:
     devices: DevicesSection
     service: ServiceSection
     line: LineSection
+    sweep: SweepSection
+    drift: DriftSection
+    simline: SimLineSection
     source: str = "<embedded default>"
 
     @property
@@ -324,6 +391,8 @@ def _resolve(s: dict[str, Section], source: str, reader: Any = None) -> CellConf
     plate = s["base_plate"]
     if plate["x_min_mm"] >= plate["x_max_mm"] or plate["y_min_mm"] >= plate["y_max_mm"]:
         raise fail("base_plate", "x_max_mm", "expected x_min < x_max and y_min < y_max")
+    if s["simline"]["window_s"] >= s["simline"]["period_s"]:
+        raise fail("simline", "window_s", "the clamp window must be shorter than period_s")
     box = s["planning"]["workspace_mm"]
     if box[0] >= box[1] or box[2] >= box[3]:
         raise fail("planning", "workspace_mm", "expected [x_min, x_max, y_min, y_max], min < max")

@@ -6,14 +6,15 @@ Names follow the cell file's `[service]` and `[line]` sections (app/config.py) w
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 import numpy as np
 
 from calib.gates import Gates
 
+T = TypeVar("T")
 JOINT_SPEED_DEG_S = (175.0, 175.0, 175.0, 250.0, 250.0, 355.0)  # M-710iC/50 data sheet
 HOME_DEG = (0.0, 0.0, 0.0, 0.0, -90.0, 0.0)
 
@@ -96,7 +97,7 @@ class DriftSettings:
     ewma_l: float = 3.0  # limit in sigmas of the EWMA's asymptotic spread
     cusum_k: float = 0.5  # slack in sigmas
     cusum_h: float = 5.0  # decision interval in sigmas
-    baseline_n: int = 8  # samples after each applied calibration that set mean and sigma
+    baseline_n: int = 16  # samples after each applied calibration that set mean and sigma
     min_sigma_mm: float = 0.01  # floor of the learned sigma (noise-free baselines)
 
     def __post_init__(self) -> None:
@@ -134,29 +135,26 @@ class ServiceSettings:
     recalib: RecalibSettings = field(default_factory=RecalibSettings)
 
 
+def _section(cls: type[T], section: Any) -> T:
+    """A settings dataclass from the cell section of the same keys (tuples kept as tuples)."""
+    names = {f.name for f in fields(cls)}  # type: ignore[arg-type]
+    return cls(**{k: v for k, v in dict(section).items() if k in names})
+
+
 def from_cell(cfg: Any, state_dir: str | Path | None = None) -> ServiceSettings:
-    """ServiceSettings from a resolved cell configuration's [service] and [line] sections
-    (app.config.CellConfig); the keys not in the file keep their defaults."""
-    svc, ln = cfg.service, cfg.line
-    line = LineSettings(
-        poll_s=float(ln.poll_s),
-        heartbeat_timeout_s=float(ln.heartbeat_timeout_s),
-        override_pct=int(ln.override_pct),
-        speed_pct=float(ln.speed_pct),
-        joint_speed_deg_s=tuple(float(v) for v in ln.joint_speed_deg_s),
-        accel_s=float(ln.accel_s),
-        settle_s=float(ln.settle_s),
-        home_deg=tuple(float(v) for v in ln.home_deg),
+    """ServiceSettings from a resolved cell configuration (app.config.CellConfig): [line],
+    [sweep], [drift], [service] (recalibration and in-line gates) and [calibration] (RMS and
+    condition limits)."""
+    svc, cal = cfg.service, cfg.calibration
+    gates = _section(
+        GateSettings, {**dict(svc), **{k: cal[k] for k in ("max_rms_mm", "max_condition")}}
     )
-    recal = RecalibSettings(
-        mode=svc.mode, rolling_size=int(svc.rolling_size), holdout_size=int(svc.holdout_size)
-    )
-    cal = cfg.calibration  # the in-line change bounds stay tighter than the offline ones
-    gates = GateSettings(max_rms_mm=float(cal.max_rms_mm), max_condition=float(cal.max_condition))
     return ServiceSettings(
         state_dir=Path(state_dir if state_dir is not None else svc.state_dir),
         raw_sweeps_keep=int(svc.raw_sweeps_keep),
-        line=line,
+        line=_section(LineSettings, cfg.line),
+        sweep=_section(SweepSettings, cfg.sweep),
         gates=gates,
-        recalib=recal,
+        drift=_section(DriftSettings, cfg.drift),
+        recalib=_section(RecalibSettings, svc),
     )
