@@ -1,6 +1,14 @@
 """`rvis run [--cell cell.toml] [--state-dir DIR] [--plan plan.json]`: the unattended in-line
 service (DESIGN.md section 6) on the devices of the cell file. Logs are JSON lines on stdout;
-operators use `rvis status` and `rvis ctl` (the control socket in the state directory)."""
+operators use `rvis status`, `rvis ctl` and `rvis tui` (the control socket in the state
+directory).
+
+`rvis run --sim [--geometric] [--seed N] [--windows N] [--json]`: the same service on the
+simulated line (app/sim/line_run.py): every device peer on loopback, reached through the real
+drivers, one simulated cell drifting with time ([simline] of the cell file: time scale, clamp
+cycle, warm-up, knock). With --windows it stops after N windows and prints a summary (windows,
+measurements, overruns, calibrations applied and rejected, alarms, true RMSE at the validation
+positions); without, it runs until SIGTERM or Ctrl-C."""
 
 from __future__ import annotations
 
@@ -8,6 +16,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from app.cliargs import int_at_least
 from app.errors import InputError, RvisError
 
 
@@ -18,10 +27,19 @@ def register(sub: Any) -> None:
     p.add_argument("--plan", help="plan JSON from `rvis plan` (default: STATE_DIR/plan.json)")
     p.add_argument("--params", help="starting parameters JSON when the state has none yet")
     p.add_argument("--sensor-model", help="sensor calibration file (default: the design model)")
+    p.add_argument("--sim", action="store_true", help="run on the simulated line (no hardware)")
+    p.add_argument("--geometric", action="store_true", help="--sim: skip rendering (long runs)")
+    p.add_argument("--seed", type=int_at_least(0), help="--sim: seed (default [simulation])")
+    p.add_argument("--windows", type=int_at_least(1), help="--sim: stop after N windows")
+    p.add_argument("--json", action="store_true", help="--sim --windows: summary as JSON")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.sim:
+        return run_sim(args)
+    if args.geometric or args.windows or args.seed is not None:
+        raise InputError("--geometric, --seed and --windows need --sim")
     from app.config import load_cell
     from app.line.launch import build_service, json_logs, serve
     from app.line.measure import SweepSensor
@@ -58,4 +76,64 @@ def run(args: argparse.Namespace) -> int:
         service = build_service(cfg, station, sensor, settings, plan, x0)
         json_logs()
         serve(service)
+    return 0
+
+
+def run_sim(args: argparse.Namespace) -> int:
+    import signal
+    import sys
+
+    from app.config import load_cell
+    from app.files import dumps_json
+    from app.line.control import ControlServer
+    from app.line.launch import SOCKET_NAME, json_logs
+    from app.sim.line_run import SimulatedLineRun, WindowRecord
+
+    cfg = load_cell(args.cell)
+    state_dir = Path(args.state_dir or cfg.service.state_dir)
+    plan = Path(args.plan) if args.plan else None
+    seed = cfg.simulation.seed if args.seed is None else args.seed
+    if plan is not None and not plan.is_file():
+        raise InputError("plan file not found", file=plan)
+    quiet = args.json or args.windows is not None
+
+    def progress(r: WindowRecord) -> None:
+        if not args.json and (r.window % 10 == 0 or r.window == args.windows):
+            print(
+                f"  window {r.window:5d}  t {r.t_h:6.2f} h  {r.temp_c:5.1f} C  true RMSE "
+                f"{r.rmse_mm:.4f} mm (commissioning only {r.rmse_commissioning_mm:.4f})  "
+                f"v{r.version}",
+                flush=True,
+            )
+
+    with SimulatedLineRun(cfg, state_dir, seed=seed, geometric=args.geometric, plan=plan) as sim:
+        if not quiet:
+            json_logs()
+        sock = state_dir / SOCKET_NAME
+        with ControlServer(sim.service, sock):
+            if not args.json:
+                print(
+                    f"rvis run --sim: seed {seed}, {'geometric' if args.geometric else 'rendered'}"
+                    f" measurements, time x{sim.scale:g}, socket {sock}",
+                    file=sys.stderr if not quiet else sys.stdout,
+                    flush=True,
+                )
+            previous = signal.signal(signal.SIGTERM, lambda *_: sim.service.stop())
+            try:
+                summary = sim.run_windows(args.windows or 10**9, on_window=progress)
+            except KeyboardInterrupt:
+                summary = sim.summary
+            finally:
+                signal.signal(signal.SIGTERM, previous)
+    if args.json:
+        print(dumps_json(summary.to_json()))
+    elif args.windows is not None:
+        s = summary
+        print(
+            f"{s.windows} windows, {s.measurements} measurements stored ({s.rejected} rejected), "
+            f"{s.overruns} overruns, {s.withdrawn} withdrawn; calibrations applied "
+            f"{s.calibrations_applied}, rejected {s.calibrations_rejected}; alarms "
+            f"{len(s.alarms)}{': ' + '; '.join(s.alarms[:5]) if s.alarms else ''}; true RMSE "
+            f"{s.true_rmse_start_mm:.4f} mm at the start, {s.true_rmse_final_mm:.4f} mm at the end"
+        )
     return 0

@@ -1,0 +1,286 @@
+"""The in-line service on the simulated line: what `rvis run --sim` and `rvis tui --sim` start.
+
+The simulated line (fakes/line.py) runs every device peer on loopback from one simulated cell
+whose truth drifts with time (warm-up, an optional knock of the sensor mount); the service opens
+them through the real drivers (drivers.registry), exactly as on a real cell, with the line's
+scaled clock. The service starts from a commissioning calibration of the cold cell (an offline
+identification of 4 spheres x 6 random views, as `rvis simulate` + `rvis identify` would give)
+and measures the schedule's configurations in the clamp windows. After every window the true
+error of the parameters in force is evaluated at the line's validation positions (the truth is
+known here, never to the service).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import queue
+import threading
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from app.config import CellConfig
+from app.line.measure import GeometricSensor, SphereSensor, SweepSensor
+from app.line.schedule import Schedule
+from app.line.service import Service
+from app.line.settings import ServiceSettings, from_cell
+from app.line.station import Station
+from app.simulation import make_cell, simulated_sets, true_sensor_model
+from calib import candidates
+from calib.identify import identify
+from drivers.safety import SafetyGuard
+from fakes.cell import SimulatedCell
+from fakes.line import LineSettings as SimLineSettings
+from fakes.line import SimLine
+from fakes.truth import Knock, Warmup
+
+F64 = NDArray[np.float64]
+
+
+@dataclass
+class WindowRecord:
+    """The line after one window: sim time [h], temperature, true RMSE of the parameters in
+    force and of the commissioning parameters [mm], the parameters version."""
+
+    window: int
+    t_h: float
+    temp_c: float
+    rmse_mm: float
+    rmse_commissioning_mm: float
+    version: int
+
+
+@dataclass
+class SimRunSummary:
+    windows: int = 0
+    measurements: int = 0
+    rejected: int = 0
+    overruns: int = 0
+    withdrawn: int = 0
+    calibrations_applied: int = 0
+    calibrations_rejected: int = 0
+    alarms: list[str] = field(default_factory=list)
+    true_rmse_start_mm: float = float("nan")
+    true_rmse_final_mm: float = float("nan")
+    records: list[WindowRecord] = field(default_factory=list)
+
+    def to_json(self) -> dict[str, Any]:
+        return {k: v for k, v in self.__dict__.items() if k != "records"} | {
+            "timeline": [r.__dict__ for r in self.records]
+        }
+
+
+#: Rendering a frame and grabbing it through Aravis take about 0.1-0.15 s of real time: rendered
+#: runs go at most this fast, and the schedule budgets this much real time per frame.
+RENDERED_MAX_SCALE = 2.0
+RENDERED_FRAME_REAL_S = 0.15
+
+
+def sim_scale(cfg: CellConfig, geometric: bool) -> float:
+    return cfg.simline.scale if geometric else min(cfg.simline.scale, RENDERED_MAX_SCALE)
+
+
+def simline_settings(cfg: CellConfig, *, geometric: bool) -> SimLineSettings:
+    s = cfg.simline
+    knock = None if s.knock_at_s < 0 else Knock(s.knock_at_s, s.knock_mm, s.knock_deg)
+    return SimLineSettings(
+        scale=sim_scale(cfg, geometric),
+        period_s=s.period_s,
+        window_s=s.window_s,
+        beat_s=s.beat_s,
+        warmup=Warmup(s.warmup_k, s.warmup_tau_s, s.warmup_start_s) if s.warmup_k else None,
+        knock=knock,
+        camera=not geometric,
+        n_validation=s.n_validation,
+    )
+
+
+def service_settings(
+    cfg: CellConfig, state_dir: Path, scale: float, geometric: bool
+) -> ServiceSettings:
+    """The cell's service settings with the times a scaled line needs: the clamp window's length,
+    a poll of 10 ms real time, a heartbeat timeout of at least 0.5 s real time and, rendered,
+    the real time a frame takes."""
+    s = from_cell(cfg, state_dir)
+    if not geometric:
+        frame_s = max(s.sweep.frame_s, RENDERED_FRAME_REAL_S * scale)
+        s = replace(s, sweep=replace(s.sweep, frame_s=frame_s))
+    line = replace(
+        s.line,
+        window_s=cfg.simline.window_s,
+        poll_s=max(s.line.poll_s, 0.01 * scale),
+        heartbeat_timeout_s=max(s.line.heartbeat_timeout_s, 0.5 * scale),
+    )
+    return replace(s, line=line)
+
+
+def commissioning(cfg: CellConfig, seed: int) -> F64:
+    """Parameters of an offline calibration of the cold cell (4 spheres x 6 random views)."""
+    sim = simulated_sets(cfg, seed, n_validation=1)
+    return identify(sim.model, sim.calibration.measurements).x
+
+
+def random_schedule(cfg: CellConfig, cell: SimulatedCell, seed: int, n_each: int) -> dict[str, F64]:
+    """n_each random views per sphere that the nominal model plans and the cell sees (the
+    schedule when no plan file is given)."""
+    model = cfg.model()
+    x0 = model.nominal_x()
+    rng = np.random.default_rng([seed, 9])
+    out = {}
+    for tid, p in cfg.spheres_part_mm.items():
+        q = candidates.random_configurations(model, x0, p, 4 * n_each, rng).q_deg
+        out[tid] = np.array([qi for qi in q if cell.sees(qi, p)][:n_each])
+    return out
+
+
+class SimulatedLineRun:
+    """`with SimulatedLineRun(cfg, state_dir, seed=...) as run: run.windows(n)`."""
+
+    def __init__(
+        self,
+        cfg: CellConfig,
+        state_dir: str | Path,
+        *,
+        seed: int = 0,
+        geometric: bool = False,
+        plan: Path | None = None,
+    ) -> None:
+        self.cfg, self.state_dir, self.seed = cfg, Path(state_dir), seed
+        self.cell = make_cell(cfg, seed=seed)
+        self.line = SimLine(self.cell, simline_settings(cfg, geometric=geometric))
+        self.scale = sim_scale(cfg, geometric)
+        self.settings = service_settings(cfg, self.state_dir, self.scale, geometric)
+        self.geometric, self.plan = geometric, plan
+        self.model = cfg.model()
+        self.x_commissioning = commissioning(cfg, seed)
+        self.summary = SimRunSummary()
+        self._stack = contextlib.ExitStack()
+        self.thread: threading.Thread | None = None
+
+    def __enter__(self) -> SimulatedLineRun:
+        try:
+            self._start()
+        except BaseException:
+            self._stack.close()
+            raise
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _start(self) -> None:
+        line = self._stack.enter_context(self.line)
+        urls = dict(line.urls)
+        if self.geometric:
+            urls.pop("camera", None)
+            urls.pop("galvo", None)
+        station = Station.open(urls, guard=SafetyGuard())
+        self._stack.callback(station.close)
+        sensor: SphereSensor
+        if self.geometric:
+            sensor = GeometricSensor(line.geometric_centre, self.settings.sweep.duration_s)
+        else:
+            assert station.camera is not None and station.galvo is not None
+            model = true_sensor_model(self.cell.sensor)
+            sensor = SweepSensor(station.camera, station.galvo, model, self.settings.sweep)
+        if self.plan is not None:
+            schedule = Schedule.from_plan(self.plan, self.settings.line)
+        else:
+            n_each = self.cfg.calibration.configs_per_sphere
+            schedule = Schedule(
+                random_schedule(self.cfg, self.cell, self.seed, n_each), self.settings.line
+            )
+        self.service = Service(
+            station,
+            sensor,
+            schedule,
+            self.cfg.spheres_part_mm,
+            self.model,
+            self.x_commissioning,
+            clock=line.clock,
+            settings=self.settings,
+        )
+        self.events = self.service.bus.subscribe()
+        self.summary.true_rmse_start_mm = self.true_rmse_mm(self.service.x)
+
+    def true_rmse_mm(self, x: F64) -> float:
+        """RMS of the Euclidean error of parameters x at the validation positions, now."""
+        v = self.line.truth.validation
+        c = self.line.truth.validation_centres_sensor_mm()
+        e = self.model.points_part(x, v.q_deg, c) - v.p_part_mm
+        return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
+
+    def start_service(self) -> None:
+        self.thread = threading.Thread(target=self.service.run, name="rvis-service", daemon=True)
+        self.thread.start()
+
+    def events_until(
+        self, stop: Callable[[dict[str, Any]], bool], timeout_s: float
+    ) -> Iterator[dict[str, Any]]:
+        """The service's events until `stop(event)` is true (TimeoutError after timeout_s of
+        silence)."""
+        while True:
+            try:
+                event = self.events.get(timeout=timeout_s)
+            except queue.Empty:
+                raise TimeoutError(f"no event from the service in {timeout_s:g} s") from None
+            yield event
+            if stop(event):
+                return
+
+    def run_windows(
+        self, n: int, on_window: Callable[[WindowRecord], None] | None = None
+    ) -> SimRunSummary:
+        """Run the service until n windows have passed; the summary of the run."""
+        if self.thread is None:
+            self.start_service()
+        s = self.summary
+        silence_s = 10.0 + 5.0 * self.cfg.simline.period_s / self.scale
+        done = lambda e: s.windows >= n or e["event"] == "stopped"  # noqa: E731
+        for event in self.events_until(done, silence_s):
+            self._count(event)
+            if event["event"] == "window":
+                record = self._record()
+                s.records.append(record)
+                if on_window is not None:
+                    on_window(record)
+        s.true_rmse_final_mm = self.true_rmse_mm(self.service.x)
+        return s
+
+    def _count(self, event: dict[str, Any]) -> None:
+        s, kind = self.summary, event["event"]
+        if kind == "window":
+            s.windows += 1
+        elif kind == "measurement":
+            ok = event.get("status", "ok") == "ok"
+            s.measurements += ok
+            s.rejected += not ok
+        elif kind == "parameters_applied" and event.get("source") == "auto":
+            s.calibrations_applied += 1
+        elif kind == "calibration" and event.get("status") == "rejected":
+            s.calibrations_rejected += 1
+        elif kind == "alarm":
+            s.alarms.append(str(event.get("message") or event.get("code")))
+        s.overruns = int(self.service.counters.get("overruns", 0))
+        s.withdrawn = int(self.service.counters.get("withdrawn", 0))
+
+    def _record(self) -> WindowRecord:
+        truth = self.line.truth
+        return WindowRecord(
+            window=self.summary.windows,
+            t_h=truth.now_s() / 3600.0,
+            temp_c=truth.temp_c(),
+            rmse_mm=self.true_rmse_mm(self.service.x),
+            rmse_commissioning_mm=self.true_rmse_mm(self.x_commissioning),
+            version=self.service.version,
+        )
+
+    def close(self) -> None:
+        if self.thread is not None and self.thread.is_alive():
+            self.service.stop()
+            self.thread.join(60)
+        self._stack.close()
