@@ -105,6 +105,7 @@ def plan_settings(cfg: CellConfig, **overrides: Any) -> tuple[PlanSettings, Feas
         ),
         min_separation_mm=float(p["min_separation_mm"]),
         seed=int(p["seed"]),
+        threads=int(p["workers"]),
     )
     region = FeasibleRegion(
         plate_mm=cfg.base_plate_mm,
@@ -126,7 +127,9 @@ def particle_map(workers: int) -> Iterator[MapFn | None]:
 
         def mapper(f: Callable[[F64], float], items: Iterable[F64]) -> Iterable[float]:
             batch = list(items)
-            chunk = max(1, -(-len(batch) // (2 * workers)))
+            # small chunks: particles differ in cost (an infeasible one returns at once), and
+            # the swarm waits for the slowest chunk at every iteration
+            chunk = max(1, -(-len(batch) // (8 * workers)))
             return pool.map(f, batch, chunksize=chunk)
 
         yield mapper

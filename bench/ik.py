@@ -168,6 +168,7 @@ def speedups(rows: list[Row]) -> dict[str, float]:
     ref = by["py-opw: reach, 1 thread (8 branches)"]
     for mine in ("ours: solve, turn alternatives", "ours: solve, no turn alternatives"):
         out[f"{mine} vs py-opw reach 1 thread"] = ref.seconds / by[mine].seconds
+        out[f"{mine} vs py-opw reach 1 thread, CPU time"] = ref.cpu_seconds / by[mine].cpu_seconds
         out[f"{mine} vs fastest py-opw all-branch ({best.name[8:]})"] = (
             best.seconds / by[mine].seconds
         )

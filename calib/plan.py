@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterable, Mapping
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -107,6 +108,9 @@ class PlanSettings:
     min_separation_mm: float = 300.0
     active: tuple[str, ...] = PAPER_30
     seed: int = 0
+    #: Threads for the final choice of each sphere on the full grid (a serial stage: the
+    #: swarm's processes wait for it). The result does not depend on it.
+    threads: int = 1
 
     def __post_init__(self) -> None:
         check_index_name(self.criterion)
@@ -117,6 +121,8 @@ class PlanSettings:
             )
         if self.n_per_sphere < 1:
             raise ValueError(f"configurations per sphere {self.n_per_sphere}: expected >= 1")
+        if self.threads < 1:
+            raise ValueError(f"threads {self.threads}: expected >= 1")
 
 
 @dataclass(frozen=True)
@@ -157,10 +163,23 @@ def candidate_blocks(
     p_part_mm: F64,
     grid: ViewGrid,
     settings: PlanSettings,
+    threads: int = 1,
 ) -> tuple[Candidates, F64]:
-    """Candidates of a sphere and their Jacobian blocks (M, 3, L)."""
+    """Candidates of a sphere and their Jacobian blocks (M, 3, L), on `threads` threads."""
     cand = sphere_candidates(model, x, p_part_mm, grid, clearance=settings.clearance)
-    J = model.point_jacobian(x, cand.q_deg, cand.c_sensor_mm, settings.active)
+    n = len(cand)
+    if threads < 2 or n < 4096:
+        return cand, model.point_jacobian(x, cand.q_deg, cand.c_sensor_mm, settings.active)
+    J = np.empty((n, 3, len(settings.active)))
+    parts = np.array_split(np.arange(n), threads)
+
+    def part(rows: NDArray[np.intp]) -> None:
+        J[rows[0] : rows[-1] + 1] = model.point_jacobian(
+            x, cand.q_deg[rows], cand.c_sensor_mm[rows], settings.active
+        )
+
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        list(pool.map(part, parts))
     return cand, J
 
 
@@ -173,10 +192,11 @@ def choose(
     settings: PlanSettings,
     *,
     polish: bool = True,
+    threads: int = 1,
 ) -> tuple[Candidates, F64, int]:
     """The n configurations of one sphere chosen with the fixed blocks, their blocks and the
     number of candidates; NoCandidates when fewer than n views are reachable."""
-    cand, J = candidate_blocks(model, x, p_part_mm, grid, settings)
+    cand, J = candidate_blocks(model, x, p_part_mm, grid, settings, threads)
     if len(cand) < settings.n_per_sphere:
         raise NoCandidates(
             f"sphere at {np.round(p_part_mm, 1).tolist()} mm (part frame): {len(cand)} "
@@ -191,6 +211,7 @@ def choose(
         criterion=settings.criterion,
         method=settings.method,
         polish=polish,
+        threads=threads,
     )
     return cand.take(sel.indices), J[sel.indices], len(cand)
 
@@ -302,16 +323,34 @@ def select_configurations(
     J = np.zeros((0, 3, L)) if J_fixed is None else J_fixed
     plans: list[SpherePlan] = []
     for name, p in spheres_part_mm.items():
-        p_arr = np.asarray(p, dtype=float).reshape(3)
-        try:
-            chosen, J_sel, n_cand = choose(model, x, p_arr, grid or settings.grid, J, settings)
-        except NoCandidates as exc:
-            raise NoCandidates(f"sphere {name}: {exc}") from None
-        q, ok = refine_on_model(model, x, chosen.q_deg)
-        J_sel = model.point_jacobian(x, q, chosen.c_sensor_mm, settings.active)
+        sphere, J_sel = _configure_sphere(model, x, name, p, grid or settings.grid, J, settings)
         J = np.concatenate([J, J_sel])
-        plans.append(SpherePlan(name, p_arr, q, chosen.c_sensor_mm, n_cand, int(np.sum(~ok))))
+        plans.append(sphere)
     return plans, J
+
+
+def _configure_sphere(
+    model: SystemModel,
+    x: F64,
+    name: str,
+    p_part_mm: ArrayLike,
+    grid: ViewGrid,
+    J_fixed: F64,
+    settings: PlanSettings,
+) -> tuple[SpherePlan, F64]:
+    """The final configurations of one sphere (chosen with the fixed blocks, refined on the
+    model) and their Jacobian blocks at the refined angles."""
+    p_arr = np.asarray(p_part_mm, dtype=float).reshape(3)
+    try:
+        chosen, _, n_cand = choose(
+            model, x, p_arr, grid, J_fixed, settings, threads=settings.threads
+        )
+    except NoCandidates as exc:
+        raise NoCandidates(f"sphere {name}: {exc}") from None
+    q, ok = refine_on_model(model, x, chosen.q_deg)
+    J_sel = model.point_jacobian(x, q, chosen.c_sensor_mm, settings.active)
+    sphere = SpherePlan(name, p_arr, q, chosen.c_sensor_mm, n_cand, int(np.sum(~ok)))
+    return sphere, J_sel
 
 
 def refine_on_model(model: SystemModel, x: F64, q_deg: F64) -> tuple[F64, NDArray[np.bool_]]:
@@ -356,27 +395,33 @@ def plan(
     xy = start_base[:, :2].copy()
     if s.placement != "fixed":
         region.sample(np.random.default_rng(0), 1)  # EmptyRegion early
+    J_fixed = np.zeros((0, 3, L))
+    spheres: list[SpherePlan] = []
     if s.placement == "sequential":
-        J_fixed = np.zeros((0, 3, L))
+        # each sphere's final configurations are chosen right after its swarm (they are the
+        # fixed ones of the next swarm), once: the final stage has nothing left to choose
         for k, name in enumerate(names):
             t = time.perf_counter()
             fit = _fitness(model, x, (z_base[k],), xy[:k], J_fixed, s, region, xy[k])
             best, history[name] = _swarm(fit, region, 1, xy[k], f"place {name}", progress, mapper)
             xy[k] = best[0]
             p = _part_from_base(model, x, xy[k], z_base[k])
-            _, J_sel, _ = choose(model, x, p, s.grid, J_fixed, s)
+            sphere, J_sel = _configure_sphere(model, x, name, p, s.grid, J_fixed, s)
+            spheres.append(sphere)
             J_fixed = np.concatenate([J_fixed, J_sel])
             seconds[f"place {name}"] = time.perf_counter() - t
     elif s.placement == "joint":
         t = time.perf_counter()
-        fit = _fitness(model, x, z_base, np.zeros((0, 2)), np.zeros((0, 3, L)), s, region, xy)
+        fit = _fitness(model, x, z_base, np.zeros((0, 2)), J_fixed, s, region, xy)
         xy, history["joint"] = _swarm(fit, region, len(names), xy, "place all", progress, mapper)
         seconds["place all"] = time.perf_counter() - t
     t = time.perf_counter()
     positions = {n: _part_from_base(model, x, xy[k], z_base[k]) for k, n in enumerate(names)}
     if progress:
         progress("configurations", 0, 1, float("nan"))
-    spheres, J_all = select_configurations(model, x, positions, s)
+    if not spheres:
+        spheres, J_fixed = select_configurations(model, x, positions, s)
+    J_all = J_fixed
     obs = observability(J_all.reshape(-1, L), J_all.shape[0])
     if progress:
         progress("configurations", 1, 1, obs.indices[s.criterion])
