@@ -101,6 +101,7 @@ class _Information:
         self.sweeps = 0
         self.all_rows = np.arange(G.shape[0], dtype=np.int64)
         self.chunk_map: ChunkMap = map  # over chunks of candidates (a thread pool's map)
+        self._recent: dict[tuple[int, ...], F64] = {}  # whole-pool sweeps by selection
 
     def matrix(self, sel: list[int]) -> F64:
         Gs = self.G[sel]
@@ -129,7 +130,23 @@ class _Information:
         return out
 
     def if_added(self, sel: list[int], M: F64, pool: I64) -> F64:
-        """Log criterion after adding each candidate of pool (P,) to sel."""
+        """Log criterion after adding each candidate of pool (P,) to sel (a fresh array).
+
+        The searches ask again for selections they swept just before (a failed excursion is
+        retried one level deeper from the same start; after a swap, the exchange sweeps the
+        same rest again): the last few whole-pool sweeps are kept by selection, in order, so
+        a repeat returns the very same values."""
+        key = tuple(sel) if pool is self.all_rows else None
+        if key is not None and key in self._recent:
+            return self._recent[key].copy()
+        values = self._if_added(sel, M, pool)
+        if key is not None:
+            if len(self._recent) >= 8:
+                self._recent.pop(next(iter(self._recent)))
+            self._recent[key] = values.copy()
+        return values
+
+    def _if_added(self, sel: list[int], M: F64, pool: I64) -> F64:
         self.sweeps += 1
         gains = self._gains(M, pool, +1.0)
         base = float(np.linalg.slogdet(M)[1])

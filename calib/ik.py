@@ -169,14 +169,14 @@ def _expand_chunk(
     into the output slices."""
     kept = np.flatnonzero(counts)
     if not table.multi:
-        np.take(rows_q, kept, axis=0, out=q_deg)
+        np.take(rows_q, kept, axis=0, out=q_deg, mode="clip")  # "raise" buffers `out`
         np.bitwise_and(kept, N_BRANCHES - 1, out=branch)
         np.right_shift(kept + row0, 3, out=pose_index)
         return
     flat = np.flatnonzero(table.valid[pattern[kept]])  # kept row by row, turns ascending
     turn = flat % table.n_turns
     row = np.take(kept, flat // table.n_turns)
-    np.take(rows_q, row, axis=0, out=q_deg)
+    np.take(rows_q, row, axis=0, out=q_deg, mode="clip")  # indices valid
     q_deg += np.take(table.shifts_deg, turn, axis=0)
     np.bitwise_and(row, N_BRANCHES - 1, out=branch)
     branch *= table.n_turns

@@ -11,6 +11,9 @@ fitness is minus the criterion index of all configurations chosen so far.
 
 Coarse to fine: the swarm's fitness uses a coarse orientation grid (`search_grid`); the final
 configurations at the chosen positions come from the full grid (`grid`, default 5 degrees).
+With the sequential placement they are chosen once per sphere, right after its swarm, and are
+the fixed configurations of the next swarm (the full-grid choice is the costly serial stage:
+110k-140k candidates; `PlanSettings.threads` spreads its sweeps over threads).
 
 Partial plans: while fewer spheres are placed the Jacobian cannot reach rank L (one sphere
 gives at most 27 of the 30 directions, two 29), so the fitness takes the r largest singular
