@@ -56,8 +56,12 @@ F64 = NDArray[np.float64]
 PLACEMENTS = ("sequential", "joint", "fixed")
 #: Progress callback: (stage, step, steps, best fitness so far).
 Progress = Callable[[str, int, int, float], None]
-#: A map over particles, e.g. a process pool's `map` (default: the builtin).
-MapFn = Callable[[Callable[[F64], float], Iterable[F64]], Iterable[float]]
+#: A map over blocks of particles (k, d) -> fitness values (k,), e.g. a process pool's `map`
+#: (default: the builtin).
+MapFn = Callable[[Callable[[F64], F64], Iterable[F64]], Iterable[F64]]
+#: Particles per block of the swarm's map: one Jacobian call per block, and blocks small
+#: enough that the processes share the swarm evenly.
+PARTICLE_BLOCK = 5
 
 
 @dataclass(frozen=True)
@@ -200,9 +204,22 @@ def choose(
     """The n configurations of one sphere chosen with the fixed blocks, their blocks and the
     number of candidates; NoCandidates when fewer than n views are reachable."""
     cand, J = candidate_blocks(model, x, p_part_mm, grid, settings, threads)
+    return _choose_from(cand, J, J_fixed, settings, polish=polish, threads=threads)
+
+
+def _choose_from(
+    cand: Candidates,
+    J: F64,
+    J_fixed: F64,
+    settings: PlanSettings,
+    *,
+    polish: bool = True,
+    threads: int = 1,
+) -> tuple[Candidates, F64, int]:
+    """`choose` on candidates and blocks at hand."""
     if len(cand) < settings.n_per_sphere:
         raise NoCandidates(
-            f"sphere at {np.round(p_part_mm, 1).tolist()} mm (part frame): {len(cand)} "
+            f"sphere at {np.round(cand.p_part_mm, 1).tolist()} mm (part frame): {len(cand)} "
             f"reachable views that keep the clearance, {settings.n_per_sphere} needed"
         )
     rng = np.random.default_rng(settings.seed)
@@ -217,6 +234,21 @@ def choose(
         threads=threads,
     )
     return cand.take(sel.indices), J[sel.indices], len(cand)
+
+
+def _candidate_blocks_of_many(
+    model: SystemModel, x: F64, points_part_mm: list[F64], grid: ViewGrid, settings: PlanSettings
+) -> list[tuple[Candidates, F64]]:
+    """`candidate_blocks` of several spheres with one Jacobian call for all their candidates
+    (the rows are independent: the same blocks; on the swarm's ~500 candidates per sphere
+    numpy's cost per call dominates)."""
+    cands = [sphere_candidates(model, x, p, grid, clearance=settings.clearance)
+             for p in points_part_mm]  # fmt: skip
+    q = np.concatenate([c.q_deg for c in cands])
+    c_sensor = np.concatenate([c.c_sensor_mm for c in cands])
+    J = model.point_jacobian(x, q, c_sensor, settings.active)
+    ends = np.cumsum([len(c) for c in cands])[:-1]
+    return list(zip(cands, np.split(J, ends), strict=True))
 
 
 def plan_index(J_blocks: F64, name: str, rank: int | None = None) -> float:
@@ -258,13 +290,41 @@ class _Fitness:
     region: FeasibleRegion
     rank: int
 
-    def __call__(self, particle: F64) -> float:
-        xy = np.asarray(particle, dtype=float).reshape(-1, 2)
+    def _feasible(self, xy: F64) -> bool:
         if not np.all(self.region.contains(xy)):
-            return float("inf")
+            return False
         every = np.concatenate([self.placed_xy_mm, xy])
         gaps = np.linalg.norm(every[:, None, :] - every[None, :, :], axis=2)
-        if np.any(gaps[np.triu_indices(len(every), 1)] < self.settings.min_separation_mm):
+        return not np.any(gaps[np.triu_indices(len(every), 1)] < self.settings.min_separation_mm)
+
+    def block(self, particles: F64) -> F64:
+        """The fitness of a block of particles (k, 2 n_spheres): with one sphere per particle
+        (the sequential placement) one Jacobian call for the candidates of the whole block;
+        the same values as particle by particle."""
+        P = np.atleast_2d(np.asarray(particles, dtype=float))
+        if len(self.z_base_mm) != 1:
+            return np.array([self(p) for p in P])
+        out = np.full(len(P), np.inf)
+        ok = [i for i in range(len(P)) if self._feasible(P[i].reshape(-1, 2))]
+        if not ok:
+            return out
+        z = self.z_base_mm[0]
+        points = [_part_from_base(self.model, self.x, P[i], z) for i in ok]
+        blocks = _candidate_blocks_of_many(
+            self.model, self.x, points, self.settings.search_grid, self.settings
+        )
+        for i, (cand, J) in zip(ok, blocks, strict=True):
+            try:
+                _, J_sel, _ = _choose_from(cand, J, self.J_fixed, self.settings, polish=False)
+            except NoCandidates:
+                continue
+            J_all = np.concatenate([self.J_fixed, J_sel])
+            out[i] = -plan_index(J_all, self.settings.criterion, self.rank)
+        return out
+
+    def __call__(self, particle: F64) -> float:
+        xy = np.asarray(particle, dtype=float).reshape(-1, 2)
+        if not self._feasible(xy):
             return float("inf")
         J = self.J_fixed
         grid = self.settings.search_grid
@@ -296,7 +356,10 @@ def _swarm(
     start[0] = initial_xy.reshape(-1)  # the current positions are one of the particles
 
     def f_batch(particles: F64) -> F64:
-        return np.array(list(map_fn(fitness, list(particles))), dtype=float)
+        blocks = [
+            particles[i : i + PARTICLE_BLOCK] for i in range(0, len(particles), PARTICLE_BLOCK)
+        ]
+        return np.concatenate([np.asarray(v, dtype=float) for v in map_fn(fitness.block, blocks)])
 
     def report(it: int, n_it: int, best: float) -> None:
         if progress:

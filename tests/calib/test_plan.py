@@ -20,6 +20,7 @@ from calib.observability import null_space_groups, observability
 from calib.plan import (
     FeasibleRegion,
     PlanSettings,
+    _fitness,
     candidate_blocks,
     choose,
     plan,
@@ -310,3 +311,23 @@ def test_threads_do_not_change_the_selection(cfg: CellConfig) -> None:
     assert one.sweeps == two.sweeps > 6
     R, c = ViewGrid(12.0).views()  # cached grid views are shared: read-only
     assert not R.flags.writeable and not c.flags.writeable
+
+
+def test_swarm_blocks_give_the_fitness_of_each_particle(cfg: CellConfig) -> None:
+    """The swarm evaluates blocks of particles with one Jacobian call for all their
+    candidates: the values are those of the particles one by one (infeasible: +inf)."""
+    model = cfg.model()
+    x = model.nominal_x()
+    s = PlanSettings(search_grid=ViewGrid(step_deg=30.0))
+    T_base_part = inverse(model.T_part_base(x))
+    p1 = apply(T_base_part, cfg.spheres_part_mm["P1"])
+    _, J1, _ = choose(model, x, cfg.spheres_part_mm["P1"], s.search_grid, np.zeros((0, 3, 30)), s)
+    fit = _fitness(model, x, (-260.0,), p1[None, :2], J1, s, FeasibleRegion(), p1[:2] + 900.0)
+    rng = np.random.default_rng(5)
+    particles = rng.uniform(-2000.0, 2000.0, (7, 2))
+    particles[0] = p1[:2] + 10.0  # too close to the placed sphere
+    particles[1] = [0.0, 0.0]  # on the base plate
+    one = np.array([fit(p) for p in particles])
+    block = fit.block(particles)
+    assert np.array_equal(one, block)
+    assert np.isinf(block[:2]).all() and np.isfinite(block).sum() >= 3
