@@ -105,6 +105,7 @@ def plan_settings(cfg: CellConfig, **overrides: Any) -> tuple[PlanSettings, Feas
         ),
         min_separation_mm=float(p["min_separation_mm"]),
         seed=int(p["seed"]),
+        threads=int(p["workers"]),
     )
     region = FeasibleRegion(
         plate_mm=cfg.base_plate_mm,
@@ -117,17 +118,17 @@ def plan_settings(cfg: CellConfig, **overrides: Any) -> tuple[PlanSettings, Feas
 
 @contextmanager
 def particle_map(workers: int) -> Iterator[MapFn | None]:
-    """A map over particles on `workers` processes (None: in this process)."""
+    """A map over blocks of particles on `workers` processes (None: in this process)."""
     if workers <= 1:
         yield None
         return
     ctx = multiprocessing.get_context("fork")
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
 
-        def mapper(f: Callable[[F64], float], items: Iterable[F64]) -> Iterable[float]:
-            batch = list(items)
-            chunk = max(1, -(-len(batch) // (2 * workers)))
-            return pool.map(f, batch, chunksize=chunk)
+        def mapper(f: Callable[[F64], F64], blocks: Iterable[F64]) -> Iterable[F64]:
+            # one block of particles per task (calib.plan.PARTICLE_BLOCK): particles differ in
+            # cost (an infeasible one returns at once), and the swarm waits for the slowest
+            return pool.map(f, list(blocks), chunksize=1)
 
         yield mapper
 

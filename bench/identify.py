@@ -15,11 +15,11 @@ from app.threads import limit_blas_threads
 
 limit_blas_threads()  # as the rvis entry point, before numpy loads
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from app.config import load_cell  # noqa: E402
-from app.simulation import collect, make_cell  # noqa: E402
-from calib.identify import identify  # noqa: E402
+from app.config import load_cell
+from app.simulation import collect, make_cell
+from calib.identify import identify
 
 
 def median_seconds(fn: Callable[[], object], repeats: int) -> float:

@@ -17,6 +17,10 @@ whole-turn (+-360 deg) alternatives of J1/J3/J4/J6.
 
 from __future__ import annotations
 
+from app.threads import limit_blas_threads
+
+limit_blas_threads()  # as the rvis entry point, before numpy loads
+
 import statistics
 import sys
 import time
@@ -168,6 +172,7 @@ def speedups(rows: list[Row]) -> dict[str, float]:
     ref = by["py-opw: reach, 1 thread (8 branches)"]
     for mine in ("ours: solve, turn alternatives", "ours: solve, no turn alternatives"):
         out[f"{mine} vs py-opw reach 1 thread"] = ref.seconds / by[mine].seconds
+        out[f"{mine} vs py-opw reach 1 thread, CPU time"] = ref.cpu_seconds / by[mine].cpu_seconds
         out[f"{mine} vs fastest py-opw all-branch ({best.name[8:]})"] = (
             best.seconds / by[mine].seconds
         )

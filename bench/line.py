@@ -27,19 +27,19 @@ from app.threads import limit_blas_threads
 
 limit_blas_threads()
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from app.config import load_cell  # noqa: E402
-from app.line.measure import GeometricSensor  # noqa: E402
-from app.line.schedule import Schedule  # noqa: E402
-from app.line.service import Service  # noqa: E402
-from app.line.settings import LineSettings, ServiceSettings  # noqa: E402
-from app.line.station import Station  # noqa: E402
-from app.simulation import make_cell  # noqa: E402
-from drivers.plc import Plc, PlcInputs, decode_outputs, encode_inputs  # noqa: E402
-from drivers.robot import FloatArray  # noqa: E402
-from fakes.devices import FakeRobot  # noqa: E402
-from tests.line.helpers import plan_for  # noqa: E402
+from app.config import load_cell
+from app.line.measure import GeometricSensor
+from app.line.schedule import Schedule
+from app.line.service import Service
+from app.line.settings import LineSettings, ServiceSettings
+from app.line.station import Station
+from app.simulation import make_cell
+from drivers.plc import Plc, PlcInputs, decode_outputs, encode_inputs
+from drivers.robot import FloatArray
+from fakes.devices import FakeRobot
+from tests.line.helpers import plan_for
 
 
 class BenchPlc(Plc):

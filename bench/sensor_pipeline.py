@@ -23,20 +23,20 @@ from app.threads import limit_blas_threads
 
 limit_blas_threads()  # as the rvis entry point, before numpy loads
 
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
-from numpy.typing import NDArray  # noqa: E402
+import cv2
+import numpy as np
+from numpy.typing import NDArray
 
-from app.simulation import true_sensor_model  # noqa: E402
-from fakes.render import default_sweep_commands, render_sphere_sweep  # noqa: E402
-from fakes.render_sensor import TrueSensor, default_true_sensor  # noqa: E402
-from fakes.render_targets import CalibrationSet, render_calibration_set  # noqa: E402
-from vision.calibrate import calibrate_camera, calibrate_laser, laser_points, target_plane  # noqa: E402
-from vision.measure import measure_sphere_from_sweep  # noqa: E402
-from vision.sensor_model import CameraModel, SensorModel  # noqa: E402
-from vision.spherefit import fit_sphere  # noqa: E402
-from vision.stripe import extract_stripe  # noqa: E402
-from vision.triangulate import triangulate_sweep  # noqa: E402
+from app.simulation import true_sensor_model
+from fakes.render import default_sweep_commands, render_sphere_sweep
+from fakes.render_sensor import TrueSensor, default_true_sensor
+from fakes.render_targets import CalibrationSet, render_calibration_set
+from vision.calibrate import calibrate_camera, calibrate_laser, laser_points, target_plane
+from vision.measure import measure_sphere_from_sweep
+from vision.sensor_model import CameraModel, SensorModel
+from vision.spherefit import fit_sphere
+from vision.stripe import extract_stripe
+from vision.triangulate import triangulate_sweep
 
 F64 = NDArray[np.float64]
 

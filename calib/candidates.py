@@ -9,6 +9,7 @@ from the closed-form inverse kinematics.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -154,6 +155,7 @@ class ViewGrid:
         )
 
 
+@functools.lru_cache(maxsize=8)
 def _grid_views(
     step_deg: float,
     max_tilt_deg: float,
@@ -173,6 +175,9 @@ def _grid_views(
     R = look_rotations(d, np.tile(rolls, len(dirs)))
     off = np.asarray(offsets, dtype=float)
     c = off[np.arange(R.shape[0]) % off.shape[0]] + np.array([0.0, 0.0, standoff_mm])
+    # cached (the swarm asks for the same grid at every particle): shared, so read-only
+    R.setflags(write=False)
+    c.setflags(write=False)
     return R, c
 
 

@@ -34,10 +34,13 @@ through the rng passed in.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.linalg.lapack import dpotrf, dtrtri
 
 from calib.errors import NoCandidates
 from calib.observability import INDEX_NAMES, check_index_name
@@ -50,6 +53,10 @@ RIDGE = 1e-6
 #: An improvement of the log criterion below this ends the search.
 TOL = 1e-9
 SHORTLIST = 256
+#: Candidates per chunk of a determinant-lemma sweep (W of a chunk fits in cache).
+GAIN_CHUNK = 1024
+#: A map over chunk starts (the builtin, or a thread pool's).
+ChunkMap = Callable[[Callable[[int], None], Iterable[int]], Iterator[None]]
 
 
 def check_method(name: str) -> str:
@@ -84,12 +91,17 @@ class _Information:
         L = G.shape[2]
         self.G = G
         # (L, 3M): the candidates' first rows, then their second rows, then their third
-        self.GT = np.ascontiguousarray(np.concatenate([G[:, r, :] for r in range(3)]).T)
+        m = G.shape[0]
+        self.GT = np.empty((L, 3 * m))
+        for r in range(3):
+            self.GT[:, r * m : (r + 1) * m] = G[:, r, :].T
         self.criterion = criterion
         self.rank = rank
         self.M0 = RIDGE * np.eye(L) + np.einsum("kil,kim->lm", G_fixed, G_fixed)
         self.sweeps = 0
         self.all_rows = np.arange(G.shape[0], dtype=np.int64)
+        self.chunk_map: ChunkMap = map  # over chunks of candidates (a thread pool's map)
+        self._recent: dict[tuple[int, ...], F64] = {}  # whole-pool sweeps by selection
 
     def matrix(self, sel: list[int]) -> F64:
         Gs = self.G[sel]
@@ -118,7 +130,23 @@ class _Information:
         return out
 
     def if_added(self, sel: list[int], M: F64, pool: I64) -> F64:
-        """Log criterion after adding each candidate of pool (P,) to sel."""
+        """Log criterion after adding each candidate of pool (P,) to sel (a fresh array).
+
+        The searches ask again for selections they swept just before (a failed excursion is
+        retried one level deeper from the same start; after a swap, the exchange sweeps the
+        same rest again): the last few whole-pool sweeps are kept by selection, in order, so
+        a repeat returns the very same values."""
+        key = tuple(sel) if pool is self.all_rows else None
+        if key is not None and key in self._recent:
+            return self._recent[key].copy()
+        values = self._if_added(sel, M, pool)
+        if key is not None:
+            if len(self._recent) >= 8:
+                self._recent.pop(next(iter(self._recent)))
+            self._recent[key] = values.copy()
+        return values
+
+    def _if_added(self, sel: list[int], M: F64, pool: I64) -> F64:
         self.sweeps += 1
         gains = self._gains(M, pool, +1.0)
         base = float(np.linalg.slogdet(M)[1])
@@ -138,24 +166,27 @@ class _Information:
     def _gains(self, M: F64, rows: I64, sign: float) -> F64:
         """log det(I_3 + sign G_c M^-1 G_c^T) for the blocks `rows` (matrix determinant lemma):
         with M = C C^T (Cholesky), W_r = C^-1 G_r^T (one product with the 30 x 30 inverse factor
-        for all three rows of every candidate) and the six distinct entries of W^T W."""
-        C = np.linalg.cholesky(M)
+        for all three rows of every candidate) and the six distinct entries of W^T W. In
+        chunks of candidates, so that W stays in cache (a fresh (L, 3M) temporary per sweep
+        costs more in memory traffic and page faults than the products)."""
+        C_inv = _inverse_cholesky(M)
         n_all = self.G.shape[0]
-        if rows.size == n_all:
-            B = self.GT
-        else:
-            B = self.GT[:, np.concatenate([rows, rows + n_all, rows + 2 * n_all])]
-        Wall = np.linalg.inv(C) @ B  # C^-1 as one GEMM: faster than a triangular solve here
         k = rows.size
-        W = [Wall[:, :k], Wall[:, k : 2 * k], Wall[:, 2 * k :]]
-        s = [[np.einsum("lp,lp->p", W[a], W[b]) * sign for b in range(3)] for a in range(3)]
-        det = (
-            (1 + s[0][0]) * ((1 + s[1][1]) * (1 + s[2][2]) - s[1][2] ** 2)
-            - s[0][1] * (s[0][1] * (1 + s[2][2]) - s[1][2] * s[0][2])
-            + s[0][2] * (s[0][1] * s[1][2] - (1 + s[1][1]) * s[0][2])
-        )
-        out: F64 = np.log(np.where(det > 0.0, det, np.nan))
-        return np.nan_to_num(out, nan=-np.inf)
+        if k == n_all:
+            B, offset = self.GT, n_all
+        else:
+            B, offset = self.GT[:, np.concatenate([rows, rows + n_all, rows + 2 * n_all])], k
+        out = np.empty(k)
+
+        def chunk(a: int) -> None:
+            b = min(a + GAIN_CHUNK, k)
+            W = [C_inv @ B[:, r * offset + a : r * offset + b] for r in range(3)]
+            out[a:b] = _log_det3(W, sign)
+
+        mapper = self.chunk_map if k > 4 * GAIN_CHUNK else map
+        for _ in mapper(chunk, range(0, k, GAIN_CHUNK)):
+            pass
+        return out
 
     def if_removed(self, sel: list[int], M: F64, removable: list[int]) -> F64:
         """Log criterion after removing each of `removable` (positions in sel)."""
@@ -166,6 +197,37 @@ class _Information:
             return out
         Ms = M - np.einsum("kil,kim->klm", Gr, Gr)
         return self._spectral(np.linalg.eigvalsh(Ms))
+
+
+def _inverse_cholesky(M: F64) -> F64:
+    """C^-1 of M = C C^T (lower), straight from LAPACK (numpy.linalg's wrappers cost more
+    than the 30 x 30 factorisation itself in the swarm's many small sweeps)."""
+    C, info = dpotrf(M, lower=1, clean=1)
+    if info == 0:
+        C_inv, info = dtrtri(C, lower=1)
+    if info != 0:
+        raise np.linalg.LinAlgError("information matrix not positive definite")
+    out: F64 = C_inv
+    return out
+
+
+def _log_det3(W: list[F64], sign: float) -> F64:
+    """log det(I_3 + sign W^T W) per column p of the three (L, P) blocks W; -inf where the
+    determinant is not positive."""
+
+    def dot(a: int, b: int) -> F64:
+        d: F64 = np.einsum("lp,lp->p", W[a], W[b]) * sign
+        return d
+
+    s00, s11, s22, s01, s02, s12 = dot(0, 0), dot(1, 1), dot(2, 2), dot(0, 1), dot(0, 2), dot(1, 2)
+    det = (
+        (1 + s00) * ((1 + s11) * (1 + s22) - s12**2)
+        - s01 * (s01 * (1 + s22) - s12 * s02)
+        + s02 * (s01 * s12 - (1 + s11) * s02)
+    )
+    out: F64 = np.full(det.shape, -np.inf)
+    np.log(det, out=out, where=det > 0.0)
+    return out
 
 
 def select(
@@ -181,6 +243,7 @@ def select(
     start: str = "greedy",
     updates: str = "rank3",
     polish: bool = True,
+    threads: int = 1,
 ) -> Selection:
     """Choose n of the candidates (blocks J_candidates (M, 3, L)) that maximise the
     criterion together with the fixed blocks J_fixed (F, 3, L). DETMAX and exchange-add-
@@ -188,7 +251,8 @@ def select(
     "random" (n random candidates, as Mitchell's DETMAX). `updates="svd"` evaluates every
     candidate with a full SVD instead of the rank-3 update (the straightforward reference,
     for benchmarks and tests; O1 only). `polish=False` skips DETMAX's final single exchanges
-    (the swarm's coarse fitness)."""
+    (the swarm's coarse fitness). `threads` > 1 spreads the sweeps over large candidate sets
+    on that many threads (numpy and BLAS release the GIL; the result does not change)."""
     check_index_name(criterion)
     check_method(method)
     J_candidates = np.asarray(J_candidates, dtype=float)
@@ -211,6 +275,22 @@ def select(
     if start not in ("greedy", "random"):
         raise ValueError(f"unknown start '{start}' (choose from greedy, random)")
     first = [int(i) for i in rng.choice(m_cand, size=n, replace=False)]
+    if threads > 1 and m_cand > 4 * GAIN_CHUNK:
+        with ThreadPoolExecutor(max_workers=threads) as pool:
+            info.chunk_map = pool.map
+            return _run(info, method, start, first, n, max_depth, polish)
+    return _run(info, method, start, first, n, max_depth, polish)
+
+
+def _run(
+    info: _Information,
+    method: str,
+    start: str,
+    first: list[int],
+    n: int,
+    max_depth: int,
+    polish: bool,
+) -> Selection:
     if method == "random":
         sel = first
     elif method == "detmax":
@@ -221,7 +301,7 @@ def select(
         k = max(1, (n + 1) // 2)
         sel = _eae(info, _greedy(info, k) if start == "greedy" else first[:k], n)
     value = info.log_value(info.matrix(sel))
-    return Selection(np.array(sel, dtype=np.int64), value, criterion, method, info.sweeps)
+    return Selection(np.array(sel, dtype=np.int64), value, info.criterion, method, info.sweeps)
 
 
 class _SvdInformation(_Information):

@@ -19,8 +19,13 @@ eight branches at once by broadcasting over (shoulder, elbow) axes; the angles c
 products and sums of sines and cosines already at hand (no rotation-matrix products, one atan2
 per joint and arm branch; the wrist flip is J4 -+ 180, -J5, J6 -+ 180). The whole-turn
 alternatives are counted per joint (the limits are a box, so the valid alternatives of a
-branch are a product of per-joint ranges) and expanded with one `np.repeat`, not by testing
-every combination of turns.
+branch are a product of per-joint ranges, one `pattern` indexing a table of valid turn
+combinations), not by testing every combination of turns. Two passes over chunks of poses:
+the first computes the branches and counts the solutions of each, the second writes every
+solution once into outputs of the exact size. Chunks keep every temporary in cache: with the
+turn alternatives the output is ~25 solutions per pose, and large fresh temporaries (page
+faults) cost more than the arithmetic. No np.hypot (ten times slower than the square root of
+the sum of squares, and nothing here can overflow).
 """
 
 from __future__ import annotations
@@ -87,52 +92,97 @@ def solve(
 
 def _solve(T: F64, limits: robot.JointLimits, turn_alternatives: bool) -> IKSolutions:
     n = T.shape[0]
-    Z, keep = _branches(T)  # (6, 8, N) [deg], (8, N): joint, branch code, pose
-    lo = limits.lower_deg - LIMIT_TOL_DEG
-    hi = limits.upper_deg + LIMIT_TOL_DEG
     table = _turn_table(tuple(limits.lower_deg), tuple(limits.upper_deg), turn_alternatives)
     if table.n_turns == 0:  # a joint whose limits no whole turn of [-180, 180) reaches
         return IKSolutions(np.zeros((0, 6)), np.zeros(0, np.int64), np.zeros(0, np.int64))
+    lo = limits.lower_deg - LIMIT_TOL_DEG
+    hi = limits.upper_deg + LIMIT_TOL_DEG
+    E = np.ascontiguousarray(T.reshape(n, 16).T)  # E[4 i + j] = T[:, i, j], contiguous rows
+    # pass 1: the branches of every pose as rows (pose * 8 + code, 6) and how many solutions
+    # each row gives (its whole-turn alternatives within the limits)
+    rows_q = np.empty((n * N_BRANCHES, 6))
+    counts = np.empty(n * N_BRANCHES, dtype=np.int64)
+    pattern = np.empty(n * N_BRANCHES, dtype=np.intp)
+    for a in range(0, n, CHUNK):
+        b = min(a + CHUNK, n)
+        r = slice(a * N_BRANCHES, b * N_BRANCHES)
+        _count_chunk(E[:, a:b], table, lo, hi, rows_q[r], counts[r], pattern[r])
+    # pass 2: every solution written once into outputs of the exact size, chunk by chunk
+    ends = np.cumsum(counts)
+    m = int(ends[-1]) if n else 0
+    q_deg = np.empty((m, 6))
+    pose_index = np.empty(m, dtype=np.int64)
+    branch = np.empty(m, dtype=np.int64)
+    for a in range(0, n * N_BRANCHES, CHUNK * N_BRANCHES):
+        b = min(a + CHUNK * N_BRANCHES, n * N_BRANCHES)
+        o = slice(int(ends[a - 1]) if a else 0, int(ends[b - 1]))
+        _expand_chunk(table, a, rows_q[a:b], counts[a:b], pattern[a:b],
+                      q_deg[o], pose_index[o], branch[o])  # fmt: skip
+    return IKSolutions(q_deg, pose_index, branch)
+
+
+def _count_chunk(
+    E: F64, table: _TurnTable, lo: F64, hi: F64, rows_q: F64, counts: I64, pattern: NDArray[np.intp]
+) -> None:
+    """Branches of a chunk of c poses into rows_q (8 c, 6); per row the number of solutions
+    and, with several turns, the index of its pattern of valid turns into `table.valid`."""
+    c = E.shape[1]
+    Z = np.empty((6, 2, 2, 2, c))  # joint, back, elbow, flip, pose
+    keep5 = np.empty((2, 2, 2, c), dtype=bool)
+    _branches_chunk(E, Z, keep5)
+    Z3, keep = Z.reshape(6, N_BRANCHES, c), keep5.reshape(N_BRANCHES, c)
     for j in table.single:
-        a = Z[j] + table.single_shift_deg[j]
-        keep &= (a >= lo[j]) & (a <= hi[j])
+        if table.single_shift_deg[j]:
+            Z3[j] += table.single_shift_deg[j]
+        keep &= (Z3[j] >= lo[j]) & (Z3[j] <= hi[j])
+    rows_q.reshape(c, N_BRANCHES, 6)[...] = Z3.transpose(2, 1, 0)
     if not table.multi:  # one turn combination: a plain range test
-        row = np.flatnonzero(keep.T)  # row = pose * 8 + code
-        turn = np.zeros(len(row), dtype=np.int64)
-    else:
-        # per multi-turn joint the valid whole turns are a range [i_min, i_max] of indices
-        # into its list of turns; the pair is one code, the codes of all joints one pattern
-        pattern = np.zeros((N_BRANCHES, n))
-        for m, j in enumerate(table.multi):
-            k0, nk = table.k_first[m], table.n_k[m]
-            i_min = np.ceil((lo[j] - Z[j]) * (1.0 / 360.0)) - k0
-            i_max = np.floor((hi[j] - Z[j]) * (1.0 / 360.0)) - k0
-            np.clip(i_min, 0.0, nk, out=i_min)
-            np.clip(i_max, -1.0, nk - 1.0, out=i_max)
-            pattern += (i_min * (nk + 1.0) + i_max + 1.0) * table.radix[m]
-        kept = np.flatnonzero(keep.T)  # row = pose * 8 + code
-        index = pattern.T.ravel()[kept].astype(np.intp)
-        flat = np.flatnonzero(table.valid[index])
-        turn = flat % table.n_turns
-        flat //= table.n_turns
-        row = np.take(kept, flat)
-        del flat
-    q_rows = np.ascontiguousarray(Z.transpose(2, 1, 0)).reshape(-1, 6)
-    q_deg: F64 = np.take(q_rows, row, axis=0)
-    for j in table.multi:  # whole turns, column by column (no (M, 6) temporary)
-        q_deg[:, j] += np.take(table.shifts_deg[:, j], turn)
-    for j, shift in table.single_shift_deg.items():
-        if shift:
-            q_deg[:, j] += shift
-    # in place, to touch as little fresh memory as possible: branch = code * n_turns + turn
-    branch = np.bitwise_and(row, N_BRANCHES - 1, out=turn if table.n_turns == 1 else None)
-    if table.n_turns > 1:
-        branch *= table.n_turns
-        branch += turn
-    pose_index = np.right_shift(row, 3, out=row)  # row // N_BRANCHES
-    return IKSolutions(
-        q_deg, pose_index.astype(np.int64, copy=False), branch.astype(np.int64, copy=False)
-    )
+        counts.reshape(c, N_BRANCHES)[...] = keep.T
+        return
+    # per multi-turn joint the valid whole turns are a range [i_min, i_max] of indices into
+    # its list of turns; the pair is one code, the codes of all joints one pattern
+    code = np.zeros((N_BRANCHES, c))
+    for m, j in enumerate(table.multi):
+        k0, nk = table.k_first[m], table.n_k[m]
+        i_min = np.ceil((lo[j] - Z3[j]) * (1.0 / 360.0)) - k0
+        i_max = np.floor((hi[j] - Z3[j]) * (1.0 / 360.0)) - k0
+        np.clip(i_min, 0.0, nk, out=i_min)
+        np.clip(i_max, -1.0, nk - 1.0, out=i_max)
+        code += (i_min * (nk + 1.0) + i_max + 1.0) * table.radix[m]
+    code[~keep] = 0.0  # NaN where the input was
+    index = code.T.astype(np.intp)
+    pattern.reshape(c, N_BRANCHES)[...] = index
+    counts.reshape(c, N_BRANCHES)[...] = np.where(keep.T, table.n_valid[index], 0)
+
+
+def _expand_chunk(
+    table: _TurnTable,
+    row0: int,
+    rows_q: F64,
+    counts: I64,
+    pattern: NDArray[np.intp],
+    q_deg: F64,
+    pose_index: I64,
+    branch: I64,
+) -> None:
+    """Write the solutions of a chunk of rows (row0 = index of its first row, a multiple of 8)
+    into the output slices."""
+    kept = np.flatnonzero(counts)
+    if not table.multi:
+        np.take(rows_q, kept, axis=0, out=q_deg, mode="clip")  # "raise" buffers `out`
+        np.bitwise_and(kept, N_BRANCHES - 1, out=branch)
+        np.right_shift(kept + row0, 3, out=pose_index)
+        return
+    flat = np.flatnonzero(table.valid[pattern[kept]])  # kept row by row, turns ascending
+    turn = flat % table.n_turns
+    row = np.take(kept, flat // table.n_turns)
+    np.take(rows_q, row, axis=0, out=q_deg, mode="clip")  # indices valid
+    q_deg += np.take(table.shifts_deg, turn, axis=0)
+    np.bitwise_and(row, N_BRANCHES - 1, out=branch)
+    branch *= table.n_turns
+    branch += turn
+    row += row0
+    np.right_shift(row, 3, out=pose_index)  # row // N_BRANCHES
 
 
 @dataclass(frozen=True)
@@ -148,6 +198,7 @@ class _TurnTable:
     n_k: F64  # (m,) number of possible turns of each multi joint
     radix: F64  # (m,) pattern = sum(code_j * radix_j)
     valid: NDArray[np.bool_]  # (n_patterns, n_turns)
+    n_valid: I64  # (n_patterns,) valid turn combinations of each pattern
 
 
 @functools.lru_cache(maxsize=16)
@@ -188,27 +239,14 @@ def _turn_table(
         n_k=np.array([len(ks[j]) for j in multi], dtype=float),
         radix=radix,
         valid=valid,
+        n_valid=valid.sum(axis=1).astype(np.int64),
     )
-
-
-def _branches(T: F64) -> tuple[F64, NDArray[np.bool_]]:
-    """All eight branches of every pose: controller angles Z (6, 8, N) [deg] over (joint,
-    branch code = 4 back + 2 elbow + flip, pose), each in [-180, 180], and where they are
-    regular (8, N). Chunks of poses keep the temporaries small (cache, no page faults)."""
-    n = T.shape[0]
-    E = np.ascontiguousarray(T.reshape(n, 16).T)  # E[4 i + j] = T[:, i, j], contiguous rows
-    Z = np.empty((6, 2, 2, 2, n))  # joint, back, elbow, flip, pose
-    keep = np.empty((2, 2, 2, n), dtype=bool)
-    for start in range(0, n, CHUNK):
-        stop = min(start + CHUNK, n)
-        _branches_chunk(E[:, start:stop], Z[..., start:stop], keep[..., start:stop])
-    return Z.reshape(6, N_BRANCHES, n), keep.reshape(N_BRANCHES, n)
 
 
 def _branches_chunk(E: F64, Z: F64, keep: NDArray[np.bool_]) -> None:
     r00, r01, r02, px, r10, r11, r12, py, r20, r21, r22, pz = E[:12]
     wx, wy, wz = px - _D6 * r02, py - _D6 * r12, pz - _D6 * r22
-    rho = np.hypot(wx, wy)
+    rho = np.sqrt(wx * wx + wy * wy)  # not np.hypot: 10x slower, and no overflow here
     regular = rho > SINGULAR_TOL
     rho_safe = np.where(regular, rho, 1.0)
     c1, s1 = wx / rho_safe, wy / rho_safe
@@ -246,7 +284,7 @@ def _branches_chunk(E: F64, Z: F64, keep: NDArray[np.bool_]) -> None:
     m22 = cos3 * sp2 + sin3 * r22
     m20 = cos3 * (sig * p0) + sin3 * r20
     m21 = cos3 * (sig * p1) + sin3 * r21
-    s5 = np.hypot(m02, m12)
+    s5 = np.sqrt(m02 * m02 + m12 * m12)
     ok = arm_ok & (s5 > SINGULAR_TOL)  # (2, 2, N)
     j4 = np.arctan2(-m12, m02)  # J4 = -theta4
     j5 = np.arctan2(s5, m22)  # J5 = -theta5

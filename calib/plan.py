@@ -11,6 +11,9 @@ fitness is minus the criterion index of all configurations chosen so far.
 
 Coarse to fine: the swarm's fitness uses a coarse orientation grid (`search_grid`); the final
 configurations at the chosen positions come from the full grid (`grid`, default 5 degrees).
+With the sequential placement they are chosen once per sphere, right after its swarm, and are
+the fixed configurations of the next swarm (the full-grid choice is the costly serial stage:
+110k-140k candidates; `PlanSettings.threads` spreads its sweeps over threads).
 
 Partial plans: while fewer spheres are placed the Jacobian cannot reach rank L (one sphere
 gives at most 27 of the 30 directions, two 29), so the fitness takes the r largest singular
@@ -22,6 +25,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterable, Mapping
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -52,8 +56,12 @@ F64 = NDArray[np.float64]
 PLACEMENTS = ("sequential", "joint", "fixed")
 #: Progress callback: (stage, step, steps, best fitness so far).
 Progress = Callable[[str, int, int, float], None]
-#: A map over particles, e.g. a process pool's `map` (default: the builtin).
-MapFn = Callable[[Callable[[F64], float], Iterable[F64]], Iterable[float]]
+#: A map over blocks of particles (k, d) -> fitness values (k,), e.g. a process pool's `map`
+#: (default: the builtin).
+MapFn = Callable[[Callable[[F64], F64], Iterable[F64]], Iterable[F64]]
+#: Particles per block of the swarm's map: one Jacobian call per block, and blocks small
+#: enough that the processes share the swarm evenly.
+PARTICLE_BLOCK = 5
 
 
 @dataclass(frozen=True)
@@ -107,6 +115,9 @@ class PlanSettings:
     min_separation_mm: float = 300.0
     active: tuple[str, ...] = PAPER_30
     seed: int = 0
+    #: Threads for the final choice of each sphere on the full grid (a serial stage: the
+    #: swarm's processes wait for it). The result does not depend on it.
+    threads: int = 1
 
     def __post_init__(self) -> None:
         check_index_name(self.criterion)
@@ -117,6 +128,8 @@ class PlanSettings:
             )
         if self.n_per_sphere < 1:
             raise ValueError(f"configurations per sphere {self.n_per_sphere}: expected >= 1")
+        if self.threads < 1:
+            raise ValueError(f"threads {self.threads}: expected >= 1")
 
 
 @dataclass(frozen=True)
@@ -157,10 +170,23 @@ def candidate_blocks(
     p_part_mm: F64,
     grid: ViewGrid,
     settings: PlanSettings,
+    threads: int = 1,
 ) -> tuple[Candidates, F64]:
-    """Candidates of a sphere and their Jacobian blocks (M, 3, L)."""
+    """Candidates of a sphere and their Jacobian blocks (M, 3, L), on `threads` threads."""
     cand = sphere_candidates(model, x, p_part_mm, grid, clearance=settings.clearance)
-    J = model.point_jacobian(x, cand.q_deg, cand.c_sensor_mm, settings.active)
+    n = len(cand)
+    if threads < 2 or n < 4096:
+        return cand, model.point_jacobian(x, cand.q_deg, cand.c_sensor_mm, settings.active)
+    J = np.empty((n, 3, len(settings.active)))
+    parts = np.array_split(np.arange(n), threads)
+
+    def part(rows: NDArray[np.intp]) -> None:
+        J[rows[0] : rows[-1] + 1] = model.point_jacobian(
+            x, cand.q_deg[rows], cand.c_sensor_mm[rows], settings.active
+        )
+
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        list(pool.map(part, parts))
     return cand, J
 
 
@@ -173,13 +199,27 @@ def choose(
     settings: PlanSettings,
     *,
     polish: bool = True,
+    threads: int = 1,
 ) -> tuple[Candidates, F64, int]:
     """The n configurations of one sphere chosen with the fixed blocks, their blocks and the
     number of candidates; NoCandidates when fewer than n views are reachable."""
-    cand, J = candidate_blocks(model, x, p_part_mm, grid, settings)
+    cand, J = candidate_blocks(model, x, p_part_mm, grid, settings, threads)
+    return _choose_from(cand, J, J_fixed, settings, polish=polish, threads=threads)
+
+
+def _choose_from(
+    cand: Candidates,
+    J: F64,
+    J_fixed: F64,
+    settings: PlanSettings,
+    *,
+    polish: bool = True,
+    threads: int = 1,
+) -> tuple[Candidates, F64, int]:
+    """`choose` on candidates and blocks at hand."""
     if len(cand) < settings.n_per_sphere:
         raise NoCandidates(
-            f"sphere at {np.round(p_part_mm, 1).tolist()} mm (part frame): {len(cand)} "
+            f"sphere at {np.round(cand.p_part_mm, 1).tolist()} mm (part frame): {len(cand)} "
             f"reachable views that keep the clearance, {settings.n_per_sphere} needed"
         )
     rng = np.random.default_rng(settings.seed)
@@ -191,8 +231,24 @@ def choose(
         criterion=settings.criterion,
         method=settings.method,
         polish=polish,
+        threads=threads,
     )
     return cand.take(sel.indices), J[sel.indices], len(cand)
+
+
+def _candidate_blocks_of_many(
+    model: SystemModel, x: F64, points_part_mm: list[F64], grid: ViewGrid, settings: PlanSettings
+) -> list[tuple[Candidates, F64]]:
+    """`candidate_blocks` of several spheres with one Jacobian call for all their candidates
+    (the rows are independent: the same blocks; on the swarm's ~500 candidates per sphere
+    numpy's cost per call dominates)."""
+    cands = [sphere_candidates(model, x, p, grid, clearance=settings.clearance)
+             for p in points_part_mm]  # fmt: skip
+    q = np.concatenate([c.q_deg for c in cands])
+    c_sensor = np.concatenate([c.c_sensor_mm for c in cands])
+    J = model.point_jacobian(x, q, c_sensor, settings.active)
+    ends = np.cumsum([len(c) for c in cands])[:-1]
+    return list(zip(cands, np.split(J, ends), strict=True))
 
 
 def plan_index(J_blocks: F64, name: str, rank: int | None = None) -> float:
@@ -234,13 +290,41 @@ class _Fitness:
     region: FeasibleRegion
     rank: int
 
-    def __call__(self, particle: F64) -> float:
-        xy = np.asarray(particle, dtype=float).reshape(-1, 2)
+    def _feasible(self, xy: F64) -> bool:
         if not np.all(self.region.contains(xy)):
-            return float("inf")
+            return False
         every = np.concatenate([self.placed_xy_mm, xy])
         gaps = np.linalg.norm(every[:, None, :] - every[None, :, :], axis=2)
-        if np.any(gaps[np.triu_indices(len(every), 1)] < self.settings.min_separation_mm):
+        return not np.any(gaps[np.triu_indices(len(every), 1)] < self.settings.min_separation_mm)
+
+    def block(self, particles: F64) -> F64:
+        """The fitness of a block of particles (k, 2 n_spheres): with one sphere per particle
+        (the sequential placement) one Jacobian call for the candidates of the whole block;
+        the same values as particle by particle."""
+        P = np.atleast_2d(np.asarray(particles, dtype=float))
+        if len(self.z_base_mm) != 1:
+            return np.array([self(p) for p in P])
+        out = np.full(len(P), np.inf)
+        ok = [i for i in range(len(P)) if self._feasible(P[i].reshape(-1, 2))]
+        if not ok:
+            return out
+        z = self.z_base_mm[0]
+        points = [_part_from_base(self.model, self.x, P[i], z) for i in ok]
+        blocks = _candidate_blocks_of_many(
+            self.model, self.x, points, self.settings.search_grid, self.settings
+        )
+        for i, (cand, J) in zip(ok, blocks, strict=True):
+            try:
+                _, J_sel, _ = _choose_from(cand, J, self.J_fixed, self.settings, polish=False)
+            except NoCandidates:
+                continue
+            J_all = np.concatenate([self.J_fixed, J_sel])
+            out[i] = -plan_index(J_all, self.settings.criterion, self.rank)
+        return out
+
+    def __call__(self, particle: F64) -> float:
+        xy = np.asarray(particle, dtype=float).reshape(-1, 2)
+        if not self._feasible(xy):
             return float("inf")
         J = self.J_fixed
         grid = self.settings.search_grid
@@ -272,7 +356,10 @@ def _swarm(
     start[0] = initial_xy.reshape(-1)  # the current positions are one of the particles
 
     def f_batch(particles: F64) -> F64:
-        return np.array(list(map_fn(fitness, list(particles))), dtype=float)
+        blocks = [
+            particles[i : i + PARTICLE_BLOCK] for i in range(0, len(particles), PARTICLE_BLOCK)
+        ]
+        return np.concatenate([np.asarray(v, dtype=float) for v in map_fn(fitness.block, blocks)])
 
     def report(it: int, n_it: int, best: float) -> None:
         if progress:
@@ -302,16 +389,34 @@ def select_configurations(
     J = np.zeros((0, 3, L)) if J_fixed is None else J_fixed
     plans: list[SpherePlan] = []
     for name, p in spheres_part_mm.items():
-        p_arr = np.asarray(p, dtype=float).reshape(3)
-        try:
-            chosen, J_sel, n_cand = choose(model, x, p_arr, grid or settings.grid, J, settings)
-        except NoCandidates as exc:
-            raise NoCandidates(f"sphere {name}: {exc}") from None
-        q, ok = refine_on_model(model, x, chosen.q_deg)
-        J_sel = model.point_jacobian(x, q, chosen.c_sensor_mm, settings.active)
+        sphere, J_sel = _configure_sphere(model, x, name, p, grid or settings.grid, J, settings)
         J = np.concatenate([J, J_sel])
-        plans.append(SpherePlan(name, p_arr, q, chosen.c_sensor_mm, n_cand, int(np.sum(~ok))))
+        plans.append(sphere)
     return plans, J
+
+
+def _configure_sphere(
+    model: SystemModel,
+    x: F64,
+    name: str,
+    p_part_mm: ArrayLike,
+    grid: ViewGrid,
+    J_fixed: F64,
+    settings: PlanSettings,
+) -> tuple[SpherePlan, F64]:
+    """The final configurations of one sphere (chosen with the fixed blocks, refined on the
+    model) and their Jacobian blocks at the refined angles."""
+    p_arr = np.asarray(p_part_mm, dtype=float).reshape(3)
+    try:
+        chosen, _, n_cand = choose(
+            model, x, p_arr, grid, J_fixed, settings, threads=settings.threads
+        )
+    except NoCandidates as exc:
+        raise NoCandidates(f"sphere {name}: {exc}") from None
+    q, ok = refine_on_model(model, x, chosen.q_deg)
+    J_sel = model.point_jacobian(x, q, chosen.c_sensor_mm, settings.active)
+    sphere = SpherePlan(name, p_arr, q, chosen.c_sensor_mm, n_cand, int(np.sum(~ok)))
+    return sphere, J_sel
 
 
 def refine_on_model(model: SystemModel, x: F64, q_deg: F64) -> tuple[F64, NDArray[np.bool_]]:
@@ -356,27 +461,33 @@ def plan(
     xy = start_base[:, :2].copy()
     if s.placement != "fixed":
         region.sample(np.random.default_rng(0), 1)  # EmptyRegion early
+    J_fixed = np.zeros((0, 3, L))
+    spheres: list[SpherePlan] = []
     if s.placement == "sequential":
-        J_fixed = np.zeros((0, 3, L))
+        # each sphere's final configurations are chosen right after its swarm (they are the
+        # fixed ones of the next swarm), once: the final stage has nothing left to choose
         for k, name in enumerate(names):
             t = time.perf_counter()
             fit = _fitness(model, x, (z_base[k],), xy[:k], J_fixed, s, region, xy[k])
             best, history[name] = _swarm(fit, region, 1, xy[k], f"place {name}", progress, mapper)
             xy[k] = best[0]
             p = _part_from_base(model, x, xy[k], z_base[k])
-            _, J_sel, _ = choose(model, x, p, s.grid, J_fixed, s)
+            sphere, J_sel = _configure_sphere(model, x, name, p, s.grid, J_fixed, s)
+            spheres.append(sphere)
             J_fixed = np.concatenate([J_fixed, J_sel])
             seconds[f"place {name}"] = time.perf_counter() - t
     elif s.placement == "joint":
         t = time.perf_counter()
-        fit = _fitness(model, x, z_base, np.zeros((0, 2)), np.zeros((0, 3, L)), s, region, xy)
+        fit = _fitness(model, x, z_base, np.zeros((0, 2)), J_fixed, s, region, xy)
         xy, history["joint"] = _swarm(fit, region, len(names), xy, "place all", progress, mapper)
         seconds["place all"] = time.perf_counter() - t
     t = time.perf_counter()
     positions = {n: _part_from_base(model, x, xy[k], z_base[k]) for k, n in enumerate(names)}
     if progress:
         progress("configurations", 0, 1, float("nan"))
-    spheres, J_all = select_configurations(model, x, positions, s)
+    if not spheres:
+        spheres, J_fixed = select_configurations(model, x, positions, s)
+    J_all = J_fixed
     obs = observability(J_all.reshape(-1, L), J_all.shape[0])
     if progress:
         progress("configurations", 1, 1, obs.indices[s.criterion])

@@ -128,3 +128,23 @@ def test_branch_ids_index_the_turn_shifts() -> None:
     unshifted = sols.q_deg - shifts[sols.branch % len(shifts)]
     assert np.all(np.abs(unshifted) <= 180.0 + 1e-9)
     assert len(base.q_deg) <= len(sols.q_deg)
+
+
+def test_chunks_do_not_change_the_solutions() -> None:
+    """The batch is solved in chunks of poses (count, then write): solving more poses than a
+    chunk gives, pose by pose, what solving each pose alone gives, in the same order."""
+    rng = np.random.default_rng(12)
+    n = ik.CHUNK + 37
+    T = MODEL.fk(X0, random_q(rng, n), flange=True)
+    T[5, :3, 3] = np.nan  # garbage and unreachable poses inside a chunk
+    T[ik.CHUNK + 1, :3, 3] = [1e5, 0.0, 0.0]
+    for turns in (True, False):
+        batch = ik.solve(T, turn_alternatives=turns)
+        assert np.all(np.diff(batch.pose_index) >= 0)
+        for i in (0, 5, ik.CHUNK - 1, ik.CHUNK, ik.CHUNK + 1, n - 1):
+            alone = ik.solve(T[i : i + 1], turn_alternatives=turns)
+            mine = batch.pose_index == i
+            assert np.array_equal(batch.q_deg[mine], alone.q_deg)
+            assert np.array_equal(batch.branch[mine], alone.branch)
+        assert not np.isin([5, ik.CHUNK + 1], batch.pose_index).any()
+        assert np.bincount(batch.pose_index, minlength=n)[ik.CHUNK - 1 : ik.CHUNK + 1].all()

@@ -17,7 +17,15 @@ from calib.candidates import (
 from calib.errors import EmptyRegion, NoCandidates
 from calib.model import INDEX, JOINT_NAMES, PAPER_30, unit_of
 from calib.observability import null_space_groups, observability
-from calib.plan import FeasibleRegion, PlanSettings, choose, plan, select_configurations
+from calib.plan import (
+    FeasibleRegion,
+    PlanSettings,
+    _fitness,
+    candidate_blocks,
+    choose,
+    plan,
+    select_configurations,
+)
 from calib.pso import SwarmSettings, minimize
 from calib.transforms import apply, inverse
 
@@ -256,3 +264,70 @@ def test_planned_configurations_put_the_sphere_where_planned_on_the_identified_m
     cand, _, _ = choose(model, x, spheres[0].p_part_mm, s.grid, np.zeros((0, 3, 30)), s)
     miss = apply(inverse(model.fk(x, cand.q_deg)), spheres[0].p_part_mm) - cand.c_sensor_mm
     assert np.median(np.linalg.norm(miss, axis=1)) > 0.5
+
+
+def test_sequential_plan_keeps_the_choice_made_after_each_swarm(cfg: CellConfig) -> None:
+    """The sequential placement chooses each sphere's final configurations once, right after
+    its swarm, refined on the off-nominal model: they are what the final stage would choose
+    at the planned positions, sphere after sphere (select_configurations)."""
+    model = cfg.model()
+    x = model.nominal_x()
+    x[INDEX["dtheta2"]] += 2e-3  # off nominal: the refinement moves the angles
+    x[INDEX["a2"]] += 0.3
+    s = PlanSettings(
+        grid=ViewGrid(step_deg=25.0),
+        search_grid=ViewGrid(step_deg=30.0),
+        swarm=SwarmSettings(n_particles=4, n_iterations=1),
+    )
+    result = plan(model, x, cfg.spheres_part_mm, s)
+    positions = {sp.name: sp.p_part_mm for sp in result.spheres}
+    spheres, J = select_configurations(model, x, positions, s)
+    for a, b in zip(result.spheres, spheres, strict=True):
+        assert np.array_equal(a.q_deg, b.q_deg)
+        assert np.array_equal(a.c_sensor_mm, b.c_sensor_mm)
+        assert a.n_candidates == b.n_candidates
+    assert result.observability.indices["O1"] == pytest.approx(
+        observability(J.reshape(-1, 30), J.shape[0]).indices["O1"], rel=1e-12
+    )
+    assert not np.array_equal(result.spheres[0].q_deg, choose(
+        model, x, result.spheres[0].p_part_mm, s.grid, np.zeros((0, 3, 30)), s
+    )[0].q_deg)  # fmt: skip
+
+
+def test_threads_do_not_change_the_selection(cfg: CellConfig) -> None:
+    """Sweeps over more than 4 chunks of candidates run on a thread pool; the blocks and the
+    chosen rows are the same as on one thread."""
+    model = cfg.model()
+    x = model.nominal_x()
+    s = PlanSettings()
+    cand, J = candidate_blocks(model, x, cfg.spheres_part_mm["P3"], ViewGrid(12.0), s)
+    assert len(cand) > 4 * detmax.GAIN_CHUNK
+    _, J2 = candidate_blocks(model, x, cfg.spheres_part_mm["P3"], ViewGrid(12.0), s, threads=2)
+    assert np.array_equal(J, J2)
+    fixed = _blocks(cfg, "P1")[:6]
+    one = detmax.select(J, 6, np.random.default_rng(0), J_fixed=fixed)
+    two = detmax.select(J, 6, np.random.default_rng(0), J_fixed=fixed, threads=2)
+    assert np.array_equal(one.indices, two.indices) and one.log_value == two.log_value
+    assert one.sweeps == two.sweeps > 6
+    R, c = ViewGrid(12.0).views()  # cached grid views are shared: read-only
+    assert not R.flags.writeable and not c.flags.writeable
+
+
+def test_swarm_blocks_give_the_fitness_of_each_particle(cfg: CellConfig) -> None:
+    """The swarm evaluates blocks of particles with one Jacobian call for all their
+    candidates: the values are those of the particles one by one (infeasible: +inf)."""
+    model = cfg.model()
+    x = model.nominal_x()
+    s = PlanSettings(search_grid=ViewGrid(step_deg=30.0))
+    T_base_part = inverse(model.T_part_base(x))
+    p1 = apply(T_base_part, cfg.spheres_part_mm["P1"])
+    _, J1, _ = choose(model, x, cfg.spheres_part_mm["P1"], s.search_grid, np.zeros((0, 3, 30)), s)
+    fit = _fitness(model, x, (-260.0,), p1[None, :2], J1, s, FeasibleRegion(), p1[:2] + 900.0)
+    rng = np.random.default_rng(5)
+    particles = rng.uniform(-2000.0, 2000.0, (7, 2))
+    particles[0] = p1[:2] + 10.0  # too close to the placed sphere
+    particles[1] = [0.0, 0.0]  # on the base plate
+    one = np.array([fit(p) for p in particles])
+    block = fit.block(particles)
+    assert np.array_equal(one, block)
+    assert np.isinf(block[:2]).all() and np.isfinite(block).sum() >= 3
