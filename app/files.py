@@ -177,30 +177,36 @@ def _write_reason(exc: OSError) -> str:
     return exc.strerror or str(exc)
 
 
+def replace_atomically(path: str | Path, data: bytes) -> None:
+    """Replace `path` by `data` so that a reader (or a restart after a crash) sees the old file
+    or the new one, never a part: a temporary file in the same directory, fsync, rename over
+    `path`, fsync the directory. OSError on failure, with `path` left as it was."""
+    path = Path(path)
+    mode = path.stat().st_mode & 0o777 if path.exists() else 0o644
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            os.fchmod(fh.fileno(), mode)
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    fsync_dir(path.parent)
+
+
 def write_bytes(path: str | Path, data: bytes) -> None:
-    """Write `data` to `path` atomically: a temporary file in the same directory, fsync,
-    rename over `path`, fsync the directory. A failed or interrupted write leaves `path` as it
-    was; any problem with the path is an InputError naming it (exit code 2). Missing parent
-    directories are created."""
+    """`replace_atomically`, creating missing parent folders; any problem with the path is an
+    InputError naming it (exit code 2)."""
     path = Path(path)
     if path.is_dir():
         raise InputError("is a directory, expected a file name", file=path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        mode = path.stat().st_mode & 0o777 if path.exists() else 0o644
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                os.fchmod(fh.fileno(), mode)
-                fh.write(data)
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-            raise
-        fsync_dir(path.parent)
+        replace_atomically(path, data)
     except OSError as exc:
         raise InputError(f"cannot write: {_write_reason(exc)}", file=path) from None
 

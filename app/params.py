@@ -21,6 +21,52 @@ FORMAT = "rvis-parameters"
 FORMAT_VERSION = 1
 
 
+def model_json(model: SystemModel) -> dict[str, Any]:
+    """The model part of a parameters document (name, version, nominal frames, limits)."""
+    return {
+        "name": model.name,
+        "version": model.version,
+        "T_part_base_nominal": model.T_part_base_nominal.tolist(),
+        "T_flange_sensor_nominal": model.T_flange_sensor_nominal.tolist(),
+        "joint_lower_deg": model.limits.lower_deg.tolist(),
+        "joint_upper_deg": model.limits.upper_deg.tolist(),
+    }
+
+
+def parameters_json(
+    model: SystemModel, x: F64, std: dict[str, float] | None = None
+) -> list[dict[str, Any]]:
+    """Every parameter: name, group, unit, nominal and value, and for identified ones (those
+    in `std`) the standard uncertainty."""
+    nominal, std = model.nominal_x(), std or {}
+    return [
+        {
+            "name": name,
+            "group": group_of(name),
+            "unit": unit_of(name),
+            "identified": name in std,
+            "nominal": float(nominal[k]),
+            "value": float(x[k]),
+            "std": float(std.get(name, 0.0)),
+        }
+        for k, name in enumerate(ALL_NAMES)
+    ]
+
+
+def plain_document(model: SystemModel, x: F64, source: str) -> dict[str, Any]:
+    """A parameters document for values that come from no identification here (the nominal
+    model, a commissioning file imported at first start); readable by `from_json`."""
+    return {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "model": model_json(model),
+        "parameters": parameters_json(model, x),
+        "success": True,
+        "message": source,
+        "provenance": {"source": source},
+    }
+
+
 def to_json(
     model: SystemModel,
     result: IdentificationResult,
@@ -29,33 +75,13 @@ def to_json(
 ) -> dict[str, Any]:
     """The parameters document. `success` is true only when the optimiser converged and the
     quality gates passed (`gates`; without them only convergence is known)."""
-    nominal = model.nominal_x()
-    std = dict(zip(result.active, result.std, strict=True))
-    params = [
-        {
-            "name": name,
-            "group": group_of(name),
-            "unit": unit_of(name),
-            "identified": name in std,
-            "nominal": float(nominal[k]),
-            "value": float(result.x[k]),
-            "std": float(std[name]) if name in std else 0.0,
-        }
-        for k, name in enumerate(ALL_NAMES)
-    ]
+    std = {n: float(v) for n, v in zip(result.active, result.std, strict=True)}
     obs = result.observability
     return {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
-        "model": {
-            "name": model.name,
-            "version": model.version,
-            "T_part_base_nominal": model.T_part_base_nominal.tolist(),
-            "T_flange_sensor_nominal": model.T_flange_sensor_nominal.tolist(),
-            "joint_lower_deg": model.limits.lower_deg.tolist(),
-            "joint_upper_deg": model.limits.upper_deg.tolist(),
-        },
-        "parameters": params,
+        "model": model_json(model),
+        "parameters": parameters_json(model, result.x, std),
         "residuals": {
             "n_measurements": int(result.residuals_mm.shape[0]),
             "rms_mm": result.rms_mm,

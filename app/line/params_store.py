@@ -10,8 +10,6 @@ JSON (readable by `app.params.from_json`) with one more key, `history_version`.
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -19,62 +17,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.errors import InputError
-from app.params import FORMAT, FORMAT_VERSION, from_json
-from calib.model import ALL_NAMES, SystemModel, group_of, unit_of
+from app.files import dumps_json, replace_atomically
+from app.params import from_json
+from calib.model import SystemModel
 
 F64 = NDArray[np.float64]
 
 
 def atomic_write_json(path: Path, doc: dict[str, Any]) -> None:
     """Write `doc` to `path` so that readers see the old file or the new one, never a part."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            json.dump(doc, f, indent=1)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    dir_fd = os.open(path.parent, os.O_RDONLY)
-    try:
-        os.fsync(dir_fd)  # the rename itself must survive a power loss
-    finally:
-        os.close(dir_fd)
-
-
-def plain_document(model: SystemModel, x: F64, source: str) -> dict[str, Any]:
-    """A parameters document for values that come from no identification here (the nominal
-    model, or a file imported at first start); readable by app.params.from_json."""
-    nominal = model.nominal_x()
-    return {
-        "format": FORMAT,
-        "format_version": FORMAT_VERSION,
-        "model": {
-            "name": model.name,
-            "version": model.version,
-            "T_part_base_nominal": model.T_part_base_nominal.tolist(),
-            "T_flange_sensor_nominal": model.T_flange_sensor_nominal.tolist(),
-            "joint_lower_deg": model.limits.lower_deg.tolist(),
-            "joint_upper_deg": model.limits.upper_deg.tolist(),
-        },
-        "parameters": [
-            {
-                "name": name,
-                "group": group_of(name),
-                "unit": unit_of(name),
-                "identified": False,
-                "nominal": float(nominal[k]),
-                "value": float(x[k]),
-                "std": 0.0,
-            }
-            for k, name in enumerate(ALL_NAMES)
-        ],
-        "success": True,
-        "message": source,
-        "provenance": {"source": source},
-    }
+    replace_atomically(path, (dumps_json(doc, indent=1) + "\n").encode("utf-8"))
 
 
 class ParamsStore:

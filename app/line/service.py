@@ -32,13 +32,14 @@ from app.line.drift import DriftMonitor, residual_mm
 from app.line.events import EventBus
 from app.line.measure import Reading, SphereMeasurer, SphereSensor
 from app.line.operator import OperatorCommands
-from app.line.params_store import ParamsStore, plain_document
+from app.line.params_store import ParamsStore
 from app.line.recalib import Recalibrator, RecalJob, RecalOutcome, as_measurements, select_rolling
 from app.line.schedule import Schedule, Slot
 from app.line.settings import ServiceSettings
 from app.line.station import Station
 from app.line.store import Store
 from app.line.sweeps import SweepArchive
+from app.params import plain_document
 from calib.model import SystemModel
 from drivers.errors import DeviceError
 

@@ -22,8 +22,8 @@ from app.line.schedule import Schedule
 from app.line.service import Service
 from app.line.settings import LineSettings, RecalibSettings, ServiceSettings
 from app.line.station import Station
+from app.sim.line_run import random_schedule
 from app.simulation import make_cell
-from calib import candidates
 from calib.model import SystemModel
 from drivers.plc import decode_inputs, decode_outputs, encode_inputs
 from fakes.cell import SimulatedCell
@@ -103,15 +103,8 @@ class LinePlc(FakePlc):
 def plan_for(seed: int, n_each: int = 6) -> dict[str, F64]:
     """n_each configurations per sphere that the nominal model plans and the true cell sees."""
     cfg = load_cell(None)
-    cell = make_cell(cfg, seed)
-    model = cfg.model()
-    x0 = model.nominal_x()
-    rng = np.random.default_rng([seed, 9])
-    out = {}
-    for tid, p in cfg.spheres_part_mm.items():
-        q = candidates.random_configurations(model, x0, p, 4 * n_each, rng).q_deg
-        out[tid] = np.array([qi for qi in q if cell.sees(qi, p)][:n_each])
-        assert len(out[tid]) == n_each
+    out = random_schedule(cfg, make_cell(cfg, seed), seed, n_each)
+    assert all(len(q) == n_each for q in out.values())
     return out
 
 

@@ -14,8 +14,8 @@ import pytest
 
 from app.config import load_cell
 from app.errors import InputError
-from app.line.params_store import ParamsStore, plain_document
-from app.params import from_json
+from app.line.params_store import ParamsStore
+from app.params import from_json, plain_document
 from calib.model import INDEX
 
 
