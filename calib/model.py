@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -60,7 +61,15 @@ def _joint_names() -> tuple[str, ...]:
 
 JOINT_NAMES = _joint_names()
 ALL_NAMES: tuple[str, ...] = BASE_NAMES + JOINT_NAMES + SENSOR_NAMES
-INDEX = {name: k for k, name in enumerate(ALL_NAMES)}
+#: Extra parameters of the compliance- and temperature-aware model (calib.compliance), after
+#: the 37 rigid ones: lumped gravity compliance [rad/m] of J2 and J3 per arm term, and the
+#: linear thermal expansion coefficient of the arm lengths [1/K].
+COMPLIANCE_NAMES = ("c2_upper", "c2_fore", "c3_fore", "c2_payload", "c3_payload")
+THERMAL_NAMES = ("expansion_per_k",)
+EXTRA_NAMES: tuple[str, ...] = COMPLIANCE_NAMES + THERMAL_NAMES
+INDEX = {name: k for k, name in enumerate(ALL_NAMES + EXTRA_NAMES)}
+_FS_T = slice(INDEX["x_FS"], INDEX["x_FS"] + 3)
+_FS_R = slice(INDEX["rx_FS"], INDEX["rx_FS"] + 3)
 
 #: The paper's 30 identifiable parameters (rank 30 checked numerically in the tests).
 PAPER_30: tuple[str, ...] = (
@@ -88,7 +97,9 @@ PAPER_30: tuple[str, ...] = (
 
 
 def unit_of(name: str) -> str:
-    """'mm' for lengths, 'rad' for angles."""
+    """'mm' for lengths, 'rad' for angles ('rad/m' and '1/K' for the extra parameters)."""
+    if name in EXTRA_NAMES:
+        return "1/K" if name in THERMAL_NAMES else "rad/m"
     if name in BASE_NAMES or name in SENSOR_NAMES:
         return "mm" if name[0] in "xyz" else "rad"
     return "mm" if name[0] in "ad" and not name.startswith(("alpha", "dtheta")) else "rad"
@@ -96,6 +107,8 @@ def unit_of(name: str) -> str:
 
 def group_of(name: str) -> str:
     """Which piece of the chain a parameter belongs to, for reports."""
+    if name in EXTRA_NAMES:
+        return "thermal" if name in THERMAL_NAMES else f"compliance J{name[1]}"
     if name in BASE_NAMES:
         return "part->base"
     if name in SENSOR_NAMES:
@@ -145,12 +158,20 @@ class SystemModel:
     limits: robot.JointLimits = field(default_factory=robot.JointLimits)
     name: str = "fanuc-m710ic50-mdh30"
     version: int = 1
+    #: which model ("rigid" here; calib.compliance.CompliantModel: "compliant") and the
+    #: names of its full parameter vector
+    kind: ClassVar[str] = "rigid"
+    names: ClassVar[tuple[str, ...]] = ALL_NAMES
+
+    def default_active(self, temp_c: F64 | None = None) -> tuple[str, ...]:
+        """The parameters identified by default (the paper's 30; temperatures are unused)."""
+        return PAPER_30
 
     def nominal_x(self) -> F64:
         """Full parameter vector (37,) at nominal."""
         x = np.zeros(len(ALL_NAMES))
         x[0:3] = self.T_part_base_nominal[:3, 3]
-        x[-6:-3] = self.T_flange_sensor_nominal[:3, 3]
+        x[_FS_T] = self.T_flange_sensor_nominal[:3, 3]
         for i in range(6):
             x[INDEX[f"alpha{i}"]] = robot.MDH_ALPHA_RAD[i]
             x[INDEX[f"a{i}"]] = robot.MDH_A_MM[i]
@@ -163,8 +184,8 @@ class SystemModel:
         return pose(R, x[0:3])
 
     def T_flange_sensor(self, x: F64) -> F64:
-        R = self.T_flange_sensor_nominal[:3, :3] @ rotvec_to_matrix(x[-3:])
-        return pose(R, x[-6:-3])
+        R = self.T_flange_sensor_nominal[:3, :3] @ rotvec_to_matrix(x[_FS_R])
+        return pose(R, x[_FS_T])
 
     def _constants(self, x: F64) -> list[F64]:
         """C0..C6 with T = C0 Rz(phi1) C1 ... Rz(phi6) C6, phi_i = theta_i + dtheta_i."""
@@ -202,18 +223,31 @@ class SystemModel:
             M = M @ consts[i + 1]
         return M
 
-    def points_part(self, x: F64, q_deg: ArrayLike, c_sensor_mm: ArrayLike) -> F64:
-        """Sphere centres in the part frame (N, 3): P_i = T_part_sensor(q_i) C_i."""
+    def points_part(
+        self,
+        x: F64,
+        q_deg: ArrayLike,
+        c_sensor_mm: ArrayLike,
+        temp_c: ArrayLike | None = None,
+    ) -> F64:
+        """Sphere centres in the part frame (N, 3): P_i = T_part_sensor(q_i) C_i. The rigid
+        model has no thermal term: cell temperatures `temp_c` (N,) [degC] are ignored."""
         return apply(self.fk(x, q_deg), np.asarray(c_sensor_mm, dtype=float))
 
     # -- identification Jacobian ------------------------------------------------------------
     def point_jacobian(
-        self, x: F64, q_deg: ArrayLike, c_sensor_mm: ArrayLike, active: Sequence[str]
+        self,
+        x: F64,
+        q_deg: ArrayLike,
+        c_sensor_mm: ArrayLike,
+        active: Sequence[str],
+        temp_c: ArrayLike | None = None,
     ) -> F64:
-        """d P_i / d x_active, shape (N, 3, len(active)) [mm per mm or mm per rad]."""
+        """d P_i / d x_active, shape (N, 3, len(active)) [mm per mm or mm per rad]
+        (`temp_c` is ignored, as in `points_part`)."""
         q = np.atleast_2d(np.asarray(q_deg, dtype=float))
         c_s = np.broadcast_to(np.asarray(c_sensor_mm, dtype=float), (q.shape[0], 3))
-        p = self.points_part(x, q, c_s)
+        p = apply(self.fk(x, q), c_s)
         want = {name: j for j, name in enumerate(active)}
         J = np.zeros((q.shape[0], 3, len(active)))
         phi = self.joint_phi(x, q)
@@ -267,7 +301,7 @@ class SystemModel:
         rot_cols = [want.get(n) for n in SENSOR_NAMES[3:]]
         if any(c is not None for c in rot_cols):
             R_fs = self.T_flange_sensor(x)[:3, :3]
-            D = -(R_a @ R_fs) @ skew(c_s) @ so3_right_jacobian(x[-3:])
+            D = -(R_a @ R_fs) @ skew(c_s) @ so3_right_jacobian(x[_FS_R])
             for k, col in enumerate(rot_cols):
                 if col is not None:
                     J[:, :, col] = D[:, :, k]
@@ -284,9 +318,10 @@ def _batched_elementary(kind: str, value: F64 | float, n: int) -> F64:
     return _elementary(kind, float(value))
 
 
-def check_active(active: Sequence[str]) -> tuple[str, ...]:
-    """Validate a selection of parameter names; raises ValueError naming the unknown ones."""
-    unknown = [n for n in active if n not in INDEX]
+def check_active(active: Sequence[str], known: Sequence[str] = ALL_NAMES) -> tuple[str, ...]:
+    """Validate a selection of parameter names against a model's `known` names; raises
+    ValueError naming the unknown ones."""
+    unknown = [n for n in active if n not in known]
     if unknown:
         raise ValueError(f"unknown model parameters: {', '.join(unknown)}")
     if len(set(active)) != len(active):
