@@ -32,7 +32,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -45,6 +45,7 @@ from calib.model import (
     INDEX,
     PAPER_30,
     SystemModel,
+    cross,
 )
 from calib.transforms import apply
 
@@ -95,6 +96,7 @@ class CompliantModel(SystemModel):
     settings: CompliantSettings = field(default_factory=CompliantSettings)
     base_height_mm: float = robot.BASE_LINK_TO_WORLD_Z_MM
     name: str = "fanuc-m710ic50-mdh30-compliant"
+    _last_levers: list[Any] = field(default_factory=list, init=False, repr=False, compare=False)
     kind: ClassVar[str] = "compliant"
     names: ClassVar[tuple[str, ...]] = COMPLIANT_NAMES
 
@@ -147,7 +149,18 @@ class CompliantModel(SystemModel):
         return out
 
     def levers_m(self, x: F64, phi_rigid: F64) -> F64:
-        """Gravity levers (N, 5) [m] in the order of COMPLIANCE_NAMES, at rigid angles."""
+        """Gravity levers (N, 5) [m] in the order of COMPLIANCE_NAMES, at rigid angles (the
+        last result is kept: one update asks for it three times)."""
+        key = x.tobytes() + phi_rigid.tobytes()
+        entry = self._last_levers[0] if self._last_levers else None
+        if entry is not None and entry[0] == key:
+            out: F64 = entry[1]
+            return out
+        L = self._levers_m(x, phi_rigid)
+        self._last_levers[:] = [(key, L)]
+        return L
+
+    def _levers_m(self, x: F64, phi_rigid: F64) -> F64:
         A = self._axis_frames(x, phi_rigid)
         down = -self.T_part_base(x)[:3, 2]
         o2, z2 = A[1][:, :3, 3], A[1][:, :3, 2]
@@ -156,7 +169,7 @@ class CompliantModel(SystemModel):
         f = A[5][:, :3, 3] + A[5][:, :3, 2] * x[INDEX["d6"]]
 
         def lever(a: F64, b: F64, z: F64) -> F64:
-            out: F64 = np.einsum("ni,ni->n", np.cross((b - a) / 1000.0, down), z)
+            out: F64 = np.einsum("ni,ni->n", cross((b - a) / 1000.0, down), z)
             return out
 
         return np.stack(
@@ -232,23 +245,31 @@ class CompliantModel(SystemModel):
         out: F64 = p + ds * self.growth_mm(x, q_deg, c_s)
         return out
 
-    def point_jacobian(
+    def point_and_jacobian(
         self,
         x: F64,
         q_deg: ArrayLike,
         c_sensor_mm: ArrayLike,
         active: Sequence[str],
         temp_c: ArrayLike | None = None,
-    ) -> F64:
-        """d P_i / d x_active (N, 3, len(active)), the extra columns analytic (module doc)."""
+    ) -> tuple[F64, F64]:
+        """P_i (N, 3) as `points_part` and d P_i / d x_active (N, 3, L), the extra columns
+        analytic (module docstring)."""
         q = np.atleast_2d(np.asarray(q_deg, dtype=float))
         c_s = np.broadcast_to(np.asarray(c_sensor_mm, dtype=float), (q.shape[0], 3))
         rigid = [n for n in active if n in ALL_NAMES]
-        need = [*rigid, *(n for n in ("dtheta2", "dtheta3") if n not in rigid)]
-        J_r = super().point_jacobian(x, q, c_s, need)
+        extra = ["dtheta2", "dtheta3"] + (list(LENGTH_NAMES) if temp_c is not None else [])
+        need = [*rigid, *(n for n in dict.fromkeys(extra) if n not in rigid)]
+        p, J_r = super().point_and_jacobian(x, q, c_s, need)
         col = {n: k for k, n in enumerate(need)}
         J = np.zeros((q.shape[0], 3, len(active)))
         L = self.levers_m(x, super().joint_phi(x, q))
+        G = np.zeros_like(p)
+        if temp_c is not None:
+            lengths = x[[INDEX[n] for n in LENGTH_NAMES]]
+            J_len = J_r[:, :, [col[n] for n in LENGTH_NAMES]]
+            G = J_len @ lengths + self.T_part_base(x)[:3, 2] * self.base_height_mm
+            p = p + self.scale_of(x, temp_c).reshape(-1, 1) * G
         for k, name in enumerate(active):
             if name in col:
                 J[:, :, k] = J_r[:, :, col[name]]
@@ -258,8 +279,8 @@ class CompliantModel(SystemModel):
                 J[:, :, k] = J_r[:, :, col[joint]] * L[:, i, None]
             elif temp_c is not None:  # expansion_per_k
                 dT = np.asarray(temp_c, dtype=float) - self.settings.reference_temp_c
-                J[:, :, k] = dT.reshape(-1, 1) * self.growth_mm(x, q, c_s)
-        return J
+                J[:, :, k] = dT.reshape(-1, 1) * G
+        return p, J
 
 
 def temp_span_k(temp_c: ArrayLike | None) -> float:

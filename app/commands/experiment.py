@@ -1,4 +1,5 @@
-"""`rvis experiment paper`: the paper's experiment on the simulated cell over many seeds."""
+"""`rvis experiment paper`: the paper's experiment on the simulated cell over many seeds;
+`rvis experiment accuracy`: the rigid vs the compliance-aware model against the noise floor."""
 
 from __future__ import annotations
 
@@ -6,20 +7,28 @@ import argparse
 import time
 from pathlib import Path
 
-from app.config import load_cell
+from app.accuracy import AccuracySettings, run_accuracy
+from app.accuracy import summary_text as accuracy_text
+from app.config import CellConfig, load_cell
 from app.errors import InputError
 from app.experiment import run_experiment, summary_text
 from app.planning import add_plan_options, plan_overrides
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("experiment", help="reproduce the paper's experiment on the simulated cell")
-    p.add_argument("name", choices=("paper",), help="which experiment")
-    p.add_argument("--seeds", type=int, default=20, help="number of seeds (20)")
+    p = sub.add_parser("experiment", help="experiments on the simulated cell (paper, accuracy)")
+    p.add_argument("name", choices=("paper", "accuracy"), help="which experiment")
+    p.add_argument("--seeds", type=int, help="number of seeds (paper 20, accuracy 10)")
     p.add_argument("--first-seed", type=int, default=0, help="first seed (0)")
     p.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")
     p.add_argument("--out", help="output folder (default runs/experiment-<time>)")
     p.add_argument("--validation", type=int, default=100, help="validation positions (100)")
+    p.add_argument(
+        "--views-per-sphere",
+        type=int,
+        default=10,
+        help="accuracy: random calibration views per sphere (10)",
+    )
     add_plan_options(p)
     p.add_argument(
         "--criteria-grid-step",
@@ -33,14 +42,16 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    for key in ("seeds", "validation"):
+    for key in ("seeds", "validation", "views_per_sphere"):
         value = getattr(args, key)
         if value is not None and value < 1:
             raise InputError(f"must be >= 1, got {value}", field=f"--{key.replace('_', '-')}")
     cfg = load_cell(args.cell)
     out = Path(args.out or f"runs/experiment-{time.strftime('%Y%m%d-%H%M%S')}")
+    if args.name == "accuracy":
+        return run_accuracy_command(args, cfg, out)
     overrides = plan_overrides(args)
-    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    seeds = list(range(args.first_seed, args.first_seed + (args.seeds or 20)))
     print(f"rvis experiment paper: {len(seeds)} seeds, writing to {out}/", flush=True)
     summary = run_experiment(
         cfg,
@@ -55,4 +66,15 @@ def run(args: argparse.Namespace) -> int:
     print()
     print(summary_text(summary))
     print(f"\nwritten {out}/experiment.md, fig11.png, seeds.json in {summary.seconds:.0f} s")
+    return 0
+
+
+def run_accuracy_command(args: argparse.Namespace, cfg: CellConfig, out: Path) -> int:
+    seeds = list(range(args.first_seed, args.first_seed + (args.seeds or 10)))
+    settings = AccuracySettings(n_each=args.views_per_sphere, n_validation=args.validation)
+    print(f"rvis experiment accuracy: {len(seeds)} seeds, writing to {out}/", flush=True)
+    outcomes = run_accuracy(cfg, seeds, out, settings, log=lambda s: print(s, flush=True))
+    print()
+    print(accuracy_text(outcomes))
+    print(f"\nwritten {out}/accuracy.md, accuracy-seeds.json")
     return 0
