@@ -14,7 +14,6 @@ from app.config import CellConfig, load_cell
 from app.simulation import make_cell, validation_points
 from calib import robot
 from calib.compliance import (
-    ARM_COMPLIANCE,
     CompliantModel,
     CompliantSettings,
     select_model,
