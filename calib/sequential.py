@@ -6,7 +6,10 @@ State: the active parameters x_a (L,) with covariance P (L, L). Each `update`:
     predict   P <- P + Q                        Q = diag(drift^2): random-walk drift per update
     innovate  r = p_tracker - P_model(x; q, c, T)  (3,) [mm],  H = dP_model/dx_a (3, L)
               S = H P H^T + sigma^2 I3,  d2 = r^T S^-1 r
-    gate      d2 > gate_chi2 (chi-square, 3 dof): rejected, x unchanged
+    gate      d2 > gate_chi2 (chi-square, 3 dof): rejected, x unchanged; after
+              `knock_after` rejections in a row the model is taken to have changed (a knock,
+              a crash, a fixture moved): P grows by diag(knock^2) so that the next
+              measurements can pull the estimate to the new state
     correct   K = P H^T S^-1,  x_a <- x_a + K r,  P <- (I - K H) P (I - K H)^T + K R K^T
 
 The model is relinearised at the current estimate on every update (extended Kalman filter);
@@ -36,29 +39,38 @@ class SequentialSettings:
     """measurement_std_mm: standard deviation of one coordinate of a measured centre (sensor
     and tracker together); gate_chi2: Mahalanobis gate on the squared innovation; the drift
     standard deviations per update of the length [mm], angle [rad] and extra (compliance
-    [rad/m], expansion [1/K]) parameters model slow changes (warm-up, wear, a knock)."""
+    [rad/m], expansion [1/K]) parameters model slow changes (warm-up, wear); knock_after
+    rejections in a row (0: never) add knock_mm / knock_rad to the parameters' standard
+    deviations (a sudden change)."""
 
     measurement_std_mm: float = 0.025
     gate_chi2: float = CHI2_3DOF_999
     drift_mm: float = 0.0
     drift_rad: float = 0.0
     drift_extra: float = 0.0
+    knock_after: int = 5
+    knock_mm: float = 1.0
+    knock_rad: float = 1e-3
 
     def __post_init__(self) -> None:
         if not self.measurement_std_mm > 0.0 or not self.gate_chi2 > 0.0:
             raise ValueError("measurement_std_mm and gate_chi2 must be > 0")
         if min(self.drift_mm, self.drift_rad, self.drift_extra) < 0.0:
             raise ValueError("drift standard deviations must be >= 0")
+        if self.knock_after < 0 or min(self.knock_mm, self.knock_rad) < 0.0:
+            raise ValueError("knock_after, knock_mm and knock_rad must be >= 0")
 
 
 @dataclass(frozen=True)
 class Update:
     """What one update did: accepted or rejected by the gate, the squared Mahalanobis distance
-    of the innovation, the innovation (3,) [mm] before the correction."""
+    of the innovation, the innovation (3,) [mm] before the correction; `knock`: this
+    rejection completed a run of `knock_after` and the covariance was widened."""
 
     accepted: bool
     mahalanobis2: float
     innovation_mm: F64
+    knock: bool = False
 
 
 class SequentialEstimator:
@@ -86,10 +98,14 @@ class SequentialEstimator:
                 f"x0 needs shape ({len(model.names)},), P0 ({L}, {L}); "
                 f"got {self._x.shape}, {self._P.shape}"
             )
-        self._Q = np.diag(self._drift_std() ** 2)
+        s = self.settings
+        self._Q = np.diag(self._by_unit(s.drift_mm, s.drift_rad, s.drift_extra) ** 2)
+        self._knock = np.diag(self._by_unit(s.knock_mm, s.knock_rad, 0.0) ** 2)
         self._R = np.eye(3) * self.settings.measurement_std_mm**2
         self.n_accepted = 0
         self.n_rejected = 0
+        self.n_knocks = 0
+        self._in_a_row = 0
 
     @staticmethod
     def from_result(
@@ -115,9 +131,8 @@ class SequentialEstimator:
         std = np.array([_by_unit(n, std_mm, std_rad, std_extra) for n in active])
         return SequentialEstimator(model, x0, active, np.diag(std**2), settings)
 
-    def _drift_std(self) -> F64:
-        s = self.settings
-        return np.array([_by_unit(n, s.drift_mm, s.drift_rad, s.drift_extra) for n in self.active])
+    def _by_unit(self, mm: float, rad: float, extra: float) -> F64:
+        return np.array([_by_unit(n, mm, rad, extra) for n in self.active])
 
     # -- state ---------------------------------------------------------------------------
     @property
@@ -157,15 +172,25 @@ class SequentialEstimator:
         S = H @ PHt + self._R
         d2 = float(r @ np.linalg.solve(S, r))
         if not np.isfinite(d2) or d2 > self.settings.gate_chi2:
-            self._P = P
-            self.n_rejected += 1
-            return Update(False, d2, r)
+            return self._reject(P, d2, r)
+        self._in_a_row = 0
         K = np.linalg.solve(S, PHt.T).T
         self._x[self._cols] += K @ r
         IKH = np.eye(len(self.active)) - K @ H
         self._P = IKH @ P @ IKH.T + K @ self._R @ K.T
         self.n_accepted += 1
         return Update(True, d2, r)
+
+    def _reject(self, P: F64, d2: float, r: F64) -> Update:
+        self.n_rejected += 1
+        self._in_a_row += 1
+        knock = self._in_a_row == self.settings.knock_after
+        if knock:
+            P = P + self._knock
+            self.n_knocks += 1
+            self._in_a_row = 0
+        self._P = P
+        return Update(False, d2, r, knock)
 
 
 def _by_unit(name: str, mm: float, rad: float, extra: float) -> float:
