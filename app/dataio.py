@@ -22,7 +22,7 @@ def load_dataset(
     targets_path = Path(targets)
     rows = read_measurements(measurements, limits)
     centres = match_targets(rows, read_targets(targets_path), targets_path)
-    return Measurements(rows.q_deg, rows.c_sensor_mm, centres, tuple(rows.targets))
+    return Measurements(rows.q_deg, rows.c_sensor_mm, centres, tuple(rows.targets), rows.temp_c)
 
 
 def as_input_error(path: str | Path, work: Callable[[], T]) -> T:

@@ -3,6 +3,7 @@ parameter with names, units and standard uncertainties, residual statistics, ran
 
 from __future__ import annotations
 
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -11,6 +12,7 @@ from numpy.typing import NDArray
 
 from app.errors import InputError
 from app.files import read_json
+from calib.compliance import CompliantModel, CompliantSettings, select_model
 from calib.identify import IdentificationResult
 from calib.model import ALL_NAMES, INDEX, SystemModel, group_of, unit_of
 from calib.robot import JointLimits
@@ -33,7 +35,7 @@ def to_json(model: SystemModel, result: IdentificationResult) -> dict[str, Any]:
             "value": float(result.x[k]),
             "std": float(std[name]) if name in std else 0.0,
         }
-        for k, name in enumerate(ALL_NAMES)
+        for k, name in enumerate(model.names)
     ]
     obs = result.observability
     return {
@@ -46,6 +48,7 @@ def to_json(model: SystemModel, result: IdentificationResult) -> dict[str, Any]:
             "T_flange_sensor_nominal": model.T_flange_sensor_nominal.tolist(),
             "joint_lower_deg": model.limits.lower_deg.tolist(),
             "joint_upper_deg": model.limits.upper_deg.tolist(),
+            **_kind_fields(model),
         },
         "parameters": params,
         "residuals": {
@@ -90,12 +93,13 @@ def from_json(path: str | Path) -> tuple[SystemModel, F64]:
                 np.array(need(m, "joint_upper_deg", "model."), dtype=float),
             ),
         )
+        model = _with_kind(model, m)
     except (ValueError, TypeError) as exc:
         raise InputError(f"bad model: {exc}", file=path, field="model") from exc
     x = model.nominal_x()
     for k, p in enumerate(need(data, "parameters", "")):
         name = p.get("name") if isinstance(p, dict) else None
-        if name not in INDEX:
+        if name not in model.names:
             raise InputError(f"unknown parameter {name!r}", file=path, field=f"parameters[{k}]")
         value = p.get("value")
         if not isinstance(value, int | float) or not np.isfinite(value):
@@ -104,6 +108,21 @@ def from_json(path: str | Path) -> tuple[SystemModel, F64]:
             )
         x[INDEX[name]] = float(value)
     return model, x
+
+
+def _kind_fields(model: SystemModel) -> dict[str, Any]:
+    """model.kind and, for the compliant model, its settings (a file without them: rigid)."""
+    if not isinstance(model, CompliantModel):
+        return {"kind": model.kind}
+    return {"kind": model.kind, "compliant": asdict(model.settings)}
+
+
+def _with_kind(model: SystemModel, m: dict[str, Any]) -> SystemModel:
+    kind = m.get("kind", "rigid")
+    settings = m.get("compliant", {}) if kind == "compliant" else {}
+    if not isinstance(settings, dict):
+        raise ValueError("model.compliant is not an object")
+    return select_model(str(kind), model, CompliantSettings(**settings))
 
 
 __all__ = ["ALL_NAMES", "from_json", "to_json"]
