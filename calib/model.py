@@ -26,7 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -145,6 +145,13 @@ def _elementary(kind: str, value: float) -> F64:
     return pose(np.eye(3), t)
 
 
+class _Pieces(NamedTuple):
+    consts: tuple[F64, ...]
+    elems: tuple[F64 | None, ...]  # per CHAIN[1:-1] operation, None for the joint rotations
+    T_pb: F64
+    T_fs: F64
+
+
 @dataclass(frozen=True)
 class SystemModel:
     """Nominal system: the robot's modified-DH geometry and the nominal 6-DoF pieces.
@@ -189,29 +196,38 @@ class SystemModel:
         return pose(R, x[_FS_T])
 
     def _constants(self, x: F64) -> list[F64]:
-        """C0..C6 with T = C0 Rz(phi1) C1 ... Rz(phi6) C6, phi_i = theta_i + dtheta_i.
+        """C0..C6 with T = C0 Rz(phi1) C1 ... Rz(phi6) C6, phi_i = theta_i + dtheta_i."""
+        return list(self._pieces(x).consts)
 
-        The last x's constants are kept: a sequential update evaluates the chain several
-        times at one x, and for one configuration building them is most of the cost."""
+    def _pieces(self, x: F64) -> _Pieces:
+        """The x-dependent constants of the chain. The last x's are kept: a sequential update
+        evaluates the chain several times at one x, and for one configuration building them
+        is most of the cost."""
         key = x.tobytes()
         entry = self._last_constants[0] if self._last_constants else None
         if entry is not None and entry[0] == key:
-            return list(entry[1])
-        consts = self._build_constants(x)
-        self._last_constants[:] = [(key, consts)]  # one atomic entry: safe across threads
-        return list(consts)
+            pieces: _Pieces = entry[1]
+            return pieces
+        pieces = self._build_pieces(x)
+        self._last_constants[:] = [(key, pieces)]  # one atomic entry: safe across threads
+        return pieces
 
-    def _build_constants(self, x: F64) -> list[F64]:
+    def _build_pieces(self, x: F64) -> _Pieces:
+        T_pb, T_fs = self.T_part_base(x), self.T_flange_sensor(x)
+        elems = tuple(
+            None if kind == "rz" else _elementary(kind, x[INDEX[name]])
+            for kind, name, _ in CHAIN[1:-1]
+        )
         consts: list[F64] = []
-        M = self.T_part_base(x)
-        for kind, name, _ in CHAIN[1:-1]:
-            if kind == "rz":
+        M = T_pb
+        for E in elems:
+            if E is None:
                 consts.append(M)
                 M = np.eye(4)
             else:
-                M = M @ _elementary(kind, x[INDEX[name]])
-        consts.append(M @ self.T_flange_sensor(x))
-        return consts
+                M = M @ E
+        consts.append(M @ T_fs)
+        return _Pieces(tuple(consts), elems, T_pb, T_fs)
 
     def joint_phi(self, x: F64, q_deg: ArrayLike) -> F64:
         """Rotation angles of the six z-rotations (..., 6) [rad]."""
@@ -276,13 +292,14 @@ class SystemModel:
         J = np.zeros((q.shape[0], 3, len(active)))
         phi = self.joint_phi(x, q)
         c_phi, s_phi = np.cos(phi), np.sin(phi)
-        T_pb = self.T_part_base(x)
+        pieces = self._pieces(x)
+        T_pb = pieces.T_pb
         self._base_columns(J, want, x, T_pb, p)
         # The frame before each elementary operation is A @ P: A (N, 4, 4) changes only at
         # the joints, P (4, 4) collects the constant operations since the last joint.
         A = np.broadcast_to(T_pb, (q.shape[0], 4, 4)).copy()
         P = np.eye(4)
-        for kind, name, joint in CHAIN[1:-1]:
+        for (kind, name, joint), E in zip(CHAIN[1:-1], pieces.elems, strict=True):
             if kind == "rz":
                 A = A @ P
                 P = np.eye(4)
@@ -298,8 +315,8 @@ class SystemModel:
                 col0 = A[:, :, 0].copy()
                 A[:, :, 0] = col0 * c_phi[:, joint, None] + A[:, :, 1] * s_phi[:, joint, None]
                 A[:, :, 1] = A[:, :, 1] * c_phi[:, joint, None] - col0 * s_phi[:, joint, None]
-            else:
-                P = P @ _elementary(kind, x[INDEX[name]])
+            elif E is not None:
+                P = P @ E
         A = A @ P
         self._sensor_columns(J, want, x, A, c_s)
         return p, J
@@ -324,7 +341,7 @@ class SystemModel:
                 J[:, :, col] = R_a[:, :, k]
         rot_cols = [want.get(n) for n in SENSOR_NAMES[3:]]
         if any(c is not None for c in rot_cols):
-            R_fs = self.T_flange_sensor(x)[:3, :3]
+            R_fs = self._pieces(x).T_fs[:3, :3]
             D = -(R_a @ R_fs) @ skew(c_s) @ so3_right_jacobian(x[_FS_R])
             for k, col in enumerate(rot_cols):
                 if col is not None:
