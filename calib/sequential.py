@@ -181,6 +181,29 @@ class SequentialEstimator:
         self.n_accepted += 1
         return Update(True, d2, r)
 
+    # -- adaptive scheduling -------------------------------------------------------------
+    def information_gain(
+        self, q_deg: ArrayLike, c_sensor_mm: ArrayLike, temp_c: ArrayLike | None = None
+    ) -> F64:
+        """Expected information [nats] of measuring each of K candidate views (K, 6), with
+        the sphere expected at c_sensor_mm (K, 3): log det(I + H (P + Q) H^T / sigma^2), the
+        reduction of log det P an accepted measurement brings (D-optimal, given the current
+        covariance)."""
+        q = np.atleast_2d(np.asarray(q_deg, dtype=float))
+        t = None if temp_c is None else np.broadcast_to(np.asarray(temp_c, float), q.shape[:1])
+        H = self.model.point_jacobian(self._x, q, c_sensor_mm, self.active, temp_c=t)
+        S = H @ (self._P + self._Q) @ np.swapaxes(H, 1, 2)
+        _, logdet = np.linalg.slogdet(np.eye(3) + S / self.settings.measurement_std_mm**2)
+        out: F64 = logdet
+        return out
+
+    def choose_next(
+        self, q_deg: ArrayLike, c_sensor_mm: ArrayLike, temp_c: ArrayLike | None = None
+    ) -> int:
+        """Index of the candidate view with the most information (adaptive scheduling
+        instead of cycling the plan)."""
+        return int(np.argmax(self.information_gain(q_deg, c_sensor_mm, temp_c)))
+
     def _reject(self, P: F64, d2: float, r: F64) -> Update:
         self.n_rejected += 1
         self._in_a_row += 1
