@@ -162,7 +162,7 @@ class CompliantModel(SystemModel):
 
     def _levers_m(self, x: F64, phi_rigid: F64) -> F64:
         A = self._axis_frames(x, phi_rigid)
-        down = -self.T_part_base(x)[:3, 2]
+        down = -self._pieces(x).T_pb[:3, 2]
         o2, z2 = A[1][:, :3, 3], A[1][:, :3, 2]
         o3, z3 = A[2][:, :3, 3], A[2][:, :3, 2]
         w = A[4][:, :3, 3]
@@ -222,14 +222,14 @@ class CompliantModel(SystemModel):
         x_t = x.copy()
         cols = [INDEX[n] for n in LENGTH_NAMES]
         x_t[cols] = x[cols] * (1.0 + ds)
-        x_t[0:3] = x[0:3] + self.T_part_base(x)[:3, 2] * self.base_height_mm * ds
+        x_t[0:3] = x[0:3] + self._pieces(x).T_pb[:3, 2] * self.base_height_mm * ds
         return super().fk(x_t, q_deg, flange=flange)
 
     def growth_mm(self, x: F64, q_deg: ArrayLike, c_sensor_mm: ArrayLike) -> F64:
         """G (N, 3) [mm]: dP/ds, the displacement per unit of relative length change."""
         J = SystemModel.point_jacobian(self, x, q_deg, c_sensor_mm, LENGTH_NAMES)
         lengths = x[[INDEX[n] for n in LENGTH_NAMES]]
-        out: F64 = J @ lengths + self.T_part_base(x)[:3, 2] * self.base_height_mm
+        out: F64 = J @ lengths + self._pieces(x).T_pb[:3, 2] * self.base_height_mm
         return out
 
     def points_part(
@@ -268,7 +268,7 @@ class CompliantModel(SystemModel):
         if temp_c is not None:
             lengths = x[[INDEX[n] for n in LENGTH_NAMES]]
             J_len = J_r[:, :, [col[n] for n in LENGTH_NAMES]]
-            G = J_len @ lengths + self.T_part_base(x)[:3, 2] * self.base_height_mm
+            G = J_len @ lengths + self._pieces(x).T_pb[:3, 2] * self.base_height_mm
             p = p + self.scale_of(x, temp_c).reshape(-1, 1) * G
         for k, name in enumerate(active):
             if name in col:
