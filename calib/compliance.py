@@ -225,25 +225,14 @@ class CompliantModel(SystemModel):
         x_t[0:3] = x[0:3] + self._pieces(x).T_pb[:3, 2] * self.base_height_mm * ds
         return super().fk(x_t, q_deg, flange=flange)
 
-    def growth_mm(self, x: F64, q_deg: ArrayLike, c_sensor_mm: ArrayLike) -> F64:
-        """G (N, 3) [mm]: dP/ds, the displacement per unit of relative length change."""
-        J = SystemModel.point_jacobian(self, x, q_deg, c_sensor_mm, LENGTH_NAMES)
-        lengths = x[[INDEX[n] for n in LENGTH_NAMES]]
-        out: F64 = J @ lengths + self._pieces(x).T_pb[:3, 2] * self.base_height_mm
-        return out
-
     def points_part(
         self, x: F64, q_deg: ArrayLike, c_sensor_mm: ArrayLike, temp_c: ArrayLike | None = None
     ) -> F64:
         """Sphere centres in the part frame (N, 3) with deflection and, given the cell
         temperature of each measurement `temp_c` (N,) [degC], thermal growth (first order)."""
-        c_s = np.asarray(c_sensor_mm, dtype=float)
-        p = apply(self.fk(x, q_deg), c_s)
         if temp_c is None:
-            return p
-        ds = self.scale_of(x, temp_c).reshape(-1, 1)
-        out: F64 = p + ds * self.growth_mm(x, q_deg, c_s)
-        return out
+            return apply(self.fk(x, q_deg), np.asarray(c_sensor_mm, dtype=float))
+        return self.point_and_jacobian(x, q_deg, c_sensor_mm, (), temp_c)[0]
 
     def point_and_jacobian(
         self,
@@ -263,13 +252,14 @@ class CompliantModel(SystemModel):
         p, J_r = super().point_and_jacobian(x, q, c_s, need)
         col = {n: k for k, n in enumerate(need)}
         J = np.zeros((q.shape[0], 3, len(active)))
-        L = self.levers_m(x, super().joint_phi(x, q))
         G = np.zeros_like(p)
         if temp_c is not None:
-            lengths = x[[INDEX[n] for n in LENGTH_NAMES]]
-            J_len = J_r[:, :, [col[n] for n in LENGTH_NAMES]]
-            G = J_len @ lengths + self._pieces(x).T_pb[:3, 2] * self.base_height_mm
+            G = self._growth_mm(x, J_r[:, :, [col[n] for n in LENGTH_NAMES]])
             p = p + self.scale_of(x, temp_c).reshape(-1, 1) * G
+        if not any(n in COMPLIANCE_NAMES for n in active):
+            L = np.zeros((q.shape[0], len(COMPLIANCE_NAMES)))  # not needed
+        else:
+            L = self.levers_m(x, super().joint_phi(x, q))
         for k, name in enumerate(active):
             if name in col:
                 J[:, :, k] = J_r[:, :, col[name]]
@@ -281,6 +271,13 @@ class CompliantModel(SystemModel):
                 dT = np.asarray(temp_c, dtype=float) - self.settings.reference_temp_c
                 J[:, :, k] = dT.reshape(-1, 1) * G
         return p, J
+
+    def _growth_mm(self, x: F64, J_lengths: F64) -> F64:
+        """G (N, 3) [mm] = dP/ds: sum_k L_k dP/dL_k (J_lengths (N, 3, K) in the order of
+        LENGTH_NAMES) plus the J2 height's growth along the base z axis."""
+        lengths = x[[INDEX[n] for n in LENGTH_NAMES]]
+        out: F64 = J_lengths @ lengths + self._pieces(x).T_pb[:3, 2] * self.base_height_mm
+        return out
 
 
 def temp_span_k(temp_c: ArrayLike | None) -> float:
