@@ -36,6 +36,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="grid [deg] for ranking O1..O5 as criteria (default: the plan's grid)",
     )
     p.add_argument(
+        "--compliant",
+        action="store_true",
+        help="paper: also identify and validate every run with the compliant model",
+    )
+    p.add_argument(
         "--no-criteria", action="store_true", help="skip ranking O1..O5 as selection criteria"
     )
     p.set_defaults(func=run)
@@ -61,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
         criteria=not args.no_criteria,
         criteria_grid_step_deg=args.criteria_grid_step,
         log=lambda s: print(s, flush=True),
+        compliant=args.compliant,
         **overrides,
     )
     print()
