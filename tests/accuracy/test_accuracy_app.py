@@ -95,3 +95,20 @@ def test_experiment_accuracy_command(tmp_path: Path, capsys: pytest.CaptureFixtu
     assert r["compliant"] < r["rigid"] and r["noise floor"] < r["rigid"]
     assert "rvis experiment accuracy: 1 seeds" in capsys.readouterr().out
     assert main(["experiment", "accuracy", "--views-per-sphere", "0"]) == 2
+
+
+def test_experiment_paper_with_the_compliant_model(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    fast = ["--iterations", "1", "--swarm", "4", "--grid-step", "30", "--search-step", "30"]
+    argv = ["experiment", "paper", "--seeds", "1", "--validation", "20", "--no-criteria"]
+    assert main([*argv, "--compliant", "--workers", "1", "--out", str(tmp_path), *fast]) == 0
+    text = capsys.readouterr().out
+    assert "Random vs planned, rigid and compliant model" in text
+    seed = json.loads((tmp_path / "seeds.json").read_text())["seeds"][0]
+    rmse = seed["rmse_mm"]
+    assert set(rmse) == {"random", "planned", "random (compliant)", "planned (compliant)"}
+    # the simulated cell has gravity compliance: the compliant model explains it
+    assert rmse["random (compliant)"] < rmse["random"]
+    assert rmse["planned (compliant)"] < rmse["planned"]
+    assert "## Rigid and compliant model" in (tmp_path / "experiment.md").read_text()
