@@ -76,7 +76,8 @@ class Update:
 class SequentialEstimator:
     """Kalman / RLS estimator of a model's active parameters (module docstring).
 
-    x0: full parameter vector of the model; P0: covariance (L, L) of the active ones."""
+    x0: full parameter vector of the model; P0: covariance (L, L) of the active ones.
+    Not thread-safe: one owner (e.g. the service's cycle) calls `update`."""
 
     def __init__(
         self,
