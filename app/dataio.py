@@ -30,7 +30,8 @@ def load_dataset_lines(
     targets_path = Path(targets)
     rows = read_measurements(measurements, limits)
     centres = match_targets(rows, read_targets(targets_path), targets_path)
-    return Measurements(rows.q_deg, rows.c_sensor_mm, centres, tuple(rows.targets)), rows.lines
+    m = Measurements(rows.q_deg, rows.c_sensor_mm, centres, tuple(rows.targets), rows.temp_c)
+    return m, rows.lines
 
 
 def as_input_error(path: str | Path, work: Callable[[], T]) -> T:

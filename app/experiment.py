@@ -14,6 +14,7 @@ parameters' error alone).
 
 from __future__ import annotations
 
+import itertools
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
@@ -30,6 +31,7 @@ from app.meta import provenance
 from app.planning import plan_settings, run_plan
 from app.report import markdown_table, save_figure, text_table
 from app.simulation import DataSet, collect, simulated_sets
+from calib.compliance import select_model
 from calib.identify import identify, residuals
 from calib.model import SystemModel
 from calib.observability import INDEX_NAMES
@@ -64,8 +66,11 @@ def run_seed(
     criteria: bool = True,
     progress: Callable[[str, int, int, float], None] | None = None,
     criteria_grid_step_deg: float | None = None,
+    compliant: bool = False,
     **plan_overrides: Any,
 ) -> SeedOutcome:
+    """One seed. With `compliant`, every run is also identified and validated with the
+    compliant model (labels "<run> (compliant)"); the plan uses the rigid pre-calibration."""
     sim = simulated_sets(cfg, seed, n_validation=n_validation)
     cell, model, rng, pre_data, val = sim.cell, sim.model, sim.rng, sim.calibration, sim.validation
     n_each = cfg.calibration.configs_per_sphere
@@ -88,12 +93,15 @@ def run_seed(
             runs[name] = collect(cell, model, pre.x, positions, n_each, rng, q_by_target=q_by)
         runs["random at planned positions"] = collect(cell, model, pre.x, positions, n_each, rng)
     o1, rmse, rmse_truth, counts, errors = {}, {}, {}, {}, {}
-    for label, data in runs.items():
-        res = pre if label == "random" else identify(model, data.measurements, loss=loss)
-        e = residuals(model, res.x, val.measurements)
+    fits = [("", model)] + ([(" (compliant)", select_model("compliant", model))] * compliant)
+    for (suffix, fit), (run, data) in itertools.product(fits, runs.items()):
+        label = run + suffix
+        same = run == "random" and fit is model
+        res = pre if same else identify(fit, data.measurements, loss=loss)
+        e = residuals(fit, res.x, val.measurements)
         o1[label] = res.observability.indices["O1"]
         rmse[label] = _rmse(e)
-        rmse_truth[label] = _rmse(residuals(model, res.x, val_truth))
+        rmse_truth[label] = _rmse(residuals(fit, res.x, val_truth))
         counts[label] = len(data.measurements)
         errors[label] = np.linalg.norm(e, axis=1).tolist()
     base = _base_positions(model, pre.x, positions)
@@ -112,9 +120,9 @@ class ExperimentSummary:
     outcomes: list[SeedOutcome]
     seconds: float
 
-    def reductions(self, key: str = "rmse_mm", label: str = "planned") -> F64:
+    def reductions(self, key: str = "rmse_mm", label: str = "planned", base: str = "random") -> F64:
         vals = [getattr(o, key) for o in self.outcomes]
-        return np.array([1.0 - v[label] / v["random"] for v in vals])
+        return np.array([1.0 - v[label] / v[base] for v in vals])
 
     def table_rows(self) -> list[list[str]]:
         o1_r = np.median([o.o1["random"] for o in self.outcomes])
@@ -143,6 +151,27 @@ class ExperimentSummary:
             ],
         ]
 
+    def compliant_rows(self) -> list[list[str]]:
+        """Random vs planned with the rigid and the compliant model (same data)."""
+        if "planned (compliant)" not in self.outcomes[0].rmse_mm:
+            return []
+        rows = []
+        for suffix, name in (("", "rigid"), (" (compliant)", "compliant")):
+            r = np.array([o.rmse_mm["random" + suffix] for o in self.outcomes])
+            p = np.array([o.rmse_mm["planned" + suffix] for o in self.outcomes])
+            red = 1.0 - p / r
+            red_t = self.reductions("rmse_truth_mm", "planned" + suffix, "random" + suffix)
+            rows.append(
+                [
+                    name,
+                    f"{np.median(r):.4f} -> {np.median(p):.4f}",
+                    f"{100 * np.median(red):.1f} %",
+                    f"{int(np.sum(red > 0))}/{red.size}",
+                    f"{100 * np.median(red_t):.1f} %",
+                ]
+            )
+        return rows
+
     def criteria_rows(self) -> list[list[str]]:
         labels = [*INDEX_NAMES, "random at planned positions"]
         if not all(lbl in self.outcomes[0].rmse_mm for lbl in labels):
@@ -164,6 +193,13 @@ class ExperimentSummary:
 
 
 TABLE_HEADER = ["", "paper", "rvis (simulated)"]
+COMPLIANT_HEADER = [
+    "model",
+    "median RMSE random -> planned mm",
+    "median reduction",
+    "seeds better",
+    "reduction vs truth",
+]
 CRITERIA_HEADER = ["criterion", "median RMSE mm", "median vs truth mm", "mean rank", "wins"]
 
 
@@ -176,6 +212,7 @@ def run_experiment(
     criteria: bool = True,
     criteria_grid_step_deg: float | None = None,
     log: Callable[[str], None] = print,
+    compliant: bool = False,
     **plan_overrides: Any,
 ) -> ExperimentSummary:
     t0 = time.perf_counter()
@@ -189,6 +226,7 @@ def run_experiment(
             n_validation,
             criteria,
             criteria_grid_step_deg=criteria_grid_step_deg,
+            compliant=compliant,
             **plan_overrides,
         )
         outcomes.append(o)
@@ -203,12 +241,21 @@ def run_experiment(
             {"provenance": provenance(), "seeds": [asdict(x) for x in outcomes]},
         )
     summary = ExperimentSummary(outcomes, time.perf_counter() - t0)
-    _write(summary, out_dir, {**plan_overrides, "criteria_grid_step_deg": criteria_grid_step_deg})
+    _write(
+        summary,
+        out_dir,
+        {**plan_overrides, "criteria_grid_step_deg": criteria_grid_step_deg},
+    )
     return summary
 
 
 def summary_text(summary: ExperimentSummary) -> str:
     parts = [text_table(TABLE_HEADER, summary.table_rows())]
+    if summary.compliant_rows():
+        parts += [
+            "Random vs planned, rigid and compliant model (same data):",
+            text_table(COMPLIANT_HEADER, summary.compliant_rows()),
+        ]
     rows = summary.criteria_rows()
     if rows:
         parts += [
@@ -228,6 +275,11 @@ def _write(summary: ExperimentSummary, out_dir: Path, overrides: dict[str, Any])
         f"{summary.seconds:.0f} s.",
         markdown_table(TABLE_HEADER, summary.table_rows()),
     ]
+    if summary.compliant_rows():
+        md += [
+            "## Rigid and compliant model (the same data; the plan uses the rigid model)",
+            markdown_table(COMPLIANT_HEADER, summary.compliant_rows()),
+        ]
     rows = summary.criteria_rows()
     if rows:
         md += ["## Selection criteria", markdown_table(CRITERIA_HEADER, rows)]

@@ -106,11 +106,23 @@ def read_targets(path: str | Path) -> dict[str, F64]:
     return out
 
 
+#: Optional measurements column: the cell temperature [degC] at the measurement.
+TEMP_COLUMN = "temp_c"
+TEMP_RANGE_C = (-40.0, 100.0)
+
+
 class MeasurementRows:
-    """Measurements CSV contents: ids (m,), q_deg (m, 6), c_sensor_mm (m, 3), line numbers."""
+    """Measurements CSV contents: ids (m,), q_deg (m, 6), c_sensor_mm (m, 3), line numbers,
+    the cell temperatures (m,) [degC] when the file has a temp_c column (else None)."""
 
     def __init__(
-        self, path: Path, targets: list[str], q_deg: F64, c_sensor_mm: F64, lines: list[int]
+        self,
+        path: Path,
+        targets: list[str],
+        q_deg: F64,
+        c_sensor_mm: F64,
+        lines: list[int],
+        temp_c: F64 | None = None,
     ) -> None:
         self.path, self.targets, self.q_deg, self.c_sensor_mm, self.lines = (
             path,
@@ -119,6 +131,19 @@ class MeasurementRows:
             c_sensor_mm,
             lines,
         )
+        self.temp_c = temp_c
+
+
+def _temperature(row: dict[str, str], path: Path, line: int) -> float:
+    t = csv_number(row, TEMP_COLUMN, path, line)
+    if not TEMP_RANGE_C[0] <= t <= TEMP_RANGE_C[1]:
+        raise InputError(
+            f"{t:g} degC is outside [{TEMP_RANGE_C[0]:g}, {TEMP_RANGE_C[1]:g}]",
+            file=path,
+            line=line,
+            field=TEMP_COLUMN,
+        )
+    return t
 
 
 def read_measurements(path: str | Path, limits: JointLimits | None = None) -> MeasurementRows:
@@ -129,12 +154,15 @@ def read_measurements(path: str | Path, limits: JointLimits | None = None) -> Me
     qs: list[list[float]] = []
     cs: list[list[float]] = []
     lines: list[int] = []
+    temps: list[float] = []
     seen: dict[tuple[str, ...], int] = {}
     for line, row in csv_rows(path, MEASUREMENT_COLUMNS):
         key = tuple(row[c] for c in MEASUREMENT_COLUMNS)
         if key in seen:
             raise InputError(f"duplicate of line {seen[key]}", file=path, line=line)
         seen[key] = line
+        if TEMP_COLUMN in row:
+            temps.append(_temperature(row, path, line))
         ids.append(_target_id(row, path, line))
         q = [csv_number(row, f, path, line) for f in MEASUREMENT_COLUMNS[1:7]]
         for j, value in enumerate(q):
@@ -151,7 +179,8 @@ def read_measurements(path: str | Path, limits: JointLimits | None = None) -> Me
         lines.append(line)
     if not ids:
         raise InputError("no measurements in file", file=path)
-    return MeasurementRows(path, ids, np.array(qs), np.array(cs), lines)
+    temp_c = np.array(temps) if temps else None
+    return MeasurementRows(path, ids, np.array(qs), np.array(cs), lines, temp_c)
 
 
 def match_targets(rows: MeasurementRows, targets: dict[str, F64], targets_path: Path) -> F64:
@@ -250,11 +279,21 @@ def write_csv(path: str | Path, columns: Sequence[str], rows: Sequence[Sequence[
     write_text(path, buf.getvalue())
 
 
-def write_measurements(path: str | Path, targets: Sequence[str], q_deg: F64, c_mm: F64) -> None:
+def write_measurements(
+    path: str | Path,
+    targets: Sequence[str],
+    q_deg: F64,
+    c_mm: F64,
+    temp_c: F64 | None = None,
+) -> None:
     rows = [
         [t, *map(float, q), *map(float, c)] for t, q, c in zip(targets, q_deg, c_mm, strict=True)
     ]
-    write_csv(path, MEASUREMENT_COLUMNS, rows)
+    if temp_c is None:
+        write_csv(path, MEASUREMENT_COLUMNS, rows)
+        return
+    rows = [[*r, float(t)] for r, t in zip(rows, temp_c, strict=True)]
+    write_csv(path, (*MEASUREMENT_COLUMNS, TEMP_COLUMN), rows)
 
 
 def write_targets(path: str | Path, targets: dict[str, F64]) -> None:

@@ -3,6 +3,7 @@ parameter with names, units and standard uncertainties, residual statistics, ran
 
 from __future__ import annotations
 
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -11,6 +12,7 @@ from numpy.typing import NDArray
 
 from app.errors import InputError
 from app.files import read_json
+from calib.compliance import CompliantModel, CompliantSettings, select_model
 from calib.gates import GateReport
 from calib.identify import IdentificationResult
 from calib.model import ALL_NAMES, INDEX, PAPER_30, SystemModel, group_of, unit_of
@@ -30,6 +32,7 @@ def model_json(model: SystemModel) -> dict[str, Any]:
         "T_flange_sensor_nominal": model.T_flange_sensor_nominal.tolist(),
         "joint_lower_deg": model.limits.lower_deg.tolist(),
         "joint_upper_deg": model.limits.upper_deg.tolist(),
+        **_kind_fields(model),
     }
 
 
@@ -49,7 +52,7 @@ def parameters_json(
             "value": float(x[k]),
             "std": float(std.get(name, 0.0)),
         }
-        for k, name in enumerate(ALL_NAMES)
+        for k, name in enumerate(model.names)
     ]
 
 
@@ -118,10 +121,12 @@ def _model(data: dict[str, Any], path: Path) -> SystemModel:
     m = _need(data, "model", path)
     if not isinstance(m, dict):
         raise InputError("expected an object", file=path, field="model")
-    if (m.get("name"), m.get("version")) != (SystemModel.name, SystemModel.version):
+    known = {(cls.name, cls.version) for cls in (SystemModel, CompliantModel)}
+    if (m.get("name"), m.get("version")) not in known:
+        names = " or ".join(sorted(f"{n!r} version {v}" for n, v in known))
         raise InputError(
-            f"parameters of model {m.get('name')!r} version {m.get('version')!r}; rvis needs "
-            f"{SystemModel.name!r} version {SystemModel.version}",
+            f"parameters of model {m.get('name')!r} version {m.get('version')!r}; rvis reads "
+            f"{names}",
             file=path,
             field="model.name",
         )
@@ -136,7 +141,8 @@ def _model(data: dict[str, Any], path: Path) -> SystemModel:
         ]
         if any(not np.all(np.isfinite(a)) for a in (*arrays, *limits)):
             raise ValueError("non-finite values")
-        return SystemModel(arrays[0].reshape(4, 4), arrays[1].reshape(4, 4), JointLimits(*limits))
+        model = SystemModel(arrays[0].reshape(4, 4), arrays[1].reshape(4, 4), JointLimits(*limits))
+        return _with_kind(model, m)
     except (ValueError, TypeError) as exc:
         raise InputError(f"bad model: {exc}", file=path, field="model") from exc
 
@@ -175,7 +181,7 @@ def from_json(path: str | Path, *, allow_failed: bool = False) -> tuple[SystemMo
     seen: set[str] = set()
     for k, p in enumerate(params):
         name = p.get("name") if isinstance(p, dict) else None
-        if name not in INDEX:
+        if name not in model.names:
             raise InputError(f"unknown parameter {name!r}", file=path, field=f"parameters[{k}]")
         if name in seen:
             raise InputError(f"parameter {name!r} twice", file=path, field=f"parameters[{k}]")
@@ -186,6 +192,21 @@ def from_json(path: str | Path, *, allow_failed: bool = False) -> tuple[SystemMo
     if missing:
         raise InputError(f"missing parameters: {', '.join(missing)}", file=path, field="parameters")
     return model, x
+
+
+def _kind_fields(model: SystemModel) -> dict[str, Any]:
+    """model.kind and, for the compliant model, its settings (a file without them: rigid)."""
+    if not isinstance(model, CompliantModel):
+        return {"kind": model.kind}
+    return {"kind": model.kind, "compliant": asdict(model.settings)}
+
+
+def _with_kind(model: SystemModel, m: dict[str, Any]) -> SystemModel:
+    kind = m.get("kind", "rigid")
+    settings = m.get("compliant", {}) if kind == "compliant" else {}
+    if not isinstance(settings, dict):
+        raise ValueError("model.compliant is not an object")
+    return select_model(str(kind), model, CompliantSettings(**settings))
 
 
 __all__ = ["ALL_NAMES", "from_json", "to_json"]

@@ -18,9 +18,17 @@ from calib.validation import ErrorStats
 F64 = NDArray[np.float64]
 
 
+#: the compliant model's extra units, shown scaled: compliance in urad/m, expansion in ppm/K
+_SCALED = {"rad/m": (1e6, "urad/m"), "1/K": (1e6, "ppm/K")}
+
+
 def _display(name: str, value: float) -> tuple[float, str]:
     """Angles shown in degrees (mdeg for small uncertainties), lengths in mm."""
-    return (float(np.degrees(value)), "deg") if unit_of(name) == "rad" else (value, "mm")
+    unit = unit_of(name)
+    if unit in _SCALED:
+        scale, shown = _SCALED[unit]
+        return value * scale, shown
+    return (float(np.degrees(value)), "deg") if unit == "rad" else (value, "mm")
 
 
 def parameter_rows(model: SystemModel, result: IdentificationResult) -> list[list[str]]:

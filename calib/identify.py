@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
 from calib.errors import InsufficientData
-from calib.model import BASE_NAMES, INDEX, PAPER_30, SystemModel, check_active
+from calib.model import BASE_NAMES, INDEX, SystemModel, check_active
 from calib.observability import Observability, require_full_rank
 from calib.transforms import matrix_to_rotvec
 
@@ -28,17 +28,21 @@ LOSSES = ("linear", "huber", "soft_l1", "cauchy", "arctan")
 class Measurements:
     """Sphere measurements: controller angles `q_deg` (m, 6), centres in the sensor frame
     `c_sensor_mm` (m, 3), the tracker's centres in the part frame `p_part_mm` (m, 3) and the
-    sphere ids `targets` (m,)."""
+    sphere ids `targets` (m,); optionally the cell temperature `temp_c` (m,) [degC] at each
+    measurement (the compliant model's thermal term uses it)."""
 
     q_deg: F64
     c_sensor_mm: F64
     p_part_mm: F64
     targets: tuple[str, ...]
+    temp_c: F64 | None = None
 
     def __post_init__(self) -> None:
         m = len(self.targets)
-        shapes = {"q_deg": (m, 6), "c_sensor_mm": (m, 3), "p_part_mm": (m, 3)}
+        shapes = {"q_deg": (m, 6), "c_sensor_mm": (m, 3), "p_part_mm": (m, 3), "temp_c": (m,)}
         for name, shape in shapes.items():
+            if getattr(self, name) is None:
+                continue
             arr = np.asarray(getattr(self, name))
             if arr.shape != shape:
                 raise InsufficientData(f"{name} has shape {arr.shape}, expected {shape}")
@@ -55,18 +59,20 @@ class Measurements:
             self.c_sensor_mm[r],
             self.p_part_mm[r],
             tuple(self.targets[i] for i in np.arange(len(self))[r]),
+            None if self.temp_c is None else self.temp_c[r],
         )
 
 
 def residuals(model: SystemModel, x: F64, data: Measurements) -> F64:
     """Position errors (m, 3) [mm] of the model at parameters x (full vector)."""
-    out: F64 = model.points_part(x, data.q_deg, data.c_sensor_mm) - data.p_part_mm
+    p = model.points_part(x, data.q_deg, data.c_sensor_mm, temp_c=data.temp_c)
+    out: F64 = p - data.p_part_mm
     return out
 
 
 def stacked_jacobian(model: SystemModel, x: F64, data: Measurements, active: Sequence[str]) -> F64:
     """The identification Jacobian (3m, L): d(stacked residuals) / d(active parameters)."""
-    J = model.point_jacobian(x, data.q_deg, data.c_sensor_mm, active)
+    J = model.point_jacobian(x, data.q_deg, data.c_sensor_mm, active, temp_c=data.temp_c)
     out: F64 = J.reshape(-1, len(active))
     return out
 
@@ -100,7 +106,7 @@ def identify(
     model: SystemModel,
     data: Measurements,
     *,
-    active: Sequence[str] = PAPER_30,
+    active: Sequence[str] | None = None,
     x0: F64 | None = None,
     loss: str = "linear",
     f_scale_mm: float = 0.05,
@@ -108,7 +114,8 @@ def identify(
     jac: str = "analytic",
     align: bool = True,
 ) -> IdentificationResult:
-    """Identify the `active` parameters from `data`, starting at x0 (default: nominal).
+    """Identify the `active` parameters (default: the model's, the paper's 30 for the rigid
+    model) from `data`, starting at x0 (default: nominal).
 
     Raises InsufficientData for fewer equations than parameters and NotIdentifiable (naming
     the parameters of each null-space direction) for a rank-deficient problem at the start.
@@ -117,7 +124,9 @@ def identify(
     closed-form alignment of the measured centres onto the tracker's (`align_part_base`), so
     that a part->base guess off by any rotation still converges.
     """
-    names = check_active(active)
+    names = check_active(
+        model.default_active(data.temp_c) if active is None else active, model.names
+    )
     if loss not in LOSSES:
         raise ValueError(f"unknown loss '{loss}' (choose from {', '.join(LOSSES)})")
     if 3 * len(data) < len(names):

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -60,7 +61,15 @@ def _joint_names() -> tuple[str, ...]:
 
 JOINT_NAMES = _joint_names()
 ALL_NAMES: tuple[str, ...] = BASE_NAMES + JOINT_NAMES + SENSOR_NAMES
-INDEX = {name: k for k, name in enumerate(ALL_NAMES)}
+#: Extra parameters of the compliance- and temperature-aware model (calib.compliance), after
+#: the 37 rigid ones: lumped gravity compliance [rad/m] of J2 and J3 per arm term, and the
+#: linear thermal expansion coefficient of the arm lengths [1/K].
+COMPLIANCE_NAMES = ("c2_upper", "c2_fore", "c3_fore", "c2_payload", "c3_payload")
+THERMAL_NAMES = ("expansion_per_k",)
+EXTRA_NAMES: tuple[str, ...] = COMPLIANCE_NAMES + THERMAL_NAMES
+INDEX = {name: k for k, name in enumerate(ALL_NAMES + EXTRA_NAMES)}
+_FS_T = slice(INDEX["x_FS"], INDEX["x_FS"] + 3)
+_FS_R = slice(INDEX["rx_FS"], INDEX["rx_FS"] + 3)
 
 #: The paper's 30 identifiable parameters (rank 30 checked numerically in the tests).
 PAPER_30: tuple[str, ...] = (
@@ -88,7 +97,9 @@ PAPER_30: tuple[str, ...] = (
 
 
 def unit_of(name: str) -> str:
-    """'mm' for lengths, 'rad' for angles."""
+    """'mm' for lengths, 'rad' for angles ('rad/m' and '1/K' for the extra parameters)."""
+    if name in EXTRA_NAMES:
+        return "1/K" if name in THERMAL_NAMES else "rad/m"
     if name in BASE_NAMES or name in SENSOR_NAMES:
         return "mm" if name[0] in "xyz" else "rad"
     return "mm" if name[0] in "ad" and not name.startswith(("alpha", "dtheta")) else "rad"
@@ -96,6 +107,8 @@ def unit_of(name: str) -> str:
 
 def group_of(name: str) -> str:
     """Which piece of the chain a parameter belongs to, for reports."""
+    if name in EXTRA_NAMES:
+        return "thermal" if name in THERMAL_NAMES else f"compliance J{name[1]}"
     if name in BASE_NAMES:
         return "part->base"
     if name in SENSOR_NAMES:
@@ -132,6 +145,13 @@ def _elementary(kind: str, value: float) -> F64:
     return pose(np.eye(3), t)
 
 
+class _Pieces(NamedTuple):
+    consts: tuple[F64, ...]
+    elems: tuple[F64 | None, ...]  # per CHAIN[1:-1] operation, None for the joint rotations
+    T_pb: F64
+    T_fs: F64
+
+
 @dataclass(frozen=True)
 class SystemModel:
     """Nominal system: the robot's modified-DH geometry and the nominal 6-DoF pieces.
@@ -145,12 +165,21 @@ class SystemModel:
     limits: robot.JointLimits = field(default_factory=robot.JointLimits)
     name: str = "fanuc-m710ic50-mdh30"
     version: int = 1
+    #: which model ("rigid" here; calib.compliance.CompliantModel: "compliant") and the
+    #: names of its full parameter vector
+    _last_constants: list[Any] = field(default_factory=list, init=False, repr=False, compare=False)
+    kind: ClassVar[str] = "rigid"
+    names: ClassVar[tuple[str, ...]] = ALL_NAMES
+
+    def default_active(self, temp_c: F64 | None = None) -> tuple[str, ...]:
+        """The parameters identified by default (the paper's 30; temperatures are unused)."""
+        return PAPER_30
 
     def nominal_x(self) -> F64:
         """Full parameter vector (37,) at nominal."""
         x = np.zeros(len(ALL_NAMES))
         x[0:3] = self.T_part_base_nominal[:3, 3]
-        x[-6:-3] = self.T_flange_sensor_nominal[:3, 3]
+        x[_FS_T] = self.T_flange_sensor_nominal[:3, 3]
         for i in range(6):
             x[INDEX[f"alpha{i}"]] = robot.MDH_ALPHA_RAD[i]
             x[INDEX[f"a{i}"]] = robot.MDH_A_MM[i]
@@ -163,21 +192,42 @@ class SystemModel:
         return pose(R, x[0:3])
 
     def T_flange_sensor(self, x: F64) -> F64:
-        R = self.T_flange_sensor_nominal[:3, :3] @ rotvec_to_matrix(x[-3:])
-        return pose(R, x[-6:-3])
+        R = self.T_flange_sensor_nominal[:3, :3] @ rotvec_to_matrix(x[_FS_R])
+        return pose(R, x[_FS_T])
 
     def _constants(self, x: F64) -> list[F64]:
         """C0..C6 with T = C0 Rz(phi1) C1 ... Rz(phi6) C6, phi_i = theta_i + dtheta_i."""
+        return list(self._pieces(x).consts)
+
+    def _pieces(self, x: F64) -> _Pieces:
+        """The x-dependent constants of the chain. The last x's are kept: a sequential update
+        evaluates the chain several times at one x, and for one configuration building them
+        is most of the cost."""
+        key = x.tobytes()
+        entry = self._last_constants[0] if self._last_constants else None
+        if entry is not None and entry[0] == key:
+            pieces: _Pieces = entry[1]
+            return pieces
+        pieces = self._build_pieces(x)
+        self._last_constants[:] = [(key, pieces)]  # one atomic entry: safe across threads
+        return pieces
+
+    def _build_pieces(self, x: F64) -> _Pieces:
+        T_pb, T_fs = self.T_part_base(x), self.T_flange_sensor(x)
+        elems = tuple(
+            None if kind == "rz" else _elementary(kind, x[INDEX[name]])
+            for kind, name, _ in CHAIN[1:-1]
+        )
         consts: list[F64] = []
-        M = self.T_part_base(x)
-        for kind, name, _ in CHAIN[1:-1]:
-            if kind == "rz":
+        M = T_pb
+        for E in elems:
+            if E is None:
                 consts.append(M)
                 M = np.eye(4)
             else:
-                M = M @ _elementary(kind, x[INDEX[name]])
-        consts.append(M @ self.T_flange_sensor(x))
-        return consts
+                M = M @ E
+        consts.append(M @ T_fs)
+        return _Pieces(tuple(consts), elems, T_pb, T_fs)
 
     def joint_phi(self, x: F64, q_deg: ArrayLike) -> F64:
         """Rotation angles of the six z-rotations (..., 6) [rad]."""
@@ -202,29 +252,54 @@ class SystemModel:
             M = M @ consts[i + 1]
         return M
 
-    def points_part(self, x: F64, q_deg: ArrayLike, c_sensor_mm: ArrayLike) -> F64:
-        """Sphere centres in the part frame (N, 3): P_i = T_part_sensor(q_i) C_i."""
+    def points_part(
+        self,
+        x: F64,
+        q_deg: ArrayLike,
+        c_sensor_mm: ArrayLike,
+        temp_c: ArrayLike | None = None,
+    ) -> F64:
+        """Sphere centres in the part frame (N, 3): P_i = T_part_sensor(q_i) C_i. The rigid
+        model has no thermal term: cell temperatures `temp_c` (N,) [degC] are ignored."""
         return apply(self.fk(x, q_deg), np.asarray(c_sensor_mm, dtype=float))
 
     # -- identification Jacobian ------------------------------------------------------------
     def point_jacobian(
-        self, x: F64, q_deg: ArrayLike, c_sensor_mm: ArrayLike, active: Sequence[str]
+        self,
+        x: F64,
+        q_deg: ArrayLike,
+        c_sensor_mm: ArrayLike,
+        active: Sequence[str],
+        temp_c: ArrayLike | None = None,
     ) -> F64:
-        """d P_i / d x_active, shape (N, 3, len(active)) [mm per mm or mm per rad]."""
+        """d P_i / d x_active, shape (N, 3, len(active)) [mm per mm or mm per rad]
+        (`temp_c` is ignored, as in `points_part`)."""
+        return self.point_and_jacobian(x, q_deg, c_sensor_mm, active, temp_c)[1]
+
+    def point_and_jacobian(
+        self,
+        x: F64,
+        q_deg: ArrayLike,
+        c_sensor_mm: ArrayLike,
+        active: Sequence[str],
+        temp_c: ArrayLike | None = None,
+    ) -> tuple[F64, F64]:
+        """`points_part` and `point_jacobian` together (N, 3), (N, 3, L), cheaper than both."""
         q = np.atleast_2d(np.asarray(q_deg, dtype=float))
         c_s = np.broadcast_to(np.asarray(c_sensor_mm, dtype=float), (q.shape[0], 3))
-        p = self.points_part(x, q, c_s)
+        p = apply(self.fk(x, q), c_s)
         want = {name: j for j, name in enumerate(active)}
         J = np.zeros((q.shape[0], 3, len(active)))
         phi = self.joint_phi(x, q)
         c_phi, s_phi = np.cos(phi), np.sin(phi)
-        T_pb = self.T_part_base(x)
+        pieces = self._pieces(x)
+        T_pb = pieces.T_pb
         self._base_columns(J, want, x, T_pb, p)
         # The frame before each elementary operation is A @ P: A (N, 4, 4) changes only at
         # the joints, P (4, 4) collects the constant operations since the last joint.
         A = np.broadcast_to(T_pb, (q.shape[0], 4, 4)).copy()
         P = np.eye(4)
-        for kind, name, joint in CHAIN[1:-1]:
+        for (kind, name, joint), E in zip(CHAIN[1:-1], pieces.elems, strict=True):
             if kind == "rz":
                 A = A @ P
                 P = np.eye(4)
@@ -233,18 +308,18 @@ class SystemModel:
                 axis_p = A[:, :3, :3] @ P[:3, _AXIS[kind]]
                 if kind[0] == "r":
                     origin = A[:, :3, :3] @ P[:3, 3] + A[:, :3, 3]
-                    J[:, :, col] = np.cross(axis_p, p - origin)
+                    J[:, :, col] = cross(axis_p, p - origin)
                 else:
                     J[:, :, col] = axis_p
             if kind == "rz":
                 col0 = A[:, :, 0].copy()
                 A[:, :, 0] = col0 * c_phi[:, joint, None] + A[:, :, 1] * s_phi[:, joint, None]
                 A[:, :, 1] = A[:, :, 1] * c_phi[:, joint, None] - col0 * s_phi[:, joint, None]
-            else:
-                P = P @ _elementary(kind, x[INDEX[name]])
+            elif E is not None:
+                P = P @ E
         A = A @ P
         self._sensor_columns(J, want, x, A, c_s)
-        return J
+        return p, J
 
     def _base_columns(self, J: F64, want: dict[str, int], x: F64, T_pb: F64, p: F64) -> None:
         R = T_pb[:3, :3]
@@ -266,11 +341,20 @@ class SystemModel:
                 J[:, :, col] = R_a[:, :, k]
         rot_cols = [want.get(n) for n in SENSOR_NAMES[3:]]
         if any(c is not None for c in rot_cols):
-            R_fs = self.T_flange_sensor(x)[:3, :3]
-            D = -(R_a @ R_fs) @ skew(c_s) @ so3_right_jacobian(x[-3:])
+            R_fs = self._pieces(x).T_fs[:3, :3]
+            D = -(R_a @ R_fs) @ skew(c_s) @ so3_right_jacobian(x[_FS_R])
             for k, col in enumerate(rot_cols):
                 if col is not None:
                     J[:, :, col] = D[:, :, k]
+
+
+def cross(a: F64, b: F64) -> F64:
+    """a x b for (N, 3) arrays; np.cross costs ~20 us of overhead per call."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
 
 
 def _batched_elementary(kind: str, value: F64 | float, n: int) -> F64:
@@ -284,9 +368,10 @@ def _batched_elementary(kind: str, value: F64 | float, n: int) -> F64:
     return _elementary(kind, float(value))
 
 
-def check_active(active: Sequence[str]) -> tuple[str, ...]:
-    """Validate a selection of parameter names; raises ValueError naming the unknown ones."""
-    unknown = [n for n in active if n not in INDEX]
+def check_active(active: Sequence[str], known: Sequence[str] = ALL_NAMES) -> tuple[str, ...]:
+    """Validate a selection of parameter names against a model's `known` names; raises
+    ValueError naming the unknown ones."""
+    unknown = [n for n in active if n not in known]
     if unknown:
         raise ValueError(f"unknown model parameters: {', '.join(unknown)}")
     if len(set(active)) != len(active):

@@ -110,11 +110,11 @@ def run_compensation_experiment(args: argparse.Namespace) -> int:
     the simulated cell (app/compensation_check.py); writes compensation.md to --out."""
     cfg = load_cell(args.cell)
     out = Path(args.out or f"runs/experiment-{time.strftime('%Y%m%d-%H%M%S')}")
-    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    seeds = list(range(args.first_seed, args.first_seed + (args.seeds or 5)))
     print(f"rvis experiment compensation: {len(seeds)} seeds x {args.validation} poses")
     results = check.run(cfg, seeds, args.validation, log=lambda s: print(s, flush=True))
     command = (
-        f"rvis experiment compensation --seeds {args.seeds} --first-seed {args.first_seed} "
+        f"rvis experiment compensation --seeds {len(seeds)} --first-seed {args.first_seed} "
         f"--validation {args.validation}"
     )
     text = check.markdown(results, command)

@@ -1,6 +1,7 @@
 """`rvis experiment paper`: the paper's experiment on the simulated cell over many seeds;
 `rvis experiment compensation`: compensated targets on the simulated cell (in
-app/commands/compensate.py)."""
+app/commands/compensate.py); `rvis experiment accuracy`: the rigid vs the compliance-aware model
+against the noise floor."""
 
 from __future__ import annotations
 
@@ -8,26 +9,39 @@ import argparse
 import time
 from pathlib import Path
 
+from app.accuracy import AccuracySettings, run_accuracy
+from app.accuracy import summary_text as accuracy_text
 from app.commands.compensate import run_compensation_experiment
-from app.config import load_cell
+from app.config import CellConfig, load_cell
 from app.errors import InputError
 from app.experiment import run_experiment, summary_text
 from app.planning import add_plan_options, plan_overrides
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("experiment", help="reproduce the paper's experiment on the simulated cell")
-    p.add_argument("name", choices=("paper", "compensation"), help="which experiment")
-    p.add_argument("--seeds", type=int, default=20, help="number of seeds (20)")
+    p = sub.add_parser("experiment", help="experiments on the simulated cell")
+    p.add_argument("name", choices=("paper", "accuracy", "compensation"), help="which experiment")
+    p.add_argument("--seeds", type=int, help="number of seeds (paper 20, accuracy 10, 5)")
     p.add_argument("--first-seed", type=int, default=0, help="first seed (0)")
     p.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")
     p.add_argument("--out", help="output folder (default runs/experiment-<time>)")
     p.add_argument("--validation", type=int, default=100, help="validation positions / poses (100)")
+    p.add_argument(
+        "--views-per-sphere",
+        type=int,
+        default=10,
+        help="accuracy: random calibration views per sphere (10)",
+    )
     add_plan_options(p)
     p.add_argument(
         "--criteria-grid-step",
         type=float,
         help="grid [deg] for ranking O1..O5 as criteria (default: the plan's grid)",
+    )
+    p.add_argument(
+        "--compliant",
+        action="store_true",
+        help="paper: also identify and validate every run with the compliant model",
     )
     p.add_argument(
         "--no-criteria", action="store_true", help="skip ranking O1..O5 as selection criteria"
@@ -36,7 +50,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    for key in ("seeds", "validation"):
+    for key in ("seeds", "validation", "views_per_sphere"):
         value = getattr(args, key)
         if value is not None and value < 1:
             raise InputError(f"must be >= 1, got {value}", field=f"--{key.replace('_', '-')}")
@@ -44,8 +58,10 @@ def run(args: argparse.Namespace) -> int:
         return run_compensation_experiment(args)
     cfg = load_cell(args.cell)
     out = Path(args.out or f"runs/experiment-{time.strftime('%Y%m%d-%H%M%S')}")
+    if args.name == "accuracy":
+        return run_accuracy_command(args, cfg, out)
     overrides = plan_overrides(args)
-    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    seeds = list(range(args.first_seed, args.first_seed + (args.seeds or 20)))
     print(f"rvis experiment paper: {len(seeds)} seeds, writing to {out}/", flush=True)
     summary = run_experiment(
         cfg,
@@ -55,9 +71,21 @@ def run(args: argparse.Namespace) -> int:
         criteria=not args.no_criteria,
         criteria_grid_step_deg=args.criteria_grid_step,
         log=lambda s: print(s, flush=True),
+        compliant=args.compliant,
         **overrides,
     )
     print()
     print(summary_text(summary))
     print(f"\nwritten {out}/experiment.md, fig11.png, seeds.json in {summary.seconds:.0f} s")
+    return 0
+
+
+def run_accuracy_command(args: argparse.Namespace, cfg: CellConfig, out: Path) -> int:
+    seeds = list(range(args.first_seed, args.first_seed + (args.seeds or 10)))
+    settings = AccuracySettings(n_each=args.views_per_sphere, n_validation=args.validation)
+    print(f"rvis experiment accuracy: {len(seeds)} seeds, writing to {out}/", flush=True)
+    outcomes = run_accuracy(cfg, seeds, out, settings, log=lambda s: print(s, flush=True))
+    print()
+    print(accuracy_text(outcomes))
+    print(f"\nwritten {out}/accuracy.md, accuracy-seeds.json")
     return 0

@@ -25,7 +25,7 @@ def identified_x(seed: int) -> np.ndarray:
     """Every one of the 37 parameters off (the 30 identified ones and the other 7 too)."""
     rng = np.random.default_rng(seed)
     x = MODEL.nominal_x()
-    for name in INDEX:
+    for name in MODEL.names:
         scale = 0.5 if unit_of(name) == "mm" else 1e-3
         x[INDEX[name]] += rng.normal() * (scale if name in PAPER_30 else 0.1 * scale)
     return x

@@ -1,0 +1,114 @@
+"""The compliant model at the application's edges: the parameters JSON records the model
+(a file without it is rigid), the measurements CSV carries an optional temp_c column, and
+`rvis experiment accuracy` writes its table."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from app.accuracy import measure_views, plan_views
+from app.cli import main
+from app.config import CellConfig
+from app.dataio import load_dataset
+from app.errors import InputError
+from app.files import write_json, write_measurements, write_targets
+from app.params import from_json, to_json
+from app.simulation import make_cell
+from calib.compliance import CompliantModel, CompliantSettings
+from calib.identify import Measurements, identify
+
+
+@pytest.fixture(scope="module")
+def warm(cfg: CellConfig) -> Measurements:
+    cell = make_cell(cfg, seed=31)
+    rng = np.random.default_rng(31)
+    views = plan_views((cell,), cfg.model(), cfg.spheres_part_mm, 10, (20.0, 30.0), rng)
+    return measure_views(cell, views).measured
+
+
+def test_params_json_records_the_compliant_model(
+    cfg: CellConfig, warm: Measurements, tmp_path: Path
+) -> None:
+    settings = CompliantSettings(payload_kg=4.0, reference_temp_c=21.0)
+    model = CompliantModel.of(cfg.model(), settings)
+    result = identify(model, warm)
+    doc = to_json(model, result)
+    assert doc["model"]["kind"] == "compliant" and len(doc["parameters"]) == 43
+    units = {p["name"]: p["unit"] for p in doc["parameters"]}
+    assert units["c2_upper"] == "rad/m" and units["expansion_per_k"] == "1/K"
+    write_json(tmp_path / "p.json", doc)
+    back, x = from_json(tmp_path / "p.json")
+    assert isinstance(back, CompliantModel) and back.settings == settings
+    np.testing.assert_array_equal(x, result.x)
+
+
+def test_a_params_file_without_a_model_kind_is_rigid(cfg: CellConfig, tmp_path: Path) -> None:
+    model = cfg.model()
+    doc = to_json(model, identify(model, warm_rigid(cfg)))
+    assert doc["model"]["kind"] == "rigid" and len(doc["parameters"]) == 37
+    del doc["model"]["kind"]
+    write_json(tmp_path / "old.json", doc)
+    back, x = from_json(tmp_path / "old.json")
+    assert back.kind == "rigid" and x.shape == (37,)
+    doc["parameters"].append({"name": "c2_upper", "value": 1e-5})
+    write_json(tmp_path / "bad.json", doc)
+    with pytest.raises(InputError, match=r"parameters\[37\].*unknown parameter 'c2_upper'"):
+        from_json(tmp_path / "bad.json")
+
+
+def warm_rigid(cfg: CellConfig) -> Measurements:
+    cell = make_cell(cfg, seed=32, compliance=False, thermal=False)
+    views = plan_views(
+        (cell,), cfg.model(), cfg.spheres_part_mm, 6, (20.0, 20.0), np.random.default_rng(32)
+    )
+    return measure_views(cell, views).measured
+
+
+def test_measurements_csv_temperature_column(warm: Measurements, tmp_path: Path) -> None:
+    targets = {t: p for t, p in zip(warm.targets, warm.p_part_mm, strict=True)}
+    write_targets(tmp_path / "t.csv", targets)
+    write_measurements(tmp_path / "m.csv", warm.targets, warm.q_deg, warm.c_sensor_mm, warm.temp_c)
+    data = load_dataset(tmp_path / "m.csv", tmp_path / "t.csv")
+    assert data.temp_c is not None
+    np.testing.assert_allclose(data.temp_c, np.asarray(warm.temp_c), atol=1e-6)
+    write_measurements(tmp_path / "n.csv", warm.targets, warm.q_deg, warm.c_sensor_mm)
+    assert load_dataset(tmp_path / "n.csv", tmp_path / "t.csv").temp_c is None
+    lines = (tmp_path / "m.csv").read_text().splitlines()
+    lines[3] = lines[3].rsplit(",", 1)[0] + ",250.0"
+    (tmp_path / "bad.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match=r"bad.csv:4: field 'temp_c': 250 degC is outside"):
+        load_dataset(tmp_path / "bad.csv", tmp_path / "t.csv")
+
+
+def test_experiment_accuracy_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["experiment", "accuracy", "--seeds", "1", "--validation", "30"]
+    assert main([*argv, "--views-per-sphere", "8", "--out", str(tmp_path)]) == 0
+    md = (tmp_path / "accuracy.md").read_text()
+    rows = {line.split("|")[1].strip(): line for line in md.splitlines() if line.startswith("| ")}
+    assert {"rigid", "compliant, no temp", "compliant", "noise floor"} <= set(rows)
+    seeds = json.loads((tmp_path / "accuracy-seeds.json").read_text())["seeds"]
+    r = seeds[0]["rmse_mm"]
+    assert r["compliant"] < r["rigid"] and r["noise floor"] < r["rigid"]
+    assert "rvis experiment accuracy: 1 seeds" in capsys.readouterr().out
+    assert main(["experiment", "accuracy", "--views-per-sphere", "0"]) == 2
+
+
+def test_experiment_paper_with_the_compliant_model(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    fast = ["--iterations", "1", "--swarm", "4", "--grid-step", "30", "--search-step", "30"]
+    argv = ["experiment", "paper", "--seeds", "1", "--validation", "20", "--no-criteria"]
+    assert main([*argv, "--compliant", "--workers", "1", "--out", str(tmp_path), *fast]) == 0
+    text = capsys.readouterr().out
+    assert "Random vs planned, rigid and compliant model" in text
+    seed = json.loads((tmp_path / "seeds.json").read_text())["seeds"][0]
+    rmse = seed["rmse_mm"]
+    assert set(rmse) == {"random", "planned", "random (compliant)", "planned (compliant)"}
+    # the simulated cell has gravity compliance: the compliant model explains it
+    assert rmse["random (compliant)"] < rmse["random"]
+    assert rmse["planned (compliant)"] < rmse["planned"]
+    assert "## Rigid and compliant model" in (tmp_path / "experiment.md").read_text()

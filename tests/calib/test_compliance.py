@@ -1,0 +1,176 @@
+"""The compliance- and temperature-aware model: against the independent simulated robot,
+its Jacobian, recovery of known compliance and expansion from noisy data, the rigid model
+unchanged with the terms off, the redundancy check."""
+
+from __future__ import annotations
+
+from functools import cache
+
+import numpy as np
+import pytest
+
+from app.accuracy import WarmData, measure_views, plan_views, simulated_truth
+from app.config import CellConfig, load_cell
+from app.simulation import make_cell, validation_points
+from calib import robot
+from calib.compliance import (
+    CompliantModel,
+    CompliantSettings,
+    select_model,
+)
+from calib.errors import NotIdentifiable
+from calib.identify import Measurements, identify, residuals
+from calib.model import EXTRA_NAMES, INDEX, PAPER_30, SystemModel, unit_of
+from fakes.truth import LINK_MASS_KG, TrueRobot
+
+F = np.float64
+TRUTH = simulated_truth()
+#: the simulated robot's sensor mass and joint compliance: the configured payload
+PAYLOAD = CompliantSettings(payload_kg=LINK_MASS_KG[2], nominal_compliance_rad_per_nm=5e-8)
+
+
+def random_q(rng: np.random.Generator, n: int) -> np.ndarray:
+    lim = robot.JointLimits()
+    return rng.uniform(lim.lower_deg, lim.upper_deg, (n, 6))
+
+
+def true_x(model: CompliantModel) -> np.ndarray:
+    x = model.nominal_x()
+    for name, value in TRUTH.items():
+        x[INDEX[name]] = value
+    return x
+
+
+@pytest.mark.parametrize("temp_c", [20.0, 34.0, 8.0])
+def test_fk_equals_the_simulated_robot_with_compliance_and_growth(temp_c: float) -> None:
+    q = random_q(np.random.default_rng(0), 2000)
+    model = CompliantModel(np.eye(4), np.eye(4), settings=PAYLOAD)
+    truth = TrueRobot(compliance_rad_per_nm=(5e-8, 5e-8), expansion_per_k=11.5e-6)
+    T_model = model.fk(true_x(model), q, flange=True, temp_c=temp_c)
+    T_true = truth.T_world_tool0(q, temp_c)
+    # the truth deflects a second time from its deflected frames: ~1e-9 rad of difference
+    assert np.abs(T_model[:, :3, 3] - T_true[:, :3, 3]).max() < 1e-5
+    assert np.abs(T_model[:, :3, :3] - T_true[:, :3, :3]).max() < 1e-8
+    rigid = TrueRobot().T_world_tool0(q, temp_c)
+    assert np.abs(T_true[:, :3, 3] - rigid[:, :3, 3]).max() > 0.05  # the effect is real
+
+
+def test_first_order_thermal_points_match_exact_growth() -> None:
+    rng = np.random.default_rng(1)
+    model = CompliantModel(np.eye(4), np.eye(4), settings=PAYLOAD)
+    x, q = true_x(model), random_q(rng, 200)
+    c = rng.normal([0, 0, 130], 10.0, (200, 3))
+    exact = np.einsum("nij,nj->ni", model.fk(x, q, temp_c=40.0)[:, :3, :3], c)
+    exact += model.fk(x, q, temp_c=40.0)[:, :3, 3]
+    first = model.points_part(x, q, c, temp_c=np.full(200, 40.0))
+    assert np.abs(first - exact).max() < 2e-4  # 20 K: second order only
+
+
+STEP = {"mm": 1e-4, "rad": 1e-7, "rad/m": 1e-9, "1/K": 1e-10}
+
+
+@pytest.mark.parametrize("with_temp", [False, True])
+def test_jacobian_equals_central_differences(with_temp: bool) -> None:
+    rng = np.random.default_rng(2)
+    model = CompliantModel(np.eye(4), np.eye(4), settings=PAYLOAD)
+    x, q = true_x(model), random_q(rng, 40)
+    c = rng.normal([0, 0, 130], 10.0, (40, 3))
+    temps = rng.uniform(15.0, 35.0, 40) if with_temp else None
+    names = model.names if with_temp else model.names[:-1]
+    J = model.point_jacobian(x, q, c, names, temp_c=temps).reshape(-1, len(names))
+    for k, name in enumerate(names):
+        h = STEP[unit_of(name)]
+        xp, xm = x.copy(), x.copy()
+        xp[k] += h
+        xm[k] -= h
+        fd = (model.points_part(xp, q, c, temps) - model.points_part(xm, q, c, temps)).ravel()
+        rel = np.abs(J[:, k] - fd / (2 * h)).max() / np.linalg.norm(fd / (2 * h))
+        # the extra columns are analytic (the compliance ones up to the thermal coupling);
+        # the geometric ones leave out the second-order coupling through the levers
+        exact = name == "expansion_per_k" or (name in EXTRA_NAMES and not with_temp)
+        assert rel < (1e-6 if exact else 2e-4), (name, rel)
+
+
+def test_rigid_model_is_unchanged_when_the_terms_are_off(cfg: CellConfig) -> None:
+    from tests.conftest import simulated
+
+    cal, val = simulated(0, 30)
+    rigid = cfg.model()
+    off = CompliantModel.of(rigid, CompliantSettings(expansion_per_k=0.0))
+    r = identify(rigid, cal.measurements)
+    c = identify(off, cal.measurements, active=PAPER_30)
+    assert np.array_equal(r.x, c.x[: len(r.x)]) and np.array_equal(r.std, c.std)
+    assert np.array_equal(
+        residuals(rigid, r.x, val.measurements), residuals(off, c.x, val.measurements)
+    )
+    assert not np.any(c.x[len(r.x) :])
+
+
+@cache
+def warm_data(seed: int, n_points: int, n_each: int, noise: float) -> WarmData:
+    """Views of the 4 spheres (or of n_points spread over the workspace) at 15..35 degC, with
+    `noise` times the cell's sensor and tracker noise."""
+    cfg = load_cell(None)
+    cell = make_cell(cfg, seed=seed, sensor_noise_mm=0.02 * noise, tracker_noise_mm=0.01 * noise)
+    rng = np.random.default_rng([seed, 5])
+    points = cfg.spheres_part_mm if n_points == 4 else validation_points(cfg, n_points, rng)
+    views = plan_views((cell,), cfg.model(), points, n_each, (15.0, 35.0), rng)
+    return measure_views(cell, views)
+
+
+def test_recovers_compliance_and_expansion_exactly_without_noise(cfg: CellConfig) -> None:
+    model = CompliantModel.of(cfg.model(), PAYLOAD)
+    result = identify(model, warm_data(7, 4, 8, 0.0).measured)
+    assert "expansion_per_k" in result.active and result.observability.rank == 34
+    assert result.rms_mm < 1e-4
+    for name, true in TRUTH.items():
+        assert result.value(name) == pytest.approx(true, rel=2e-3), name
+
+
+@pytest.mark.parametrize(
+    ("n_points", "n_each", "noise", "rel"),
+    [
+        # the cell's noise (20 um sensor, 10 um tracker), 4 spheres: the arm compliance is
+        # weakly determined one by one (std 20-50 %), the expansion well
+        (4, 40, 1.0, {"c2_upper": 0.8, "c2_fore": 1.5, "c3_fore": 1.5, "expansion_per_k": 0.05}),
+        # a quarter of that noise, 12 positions over the workspace
+        (12, 10, 0.25, {"c2_upper": 0.2, "c2_fore": 0.5, "c3_fore": 0.4, "expansion_per_k": 0.02}),
+    ],
+)
+def test_recovers_compliance_and_expansion_from_noisy_data(
+    cfg: CellConfig, n_points: int, n_each: int, noise: float, rel: dict[str, float]
+) -> None:
+    model = CompliantModel.of(cfg.model(), PAYLOAD)
+    data = warm_data(8, n_points, n_each, noise).measured
+    result = identify(model, data)
+    assert result.success and 0.5 < result.sigma_mm / (0.0224 * noise) < 1.5
+    for name, true in TRUTH.items():
+        value, std = result.value(name), result.std[result.active.index(name)]
+        assert abs(value - true) < 4.0 * std, name  # the reported uncertainty is honest
+        assert value == pytest.approx(true, rel=rel[name]), name
+    # the model explains the data: the rigid one leaves several times the residual
+    assert identify(cfg.model(), data).rms_mm > 2.0 * result.rms_mm
+
+
+def test_expansion_without_a_temperature_spread_is_reported_not_identifiable(
+    cfg: CellConfig,
+) -> None:
+    model = CompliantModel.of(cfg.model())
+    m = warm_data(7, 4, 8, 0.0).measured
+    warm = Measurements(m.q_deg, m.c_sensor_mm, m.p_part_mm, m.targets, np.full(len(m), 25.0))
+    assert "expansion_per_k" not in model.default_active(warm.temp_c)
+    with pytest.raises(NotIdentifiable) as err:
+        identify(model, warm, active=(*model.default_active(), "expansion_per_k"))
+    assert any("expansion_per_k" in g for g in err.value.groups)
+
+
+def test_select_model() -> None:
+    base = SystemModel(np.eye(4), np.eye(4))
+    assert select_model("rigid", base).kind == "rigid"
+    compliant = select_model("compliant", base, PAYLOAD)
+    assert compliant.kind == "compliant" and len(compliant.nominal_x()) == 43
+    assert compliant.nominal_x()[INDEX["c2_payload"]] == pytest.approx(5e-8 * 9.81 * 6.0)
+    with pytest.raises(ValueError, match="unknown model 'elastic'"):
+        select_model("elastic", base)
+    with pytest.raises(ValueError, match="payload_kg"):
+        CompliantSettings(payload_kg=-1.0)
