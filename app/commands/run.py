@@ -44,10 +44,9 @@ def run(args: argparse.Namespace) -> int:
     from app.line.launch import build_service, json_logs, serve
     from app.line.measure import SweepSensor
     from app.line.settings import from_cell
-    from app.line.station import Station
+    from app.line.station import Station, cell_guard
     from app.params import from_json
     from drivers.errors import DeviceConfigError, DeviceError
-    from drivers.safety import SafetyGuard
     from vision.sensor_model import default_sensor_model, load_sensor_model
 
     cfg = load_cell(args.cell)
@@ -58,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     x0 = from_json(args.params)[1] if args.params else None
     sensor_model = load_sensor_model(args.sensor_model) if args.sensor_model else None
     try:
-        station = Station.open(dict(cfg.devices), guard=SafetyGuard())
+        station = Station.open(dict(cfg.devices), guard=cell_guard(cfg))
     except DeviceConfigError as exc:
         raise InputError(str(exc), file=cfg.source, field="devices") from exc
     except DeviceError as exc:

@@ -1,7 +1,7 @@
 """The station: every device of the cell opened from its URL (drivers.registry), with the
 safety guard on the robot, and closed together.
 
-    with Station.open(cfg.devices, guard=SafetyGuard()) as st: ...
+    with Station.open(cfg.devices, guard=cell_guard(cfg)) as st: ...
     Station(robot=..., plc=..., camera=..., galvo=...)   # from devices opened elsewhere (tests)
 
 `options` passes backend keyword arguments per family (e.g. `world=` for `fake://`). A device
@@ -97,3 +97,16 @@ class Station:
         self, t: type[BaseException] | None, e: BaseException | None, tb: TracebackType | None
     ) -> None:
         self.close()
+
+
+def cell_guard(cfg: Any) -> SafetyGuard:
+    """The safety guard of a resolved cell configuration: the cell's joint limits ([robot],
+    whose defaults are calib.robot's nominal M-710iC/50) and its joint speeds ([line])."""
+    from drivers.safety import JointLimits
+
+    limits = JointLimits(
+        lower_deg=tuple(float(v) for v in cfg.limits.lower_deg),
+        upper_deg=tuple(float(v) for v in cfg.limits.upper_deg),
+        speed_deg_s=tuple(float(v) for v in cfg.line.joint_speed_deg_s),
+    )
+    return SafetyGuard(limits=limits)

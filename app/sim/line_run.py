@@ -28,11 +28,10 @@ from app.line.measure import GeometricSensor, SphereSensor, SweepSensor
 from app.line.schedule import Schedule
 from app.line.service import Service
 from app.line.settings import ServiceSettings, from_cell
-from app.line.station import Station
+from app.line.station import Station, cell_guard
 from app.simulation import make_cell, simulated_sets, true_sensor_model
 from calib import candidates
 from calib.identify import identify
-from drivers.safety import SafetyGuard
 from fakes.cell import SimulatedCell
 from fakes.line import LineSettings as SimLineSettings
 from fakes.line import SimLine
@@ -178,7 +177,7 @@ class SimulatedLineRun:
         if self.geometric:
             urls.pop("camera", None)
             urls.pop("galvo", None)
-        station = Station.open(urls, guard=SafetyGuard())
+        station = Station.open(urls, guard=cell_guard(self.cfg))
         self._stack.callback(station.close)
         sensor: SphereSensor
         if self.geometric:
