@@ -146,6 +146,13 @@ class CalibrationSection(Section):
     every parameter within the allowed change from its reference."""
 
     name = "calibration"
+    model: str = opt("rigid", choices=("rigid", "compliant"))
+    payload_kg: float = opt(0.0, lo=0, hi=500)
+    nominal_compliance_rad_per_nm: float = opt(5e-8, lo=0, hi=1e-5)
+    expansion_per_k: float = opt(11.5e-6, lo=0, hi=1e-4)
+    identify_expansion: bool = opt(True)
+    min_temp_span_k: float = opt(3.0, gt=0, hi=100)
+    reference_temp_c: float = opt(20.0, lo=-40, hi=80)
     configs_per_sphere: int = opt(6, lo=1, hi=1000)
     loss: str = opt("linear", choices=LOSSES)
     max_rms_mm: float = opt(0.25, gt=0, hi=100)
@@ -351,10 +358,27 @@ class CellConfig:
         return (b.x_min_mm, b.x_max_mm, b.y_min_mm, b.y_max_mm)
 
     def model(self) -> Any:
-        """The nominal system model of this cell (calib.model.SystemModel)."""
+        """The nominal rigid system model of this cell (calib.model.SystemModel): planning,
+        simulation and the service use it."""
         from calib.model import SystemModel
 
         return SystemModel(self.T_part_base, self.T_flange_sensor, self.limits)
+
+    def identification_model(self) -> Any:
+        """The model `rvis identify` fits: rigid, or compliant ([calibration] model) with the
+        section's payload and thermal settings (calib.compliance)."""
+        from calib.compliance import CompliantSettings, select_model
+
+        c = self.calibration
+        settings = CompliantSettings(
+            payload_kg=c.payload_kg,
+            nominal_compliance_rad_per_nm=c.nominal_compliance_rad_per_nm,
+            expansion_per_k=c.expansion_per_k,
+            identify_expansion=c.identify_expansion,
+            min_temp_span_k=c.min_temp_span_k,
+            reference_temp_c=c.reference_temp_c,
+        )
+        return select_model(c.model, self.model(), settings)
 
 
 def load_cell(path: str | Path | None = None) -> CellConfig:

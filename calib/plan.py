@@ -41,7 +41,7 @@ from calib.candidates import (
 )
 from calib.errors import EmptyRegion, NoCandidates
 from calib.ik_refine import refine
-from calib.model import PAPER_30, SystemModel
+from calib.model import BASE_NAMES, INDEX, PAPER_30, SENSOR_NAMES, SystemModel
 from calib.observability import (
     Observability,
     check_index_name,
@@ -425,7 +425,7 @@ def refine_on_model(model: SystemModel, x: F64, q_deg: F64) -> tuple[F64, NDArra
     aimed at (the sphere then appears where planned). Keeps the closed-form angles where the
     refinement does not converge; returns (q_deg, converged)."""
     x_frames = model.nominal_x()
-    frames = [*range(6), *range(len(x) - 6, len(x))]
+    frames = [INDEX[n] for n in (*BASE_NAMES, *SENSOR_NAMES)]
     x_frames[frames] = x[frames]
     target = model.fk(x_frames, q_deg)
     r = refine(model, x, target, q_deg)

@@ -44,21 +44,22 @@ def run(args: argparse.Namespace) -> int:
     from app.report import parameter_table
     from calib.gates import check_identification
     from calib.identify import identify
-    from calib.model import ALL_NAMES, PAPER_30
 
     check_output(args.out)
     if args.keep_failed:
         check_output(args.keep_failed)
     cfg = load_cell(args.cell)
-    model = cfg.model()
+    model = cfg.identification_model()
     for name in args.add_param:
-        if name not in ALL_NAMES:
+        if name not in model.names:
             raise InputError(f"unknown model parameter '{name}'", field="--add-param")
-        if name in PAPER_30:
-            raise InputError(f"'{name}' is identified already", field="--add-param")
-    active = (*PAPER_30, *args.add_param)
     loss = args.loss or cfg.calibration.loss
     data, data_lines = load_dataset_lines(args.measurements, args.targets, cfg.limits)
+    default = tuple(model.default_active(data.temp_c))
+    already = [n for n in args.add_param if n in default]
+    if already:
+        raise InputError(f"'{already[0]}' is identified already", field="--add-param")
+    active = (*default, *args.add_param)
     result = as_input_error(
         args.measurements, lambda: identify(model, data, active=active, loss=loss)
     )

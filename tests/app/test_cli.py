@@ -216,3 +216,21 @@ def test_demo_renders_by_default(tmp_path: Path, cli: Cli) -> None:
 def test_demo_bad_workers(tmp_path: Path, cli: Cli) -> None:
     code, _, err = cli(["demo", "--out", str(tmp_path / "run"), "--workers", "0"])
     assert code == 2 and "--workers" in err
+
+
+def test_identify_with_the_compliant_model_from_the_cell_file(
+    simdir: Path, tmp_path: Path, cli: Cli
+) -> None:
+    """[calibration] model = "compliant": the 30 plus the three lumped compliance terms are
+    identified, the parameters file says which model, and its residual is below the rigid one
+    (the simulated robot's arm does bend under gravity)."""
+    cell = tmp_path / "cell.toml"
+    cell.write_text('[calibration]\nmodel = "compliant"\n')
+    code, text, _ = cli([*identify_args(simdir, tmp_path), "--cell", str(cell), "--json"])
+    compliant = json.loads(text)
+    doc = json.loads((tmp_path / "p.json").read_text())
+    code_rigid, text_rigid, _ = cli([*identify_args(simdir, tmp_path), "--json"])
+    rigid = json.loads(text_rigid)
+    assert code == code_rigid == 0 and compliant["rank"] == 33 and rigid["rank"] == 30
+    assert doc["model"]["kind"] == "compliant"
+    assert compliant["residuals"]["rms_mm"] < rigid["residuals"]["rms_mm"]
