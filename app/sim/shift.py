@@ -50,6 +50,10 @@ class ShiftSettings:
             raise ValueError("recovered_ratio >= 1 and pre_knock_windows >= 1")
 
 
+#: The line part of `rvis demo`: 45 windows, a knock after 15, about 15-20 s real time.
+DEMO_SHIFT = ShiftSettings(hours=0.75, knock_at_h=0.25, scale=200.0, slots_per_window=2)
+
+
 @dataclass
 class ShiftResult:
     """The shift's timeline, the service's summary and the figures drawn from them."""
