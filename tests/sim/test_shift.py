@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from app.cli import main
 from app.config import CellConfig
 from app.sim.shift import ShiftSettings, run_shift, summary_lines, write_outputs
 
@@ -47,3 +48,15 @@ def test_a_knock_is_flagged_and_the_service_recovers(cfg: CellConfig, tmp_path: 
 def test_shift_settings_refuse_a_knock_outside_the_shift() -> None:
     with pytest.raises(ValueError, match="knock_at_h"):
         ShiftSettings(hours=2.0, knock_at_h=2.0)
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [["--knock-at-h", "9"], ["--hours", "0"], ["--scale", "-1"], ["--geometric", "--rendered"]],
+)
+def test_bad_shift_options_exit_2(
+    argv: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code = main(["experiment", "shift", "--out", str(tmp_path / "x"), *argv])
+    assert code == 2 and "rvis" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
