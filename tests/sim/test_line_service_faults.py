@@ -97,11 +97,12 @@ def test_plc_heartbeat_loss_raises_the_alarm_and_no_window_is_used(run: Simulate
 
 
 def test_a_window_withdrawn_early_aborts_and_goes_home(run: SimulatedLineRun) -> None:
-    _until(run, lambda e: e["event"] == "window")
-    k = run.service.counters["windows"] + 1
-    played = run.line.schedule(Fault.WINDOW_WITHDRAWN, window=k, after_s=0.3)
-    events = _until(run, lambda e: e["event"] == "window" and played.is_set())
-    assert run.service.counters["withdrawn"] >= 1
+    events = _until(run, lambda e: e["event"] == "window")
+    # withdraw the window once the service has started measuring in it (busy to the PLC)
+    events += _until(run, lambda e: e["event"] == "state" and e["to"] == State.MEASURING.value)
+    run.line.inject(Fault.WINDOW_WITHDRAWN)
+    events += _until(run, lambda e: e["event"] == "window")
+    assert run.service.counters["withdrawn"] == 1 and events[-1]["withdrawn"]
     assert run.service.state != State.FAULT and not run.line.plc.received.fault
     home = np.array(run.service.settings.line.home_deg)
     np.testing.assert_allclose(run.cell.joints_deg(), home, atol=0.05)
