@@ -24,7 +24,7 @@ WAIT_S = 10.0
 
 @pytest.fixture()
 def run(cfg: CellConfig, tmp_path: Path) -> Iterator[SimulatedLineRun]:
-    fast = dataclasses.replace(cfg, simline=dataclasses.replace(cfg.simline, scale=60.0))
+    fast = dataclasses.replace(cfg, simline=dataclasses.replace(cfg.simline, scale=120.0))
     with SimulatedLineRun(fast, tmp_path / "state", seed=5, geometric=True) as sim:
         sim.start_service()
         yield sim
