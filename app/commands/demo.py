@@ -10,7 +10,7 @@ from contextlib import closing, nullcontext
 from pathlib import Path
 
 from app.cliargs import int_at_least
-from app.config import load_cell
+from app.config import CellConfig, load_cell
 from app.demo import run_demo, summary_text
 from app.errors import InputError
 from app.planning import ProgressLine
@@ -56,6 +56,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=int,
         default=min(2, os.cpu_count() or 1),
         help="processes rendering sweeps (default: up to 2)",
+    )
+    p.add_argument(
+        "--no-line",
+        action="store_true",
+        help="skip the line part (the in-line service on the simulated line with a knock)",
     )
     p.set_defaults(func=run)
 
@@ -105,4 +110,27 @@ def run(args: argparse.Namespace) -> int:
         f"\nReport written to {out}/ (report.md, report.json, params.json, "
         f"validation_errors.png, CSV files) in {demo.seconds:.1f} s"
     )
+    if not args.no_line:
+        line_part(cfg, out, args.seed)
     return 0
+
+
+def line_part(cfg: CellConfig, out: Path, seed: int) -> None:
+    """A few dozen windows of the in-line service on the simulated line with a knock
+    (geometric, high time scale): line.png/.md/.json in the run folder, two lines in
+    report.md."""
+    from app.sim.shift import DEMO_SHIFT, run_shift, summary_lines, write_outputs
+
+    print(
+        "\nline part: the in-line service on the simulated line, a knock at"
+        f" {DEMO_SHIFT.knock_at_h * 60:g} min ...",
+        flush=True,
+    )
+    result = run_shift(cfg, out / "line-state", DEMO_SHIFT, seed=seed)
+    write_outputs(result, out, "rvis demo", stem="line")
+    lines = summary_lines(result)[:2]
+    with (out / "report.md").open("a") as f:
+        f.write("\n## In-line service (simulated line, line.md, line.png)\n\n")
+        f.write("".join(f"- {line}\n" for line in lines))
+    print("\n".join(lines))
+    print(f"line part written to {out}/ (line.md, line.png, line.json) in {result.real_s:.0f} s")

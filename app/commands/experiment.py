@@ -1,7 +1,8 @@
 """`rvis experiment paper`: the paper's experiment on the simulated cell over many seeds;
 `rvis experiment compensation`: compensated targets on the simulated cell (in
 app/commands/compensate.py); `rvis experiment accuracy`: the rigid vs the compliance-aware model
-against the noise floor."""
+against the noise floor; `rvis experiment shift`: a compressed shift of the in-line service on
+the simulated line with warm-up and a knock (app/sim/shift.py)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from pathlib import Path
 
 from app.accuracy import AccuracySettings, run_accuracy
 from app.accuracy import summary_text as accuracy_text
+from app.cliargs import int_at_least
 from app.commands.compensate import run_compensation_experiment
 from app.config import CellConfig, load_cell
 from app.errors import InputError
@@ -20,7 +22,9 @@ from app.planning import add_plan_options, plan_overrides
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("experiment", help="experiments on the simulated cell")
-    p.add_argument("name", choices=("paper", "accuracy", "compensation"), help="which experiment")
+    p.add_argument(
+        "name", choices=("paper", "accuracy", "compensation", "shift"), help="which experiment"
+    )
     p.add_argument("--seeds", type=int, help="number of seeds (paper 20, accuracy 10, 5)")
     p.add_argument("--first-seed", type=int, default=0, help="first seed (0)")
     p.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")
@@ -46,6 +50,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--no-criteria", action="store_true", help="skip ranking O1..O5 as selection criteria"
     )
+    g = p.add_argument_group("shift")
+    g.add_argument("--hours", type=float, default=8.0, help="shift: sim hours (8)")
+    g.add_argument("--knock-at-h", type=float, default=4.0, help="shift: knock at hour (4)")
+    g.add_argument("--seed", type=int_at_least(0), default=0, help="shift: seed (0)")
+    g.add_argument("--scale", type=float, help="shift: time scale (default [simline] scale)")
+    g.add_argument("--slots-per-window", type=int_at_least(1), help="shift: default [line]")
+    g.add_argument(
+        "--geometric", action="store_true", help="shift: geometric measurements (the default)"
+    )
+    g.add_argument("--rendered", action="store_true", help="shift: measure through images")
     p.set_defaults(func=run)
 
 
@@ -56,6 +70,8 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"must be >= 1, got {value}", field=f"--{key.replace('_', '-')}")
     if args.name == "compensation":
         return run_compensation_experiment(args)
+    if args.name == "shift":
+        return run_shift_experiment(args)
     cfg = load_cell(args.cell)
     out = Path(args.out or f"runs/experiment-{time.strftime('%Y%m%d-%H%M%S')}")
     if args.name == "accuracy":
@@ -88,4 +104,49 @@ def run_accuracy_command(args: argparse.Namespace, cfg: CellConfig, out: Path) -
     print()
     print(accuracy_text(outcomes))
     print(f"\nwritten {out}/accuracy.md, accuracy-seeds.json")
+    return 0
+
+
+def run_shift_experiment(args: argparse.Namespace) -> int:
+    from app.sim.line_run import WindowRecord
+    from app.sim.shift import ShiftSettings, run_shift, summary_lines, write_outputs
+
+    if args.geometric and args.rendered:
+        raise InputError("choose --geometric or --rendered", field="--rendered")
+    try:
+        settings = ShiftSettings(
+            hours=args.hours,
+            knock_at_h=args.knock_at_h,
+            geometric=not args.rendered,
+            scale=args.scale,
+            slots_per_window=args.slots_per_window,
+        )
+    except ValueError as exc:
+        raise InputError(str(exc), field="--hours/--knock-at-h/--scale") from exc
+    cfg = load_cell(args.cell)
+    out = Path(args.out or f"runs/shift-{time.strftime('%Y%m%d-%H%M%S')}")
+    if (out / "state").exists():
+        raise InputError("the output folder already holds a shift's state", file=out / "state")
+
+    def progress(r: WindowRecord) -> None:
+        if r.window % 30 == 0:
+            print(
+                f"  window {r.window:4d}  t {r.t_h:5.2f} h  {r.temp_c:5.2f} C  true RMSE without"
+                f" {r.rmse_commissioning_mm:.4f} mm, with the service {r.rmse_mm:.4f} mm"
+                f"  v{r.version}",
+                flush=True,
+            )
+
+    print(f"rvis experiment shift: {args.hours:g} h, knock at {args.knock_at_h:g} h -> {out}/")
+    result = run_shift(cfg, out / "state", settings, seed=args.seed, on_window=progress)
+    command = (
+        f"rvis experiment shift --hours {args.hours:g} --knock-at-h {args.knock_at_h:g}"
+        f" --seed {args.seed} --scale {result.scale:g} --out {out}"
+        + (f" --slots-per-window {args.slots_per_window}" if args.slots_per_window else "")
+        + (" --rendered" if args.rendered else "")
+    )
+    paths = write_outputs(result, out, command)
+    print()
+    print("\n".join(summary_lines(result)))
+    print(f"\nwritten {', '.join(str(p) for p in paths)} in {result.real_s:.0f} s")
     return 0

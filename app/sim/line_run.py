@@ -232,9 +232,13 @@ class SimulatedLineRun:
                 return
 
     def run_windows(
-        self, n: int, on_window: Callable[[WindowRecord], None] | None = None
+        self,
+        n: int,
+        on_window: Callable[[WindowRecord], None] | None = None,
+        on_event: Callable[[dict[str, Any]], None] | None = None,
     ) -> SimRunSummary:
-        """Run the service until n windows have passed; the summary of the run."""
+        """Run the service until n windows have passed; the summary of the run. `on_event` sees
+        every event of the service after it is counted."""
         if self.thread is None:
             self.start_service()
         s = self.summary
@@ -242,6 +246,8 @@ class SimulatedLineRun:
         done = lambda e: s.windows >= n or e["event"] == "stopped"  # noqa: E731
         for event in self.events_until(done, silence_s):
             self._count(event)
+            if on_event is not None:
+                on_event(event)
             if event["event"] == "window":
                 record = self._record()
                 s.records.append(record)

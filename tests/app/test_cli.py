@@ -152,9 +152,10 @@ def test_bad_cell_file(simdir: Path, tmp_path: Path, cli: Cli) -> None:
 
 def test_demo_writes_a_report(tmp_path: Path, cli: Cli) -> None:
     code, out, _ = cli(
-        ["demo", "--out", str(tmp_path / "run"), "--validation", "30", "--geometric"]
+        ["demo", "--out", str(tmp_path / "run"), "--validation", "30", "--geometric", "--no-line"]
     )
     assert code == 0 and "RMSE improved" in out
+    assert not (tmp_path / "run" / "line.png").exists()  # --no-line: no line part
     report = json.loads((tmp_path / "run" / "report.json").read_text())
     assert report["improvement_factor"] > 20 and report["rank"] == 30
     for name in ("report.md", "params.json", "validation_errors.png"):
@@ -194,6 +195,7 @@ def test_demo_renders_by_default(tmp_path: Path, cli: Cli) -> None:
             "none",
             "--sensor-model",
             "truth",
+            "--no-line",
         ]
     )
     assert code == 0 and "rendered sweeps on 1 worker" in out

@@ -1,0 +1,274 @@
+"""A compressed shift on the simulated line (`rvis experiment shift`, the line part of the demo).
+
+One clamp window a minute for `hours` of sim time, the cell's warm-up and a knock of the sensor
+mount at `knock_at_h`; the in-line service runs through the real drivers (SimulatedLineRun).
+After every window the true error at the validation positions is recorded twice: with the
+parameters in force (the service) and with the commissioning parameters (no recalibration).
+From that timeline: after how many windows the drift alarm flagged the knock, how many windows
+until the error with the service is back within `recovered_ratio` x its pre-knock level, the
+overruns; a table per hour (shift.md), the timeline (shift.json) and a plot (shift.png).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from app.config import CellConfig
+from app.files import dumps_json
+from app.sim.line_run import SimRunSummary, SimulatedLineRun, WindowRecord
+
+
+@dataclass(frozen=True)
+class ShiftSettings:
+    """The compressed shift. `scale` None: the cell's [simline] scale; `slots_per_window` None:
+    the cell's [line] value."""
+
+    hours: float = 8.0
+    knock_at_h: float = 4.0
+    knock_mm: float = 0.3
+    knock_deg: float = 0.05
+    geometric: bool = True
+    scale: float | None = None
+    slots_per_window: int | None = None
+    recovered_ratio: float = 1.2  # "back": error with the service <= this x its pre-knock level
+    pre_knock_windows: int = 10  # windows before the knock whose median sets the pre-knock level
+
+    def __post_init__(self) -> None:
+        if not (self.hours > 0 and 0 <= self.knock_at_h < self.hours):
+            raise ValueError("need hours > 0 and 0 <= knock_at_h < hours")
+        if self.scale is not None and self.scale <= 0:
+            raise ValueError("scale must be > 0")
+        if self.recovered_ratio < 1 or self.pre_knock_windows < 1:
+            raise ValueError("recovered_ratio >= 1 and pre_knock_windows >= 1")
+
+
+#: The line part of `rvis demo`: 45 windows, a knock after 15, about 15-20 s real time.
+DEMO_SHIFT = ShiftSettings(hours=0.75, knock_at_h=0.25, scale=200.0, slots_per_window=2)
+
+
+@dataclass
+class ShiftResult:
+    """The shift's timeline, the service's summary and the figures drawn from them."""
+
+    settings: ShiftSettings
+    seed: int
+    scale: float
+    summary: SimRunSummary
+    drift_alarm_windows: list[int] = field(default_factory=list)
+    applied_windows: list[int] = field(default_factory=list)
+    rejected_windows: list[int] = field(default_factory=list)
+    window_s: float = 20.0  # the clamp window's length [sim s]
+    knock_window: int | None = None  # the first window opened after the knock
+    flagged_after: int | None = None  # windows from the knock to the first drift alarm
+    pre_knock_rmse_mm: float = math.nan
+    recovered_after: int | None = None  # windows from the knock until back within the ratio
+    real_s: float = 0.0
+
+    @property
+    def records(self) -> list[WindowRecord]:
+        return self.summary.records
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "settings": dataclasses.asdict(self.settings),
+            "seed": self.seed,
+            "scale": self.scale,
+            "window_s": self.window_s,
+            "knock_window": self.knock_window,
+            "flagged_after_windows": self.flagged_after,
+            "pre_knock_rmse_mm": self.pre_knock_rmse_mm,
+            "recovered_after_windows": self.recovered_after,
+            "drift_alarm_windows": self.drift_alarm_windows,
+            "applied_windows": self.applied_windows,
+            "rejected_windows": self.rejected_windows,
+            "real_s": self.real_s,
+            "summary": self.summary.to_json(),
+        }
+
+
+def shift_config(cfg: CellConfig, s: ShiftSettings) -> CellConfig:
+    """The cell with the shift's knock (and scale, slots per window) in [simline] and [line]."""
+    simline = dataclasses.replace(
+        cfg.simline,
+        knock_at_s=s.knock_at_h * 3600.0,
+        knock_mm=s.knock_mm,
+        knock_deg=s.knock_deg,
+        scale=cfg.simline.scale if s.scale is None else s.scale,
+    )
+    line = cfg.line
+    if s.slots_per_window is not None:
+        line = dataclasses.replace(line, slots_per_window=s.slots_per_window)
+    return dataclasses.replace(cfg, simline=simline, line=line)
+
+
+def n_windows(cfg: CellConfig, s: ShiftSettings) -> int:
+    return max(1, round(s.hours * 3600.0 / cfg.simline.period_s))
+
+
+class _EventLog:
+    """Which window each drift alarm and calibration outcome came after."""
+
+    def __init__(self, result: ShiftResult) -> None:
+        self.result = result
+
+    def __call__(self, event: dict[str, Any]) -> None:
+        r, kind = self.result, event["event"]
+        # the window in progress (alarms) or the next one (parameters applied between windows)
+        window = r.summary.windows + 1
+        if kind == "alarm" and event.get("code") == "drift":
+            r.drift_alarm_windows.append(window)
+        elif kind == "parameters_applied" and event.get("source") == "auto":
+            r.applied_windows.append(window)
+        elif kind == "calibration" and event.get("status") == "rejected":
+            r.rejected_windows.append(window)
+
+
+def run_shift(
+    cfg: CellConfig,
+    state_dir: str | Path,
+    settings: ShiftSettings | None = None,
+    *,
+    seed: int = 0,
+    on_window: Callable[[WindowRecord], None] | None = None,
+) -> ShiftResult:
+    """Run the compressed shift in `state_dir` (a fresh directory) and evaluate it."""
+    s = settings or ShiftSettings()
+    cfg = shift_config(cfg, s)
+    t0 = time.perf_counter()
+    with SimulatedLineRun(cfg, state_dir, seed=seed, geometric=s.geometric) as run:
+        result = ShiftResult(s, seed, run.scale, run.summary, window_s=cfg.simline.window_s)
+        run.run_windows(n_windows(cfg, s), on_window=on_window, on_event=_EventLog(result))
+    result.real_s = time.perf_counter() - t0
+    evaluate(result)
+    return result
+
+
+def evaluate(result: ShiftResult) -> None:
+    """Knock window, windows to the drift alarm, pre-knock level and windows to recovery."""
+    s, recs = result.settings, result.records
+    after = [r.window for r in recs if r.t_h * 3600.0 - result.window_s >= s.knock_at_h * 3600.0]
+    if not after:
+        return
+    k = result.knock_window = after[0]
+    alarms = [w for w in result.drift_alarm_windows if w >= k]
+    result.flagged_after = alarms[0] - k + 1 if alarms else None
+    before = [r.rmse_mm for r in recs if r.window < k][-s.pre_knock_windows :]
+    if not before:
+        return
+    result.pre_knock_rmse_mm = float(np.median(before))
+    limit = s.recovered_ratio * result.pre_knock_rmse_mm
+    back = [r.window for r in recs if r.window >= k and r.rmse_mm <= limit]
+    result.recovered_after = back[0] - k + 1 if back else None
+
+
+def hourly_rows(result: ShiftResult) -> list[dict[str, float]]:
+    """Per sim hour: mean temperature, mean true RMSE without and with recalibration, and the
+    calibrations applied during that hour."""
+    rows = []
+    applied = set(result.applied_windows)
+    hours = math.ceil(result.settings.hours)
+    for h in range(hours):
+        recs = [r for r in result.records if h <= r.t_h < h + 1]
+        if not recs:
+            continue
+        rows.append(
+            {
+                "hour": float(h),
+                "temp_c": float(np.mean([r.temp_c for r in recs])),
+                "without_mm": float(np.mean([r.rmse_commissioning_mm for r in recs])),
+                "with_mm": float(np.mean([r.rmse_mm for r in recs])),
+                "max_with_mm": float(np.max([r.rmse_mm for r in recs])),
+                "applied": float(sum(r.window in applied for r in recs)),
+            }
+        )
+    return rows
+
+
+def _windows_text(n: int | None, limit: int) -> str:
+    return "never" if n is None else f"{n} window{'s' * (n != 1)} (target <= {limit})"
+
+
+def summary_lines(result: ShiftResult) -> list[str]:
+    """The shift's must-show figures, one per line."""
+    s, sm = result.settings, result.summary
+    return [
+        f"knock at {s.knock_at_h:g} h (window {result.knock_window}): flagged by the drift alarm"
+        f" after {_windows_text(result.flagged_after, 3)}",
+        f"back within {s.recovered_ratio:g}x of the pre-knock error"
+        f" ({result.pre_knock_rmse_mm:.4f} mm) after {_windows_text(result.recovered_after, 30)}",
+        f"overruns: {sm.overruns} (target 0); windows {sm.windows}, measurements {sm.measurements}"
+        f" ({sm.rejected} rejected), calibrations applied {sm.calibrations_applied}, rejected"
+        f" {sm.calibrations_rejected}",
+        f"true RMSE at the end: {sm.true_rmse_final_mm:.4f} mm with the service,"
+        f" {result.records[-1].rmse_commissioning_mm:.4f} mm without recalibration"
+        if result.records
+        else "no window ran",
+    ]
+
+
+def markdown(result: ShiftResult, command: str) -> str:
+    lines = [
+        "# Compressed shift on the simulated line",
+        "",
+        f"Generated by `{command}` (seed {result.seed}, time x{result.scale:g},"
+        f" {'geometric' if result.settings.geometric else 'rendered'} measurements,"
+        f" {result.real_s:.0f} s real time). True RMS error at the line's validation positions"
+        " after every window: with the service (parameters in force) and without recalibration"
+        " (the commissioning parameters).",
+        "",
+        *[f"- {line}" for line in summary_lines(result)],
+        "",
+        "| hour | temperature [C] | RMSE without recalibration [mm] | RMSE with the service [mm]"
+        " | max with the service [mm] | calibrations applied |",
+        "|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in hourly_rows(result):
+        lines.append(
+            f"| {r['hour']:.0f}-{r['hour'] + 1:.0f} | {r['temp_c']:.2f} | {r['without_mm']:.4f} |"
+            f" {r['with_mm']:.4f} | {r['max_with_mm']:.4f} | {r['applied']:.0f} |"
+        )
+    lines += ["", "![true error over the shift](shift.png)", ""]
+    return "\n".join(lines)
+
+
+def plot(result: ShiftResult, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t_h = [r.t_h for r in result.records]
+    fig, ax = plt.subplots(figsize=(9, 4.5))
+    ax.plot(t_h, [r.rmse_commissioning_mm for r in result.records], label="without recalibration")
+    ax.plot(t_h, [r.rmse_mm for r in result.records], label="with the service")
+    ax.axvline(result.settings.knock_at_h, color="k", ls="--", lw=1, label="knock")
+    by_window = {r.window: r.t_h for r in result.records}
+    applied = [by_window[w] for w in result.applied_windows if w in by_window]
+    if applied:
+        ax.plot(applied, [0.0] * len(applied), "g^", ms=5, label="calibration applied")
+    ax.set_xlabel("shift time [h]")
+    ax.set_ylabel("true RMS error at the validation positions [mm]")
+    ax.set_ylim(bottom=0)
+    ax.legend(loc="upper left")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_outputs(result: ShiftResult, out: Path, command: str, stem: str = "shift") -> list[Path]:
+    """`<stem>.md`, `<stem>.json` and `<stem>.png` in `out`."""
+    out.mkdir(parents=True, exist_ok=True)
+    md, js, png = (out / f"{stem}{ext}" for ext in (".md", ".json", ".png"))
+    md.write_text(markdown(result, command).replace("(shift.png)", f"({png.name})"))
+    js.write_text(dumps_json(result.to_json()))
+    plot(result, png)
+    return [md, js, png]

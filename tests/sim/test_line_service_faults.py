@@ -1,0 +1,110 @@
+"""Fault injection through the simulated line: the service talks to the line's peers through the
+real drivers over loopback (SimulatedLineRun, geometric) and a fault is played by a peer during a
+clamp window (`SimLine.schedule`). Checked against what the peers really saw: the service's
+state, the alarm and its cause, the fault bit the PLC peer received, the robot's true joints not
+moving until a reset, and every measurement of a window reported done in the database."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from app.config import CellConfig
+from app.line.service import State
+from app.sim.line_run import SimulatedLineRun
+from fakes.line_faults import Fault
+
+WAIT_S = 10.0
+
+
+@pytest.fixture()
+def run(cfg: CellConfig, tmp_path: Path) -> Iterator[SimulatedLineRun]:
+    fast = dataclasses.replace(cfg, simline=dataclasses.replace(cfg.simline, scale=120.0))
+    with SimulatedLineRun(fast, tmp_path / "state", seed=5, geometric=True) as sim:
+        sim.start_service()
+        yield sim
+
+
+def _until(run: SimulatedLineRun, pred: Any) -> list[dict[str, Any]]:
+    seen = []
+    for event in run.events_until(pred, WAIT_S):
+        seen.append(event)
+    return seen
+
+
+def _windows_done(events: list[dict[str, Any]]) -> int:
+    return sum(e["event"] == "window" for e in events)
+
+
+def _all_done_rows_stored(run: SimulatedLineRun, events: list[dict[str, Any]]) -> None:
+    """Every measurement the service announced is a row in the database."""
+    announced = {e["id"] for e in events if e["event"] == "measurement"}
+    stored = {r["id"] for r in run.service.store.measurements()}
+    assert announced and announced <= stored
+
+
+def _motion_fault(run: SimulatedLineRun, fault: Fault, cause: str) -> None:
+    played = run.line.schedule(fault, window=2, after_s=1.0)
+    events = _until(run, lambda e: e["event"] == "alarm" and e["code"] == "device_fault")
+    assert played.is_set() and run.service.state == State.FAULT
+    assert cause in events[-1]["message"] and events[-1]["priority"] == "urgent"
+    alarm = run.service.store.active_alarms(code="device_fault")
+    assert alarm and cause in alarm[0]["message"]
+    assert run.line.plc.received.fault and not run.line.plc.received.busy
+    q_stopped = run.cell.joints_deg().copy()
+    # two more windows open and close on the line: no motion, still FAULT
+    later = run.line.schedule(Fault.WINDOW_WITHDRAWN, window=4, after_s=0.0)
+    assert later.wait(WAIT_S)
+    assert run.service.state == State.FAULT
+    np.testing.assert_allclose(run.cell.joints_deg(), q_stopped, atol=1e-9)
+    _all_done_rows_stored(run, events)
+    # a reset clears the fault bit; the robot comes home and measures again
+    reply = run.service.request("reset").result(timeout=WAIT_S)
+    assert reply["ok"], reply
+    more = _until(run, lambda e: e["event"] == "measurement" and e["status"] == "ok")
+    assert not run.line.plc.received.fault and run.service.state != State.FAULT
+    assert not run.service.store.active_alarms(code="device_fault")
+    _all_done_rows_stored(run, events + more)
+
+
+def test_robot_disconnect_mid_move_faults_the_service(run: SimulatedLineRun) -> None:
+    _motion_fault(run, Fault.ROBOT_DISCONNECT, "DeviceConnectionError")
+
+
+def test_controller_alarm_mid_move_faults_the_service(run: SimulatedLineRun) -> None:
+    _motion_fault(run, Fault.CONTROLLER_ALARM, "DeviceFault")
+
+
+def test_plc_heartbeat_loss_raises_the_alarm_and_no_window_is_used(run: SimulatedLineRun) -> None:
+    before = _until(run, lambda e: e["event"] == "window")
+    run.line.inject(Fault.PLC_HEARTBEAT_LOSS)
+    events = _until(run, lambda e: e["event"] == "alarm" and e["code"] == "plc_heartbeat")
+    q_lost = run.cell.joints_deg().copy()
+    n_windows = run.service.counters["windows"]
+    later = run.line.schedule(Fault.WINDOW_WITHDRAWN, window=run.service.counters["windows"] + 3)
+    assert later.wait(WAIT_S)
+    assert run.service.counters["windows"] <= n_windows + 1  # at most the one in progress
+    np.testing.assert_allclose(run.cell.joints_deg(), q_lost, atol=1e-9)
+    run.line.clear(Fault.PLC_HEARTBEAT_LOSS)
+    after = _until(run, lambda e: e["event"] == "window")
+    assert not run.service.store.active_alarms(code="plc_heartbeat")
+    _all_done_rows_stored(run, before + events + after)
+
+
+def test_a_window_withdrawn_early_aborts_and_goes_home(run: SimulatedLineRun) -> None:
+    events = _until(run, lambda e: e["event"] == "window")
+    # withdraw the window once the service has started measuring in it (busy to the PLC)
+    events += _until(run, lambda e: e["event"] == "state" and e["to"] == State.MEASURING.value)
+    run.line.inject(Fault.WINDOW_WITHDRAWN)
+    events += _until(run, lambda e: e["event"] == "window")
+    assert run.service.counters["withdrawn"] == 1 and events[-1]["withdrawn"]
+    assert run.service.state != State.FAULT and not run.line.plc.received.fault
+    home = np.array(run.service.settings.line.home_deg)
+    np.testing.assert_allclose(run.cell.joints_deg(), home, atol=0.05)
+    assert run.service.counters["overruns"] == 0
+    _all_done_rows_stored(run, events)

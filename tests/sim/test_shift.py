@@ -1,0 +1,61 @@
+"""The compressed shift (app/sim/shift.py) on a short run: a knock of the sensor mount moves the
+truth, a recalibration is applied after the knock, and the true
+error with the service ends back near its pre-knock level and well below the error of the
+commissioning parameters (the truth the simulated line knows). Warm-up off here so that the
+knock is the only drift of the truth."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import pytest
+
+from app.cli import main
+from app.config import CellConfig
+from app.sim.shift import ShiftSettings, run_shift, summary_lines, write_outputs
+
+
+def test_a_knock_is_flagged_and_the_service_recovers(cfg: CellConfig, tmp_path: Path) -> None:
+    cold = dataclasses.replace(cfg, simline=dataclasses.replace(cfg.simline, warmup_k=0.0))
+    settings = ShiftSettings(hours=0.8, knock_at_h=0.25, scale=150.0, slots_per_window=2)
+    result = run_shift(cold, tmp_path / "state", settings, seed=3)
+    recs, k = result.records, result.knock_window
+    assert result.summary.windows == 48 and k is not None
+    # the knock really moved the truth: the commissioning parameters got worse at once
+    before, after = recs[k - 2], recs[k - 1]
+    assert after.rmse_commissioning_mm > before.rmse_commissioning_mm + 0.1
+    # not asserted: the drift alarm. The service's charts flag this knock late or not at all
+    # when a scheduled recalibration resets their baseline just after it (docs/results/shift.md)
+    # a recalibration was applied after the knock and the error with the service is back down
+    assert any(w > k for w in result.applied_windows)
+    final = recs[-1]
+    assert final.version > recs[k - 1].version
+    assert final.rmse_mm < 0.5 * final.rmse_commissioning_mm
+    assert result.recovered_after is not None
+    assert final.rmse_mm <= settings.recovered_ratio * result.pre_knock_rmse_mm
+    # the outputs hold the same figures
+    md, js, png = write_outputs(result, tmp_path / "out", "rvis experiment shift (test)")
+    doc = json.loads(js.read_text())
+    assert doc["flagged_after_windows"] == result.flagged_after
+    assert len(doc["summary"]["timeline"]) == 48
+    assert png.stat().st_size > 10_000 and "| 0-1 |" in md.read_text()
+    assert any("flagged by the drift alarm after" in line for line in summary_lines(result))
+
+
+def test_shift_settings_refuse_a_knock_outside_the_shift() -> None:
+    with pytest.raises(ValueError, match="knock_at_h"):
+        ShiftSettings(hours=2.0, knock_at_h=2.0)
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [["--knock-at-h", "9"], ["--hours", "0"], ["--scale", "-1"], ["--geometric", "--rendered"]],
+)
+def test_bad_shift_options_exit_2(
+    argv: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code = main(["experiment", "shift", "--out", str(tmp_path / "x"), *argv])
+    assert code == 2 and "rvis" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
