@@ -12,9 +12,9 @@ and whether it succeeded.
 from __future__ import annotations
 
 import threading
-from datetime import UTC, datetime
 from collections.abc import Callable
 from concurrent.futures import Future
+from datetime import UTC, datetime
 from queue import Empty, Queue
 from typing import TYPE_CHECKING, Any
 

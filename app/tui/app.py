@@ -6,7 +6,8 @@ parameters asks first and shows the service's answer."""
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -103,6 +104,8 @@ class RvisTui(App[None]):
         self.connection = (False, "connecting ...")
         self.events_seen = 0
         self._dirty = self._refreshing = False
+        #: the wall clock of the ages shown (replaced in the screenshot tests)
+        self.now: Callable[[], datetime] = lambda: datetime.now(UTC)
 
     # -- layout ------------------------------------------------------------------------------
     def compose(self) -> ComposeResult:
@@ -145,8 +148,12 @@ class RvisTui(App[None]):
         }
         for table_id, cols in columns.items():
             self.query_one(f"#{table_id}", DataTable).add_columns(*cols)
-        self.run_worker(self.client.run(), group="client", exit_on_error=False)
+        self.attach()
         self.set_interval(2.0, self.refresh_all)
+
+    def attach(self) -> None:
+        """Start the connection to the service (it reconnects by itself)."""
+        self.run_worker(self.client.run(), group="client", exit_on_error=False)
 
     # -- data in -----------------------------------------------------------------------------
     async def _on_link(self, connected: bool, detail: str) -> None:
@@ -206,7 +213,7 @@ class RvisTui(App[None]):
     def _show_status(self) -> None:
         connected, detail = self.connection
         status_bar = self.query_one("#status", Static)
-        status_bar.update(Text(view.status_line(self.status, connected, detail)))
+        status_bar.update(Text(view.status_line(self.status, connected, detail, self.now())))
         status_bar.set_class(not connected, "disconnected")
         text, cls = view.banner(self.status if connected else None)
         banner = self.query_one("#banner", Static)
@@ -247,7 +254,8 @@ class RvisTui(App[None]):
         )
         title.update(
             Text(
-                f"PENDING calibration {pending.get('id')}: RMS {view.num(pending.get('rms_mm'))} mm, "
+                f"PENDING calibration {pending.get('id')}: "
+                f"RMS {view.num(pending.get('rms_mm'))} mm, "
                 f"held-out {view.num(pending.get('holdout_rms_mm'))} mm; gates {verdict}. "
                 "a approve, x reject"
             )

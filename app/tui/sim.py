@@ -9,9 +9,9 @@ the service and the line (only this command does that: `rvis tui` alone never st
 from __future__ import annotations
 
 import contextlib
-from multiprocessing import resource_tracker
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
+from multiprocessing import resource_tracker
 from pathlib import Path
 from typing import Literal
 

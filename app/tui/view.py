@@ -45,7 +45,9 @@ def num(value: Any, fmt: str = ".3f", unit: str = "") -> str:
     return "-"
 
 
-def status_line(status: dict[str, Any] | None, connected: bool, detail: str) -> str:
+def status_line(
+    status: dict[str, Any] | None, connected: bool, detail: str, now: datetime | None = None
+) -> str:
     """The one-line summary at the top of every screen (fits 80 columns when normal)."""
     if not connected or status is None:
         return f"DISCONNECTED - {detail}"
@@ -59,7 +61,7 @@ def status_line(status: dict[str, Any] | None, connected: bool, detail: str) -> 
         "no calibration"
         if version is None
         else (
-            f"cal v{version} {age_text(cal.get('applied_utc')).removesuffix(' ago')} old, "
+            f"cal v{version} {age_text(cal.get('applied_utc'), now).removesuffix(' ago')} old, "
             f"{num(cal.get('rms_mm'), '.3f', ' mm')}"
         )
     )
