@@ -12,6 +12,7 @@ from multiprocessing import resource_tracker
 from pathlib import Path
 
 import pytest
+from textual.widgets import DataTable
 
 from app.config import load_cell
 from app.sim.line_run import SimulatedLineRun
@@ -66,8 +67,8 @@ def test_approve_then_roll_back(service: SimulatedLineRun) -> None:
             applied = [c for c in svc.store.calibrations() if c["id"] == pending["id"]]
             assert applied[0]["status"] == "applied" and applied[0]["version"] == svc.version
             await pilot.press("3")
-            await until(pilot, lambda: app.query_one("#versions-table").row_count >= 2)
-            table = app.query_one("#versions-table")
+            await until(pilot, lambda: app.query_one("#versions-table", DataTable).row_count >= 2)
+            table: DataTable[str] = app.query_one("#versions-table", DataTable)
             table.move_cursor(row=table.row_count - 1)  # the oldest: the commissioning version
             assert str(table.get_row_at(table.cursor_row)[0]) == str(v0)
             await pilot.press("b", "y")
