@@ -5,6 +5,7 @@ screen shows the simulated service's state, and q quits, stopping that service."
 from __future__ import annotations
 
 import shutil
+import socket
 import subprocess
 import sys
 import threading
@@ -25,6 +26,15 @@ def _poll(check: Callable[[], bool], timeout_s: float) -> bool:
         if time.monotonic() > deadline:
             return False
         tick.wait(0.1)
+    return True
+
+
+def _listening(path: Path) -> bool:
+    with socket.socket(socket.AF_UNIX) as s:
+        try:
+            s.connect(str(path))
+        except OSError:
+            return False
     return True
 
 
@@ -58,6 +68,6 @@ def test_tui_sim_in_a_terminal_shows_the_service_and_quits(tmp_path: Path) -> No
             )
 
         assert _poll(ended, 30.0), screen()
-        assert not (tmp_path / "rvis.sock").exists()  # the simulated service stopped with it
+        assert not _listening(tmp_path / "rvis.sock")  # the simulated service stopped with it
     finally:
         subprocess.run([*tmux, "kill-server"], capture_output=True)
