@@ -4,7 +4,7 @@ never stops the service.
 
 `rvis tui --sim [--rendered] [--seed N]`: first start the simulated line and its service in this
 process (geometric measurements unless --rendered, app/tui/sim.py), then attach; closing the
-terminal stops that simulated service."""
+terminal stops that simulated service. Its log lines go to STATE_DIR/rvis-sim.log."""
 
 from __future__ import annotations
 
@@ -43,9 +43,19 @@ def run(args: argparse.Namespace) -> int:
             raise InputError("--rendered and --seed need --sim")
         RvisTui(state_dir).run()
         return 0
+    import logging
+
+    from app.line.launch import json_logs
     from app.tui.sim import TuiSimSettings, simulated_service
 
     settings = TuiSimSettings(geometric=not args.rendered, seed=args.seed)
-    with simulated_service(cfg, state_dir, settings):
-        RvisTui(state_dir).run()
+    state_dir.mkdir(parents=True, exist_ok=True)
+    # the service's log lines go to a file: on the terminal they would draw over the screen
+    with open(state_dir / "rvis-sim.log", "a") as log:
+        handler = json_logs(log)
+        try:
+            with simulated_service(cfg, state_dir, settings):
+                RvisTui(state_dir).run()
+        finally:
+            logging.getLogger("rvis").removeHandler(handler)
     return 0
