@@ -1,23 +1,61 @@
 """`rvis tui [--state-dir DIR] [--cell cell.toml]`: the operator's terminal, attached to the
 service of a state directory (its control socket and, read-only, its database). Closing it
-never stops the service."""
+never stops the service.
+
+`rvis tui --sim [--rendered] [--seed N]`: first start the simulated line and its service in this
+process (geometric measurements unless --rendered, app/tui/sim.py), then attach; closing the
+terminal stops that simulated service. Its log lines go to STATE_DIR/rvis-sim.log."""
 
 from __future__ import annotations
 
 import argparse
+
+from app.cliargs import int_at_least
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("tui", help="the operator's terminal of a running service")
     p.add_argument("--state-dir", help="the service's state directory (default: [service])")
     p.add_argument("--cell", help="cell configuration TOML (for the default state directory)")
+    p.add_argument("--sim", action="store_true", help="run a simulated line and service here")
+    p.add_argument(
+        "--geometric",
+        action="store_true",
+        default=True,
+        help="--sim: geometric measurements, no rendering (the default)",
+    )
+    p.add_argument("--rendered", action="store_true", help="--sim: render and grab every frame")
+    p.add_argument("--seed", type=int_at_least(0), help="--sim: seed (default [simulation])")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
     from app.config import load_cell
+    from app.errors import InputError
     from app.tui.app import RvisTui
 
-    state_dir = args.state_dir or load_cell(args.cell).service.state_dir
-    RvisTui(state_dir).run()
+    cfg = load_cell(args.cell)
+    state_dir = Path(args.state_dir or cfg.service.state_dir)
+    if not args.sim:
+        if args.rendered or args.seed is not None:
+            raise InputError("--rendered and --seed need --sim")
+        RvisTui(state_dir).run()
+        return 0
+    import logging
+
+    from app.line.launch import json_logs
+    from app.tui.sim import TuiSimSettings, simulated_service
+
+    settings = TuiSimSettings(geometric=not args.rendered, seed=args.seed)
+    state_dir.mkdir(parents=True, exist_ok=True)
+    # the service's log lines go to a file: on the terminal they would draw over the screen
+    with open(state_dir / "rvis-sim.log", "a") as log:
+        handler = json_logs(log)
+        try:
+            with simulated_service(cfg, state_dir, settings):
+                RvisTui(state_dir).run()
+        finally:
+            logging.getLogger("rvis").removeHandler(handler)
     return 0

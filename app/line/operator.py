@@ -14,8 +14,11 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 from concurrent.futures import Future
+from datetime import UTC, datetime
 from queue import Empty, Queue
 from typing import TYPE_CHECKING, Any
+
+from calib.model import ALL_NAMES
 
 if TYPE_CHECKING:
     from app.line.service import Service
@@ -32,6 +35,23 @@ MUTATING = (
     "shelve",
 )
 COMMANDS = ("status", "subscribe", *MUTATING)
+
+
+def utc_text(t: float) -> str:
+    """ISO 8601 UTC of a clock time (seconds since the epoch)."""
+    return datetime.fromtimestamp(t, UTC).isoformat(timespec="seconds")
+
+
+def alarm_status(a: dict[str, Any]) -> dict[str, Any]:
+    """An alarm as the status reply carries it (the message also as `text`)."""
+    out = {k: a[k] for k in ("id", "code", "priority", "message", "state")}
+    out["text"] = a["message"]
+    out["raised_utc"] = utc_text(a["t_raised"])
+    return out
+
+
+def _calibration(svc: Service, cal_id: int) -> dict[str, Any] | None:
+    return next((c for c in svc.store.calibrations() if c["id"] == cal_id), None)
 
 
 class CommandError(Exception):
@@ -87,12 +107,83 @@ class OperatorCommands:
                 "heartbeat_alive": w.alive,
             },
             "window": self._window_status(),
-            "calibration": {"version": svc.version, "pending": svc.pending_calibration},
-            "alarms": [
-                {k: a[k] for k in ("id", "code", "priority", "message", "state")}
-                for a in svc.store.active_alarms()
-            ],
+            "calibration": self._calibration_status(),
+            "alarms": [alarm_status(a) for a in svc.store.active_alarms()],
             "drift": svc.drift.state(),
+            "step": self._step_text(),
+            "devices": self._device_status(),
+            "pending": self._pending_status(),
+        }
+
+    def _step_text(self) -> str:
+        """What the service is doing, in a few words (the TUI's status line)."""
+        svc: Service = self  # type: ignore[assignment]
+        if svc.recalibrator.busy:
+            return "recalibrating"
+        steps = {
+            "MEASURING": "measuring in the window",
+            "IDLE": "waiting for a window",
+            "PAUSED": "paused by the operator",
+            "FAULT": "stopped on a fault, reset needed",
+        }
+        return steps.get(svc.state.name, svc.state.value.lower())
+
+    def _device_status(self) -> dict[str, dict[str, Any]]:
+        """Per device family: the URL it was opened with, open/closed, the last fault text."""
+        svc: Service = self  # type: ignore[assignment]
+        faults = svc.store.active_alarms(code="device_fault")
+        last_error = str(faults[-1]["message"]) if faults else None
+        return {
+            family: {
+                "url": svc.station.urls.get(family, ""),
+                "state": ("fault" if last_error else "ok") if device.is_open else "closed",
+                "last_error": last_error,
+            }
+            for family, device in svc.station.devices().items()
+        }
+
+    def _calibration_status(self) -> dict[str, Any]:
+        """The parameters in force: version, when applied (UTC), the fit's RMS if identified."""
+        svc: Service = self  # type: ignore[assignment]
+        applied = [a for a in svc.store.applied() if a["version"] == svc.version]
+        last = applied[-1] if applied else None
+        rms = None
+        if last is not None and last["calibration_id"] is not None:
+            cal = _calibration(svc, int(last["calibration_id"]))
+            rms = None if cal is None else cal["rms_mm"]
+        return {
+            "version": svc.version,
+            "pending": svc.pending_calibration,
+            "applied_utc": None if last is None else utc_text(last["t"]),
+            "rms_mm": rms,
+        }
+
+    def _pending_status(self) -> dict[str, Any] | None:
+        """The calibration waiting for approval: fit, gates and each parameter's change."""
+        svc: Service = self  # type: ignore[assignment]
+        cal_id = svc.pending_calibration
+        cal = None if cal_id is None else _calibration(svc, cal_id)
+        if cal is None:
+            return None
+        current = dict(zip(ALL_NAMES, (float(v) for v in svc.x), strict=True))
+        params = (cal.get("document") or {}).get("parameters", [])
+        return {
+            "id": cal_id,
+            "rms_mm": cal["rms_mm"],
+            "holdout_rms_mm": cal["holdout_rms_mm"],
+            "current_holdout_rms_mm": cal["current_holdout_rms_mm"],
+            "gates": {"passed": not cal["gates"], "failures": list(cal["gates"])},
+            "parameters": [
+                {
+                    "name": p["name"],
+                    "unit": p.get("unit", ""),
+                    "current": current.get(p["name"]),
+                    "value": p.get("value"),
+                    "std": p.get("std"),
+                }
+                for p in params
+                if p.get("identified", True)
+            ],
         }
 
     def _window_status(self) -> dict[str, Any]:

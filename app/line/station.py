@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Any, Self, cast
 
@@ -40,6 +40,8 @@ class Station:
     camera: Camera | None = None
     galvo: Galvo | None = None
     tracker: Tracker | None = None
+    #: family -> the URL each device was opened with (the operator's terminal shows them)
+    urls: dict[str, str] = field(default_factory=dict)
 
     @classmethod
     def open(
@@ -68,6 +70,7 @@ class Station:
                 camera=cast(Camera | None, opened.get("camera")),
                 galvo=cast(Galvo | None, opened.get("galvo")),
                 tracker=cast(Tracker | None, opened.get("tracker")),
+                urls={family: urls[family] for family in opened},
             )
         except BaseException:
             for device in reversed(opened.values()):

@@ -6,10 +6,12 @@ parameters asks first and shows the service's answer."""
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, ClassVar
 
+from rich.text import Text
 from textual import work
 from textual.app import App, ComposeResult
 from textual.binding import Binding, BindingType
@@ -101,6 +103,9 @@ class RvisTui(App[None]):
         self.status: dict[str, Any] | None = None
         self.connection = (False, "connecting ...")
         self.events_seen = 0
+        self._dirty = self._refreshing = False
+        #: the wall clock of the ages shown (replaced in the screenshot tests)
+        self.now: Callable[[], datetime] = lambda: datetime.now(UTC)
 
     # -- layout ------------------------------------------------------------------------------
     def compose(self) -> ComposeResult:
@@ -118,6 +123,8 @@ class RvisTui(App[None]):
                 yield Static("no calibration pending", id="pending-title")
                 yield DataTable(id="pending", cursor_type="row")
                 yield DataTable(id="calibrations-table", cursor_type="row")
+                yield Label("Parameter versions (b: roll back to the selected one):")
+                yield DataTable(id="versions-table", cursor_type="row")
             with TabPane("4 Alarms", id="alarms"):
                 yield DataTable(id="alarms-table", cursor_type="row")
             with TabPane("5 Devices", id="devices"):
@@ -133,15 +140,20 @@ class RvisTui(App[None]):
         columns = {
             "measurements-table": ("id", "time (UTC)", "sphere", "status", "residual mm", "note"),
             "pending": ("parameter", "unit", "current", "pending", "change", "std", "|chg|/std"),
-            "calibrations-table": ("version", "time (UTC)", "status", "RMS mm", "gates"),
+            "calibrations-table": ("cal", "time (UTC)", "status", "version", "RMS mm", "gates"),
+            "versions-table": ("version", "in force since (UTC)", "source", "cal"),
             "alarms-table": ("id", "prio", "state", "raised (UTC)", "alarm", "shelved"),
             "devices-table": ("device", "URL", "state", "last error"),
             "log-table": ("time (UTC)", "event", "detail"),
         }
         for table_id, cols in columns.items():
             self.query_one(f"#{table_id}", DataTable).add_columns(*cols)
-        self.run_worker(self.client.run(), group="client", exit_on_error=False)
+        self.attach()
         self.set_interval(2.0, self.refresh_all)
+
+    def attach(self) -> None:
+        """Start the connection to the service (it reconnects by itself)."""
+        self.run_worker(self.client.run(), group="client", exit_on_error=False)
 
     # -- data in -----------------------------------------------------------------------------
     async def _on_link(self, connected: bool, detail: str) -> None:
@@ -155,8 +167,25 @@ class RvisTui(App[None]):
         self.events_seen += 1
         self.refresh_all()
 
-    @work(group="refresh", exclusive=True, exit_on_error=False)
-    async def refresh_all(self) -> None:
+    def refresh_all(self) -> None:
+        """Bring the screen up to date: coalesced, never cancelled. A refresh asked for while
+        one runs makes that one go round once more (an exclusive worker restarted at every
+        event would never finish while the service emits faster than a refresh takes)."""
+        self._dirty = True
+        if not self._refreshing:
+            self._refreshing = True
+            self._refresh_loop()
+
+    @work(group="refresh", exit_on_error=False)
+    async def _refresh_loop(self) -> None:
+        try:
+            while self._dirty:
+                self._dirty = False
+                await self._refresh_once()
+        finally:
+            self._refreshing = False
+
+    async def _refresh_once(self) -> None:
         """Status from the socket, history from the database (in a thread), then the screen."""
         if self.client.connected:
             try:
@@ -175,6 +204,7 @@ class RvisTui(App[None]):
             "measurements": self.history.measurements(200, sphere),
             "recent": self.history.measurements(400),
             "calibrations": self.history.calibrations(),
+            "applied": self.history.applied(),
             "alarms": self.history.alarms(),
             "events": self.history.events(300, text),
         }
@@ -183,13 +213,13 @@ class RvisTui(App[None]):
     def _show_status(self) -> None:
         connected, detail = self.connection
         status_bar = self.query_one("#status", Static)
-        status_bar.update(view.status_line(self.status, connected, detail))
+        status_bar.update(Text(view.status_line(self.status, connected, detail, self.now())))
         status_bar.set_class(not connected, "disconnected")
         text, cls = view.banner(self.status if connected else None)
         banner = self.query_one("#banner", Static)
-        banner.update(text)
+        banner.update(Text(text))  # service text, never markup
         banner.set_classes(f"shown {cls}" if text else "")
-        self.query_one("#overview-text", Static).update(self._overview_text())
+        self.query_one("#overview-text", Static).update(Text(self._overview_text()))
         _fill(self.query_one("#devices-table", DataTable), view.device_rows(self.status))
         self._show_pending()
 
@@ -223,9 +253,12 @@ class RvisTui(App[None]):
             "passed" if gates.get("passed") else "FAILED: " + "; ".join(gates.get("failures", []))
         )
         title.update(
-            f"PENDING calibration {pending.get('id')}: RMS {view.num(pending.get('rms_mm'))} mm, "
-            f"held-out {view.num(pending.get('holdout_rms_mm'))} mm; gates {verdict}. "
-            "a approve, x reject"
+            Text(
+                f"PENDING calibration {pending.get('id')}: "
+                f"RMS {view.num(pending.get('rms_mm'))} mm, "
+                f"held-out {view.num(pending.get('holdout_rms_mm'))} mm; gates {verdict}. "
+                "a approve, x reject"
+            )
         )
         _fill(self.query_one("#pending", DataTable), view.parameter_diff_rows(pending))
 
@@ -248,13 +281,26 @@ class RvisTui(App[None]):
             self.query_one("#calibrations-table", DataTable),
             [
                 (
-                    str(c.get("version") or c.get("id")),
+                    str(c.get("id")),
                     _time(c.get("utc")),
                     str(c.get("status", "")).upper(),
+                    str(c.get("version") or "-"),
                     view.num(c.get("rms_mm"), ".4f"),
                     str(c.get("gates") or ""),
                 )
                 for c in hist["calibrations"]
+            ],
+        )
+        _fill(
+            self.query_one("#versions-table", DataTable),
+            [
+                (
+                    str(a.get("version")),
+                    _time(a.get("utc")),
+                    str(a.get("source", "")),
+                    str(a.get("calibration_id") or "-"),
+                )
+                for a in hist["applied"]
             ],
         )
         alarms = hist["alarms"] or list((self.status or {}).get("alarms") or [])
@@ -319,7 +365,9 @@ class RvisTui(App[None]):
             self.notify("no calibration pending", severity="warning")
             return
         self._command(
-            "approve", f"Apply pending calibration {pending.get('id')}?", id=pending.get("id")
+            "approve",
+            f"Apply pending calibration {pending.get('id')}?",
+            calibration=pending.get("id"),
         )
 
     def action_reject(self) -> None:
@@ -327,12 +375,14 @@ class RvisTui(App[None]):
         if not pending:
             self.notify("no calibration pending", severity="warning")
             return
-        self._command("reject", f"Reject calibration {pending.get('id')}?", id=pending.get("id"))
+        self._command(
+            "reject", f"Reject calibration {pending.get('id')}?", calibration=pending.get("id")
+        )
 
     def action_rollback(self) -> None:
-        version = _selected(self.query_one("#calibrations-table", DataTable))
+        version = _selected(self.query_one("#versions-table", DataTable))
         if version is None:
-            self.notify("select a version in Calibrations first", severity="warning")
+            self.notify("select a parameter version in Calibrations first", severity="warning")
             return
         self._command(
             "rollback", f"Roll the parameters back to version {version}?", version=int(version)

@@ -53,6 +53,14 @@ class HistoryReader:
         )
         return [{**r, "utc": _utc(r["t"]), "gates": r["reason"]} for r in rows]
 
+    def applied(self, limit: int = 100) -> list[dict[str, Any]]:
+        """The parameter versions put in force (newest first): a rollback picks one."""
+        rows = self._query(
+            "SELECT version, t, source, calibration_id FROM applied ORDER BY id DESC LIMIT ?",
+            (limit,),
+        )
+        return [{**r, "utc": _utc(r["t"])} for r in rows]
+
     def alarms(self, limit: int = 200) -> list[dict[str, Any]]:
         rows = self._query("SELECT * FROM alarms ORDER BY id DESC LIMIT ?", (limit,))
         return [

@@ -11,8 +11,13 @@ from typing import Any
 
 from rich.text import Text
 
-PRIORITY_CLASS = {"high": "alarm-high", "medium": "alarm-medium", "low": "alarm-low"}
-PRIORITY_TEXT = {"high": "HIGH", "medium": "MED", "low": "LOW"}
+PRIORITY_CLASS = {
+    "urgent": "alarm-high",
+    "high": "alarm-high",
+    "medium": "alarm-medium",
+    "low": "alarm-low",
+}
+PRIORITY_TEXT = {"urgent": "URGENT", "high": "HIGH", "medium": "MED", "low": "LOW"}
 ACTIVE_ALARM_STATES = ("raised", "acked")
 
 
@@ -40,7 +45,9 @@ def num(value: Any, fmt: str = ".3f", unit: str = "") -> str:
     return "-"
 
 
-def status_line(status: dict[str, Any] | None, connected: bool, detail: str) -> str:
+def status_line(
+    status: dict[str, Any] | None, connected: bool, detail: str, now: datetime | None = None
+) -> str:
     """The one-line summary at the top of every screen (fits 80 columns when normal)."""
     if not connected or status is None:
         return f"DISCONNECTED - {detail}"
@@ -54,7 +61,7 @@ def status_line(status: dict[str, Any] | None, connected: bool, detail: str) -> 
         "no calibration"
         if version is None
         else (
-            f"cal v{version} {age_text(cal.get('applied_utc')).removesuffix(' ago')} old, "
+            f"cal v{version} {age_text(cal.get('applied_utc'), now).removesuffix(' ago')} old, "
             f"{num(cal.get('rms_mm'), '.3f', ' mm')}"
         )
     )
@@ -63,9 +70,9 @@ def status_line(status: dict[str, Any] | None, connected: bool, detail: str) -> 
 
 def active_alarms(status: dict[str, Any] | None) -> list[dict[str, Any]]:
     alarms = (status or {}).get("alarms") or []
-    order = {"high": 0, "medium": 1, "low": 2}
+    order = {"urgent": 0, "high": 1, "medium": 2, "low": 3}
     active = [a for a in alarms if a.get("state") in ACTIVE_ALARM_STATES]
-    return sorted(active, key=lambda a: (order.get(a.get("priority", "low"), 3), a.get("id", 0)))
+    return sorted(active, key=lambda a: (order.get(a.get("priority", "low"), 4), a.get("id", 0)))
 
 
 def banner(status: dict[str, Any] | None) -> tuple[str, str]:
@@ -111,6 +118,7 @@ def alarm_rows(alarms: list[dict[str, Any]]) -> list[tuple[Any, ...]]:
 
 
 PRIORITY_STYLE = {
+    "urgent": "bold #ffffff on #d70000",
     "high": "bold #ffffff on #d70000",
     "medium": "bold #000000 on #ffaf00",
     "low": "#000000 on #5f87af",

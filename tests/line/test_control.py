@@ -36,7 +36,10 @@ def test_socket_mode_and_status(served: tuple[Line, Path]) -> None:
     assert reply["id"] == 1 and reply["ok"] is True
     assert reply["state"] in ("idle", "measuring") and reply["params_version"] == 1
     assert reply["schedule"]["slots"] == 24
-    assert reply["calibration"] == {"version": 1, "pending": None}
+    cal = reply["calibration"]
+    assert (cal["version"], cal["pending"], cal["rms_mm"]) == (1, None, None)
+    assert cal["applied_utc"] is not None  # version 1: the starting parameters, applied now
+    assert reply["pending"] is None and reply["step"] == "waiting for a window"
     assert reply["window"]["line_running"] is True
     assert isinstance(reply["window"]["heartbeat_alive"], bool)
 

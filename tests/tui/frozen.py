@@ -1,0 +1,147 @@
+"""A RvisTui with frozen data (no service, no database, a fixed clock): what the screenshot
+tests and docs/tui/*.svg show. The status and history are shaped exactly as the service's
+`status` reply and app.tui.history return them."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from app.tui.app import RvisTui
+
+NOW = datetime(2026, 11, 23, 9, 30, tzinfo=UTC)
+
+STATUS: dict[str, Any] = {
+    "ok": True,
+    "state": "idle",
+    "step": "waiting for a window",
+    "window": {"open": False, "remaining_s": None, "line_running": True, "heartbeat_alive": True},
+    "calibration": {
+        "version": 3,
+        "pending": 4,
+        "applied_utc": "2026-11-23T06:18:00+00:00",
+        "rms_mm": 0.0412,
+    },
+    "devices": {
+        "plc": {"url": "plc+modbus://10.0.0.5:502", "state": "ok", "last_error": None},
+        "robot": {"url": "rmi://10.0.0.7:16001", "state": "ok", "last_error": None},
+        "camera": {"url": "aravis://Basler-22C1", "state": "ok", "last_error": None},
+        "galvo": {"url": "scpi:///dev/ttyUSB0", "state": "ok", "last_error": None},
+    },
+    "pending": {
+        "id": 4,
+        "rms_mm": 0.0398,
+        "holdout_rms_mm": 0.0441,
+        "gates": {"passed": True, "failures": []},
+        "parameters": [
+            {"name": "tx_ps", "unit": "mm", "current": 1.2031, "value": 1.2312, "std": 0.004},
+            {"name": "alpha1", "unit": "rad", "current": 1.5708, "value": 1.57091, "std": 2e-5},
+            {"name": "a2", "unit": "mm", "current": 870.012, "value": 870.046, "std": 0.011},
+        ],
+    },
+    "alarms": [
+        {
+            "id": 7,
+            "code": "drift",
+            "priority": "medium",
+            "state": "raised",
+            "message": "drift of P2 (cusum 0.203 > 0.187 mm): recalibration brought forward",
+            "text": "drift of P2 (cusum 0.203 > 0.187 mm): recalibration brought forward",
+            "raised_utc": "2026-11-23T09:12:40+00:00",
+        }
+    ],
+    "counters": {"windows": 412, "overruns": 0, "withdrawn": 3},
+}
+
+
+def _measurements() -> list[dict[str, Any]]:
+    rows = []
+    for k in range(24):
+        sphere = f"P{k % 4 + 1}"
+        r = 0.03 + 0.002 * (k % 5) + (0.02 if sphere == "P2" and k > 12 else 0.0)
+        rows.append(
+            {
+                "id": 1000 - k,
+                "utc": f"2026-11-23T09:{29 - k:02d}:00+00:00",
+                "sphere": sphere,
+                "status": "rejected" if k == 5 else "ok",
+                "residual_mm": r,
+                "reason": "too few points" if k == 5 else "",
+            }
+        )
+    return rows
+
+
+HISTORY: dict[str, list[dict[str, Any]]] = {
+    "measurements": _measurements(),
+    "recent": _measurements(),
+    "calibrations": [
+        {
+            "id": 4,
+            "utc": "2026-11-23T09:20:00",
+            "status": "pending",
+            "version": None,
+            "rms_mm": 0.0398,
+            "gates": "all gates passed",
+        },
+        {
+            "id": 3,
+            "utc": "2026-11-23T06:18:00",
+            "status": "applied",
+            "version": 3,
+            "rms_mm": 0.0412,
+            "gates": "all gates passed",
+        },
+        {
+            "id": 2,
+            "utc": "2026-11-23T03:02:00",
+            "status": "rejected",
+            "version": None,
+            "rms_mm": 0.0731,
+            "gates": "held-out RMS 0.081 > 0.060 mm",
+        },
+    ],
+    "applied": [
+        {"version": 3, "utc": "2026-11-23T06:18:00", "source": "approved", "calibration_id": 3},
+        {"version": 2, "utc": "2026-11-22T22:40:00", "source": "auto", "calibration_id": 1},
+        {"version": 1, "utc": "2026-11-22T08:00:00", "source": "initial", "calibration_id": None},
+    ],
+    "alarms": [
+        {**STATUS["alarms"][0], "shelved_until_utc": ""},
+        {
+            "id": 6,
+            "priority": "high",
+            "state": "cleared",
+            "raised_utc": "2026-11-23T04:01:00",
+            "text": "PLC heartbeat lost: no window is used until it returns",
+            "shelved_until_utc": "",
+        },
+    ],
+    "events": [
+        {"utc": "2026-11-23T09:29:51", "kind": "window", "detail": '{"window": 412, "n": 2}'},
+        {"utc": "2026-11-23T09:20:00", "kind": "calibration", "detail": '{"id": 4}'},
+        {"utc": "2026-11-23T09:12:40", "kind": "alarm", "detail": '{"id": 7, "code": "drift"}'},
+    ],
+}
+
+
+class FrozenTui(RvisTui):
+    """The terminal showing STATUS and HISTORY at NOW, attached to nothing."""
+
+    def __init__(self) -> None:
+        super().__init__(Path("/nonexistent/rvis-frozen"))
+        self.now = lambda: NOW
+        self.status = STATUS
+        self.connection = (True, "connected")
+
+    def attach(self) -> None:
+        self.refresh_all()  # attached to nothing: the frozen data instead
+
+    def _read_history(self, sphere: str | None, text: str) -> dict[str, list[dict[str, Any]]]:
+        return HISTORY
+
+    async def _refresh_once(self) -> None:
+        hist = self._read_history(None, "")
+        self._show_status()
+        self._show_history(hist)
