@@ -19,7 +19,7 @@ def test_both_clocks_satisfy_the_protocol() -> None:
 def test_sim_time_runs_at_the_scale() -> None:
     clock = ScaledClock(50.0, start_epoch=1_000_000.0)
     r0, s0 = time.monotonic(), clock.monotonic()
-    clock.sleep(10.0)  # 10 sim s = 0.2 real s
+    clock.sleep(10.0)  # sleep-ok: the clock's own sleep under test (10 sim s = 0.2 real s)
     real, sim = time.monotonic() - r0, clock.monotonic() - s0
     assert sim >= 10.0
     assert sim == pytest.approx(50.0 * real, rel=0.02)
@@ -44,7 +44,7 @@ def test_advance_jumps_ahead_and_wakes_a_sleeper() -> None:
     done = threading.Event()
 
     def sleep_an_hour() -> None:
-        clock.sleep(3600.0)
+        clock.sleep(3600.0)  # sleep-ok: woken by advance(), under test
         done.set()
 
     sleeper = threading.Thread(target=sleep_an_hour, daemon=True)
@@ -64,7 +64,7 @@ def test_a_clock_built_stopped_stands_at_zero_until_started() -> None:
     assert clock.wait(event, 0.0) is False
     assert clock.monotonic() == 0.0
     clock.start()
-    clock.sleep(50.0)
+    clock.sleep(50.0)  # sleep-ok: the stopped clock's sleep under test
     assert clock.monotonic() >= 50.0
 
 
