@@ -235,6 +235,16 @@ class ServiceSection(Section):
     max_base_change_mm: float = opt(5.0, gt=0, hi=1000)
     max_base_change_deg: float = opt(1.0, gt=0, hi=180)
     max_holdout_ratio: float = opt(1.0, gt=0, hi=10)
+    estimator: str = opt("batch", choices=("batch", "sequential"))
+    seq_apply_every: int = opt(8, lo=1, hi=100000)
+    seq_measurement_std_mm: float = opt(0.025, gt=0, hi=10)
+    seq_drift_mm: float = opt(0.002, lo=0, hi=10)
+    seq_drift_rad: float = opt(2e-6, lo=0, hi=0.1)
+    seq_drift_extra: float = opt(0.0, lo=0, hi=1)
+    seq_knock_mm: float = opt(0.5, lo=0, hi=100)
+    seq_knock_rad: float = opt(1e-3, lo=0, hi=1)
+    seq_prior_mm: float = opt(0.5, gt=0, hi=100)
+    seq_prior_rad: float = opt(1e-3, gt=0, hi=1)
 
 
 @dataclass(frozen=True)

@@ -182,6 +182,13 @@ class SequentialEstimator:
         self.n_accepted += 1
         return Update(True, d2, r)
 
+    def widen(self) -> None:
+        """The caller knows the model changed (a knock flagged elsewhere): grow P by
+        diag(knock^2) now, as a run of `knock_after` rejections would."""
+        self._P = self._P + self._knock
+        self.n_knocks += 1
+        self._in_a_row = 0
+
     # -- adaptive scheduling -------------------------------------------------------------
     def information_gain(
         self, q_deg: ArrayLike, c_sensor_mm: ArrayLike, temp_c: ArrayLike | None = None

@@ -136,7 +136,7 @@ class WindowReport:
     measured: int = 0
     rejected: int = 0
     withdrawn: str = ""  # why, when the PLC took the window back
-    overrun: bool = False  # home only after the window's expected end
+    overrun: bool = False  # the robot moved and was home only after the window's expected end
     note: str = ""
 
     def to_json(self) -> dict[str, object]:
@@ -174,7 +174,10 @@ class Cycle:
             if self.measurer.robot.fault is not None:
                 self.measurer.robot.reset()  # our own abort latched it
         self.measurer.go_home()
-        report.overrun = self.clock.monotonic() > end_t
+        # the robot left home and came back after the window's end (a window seen too late,
+        # in which nothing moved, is no overrun: the cell was never occupied)
+        moved = bool(report.slots) or bool(guard.withdrawn) or report.note == "robot brought home"
+        report.overrun = moved and self.clock.monotonic() > end_t
         self.plc.set_signals(busy=False, done=not guard.withdrawn, fault=False)
         return report
 

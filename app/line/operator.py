@@ -110,6 +110,7 @@ class OperatorCommands:
             "calibration": self._calibration_status(),
             "alarms": [alarm_status(a) for a in svc.store.active_alarms()],
             "drift": svc.drift.state(),
+            "drift_change": svc.drift.change_state(),
             "step": self._step_text(),
             "devices": self._device_status(),
             "pending": self._pending_status(),

@@ -28,8 +28,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from app.line.clock import Clock, RealClock
 from app.line.cycle import Cycle, WindowWatch
-from app.line.drift import DriftMonitor, residual_mm
+from app.line.drift import DriftMonitor, prediction_inflation, residual_mm
 from app.line.events import EventBus
+from app.line.inline_seq import InlineSequential, SequentialCandidate
 from app.line.measure import Reading, SphereMeasurer, SphereSensor
 from app.line.operator import OperatorCommands
 from app.line.params_store import ParamsStore
@@ -82,8 +83,12 @@ class Service(OperatorCommands):
         self.sweeps = SweepArchive(s.state_dir / "sweeps", s.raw_sweeps_keep)
         self.bus = EventBus(self.store, self.clock)
         self.model, self.x, self.version = self._load_params(model, np.asarray(x_initial, float))
-        self.drift = DriftMonitor(s.drift)
+        self.drift = DriftMonitor(s.drift, residual_baseline_n=len(schedule))
         self.recalibrator = recalibrator or Recalibrator()
+        self.sequential: InlineSequential | None = None
+        if s.recalib.estimator == "sequential":
+            self.sequential = InlineSequential(s.recalib, s.gates, self.spheres)
+            self.sequential.restart(self.model, self.x, self.params.current_document())
         self.watch = WindowWatch(station.plc, self.clock, s.line)
         self.measurer = SphereMeasurer(station.robot, sensor, s.line)
         self.cycle = Cycle(self.watch, self.measurer, schedule, self._position, self._record)
@@ -91,7 +96,9 @@ class Service(OperatorCommands):
         self.paused = False
         self.counters = {"windows": 0, "overruns": 0, "withdrawn": 0}
         self.pending_calibration: int | None = None
-        self.drift_onset_id: int | None = None
+        self.drift_onset_id: int | None = None  # first measurement after a flagged step
+        self.drift_due = False  # the residual charts signalled: recalibrate soon
+        self.last_visit: dict[int, tuple[F64, F64]] = {}  # slot -> (q_deg, c_sensor_mm)
         self.new_since_recal = 0
         self.force_recal = False
         self._stop = threading.Event()
@@ -131,6 +138,7 @@ class Service(OperatorCommands):
         self.bus.emit(
             "started", {"params_version": self.version, "state_dir": str(self.settings.state_dir)}
         )
+        self._restore_drift()
         try:
             self.watch.poll()
             home = self.measurer.at_home()
@@ -258,7 +266,9 @@ class Service(OperatorCommands):
         if reading is not None and e is not None:
             self.sweeps.keep(row_id, reading)
             self.new_since_recal += 1
-            self._drift(slot.target, e, row_id)
+            self._drift(slot.target, e, self._change_mm(slot, reading.c_sensor_mm), row_id)
+            if self.sequential is not None:
+                self.sequential.offer({**row, "id": row_id})
         self.bus.emit(
             "measurement",
             {
@@ -272,17 +282,67 @@ class Service(OperatorCommands):
         )
         return row_id
 
-    def _drift(self, target: str, e_mm: float, row_id: int) -> None:
-        for sig in self.drift.update(target, e_mm):
-            if self.drift_onset_id is None:
-                self.drift_onset_id = row_id
+    def _change_mm(self, slot: Slot, c_sensor_mm: F64) -> float | None:
+        """How far the centre moved since this slot's previous visit (same configuration)."""
+        prev = self.last_visit.get(slot.index)
+        self.last_visit[slot.index] = (slot.q_deg.copy(), np.asarray(c_sensor_mm, float).copy())
+        if prev is None or not np.allclose(prev[0], slot.q_deg, atol=1e-6):
+            return None
+        return float(np.linalg.norm(np.asarray(c_sensor_mm, float) - prev[1]))
+
+    def _drift(self, target: str, e_mm: float, change_mm: float | None, row_id: int) -> None:
+        for sig in self.drift.update(target, e_mm, row_id, change_mm):
+            if sig.family == "residual":
+                self.drift_due = True  # slow drift: recalibrate soon, on the rolling set
+            elif self.drift_onset_id is None:  # a step: only measurements after it
+                self.drift_onset_id = sig.onset_ref
+                if self.sequential is not None:
+                    self.sequential.widen()
+            what = "residual" if sig.family == "residual" else "change since the last visit"
             self._alarm(
                 "drift",
                 f"drift of {'all spheres' if sig.stream == '*' else sig.stream}"
-                f" ({sig.chart} {sig.value_mm:.3f} > {sig.limit_mm:.3f} mm):"
+                f" ({what}, {sig.chart} {sig.value_mm:.3f} > {sig.limit_mm:.3f} mm):"
                 " recalibration brought forward",
                 "medium",
             )
+
+    def _drift_seed(self, cal_id: int | None) -> list[tuple[str, float]]:
+        """Residuals of the parameters in force on recent good measurements: the rolling set of
+        batch calibration `cal_id` (its training rows scaled to prediction errors), else the
+        last schedule cycle and hold-out."""
+        cal = next((c for c in self.store.calibrations() if c["id"] == cal_id), None)
+        n_train, scale = 0, 1.0
+        if cal is not None and cal["first_id"] is not None and not _sequential(cal["document"]):
+            rows = self.store.measurements(since_id=int(cal["first_id"]) - 1)
+            rows = [r for r in rows if r["id"] <= int(cal["last_id"])]
+            n_train = int(cal["n_measurements"])
+            scale = prediction_inflation(3 * n_train, len(self.x))
+        else:
+            r = self.settings.recalib
+            rows = self.store.measurements(last=len(self.schedule) + r.holdout_size)
+        if len(rows) < len(self.schedule):
+            return []
+        return [
+            (
+                str(r["target"]),
+                (scale if k < n_train else 1.0)
+                * residual_mm(
+                    self.model, self.x, r["q_deg"], r["c_sensor_mm"], self.spheres[r["target"]]
+                ),
+            )
+            for k, r in enumerate(rows)
+        ]
+
+    def _restore_drift(self) -> None:
+        """After a restart: the residual charts from the stored measurements, the last visits."""
+        applied = self.store.applied()
+        cal_id = applied[-1]["calibration_id"] if applied else None
+        self.drift.reset(self._drift_seed(cal_id))
+        for r in self.store.measurements(last=2 * len(self.schedule)):
+            if 0 <= r["slot"] < len(self.schedule):
+                q = np.asarray(r["q_deg"], float)
+                self.last_visit[int(r["slot"])] = (q, np.asarray(r["c_sensor_mm"], float))
 
     # -- recalibration -------------------------------------------------------------------------
     def _between_windows(self) -> None:
@@ -296,9 +356,14 @@ class Service(OperatorCommands):
         r = self.settings.recalib
         if self.force_recal or self.new_since_recal >= r.every_n:
             return True
-        return self.drift_onset_id is not None and self.new_since_recal >= r.holdout_size
+        flagged = self.drift_onset_id is not None or self.drift_due
+        return flagged and self.new_since_recal >= r.holdout_size
 
     def _maybe_recalibrate(self) -> None:
+        if self.sequential is not None:
+            if self.pending_calibration is None and self.sequential.due:
+                self._recal_done(self.sequential.candidate(self.model, self.x))
+            return
         if self.recalibrator.busy or self.pending_calibration is not None or not self._recal_due():
             return
         since = 0 if self.drift_onset_id is None else self.drift_onset_id - 1
@@ -327,7 +392,7 @@ class Service(OperatorCommands):
             {"n": len(train), "first_id": job.first_id, "last_id": job.last_id},
         )
 
-    def _recal_done(self, out: RecalOutcome) -> None:
+    def _recal_done(self, out: RecalOutcome | SequentialCandidate) -> None:
         status = "pending" if out.passed else "rejected"
         cal_id = self.store.add_calibration(
             {
@@ -371,16 +436,28 @@ class Service(OperatorCommands):
         return version
 
     def _in_force(self, version: int, cal_id: int | None, source: str, uid: int | None) -> None:
-        """Parameters `version` are current: reload them, restart the drift charts."""
+        """Parameters `version` are current: reload them, restart the drift charts (seeded with
+        the new parameters' residuals); the drift alarm and onset are cleared when the
+        calibration was trained on measurements after the onset only."""
         current = self.params.current()
         assert current is not None
         self.version, self.model, self.x = current
         self.store.add_applied(self.clock.time(), version, cal_id, source, uid)
         self.pending_calibration = None
-        self.drift.reset()
-        self.drift_onset_id = None
-        self.store.clear_alarms(self.clock.time(), "drift")
+        self.drift.reset(self._drift_seed(cal_id))
+        cal = next((c for c in self.store.calibrations() if c["id"] == cal_id), None)
+        if self.sequential is not None and (cal is None or not _sequential(cal["document"])):
+            self.sequential.restart(self.model, self.x, self.params.current_document())
+        onset, self.drift_due = self.drift_onset_id, False
+        if onset is None or (cal is not None and int(cal["first_id"] or 0) >= onset):
+            self.drift_onset_id = None  # trained after the step (else the next one will be)
+            self.store.clear_alarms(self.clock.time(), "drift")
         self.bus.emit(
             "parameters_applied",
             {"version": version, "calibration_id": cal_id, "source": source, "uid": uid},
         )
+
+
+def _sequential(document: Mapping[str, Any] | None) -> bool:
+    """The calibration came from the sequential estimator (app.line.inline_seq)."""
+    return bool(document) and (document or {}).get("estimator", {}).get("kind") == "sequential"

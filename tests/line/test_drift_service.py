@@ -64,7 +64,7 @@ def test_a_knock_is_flagged_and_the_recalibration_restores_the_accuracy(tmp_path
 
         before = true_rms(x_good)
         ln.start()
-        for _ in range(2):  # the charts learn their baseline (8 residuals) and watch
+        for _ in range(3):  # the residual charts learn their baseline (one schedule cycle: 24)
             ln.wait(lambda e: e["event"] == "window")
         n_before = ln.service.store.counts()["ok"]
         # the knock, now: the sensor mount moves by 0.3 mm and tilts by 0.05 deg
