@@ -226,6 +226,12 @@ class DriftMonitor:
     def drifting(self) -> bool:
         return self.residual.drifting or self.change.drifting
 
+    @property
+    def change_watching(self) -> bool:
+        """The overall change chart has its baseline (a step would show there)."""
+        chart = self.change.charts.get(OVERALL)
+        return chart is not None and chart.ready
+
     def state(self) -> dict[str, dict[str, float | bool]]:
         """The residual charts (the status reply's `drift`)."""
         return self.residual.state()

@@ -292,9 +292,9 @@ class Service(OperatorCommands):
 
     def _drift(self, target: str, e_mm: float, change_mm: float | None, row_id: int) -> None:
         for sig in self.drift.update(target, e_mm, row_id, change_mm):
-            if sig.family == "residual":
+            if sig.family == "residual" and self.drift.change_watching:
                 self.drift_due = True  # slow drift: recalibrate soon, on the rolling set
-            elif self.drift_onset_id is None:  # a step: only measurements after it
+            elif self.drift_onset_id is None:  # a step (or no step detection yet): cut there
                 self.drift_onset_id = sig.onset_ref
                 if self.sequential is not None:
                     self.sequential.widen()

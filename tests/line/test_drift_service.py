@@ -35,7 +35,13 @@ def _calibrated_x(cell: object) -> np.ndarray:
 
 
 @pytest.mark.slow
-def test_a_knock_is_flagged_and_the_recalibration_restores_the_accuracy(tmp_path: Path) -> None:
+@pytest.mark.parametrize("pre_windows", [3, 6])
+def test_a_knock_is_flagged_and_the_recalibration_restores_the_accuracy(
+    tmp_path: Path, pre_windows: int
+) -> None:
+    """3 windows (24 measurements) before the knock: only the residual charts watch (their
+    baseline is one schedule cycle); 6 windows: the change charts watch too (a second visit of
+    every configuration and 16 differences) and the step is theirs."""
     cycle = ClampCycle(period_s=40.0, window_s=32.0, beat_s=0.5, time_scale=SCALE)
     probe = make_line(tmp_path / "probe")
     x_good = _calibrated_x(probe.cell)
@@ -64,19 +70,26 @@ def test_a_knock_is_flagged_and_the_recalibration_restores_the_accuracy(tmp_path
 
         before = true_rms(x_good)
         ln.start()
-        for _ in range(3):  # the residual charts learn their baseline (one schedule cycle: 24)
+        for _ in range(pre_windows):
             ln.wait(lambda e: e["event"] == "window")
+        assert ln.service.drift.change_watching == (pre_windows == 6)
         n_before = ln.service.store.counts()["ok"]
         # the knock, now: the sensor mount moves by 0.3 mm and tilts by 0.05 deg
         ln.cell.set_timeline(ln.clock, knock=Knock(at_s=ln.clock.monotonic()))
         knocked = true_rms(x_good)
         alarm = ln.wait(lambda e: e["event"] == "alarm" and e["code"] == "drift", 20.0)
+        if pre_windows == 6:
+            assert (
+                "change since the last visit" in alarm["message"] or "residual" in alarm["message"]
+            )
         flagged_at = ln.service.drift_onset_id
         applied = ln.wait(lambda e: e["event"] == "parameters_applied", 60.0)
         cal = ln.service.store.calibrations("applied")[-1]
         ln.stop()
         assert flagged_at is not None and flagged_at - n_before <= 3, (flagged_at, n_before)
         assert "drift" in alarm["message"]
+        # the onset is set by a change chart once they watch (a residual signal then only
+        # brings the recalibration forward): either way the set starts after the knock
         assert cal["first_id"] >= flagged_at  # only measurements after the knock
         after = true_rms(ln.service.x)
         assert knocked > 3 * before
