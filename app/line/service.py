@@ -87,7 +87,7 @@ class Service(OperatorCommands):
         self.recalibrator = recalibrator or Recalibrator()
         self.sequential: InlineSequential | None = None
         if s.recalib.estimator == "sequential":
-            self.sequential = InlineSequential(s.recalib, s.gates, self.spheres)
+            self.sequential = InlineSequential(s.recalib, s.gates, self.spheres, len(schedule))
             self.sequential.restart(self.model, self.x, self.params.current_document())
         self.watch = WindowWatch(station.plc, self.clock, s.line)
         self.measurer = SphereMeasurer(station.robot, sensor, s.line)
@@ -297,7 +297,7 @@ class Service(OperatorCommands):
             elif self.drift_onset_id is None:  # a step (or no step detection yet): cut there
                 self.drift_onset_id = sig.onset_ref
                 if self.sequential is not None:
-                    self.sequential.widen()
+                    self.sequential.widen(sig.onset_ref)
             what = "residual" if sig.family == "residual" else "change since the last visit"
             self._alarm(
                 "drift",
