@@ -56,11 +56,13 @@ class SequentialCandidate:
 def covariance_from(doc: Mapping[str, Any] | None, model: SystemModel) -> tuple[list[str], F64]:
     """(active names, covariance) of a parameters document's identification, or ([], empty)
     when it carries none (a plain document) or does not match the model."""
-    if not doc or "correlation" not in doc:
+    if not doc or "correlation" not in doc or "active" not in doc:
         return [], np.zeros((0, 0))
-    params = [p for p in doc.get("parameters", []) if p.get("identified")]
-    names = [str(p["name"]) for p in params]
-    std = np.array([float(p["std"]) for p in params])
+    by_name = {str(p["name"]): p for p in doc.get("parameters", [])}
+    names = [str(n) for n in doc["active"]]  # the order of the correlation matrix
+    if not set(names) <= set(by_name):
+        return [], np.zeros((0, 0))
+    std = np.array([float(by_name[n]["std"]) for n in names])
     corr = np.asarray(doc["correlation"], dtype=float)
     if corr.shape != (len(names), len(names)) or not set(names) <= set(model.names):
         return [], np.zeros((0, 0))
@@ -164,6 +166,7 @@ class InlineSequential:
         std = dict(zip(self.est.active, self.est.std.tolist(), strict=True))
         doc["parameters"] = parameters_json(model, x, std)
         sd = np.sqrt(np.diag(self.est.covariance))
+        doc["active"] = list(self.est.active)
         doc["correlation"] = (self.est.covariance / np.outer(sd, sd)).round(6).tolist()
         doc["success"] = not failures
         doc["estimator"] = {
