@@ -49,14 +49,21 @@ OVERALL = "*"
 
 
 def residual_mm(
-    model: SystemModel, x: ArrayLike, q_deg: ArrayLike, c_sensor_mm: ArrayLike, p_part_mm: ArrayLike
+    model: SystemModel,
+    x: ArrayLike,
+    q_deg: ArrayLike,
+    c_sensor_mm: ArrayLike,
+    p_part_mm: ArrayLike,
+    temp_c: float | None = None,
 ) -> float:
     """Distance [mm] between the measured sphere centre mapped to the part frame with the
-    parameters x and the sphere's known centre."""
+    parameters x (at the cell temperature `temp_c` [degC] when the model has a thermal term)
+    and the sphere's known centre."""
     p = model.points_part(
         np.asarray(x, float),
         np.asarray(q_deg, float).reshape(1, 6),
         np.asarray(c_sensor_mm, float).reshape(1, 3),
+        temp_c=None if temp_c is None else np.array([float(temp_c)]),
     )
     return float(np.linalg.norm(p.reshape(3) - np.asarray(p_part_mm, float)))
 

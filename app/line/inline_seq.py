@@ -14,8 +14,9 @@ before the step are dropped), so that the estimate follows the new cell instead 
 until `knock_after` rejections in a row; the next candidate then waits until every configuration
 of the schedule has been seen after the step (a few configurations cannot pin 30 widened
 parameters: measured, 8 updates after a 0.3 mm knock gave a candidate that passed the held-out
-gate and was 0.37 mm off at the validation positions). When parameters are applied by another route (the initial ones, a rollback) the estimator
-restarts from them, with the covariance of their identification when the document has one.
+gate and was 0.37 mm off at the validation positions). When parameters are applied by another
+route (the initial ones, a rollback) the estimator restarts from them, with the covariance of
+their identification when the document has one.
 """
 
 from __future__ import annotations
@@ -139,7 +140,8 @@ class InlineSequential:
 
     def _feed(self, row: Mapping[str, Any]) -> None:
         assert self.est is not None, "restart() first"
-        up = self.est.update(row["q_deg"], row["c_sensor_mm"], self.spheres[row["target"]])
+        target = self.spheres[row["target"]]
+        up = self.est.update(row["q_deg"], row["c_sensor_mm"], target, row.get("temp_c"))
         if up.accepted:
             self.accepted_since += 1
             self.innovations.append(float(np.linalg.norm(up.innovation_mm)))

@@ -109,6 +109,7 @@ class OperatorCommands:
             "window": self._window_status(),
             "calibration": self._calibration_status(),
             "alarms": [alarm_status(a) for a in svc.store.active_alarms()],
+            "cell_temp_c": svc.cell_temp_c,
             "drift": svc.drift.state(),
             "drift_change": svc.drift.change_state(),
             "step": self._step_text(),

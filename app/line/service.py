@@ -240,14 +240,21 @@ class Service(OperatorCommands):
         self._alarm(code, message, "urgent")
 
     # -- measurements --------------------------------------------------------------------------
+    @property
+    def cell_temp_c(self) -> float | None:
+        """The cell temperature [degC] from the PLC's last reading (None: no sensor)."""
+        inputs = self.watch.inputs
+        return None if inputs is None else inputs.temp_c
+
     def _position(self) -> int:
         return self.store.schedule_position()[0]
 
     def _record(self, slot: Slot, window: int, reading: Reading | None, reason: str) -> int:
         e = None
+        temp_c = self.cell_temp_c
         if reading is not None:
             p = self.spheres[slot.target]
-            e = residual_mm(self.model, self.x, slot.q_deg, reading.c_sensor_mm, p)
+            e = residual_mm(self.model, self.x, slot.q_deg, reading.c_sensor_mm, p, temp_c)
         row = {
             "t": self.clock.time(),
             "window": window,
@@ -260,6 +267,7 @@ class Service(OperatorCommands):
             "quality": {} if reading is None else reading.quality,
             "params_version": self.version,
             "residual_mm": e,
+            "temp_c": temp_c,
             "next_position": (slot.index + 1) % len(self.schedule),
         }
         row_id = self.store.add_measurement(row)
@@ -328,7 +336,12 @@ class Service(OperatorCommands):
                 str(r["target"]),
                 (scale if k < n_train else 1.0)
                 * residual_mm(
-                    self.model, self.x, r["q_deg"], r["c_sensor_mm"], self.spheres[r["target"]]
+                    self.model,
+                    self.x,
+                    r["q_deg"],
+                    r["c_sensor_mm"],
+                    self.spheres[r["target"]],
+                    r.get("temp_c"),
                 ),
             )
             for k, r in enumerate(rows)

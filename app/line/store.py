@@ -57,6 +57,8 @@ MIGRATIONS: tuple[tuple[str, ...], ...] = (
             window INTEGER NOT NULL)""",
         "INSERT INTO schedule (id, position, window) VALUES (1, 0, 0)",
     ),
+    # 1 -> 2: the cell temperature [degC] when the sphere was measured (NULL: no sensor)
+    ("ALTER TABLE measurements ADD COLUMN temp_c REAL",),
 )
 SCHEMA_VERSION = len(MIGRATIONS)
 ACTIVE_ALARM_STATES = ("raised", "acked", "shelved")
@@ -136,12 +138,13 @@ class Store:
     def add_measurement(self, row: dict[str, Any]) -> int:
         """Store one measurement and its new schedule position in one transaction; returns its
         id once committed to disk. `row`: t, window, slot, target, q_deg, c_sensor_mm (None if
-        rejected), status, reason, quality, params_version, residual_mm, next_position."""
+        rejected), status, reason, quality, params_version, residual_mm, next_position and
+        optionally temp_c."""
         with self._tx() as db:
             cur = db.execute(
                 "INSERT INTO measurements (t, window, slot, target, q_deg, c_sensor_mm, status,"
-                " reason, quality, params_version, residual_mm)"
-                " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                " reason, quality, params_version, residual_mm, temp_c)"
+                " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (
                     row["t"],
                     row["window"],
@@ -154,6 +157,7 @@ class Store:
                     _dumps(row.get("quality", {})),
                     row.get("params_version"),
                     row.get("residual_mm"),
+                    row.get("temp_c"),
                 ),
             )
             db.execute(
