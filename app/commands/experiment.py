@@ -62,6 +62,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     g.add_argument("--rendered", action="store_true", help="shift: measure through images")
     g.add_argument(
+        "--model",
+        choices=("rigid", "compliant"),
+        help="shift: the model the service identifies (default [calibration] model)",
+    )
+    g.add_argument(
         "--estimator",
         choices=("batch", "sequential", "compare"),
         help="shift: the service's estimator (default [service] estimator); compare: one shift"
@@ -133,6 +138,7 @@ def run_shift_experiment(args: argparse.Namespace) -> int:
             geometric=not args.rendered,
             scale=args.scale,
             slots_per_window=args.slots_per_window,
+            model=args.model,
         )
     except ValueError as exc:
         raise InputError(str(exc), field="--hours/--knock-at-h/--scale") from exc
@@ -167,6 +173,7 @@ def run_shift_experiment(args: argparse.Namespace) -> int:
             + (f" --slots-per-window {args.slots_per_window}" if args.slots_per_window else "")
             + (" --rendered" if args.rendered else "")
             + (f" --estimator {args.estimator}" if args.estimator else "")
+            + (f" --model {args.model}" if args.model else "")
         )
         paths = write_outputs(result, sub, command)
         print()

@@ -51,7 +51,7 @@ def alarm_status(a: dict[str, Any]) -> dict[str, Any]:
 
 
 def _calibration(svc: Service, cal_id: int) -> dict[str, Any] | None:
-    return next((c for c in svc.store.calibrations() if c["id"] == cal_id), None)
+    return svc.store.calibration(cal_id)
 
 
 class CommandError(Exception):

@@ -319,7 +319,7 @@ class Service(OperatorCommands):
         """Residuals of the parameters in force on recent good measurements: the rolling set of
         batch calibration `cal_id` (its training rows scaled to prediction errors), else the
         last schedule cycle and hold-out."""
-        cal = next((c for c in self.store.calibrations() if c["id"] == cal_id), None)
+        cal = self.store.calibration(cal_id)
         n_train, scale = 0, 1.0
         if cal is not None and cal["first_id"] is not None and not _sequential(cal["document"]):
             rows = self.store.measurements(since_id=int(cal["first_id"]) - 1)
@@ -441,7 +441,8 @@ class Service(OperatorCommands):
             self.pending_calibration = cal_id
 
     def _apply_calibration(self, cal_id: int, uid: int | None, source: str) -> int:
-        cal = next(c for c in self.store.calibrations() if c["id"] == cal_id)
+        cal = self.store.calibration(cal_id)
+        assert cal is not None, f"no calibration {cal_id}"
         version = self.params.apply(cal["document"])
         t = self.clock.time()
         self.store.decide_calibration(cal_id, "applied", t, uid, version)
@@ -458,7 +459,7 @@ class Service(OperatorCommands):
         self.store.add_applied(self.clock.time(), version, cal_id, source, uid)
         self.pending_calibration = None
         self.drift.reset(self._drift_seed(cal_id))
-        cal = next((c for c in self.store.calibrations() if c["id"] == cal_id), None)
+        cal = self.store.calibration(cal_id)
         if self.sequential is not None and (cal is None or not _sequential(cal["document"])):
             self.sequential.restart(self.model, self.x, self.params.current_document())
         onset, self.drift_due = self.drift_onset_id, False

@@ -64,6 +64,12 @@ SCHEMA_VERSION = len(MIGRATIONS)
 ACTIVE_ALARM_STATES = ("raised", "acked", "shelved")
 
 
+def _calibration_row(r: dict[str, Any]) -> dict[str, Any]:
+    r["gates"] = json.loads(r["gates"])
+    r["document"] = None if r["document"] is None else json.loads(r["document"])
+    return r
+
+
 def _dumps(value: Any) -> str:
     return json.dumps(value, separators=(",", ":"))
 
@@ -231,10 +237,12 @@ class Store:
     def calibrations(self, status: str | None = None) -> list[dict[str, Any]]:
         where, args = ("WHERE status = ?", (status,)) if status else ("", ())
         rows = self._rows(f"SELECT * FROM calibrations {where} ORDER BY id", args)
-        for r in rows:
-            r["gates"] = json.loads(r["gates"])
-            r["document"] = None if r["document"] is None else json.loads(r["document"])
-        return rows
+        return [_calibration_row(r) for r in rows]
+
+    def calibration(self, cal_id: int | None) -> dict[str, Any] | None:
+        """One calibration by id (None: no such row), without reading the others."""
+        rows = self._rows("SELECT * FROM calibrations WHERE id = ?", (cal_id,))
+        return _calibration_row(rows[0]) if rows else None
 
     def add_applied(
         self, t: float, version: int, calibration_id: int | None, source: str, uid: int | None
