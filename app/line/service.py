@@ -299,20 +299,33 @@ class Service(OperatorCommands):
         return float(np.linalg.norm(np.asarray(c_sensor_mm, float) - prev[1]))
 
     def _drift(self, target: str, e_mm: float, change_mm: float | None, row_id: int) -> None:
+        """A residual signal while the change charts watch is slow drift: the service handles
+        it (recalibration brought forward), an advisory `drift` alarm of low priority. A step
+        (a change signal, or any signal before the change charts watch) may need a person to
+        look at the cell: a `drift_step` alarm of high priority, and only measurements from the
+        change point on are used."""
         for sig in self.drift.update(target, e_mm, row_id, change_mm):
+            where = "all spheres" if sig.stream == "*" else sig.stream
+            stat = f"{sig.chart} {sig.value_mm:.3f} > {sig.limit_mm:.3f} mm"
             if sig.family == "residual" and self.drift.change_watching:
-                self.drift_due = True  # slow drift: recalibrate soon, on the rolling set
-            elif self.drift_onset_id is None:  # a step (or no step detection yet): cut there
+                self.drift_due = True
+                self._alarm(
+                    "drift",
+                    f"drift of {where} (residual, {stat}): recalibration brought forward",
+                    "low",
+                )
+                continue
+            if self.drift_onset_id is None:
                 self.drift_onset_id = sig.onset_ref
                 if self.sequential is not None:
                     self.sequential.widen(sig.onset_ref)
             what = "residual" if sig.family == "residual" else "change since the last visit"
             self._alarm(
-                "drift",
-                f"drift of {'all spheres' if sig.stream == '*' else sig.stream}"
-                f" ({what}, {sig.chart} {sig.value_mm:.3f} > {sig.limit_mm:.3f} mm):"
-                " recalibration brought forward",
-                "medium",
+                "drift_step",
+                f"step of {where} ({what}, {stat}) since measurement {self.drift_onset_id}:"
+                " check the cell (sensor mount, spheres); recalibrating on the measurements"
+                " after it",
+                "high",
             )
 
     def _drift_seed(self, cal_id: int | None) -> list[tuple[str, float]]:
@@ -463,9 +476,10 @@ class Service(OperatorCommands):
         if self.sequential is not None and (cal is None or not _sequential(cal["document"])):
             self.sequential.restart(self.model, self.x, self.params.current_document())
         onset, self.drift_due = self.drift_onset_id, False
+        self.store.clear_alarms(self.clock.time(), "drift")
         if onset is None or (cal is not None and int(cal["first_id"] or 0) >= onset):
             self.drift_onset_id = None  # trained after the step (else the next one will be)
-            self.store.clear_alarms(self.clock.time(), "drift")
+            self.store.clear_alarms(self.clock.time(), "drift_step")
         self.bus.emit(
             "parameters_applied",
             {"version": version, "calibration_id": cal_id, "source": source, "uid": uid},

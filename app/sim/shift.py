@@ -136,7 +136,7 @@ class _EventLog:
         r, kind = self.result, event["event"]
         # the window in progress (alarms) or the next one (parameters applied between windows)
         window = r.summary.windows + 1
-        if kind == "alarm" and event.get("code") == "drift":
+        if kind == "alarm" and event.get("code") in ("drift", "drift_step"):
             r.drift_alarm_windows.append(window)
         elif kind == "parameters_applied" and event.get("source") == "auto":
             r.applied_windows.append(window)

@@ -81,7 +81,7 @@ def test_a_knock_is_flagged_and_the_recalibration_restores_the_accuracy(
         # the knock, now: the sensor mount moves by 0.3 mm and tilts by 0.05 deg
         ln.cell.set_timeline(ln.clock, knock=Knock(at_s=ln.clock.monotonic()))
         knocked = _true_rms(ln, val, x_good)
-        alarm = ln.wait(lambda e: e["event"] == "alarm" and e["code"] == "drift", 20.0)
+        alarm = ln.wait(lambda e: e["event"] == "alarm" and e["code"] == "drift_step", 20.0)
         if pre_windows == 6:
             assert (
                 "change since the last visit" in alarm["message"] or "residual" in alarm["message"]
@@ -91,7 +91,7 @@ def test_a_knock_is_flagged_and_the_recalibration_restores_the_accuracy(
         cal = ln.service.store.calibrations("applied")[-1]
         ln.stop()
         assert flagged_at is not None and flagged_at - n_before <= 3, (flagged_at, n_before)
-        assert "drift" in alarm["message"]
+        assert "step of" in alarm["message"] and alarm["priority"] == "high"
         # the onset is set by a change chart once they watch (a residual signal then only
         # brings the recalibration forward): either way the set starts after the knock
         assert cal["first_id"] >= flagged_at  # only measurements after the knock
@@ -129,6 +129,7 @@ def test_the_sequential_estimator_follows_a_knock(tmp_path: Path) -> None:
         ln.cell.set_timeline(ln.clock, knock=Knock(at_s=ln.clock.monotonic()))
         knocked = _true_rms(ln, val, x_good)
         ln.wait(lambda e: e["event"] == "alarm" and "change since" in e["message"], 20.0)
+        assert ln.service.store.active_alarms(code="drift_step")
         assert ln.service.sequential.est is not None and ln.service.sequential.est.n_knocks >= 1
         ln.wait(
             lambda e: e["event"] == "parameters_applied" and ln.service.drift_onset_id is None,
