@@ -69,6 +69,7 @@ class ShiftResult:
     scale: float
     summary: SimRunSummary
     drift_alarm_windows: list[int] = field(default_factory=list)
+    step_alarm_windows: list[int] = field(default_factory=list)  # the high-priority ones
     applied_windows: list[int] = field(default_factory=list)
     rejected_windows: list[int] = field(default_factory=list)
     window_s: float = 20.0  # the clamp window's length [sim s]
@@ -93,6 +94,7 @@ class ShiftResult:
             "pre_knock_rmse_mm": self.pre_knock_rmse_mm,
             "recovered_after_windows": self.recovered_after,
             "drift_alarm_windows": self.drift_alarm_windows,
+            "step_alarm_windows": self.step_alarm_windows,
             "applied_windows": self.applied_windows,
             "rejected_windows": self.rejected_windows,
             "real_s": self.real_s,
@@ -138,6 +140,8 @@ class _EventLog:
         window = r.summary.windows + 1
         if kind == "alarm" and event.get("code") in ("drift", "drift_step"):
             r.drift_alarm_windows.append(window)
+            if event.get("code") == "drift_step":
+                r.step_alarm_windows.append(window)
         elif kind == "parameters_applied" and event.get("source") == "auto":
             r.applied_windows.append(window)
         elif kind == "calibration" and event.get("status") == "rejected":
@@ -217,6 +221,7 @@ def summary_lines(result: ShiftResult) -> list[str]:
         f" after {_windows_text(result.flagged_after, 3)}",
         f"back within {s.recovered_ratio:g}x of the pre-knock error"
         f" ({result.pre_knock_rmse_mm:.4f} mm) after {_windows_text(result.recovered_after, 30)}",
+        _alarms_text(result),
         f"overruns: {sm.overruns} (target 0); windows {sm.windows}, measurements {sm.measurements}"
         f" ({sm.rejected} rejected), calibrations applied {sm.calibrations_applied}, rejected"
         f" {sm.calibrations_rejected}",
@@ -225,6 +230,21 @@ def summary_lines(result: ShiftResult) -> list[str]:
         if result.records
         else "no window ran",
     ]
+
+
+def _alarms_text(result: ShiftResult) -> str:
+    """Alarm episodes (windows with a new alarm) before and after the knock, by priority."""
+    k = result.knock_window or 10**9
+
+    def episodes(windows: list[int], before: bool) -> int:
+        return len({w for w in windows if (w < k) == before})
+
+    low = [w for w in result.drift_alarm_windows if w not in set(result.step_alarm_windows)]
+    return (
+        f"drift alarms (windows with one) before the knock: {episodes(low, True)} low (slow"
+        f" drift), {episodes(result.step_alarm_windows, True)} high (step); after it:"
+        f" {episodes(low, False)} low, {episodes(result.step_alarm_windows, False)} high"
+    )
 
 
 def markdown(result: ShiftResult, command: str) -> str:
