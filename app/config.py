@@ -245,6 +245,7 @@ class ServiceSection(Section):
     seq_knock_rad: float = opt(1e-3, lo=0, hi=1)
     seq_prior_mm: float = opt(0.5, gt=0, hi=100)
     seq_prior_rad: float = opt(1e-3, gt=0, hi=1)
+    seq_max_std_mm: float = opt(0.025, gt=0, hi=10)
 
 
 @dataclass(frozen=True)

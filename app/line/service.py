@@ -387,7 +387,10 @@ class Service(OperatorCommands):
 
     def _maybe_recalibrate(self) -> None:
         if self.sequential is not None:
-            if self.pending_calibration is None and self.sequential.due:
+            visits = list(self.last_visit.values())
+            views_q = np.array([q for q, _ in visits]).reshape(-1, 6)
+            views_c = np.array([c for _, c in visits]).reshape(-1, 3)
+            if self.pending_calibration is None and self.sequential.due(views_q, views_c):
                 self._recal_done(self.sequential.candidate(self.model, self.x))
             return
         if self.recalibrator.busy or self.pending_calibration is not None or not self._recal_due():

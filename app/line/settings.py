@@ -125,6 +125,7 @@ class RecalibSettings:
     seq_knock_rad: float = 1e-3
     seq_prior_mm: float = 0.5  # prior of parameters without an identification's covariance
     seq_prior_rad: float = 1e-3
+    seq_max_std_mm: float = 0.025  # after a step: predicted uncertainty before a candidate
 
     def __post_init__(self) -> None:
         if self.mode not in ("auto", "approve"):
