@@ -26,7 +26,7 @@ from them, with the covariance of their identification when the document has one
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -34,6 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.line.recalib import as_measurements, rms_mm
+from app.line.schedule import Slot
 from app.line.settings import GateSettings, RecalibSettings
 from app.params import parameters_json, plain_document
 from calib.gates import change_failures
@@ -150,6 +151,26 @@ class InlineSequential:
             self.innovations.append(float(np.linalg.norm(up.innovation_mm)))
             if self.first_id is None:
                 self.first_id = int(row["id"])
+
+    def most_informative(
+        self, model: SystemModel, slots: Sequence[Slot], seen: Mapping[int, tuple[F64, F64]]
+    ) -> Slot:
+        """Adaptive scheduling: of these slots (they fit the window), the one whose measurement
+        brings the most information given the current covariance (calib.sequential
+        information_gain). The sphere's centre in the sensor frame is the slot's last measured
+        one, or the model's prediction for a slot not measured yet."""
+        assert self.est is not None, "restart() first"
+        x = self.est.x
+        c = []
+        for slot in slots:
+            if slot.index in seen:
+                c.append(seen[slot.index][1])
+            else:
+                T = model.fk(x, slot.q_deg.reshape(1, 6))[0]
+                p = np.append(self.spheres[slot.target], 1.0)
+                c.append((np.linalg.inv(T) @ p)[:3])
+        q = np.array([s.q_deg for s in slots])
+        return slots[self.est.choose_next(q, np.array(c))]
 
     def due(self, views_q_deg: F64, views_c_sensor_mm: F64) -> bool:
         """A candidate is due: `seq_apply_every` accepted updates since the last one; after a

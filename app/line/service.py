@@ -17,7 +17,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import threading
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from concurrent.futures import Future
 from enum import StrEnum
 from queue import Empty, Queue
@@ -92,6 +92,8 @@ class Service(OperatorCommands):
         self.watch = WindowWatch(station.plc, self.clock, s.line)
         self.measurer = SphereMeasurer(station.robot, sensor, s.line)
         self.cycle = Cycle(self.watch, self.measurer, schedule, self._position, self._record)
+        if self.sequential is not None and s.recalib.schedule == "adaptive":
+            self.cycle.choose = self._most_informative
         self.state = State.STARTING
         self.paused = False
         self.counters = {"windows": 0, "overruns": 0, "withdrawn": 0}
@@ -240,6 +242,10 @@ class Service(OperatorCommands):
         self._alarm(code, message, "urgent")
 
     # -- measurements --------------------------------------------------------------------------
+    def _most_informative(self, slots: Sequence[Slot]) -> Slot:
+        assert self.sequential is not None
+        return self.sequential.most_informative(self.model, slots, self.last_visit)
+
     @property
     def cell_temp_c(self) -> float | None:
         """The cell temperature [degC] from the PLC's last reading (None: no sensor)."""

@@ -4,6 +4,7 @@ validation positions (the cell knows the truth) comes back to its pre-knock leve
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 from typing import Any
 
@@ -104,7 +105,8 @@ def test_a_knock_is_flagged_and_the_recalibration_restores_the_accuracy(
 
 
 @pytest.mark.slow
-def test_the_sequential_estimator_follows_a_knock(tmp_path: Path) -> None:
+@pytest.mark.parametrize("schedule", ["cycle", "adaptive"])
+def test_the_sequential_estimator_follows_a_knock(tmp_path: Path, schedule: str) -> None:
     """[service] estimator = "sequential": the drift charts flag the knock, the estimator's
     covariance is widened before the post-knock measurements reach it (they are held out
     first), and the parameters it proposes, gated and applied, bring the true accuracy back."""
@@ -116,7 +118,7 @@ def test_the_sequential_estimator_follows_a_knock(tmp_path: Path) -> None:
         tmp_path / "state",
         cycle=cycle,
         line=line_settings(window_s=32.0, slots_per_window=8),
-        recalib=RecalibSettings(estimator="sequential"),
+        recalib=RecalibSettings(estimator="sequential", schedule=schedule),  # type: ignore[arg-type]
         x_initial=x_good,
     )
     try:
@@ -137,8 +139,13 @@ def test_the_sequential_estimator_follows_a_knock(tmp_path: Path) -> None:
         )
         after = _true_rms(ln, val, ln.service.x)
         cal = ln.service.store.calibrations("applied")[-1]
+        slots = [r["slot"] for r in ln.service.store.measurements()]
         ln.stop()
         assert cal["document"]["estimator"]["kind"] == "sequential"
+        in_turn = np.mean([b == (a + 1) % 24 for a, b in itertools.pairwise(slots)])
+        # cycled: in turn but for a slot that did not fit a window's rest; adaptive: by
+        # information, mostly not the next one
+        assert in_turn > 0.8 if schedule == "cycle" else in_turn < 0.5, in_turn
         assert knocked > 3 * before
         assert after <= 1.2 * before + 0.01, (before, knocked, after)
     finally:
