@@ -70,7 +70,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--estimator",
         choices=("batch", "sequential", "compare"),
         help="shift: the service's estimator (default [service] estimator); compare: one shift"
-        " with each, and shift-estimators.md",
+        " each with batch, sequential and sequential with adaptive scheduling, and"
+        " shift-estimators.md",
     )
     p.set_defaults(func=run)
 
@@ -157,11 +158,17 @@ def run_shift_experiment(args: argparse.Namespace) -> int:
             )
 
     print(f"rvis experiment shift: {args.hours:g} h, knock at {args.knock_at_h:g} h -> {out}/")
-    names = ["batch", "sequential"] if args.estimator == "compare" else [args.estimator]
+    runs = {  # the name in the comparison -> (estimator, schedule)
+        "batch": ("batch", "cycle"),
+        "sequential": ("sequential", "cycle"),
+        "sequential, adaptive": ("sequential", "adaptive"),
+    }
+    names = list(runs) if args.estimator == "compare" else [args.estimator]
     results = {}
     for name in names:
-        s = dataclasses.replace(settings, estimator=name)
-        sub = out if len(names) == 1 else out / str(name)
+        estimator, schedule = runs[name] if args.estimator == "compare" else (name, None)
+        s = dataclasses.replace(settings, estimator=estimator, schedule=schedule)
+        sub = out if len(names) == 1 else out / str(name).replace(", ", "-")
         if len(names) > 1:
             print(f"estimator: {name}")
         results[str(name)] = result = run_shift(

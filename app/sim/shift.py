@@ -40,6 +40,7 @@ class ShiftSettings:
     slots_per_window: int | None = None
     estimator: str | None = None  # "batch" | "sequential"; None: the cell's [service] estimator
     model: str | None = None  # "rigid" | "compliant"; None: the cell's [calibration] model
+    schedule: str | None = None  # "cycle" | "adaptive" (sequential); None: the cell's
     recovered_ratio: float = 1.2  # "back": error with the service <= this x its pre-knock level
     pre_knock_windows: int = 10  # windows before the knock whose median sets the pre-knock level
 
@@ -52,6 +53,8 @@ class ShiftSettings:
             raise ValueError("estimator must be batch or sequential")
         if self.model not in (None, "rigid", "compliant"):
             raise ValueError("model must be rigid or compliant")
+        if self.schedule not in (None, "cycle", "adaptive"):
+            raise ValueError("schedule must be cycle or adaptive")
         if self.recovered_ratio < 1 or self.pre_knock_windows < 1:
             raise ValueError("recovered_ratio >= 1 and pre_knock_windows >= 1")
 
@@ -116,6 +119,8 @@ def shift_config(cfg: CellConfig, s: ShiftSettings) -> CellConfig:
         line = dataclasses.replace(line, slots_per_window=s.slots_per_window)
     if s.estimator is not None:
         service = dataclasses.replace(service, estimator=s.estimator)
+    if s.schedule is not None:
+        service = dataclasses.replace(service, schedule=s.schedule)
     calibration = cfg.calibration
     if s.model is not None:
         calibration = dataclasses.replace(calibration, model=s.model)
@@ -352,7 +357,8 @@ def estimators_markdown(results: dict[str, ShiftResult], command: str) -> str:
         " and before/after the knock. Batch: identification on the rolling set (24 + 4 held"
         " out) every 24 measurements or when drift is flagged; sequential: an extended Kalman"
         " update per measurement (app/line/inline_seq.py), a candidate every 8 accepted updates,"
-        " the same gates.",
+        " the same gates; adaptive: the sequential estimator choosing the most informative"
+        " planned configuration instead of the next in turn.",
         "",
         "| | mean RMSE [mm] | before the knock [mm] | after the knock [mm] | worst window [mm]"
         " | knock flagged after | back within 1.2x after | applied / rejected | overruns |",

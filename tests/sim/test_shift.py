@@ -58,3 +58,25 @@ def test_bad_shift_options_exit_2(
     code = main(["experiment", "shift", "--out", str(tmp_path / "x"), *argv])
     assert code == 2 and "rvis" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+def test_the_estimator_comparison_runs_each_way_on_the_same_cell(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "cmp"
+    argv = ["experiment", "shift", "--hours", "0.15", "--knock-at-h", "0.1", "--scale", "200"]
+    assert (
+        main([*argv, "--slots-per-window", "2", "--estimator", "compare", "--out", str(out)]) == 0
+    )
+    rows = json.loads((out / "shift-estimators.json").read_text())["rows"]
+    assert [r["name"] for r in rows] == [
+        "no recalibration",
+        "batch",
+        "sequential",
+        "sequential, adaptive",
+    ]
+    for sub in ("batch", "sequential", "sequential-adaptive"):  # one shift each, its own state
+        assert (out / sub / "shift.json").exists() and (out / sub / "state" / "rvis.db").exists()
+    md = (out / "shift-estimators.md").read_text()
+    assert "| sequential, adaptive |" in md and (out / "shift-estimators.png").stat().st_size > 5000
+    assert all(r["mean_mm"] > 0 for r in rows)
