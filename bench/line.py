@@ -147,7 +147,11 @@ def idle_cpu(seconds: float, poll_s: float) -> float:
 
 
 def sweep_to_centre(repeats: int) -> tuple[list[float], float]:
+    import cv2
+
     from vision.measure import measure_sphere_from_sweep
+
+    cv2.setNumThreads(1)  # one core, as the figure says
     from vision.sensor_model import default_sensor_model
 
     cfg = load_cell(None)
