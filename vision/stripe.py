@@ -1,11 +1,12 @@
-"""Sub-pixel laser-stripe extraction, vectorised over a frame.
+"""Sub-pixel laser-stripe extraction, vectorised over a frame and over a sweep.
 
 The stripe runs along the image rows (the galvo sweeps it across the columns), so there is at
 most one stripe point per row. Two modes:
 
 - "fast": per row the brightest pixel, then the grey centroid of a window around it after
-  subtracting the frame's background and a noise threshold (one pass over the frame for the
-  argmax, one for the multi-peak count);
+  subtracting the frame's background and a noise threshold. One pass over the whole frame
+  (column maxima) finds the band of columns that can hold a peak; the rest reads that band only,
+  and `extract_sweep` does the per-row arithmetic of all frames of a sweep at once;
 - "precise": Steger's method (1998) inside the bounding band of the fast result: Gaussian
   derivatives, the Hessian's dominant eigenvector as the line normal, and the sub-pixel extremum
   along it.
