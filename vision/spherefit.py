@@ -92,8 +92,19 @@ def fit_sphere_pratt(X: F64) -> tuple[F64, float]:
     return centre * scale + m, float(np.sqrt(max(r2, 0.0)) * scale)
 
 
+def _median(a: F64) -> float:
+    """np.median of a 1-D array (the same value) from one partial sort, without np.median's
+    generic-axis overhead: this runs a few times per fit on every point."""
+    n = a.shape[0]
+    k = n // 2
+    if n % 2:
+        return float(np.partition(a, k)[k])
+    part = np.partition(a, [k - 1, k])
+    return float((part[k - 1] + part[k]) / 2)
+
+
 def _robust_scale(r: F64) -> float:
-    return max(1.4826 * float(np.median(np.abs(r - np.median(r)))), 1e-4)
+    return max(1.4826 * _median(np.abs(r - _median(r))), 1e-4)
 
 
 def _weights(r: F64, scale: float, *, cauchy: bool) -> F64:
