@@ -71,7 +71,7 @@ def the_sweep() -> tuple[Any, Any, Any]:
     q = plan_for(3)["P1"][0]
     frames, commands, _ = cell.render_sweep(q, cfg.spheres_part_mm["P1"])
     truth = cell.centre_in_sensor(q[None], cfg.spheres_part_mm["P1"])[0]
-    return np.stack(frames), np.asarray(commands), truth
+    return np.asarray(frames), np.asarray(commands), truth
 
 
 def stages(m: ModuleType, frames: Any, cmds: Any, model: Any) -> dict[str, Callable[[], Any]]:
