@@ -1,6 +1,6 @@
 """One sphere measurement: a galvo sweep (frames + mirror commands) -> centre in the sensor frame.
 
-    frames --extract_stripe--> stripe pixels --triangulate_sweep--> 3D points --fit_sphere--> centre
+    frames --extract_sweep--> stripe pixels --triangulate_sweep--> 3D points --fit_sphere--> centre
 
 This is the function the simulated cell and `rvis sensor measure` call.
 """
