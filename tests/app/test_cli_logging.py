@@ -75,13 +75,14 @@ def test_log_level_prints_records_with_their_data_on_stderr(
 @pytest.mark.parametrize(
     "argv",
     [
-        ["--log-level", "info", "simulate", "--out", "OUT", "--seed", "1"],
-        ["simulate", "--out", "OUT", "--seed", "1", "--log-level", "info"],
+        ["--log-level", "info", "observability", "--measurements", "MISSING"],
+        ["observability", "--measurements", "MISSING", "--log-level", "info"],
     ],
 )
 def test_log_level_before_or_after_the_command(argv: list[str], tmp_path: Path, cli: Cli) -> None:
-    code, _, _ = cli([str(tmp_path) if a == "OUT" else a for a in argv])
-    assert code == 0
+    missing = str(tmp_path / "missing.csv")  # the command stops at once (exit 2), logging set
+    code, _, err = cli([missing if a == "MISSING" else a for a in argv])
+    assert code == 2 and "missing.csv" in err
     handlers = logging.getLogger("rvis").handlers
     assert [h.level for h in handlers if getattr(h, "_rvis_cli_handler", False)] == [logging.INFO]
 
