@@ -91,6 +91,7 @@ def _sensor_fault(run: SimulatedLineRun, fault: Fault, cause: str) -> None:
     _all_announced_stored(run, events + more)
 
 
+@pytest.mark.slow  # about 14 s (three clamp periods at time x2): the suite's representative
 def test_galvo_scpi_error_faults_the_rendered_service(run: SimulatedLineRun) -> None:
     _sensor_fault(run, Fault.GALVO_ERROR, "DeviceFault")
 
