@@ -19,9 +19,13 @@ from app.errors import RvisError
 
 
 def _chosen(argv: Sequence[str]) -> str | None:
-    """The subcommand named in argv (the first word that is not an option), if any."""
-    for word in argv:
-        if not word.startswith("-"):
+    """The subcommand named in argv (the first word that is neither an option nor the value of
+    `--log-level`), if any."""
+    words = iter(argv)
+    for word in words:
+        if word == "--log-level":
+            next(words, None)
+        elif not word.startswith("-"):
             return word if word in COMMANDS else None
     return None
 
@@ -55,15 +59,29 @@ def build_parser(argv: Sequence[str] = ()) -> argparse.ArgumentParser:
         description="In-line self-calibration of a robotic visual inspection system.",
     )
     parser.add_argument("--version", action=_VersionAction)
+    _add_log_level(parser, "off")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
     chosen = _chosen(argv)
     for name, help_text in COMMANDS.items():
         if name == chosen:
             importlib.import_module(f"app.commands.{name}").register(sub)
+            _add_log_level(sub.choices[name], argparse.SUPPRESS)  # also after the command
         else:
             sub.add_parser(name, help=help_text, add_help=False)
     return parser
+
+
+def _add_log_level(parser: argparse.ArgumentParser, default: str) -> None:
+    from app.cli_logging import LEVELS
+
+    parser.add_argument(
+        "--log-level",
+        choices=LEVELS,
+        default=default,
+        help="log records of this level and above as text lines on stderr (default: off; "
+        "alarms are in the command's summary, the service logs JSON lines on stdout)",
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -75,6 +93,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         # `rvis ... | head`: a closed pipe ends the process quietly, as for any Unix tool
         signal.signal(signal.SIGPIPE, signal.SIG_DFL)
     args = build_parser(argv).parse_args(argv)
+    from app.cli_logging import configure
+
+    configure(args.log_level)
     try:
         code: int = args.func(args)
     except RvisError as exc:

@@ -35,7 +35,7 @@ from vision.calibrate import calibrate_camera, calibrate_laser, laser_points, ta
 from vision.measure import measure_sphere_from_sweep
 from vision.sensor_model import CameraModel, SensorModel
 from vision.spherefit import fit_sphere
-from vision.stripe import extract_stripe
+from vision.stripe import extract_stripe, extract_sweep
 from vision.triangulate import triangulate_sweep
 
 F64 = NDArray[np.float64]
@@ -61,6 +61,11 @@ def bench_timings(sensor: TrueSensor, model: SensorModel, n_frames: int, repeats
     print("== timings (median, 1 OpenCV thread)")
     fast_ms = median_ms(lambda: extract_stripe(mid), repeats)
     print(f"stripe fast     per 1296x966 frame : {fast_ms:7.2f} ms")
+    sweep_ms = median_ms(lambda: extract_sweep(frames), max(repeats // 3, 5))
+    print(
+        f"stripe fast     per frame of a {n_frames}-frame sweep (extract_sweep): "
+        f"{sweep_ms / n_frames:7.2f} ms"
+    )
     print(
         f"stripe precise  per 1296x966 frame : "
         f"{median_ms(lambda: extract_stripe(mid, 'precise'), repeats):7.2f} ms"

@@ -14,7 +14,8 @@ offsets it reads from the fake's registers.
 
 ``stall()`` makes the camera stop sending frames while it still answers its control channel (a
 camera that times out); ``resume()`` brings the frames back without a stale one for a trigger
-that came in meanwhile.
+that came in meanwhile. ``lose_next_frame()`` drops every packet of the next frame on the wire
+(one frame lost; the camera goes on streaming).
 """
 
 from __future__ import annotations
@@ -82,7 +83,9 @@ class GvCamera:
         self.sensor_wh = sensor_wh
         self.camera_id = address
         self.frames_filled = 0
+        self.frames_lost = 0
         self.failed = False
+        self._lose = 0  # 1: drop the next frame's packets; 2: dropping the current one
         self._gv: Any = None
         self._fake: Any = None
         self._lib: ctypes.CDLL | None = None
@@ -124,6 +127,21 @@ class GvCamera:
             self._fake.check_and_acknowledge_software_trigger()
             self._fake.write_register(_ACQUISITION_REGISTER, 1)
 
+    def lose_next_frame(self) -> None:
+        """The next frame sent is lost on the wire (all its GVSP packets dropped): the client's
+        grab times out; the frame after it arrives again."""
+        self._lose = 1
+
+    def _drop_packets(self) -> None:
+        """Called from the fill callback, before the frame's packets are sent: the fake's
+        lost-packet ratio is 1 for the frame to lose and back to 0 for the next one."""
+        if self._lose == 1:
+            self._gv.set_property("gvsp-lost-ratio", 1.0)
+            self._lose, self.frames_lost = 2, self.frames_lost + 1
+        elif self._lose == 2:
+            self._gv.set_property("gvsp-lost-ratio", 0.0)
+            self._lose = 0
+
     def __enter__(self) -> Self:
         return self.start()
 
@@ -144,6 +162,8 @@ class GvCamera:
             raw = (ctypes.c_uint8 * (w * h * (bits // 8))).from_address(ptr)
             np.frombuffer(raw, dtype=dtype)[:] = values.ravel()
             self.frames_filled += 1
+            if self._lose:
+                self._drop_packets()
         except Exception:
             self.failed = True
 

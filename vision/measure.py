@@ -1,6 +1,6 @@
 """One sphere measurement: a galvo sweep (frames + mirror commands) -> centre in the sensor frame.
 
-    frames --extract_stripe--> stripe pixels --triangulate_sweep--> 3D points --fit_sphere--> centre
+    frames --extract_sweep--> stripe pixels --triangulate_sweep--> 3D points --fit_sphere--> centre
 
 This is the function the simulated cell and `rvis sensor measure` call.
 """
@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 from vision.errors import NoStripe
 from vision.sensor_model import SensorModel
 from vision.spherefit import FitQuality, FitThresholds, fit_sphere
-from vision.stripe import StripeSettings, extract_stripe
+from vision.stripe import StripeSettings, extract_sweep
 from vision.triangulate import triangulate_sweep
 
 F64 = NDArray[np.float64]
@@ -70,7 +70,7 @@ def measure_sphere_from_sweep(
                 f"frame {i} has shape {f.shape}, the sensor model expects "
                 f"{(cam.height_px, cam.width_px)}"
             )
-    stripes = [extract_stripe(np.asarray(f), mode, stripe_settings) for f in frames]
+    stripes = extract_sweep(frames, mode, stripe_settings)
     n_sat = sum(s.n_saturated for s in stripes)
     n_multi = sum(s.n_multi_peak for s in stripes)
     n_wide = sum(s.n_too_wide for s in stripes)

@@ -70,10 +70,13 @@ def fit_sphere_pratt(X: F64) -> tuple[F64, float]:
     X: shape=(n, 3) [mm], n >= 4. Returns the centre shape=(3,) and the radius [mm].
     """
     m = X.mean(axis=0)
-    scale = float(np.sqrt(((X - m) ** 2).sum(axis=1).mean())) or 1.0
-    Y = (X - m) / scale
-    Z = np.column_stack([(Y * Y).sum(axis=1), Y, np.ones(len(Y))])
-    M = Z.T @ Z / len(Z)
+    Yt = (X - m).T  # (3, n): the sums below run along contiguous rows
+    scale = float(np.sqrt(np.einsum("ij,ij->", Yt, Yt) / len(X))) or 1.0
+    Zt = np.empty((5, len(X)))
+    np.divide(Yt, scale, out=Zt[1:4])
+    np.einsum("ij,ij->j", Zt[1:4], Zt[1:4], out=Zt[0])
+    Zt[4] = 1.0
+    M = Zt @ Zt.T / len(X)
     B = np.diag([0.0, 1.0, 1.0, 1.0, 0.0])
     B[0, 4] = B[4, 0] = -2.0
     evals, evecs = scipy.linalg.eig(M, B)
@@ -89,8 +92,19 @@ def fit_sphere_pratt(X: F64) -> tuple[F64, float]:
     return centre * scale + m, float(np.sqrt(max(r2, 0.0)) * scale)
 
 
+def _median(a: F64) -> float:
+    """np.median of a 1-D array (the same value) from one partial sort, without np.median's
+    generic-axis overhead: this runs a few times per fit on every point."""
+    n = a.shape[0]
+    k = n // 2
+    if n % 2:
+        return float(np.partition(a, k)[k])
+    part = np.partition(a, [k - 1, k])
+    return float((part[k - 1] + part[k]) / 2)
+
+
 def _robust_scale(r: F64) -> float:
-    return max(1.4826 * float(np.median(np.abs(r - np.median(r)))), 1e-4)
+    return max(1.4826 * _median(np.abs(r - _median(r))), 1e-4)
 
 
 def _weights(r: F64, scale: float, *, cauchy: bool) -> F64:
@@ -121,35 +135,36 @@ def fit_sphere_geometric(
     c, R = centre0.astype(np.float64).copy(), float(radius_mm)
     scale = 0.0
     n_col = 3 if fixed_radius else 4
-    J = np.empty((len(X), n_col))
-    if not fixed_radius:
-        J[:, 3] = -1.0
+    Xt = np.ascontiguousarray(X.T)  # (3, n): every pass below runs along contiguous rows
+    D = np.empty_like(Xt)
+    # the Jacobian of r = |X - c| - R is -A.T: rows of A the unit vectors (X - c) / |X - c|
+    # and, with a free radius, ones; the Gauss-Newton step solves (A W A.T) s = A W r
+    A = np.ones((n_col, Xt.shape[1]))
     for it in range(1, max_iter + 1):
-        D = X - c
-        d = np.sqrt(np.einsum("ij,ij->i", D, D))
+        np.subtract(Xt, c[:, None], out=D)
+        d = np.sqrt(np.einsum("ij,ij->j", D, D))
         r = d - R
         if it == 1 or it % 3 == 0:
             scale = _robust_scale(r)
-        w = _weights(r, scale, cauchy=it > 4)
-        np.divide(D, -d[:, None], out=J[:, :3])
-        JW = J * w[:, None]
-        step = np.linalg.solve(JW.T @ J, -(JW.T @ r))
+        np.divide(D, d, out=A[:3])
+        Aw = A * _weights(r, scale, cauchy=it > 4)
+        step = np.linalg.solve(Aw @ A.T, Aw @ r)
         c += step[:3]
         if not fixed_radius:
             R += float(step[3])
         if float(np.max(np.abs(step))) < tol_mm:
             break
-    D = X - c
-    r = np.sqrt(np.einsum("ij,ij->i", D, D)) - R
+    np.subtract(Xt, c[:, None], out=D)
+    r = np.sqrt(np.einsum("ij,ij->j", D, D)) - R
     w = _weights(r, scale, cauchy=True)
     sigma2 = float((w * r * r).sum() / max(w.sum() - n_col, 1.0))
-    cov = np.asarray(np.linalg.inv((J * w[:, None]).T @ J) * sigma2, dtype=np.float64)
+    cov = np.asarray(np.linalg.inv((A * w) @ A.T) * sigma2, dtype=np.float64)
     return c, R, r, cov, it
 
 
 def _coverage_deg(X: F64, c: F64) -> float:
     u = X - c
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    u /= np.sqrt(np.einsum("ij,ij->i", u, u))[:, None]
     mean = u.mean(axis=0)
     mean /= np.linalg.norm(mean)
     return float(np.degrees(np.percentile(np.arccos(np.clip(u @ mean, -1.0, 1.0)), 95)))

@@ -114,6 +114,7 @@ def test_common_commands(client: Client, dac: ScpiDac) -> None:
     assert client.ask("*ESR?") == "1"
     client.send("SOUR:VOLT 3")
     client.send("*RST")
+    assert client.ask("*OPC?") == "1"  # the DAC has executed *RST (was a race: seen failing)
     assert dac.volts == 0.0
     client.send("NOPE")
     client.send("*CLS")  # clears the queue and the event register

@@ -1,0 +1,116 @@
+"""Sensor device faults through the service on the RENDERED simulated line: the service measures
+through the real drivers over loopback (Aravis GigE fake camera streaming rendered frames, SCPI
+DAC on a pty, RMI controller, Modbus PLC) and a peer plays the fault during a clamp window
+(`SimLine.schedule`). Checked against what the peers really saw, as the geometric fault tests
+(tests/sim/test_line_service_faults.py) check the motion faults: the service's state, the urgent
+alarm naming the driver's typed error, the fault bit the PLC peer received, the robot's true
+joints not moving until a reset, and every measurement the service announced stored. A frame
+lost once is re-triggered by the camera driver and is not a fault.
+
+The line is shortened for speed (8-frame sweeps, an 8 s clamp period at the rendered line's time
+scale of 2, the fault in the first window): the galvo error and the lost frame stay in the
+suite, the camera timeout (the same path, two grab timeouts longer) is marked slow and runs with
+RVIS_SLOW=1."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from app.config import CellConfig
+from app.line.service import State
+from app.sim.line_run import SimulatedLineRun
+from fakes.line_faults import Fault
+
+WAIT_S = 20.0
+
+
+def _short_line(cfg: CellConfig) -> CellConfig:
+    """The rendered line with short sweeps and short clamp cycles (sim seconds)."""
+    simline = dataclasses.replace(
+        cfg.simline, scale=2.0, period_s=8.0, window_s=7.0, warmup_k=0.0, n_validation=4
+    )
+    sweep = dataclasses.replace(cfg.sweep, n_frames=8, grab_timeout_s=0.5)
+    return dataclasses.replace(cfg, simline=simline, sweep=sweep)
+
+
+@pytest.fixture()
+def run(cfg: CellConfig, tmp_path: Path) -> Iterator[SimulatedLineRun]:
+    with SimulatedLineRun(_short_line(cfg), tmp_path / "state", seed=5, geometric=False) as sim:
+        sim.start_service()
+        yield sim
+
+
+def _until(run: SimulatedLineRun, pred: Any) -> list[dict[str, Any]]:
+    """The service's events up to the first one `pred` accepts, within WAIT_S (the events of
+    passing windows never keep a failing wait alive)."""
+    seen, deadline = [], time.monotonic() + WAIT_S
+    for event in run.events_until(lambda e: pred(e) or time.monotonic() > deadline, WAIT_S):
+        seen.append(event)
+    assert pred(seen[-1]), f"not within {WAIT_S:g} s; last events: {seen[-5:]}"
+    return seen
+
+
+def _all_announced_stored(run: SimulatedLineRun, events: list[dict[str, Any]]) -> None:
+    announced = {e["id"] for e in events if e["event"] == "measurement"}
+    stored = {r["id"] for r in run.service.store.measurements()}
+    assert announced and announced <= stored
+
+
+def _sensor_fault(run: SimulatedLineRun, fault: Fault, cause: str) -> None:
+    """`fault` played as window 0 opens (it hits the sweep, the robot out): FAULT, alarm, PLC
+    fault bit, no motion over the next window, back to measuring after the operator's reset."""
+    played = run.line.schedule(fault, window=0, after_s=0.0)
+    events = _until(run, lambda e: e["event"] == "alarm" and e["code"] == "device_fault")
+    assert played.is_set() and run.service.state == State.FAULT
+    assert cause in events[-1]["message"] and events[-1]["priority"] == "urgent"
+    alarm = run.service.store.active_alarms(code="device_fault")
+    assert alarm and cause in alarm[0]["message"]
+    assert run.line.plc.received.fault and not run.line.plc.received.busy
+    q_stopped = run.cell.joints_deg().copy()
+    home = np.array(run.service.settings.line.home_deg)
+    assert np.abs(q_stopped - home).max() > 1.0  # stopped out, where the sweep failed
+    later = run.line.schedule(Fault.WINDOW_WITHDRAWN, window=1, after_s=0.0)
+    assert later.wait(WAIT_S)  # window 1 opened (and was withdrawn): no motion, still FAULT
+    assert run.service.state == State.FAULT
+    np.testing.assert_allclose(run.cell.joints_deg(), q_stopped, atol=1e-9)
+    assert not [e for e in events if e["event"] == "measurement"]  # nothing half-measured
+    run.line.clear(fault)
+    reply = run.service.request("reset").result(timeout=WAIT_S)
+    assert reply["ok"], reply
+    more = _until(run, lambda e: e["event"] == "measurement" and e["status"] == "ok")
+    assert not run.line.plc.received.fault and run.service.state != State.FAULT
+    assert not run.service.store.active_alarms(code="device_fault")
+    _all_announced_stored(run, events + more)
+
+
+@pytest.mark.slow  # about 14 s (three clamp periods at time x2): the suite's representative
+def test_galvo_scpi_error_faults_the_rendered_service(run: SimulatedLineRun) -> None:
+    _sensor_fault(run, Fault.GALVO_ERROR, "DeviceFault")
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(os.environ.get("RVIS_SLOW") != "1", reason="slow (~14 s): RVIS_SLOW=1 runs it")
+def test_camera_timeout_faults_the_rendered_service(run: SimulatedLineRun) -> None:
+    _sensor_fault(run, Fault.CAMERA_TIMEOUT, "DeviceTimeout")
+
+
+def test_a_frame_lost_once_is_retriggered_and_is_not_a_fault(run: SimulatedLineRun) -> None:
+    camera = run.line.camera
+    assert camera is not None
+    camera.lose_next_frame()  # the first frame of window 0's sweep never arrives
+    events = _until(run, lambda e: e["event"] == "window")
+    assert camera.frames_lost == 1
+    (measured,) = [e for e in events if e["event"] == "measurement"]
+    assert measured["status"] == "ok"
+    assert run.service.state != State.FAULT and not run.line.plc.received.fault
+    assert not [e for e in events if e["event"] == "alarm"]
+    assert run.service.counters["overruns"] == 0  # this window had room for the extra timeout
+    _all_announced_stored(run, events)
