@@ -39,7 +39,8 @@ def test_socket_mode_and_status(served: tuple[Line, Path]) -> None:
     cal = reply["calibration"]
     assert (cal["version"], cal["pending"], cal["rms_mm"]) == (1, None, None)
     assert cal["applied_utc"] is not None  # version 1: the starting parameters, applied now
-    assert reply["pending"] is None and reply["step"] == "waiting for a window"
+    step = "waiting for a window" if reply["state"] == "idle" else "measuring in the window"
+    assert reply["pending"] is None and reply["step"] == step
     assert reply["window"]["line_running"] is True
     assert isinstance(reply["window"]["heartbeat_alive"], bool)
 
