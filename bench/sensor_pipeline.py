@@ -206,9 +206,16 @@ def bench_cell(n_sweeps: int, workers: int) -> None:
             print(f"{workers} worker processes: wall {per_sweep_ms:.0f} ms per sweep")
 
 
+def _at_least_one(text: str) -> int:
+    n = int(text)
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"needs at least 1, got {n}")
+    return n
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--poses", type=int, default=50)
+    parser.add_argument("--poses", type=_at_least_one, default=50)
     parser.add_argument("--frames", type=int, default=48)
     parser.add_argument("--repeats", type=int, default=30)
     parser.add_argument("--calib-seeds", type=int, default=3)
