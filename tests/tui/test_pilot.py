@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import subprocess
+import sys
 from collections.abc import Iterator
 from dataclasses import replace
 from datetime import UTC, datetime
@@ -137,46 +139,70 @@ def test_approve_then_roll_back(service: SimulatedLineRun, skipper: IdleSkipper)
             pending = (app.status or {})["pending"]
             assert pending["id"] == svc.pending_calibration and pending["parameters"]
             await confirm(pilot, "a")
-            await until(pilot, lambda: svc.version != v0, WAIT_S)
-            applied = [c for c in history.calibrations() if c["id"] == pending["id"]]
-            assert applied[0]["status"] == "applied" and applied[0]["version"] == svc.version
-            assert history.applied()[0]["source"] == "approved"
+            # the service's answer: the calibration applied, a new version in force (database)
+            await until(pilot, lambda: _latest_applied(history)["source"] == "approved", WAIT_S)
+            (cal,) = [c for c in history.calibrations() if c["id"] == pending["id"]]
+            v1 = _latest_applied(history)["version"]
+            assert cal["status"] == "applied" and cal["version"] == v1 != v0
+            assert svc.version == v1
             await press(pilot, "3")
             table: DataTable[Any] = app.query_one("#versions-table", DataTable)
             await until(pilot, lambda: table.row_count >= 2, WAIT_S)
             table.move_cursor(row=table.row_count - 1)  # the oldest: the commissioning version
             assert str(table.get_row_at(table.cursor_row)[0]) == str(v0)
             await confirm(pilot, "b")
-            await until(pilot, lambda: svc.version == v0, WAIT_S)
-            latest = history.applied()[0]
-            assert latest["source"] == "rollback" and latest["version"] == v0
+            await until(pilot, lambda: _latest_applied(history)["source"] == "rollback", WAIT_S)
+            assert _latest_applied(history)["version"] == v0 and svc.version == v0
 
     asyncio.run(scenario())
 
 
-def test_disconnected_then_reconnects_by_itself(tmp_path: Path) -> None:
-    cfg = pilot_cell()
+def _latest_applied(history: HistoryReader) -> dict[str, Any]:
+    """The parameters version put in force last, from the service's database."""
+    return history.applied(limit=1)[0]
+
+
+@pytest.mark.slow  # a service in a child process: its start takes a few seconds
+def test_killed_service_shows_disconnected_and_the_terminal_reconnects(tmp_path: Path) -> None:
+    """A service in its own process (`rvis run --sim`) killed with SIGKILL (its socket file
+    stays behind), then a service back on the same state directory, stopped cleanly."""
     resource_tracker.ensure_running()  # before Textual replaces sys.stderr (see app/tui/sim.py)
+    run_sim = [sys.executable, "-m", "app.cli", "run", "--sim", "--geometric"]
 
     async def scenario() -> None:
         app = RvisTui(tmp_path)
         async with app.run_test(size=(80, 24)) as pilot:
-            await until(pilot, lambda: text_of(app, "#status").startswith("DISCONNECTED"))
-            for _ in range(2):  # a service comes, goes, and comes back on the same state dir
-                # started and stopped in a thread: the simulated line runs its own event loops
-                stack = contextlib.ExitStack()
-                await asyncio.to_thread(stack.enter_context, simulated_service(cfg, tmp_path, SIM))
-                try:
-                    await until(pilot, lambda: _attached(app), WAIT_S)
-                    assert app.query_one("#status").has_class("disconnected") is False
-                finally:
-                    await asyncio.to_thread(stack.close)
-                await until(
-                    pilot, lambda: text_of(app, "#status").startswith("DISCONNECTED"), WAIT_S
-                )
-                assert app.query_one("#status").has_class("disconnected")
+            await until(pilot, lambda: _disconnected(app))
+            child = subprocess.Popen(
+                [*run_sim, "--state-dir", str(tmp_path)],
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )
+            try:
+                await until(pilot, lambda: _attached(app), WAIT_S)
+                assert not app.query_one("#status").has_class("disconnected")
+            finally:
+                child.kill()
+                await asyncio.to_thread(child.wait, WAIT_S)
+            await until(pilot, lambda: _disconnected(app), WAIT_S)
+            assert (tmp_path / "rvis.sock").exists()  # nobody listens on it any more
+            # started and stopped in a thread: the simulated line runs its own event loops
+            stack = contextlib.ExitStack()
+            await asyncio.to_thread(
+                stack.enter_context, simulated_service(pilot_cell(), tmp_path, SIM)
+            )
+            try:
+                await until(pilot, lambda: _attached(app), WAIT_S)
+            finally:
+                await asyncio.to_thread(stack.close)
+            await until(pilot, lambda: _disconnected(app), WAIT_S)
 
     asyncio.run(scenario())
+
+
+def _disconnected(app: RvisTui) -> bool:
+    status = app.query_one("#status")
+    return text_of(app, "#status").startswith("DISCONNECTED") and status.has_class("disconnected")
 
 
 def _attached(app: RvisTui) -> bool:
