@@ -17,7 +17,6 @@ from textual import work
 from textual.app import App, ComposeResult
 from textual.binding import Binding, BindingType
 from textual.containers import Horizontal, Vertical, VerticalScroll
-from textual.theme import Theme
 from textual.widgets import (
     DataTable,
     Footer,
@@ -32,23 +31,8 @@ from textual.widgets import (
 from app.tui import view
 from app.tui.client import Event, ServiceClient, ServiceUnavailable
 from app.tui.history import HistoryReader
+from app.tui.look import CSS, ISA101
 from app.tui.modals import ConfirmScreen, ShelveScreen
-
-#: ISA-101: a quiet grey screen; the only colours are the alarm priorities (and error toasts)
-ISA101 = Theme(
-    name="isa101",
-    primary="#8a8a8a",
-    secondary="#767676",
-    accent="#9e9e9e",
-    warning="#ffaf00",
-    error="#d70000",
-    success="#8a8a8a",
-    foreground="#e4e4e4",
-    background="#3a3a3a",
-    surface="#444444",
-    panel="#4e4e4e",
-    dark=True,
-)
 
 PANES = ("overview", "measurements", "calibrations", "alarms", "devices", "log")
 #: what each pane shows from the database (only the visible pane's history is read and drawn)
@@ -63,31 +47,6 @@ PANE_HISTORY = {
 #: at most this many screen refreshes a second follow the service's events (a busy service
 #: emits an event every few ms; one refresh shows them all)
 MIN_REFRESH_S = 0.1
-
-CSS = """
-Screen { background: #3a3a3a; color: #d7d7d7; }
-#status { height: 1; background: #4e4e4e; color: #ffffff; padding: 0 1; }
-#status.disconnected { background: #5f005f; color: #ffffff; text-style: bold; }
-#banner { height: 1; padding: 0 1; display: none; }
-#banner.shown { display: block; }
-.alarm-high { background: #d70000; color: #ffffff; text-style: bold; }
-.alarm-medium { background: #ffaf00; color: #000000; text-style: bold; }
-.alarm-low { background: #5f87af; color: #000000; }
-DataTable { background: #3a3a3a; height: 1fr; }
-TabbedContent { height: 1fr; }
-#overview-text { height: auto; }
-.drift-row { height: 1; }
-.drift-row Label { width: 22; }
-.drift-row Sparkline { width: 1fr; }
-#pending { height: auto; max-height: 50%; }
-.dialog { width: 70; height: auto; border: solid #8a8a8a; background: #4e4e4e; padding: 1; }
-ModalScreen { align: center middle; }
-.buttons { height: auto; }
-Input { background: #4e4e4e; }
-Sparkline > .sparkline--max-color { color: #e4e4e4; }
-Sparkline > .sparkline--min-color { color: #808080; }
-FooterKey .footer-key--key { color: #ffffff; background: #5f5f5f; }
-"""
 
 
 class RvisTui(App[None]):
@@ -251,27 +210,9 @@ class RvisTui(App[None]):
         banner = self.query_one("#banner", Static)
         banner.update(Text(text))  # service text, never markup
         banner.set_classes(f"shown {cls}" if text else "")
-        self.query_one("#overview-text", Static).update(Text(self._overview_text()))
+        self.query_one("#overview-text", Static).update(Text(view.overview_text(self.status)))
         self._fill("devices-table", view.device_rows(self.status))
         self._show_pending()
-
-    def _overview_text(self) -> str:
-        s = self.status or {}
-        win, counts = s.get("window") or {}, s.get("counters") or {}
-        window = "closed"
-        if win.get("open"):
-            window = "OPEN " + view.num(win.get("remaining_s"), ".0f", " s left")
-        heartbeat = "alive" if win.get("heartbeat_alive") else "LOST"
-        lines = [
-            f"Service   {s.get('state', '-')}   step: {s.get('step', '-')}",
-            f"Line      running {_yes(win.get('line_running'))}, PLC heartbeat {heartbeat}, "
-            f"window {window}",
-        ]
-        devices = view.device_rows(self.status)
-        bad = [f"{d[0]} {d[2]}" for d in devices if d[2] not in ("OK", "OPEN")]
-        lines.append("Devices   " + (", ".join(bad) if bad else f"all {len(devices)} OK"))
-        lines.append("Counters  " + ", ".join(f"{k} {v}" for k, v in counts.items()))
-        return "\n".join(lines)
 
     def _show_pending(self) -> None:
         pending = (self.status or {}).get("pending")
@@ -436,7 +377,3 @@ class RvisTui(App[None]):
         else:
             self.notify(f"refused: {reply.get('error')}", title=cmd, severity="error")
         self.refresh_all()
-
-
-def _yes(value: Any) -> str:
-    return "yes" if value else "NO"

@@ -68,6 +68,28 @@ def status_line(
     return f"{status.get('state', '?')} ({status.get('step') or '-'}) | {window} | {calib}"
 
 
+def overview_text(status: dict[str, Any] | None) -> str:
+    """The Overview's lines: service, line (running, PLC heartbeat, window), devices that are
+    not OK, counters."""
+    s = status or {}
+    win, counts = s.get("window") or {}, s.get("counters") or {}
+    window = "closed"
+    if win.get("open"):
+        window = "OPEN " + num(win.get("remaining_s"), ".0f", " s left")
+    heartbeat = "alive" if win.get("heartbeat_alive") else "LOST"
+    running = "yes" if win.get("line_running") else "NO"
+    devices = device_rows(status)
+    bad = [f"{d[0]} {d[2]}" for d in devices if d[2] not in ("OK", "OPEN")]
+    return "\n".join(
+        (
+            f"Service   {s.get('state', '-')}   step: {s.get('step', '-')}",
+            f"Line      running {running}, PLC heartbeat {heartbeat}, window {window}",
+            "Devices   " + (", ".join(bad) if bad else f"all {len(devices)} OK"),
+            "Counters  " + ", ".join(f"{k} {v}" for k, v in counts.items()),
+        )
+    )
+
+
 def active_alarms(status: dict[str, Any] | None) -> list[dict[str, Any]]:
     alarms = (status or {}).get("alarms") or []
     order = {"urgent": 0, "high": 1, "medium": 2, "low": 3}
