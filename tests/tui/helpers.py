@@ -25,7 +25,11 @@ async def until(pilot: Pilot[None], cond: Callable[[], bool], timeout_s: float =
             app = pilot.app
             assert isinstance(app, RvisTui)
             shown = f"{text_of(app, '#status')!r} {text_of(app, '#banner')!r}"
-            raise AssertionError(f"condition not met in {timeout_s:g} s; screen: {shown}")
+            workers = [(w.name, w.state.name, repr(w.error)) for w in app.workers]
+            raise AssertionError(
+                f"condition not met in {timeout_s:g} s; screen: {shown}; pane {app.pane}, "
+                f"refreshing {app._refreshing}, workers {workers}"
+            )
         await pilot.pause(0.05)
 
 
