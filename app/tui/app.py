@@ -27,6 +27,7 @@ from textual.widgets import (
     TabbedContent,
     TabPane,
 )
+from textual.worker import Worker
 
 from app.tui import view
 from app.tui.client import Event, ServiceClient, ServiceUnavailable
@@ -47,6 +48,8 @@ PANE_HISTORY = {
 #: at most this many screen refreshes a second follow the service's events (a busy service
 #: emits an event every few ms; one refresh shows them all)
 MIN_REFRESH_S = 0.1
+#: a refresh taking longer is abandoned (the next one starts over)
+REFRESH_TIMEOUT_S = 10.0
 
 
 class RvisTui(App[None]):
@@ -76,7 +79,8 @@ class RvisTui(App[None]):
         self.status: dict[str, Any] | None = None
         self.connection = (False, "connecting ...")
         self.events_seen = 0
-        self._dirty = self._refreshing = False
+        self._dirty = False
+        self._refresher: Worker[None] | None = None
         self._shown: dict[str, list[Sequence[Any]]] = {}  # the rows each table shows
         #: the wall clock of the ages shown (replaced in the screenshot tests)
         self.now: Callable[[], datetime] = lambda: datetime.now(UTC)
@@ -147,38 +151,38 @@ class RvisTui(App[None]):
         one runs makes that one go round once more (an exclusive worker restarted at every
         event would never finish while the service emits faster than a refresh takes)."""
         self._dirty = True
-        if not self._refreshing:
-            self._refreshing = True
-            self._refresh_loop()
+        if self._refresher is None or self._refresher.is_finished:
+            self._refresher = self._refresh_loop()
 
     @work(group="refresh", exit_on_error=False)
     async def _refresh_loop(self) -> None:
-        try:
-            while self._dirty:
-                self._dirty = False
-                started = time.monotonic()
-                await self._refresh_once()
-                if self._dirty:  # more events came meanwhile: one more refresh, not at once
-                    await asyncio.sleep(MIN_REFRESH_S - (time.monotonic() - started))
-        finally:
-            self._refreshing = False
+        while self._dirty:
+            self._dirty = False
+            started = time.monotonic()
+            try:  # a refresh that hangs (whatever the cause) must not stop the next ones
+                await asyncio.wait_for(self._refresh_once(), REFRESH_TIMEOUT_S)
+            except TimeoutError:
+                self.log.warning(f"screen refresh took over {REFRESH_TIMEOUT_S:g} s")
+            if self._dirty:  # more events came meanwhile: one more refresh, not at once
+                await asyncio.sleep(MIN_REFRESH_S - (time.monotonic() - started))
 
     def on_tabbed_content_tab_activated(self) -> None:
         self.refresh_all()  # the newly shown pane's history
 
     async def _refresh_once(self) -> None:
-        """Status from the socket, history from the database (in a thread), then the screen."""
+        """The status from the socket, shown; then the visible pane's history from the
+        database (in a thread), shown."""
         if self.client.connected:
             try:
                 reply = await self.client.request("status")
                 self.status = reply if reply.get("ok") else self.status
             except ServiceUnavailable:
                 pass
+        self._show_status()
         sphere = self.query_one("#sphere-filter", Input).value.strip() or None
         text = self.query_one("#log-filter", Input).value.strip()
         wanted = PANE_HISTORY[self.pane]
         hist = await asyncio.to_thread(self._read_history, wanted, sphere, text)
-        self._show_status()
         self._show_history(hist)
 
     @property

@@ -28,7 +28,7 @@ async def until(pilot: Pilot[None], cond: Callable[[], bool], timeout_s: float =
             workers = [(w.name, w.state.name, repr(w.error)) for w in app.workers]
             raise AssertionError(
                 f"condition not met in {timeout_s:g} s; screen: {shown}; pane {app.pane}, "
-                f"refreshing {app._refreshing}, workers {workers}"
+                f"workers {workers}"
             )
         await pilot.pause(0.05)
 
