@@ -7,9 +7,11 @@ The line of these tests leaves the service a wide margin whatever the machine's 
 window of 24 s in a 30 s cycle at time x40 (0.6 s of real time to start a motion, where the
 service needs a few ms), up to 4 slots per window (a recalibration's 28 measurements in a few
 windows), and the service starts 40 sim minutes into the cell's warm-up (the commissioning
-parameters are visibly off, so an in-line calibration passes its gates). Each wait is on a
-condition of the screen or the database with a generous timeout; none depends on drift alarms
-being absent.
+parameters are visibly off, so an in-line calibration passes its gates). The time in which
+the service only waits for the next window is skipped (IdleSkipper advances the line's clock),
+and keys are pressed without Pilot's wait for an idle process, which never comes with a
+service running in this process. Each wait is on a condition of the screen or the database
+with a generous timeout; none depends on drift alarms being absent.
 """
 
 from __future__ import annotations
