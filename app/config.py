@@ -235,6 +235,18 @@ class ServiceSection(Section):
     max_base_change_mm: float = opt(5.0, gt=0, hi=1000)
     max_base_change_deg: float = opt(1.0, gt=0, hi=180)
     max_holdout_ratio: float = opt(1.0, gt=0, hi=10)
+    estimator: str = opt("batch", choices=("batch", "sequential"))
+    seq_apply_every: int = opt(8, lo=1, hi=100000)
+    seq_measurement_std_mm: float = opt(0.025, gt=0, hi=10)
+    seq_drift_mm: float = opt(0.002, lo=0, hi=10)
+    seq_drift_rad: float = opt(2e-6, lo=0, hi=0.1)
+    seq_drift_extra: float = opt(0.0, lo=0, hi=1)
+    seq_knock_mm: float = opt(0.5, lo=0, hi=100)
+    seq_knock_rad: float = opt(1e-3, lo=0, hi=1)
+    seq_prior_mm: float = opt(0.5, gt=0, hi=100)
+    seq_prior_rad: float = opt(1e-3, gt=0, hi=1)
+    seq_max_std_mm: float = opt(0.025, gt=0, hi=10)
+    schedule: str = opt("cycle", choices=("cycle", "adaptive"))
 
 
 @dataclass(frozen=True)
@@ -417,6 +429,8 @@ def _resolve(s: dict[str, Section], source: str, reader: Any = None) -> CellConf
         raise fail("base_plate", "x_max_mm", "expected x_min < x_max and y_min < y_max")
     if s["simline"]["window_s"] >= s["simline"]["period_s"]:
         raise fail("simline", "window_s", "the clamp window must be shorter than period_s")
+    if s["service"]["schedule"] == "adaptive" and s["service"]["estimator"] != "sequential":
+        raise fail("service", "schedule", 'adaptive scheduling needs estimator = "sequential"')
     box = s["planning"]["workspace_mm"]
     if box[0] >= box[1] or box[2] >= box[3]:
         raise fail("planning", "workspace_mm", "expected [x_min, x_max, y_min, y_max], min < max")

@@ -95,6 +95,7 @@ def to_json(
         "n_parameters": obs.n_params,
         "condition": obs.condition,
         "observability": obs.indices,
+        "active": list(result.active),  # the order of the correlation matrix
         "correlation": result.corr.round(6).tolist(),
         "success": bool(result.success and (gates is None or gates.passed)),
         "converged": result.success,

@@ -135,7 +135,9 @@ CHAIN = _chain()
 _AXIS = {"rx": 0, "ry": 1, "rz": 2, "tx": 0, "tz": 2}
 
 
-def _elementary(kind: str, value: float) -> F64:
+def elementary(kind: str, value: float) -> F64:
+    """The 4x4 transform of one elementary operation of CHAIN (rx, ry, rz, tx, ty, tz) by
+    `value` [rad or mm] (also what calib.urdf writes joint by joint)."""
     if kind == "rx":
         return pose(rot_x(value), np.zeros(3))
     if kind == "ry":
@@ -215,7 +217,7 @@ class SystemModel:
     def _build_pieces(self, x: F64) -> _Pieces:
         T_pb, T_fs = self.T_part_base(x), self.T_flange_sensor(x)
         elems = tuple(
-            None if kind == "rz" else _elementary(kind, x[INDEX[name]])
+            None if kind == "rz" else elementary(kind, x[INDEX[name]])
             for kind, name, _ in CHAIN[1:-1]
         )
         consts: list[F64] = []
@@ -365,7 +367,7 @@ def _batched_elementary(kind: str, value: F64 | float, n: int) -> F64:
         E[:, 0, 0], E[:, 0, 1], E[:, 1, 0], E[:, 1, 1] = c, -s, s, c
         E[:, 2, 2] = E[:, 3, 3] = 1.0
         return E
-    return _elementary(kind, float(value))
+    return elementary(kind, float(value))
 
 
 def check_active(active: Sequence[str], known: Sequence[str] = ALL_NAMES) -> tuple[str, ...]:

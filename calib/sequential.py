@@ -182,6 +182,25 @@ class SequentialEstimator:
         self.n_accepted += 1
         return Update(True, d2, r)
 
+    def widen(self) -> None:
+        """The caller knows the model changed (a knock flagged elsewhere): grow P by
+        diag(knock^2) now, as a run of `knock_after` rejections would."""
+        self._P = self._P + self._knock
+        self.n_knocks += 1
+        self._in_a_row = 0
+
+    def predicted_std_mm(
+        self, q_deg: ArrayLike, c_sensor_mm: ArrayLike, temp_c: ArrayLike | None = None
+    ) -> float:
+        """How well the current estimate predicts the part-frame point at K views (K, 6) with
+        the sphere at c_sensor_mm (K, 3): the RMS over the views of sqrt(trace(H P H^T) / 3)
+        [mm per coordinate], to compare with the measurement noise."""
+        q = np.atleast_2d(np.asarray(q_deg, dtype=float))
+        t = None if temp_c is None else np.broadcast_to(np.asarray(temp_c, float), q.shape[:1])
+        H = self.model.point_jacobian(self._x, q, c_sensor_mm, self.active, temp_c=t)
+        var = np.einsum("kil,lm,kim->k", H, self._P, H) / 3.0
+        return float(np.sqrt(np.mean(var)))
+
     # -- adaptive scheduling -------------------------------------------------------------
     def information_gain(
         self, q_deg: ArrayLike, c_sensor_mm: ArrayLike, temp_c: ArrayLike | None = None

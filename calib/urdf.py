@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from calib import robot
-from calib.model import CHAIN, INDEX, SystemModel, _elementary
+from calib.model import CHAIN, INDEX, SystemModel, elementary
 from calib.transforms import inverse, pose, rot_z
 from calib.wpr import rpy_from_matrix
 
@@ -92,11 +92,11 @@ def _joint_blocks(x: F64) -> list[F64]:
     for kind, name, _ in CHAIN[1:-1]:
         if kind == "rz":
             rz = pose(rot_z(offset[joint] + x[INDEX[name]]), np.zeros(3))
-            d = _elementary("tz", x[INDEX[f"d{joint + 1}"]])
+            d = elementary("tz", x[INDEX[f"d{joint + 1}"]])
             blocks.append(M @ d @ rz)
             M, joint = np.eye(4), joint + 1
         elif kind != "tz":
-            M = M @ _elementary(kind, x[INDEX[name]])
+            M = M @ elementary(kind, x[INDEX[name]])
     return blocks
 
 

@@ -7,6 +7,8 @@ real hardware"):
     PLC -> app   status word   bit 0 window_open (the clamps leave the robot a window to measure),
                                bit 1 line_running (the line is in automatic)
                  heartbeat     a counter the PLC increments (at least every second)
+                 cell temp     optional third word: the cell's air temperature in 0.01 degC,
+                               signed 16 bit; 0x8000 = no sensor (a backend may omit the word)
     app -> PLC   status word   bit 0 busy (the robot is out of home / measuring), bit 1 done (the
                                measurement finished and the robot is home), bit 2 fault (the app
                                has a fault; the PLC must not wait for done)
@@ -17,14 +19,14 @@ heartbeat-alive check (a PLC heartbeat unchanged for ``heartbeat_timeout_s`` mea
 the window wait (polls with a deadline, ``poll_s``), busy/done/fault around a window, and the
 outputs reset to zero on every connect. A backend implements only the transport and two
 register-level primitives: ``_connect()``, ``_close()``, ``_read_input_words() -> (status,
-heartbeat)`` and ``_write_output_words((status, heartbeat))``.
+heartbeat[, cell temp])`` and ``_write_output_words((status, heartbeat))``.
 """
 
 from __future__ import annotations
 
 import time
 from abc import abstractmethod
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 
@@ -33,6 +35,7 @@ from drivers.errors import DeviceConfigError, DeviceTimeout
 
 WINDOW_OPEN, LINE_RUNNING = 0x1, 0x2  # PLC status word bits
 BUSY, DONE, FAULT = 0x1, 0x2, 0x4  # app status word bits
+NO_TEMPERATURE = 0x8000  # the cell temperature word when the PLC has no sensor
 
 
 @dataclass(frozen=True)
@@ -40,6 +43,7 @@ class PlcInputs:
     window_open: bool
     line_running: bool
     heartbeat: int
+    temp_c: float | None = None  # the cell's air temperature [degC], None without a sensor
 
 
 @dataclass(frozen=True)
@@ -50,12 +54,30 @@ class PlcOutputs:
     heartbeat: int = 0
 
 
-def decode_inputs(words: tuple[int, int]) -> PlcInputs:
-    status, beat = words
+def decode_temp(word: int) -> float | None:
+    """Signed 0.01 degC -> degC (NO_TEMPERATURE -> None)."""
+    word = int(word) & 0xFFFF
+    if word == NO_TEMPERATURE:
+        return None
+    return (word - 0x10000 if word & 0x8000 else word) / 100.0
+
+
+def encode_temp(temp_c: float | None) -> int:
+    """degC -> signed 0.01 degC (None -> NO_TEMPERATURE); clamped to the word's range."""
+    if temp_c is None:
+        return NO_TEMPERATURE
+    centi = max(-32767, min(32767, round(float(temp_c) * 100.0)))
+    return centi & 0xFFFF
+
+
+def decode_inputs(words: Sequence[int]) -> PlcInputs:
+    """(status, heartbeat) or (status, heartbeat, cell temperature) -> PlcInputs."""
+    status, beat = words[0], words[1]
     return PlcInputs(
         window_open=bool(status & WINDOW_OPEN),
         line_running=bool(status & LINE_RUNNING),
         heartbeat=int(beat) & 0xFFFF,
+        temp_c=decode_temp(words[2]) if len(words) > 2 else None,
     )
 
 
@@ -171,8 +193,8 @@ class Plc(Device):
         """Open the transport (the base class resets the outputs after it)."""
 
     @abstractmethod
-    def _read_input_words(self) -> tuple[int, int]:
-        """The PLC's (status word, heartbeat word)."""
+    def _read_input_words(self) -> tuple[int, ...]:
+        """The PLC's (status word, heartbeat word) or (status, heartbeat, cell temperature)."""
 
     @abstractmethod
     def _write_output_words(self, words: tuple[int, int]) -> None:

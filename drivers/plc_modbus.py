@@ -4,10 +4,12 @@ Holding registers (16-bit words) relative to ``base``; the PLC is the server:
 
     word 0   PLC_STATUS     bit 0 window_open, bit 1 line_running        (PLC writes)
     word 1   PLC_HEARTBEAT  incremented by the PLC at least every second  (PLC writes)
+    word 2   PLC_CELL_TEMP  cell air temperature, signed 0.01 degC; 0x8000 none (PLC writes)
     word 10  APP_STATUS     bit 0 busy, bit 1 done, bit 2 fault           (app writes)
     word 11  APP_HEARTBEAT  incremented by the app on every poll         (app writes)
 
-The bits are the family's (drivers/plc.py); the app writes words 10-11 in one request. Safety
+The bits are the family's (drivers/plc.py); the app reads words 0-2 and writes words 10-11,
+each in one request. Safety
 interlocks are not here: they stay in the safety PLC.
 """
 
@@ -20,7 +22,7 @@ from drivers.plc import Plc
 from drivers.registry import DeviceUrl
 
 DEFAULT_PORT = 502
-PLC_STATUS, PLC_HEARTBEAT, APP_STATUS, APP_HEARTBEAT = 0, 1, 10, 11
+PLC_STATUS, PLC_HEARTBEAT, PLC_CELL_TEMP, APP_STATUS, APP_HEARTBEAT = 0, 1, 2, 10, 11
 REGISTER_COUNT = 12
 
 
@@ -56,9 +58,9 @@ class ModbusPlc(Plc):
         if link is not None:
             link.close()
 
-    def _read_input_words(self) -> tuple[int, int]:
-        status, beat = require_link(self._link, self.name).read(self.base + PLC_STATUS, 2)
-        return status, beat
+    def _read_input_words(self) -> tuple[int, ...]:
+        status, beat, temp = require_link(self._link, self.name).read(self.base + PLC_STATUS, 3)
+        return status, beat, temp
 
     def _write_output_words(self, words: tuple[int, int]) -> None:
         require_link(self._link, self.name).write(self.base + APP_STATUS, list(words))

@@ -125,6 +125,7 @@ class SimLine:
             )
         rng = np.random.default_rng([seed, 8])
         self.truth = LineTruth(cell, validation_positions(cell, self.settings.n_validation, rng))
+        self.plc.temperature = self.truth.temp_c  # the PLC's cell temperature word
         self.faults = FaultScheduler(self.clock, self.inject)
         self._started = False
 

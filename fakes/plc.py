@@ -1,14 +1,16 @@
 """A pymodbus server playing the line PLC (register map in drivers/plc_modbus.py): it runs a
 ClampCycle (for example an 8 s window every 60 s, compressed by ``time_scale`` in tests) and
-records what the app writes. ``heartbeat_frozen = True`` simulates a stalled PLC.
+records what the app writes. ``heartbeat_frozen = True`` simulates a stalled PLC;
+``temperature`` (a callable returning degC, or None) feeds the cell temperature word.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
-from drivers.plc import PlcOutputs, decode_outputs, encode_inputs
-from drivers.plc_modbus import APP_STATUS, PLC_STATUS, REGISTER_COUNT
+from drivers.plc import PlcOutputs, decode_outputs, encode_inputs, encode_temp
+from drivers.plc_modbus import APP_STATUS, PLC_CELL_TEMP, PLC_STATUS, REGISTER_COUNT
 from fakes._modbus_server import RegisterServer
 from fakes.devices import ClampCycle
 
@@ -21,6 +23,7 @@ class PlcServer(RegisterServer):
         self.cycle = cycle or ClampCycle()
         self.base = base
         self.heartbeat_frozen = False
+        self.temperature: Callable[[], float | None] | None = None
         self.received = PlcOutputs()
         self.history: list[PlcOutputs] = []  # every change the app made, in order
 
@@ -28,6 +31,8 @@ class PlcServer(RegisterServer):
         inputs = self.cycle.inputs(now - self.t0, self.heartbeat_frozen)
         p = self.base + PLC_STATUS
         regs[p : p + 2] = encode_inputs(inputs)
+        temp = None if self.temperature is None else self.temperature()
+        regs[self.base + PLC_CELL_TEMP] = encode_temp(temp)
         a = self.base + APP_STATUS
         if a in written or a + 1 in written:
             out = decode_outputs((written.get(a, regs[a]), written.get(a + 1, regs[a + 1])))

@@ -7,6 +7,7 @@ the simulated line with warm-up and a knock (app/sim/shift.py)."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from pathlib import Path
 
@@ -60,6 +61,18 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--geometric", action="store_true", help="shift: geometric measurements (the default)"
     )
     g.add_argument("--rendered", action="store_true", help="shift: measure through images")
+    g.add_argument(
+        "--model",
+        choices=("rigid", "compliant"),
+        help="shift: the model the service identifies (default [calibration] model)",
+    )
+    g.add_argument(
+        "--estimator",
+        choices=("batch", "sequential", "compare"),
+        help="shift: the service's estimator (default [service] estimator); compare: one shift"
+        " each with batch, sequential and sequential with adaptive scheduling, and"
+        " shift-estimators.md",
+    )
     p.set_defaults(func=run)
 
 
@@ -109,7 +122,13 @@ def run_accuracy_command(args: argparse.Namespace, cfg: CellConfig, out: Path) -
 
 def run_shift_experiment(args: argparse.Namespace) -> int:
     from app.sim.line_run import WindowRecord
-    from app.sim.shift import ShiftSettings, run_shift, summary_lines, write_outputs
+    from app.sim.shift import (
+        ShiftSettings,
+        run_shift,
+        summary_lines,
+        write_estimators,
+        write_outputs,
+    )
 
     if args.geometric and args.rendered:
         raise InputError("choose --geometric or --rendered", field="--rendered")
@@ -120,6 +139,7 @@ def run_shift_experiment(args: argparse.Namespace) -> int:
             geometric=not args.rendered,
             scale=args.scale,
             slots_per_window=args.slots_per_window,
+            model=args.model,
         )
     except ValueError as exc:
         raise InputError(str(exc), field="--hours/--knock-at-h/--scale") from exc
@@ -138,15 +158,35 @@ def run_shift_experiment(args: argparse.Namespace) -> int:
             )
 
     print(f"rvis experiment shift: {args.hours:g} h, knock at {args.knock_at_h:g} h -> {out}/")
-    result = run_shift(cfg, out / "state", settings, seed=args.seed, on_window=progress)
-    command = (
-        f"rvis experiment shift --hours {args.hours:g} --knock-at-h {args.knock_at_h:g}"
-        f" --seed {args.seed} --scale {result.scale:g} --out {out}"
-        + (f" --slots-per-window {args.slots_per_window}" if args.slots_per_window else "")
-        + (" --rendered" if args.rendered else "")
-    )
-    paths = write_outputs(result, out, command)
-    print()
-    print("\n".join(summary_lines(result)))
-    print(f"\nwritten {', '.join(str(p) for p in paths)} in {result.real_s:.0f} s")
+    runs = {  # the name in the comparison -> (estimator, schedule)
+        "batch": ("batch", "cycle"),
+        "sequential": ("sequential", "cycle"),
+        "sequential, adaptive": ("sequential", "adaptive"),
+    }
+    names = list(runs) if args.estimator == "compare" else [args.estimator]
+    results = {}
+    for name in names:
+        estimator, schedule = runs[name] if args.estimator == "compare" else (name, None)
+        s = dataclasses.replace(settings, estimator=estimator, schedule=schedule)
+        sub = out if len(names) == 1 else out / str(name).replace(", ", "-")
+        if len(names) > 1:
+            print(f"estimator: {name}")
+        results[str(name)] = result = run_shift(
+            cfg, sub / "state", s, seed=args.seed, on_window=progress
+        )
+        command = (
+            f"rvis experiment shift --hours {args.hours:g} --knock-at-h {args.knock_at_h:g}"
+            f" --seed {args.seed} --scale {result.scale:g} --out {out}"
+            + (f" --slots-per-window {args.slots_per_window}" if args.slots_per_window else "")
+            + (" --rendered" if args.rendered else "")
+            + (f" --estimator {args.estimator}" if args.estimator else "")
+            + (f" --model {args.model}" if args.model else "")
+        )
+        paths = write_outputs(result, sub, command)
+        print()
+        print("\n".join(summary_lines(result)))
+        print(f"\nwritten {', '.join(str(p) for p in paths)} in {result.real_s:.0f} s")
+    if len(names) > 1:
+        paths = write_estimators(results, out, command)
+        print(f"written {', '.join(str(p) for p in paths)}")
     return 0

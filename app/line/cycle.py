@@ -13,7 +13,7 @@ done. A device error propagates (the service goes to FAULT); so does nothing els
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from app.line.clock import Clock
@@ -136,7 +136,7 @@ class WindowReport:
     measured: int = 0
     rejected: int = 0
     withdrawn: str = ""  # why, when the PLC took the window back
-    overrun: bool = False  # home only after the window's expected end
+    overrun: bool = False  # the robot moved and was home only after the window's expected end
     note: str = ""
 
     def to_json(self) -> dict[str, object]:
@@ -153,9 +153,11 @@ class Cycle:
         schedule: Schedule,
         position: Callable[[], int],
         record: Recorder,
+        choose: Callable[[Sequence[Slot]], Slot] | None = None,
     ) -> None:
+        """`choose`: adaptive scheduling (the pick among the slots that fit), else cycled."""
         self.watch, self.measurer, self.schedule = watch, measurer, schedule
-        self.position, self.record = position, record
+        self.position, self.record, self.choose = position, record, choose
         self.plc, self.clock, self.line = watch.plc, watch.clock, watch.line
 
     def run_window(self, window: int) -> WindowReport:
@@ -174,7 +176,10 @@ class Cycle:
             if self.measurer.robot.fault is not None:
                 self.measurer.robot.reset()  # our own abort latched it
         self.measurer.go_home()
-        report.overrun = self.clock.monotonic() > end_t
+        # the robot left home and came back after the window's end (a window seen too late,
+        # in which nothing moved, is no overrun: the cell was never occupied)
+        moved = bool(report.slots) or bool(guard.withdrawn) or report.note == "robot brought home"
+        report.overrun = moved and self.clock.monotonic() > end_t
         self.plc.set_signals(busy=False, done=not guard.withdrawn, fault=False)
         return report
 
@@ -186,7 +191,9 @@ class Cycle:
         for _ in range(self.line.slots_per_window):
             q_now = self.measurer.robot.joints_deg()
             remaining = self.watch.remaining_s()
-            slot = self.schedule.next_fitting(self.position(), q_now, remaining, sensor_s)
+            slot = self.schedule.next_fitting(
+                self.position(), q_now, remaining, sensor_s, self.choose
+            )
             if slot is None or guard.withdrawn:
                 report.note = report.note or ("" if guard.withdrawn else "no slot fits")
                 return

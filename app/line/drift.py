@@ -1,23 +1,43 @@
-"""Drift watch: every measurement's residual against its known sphere, with the parameters in
-force, charted by EWMA and CUSUM per sphere and overall.
+"""Drift watch: two families of EWMA and CUSUM charts, per sphere and overall.
 
-The residual e = |T_part_sensor(q; x) c - p| [mm] (calib.model.SystemModel.points_part) of a
-good calibration is small noise; warm-up, wear or a knock shift it up. Each chart learns its
-in-control mean mu and sigma from its first `baseline_n` samples after a calibration is applied
-(`reset`), then watches (upper side only: a smaller residual is no alarm):
+**Residual** charts watch e = |T_part_sensor(q; x) c - p| [mm] (SystemModel.points_part), the
+distance of each measured sphere centre, mapped with the parameters in force, from the sphere's
+known centre: warm-up and wear make the parameters stale and e grows. Their in-control mean mu and
+sigma come, when parameters are applied, from the residuals of the calibration's own rolling set
+with the new parameters (`reset(seed)`): every configuration of the schedule at once, so the
+charts watch from the first measurement after an apply instead of learning a baseline from the
+next (possibly already knocked) measurements. A residual the fit was trained on underestimates a
+new one at the same configuration: for a least-squares fit of n parameters to m equations the
+expected squared residual is sigma^2 (m - n), a new measurement's prediction error at the same
+points sigma^2 (m + n); the service scales the training residuals by sqrt((m + n) / (m - n))
+(`prediction_inflation`). Without a seed (the commissioning parameters) a chart learns mu and
+sigma from its first `baseline_n` samples.
+
+**Change** charts watch d = |c_t - c_prev| [mm]: how far the measured centre (sensor frame) moved
+since the previous visit of the same schedule slot (the same joint configuration, the same
+sphere). d does not depend on the parameters at all (the same T_part_sensor maps both), so a step
+of the cell (a knock of the sensor mount, a moved sphere) shows as soon as the first configuration
+is measured again, whatever was applied in between; the baseline (sensor noise, robot
+repeatability and the slow drift over one schedule cycle) is learned once from the first
+`baseline_n` differences and kept; an apply restarts the statistics, not the baseline.
+
+Both use the REFERENCE.md limits (upper side only: a smaller statistic is no alarm):
 
 - EWMA z_t = lambda e_t + (1 - lambda) z_{t-1}, z_0 = mu; signal when
   z_t > mu + L sigma sqrt(lambda / (2 - lambda) (1 - (1 - lambda)^(2t)))
-  (lambda 0.2, L 3: the REFERENCE.md limits, with the exact start-up factor);
+  (lambda 0.2, L 3, with the exact start-up factor);
 - CUSUM S_t = max(0, S_{t-1} + e_t - mu - k sigma); signal when S_t > h sigma (k 0.5, h 5:
   a 1-sigma step flagged in about 10 samples, a 3-sigma step in 2-3).
 
-A chart signals once and stays "drifting" until the next reset.
+A chart signals once and stays "drifting" until restarted. Every signal carries the change point
+estimate of the CUSUM (the first sample after S was last zero), as the caller's reference (a
+measurement id): the recalibration after a step uses only measurements from there on.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -29,34 +49,53 @@ OVERALL = "*"
 
 
 def residual_mm(
-    model: SystemModel, x: ArrayLike, q_deg: ArrayLike, c_sensor_mm: ArrayLike, p_part_mm: ArrayLike
+    model: SystemModel,
+    x: ArrayLike,
+    q_deg: ArrayLike,
+    c_sensor_mm: ArrayLike,
+    p_part_mm: ArrayLike,
+    temp_c: float | None = None,
 ) -> float:
     """Distance [mm] between the measured sphere centre mapped to the part frame with the
-    parameters x and the sphere's known centre."""
+    parameters x (at the cell temperature `temp_c` [degC] when the model has a thermal term)
+    and the sphere's known centre."""
     p = model.points_part(
         np.asarray(x, float),
         np.asarray(q_deg, float).reshape(1, 6),
         np.asarray(c_sensor_mm, float).reshape(1, 3),
+        temp_c=None if temp_c is None else np.array([float(temp_c)]),
     )
     return float(np.linalg.norm(p.reshape(3) - np.asarray(p_part_mm, float)))
 
 
+def prediction_inflation(m_equations: int, n_parameters: int) -> float:
+    """sqrt((m + n) / (m - n)): a least-squares fit's training residual -> the expected
+    prediction error of a new measurement at the same configurations (module docstring)."""
+    if m_equations <= n_parameters:
+        raise ValueError(f"{m_equations} equations for {n_parameters} parameters")
+    return float(np.sqrt((m_equations + n_parameters) / (m_equations - n_parameters)))
+
+
 @dataclass(frozen=True)
 class DriftSignal:
-    """A chart (`stream`: a sphere id or "*" overall) left its limits (`chart`: ewma or cusum)
-    at this sample, with the statistic and its limit [mm]."""
+    """A chart (`family`: residual or change; `stream`: a sphere id or "*" overall) left its
+    limits (`chart`: ewma or cusum) at this sample, with the statistic and its limit [mm] and
+    the change point estimate (`onset_ref`: the caller's reference of the first sample after
+    the CUSUM was last zero)."""
 
+    family: str
     stream: str
     chart: str
     value_mm: float
     limit_mm: float
     mu_mm: float
     sigma_mm: float
+    onset_ref: int
 
 
 @dataclass
 class Chart:
-    """EWMA and CUSUM of one stream of residuals."""
+    """EWMA and CUSUM of one stream."""
 
     settings: DriftSettings
     baseline: list[float] = field(default_factory=list)
@@ -66,51 +105,72 @@ class Chart:
     s_hi: float = 0.0
     t: int = 0
     drifting: bool = False
+    onset_ref: int = -1  # first sample after the CUSUM was last zero
+    ready: bool = False  # mu and sigma known
 
-    def update(self, stream: str, e_mm: float) -> DriftSignal | None:
+    def seed(self, samples: list[float], sigma_floor_mm: float = 0.0) -> None:
+        """Take mu and sigma (at least `sigma_floor_mm`) from these samples (at least 2) at
+        once, and watch."""
+        if len(samples) < 2:
+            raise ValueError("a baseline needs at least 2 samples")
+        self.baseline, self.ready = list(samples), True
+        self.mu = float(np.mean(samples))
+        sigma = float(np.std(samples, ddof=1))
+        self.sigma = max(sigma, self.settings.min_sigma_mm, sigma_floor_mm)
+        self.restart()
+
+    def restart(self) -> None:
+        """Keep the baseline, restart the statistics."""
+        self.z, self.s_hi, self.t, self.drifting = self.mu, 0.0, 0, False
+
+    def update(self, family: str, stream: str, e_mm: float, ref: int) -> DriftSignal | None:
         s = self.settings
-        if len(self.baseline) < s.baseline_n:
+        if not self.ready:
             self.baseline.append(e_mm)
-            if len(self.baseline) == s.baseline_n:
-                self.mu = float(np.mean(self.baseline))
-                self.sigma = max(float(np.std(self.baseline, ddof=1)), s.min_sigma_mm)
-                self.z = self.mu
+            if len(self.baseline) >= s.baseline_n:
+                self.seed(self.baseline)
             return None
         self.t += 1
         lam = s.ewma_lambda
         self.z = lam * e_mm + (1.0 - lam) * self.z
         spread = np.sqrt(lam / (2.0 - lam) * (1.0 - (1.0 - lam) ** (2 * self.t)))
         ewma_limit = self.mu + s.ewma_l * self.sigma * float(spread)
+        if self.s_hi == 0.0:
+            self.onset_ref = ref
         self.s_hi = max(0.0, self.s_hi + e_mm - self.mu - s.cusum_k * self.sigma)
         cusum_limit = s.cusum_h * self.sigma
         if self.drifting:
             return None
-        if self.s_hi > cusum_limit:
-            self.drifting = True
-            return DriftSignal(stream, "cusum", self.s_hi, cusum_limit, self.mu, self.sigma)
-        if self.z > ewma_limit:
-            self.drifting = True
-            return DriftSignal(stream, "ewma", self.z, ewma_limit, self.mu, self.sigma)
+        tests = (("cusum", self.s_hi, cusum_limit), ("ewma", self.z, ewma_limit))
+        for chart, value, limit in tests:
+            if value > limit:
+                self.drifting = True
+                onset = self.onset_ref if self.s_hi > 0.0 else ref
+                return DriftSignal(family, stream, chart, value, limit, self.mu, self.sigma, onset)
         return None
 
+    def state(self) -> dict[str, float | bool]:
+        return {
+            "mu_mm": self.mu,
+            "sigma_mm": self.sigma,
+            "ewma_mm": self.z,
+            "cusum_mm": self.s_hi,
+            "drifting": self.drifting,
+        }
 
-class DriftMonitor:
-    """Charts per sphere and overall ("*")."""
 
-    def __init__(self, settings: DriftSettings | None = None) -> None:
-        self.settings = settings or DriftSettings()
+class ChartFamily:
+    """Charts of one statistic per sphere and overall ("*")."""
+
+    def __init__(self, family: str, settings: DriftSettings) -> None:
+        self.family, self.settings = family, settings
         self.charts: dict[str, Chart] = {}
 
-    def reset(self) -> None:
-        """New parameters are in force: learn every baseline again."""
-        self.charts.clear()
-
-    def update(self, target: str, e_mm: float) -> list[DriftSignal]:
-        """Feed one residual; the signals it raised (at most one per stream)."""
+    def update(self, target: str, value_mm: float, ref: int) -> list[DriftSignal]:
         out = []
         for stream in (target, OVERALL):
             chart = self.charts.setdefault(stream, Chart(self.settings))
-            signal = chart.update(stream, e_mm)
+            signal = chart.update(self.family, stream, value_mm, ref)
             if signal is not None:
                 out.append(signal)
         return out
@@ -120,13 +180,69 @@ class DriftMonitor:
         return any(c.drifting for c in self.charts.values())
 
     def state(self) -> dict[str, dict[str, float | bool]]:
-        return {
-            k: {
-                "mu_mm": c.mu,
-                "sigma_mm": c.sigma,
-                "ewma_mm": c.z,
-                "cusum_mm": c.s_hi,
-                "drifting": c.drifting,
-            }
-            for k, c in list(self.charts.items())  # read from the control socket's threads
-        }
+        return {k: c.state() for k, c in list(self.charts.items())}  # read by other threads
+
+
+class DriftMonitor:
+    """The residual and the change charts (module docstring)."""
+
+    def __init__(
+        self, settings: DriftSettings | None = None, *, residual_baseline_n: int = 0
+    ) -> None:
+        """`residual_baseline_n`: a learned residual baseline spans at least this many samples
+        (the schedule's length, so that it holds every configuration's level)."""
+        self.settings = settings or DriftSettings()
+        n = max(self.settings.baseline_n, residual_baseline_n)
+        self.residual = ChartFamily("residual", replace(self.settings, baseline_n=n))
+        self.change = ChartFamily("change", self.settings)
+
+    def reset(self, seed: Sequence[tuple[str, float]] = ()) -> None:
+        """New parameters are in force: the residual charts start again, seeded with the new
+        parameters' residuals `seed` (target, e_mm) when given (a sphere with fewer than
+        `baseline_n` of them keeps its own mean but takes at least the pooled sigma: 6 samples
+        give sigma +-30 %), else they learn; the change charts keep their baseline and restart."""
+        self.residual.charts.clear()
+        streams: dict[str, list[float]] = {OVERALL: []}
+        for target, e_mm in seed:
+            streams.setdefault(target, []).append(float(e_mm))
+            streams[OVERALL].append(float(e_mm))
+        pooled = streams[OVERALL]
+        if len(pooled) >= 2:
+            sigma_pooled = float(np.std(pooled, ddof=1))
+            for stream, samples in streams.items():
+                few = len(samples) < self.settings.baseline_n
+                self.residual.charts[stream] = chart = Chart(self.residual.settings)
+                chart.seed(samples if len(samples) >= 2 else pooled, sigma_pooled if few else 0.0)
+        self._restart_change()
+
+    def _restart_change(self) -> None:
+        for chart in self.change.charts.values():
+            chart.restart()
+
+    def update(
+        self, target: str, e_mm: float, ref: int, change_mm: float | None = None
+    ) -> list[DriftSignal]:
+        """Feed one measurement's residual (and its change since the slot's previous visit, if
+        there is one); the signals it raised (at most one per chart)."""
+        out = self.residual.update(target, e_mm, ref)
+        if change_mm is not None:
+            out += self.change.update(target, change_mm, ref)
+        return out
+
+    @property
+    def drifting(self) -> bool:
+        return self.residual.drifting or self.change.drifting
+
+    @property
+    def change_watching(self) -> bool:
+        """The overall change chart has its baseline (a step would show there)."""
+        chart = self.change.charts.get(OVERALL)
+        return chart is not None and chart.ready
+
+    def state(self) -> dict[str, dict[str, float | bool]]:
+        """The residual charts (the status reply's `drift`)."""
+        return self.residual.state()
+
+    def change_state(self) -> dict[str, dict[str, float | bool]]:
+        """The change charts (the status reply's `drift_change`)."""
+        return self.change.state()

@@ -51,7 +51,7 @@ def alarm_status(a: dict[str, Any]) -> dict[str, Any]:
 
 
 def _calibration(svc: Service, cal_id: int) -> dict[str, Any] | None:
-    return next((c for c in svc.store.calibrations() if c["id"] == cal_id), None)
+    return svc.store.calibration(cal_id)
 
 
 def device_of(exc: BaseException, devices: Mapping[str, object]) -> str | None:
@@ -145,7 +145,9 @@ class OperatorCommands:
             "window": self._window_status(),
             "calibration": self._calibration_status(),
             "alarms": [alarm_status(a) for a in svc.store.active_alarms()],
+            "cell_temp_c": svc.cell_temp_c,
             "drift": svc.drift.state(),
+            "drift_change": svc.drift.change_state(),
             "step": self._step_text(),
             "devices": self._device_status(),
             "pending": self._pending_status(),

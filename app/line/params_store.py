@@ -77,3 +77,10 @@ class ParamsStore:
             return None
         model, x = from_json(self.current_path)
         return version, model, x
+
+    def current_document(self) -> dict[str, Any] | None:
+        """The document in force as written (its identification's covariance included)."""
+        if not self.current_path.exists():
+            return None
+        doc = json.loads(self.current_path.read_text(encoding="utf-8"))
+        return doc if isinstance(doc, dict) else None

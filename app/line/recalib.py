@@ -62,12 +62,15 @@ class RecalOutcome:
 
 
 def as_measurements(rows: Sequence[Mapping[str, Any]], spheres: Mapping[str, F64]) -> Measurements:
-    """Stored measurement rows -> calib Measurements against the spheres' known centres."""
+    """Stored measurement rows -> calib Measurements against the spheres' known centres, with
+    the cell temperatures when every row has one."""
+    temps = [r.get("temp_c") for r in rows]
     return Measurements(
         np.array([r["q_deg"] for r in rows], dtype=float).reshape(-1, 6),
         np.array([r["c_sensor_mm"] for r in rows], dtype=float).reshape(-1, 3),
         np.array([spheres[r["target"]] for r in rows], dtype=float).reshape(-1, 3),
         tuple(str(r["target"]) for r in rows),
+        None if not rows or None in temps else np.array(temps, dtype=float),
     )
 
 

@@ -10,7 +10,7 @@ override, plus the acceleration and settling allowances (REFERENCE.md "In-line o
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -77,14 +77,21 @@ class Schedule:
         return there + sensor_s + motion_time_s(slot.q_deg, self.home_deg, self.line)
 
     def next_fitting(
-        self, position: int, current_deg: ArrayLike, remaining_s: float, sensor_s: float
+        self,
+        position: int,
+        current_deg: ArrayLike,
+        remaining_s: float,
+        sensor_s: float,
+        choose: Callable[[Sequence[Slot]], Slot] | None = None,
     ) -> Slot | None:
         """The first slot from `position` on (cyclically) that fits in `remaining_s` less the
-        margin, or None when none does."""
+        margin, or None when none does; with `choose` (adaptive scheduling), its pick among
+        every slot that fits."""
         budget = remaining_s - self.line.margin_s
         n = len(self.slots)
-        for k in range(n):
-            slot = self.slots[(position + k) % n]
-            if self.slot_time_s(current_deg, slot, sensor_s) <= budget:
-                return slot
-        return None
+        order = [self.slots[(position + k) % n] for k in range(n)]
+        fitting = (s for s in order if self.slot_time_s(current_deg, s, sensor_s) <= budget)
+        if choose is None:
+            return next(fitting, None)
+        pool = list(fitting)
+        return choose(pool) if pool else None

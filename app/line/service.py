@@ -17,7 +17,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import threading
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from concurrent.futures import Future
 from enum import StrEnum
 from queue import Empty, Queue
@@ -28,8 +28,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from app.line.clock import Clock, RealClock
 from app.line.cycle import Cycle, WindowWatch
-from app.line.drift import DriftMonitor, residual_mm
+from app.line.drift import DriftMonitor, prediction_inflation, residual_mm
 from app.line.events import EventBus
+from app.line.inline_seq import InlineSequential, SequentialCandidate
 from app.line.measure import Reading, SphereMeasurer, SphereSensor
 from app.line.operator import OperatorCommands
 from app.line.params_store import ParamsStore
@@ -82,16 +83,24 @@ class Service(OperatorCommands):
         self.sweeps = SweepArchive(s.state_dir / "sweeps", s.raw_sweeps_keep)
         self.bus = EventBus(self.store, self.clock)
         self.model, self.x, self.version = self._load_params(model, np.asarray(x_initial, float))
-        self.drift = DriftMonitor(s.drift)
+        self.drift = DriftMonitor(s.drift, residual_baseline_n=len(schedule))
         self.recalibrator = recalibrator or Recalibrator()
+        self.sequential: InlineSequential | None = None
+        if s.recalib.estimator == "sequential":
+            self.sequential = InlineSequential(s.recalib, s.gates, self.spheres, len(schedule))
+            self.sequential.restart(self.model, self.x, self.params.current_document())
         self.watch = WindowWatch(station.plc, self.clock, s.line)
         self.measurer = SphereMeasurer(station.robot, sensor, s.line)
         self.cycle = Cycle(self.watch, self.measurer, schedule, self._position, self._record)
+        if self.sequential is not None and s.recalib.schedule == "adaptive":
+            self.cycle.choose = self._most_informative
         self.state = State.STARTING
         self.paused = False
         self.counters = {"windows": 0, "overruns": 0, "withdrawn": 0}
         self.pending_calibration: int | None = None
-        self.drift_onset_id: int | None = None
+        self.drift_onset_id: int | None = None  # first measurement after a flagged step
+        self.drift_due = False  # the residual charts signalled: recalibrate soon
+        self.last_visit: dict[int, tuple[F64, F64]] = {}  # slot -> (q_deg, c_sensor_mm)
         self.new_since_recal = 0
         self.force_recal = False
         self._stop = threading.Event()
@@ -131,6 +140,7 @@ class Service(OperatorCommands):
         self.bus.emit(
             "started", {"params_version": self.version, "state_dir": str(self.settings.state_dir)}
         )
+        self._restore_drift()
         try:
             self.watch.poll()
             home = self.measurer.at_home()
@@ -233,14 +243,25 @@ class Service(OperatorCommands):
         self._alarm(code, message, "urgent")
 
     # -- measurements --------------------------------------------------------------------------
+    def _most_informative(self, slots: Sequence[Slot]) -> Slot:
+        assert self.sequential is not None
+        return self.sequential.most_informative(self.model, slots, self.last_visit)
+
+    @property
+    def cell_temp_c(self) -> float | None:
+        """The cell temperature [degC] from the PLC's last reading (None: no sensor)."""
+        inputs = self.watch.inputs
+        return None if inputs is None else inputs.temp_c
+
     def _position(self) -> int:
         return self.store.schedule_position()[0]
 
     def _record(self, slot: Slot, window: int, reading: Reading | None, reason: str) -> int:
         e = None
+        temp_c = self.cell_temp_c
         if reading is not None:
             p = self.spheres[slot.target]
-            e = residual_mm(self.model, self.x, slot.q_deg, reading.c_sensor_mm, p)
+            e = residual_mm(self.model, self.x, slot.q_deg, reading.c_sensor_mm, p, temp_c)
         row = {
             "t": self.clock.time(),
             "window": window,
@@ -253,13 +274,16 @@ class Service(OperatorCommands):
             "quality": {} if reading is None else reading.quality,
             "params_version": self.version,
             "residual_mm": e,
+            "temp_c": temp_c,
             "next_position": (slot.index + 1) % len(self.schedule),
         }
         row_id = self.store.add_measurement(row)
         if reading is not None and e is not None:
             self.sweeps.keep(row_id, reading)
             self.new_since_recal += 1
-            self._drift(slot.target, e, row_id)
+            self._drift(slot.target, e, self._change_mm(slot, reading.c_sensor_mm), row_id)
+            if self.sequential is not None:
+                self.sequential.offer({**row, "id": row_id})
         self.bus.emit(
             "measurement",
             {
@@ -273,17 +297,85 @@ class Service(OperatorCommands):
         )
         return row_id
 
-    def _drift(self, target: str, e_mm: float, row_id: int) -> None:
-        for sig in self.drift.update(target, e_mm):
+    def _change_mm(self, slot: Slot, c_sensor_mm: F64) -> float | None:
+        """How far the centre moved since this slot's previous visit (same configuration)."""
+        prev = self.last_visit.get(slot.index)
+        self.last_visit[slot.index] = (slot.q_deg.copy(), np.asarray(c_sensor_mm, float).copy())
+        if prev is None or not np.allclose(prev[0], slot.q_deg, atol=1e-6):
+            return None
+        return float(np.linalg.norm(np.asarray(c_sensor_mm, float) - prev[1]))
+
+    def _drift(self, target: str, e_mm: float, change_mm: float | None, row_id: int) -> None:
+        """A residual signal while the change charts watch is slow drift: the service handles
+        it (recalibration brought forward), an advisory `drift` alarm of low priority. A step
+        (a change signal, or any signal before the change charts watch) may need a person to
+        look at the cell: a `drift_step` alarm of high priority, and only measurements from the
+        change point on are used."""
+        for sig in self.drift.update(target, e_mm, row_id, change_mm):
+            where = "all spheres" if sig.stream == "*" else sig.stream
+            stat = f"{sig.chart} {sig.value_mm:.3f} > {sig.limit_mm:.3f} mm"
+            if sig.family == "residual" and self.drift.change_watching:
+                self.drift_due = True
+                self._alarm(
+                    "drift",
+                    f"drift of {where} (residual, {stat}): recalibration brought forward",
+                    "low",
+                )
+                continue
             if self.drift_onset_id is None:
-                self.drift_onset_id = row_id
+                self.drift_onset_id = sig.onset_ref
+                if self.sequential is not None:
+                    self.sequential.widen(sig.onset_ref)
+            what = "residual" if sig.family == "residual" else "change since the last visit"
             self._alarm(
-                "drift",
-                f"drift of {'all spheres' if sig.stream == '*' else sig.stream}"
-                f" ({sig.chart} {sig.value_mm:.3f} > {sig.limit_mm:.3f} mm):"
-                " recalibration brought forward",
-                "medium",
+                "drift_step",
+                f"step of {where} ({what}, {stat}) since measurement {self.drift_onset_id}:"
+                " check the cell (sensor mount, spheres); recalibrating on the measurements"
+                " after it",
+                "high",
             )
+
+    def _drift_seed(self, cal_id: int | None) -> list[tuple[str, float]]:
+        """Residuals of the parameters in force on recent good measurements: the rolling set of
+        batch calibration `cal_id` (its training rows scaled to prediction errors), else the
+        last schedule cycle and hold-out."""
+        cal = self.store.calibration(cal_id)
+        n_train, scale = 0, 1.0
+        if cal is not None and cal["first_id"] is not None and not _sequential(cal["document"]):
+            rows = self.store.measurements(since_id=int(cal["first_id"]) - 1)
+            rows = [r for r in rows if r["id"] <= int(cal["last_id"])]
+            n_train = int(cal["n_measurements"])
+            scale = prediction_inflation(3 * n_train, len(self.x))
+        else:
+            r = self.settings.recalib
+            rows = self.store.measurements(last=len(self.schedule) + r.holdout_size)
+        if len(rows) < len(self.schedule):
+            return []
+        return [
+            (
+                str(r["target"]),
+                (scale if k < n_train else 1.0)
+                * residual_mm(
+                    self.model,
+                    self.x,
+                    r["q_deg"],
+                    r["c_sensor_mm"],
+                    self.spheres[r["target"]],
+                    r.get("temp_c"),
+                ),
+            )
+            for k, r in enumerate(rows)
+        ]
+
+    def _restore_drift(self) -> None:
+        """After a restart: the residual charts from the stored measurements, the last visits."""
+        applied = self.store.applied()
+        cal_id = applied[-1]["calibration_id"] if applied else None
+        self.drift.reset(self._drift_seed(cal_id))
+        for r in self.store.measurements(last=2 * len(self.schedule)):
+            if 0 <= r["slot"] < len(self.schedule):
+                q = np.asarray(r["q_deg"], float)
+                self.last_visit[int(r["slot"])] = (q, np.asarray(r["c_sensor_mm"], float))
 
     # -- recalibration -------------------------------------------------------------------------
     def _between_windows(self) -> None:
@@ -297,9 +389,17 @@ class Service(OperatorCommands):
         r = self.settings.recalib
         if self.force_recal or self.new_since_recal >= r.every_n:
             return True
-        return self.drift_onset_id is not None and self.new_since_recal >= r.holdout_size
+        flagged = self.drift_onset_id is not None or self.drift_due
+        return flagged and self.new_since_recal >= r.holdout_size
 
     def _maybe_recalibrate(self) -> None:
+        if self.sequential is not None:
+            visits = list(self.last_visit.values())
+            views_q = np.array([q for q, _ in visits]).reshape(-1, 6)
+            views_c = np.array([c for _, c in visits]).reshape(-1, 3)
+            if self.pending_calibration is None and self.sequential.due(views_q, views_c):
+                self._recal_done(self.sequential.candidate(self.model, self.x))
+            return
         if self.recalibrator.busy or self.pending_calibration is not None or not self._recal_due():
             return
         since = 0 if self.drift_onset_id is None else self.drift_onset_id - 1
@@ -328,7 +428,7 @@ class Service(OperatorCommands):
             {"n": len(train), "first_id": job.first_id, "last_id": job.last_id},
         )
 
-    def _recal_done(self, out: RecalOutcome) -> None:
+    def _recal_done(self, out: RecalOutcome | SequentialCandidate) -> None:
         status = "pending" if out.passed else "rejected"
         cal_id = self.store.add_calibration(
             {
@@ -364,7 +464,8 @@ class Service(OperatorCommands):
             self.pending_calibration = cal_id
 
     def _apply_calibration(self, cal_id: int, uid: int | None, source: str) -> int:
-        cal = next(c for c in self.store.calibrations() if c["id"] == cal_id)
+        cal = self.store.calibration(cal_id)
+        assert cal is not None, f"no calibration {cal_id}"
         version = self.params.apply(cal["document"])
         t = self.clock.time()
         self.store.decide_calibration(cal_id, "applied", t, uid, version)
@@ -372,16 +473,29 @@ class Service(OperatorCommands):
         return version
 
     def _in_force(self, version: int, cal_id: int | None, source: str, uid: int | None) -> None:
-        """Parameters `version` are current: reload them, restart the drift charts."""
+        """Parameters `version` are current: reload them, restart the drift charts (seeded with
+        the new parameters' residuals); the drift alarm and onset are cleared when the
+        calibration was trained on measurements after the onset only."""
         current = self.params.current()
         assert current is not None
         self.version, self.model, self.x = current
         self.store.add_applied(self.clock.time(), version, cal_id, source, uid)
         self.pending_calibration = None
-        self.drift.reset()
-        self.drift_onset_id = None
+        self.drift.reset(self._drift_seed(cal_id))
+        cal = self.store.calibration(cal_id)
+        if self.sequential is not None and (cal is None or not _sequential(cal["document"])):
+            self.sequential.restart(self.model, self.x, self.params.current_document())
+        onset, self.drift_due = self.drift_onset_id, False
         self.store.clear_alarms(self.clock.time(), "drift")
+        if onset is None or (cal is not None and int(cal["first_id"] or 0) >= onset):
+            self.drift_onset_id = None  # trained after the step (else the next one will be)
+            self.store.clear_alarms(self.clock.time(), "drift_step")
         self.bus.emit(
             "parameters_applied",
             {"version": version, "calibration_id": cal_id, "source": source, "uid": uid},
         )
+
+
+def _sequential(document: Mapping[str, Any] | None) -> bool:
+    """The calibration came from the sequential estimator (app.line.inline_seq)."""
+    return bool(document) and (document or {}).get("estimator", {}).get("kind") == "sequential"

@@ -114,10 +114,29 @@ class RecalibSettings:
     holdout_size: int = 4
     every_n: int = 24  # new measurements between scheduled recalibrations
     max_nfev: int = 200
+    # "batch": identification on the rolling set; "sequential": app.line.inline_seq
+    estimator: Literal["batch", "sequential"] = "batch"
+    seq_apply_every: int = 8  # accepted updates between two candidates
+    seq_measurement_std_mm: float = 0.025
+    seq_drift_mm: float = 0.002  # random-walk standard deviation per update
+    seq_drift_rad: float = 2e-6
+    seq_drift_extra: float = 0.0
+    seq_knock_mm: float = 0.5  # added to the standard deviations when a step is flagged
+    seq_knock_rad: float = 1e-3
+    seq_prior_mm: float = 0.5  # prior of parameters without an identification's covariance
+    seq_prior_rad: float = 1e-3
+    seq_max_std_mm: float = 0.025  # after a step: predicted uncertainty before a candidate
+    # "cycle": the plan's configurations in turn; "adaptive" (sequential only): the most
+    # informative configuration that fits the window
+    schedule: Literal["cycle", "adaptive"] = "cycle"
 
     def __post_init__(self) -> None:
         if self.mode not in ("auto", "approve"):
             raise ValueError("mode must be auto or approve")
+        if self.estimator not in ("batch", "sequential") or self.seq_apply_every < 1:
+            raise ValueError("estimator must be batch or sequential, seq_apply_every >= 1")
+        if self.schedule == "adaptive" and self.estimator != "sequential":
+            raise ValueError("schedule = adaptive needs estimator = sequential")
         if self.rolling_size < 10 or self.holdout_size < 1 or self.every_n < 1:
             raise ValueError("rolling_size >= 10, holdout_size >= 1, every_n >= 1")
 

@@ -57,9 +57,17 @@ MIGRATIONS: tuple[tuple[str, ...], ...] = (
             window INTEGER NOT NULL)""",
         "INSERT INTO schedule (id, position, window) VALUES (1, 0, 0)",
     ),
+    # 1 -> 2: the cell temperature [degC] when the sphere was measured (NULL: no sensor)
+    ("ALTER TABLE measurements ADD COLUMN temp_c REAL",),
 )
 SCHEMA_VERSION = len(MIGRATIONS)
 ACTIVE_ALARM_STATES = ("raised", "acked", "shelved")
+
+
+def _calibration_row(r: dict[str, Any]) -> dict[str, Any]:
+    r["gates"] = json.loads(r["gates"])
+    r["document"] = None if r["document"] is None else json.loads(r["document"])
+    return r
 
 
 def _dumps(value: Any) -> str:
@@ -136,12 +144,13 @@ class Store:
     def add_measurement(self, row: dict[str, Any]) -> int:
         """Store one measurement and its new schedule position in one transaction; returns its
         id once committed to disk. `row`: t, window, slot, target, q_deg, c_sensor_mm (None if
-        rejected), status, reason, quality, params_version, residual_mm, next_position."""
+        rejected), status, reason, quality, params_version, residual_mm, next_position and
+        optionally temp_c."""
         with self._tx() as db:
             cur = db.execute(
                 "INSERT INTO measurements (t, window, slot, target, q_deg, c_sensor_mm, status,"
-                " reason, quality, params_version, residual_mm)"
-                " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                " reason, quality, params_version, residual_mm, temp_c)"
+                " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (
                     row["t"],
                     row["window"],
@@ -154,6 +163,7 @@ class Store:
                     _dumps(row.get("quality", {})),
                     row.get("params_version"),
                     row.get("residual_mm"),
+                    row.get("temp_c"),
                 ),
             )
             db.execute(
@@ -227,10 +237,12 @@ class Store:
     def calibrations(self, status: str | None = None) -> list[dict[str, Any]]:
         where, args = ("WHERE status = ?", (status,)) if status else ("", ())
         rows = self._rows(f"SELECT * FROM calibrations {where} ORDER BY id", args)
-        for r in rows:
-            r["gates"] = json.loads(r["gates"])
-            r["document"] = None if r["document"] is None else json.loads(r["document"])
-        return rows
+        return [_calibration_row(r) for r in rows]
+
+    def calibration(self, cal_id: int | None) -> dict[str, Any] | None:
+        """One calibration by id (None: no such row), without reading the others."""
+        rows = self._rows("SELECT * FROM calibrations WHERE id = ?", (cal_id,))
+        return _calibration_row(rows[0]) if rows else None
 
     def add_applied(
         self, t: float, version: int, calibration_id: int | None, source: str, uid: int | None

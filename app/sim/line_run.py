@@ -13,6 +13,7 @@ known here, never to the service).
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import queue
 import threading
 from collections.abc import Callable, Iterator
@@ -118,9 +119,13 @@ def service_settings(
 
 
 def commissioning(cfg: CellConfig, seed: int) -> F64:
-    """Parameters of an offline calibration of the cold cell (4 spheres x 6 random views)."""
+    """Parameters of an offline calibration of the cold cell (4 spheres x 6 random views) with
+    the cell's model ([calibration] model; the cold cell's temperature with every view)."""
     sim = simulated_sets(cfg, seed, n_validation=1)
-    return identify(sim.model, sim.calibration.measurements).x
+    data = sim.calibration.measurements
+    if data.temp_c is None:
+        data = dataclasses.replace(data, temp_c=np.full(len(data), sim.cell.temp_c))
+    return identify(cfg.identification_model(), data).x
 
 
 def random_schedule(cfg: CellConfig, cell: SimulatedCell, seed: int, n_each: int) -> dict[str, F64]:
@@ -154,7 +159,7 @@ class SimulatedLineRun:
         self.scale = sim_scale(cfg, geometric)
         self.settings = service_settings(cfg, self.state_dir, self.scale, geometric)
         self.geometric, self.plan = geometric, plan
-        self.model = cfg.model()
+        self.model = cfg.identification_model()
         self.x_commissioning = commissioning(cfg, seed)
         self.summary = SimRunSummary()
         self._stack = contextlib.ExitStack()
@@ -210,7 +215,8 @@ class SimulatedLineRun:
         """RMS of the Euclidean error of parameters x at the validation positions, now."""
         v = self.line.truth.validation
         c = self.line.truth.validation_centres_sensor_mm()
-        e = self.model.points_part(x, v.q_deg, c) - v.p_part_mm
+        temp = np.full(len(v.q_deg), self.line.truth.temp_c())  # the PLC's reading, as the line
+        e = self.model.points_part(x, v.q_deg, c, temp_c=temp) - v.p_part_mm
         return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
 
     def start_service(self) -> None:

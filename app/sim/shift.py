@@ -38,6 +38,9 @@ class ShiftSettings:
     geometric: bool = True
     scale: float | None = None
     slots_per_window: int | None = None
+    estimator: str | None = None  # "batch" | "sequential"; None: the cell's [service] estimator
+    model: str | None = None  # "rigid" | "compliant"; None: the cell's [calibration] model
+    schedule: str | None = None  # "cycle" | "adaptive" (sequential); None: the cell's
     recovered_ratio: float = 1.2  # "back": error with the service <= this x its pre-knock level
     pre_knock_windows: int = 10  # windows before the knock whose median sets the pre-knock level
 
@@ -46,6 +49,12 @@ class ShiftSettings:
             raise ValueError("need hours > 0 and 0 <= knock_at_h < hours")
         if self.scale is not None and self.scale <= 0:
             raise ValueError("scale must be > 0")
+        if self.estimator not in (None, "batch", "sequential"):
+            raise ValueError("estimator must be batch or sequential")
+        if self.model not in (None, "rigid", "compliant"):
+            raise ValueError("model must be rigid or compliant")
+        if self.schedule not in (None, "cycle", "adaptive"):
+            raise ValueError("schedule must be cycle or adaptive")
         if self.recovered_ratio < 1 or self.pre_knock_windows < 1:
             raise ValueError("recovered_ratio >= 1 and pre_knock_windows >= 1")
 
@@ -63,6 +72,7 @@ class ShiftResult:
     scale: float
     summary: SimRunSummary
     drift_alarm_windows: list[int] = field(default_factory=list)
+    step_alarm_windows: list[int] = field(default_factory=list)  # the high-priority ones
     applied_windows: list[int] = field(default_factory=list)
     rejected_windows: list[int] = field(default_factory=list)
     window_s: float = 20.0  # the clamp window's length [sim s]
@@ -87,6 +97,7 @@ class ShiftResult:
             "pre_knock_rmse_mm": self.pre_knock_rmse_mm,
             "recovered_after_windows": self.recovered_after,
             "drift_alarm_windows": self.drift_alarm_windows,
+            "step_alarm_windows": self.step_alarm_windows,
             "applied_windows": self.applied_windows,
             "rejected_windows": self.rejected_windows,
             "real_s": self.real_s,
@@ -103,10 +114,19 @@ def shift_config(cfg: CellConfig, s: ShiftSettings) -> CellConfig:
         knock_deg=s.knock_deg,
         scale=cfg.simline.scale if s.scale is None else s.scale,
     )
-    line = cfg.line
+    line, service = cfg.line, cfg.service
     if s.slots_per_window is not None:
         line = dataclasses.replace(line, slots_per_window=s.slots_per_window)
-    return dataclasses.replace(cfg, simline=simline, line=line)
+    if s.estimator is not None:
+        service = dataclasses.replace(service, estimator=s.estimator)
+    if s.schedule is not None:
+        service = dataclasses.replace(service, schedule=s.schedule)
+    calibration = cfg.calibration
+    if s.model is not None:
+        calibration = dataclasses.replace(calibration, model=s.model)
+    return dataclasses.replace(
+        cfg, simline=simline, line=line, service=service, calibration=calibration
+    )
 
 
 def n_windows(cfg: CellConfig, s: ShiftSettings) -> int:
@@ -123,8 +143,10 @@ class _EventLog:
         r, kind = self.result, event["event"]
         # the window in progress (alarms) or the next one (parameters applied between windows)
         window = r.summary.windows + 1
-        if kind == "alarm" and event.get("code") == "drift":
+        if kind == "alarm" and event.get("code") in ("drift", "drift_step"):
             r.drift_alarm_windows.append(window)
+            if event.get("code") == "drift_step":
+                r.step_alarm_windows.append(window)
         elif kind == "parameters_applied" and event.get("source") == "auto":
             r.applied_windows.append(window)
         elif kind == "calibration" and event.get("status") == "rejected":
@@ -204,6 +226,7 @@ def summary_lines(result: ShiftResult) -> list[str]:
         f" after {_windows_text(result.flagged_after, 3)}",
         f"back within {s.recovered_ratio:g}x of the pre-knock error"
         f" ({result.pre_knock_rmse_mm:.4f} mm) after {_windows_text(result.recovered_after, 30)}",
+        _alarms_text(result),
         f"overruns: {sm.overruns} (target 0); windows {sm.windows}, measurements {sm.measurements}"
         f" ({sm.rejected} rejected), calibrations applied {sm.calibrations_applied}, rejected"
         f" {sm.calibrations_rejected}",
@@ -212,6 +235,21 @@ def summary_lines(result: ShiftResult) -> list[str]:
         if result.records
         else "no window ran",
     ]
+
+
+def _alarms_text(result: ShiftResult) -> str:
+    """Alarm episodes (windows with a new alarm) before and after the knock, by priority."""
+    k = result.knock_window or 10**9
+
+    def episodes(windows: list[int], before: bool) -> int:
+        return len({w for w in windows if (w < k) == before})
+
+    low = [w for w in result.drift_alarm_windows if w not in set(result.step_alarm_windows)]
+    return (
+        f"drift alarms (windows with one) before the knock: {episodes(low, True)} low (slow"
+        f" drift), {episodes(result.step_alarm_windows, True)} high (step); after it:"
+        f" {episodes(low, False)} low, {episodes(result.step_alarm_windows, False)} high"
+    )
 
 
 def markdown(result: ShiftResult, command: str) -> str:
@@ -271,4 +309,108 @@ def write_outputs(result: ShiftResult, out: Path, command: str, stem: str = "shi
     md.write_text(markdown(result, command).replace("(shift.png)", f"({png.name})"))
     js.write_text(dumps_json(result.to_json()))
     plot(result, png)
+    return [md, js, png]
+
+
+def estimator_rows(results: dict[str, ShiftResult]) -> list[dict[str, Any]]:
+    """One row per way of keeping the cell calibrated: no recalibration (the commissioning
+    parameters, from the first run), then each estimator: the time-averaged true RMSE over the
+    shift, before and after the knock, the worst window, knock flag and recovery."""
+    first = next(iter(results.values()))
+    k = first.knock_window or 10**9
+
+    def row(name: str, r: ShiftResult, e: list[float]) -> dict[str, Any]:
+        w = [rec.window for rec in r.records]
+        return {
+            "name": name,
+            "mean_mm": float(np.mean(e)),
+            "before_mm": float(np.mean([x for x, i in zip(e, w, strict=True) if i < k] or [0])),
+            "after_mm": float(np.mean([x for x, i in zip(e, w, strict=True) if i >= k] or [0])),
+            "max_mm": float(np.max(e)),
+        }
+
+    out = [row("no recalibration", first, [x.rmse_commissioning_mm for x in first.records])]
+    for name, r in results.items():
+        out.append(
+            row(name, r, [x.rmse_mm for x in r.records])
+            | {
+                "flagged_after": r.flagged_after,
+                "recovered_after": r.recovered_after,
+                "applied": r.summary.calibrations_applied,
+                "rejected": r.summary.calibrations_rejected,
+                "overruns": r.summary.overruns,
+            }
+        )
+    return out
+
+
+def estimators_markdown(results: dict[str, ShiftResult], command: str) -> str:
+    """The comparison table of `rvis experiment shift --estimator compare`."""
+    first = next(iter(results.values()))
+    lines = [
+        "# Keeping the cell calibrated over a shift: no recalibration, batch, sequential",
+        "",
+        f"Generated by `{command}` (seed {first.seed}, time x{first.scale:g}, the same simulated"
+        f" cell, warm-up and knock at {first.settings.knock_at_h:g} h in every run; model:"
+        f" {first.settings.model or 'the cell file'}). True RMS"
+        " error at the line's validation positions after every window, averaged over the shift"
+        " and before/after the knock. Batch: identification on the rolling set (24 + 4 held"
+        " out) every 24 measurements or when drift is flagged; sequential: an extended Kalman"
+        " update per measurement (app/line/inline_seq.py), a candidate every 8 accepted updates,"
+        " the same gates; adaptive: the sequential estimator choosing the most informative"
+        " planned configuration instead of the next in turn.",
+        "",
+        "| | mean RMSE [mm] | before the knock [mm] | after the knock [mm] | worst window [mm]"
+        " | knock flagged after | back within 1.2x after | applied / rejected | overruns |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in estimator_rows(results):
+        extra = (
+            f" {_n(r['flagged_after'])} | {_n(r['recovered_after'])} |"
+            f" {r['applied']} / {r['rejected']} | {r['overruns']} |"
+            if "applied" in r
+            else " - | - | - | - |"
+        )
+        lines.append(
+            f"| {r['name']} | {r['mean_mm']:.4f} | {r['before_mm']:.4f} | {r['after_mm']:.4f} |"
+            f" {r['max_mm']:.4f} |" + extra
+        )
+    lines += ["", "![true error over the shift](shift-estimators.png)", ""]
+    return "\n".join(lines)
+
+
+def _n(windows: int | None) -> str:
+    return "never" if windows is None else f"{windows} windows"
+
+
+def plot_estimators(results: dict[str, ShiftResult], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    first = next(iter(results.values()))
+    fig, ax = plt.subplots(figsize=(9, 4.5))
+    t_h = [r.t_h for r in first.records]
+    ax.plot(t_h, [r.rmse_commissioning_mm for r in first.records], label="no recalibration")
+    for name, res in results.items():
+        ax.plot([r.t_h for r in res.records], [r.rmse_mm for r in res.records], label=name)
+    ax.axvline(first.settings.knock_at_h, color="k", ls="--", lw=1, label="knock")
+    ax.set_xlabel("shift time [h]")
+    ax.set_ylabel("true RMS error at the validation positions [mm]")
+    ax.set_ylim(bottom=0)
+    ax.legend(loc="upper left")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_estimators(results: dict[str, ShiftResult], out: Path, command: str) -> list[Path]:
+    """`shift-estimators.md`, `.json` and `.png` in `out`."""
+    out.mkdir(parents=True, exist_ok=True)
+    md, js, png = (out / f"shift-estimators{ext}" for ext in (".md", ".json", ".png"))
+    md.write_text(estimators_markdown(results, command))
+    js.write_text(dumps_json({"rows": estimator_rows(results)}))
+    plot_estimators(results, png)
     return [md, js, png]

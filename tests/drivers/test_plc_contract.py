@@ -15,14 +15,17 @@ from drivers.plc import (
     BUSY,
     FAULT,
     LINE_RUNNING,
+    NO_TEMPERATURE,
     WINDOW_OPEN,
     Plc,
     PlcInputs,
     PlcOutputs,
     decode_inputs,
     decode_outputs,
+    decode_temp,
     encode_inputs,
     encode_outputs,
+    encode_temp,
 )
 from fakes.devices import ClampCycle, FakePlc
 
@@ -172,3 +175,27 @@ def test_the_words_on_the_wire_follow_the_register_map() -> None:
     inputs = decode_inputs((WINDOW_OPEN | LINE_RUNNING, 77))
     assert inputs == PlcInputs(window_open=True, line_running=True, heartbeat=77)
     assert encode_inputs(inputs) == (WINDOW_OPEN | LINE_RUNNING, 77)
+
+
+def test_the_cell_temperature_word_is_signed_centidegrees() -> None:
+    for temp in (21.37, -5.25, 0.0, 327.67, -327.67):
+        word = encode_temp(temp)
+        assert 0 <= word <= 0xFFFF and decode_temp(word) == pytest.approx(temp, abs=0.005)
+    assert encode_temp(None) == NO_TEMPERATURE and decode_temp(NO_TEMPERATURE) is None
+    assert decode_temp(encode_temp(1e6)) == 327.67  # clamped, never the "no sensor" code
+    assert decode_inputs((WINDOW_OPEN, 3, encode_temp(-1.5))).temp_c == -1.5
+    assert decode_inputs((WINDOW_OPEN, 3)).temp_c is None  # a PLC without the word
+
+
+def test_the_modbus_plc_reads_the_cell_temperature_from_its_peer() -> None:
+    from fakes.plc import PlcServer
+
+    with (
+        PlcServer(CYCLE) as server,
+        open_plc(f"plc+modbus://127.0.0.1:{server.port}", **OPTS) as plc,
+    ):
+        assert plc.poll().temp_c is None  # no sensor configured on the peer
+        server.temperature = lambda: 24.56
+        deadline = time.monotonic() + 2.0
+        while plc.poll().temp_c != 24.56:  # the peer's next scan writes the word
+            assert time.monotonic() < deadline, "the temperature word never arrived"

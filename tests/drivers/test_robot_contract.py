@@ -4,11 +4,19 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack
+from typing import Any
 
 import numpy as np
 import pytest
 
-from drivers import DeviceClosedError, DeviceConfigError, FaultLatched, MotionRefused, open_robot
+from drivers import (
+    DeviceClosedError,
+    DeviceConfigError,
+    DeviceError,
+    FaultLatched,
+    MotionRefused,
+    open_robot,
+)
 from drivers.robot import Robot
 from fakes.devices import FakeRobot
 from fakes.world import StaticWorld
@@ -16,25 +24,34 @@ from fakes.world import StaticWorld
 FAST = 0.002  # time compression: a 90 deg move at 100 % takes about 1 ms
 
 
-def _fake(world: StaticWorld, stack: ExitStack) -> str:
-    return "fake://"
+FaultNext = Callable[[Robot], None]  # the peer fails the next motion with a controller alarm
 
 
-def _rmi(world: StaticWorld, stack: ExitStack) -> str:
+def _fake(world: StaticWorld, stack: ExitStack) -> tuple[str, FaultNext]:
+    def fault(robot: Robot) -> None:
+        assert isinstance(robot, FakeRobot)
+        robot.inject_fault(50)
+
+    return "fake://", fault
+
+
+def _rmi(world: StaticWorld, stack: ExitStack) -> tuple[str, FaultNext]:
     from fakes.rmi_controller import RmiController
 
     ctrl = stack.enter_context(RmiController(world, time_scale=FAST))
-    return f"rmi://127.0.0.1:{ctrl.port}"
+    return f"rmi://127.0.0.1:{ctrl.port}", lambda _: ctrl.fail_next(
+        "FRC_JointMotionJRep", "system_fault"
+    )
 
 
-def _modbus(world: StaticWorld, stack: ExitStack) -> str:
+def _modbus(world: StaticWorld, stack: ExitStack) -> tuple[str, FaultNext]:
     from fakes.modbus_robot import ModbusRobotServer
 
     server = stack.enter_context(ModbusRobotServer(world, time_scale=FAST))
-    return f"modbus://127.0.0.1:{server.port}"
+    return f"modbus://127.0.0.1:{server.port}", lambda _: server.fault_next_motion(50)
 
 
-BACKENDS: dict[str, Callable[[StaticWorld, ExitStack], str]] = {
+BACKENDS: dict[str, Callable[[StaticWorld, ExitStack], tuple[str, FaultNext]]] = {
     "fake": _fake,
     "rmi": _rmi,
     "modbus": _modbus,
@@ -42,12 +59,26 @@ BACKENDS: dict[str, Callable[[StaticWorld, ExitStack], str]] = {
 
 
 @pytest.fixture(params=sorted(BACKENDS))
-def robot(request: pytest.FixtureRequest, world: StaticWorld) -> Iterator[Robot]:
+def robot_and_fault(
+    request: pytest.FixtureRequest, world: StaticWorld
+) -> Iterator[tuple[Robot, FaultNext]]:
     with ExitStack() as stack:
-        url = BACKENDS[request.param](world, stack)
-        options = {"world": world, "time_scale": FAST} if url == "fake://" else {}
+        url, fault = BACKENDS[request.param](world, stack)
+        options: dict[str, Any] = {"world": world, "time_scale": FAST} if url == "fake://" else {}
         dev = stack.enter_context(open_robot(url, timeout_s=2.0, **options))
-        yield dev
+        yield dev, fault
+
+
+@pytest.fixture
+def robot(robot_and_fault: tuple[Robot, FaultNext]) -> Robot:
+    return robot_and_fault[0]
+
+
+def _latch_by_a_controller_alarm(robot: Robot, fault_next: FaultNext) -> None:
+    """A motion the controller stops with an alarm: the driver latches the fault."""
+    fault_next(robot)
+    with pytest.raises(DeviceError):
+        robot.move_joints([20, 0, 0, 0, -90, 0], speed_pct=100)
 
 
 def test_reads_the_worlds_joints(robot: Robot, world: StaticWorld) -> None:
@@ -84,8 +115,11 @@ def test_closed_robot_refuses_everything(robot: Robot) -> None:
         robot.move_joints([0, 0, 0, 0, -90, 0])
 
 
-def test_latched_fault_blocks_motion_until_reset(robot: Robot) -> None:
-    robot._latch_fault(FaultLatched("test fault"))
+def test_latched_fault_blocks_motion_until_reset(
+    robot_and_fault: tuple[Robot, FaultNext],
+) -> None:
+    robot, fault_next = robot_and_fault
+    _latch_by_a_controller_alarm(robot, fault_next)
     with pytest.raises(FaultLatched):
         robot.move_joints([10, 0, 0, 0, -90, 0], speed_pct=100)
     robot.reset()
@@ -98,14 +132,15 @@ def test_override_outside_1_to_100_is_refused(robot: Robot, bad: object) -> None
         robot.set_override_pct(bad)  # type: ignore[arg-type]
 
 
-def test_speed_override(robot: Robot) -> None:
+def test_speed_override(robot_and_fault: tuple[Robot, FaultNext]) -> None:
+    robot, fault_next = robot_and_fault
     if robot.describe().startswith("FANUC Modbus"):  # the TP mailbox has no override register
         with pytest.raises(DeviceConfigError, match="no speed override"):
             robot.set_override_pct(50)
         return
     robot.set_override_pct(40)
     assert robot.status().override_pct == 40
-    robot._latch_fault(FaultLatched("test fault"))
+    _latch_by_a_controller_alarm(robot, fault_next)
     robot.set_override_pct(np.int64(20))  # type: ignore[arg-type]  # not a motion
     assert robot.status().override_pct == 20
 

@@ -115,3 +115,12 @@ def test_duration_is_the_slowest_joint() -> None:
     guard = SafetyGuard()
     t = guard.duration_s([0] * 6, [175, 0, 0, 0, 0, 355], speed_pct=50)
     assert t == pytest.approx(2.0)
+
+
+def test_the_drivers_default_limits_are_the_models() -> None:
+    """drivers/ may not import calib/: the M-710iC/50 limits live in both layers, bound here."""
+    from calib.robot import JointLimits as ModelLimits
+
+    model = ModelLimits()
+    assert np.array_equal(LIMITS.lower_deg, model.lower_deg)
+    assert np.array_equal(LIMITS.upper_deg, model.upper_deg)

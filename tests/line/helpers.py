@@ -27,29 +27,11 @@ from app.simulation import make_cell
 from calib.model import SystemModel
 from drivers.plc import decode_inputs, decode_outputs, encode_inputs
 from fakes.cell import SimulatedCell
+from fakes.clock import ScaledClock
 from fakes.devices import ClampCycle, FakePlc, FakeRobot
 
 F64 = NDArray[np.float64]
-SCALE = 0.02  # real seconds per simulated second
-
-
-class ScaledClock:
-    """Simulated seconds = real seconds / scale (the simulated line's clock has this duck type)."""
-
-    def __init__(self, scale: float) -> None:
-        self.scale = scale
-
-    def monotonic(self) -> float:
-        return time.monotonic() / self.scale
-
-    def time(self) -> float:
-        return time.time()
-
-    def sleep(self, s: float) -> None:
-        time.sleep(max(0.0, s) * self.scale)
-
-    def wait(self, event: threading.Event, s: float) -> bool:
-        return event.wait(max(0.0, s) * self.scale)
+SCALE = 0.02  # real seconds per simulated second (the fakes' time_scale; the clock runs x50)
 
 
 class LinePlc(FakePlc):
@@ -180,7 +162,7 @@ def make_line(
     cfg = load_cell(None)
     cell = make_cell(cfg, seed, **cell_overrides)
     model = cfg.model()
-    clock = ScaledClock(SCALE)
+    clock = ScaledClock(1.0 / SCALE)
     cycle = cycle or ClampCycle(period_s=12.0, window_s=8.0, beat_s=0.5, time_scale=SCALE)
     robot = robot_class(cell, time_scale=SCALE).open()
     plc = LinePlc(cycle)

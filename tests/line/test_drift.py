@@ -1,12 +1,14 @@
 """Drift charts: a step of known size is flagged within the samples the REFERENCE.md figures
-give, an in-control stream rarely signals, and the residual uses the model."""
+give, an in-control stream rarely signals, the change point is estimated, a seeded chart watches
+from its first sample, the change charts keep their baseline across an apply, and the residual
+uses the model."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from app.config import load_cell
-from app.line.drift import OVERALL, DriftMonitor, residual_mm
+from app.line.drift import OVERALL, DriftMonitor, prediction_inflation, residual_mm
 from app.line.settings import DriftSettings
 
 MU, SIGMA = 0.05, 0.01
@@ -15,10 +17,10 @@ MU, SIGMA = 0.05, 0.01
 def _delay(step_sigma: float, rng: np.random.Generator, n_before: int = 30) -> int:
     """Samples after the step until the first signal of the overall chart."""
     mon = DriftMonitor(DriftSettings(baseline_n=30))
-    for e in rng.normal(MU, SIGMA, 30 + n_before):
-        mon.update("P1", float(e))
+    for i, e in enumerate(rng.normal(MU, SIGMA, 30 + n_before)):
+        mon.update("P1", float(e), i)
     for k in range(1, 200):
-        sigs = mon.update("P1", float(rng.normal(MU + step_sigma * SIGMA, SIGMA)))
+        sigs = mon.update("P1", float(rng.normal(MU + step_sigma * SIGMA, SIGMA)), 1000 + k)
         if any(s.stream == OVERALL for s in sigs):
             return k
     return 200
@@ -42,15 +44,17 @@ def test_in_control_streams_rarely_signal_and_reset_relearns() -> None:
     false = 0
     for _ in range(50):
         mon = DriftMonitor(DriftSettings(baseline_n=30))
-        false += any(mon.update("P1", float(e)) for e in rng.normal(MU, SIGMA, 130))
+        false += any(
+            mon.update("P1", float(e), i) for i, e in enumerate(rng.normal(MU, SIGMA, 130))
+        )
     assert false <= 10  # 50 runs of 100 watched samples each
     mon = DriftMonitor(DriftSettings(baseline_n=8))
-    for e in rng.normal(MU, SIGMA, 8):
-        mon.update("P2", float(e))
-    assert mon.update("P2", 1.0) and mon.drifting  # a knock of 100 sigma: at once
-    assert mon.update("P2", 1.0) == []  # signals once
+    for i, e in enumerate(rng.normal(MU, SIGMA, 8)):
+        mon.update("P2", float(e), i)
+    assert mon.update("P2", 1.0, 8) and mon.drifting  # a knock of 100 sigma: at once
+    assert mon.update("P2", 1.0, 9) == []  # signals once
     mon.reset()
-    assert not mon.drifting and mon.update("P2", 1.0) == []  # learning the new baseline
+    assert not mon.drifting and mon.update("P2", 1.0, 10) == []  # learning the new baseline
 
 
 def test_residual_is_the_distance_to_the_known_sphere() -> None:
@@ -61,3 +65,48 @@ def test_residual_is_the_distance_to_the_known_sphere() -> None:
     p = model.points_part(x, q[None], c[None])[0]
     assert residual_mm(model, x, q, c, p) < 1e-9
     assert abs(residual_mm(model, x, q, c, p + np.array([0.0, 0.3, 0.4])) - 0.5) < 1e-9
+
+
+def test_the_change_point_is_the_first_sample_after_the_step() -> None:
+    rng = np.random.default_rng(5)
+    mon = DriftMonitor(DriftSettings(baseline_n=20))
+    for i, e in enumerate(rng.normal(MU, SIGMA, 60)):
+        mon.update("P1", float(e), i)
+    signals = []
+    for i in range(60, 80):
+        signals += mon.update("P1", float(rng.normal(MU + 2 * SIGMA, SIGMA)), i)
+    # the CUSUM's estimate: at the step (60) or a few samples around it for a 2-sigma step
+    assert signals and all(52 <= s.onset_ref <= 62 for s in signals), signals
+    big = DriftMonitor(DriftSettings(baseline_n=20))
+    for i in range(60):
+        big.update("P1", MU + SIGMA * (-1) ** i, i)
+    assert big.update("P1", MU + 30 * SIGMA, 60)[0].onset_ref == 60  # a knock: exact
+
+
+def test_a_seeded_residual_chart_watches_from_its_first_sample() -> None:
+    rng = np.random.default_rng(6)
+    mon = DriftMonitor(DriftSettings(baseline_n=16), residual_baseline_n=24)
+    seed = [("P1" if i % 2 else "P2", float(e)) for i, e in enumerate(rng.normal(MU, SIGMA, 28))]
+    mon.reset(seed)
+    assert mon.residual.charts[OVERALL].mu == np.mean([e for _, e in seed])
+    signals = mon.update("P1", MU + 10 * SIGMA, 100)  # the first sample after the apply
+    assert {(s.family, s.stream) for s in signals} == {("residual", "P1"), ("residual", OVERALL)}
+    fresh = DriftMonitor(DriftSettings(baseline_n=16), residual_baseline_n=24)
+    assert [fresh.update("P1", MU + 10 * SIGMA, i) for i in range(23)] == [[]] * 23  # learning
+
+
+def test_change_charts_keep_their_baseline_across_an_apply() -> None:
+    rng = np.random.default_rng(7)
+    mon = DriftMonitor(DriftSettings(baseline_n=16))
+    for i, d in enumerate(np.abs(rng.normal(0.0, SIGMA, 40))):
+        mon.update("P1", MU, i, float(d))
+    mu = mon.change.charts[OVERALL].mu
+    mon.reset()  # parameters applied: residual charts start again, change charts only restart
+    assert mon.change.charts[OVERALL].mu == mu and not mon.residual.charts
+    signals = mon.update("P1", MU, 50, 0.3)  # the knock seen from a configuration measured again
+    assert [s.family for s in signals] == ["change", "change"] and signals[0].onset_ref == 50
+
+
+def test_prediction_inflation() -> None:
+    assert prediction_inflation(72, 30) == np.sqrt(102 / 42)
+    assert prediction_inflation(10**6, 30) < 1.0001

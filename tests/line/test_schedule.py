@@ -3,10 +3,12 @@ time, and the slot choice that fits the remaining window."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import pytest
 
-from app.line.schedule import Schedule, motion_time_s
+from app.line.schedule import Schedule, Slot, motion_time_s
 from app.line.settings import LineSettings
 from drivers.safety import SafetyGuard
 
@@ -56,3 +58,14 @@ def test_next_fitting_takes_the_first_slot_that_fits_from_the_position() -> None
     # 2.6 s left: only C (0.5 + 1 + 0.5 = 2.0 s, plus the margin 0.5) fits, found cyclically
     assert s.next_fitting(0, HOME, 2.6, sensor_s) is s.slots[2]
     assert s.next_fitting(0, HOME, 2.4, sensor_s) is None
+    # adaptive: the chooser sees every slot that fits, in cycle order from the position
+    seen: list[list[int]] = []
+
+    def last(slots: Sequence[Slot]) -> Slot:
+        seen.append([x.index for x in slots])
+        return slots[-1]
+
+    assert s.next_fitting(1, HOME, 10.0, sensor_s, last) is s.slots[0]
+    assert s.next_fitting(0, HOME, 2.6, sensor_s, last) is s.slots[2]
+    assert s.next_fitting(0, HOME, 2.4, sensor_s, last) is None
+    assert seen == [[1, 2, 0], [2]]

@@ -54,6 +54,28 @@ def test_a_failing_migration_leaves_the_previous_version(tmp_path: Path) -> None
     assert Store(tmp_path / "rvis.db").version() == SCHEMA_VERSION + 1  # reopening: no-op
 
 
+def test_a_version_1_database_gains_the_temperature_column_and_keeps_its_rows(
+    tmp_path: Path,
+) -> None:
+    db = sqlite3.connect(tmp_path / "rvis.db")
+    for sql in MIGRATIONS[0]:
+        db.execute(sql)
+    db.execute(
+        "INSERT INTO measurements (t, window, slot, target, q_deg, c_sensor_mm, status)"
+        " VALUES (1.0, 1, 0, 'P1', '[0, 0, 0, 0, 0, 0]', '[1, 2, 3]', 'ok')"
+    )
+    db.execute("PRAGMA user_version = 1")
+    db.commit()
+    db.close()
+    store = Store(tmp_path / "rvis.db")  # an older service's state directory
+    assert store.version() == SCHEMA_VERSION == 2
+    (old,) = store.measurements()
+    assert old["c_sensor_mm"] == [1, 2, 3] and old["temp_c"] is None
+    store.add_measurement({**_row(1), "temp_c": 23.45})
+    assert store.measurements()[-1]["temp_c"] == 23.45
+    store.close()
+
+
 def test_measurements_round_trip_and_move_the_schedule_position(tmp_path: Path) -> None:
     store = Store(tmp_path / "rvis.db")
     ids = [store.add_measurement(_row(k)) for k in range(3)]
