@@ -12,7 +12,7 @@ and whether it succeeded.
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from concurrent.futures import Future
 from datetime import UTC, datetime
 from queue import Empty, Queue
@@ -54,6 +54,22 @@ def _calibration(svc: Service, cal_id: int) -> dict[str, Any] | None:
     return svc.store.calibration(cal_id)
 
 
+def device_of(exc: BaseException, devices: Mapping[str, object]) -> str | None:
+    """The family of the device whose method raised `exc` (the first frame of its traceback,
+    or of its cause's, that runs a method of one of `devices`), or None."""
+    families = {id(d): family for family, d in devices.items()}
+    seen: BaseException | None = exc
+    while seen is not None:
+        tb = seen.__traceback__
+        while tb is not None:
+            family = families.get(id(tb.tb_frame.f_locals.get("self")))
+            if family is not None:
+                return family
+            tb = tb.tb_next
+        seen = seen.__cause__
+    return None
+
+
 class CommandError(Exception):
     """A command that cannot be done now (the reply's `error`)."""
 
@@ -70,6 +86,26 @@ class OperatorCommands:
 
     _commands: Queue[tuple[str, dict[str, Any], int | None, Future[dict[str, Any]]]]
     _wake: threading.Event
+    #: the device family of the fault in force (None: unknown)
+    _fault_family: str | None = None
+
+    @property
+    def device_errors(self) -> dict[str, dict[str, str]]:
+        """Per device family: the last error the service saw from it ({"error", "utc"})."""
+        errors: dict[str, dict[str, str]] = self.__dict__.setdefault("_device_errors", {})
+        return errors
+
+    def note_device_error(self, exc: BaseException) -> str | None:
+        """Keep `exc` as the last error of the device it came from (the status reply's
+        `devices`); returns that device's family (None: not attributable to one)."""
+        svc: Service = self  # type: ignore[assignment]
+        family = device_of(exc, svc.station.devices())
+        if family is not None:
+            self.device_errors[family] = {
+                "error": f"{type(exc).__name__}: {exc}",
+                "utc": utc_text(svc.clock.time()),
+            }
+        return family
 
     def request(
         self, cmd: str, args: dict[str, Any] | None = None, uid: int | None = None
@@ -131,18 +167,30 @@ class OperatorCommands:
         return steps.get(svc.state.name, svc.state.value.lower())
 
     def _device_status(self) -> dict[str, dict[str, Any]]:
-        """Per device family: the URL it was opened with, open/closed, the last fault text."""
+        """Per device family: the URL it was opened with, its state (closed; fault: the
+        device of the fault in force, or every device when that one is unknown; the PLC
+        without heartbeat; ok), and the last error the service saw from it with its time
+        (kept after a reset)."""
         svc: Service = self  # type: ignore[assignment]
-        faults = svc.store.active_alarms(code="device_fault")
-        last_error = str(faults[-1]["message"]) if faults else None
-        return {
-            family: {
+        faulted = bool(svc.store.active_alarms(code="device_fault"))
+        errors = self.device_errors
+        out = {}
+        for family, device in svc.station.devices().items():
+            state = "ok"
+            if not device.is_open:
+                state = "closed"
+            elif faulted and self._fault_family in (None, family):
+                state = "fault"
+            elif family == "plc" and svc.watch.lost:
+                state = "no heartbeat"
+            last = errors.get(family, {})
+            out[family] = {
                 "url": svc.station.urls.get(family, ""),
-                "state": ("fault" if last_error else "ok") if device.is_open else "closed",
-                "last_error": last_error,
+                "state": state,
+                "last_error": last.get("error"),
+                "last_error_utc": last.get("utc"),
             }
-            for family, device in svc.station.devices().items()
-        }
+        return out
 
     def _calibration_status(self) -> dict[str, Any]:
         """The parameters in force: version, when applied (UTC), the fit's RMS if identified."""
@@ -249,6 +297,7 @@ class OperatorCommands:
             svc.station.robot.reset()
             svc.station.plc.set_signals(busy=False, done=False, fault=False)
         except DeviceError as exc:
+            self.note_device_error(exc)
             raise CommandError(f"reset failed: {type(exc).__name__}: {exc}") from exc
         t = svc.clock.time()
         for code in ("device_fault", "robot_not_home"):

@@ -230,6 +230,7 @@ class Service(OperatorCommands):
         return alarm_id
 
     def _fault(self, exc: BaseException) -> None:
+        self._fault_family = self.note_device_error(exc)
         self._enter_fault("device_fault", f"{type(exc).__name__}: {exc}")
 
     def _enter_fault(self, code: str, message: str) -> None:

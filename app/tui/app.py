@@ -6,6 +6,7 @@ parameters asks first and shows the service's answer."""
 from __future__ import annotations
 
 import asyncio
+import time
 from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
@@ -16,7 +17,6 @@ from textual import work
 from textual.app import App, ComposeResult
 from textual.binding import Binding, BindingType
 from textual.containers import Horizontal, Vertical, VerticalScroll
-from textual.theme import Theme
 from textual.widgets import (
     DataTable,
     Footer,
@@ -27,54 +27,29 @@ from textual.widgets import (
     TabbedContent,
     TabPane,
 )
+from textual.worker import Worker
 
 from app.tui import view
 from app.tui.client import Event, ServiceClient, ServiceUnavailable
 from app.tui.history import HistoryReader
+from app.tui.look import CSS, ISA101
 from app.tui.modals import ConfirmScreen, ShelveScreen
 
-#: ISA-101: a quiet grey screen; the only colours are the alarm priorities (and error toasts)
-ISA101 = Theme(
-    name="isa101",
-    primary="#8a8a8a",
-    secondary="#767676",
-    accent="#9e9e9e",
-    warning="#ffaf00",
-    error="#d70000",
-    success="#8a8a8a",
-    foreground="#e4e4e4",
-    background="#3a3a3a",
-    surface="#444444",
-    panel="#4e4e4e",
-    dark=True,
-)
-
 PANES = ("overview", "measurements", "calibrations", "alarms", "devices", "log")
-
-CSS = """
-Screen { background: #3a3a3a; color: #d7d7d7; }
-#status { height: 1; background: #4e4e4e; color: #ffffff; padding: 0 1; }
-#status.disconnected { background: #5f005f; color: #ffffff; text-style: bold; }
-#banner { height: 1; padding: 0 1; display: none; }
-#banner.shown { display: block; }
-.alarm-high { background: #d70000; color: #ffffff; text-style: bold; }
-.alarm-medium { background: #ffaf00; color: #000000; text-style: bold; }
-.alarm-low { background: #5f87af; color: #000000; }
-DataTable { background: #3a3a3a; height: 1fr; }
-TabbedContent { height: 1fr; }
-#overview-text { height: auto; }
-.drift-row { height: 1; }
-.drift-row Label { width: 22; }
-.drift-row Sparkline { width: 1fr; }
-#pending { height: auto; max-height: 50%; }
-.dialog { width: 70; height: auto; border: solid #8a8a8a; background: #4e4e4e; padding: 1; }
-ModalScreen { align: center middle; }
-.buttons { height: auto; }
-Input { background: #4e4e4e; }
-Sparkline > .sparkline--max-color { color: #e4e4e4; }
-Sparkline > .sparkline--min-color { color: #808080; }
-FooterKey .footer-key--key { color: #ffffff; background: #5f5f5f; }
-"""
+#: what each pane shows from the database (only the visible pane's history is read and drawn)
+PANE_HISTORY = {
+    "overview": ("recent",),
+    "measurements": ("measurements",),
+    "calibrations": ("calibrations", "applied"),
+    "alarms": ("alarms",),
+    "devices": (),
+    "log": ("events",),
+}
+#: at most this many screen refreshes a second follow the service's events (a busy service
+#: emits an event every few ms; one refresh shows them all)
+MIN_REFRESH_S = 0.1
+#: a refresh taking longer is abandoned (the next one starts over)
+REFRESH_TIMEOUT_S = 10.0
 
 
 class RvisTui(App[None]):
@@ -84,6 +59,8 @@ class RvisTui(App[None]):
     TITLE = "rvis"
     BINDINGS: ClassVar[list[BindingType]] = [
         *(Binding(str(k + 1), f"show('{p}')", p.title(), show=False) for k, p in enumerate(PANES)),
+        # the footer shows them in this order; at 80 columns all of them fit (short words)
+        Binding("q", "quit", "Quit"),
         Binding("p", "pause_resume", "Pause"),
         Binding("r", "reset", "Reset"),
         Binding("c", "recalibrate", "Recal"),
@@ -92,7 +69,6 @@ class RvisTui(App[None]):
         Binding("b", "rollback", "Rollback"),
         Binding("k", "ack", "Ack"),
         Binding("s", "shelve", "Shelve"),
-        Binding("q", "quit", "Quit"),
     ]
 
     def __init__(self, state_dir: str | Path) -> None:
@@ -103,7 +79,9 @@ class RvisTui(App[None]):
         self.status: dict[str, Any] | None = None
         self.connection = (False, "connecting ...")
         self.events_seen = 0
-        self._dirty = self._refreshing = False
+        self._dirty = False
+        self._refresher: Worker[None] | None = None
+        self._shown: dict[str, list[Sequence[Any]]] = {}  # the rows each table shows
         #: the wall clock of the ages shown (replaced in the screenshot tests)
         self.now: Callable[[], datetime] = lambda: datetime.now(UTC)
 
@@ -132,7 +110,7 @@ class RvisTui(App[None]):
             with TabPane("6 Log", id="log"), Vertical():
                 yield Input(placeholder="filter events, Enter", id="log-filter")
                 yield DataTable(id="log-table", cursor_type="row")
-        yield Footer(compact=True)
+        yield Footer(compact=True, show_command_palette=False)
 
     def on_mount(self) -> None:
         self.register_theme(ISA101)
@@ -143,11 +121,12 @@ class RvisTui(App[None]):
             "calibrations-table": ("cal", "time (UTC)", "status", "version", "RMS mm", "gates"),
             "versions-table": ("version", "in force since (UTC)", "source", "cal"),
             "alarms-table": ("id", "prio", "state", "raised (UTC)", "alarm", "shelved"),
-            "devices-table": ("device", "URL", "state", "last error"),
+            "devices-table": ("device", "URL", "state", "last error (UTC)", "error"),
             "log-table": ("time (UTC)", "event", "detail"),
         }
         for table_id, cols in columns.items():
             self.query_one(f"#{table_id}", DataTable).add_columns(*cols)
+            self._shown[table_id] = []
         self.attach()
         self.set_interval(2.0, self.refresh_all)
 
@@ -172,42 +151,58 @@ class RvisTui(App[None]):
         one runs makes that one go round once more (an exclusive worker restarted at every
         event would never finish while the service emits faster than a refresh takes)."""
         self._dirty = True
-        if not self._refreshing:
-            self._refreshing = True
-            self._refresh_loop()
+        if self._refresher is None or self._refresher.is_finished:
+            self._refresher = self._refresh_loop()
 
     @work(group="refresh", exit_on_error=False)
     async def _refresh_loop(self) -> None:
-        try:
-            while self._dirty:
-                self._dirty = False
-                await self._refresh_once()
-        finally:
-            self._refreshing = False
+        while self._dirty:
+            self._dirty = False
+            started = time.monotonic()
+            try:  # a refresh that hangs (whatever the cause) must not stop the next ones
+                await asyncio.wait_for(self._refresh_once(), REFRESH_TIMEOUT_S)
+            except TimeoutError:
+                self.log.warning(f"screen refresh took over {REFRESH_TIMEOUT_S:g} s")
+            if self._dirty:  # more events came meanwhile: one more refresh, not at once
+                await asyncio.sleep(MIN_REFRESH_S - (time.monotonic() - started))
+
+    def on_tabbed_content_tab_activated(self) -> None:
+        self.refresh_all()  # the newly shown pane's history
 
     async def _refresh_once(self) -> None:
-        """Status from the socket, history from the database (in a thread), then the screen."""
+        """The status from the socket, shown; then the visible pane's history from the
+        database (in a thread), shown."""
         if self.client.connected:
             try:
                 reply = await self.client.request("status")
                 self.status = reply if reply.get("ok") else self.status
             except ServiceUnavailable:
                 pass
+        self._show_status()
         sphere = self.query_one("#sphere-filter", Input).value.strip() or None
         text = self.query_one("#log-filter", Input).value.strip()
-        hist = await asyncio.to_thread(self._read_history, sphere, text)
-        self._show_status()
+        wanted = PANE_HISTORY[self.pane]
+        hist = await asyncio.to_thread(self._read_history, wanted, sphere, text)
         self._show_history(hist)
 
-    def _read_history(self, sphere: str | None, text: str) -> dict[str, list[dict[str, Any]]]:
-        return {
-            "measurements": self.history.measurements(200, sphere),
-            "recent": self.history.measurements(400),
-            "calibrations": self.history.calibrations(),
-            "applied": self.history.applied(),
-            "alarms": self.history.alarms(),
-            "events": self.history.events(300, text),
+    @property
+    def pane(self) -> str:
+        """The pane shown now."""
+        return self.query_one(TabbedContent).active or PANES[0]
+
+    def _read_history(
+        self, wanted: Sequence[str], sphere: str | None, text: str
+    ) -> dict[str, list[dict[str, Any]]]:
+        """The wanted parts of the history (PANE_HISTORY), read in a worker thread."""
+        readers: dict[str, Callable[[], list[dict[str, Any]]]] = {
+            "measurements": lambda: self.history.measurements(200, sphere),
+            "recent": lambda: self.history.measurements(400),
+            "calibrations": self.history.calibrations,
+            "applied": self.history.applied,
+            "alarms": self.history.alarms,
+            "events": lambda: self.history.events(300, text),
         }
+        return {key: readers[key]() for key in wanted}
 
     # -- data out ----------------------------------------------------------------------------
     def _show_status(self) -> None:
@@ -219,34 +214,16 @@ class RvisTui(App[None]):
         banner = self.query_one("#banner", Static)
         banner.update(Text(text))  # service text, never markup
         banner.set_classes(f"shown {cls}" if text else "")
-        self.query_one("#overview-text", Static).update(Text(self._overview_text()))
-        _fill(self.query_one("#devices-table", DataTable), view.device_rows(self.status))
+        self.query_one("#overview-text", Static).update(Text(view.overview_text(self.status)))
+        self._fill("devices-table", view.device_rows(self.status))
         self._show_pending()
-
-    def _overview_text(self) -> str:
-        s = self.status or {}
-        win, counts = s.get("window") or {}, s.get("counters") or {}
-        window = "closed"
-        if win.get("open"):
-            window = "OPEN " + view.num(win.get("remaining_s"), ".0f", " s left")
-        heartbeat = "alive" if win.get("heartbeat_alive") else "LOST"
-        lines = [
-            f"Service   {s.get('state', '-')}   step: {s.get('step', '-')}",
-            f"Line      running {_yes(win.get('line_running'))}, PLC heartbeat {heartbeat}, "
-            f"window {window}",
-        ]
-        devices = view.device_rows(self.status)
-        bad = [f"{d[0]} {d[2]}" for d in devices if d[2] not in ("OK", "OPEN")]
-        lines.append("Devices   " + (", ".join(bad) if bad else f"all {len(devices)} OK"))
-        lines.append("Counters  " + ", ".join(f"{k} {v}" for k, v in counts.items()))
-        return "\n".join(lines)
 
     def _show_pending(self) -> None:
         pending = (self.status or {}).get("pending")
         title = self.query_one("#pending-title", Static)
         if not pending:
             title.update("no calibration pending")
-            _fill(self.query_one("#pending", DataTable), [])
+            self._fill("pending", [])
             return
         gates = pending.get("gates") or {}
         verdict = (
@@ -260,63 +237,35 @@ class RvisTui(App[None]):
                 "a approve, x reject"
             )
         )
-        _fill(self.query_one("#pending", DataTable), view.parameter_diff_rows(pending))
+        self._fill("pending", view.parameter_diff_rows(pending))
 
     def _show_history(self, hist: dict[str, list[dict[str, Any]]]) -> None:
-        _fill(
-            self.query_one("#measurements-table", DataTable),
-            [
-                (
-                    str(m.get("id")),
-                    _time(m.get("utc")),
-                    str(m.get("sphere", "")),
-                    str(m.get("status", "")).upper(),
-                    view.num(m.get("residual_mm"), ".4f"),
-                    str(m.get("reason") or ""),
-                )
-                for m in hist["measurements"]
-            ],
-        )
-        _fill(
-            self.query_one("#calibrations-table", DataTable),
-            [
-                (
-                    str(c.get("id")),
-                    _time(c.get("utc")),
-                    str(c.get("status", "")).upper(),
-                    str(c.get("version") or "-"),
-                    view.num(c.get("rms_mm"), ".4f"),
-                    str(c.get("gates") or ""),
-                )
-                for c in hist["calibrations"]
-            ],
-        )
-        _fill(
-            self.query_one("#versions-table", DataTable),
-            [
-                (
-                    str(a.get("version")),
-                    _time(a.get("utc")),
-                    str(a.get("source", "")),
-                    str(a.get("calibration_id") or "-"),
-                )
-                for a in hist["applied"]
-            ],
-        )
-        alarms = hist["alarms"] or list((self.status or {}).get("alarms") or [])
-        _fill(self.query_one("#alarms-table", DataTable), view.alarm_rows(alarms))
-        _fill(
-            self.query_one("#log-table", DataTable),
-            [
-                (
-                    str(e.get("utc", ""))[:19].replace("T", " "),
-                    str(e.get("kind", "")),
-                    str(e.get("detail", "")),
-                )
-                for e in hist["events"]
-            ],
-        )
-        self._show_drift(hist["recent"])
+        """Draw the parts of the history that were read (those of the visible pane)."""
+        if "measurements" in hist:
+            self._fill("measurements-table", view.measurement_rows(hist["measurements"]))
+        if "calibrations" in hist:
+            self._fill("calibrations-table", view.calibration_rows(hist["calibrations"]))
+        if "applied" in hist:
+            self._fill("versions-table", view.version_rows(hist["applied"]))
+        if "alarms" in hist:
+            alarms = hist["alarms"] or list((self.status or {}).get("alarms") or [])
+            self._fill("alarms-table", view.alarm_rows(alarms))
+        if "events" in hist:
+            self._fill("log-table", view.log_rows(hist["events"]))
+        if "recent" in hist:
+            self._show_drift(hist["recent"])
+
+    def _fill(self, table_id: str, rows: Sequence[Sequence[Any]]) -> None:
+        """Replace a table's rows (unless unchanged), keeping the cursor on the same row index."""
+        if list(rows) == self._shown.get(table_id):
+            return
+        self._shown[table_id] = list(rows)
+        table: DataTable[Any] = self.query_one(f"#{table_id}", DataTable)
+        cursor = table.cursor_row
+        table.clear()
+        table.add_rows(rows)
+        if rows:
+            table.move_cursor(row=min(cursor, len(rows) - 1))
 
     def _show_drift(self, recent: list[dict[str, Any]]) -> None:
         by_sphere: dict[str, list[float]] = {}
@@ -348,7 +297,7 @@ class RvisTui(App[None]):
         self.refresh_all()
 
     def action_pause_resume(self) -> None:
-        if (self.status or {}).get("state") == "PAUSED":
+        if (self.status or {}).get("paused"):
             self._command("resume", "Resume the service? The robot will move in the next window.")
         else:
             self._command("pause", None)
@@ -380,7 +329,7 @@ class RvisTui(App[None]):
         )
 
     def action_rollback(self) -> None:
-        version = _selected(self.query_one("#versions-table", DataTable))
+        version = self._selected("calibrations", "versions-table")
         if version is None:
             self.notify("select a parameter version in Calibrations first", severity="warning")
             return
@@ -389,7 +338,7 @@ class RvisTui(App[None]):
         )
 
     def action_ack(self) -> None:
-        alarm = _selected(self.query_one("#alarms-table", DataTable))
+        alarm = self._selected("alarms", "alarms-table")
         alarm = alarm or next((str(a["id"]) for a in view.active_alarms(self.status)), None)
         if alarm is None:
             self.notify("no alarm to acknowledge", severity="warning")
@@ -398,7 +347,7 @@ class RvisTui(App[None]):
 
     @work(group="actions", exit_on_error=False)
     async def action_shelve(self) -> None:
-        alarm = _selected(self.query_one("#alarms-table", DataTable))
+        alarm = self._selected("alarms", "alarms-table")
         if alarm is None:
             self.notify("select an alarm in Alarms first", severity="warning")
             return
@@ -406,6 +355,14 @@ class RvisTui(App[None]):
         if answer is not None:
             reason, minutes = answer
             await self._send("shelve", alarm=int(alarm), reason=reason, minutes=minutes)
+
+    def _selected(self, pane: str, table_id: str) -> str | None:
+        """The first cell of the selected row of a table, if its pane is the one shown (a
+        hidden pane's table is not kept up to date)."""
+        table: DataTable[Any] = self.query_one(f"#{table_id}", DataTable)
+        if self.pane != pane or table.row_count == 0:
+            return None
+        return str(table.get_row_at(table.cursor_row)[0])
 
     @work(group="actions", exit_on_error=False)
     async def _command(self, cmd: str, question: str | None, **args: Any) -> None:
@@ -424,26 +381,3 @@ class RvisTui(App[None]):
         else:
             self.notify(f"refused: {reply.get('error')}", title=cmd, severity="error")
         self.refresh_all()
-
-
-def _fill(table: DataTable[Any], rows: Sequence[Sequence[Any]]) -> None:
-    """Replace a table's rows, keeping the cursor on the same row index."""
-    cursor = table.cursor_row
-    table.clear()
-    table.add_rows(rows)
-    if rows:
-        table.move_cursor(row=min(cursor, len(rows) - 1))
-
-
-def _selected(table: DataTable[Any]) -> str | None:
-    if table.row_count == 0:
-        return None
-    return str(table.get_row_at(table.cursor_row)[0])
-
-
-def _time(utc: Any) -> str:
-    return str(utc or "")[:19].replace("T", " ")
-
-
-def _yes(value: Any) -> str:
-    return "yes" if value else "NO"

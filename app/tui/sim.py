@@ -28,12 +28,15 @@ class TuiSimSettings:
     geometric: skip rendering (sphere centres from the truth plus noise) - rendered runs are
     capped at a low time scale; seed: the simulation's seed (None: [simulation] seed);
     scale: simulated seconds per real second (None: [simline] scale); mode: the service's
-    recalibration mode (None: [service]), e.g. "approve" to show the approval flow."""
+    recalibration mode (None: [service]), e.g. "approve" to show the approval flow;
+    start_at_s: the sim time the service starts at (the line's clock is advanced that far
+    first, e.g. into the cell's warm-up, so that it has drifted from the commissioning)."""
 
     geometric: bool = True
     seed: int | None = None
     scale: float | None = None
     mode: Literal["auto", "approve"] | None = None
+    start_at_s: float = 0.0
 
 
 @contextlib.contextmanager
@@ -53,5 +56,6 @@ def simulated_service(
     # still the real one (a Textual app replaces sys.stderr with one that has no file number)
     resource_tracker.ensure_running()
     with run, ControlServer(run.service, Path(state_dir) / SOCKET_NAME):
+        run.line.clock.advance(settings.start_at_s)
         run.start_service()
         yield run

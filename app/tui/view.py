@@ -68,6 +68,28 @@ def status_line(
     return f"{status.get('state', '?')} ({status.get('step') or '-'}) | {window} | {calib}"
 
 
+def overview_text(status: dict[str, Any] | None) -> str:
+    """The Overview's lines: service, line (running, PLC heartbeat, window), devices that are
+    not OK, counters."""
+    s = status or {}
+    win, counts = s.get("window") or {}, s.get("counters") or {}
+    window = "closed"
+    if win.get("open"):
+        window = "OPEN " + num(win.get("remaining_s"), ".0f", " s left")
+    heartbeat = "alive" if win.get("heartbeat_alive") else "LOST"
+    running = "yes" if win.get("line_running") else "NO"
+    devices = device_rows(status)
+    bad = [f"{d[0]} {d[2]}" for d in devices if d[2] not in ("OK", "OPEN")]
+    return "\n".join(
+        (
+            f"Service   {s.get('state', '-')}   step: {s.get('step', '-')}",
+            f"Line      running {running}, PLC heartbeat {heartbeat}, window {window}",
+            "Devices   " + (", ".join(bad) if bad else f"all {len(devices)} OK"),
+            "Counters  " + ", ".join(f"{k} {v}" for k, v in counts.items()),
+        )
+    )
+
+
 def active_alarms(status: dict[str, Any] | None) -> list[dict[str, Any]]:
     alarms = (status or {}).get("alarms") or []
     order = {"urgent": 0, "high": 1, "medium": 2, "low": 3}
@@ -88,12 +110,74 @@ def banner(status: dict[str, Any] | None) -> tuple[str, str]:
     return text, PRIORITY_CLASS.get(prio, "alarm-low")
 
 
-def device_rows(status: dict[str, Any] | None) -> list[tuple[str, str, str, str]]:
-    """(family, URL, state, last error) per device."""
+def device_rows(status: dict[str, Any] | None) -> list[tuple[str, str, str, str, str]]:
+    """(family, URL, state, time of its last error, last error) per device: the last error the
+    service saw from that device, also after the fault was reset."""
     devices = (status or {}).get("devices") or {}
     return [
-        (family, str(d.get("url", "")), str(d.get("state", "?")).upper(), d.get("last_error") or "")
+        (
+            family,
+            str(d.get("url", "")),
+            str(d.get("state", "?")).upper(),
+            time_text(d.get("last_error_utc")),
+            str(d.get("last_error") or ""),
+        )
         for family, d in devices.items()
+    ]
+
+
+def time_text(utc: Any) -> str:
+    """'2026-11-23 09:12:40' of an ISO UTC time ('' when none)."""
+    return str(utc or "")[:19].replace("T", " ")
+
+
+def measurement_rows(rows: list[dict[str, Any]]) -> list[tuple[str, ...]]:
+    """(id, time, sphere, status, residual, note) per measurement."""
+    return [
+        (
+            str(m.get("id")),
+            time_text(m.get("utc")),
+            str(m.get("sphere", "")),
+            str(m.get("status", "")).upper(),
+            num(m.get("residual_mm"), ".4f"),
+            str(m.get("reason") or ""),
+        )
+        for m in rows
+    ]
+
+
+def calibration_rows(rows: list[dict[str, Any]]) -> list[tuple[str, ...]]:
+    """(id, time, status, version, RMS, gates) per in-line calibration."""
+    return [
+        (
+            str(c.get("id")),
+            time_text(c.get("utc")),
+            str(c.get("status", "")).upper(),
+            str(c.get("version") or "-"),
+            num(c.get("rms_mm"), ".4f"),
+            str(c.get("gates") or ""),
+        )
+        for c in rows
+    ]
+
+
+def version_rows(rows: list[dict[str, Any]]) -> list[tuple[str, ...]]:
+    """(version, in force since, source, calibration) per parameters version put in force."""
+    return [
+        (
+            str(a.get("version")),
+            time_text(a.get("utc")),
+            str(a.get("source", "")),
+            str(a.get("calibration_id") or "-"),
+        )
+        for a in rows
+    ]
+
+
+def log_rows(rows: list[dict[str, Any]]) -> list[tuple[str, ...]]:
+    """(time, kind, detail) per event of the service."""
+    return [
+        (time_text(e.get("utc")), str(e.get("kind", "")), str(e.get("detail", ""))) for e in rows
     ]
 
 
@@ -109,7 +193,7 @@ def alarm_rows(alarms: list[dict[str, Any]]) -> list[tuple[Any, ...]]:
                 str(a.get("id", "")),
                 priority_cell(str(a.get("priority", "")), str(a.get("state", ""))),
                 str(a.get("state", "")).upper(),
-                str(a.get("raised_utc", ""))[:19].replace("T", " "),
+                time_text(a.get("raised_utc")),
                 str(a.get("text", "")),
                 shelved,
             )

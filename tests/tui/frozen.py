@@ -4,11 +4,12 @@ tests and docs/tui/*.svg show. The status and history are shaped exactly as the 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from app.tui.app import RvisTui
+from app.tui.app import PANE_HISTORY, RvisTui
 
 NOW = datetime(2026, 11, 23, 9, 30, tzinfo=UTC)
 
@@ -25,7 +26,12 @@ STATUS: dict[str, Any] = {
     },
     "devices": {
         "plc": {"url": "plc+modbus://10.0.0.5:502", "state": "ok", "last_error": None},
-        "robot": {"url": "rmi://10.0.0.7:16001", "state": "ok", "last_error": None},
+        "robot": {
+            "url": "rmi://10.0.0.7:16001",
+            "state": "ok",
+            "last_error": "DeviceFault: SRVO-050 Collision Detect Alarm (G:1 A:2)",
+            "last_error_utc": "2026-11-23T04:12:09+00:00",
+        },
         "camera": {"url": "aravis://Basler-22C1", "state": "ok", "last_error": None},
         "galvo": {"url": "scpi:///dev/ttyUSB0", "state": "ok", "last_error": None},
     },
@@ -138,10 +144,12 @@ class FrozenTui(RvisTui):
     def attach(self) -> None:
         self.refresh_all()  # attached to nothing: the frozen data instead
 
-    def _read_history(self, sphere: str | None, text: str) -> dict[str, list[dict[str, Any]]]:
-        return HISTORY
+    def _read_history(
+        self, wanted: Sequence[str], sphere: str | None, text: str
+    ) -> dict[str, list[dict[str, Any]]]:
+        return {key: HISTORY[key] for key in wanted}
 
     async def _refresh_once(self) -> None:
-        hist = self._read_history(None, "")
+        hist = self._read_history(PANE_HISTORY[self.pane], None, "")
         self._show_status()
         self._show_history(hist)

@@ -1,15 +1,19 @@
-"""Shared by the TUI tests: a simulated service in a temp state directory, and waiting on the
-screen's state in a bounded loop (never a bare sleep)."""
+"""Shared by the TUI tests: waiting on the screen's state in a bounded loop (never a bare
+sleep), and skipping the simulated line's idle time between clamp windows."""
 
 from __future__ import annotations
 
+import queue
+import threading
 import time
 from collections.abc import Callable
 
 from textual.pilot import Pilot
 from textual.widgets import Static
 
+from app.sim.line_run import SimulatedLineRun
 from app.tui.app import RvisTui
+from app.tui.modals import ConfirmScreen
 
 
 async def until(pilot: Pilot[None], cond: Callable[[], bool], timeout_s: float = 15.0) -> None:
@@ -21,9 +25,80 @@ async def until(pilot: Pilot[None], cond: Callable[[], bool], timeout_s: float =
             app = pilot.app
             assert isinstance(app, RvisTui)
             shown = f"{text_of(app, '#status')!r} {text_of(app, '#banner')!r}"
-            raise AssertionError(f"condition not met in {timeout_s:g} s; screen: {shown}")
+            workers = [(w.name, w.state.name, repr(w.error)) for w in app.workers]
+            raise AssertionError(
+                f"condition not met in {timeout_s:g} s; screen: {shown}; pane {app.pane}, "
+                f"workers {workers}"
+            )
         await pilot.pause(0.05)
+
+
+async def press(pilot: Pilot[None], *keys: str) -> None:
+    """Press keys, each handled before the next. Pilot.press also waits for the process to
+    go idle (up to 2 s a key), which never happens with a service running in this process."""
+    for key in keys:
+        pilot.app.simulate_key(key)
+        await pilot.pause(0.02)
+
+
+async def confirm(pilot: Pilot[None], key: str) -> None:
+    """Press the key of an action that asks first, and answer yes."""
+    await press(pilot, key)
+    await until(pilot, lambda: isinstance(pilot.app.screen, ConfirmScreen))
+    await press(pilot, "y")
+    await until(pilot, lambda: not isinstance(pilot.app.screen, ConfirmScreen))
 
 
 def text_of(app: RvisTui, selector: str) -> str:
     return str(app.query_one(selector, Static).render())
+
+
+class IdleSkipper:
+    """While inside (`with IdleSkipper(run):`), each time the service becomes idle (after a
+    window, a reset, at the start), the line's clock jumps to `lead_s` sim seconds before the
+    next window opens: only time in which the service waits for a window passes at once; a
+    window itself runs at the line's own pace. `between_windows(fn)` runs fn once, right after
+    such a jump (the service idle, the next window not yet open)."""
+
+    def __init__(self, run: SimulatedLineRun, lead_s: float = 1.0) -> None:
+        self.run, self.lead_s = run, lead_s
+        self._events = run.service.bus.subscribe()
+        self._calls: queue.SimpleQueue[tuple[Callable[[], object], threading.Event]]
+        self._calls = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._follow, name="idle-skipper", daemon=True)
+
+    def __enter__(self) -> IdleSkipper:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._events.put({"event": "end"})  # wakes the follower, which returns
+        self._thread.join()
+        self.run.service.bus.unsubscribe(self._events)
+
+    def between_windows(self, fn: Callable[[], object]) -> threading.Event:
+        """Run fn after the next jump; the event is set once it has run."""
+        done = threading.Event()
+        self._calls.put((fn, done))
+        return done
+
+    def _follow(self) -> None:
+        while (event := self._events.get())["event"] != "end":
+            if event["event"] == "state" and event.get("to") == "idle" and self._skip():
+                while not self._calls.empty():
+                    fn, done = self._calls.get()
+                    fn()
+                    done.set()
+
+    def _skip(self) -> bool:
+        """Jump to lead_s before the next window, if the service is idle (True if it was)."""
+        line = self.run.line
+        now_s, period_s = line.clock.monotonic(), line.settings.period_s
+        k = int(now_s // period_s)
+        opens_s = line.window_bounds_s(k)[0]
+        if opens_s - self.lead_s <= now_s:  # this cycle's window is open or about to: the next
+            opens_s = line.window_bounds_s(k + 1)[0]
+        if self.run.service.state.value != "idle":
+            return False
+        line.clock.advance(opens_s - self.lead_s - now_s)
+        return True
