@@ -78,12 +78,15 @@ def overview_text(status: dict[str, Any] | None) -> str:
         window = "OPEN " + num(win.get("remaining_s"), ".0f", " s left")
     heartbeat = "alive" if win.get("heartbeat_alive") else "LOST"
     running = "yes" if win.get("line_running") else "NO"
+    temp = s.get("cell_temp_c")
+    cell = "no temperature sensor" if temp is None else num(temp, ".2f", " degC")
     devices = device_rows(status)
     bad = [f"{d[0]} {d[2]}" for d in devices if d[2] not in ("OK", "OPEN")]
     return "\n".join(
         (
             f"Service   {s.get('state', '-')}   step: {s.get('step', '-')}",
             f"Line      running {running}, PLC heartbeat {heartbeat}, window {window}",
+            f"Cell      {cell}",
             "Devices   " + (", ".join(bad) if bad else f"all {len(devices)} OK"),
             "Counters  " + ", ".join(f"{k} {v}" for k, v in counts.items()),
         )

@@ -57,6 +57,7 @@ STATUS: dict[str, Any] = {
             "raised_utc": "2026-11-23T09:12:40+00:00",
         }
     ],
+    "cell_temp_c": 27.91,
     "counters": {"windows": 412, "overruns": 0, "withdrawn": 3},
 }
 
