@@ -50,6 +50,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--no-criteria", action="store_true", help="skip ranking O1..O5 as selection criteria"
     )
+    p.add_argument(
+        "--plan-model",
+        choices=("rigid", "compliant"),
+        default="rigid",
+        help="paper: plan for the rigid model's 30 parameters (default) or the compliant "
+        "model's (with the arm compliance, on its own pre-calibration)",
+    )
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="paper: keep the seeds already in --out's seeds.json, run the others",
+    )
     g = p.add_argument_group("shift")
     g.add_argument("--hours", type=float, default=8.0, help="shift: sim hours (8)")
     g.add_argument("--knock-at-h", type=float, default=4.0, help="shift: knock at hour (4)")
@@ -77,6 +89,8 @@ def run(args: argparse.Namespace) -> int:
     if args.name == "accuracy":
         return run_accuracy_command(args, cfg, out)
     overrides = plan_overrides(args)
+    if args.resume and not args.out:
+        raise InputError("--resume needs the --out folder of the run to resume", field="--resume")
     seeds = list(range(args.first_seed, args.first_seed + (args.seeds or 20)))
     print(f"rvis experiment paper: {len(seeds)} seeds, writing to {out}/", flush=True)
     summary = run_experiment(
@@ -88,6 +102,8 @@ def run(args: argparse.Namespace) -> int:
         criteria_grid_step_deg=args.criteria_grid_step,
         log=lambda s: print(s, flush=True),
         compliant=args.compliant,
+        plan_model=args.plan_model,
+        resume=args.resume,
         **overrides,
     )
     print()
