@@ -23,7 +23,9 @@ from app.planning import add_plan_options, plan_overrides
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("experiment", help="experiments on the simulated cell")
     p.add_argument(
-        "name", choices=("paper", "accuracy", "compensation", "shift"), help="which experiment"
+        "name",
+        choices=("paper", "paper-compare", "accuracy", "compensation", "shift"),
+        help="which experiment",
     )
     p.add_argument("--seeds", type=int, help="number of seeds (paper 20, accuracy 10, 5)")
     p.add_argument("--first-seed", type=int, default=0, help="first seed (0)")
@@ -58,6 +60,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "model's (with the arm compliance, on its own pre-calibration)",
     )
     p.add_argument(
+        "--runs",
+        nargs="+",
+        metavar="[NAME=]DIR",
+        help="paper-compare: output folders of paper runs, the first is the reference",
+    )
+    p.add_argument(
         "--resume",
         action="store_true",
         help="paper: keep the seeds already in --out's seeds.json, run the others",
@@ -84,6 +92,8 @@ def run(args: argparse.Namespace) -> int:
         return run_compensation_experiment(args)
     if args.name == "shift":
         return run_shift_experiment(args)
+    if args.name == "paper-compare":
+        return run_paper_compare(args.runs or [])
     cfg = load_cell(args.cell)
     out = Path(args.out or f"runs/experiment-{time.strftime('%Y%m%d-%H%M%S')}")
     if args.name == "accuracy":
@@ -109,6 +119,21 @@ def run(args: argparse.Namespace) -> int:
     print()
     print(summary_text(summary))
     print(f"\nwritten {out}/experiment.md, fig11.png, seeds.json in {summary.seconds:.0f} s")
+    return 0
+
+
+def run_paper_compare(specs: list[str]) -> int:
+    """Print the runs' reductions side by side (app.paper_compare) as a markdown table."""
+    from app.paper_compare import HEADER, compare_rows, load_run
+    from app.report import markdown_table
+
+    if not specs:
+        raise InputError("name at least one run folder", field="--runs")
+    runs = {}
+    for spec in specs:
+        name, _, folder = spec.rpartition("=")
+        runs[name or folder] = load_run(Path(folder))
+    print(markdown_table(HEADER, compare_rows(runs)))
     return 0
 
 

@@ -100,3 +100,34 @@ def test_planning_section_reads_revisits_and_the_workspace_criterion(tmp_path: P
     cell.write_text("[planning]\nrevisits = 11\n")
     with pytest.raises(InputError, match=r"cell.toml:2: \[planning\] revisits: must be <= 10"):
         load_cell(cell)
+
+
+def _fake_run(folder: Path, planned: list[float]) -> None:
+    """seeds.json of a run whose random RMSE is 0.05 mm (0.04 vs the truth: 0.03 noise)."""
+    seeds = [
+        {
+            "seed": k,
+            "rmse_mm": {"random": 0.05, "planned": p},
+            "rmse_truth_mm": {"random": 0.04, "planned": 0.02},
+        }
+        for k, p in enumerate(planned)
+    ]
+    folder.mkdir()
+    (folder / "seeds.json").write_text(json.dumps({"seeds": seeds}))
+
+
+def test_paper_compare_pairs_the_seeds_of_runs(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    _fake_run(tmp_path / "a", [0.04, 0.045, 0.055])
+    _fake_run(tmp_path / "b", [0.036, 0.045, 0.05, 0.01])  # one more seed: left out
+    argv = ["experiment", "paper-compare", "--runs", f"base={tmp_path / 'a'}", str(tmp_path / "b")]
+    assert main(argv) == 0
+    rows = [r.split(" | ") for r in capsys.readouterr().out.splitlines()[2:]]
+    assert [r[0].strip("| ") for r in rows] == ["base", str(tmp_path / "b")]
+    base, other = rows
+    assert base[4] == "10.0 %" and base[6] == "2/3" and base[7] == "50.0 %"
+    assert base[8] == "40.0 %"  # 1 - 0.03 / 0.05: the validation noise stays
+    assert other[2] == "3" and other[4] == "10.0 %" and other[6] == "2/3"
+    assert other[9].startswith("-9.1 %, 2/3")  # median of -10 %, 0 %, -9.1 %
+    assert main(["experiment", "paper-compare"]) == 2
