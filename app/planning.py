@@ -219,6 +219,8 @@ def plan_to_json(cfg: CellConfig, model: SystemModel, x: F64, result: Plan) -> d
             "swarm_size": s.swarm.n_particles,
             "iterations": s.swarm.n_iterations,
             "seed": s.seed,
+            "revisits": s.revisits,
+            "parameters": list(s.active),
         },
         "spheres": [
             {
