@@ -3,10 +3,10 @@
 Every run holds the same seeds' random pre-calibration and validation sets (they come
 before the plan in each seed's random stream), so runs that differ only in the planning
 compare seed by seed. Per run and model: the reduction random -> planned of the validation
-RMSE (median, quartiles, seeds better), the same against the truth, and the paired change of
-the planned RMSE against the first run. The ceiling is the reduction a perfect
-identification would give: the validation measurements' own noise (sqrt(RMSE^2 - RMSE vs
-truth^2)) stays.
+RMSE (median with its bootstrap interval, quartiles, seeds better), the same against the
+truth, and the paired change of the planned RMSE against the first run. The ceiling is the
+reduction a perfect identification would give: the validation measurements' own noise
+(sqrt(RMSE^2 - RMSE vs truth^2)) stays.
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ HEADER = [
     "seeds",
     "RMSE random -> planned mm (median)",
     "reduction median",
+    "90 % interval of the median",
     "quartiles",
     "seeds better",
     "vs truth median",
@@ -43,6 +44,15 @@ def load_run(folder: Path) -> dict[int, dict[str, Any]]:
         return {int(d["seed"]): d for d in data["seeds"]}
     except (KeyError, TypeError) as exc:
         raise InputError(f"malformed seeds ({exc})", file=folder / "seeds.json") from None
+
+
+def median_interval(values: F64, n_boot: int = 2000, level: float = 0.9) -> F64:
+    """The bootstrap interval (percentile, seeded) of the median of `values`: how far the
+    median of this many seeds may move with other seeds."""
+    rng = np.random.default_rng(0)
+    boot = np.median(rng.choice(values, size=(n_boot, values.size), replace=True), axis=1)
+    out: F64 = np.percentile(boot, [50 * (1 - level), 50 * (1 + level)])
+    return out
 
 
 def _values(run: dict[int, dict[str, Any]], seeds: list[int], key: str, label: str) -> F64:
@@ -87,6 +97,7 @@ def _row(
         str(len(seeds)),
         f"{np.median(r):.4f} -> {np.median(p):.4f}",
         f"{100 * np.median(red):.1f} %",
+        "{:.1f} .. {:.1f} %".format(*(100 * median_interval(red))),
         f"{100 * q[0]:.1f} .. {100 * q[1]:.1f} %",
         f"{int(np.sum(red > 0))}/{len(seeds)}",
         f"{100 * np.median(1.0 - pt / rt):.1f} %",

@@ -126,8 +126,9 @@ def test_paper_compare_pairs_the_seeds_of_runs(
     rows = [r.split(" | ") for r in capsys.readouterr().out.splitlines()[2:]]
     assert [r[0].strip("| ") for r in rows] == ["base", str(tmp_path / "b")]
     base, other = rows
-    assert base[4] == "10.0 %" and base[6] == "2/3" and base[7] == "50.0 %"
-    assert base[8] == "40.0 %"  # 1 - 0.03 / 0.05: the validation noise stays
-    assert other[2] == "3" and other[4] == "10.0 %" and other[6] == "2/3"
-    assert other[9].startswith("-9.1 %, 2/3")  # median of -10 %, 0 %, -9.1 %
+    assert base[4] == "10.0 %" and base[7] == "2/3" and base[8] == "50.0 %"
+    assert base[5] == "-10.0 .. 20.0 %"  # the median of 3 resampled values: their range
+    assert base[9] == "40.0 %"  # 1 - 0.03 / 0.05: the validation noise stays
+    assert other[2] == "3" and other[4] == "10.0 %" and other[7] == "2/3"
+    assert other[10].startswith("-9.1 %, 2/3")  # median of -10 %, 0 %, -9.1 %
     assert main(["experiment", "paper-compare"]) == 2
