@@ -35,7 +35,7 @@ MAX_COORD_MM = 1e5
 MAX_ANGLE_DEG = 720.0
 # names of the choice lists live with the algorithms; importing calib/ here would load numpy-heavy
 # modules for every command, so they are listed here and a test checks them against calib/
-CRITERIA = ("O1", "O2", "O3", "O4", "O5")
+CRITERIA = ("O1", "O2", "O3", "O4", "O5", "I")
 METHODS = ("detmax", "eae", "random")
 PLACEMENTS = ("fixed", "sequential", "joint", "none")
 LOSSES = ("linear", "huber", "soft_l1", "cauchy", "arctan")
@@ -199,6 +199,7 @@ class PlanningSection(Section):
     min_separation_mm: float = opt(300.0, lo=0, hi=1e5)
     seed: int = opt(0, lo=0, hi=2**32 - 1)
     workers: int = opt(2, lo=1, hi=256)
+    revisits: int = opt(0, lo=0, hi=10)
 
 
 @dataclass(frozen=True)

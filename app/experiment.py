@@ -15,6 +15,8 @@ parameters' error alone).
 from __future__ import annotations
 
 import itertools
+import json
+import os
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
@@ -26,7 +28,8 @@ from numpy.typing import NDArray
 
 from app.config import CellConfig
 from app.demo import truth_set
-from app.files import write_json, write_text
+from app.errors import InputError
+from app.files import dumps_json, read_json, write_json, write_text
 from app.meta import provenance
 from app.planning import plan_settings, run_plan
 from app.report import markdown_table, save_figure, text_table
@@ -53,6 +56,7 @@ class SeedOutcome:
     plan_seconds: float
     positions_base_mm: dict[str, list[float]]
     errors_mm: dict[str, list[float]]  # Euclidean validation error per position
+    seconds: float = 0.0  # the seed's wall time
 
 
 def _rmse(e: F64) -> float:
@@ -67,10 +71,14 @@ def run_seed(
     progress: Callable[[str, int, int, float], None] | None = None,
     criteria_grid_step_deg: float | None = None,
     compliant: bool = False,
+    plan_model: str = "rigid",
     **plan_overrides: Any,
 ) -> SeedOutcome:
     """One seed. With `compliant`, every run is also identified and validated with the
-    compliant model (labels "<run> (compliant)"); the plan uses the rigid pre-calibration."""
+    compliant model (labels "<run> (compliant)"). The plan is made for `plan_model`: the
+    rigid pre-calibration's 30 parameters, or ("compliant") the compliant model's
+    pre-calibration on the same random data and its parameters with the arm compliance."""
+    t0 = time.perf_counter()
     sim = simulated_sets(cfg, seed, n_validation=n_validation)
     cell, model, rng, pre_data, val = sim.cell, sim.model, sim.rng, sim.calibration, sim.validation
     n_each = cfg.calibration.configs_per_sphere
@@ -78,7 +86,9 @@ def run_seed(
     loss = str(cfg.calibration["loss"])
     runs: dict[str, DataSet] = {"random": pre_data}
     pre = identify(model, pre_data.measurements, loss=loss)
-    plan = run_plan(cfg, model, pre.x, progress=progress, seed=seed, **plan_overrides)
+    plan_fit = select_model(plan_model, model)
+    x_plan = pre.x if plan_model == "rigid" else identify(plan_fit, pre_data.measurements).x
+    plan = run_plan(cfg, plan_fit, x_plan, progress=progress, seed=seed, **plan_overrides)
     positions = plan.positions_part_mm()
     runs["planned"] = collect(
         cell, model, pre.x, positions, n_each, rng, q_by_target=plan.q_by_sphere()
@@ -105,7 +115,10 @@ def run_seed(
         counts[label] = len(data.measurements)
         errors[label] = np.linalg.norm(e, axis=1).tolist()
     base = _base_positions(model, pre.x, positions)
-    return SeedOutcome(seed, o1, rmse, rmse_truth, counts, plan.seconds["total"], base, errors)
+    seconds = time.perf_counter() - t0
+    return SeedOutcome(
+        seed, o1, rmse, rmse_truth, counts, plan.seconds["total"], base, errors, seconds
+    )
 
 
 def _base_positions(
@@ -118,7 +131,8 @@ def _base_positions(
 @dataclass(frozen=True)
 class ExperimentSummary:
     outcomes: list[SeedOutcome]
-    seconds: float
+    seconds: float  # wall time of this run (seeds taken from a resumed file cost nothing)
+    load_1min: tuple[float, float] = (float("nan"), float("nan"))  # min, max over the run
 
     def reductions(self, key: str = "rmse_mm", label: str = "planned", base: str = "random") -> F64:
         vals = [getattr(o, key) for o in self.outcomes]
@@ -161,11 +175,13 @@ class ExperimentSummary:
             p = np.array([o.rmse_mm["planned" + suffix] for o in self.outcomes])
             red = 1.0 - p / r
             red_t = self.reductions("rmse_truth_mm", "planned" + suffix, "random" + suffix)
+            q = np.percentile(red, [25, 75])
             rows.append(
                 [
                     name,
                     f"{np.median(r):.4f} -> {np.median(p):.4f}",
                     f"{100 * np.median(red):.1f} %",
+                    f"{100 * q[0]:.1f} % .. {100 * q[1]:.1f} %",
                     f"{int(np.sum(red > 0))}/{red.size}",
                     f"{100 * np.median(red_t):.1f} %",
                 ]
@@ -197,6 +213,7 @@ COMPLIANT_HEADER = [
     "model",
     "median RMSE random -> planned mm",
     "median reduction",
+    "quartiles",
     "seeds better",
     "reduction vs truth",
 ]
@@ -213,13 +230,32 @@ def run_experiment(
     criteria_grid_step_deg: float | None = None,
     log: Callable[[str], None] = print,
     compliant: bool = False,
+    plan_model: str = "rigid",
+    resume: bool = False,
     **plan_overrides: Any,
 ) -> ExperimentSummary:
+    """The experiment over `seeds`; `seeds.json` in out_dir is rewritten after every seed.
+    With `resume`, the seeds it already holds are taken from it (InputError when it was
+    written with other settings) and only the others are run."""
     t0 = time.perf_counter()
-    outcomes: list[SeedOutcome] = []
     out_dir.mkdir(parents=True, exist_ok=True)
+    settings = {
+        "cell": cfg.source,
+        "n_validation": n_validation,
+        "criteria": criteria,
+        "criteria_grid_step_deg": criteria_grid_step_deg,
+        "compliant": compliant,
+        "plan_model": plan_model,
+        "plan_overrides": plan_overrides,
+    }
+    done = _load_done(out_dir / "seeds.json", settings) if resume else {}
+    load = [os.getloadavg()[0]]
+    outcomes: list[SeedOutcome] = []
     for k, seed in enumerate(seeds):
-        t = time.perf_counter()
+        if seed in done:
+            outcomes.append(done[seed])
+            log(f"seed {seed} ({k + 1}/{len(seeds)}): from {out_dir / 'seeds.json'}")
+            continue
         o = run_seed(
             cfg,
             seed,
@@ -227,26 +263,45 @@ def run_experiment(
             criteria,
             criteria_grid_step_deg=criteria_grid_step_deg,
             compliant=compliant,
+            plan_model=plan_model,
             **plan_overrides,
         )
         outcomes.append(o)
+        load.append(os.getloadavg()[0])
         log(
             f"seed {seed} ({k + 1}/{len(seeds)}): O1 {o.o1['random']:.4f} -> {o.o1['planned']:.4f}"
             f", RMSE {o.rmse_mm['random']:.4f} -> {o.rmse_mm['planned']:.4f} mm "
             f"({100 * (o.rmse_mm['planned'] / o.rmse_mm['random'] - 1):+.1f} %), "
-            f"{time.perf_counter() - t:.0f} s"
+            f"{o.seconds:.0f} s"
         )
         write_json(
             out_dir / "seeds.json",
-            {"provenance": provenance(), "seeds": [asdict(x) for x in outcomes]},
+            {
+                "provenance": provenance(),
+                "settings": settings,
+                "seeds": [asdict(x) for x in sorted(outcomes, key=lambda x: x.seed)],
+            },
         )
-    summary = ExperimentSummary(outcomes, time.perf_counter() - t0)
-    _write(
-        summary,
-        out_dir,
-        {**plan_overrides, "criteria_grid_step_deg": criteria_grid_step_deg},
-    )
+    summary = ExperimentSummary(outcomes, time.perf_counter() - t0, (min(load), max(load)))
+    _write(summary, out_dir, settings)
     return summary
+
+
+def _load_done(path: Path, settings: dict[str, Any]) -> dict[int, SeedOutcome]:
+    """The outcomes already in a seeds.json written with the same settings, by seed."""
+    if not path.exists():
+        return {}
+    data = read_json(path)
+    if data.get("settings") != json.loads(dumps_json(settings)):
+        raise InputError(
+            f"written with other settings ({data.get('settings')}); use another --out",
+            file=path,
+            field="settings",
+        )
+    try:
+        return {int(d["seed"]): SeedOutcome(**d) for d in data["seeds"]}
+    except (KeyError, TypeError) as exc:
+        raise InputError(f"malformed seed entry ({exc})", file=path, field="seeds") from None
 
 
 def summary_text(summary: ExperimentSummary) -> str:
@@ -265,19 +320,23 @@ def summary_text(summary: ExperimentSummary) -> str:
     return "\n\n".join(parts)
 
 
-def _write(summary: ExperimentSummary, out_dir: Path, overrides: dict[str, Any]) -> None:
+def _write(summary: ExperimentSummary, out_dir: Path, settings: dict[str, Any]) -> None:
     meta = provenance()
+    seeds = sorted(o.seed for o in summary.outcomes)
+    cpu = sum(o.seconds for o in summary.outcomes)
     md = [
         "# The paper's experiment on the simulated cell",
         f"rvis {meta['rvis_version']} ({meta['git_commit'] or 'no git checkout'}); "
         f"{meta['utc_time']}; `{meta['command_line']}`",
-        f"{len(summary.outcomes)} seeds, planning settings overrides: {overrides or 'none'}; "
-        f"{summary.seconds:.0f} s.",
+        f"{len(seeds)} seeds ({_seed_list(seeds)}); settings {settings}; "
+        f"{cpu:.0f} s over the seeds; 1-minute load average "
+        f"{summary.load_1min[0]:.1f}..{summary.load_1min[1]:.1f} on {os.cpu_count()} cores.",
         markdown_table(TABLE_HEADER, summary.table_rows()),
     ]
     if summary.compliant_rows():
         md += [
-            "## Rigid and compliant model (the same data; the plan uses the rigid model)",
+            f"## Rigid and compliant model (the same data; the plan is made for the "
+            f"{settings.get('plan_model', 'rigid')} model)",
             markdown_table(COMPLIANT_HEADER, summary.compliant_rows()),
         ]
     rows = summary.criteria_rows()
@@ -286,6 +345,13 @@ def _write(summary: ExperimentSummary, out_dir: Path, overrides: dict[str, Any])
     md.append("![validation errors](fig11.png)")
     write_text(out_dir / "experiment.md", "\n\n".join(md) + "\n")
     plot_fig11(summary, out_dir / "fig11.png")
+
+
+def _seed_list(seeds: list[int]) -> str:
+    """ "0..19" for a run of consecutive seeds, else the list."""
+    if seeds and seeds == list(range(seeds[0], seeds[-1] + 1)):
+        return f"{seeds[0]}..{seeds[-1]}"
+    return ", ".join(map(str, seeds))
 
 
 def plot_fig11(summary: ExperimentSummary, path: Path) -> None:

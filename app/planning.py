@@ -27,11 +27,12 @@ from numpy.typing import NDArray
 from app.config import CellConfig
 from app.errors import InputError
 from app.files import read_json
+from app.workspace import weight_for
 from calib.candidates import FOV_CENTRE_MM, FOV_SPREAD_MM, Clearance, ViewGrid
-from calib.detmax import METHODS
+from calib.detmax import CRITERIA, METHODS
 from calib.errors import PlanningError
 from calib.model import SystemModel
-from calib.observability import INDEX_NAMES, Observability
+from calib.observability import Observability
 from calib.plan import PLACEMENTS, FeasibleRegion, MapFn, Plan, PlanSettings, plan
 from calib.pso import SwarmSettings
 from calib.transforms import apply, inverse
@@ -50,30 +51,39 @@ PLAN_OPTIONS = (
     "grid_step_deg",
     "search_step_deg",
     "workers",
+    "revisits",
 )
 
 
 def add_plan_options(p: argparse.ArgumentParser) -> None:
     """The command-line options that override the cell's [planning] table."""
     p.add_argument("--placement", choices=PLACEMENTS, help="sequential (paper), joint, fixed")
-    p.add_argument("--criterion", help=f"selection criterion, one of {', '.join(INDEX_NAMES)}")
+    p.add_argument(
+        "--criterion",
+        help=f"selection criterion, one of {', '.join(CRITERIA)} (I: workspace accuracy)",
+    )
     p.add_argument("--method", choices=METHODS, help="selection method (default detmax)")
     p.add_argument("--iterations", type=int, help="PSO iterations (default 30)")
     p.add_argument("--swarm", type=int, dest="swarm_size", help="PSO swarm size (default 50)")
     p.add_argument("--grid-step", type=float, dest="grid_step_deg", help="final grid [deg]")
     p.add_argument("--search-step", type=float, dest="search_step_deg", help="PSO grid [deg]")
     p.add_argument("--workers", type=int, help="processes for the swarm (default 2)")
+    p.add_argument(
+        "--revisits",
+        type=int,
+        help="passes re-choosing each sphere's configurations given the others (default 0)",
+    )
 
 
 def plan_overrides(args: argparse.Namespace) -> dict[str, Any]:
     """The planning options given on the command line, checked (InputError naming the option)."""
     out = {k: getattr(args, k) for k in PLAN_OPTIONS if getattr(args, k, None) is not None}
-    if "criterion" in out and out["criterion"] not in INDEX_NAMES:
+    if "criterion" in out and out["criterion"] not in CRITERIA:
         raise InputError(
-            f"unknown criterion '{out['criterion']}' (choose from {', '.join(INDEX_NAMES)})",
+            f"unknown criterion '{out['criterion']}' (choose from {', '.join(CRITERIA)})",
             field="--criterion",
         )
-    for key, lo in (("iterations", 1), ("swarm_size", 2), ("workers", 1)):
+    for key, lo in (("iterations", 1), ("swarm_size", 2), ("workers", 1), ("revisits", 0)):
         if key in out and out[key] < lo:
             option = "--swarm" if key == "swarm_size" else f"--{key}"
             raise InputError(f"must be >= {lo}, got {out[key]}", field=option)
@@ -106,6 +116,7 @@ def plan_settings(cfg: CellConfig, **overrides: Any) -> tuple[PlanSettings, Feas
         min_separation_mm=float(p["min_separation_mm"]),
         seed=int(p["seed"]),
         threads=int(p["workers"]),
+        revisits=int(p["revisits"]),
     )
     region = FeasibleRegion(
         plate_mm=cfg.base_plate_mm,
@@ -114,6 +125,16 @@ def plan_settings(cfg: CellConfig, **overrides: Any) -> tuple[PlanSettings, Feas
         plate_margin_mm=float(p["plate_margin_mm"]),
     )
     return settings, region
+
+
+def with_weight(
+    settings: PlanSettings, cfg: CellConfig, model: SystemModel, x: F64
+) -> PlanSettings:
+    """The settings with the workspace weight on parameters x when the criterion is "I"
+    (app.workspace); unchanged otherwise."""
+    if settings.criterion != "I":
+        return settings
+    return replace(settings, weight=weight_for(cfg, model, x, settings.active, settings.seed))
 
 
 @contextmanager
@@ -161,8 +182,12 @@ def run_plan(
     progress: Callable[[str, int, int, float], None] | None = None,
     **overrides: Any,
 ) -> Plan:
-    """Plan on parameters x; planning errors become input errors (exit code 2)."""
+    """Plan on parameters x for the parameters `model` identifies by default (the paper's 30
+    for the rigid model; with the arm compliance for the compliant one); planning errors
+    become input errors (exit code 2)."""
     settings, region = plan_settings(cfg, **overrides)
+    settings = replace(settings, active=tuple(model.default_active()))
+    settings = with_weight(settings, cfg, model, x)
     workers = int(overrides.get("workers") or cfg.planning["workers"])
     spheres = spheres_part_mm or cfg.spheres_part_mm
     try:
@@ -194,6 +219,8 @@ def plan_to_json(cfg: CellConfig, model: SystemModel, x: F64, result: Plan) -> d
             "swarm_size": s.swarm.n_particles,
             "iterations": s.swarm.n_iterations,
             "seed": s.seed,
+            "revisits": s.revisits,
+            "parameters": list(s.active),
         },
         "spheres": [
             {

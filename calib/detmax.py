@@ -43,12 +43,14 @@ from numpy.typing import NDArray
 from scipy.linalg.lapack import dpotrf, dtrtri
 
 from calib.errors import NoCandidates
-from calib.observability import INDEX_NAMES, check_index_name
+from calib.observability import INDEX_NAMES
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
 METHODS = ("detmax", "eae", "random")
+#: Selection criteria: the observability indices and the workspace criterion (calib.ioptimal).
+CRITERIA = (*INDEX_NAMES, "I")
 RIDGE = 1e-6
 #: An improvement of the log criterion below this ends the search.
 TOL = 1e-9
@@ -62,6 +64,12 @@ ChunkMap = Callable[[Callable[[int], None], Iterable[int]], Iterator[None]]
 def check_method(name: str) -> str:
     if name not in METHODS:
         raise ValueError(f"unknown selection method '{name}' (choose from {', '.join(METHODS)})")
+    return name
+
+
+def check_criterion(name: str) -> str:
+    if name not in CRITERIA:
+        raise ValueError(f"unknown criterion '{name}' (choose from {', '.join(CRITERIA)})")
     return name
 
 
@@ -244,6 +252,7 @@ def select(
     updates: str = "rank3",
     polish: bool = True,
     threads: int = 1,
+    weight: F64 | None = None,
 ) -> Selection:
     """Choose n of the candidates (blocks J_candidates (M, 3, L)) that maximise the
     criterion together with the fixed blocks J_fixed (F, 3, L). DETMAX and exchange-add-
@@ -252,8 +261,9 @@ def select(
     candidate with a full SVD instead of the rank-3 update (the straightforward reference,
     for benchmarks and tests; O1 only). `polish=False` skips DETMAX's final single exchanges
     (the swarm's coarse fitness). `threads` > 1 spreads the sweeps over large candidate sets
-    on that many threads (numpy and BLAS release the GIL; the result does not change)."""
-    check_index_name(criterion)
+    on that many threads (numpy and BLAS release the GIL; the result does not change).
+    `weight`: the workspace weight W (L, L) of criterion "I" (calib.ioptimal)."""
+    check_criterion(criterion)
     check_method(method)
     J_candidates = np.asarray(J_candidates, dtype=float)
     m_cand, L = J_candidates.shape[0], J_candidates.shape[2]
@@ -265,13 +275,19 @@ def select(
     d = column_scale(np.concatenate([J_fix, J_candidates])) if scale is None else scale
     G, G_fix = J_candidates * d, J_fix * d
     rank = L
-    if criterion != "O1":
+    if criterion not in ("O1", "I"):
         pool_info = np.einsum("kil,kim->lm", G, G) + np.einsum("kil,kim->lm", G_fix, G_fix)
         lam = np.linalg.eigvalsh(pool_info)
         rank = max(1, int(np.sum(lam > 1e-9 * lam[-1])))
     if updates not in ("rank3", "svd"):
         raise ValueError(f"unknown update scheme '{updates}' (choose from rank3, svd)")
-    info = (_SvdInformation if updates == "svd" else _Information)(G, G_fix, criterion, rank)
+    if criterion == "I":
+        from calib.ioptimal import WeightedInformation, check_weight  # it builds on this module
+
+        W = check_weight(weight, L)
+        info: _Information = WeightedInformation(G, G_fix, W * d[:, None] * d[None, :])
+    else:
+        info = (_SvdInformation if updates == "svd" else _Information)(G, G_fix, criterion, rank)
     if start not in ("greedy", "random"):
         raise ValueError(f"unknown start '{start}' (choose from greedy, random)")
     first = [int(i) for i in rng.choice(m_cand, size=n, replace=False)]
@@ -402,4 +418,4 @@ def _eae(info: _Information, sel: list[int], n: int) -> list[int]:
     return sel
 
 
-__all__ = ["INDEX_NAMES", "METHODS", "Selection", "column_scale", "select"]
+__all__ = ["CRITERIA", "INDEX_NAMES", "METHODS", "Selection", "column_scale", "select"]

@@ -26,7 +26,8 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterable, Mapping
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -41,10 +42,10 @@ from calib.candidates import (
 )
 from calib.errors import EmptyRegion, NoCandidates
 from calib.ik_refine import refine
+from calib.ioptimal import check_weight, i_index
 from calib.model import BASE_NAMES, INDEX, PAPER_30, SENSOR_NAMES, SystemModel
 from calib.observability import (
     Observability,
-    check_index_name,
     column_scaled,
     index_from_singular_values,
     observability,
@@ -118,9 +119,15 @@ class PlanSettings:
     #: Threads for the final choice of each sphere on the full grid (a serial stage: the
     #: swarm's processes wait for it). The result does not depend on it.
     threads: int = 1
+    #: Passes over the spheres after the placement, each re-choosing a sphere's
+    #: configurations given all the others (block coordinate ascent of the criterion; the
+    #: sequential choice of the first spheres knew nothing of the later ones).
+    revisits: int = 0
+    #: The workspace weight W (L, L) of criterion "I" (calib.ioptimal), for `active`.
+    weight: F64 | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
-        check_index_name(self.criterion)
+        detmax.check_criterion(self.criterion)  # "I" checks its weight where it is used
         detmax.check_method(self.method)
         if self.placement not in PLACEMENTS:
             raise ValueError(
@@ -130,6 +137,8 @@ class PlanSettings:
             raise ValueError(f"configurations per sphere {self.n_per_sphere}: expected >= 1")
         if self.threads < 1:
             raise ValueError(f"threads {self.threads}: expected >= 1")
+        if self.revisits < 0:
+            raise ValueError(f"revisits {self.revisits}: expected >= 0")
 
 
 @dataclass(frozen=True)
@@ -232,6 +241,7 @@ def _choose_from(
         method=settings.method,
         polish=polish,
         threads=threads,
+        weight=settings.weight,
     )
     return cand.take(sel.indices), J[sel.indices], len(cand)
 
@@ -251,9 +261,14 @@ def _candidate_blocks_of_many(
     return list(zip(cands, np.split(J, ends), strict=True))
 
 
-def plan_index(J_blocks: F64, name: str, rank: int | None = None) -> float:
+def plan_index(
+    J_blocks: F64, name: str, rank: int | None = None, weight: F64 | None = None
+) -> float:
     """The index `name` of configuration blocks (K, 3, L) from their r largest singular
-    values (r = rank, default L), column-scaled as calib.observability states."""
+    values (r = rank, default L), column-scaled as calib.observability states; "I" from the
+    r largest eigen-directions with the workspace weight (calib.ioptimal)."""
+    if name == "I":
+        return i_index(J_blocks, check_weight(weight, J_blocks.shape[2]), rank)
     K, _, L = J_blocks.shape
     Js, _ = column_scaled(J_blocks.reshape(-1, L))
     sigma = np.linalg.svd(Js, compute_uv=False)
@@ -319,7 +334,7 @@ class _Fitness:
             except NoCandidates:
                 continue
             J_all = np.concatenate([self.J_fixed, J_sel])
-            out[i] = -plan_index(J_all, self.settings.criterion, self.rank)
+            out[i] = -plan_index(J_all, self.settings.criterion, self.rank, self.settings.weight)
         return out
 
     def __call__(self, particle: F64) -> float:
@@ -335,7 +350,7 @@ class _Fitness:
                 J = np.concatenate([J, J_sel])
         except NoCandidates:
             return float("inf")
-        return -plan_index(J, self.settings.criterion, self.rank)
+        return -plan_index(J, self.settings.criterion, self.rank, self.settings.weight)
 
 
 def _swarm(
@@ -407,16 +422,55 @@ def _configure_sphere(
     """The final configurations of one sphere (chosen with the fixed blocks, refined on the
     model) and their Jacobian blocks at the refined angles."""
     p_arr = np.asarray(p_part_mm, dtype=float).reshape(3)
+    cand, J = candidate_blocks(model, x, p_arr, grid, settings, settings.threads)
+    if settings.criterion == "I":
+        settings = _stage_settings(settings, _reachable_rank(J_fixed, J) if len(J) else 0)
     try:
-        chosen, _, n_cand = choose(
-            model, x, p_arr, grid, J_fixed, settings, threads=settings.threads
-        )
+        chosen, _, n_cand = _choose_from(cand, J, J_fixed, settings, threads=settings.threads)
     except NoCandidates as exc:
         raise NoCandidates(f"sphere {name}: {exc}") from None
     q, ok = refine_on_model(model, x, chosen.q_deg)
     J_sel = model.point_jacobian(x, q, chosen.c_sensor_mm, settings.active)
     sphere = SpherePlan(name, p_arr, q, chosen.c_sensor_mm, n_cand, int(np.sum(~ok)))
     return sphere, J_sel
+
+
+def revisit(
+    model: SystemModel,
+    x: F64,
+    spheres: list[SpherePlan],
+    settings: PlanSettings,
+    progress: Progress | None = None,
+) -> tuple[list[SpherePlan], F64]:
+    """Up to `settings.revisits` passes over the spheres, each choosing a sphere's
+    configurations anew with the other spheres' as the fixed ones (a choice is kept unless
+    the criterion improves); stops after a pass that changes nothing. Returns the spheres
+    and all their blocks."""
+    blocks = [model.point_jacobian(x, sp.q_deg, sp.c_sensor_mm, settings.active) for sp in spheres]
+    value = _criterion_value(np.concatenate(blocks), settings)
+    for n in range(settings.revisits):
+        changed = False
+        for k, sp in enumerate(spheres):
+            fixed = np.concatenate([b for j, b in enumerate(blocks) if j != k])
+            new, J_new = _configure_sphere(model, x, sp.name, sp.p_part_mm, settings.grid,
+                                           fixed, settings)  # fmt: skip
+            trial = _criterion_value(np.concatenate([fixed, J_new]), settings)
+            if trial > value * (1.0 + 1e-9):
+                spheres, blocks = _replace(spheres, k, new), _replace(blocks, k, J_new)
+                value, changed = trial, True
+        if progress:
+            progress("revisit", n + 1, settings.revisits, value)
+        if not changed:
+            break
+    return spheres, np.concatenate(blocks)
+
+
+def _criterion_value(J_blocks: F64, settings: PlanSettings) -> float:
+    return plan_index(J_blocks, settings.criterion, weight=settings.weight)
+
+
+def _replace(items: list[Any], k: int, item: Any) -> list[Any]:
+    return [*items[:k], item, *items[k + 1 :]]
 
 
 def refine_on_model(model: SystemModel, x: F64, q_deg: F64) -> tuple[F64, NDArray[np.bool_]]:
@@ -487,10 +541,12 @@ def plan(
         progress("configurations", 0, 1, float("nan"))
     if not spheres:
         spheres, J_fixed = select_configurations(model, x, positions, s)
+    if s.revisits:
+        spheres, J_fixed = revisit(model, x, spheres, s, progress)
     J_all = J_fixed
     obs = observability(J_all.reshape(-1, L), J_all.shape[0])
     if progress:
-        progress("configurations", 1, 1, obs.indices[s.criterion])
+        progress("configurations", 1, 1, plan_index(J_all, s.criterion, weight=s.weight))
     seconds["configurations"] = time.perf_counter() - t
     rq, rc, r_obs = random_plan(model, x, positions, s)
     seconds["total"] = time.perf_counter() - t0
@@ -516,9 +572,19 @@ def _fitness(
         J_pool.append(J)
     pool = np.concatenate(J_pool)
     rank = _reachable_rank(np.zeros((0, 3, pool.shape[2])), pool) if len(pool) else len(s.active)
+    s = _stage_settings(s, rank)
     return _Fitness(
         model, x, z_base, np.asarray(placed_xy).reshape(-1, 2), J_fixed, s, region, rank
     )
+
+
+def _stage_settings(s: PlanSettings, rank: int) -> PlanSettings:
+    """The settings of a stage that reaches `rank` directions: a partial plan (rank < L) is
+    chosen by O1 when the criterion is "I", whose workspace error depends on the directions
+    that only the later spheres will determine (I refines full plans: revisits, last sphere)."""
+    if s.criterion == "I" and rank < len(s.active):
+        return replace(s, criterion="O1")
+    return s
 
 
 def random_plan(

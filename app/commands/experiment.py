@@ -24,7 +24,9 @@ from app.planning import add_plan_options, plan_overrides
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("experiment", help="experiments on the simulated cell")
     p.add_argument(
-        "name", choices=("paper", "accuracy", "compensation", "shift"), help="which experiment"
+        "name",
+        choices=("paper", "paper-compare", "accuracy", "compensation", "shift"),
+        help="which experiment",
     )
     p.add_argument("--seeds", type=int, help="number of seeds (paper 20, accuracy 10, 5)")
     p.add_argument("--first-seed", type=int, default=0, help="first seed (0)")
@@ -50,6 +52,24 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--no-criteria", action="store_true", help="skip ranking O1..O5 as selection criteria"
+    )
+    p.add_argument(
+        "--plan-model",
+        choices=("rigid", "compliant"),
+        default="rigid",
+        help="paper: plan for the rigid model's 30 parameters (default) or the compliant "
+        "model's (with the arm compliance, on its own pre-calibration)",
+    )
+    p.add_argument(
+        "--runs",
+        nargs="+",
+        metavar="[NAME=]DIR",
+        help="paper-compare: output folders of paper runs, the first is the reference",
+    )
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="paper: keep the seeds already in --out's seeds.json, run the others",
     )
     g = p.add_argument_group("shift")
     g.add_argument("--hours", type=float, default=8.0, help="shift: sim hours (8)")
@@ -85,11 +105,15 @@ def run(args: argparse.Namespace) -> int:
         return run_compensation_experiment(args)
     if args.name == "shift":
         return run_shift_experiment(args)
+    if args.name == "paper-compare":
+        return run_paper_compare(args.runs or [])
     cfg = load_cell(args.cell)
     out = Path(args.out or f"runs/experiment-{time.strftime('%Y%m%d-%H%M%S')}")
     if args.name == "accuracy":
         return run_accuracy_command(args, cfg, out)
     overrides = plan_overrides(args)
+    if args.resume and not args.out:
+        raise InputError("--resume needs the --out folder of the run to resume", field="--resume")
     seeds = list(range(args.first_seed, args.first_seed + (args.seeds or 20)))
     print(f"rvis experiment paper: {len(seeds)} seeds, writing to {out}/", flush=True)
     summary = run_experiment(
@@ -101,11 +125,28 @@ def run(args: argparse.Namespace) -> int:
         criteria_grid_step_deg=args.criteria_grid_step,
         log=lambda s: print(s, flush=True),
         compliant=args.compliant,
+        plan_model=args.plan_model,
+        resume=args.resume,
         **overrides,
     )
     print()
     print(summary_text(summary))
     print(f"\nwritten {out}/experiment.md, fig11.png, seeds.json in {summary.seconds:.0f} s")
+    return 0
+
+
+def run_paper_compare(specs: list[str]) -> int:
+    """Print the runs' reductions side by side (app.paper_compare) as a markdown table."""
+    from app.paper_compare import HEADER, compare_rows, load_run
+    from app.report import markdown_table
+
+    if not specs:
+        raise InputError("name at least one run folder", field="--runs")
+    runs = {}
+    for spec in specs:
+        name, _, folder = spec.rpartition("=")
+        runs[name or folder] = load_run(Path(folder))
+    print(markdown_table(HEADER, compare_rows(runs)))
     return 0
 
 

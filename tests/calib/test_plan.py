@@ -24,6 +24,7 @@ from calib.plan import (
     candidate_blocks,
     choose,
     plan,
+    revisit,
     select_configurations,
 )
 from calib.pso import SwarmSettings, minimize
@@ -145,7 +146,7 @@ def test_selection_methods_beat_random_and_are_reproducible(cfg: CellConfig) -> 
         values[method] = a.log_value
     assert values["detmax"] > values["random"] + 1.0
     assert values["eae"] > values["random"] + 1.0
-    with pytest.raises(ValueError, match="unknown observability index 'O9'"):
+    with pytest.raises(ValueError, match="unknown criterion 'O9'"):
         detmax.select(J, 6, np.random.default_rng(1), criterion="O9")
     with pytest.raises(NoCandidates):
         detmax.select(J[:4], 6, np.random.default_rng(1))
@@ -331,3 +332,26 @@ def test_swarm_blocks_give_the_fitness_of_each_particle(cfg: CellConfig) -> None
     block = fit.block(particles)
     assert np.array_equal(one, block)
     assert np.isinf(block[:2]).all() and np.isfinite(block).sum() >= 3
+
+
+def test_revisits_raise_the_criterion_of_the_sequential_choice(cfg: CellConfig) -> None:
+    """The sequential choice of the first spheres knew nothing of the later ones: re-choosing
+    each sphere given the other three raises log det M, the planned positions stay."""
+    model = cfg.model()
+    x = model.nominal_x()
+    s = PlanSettings(grid=ViewGrid(step_deg=30.0), revisits=2)
+    spheres, J0 = select_configurations(model, x, cfg.spheres_part_mm, s)
+    seen: list[tuple[str, int]] = []
+    again, J = revisit(model, x, spheres, s, lambda st, k, *_: seen.append((st, k)))
+
+    def logdet(J: np.ndarray) -> float:
+        return float(np.linalg.slogdet(np.einsum("kil,kim->lm", J, J))[1])
+
+    assert logdet(J) > logdet(J0) + 0.5
+    assert [a.name for a in again] == [b.name for b in spheres]
+    pairs = list(zip(again, spheres, strict=True))
+    assert all(np.array_equal(a.p_part_mm, b.p_part_mm) for a, b in pairs)
+    assert any(not np.array_equal(a.q_deg, b.q_deg) for a, b in pairs)
+    assert seen and seen[0] == ("revisit", 1)
+    with pytest.raises(ValueError, match="revisits"):
+        PlanSettings(revisits=-1)
