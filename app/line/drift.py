@@ -215,6 +215,13 @@ class DriftMonitor:
                 chart.seed(samples if len(samples) >= 2 else pooled, sigma_pooled if few else 0.0)
         self._restart_change()
 
+    def restart(self) -> None:
+        """Parameters close to those in force were applied (a sequential estimator's small
+        step): every chart keeps its baseline and restarts its statistics."""
+        for chart in self.residual.charts.values():
+            chart.restart()
+        self._restart_change()
+
     def _restart_change(self) -> None:
         for chart in self.change.charts.values():
             chart.restart()

@@ -110,3 +110,16 @@ def test_change_charts_keep_their_baseline_across_an_apply() -> None:
 def test_prediction_inflation() -> None:
     assert prediction_inflation(72, 30) == np.sqrt(102 / 42)
     assert prediction_inflation(10**6, 30) < 1.0001
+
+
+def test_restart_keeps_every_baseline() -> None:
+    rng = np.random.default_rng(8)
+    mon = DriftMonitor(DriftSettings(baseline_n=8))
+    for i, e in enumerate(rng.normal(MU, SIGMA, 20)):
+        mon.update("P1", float(e), i, abs(float(e) - MU))
+    mon.update("P1", 1.0, 20, 1.0)
+    assert mon.drifting
+    mus = (mon.residual.charts[OVERALL].mu, mon.change.charts[OVERALL].mu)
+    mon.restart()
+    assert not mon.drifting
+    assert (mon.residual.charts[OVERALL].mu, mon.change.charts[OVERALL].mu) == mus
