@@ -277,21 +277,16 @@ def markdown(result: ShiftResult, command: str) -> str:
     return "\n".join(lines)
 
 
-def plot(result: ShiftResult, path: Path) -> None:
+def _plot_shift(path: Path, knock_at_h: float, draw: Callable[[Any], None]) -> None:
+    """The shift's figure: `draw(ax)` puts the curves, this the knock, axes and legend."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    t_h = [r.t_h for r in result.records]
     fig, ax = plt.subplots(figsize=(9, 4.5))
-    ax.plot(t_h, [r.rmse_commissioning_mm for r in result.records], label="without recalibration")
-    ax.plot(t_h, [r.rmse_mm for r in result.records], label="with the service")
-    ax.axvline(result.settings.knock_at_h, color="k", ls="--", lw=1, label="knock")
-    by_window = {r.window: r.t_h for r in result.records}
-    applied = [by_window[w] for w in result.applied_windows if w in by_window]
-    if applied:
-        ax.plot(applied, [0.0] * len(applied), "g^", ms=5, label="calibration applied")
+    draw(ax)
+    ax.axvline(knock_at_h, color="k", ls="--", lw=1, label="knock")
     ax.set_xlabel("shift time [h]")
     ax.set_ylabel("true RMS error at the validation positions [mm]")
     ax.set_ylim(bottom=0)
@@ -302,14 +297,37 @@ def plot(result: ShiftResult, path: Path) -> None:
     plt.close(fig)
 
 
+def plot(result: ShiftResult, path: Path) -> None:
+    def draw(ax: Any) -> None:
+        t_h = [r.t_h for r in result.records]
+        ax.plot(
+            t_h, [r.rmse_commissioning_mm for r in result.records], label="without recalibration"
+        )
+        ax.plot(t_h, [r.rmse_mm for r in result.records], label="with the service")
+        by_window = {r.window: r.t_h for r in result.records}
+        applied = [by_window[w] for w in result.applied_windows if w in by_window]
+        if applied:
+            ax.plot(applied, [0.0] * len(applied), "g^", ms=5, label="calibration applied")
+
+    _plot_shift(path, result.settings.knock_at_h, draw)
+
+
+def _write_three(
+    out: Path, stem: str, md: str, doc: Any, draw: Callable[[Path], None]
+) -> list[Path]:
+    """`<stem>.md`, `<stem>.json` and `<stem>.png` in `out` (the figure by `draw(path)`)."""
+    out.mkdir(parents=True, exist_ok=True)
+    paths = [out / f"{stem}{ext}" for ext in (".md", ".json", ".png")]
+    paths[0].write_text(md)
+    paths[1].write_text(dumps_json(doc))
+    draw(paths[2])
+    return paths
+
+
 def write_outputs(result: ShiftResult, out: Path, command: str, stem: str = "shift") -> list[Path]:
     """`<stem>.md`, `<stem>.json` and `<stem>.png` in `out`."""
-    out.mkdir(parents=True, exist_ok=True)
-    md, js, png = (out / f"{stem}{ext}" for ext in (".md", ".json", ".png"))
-    md.write_text(markdown(result, command).replace("(shift.png)", f"({png.name})"))
-    js.write_text(dumps_json(result.to_json()))
-    plot(result, png)
-    return [md, js, png]
+    md = markdown(result, command).replace("(shift.png)", f"({stem}.png)")
+    return _write_three(out, stem, md, result.to_json(), lambda png: plot(result, png))
 
 
 def estimator_rows(results: dict[str, ShiftResult]) -> list[dict[str, Any]]:
@@ -384,33 +402,18 @@ def _n(windows: int | None) -> str:
 
 
 def plot_estimators(results: dict[str, ShiftResult], path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     first = next(iter(results.values()))
-    fig, ax = plt.subplots(figsize=(9, 4.5))
-    t_h = [r.t_h for r in first.records]
-    ax.plot(t_h, [r.rmse_commissioning_mm for r in first.records], label="no recalibration")
-    for name, res in results.items():
-        ax.plot([r.t_h for r in res.records], [r.rmse_mm for r in res.records], label=name)
-    ax.axvline(first.settings.knock_at_h, color="k", ls="--", lw=1, label="knock")
-    ax.set_xlabel("shift time [h]")
-    ax.set_ylabel("true RMS error at the validation positions [mm]")
-    ax.set_ylim(bottom=0)
-    ax.legend(loc="upper left")
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+
+    def draw(ax: Any) -> None:
+        t_h = [r.t_h for r in first.records]
+        ax.plot(t_h, [r.rmse_commissioning_mm for r in first.records], label="no recalibration")
+        for name, res in results.items():
+            ax.plot([r.t_h for r in res.records], [r.rmse_mm for r in res.records], label=name)
+
+    _plot_shift(path, first.settings.knock_at_h, draw)
 
 
 def write_estimators(results: dict[str, ShiftResult], out: Path, command: str) -> list[Path]:
     """`shift-estimators.md`, `.json` and `.png` in `out`."""
-    out.mkdir(parents=True, exist_ok=True)
-    md, js, png = (out / f"shift-estimators{ext}" for ext in (".md", ".json", ".png"))
-    md.write_text(estimators_markdown(results, command))
-    js.write_text(dumps_json({"rows": estimator_rows(results)}))
-    plot_estimators(results, png)
-    return [md, js, png]
+    md, doc = estimators_markdown(results, command), {"rows": estimator_rows(results)}
+    return _write_three(out, "shift-estimators", md, doc, lambda png: plot_estimators(results, png))
