@@ -37,6 +37,24 @@ def _calibrated_x(cell: object) -> np.ndarray:
     return identify(cfg.model(), data).x
 
 
+def _knock_line(tmp_path: Path, recalib: RecalibSettings | None) -> tuple[Any, np.ndarray, Any]:
+    """A line with long windows (8 slots each) starting from parameters identified on the
+    plan's views, and 30 validation positions: (line, those parameters, validation set)."""
+    cycle = ClampCycle(period_s=40.0, window_s=32.0, beat_s=0.5, time_scale=SCALE)
+    probe = make_line(tmp_path / "probe")
+    x_good = _calibrated_x(probe.cell)
+    probe.close()
+    ln = make_line(
+        tmp_path / "state",
+        cycle=cycle,
+        line=line_settings(window_s=32.0, slots_per_window=8),
+        recalib=recalib,
+        x_initial=x_good,
+    )
+    val = validation_set(ln.cell, load_cell(None), ln.model, x_good, 30, np.random.default_rng(4))
+    return ln, x_good, val
+
+
 def _true_rms(ln: Any, val: Any, x: np.ndarray) -> float:
     """True RMS error [mm] at the validation positions with parameters x (the cell's truth)."""
     q = val.measurements.q_deg
@@ -58,21 +76,8 @@ def test_a_knock_is_flagged_and_the_recalibration_restores_the_accuracy(
     """3 windows (24 measurements) before the knock: only the residual charts watch (their
     baseline is one schedule cycle); 6 windows: the change charts watch too (a second visit of
     every configuration and 16 differences) and the step is theirs."""
-    cycle = ClampCycle(period_s=40.0, window_s=32.0, beat_s=0.5, time_scale=SCALE)
-    probe = make_line(tmp_path / "probe")
-    x_good = _calibrated_x(probe.cell)
-    probe.close()
-    ln = make_line(
-        tmp_path / "state",
-        cycle=cycle,
-        line=line_settings(window_s=32.0, slots_per_window=8),
-        x_initial=x_good,
-    )
+    ln, x_good, val = _knock_line(tmp_path, None)
     try:
-        cfg = load_cell(None)
-        rng = np.random.default_rng(4)
-        val = validation_set(ln.cell, cfg, ln.model, x_good, 30, rng)
-
         before = _true_rms(ln, val, x_good)
         ln.start()
         for _ in range(pre_windows):
@@ -110,20 +115,9 @@ def test_the_sequential_estimator_follows_a_knock(tmp_path: Path, schedule: str)
     """[service] estimator = "sequential": the drift charts flag the knock, the estimator's
     covariance is widened before the post-knock measurements reach it (they are held out
     first), and the parameters it proposes, gated and applied, bring the true accuracy back."""
-    cycle = ClampCycle(period_s=40.0, window_s=32.0, beat_s=0.5, time_scale=SCALE)
-    probe = make_line(tmp_path / "probe")
-    x_good = _calibrated_x(probe.cell)
-    probe.close()
-    ln = make_line(
-        tmp_path / "state",
-        cycle=cycle,
-        line=line_settings(window_s=32.0, slots_per_window=8),
-        recalib=RecalibSettings(estimator="sequential", schedule=schedule),  # type: ignore[arg-type]
-        x_initial=x_good,
-    )
+    recalib = RecalibSettings(estimator="sequential", schedule=schedule)  # type: ignore[arg-type]
+    ln, x_good, val = _knock_line(tmp_path, recalib)
     try:
-        cfg = load_cell(None)
-        val = validation_set(ln.cell, cfg, ln.model, x_good, 30, np.random.default_rng(4))
         before = _true_rms(ln, val, x_good)
         ln.start()
         ln.windows(6, timeout_s=20.0)
