@@ -18,6 +18,7 @@ from app.config import CellConfig
 from app.line.service import State
 from app.sim.line_run import SimulatedLineRun
 from fakes.line_faults import Fault
+from tests.sim.fault_checks import all_announced_stored, faulted
 
 WAIT_S = 10.0
 
@@ -41,35 +42,25 @@ def _windows_done(events: list[dict[str, Any]]) -> int:
     return sum(e["event"] == "window" for e in events)
 
 
-def _all_done_rows_stored(run: SimulatedLineRun, events: list[dict[str, Any]]) -> None:
-    """Every measurement the service announced is a row in the database."""
-    announced = {e["id"] for e in events if e["event"] == "measurement"}
-    stored = {r["id"] for r in run.service.store.measurements()}
-    assert announced and announced <= stored
-
-
 def _motion_fault(run: SimulatedLineRun, fault: Fault, cause: str) -> None:
     played = run.line.schedule(fault, window=2, after_s=1.0)
     events = _until(run, lambda e: e["event"] == "alarm" and e["code"] == "device_fault")
-    assert played.is_set() and run.service.state == State.FAULT
-    assert cause in events[-1]["message"] and events[-1]["priority"] == "urgent"
-    alarm = run.service.store.active_alarms(code="device_fault")
-    assert alarm and cause in alarm[0]["message"]
-    assert run.line.plc.received.fault and not run.line.plc.received.busy
+    assert played.is_set()
+    faulted(run, events, cause)
     q_stopped = run.cell.joints_deg().copy()
     # two more windows open and close on the line: no motion, still FAULT
     later = run.line.schedule(Fault.WINDOW_WITHDRAWN, window=4, after_s=0.0)
     assert later.wait(WAIT_S)
     assert run.service.state == State.FAULT
     np.testing.assert_allclose(run.cell.joints_deg(), q_stopped, atol=1e-9)
-    _all_done_rows_stored(run, events)
+    all_announced_stored(run, events)
     # a reset clears the fault bit; the robot comes home and measures again
     reply = run.service.request("reset").result(timeout=WAIT_S)
     assert reply["ok"], reply
     more = _until(run, lambda e: e["event"] == "measurement" and e["status"] == "ok")
     assert not run.line.plc.received.fault and run.service.state != State.FAULT
     assert not run.service.store.active_alarms(code="device_fault")
-    _all_done_rows_stored(run, events + more)
+    all_announced_stored(run, events + more)
 
 
 def test_robot_disconnect_mid_move_faults_the_service(run: SimulatedLineRun) -> None:
@@ -93,7 +84,7 @@ def test_plc_heartbeat_loss_raises_the_alarm_and_no_window_is_used(run: Simulate
     run.line.clear(Fault.PLC_HEARTBEAT_LOSS)
     after = _until(run, lambda e: e["event"] == "window")
     assert not run.service.store.active_alarms(code="plc_heartbeat")
-    _all_done_rows_stored(run, before + events + after)
+    all_announced_stored(run, before + events + after)
 
 
 def test_a_window_withdrawn_early_aborts_and_goes_home(run: SimulatedLineRun) -> None:
@@ -107,4 +98,4 @@ def test_a_window_withdrawn_early_aborts_and_goes_home(run: SimulatedLineRun) ->
     home = np.array(run.service.settings.line.home_deg)
     np.testing.assert_allclose(run.cell.joints_deg(), home, atol=0.05)
     assert run.service.counters["overruns"] == 0
-    _all_done_rows_stored(run, events)
+    all_announced_stored(run, events)

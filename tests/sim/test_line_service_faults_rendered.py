@@ -28,6 +28,7 @@ from app.config import CellConfig
 from app.line.service import State
 from app.sim.line_run import SimulatedLineRun
 from fakes.line_faults import Fault
+from tests.sim.fault_checks import all_announced_stored, faulted
 
 WAIT_S = 20.0
 
@@ -58,22 +59,13 @@ def _until(run: SimulatedLineRun, pred: Any) -> list[dict[str, Any]]:
     return seen
 
 
-def _all_announced_stored(run: SimulatedLineRun, events: list[dict[str, Any]]) -> None:
-    announced = {e["id"] for e in events if e["event"] == "measurement"}
-    stored = {r["id"] for r in run.service.store.measurements()}
-    assert announced and announced <= stored
-
-
 def _sensor_fault(run: SimulatedLineRun, fault: Fault, cause: str) -> None:
     """`fault` played as window 0 opens (it hits the sweep, the robot out): FAULT, alarm, PLC
     fault bit, no motion over the next window, back to measuring after the operator's reset."""
     played = run.line.schedule(fault, window=0, after_s=0.0)
     events = _until(run, lambda e: e["event"] == "alarm" and e["code"] == "device_fault")
-    assert played.is_set() and run.service.state == State.FAULT
-    assert cause in events[-1]["message"] and events[-1]["priority"] == "urgent"
-    alarm = run.service.store.active_alarms(code="device_fault")
-    assert alarm and cause in alarm[0]["message"]
-    assert run.line.plc.received.fault and not run.line.plc.received.busy
+    assert played.is_set()
+    faulted(run, events, cause)
     q_stopped = run.cell.joints_deg().copy()
     home = np.array(run.service.settings.line.home_deg)
     assert np.abs(q_stopped - home).max() > 1.0  # stopped out, where the sweep failed
@@ -88,7 +80,7 @@ def _sensor_fault(run: SimulatedLineRun, fault: Fault, cause: str) -> None:
     more = _until(run, lambda e: e["event"] == "measurement" and e["status"] == "ok")
     assert not run.line.plc.received.fault and run.service.state != State.FAULT
     assert not run.service.store.active_alarms(code="device_fault")
-    _all_announced_stored(run, events + more)
+    all_announced_stored(run, events + more)
 
 
 @pytest.mark.slow  # about 14 s (three clamp periods at time x2): the suite's representative
@@ -113,4 +105,4 @@ def test_a_frame_lost_once_is_retriggered_and_is_not_a_fault(run: SimulatedLineR
     assert run.service.state != State.FAULT and not run.line.plc.received.fault
     assert not [e for e in events if e["event"] == "alarm"]
     assert run.service.counters["overruns"] == 0  # this window had room for the extra timeout
-    _all_announced_stored(run, events)
+    all_announced_stored(run, events)
