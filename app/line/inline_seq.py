@@ -26,7 +26,7 @@ from them, with the covariance of their identification when the document has one
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -172,23 +172,21 @@ class InlineSequential:
         q = np.array([s.q_deg for s in slots])
         return slots[self.est.choose_next(q, np.array(c))]
 
-    def due(self, views_q_deg: F64, views_c_sensor_mm: F64) -> bool:
+    def due(self, views: Callable[[], tuple[F64, F64]]) -> bool:
         """A candidate is due: `seq_apply_every` accepted updates since the last one; after a
         step, a full schedule cycle of them and the estimate's predicted point uncertainty at
-        the schedule's views (K, 6) with their last measured centres (K, 3) at most
-        `seq_max_std_mm` per coordinate."""
+        the schedule's views, `views()` -> (K, 6) joints with their last measured centres
+        (K, 3) (asked only then), at most `seq_max_std_mm` per coordinate."""
         if self.est is None or self.accepted_since < self.settings.seq_apply_every:
             return False
         if not self.queue:
             return False
         if not self.after_step:
             return True
-        if self.accepted_since < self.n_slots or not len(views_q_deg):
+        if self.accepted_since < self.n_slots:
             return False
-        return (
-            self.est.predicted_std_mm(views_q_deg, views_c_sensor_mm)
-            <= self.settings.seq_max_std_mm
-        )
+        q, c = views()
+        return len(q) > 0 and self.est.predicted_std_mm(q, c) <= self.settings.seq_max_std_mm
 
     def candidate(self, model: SystemModel, x_current: F64) -> SequentialCandidate:
         """The estimate now, gated against the parameters in force on the held-out rows."""

@@ -243,6 +243,12 @@ class Service(OperatorCommands):
         self._alarm(code, message, "urgent")
 
     # -- measurements --------------------------------------------------------------------------
+    def _visited_views(self) -> tuple[F64, F64]:
+        """The schedule's configurations measured so far (K, 6) and their last centres (K, 3)."""
+        visits = list(self.last_visit.values())
+        q = np.array([q for q, _ in visits]).reshape(-1, 6)
+        return q, np.array([c for _, c in visits]).reshape(-1, 3)
+
     def _most_informative(self, slots: Sequence[Slot]) -> Slot:
         assert self.sequential is not None
         return self.sequential.most_informative(self.model, slots, self.last_visit)
@@ -394,10 +400,7 @@ class Service(OperatorCommands):
 
     def _maybe_recalibrate(self) -> None:
         if self.sequential is not None:
-            visits = list(self.last_visit.values())
-            views_q = np.array([q for q, _ in visits]).reshape(-1, 6)
-            views_c = np.array([c for _, c in visits]).reshape(-1, 3)
-            if self.pending_calibration is None and self.sequential.due(views_q, views_c):
+            if self.pending_calibration is None and self.sequential.due(self._visited_views):
                 self._recal_done(self.sequential.candidate(self.model, self.x))
             return
         if self.recalibrator.busy or self.pending_calibration is not None or not self._recal_due():

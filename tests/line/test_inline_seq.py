@@ -63,7 +63,7 @@ def test_held_out_lag_and_gated_candidates_that_improve_the_nominal() -> None:
     applied = 0
     for row in rows:
         seq.offer(row)
-        if seq.due(np.empty((0, 6)), np.empty((0, 3))):
+        if seq.due(lambda: (np.empty((0, 6)), np.empty((0, 3)))):
             cand = seq.candidate(model, x_in_force)
             held_out = [r["id"] for r in rows if r["id"] > row["id"] - 4]
             assert cand.last_id == row["id"] and len(seq.queue) == 4
@@ -97,7 +97,7 @@ def test_a_step_drops_stale_held_out_rows_and_waits_for_a_certain_estimate() -> 
     waited = 0
     for row in rows[40:]:
         seq.offer(row)
-        if seq.due(views_q, views_c):
+        if seq.due(lambda: (views_q, views_c)):
             break
         waited += 1
     # 4 accepted updates would do in steady state; after the step the covariance decides
