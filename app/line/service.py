@@ -341,11 +341,10 @@ class Service(OperatorCommands):
                 "high",
             )
 
-    def _drift_seed(self, cal_id: int | None) -> list[tuple[str, float]]:
+    def _drift_seed(self, cal: dict[str, Any] | None) -> list[tuple[str, float]]:
         """Residuals of the parameters in force on recent good measurements: the rolling set of
-        batch calibration `cal_id` (its training rows scaled to prediction errors), else the
+        batch calibration `cal` (its training rows scaled to prediction errors), else the
         last schedule cycle and hold-out."""
-        cal = self.store.calibration(cal_id)
         n_train, scale = 0, 1.0
         if cal is not None and cal["first_id"] is not None and not _sequential(cal["document"]):
             rows = self.store.measurements(since_id=int(cal["first_id"]) - 1)
@@ -377,7 +376,7 @@ class Service(OperatorCommands):
         """After a restart: the residual charts from the stored measurements, the last visits."""
         applied = self.store.applied()
         cal_id = applied[-1]["calibration_id"] if applied else None
-        self.drift.reset(self._drift_seed(cal_id))
+        self.drift.reset(self._drift_seed(self.store.calibration(cal_id)))
         for r in self.store.measurements(last=2 * len(self.schedule)):
             if 0 <= r["slot"] < len(self.schedule):
                 q = np.asarray(r["q_deg"], float)
@@ -490,7 +489,7 @@ class Service(OperatorCommands):
             # keep the baselines (measured: reseeding gave 21 low alarms in 4 h)
             self.drift.restart()
         else:
-            self.drift.reset(self._drift_seed(cal_id))
+            self.drift.reset(self._drift_seed(cal))
         if self.sequential is not None and (cal is None or not _sequential(cal["document"])):
             self.sequential.restart(self.model, self.x, self.params.current_document())
         onset, self.drift_due = self.drift_onset_id, False
