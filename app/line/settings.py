@@ -147,6 +147,9 @@ class ServiceSettings:
 
     state_dir: Path = Path("rvis-state")
     raw_sweeps_keep: int = 0
+    operators_group: str = ""  # "" : the state directory is 0750, else 0770 with this group
+    min_free_mb: float = 200.0  # below this free space under the state directory: an alarm
+    events_keep_days: float = 90.0  # events older than this are deleted (0: kept for ever)
     line: LineSettings = field(default_factory=LineSettings)
     sweep: SweepSettings = field(default_factory=SweepSettings)
     gates: GateSettings = field(default_factory=GateSettings)
@@ -171,6 +174,9 @@ def from_cell(cfg: Any, state_dir: str | Path | None = None) -> ServiceSettings:
     return ServiceSettings(
         state_dir=Path(state_dir if state_dir is not None else svc.state_dir),
         raw_sweeps_keep=int(svc.raw_sweeps_keep),
+        operators_group=str(svc.operators_group),
+        min_free_mb=float(svc.min_free_mb),
+        events_keep_days=float(svc.events_keep_days),
         line=_section(LineSettings, cfg.line),
         sweep=_section(SweepSettings, cfg.sweep),
         gates=gates,

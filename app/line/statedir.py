@@ -1,0 +1,211 @@
+"""The service's state directory: its layout (the one place that names its files), its
+permissions, the one-service lock and the free space under it (DESIGN.md section 6).
+
+    rvis-state/                  0750 (0770 and setgid with an operators' group)
+        rvis.db                  SQLite, WAL (rvis.db-wal, rvis.db-shm beside it), 0640
+        rvis.lock                the running service's lock (flock) and pid
+        rvis.sock                the control socket, 0660
+        plan.json                the plan `rvis run` reads when --plan is not given
+        params/current.json      the applied version (derived: rebuilt from the history)
+        params/history/NNNN.json every version ever applied
+        sweeps/NNNNNNNN.npz      raw sweeps kept for audit ([service] raw_sweeps_keep)
+
+Read-only clients (`rvis status`, `rvis ctl`, `rvis tui`) only need the layout; the service
+also takes the lock before it opens any device (`ServiceLock`), and `prepare()`s the directory.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import fcntl
+import grp
+import os
+import stat
+from dataclasses import dataclass
+from pathlib import Path
+
+from app.errors import InputError
+
+DB_NAME = "rvis.db"
+SOCKET_NAME = "rvis.sock"
+LOCK_NAME = "rvis.lock"
+PLAN_NAME = "plan.json"
+PARAMS_DIR = "params"
+SWEEPS_DIR = "sweeps"
+
+DIR_MODE, DIR_MODE_GROUP = 0o750, 0o2770  # setgid: new files take the operators' group
+UMASK, UMASK_GROUP = 0o027, 0o007  # files 0640 (0660 with the group)
+SOCKET_MODE = 0o660
+
+
+@dataclass(frozen=True)
+class StateDir:
+    """The paths of one state directory (nothing is created by naming them)."""
+
+    root: Path
+
+    def __init__(self, root: str | Path) -> None:
+        object.__setattr__(self, "root", Path(root))
+
+    @property
+    def db(self) -> Path:
+        return self.root / DB_NAME
+
+    @property
+    def socket(self) -> Path:
+        return self.root / SOCKET_NAME
+
+    @property
+    def lock(self) -> Path:
+        return self.root / LOCK_NAME
+
+    @property
+    def plan(self) -> Path:
+        return self.root / PLAN_NAME
+
+    @property
+    def params(self) -> Path:
+        return self.root / PARAMS_DIR
+
+    @property
+    def current(self) -> Path:
+        return self.params / "current.json"
+
+    @property
+    def history(self) -> Path:
+        return self.params / "history"
+
+    @property
+    def sweeps(self) -> Path:
+        return self.root / SWEEPS_DIR
+
+    def free_mb(self) -> float:
+        """Free space [MiB] for an unprivileged writer on the directory's file system."""
+        st = os.statvfs(self.root if self.root.exists() else self.root.parent)
+        return st.f_bavail * st.f_frsize / 2**20
+
+
+def prepare(state: StateDir, group: str = "") -> None:
+    """Create the directory private to the service (0750; with `group`, 0770 setgid owned by
+    that group so operators in it can use the socket and read the history), tighten an
+    existing one, and set the process umask so every file the service creates is 0640 (0660).
+    A directory the service cannot use is an InputError naming it (exit code 2)."""
+    gid = _gid(group) if group else None
+    mode = DIR_MODE_GROUP if group else DIR_MODE
+    try:
+        state.root.mkdir(mode=mode, parents=True, exist_ok=True)
+        if state.root.stat().st_uid == os.geteuid():
+            if gid is not None:
+                os.chown(state.root, -1, gid)
+            os.chmod(state.root, mode)
+        _check_usable(state.root)
+    except OSError as exc:
+        raise InputError(f"cannot use the state directory: {_reason(exc)}", file=state.root) from exc
+    os.umask(UMASK_GROUP if group else UMASK)
+    for path in (state.db, state.current):  # files of an older, world-readable layout
+        with contextlib.suppress(OSError):
+            mode_now = stat.S_IMODE(path.stat().st_mode)
+            if mode_now & 0o007:
+                os.chmod(path, mode_now & ~0o007)
+
+
+def _gid(group: str) -> int:
+    try:
+        return grp.getgrnam(group).gr_gid
+    except KeyError:
+        raise InputError(f"no such group {group!r}", field="[service] operators_group") from None
+
+
+def _check_usable(root: Path) -> None:
+    if not root.is_dir():
+        raise NotADirectoryError(errno.ENOTDIR, "not a directory", str(root))
+    if not os.access(root, os.R_OK | os.W_OK | os.X_OK):
+        raise PermissionError(errno.EACCES, "permission denied (needs read, write, search)")
+
+
+def _reason(exc: OSError) -> str:
+    return exc.strerror or str(exc)
+
+
+class ServiceLock:
+    """One service per state directory: an exclusive flock on `rvis.lock` with the holder's
+    pid in it, held for the life of the process (the kernel drops it when the process dies,
+    however it dies). `acquire()` raises InputError naming the directory and the holder."""
+
+    def __init__(self, state: StateDir) -> None:
+        self.state = state
+        self._fd: int | None = None
+
+    def acquire(self) -> ServiceLock:
+        path = self.state.lock
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o640)
+        except OSError as exc:
+            raise InputError(f"cannot open the lock: {_reason(exc)}", file=path) from exc
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+            os.close(fd)
+            raise InputError(
+                f"another rvis service runs on this state directory (pid {holder})",
+                file=self.state.root,
+            ) from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        self._fd = fd
+        return self
+
+    def release(self) -> None:
+        if self._fd is not None:
+            with contextlib.suppress(OSError):
+                os.ftruncate(self._fd, 0)
+            os.close(self._fd)  # closing drops the flock
+            self._fd = None
+
+    def __enter__(self) -> ServiceLock:
+        return self.acquire()
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+
+def holder_pid(state: StateDir) -> int | None:
+    """The pid of the service holding the directory's lock, or None when none holds it."""
+    try:
+        fd = os.open(state.lock, os.O_RDONLY | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            text = os.pread(fd, 32, 0).decode(errors="replace").strip()
+            return int(text) if text.isdigit() else -1
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        return None
+    finally:
+        os.close(fd)
+
+
+def disk_usage_mb(root: Path) -> float:
+    """Bytes [MiB] of everything under `root`."""
+    total = 0
+    for dirpath, _dirs, files in os.walk(root):
+        for name in files:
+            with contextlib.suppress(OSError):
+                total += os.lstat(os.path.join(dirpath, name)).st_size
+    return total / 2**20
+
+
+__all__ = [
+    "DB_NAME",
+    "SOCKET_MODE",
+    "SOCKET_NAME",
+    "ServiceLock",
+    "StateDir",
+    "disk_usage_mb",
+    "holder_pid",
+    "prepare",
+]
