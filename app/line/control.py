@@ -9,18 +9,26 @@
     <- {"id": 3, "ok": true}   then one {"event": ..., "t": ..., ...} per line until closed
 
 The peer's uid (SO_PEERCRED) goes with every command to the service, which writes it to the
-audit log. Each connection has its own thread; the server never blocks the service loop.
+audit log. Each connection has its own thread; the server never blocks the service loop. A
+client that goes away costs only its own connection (writes use MSG_NOSIGNAL: no SIGPIPE); a
+subscriber that falls `EventBus.max_queue` events behind, or whose socket accepts nothing for
+`SEND_TIMEOUT_S`, is dropped with a reason (a last `{"event": "dropped", "reason": ...}` line
+when it can still be sent). A request line longer than MAX_LINE gets an error and the
+connection is closed (its end cannot be found without reading it all). An unexpected error in
+a connection's thread goes to `on_error` (the service treats it as its own: FAULT and exit).
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import os
 import queue
 import socket
 import struct
 import threading
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -28,6 +36,8 @@ from app.line.events import EventBus
 
 MAX_LINE = 64 * 1024
 REPLY_TIMEOUT_S = 60.0  # a queued command waits at most for the end of a running window
+SEND_TIMEOUT_S = 10.0  # a client that accepts no byte for this long is dropped
+log = logging.getLogger("rvis.line")
 
 
 class Commandable(Protocol):
@@ -49,14 +59,29 @@ def peer_uid(conn: socket.socket) -> int | None:
 
 
 def _send(conn: socket.socket, obj: dict[str, Any]) -> None:
-    conn.sendall((json.dumps(obj, default=str) + "\n").encode())
+    """One line to the peer; OSError (never SIGPIPE) when it is gone or stuck."""
+    conn.sendall((json.dumps(obj, default=str) + "\n").encode(), socket.MSG_NOSIGNAL)
+
+
+def _send_timeout(conn: socket.socket, seconds: float) -> None:
+    """Sends (only) give up after `seconds`; reads may wait for ever (idle clients are fine)."""
+    whole = int(seconds)
+    tv = struct.pack("ll", whole, int((seconds - whole) * 1e6))
+    conn.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO, tv)
 
 
 class ControlServer:
     """`with ControlServer(service, path): ...` serves until closed."""
 
-    def __init__(self, service: Commandable, path: str | Path, mode: int = 0o660) -> None:
+    def __init__(
+        self,
+        service: Commandable,
+        path: str | Path,
+        mode: int = 0o660,
+        on_error: Callable[[BaseException], None] | None = None,
+    ) -> None:
         self.service, self.path, self.mode = service, Path(path), mode
+        self.on_error = on_error
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._conns: set[socket.socket] = set()
@@ -80,7 +105,7 @@ class ControlServer:
         finally:
             os.umask(old)
         os.chmod(self.path, self.mode)
-        sock.listen(8)
+        sock.listen(socket.SOMAXCONN)  # bursts of clients wait in the backlog
         sock.settimeout(0.2)
         self._sock = sock
         self._spawn(self._accept_loop)
@@ -119,14 +144,25 @@ class ControlServer:
             self._spawn(self._serve, conn)
 
     def _serve(self, conn: socket.socket) -> None:
-        uid = peer_uid(conn)
         try:
+            uid = peer_uid(conn)
+            _send_timeout(conn, SEND_TIMEOUT_S)
             with conn, conn.makefile("rb") as lines:
-                for raw in lines:
-                    if self._stop.is_set() or not self._handle(conn, raw, uid):
+                while not self._stop.is_set():
+                    raw = lines.readline(MAX_LINE + 1)
+                    if not raw:
+                        return
+                    if len(raw) > MAX_LINE and not raw.endswith(b"\n"):
+                        _send(conn, {"id": None, "ok": False, "error": "request line too long"})
+                        return
+                    if not self._handle(conn, raw, uid):
                         return
         except OSError:
-            return
+            return  # the client went away or stopped reading: only its connection ends
+        except Exception as exc:
+            if self.on_error is None:
+                raise
+            self.on_error(exc)
         finally:
             with self._lock:
                 self._conns.discard(conn)
@@ -134,8 +170,6 @@ class ControlServer:
     def _handle(self, conn: socket.socket, raw: bytes, uid: int | None) -> bool:
         """Answer one request line; False when the connection is done."""
         try:
-            if len(raw) > MAX_LINE:
-                raise ValueError("request line too long")
             req = json.loads(raw)
             if not isinstance(req, dict) or not isinstance(req.get("cmd"), str):
                 raise ValueError('expected an object with a "cmd"')
@@ -160,9 +194,14 @@ class ControlServer:
         return True
 
     def _stream(self, conn: socket.socket) -> None:
-        q = self.service.bus.subscribe()
+        q = self.service.bus.subscribe(drop_when_full=True)
         try:
             while not self._stop.is_set():
+                if q.dropped is not None:
+                    log.warning("subscriber dropped: %s", q.dropped)
+                    with contextlib.suppress(OSError):
+                        _send(conn, {"event": "dropped", "reason": q.dropped})
+                    return
                 try:
                     _send(conn, q.get(timeout=0.2))
                 except queue.Empty:

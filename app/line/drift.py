@@ -38,6 +38,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -149,6 +150,14 @@ class Chart:
                 return DriftSignal(family, stream, chart, value, limit, self.mu, self.sigma, onset)
         return None
 
+    def to_json(self) -> dict[str, Any]:
+        """Everything but the settings (the service's decision state, app.line.store)."""
+        return {k: getattr(self, k) for k in _CHART_FIELDS}
+
+    def load_json(self, doc: dict[str, Any]) -> None:
+        for k in _CHART_FIELDS:
+            setattr(self, k, doc[k])
+
     def state(self) -> dict[str, float | bool]:
         return {
             "mu_mm": self.mu,
@@ -157,6 +166,9 @@ class Chart:
             "cusum_mm": self.s_hi,
             "drifting": self.drifting,
         }
+
+
+_CHART_FIELDS = ("baseline", "mu", "sigma", "z", "s_hi", "t", "drifting", "onset_ref", "ready")
 
 
 class ChartFamily:
@@ -181,6 +193,15 @@ class ChartFamily:
 
     def state(self) -> dict[str, dict[str, float | bool]]:
         return {k: c.state() for k, c in list(self.charts.items())}  # read by other threads
+
+    def to_json(self) -> dict[str, dict[str, Any]]:
+        return {k: c.to_json() for k, c in self.charts.items()}
+
+    def load_json(self, doc: dict[str, dict[str, Any]]) -> None:
+        self.charts.clear()
+        for stream, chart_doc in doc.items():
+            self.charts[stream] = chart = Chart(self.settings)
+            chart.load_json(chart_doc)
 
 
 class DriftMonitor:
@@ -245,6 +266,14 @@ class DriftMonitor:
         """The overall change chart has its baseline (a step would show there)."""
         chart = self.change.charts.get(OVERALL)
         return chart is not None and chart.ready
+
+    def to_json(self) -> dict[str, Any]:
+        """Both families' charts, statistics and baselines (restored by `load_json`)."""
+        return {"residual": self.residual.to_json(), "change": self.change.to_json()}
+
+    def load_json(self, doc: dict[str, Any]) -> None:
+        self.residual.load_json(doc["residual"])
+        self.change.load_json(doc["change"])
 
     def state(self) -> dict[str, dict[str, float | bool]]:
         """The residual charts (the status reply's `drift`)."""

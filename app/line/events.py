@@ -15,7 +15,7 @@ import threading
 from typing import Any
 
 from app.line.clock import Clock
-from app.line.store import Store
+from app.line.store import StorageError, Store
 
 log = logging.getLogger("rvis.line")
 
@@ -36,18 +36,44 @@ class JsonLineFormatter(logging.Formatter):
         return json.dumps(out, default=str)
 
 
+class Subscription(queue.Queue[dict[str, Any]]):
+    """One subscriber's bounded queue. `drop_when_full`: a subscriber that falls `maxsize`
+    events behind is dropped (`dropped` says why; no more events are queued); otherwise it
+    loses its oldest events."""
+
+    def __init__(self, maxsize: int, drop_when_full: bool) -> None:
+        super().__init__(maxsize)
+        self.drop_when_full = drop_when_full
+        self.dropped: str | None = None
+
+    def offer(self, message: dict[str, Any]) -> None:
+        if self.dropped is not None:
+            return
+        while True:
+            try:
+                self.put_nowait(message)
+                return
+            except queue.Full:
+                if self.drop_when_full:
+                    self.dropped = f"fell behind by {self.maxsize} events"
+                    return
+                with contextlib.suppress(queue.Empty):
+                    self.get_nowait()
+
+
 class EventBus:
     """emit(kind, data): one row in the events table, one log line, one message per
-    subscriber (a subscriber that does not keep up loses its oldest messages, never blocks
-    the service)."""
+    subscriber (a subscriber that does not keep up is dropped or loses its oldest messages,
+    never blocks the service). An event that cannot be stored (a storage fault) is still
+    logged and streamed, marked `"stored": false`."""
 
     def __init__(self, store: Store, clock: Clock, max_queue: int = 1000) -> None:
         self.store, self.clock, self.max_queue = store, clock, max_queue
-        self._subs: list[queue.Queue[dict[str, Any]]] = []
+        self._subs: list[Subscription] = []
         self._lock = threading.Lock()
 
-    def subscribe(self) -> queue.Queue[dict[str, Any]]:
-        q: queue.Queue[dict[str, Any]] = queue.Queue(self.max_queue)
+    def subscribe(self, *, drop_when_full: bool = False) -> Subscription:
+        q = Subscription(self.max_queue, drop_when_full)
         with self._lock:
             self._subs.append(q)
         return q
@@ -59,16 +85,13 @@ class EventBus:
 
     def emit(self, kind: str, data: dict[str, Any], *, level: int = logging.INFO) -> None:
         t = self.clock.time()
-        self.store.add_event(t, kind, data)
+        try:
+            self.store.add_event(t, kind, data)
+        except StorageError:
+            data = {**data, "stored": False}
         log.log(level, kind, extra={"event": kind, "data": data})
         message = {"event": kind, "t": t, **data}
         with self._lock:
             subs = list(self._subs)
         for q in subs:
-            while True:
-                try:
-                    q.put_nowait(message)
-                    break
-                except queue.Full:
-                    with contextlib.suppress(queue.Empty):
-                        q.get_nowait()
+            q.offer(message)

@@ -20,6 +20,9 @@ from typing import TYPE_CHECKING, Any
 
 from calib.model import ALL_NAMES
 
+#: alarms that hold the cell in FAULT until a reset (app.line.service imports them from here)
+FAULT_CODES = ("device_fault", "robot_not_home", "internal_error", "state_storage")
+
 if TYPE_CHECKING:
     from app.line.service import Service
 
@@ -123,6 +126,25 @@ class OperatorCommands:
         return future
 
     def status(self) -> dict[str, Any]:
+        """The status reply; answered even when the state storage fails (what could not be
+        read is left out and `storage_error` says why)."""
+        from app.line.store import StorageError
+
+        svc: Service = self  # type: ignore[assignment]
+        try:
+            return self._status()
+        except StorageError as exc:
+            return {
+                "state": svc.state.value,
+                "paused": svc.paused,
+                "params_version": svc.version,
+                "counters": dict(svc.counters),
+                "alarms": [alarm_status(a) for a in svc._unstored_alarms],
+                "step": self._step_text(),
+                "storage_error": str(exc),
+            }
+
+    def _status(self) -> dict[str, Any]:
         svc: Service = self  # type: ignore[assignment]
         w = svc.watch
         return {
@@ -144,7 +166,7 @@ class OperatorCommands:
             },
             "window": self._window_status(),
             "calibration": self._calibration_status(),
-            "alarms": [alarm_status(a) for a in svc.store.active_alarms()],
+            "alarms": [alarm_status(a) for a in svc.store.active_alarms() + svc._unstored_alarms],
             "cell_temp_c": svc.cell_temp_c,
             "drift": svc.drift.state(),
             "drift_change": svc.drift.change_state(),
@@ -250,22 +272,38 @@ class OperatorCommands:
         }
 
     def _run_commands(self) -> None:
-        svc: Service = self  # type: ignore[assignment]
         while True:
             try:
                 cmd, args, uid, future = self._commands.get_nowait()
             except Empty:
                 return
-            handler: Callable[[dict[str, Any], int | None], dict[str, Any]]
-            handler = getattr(self, f"_cmd_{cmd}")
+            reply: dict[str, Any] = {"ok": False, "error": "internal error"}
             try:
-                reply = {"ok": True, **handler(args, uid)}
-            except CommandError as exc:
-                reply = {"ok": False, "error": str(exc)}
-            detail = reply.get("error", "") or str(reply.get("message", ""))
+                reply = self._run_command(cmd, args, uid)
+            finally:
+                future.set_result(reply)
+
+    def _run_command(self, cmd: str, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
+        """One command and its audit row (a storage failure fails the command, not the loop)."""
+        from app.line.store import StorageError
+
+        svc: Service = self  # type: ignore[assignment]
+        handler: Callable[[dict[str, Any], int | None], dict[str, Any]]
+        handler = getattr(self, f"_cmd_{cmd}")
+        try:
+            reply = {"ok": True, **handler(args, uid)}
+        except CommandError as exc:
+            reply = {"ok": False, "error": str(exc)}
+        except StorageError as exc:
+            reply = {"ok": False, "error": f"the state storage failed: {exc}"}
+            svc._storage_fault(exc)
+        detail = reply.get("error", "") or str(reply.get("message", ""))
+        try:
             svc.store.add_action(svc.clock.time(), uid, cmd, args, bool(reply["ok"]), detail)
-            svc.bus.emit("operator", {"cmd": cmd, "args": args, "uid": uid, "ok": reply["ok"]})
-            future.set_result(reply)
+        except StorageError:
+            svc.log.warning("audit of %s by uid %s not stored (state storage failing)", cmd, uid)
+        svc.bus.emit("operator", {"cmd": cmd, "args": args, "uid": uid, "ok": reply["ok"]})
+        return reply
 
     # -- handlers (run in the service loop, between windows) -------------------------------
     def _cmd_pause(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
@@ -273,6 +311,7 @@ class OperatorCommands:
 
         svc: Service = self  # type: ignore[assignment]
         svc.paused = True
+        svc._save_state()
         if svc.state == State.IDLE:
             svc._set_state(State.PAUSED)
         return {"message": "paused", "state": svc.state.value}
@@ -282,6 +321,7 @@ class OperatorCommands:
 
         svc: Service = self  # type: ignore[assignment]
         svc.paused = False
+        svc._save_state()
         if svc.state == State.PAUSED:
             svc._set_state(State.IDLE)
         return {"message": "resumed", "state": svc.state.value}
@@ -293,6 +333,7 @@ class OperatorCommands:
         svc: Service = self  # type: ignore[assignment]
         if svc.state != State.FAULT:
             raise CommandError(f"nothing to reset in state {svc.state.value}")
+        self._storage_back()
         try:
             svc.station.robot.reset()
             svc.station.plc.set_signals(busy=False, done=False, fault=False)
@@ -300,16 +341,40 @@ class OperatorCommands:
             self.note_device_error(exc)
             raise CommandError(f"reset failed: {type(exc).__name__}: {exc}") from exc
         t = svc.clock.time()
-        for code in ("device_fault", "robot_not_home"):
+        for code in FAULT_CODES:
             svc.store.clear_alarms(t, code)
         svc._set_state(State.PAUSED if svc.paused else State.IDLE)
         home = svc.measurer.at_home()
         note = "" if home else "; the robot comes home in the next window"
         return {"message": f"reset{note}", "state": svc.state.value}
 
+    def _storage_back(self) -> None:
+        """Before a reset: the alarms raised while the storage failed are stored now and the
+        decision state is read back from the database (what was not committed never
+        happened); CommandError while the storage still fails."""
+        from app.line.store import StorageError
+
+        svc: Service = self  # type: ignore[assignment]
+        if not svc._unstored_alarms:
+            return
+        try:
+            with svc.store.batch():
+                for a in svc._unstored_alarms:
+                    svc.store.raise_alarm(a["t_raised"], a["code"], a["message"], a["priority"])
+                svc.store.save_state(svc.clock.time(), svc.store.load_state() or svc._snapshot())
+        except StorageError as exc:
+            free = svc.paths.free_mb()
+            raise CommandError(
+                f"the state storage still fails ({exc}; {free:.0f} MB free under"
+                f" {svc.paths.root}): free space or repair it, then reset again"
+            ) from exc
+        svc._unstored_alarms.clear()
+        svc._restore()
+
     def _cmd_recalibrate(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
         svc: Service = self  # type: ignore[assignment]
         svc.force_recal = True
+        svc._save_state()
         return {"message": "recalibration requested"}
 
     def _pending_id(self, args: dict[str, Any]) -> int:

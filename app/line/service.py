@@ -10,6 +10,21 @@ the background recalibration and applies parameters, so that parameters change o
 windows. On a device error: the robot is stopped, the PLC fault bit set, an alarm raised with
 the cause, and nothing moves until `reset`. After a reset the robot comes home in the next
 window. `stop()` (SIGTERM) lets a running window finish (the robot comes home), then returns.
+
+Operations (DESIGN.md section 6): what the decisions depend on (progress towards the next
+calibration, the drift charts with their baselines and change point, the calibration in
+flight, pause, counters, the last visit of every slot) is one snapshot in the database, written
+in the transaction of the measurement, apply or command that changed it, and restored at start:
+a restarted service carries on as if it had never stopped (a calibration killed in flight runs
+again on the same measurements; one killed in its apply is completed). `params/current.json` is
+derived: damaged or missing, it is rebuilt from the history version the database says is in
+force. A storage failure (disk full, I/O error) is a fault like a device's: FAULT with a
+`state_storage` alarm (kept in memory until it can be stored), nothing acknowledged that was not
+committed, the service keeps answering; `reset` once the storage writes again. An unexpected
+exception in the loop, a connection thread or the identification worker is logged with its
+traceback, alarmed (`internal_error`), puts the cell in FAULT, and `run()` returns with
+`exit_code` 1 so that the supervisor restarts the process; a restarted service finds the urgent
+alarm and stays in FAULT until an operator resets it.
 """
 
 from __future__ import annotations
@@ -26,25 +41,28 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from app.errors import InputError
 from app.line.clock import Clock, RealClock
 from app.line.cycle import Cycle, WindowWatch
 from app.line.drift import DriftMonitor, prediction_inflation, residual_mm
 from app.line.events import EventBus
 from app.line.inline_seq import InlineSequential, SequentialCandidate
 from app.line.measure import Reading, SphereMeasurer, SphereSensor
-from app.line.operator import OperatorCommands
+from app.line.operator import FAULT_CODES, OperatorCommands
 from app.line.params_store import ParamsStore
 from app.line.recalib import Recalibrator, RecalJob, RecalOutcome, as_measurements, select_rolling
 from app.line.schedule import Schedule, Slot
 from app.line.settings import ServiceSettings
+from app.line.statedir import StateDir
 from app.line.station import Station
-from app.line.store import Store
+from app.line.store import StorageError, Store
 from app.line.sweeps import SweepArchive
 from app.params import plain_document
 from calib.model import SystemModel
 from drivers.errors import DeviceError
 
 F64 = NDArray[np.float64]
+SPACE_CHECK_S = 60.0  # how often the free space under the state directory is looked at
 
 
 class State(StrEnum):
@@ -78,11 +96,20 @@ class Service(OperatorCommands):
         self.station, self.schedule = station, schedule
         self.spheres = {k: np.asarray(v, dtype=np.float64) for k, v in spheres_part_mm.items()}
         s.state_dir.mkdir(parents=True, exist_ok=True)
-        self.store = Store(s.state_dir / "rvis.db")
+        self.paths = StateDir(s.state_dir)
+        self.store = Store(self.paths.db)
         self.params = ParamsStore(s.state_dir)
-        self.sweeps = SweepArchive(s.state_dir / "sweeps", s.raw_sweeps_keep)
+        self.sweeps = SweepArchive(self.paths.sweeps, s.raw_sweeps_keep)
         self.bus = EventBus(self.store, self.clock)
-        self.model, self.x, self.version = self._load_params(model, np.asarray(x_initial, float))
+        self._start_alarms: list[tuple[str, str, str]] = []  # raised once the loop runs
+        self._recovered: tuple[int, int | None] | None = None  # an apply to complete
+        try:
+            self.model, self.x, self.version = self._load_params(
+                model, np.asarray(x_initial, float)
+            )
+        except BaseException:
+            self.store.close()
+            raise
         self.drift = DriftMonitor(s.drift, residual_baseline_n=len(schedule))
         self.recalibrator = recalibrator or Recalibrator()
         self.sequential: InlineSequential | None = None
@@ -103,44 +130,154 @@ class Service(OperatorCommands):
         self.last_visit: dict[int, tuple[F64, F64]] = {}  # slot -> (q_deg, c_sensor_mm)
         self.new_since_recal = 0
         self.force_recal = False
+        self.recal_ids: dict[str, list[int]] | None = None  # the calibration in flight
+        self.exit_code = 0  # 1 after an internal error: the supervisor restarts the process
+        self._crash: BaseException | None = None  # from another thread (crash())
+        self._unstored_alarms: list[dict[str, Any]] = []  # raised while the storage failed
+        self._space_check_t = -np.inf
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._commands: Queue[tuple[str, dict[str, Any], int | None, Future[dict[str, Any]]]]
         self._commands = Queue()
         self.log = logging.getLogger("rvis.line")
+        self._restore()
+        if self._recovered is not None:  # an apply the database does not know yet
+            self._in_force(*self._recovered, "recovered", None)
 
     # -- life cycle ---------------------------------------------------------------------------
     def _load_params(self, model: SystemModel, x0: F64) -> tuple[SystemModel, F64, int]:
-        current = self.params.current()
-        if current is not None:
-            version, model, x = current
-            applied = self.store.applied()
-            if not applied or applied[-1]["version"] != version:  # killed while applying
-                self.store.add_applied(self.clock.time(), version, None, "recovered", None)
-            return model, x, version
-        version = self.params.apply(plain_document(model, x0, "initial parameters"))
-        self.store.add_applied(self.clock.time(), version, None, "initial", None)
-        return model, x0.copy(), version
+        """The parameters in force: `params/current.json` as the database's applied version
+        (rebuilt from the history when damaged or missing; an apply the database does not
+        know yet is completed at start), or x0 applied as the initial version."""
+        applied = self.store.applied()
+        last = int(applied[-1]["version"]) if applied else None
+        try:
+            current = self.params.current()
+            damage = "missing" if current is None else ""
+        except (InputError, OSError, ValueError, KeyError, TypeError) as exc:
+            current, damage = None, f"damaged ({exc})"
+        if current is None and last is None:  # a new state directory
+            version = self.params.apply(plain_document(model, x0, "initial parameters"))
+            self.store.add_applied(self.clock.time(), version, None, "initial", None)
+            return model, x0.copy(), version
+        if current is None:
+            assert last is not None
+            current = self._rebuild_current(last, damage)
+        version, model, x = current
+        if version != last:  # killed while applying: complete it at start
+            doc = self.params.current_document() or {}
+            cal_id = doc.get("calibration_id")
+            self._recovered = (version, cal_id if isinstance(cal_id, int) else None)
+        return model, x, version
+
+    def _rebuild_current(self, version: int, damage: str) -> tuple[int, SystemModel, F64]:
+        path = self.params.current_path
+        try:
+            self.params.rollback(version)
+            current = self.params.current()
+        except (InputError, OSError, ValueError, KeyError, TypeError) as exc:
+            raise InputError(
+                f"{damage}, and history version {version} (in force by the database) cannot"
+                f" rebuild it: {exc}",
+                file=path,
+            ) from exc
+        assert current is not None
+        self._start_alarms.append(
+            ("params_rebuilt", f"{path} was {damage}: rebuilt from history {version}", "high")
+        )
+        return current
+
+    # -- the decision state (store.save_state) -------------------------------------------------
+    def _snapshot(self) -> dict[str, Any]:
+        return {
+            "params_version": self.version,
+            "last_measurement_id": self.store.last_measurement_id(),
+            "paused": self.paused,
+            "force_recal": self.force_recal,
+            "new_since_recal": self.new_since_recal,
+            "drift_onset_id": self.drift_onset_id,
+            "drift_due": self.drift_due,
+            "counters": dict(self.counters),
+            "recal_ids": self.recal_ids,
+            "last_visit": {
+                str(k): [q.tolist(), c.tolist()] for k, (q, c) in self.last_visit.items()
+            },
+            "drift": self.drift.to_json(),
+        }
+
+    def _save_state(self) -> None:
+        self.store.save_state(self.clock.time(), self._snapshot())
+
+    def _restore(self) -> None:
+        """The decision state from the database (at start, and after a storage fault)."""
+        doc = self.store.load_state()
+        if doc is None:  # a state directory of an older rvis: what the rows tell
+            self._restore_drift()
+            return
+        self.paused = bool(doc["paused"])
+        self.force_recal = bool(doc["force_recal"])
+        self.new_since_recal = int(doc["new_since_recal"])
+        self.drift_onset_id, self.drift_due = doc["drift_onset_id"], bool(doc["drift_due"])
+        self.counters.update({k: int(v) for k, v in doc["counters"].items()})
+        self.recal_ids = doc["recal_ids"]
+        self.last_visit = {
+            int(k): (np.asarray(q, float), np.asarray(c, float))
+            for k, (q, c) in doc["last_visit"].items()
+        }
+        self.drift.load_json(doc["drift"])
 
     def stop(self) -> None:
         """Ask `run()` to return after the current window (safe from a signal handler)."""
         self._stop.set()
         self._wake.set()
 
+    def crash(self, exc: BaseException) -> None:
+        """An unexpected error in another thread of the service: the loop ends as for its own
+        (safe from any thread)."""
+        self._crash = exc
+        self._wake.set()
+
     def run(self) -> None:
-        """The service loop; returns after stop() with the robot home and the database closed."""
+        """The service loop; returns after stop() with the robot home and the database closed,
+        or after an internal error with the cell in FAULT and `exit_code` 1."""
         try:
             self._start()
             while not self._stop.is_set():
                 self._step()
+        except Exception as exc:
+            self._crashed(exc)
         finally:
             self._shutdown()
+
+    def _crashed(self, exc: BaseException) -> None:
+        self.exit_code = 1
+        text = f"{type(exc).__name__}: {exc}"
+        self.log.error(
+            "internal error: %s",
+            text,
+            exc_info=exc,
+            extra={"event": "internal_error", "data": {"error": text}},
+        )
+        with contextlib.suppress(Exception):
+            self._enter_fault(
+                "internal_error", f"internal error ({text}): the service stops to be restarted"
+            )
 
     def _start(self) -> None:
         self.bus.emit(
             "started", {"params_version": self.version, "state_dir": str(self.settings.state_dir)}
         )
-        self._restore_drift()
+        for code, message, priority in self._start_alarms:
+            self._alarm(code, message, priority)
+        self.pending_calibration = self.store.pending_calibration()
+        if self.pending_calibration is not None and self.settings.recalib.mode == "auto":
+            self._apply_calibration(self.pending_calibration, None, "auto")  # killed before
+        self._resubmit()
+        self._check_space()
+        held = [a for a in self.store.active_alarms() if a["code"] in FAULT_CODES]
+        if held:
+            self._hold_fault(held[0])
+            return
         try:
             self.watch.poll()
             home = self.measurer.at_home()
@@ -151,7 +288,18 @@ class Service(OperatorCommands):
             q = np.round(self.station.robot.joints_deg(), 3).tolist()
             self._enter_fault("robot_not_home", f"robot not at home at start (J = {q} deg)")
             return
-        self._set_state(State.IDLE)
+        self._set_state(State.PAUSED if self.paused else State.IDLE)
+
+    def _hold_fault(self, alarm: dict[str, Any]) -> None:
+        """Restarted with a fault alarm in force: stay in FAULT until an operator's reset."""
+        self._set_state(State.FAULT)
+        with contextlib.suppress(Exception):
+            self.station.robot.abort()
+        with contextlib.suppress(Exception):
+            self.station.plc.set_signals(busy=False, done=False, fault=True)
+        self.log.warning(
+            "restarted in FAULT: alarm %s in force (%s)", alarm["code"], alarm["message"]
+        )
 
     def _shutdown(self) -> None:
         self.recalibrator.close()
@@ -174,14 +322,26 @@ class Service(OperatorCommands):
 
     # -- the loop -------------------------------------------------------------------------------
     def _step(self) -> None:
+        if self._crash is not None:
+            raise self._crash
+        try:
+            self._step_once()
+        except StorageError as exc:
+            self._storage_fault(exc)
+            self._pause_poll()
+
+    def _pause_poll(self) -> None:
+        self.clock.wait(self._wake, self.settings.line.poll_s)
+        self._wake.clear()
+
+    def _step_once(self) -> None:
         self._run_commands()
         try:
             self.watch.poll()
         except DeviceError as exc:
             if self.state != State.FAULT:
                 self._fault(exc)
-            self.clock.wait(self._wake, self.settings.line.poll_s)
-            self._wake.clear()
+            self._pause_poll()
             return
         self._watch_heartbeat()
         self._unshelve()
@@ -189,8 +349,7 @@ class Service(OperatorCommands):
             self._window()
             return
         self._between_windows()
-        self.clock.wait(self._wake, self.settings.line.poll_s)
-        self._wake.clear()
+        self._pause_poll()
 
     def _window(self) -> None:
         self._set_state(State.MEASURING)
@@ -203,6 +362,7 @@ class Service(OperatorCommands):
         self.counters["windows"] = n
         self.counters["overruns"] += report.overrun
         self.counters["withdrawn"] += bool(report.withdrawn)
+        self._save_state()
         self.bus.emit("window", report.to_json())
         self._set_state(State.PAUSED if self.paused else State.IDLE)
         self._between_windows()
@@ -221,13 +381,67 @@ class Service(OperatorCommands):
 
     # -- faults and alarms -------------------------------------------------------------------------
     def _alarm(self, code: str, message: str, priority: str = "high") -> int:
-        alarm_id = self.store.raise_alarm(self.clock.time(), code, message, priority)
+        """Raise an alarm (stored; kept in memory while the storage fails); its id."""
+        try:
+            alarm_id = self.store.raise_alarm(self.clock.time(), code, message, priority)
+        except StorageError:
+            alarm_id = self._unstored_alarm(code, message, priority)
         self.bus.emit(
             "alarm",
             {"id": alarm_id, "code": code, "message": message, "priority": priority},
             level=logging.WARNING,
         )
         return alarm_id
+
+    def _unstored_alarm(self, code: str, message: str, priority: str) -> int:
+        for a in self._unstored_alarms:
+            if a["code"] == code:
+                return int(a["id"])
+        alarm_id = -(len(self._unstored_alarms) + 1)  # negative: not in the database (yet)
+        self._unstored_alarms.append(
+            {
+                "id": alarm_id,
+                "code": code,
+                "priority": priority,
+                "message": message,
+                "state": "raised",
+                "t_raised": self.clock.time(),
+            }
+        )
+        return alarm_id
+
+    def _storage_fault(self, exc: StorageError) -> None:
+        """The state storage failed: FAULT with the robot stopped, nothing acknowledged."""
+        if self.state == State.FAULT and any(
+            a["code"] == "state_storage" for a in self._unstored_alarms
+        ):
+            return
+        free = self.paths.free_mb()
+        self.log.error("state storage failed: %s", exc, extra={"event": "state_storage"})
+        self._enter_fault(
+            "state_storage",
+            f"state storage failed ({exc}; {free:.0f} MB free under {self.paths.root}): the"
+            " measurement was not acknowledged; free space or repair, then reset",
+        )
+
+    def _check_space(self) -> None:
+        """A `low_disk` alarm while the free space is below [service] min_free_mb."""
+        now = self.clock.monotonic()
+        if now - self._space_check_t < SPACE_CHECK_S:
+            return
+        self._space_check_t = now
+        free, floor = self.paths.free_mb(), self.settings.min_free_mb
+        active = self.store.active_alarms(code="low_disk")
+        if free < floor and not active:
+            self._alarm(
+                "low_disk",
+                f"{free:.0f} MB free under {self.paths.root} (below [service] min_free_mb ="
+                f" {floor:g}): free space before the state storage fills",
+                "medium",
+            )
+        elif free >= floor and active:
+            self.store.clear_alarms(self.clock.time(), "low_disk")
+            self.bus.emit("alarm_cleared", {"code": "low_disk"})
 
     def _fault(self, exc: BaseException) -> None:
         self._fault_family = self.note_device_error(exc)
@@ -283,13 +497,19 @@ class Service(OperatorCommands):
             "temp_c": temp_c,
             "next_position": (slot.index + 1) % len(self.schedule),
         }
-        row_id = self.store.add_measurement(row)
-        if reading is not None and e is not None:
-            self.sweeps.keep(row_id, reading)
-            self.new_since_recal += 1
-            self._drift(slot.target, e, self._change_mm(slot, reading.c_sensor_mm), row_id)
-            if self.sequential is not None:
-                self.sequential.offer({**row, "id": row_id})
+        with self.store.batch():  # the row and the decision state it changes, or neither
+            row_id = self.store.add_measurement(row)
+            if reading is not None and e is not None:
+                self.new_since_recal += 1
+                self._drift(slot.target, e, self._change_mm(slot, reading.c_sensor_mm), row_id)
+                if self.sequential is not None:
+                    self.sequential.offer({**row, "id": row_id})
+            self._save_state()
+        if reading is not None:
+            try:
+                self.sweeps.keep(row_id, reading)
+            except OSError as exc:
+                raise StorageError(f"raw sweep of measurement {row_id}: {exc}") from exc
         self.bus.emit(
             "measurement",
             {
@@ -384,11 +604,33 @@ class Service(OperatorCommands):
 
     # -- recalibration -------------------------------------------------------------------------
     def _between_windows(self) -> None:
-        outcome = self.recalibrator.poll()
+        try:
+            outcome = self.recalibrator.poll()
+        except Exception as exc:  # the worker failed: not again after the restart
+            self._worker_failed(exc)
+            raise
         if outcome is not None:
             self._recal_done(outcome)
         if self.state in (State.IDLE, State.PAUSED):
             self._maybe_recalibrate()
+        self._check_space()
+
+    def _worker_failed(self, exc: BaseException) -> None:
+        ids = self.recal_ids or {"train": [], "holdout": []}
+        with contextlib.suppress(StorageError), self.store.batch():
+            self.store.add_calibration(
+                {
+                    "t": self.clock.time(),
+                    "status": "rejected",
+                    "n_measurements": len(ids["train"]),
+                    "first_id": min(ids["train"], default=None),
+                    "last_id": max(ids["holdout"], default=None),
+                    "gates": [],
+                    "reason": f"the identification worker failed: {type(exc).__name__}: {exc}",
+                }
+            )
+            self.recal_ids = None
+            self._save_state()
 
     def _recal_due(self) -> bool:
         r = self.settings.recalib
@@ -413,6 +655,33 @@ class Service(OperatorCommands):
         if chosen is None:
             return
         train, holdout = chosen
+        with self.store.batch():
+            self.force_recal, self.new_since_recal = False, 0
+            self.recal_ids = {
+                "train": [int(t["id"]) for t in train],
+                "holdout": [int(h["id"]) for h in holdout],
+            }
+            self._save_state()
+        self._submit(train, holdout)
+
+    def _resubmit(self) -> None:
+        """A calibration that was in flight when the service stopped runs again (the same
+        measurements, the parameters in force)."""
+        ids = self.recal_ids
+        if ids is None or self.sequential is not None:
+            return
+        rows = {
+            int(r["id"]): r for r in self.store.measurements_by_id(ids["train"] + ids["holdout"])
+        }
+        train = [rows[i] for i in ids["train"] if i in rows]
+        holdout = [rows[i] for i in ids["holdout"] if i in rows]
+        if train and holdout:
+            self._submit(train, holdout)
+
+    def _submit(
+        self, train: Sequence[Mapping[str, Any]], holdout: Sequence[Mapping[str, Any]]
+    ) -> None:
+        r = self.settings.recalib
         job = RecalJob(
             self.model,
             self.x.copy(),
@@ -424,7 +693,6 @@ class Service(OperatorCommands):
             int(holdout[-1]["id"]),
         )
         self.recalibrator.submit(job)
-        self.force_recal, self.new_since_recal = False, 0
         self.bus.emit(
             "recalibration_started",
             {"n": len(train), "first_id": job.first_id, "last_id": job.last_id},
@@ -432,21 +700,10 @@ class Service(OperatorCommands):
 
     def _recal_done(self, out: RecalOutcome | SequentialCandidate) -> None:
         status = "pending" if out.passed else "rejected"
-        cal_id = self.store.add_calibration(
-            {
-                "t": self.clock.time(),
-                "status": status,
-                "n_measurements": out.n_measurements,
-                "first_id": out.first_id,
-                "last_id": out.last_id,
-                "rms_mm": out.rms_mm,
-                "holdout_rms_mm": out.holdout_rms_mm,
-                "current_holdout_rms_mm": out.current_holdout_rms_mm,
-                "gates": list(out.failures),
-                "reason": "; ".join(out.failures) or "all gates passed",
-                "document": out.document,
-            }
-        )
+        with self.store.batch():
+            cal_id = self._add_calibration(out, status)
+            self.recal_ids = None
+            self._save_state()
         self.bus.emit(
             "calibration",
             {
@@ -465,38 +722,65 @@ class Service(OperatorCommands):
         else:
             self.pending_calibration = cal_id
 
+    def _add_calibration(self, out: RecalOutcome | SequentialCandidate, status: str) -> int:
+        return self.store.add_calibration(
+            {
+                "t": self.clock.time(),
+                "status": status,
+                "n_measurements": out.n_measurements,
+                "first_id": out.first_id,
+                "last_id": out.last_id,
+                "rms_mm": out.rms_mm,
+                "holdout_rms_mm": out.holdout_rms_mm,
+                "current_holdout_rms_mm": out.current_holdout_rms_mm,
+                "gates": list(out.failures),
+                "reason": "; ".join(out.failures) or "all gates passed",
+                "document": out.document,
+            }
+        )
+
     def _apply_calibration(self, cal_id: int, uid: int | None, source: str) -> int:
+        """Write calibration `cal_id` as the next parameters version and put it in force (the
+        document names the calibration, so that an apply killed half-way is completed at the
+        next start)."""
         cal = self.store.calibration(cal_id)
         assert cal is not None, f"no calibration {cal_id}"
-        version = self.params.apply(cal["document"])
-        t = self.clock.time()
-        self.store.decide_calibration(cal_id, "applied", t, uid, version)
+        try:
+            version = self.params.apply({**cal["document"], "calibration_id": cal_id})
+        except OSError as exc:
+            raise StorageError(f"{self.params.dir}: {exc}") from exc
         self._in_force(version, cal_id, source, uid)
         return version
 
     def _in_force(self, version: int, cal_id: int | None, source: str, uid: int | None) -> None:
         """Parameters `version` are current: reload them, restart the drift charts (seeded with
         the new parameters' residuals); the drift alarm and onset are cleared when the
-        calibration was trained on measurements after the onset only."""
+        calibration was trained on measurements after the onset only. The database learns it
+        in one transaction (the calibration's decision, the applied row, the decision state)."""
         current = self.params.current()
         assert current is not None
         self.version, self.model, self.x = current
-        self.store.add_applied(self.clock.time(), version, cal_id, source, uid)
-        self.pending_calibration = None
+        t = self.clock.time()
         cal = self.store.calibration(cal_id)
-        if cal is not None and _sequential(cal["document"]):
-            # the filter's residuals on the rows it was fed are optimistic by an unknown factor:
-            # keep the baselines (measured: reseeding gave 21 low alarms in 4 h)
-            self.drift.restart()
-        else:
-            self.drift.reset(self._drift_seed(cal))
-        if self.sequential is not None and (cal is None or not _sequential(cal["document"])):
-            self.sequential.restart(self.model, self.x, self.params.current_document())
-        onset, self.drift_due = self.drift_onset_id, False
-        self.store.clear_alarms(self.clock.time(), "drift")
-        if onset is None or (cal is not None and int(cal["first_id"] or 0) >= onset):
-            self.drift_onset_id = None  # trained after the step (else the next one will be)
-            self.store.clear_alarms(self.clock.time(), "drift_step")
+        with self.store.batch():
+            if cal is not None and cal["status"] == "pending":
+                self.store.decide_calibration(int(cal["id"]), "applied", t, uid, version)
+            self.store.add_applied(t, version, cal_id, source, uid)
+            self.pending_calibration = None
+            if cal is not None and _sequential(cal["document"]):
+                # the filter's residuals on the rows it was fed are optimistic by an unknown
+                # factor: keep the baselines (measured: reseeding gave 21 low alarms in 4 h)
+                self.drift.restart()
+            else:
+                self.drift.reset(self._drift_seed(cal))
+            if self.sequential is not None and (cal is None or not _sequential(cal["document"])):
+                self.sequential.restart(self.model, self.x, self.params.current_document())
+            onset, self.drift_due = self.drift_onset_id, False
+            self.store.clear_alarms(t, "drift")
+            if onset is None or (cal is not None and int(cal["first_id"] or 0) >= onset):
+                self.drift_onset_id = None  # trained after the step (else the next one will be)
+                self.store.clear_alarms(t, "drift_step")
+            self._save_state()
         self.bus.emit(
             "parameters_applied",
             {"version": version, "calibration_id": cal_id, "source": source, "uid": uid},

@@ -101,7 +101,9 @@ def prepare(state: StateDir, group: str = "") -> None:
             os.chmod(state.root, mode)
         _check_usable(state.root)
     except OSError as exc:
-        raise InputError(f"cannot use the state directory: {_reason(exc)}", file=state.root) from exc
+        raise InputError(
+            f"cannot use the state directory: {_reason(exc)}", file=state.root
+        ) from exc
     os.umask(UMASK_GROUP if group else UMASK)
     for path in (state.db, state.current):  # files of an older, world-readable layout
         with contextlib.suppress(OSError):

@@ -9,7 +9,15 @@ One file `state_dir/rvis.db` in WAL mode. Every write is one `BEGIN IMMEDIATE` t
 Tables: measurements (ok and rejected, with their quality), calibrations (gates, status
 pending/applied/rejected), applied (parameter versions in force, in order), alarms (ISA-18.2
 life cycle: raised, acked, cleared, shelved with reason and expiry), events, actions (operator
-audit with the peer's uid), schedule (the position to resume from).
+audit with the peer's uid), schedule (the position to resume from), service_state (one JSON
+document: what the service's decisions depend on beyond the rows themselves, written in the
+same transaction as the measurement or the apply that changed it, so a restarted service
+resumes exactly where it stopped).
+
+Failures are typed: a database that is not one, or fails its quick check at open, is
+`DatabaseDamaged` (refused, never recreated or modified); any other SQLite or I/O failure
+(disk full, I/O error, read-only file system) is `StorageError`, with the transaction rolled
+back, so nothing that was not committed is ever acknowledged.
 """
 
 from __future__ import annotations
@@ -18,9 +26,20 @@ import json
 import sqlite3
 import threading
 from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Any
+
+from app.errors import InputError, RvisError
+
+
+class StorageError(RvisError):
+    """The state storage failed (disk full, I/O error, read-only): nothing was committed."""
+
+
+class DatabaseDamaged(InputError):
+    """The database is not an SQLite database or fails its integrity check (exit code 2)."""
+
 
 MIGRATIONS: tuple[tuple[str, ...], ...] = (
     (
@@ -59,14 +78,33 @@ MIGRATIONS: tuple[tuple[str, ...], ...] = (
     ),
     # 1 -> 2: the cell temperature [degC] when the sphere was measured (NULL: no sensor)
     ("ALTER TABLE measurements ADD COLUMN temp_c REAL",),
+    # 2 -> 3: the service's decision state (app.line.service: snapshot / restore)
+    (
+        """CREATE TABLE service_state (
+            id INTEGER PRIMARY KEY CHECK (id = 1), t REAL NOT NULL, doc TEXT NOT NULL)""",
+    ),
 )
 SCHEMA_VERSION = len(MIGRATIONS)
+# SQLite primary result codes: BUSY, LOCKED, NOMEM, READONLY, IOERR, FULL, CANTOPEN, PROTOCOL
+_STORAGE_CODES = frozenset({5, 6, 7, 8, 10, 13, 14, 15})
+_DAMAGED_CODES = frozenset({11, 26})  # CORRUPT, NOTADB
+_DAMAGED = (
+    "the state database is damaged; rvis does not modify it: restore a copy made with"
+    " `rvis state backup`, or move it aside to start a new history"
+)
 ACTIVE_ALARM_STATES = ("raised", "acked", "shelved")
 
 
 def _calibration_row(r: dict[str, Any]) -> dict[str, Any]:
     r["gates"] = json.loads(r["gates"])
     r["document"] = None if r["document"] is None else json.loads(r["document"])
+    return r
+
+
+def _measurement_row(r: dict[str, Any]) -> dict[str, Any]:
+    r["q_deg"] = json.loads(r["q_deg"])
+    r["c_sensor_mm"] = None if r["c_sensor_mm"] is None else json.loads(r["c_sensor_mm"])
+    r["quality"] = json.loads(r["quality"])
     return r
 
 
@@ -79,18 +117,49 @@ class Store:
 
     def __init__(self, path: str | Path, *, read_only: bool = False) -> None:
         self.path = Path(path)
-        self._lock = threading.Lock()
-        if read_only:
-            uri = f"file:{self.path.resolve()}?mode=ro"
-            self._db = sqlite3.connect(uri, uri=True, check_same_thread=False)
-        else:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
-            self._db.execute("PRAGMA journal_mode=WAL")
-            self._db.execute("PRAGMA synchronous=FULL")
-            self._db.execute("PRAGMA busy_timeout=5000")
-            self.migrate()
+        self._lock = threading.RLock()
+        self._depth = 0  # nesting of _tx: only the outermost one begins and commits
+        try:
+            if read_only:
+                uri = f"file:{self.path.resolve()}?mode=ro"
+                self._db = sqlite3.connect(uri, uri=True, check_same_thread=False)
+            else:
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+                self._db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
+                self._open_for_writing()
+        except sqlite3.DatabaseError as exc:
+            error = self._error(exc)
+            if error is exc:
+                raise
+            raise error from exc
+        except OSError as exc:
+            raise StorageError(f"{self.path}: {exc.strerror or exc}") from exc
         self._db.row_factory = sqlite3.Row
+
+    def _open_for_writing(self) -> None:
+        try:
+            self._db.execute("PRAGMA journal_mode=WAL")
+            check = self._db.execute("PRAGMA quick_check").fetchone()[0]
+        except sqlite3.DatabaseError:
+            self._db.close()
+            raise
+        if check != "ok":
+            self._db.close()
+            raise DatabaseDamaged(f"{_DAMAGED} (quick_check: {check})", file=self.path)
+        self._db.execute("PRAGMA synchronous=FULL")
+        self._db.execute("PRAGMA busy_timeout=5000")
+        self.migrate()
+
+    def _error(self, exc: sqlite3.DatabaseError) -> BaseException:
+        """The typed error of an SQLite failure by its result code: a storage failure (full,
+        I/O, read-only, locked, cannot open), a damaged file, or the error itself (a syntax
+        or constraint error is a bug, not a fault of the storage)."""
+        code = getattr(exc, "sqlite_errorcode", -1) & 0xFF
+        if code in _STORAGE_CODES:
+            return StorageError(f"{self.path}: {exc}")
+        if code in _DAMAGED_CODES:
+            return DatabaseDamaged(f"{_DAMAGED} ({exc})", file=self.path)
+        return exc
 
     @classmethod
     def read_only(cls, path: str | Path) -> Store:
@@ -103,15 +172,35 @@ class Store:
     # -- transactions and schema ----------------------------------------------------------
     @contextmanager
     def _tx(self) -> Iterator[sqlite3.Connection]:
-        """One writer transaction: BEGIN IMMEDIATE ... COMMIT (ROLLBACK on any error)."""
+        """One writer transaction: BEGIN IMMEDIATE ... COMMIT (ROLLBACK on any error); nested
+        inside `batch()` it joins the outer transaction. SQLite failures -> StorageError."""
         with self._lock:
-            self._db.execute("BEGIN IMMEDIATE")
+            outer = self._depth == 0
             try:
-                yield self._db
-            except BaseException:
-                self._db.execute("ROLLBACK")
-                raise
-            self._db.execute("COMMIT")
+                if outer:
+                    self._db.execute("BEGIN IMMEDIATE")
+                self._depth += 1
+                try:
+                    yield self._db
+                finally:
+                    self._depth -= 1
+                if outer:
+                    self._db.execute("COMMIT")
+            except BaseException as exc:
+                if outer and self._db.in_transaction:
+                    with suppress(sqlite3.Error):
+                        self._db.execute("ROLLBACK")
+                error = self._error(exc) if isinstance(exc, sqlite3.DatabaseError) else exc
+                if error is exc:
+                    raise
+                raise error from exc
+
+    @contextmanager
+    def batch(self) -> Iterator[None]:
+        """Every write inside is one transaction (all or nothing), e.g. a measurement with the
+        decision state it changed."""
+        with self._tx():
+            yield
 
     def version(self) -> int:
         with self._lock:
@@ -127,12 +216,17 @@ class Store:
         return self.version()
 
     def integrity_ok(self) -> bool:
-        with self._lock:
-            return bool(self._db.execute("PRAGMA integrity_check").fetchone()[0] == "ok")
+        return bool(self._rows("PRAGMA integrity_check")[0]["integrity_check"] == "ok")
 
     def _rows(self, sql: str, args: Sequence[Any] = ()) -> list[dict[str, Any]]:
         with self._lock:
-            return [dict(r) for r in self._db.execute(sql, tuple(args)).fetchall()]
+            try:
+                return [dict(r) for r in self._db.execute(sql, tuple(args)).fetchall()]
+            except sqlite3.DatabaseError as exc:
+                error = self._error(exc)
+                if error is exc:
+                    raise
+                raise error from exc
 
     def _insert(self, sql: str, args: Sequence[Any]) -> int:
         with self._tx() as db:
@@ -181,12 +275,16 @@ class Store:
         args: tuple[Any, ...] = (status, since_id)
         if last is not None:
             sql, args = sql + " LIMIT ?", (*args, last)
-        rows = self._rows(sql, args)[::-1]
-        for r in rows:
-            r["q_deg"] = json.loads(r["q_deg"])
-            r["c_sensor_mm"] = None if r["c_sensor_mm"] is None else json.loads(r["c_sensor_mm"])
-            r["quality"] = json.loads(r["quality"])
-        return rows
+        return [_measurement_row(r) for r in self._rows(sql, args)[::-1]]
+
+    def measurements_by_id(self, ids: Sequence[int]) -> list[dict[str, Any]]:
+        """The rows of these ids in id order (any status)."""
+        marks = ",".join("?" * len(ids))
+        rows = self._rows(f"SELECT * FROM measurements WHERE id IN ({marks}) ORDER BY id", ids)
+        return [_measurement_row(r) for r in rows]
+
+    def last_measurement_id(self) -> int:
+        return int(self._rows("SELECT COALESCE(MAX(id), 0) AS n FROM measurements")[0]["n"])
 
     def counts(self) -> dict[str, int]:
         out = {"ok": 0, "rejected": 0}
@@ -243,6 +341,11 @@ class Store:
         """One calibration by id (None: no such row), without reading the others."""
         rows = self._rows("SELECT * FROM calibrations WHERE id = ?", (cal_id,))
         return _calibration_row(rows[0]) if rows else None
+
+    def pending_calibration(self) -> int | None:
+        """The newest calibration waiting for a decision (None: none)."""
+        rows = self._rows("SELECT MAX(id) AS id FROM calibrations WHERE status = 'pending'")
+        return None if rows[0]["id"] is None else int(rows[0]["id"])
 
     def add_applied(
         self, t: float, version: int, calibration_id: int | None, source: str, uid: int | None
@@ -344,3 +447,16 @@ class Store:
             r["args"] = json.loads(r["args"])
             r["ok"] = bool(r["ok"])
         return rows
+
+    # -- the service's decision state ---------------------------------------------------------
+    def save_state(self, t: float, doc: dict[str, Any]) -> None:
+        with self._tx() as db:
+            db.execute(
+                "INSERT INTO service_state (id, t, doc) VALUES (1, ?, ?)"
+                " ON CONFLICT (id) DO UPDATE SET t = excluded.t, doc = excluded.doc",
+                (t, _dumps(doc)),
+            )
+
+    def load_state(self) -> dict[str, Any] | None:
+        rows = self._rows("SELECT doc FROM service_state WHERE id = 1")
+        return None if not rows else dict(json.loads(rows[0]["doc"]))

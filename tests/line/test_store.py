@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from app.line.store import MIGRATIONS, SCHEMA_VERSION, Store
+from app.line.store import MIGRATIONS, SCHEMA_VERSION, StorageError, Store
 
 
 def _row(k: int) -> dict[str, object]:
@@ -68,7 +68,7 @@ def test_a_version_1_database_gains_the_temperature_column_and_keeps_its_rows(
     db.commit()
     db.close()
     store = Store(tmp_path / "rvis.db")  # an older service's state directory
-    assert store.version() == SCHEMA_VERSION == 2
+    assert store.version() == SCHEMA_VERSION == 3
     (old,) = store.measurements()
     assert old["c_sensor_mm"] == [1, 2, 3] and old["temp_c"] is None
     store.add_measurement({**_row(1), "temp_c": 23.45})
@@ -91,7 +91,7 @@ def test_measurements_round_trip_and_move_the_schedule_position(tmp_path: Path) 
     assert store.schedule_position() == (4, 3)
     reader = Store.read_only(tmp_path / "rvis.db")  # a committed row is visible to others
     assert len(reader.measurements()) == 3
-    with pytest.raises(sqlite3.OperationalError):
+    with pytest.raises(StorageError, match="readonly"):
         reader.add_event(0.0, "x", {})
     reader.close()
     store.close()
