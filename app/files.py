@@ -206,12 +206,21 @@ def _write_reason(exc: OSError) -> str:
     return exc.strerror or str(exc)
 
 
+def _umask() -> int:
+    """The process's umask, read without changing it (Linux; 0o022 elsewhere)."""
+    with contextlib.suppress(OSError, ValueError):
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    return 0o022
+
+
 def replace_atomically(path: str | Path, data: bytes) -> None:
     """Replace `path` by `data` so that a reader (or a restart after a crash) sees the old file
     or the new one, never a part: a temporary file in the same directory, fsync, rename over
     `path`, fsync the directory. OSError on failure, with `path` left as it was."""
     path = Path(path)
-    mode = path.stat().st_mode & 0o777 if path.exists() else 0o644
+    mode = path.stat().st_mode & 0o777 if path.exists() else 0o666 & ~_umask()
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as fh:

@@ -41,27 +41,38 @@ def run(args: argparse.Namespace) -> int:
     if args.geometric or args.windows or args.seed is not None:
         raise InputError("--geometric, --seed and --windows need --sim")
     from app.config import load_cell
-    from app.line.launch import build_service, json_logs, serve
-    from app.line.measure import SweepSensor
+    from app.line.launch import hold_state
     from app.line.settings import from_cell
+    from app.line.statedir import StateDir
     from app.line.station import Station, cell_guard
     from app.params import from_json
     from drivers.errors import DeviceConfigError, DeviceError
-    from vision.sensor_model import default_sensor_model, load_sensor_model
+    from vision.sensor_model import load_sensor_model
 
     cfg = load_cell(args.cell)
     settings = from_cell(cfg, args.state_dir)
-    plan = Path(args.plan) if args.plan else settings.state_dir / "plan.json"
+    plan = Path(args.plan) if args.plan else StateDir(settings.state_dir).plan
     if not plan.is_file():
         raise InputError("no plan file (write one with `rvis plan --out ...`)", file=plan)
     x0 = from_json(args.params)[1] if args.params else None
     sensor_model = load_sensor_model(args.sensor_model) if args.sensor_model else None
-    try:
-        station = Station.open(dict(cfg.devices), guard=cell_guard(cfg))
-    except DeviceConfigError as exc:
-        raise InputError(str(exc), file=cfg.source, field="devices") from exc
-    except DeviceError as exc:
-        raise RvisError(f"cannot open the devices: {type(exc).__name__}: {exc}") from exc
+    with hold_state(settings.state_dir, settings.operators_group):
+        try:
+            station = Station.open(dict(cfg.devices), guard=cell_guard(cfg))
+        except DeviceConfigError as exc:
+            raise InputError(str(exc), file=cfg.source, field="devices") from exc
+        except DeviceError as exc:
+            raise RvisError(f"cannot open the devices: {type(exc).__name__}: {exc}") from exc
+        return _serve_station(station, cfg, settings, plan, x0, sensor_model)
+
+
+def _serve_station(
+    station: Any, cfg: Any, settings: Any, plan: Path, x0: Any, sensor_model: Any
+) -> int:
+    from app.line.launch import build_service, json_logs, serve
+    from app.line.measure import SweepSensor
+    from vision.sensor_model import default_sensor_model
+
     with station:
         if station.camera is None or station.galvo is None:
             raise InputError("the service needs a camera and a galvo", field="devices")
@@ -74,8 +85,20 @@ def run(args: argparse.Namespace) -> int:
         )
         service = build_service(cfg, station, sensor, settings, plan, x0)
         json_logs()
-        serve(service)
-    return 0
+        return _exit(serve(service))
+
+
+def _exit(code: int) -> int:
+    """The service's exit status, with one line on stderr when it ended on an error."""
+    if code:
+        import sys
+
+        print(
+            "rvis run: error: internal error (logged with its traceback): the cell is in FAULT;"
+            " the supervisor restarts the service",
+            file=sys.stderr,
+        )
+    return code
 
 
 def run_sim(args: argparse.Namespace) -> int:
@@ -84,8 +107,7 @@ def run_sim(args: argparse.Namespace) -> int:
 
     from app.config import load_cell
     from app.files import dumps_json
-    from app.line.control import ControlServer
-    from app.line.launch import SOCKET_NAME, json_logs
+    from app.line.launch import SOCKET_NAME, hold_state, json_logs, serving
     from app.sim.line_run import SimulatedLineRun, WindowRecord
 
     cfg = load_cell(args.cell)
@@ -105,11 +127,15 @@ def run_sim(args: argparse.Namespace) -> int:
                 flush=True,
             )
 
-    with SimulatedLineRun(cfg, state_dir, seed=seed, geometric=args.geometric, plan=plan) as sim:
+    group = str(cfg.service.operators_group)
+    with (
+        hold_state(state_dir, group),
+        SimulatedLineRun(cfg, state_dir, seed=seed, geometric=args.geometric, plan=plan) as sim,
+    ):
         if not quiet:
             json_logs()
         sock = state_dir / SOCKET_NAME
-        with ControlServer(sim.service, sock):
+        with serving(sim.service):
             if not args.json:
                 print(
                     f"rvis run --sim: seed {seed}, {'geometric' if args.geometric else 'rendered'}"
@@ -124,6 +150,9 @@ def run_sim(args: argparse.Namespace) -> int:
                 summary = sim.summary
             finally:
                 signal.signal(signal.SIGTERM, previous)
+        code = sim.service.exit_code
+    if code:
+        return _exit(code)
     if args.json:
         print(dumps_json(summary.to_json()))
     elif args.windows is not None:

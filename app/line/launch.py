@@ -4,16 +4,24 @@
     service = build_service(cfg, station, sensor, settings, plan_path, x0, clock=...)
     serve(service)                                           # socket, SIGTERM, loop
 
+`hold_state` comes first, before any device is opened: the state directory private to the
+service (app.line.statedir.prepare), its exclusive lock (a second service exits 2 naming the
+holder's pid), and a quick check of the database (a damaged one exits 2, untouched).
 `serve` runs the control socket and the service loop in the calling (main) thread until SIGTERM
 or SIGINT, then stops safely: the running window finishes (the robot comes home), the
-background identification is shut down and the database closed.
+background identification is shut down and the database closed. It returns the process's exit
+status: 1 after an internal error (the cell in FAULT, the supervisor restarts the process).
+SIGPIPE is ignored while it serves: a client that goes away never ends the service.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import signal
 import sys
+import threading
+from collections.abc import Iterator
 from pathlib import Path
 from types import FrameType
 from typing import Any
@@ -28,9 +36,23 @@ from app.line.measure import SphereSensor
 from app.line.schedule import Schedule
 from app.line.service import Service
 from app.line.settings import ServiceSettings
+from app.line.statedir import SOCKET_NAME, ServiceLock, StateDir, prepare
 from app.line.station import Station
+from app.line.store import Store
 
-SOCKET_NAME = "rvis.sock"
+__all__ = ["SOCKET_NAME", "build_service", "hold_state", "json_logs", "serve", "serving"]
+
+
+@contextlib.contextmanager
+def hold_state(state_dir: str | Path, group: str = "") -> Iterator[StateDir]:
+    """The state directory prepared, locked for this process and its database checked (see
+    the module docstring); the lock is released on exit (and by the kernel on any death)."""
+    paths = StateDir(state_dir)
+    prepare(paths, group)
+    with ServiceLock(paths):
+        if paths.db.exists():
+            Store(paths.db).close()  # DatabaseDamaged (exit 2) before any device opens
+        yield paths
 
 
 def build_service(
@@ -65,8 +87,31 @@ def json_logs(stream: Any = None, level: int = logging.INFO) -> logging.Handler:
     return handler
 
 
-def serve(service: Service) -> None:
-    """Run the control socket and the service until SIGTERM/SIGINT (main thread only)."""
+@contextlib.contextmanager
+def serving(service: Service) -> Iterator[ControlServer]:
+    """The control socket of `service`, with SIGPIPE ignored and an unexpected error in any
+    thread of the process handed to the service (FAULT, exit status 1)."""
+    previous_pipe = signal.signal(signal.SIGPIPE, signal.SIG_IGN)
+    previous_hook = threading.excepthook
+
+    def on_thread_error(args: threading.ExceptHookArgs) -> None:
+        previous_hook(args)
+        if args.exc_value is not None and not isinstance(args.exc_value, SystemExit):
+            service.crash(args.exc_value)
+
+    threading.excepthook = on_thread_error
+    socket_path = StateDir(service.settings.state_dir).socket
+    try:
+        with ControlServer(service, socket_path, on_error=service.crash) as server:
+            yield server
+    finally:
+        threading.excepthook = previous_hook
+        signal.signal(signal.SIGPIPE, previous_pipe)
+
+
+def serve(service: Service) -> int:
+    """Run the control socket and the service until SIGTERM/SIGINT (main thread only); the
+    exit status (1 after an internal error)."""
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
         logging.getLogger("rvis.line").info("signal %d: stopping after the current window", signum)
@@ -74,8 +119,9 @@ def serve(service: Service) -> None:
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
     try:
-        with ControlServer(service, service.settings.state_dir / SOCKET_NAME):
+        with serving(service):
             service.run()
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)
+    return service.exit_code

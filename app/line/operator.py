@@ -355,9 +355,10 @@ class OperatorCommands:
         from app.line.store import StorageError
 
         svc: Service = self  # type: ignore[assignment]
-        if not svc._unstored_alarms:
+        if not svc.storage_failed:
             return
         try:
+            svc.store.probe_write()
             with svc.store.batch():
                 for a in svc._unstored_alarms:
                     svc.store.raise_alarm(a["t_raised"], a["code"], a["message"], a["priority"])
@@ -369,6 +370,7 @@ class OperatorCommands:
                 f" {svc.paths.root}): free space or repair it, then reset again"
             ) from exc
         svc._unstored_alarms.clear()
+        svc.storage_failed = False
         svc._restore()
 
     def _cmd_recalibrate(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:

@@ -134,6 +134,7 @@ class Service(OperatorCommands):
         self.exit_code = 0  # 1 after an internal error: the supervisor restarts the process
         self._crash: BaseException | None = None  # from another thread (crash())
         self._unstored_alarms: list[dict[str, Any]] = []  # raised while the storage failed
+        self.storage_failed = False  # until a reset finds it writing again
         self._space_check_t = -np.inf
         self._stop = threading.Event()
         self._wake = threading.Event()
@@ -412,10 +413,9 @@ class Service(OperatorCommands):
 
     def _storage_fault(self, exc: StorageError) -> None:
         """The state storage failed: FAULT with the robot stopped, nothing acknowledged."""
-        if self.state == State.FAULT and any(
-            a["code"] == "state_storage" for a in self._unstored_alarms
-        ):
+        if self.state == State.FAULT and self.storage_failed:
             return
+        self.storage_failed = True
         free = self.paths.free_mb()
         self.log.error("state storage failed: %s", exc, extra={"event": "state_storage"})
         self._enter_fault(

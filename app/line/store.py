@@ -448,6 +448,17 @@ class Store:
             r["ok"] = bool(r["ok"])
         return rows
 
+    def probe_write(self, n_bytes: int = 256 * 1024) -> None:
+        """Commit a row of `n_bytes` and delete it: StorageError unless the storage takes
+        writes again (a full disk shows at commit, when the pages reach the WAL)."""
+        with self._tx() as db:
+            db.execute(
+                "INSERT INTO events (t, kind, data) VALUES (0, 'storage_probe', zeroblob(?))",
+                (n_bytes,),
+            )
+        with self._tx() as db:
+            db.execute("DELETE FROM events WHERE kind = 'storage_probe'")
+
     # -- the service's decision state ---------------------------------------------------------
     def save_state(self, t: float, doc: dict[str, Any]) -> None:
         with self._tx() as db:

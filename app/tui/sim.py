@@ -16,8 +16,7 @@ from pathlib import Path
 from typing import Literal
 
 from app.config import CellConfig
-from app.line.control import ControlServer
-from app.line.launch import SOCKET_NAME
+from app.line.launch import hold_state, serving
 from app.sim.line_run import SimulatedLineRun
 
 
@@ -55,7 +54,7 @@ def simulated_service(
     # the recalibrations run in a process pool; its resource tracker must start while stdio is
     # still the real one (a Textual app replaces sys.stderr with one that has no file number)
     resource_tracker.ensure_running()
-    with run, ControlServer(run.service, Path(state_dir) / SOCKET_NAME):
+    with hold_state(state_dir), run, serving(run.service):
         run.line.clock.advance(settings.start_at_s)
         run.start_service()
         yield run
