@@ -1,0 +1,130 @@
+"""The operations suite: the service as the plant runs it, in its own process (`rvis run --sim
+--geometric` on a fast simulated clock), with clients that are processes too. The service's
+JSON log lines (stdout) are read by a thread; tests wait on them with a timeout, never sleep."""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+# 60 s clamp cycles at x300: a window every 0.2 s; a recalibration every 8 measurements
+CELL = """
+[simline]
+scale = 300.0
+[service]
+every_n = 8
+"""
+RVIS = [sys.executable, "-m", "app.cli"]
+ROOT = Path(__file__).resolve().parents[2]
+
+
+class ServiceProcess:
+    """`rvis run --sim --geometric` as a child process (its own process group)."""
+
+    def __init__(self, state_dir: Path, cell: Path) -> None:
+        self.state_dir, self.cell = state_dir, cell
+        self.lines: queue.Queue[dict[str, Any]] = queue.Queue()
+        self.stderr = ""
+        argv = [*RVIS, "run", "--sim", "--geometric", "--cell", str(cell)]
+        self.proc = subprocess.Popen(
+            [*argv, "--state-dir", str(state_dir)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            cwd=ROOT,
+            start_new_session=True,
+        )
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for raw in self.proc.stdout:
+            try:
+                self.lines.put(json.loads(raw))
+            except ValueError:
+                self.lines.put({"raw": raw.decode(errors="replace")})
+
+    def wait_log(self, pred: Callable[[dict[str, Any]], bool], timeout_s: float = 30.0) -> dict:
+        """The first log line from now on that satisfies pred."""
+        deadline = time.monotonic() + timeout_s
+        while (left := deadline - time.monotonic()) > 0:
+            try:
+                line = self.lines.get(timeout=left)
+            except queue.Empty:
+                break
+            if pred(line):
+                return line
+        raise AssertionError(f"no such log line in {timeout_s} s (alive: {self.alive})")
+
+    def wait_windows(self, n: int, timeout_s: float = 30.0) -> None:
+        for _ in range(n):
+            self.wait_log(lambda r: r.get("event") == "window", timeout_s)
+
+    def wait_ready(self) -> None:
+        self.wait_log(lambda r: r.get("event") == "state" and r["data"]["to"] == "idle", 60.0)
+        self.wait_windows(1)
+
+    @property
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def kill9(self) -> None:
+        os.killpg(self.proc.pid, signal.SIGKILL)
+        self.proc.wait(30)
+        self._close()
+
+    def stop(self) -> int:
+        if self.alive:
+            os.killpg(self.proc.pid, signal.SIGTERM)
+        code = self.proc.wait(60)
+        self._close()
+        return code
+
+    def _close(self) -> None:
+        assert self.proc.stdout is not None and self.proc.stderr is not None
+        self._reader.join(30)
+        self.stderr = self.proc.stderr.read().decode(errors="replace")
+        self.proc.stdout.close()
+        self.proc.stderr.close()
+
+
+def rvis(*args: str, timeout_s: float = 60.0) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [*RVIS, *args], capture_output=True, text=True, cwd=ROOT, timeout=timeout_s
+    )
+
+
+def status(state_dir: Path) -> dict[str, Any]:
+    out = rvis("status", "--state-dir", str(state_dir), "--json")
+    assert out.returncode == 0, out.stderr
+    result: dict[str, Any] = json.loads(out.stdout)
+    return result
+
+
+@pytest.fixture
+def cell(tmp_path: Path) -> Path:
+    path = tmp_path / "cell.toml"
+    path.write_text(CELL, encoding="utf-8")
+    return path
+
+
+@pytest.fixture
+def service(tmp_path: Path, cell: Path) -> Iterator[ServiceProcess]:
+    svc = ServiceProcess(tmp_path / "state", cell)
+    try:
+        svc.wait_ready()
+        yield svc
+    finally:
+        if svc.alive:
+            svc.stop()

@@ -1,0 +1,249 @@
+"""Operations (issue 19): each case ends with the service running or a clear refusal, never a
+silent death, never a lost stored measurement."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import socket
+import sqlite3
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.ops.conftest import ROOT, ServiceProcess, rvis, status
+
+TMUX = shutil.which("tmux")
+SUBSCRIBER = """
+import json, socket, sys
+s = socket.socket(socket.AF_UNIX)
+s.connect(sys.argv[1])
+s.sendall(b'{"id": 1, "cmd": "subscribe"}\\n')
+f = s.makefile("rb")
+for _ in range(int(sys.argv[2])):
+    f.readline()
+s.close()  # gone while events flow
+"""
+
+
+def _request(path: Path, payload: bytes) -> dict:
+    with socket.socket(socket.AF_UNIX) as s:
+        s.settimeout(30)
+        s.connect(str(path))
+        s.sendall(payload)
+        line = s.makefile("rb").readline()
+    out: dict = json.loads(line)
+    return out
+
+
+def test_clients_that_come_and_go_never_end_the_service(service: ServiceProcess) -> None:
+    sock = service.state_dir / "rvis.sock"
+    subs = [
+        subprocess.Popen([sys.executable, "-c", SUBSCRIBER, str(sock), str(k)], cwd=ROOT)
+        for k in (1, 3, 5, 8)
+    ]
+    for p in subs:
+        assert p.wait(30) == 0
+    results: list[dict] = []
+    lock = threading.Lock()
+
+    def client() -> None:
+        reply = _request(sock, b'{"id": 7, "cmd": "status"}\n')
+        with lock:
+            results.append(reply)
+
+    threads = [threading.Thread(target=client) for _ in range(50)]  # 50 at once
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    assert len(results) == 50 and all(r["ok"] and r["id"] == 7 for r in results)
+    huge = _request(sock, b'{"cmd": "status", "pad": "' + b"x" * 200_000 + b'"}\n')
+    assert huge == {"id": None, "ok": False, "error": "request line too long"}
+    bad = _request(sock, b"\xff\xfe not json\n")
+    assert bad["ok"] is False and "bad request" in bad["error"]
+    service.wait_windows(2)  # still measuring
+    assert service.alive and status(service.state_dir)["state"] in ("idle", "measuring")
+
+
+@pytest.mark.skipif(TMUX is None, reason="tmux not installed")
+def test_quitting_the_operators_terminal_leaves_the_service_running(
+    service: ServiceProcess,
+) -> None:
+    assert TMUX is not None
+    tmux = [TMUX, "-L", f"rvis-ops-{os.getpid()}", "-f", "/dev/null"]
+    cmd = f"{sys.executable} -m app.cli tui --state-dir {service.state_dir}"
+    for _ in range(2):  # open and quit twice while the line measures
+        subprocess.run(
+            [*tmux, "new-session", "-d", "-s", "t", "-x", "100", "-y", "30", cmd],
+            check=True,
+            cwd=ROOT,
+        )
+        try:
+            attached = threading.Event()
+            for _ in range(300):
+                out = subprocess.run([*tmux, "capture-pane", "-p", "-t", "t"], capture_output=True)
+                first = out.stdout.decode(errors="replace").split("\n", 1)[0].strip()
+                if first.split(" ", 1)[0] in ("idle", "measuring"):
+                    attached.set()
+                    break
+                attached.wait(0.1)
+            assert attached.is_set(), "the TUI never showed the service's state"
+            service.wait_windows(1)
+            subprocess.run([*tmux, "send-keys", "-t", "t", "q"], check=True)
+            gone = threading.Event()
+            for _ in range(300):
+                has = subprocess.run([*tmux, "has-session", "-t", "t"], capture_output=True)
+                if has.returncode != 0:
+                    gone.set()
+                    break
+                gone.wait(0.1)
+            assert gone.is_set()
+        finally:
+            subprocess.run([*tmux, "kill-server"], capture_output=True)
+        service.wait_windows(2)
+        assert service.alive
+
+
+def test_a_second_service_on_the_same_state_directory_is_refused(
+    service: ServiceProcess, cell: Path
+) -> None:
+    out = rvis(
+        "run", "--sim", "--geometric", "--cell", str(cell), "--state-dir", str(service.state_dir)
+    )
+    assert out.returncode == 2
+    (line,) = out.stderr.strip().splitlines()
+    assert str(service.state_dir) in line and f"pid {service.proc.pid}" in line
+    assert service.alive and status(service.state_dir)["state"] in ("idle", "measuring")
+
+
+def _count(db: Path, sql: str) -> int:
+    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
+    try:
+        return int(con.execute(sql).fetchone()[0])
+    finally:
+        con.close()
+
+
+def test_kill_9_at_random_points_keeps_every_row_and_the_recalibration_progress(
+    tmp_path: Path, cell: Path
+) -> None:
+    """Restarts more often than every 24 measurements: calibrations still happen."""
+    state = tmp_path / "state"
+    rng = np.random.default_rng(19)
+    stored = 0
+    for _ in range(5):
+        svc = ServiceProcess(state, cell)
+        svc.wait_ready()
+        svc.wait_windows(int(rng.integers(5, 9)))
+        svc.wait_log(lambda r: r.get("event") in ("measurement", "state", "window"), 10.0)
+        svc.kill9()
+        db = state / "rvis.db"
+        now = _count(db, "SELECT COUNT(*) FROM measurements")
+        assert now >= stored  # nothing stored is ever lost
+        con = sqlite3.connect(db)
+        assert con.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+        con.close()
+        stored = now
+        assert not list((state / "params").rglob(".*.tmp"))
+    assert stored >= 24
+    assert _count(state / "rvis.db", "SELECT COUNT(*) FROM calibrations") >= 1
+    svc = ServiceProcess(state, cell)  # and it still runs
+    try:
+        svc.wait_ready()
+    finally:
+        assert svc.stop() == 0
+
+
+def test_a_damaged_database_is_refused_with_one_line(tmp_path: Path, cell: Path) -> None:
+    state = tmp_path / "state"
+    state.mkdir()
+    (state / "rvis.db").write_bytes(b"garbage" * 1000)
+    out = rvis("run", "--sim", "--geometric", "--cell", str(cell), "--state-dir", str(state))
+    assert out.returncode == 2
+    (line,) = out.stderr.strip().splitlines()
+    assert "rvis.db" in line and "damaged" in line and "rvis state backup" in line
+    assert (state / "rvis.db").read_bytes() == b"garbage" * 1000
+
+
+def test_a_damaged_current_json_is_rebuilt_with_an_alarm(tmp_path: Path, cell: Path) -> None:
+    state = tmp_path / "state"
+    svc = ServiceProcess(state, cell)
+    svc.wait_ready()
+    assert svc.stop() == 0
+    (state / "params" / "current.json").write_text("{ not json")
+    svc = ServiceProcess(state, cell)
+    try:
+        svc.wait_ready()
+        codes = [a["code"] for a in status(state)["alarms"]]
+        assert "params_rebuilt" in codes
+        json.loads((state / "params" / "current.json").read_text())
+    finally:
+        assert svc.stop() == 0
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="needs root to drop to another user")
+def test_an_unusable_state_directory_is_refused_with_one_line(tmp_path: Path) -> None:
+    state = tmp_path / "state"
+    state.mkdir(mode=0o700)  # root's, and its parents too: another user cannot reach it
+    setpriv = shutil.which("setpriv")
+    if setpriv is None:
+        pytest.skip("setpriv not installed")
+    argv = [
+        setpriv,
+        "--reuid=nobody",
+        "--regid=nogroup",
+        "--clear-groups",
+        sys.executable,
+        "-m",
+        "app.cli",
+        "run",
+        "--sim",
+        "--geometric",
+        "--state-dir",
+        str(state),
+    ]
+    out = subprocess.run(argv, capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert out.returncode == 2, out.stderr
+    (line,) = out.stderr.strip().splitlines()
+    assert str(state) in line and "permission denied" in line.lower()
+
+
+@pytest.mark.skipif(os.geteuid() != 0 or shutil.which("mount") is None, reason="needs root")
+def test_a_full_disk_faults_the_cell_and_the_service_stays_up(tmp_path: Path, cell: Path) -> None:
+    state = tmp_path / "state"
+    state.mkdir()
+    mounted = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=8m", "tmpfs", str(state)], capture_output=True
+    )
+    if mounted.returncode != 0:
+        pytest.skip("cannot mount a tmpfs here (tests/line/test_restart.py covers the seam)")
+    svc = ServiceProcess(state, cell)
+    try:
+        svc.wait_ready()
+        ballast = state / "ballast"
+        with open(ballast, "wb") as fh:  # fill the disk to the last byte
+            try:
+                while True:
+                    fh.write(b"\0" * 65536)
+                    fh.flush()
+            except OSError:
+                pass
+        svc.wait_log(lambda r: r.get("event") == "alarm" and r["data"]["code"] == "state_storage")
+        st = status(state)  # the service answers
+        assert st["state"] == "fault" and svc.alive
+        refused = rvis("ctl", "--state-dir", str(state), "reset")
+        assert refused.returncode != 0 and "still fails" in refused.stderr + refused.stdout
+        ballast.unlink()
+        reset = rvis("ctl", "--state-dir", str(state), "reset")
+        assert reset.returncode == 0, reset.stderr
+        svc.wait_log(lambda r: r.get("event") == "measurement", 30.0)
+        assert svc.alive
+    finally:
+        svc.stop()
+        subprocess.run(["umount", "-l", str(state)], capture_output=True)
