@@ -91,7 +91,8 @@ def json_logs(stream: Any = None, level: int = logging.INFO) -> logging.Handler:
 def serving(service: Service) -> Iterator[ControlServer]:
     """The control socket of `service`, with SIGPIPE ignored and an unexpected error in any
     thread of the process handed to the service (FAULT, exit status 1)."""
-    previous_pipe = signal.signal(signal.SIGPIPE, signal.SIG_IGN)
+    main = threading.current_thread() is threading.main_thread()  # signals: main thread only
+    previous_pipe = signal.signal(signal.SIGPIPE, signal.SIG_IGN) if main else None
     previous_hook = threading.excepthook
 
     def on_thread_error(args: threading.ExceptHookArgs) -> None:
@@ -106,7 +107,8 @@ def serving(service: Service) -> Iterator[ControlServer]:
             yield server
     finally:
         threading.excepthook = previous_hook
-        signal.signal(signal.SIGPIPE, previous_pipe)
+        if previous_pipe is not None:
+            signal.signal(signal.SIGPIPE, previous_pipe)
 
 
 def serve(service: Service) -> int:

@@ -34,7 +34,7 @@ async def screenshot(pane: str, size: tuple[int, int]) -> str:
     app = FrozenTui()
     async with app.run_test(size=size) as pilot:
         await pilot.press(str(PANES.index(pane) + 1))
-        for _ in range(3):  # let the refresh and the tab switch land
+        for _ in range(6):  # let the refresh and the tab switch land (loaded machines need more)
             await pilot.pause()
         await pilot.wait_for_scheduled_animations()
         return app.export_screenshot(title=f"rvis tui: {pane}")
