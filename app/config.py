@@ -303,7 +303,9 @@ class DriftSection(Section):
 @dataclass(frozen=True)
 class SimLineSection(Section):
     """The simulated line of `rvis run --sim` (fakes/line.py): time scale, clamp cycle, the
-    cell's warm-up and a knock of the sensor mount (knock_at_s < 0: none)."""
+    cell's warm-up and a knock (knock_at_s < 0: none) of the sensor mount (knock_kind sensor:
+    knock_mm shift and knock_deg tilt), of the spheres' frame (fixture: the same about the
+    spheres' centroid) or of the J2 encoder zero (joint: a slip of knock_deg)."""
 
     name = "simline"
     scale: float = opt(60.0, gt=0, hi=10000)
@@ -316,6 +318,7 @@ class SimLineSection(Section):
     knock_at_s: float = opt(-1.0, lo=-1, hi=1e7)
     knock_mm: float = opt(0.3, lo=0, hi=100)
     knock_deg: float = opt(0.05, lo=0, hi=90)
+    knock_kind: str = opt("sensor", choices=("sensor", "fixture", "joint"))
     n_validation: int = opt(100, lo=1, hi=10000)
 
 

@@ -173,7 +173,9 @@ class SimulatedCell:
         self._clock: Clock | None = None
         self.warmup: Warmup | None = None
         self.knock: Knock | None = None
-        self._T_knock = np.eye(4)
+        self._T_knock = np.eye(4)  # sensor knock: T_sensorBefore_sensorAfter
+        self._T_part_knocked = self.T_part_world  # fixture knock: the part frame after it
+        self._robot_knocked = robot  # joint knock: the robot after it
         self._noise = np.random.default_rng([s.seed, 1])
         self._spheres = {k: np.asarray(v, dtype=float) for k, v in spec.spheres_part_mm.items()}
         self._q_deg = np.array([0.0, 0.0, 0.0, 0.0, -90.0, 0.0])
@@ -197,10 +199,26 @@ class SimulatedCell:
         self, clock: Clock, *, warmup: Warmup | None = None, knock: Knock | None = None
     ) -> None:
         """Let the truth follow `clock`: the temperature warms up from the ambient `temp_c`,
-        the sensor mount moves at the knock (its direction drawn from the cell's seed)."""
+        and at the knock its group moves (the sensor mount, the spheres' frame or the J2
+        zero; its direction drawn from the cell's seed)."""
         self._clock, self.warmup, self.knock = clock, warmup, knock
         rng = np.random.default_rng([self.settings.seed, 5])
-        self._T_knock = np.eye(4) if knock is None else knock.T_mount_knocked(rng)
+        self._T_knock = np.eye(4)
+        self._T_part_knocked, self._robot_knocked = self.T_part_world, self.robot
+        if knock is None:
+            return
+        if knock.kind == "sensor":
+            self._T_knock = knock.T_mount_knocked(rng)
+        elif knock.kind == "fixture":
+            centroid = np.mean(list(self._spheres.values()), axis=0)
+            moved = knock.T_fixture_moved(rng, centroid)
+            self._T_part_knocked = np.linalg.inv(moved) @ self.T_part_world
+        else:
+            offsets = self.robot.zero_offset_rad + knock.zero_slip_rad(rng)
+            self._robot_knocked = replace(self.robot, zero_offset_rad=offsets)
+
+    def _knocked(self, t_s: float | None) -> bool:
+        return self.knock is not None and self._at(t_s) >= self.knock.at_s
 
     def now_s(self) -> float:
         """The cell's sim time [s] (0 without a timeline)."""
@@ -225,7 +243,7 @@ class SimulatedCell:
 
     def mount_at(self, t_s: float | None = None) -> F64:
         """The true sensor mount T_tool0_sensor (4, 4) at sim time t_s (default: now)."""
-        if self.knock is not None and self._at(t_s) >= self.knock.at_s:
+        if self._knocked(t_s):
             knocked: F64 = self._T_mount @ self._T_knock
             return knocked
         return self._T_mount.copy()
@@ -239,8 +257,11 @@ class SimulatedCell:
         """True sensor poses (N, 4, 4) in the part frame for controller angles (N, 6) at sim
         time t_s (default: now)."""
         t = self._at(t_s)
-        T_wt = self.robot.T_world_tool0(q_deg, self.temp_at(t))
-        out: F64 = self.T_part_world @ T_wt @ self.mount_at(t)
+        knocked = self._knocked(t)
+        robot = self._robot_knocked if knocked else self.robot
+        T_pw = self._T_part_knocked if knocked else self.T_part_world
+        T_wt = robot.T_world_tool0(q_deg, self.temp_at(t))
+        out: F64 = T_pw @ T_wt @ self.mount_at(t)
         return out
 
     def centre_in_sensor(

@@ -167,21 +167,61 @@ class Warmup:
         return float(self.rise_k * -np.expm1(-dt / self.tau_s))
 
 
+KNOCK_KINDS = ("sensor", "fixture", "joint")
+
+
 @dataclass(frozen=True)
 class Knock:
-    """A knock on the sensor mount at sim time ``at_s``: the sensor moves by ``shift_mm`` [mm]
-    and tilts by ``tilt_deg`` [deg] about its own origin, in directions drawn from the seed."""
+    """A knock at sim time ``at_s`` of one rigid group of the true cell (``kind``):
+
+    - ``sensor``: the sensor on its mount moves by ``shift_mm`` [mm] and tilts by ``tilt_deg``
+      [deg] about its own origin (defaults 0.3 mm, 0.05 deg);
+    - ``fixture``: the four spheres' frame (and so the part frame they define) moves by
+      ``shift_mm`` and turns by ``tilt_deg`` about the spheres' centroid (0.5 mm, 0.03 deg);
+    - ``joint``: the J2 encoder zero slips by ``tilt_deg`` (0.01 deg; ``shift_mm`` unused).
+
+    Directions (and the slip's sign) are drawn from the seed passed to the methods."""
 
     at_s: float
     shift_mm: float = 0.3
     tilt_deg: float = 0.05
+    kind: str = "sensor"
+
+    def __post_init__(self) -> None:
+        if self.kind not in KNOCK_KINDS:
+            raise ValueError(f"knock kind must be one of {', '.join(KNOCK_KINDS)}")
+
+    @staticmethod
+    def of_kind(kind: str, at_s: float) -> Knock:
+        """The issue's knock of each kind: sensor 0.3 mm / 0.05 deg, fixture 0.5 mm /
+        0.03 deg, joint a J2 zero slip of 0.01 deg."""
+        sizes = {"sensor": (0.3, 0.05), "fixture": (0.5, 0.03), "joint": (0.0, 0.01)}
+        if kind not in sizes:
+            raise ValueError(f"knock kind must be one of {', '.join(KNOCK_KINDS)}")
+        shift_mm, tilt_deg = sizes[kind]
+        return Knock(at_s, shift_mm, tilt_deg, kind)
 
     def T_mount_knocked(self, rng: np.random.Generator) -> F64:
-        """The knock as a pose (4, 4) in the sensor frame: T_sensorBefore_sensorAfter."""
+        """The knock as a pose (4, 4) in the sensor frame: T_sensorBefore_sensorAfter (the
+        `sensor` kind; also the motion of the fixture about its centroid)."""
         direction = _unit_vector(rng)
         axis = _unit_vector(rng)
         R = _rot(axis, np.array(np.radians(self.tilt_deg)))
         return homogeneous(R, self.shift_mm * direction)
+
+    def T_fixture_moved(self, rng: np.random.Generator, centroid_part_mm: ArrayLike) -> F64:
+        """The `fixture` kind: T_partBefore_partAfter (4, 4), a shift and a turn about the
+        spheres' centroid [mm, in the part frame before]."""
+        c = np.asarray(centroid_part_mm, dtype=float)
+        M = self.T_mount_knocked(rng)
+        out: F64 = homogeneous(np.eye(3), c) @ M @ homogeneous(np.eye(3), -c)
+        return out
+
+    def zero_slip_rad(self, rng: np.random.Generator) -> F64:
+        """The `joint` kind: the encoder zero offsets' change (6,) [rad] (J2 only)."""
+        out = np.zeros(6)
+        out[1] = np.radians(self.tilt_deg) * (1.0 if rng.random() < 0.5 else -1.0)
+        return out
 
 
 def _unit_vector(rng: np.random.Generator) -> F64:

@@ -86,7 +86,9 @@ def sim_scale(cfg: CellConfig, geometric: bool) -> float:
 
 def simline_settings(cfg: CellConfig, *, geometric: bool) -> SimLineSettings:
     s = cfg.simline
-    knock = None if s.knock_at_s < 0 else Knock(s.knock_at_s, s.knock_mm, s.knock_deg)
+    knock = None
+    if s.knock_at_s >= 0:
+        knock = Knock(s.knock_at_s, s.knock_mm, s.knock_deg, s.knock_kind)
     return SimLineSettings(
         scale=sim_scale(cfg, geometric),
         period_s=s.period_s,

@@ -24,6 +24,7 @@ import numpy as np
 from app.config import CellConfig
 from app.files import dumps_json
 from app.sim.line_run import SimRunSummary, SimulatedLineRun, WindowRecord
+from fakes.truth import KNOCK_KINDS, Knock
 
 
 @dataclass(frozen=True)
@@ -33,8 +34,9 @@ class ShiftSettings:
 
     hours: float = 8.0
     knock_at_h: float = 4.0
-    knock_mm: float = 0.3
-    knock_deg: float = 0.05
+    knock: str = "sensor"  # what the knock moves: sensor | fixture | joint (fakes.truth.Knock)
+    knock_mm: float | None = None  # None: the kind's size (Knock.of_kind)
+    knock_deg: float | None = None
     geometric: bool = True
     scale: float | None = None
     slots_per_window: int | None = None
@@ -57,6 +59,15 @@ class ShiftSettings:
             raise ValueError("schedule must be cycle or adaptive")
         if self.recovered_ratio < 1 or self.pre_knock_windows < 1:
             raise ValueError("recovered_ratio >= 1 and pre_knock_windows >= 1")
+        if self.knock not in KNOCK_KINDS:
+            raise ValueError(f"knock must be one of {', '.join(KNOCK_KINDS)}")
+
+    def knock_size(self) -> tuple[float, float]:
+        """(shift [mm], tilt or slip [deg]) of the knock."""
+        kind = Knock.of_kind(self.knock, 0.0)
+        mm = kind.shift_mm if self.knock_mm is None else self.knock_mm
+        deg = kind.tilt_deg if self.knock_deg is None else self.knock_deg
+        return mm, deg
 
 
 #: The line part of `rvis demo`: 45 windows, a knock after 15, about 15-20 s real time.
@@ -107,11 +118,13 @@ class ShiftResult:
 
 def shift_config(cfg: CellConfig, s: ShiftSettings) -> CellConfig:
     """The cell with the shift's knock (and scale, slots per window) in [simline] and [line]."""
+    knock_mm, knock_deg = s.knock_size()
     simline = dataclasses.replace(
         cfg.simline,
         knock_at_s=s.knock_at_h * 3600.0,
-        knock_mm=s.knock_mm,
-        knock_deg=s.knock_deg,
+        knock_mm=knock_mm,
+        knock_deg=knock_deg,
+        knock_kind=s.knock,
         scale=cfg.simline.scale if s.scale is None else s.scale,
     )
     line, service = cfg.line, cfg.service

@@ -113,3 +113,42 @@ def test_the_app_can_compute_the_true_error_of_identified_parameters_over_time(
     knocked = true_validation_rms_mm(cfg, truth, x, knock.at_s)
     assert warm > calibrated  # the warm-up degrades the calibration of the cold cell ...
     assert knocked > warm + 0.1  # ... and the knock does, by about its 0.3 mm
+
+
+def test_a_fixture_knock_moves_the_spheres_frame_about_their_centroid(cfg: CellConfig) -> None:
+    """The part frame the spheres define moves 0.5 mm and turns 0.03 deg about the spheres'
+    centroid: each sphere moves about 0.5 mm in the robot's world, the sensor mount not."""
+    knock = Knock.of_kind("fixture", 2 * HOUR_S)
+    assert (knock.shift_mm, knock.tilt_deg) == (0.5, 0.03)
+    cell = timed_cell(cfg, 2, knock=knock)
+    np.testing.assert_array_equal(cell.mount_at(knock.at_s), cell.mount_at(0.0))
+    q = np.array([[10.0, 20.0, 0.0, 0.0, -70.0, 0.0]])
+    before, after = cell.T_part_sensor(q, 0.0)[0], cell.T_part_sensor(q, knock.at_s)[0]
+    moved = after @ np.linalg.inv(before)  # T_partAfter_partBefore, the same at every q
+    assert rotation_deg(moved[:3, :3]) == pytest.approx(0.03, abs=1e-6)
+    centroid = np.mean([cell.target_true_mm(t) for t in cell.target_ids()], axis=0)
+    for tid in cell.target_ids():  # where a sphere of the old frame is seen in the new one
+        p = cell.target_true_mm(tid)
+        shift = np.linalg.norm(moved[:3, :3] @ p + moved[:3, 3] - p)
+        lever = np.radians(0.03) * np.linalg.norm(p - centroid)
+        assert abs(shift - 0.5) <= lever + 1e-6
+    q2 = np.array([[-60.0, 10.0, 5.0, 20.0, -80.0, 30.0]])
+    moved2 = cell.T_part_sensor(q2, knock.at_s)[0] @ np.linalg.inv(cell.T_part_sensor(q2, 0.0)[0])
+    np.testing.assert_allclose(moved2, moved, atol=1e-9)
+
+
+def test_a_joint_knock_slips_the_j2_zero_by_001_deg(cfg: CellConfig) -> None:
+    knock = Knock.of_kind("joint", HOUR_S)
+    cell = timed_cell(cfg, 3, knock=knock)
+    np.testing.assert_array_equal(cell.mount_at(knock.at_s), cell.mount_at(0.0))
+    q = np.array([[10.0, 20.0, 0.0, 0.0, -70.0, 0.0]])
+    after = cell.T_part_sensor(q, knock.at_s)
+    for sign in (1.0, -1.0):  # the same as commanding J2 0.01 deg further, one way or the other
+        q2 = q + [[0.0, sign * 0.01, 0.0, 0.0, 0.0, 0.0]]
+        q2[0, 2] -= sign * 0.01  # the controller's J3 is relative to the horizon (q3 = J3 + J2)
+        if np.allclose(cell.T_part_sensor(q2, 0.0), after, atol=1e-9):
+            break
+    else:
+        pytest.fail("the J2 zero did not slip by 0.01 deg")
+    with pytest.raises(ValueError, match="knock kind"):
+        Knock(at_s=0.0, kind="base")
