@@ -253,6 +253,12 @@ class ServiceSection(Section):
     seq_prior_rad: float = opt(1e-3, gt=0, hi=1)
     seq_max_std_mm: float = opt(0.025, gt=0, hi=10)
     schedule: str = opt("cycle", choices=("cycle", "adaptive"))
+    # a step (knock): attribute it to one rigid group and correct that group at once
+    # (app/line/step.py) when its BIC margin, predicted uncertainty and held-out check pass
+    step_correction: bool = opt(True)
+    step_min_measurements: int = opt(3, lo=2, hi=1000)
+    step_min_margin: float = opt(10.0, lo=0, hi=1e6)
+    step_max_std_mm: float = opt(0.015, gt=0, hi=10)
 
 
 @dataclass(frozen=True)
@@ -272,6 +278,7 @@ class LineSection(Section):
     window_s: float = opt(8.0, gt=0, hi=3600)
     margin_s: float = opt(0.5, lo=0, hi=60)
     slots_per_window: int = opt(1, lo=1, hi=100)
+    step_slots_per_window: int = opt(6, lo=1, hi=100)  # after a step, until it is corrected
 
 
 @dataclass(frozen=True)

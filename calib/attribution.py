@@ -39,6 +39,7 @@ from calib.model import BASE_NAMES, INDEX, SENSOR_NAMES, SystemModel, check_acti
 
 F64 = NDArray[np.float64]
 SEVERAL = "several"
+NONE = "none"
 #: p of the chi-square quantile a single group's fit must stay below to explain the step
 P_CONSISTENT = 0.999
 
@@ -53,11 +54,13 @@ class StepGroup:
 
 
 def step_groups(model: SystemModel) -> tuple[StepGroup, ...]:
-    """The candidates of a model: sensor mount, sphere fixture / part frame, each identified
-    joint zero offset, and the full set the model identifies ("several")."""
+    """The candidates of a model: nothing moved ("none": the parameters in force explain the
+    measurements), sensor mount, sphere fixture / part frame, each identified joint zero
+    offset, and the full set the model identifies ("several")."""
     active = model.default_active()
     joints = [n for n in active if n.startswith("dtheta")]
     return (
+        StepGroup(NONE, "nothing", ()),
         StepGroup("sensor", "sensor mount", SENSOR_NAMES),
         StepGroup("fixture", "sphere fixture / part frame", BASE_NAMES),
         *(StepGroup(f"J{n[-1]}", f"J{n[-1]} zero", (n,)) for n in joints),
@@ -85,7 +88,7 @@ class GroupFit:
 
     @property
     def translation_mm(self) -> float:
-        """|translation| of a 6-DoF group's step (0 for a joint offset)."""
+        """|translation| of a 6-DoF group's step (0 for a joint offset or nothing)."""
         mm = [k for k, n in enumerate(self.group.params) if unit_of(n) == "mm"]
         return float(np.linalg.norm(self.step[mm])) if len(self.group.params) == 6 else 0.0
 
@@ -155,6 +158,8 @@ class Attribution:
         """One line for an alarm: "sensor mount moved 0.31 mm / 0.050 deg, 3 measurements"."""
         n = f"{self.n} measurement{'s' * (self.n != 1)}"
         c = self.chosen
+        if self.choice == NONE:
+            return f"no step found: the parameters in force explain the {n} after it"
         if c is None or self.choice == SEVERAL:
             best = next((f for f in self.fits if f.determined and f.group.name != SEVERAL), None)
             why = "" if best is None else f" (best single: {best.group.label}, chi2 {best.chi2:.0f}"
@@ -234,6 +239,13 @@ def _fit_group(
     w = np.repeat(1.0 / sigma, 3)
     if m < k:
         return _undetermined(group, x0, m - k)
+    if k == 0:  # nothing moved: the residuals as they are
+        e = (residuals(model, x0, data) - ref).ravel() * w
+        chi2_0 = float(np.sum(e**2))
+        empty = np.zeros(0)
+        return GroupFit(
+            group, x0.copy(), empty, empty, np.zeros((0, 0)), chi2_0, m, chi2_0, True, 0.0
+        )
 
     def full(a: F64) -> F64:
         x = x0.copy()

@@ -182,10 +182,15 @@ class SequentialEstimator:
         self.n_accepted += 1
         return Update(True, d2, r)
 
-    def widen(self) -> None:
+    def widen(self, names: Sequence[str] | None = None) -> None:
         """The caller knows the model changed (a knock flagged elsewhere): grow P by
-        diag(knock^2) now, as a run of `knock_after` rejections would."""
-        self._P = self._P + self._knock
+        diag(knock^2) now, as a run of `knock_after` rejections would; only for the active
+        parameters `names` when given (the group a step was attributed to)."""
+        knock = self._knock
+        if names is not None:
+            keep = np.isin(np.array(self.active), np.array(list(names)))
+            knock = knock * np.outer(keep, keep)
+        self._P = self._P + knock
         self.n_knocks += 1
         self._in_a_row = 0
 

@@ -154,10 +154,14 @@ class Cycle:
         position: Callable[[], int],
         record: Recorder,
         choose: Callable[[Sequence[Slot]], Slot] | None = None,
+        slots_wanted: Callable[[], int] | None = None,
     ) -> None:
-        """`choose`: adaptive scheduling (the pick among the slots that fit), else cycled."""
+        """`choose`: the pick among the slots that fit (adaptive scheduling, a step being
+        attributed), else cycled; `slots_wanted()`: how many slots this window may measure,
+        asked before each (default [line] slots_per_window)."""
         self.watch, self.measurer, self.schedule = watch, measurer, schedule
         self.position, self.record, self.choose = position, record, choose
+        self.slots_wanted = slots_wanted or (lambda: watch.line.slots_per_window)
         self.plc, self.clock, self.line = watch.plc, watch.clock, watch.line
 
     def run_window(self, window: int) -> WindowReport:
@@ -188,7 +192,7 @@ class Cycle:
         if not self.measurer.at_home():  # back from a fault: first come home in a window
             report.note = "robot brought home"
             return
-        for _ in range(self.line.slots_per_window):
+        while len(report.slots) < self.slots_wanted():
             q_now = self.measurer.robot.joints_deg()
             remaining = self.watch.remaining_s()
             slot = self.schedule.next_fitting(

@@ -91,6 +91,8 @@ class InlineSequential:
         self.settings, self.gates, self.spheres = settings, gates, spheres
         self.n_slots = n_slots
         self.after_step = False
+        self.holding = False  # a step flagged, not attributed yet: post-step rows wait
+        self.group_step = False  # the suspected group widened: candidates without waiting
         self.queue: deque[Mapping[str, Any]] = deque()
         self.est: SequentialEstimator | None = None
         self.accepted_since = 0
@@ -134,13 +136,51 @@ class InlineSequential:
         self.queue = deque(r for r in self.queue if int(r["id"]) >= onset_id)
         self.est.widen()
         self.accepted_since, self.innovations, self.first_id = 0, [], None
-        self.after_step = True
+        self.after_step, self.holding, self.group_step = True, False, False
+        self._drain()
+
+    def hold(self, onset_id: int) -> None:
+        """A step was flagged at measurement `onset_id`, what moved is not known yet: the
+        held-out rows before it are dropped (stale) and the rows after it wait in the queue
+        (fed to a filter that has not been widened, the gate would reject them) until
+        `widen_group` or `widen`."""
+        self.queue = deque(r for r in self.queue if int(r["id"]) >= onset_id)
+        self.holding = True
+
+    def widen_group(self, names: Sequence[str]) -> None:
+        """The step was attributed to one group (app.line.step): only its covariance grows
+        (the process noise of a knock, `seq_knock_mm` / `seq_knock_rad`), the rows after the
+        step are fed at once, all but the newest (held out), and a candidate is due as soon
+        as the estimate predicts the schedule's views within `seq_max_std_mm`: no full
+        schedule cycle is waited for, the other parameters are as well known as before."""
+        if self.est is None:
+            return
+        self.est.widen(names)
+        self.accepted_since, self.innovations, self.first_id = 0, [], None
+        self.holding, self.group_step, self.after_step = False, True, True
+        self._drain()
+
+    def _holdout(self) -> int:
+        return 1 if self.group_step else self.settings.holdout_size
+
+    def _drain(self) -> None:
+        while not self.holding and len(self.queue) > self._holdout():
+            self._feed(self.queue.popleft())
+
+    def step_json(self) -> dict[str, bool]:
+        """The step flags (the service's decision state)."""
+        return {"after_step": self.after_step, "holding": self.holding, "group": self.group_step}
+
+    def load_step_json(self, doc: Mapping[str, Any] | None) -> None:
+        doc = doc or {}
+        self.after_step = bool(doc.get("after_step", False))
+        self.holding = bool(doc.get("holding", False))
+        self.group_step = bool(doc.get("group", False))
 
     def offer(self, row: Mapping[str, Any]) -> None:
         """A good measurement row (as stored); the oldest beyond the hold-out is fed."""
         self.queue.append(row)
-        while len(self.queue) > self.settings.holdout_size:
-            self._feed(self.queue.popleft())
+        self._drain()
 
     def _feed(self, row: Mapping[str, Any]) -> None:
         assert self.est is not None, "restart() first"
@@ -177,13 +217,16 @@ class InlineSequential:
         step, a full schedule cycle of them and the estimate's predicted point uncertainty at
         the schedule's views, `views()` -> (K, 6) joints with their last measured centres
         (K, 3) (asked only then), at most `seq_max_std_mm` per coordinate."""
-        if self.est is None or self.accepted_since < self.settings.seq_apply_every:
+        if self.est is None or not self.queue or self.holding:
             return False
-        if not self.queue:
+        if self.group_step:
+            if self.accepted_since < 1:
+                return False
+        elif self.accepted_since < self.settings.seq_apply_every:
             return False
         if not self.after_step:
             return True
-        if self.accepted_since < self.n_slots:
+        if not self.group_step and self.accepted_since < self.n_slots:
             return False
         q, c = views()
         return len(q) > 0 and self.est.predicted_std_mm(q, c) <= self.settings.seq_max_std_mm
@@ -226,5 +269,6 @@ class InlineSequential:
             int(self.queue[-1]["id"]),
         )
         self.accepted_since, self.innovations, self.first_id = 0, [], None
-        self.after_step = False
+        if out.passed:
+            self.after_step = self.group_step = False
         return out

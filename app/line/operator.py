@@ -38,6 +38,7 @@ MUTATING = (
     "shelve",
 )
 COMMANDS = ("status", "subscribe", *MUTATING)
+SUSPECTS_IN_STATUS = 5  # the status reply's last suspect intervals
 
 
 def utc_text(t: float) -> str:
@@ -173,7 +174,17 @@ class OperatorCommands:
             "step": self._step_text(),
             "devices": self._device_status(),
             "pending": self._pending_status(),
+            "flagged_step": None if svc.step is None else svc.step.to_json(),
+            "suspect_intervals": self._suspect_status(),
         }
+
+    def _suspect_status(self) -> list[dict[str, Any]]:
+        """The last suspect intervals (app.line.step), oldest first: when the calibration in
+        force was wrong after a step, with its size; the open one has no end yet."""
+        from app.line.service import suspect_json
+
+        svc: Service = self  # type: ignore[assignment]
+        return [suspect_json(r) for r in svc.store.suspects(last=SUSPECTS_IN_STATUS)]
 
     def _step_text(self) -> str:
         """What the service is doing, in a few words (the TUI's status line)."""

@@ -55,9 +55,12 @@ from app.line.schedule import Schedule, Slot
 from app.line.settings import ServiceSettings
 from app.line.statedir import StateDir
 from app.line.station import Station
+from app.line.step import Step, StepCorrection, correct_step, paired, step_sigma_mm, step_slot
 from app.line.store import StorageError, Store
 from app.line.sweeps import SweepArchive
 from app.params import plain_document
+from calib.attribution import NONE, SEVERAL, Attribution, point_shift_mm
+from calib.candidates import IDEAL_STANDOFF_MM
 from calib.model import SystemModel
 from drivers.errors import DeviceError
 
@@ -118,9 +121,15 @@ class Service(OperatorCommands):
             self.sequential.restart(self.model, self.x, self.params.current_document())
         self.watch = WindowWatch(station.plc, self.clock, s.line)
         self.measurer = SphereMeasurer(station.robot, sensor, s.line)
-        self.cycle = Cycle(self.watch, self.measurer, schedule, self._position, self._record)
-        if self.sequential is not None and s.recalib.schedule == "adaptive":
-            self.cycle.choose = self._most_informative
+        self.cycle = Cycle(
+            self.watch,
+            self.measurer,
+            schedule,
+            self._position,
+            self._record,
+            choose=self._choose,
+            slots_wanted=self._slots_wanted,
+        )
         self.state = State.STARTING
         self.paused = False
         self.counters = {"windows": 0, "overruns": 0, "withdrawn": 0}
@@ -128,6 +137,9 @@ class Service(OperatorCommands):
         self.drift_onset_id: int | None = None  # first measurement after a flagged step
         self.drift_due = False  # the residual charts signalled: recalibrate soon
         self.last_visit: dict[int, tuple[F64, F64]] = {}  # slot -> (q_deg, c_sensor_mm)
+        self.visit_ids: dict[int, int] = {}  # slot -> the measurement id of its last visit
+        self.change_from_id = 0  # a change from a visit before this id spans a known step
+        self.step: Step | None = None  # a flagged step: attribution, correction (app.line.step)
         self.new_since_recal = 0
         self.force_recal = False
         self.recal_ids: dict[str, list[int]] | None = None  # the calibration in flight
@@ -203,7 +215,11 @@ class Service(OperatorCommands):
             "last_visit": {
                 str(k): [q.tolist(), c.tolist()] for k, (q, c) in self.last_visit.items()
             },
+            "visit_ids": {str(k): v for k, v in self.visit_ids.items()},
+            "change_from_id": self.change_from_id,
+            "step": None if self.step is None else self.step.to_json(),
             "drift": self.drift.to_json(),
+            "sequential_step": None if self.sequential is None else self.sequential.step_json(),
         }
 
     def _save_state(self) -> None:
@@ -225,7 +241,12 @@ class Service(OperatorCommands):
             int(k): (np.asarray(q, float), np.asarray(c, float))
             for k, (q, c) in doc["last_visit"].items()
         }
+        self.visit_ids = {int(k): int(v) for k, v in doc.get("visit_ids", {}).items()}
+        self.change_from_id = int(doc.get("change_from_id", 0))
+        self.step = Step.from_json(doc.get("step"))
         self.drift.load_json(doc["drift"])
+        if self.sequential is not None:
+            self.sequential.load_step_json(doc.get("sequential_step"))
 
     def stop(self) -> None:
         """Ask `run()` to return after the current window (safe from a signal handler)."""
@@ -364,7 +385,7 @@ class Service(OperatorCommands):
         self.counters["overruns"] += report.overrun
         self.counters["withdrawn"] += bool(report.withdrawn)
         self._save_state()
-        self.bus.emit("window", report.to_json())
+        self.bus.emit("window", {**report.to_json(), "params_version": self.version})
         self._set_state(State.PAUSED if self.paused else State.IDLE)
         self._between_windows()
 
@@ -463,9 +484,26 @@ class Service(OperatorCommands):
         q = np.array([q for q, _ in visits]).reshape(-1, 6)
         return q, np.array([c for _, c in visits]).reshape(-1, 3)
 
-    def _most_informative(self, slots: Sequence[Slot]) -> Slot:
-        assert self.sequential is not None
-        return self.sequential.most_informative(self.model, slots, self.last_visit)
+    def _choose(self, slots: Sequence[Slot]) -> Slot:
+        """The next slot among those that fit (in the plan's order from the position): for a
+        step being attributed, the one that serves it (app.line.step.step_slot); adaptive
+        scheduling, the most informative for the sequential estimator; else the next."""
+        if self.step is not None and self.step.measuring:
+            onset = self.step.onset_id
+            after = self.store.measurements(since_id=onset - 1)
+            before = self.store.measurements(before_id=onset, last=len(self.schedule))
+            recent = [int(r["slot"]) for r in reversed(before)]
+            return step_slot(self.model, self.x, slots, after, recent, self.last_visit)
+        if self.sequential is not None and self.settings.recalib.schedule == "adaptive":
+            return self.sequential.most_informative(self.model, slots, self.last_visit)
+        return slots[0]
+
+    def _slots_wanted(self) -> int:
+        """Slots this window may measure: more while a step is attributed (as many as fit)."""
+        line = self.settings.line
+        if self.step is not None and self.step.measuring:
+            return max(line.slots_per_window, line.step_slots_per_window)
+        return line.slots_per_window
 
     @property
     def cell_temp_c(self) -> float | None:
@@ -501,7 +539,8 @@ class Service(OperatorCommands):
             row_id = self.store.add_measurement(row)
             if reading is not None and e is not None:
                 self.new_since_recal += 1
-                self._drift(slot.target, e, self._change_mm(slot, reading.c_sensor_mm), row_id)
+                change = self._change_mm(slot, reading.c_sensor_mm, row_id)
+                self._drift(slot.target, e, change, row_id)
                 if self.sequential is not None:
                     self.sequential.offer({**row, "id": row_id})
             self._save_state()
@@ -523,11 +562,17 @@ class Service(OperatorCommands):
         )
         return row_id
 
-    def _change_mm(self, slot: Slot, c_sensor_mm: F64) -> float | None:
-        """How far the centre moved since this slot's previous visit (same configuration)."""
+    def _change_mm(self, slot: Slot, c_sensor_mm: F64, row_id: int) -> float | None:
+        """How far the centre moved since this slot's previous visit (same configuration);
+        None when there is none, or when it was before a flagged step (the change spans the
+        step, already known)."""
         prev = self.last_visit.get(slot.index)
+        prev_id = self.visit_ids.get(slot.index, 0)
         self.last_visit[slot.index] = (slot.q_deg.copy(), np.asarray(c_sensor_mm, float).copy())
+        self.visit_ids[slot.index] = row_id
         if prev is None or not np.allclose(prev[0], slot.q_deg, atol=1e-6):
+            return None
+        if prev_id < self.change_from_id:
             return None
         return float(np.linalg.norm(np.asarray(c_sensor_mm, float) - prev[1]))
 
@@ -550,8 +595,7 @@ class Service(OperatorCommands):
                 continue
             if self.drift_onset_id is None:
                 self.drift_onset_id = sig.onset_ref
-                if self.sequential is not None:
-                    self.sequential.widen(sig.onset_ref)
+                self._open_step(sig.onset_ref, attribute=sig.family == "change")
             what = "residual" if sig.family == "residual" else "change since the last visit"
             self._alarm(
                 "drift_step",
@@ -601,6 +645,7 @@ class Service(OperatorCommands):
             if 0 <= r["slot"] < len(self.schedule):
                 q = np.asarray(r["q_deg"], float)
                 self.last_visit[int(r["slot"])] = (q, np.asarray(r["c_sensor_mm"], float))
+                self.visit_ids[int(r["slot"])] = int(r["id"])
 
     # -- recalibration -------------------------------------------------------------------------
     def _between_windows(self) -> None:
@@ -612,6 +657,7 @@ class Service(OperatorCommands):
         if outcome is not None:
             self._recal_done(outcome)
         if self.state in (State.IDLE, State.PAUSED):
+            self._attribute_step()
             self._maybe_recalibrate()
         self._check_space()
 
@@ -698,7 +744,7 @@ class Service(OperatorCommands):
             {"n": len(train), "first_id": job.first_id, "last_id": job.last_id},
         )
 
-    def _recal_done(self, out: RecalOutcome | SequentialCandidate) -> None:
+    def _recal_done(self, out: RecalOutcome | SequentialCandidate | StepCorrection) -> None:
         status = "pending" if out.passed else "rejected"
         with self.store.batch():
             cal_id = self._add_calibration(out, status)
@@ -722,7 +768,9 @@ class Service(OperatorCommands):
         else:
             self.pending_calibration = cal_id
 
-    def _add_calibration(self, out: RecalOutcome | SequentialCandidate, status: str) -> int:
+    def _add_calibration(
+        self, out: RecalOutcome | SequentialCandidate | StepCorrection, status: str
+    ) -> int:
         return self.store.add_calibration(
             {
                 "t": self.clock.time(),
@@ -767,26 +815,204 @@ class Service(OperatorCommands):
                 self.store.decide_calibration(int(cal["id"]), "applied", t, uid, version)
             self.store.add_applied(t, version, cal_id, source, uid)
             self.pending_calibration = None
-            if cal is not None and _sequential(cal["document"]):
+            kind = _kind(None if cal is None else cal["document"])
+            if kind in ("sequential", "step"):
                 # the filter's residuals on the rows it was fed are optimistic by an unknown
-                # factor: keep the baselines (measured: reseeding gave 21 low alarms in 4 h)
+                # factor: keep the baselines (measured: reseeding gave 21 low alarms in 4 h);
+                # a step correction restores the residuals of before the step
                 self.drift.restart()
             else:
                 self.drift.reset(self._drift_seed(cal))
-            if self.sequential is not None and (cal is None or not _sequential(cal["document"])):
+            if self.sequential is not None and kind != "sequential":
                 self.sequential.restart(self.model, self.x, self.params.current_document())
             onset, self.drift_due = self.drift_onset_id, False
             self.store.clear_alarms(t, "drift")
-            if onset is None or (cal is not None and int(cal["first_id"] or 0) >= onset):
-                self.drift_onset_id = None  # trained after the step (else the next one will be)
+            first_id = None if cal is None else int(cal["first_id"] or 0)
+            after_step = first_id is not None and onset is not None and first_id >= onset
+            closed = self._close_suspect(t, version, cal, kind) if after_step else None
+            if onset is None or after_step:
                 self.store.clear_alarms(t, "drift_step")
+                if kind != "step":  # a full calibration trained after the step: it is over
+                    self.drift_onset_id, self.step = None, None
             self._save_state()
         self.bus.emit(
             "parameters_applied",
             {"version": version, "calibration_id": cal_id, "source": source, "uid": uid},
         )
+        if closed is not None:
+            self.bus.emit("suspect_interval", closed)
+
+    # -- a step: attribution, fast correction, suspect interval (app.line.step) ---------------
+    def _open_step(self, onset_id: int, *, attribute: bool) -> None:
+        """A step was flagged at measurement `onset_id`: the suspect interval opens at the last
+        trustworthy measurement before it (inside the transaction of the measurement). With
+        `attribute` (a change chart flagged it: the slots' previous visits are the reference)
+        it is attributed; a residual signal before the change charts watch (no reference
+        yet: the first windows after commissioning) waits for the full recalibration."""
+        attribute = attribute and self.settings.recalib.step_correction
+        if self.sequential is not None:
+            if attribute:
+                self.sequential.hold(onset_id)  # widened once attributed
+            else:
+                self.sequential.widen(onset_id)
+        if self.step is not None and self.step.status in ("attributing", "proposed"):
+            return  # the interval of the step in progress goes on
+        before = self.store.measurements(before_id=onset_id, last=1)
+        onset_rows = self.store.measurements_by_id([onset_id])
+        last_good = int(before[0]["id"]) if before else None
+        t_start = float(before[0]["t"] if before else onset_rows[0]["t"])
+        text = f"step flagged at measurement {onset_id}"
+        suspect_id = self.store.open_suspect(
+            {
+                "t_start": t_start,
+                "last_good_id": last_good,
+                "onset_id": onset_id,
+                "params_version": self.version,
+                "text": text,
+            }
+        )
+        status = "attributing" if attribute else SEVERAL
+        self.step = Step(onset_id, suspect_id, t_start, last_good, status=status, text=text)
+        self.change_from_id = onset_id
+        self.bus.emit("suspect_interval", suspect_json(self.store.suspect(suspect_id) or {}))
+
+    def _attribute_step(self) -> None:
+        """Between windows, while a step is attributed: attribute it on the measurements from
+        its change point on and, batch estimator, apply or propose the fast correction when
+        its gates pass; sequential estimator, widen the suspected group's covariance."""
+        step, r = self.step, self.settings.recalib
+        if step is None or step.status != "attributing" or not r.step_correction:
+            return
+        after = self.store.measurements(since_id=step.onset_id - 1)
+        before = self.store.measurements(before_id=step.onset_id, last=2 * len(self.schedule))
+        pairs = paired(after, before)
+        if len(pairs) < r.step_min_measurements or len(pairs) == step.n_used:
+            return
+        chart = self.drift.change.charts.get("*")
+        mu = chart.mu if chart is not None and chart.ready else None
+        sigma = step_sigma_mm(mu, r.seq_measurement_std_mm)
+        views = self._visited_views()
+        a, corr = correct_step(
+            self.model, self.x, pairs, self.spheres, sigma, views, r, self.settings.gates
+        )
+        step.n_used, step.choice, step.text = len(pairs), a.choice, a.text()
+        settled = len(pairs) >= len(self.schedule) // 2  # no single group after that many
+        size = None
+        if corr is not None and a.chosen is not None:
+            c_std = np.tile([0.0, 0.0, IDEAL_STANDOFF_MM], (len(views[0]), 1))
+            size = point_shift_mm(self.model, self.x, a.chosen.x, views[0], c_std)
+        data = {
+            "onset_id": step.onset_id,
+            "n": len(pairs),
+            "choice": a.choice,
+            "text": a.text(),
+            "passed": bool(corr is not None and corr.passed),
+            "failures": [] if corr is None else list(corr.failures),
+            "size_mm": size,
+            "attribution": a.to_json(),
+        }
+        with self.store.batch():
+            fields: dict[str, Any] = {"group_name": a.choice, "text": a.text()}
+            if size is not None:
+                fields["size_mm"] = size
+            self.store.update_suspect(step.suspect_id, **fields)
+            for alarm in self.store.active_alarms(code="drift_step"):
+                head = str(alarm["message"]).split(" | ")[0]
+                self.store.update_alarm_message(int(alarm["id"]), f"{head} | {a.text()}")
+            if a.choice in (SEVERAL, NONE) and settled:
+                step.status = a.choice
+                if a.choice == NONE:
+                    self._close_suspect(self.clock.time(), None, None, "none")
+            self._widen_sequential(a, step)
+            self._save_state()
+        self.bus.emit("step_attribution", data, level=logging.WARNING)
+        if self.sequential is None and corr is not None and corr.passed:
+            step.status = "proposed"
+            self._recal_done(corr)
+
+    def _widen_sequential(self, a: Attribution, step: Step) -> None:
+        """The sequential estimator follows the step through its process noise: the suspected
+        group's covariance widened once the choice is decisive (all of it for several groups,
+        or when no group was found)."""
+        seq, r = self.sequential, self.settings.recalib
+        if seq is None:
+            return
+        if step.status in (SEVERAL, NONE):
+            seq.widen(step.onset_id)
+        elif a.choice not in (SEVERAL, NONE) and a.margin >= r.step_min_margin:
+            seq.widen_group(a.fit(a.choice).group.params)
+            step.status = "following"
+
+    def _close_suspect(
+        self, t: float, version: int | None, cal: Mapping[str, Any] | None, kind: str
+    ) -> dict[str, Any] | None:
+        """The step's suspect interval ends now (the apply of its correction, or no step was
+        found); its event data, or None when none is open."""
+        step = self.step
+        if step is None:
+            return None
+        row = self.store.suspect(step.suspect_id)
+        if row is None or row["t_end"] is not None:
+            return None
+        fields: dict[str, Any] = {"t_end": t, "end_reason": kind}
+        if version is not None:
+            fields["end_version"] = version
+        if cal is not None:
+            fields["calibration_id"] = int(cal["id"])
+        if row["size_mm"] is None and version is not None and row["params_version"] is not None:
+            fields["size_mm"] = self._correction_size(int(row["params_version"]))
+        self.store.update_suspect(step.suspect_id, **fields)
+        if kind != "none":
+            step.status = "corrected"
+        return suspect_json(self.store.suspect(step.suspect_id) or {})
+
+    def _correction_size(self, old_version: int) -> float | None:
+        """How far the parameters now in force move a point at the sensor's standoff from where
+        version `old_version` put it, RMS over the schedule's views [mm]."""
+        try:
+            from app.params import from_json
+
+            _, x_old = from_json(self.params.history / f"{old_version:04d}.json")
+        except (OSError, ValueError, KeyError, InputError):
+            return None
+        q = np.array([s.q_deg for s in self.schedule.slots])
+        c = np.tile([0.0, 0.0, IDEAL_STANDOFF_MM], (len(q), 1))
+        return point_shift_mm(self.model, x_old, self.x, q, c)
+
+
+def suspect_json(row: Mapping[str, Any]) -> dict[str, Any]:
+    """A suspect interval as events, the status reply and `rvis state suspects` carry it."""
+    from app.line.operator import utc_text
+
+    def utc(t: Any) -> str | None:
+        return None if t is None else utc_text(float(t))
+
+    return {
+        "id": row.get("id"),
+        "state": "open" if row.get("t_end") is None else "closed",
+        "t_start": row.get("t_start"),
+        "t_end": row.get("t_end"),
+        "start_utc": utc(row.get("t_start")),
+        "end_utc": utc(row.get("t_end")),
+        "last_good_id": row.get("last_good_id"),
+        "onset_id": row.get("onset_id"),
+        "params_version": row.get("params_version"),
+        "size_mm": row.get("size_mm"),
+        "group": row.get("group_name"),
+        "text": row.get("text"),
+        "end_reason": row.get("end_reason"),
+        "end_version": row.get("end_version"),
+        "calibration_id": row.get("calibration_id"),
+    }
+
+
+def _kind(document: Mapping[str, Any] | None) -> str:
+    """Where a calibration came from: "sequential" (app.line.inline_seq), "step" (a fast
+    correction, app.line.step) or "batch"."""
+    kind = (document or {}).get("estimator", {}).get("kind")
+    return str(kind) if kind in ("sequential", "step") else "batch"
 
 
 def _sequential(document: Mapping[str, Any] | None) -> bool:
     """The calibration came from the sequential estimator (app.line.inline_seq)."""
-    return bool(document) and (document or {}).get("estimator", {}).get("kind") == "sequential"
+    return _kind(document) == "sequential"

@@ -35,14 +35,17 @@ class LineSettings:
     window_s: float = 8.0  # how long a clamp window lasts (the PLC sends only the bit)
     margin_s: float = 0.5  # kept free at the end of every window
     slots_per_window: int = 1
+    # after a step is flagged and until its correction is applied: up to this many slots in a
+    # window (those that fit its time budget), to determine what moved at once
+    step_slots_per_window: int = 6
 
     def __post_init__(self) -> None:
         if len(self.joint_speed_deg_s) != 6 or len(self.home_deg) != 6:
             raise ValueError("joint_speed_deg_s and home_deg need 6 values")
         if not (self.poll_s > 0 and self.window_s > 0 and 1 <= self.override_pct <= 100):
             raise ValueError("poll_s, window_s > 0 and override_pct in 1..100")
-        if self.slots_per_window < 1:
-            raise ValueError("slots_per_window must be >= 1")
+        if self.slots_per_window < 1 or self.step_slots_per_window < 1:
+            raise ValueError("slots_per_window and step_slots_per_window must be >= 1")
 
 
 @dataclass(frozen=True)
@@ -129,6 +132,11 @@ class RecalibSettings:
     # "cycle": the plan's configurations in turn; "adaptive" (sequential only): the most
     # informative configuration that fits the window
     schedule: Literal["cycle", "adaptive"] = "cycle"
+    # a step: attribution and fast correction (app/line/step.py)
+    step_correction: bool = True
+    step_min_measurements: int = 3  # after the change point: fitted ones + 1 held out
+    step_min_margin: float = 10.0  # BIC of the runner-up minus the choice's
+    step_max_std_mm: float = 0.015  # the correction's predicted uncertainty at the views
 
     def __post_init__(self) -> None:
         if self.mode not in ("auto", "approve"):
@@ -137,6 +145,8 @@ class RecalibSettings:
             raise ValueError("estimator must be batch or sequential, seq_apply_every >= 1")
         if self.schedule == "adaptive" and self.estimator != "sequential":
             raise ValueError("schedule = adaptive needs estimator = sequential")
+        if self.step_min_measurements < 2 or self.step_max_std_mm <= 0:
+            raise ValueError("step_min_measurements >= 2 and step_max_std_mm > 0")
         if self.rolling_size < 10 or self.holdout_size < 1 or self.every_n < 1:
             raise ValueError("rolling_size >= 10, holdout_size >= 1, every_n >= 1")
 

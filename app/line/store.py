@@ -9,7 +9,9 @@ One file `state_dir/rvis.db` in WAL mode. Every write is one `BEGIN IMMEDIATE` t
 Tables: measurements (ok and rejected, with their quality), calibrations (gates, status
 pending/applied/rejected), applied (parameter versions in force, in order), alarms (ISA-18.2
 life cycle: raised, acked, cleared, shelved with reason and expiry), events, actions (operator
-audit with the peer's uid), schedule (the position to resume from), service_state (one JSON
+audit with the peer's uid), schedule (the position to resume from), suspect_intervals (from the last
+trustworthy measurement before a step to the apply of its correction: when the calibration in
+force was wrong, with its estimated size), service_state (one JSON
 document: what the service's decisions depend on beyond the rows themselves, written in the
 same transaction as the measurement or the apply that changed it, so a restarted service
 resumes exactly where it stopped).
@@ -28,7 +30,7 @@ import threading
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager, suppress
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from app.errors import InputError, RvisError
 
@@ -82,6 +84,16 @@ MIGRATIONS: tuple[tuple[str, ...], ...] = (
     (
         """CREATE TABLE service_state (
             id INTEGER PRIMARY KEY CHECK (id = 1), t REAL NOT NULL, doc TEXT NOT NULL)""",
+    ),
+    # 3 -> 4: suspect intervals (app.line.step): from the last trustworthy measurement before
+    # a step to the apply of its correction the calibration in force was wrong
+    (
+        """CREATE TABLE suspect_intervals (
+            id INTEGER PRIMARY KEY, t_start REAL NOT NULL, t_end REAL,
+            last_good_id INTEGER, onset_id INTEGER NOT NULL, params_version INTEGER,
+            size_mm REAL, group_name TEXT, text TEXT NOT NULL DEFAULT '',
+            end_reason TEXT, end_version INTEGER, calibration_id INTEGER)""",
+        "CREATE INDEX suspect_intervals_t ON suspect_intervals (t_start)",
     ),
 )
 SCHEMA_VERSION = len(MIGRATIONS)
@@ -268,11 +280,20 @@ class Store:
         return int(cur.lastrowid)
 
     def measurements(
-        self, *, status: str = "ok", since_id: int = 0, last: int | None = None
+        self,
+        *,
+        status: str = "ok",
+        since_id: int = 0,
+        last: int | None = None,
+        before_id: int | None = None,
     ) -> list[dict[str, Any]]:
-        """Rows of `status` after `since_id` in id order (only the `last` n when given)."""
-        sql = "SELECT * FROM measurements WHERE status = ? AND id > ? ORDER BY id DESC"
+        """Rows of `status` after `since_id` (and before `before_id`) in id order (only the
+        `last` n when given)."""
+        sql = "SELECT * FROM measurements WHERE status = ? AND id > ?"
         args: tuple[Any, ...] = (status, since_id)
+        if before_id is not None:
+            sql, args = sql + " AND id < ?", (*args, before_id)
+        sql += " ORDER BY id DESC"
         if last is not None:
             sql, args = sql + " LIMIT ?", (*args, last)
         return [_measurement_row(r) for r in self._rows(sql, args)[::-1]]
@@ -370,6 +391,11 @@ class Store:
             (code, priority, message, t),
         )
 
+    def update_alarm_message(self, alarm_id: int, message: str) -> None:
+        """What an active alarm says, as more is known (e.g. what a flagged step moved)."""
+        with self._tx() as db:
+            db.execute("UPDATE alarms SET message = ? WHERE id = ?", (message, alarm_id))
+
     def ack_alarm(self, alarm_id: int, t: float, uid: int | None) -> bool:
         with self._tx() as db:
             n = db.execute(
@@ -458,6 +484,55 @@ class Store:
             )
         with self._tx() as db:
             db.execute("DELETE FROM events WHERE kind = 'storage_probe'")
+
+    # -- suspect intervals ----------------------------------------------------------------------
+    def open_suspect(self, row: dict[str, Any]) -> int:
+        """A new open interval: t_start, last_good_id, onset_id, params_version, size_mm, text."""
+        return self._insert(
+            "INSERT INTO suspect_intervals (t_start, last_good_id, onset_id, params_version,"
+            " size_mm, text) VALUES (?, ?, ?, ?, ?, ?)",
+            (
+                row["t_start"],
+                row.get("last_good_id"),
+                row["onset_id"],
+                row.get("params_version"),
+                row.get("size_mm"),
+                row.get("text", ""),
+            ),
+        )
+
+    _SUSPECT_FIELDS = frozenset(
+        {"size_mm", "group_name", "text", "t_end", "end_reason", "end_version", "calibration_id"}
+    )
+
+    def update_suspect(self, suspect_id: int, **fields: Any) -> None:
+        """Set some of: size_mm, group_name, text, t_end, end_reason, end_version,
+        calibration_id (closing it: t_end and end_reason)."""
+        unknown = set(fields) - self._SUSPECT_FIELDS
+        if unknown:
+            raise ValueError(f"unknown suspect interval fields {sorted(unknown)}")
+        sets = ", ".join(f"{k} = ?" for k in fields)
+        with self._tx() as db:
+            db.execute(
+                f"UPDATE suspect_intervals SET {sets} WHERE id = ?", (*fields.values(), suspect_id)
+            )
+
+    def suspect(self, suspect_id: int) -> dict[str, Any] | None:
+        rows = self._rows("SELECT * FROM suspect_intervals WHERE id = ?", (suspect_id,))
+        return rows[0] if rows else None
+
+    def suspects(
+        self, since_t: float | None = None, last: int | None = None
+    ) -> list[dict[str, Any]]:
+        """Intervals in time order: those still open or ending at or after `since_t` (all
+        when None); only the `last` n when given."""
+        sql, args = "SELECT * FROM suspect_intervals", cast(tuple[Any, ...], ())
+        if since_t is not None:
+            sql, args = sql + " WHERE t_end IS NULL OR t_end >= ?", (since_t,)
+        sql += " ORDER BY t_start DESC, id DESC"
+        if last is not None:
+            sql, args = sql + " LIMIT ?", (*args, last)
+        return self._rows(sql, args)[::-1]
 
     # -- the service's decision state ---------------------------------------------------------
     def save_state(self, t: float, doc: dict[str, Any]) -> None:

@@ -30,6 +30,7 @@ from app.line.schedule import Schedule
 from app.line.service import Service
 from app.line.settings import ServiceSettings, from_cell
 from app.line.station import Station, cell_guard
+from app.params import from_json
 from app.simulation import make_cell, simulated_sets, true_sensor_model
 from calib import candidates
 from calib.identify import identify
@@ -164,6 +165,7 @@ class SimulatedLineRun:
         self.model = cfg.identification_model()
         self.x_commissioning = commissioning(cfg, seed)
         self.summary = SimRunSummary()
+        self._versions: dict[int, F64] = {}
         self._stack = contextlib.ExitStack()
         self.thread: threading.Thread | None = None
 
@@ -257,7 +259,7 @@ class SimulatedLineRun:
             if on_event is not None:
                 on_event(event)
             if event["event"] == "window":
-                record = self._record()
+                record = self._record(event.get("params_version"))
                 s.records.append(record)
                 if on_window is not None:
                     on_window(record)
@@ -281,16 +283,28 @@ class SimulatedLineRun:
         s.overruns = int(self.service.counters.get("overruns", 0))
         s.withdrawn = int(self.service.counters.get("withdrawn", 0))
 
-    def _record(self) -> WindowRecord:
+    def _record(self, version: int | None) -> WindowRecord:
+        """The line after a window: the true error of the parameters the service had in force
+        in it (`version`, from the window event: what the bodies measured just before the
+        window were measured with; a correction applied right after it shows in the next)."""
         truth = self.line.truth
+        if version is None:
+            version = self.service.version
         return WindowRecord(
             window=self.summary.windows,
             t_h=truth.now_s() / 3600.0,
             temp_c=truth.temp_c(),
-            rmse_mm=self.true_rmse_mm(self.service.x),
+            rmse_mm=self.true_rmse_mm(self._x_of(version)),
             rmse_commissioning_mm=self.true_rmse_mm(self.x_commissioning),
-            version=self.service.version,
+            version=version,
         )
+
+    def _x_of(self, version: int) -> F64:
+        """The parameters of history version `version` (read once)."""
+        if version not in self._versions:
+            path = self.service.params.history / f"{version:04d}.json"
+            self._versions[version] = from_json(path)[1]
+        return self._versions[version]
 
     def close(self) -> None:
         if self.thread is not None and self.thread.is_alive():

@@ -13,7 +13,14 @@ import numpy as np
 import pytest
 
 from calib import candidates
-from calib.attribution import SEVERAL, attribute, point_shift_mm, predicted_std_mm, step_groups
+from calib.attribution import (
+    NONE,
+    SEVERAL,
+    attribute,
+    point_shift_mm,
+    predicted_std_mm,
+    step_groups,
+)
 from calib.errors import InsufficientData
 from calib.identify import Measurements, residuals
 from calib.model import BASE_NAMES, INDEX, PAPER_30, SENSOR_NAMES, SystemModel
@@ -164,13 +171,30 @@ def test_too_few_equations_leave_a_group_undetermined(world) -> None:  # type: i
     sensor = a.fit("sensor")
     assert not sensor.determined and not np.isfinite(sensor.bic)
     assert a.fit(SEVERAL).determined is False
-    assert a.choice.startswith("J") or a.choice == SEVERAL  # only the joints are determined
+    assert a.choice != "sensor"  # only nothing and the joints are determined
     assert [f.group.name for f in a.fits][-1] in ("sensor", "fixture", SEVERAL)
+
+
+def test_no_step_is_none(world) -> None:  # type: ignore[no-untyped-def]
+    """A false alarm: the same cell measured again, nothing moved."""
+    model, spheres, x_ref, x_true = world
+    rng = np.random.default_rng(9)
+    views = _views(model, spheres, 6, 9)
+    before, again = _measure(model, x_true, views, rng), _measure(model, x_true, views, rng)
+    a = attribute(
+        model,
+        x_ref,
+        again,
+        sigma_mm=NOISE_MM * np.sqrt(2.0),
+        reference_mm=residuals(model, x_ref, before),
+    )
+    assert a.choice == NONE and a.chosen is not None and a.chosen.consistent
+    assert a.text().startswith("no step found")
 
 
 def test_groups_of_the_model(cfg) -> None:  # type: ignore[no-untyped-def]
     names = [g.name for g in step_groups(cfg.model())]
-    assert names == ["sensor", "fixture", "J2", "J3", "J4", "J5", SEVERAL]
+    assert names == [NONE, "sensor", "fixture", "J2", "J3", "J4", "J5", SEVERAL]
     assert step_groups(cfg.model())[-1].params == PAPER_30
 
 

@@ -23,7 +23,8 @@ from app.line.service import Service
 from app.line.settings import LineSettings, RecalibSettings, ServiceSettings
 from app.line.station import Station
 from app.sim.line_run import random_schedule
-from app.simulation import make_cell
+from app.simulation import make_cell, validation_set
+from calib.identify import Measurements, identify
 from calib.model import SystemModel
 from drivers.plc import decode_inputs, decode_outputs, encode_inputs
 from fakes.cell import SimulatedCell
@@ -189,3 +190,55 @@ def make_line(
         settings=settings,
     )
     return Line(cell, model, robot, plc, service, clock)
+
+
+KNOCK_SEED = 3  # the knocked line's cell and plan
+
+
+def calibrated_x(cell: SimulatedCell) -> F64:
+    """Parameters identified from the plan's 24 views of the cell (as a past service did)."""
+    cfg = load_cell(None)
+    qs, cs, ps, ids = [], [], [], []
+    for tid, q_all in plan_for(KNOCK_SEED).items():
+        for q in q_all:
+            p = cfg.spheres_part_mm[tid]
+            qs.append(q)
+            cs.append(cell.measure_point(q, p))
+            ps.append(p)
+            ids.append(tid)
+    data = Measurements(np.array(qs), np.array(cs), np.array(ps), tuple(ids))
+    return identify(cfg.model(), data).x
+
+
+def knock_line(
+    tmp_path: Path, recalib: RecalibSettings | None, *, slots_per_window: int = 8
+) -> tuple[Line, F64, Any]:
+    """A line with long windows (8 slots each by default) starting from parameters identified
+    on the plan's views, and 30 validation positions: (line, those parameters, validation
+    set); the knock is the test's (`ln.cell.set_timeline`)."""
+    cycle = ClampCycle(period_s=40.0, window_s=32.0, beat_s=0.5, time_scale=SCALE)
+    probe = make_line(tmp_path / "probe")
+    x_good = calibrated_x(probe.cell)
+    probe.close()
+    ln = make_line(
+        tmp_path / "state",
+        cycle=cycle,
+        line=line_settings(window_s=32.0, slots_per_window=slots_per_window),
+        recalib=recalib,
+        x_initial=x_good,
+    )
+    val = validation_set(ln.cell, load_cell(None), ln.model, x_good, 30, np.random.default_rng(4))
+    return ln, x_good, val
+
+
+def true_rms(ln: Line, val: Any, x: F64) -> float:
+    """True RMS error [mm] at the validation positions with parameters x (the cell's truth)."""
+    q = val.measurements.q_deg
+    c = np.array(
+        [
+            ln.cell.centre_in_sensor(qi[None], p)[0]
+            for qi, p in zip(q, val.truth_p_part_mm, strict=True)
+        ]
+    )
+    e = ln.model.points_part(x, q, c) - val.truth_p_part_mm
+    return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))

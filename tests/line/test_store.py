@@ -68,7 +68,7 @@ def test_a_version_1_database_gains_the_temperature_column_and_keeps_its_rows(
     db.commit()
     db.close()
     store = Store(tmp_path / "rvis.db")  # an older service's state directory
-    assert store.version() == SCHEMA_VERSION == 3
+    assert store.version() == SCHEMA_VERSION == 4
     (old,) = store.measurements()
     assert old["c_sensor_mm"] == [1, 2, 3] and old["temp_c"] is None
     store.add_measurement({**_row(1), "temp_c": 23.45})
@@ -157,4 +157,28 @@ def test_shelved_alarms_return_when_their_time_is_up(tmp_path: Path) -> None:
     assert store.unshelve_expired(99.0) == []
     assert store.unshelve_expired(150.0) == [a]
     assert [r["state"] for r in store.active_alarms()] == ["raised", "shelved"]
+    store.close()
+
+
+def test_suspect_intervals_open_update_close_and_list_by_time(tmp_path: Path) -> None:
+    """Migration 4: suspect intervals; open ones are listed whatever `since`, closed ones when
+    they end at or after it; before_id selects the measurements before a change point."""
+    store = Store(tmp_path / "rvis.db")
+    ids = [store.add_measurement(_row(k)) for k in range(4)]
+    assert [r["id"] for r in store.measurements(before_id=ids[2])] == ids[:2]
+    assert [r["id"] for r in store.measurements(before_id=ids[2], last=1)] == [ids[1]]
+    first = store.open_suspect(
+        {"t_start": 100.0, "last_good_id": ids[1], "onset_id": ids[2], "params_version": 3}
+    )
+    store.update_suspect(first, size_mm=0.31, group_name="sensor", text="sensor mount moved")
+    store.update_suspect(first, t_end=160.0, end_reason="step", end_version=4, calibration_id=2)
+    second = store.open_suspect({"t_start": 500.0, "onset_id": ids[3], "text": "flagged"})
+    rows = store.suspects()
+    assert [r["id"] for r in rows] == [first, second]
+    assert rows[0]["size_mm"] == 0.31 and rows[0]["t_end"] == 160.0 and rows[1]["t_end"] is None
+    assert [r["id"] for r in store.suspects(since_t=200.0)] == [second]  # open: always
+    assert [r["id"] for r in store.suspects(since_t=150.0)] == [first, second]
+    assert [r["id"] for r in store.suspects(last=1)] == [second]
+    with pytest.raises(ValueError, match="unknown"):
+        store.update_suspect(first, onset_id=1)
     store.close()

@@ -1,0 +1,230 @@
+"""A step of the cell (a knock) from its flag to its correction: what moved, the fast correction
+of that group, the suspect interval, and the slots measured meanwhile.
+
+When the drift charts flag a step (app.line.drift, change point `onset_id`), the service opens a
+`Step` and a suspect interval: from the last trustworthy measurement before the change point on,
+the calibration in force may be wrong, and the bodies measured then may need measuring again.
+After every window (`correct_step`) the measurements from the change point on are paired with
+the last visit of the same slot before it (their residuals with the parameters in force are the
+reference: the calibration error that was there before the step is not the step), and
+calib.attribution fits each candidate group on all but the newest. The choice becomes a fast
+correction (the parameters in force with that group replaced) when its gates pass:
+
+    decisive       BIC margin over the runner-up >= step_min_margin, a single group that
+                   explains the step (chi2 plausible; not "several", not "none")
+    bounded cov    its predicted uncertainty at the schedule's views <= step_max_std_mm
+    held out       the newest measurement, not fitted, is predicted better than by the
+                   parameters in force (ratio <= max_holdout_ratio)
+    bounded change every parameter of the group within the in-line change bounds
+
+It is applied (auto) or proposed (approve) like any calibration; the full recalibration follows
+when the post-step rolling set is complete (the service's existing rule). Until the correction
+is applied the schedule measures up to `step_slots_per_window` slots per window that fit its
+time budget: first the configurations measured just before the change point (freshest
+references), then the one most informative for the candidate groups (`step_slot`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from app.line.recalib import as_measurements
+from app.line.schedule import Slot
+from app.line.settings import GateSettings, RecalibSettings
+from app.params import plain_document
+from calib.attribution import NONE, SEVERAL, Attribution, attribute, predicted_std_mm, step_groups
+from calib.gates import change_failures
+from calib.identify import residuals
+from calib.model import SystemModel
+
+F64 = NDArray[np.float64]
+#: E|d| of a 3-D normal difference d with per-coordinate sigma: sigma sqrt(8 / pi)
+_MEAN_NORM_3D = float(np.sqrt(8.0 / np.pi))
+RECENT_FIRST = 2  # slots measured just before the change point revisited first
+
+
+@dataclass
+class Step:
+    """The step in progress (part of the service's decision state). `status`: attributing
+    (no correction yet), proposed (a correction waits for approval), following (sequential
+    estimator: the suspected group's covariance widened, its candidate awaited), corrected
+    (applied; the full recalibration on post-step measurements follows), several (no single
+    group: waiting for the full recalibration), none (no step found)."""
+
+    onset_id: int
+    suspect_id: int
+    t_start: float
+    last_good_id: int | None
+    status: str = "attributing"
+    choice: str | None = None
+    text: str = ""
+    n_used: int = 0  # measurements the last attribution used
+
+    def to_json(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @staticmethod
+    def from_json(doc: Mapping[str, Any] | None) -> Step | None:
+        return None if doc is None else Step(**dict(doc))
+
+    @property
+    def measuring(self) -> bool:
+        """The schedule serves the attribution (more slots per window, chosen for it)."""
+        return self.status in ("attributing", "following")
+
+
+@dataclass(frozen=True, eq=False)
+class StepCorrection:
+    """A fast correction to gate and apply: the fields the service stores for a calibration."""
+
+    passed: bool
+    failures: tuple[str, ...]
+    document: dict[str, Any]
+    rms_mm: float  # of the fitted measurements against their references
+    holdout_rms_mm: float
+    current_holdout_rms_mm: float
+    n_measurements: int
+    first_id: int
+    last_id: int
+
+
+def step_sigma_mm(change_mu_mm: float | None, measurement_std_mm: float) -> float:
+    """One coordinate's standard deviation of a measurement minus its pre-step reference: from
+    the change charts' baseline mean |c_t - c_prev| when they have one (the same difference,
+    E|d| = sigma sqrt(8 / pi)), else sqrt(2) x one measurement's."""
+    if change_mu_mm is not None and change_mu_mm > 0:
+        return change_mu_mm / _MEAN_NORM_3D
+    return float(np.sqrt(2.0) * measurement_std_mm)
+
+
+def paired(
+    after: Sequence[Mapping[str, Any]], before: Sequence[Mapping[str, Any]]
+) -> list[tuple[Mapping[str, Any], Mapping[str, Any]]]:
+    """(row after the change point, the last row of the same slot and configuration before it)
+    for every row after it that has one, in id order."""
+    last: dict[int, Mapping[str, Any]] = {}
+    for r in before:
+        last[int(r["slot"])] = r
+    out = []
+    for r in after:
+        ref = last.get(int(r["slot"]))
+        if ref is not None and np.allclose(ref["q_deg"], r["q_deg"], atol=1e-6):
+            out.append((r, ref))
+    return out
+
+
+def reference_mm(
+    model: SystemModel, x: F64, refs: Sequence[Mapping[str, Any]], spheres: Mapping[str, F64]
+) -> F64:
+    """The residuals (n, 3) [mm] of the pre-step rows with the parameters x."""
+    out: F64 = residuals(model, x, as_measurements(refs, spheres))
+    return out
+
+
+def correct_step(
+    model: SystemModel,
+    x_current: F64,
+    pairs: Sequence[tuple[Mapping[str, Any], Mapping[str, Any]]],
+    spheres: Mapping[str, F64],
+    sigma_mm: float,
+    views: tuple[F64, F64],
+    settings: RecalibSettings,
+    gates: GateSettings,
+) -> tuple[Attribution, StepCorrection | None]:
+    """Attribute the step on all pairs but the newest and gate the chosen group's correction
+    (module docstring). `views`: the schedule's configurations (K, 6) with their last centres
+    (K, 3), where the correction's uncertainty is predicted. The correction is None when no
+    single group was chosen."""
+    rows = [p[0] for p in pairs]
+    ref = reference_mm(model, x_current, [p[1] for p in pairs], spheres)
+    data = as_measurements(rows, spheres)
+    fit_rows = np.arange(len(rows) - 1)
+    a = attribute(
+        model, x_current, data.subset(fit_rows), sigma_mm=sigma_mm, reference_mm=ref[fit_rows]
+    )
+    fit = a.chosen
+    if a.choice in (NONE, SEVERAL) or fit is None:
+        return a, None
+    failures = []
+    if a.margin < settings.step_min_margin:
+        other = a.runner_up
+        failures.append(
+            f"not decisive: BIC margin {a.margin:.1f} over"
+            f" {other.group.label if other else '-'} < {settings.step_min_margin:g}"
+        )
+    if not fit.consistent:
+        failures.append(f"chi2 {fit.chi2:.1f} too large for {fit.dof} degrees of freedom")
+    std = predicted_std_mm(model, fit, views[0], views[1])
+    if not std <= settings.step_max_std_mm:
+        failures.append(f"predicted uncertainty {std:.4f} mm > {settings.step_max_std_mm:g} mm")
+    newest = data.subset([len(rows) - 1])
+    cand = float(np.linalg.norm(residuals(model, fit.x, newest)[0] - ref[-1]))
+    cur = float(np.linalg.norm(residuals(model, x_current, newest)[0] - ref[-1]))
+    if not cand <= gates.max_holdout_ratio * cur:
+        failures.append(
+            f"held-out change {cand:.4f} mm not better than the parameters in force ({cur:.4f} mm)"
+        )
+    failures += change_failures(fit.group.params, fit.x, x_current, gates.calib_gates())
+    doc = plain_document(model, fit.x, f"rvis run (step correction: {a.text()})")
+    doc["estimator"] = {"kind": "step", "group": fit.group.name, "attribution": a.to_json()}
+    doc["success"] = not failures
+    fitted = ref[fit_rows] - residuals(model, fit.x, data.subset(fit_rows))
+    correction = StepCorrection(
+        not failures,
+        tuple(failures),
+        doc,
+        float(np.sqrt(np.mean(np.sum(fitted**2, axis=1)))),
+        cand,
+        cur,
+        len(rows) - 1,
+        int(rows[0]["id"]),
+        int(rows[-1]["id"]),
+    )
+    return a, correction
+
+
+def step_slot(
+    model: SystemModel,
+    x: F64,
+    pool: Sequence[Slot],
+    after: Sequence[Mapping[str, Any]],
+    recent_before: Sequence[int],
+    seen: Mapping[int, tuple[F64, F64]],
+) -> Slot:
+    """The slot to measure next while a step is attributed, of those that fit (`pool`, in the
+    plan's order): a slot measured just before the change point not measured again yet (most
+    recent first, `recent_before`), else the one that adds the most information about the
+    candidate groups (sum over the single groups of log det of their information matrices,
+    with the rows measured since the change point, `after`). `seen`: slot -> (q, last centre)."""
+    done = {int(r["slot"]) for r in after}
+    fresh = [s for s in pool if s.index not in done] or list(pool)
+    for index in recent_before[:RECENT_FIRST]:
+        for s in fresh:
+            if s.index == index and index not in done:
+                return s
+    candidates = [s for s in fresh if s.index in seen]
+    if not candidates:
+        return fresh[0]
+    groups = [g for g in step_groups(model) if g.name not in (NONE, SEVERAL)]
+    names = tuple(dict.fromkeys(p for g in groups for p in g.params))
+    q_have = np.array([r["q_deg"] for r in after]).reshape(-1, 6)
+    c_have = np.array([r["c_sensor_mm"] for r in after]).reshape(-1, 3)
+    J_have = model.point_jacobian(x, q_have, c_have, names).reshape(-1, len(names))
+    q = np.array([s.q_deg for s in candidates])
+    c = np.array([seen[s.index][1] for s in candidates])
+    J_new = model.point_jacobian(x, q, c, names)  # (K, 3, L)
+    cols = {n: k for k, n in enumerate(names)}
+    score = np.zeros(len(candidates))
+    for g in groups:
+        idx = [cols[p] for p in g.params]
+        A = J_have[:, idx].T @ J_have[:, idx]
+        for k in range(len(candidates)):
+            B = A + J_new[k][:, idx].T @ J_new[k][:, idx]
+            ridge = 1e-9 * max(float(np.trace(B)) / len(idx), 1e-12)
+            score[k] += np.linalg.slogdet(B + ridge * np.eye(len(idx)))[1]
+    return candidates[int(np.argmax(score))]
