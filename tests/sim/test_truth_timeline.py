@@ -144,7 +144,7 @@ def test_a_joint_knock_slips_the_j2_zero_by_001_deg(cfg: CellConfig) -> None:
     q = np.array([[10.0, 20.0, 0.0, 0.0, -70.0, 0.0]])
     after = cell.T_part_sensor(q, knock.at_s)
     for sign in (1.0, -1.0):  # the same as commanding J2 0.01 deg further, one way or the other
-        q2 = q + [[0.0, sign * 0.01, 0.0, 0.0, 0.0, 0.0]]
+        q2 = q + np.array([[0.0, sign * 0.01, 0.0, 0.0, 0.0, 0.0]])
         q2[0, 2] -= sign * 0.01  # the controller's J3 is relative to the horizon (q3 = J3 + J2)
         if np.allclose(cell.T_part_sensor(q2, 0.0), after, atol=1e-9):
             break
