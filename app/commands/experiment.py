@@ -10,6 +10,7 @@ import argparse
 import dataclasses
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from app.accuracy import AccuracySettings, run_accuracy
 from app.accuracy import summary_text as accuracy_text
@@ -19,6 +20,9 @@ from app.config import CellConfig, load_cell
 from app.errors import InputError
 from app.experiment import run_experiment, summary_text
 from app.planning import add_plan_options, plan_overrides
+
+if TYPE_CHECKING:
+    from app.sim.shift import ShiftSettings
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -74,6 +78,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     g = p.add_argument_group("shift")
     g.add_argument("--hours", type=float, default=8.0, help="shift: sim hours (8)")
     g.add_argument("--knock-at-h", type=float, default=4.0, help="shift: knock at hour (4)")
+    g.add_argument(
+        "--knock",
+        choices=("sensor", "fixture", "joint", "all"),
+        default="sensor",
+        help="shift: what the knock moves: the sensor mount (0.3 mm, 0.05 deg; default), the"
+        " spheres' frame (0.5 mm, 0.03 deg) or the J2 zero (0.01 deg); all: each in turn",
+    )
     g.add_argument("--seed", type=int_at_least(0), default=0, help="shift: seed (0)")
     g.add_argument("--scale", type=float, help="shift: time scale (default [simline] scale)")
     g.add_argument("--slots-per-window", type=int_at_least(1), help="shift: default [line]")
@@ -104,6 +115,8 @@ def run(args: argparse.Namespace) -> int:
     if args.name == "compensation":
         return run_compensation_experiment(args)
     if args.name == "shift":
+        if args.seeds is not None or args.knock == "all":
+            return run_knock_campaign(args)
         return run_shift_experiment(args)
     if args.name == "paper-compare":
         return run_paper_compare(args.runs or [])
@@ -164,26 +177,13 @@ def run_accuracy_command(args: argparse.Namespace, cfg: CellConfig, out: Path) -
 def run_shift_experiment(args: argparse.Namespace) -> int:
     from app.sim.line_run import WindowRecord
     from app.sim.shift import (
-        ShiftSettings,
         run_shift,
         summary_lines,
         write_estimators,
         write_outputs,
     )
 
-    if args.geometric and args.rendered:
-        raise InputError("choose --geometric or --rendered", field="--rendered")
-    try:
-        settings = ShiftSettings(
-            hours=args.hours,
-            knock_at_h=args.knock_at_h,
-            geometric=not args.rendered,
-            scale=args.scale,
-            slots_per_window=args.slots_per_window,
-            model=args.model,
-        )
-    except ValueError as exc:
-        raise InputError(str(exc), field="--hours/--knock-at-h/--scale") from exc
+    settings = _shift_settings(args)
     cfg = load_cell(args.cell)
     out = Path(args.out or f"runs/shift-{time.strftime('%Y%m%d-%H%M%S')}")
     if (out / "state").exists():
@@ -215,14 +215,7 @@ def run_shift_experiment(args: argparse.Namespace) -> int:
         results[str(name)] = result = run_shift(
             cfg, sub / "state", s, seed=args.seed, on_window=progress
         )
-        command = (
-            f"rvis experiment shift --hours {args.hours:g} --knock-at-h {args.knock_at_h:g}"
-            f" --seed {args.seed} --scale {result.scale:g} --out {out}"
-            + (f" --slots-per-window {args.slots_per_window}" if args.slots_per_window else "")
-            + (" --rendered" if args.rendered else "")
-            + (f" --estimator {args.estimator}" if args.estimator else "")
-            + (f" --model {args.model}" if args.model else "")
-        )
+        command = _shift_command(args, result.scale, out) + f" --seed {args.seed}"
         paths = write_outputs(result, sub, command)
         print()
         print("\n".join(summary_lines(result)))
@@ -230,4 +223,71 @@ def run_shift_experiment(args: argparse.Namespace) -> int:
     if len(names) > 1:
         paths = write_estimators(results, out, command)
         print(f"written {', '.join(str(p) for p in paths)}")
+    return 0
+
+
+def _shift_settings(args: argparse.Namespace) -> ShiftSettings:
+    from app.sim.shift import ShiftSettings
+
+    if args.geometric and args.rendered:
+        raise InputError("choose --geometric or --rendered", field="--rendered")
+    try:
+        return ShiftSettings(
+            hours=args.hours,
+            knock_at_h=args.knock_at_h,
+            knock="sensor" if args.knock == "all" else args.knock,
+            geometric=not args.rendered,
+            scale=args.scale,
+            slots_per_window=args.slots_per_window,
+            model=args.model,
+        )
+    except ValueError as exc:
+        raise InputError(str(exc), field="--hours/--knock-at-h/--scale") from exc
+
+
+def _shift_command(args: argparse.Namespace, scale: float, out: Path) -> str:
+    """The command line that reproduces a shift (for the outputs' headers)."""
+    return (
+        f"rvis experiment shift --hours {args.hours:g} --knock-at-h {args.knock_at_h:g}"
+        f" --knock {args.knock} --scale {scale:g} --out {out}"
+        + (f" --slots-per-window {args.slots_per_window}" if args.slots_per_window else "")
+        + (" --rendered" if args.rendered else "")
+        + (f" --estimator {args.estimator}" if args.estimator else "")
+        + (f" --model {args.model}" if args.model else "")
+    )
+
+
+def run_knock_campaign(args: argparse.Namespace) -> int:
+    """`--seeds N` (from `--first-seed`) and/or `--knock all`: the shift for every seed and
+    knock kind, each in `out/<kind>/seed-<n>/`, then `shift-knocks.md/.json/.png` (app.sim.knocks,
+    rewritten after every run so that a campaign stopped half-way keeps what it measured)."""
+    from app.sim.knocks import write_campaign
+    from app.sim.shift import ShiftResult, run_shift, summary_lines, write_outputs
+
+    if args.estimator == "compare":
+        raise InputError("a campaign runs one estimator", field="--estimator")
+    base = dataclasses.replace(_shift_settings(args), estimator=args.estimator)
+    cfg = load_cell(args.cell)
+    out = Path(args.out or f"runs/knocks-{time.strftime('%Y%m%d-%H%M%S')}")
+    kinds = ["sensor", "fixture", "joint"] if args.knock == "all" else [args.knock]
+    seeds = list(range(args.first_seed, args.first_seed + (args.seeds or 1)))
+    for kind in kinds:
+        if any((out / kind / f"seed-{n}" / "state").exists() for n in seeds):
+            raise InputError("the output folder already holds a campaign's state", file=out)
+    print(f"rvis experiment shift: {len(kinds)} knock kinds x {len(seeds)} seeds -> {out}/")
+    results: dict[str, list[ShiftResult]] = {k: [] for k in kinds}
+    command = ""
+    for kind in kinds:
+        for seed in seeds:
+            sub = out / kind / f"seed-{seed}"
+            result = run_shift(cfg, sub / "state", dataclasses.replace(base, knock=kind), seed=seed)
+            command = _shift_command(args, result.scale, out) + (
+                f" --seeds {len(seeds)} --first-seed {args.first_seed}"
+            )
+            write_outputs(result, sub, command + f" (seed {seed})")
+            results[kind].append(result)
+            print(f"{kind} seed {seed}: " + "; ".join(summary_lines(result)[:3]), flush=True)
+            write_campaign({k: v for k, v in results.items() if v}, out, command)
+    paths = write_campaign(results, out, command)
+    print(f"written {', '.join(str(p) for p in paths)}")
     return 0

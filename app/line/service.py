@@ -55,7 +55,15 @@ from app.line.schedule import Schedule, Slot
 from app.line.settings import ServiceSettings
 from app.line.statedir import StateDir
 from app.line.station import Station
-from app.line.step import Step, StepCorrection, correct_step, paired, step_sigma_mm, step_slot
+from app.line.step import (
+    Step,
+    StepCorrection,
+    correct_step,
+    locate_step,
+    paired,
+    step_sigma_mm,
+    step_slot,
+)
 from app.line.store import StorageError, Store
 from app.line.sweeps import SweepArchive
 from app.params import plain_document
@@ -595,7 +603,7 @@ class Service(OperatorCommands):
                 continue
             if self.drift_onset_id is None:
                 self.drift_onset_id = sig.onset_ref
-                self._open_step(sig.onset_ref, attribute=sig.family == "change")
+                self._open_step(sig.onset_ref, row_id, attribute=sig.family == "change")
             what = "residual" if sig.family == "residual" else "change since the last visit"
             self._alarm(
                 "drift_step",
@@ -843,7 +851,7 @@ class Service(OperatorCommands):
             self.bus.emit("suspect_interval", closed)
 
     # -- a step: attribution, fast correction, suspect interval (app.line.step) ---------------
-    def _open_step(self, onset_id: int, *, attribute: bool) -> None:
+    def _open_step(self, onset_id: int, flag_id: int, *, attribute: bool) -> None:
         """A step was flagged at measurement `onset_id`: the suspect interval opens at the last
         trustworthy measurement before it (inside the transaction of the measurement). With
         `attribute` (a change chart flagged it: the slots' previous visits are the reference)
@@ -872,7 +880,9 @@ class Service(OperatorCommands):
             }
         )
         status = "attributing" if attribute else SEVERAL
-        self.step = Step(onset_id, suspect_id, t_start, last_good, status=status, text=text)
+        self.step = Step(
+            onset_id, suspect_id, t_start, last_good, status=status, text=text, flag_id=flag_id
+        )
         self.change_from_id = onset_id
         self.bus.emit("suspect_interval", suspect_json(self.store.suspect(suspect_id) or {}))
 
@@ -890,12 +900,18 @@ class Service(OperatorCommands):
             return
         chart = self.drift.change.charts.get("*")
         mu = chart.mu if chart is not None and chart.ready else None
-        sigma = step_sigma_mm(mu, r.seq_measurement_std_mm)
+        sigma = step_sigma_mm(before, mu, r.seq_measurement_std_mm)
         views = self._visited_views()
+        n_all = len(pairs)
+        start = locate_step(self.model, self.x, pairs, self.spheres, sigma, step.flag_id)
+        pairs = pairs[start:]
+        if len(pairs) < r.step_min_measurements:
+            step.n_used = n_all
+            return
         a, corr = correct_step(
             self.model, self.x, pairs, self.spheres, sigma, views, r, self.settings.gates
         )
-        step.n_used, step.choice, step.text = len(pairs), a.choice, a.text()
+        step.n_used, step.choice, step.text = n_all, a.choice, a.text()
         settled = len(pairs) >= len(self.schedule) // 2  # no single group after that many
         size = None
         if corr is not None and a.chosen is not None:
@@ -913,6 +929,7 @@ class Service(OperatorCommands):
         }
         with self.store.batch():
             fields: dict[str, Any] = {"group_name": a.choice, "text": a.text()}
+            fields |= self._step_start(step, int(pairs[0][0]["id"]))
             if size is not None:
                 fields["size_mm"] = size
             self.store.update_suspect(step.suspect_id, **fields)
@@ -929,6 +946,18 @@ class Service(OperatorCommands):
         if self.sequential is None and corr is not None and corr.passed:
             step.status = "proposed"
             self._recal_done(corr)
+
+    def _step_start(self, step: Step, start_id: int) -> dict[str, Any]:
+        """The suspect interval's start for a step located at measurement `start_id`: the last
+        good measurement before it (fields to update; none when unchanged)."""
+        if start_id == step.start_id:
+            return {}
+        step.start_id = start_id
+        before = self.store.measurements(before_id=start_id, last=1)
+        if not before:
+            return {}
+        step.last_good_id, step.t_start = int(before[0]["id"]), float(before[0]["t"])
+        return {"last_good_id": step.last_good_id, "t_start": step.t_start}
 
     def _widen_sequential(self, a: Attribution, step: Step) -> None:
         """The sequential estimator follows the step through its process noise: the suspected

@@ -64,6 +64,8 @@ class Step:
     choice: str | None = None
     text: str = ""
     n_used: int = 0  # measurements the last attribution used
+    flag_id: int | None = None  # the measurement whose chart signalled
+    start_id: int | None = None  # the first measurement after the step, as located
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -93,10 +95,27 @@ class StepCorrection:
     last_id: int
 
 
-def step_sigma_mm(change_mu_mm: float | None, measurement_std_mm: float) -> float:
-    """One coordinate's standard deviation of a measurement minus its pre-step reference: from
-    the change charts' baseline mean |c_t - c_prev| when they have one (the same difference,
-    E|d| = sigma sqrt(8 / pi)), else sqrt(2) x one measurement's."""
+MIN_SIGMA_PAIRS = 8  # consecutive visits of a slot before the step that set sigma
+
+
+def step_sigma_mm(
+    before: Sequence[Mapping[str, Any]], change_mu_mm: float | None, measurement_std_mm: float
+) -> float:
+    """One coordinate's standard deviation of a measurement minus its pre-step reference, as
+    the attribution's pairs have it (noise and the drift over about a schedule cycle): from the
+    mean |c_t - c_prev| of consecutive visits of the same slot in the rows `before` the step
+    when there are at least MIN_SIGMA_PAIRS (recent: the warm-up's drift is that of now), else
+    the change charts' baseline mean (learned once), else sqrt(2) x one measurement's; for a
+    3-D normal difference E|d| = sigma sqrt(8 / pi)."""
+    last: dict[int, Mapping[str, Any]] = {}
+    d = []
+    for r in before:
+        prev = last.get(int(r["slot"]))
+        if prev is not None and np.allclose(prev["q_deg"], r["q_deg"], atol=1e-6):
+            d.append(float(np.linalg.norm(np.subtract(r["c_sensor_mm"], prev["c_sensor_mm"]))))
+        last[int(r["slot"])] = r
+    if len(d) >= MIN_SIGMA_PAIRS:
+        return float(np.mean(d)) / _MEAN_NORM_3D
     if change_mu_mm is not None and change_mu_mm > 0:
         return change_mu_mm / _MEAN_NORM_3D
     return float(np.sqrt(2.0) * measurement_std_mm)
@@ -124,6 +143,38 @@ def reference_mm(
     """The residuals (n, 3) [mm] of the pre-step rows with the parameters x."""
     out: F64 = residuals(model, x, as_measurements(refs, spheres))
     return out
+
+
+def locate_step(
+    model: SystemModel,
+    x: F64,
+    pairs: Sequence[tuple[Mapping[str, Any], Mapping[str, Any]]],
+    spheres: Mapping[str, F64],
+    sigma_mm: float,
+    flag_id: int | None,
+) -> int:
+    """Where the step happened among the pairs from the CUSUM's change point to the flagging
+    measurement (the CUSUM's estimate can be a few samples early, before a signal it grew
+    slowly towards): the split s that minimises chi2 of "nothing moved" on pairs[:s] plus the
+    best single group's BIC on pairs[s:]. The index s (0: the change point stands)."""
+    last = (
+        len(pairs) - 1
+        if flag_id is None
+        else max((i for i, (r, _) in enumerate(pairs) if int(r["id"]) <= flag_id), default=0)
+    )
+    candidates = [i for i in range(min(last, len(pairs) - 2) + 1)]
+    if len(candidates) <= 1:
+        return 0
+    ref = reference_mm(model, x, [p[1] for p in pairs], spheres)
+    data = as_measurements([p[0] for p in pairs], spheres)
+    e = np.sum(((residuals(model, x, data) - ref) / sigma_mm) ** 2, axis=1)
+    scores = []
+    for i in candidates:
+        rows = np.arange(i, len(pairs))
+        a = attribute(model, x, data.subset(rows), sigma_mm=sigma_mm, reference_mm=ref[rows])
+        best = min(f.bic for f in a.fits if f.determined and f.group.name != SEVERAL)
+        scores.append(float(np.sum(e[:i])) + best)
+    return candidates[int(np.argmin(scores))]
 
 
 def correct_step(

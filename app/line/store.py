@@ -502,12 +502,23 @@ class Store:
         )
 
     _SUSPECT_FIELDS = frozenset(
-        {"size_mm", "group_name", "text", "t_end", "end_reason", "end_version", "calibration_id"}
+        {
+            "t_start",
+            "last_good_id",
+            "size_mm",
+            "group_name",
+            "text",
+            "t_end",
+            "end_reason",
+            "end_version",
+            "calibration_id",
+        }
     )
 
     def update_suspect(self, suspect_id: int, **fields: Any) -> None:
-        """Set some of: size_mm, group_name, text, t_end, end_reason, end_version,
-        calibration_id (closing it: t_end and end_reason)."""
+        """Set some of: t_start and last_good_id (the step located more precisely), size_mm,
+        group_name, text, t_end, end_reason, end_version, calibration_id (closing it: t_end
+        and end_reason)."""
         unknown = set(fields) - self._SUSPECT_FIELDS
         if unknown:
             raise ValueError(f"unknown suspect interval fields {sorted(unknown)}")

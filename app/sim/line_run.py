@@ -106,7 +106,9 @@ def service_settings(
     cfg: CellConfig, state_dir: Path, scale: float, geometric: bool
 ) -> ServiceSettings:
     """The cell's service settings with the times a scaled line needs: the clamp window's length,
-    a poll of 10 ms real time, a heartbeat timeout of at least 0.5 s real time and, rendered,
+    a margin at the window's end of at least 50 ms real time (what the service computes
+    between a window's last slot and the robot's return: at x60 3 s of the line's time), a poll
+    of 10 ms real time, a heartbeat timeout of at least 0.5 s real time and, rendered,
     the real time a frame takes."""
     s = from_cell(cfg, state_dir)
     if not geometric:
@@ -115,6 +117,7 @@ def service_settings(
     line = replace(
         s.line,
         window_s=cfg.simline.window_s,
+        margin_s=max(s.line.margin_s, 0.05 * scale),
         poll_s=max(s.line.poll_s, 0.01 * scale),
         heartbeat_timeout_s=max(s.line.heartbeat_timeout_s, 0.5 * scale),
     )

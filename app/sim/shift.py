@@ -1,7 +1,8 @@
 """A compressed shift on the simulated line (`rvis experiment shift`, the line part of the demo).
 
-One clamp window a minute for `hours` of sim time, the cell's warm-up and a knock of the sensor
-mount at `knock_at_h`; the in-line service runs through the real drivers (SimulatedLineRun).
+One clamp window a minute for `hours` of sim time, the cell's warm-up and a knock at `knock_at_h`
+of the sensor mount, the spheres' frame or the J2 zero (`knock`); the in-line service runs
+through the real drivers (SimulatedLineRun).
 After every window the true error at the validation positions is recorded twice: with the
 parameters in force (the service) and with the commissioning parameters (no recalibration).
 From that timeline: after how many windows the drift alarm flagged the knock, how many windows
@@ -74,6 +75,46 @@ class ShiftSettings:
 DEMO_SHIFT = ShiftSettings(hours=0.75, knock_at_h=0.25, scale=200.0, slots_per_window=2)
 
 
+@dataclass(frozen=True)
+class SuspectScore:
+    """The suspect intervals against the truth, per window from the knock on: `bad` windows
+    (true error above recovered_ratio x the pre-knock level), `covered` ones (the bodies
+    measured before the window, at window time - window_s, fall inside an interval), and any
+    window covered before the knock (a false step)."""
+
+    bad: tuple[int, ...]
+    covered: tuple[int, ...]
+    covered_before_knock: tuple[int, ...]
+
+    @property
+    def recall(self) -> float:
+        """Share of the bad windows covered (1 when none was bad)."""
+        if not self.bad:
+            return 1.0
+        return len(set(self.bad) & set(self.covered)) / len(self.bad)
+
+    @property
+    def extra(self) -> int:
+        """Windows covered that were not bad (after the knock) or before it."""
+        return len(set(self.covered) - set(self.bad)) + len(self.covered_before_knock)
+
+    @property
+    def extra_share(self) -> float:
+        """extra / all covered windows (0 when none)."""
+        n = len(self.covered) + len(self.covered_before_knock)
+        return self.extra / n if n else 0.0
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "bad": list(self.bad),
+            "covered": list(self.covered),
+            "covered_before_knock": list(self.covered_before_knock),
+            "recall": self.recall,
+            "extra": self.extra,
+            "extra_share": self.extra_share,
+        }
+
+
 @dataclass
 class ShiftResult:
     """The shift's timeline, the service's summary and the figures drawn from them."""
@@ -92,6 +133,11 @@ class ShiftResult:
     pre_knock_rmse_mm: float = math.nan
     recovered_after: int | None = None  # windows from the knock until back within the ratio
     real_s: float = 0.0
+    # suspect intervals (sim s from the line's start) and how they cover the windows whose true
+    # error was above recovered_ratio x the pre-knock level (SuspectScore)
+    suspects: list[dict[str, Any]] = field(default_factory=list)
+    attribution: str | None = None  # the last step attribution's choice
+    suspect_score: SuspectScore | None = None
 
     @property
     def records(self) -> list[WindowRecord]:
@@ -112,6 +158,9 @@ class ShiftResult:
             "applied_windows": self.applied_windows,
             "rejected_windows": self.rejected_windows,
             "real_s": self.real_s,
+            "attribution": self.attribution,
+            "suspects": self.suspects,
+            "suspect_score": None if self.suspect_score is None else self.suspect_score.to_json(),
             "summary": self.summary.to_json(),
         }
 
@@ -181,9 +230,20 @@ def run_shift(
     with SimulatedLineRun(cfg, state_dir, seed=seed, geometric=s.geometric) as run:
         result = ShiftResult(s, seed, run.scale, run.summary, window_s=cfg.simline.window_s)
         run.run_windows(n_windows(cfg, s), on_window=on_window, on_event=_EventLog(result))
+        epoch = run.line.clock.start_epoch
+        result.suspects = [
+            {**r, "t_start_s": r["t_start"] - epoch, "t_end_s": _minus(r["t_end"], epoch)}
+            for r in run.service.store.suspects()
+        ]
+        steps = run.service.store.events("step_attribution")
+        result.attribution = str(steps[-1]["data"]["choice"]) if steps else None
     result.real_s = time.perf_counter() - t0
     evaluate(result)
     return result
+
+
+def _minus(t: float | None, epoch: float) -> float | None:
+    return None if t is None else t - epoch
 
 
 def evaluate(result: ShiftResult) -> None:
@@ -202,6 +262,30 @@ def evaluate(result: ShiftResult) -> None:
     limit = s.recovered_ratio * result.pre_knock_rmse_mm
     back = [r.window for r in recs if r.window >= k and r.rmse_mm <= limit]
     result.recovered_after = back[0] - k + 1 if back else None
+    result.suspect_score = score_suspects(result, limit)
+
+
+def score_suspects(result: ShiftResult, limit_mm: float) -> SuspectScore:
+    """Which windows the suspect intervals cover (the bodies measured before each window, at
+    its record time - window_s) against those whose true error exceeds `limit_mm`."""
+    k = result.knock_window or 10**9
+
+    def covered(t_s: float) -> bool:
+        return any(
+            s["t_start_s"] < t_s and (s["t_end_s"] is None or t_s < s["t_end_s"])
+            for s in result.suspects
+        )
+
+    recs = result.records
+    return SuspectScore(
+        bad=tuple(r.window for r in recs if r.window >= k and r.rmse_mm > limit_mm),
+        covered=tuple(
+            r.window for r in recs if r.window >= k and covered(r.t_h * 3600 - result.window_s)
+        ),
+        covered_before_knock=tuple(
+            r.window for r in recs if r.window < k and covered(r.t_h * 3600 - result.window_s)
+        ),
+    )
 
 
 def hourly_rows(result: ShiftResult) -> list[dict[str, float]]:
@@ -234,11 +318,16 @@ def _windows_text(n: int | None, limit: int) -> str:
 def summary_lines(result: ShiftResult) -> list[str]:
     """The shift's must-show figures, one per line."""
     s, sm = result.settings, result.summary
+    mm, deg = s.knock_size()
+    what = {"sensor": "sensor mount", "fixture": "spheres' frame", "joint": "J2 zero"}[s.knock]
+    size = f"{deg:g} deg" if s.knock == "joint" else f"{mm:g} mm / {deg:g} deg"
     return [
-        f"knock at {s.knock_at_h:g} h (window {result.knock_window}): flagged by the drift alarm"
-        f" after {_windows_text(result.flagged_after, 3)}",
+        f"knock of the {what} ({size}) at {s.knock_at_h:g} h (window {result.knock_window}):"
+        f" flagged by the drift alarm after {_windows_text(result.flagged_after, 3)},"
+        f" attributed to: {result.attribution or 'nothing'}",
         f"back within {s.recovered_ratio:g}x of the pre-knock error"
-        f" ({result.pre_knock_rmse_mm:.4f} mm) after {_windows_text(result.recovered_after, 30)}",
+        f" ({result.pre_knock_rmse_mm:.4f} mm) after {_windows_text(result.recovered_after, 3)}",
+        _suspects_text(result),
         _alarms_text(result),
         f"overruns: {sm.overruns} (target 0); windows {sm.windows}, measurements {sm.measurements}"
         f" ({sm.rejected} rejected), calibrations applied {sm.calibrations_applied}, rejected"
@@ -248,6 +337,24 @@ def summary_lines(result: ShiftResult) -> list[str]:
         if result.records
         else "no window ran",
     ]
+
+
+def _suspects_text(result: ShiftResult) -> str:
+    sc = result.suspect_score
+    if sc is None:
+        return "suspect intervals: no knock window"
+    spans = ", ".join(
+        f"{x['t_start_s'] / 3600:.3f}-"
+        + ("open" if x["t_end_s"] is None else f"{x['t_end_s'] / 3600:.3f}")
+        + f" h ({x['size_mm'] or 0:.3f} mm)"
+        for x in result.suspects
+    )
+    return (
+        f"suspect intervals: {spans or 'none'}; they cover {len(sc.covered)} windows after the"
+        f" knock, {len(sc.bad)} were above {result.settings.recovered_ratio:g}x (recall"
+        f" {100 * sc.recall:.0f} %, target 100 %), {sc.extra} covered that were not"
+        f" ({100 * sc.extra_share:.0f} % of the covered, target <= 10 %)"
+    )
 
 
 def _alarms_text(result: ShiftResult) -> str:
@@ -290,8 +397,11 @@ def markdown(result: ShiftResult, command: str) -> str:
     return "\n".join(lines)
 
 
-def _plot_shift(path: Path, knock_at_h: float, draw: Callable[[Any], None]) -> None:
-    """The shift's figure: `draw(ax)` puts the curves, this the knock, axes and legend."""
+def _plot_shift(
+    path: Path, knock_at_h: float, draw: Callable[[Any], None], *, own_axes: bool = False
+) -> None:
+    """The shift's figure: `draw(ax)` puts the curves, this the knock, axes and legend
+    (`own_axes`: draw labelled the axes itself)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -300,9 +410,10 @@ def _plot_shift(path: Path, knock_at_h: float, draw: Callable[[Any], None]) -> N
     fig, ax = plt.subplots(figsize=(9, 4.5))
     draw(ax)
     ax.axvline(knock_at_h, color="k", ls="--", lw=1, label="knock")
-    ax.set_xlabel("shift time [h]")
-    ax.set_ylabel("true RMS error at the validation positions [mm]")
-    ax.set_ylim(bottom=0)
+    if not own_axes:
+        ax.set_xlabel("shift time [h]")
+        ax.set_ylabel("true RMS error at the validation positions [mm]")
+        ax.set_ylim(bottom=0)
     ax.legend(loc="upper left")
     ax.grid(alpha=0.3)
     fig.tight_layout()

@@ -101,10 +101,17 @@ def test_in_approve_mode_the_correction_waits_and_the_interval_stays_open(tmp_pa
         ln.close()
 
 
-def test_the_sigma_of_a_difference_comes_from_the_change_charts() -> None:
+def test_the_sigma_of_a_difference_comes_from_recent_revisits_or_the_change_charts() -> None:
     # E|d| of a 3-D normal difference with sigma 0.03 per coordinate is 0.03 sqrt(8 / pi)
-    assert step_sigma_mm(0.03 * np.sqrt(8.0 / np.pi), 0.02) == pytest.approx(0.03)
-    assert step_sigma_mm(None, 0.02) == pytest.approx(0.02 * np.sqrt(2.0))
+    rng = np.random.default_rng(0)
+    q = [[float(k), 0, 0, 0, -90, 0] for k in range(24)]
+    rows = [
+        {"slot": k % 24, "q_deg": q[k % 24], "c_sensor_mm": rng.normal(0.0, 0.03 / np.sqrt(2), 3)}
+        for k in range(48)
+    ]
+    assert step_sigma_mm(rows, None, 0.02) == pytest.approx(0.03, rel=0.2)
+    assert step_sigma_mm(rows[:30], 0.03 * np.sqrt(8.0 / np.pi), 0.02) == pytest.approx(0.03)
+    assert step_sigma_mm([], None, 0.02) == pytest.approx(0.02 * np.sqrt(2.0))
 
 
 def test_rows_after_a_step_pair_with_the_last_visit_of_their_slot() -> None:
