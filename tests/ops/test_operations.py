@@ -8,6 +8,7 @@ import os
 import shutil
 import socket
 import sqlite3
+import stat
 import subprocess
 import sys
 import threading
@@ -247,3 +248,54 @@ def test_a_full_disk_faults_the_cell_and_the_service_stays_up(tmp_path: Path, ce
     finally:
         svc.stop()
         subprocess.run(["umount", "-l", str(state)], capture_output=True)
+
+
+def test_a_backup_taken_while_running_restores_to_a_service_that_carries_on(
+    service: ServiceProcess, tmp_path: Path, cell: Path
+) -> None:
+    backup = tmp_path / "backup"
+    out = rvis("state", "backup", str(backup), "--state-dir", str(service.state_dir))
+    assert out.returncode == 0, out.stderr
+    manifest = json.loads(out.stdout)
+    assert manifest["integrity"] == ["ok"] and manifest["applied_version"] >= 1
+    assert sorted(p.name for p in backup.iterdir()) == ["backup.json", "params", "rvis.db"]
+    assert stat.S_IMODE(backup.joinpath("rvis.db").stat().st_mode) & 0o007 == 0
+    again = rvis("state", "backup", str(backup), "--state-dir", str(service.state_dir))
+    assert again.returncode == 2 and "not an empty folder" in again.stderr
+    refused = rvis("state", "restore", str(backup), "--state-dir", str(service.state_dir))
+    assert refused.returncode == 2 and f"(pid {service.proc.pid})" in refused.stderr
+    taken = manifest["measurements"]["ok"] + manifest["measurements"]["rejected"]
+
+    restored = tmp_path / "restored"
+    assert rvis("state", "restore", str(backup), "--state-dir", str(restored)).returncode == 0
+    check = rvis("state", "check", "--state-dir", str(restored), "--json")
+    assert check.returncode == 0, check.stdout
+    assert json.loads(check.stdout)["parameters"]["current_version"] == manifest["applied_version"]
+    svc = ServiceProcess(restored, cell)
+    try:
+        svc.wait_ready()
+        row = svc.wait_log(lambda r: r.get("event") == "measurement", 30.0)
+        assert row["data"]["id"] > taken  # the restored history goes on
+    finally:
+        assert svc.stop() == 0
+
+
+def test_state_check_names_what_is_wrong(tmp_path: Path, cell: Path) -> None:
+    state = tmp_path / "state"
+    svc = ServiceProcess(state, cell)
+    svc.wait_ready()
+    assert svc.stop() == 0
+    ok = rvis("state", "check", "--state-dir", str(state))
+    assert ok.returncode == 0 and "result           ok" in ok.stdout
+    (state / "params" / "current.json").write_text("{ not json")
+    os.chmod(state / "rvis.db", 0o644)
+    found = rvis("state", "check", "--state-dir", str(state), "--json")
+    assert found.returncode == 1
+    problems = json.loads(found.stdout)["problems"]
+    assert any("current.json: unreadable" in p for p in problems)
+    assert any("rvis.db: mode 0644 gives others access" in p for p in problems)
+    (state / "rvis.db").write_bytes(b"garbage" * 1000)
+    damaged = rvis("state", "check", "--state-dir", str(state))
+    assert damaged.returncode == 1 and "damaged" in damaged.stdout
+    missing = rvis("state", "check", "--state-dir", str(tmp_path / "nowhere"))
+    assert missing.returncode == 2 and "no such state directory" in missing.stderr
