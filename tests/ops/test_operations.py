@@ -138,11 +138,14 @@ def test_kill_9_at_random_points_keeps_every_row_and_the_recalibration_progress(
     state = tmp_path / "state"
     rng = np.random.default_rng(19)
     stored = 0
-    for _ in range(5):
+    for k in range(5):
         svc = ServiceProcess(state, cell)
         svc.wait_ready()
-        svc.wait_windows(int(rng.integers(5, 9)))
-        svc.wait_log(lambda r: r.get("event") in ("measurement", "state", "window"), 10.0)
+        if k == 4:  # as a calibration is decided: killed around its apply
+            svc.wait_log(lambda r: r.get("event") == "calibration", 60.0)
+        else:
+            svc.wait_windows(int(rng.integers(5, 9)))
+            svc.wait_log(lambda r: r.get("event") in ("measurement", "state", "window"), 10.0)
         svc.kill9()
         db = state / "rvis.db"
         now = _count(db, "SELECT COUNT(*) FROM measurements")
@@ -154,11 +157,15 @@ def test_kill_9_at_random_points_keeps_every_row_and_the_recalibration_progress(
         assert not list((state / "params").rglob(".*.tmp"))
     assert stored >= 24
     assert _count(state / "rvis.db", "SELECT COUNT(*) FROM calibrations") >= 1
-    svc = ServiceProcess(state, cell)  # and it still runs
+    svc = ServiceProcess(state, cell)  # and it still runs, the apply completed
     try:
         svc.wait_ready()
+        st = status(state)
+        doc = json.loads((state / "params" / "current.json").read_text())
+        assert doc["history_version"] == st["params_version"]
     finally:
         assert svc.stop() == 0
+    assert _count(state / "rvis.db", "SELECT MAX(version) FROM applied") == st["params_version"]
 
 
 def test_a_damaged_database_is_refused_with_one_line(tmp_path: Path, cell: Path) -> None:
