@@ -5,8 +5,9 @@ as a recalibration starts, or as a calibration is decided and applied), and rest
 
 After every kill the state directory is checked as the restart will find it: `PRAGMA
 integrity_check`, every measurement the service announced (its `measurement` log line comes after
-the commit, before the PLC's `done`) still stored, no torn or temporary file (`current.json`
-and every history version parse, `current.json` is one history version). At the end an
+the commit, before the PLC's `done`) still stored, no torn file (`current.json` and every
+history version parse, `current.json` is one history version), and a temporary file of a write
+cut short by the kill gone after the restart. At the end an
 uninterrupted service on the same seed runs as many windows, and the calibrations attempted
 per measurement are compared: restarts must not cost recalibrations.
 
@@ -55,7 +56,8 @@ def inspect(state: Path, announced: set[int]) -> dict[str, Any]:
         ids = {int(r[0]) for r in con.execute("SELECT id FROM measurements")}
     finally:
         con.close()
-    torn = [str(p) for p in state.rglob(".*.tmp")]
+    torn: list[str] = []
+    temporary = [str(p) for p in state.rglob(".*.tmp")]  # a kill between write and rename
     history = state / "params" / "history"
     docs = {}
     for f in history.glob("*.json"):
@@ -69,16 +71,23 @@ def inspect(state: Path, announced: set[int]) -> dict[str, Any]:
             torn.append("current.json is no history version")
     except (OSError, ValueError, KeyError) as exc:
         torn.append(f"current.json: {exc}")
-    return {"integrity": integrity, "lost": len(announced - ids), "torn": torn, "rows": len(ids)}
+    return {
+        "integrity": integrity,
+        "lost": len(announced - ids),
+        "torn": torn,
+        "temporary": temporary,
+        "rows": len(ids),
+    }
 
 
-def life(state: Path, cell: Path, how: str, delay_s: float) -> tuple[set[int], str]:
+def life(state: Path, cell: Path, how: str, delay_s: float) -> tuple[set[int], str, bool]:
     """One life of the service: start, then SIGKILL after `delay_s` (how == "random") or just
-    after its first `TRIGGERS[how]` log line; the measurement ids it announced, and when it
-    died."""
+    after its first `TRIGGERS[how]` log line; the measurement ids it announced, when it died,
+    and whether it had started (its state directory opened: stale temporary files removed)."""
     svc = ServiceProcess(state, cell)
     trigger = TRIGGERS.get(how)
     announced: set[int] = set()
+    started = False
     deadline = time.monotonic() + (30.0 if trigger else delay_s)
     when = f"after {delay_s:.2f} s" if trigger is None else f"no {trigger} in 30 s"
     while (left := deadline - time.monotonic()) > 0:
@@ -87,6 +96,7 @@ def life(state: Path, cell: Path, how: str, delay_s: float) -> tuple[set[int], s
         except queue.Empty:
             break
         event = line.get("event")
+        started = started or event == "started"
         if event == "measurement":
             announced.add(int(line["data"]["id"]))
         if trigger is not None and event == trigger:
@@ -97,7 +107,7 @@ def life(state: Path, cell: Path, how: str, delay_s: float) -> tuple[set[int], s
         try:
             line = svc.lines.get_nowait()
         except queue.Empty:
-            return announced, when
+            return announced, when, started
         if line.get("event") == "measurement":
             announced.add(int(line["data"]["id"]))
 
@@ -145,26 +155,33 @@ def main(argv: list[str] | None = None) -> int:
         cell.write_text(CELL, encoding="utf-8")
         state = root / "state"
         announced: set[int] = set()
-        bad = {"integrity": 0, "lost": 0, "torn": 0}
+        bad = {"integrity": 0, "lost": 0, "torn": 0, "temporary": 0, "temporary_kept": 0}
+        left: list[str] = []  # temporary files of the previous kill: the restart removes them
         kinds = {"random": 0, "start": 0, "apply": 0}
         for k in range(args.kills):
             how = str(rng.choice(["random", "random", "start", "apply"]))
-            got, when = life(state, cell, how, float(rng.uniform(0.3, args.max_delay)))
+            got, when, started = life(state, cell, how, float(rng.uniform(0.3, args.max_delay)))
             announced |= got
+            if started:
+                bad["temporary_kept"] += sum(Path(f).exists() for f in left)
             kinds[how] += 1
             found = inspect(state, announced)
             bad["integrity"] += not found["integrity"]
             bad["lost"] += found["lost"]
             bad["torn"] += len(found["torn"])
+            bad["temporary"] += len(set(found["temporary"]) - set(left))
+            left = found["temporary"]
             print(
                 f"kill {k + 1:3d} {how:<6} {when:<28} rows {found['rows']:5d}"
-                f" lost {found['lost']} torn {found['torn'] or 0}",
+                f" lost {found['lost']} torn {found['torn'] or 0}"
+                f" temporary {len(left)}",
                 flush=True,
             )
         # the last life must come up and measure
         svc = ServiceProcess(state, cell)
         try:
             svc.wait_ready()
+            bad["temporary_kept"] += sum(Path(f).exists() for f in left)
         finally:
             final_code = svc.stop()
         db = state / "rvis.db"
@@ -181,7 +198,11 @@ def main(argv: list[str] | None = None) -> int:
     print("| figure | killed and restarted | uninterrupted, same seed |")
     print("|---|---:|---:|")
     print(f"| integrity failures | {bad['integrity']} | - |")
-    print(f"| torn or temporary files | {bad['torn']} | - |")
+    print(f"| torn files (a partial file under its name) | {bad['torn']} | - |")
+    print(
+        f"| temporary files left by a kill / still there after the restart"
+        f" | {bad['temporary']} / {bad['temporary_kept']} | - |"
+    )
     print(f"| announced (committed) measurements lost | {bad['lost']} of {len(announced)} | - |")
     print(f"| measurements stored (ok) | {n_c} | {n_u} |")
     print(f"| calibrations attempted | {cal_c} | {cal_u} |")
@@ -191,7 +212,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     print()
     print(f"campaign {time.monotonic() - t_start:.0f} s wall (uninterrupted run {t_u:.0f} s)")
-    ok = bad["integrity"] == 0 and bad["lost"] == 0 and bad["torn"] == 0 and final_code == 0
+    ok = not (bad["integrity"] or bad["lost"] or bad["torn"] or bad["temporary_kept"])
+    ok = ok and final_code == 0
     return 0 if ok else 1
 
 
