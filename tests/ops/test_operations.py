@@ -306,3 +306,49 @@ def test_state_check_names_what_is_wrong(tmp_path: Path, cell: Path) -> None:
     assert damaged.returncode == 1 and "damaged" in damaged.stdout
     missing = rvis("state", "check", "--state-dir", str(tmp_path / "nowhere"))
     assert missing.returncode == 2 and "no such state directory" in missing.stderr
+
+
+def _children(pid: int) -> list[int]:
+    """The child processes of `pid`, whichever of its threads started them."""
+    tasks = Path(f"/proc/{pid}/task")
+    return [int(c) for t in tasks.iterdir() for c in (t / "children").read_text().split()]
+
+
+def _identification_worker(service_pid: int) -> int | None:
+    """The worker process of the service's identification (a child of its forkserver)."""
+    for child in _children(service_pid):
+        cmdline = Path(f"/proc/{child}/cmdline").read_bytes()
+        if b"forkserver" in cmdline:
+            workers = _children(child)
+            return workers[0] if workers else None
+    return None
+
+
+def test_a_worker_killed_by_the_system_faults_the_cell_and_the_supervisor_restarts_it(
+    tmp_path: Path, cell: Path
+) -> None:
+    """The identification worker dies (the OOM killer): the service logs the error with its
+    traceback, raises an urgent alarm, puts the cell in FAULT and exits 1; restarted, it holds
+    the FAULT until an operator's reset, then measures again."""
+    state = tmp_path / "state"
+    svc = ServiceProcess(state, cell)
+    svc.wait_ready()
+    svc.wait_log(lambda r: r.get("event") == "recalibration_started", 60.0)
+    worker = _identification_worker(svc.proc.pid)
+    assert worker is not None
+    os.kill(worker, 9)
+    line = svc.wait_log(lambda r: r.get("event") == "internal_error", 60.0)
+    assert "BrokenProcessPool" in line["msg"] and "Traceback" in line["exc"]
+    svc.wait_log(lambda r: r.get("event") == "alarm" and r["data"]["code"] == "internal_error")
+    assert svc.proc.wait(60) == 1
+    svc.stop()
+    svc = ServiceProcess(state, cell)
+    try:
+        svc.wait_log(lambda r: r.get("event") == "started", 60.0)
+        st = status(state)
+        assert st["state"] == "fault"
+        assert [a["code"] for a in st["alarms"] if a["priority"] == "urgent"] == ["internal_error"]
+        assert rvis("ctl", "--state-dir", str(state), "reset").returncode == 0
+        svc.wait_log(lambda r: r.get("event") == "measurement", 30.0)
+    finally:
+        assert svc.stop() == 0
