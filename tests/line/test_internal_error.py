@@ -68,7 +68,7 @@ def test_an_error_in_the_loop_faults_the_cell_and_ends_with_status_1(
             raise RuntimeError("boom")
         return real(n)
 
-    ln.service.cycle.run_window = run_window  # type: ignore[method-assign]
+    ln.service.cycle.run_window = run_window  # type: ignore[method-assign,assignment]
     caplog.set_level(logging.ERROR, logger="rvis")
     try:
         ln.start()
