@@ -482,6 +482,18 @@ class Store:
             if n < batch:
                 return total
 
+    def prune_rejected_documents(self, before_t: float) -> int:
+        """Drop the full documents of calibrations rejected before `before_t` (their gates,
+        figures and reason stay); returns how many."""
+        with self._tx() as db:
+            return int(
+                db.execute(
+                    "UPDATE calibrations SET document = NULL"
+                    " WHERE status = 'rejected' AND t < ? AND document IS NOT NULL",
+                    (before_t,),
+                ).rowcount
+            )
+
     def events(self, kind: str | None = None) -> list[dict[str, Any]]:
         where, args = ("WHERE kind = ?", (kind,)) if kind else ("", ())
         rows = self._rows(f"SELECT * FROM events {where} ORDER BY id", args)
