@@ -7,6 +7,10 @@ can carry (docs/operations.md).
   database names.
 - `restore BACKUP`: a backup into a state directory that no service holds and that has no
   database (a damaged one is moved aside by a person first: rvis never overwrites a database).
+- `suspects [--since T] [--json]`: the suspect intervals (app/line/step.py): from the last
+  trustworthy measurement before a step to the apply of its correction, when the calibration in
+  force was wrong, with its estimated size, for the inspection software to re-measure or flag
+  the bodies measured then.
 - `check`: read-only findings about a state directory (integrity, schema, parameters against the
   history and the database, permissions, free space, the lock holder, the sizes); exit 1 when
   something is wrong.
@@ -16,9 +20,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import shutil
 import stat
+import time
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -30,7 +36,9 @@ MANIFEST = "backup.json"
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser("state", help="back up, restore and check the service's state directory")
+    p = sub.add_parser(
+        "state", help="back up, restore, check the state directory; list suspect intervals"
+    )
     verbs = p.add_subparsers(dest="verb", metavar="VERB", parser_class=type(p))
     verbs.required = True
     b = verbs.add_parser("backup", help="copy the state while the service runs")
@@ -39,7 +47,16 @@ def register(sub: Any) -> None:
     r.add_argument("backup", help="folder written by `rvis state backup`")
     c = verbs.add_parser("check", help="check a state directory (read-only)")
     c.add_argument("--json", action="store_true", help="print the findings as JSON")
-    for q in (b, r, c):
+    s = verbs.add_parser(
+        "suspects", help="when the calibration in force was wrong after a step (read-only)"
+    )
+    s.add_argument(
+        "--since",
+        help="intervals open or ending at or after this UTC time (2026-11-25T06:00:00) or age"
+        " (90m, 8h, 2d); default: all",
+    )
+    s.add_argument("--json", action="store_true", help="print the intervals as JSON")
+    for q in (b, r, c, s):
         q.add_argument("--cell", help="cell configuration TOML (for [service] state_dir)")
         q.add_argument("--state-dir", help="state directory (default: [service] state_dir)")
     p.set_defaults(func=run)
@@ -51,6 +68,11 @@ def run(args: argparse.Namespace) -> int:
     state = StateDir(state_dir_of(args))
     if args.verb == "backup":
         print(json.dumps(backup(state, Path(args.dest))))
+        return 0
+    if args.verb == "suspects":
+        since = None if args.since is None else parse_since(args.since, time.time())
+        rows = suspects(state, since)
+        print(json.dumps(rows, indent=1) if args.json else _suspects_table(rows))
         return 0
     if args.verb == "restore":
         restore(Path(args.backup), state)
@@ -278,4 +300,55 @@ def _report(f: dict[str, Any]) -> str:
     problems = f["problems"]
     lines.append("result           " + ("ok" if not problems else f"{len(problems)} problem(s)"))
     lines += [f"  - {p}" for p in problems]
+    return "\n".join(lines)
+
+
+# -- suspect intervals -------------------------------------------------------------------------
+def parse_since(text: str, now: float) -> float:
+    """`--since`: an ISO 8601 UTC time ("2026-11-25", "2026-11-25T06:00:00") or an age
+    ("90m", "8h", "2d"); the Unix time it stands for. InputError naming the field otherwise."""
+    units = {"s": 1.0, "m": 60.0, "h": 3600.0, "d": 86400.0}
+    t = text.strip()
+    if t[-1:] in units:
+        try:
+            age = float(t[:-1])
+        except ValueError:
+            age = -1.0
+        if age >= 0 and math.isfinite(age):
+            return now - age * units[t[-1]]
+    try:
+        when = datetime.fromisoformat(t)
+    except ValueError:
+        raise InputError(
+            f"{text!r} is neither a UTC time (2026-11-25T06:00:00) nor an age (90m, 8h, 2d)",
+            field="--since",
+        ) from None
+    return (when if when.tzinfo else when.replace(tzinfo=UTC)).timestamp()
+
+
+def suspects(state: Any, since_t: float | None) -> list[dict[str, Any]]:
+    """The suspect intervals of the state directory (open ones always, closed ones ending at or
+    after `since_t`), as the service's events carry them (app.line.service.suspect_json)."""
+    from app.line.service import suspect_json
+    from app.line.store import Store
+
+    if not state.db.is_file():
+        raise InputError("no service state here (no rvis.db)", file=state.root)
+    store = Store.read_only(state.db)
+    try:
+        return [suspect_json(r) for r in store.suspects(since_t)]
+    finally:
+        store.close()
+
+
+def _suspects_table(rows: list[dict[str, Any]]) -> str:
+    if not rows:
+        return "no suspect intervals"
+    lines = [f"{'id':>4}  {'from (UTC)':<25} {'to (UTC)':<25} {'size mm':>8}  what"]
+    for r in rows:
+        size = "-" if r["size_mm"] is None else f"{r['size_mm']:.3f}"
+        lines.append(
+            f"{r['id']:>4}  {r['start_utc']:<25} {r['end_utc'] or 'open':<25} {size:>8}"
+            f"  {r['text'] or ''}"
+        )
     return "\n".join(lines)

@@ -5,6 +5,8 @@ point to the apply, on the socket (events), in the status reply and in the alarm
 
 from __future__ import annotations
 
+import json
+import time
 from pathlib import Path
 from typing import Any
 
@@ -144,3 +146,30 @@ def test_while_attributing_the_slots_measured_just_before_come_first(cfg) -> Non
     # then by information: one of those not measured since the step
     assert step_slot(model, x, pool, after, [3, 1, 0], seen).index in (0, 2)
     assert Step(5, 1, 0.0, 4).measuring and not Step(5, 1, 0.0, 4, status="corrected").measuring
+
+
+def test_rvis_state_suspects_lists_them_since_a_time_or_age(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from app.cli import main
+    from app.commands.state import parse_since
+    from app.line.store import Store
+
+    store = Store(tmp_path / "rvis.db")
+    now = time.time()
+    old = store.open_suspect({"t_start": now - 86400.0, "onset_id": 3, "text": "a day ago"})
+    store.update_suspect(old, t_end=now - 86000.0, size_mm=0.22, group_name="sensor")
+    new = store.open_suspect({"t_start": now - 600.0, "onset_id": 9, "text": "still open"})
+    store.close()
+    assert main(["state", "suspects", "--state-dir", str(tmp_path), "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert [r["id"] for r in rows] == [old, new] and rows[0]["size_mm"] == 0.22
+    assert rows[1]["state"] == "open" and rows[1]["end_utc"] is None
+    assert main(["state", "suspects", "--state-dir", str(tmp_path), "--since", "2h"]) == 0
+    table = capsys.readouterr().out
+    assert "still open" in table and "a day ago" not in table and "open" in table
+    assert main(["state", "suspects", "--state-dir", str(tmp_path), "--since", "yesterday"]) == 2
+    err = capsys.readouterr().err
+    assert "--since" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert parse_since("2026-11-25", 0.0) == parse_since("2026-11-25T00:00:00+00:00", 0.0)
+    assert parse_since("90m", 10000.0) == 10000.0 - 5400.0
