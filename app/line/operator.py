@@ -174,6 +174,7 @@ class OperatorCommands:
             "step": self._step_text(),
             "devices": self._device_status(),
             "pending": self._pending_status(),
+            "now_utc": utc_text(svc.clock.time()),  # the service's clock (sim: ahead)
             "flagged_step": None if svc.step is None else svc.step.to_json(),
             "suspect_intervals": self._suspect_status(),
         }

@@ -38,7 +38,7 @@ from app.tui.modals import ConfirmScreen, ShelveScreen
 PANES = ("overview", "measurements", "calibrations", "alarms", "devices", "log")
 #: what each pane shows from the database (only the visible pane's history is read and drawn)
 PANE_HISTORY = {
-    "overview": ("recent",),
+    "overview": ("recent", "suspects"),
     "measurements": ("measurements",),
     "calibrations": ("calibrations", "applied"),
     "alarms": ("alarms",),
@@ -94,6 +94,8 @@ class RvisTui(App[None]):
                 yield Static("", id="overview-text")
                 yield Label("Residual per sphere (recent measurements, mm):")
                 yield Vertical(id="drift")
+                yield Label("Suspect intervals (bodies measured then: re-measure or flag):")
+                yield DataTable(id="suspects-table", cursor_type="row")
             with TabPane("2 Measurements", id="measurements"), Vertical():
                 yield Input(placeholder="filter by sphere (e.g. P2), Enter", id="sphere-filter")
                 yield DataTable(id="measurements-table", cursor_type="row")
@@ -122,7 +124,8 @@ class RvisTui(App[None]):
             "versions-table": ("version", "in force since (UTC)", "source", "cal"),
             "alarms-table": ("id", "prio", "state", "raised (UTC)", "alarm", "shelved"),
             "devices-table": ("device", "URL", "state", "last error (UTC)", "error"),
-            "log-table": ("time (UTC)", "event", "detail"),
+            "log-table": ("time (UTC)", "event", "what happened"),
+            "suspects-table": ("id", "from (UTC)", "to (UTC)", "size mm", "what"),
         }
         for table_id, cols in columns.items():
             self.query_one(f"#{table_id}", DataTable).add_columns(*cols)
@@ -201,6 +204,7 @@ class RvisTui(App[None]):
             "applied": self.history.applied,
             "alarms": self.history.alarms,
             "events": lambda: self.history.events(300, text),
+            "suspects": self.history.suspects,
         }
         return {key: readers[key]() for key in wanted}
 
@@ -208,7 +212,8 @@ class RvisTui(App[None]):
     def _show_status(self) -> None:
         connected, detail = self.connection
         status_bar = self.query_one("#status", Static)
-        status_bar.update(Text(view.status_line(self.status, connected, detail, self.now())))
+        now = view.service_now(self.status) or self.now()
+        status_bar.update(Text(view.status_line(self.status, connected, detail, now)))
         status_bar.set_class(not connected, "disconnected")
         text, cls = view.banner(self.status if connected else None)
         banner = self.query_one("#banner", Static)
@@ -254,6 +259,8 @@ class RvisTui(App[None]):
             self._fill("log-table", view.log_rows(hist["events"]))
         if "recent" in hist:
             self._show_drift(hist["recent"])
+        if "suspects" in hist:
+            self._fill("suspects-table", view.suspect_rows(hist["suspects"]))
 
     def _fill(self, table_id: str, rows: Sequence[Sequence[Any]]) -> None:
         """Replace a table's rows (unless unchanged), keeping the cursor on the same row index."""

@@ -19,7 +19,8 @@ def _utc(t: Any) -> str:
 
 
 class HistoryReader:
-    """Recent measurements, calibrations, alarms and events of one state directory."""
+    """Recent measurements, calibrations, alarms, suspect intervals and events of one state
+    directory."""
 
     def __init__(self, db_path: str | Path) -> None:
         self.db_path = Path(db_path)
@@ -69,6 +70,19 @@ class HistoryReader:
                 "text": r.get("message", ""),
                 "raised_utc": _utc(r.get("t_raised")),
                 "shelved_until_utc": _utc(r.get("shelved_until")),
+            }
+            for r in rows
+        ]
+
+    def suspects(self, limit: int = 50) -> list[dict[str, Any]]:
+        """Suspect intervals after steps, newest first (app/line/step.py)."""
+        rows = self._query("SELECT * FROM suspect_intervals ORDER BY id DESC LIMIT ?", (limit,))
+        return [
+            {
+                **r,
+                "start_utc": _utc(r["t_start"]),
+                "end_utc": _utc(r["t_end"]),
+                "group": r["group_name"],
             }
             for r in rows
         ]

@@ -6,6 +6,7 @@ Textual widgets only place them. Abnormal values carry a style class; normal one
 
 from __future__ import annotations
 
+import json
 from datetime import UTC, datetime
 from typing import Any
 
@@ -37,6 +38,19 @@ def age_text(utc: str | None, now: datetime | None = None) -> str:
     if s < 3600:
         return f"{s // 60} min ago"
     return f"{s // 3600} h {s % 3600 // 60} min ago"
+
+
+def service_now(status: dict[str, Any] | None) -> datetime | None:
+    """The service's clock (the status reply's `now_utc`): ages are counted on it, not on the
+    terminal's (a simulated line's clock runs ahead of the wall clock)."""
+    text = (status or {}).get("now_utc")
+    if not isinstance(text, str):
+        return None
+    try:
+        now = datetime.fromisoformat(text)
+    except ValueError:
+        return None
+    return now if now.tzinfo else now.replace(tzinfo=UTC)
 
 
 def num(value: Any, fmt: str = ".3f", unit: str = "") -> str:
@@ -89,7 +103,25 @@ def overview_text(status: dict[str, Any] | None) -> str:
             f"Cell      {cell}",
             "Devices   " + (", ".join(bad) if bad else f"all {len(devices)} OK"),
             "Counters  " + ", ".join(f"{k} {v}" for k, v in counts.items()),
+            "Knock     " + knock_text(s),
         )
+    )
+
+
+def knock_text(status: dict[str, Any]) -> str:
+    """The step in progress or the last suspect interval, in one line ('none' when neither)."""
+    step = status.get("flagged_step")
+    if step and step.get("status") not in ("corrected", None):
+        what = step.get("text") or f"step at measurement {step.get('onset_id')}"
+        return f"{str(step.get('status')).upper()}: {what}"
+    intervals = status.get("suspect_intervals") or []
+    if not intervals:
+        return "none"
+    last = intervals[-1]
+    end = "OPEN" if last.get("end_utc") is None else time_text(last.get("end_utc"))[11:]
+    return (
+        f"last suspect interval {time_text(last.get('start_utc'))[5:]} - {end},"
+        f" {num(last.get('size_mm'), '.3f', ' mm')} ({last.get('group') or '?'})"
     )
 
 
@@ -177,11 +209,91 @@ def version_rows(rows: list[dict[str, Any]]) -> list[tuple[str, ...]]:
     ]
 
 
-def log_rows(rows: list[dict[str, Any]]) -> list[tuple[str, ...]]:
-    """(time, kind, detail) per event of the service."""
+def suspect_rows(rows: list[dict[str, Any]]) -> list[tuple[str, ...]]:
+    """(id, from, to, size, what) per suspect interval, as app.tui.history gives them."""
     return [
-        (time_text(e.get("utc")), str(e.get("kind", "")), str(e.get("detail", ""))) for e in rows
+        (
+            str(r.get("id")),
+            time_text(r.get("start_utc")),
+            time_text(r.get("end_utc")) or "OPEN",
+            num(r.get("size_mm"), ".3f"),
+            str(r.get("text") or ""),
+        )
+        for r in rows
     ]
+
+
+def log_rows(rows: list[dict[str, Any]]) -> list[tuple[str, ...]]:
+    """(time, kind, what happened) per event of the service: one readable line each."""
+    return [
+        (
+            time_text(e.get("utc")),
+            str(e.get("kind", "")),
+            event_text(e.get("kind"), e.get("detail")),
+        )
+        for e in rows
+    ]
+
+
+def event_text(kind: Any, detail: Any) -> str:
+    """An event's data (the JSON the service stored) as a line for people."""
+    try:
+        d = json.loads(detail) if isinstance(detail, str) else dict(detail or {})
+    except (ValueError, TypeError):
+        return str(detail or "")
+    if not isinstance(d, dict):
+        return str(d)
+    g = d.get
+    texts = {
+        "window": lambda: (
+            f"window {g('window')}: slots {g('slots')}, measured {g('measured')},"
+            f" rejected {g('rejected')}"
+            + (" OVERRUN" if g("overrun") else "")
+            + (f", withdrawn ({g('withdrawn')})" if g("withdrawn") else "")
+            + (f", {g('note')}" if g("note") else "")
+        ),
+        "measurement": lambda: (
+            f"{g('target')} slot {g('slot')} {g('status')},"
+            f" residual {num(g('residual_mm'), '.4f', ' mm')}"
+            + (f" ({g('reason')})" if g("reason") else "")
+        ),
+        "alarm": lambda: (
+            f"{PRIORITY_TEXT.get(str(g('priority')), g('priority'))} {g('code')}: {g('message')}"
+        ),
+        "alarm_cleared": lambda: f"{g('code')} cleared",
+        "calibration": lambda: (
+            f"calibration {g('id')} {g('status')}: RMS"
+            f" {num(g('rms_mm'), '.4f', ' mm')}, held-out {num(g('holdout_rms_mm'), '.4f')} vs"
+            f" {num(g('current_holdout_rms_mm'), '.4f', ' mm')} in force" + _failures(g("failures"))
+        ),
+        "parameters_applied": lambda: (
+            f"version {g('version')} in force ({g('source')},"
+            f" calibration {g('calibration_id') or '-'})"
+        ),
+        "recalibration_started": lambda: (
+            f"identification on {g('n')} measurements ({g('first_id')}..{g('last_id')})"
+        ),
+        "state": lambda: f"{g('from')} -> {g('to')}",
+        "operator": lambda: f"{g('cmd')} by uid {g('uid')}: {'ok' if g('ok') else 'refused'}",
+        "step_attribution": lambda: (
+            f"{g('text')}" + (" -> corrected" if g("passed") else "") + _failures(g("failures"))
+        ),
+        "suspect_interval": lambda: (
+            f"suspect interval {g('id')} {g('state')}: from"
+            f" {time_text(g('start_utc'))}"
+            + (f" to {time_text(g('end_utc'))}" if g("end_utc") else "")
+            + f", {num(g('size_mm'), '.3f', ' mm')}"
+            + (f" ({g('group')})" if g("group") else "")
+        ),
+    }
+    make = texts.get(str(kind))
+    if make is not None:
+        return make()
+    return ", ".join(f"{k} {v}" for k, v in d.items())
+
+
+def _failures(failures: Any) -> str:
+    return "; " + "; ".join(str(f) for f in failures) if failures else ""
 
 
 def alarm_rows(alarms: list[dict[str, Any]]) -> list[tuple[Any, ...]]:

@@ -59,6 +59,17 @@ STATUS: dict[str, Any] = {
     ],
     "cell_temp_c": 27.91,
     "counters": {"windows": 412, "overruns": 0, "withdrawn": 3},
+    "flagged_step": None,
+    "suspect_intervals": [
+        {
+            "id": 2,
+            "start_utc": "2026-11-23T07:41:12+00:00",
+            "end_utc": "2026-11-23T07:43:30+00:00",
+            "size_mm": 0.226,
+            "group": "sensor",
+            "text": "sensor mount moved 0.66 mm / 0.229 deg (0.22 mm at the measured spheres)",
+        }
+    ],
 }
 
 
@@ -125,10 +136,41 @@ HISTORY: dict[str, list[dict[str, Any]]] = {
             "shelved_until_utc": "",
         },
     ],
+    "suspects": [
+        {
+            "id": 2,
+            "start_utc": "2026-11-23T07:41:12",
+            "end_utc": "2026-11-23T07:43:30",
+            "size_mm": 0.226,
+            "text": "sensor mount moved 0.66 mm / 0.229 deg (0.22 mm at the measured spheres)",
+        },
+        {
+            "id": 1,
+            "start_utc": "2026-11-22T13:02:40",
+            "end_utc": "2026-11-22T13:31:02",
+            "size_mm": 0.148,
+            "text": "several groups moved, 14 measurements: waiting for the full recalibration",
+        },
+    ],
     "events": [
-        {"utc": "2026-11-23T09:29:51", "kind": "window", "detail": '{"window": 412, "n": 2}'},
-        {"utc": "2026-11-23T09:20:00", "kind": "calibration", "detail": '{"id": 4}'},
-        {"utc": "2026-11-23T09:12:40", "kind": "alarm", "detail": '{"id": 7, "code": "drift"}'},
+        {
+            "utc": "2026-11-23T09:29:51",
+            "kind": "window",
+            "detail": '{"window": 412, "slots": [7], "measured": 1, "rejected": 0,'
+            ' "withdrawn": "", "overrun": false, "note": ""}',
+        },
+        {
+            "utc": "2026-11-23T09:20:00",
+            "kind": "calibration",
+            "detail": '{"id": 4, "status": "pending", "rms_mm": 0.0398, "holdout_rms_mm": 0.0441,'
+            ' "current_holdout_rms_mm": 0.0502, "failures": []}',
+        },
+        {
+            "utc": "2026-11-23T09:12:40",
+            "kind": "alarm",
+            "detail": '{"id": 7, "code": "drift", "priority": "medium", "message": "drift of P2'
+            ' (cusum 0.203 > 0.187 mm): recalibration brought forward"}',
+        },
     ],
 }
 
