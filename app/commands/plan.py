@@ -42,8 +42,8 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_cell(args.cell)
     if args.params:
         model, x = from_json(args.params, allow_failed=args.allow_failed)
-    else:
-        model = cfg.model()
+    else:  # the model the cell identifies ([calibration] model): its parameters are planned for
+        model = cfg.identification_model()
         x = model.nominal_x()
     overrides = plan_overrides(args)
     if args.seed is not None:
@@ -51,7 +51,8 @@ def run(args: argparse.Namespace) -> int:
     progress = ProgressLine(sys.stderr, str(args.criterion or cfg.planning["criterion"]))
     if not args.json:
         print(
-            f"rvis plan: {cfg.source}, planning on {args.params or 'nominal parameters'}",
+            f"rvis plan: {cfg.source}, planning on {args.params or 'nominal parameters'} for"
+            f" the {model.kind} model ({len(model.default_active())} parameters)",
             flush=True,
         )
     result = run_plan(cfg, model, x, progress=progress, **overrides)

@@ -144,3 +144,20 @@ def test_plan_on_pre_calibrated_parameters(
         assert np.abs(c_model - cs[name]).max() < 1e-6
         c_nominal = apply(inverse(model.fk(model.nominal_x(), qs[name])), p)
         assert np.abs(c_nominal - cs[name]).max() > 0.1
+
+
+def test_plan_is_made_for_the_cells_model(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`[calibration] model = "compliant"`: the plan is made for the compliant model's
+    parameters (the paper's 30 and the arm compliance), not the rigid model's."""
+    cell = tmp_path / "cell.toml"
+    cell.write_text('[calibration]\nmodel = "compliant"\n')
+    out = tmp_path / "plan.json"
+    argv = ["plan", "--out", str(out), "--cell", str(cell), "--placement", "fixed", *FAST]
+    code, text, err = run(argv, capsys)
+    assert code == 0, err
+    assert "for the compliant model (33 parameters)" in text
+    doc = json.loads(out.read_text())
+    assert doc["settings"]["parameters"][-3:] == ["c2_upper", "c2_fore", "c3_fore"]
+    assert doc["observability"]["rank"] == 33
