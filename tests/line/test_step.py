@@ -173,3 +173,38 @@ def test_rvis_state_suspects_lists_them_since_a_time_or_age(
     assert "--since" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
     assert parse_since("2026-11-25", 0.0) == parse_since("2026-11-25T00:00:00+00:00", 0.0)
     assert parse_since("90m", 10000.0) == 10000.0 - 5400.0
+
+
+@pytest.mark.slow
+def test_the_sequential_estimator_follows_the_attributed_group_without_waiting(
+    tmp_path: Path,
+) -> None:
+    """Sequential estimator: the post-step rows wait until the step is attributed, then only
+    the sensor group's covariance is widened and the candidate is due as soon as the filter
+    predicts the schedule's views again (no full schedule cycle): it closes the interval."""
+    ln, x_good, val = knock_line(tmp_path, RecalibSettings(estimator="sequential"))
+    try:
+        before = true_rms(ln, val, x_good)
+        ln.start()
+        ln.windows(6, timeout_s=20.0)
+        ln.cell.set_timeline(ln.clock, knock=Knock.of_kind("sensor", ln.clock.monotonic()))
+        opened = ln.wait(_is("suspect_interval", state="open"), 20.0)
+        n_window = ln.service.counters["windows"]
+        attributed = ln.wait(
+            lambda e: e["event"] == "step_attribution" and e["choice"] == "sensor", 30.0
+        )
+        seq = ln.service.sequential
+        assert seq is not None and seq.group_step and seq.est is not None
+        widened = dict(zip(seq.est.active, seq.est.std, strict=True))
+        closed = ln.wait(_is("suspect_interval", state="closed"), 60.0)
+        windows = ln.service.counters["windows"] - n_window
+        after = true_rms(ln, val, ln.service.x)
+        ln.stop()
+        # the sensor group's uncertainty grew, a joint's did not (only the group was widened)
+        assert widened["x_FS"] > 0.05 and widened["a2"] < 0.05
+        assert closed["id"] == opened["id"] and closed["end_reason"] == "sequential"
+        assert windows <= 2  # a full schedule cycle of post-step updates would take 3+
+        assert after <= 1.5 * before + 0.01, (before, after)
+        assert attributed["onset_id"] >= opened["onset_id"]
+    finally:
+        ln.close()
