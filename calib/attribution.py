@@ -25,16 +25,15 @@ Pure numerics: nothing here knows the service; app/line/ decides what to do with
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import least_squares
 from scipy.stats import chi2 as chi2_dist
 
 from calib.errors import InsufficientData
-from calib.identify import Measurements, residuals, stacked_jacobian
+from calib.identify import Measurements
 from calib.model import BASE_NAMES, INDEX, SENSOR_NAMES, SystemModel, check_active, unit_of
 
 F64 = NDArray[np.float64]
@@ -188,7 +187,7 @@ def attribute(
     sigma_mm: float | ArrayLike,
     reference_mm: ArrayLike | None = None,
     groups: Sequence[StepGroup] | None = None,
-    max_nfev: int = 30,
+    max_iter: int = 10,
 ) -> Attribution:
     """Fit every candidate group (default `step_groups(model)`) on `data` with the rest held
     at x_ref and choose by BIC (module docstring). sigma_mm: one coordinate's standard
@@ -205,7 +204,11 @@ def attribute(
     if ref.shape != (n, 3) or not np.all(np.isfinite(ref)):
         raise InsufficientData(f"reference_mm needs shape ({n}, 3) and finite values")
     cands = tuple(step_groups(model) if groups is None else groups)
-    fits = [_fit_group(model, x0, data, ref, sigma, g, max_nfev) for g in cands]
+    union = tuple(dict.fromkeys(p for g in cands for p in g.params))
+    # one evaluation at x_ref for every group's first step (building the chain is the cost)
+    p0, J0 = model.point_and_jacobian(x0, data.q_deg, data.c_sensor_mm, union, data.temp_c)
+    at_ref = _AtRef(p0, J0.reshape(3 * n, len(union)), {name: j for j, name in enumerate(union)})
+    fits = [_fit_group(model, x0, data, ref, sigma, g, max_iter, at_ref) for g in cands]
     fits.sort(key=lambda f: (not f.determined, f.bic))
     return _choose(tuple(fits), n, float(np.median(sigma)))
 
@@ -224,6 +227,15 @@ def _choose(fits: tuple[GroupFit, ...], n: int, sigma: float) -> Attribution:
     return Attribution(fits, best.group.name, best, float(margin), n, sigma)
 
 
+@dataclass(frozen=True)
+class _AtRef:
+    """The points (n, 3) and the Jacobian (3n, L) of every candidate's parameters at x_ref."""
+
+    p: F64
+    J: F64
+    col: dict[str, int]
+
+
 def _fit_group(
     model: SystemModel,
     x0: F64,
@@ -231,17 +243,19 @@ def _fit_group(
     ref: F64,
     sigma: F64,
     group: StepGroup,
-    max_nfev: int,
+    max_iter: int,
+    at_ref: _AtRef,
 ) -> GroupFit:
     names = check_active(group.params, model.names)
     k, m = len(names), 3 * len(data)
     cols = np.array([INDEX[p] for p in names])
     w = np.repeat(1.0 / sigma, 3)
+    target = data.p_part_mm + ref  # where the points were, relative to the spheres, before
+    r0: F64 = (at_ref.p - target).ravel() * w
     if m < k:
         return _undetermined(group, x0, m - k)
     if k == 0:  # nothing moved: the residuals as they are
-        e = (residuals(model, x0, data) - ref).ravel() * w
-        chi2_0 = float(np.sum(e**2))
+        chi2_0 = float(np.sum(r0**2))
         empty = np.zeros(0)
         return GroupFit(
             group, x0.copy(), empty, empty, np.zeros((0, 0)), chi2_0, m, chi2_0, True, 0.0
@@ -252,34 +266,56 @@ def _fit_group(
         x[cols] = a
         return x
 
-    def fun(a: F64) -> F64:
-        out: F64 = (residuals(model, full(a), data) - ref).ravel() * w
-        return out
+    def fun_jac(a: F64) -> tuple[F64, F64]:
+        p, J = model.point_and_jacobian(full(a), data.q_deg, data.c_sensor_mm, names, data.temp_c)
+        r: F64 = (p - target).ravel() * w
+        out: F64 = J.reshape(m, k) * w[:, None]
+        return r, out
 
-    def jac(a: F64) -> F64:
-        out: F64 = stacked_jacobian(model, full(a), data, names) * w[:, None]
-        return out
-
-    J0 = jac(x0[cols])
+    J0: F64 = at_ref.J[:, [at_ref.col[p] for p in names]] * w[:, None]
     if np.linalg.matrix_rank(J0 / np.maximum(np.linalg.norm(J0, axis=0), 1e-300)) < k:
         return _undetermined(group, x0, m - k)
-    sol = least_squares(fun, x0[cols], jac=jac, method="lm", x_scale="jac", max_nfev=max_nfev)
-    x = full(sol.x)
-    J = jac(sol.x)
+    a, r, J = _gauss_newton(fun_jac, x0[cols], r0, J0, max_iter)
+    x = full(a)
     cov = np.asarray(np.linalg.pinv(J.T @ J), dtype=np.float64)
-    chi2 = float(np.sum(sol.fun**2))
+    chi2 = float(np.sum(r**2))
+    moved = (r - r0).reshape(-1, 3) / w.reshape(-1, 3)  # p(x) - p(x_ref) at the measurements
     return GroupFit(
         group=group,
         x=x,
-        step=sol.x - x0[cols],
+        step=a - x0[cols],
         std=np.sqrt(np.clip(np.diag(cov), 0.0, None)),
         cov=cov,
         chi2=chi2,
         dof=m - k,
         bic=chi2 + k * float(np.log(m)),
         determined=True,
-        shift_mm=point_shift_mm(model, x0, x, data.q_deg, data.c_sensor_mm, data.temp_c),
+        shift_mm=float(np.sqrt(np.mean(np.sum(moved**2, axis=1)))),
     )
+
+
+def _gauss_newton(
+    fun_jac: Callable[[F64], tuple[F64, F64]], a: F64, r: F64, J: F64, max_iter: int
+) -> tuple[F64, F64, F64]:
+    """Gauss-Newton from `a` (a step is small: two or three iterations), each step halved
+    while it does not lower the cost; (parameters, residuals, Jacobian) at the end."""
+    cost = float(r @ r)
+    for _ in range(max_iter):
+        delta = np.linalg.lstsq(J, -r, rcond=None)[0]
+        for _ in range(8):
+            r_new, J_new = fun_jac(a + delta)
+            cost_new = float(r_new @ r_new)
+            if cost_new <= cost:
+                break
+            delta = delta / 2.0
+        else:
+            break
+        a, r, J = a + delta, r_new, J_new
+        done = cost - cost_new <= 1e-10 * max(cost, 1.0)
+        cost = cost_new
+        if done:
+            break
+    return a, r, J
 
 
 def _undetermined(group: StepGroup, x0: F64, dof: int) -> GroupFit:
