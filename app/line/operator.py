@@ -409,6 +409,9 @@ class OperatorCommands:
         cal_id = self._pending_id(args)
         svc.store.decide_calibration(cal_id, "rejected", svc.clock.time(), uid)
         svc.pending_calibration = None
+        if svc.step is not None and svc.step.status == "proposed":
+            svc.step.status = "attributing"  # its correction refused: the next one, with more
+            svc._save_state()
         return {"message": f"calibration {cal_id} rejected"}
 
     def _cmd_rollback(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
