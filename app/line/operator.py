@@ -182,7 +182,7 @@ class OperatorCommands:
     def _suspect_status(self) -> list[dict[str, Any]]:
         """The last suspect intervals (app.line.step), oldest first: when the calibration in
         force was wrong after a step, with its size; the open one has no end yet."""
-        from app.line.service import suspect_json
+        from app.line.step_service import suspect_json
 
         svc: Service = self  # type: ignore[assignment]
         return [suspect_json(r) for r in svc.store.suspects(last=SUSPECTS_IN_STATUS)]

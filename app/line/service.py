@@ -25,6 +25,12 @@ exception in the loop, a connection thread or the identification worker is logge
 traceback, alarmed (`internal_error`), puts the cell in FAULT, and `run()` returns with
 `exit_code` 1 so that the supervisor restarts the process; a restarted service finds the urgent
 alarm and stays in FAULT until an operator resets it.
+
+A step (a knock) flagged by the drift charts opens a suspect interval and is attributed to the
+rigid group that moved after every window, with a fast correction of that group (StepHandling,
+app/line/step_service.py; the numbers in app/line/step.py and calib/attribution.py); until it
+is corrected the windows measure the slots that serve the attribution (`_choose`,
+`_slots_wanted`).
 """
 
 from __future__ import annotations
@@ -55,20 +61,11 @@ from app.line.schedule import Schedule, Slot
 from app.line.settings import ServiceSettings
 from app.line.statedir import StateDir
 from app.line.station import Station
-from app.line.step import (
-    Step,
-    StepCorrection,
-    correct_step,
-    locate_step,
-    paired,
-    step_sigma_mm,
-    step_slot,
-)
+from app.line.step import Step, StepCorrection, step_slot
+from app.line.step_service import StepHandling
 from app.line.store import StorageError, Store
 from app.line.sweeps import SweepArchive
 from app.params import plain_document
-from calib.attribution import NONE, SEVERAL, Attribution, point_shift_mm
-from calib.candidates import IDEAL_STANDOFF_MM
 from calib.model import SystemModel
 from drivers.errors import DeviceError
 
@@ -86,7 +83,7 @@ class State(StrEnum):
     STOPPED = "stopped"
 
 
-class Service(OperatorCommands):
+class Service(OperatorCommands, StepHandling):
     """`Service(station, sensor, schedule, spheres, model, x0, clock=, settings=)`; `run()`
     in a thread (or the main one), `stop()` from anywhere; `request()` for commands."""
 
@@ -872,190 +869,6 @@ class Service(OperatorCommands):
         )
         if closed is not None:
             self.bus.emit("suspect_interval", closed)
-
-    # -- a step: attribution, fast correction, suspect interval (app.line.step) ---------------
-    def _open_step(self, onset_id: int, flag_id: int, *, attribute: bool) -> None:
-        """A step was flagged at measurement `onset_id`: the suspect interval opens at the last
-        trustworthy measurement before it (inside the transaction of the measurement). With
-        `attribute` (a change chart flagged it: the slots' previous visits are the reference)
-        it is attributed; a residual signal before the change charts watch (no reference
-        yet: the first windows after commissioning) waits for the full recalibration."""
-        attribute = attribute and self.settings.recalib.step_correction
-        if self.sequential is not None:
-            if attribute:
-                self.sequential.hold(onset_id)  # widened once attributed
-            else:
-                self.sequential.widen(onset_id)
-        if self.step is not None and self.step.status in ("attributing", "proposed"):
-            return  # the interval of the step in progress goes on
-        before = self.store.measurements(before_id=onset_id, last=1)
-        onset_rows = self.store.measurements_by_id([onset_id])
-        last_good = int(before[0]["id"]) if before else None
-        t_start = float(before[0]["t"] if before else onset_rows[0]["t"])
-        text = f"step flagged at measurement {onset_id}"
-        suspect_id = self.store.open_suspect(
-            {
-                "t_start": t_start,
-                "last_good_id": last_good,
-                "onset_id": onset_id,
-                "params_version": self.version,
-                "text": text,
-            }
-        )
-        status = "attributing" if attribute else SEVERAL
-        self.step = Step(
-            onset_id, suspect_id, t_start, last_good, status=status, text=text, flag_id=flag_id
-        )
-        self.change_from_id = onset_id
-        self.bus.emit("suspect_interval", suspect_json(self.store.suspect(suspect_id) or {}))
-
-    def _attribute_step(self) -> None:
-        """Between windows, while a step is attributed: attribute it on the measurements from
-        its change point on and, batch estimator, apply or propose the fast correction when
-        its gates pass; sequential estimator, widen the suspected group's covariance."""
-        step, r = self.step, self.settings.recalib
-        if step is None or step.status != "attributing" or not r.step_correction:
-            return
-        after = self.store.measurements(since_id=step.onset_id - 1)
-        before = self.store.measurements(before_id=step.onset_id, last=2 * len(self.schedule))
-        pairs = paired(after, before)
-        if len(pairs) < r.step_min_measurements or len(pairs) == step.n_used:
-            return
-        chart = self.drift.change.charts.get("*")
-        mu = chart.mu if chart is not None and chart.ready else None
-        sigma = step_sigma_mm(before, mu, r.seq_measurement_std_mm)
-        views = self._visited_views()
-        n_all = len(pairs)
-        start = locate_step(self.model, self.x, pairs, self.spheres, sigma, step.flag_id)
-        pairs = pairs[start:]
-        if len(pairs) < r.step_min_measurements:
-            step.n_used = n_all
-            return
-        a, corr = correct_step(
-            self.model, self.x, pairs, self.spheres, sigma, views, r, self.settings.gates
-        )
-        step.n_used, step.choice, step.text = n_all, a.choice, a.text()
-        settled = len(pairs) >= len(self.schedule) // 2  # no single group after that many
-        size = None
-        if corr is not None and a.chosen is not None:
-            c_std = np.tile([0.0, 0.0, IDEAL_STANDOFF_MM], (len(views[0]), 1))
-            size = point_shift_mm(self.model, self.x, a.chosen.x, views[0], c_std)
-        data = {
-            "onset_id": step.onset_id,
-            "n": len(pairs),
-            "choice": a.choice,
-            "text": a.text(),
-            "passed": bool(corr is not None and corr.passed),
-            "failures": [] if corr is None else list(corr.failures),
-            "size_mm": size,
-            "attribution": a.to_json(),
-        }
-        with self.store.batch():
-            fields: dict[str, Any] = {"group_name": a.choice, "text": a.text()}
-            fields |= self._step_start(step, int(pairs[0][0]["id"]))
-            if size is not None:
-                fields["size_mm"] = size
-            self.store.update_suspect(step.suspect_id, **fields)
-            for alarm in self.store.active_alarms(code="drift_step"):
-                head = str(alarm["message"]).split(" | ")[0]
-                self.store.update_alarm_message(int(alarm["id"]), f"{head} | {a.text()}")
-            if a.choice in (SEVERAL, NONE) and settled:
-                step.status = a.choice
-                if a.choice == NONE:
-                    self._close_suspect(self.clock.time(), None, None, "none")
-            self._widen_sequential(a, step)
-            self._save_state()
-        self.bus.emit("step_attribution", data, level=logging.WARNING)
-        if self.sequential is None and corr is not None and corr.passed:
-            step.status = "proposed"
-            self._recal_done(corr)
-
-    def _step_start(self, step: Step, start_id: int) -> dict[str, Any]:
-        """The suspect interval's start for a step located at measurement `start_id`: the last
-        good measurement before it (fields to update; none when unchanged)."""
-        if start_id == step.start_id:
-            return {}
-        step.start_id = start_id
-        before = self.store.measurements(before_id=start_id, last=1)
-        if not before:
-            return {}
-        step.last_good_id, step.t_start = int(before[0]["id"]), float(before[0]["t"])
-        return {"last_good_id": step.last_good_id, "t_start": step.t_start}
-
-    def _widen_sequential(self, a: Attribution, step: Step) -> None:
-        """The sequential estimator follows the step through its process noise: the suspected
-        group's covariance widened once the choice is decisive (all of it for several groups,
-        or when no group was found)."""
-        seq, r = self.sequential, self.settings.recalib
-        if seq is None:
-            return
-        if step.status in (SEVERAL, NONE):
-            seq.widen(step.onset_id)
-        elif a.choice not in (SEVERAL, NONE) and a.margin >= r.step_min_margin:
-            seq.widen_group(a.fit(a.choice).group.params)
-            step.status = "following"
-
-    def _close_suspect(
-        self, t: float, version: int | None, cal: Mapping[str, Any] | None, kind: str
-    ) -> dict[str, Any] | None:
-        """The step's suspect interval ends now (the apply of its correction, or no step was
-        found); its event data, or None when none is open."""
-        step = self.step
-        if step is None:
-            return None
-        row = self.store.suspect(step.suspect_id)
-        if row is None or row["t_end"] is not None:
-            return None
-        fields: dict[str, Any] = {"t_end": t, "end_reason": kind}
-        if version is not None:
-            fields["end_version"] = version
-        if cal is not None:
-            fields["calibration_id"] = int(cal["id"])
-        if row["size_mm"] is None and version is not None and row["params_version"] is not None:
-            fields["size_mm"] = self._correction_size(int(row["params_version"]))
-        self.store.update_suspect(step.suspect_id, **fields)
-        if kind != "none":
-            step.status = "corrected"
-        return suspect_json(self.store.suspect(step.suspect_id) or {})
-
-    def _correction_size(self, old_version: int) -> float | None:
-        """How far the parameters now in force move a point at the sensor's standoff from where
-        version `old_version` put it, RMS over the schedule's views [mm]."""
-        try:
-            from app.params import from_json
-
-            _, x_old = from_json(self.params.history / f"{old_version:04d}.json")
-        except (OSError, ValueError, KeyError, InputError):
-            return None
-        q = np.array([s.q_deg for s in self.schedule.slots])
-        c = np.tile([0.0, 0.0, IDEAL_STANDOFF_MM], (len(q), 1))
-        return point_shift_mm(self.model, x_old, self.x, q, c)
-
-
-def suspect_json(row: Mapping[str, Any]) -> dict[str, Any]:
-    """A suspect interval as events, the status reply and `rvis state suspects` carry it."""
-    from app.line.operator import utc_text
-
-    def utc(t: Any) -> str | None:
-        return None if t is None else utc_text(float(t))
-
-    return {
-        "id": row.get("id"),
-        "state": "open" if row.get("t_end") is None else "closed",
-        "t_start": row.get("t_start"),
-        "t_end": row.get("t_end"),
-        "start_utc": utc(row.get("t_start")),
-        "end_utc": utc(row.get("t_end")),
-        "last_good_id": row.get("last_good_id"),
-        "onset_id": row.get("onset_id"),
-        "params_version": row.get("params_version"),
-        "size_mm": row.get("size_mm"),
-        "group": row.get("group_name"),
-        "text": row.get("text"),
-        "end_reason": row.get("end_reason"),
-        "end_version": row.get("end_version"),
-        "calibration_id": row.get("calibration_id"),
-    }
 
 
 def _kind(document: Mapping[str, Any] | None) -> str:

@@ -1,0 +1,221 @@
+"""The service's handling of a step (a knock) between its flag and its correction: a mixin of
+app.line.service.Service, as app.line.operator's commands are.
+
+The flag opens a suspect interval and a `Step` (app.line.step); after every window the step is
+attributed (calib.attribution through app.line.step.correct_step, at the change point located
+by `locate_step`) and, batch estimator, its group's fast correction applied or proposed when its
+gates pass; the sequential estimator widens the attributed group's covariance instead. The apply
+of a correction trained after the change point closes the interval (Service._in_force).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from app.errors import InputError
+from app.line.step import Step, correct_step, locate_step, paired, step_sigma_mm
+from calib.attribution import NONE, SEVERAL, Attribution, point_shift_mm
+from calib.candidates import IDEAL_STANDOFF_MM
+
+if TYPE_CHECKING:
+    from app.line.service import Service
+
+
+class StepHandling:
+    """Mixin of Service: a flagged step's attribution, correction and suspect interval."""
+
+    def _open_step(self, onset_id: int, flag_id: int, *, attribute: bool) -> None:
+        """A step was flagged at measurement `onset_id`: the suspect interval opens at the last
+        trustworthy measurement before it (inside the transaction of the measurement). With
+        `attribute` (a change chart flagged it: the slots' previous visits are the reference)
+        it is attributed; a residual signal before the change charts watch (no reference
+        yet: the first windows after commissioning) waits for the full recalibration."""
+        svc: Service = self  # type: ignore[assignment]
+        attribute = attribute and svc.settings.recalib.step_correction
+        if svc.sequential is not None:
+            if attribute:
+                svc.sequential.hold(onset_id)  # widened once attributed
+            else:
+                svc.sequential.widen(onset_id)
+        if svc.step is not None and svc.step.status in ("attributing", "proposed"):
+            return  # the interval of the step in progress goes on
+        before = svc.store.measurements(before_id=onset_id, last=1)
+        onset_rows = svc.store.measurements_by_id([onset_id])
+        last_good = int(before[0]["id"]) if before else None
+        t_start = float(before[0]["t"] if before else onset_rows[0]["t"])
+        text = f"step flagged at measurement {onset_id}"
+        suspect_id = svc.store.open_suspect(
+            {
+                "t_start": t_start,
+                "last_good_id": last_good,
+                "onset_id": onset_id,
+                "params_version": svc.version,
+                "text": text,
+            }
+        )
+        status = "attributing" if attribute else SEVERAL
+        svc.step = Step(
+            onset_id, suspect_id, t_start, last_good, status=status, text=text, flag_id=flag_id
+        )
+        svc.change_from_id = onset_id
+        svc.bus.emit("suspect_interval", suspect_json(svc.store.suspect(suspect_id) or {}))
+
+    def _attribute_step(self) -> None:
+        """Between windows, while a step is attributed: attribute it on the measurements from
+        its change point on and, batch estimator, apply or propose the fast correction when
+        its gates pass; sequential estimator, widen the suspected group's covariance."""
+        svc: Service = self  # type: ignore[assignment]
+        step, r = svc.step, svc.settings.recalib
+        if step is None or step.status != "attributing" or not r.step_correction:
+            return
+        after = svc.store.measurements(since_id=step.onset_id - 1)
+        before = svc.store.measurements(before_id=step.onset_id, last=2 * len(svc.schedule))
+        pairs = paired(after, before)
+        if len(pairs) < r.step_min_measurements or len(pairs) == step.n_used:
+            return
+        chart = svc.drift.change.charts.get("*")
+        mu = chart.mu if chart is not None and chart.ready else None
+        sigma = step_sigma_mm(before, mu, r.seq_measurement_std_mm)
+        views = svc._visited_views()
+        n_all = len(pairs)
+        start = locate_step(svc.model, svc.x, pairs, svc.spheres, sigma, step.flag_id)
+        pairs = pairs[start:]
+        if len(pairs) < r.step_min_measurements:
+            step.n_used = n_all
+            return
+        a, corr = correct_step(
+            svc.model, svc.x, pairs, svc.spheres, sigma, views, r, svc.settings.gates
+        )
+        step.n_used, step.choice, step.text = n_all, a.choice, a.text()
+        settled = len(pairs) >= len(svc.schedule) // 2  # no single group after that many
+        size = None
+        if corr is not None and a.chosen is not None:
+            c_std = np.tile([0.0, 0.0, IDEAL_STANDOFF_MM], (len(views[0]), 1))
+            size = point_shift_mm(svc.model, svc.x, a.chosen.x, views[0], c_std)
+        data = {
+            "onset_id": step.onset_id,
+            "n": len(pairs),
+            "choice": a.choice,
+            "text": a.text(),
+            "passed": bool(corr is not None and corr.passed),
+            "failures": [] if corr is None else list(corr.failures),
+            "size_mm": size,
+            "attribution": a.to_json(),
+        }
+        with svc.store.batch():
+            fields: dict[str, Any] = {"group_name": a.choice, "text": a.text()}
+            fields |= svc._step_start(step, int(pairs[0][0]["id"]))
+            if size is not None:
+                fields["size_mm"] = size
+            svc.store.update_suspect(step.suspect_id, **fields)
+            for alarm in svc.store.active_alarms(code="drift_step"):
+                head = str(alarm["message"]).split(" | ")[0]
+                svc.store.update_alarm_message(int(alarm["id"]), f"{head} | {a.text()}")
+            closed = None
+            if a.choice in (SEVERAL, NONE) and settled:
+                step.status = a.choice
+                if a.choice == NONE:
+                    closed = svc._close_suspect(svc.clock.time(), None, None, "none")
+            svc._widen_sequential(a, step)
+            svc._save_state()
+        svc.bus.emit("step_attribution", data, level=logging.WARNING)
+        if closed is not None:
+            svc.bus.emit("suspect_interval", closed)
+        if svc.sequential is None and corr is not None and corr.passed:
+            step.status = "proposed"
+            svc._recal_done(corr)
+
+    def _step_start(self, step: Step, start_id: int) -> dict[str, Any]:
+        """The suspect interval's start for a step located at measurement `start_id`: the last
+        good measurement before it (fields to update; none when unchanged)."""
+        svc: Service = self  # type: ignore[assignment]
+        if start_id == step.start_id:
+            return {}
+        step.start_id = start_id
+        before = svc.store.measurements(before_id=start_id, last=1)
+        if not before:
+            return {}
+        step.last_good_id, step.t_start = int(before[0]["id"]), float(before[0]["t"])
+        return {"last_good_id": step.last_good_id, "t_start": step.t_start}
+
+    def _widen_sequential(self, a: Attribution, step: Step) -> None:
+        """The sequential estimator follows the step through its process noise: the suspected
+        group's covariance widened once the choice is decisive (all of it for several groups,
+        or when no group was found)."""
+        svc: Service = self  # type: ignore[assignment]
+        seq, r = svc.sequential, svc.settings.recalib
+        if seq is None:
+            return
+        if step.status in (SEVERAL, NONE):
+            seq.widen(step.onset_id)
+        elif a.choice not in (SEVERAL, NONE) and a.margin >= r.step_min_margin:
+            seq.widen_group(a.fit(a.choice).group.params)
+            step.status = "following"
+
+    def _close_suspect(
+        self, t: float, version: int | None, cal: Mapping[str, Any] | None, kind: str
+    ) -> dict[str, Any] | None:
+        """The step's suspect interval ends now (the apply of its correction, or no step was
+        found); its event data, or None when none is open."""
+        svc: Service = self  # type: ignore[assignment]
+        step = svc.step
+        if step is None:
+            return None
+        row = svc.store.suspect(step.suspect_id)
+        if row is None or row["t_end"] is not None:
+            return None
+        fields: dict[str, Any] = {"t_end": t, "end_reason": kind}
+        if version is not None:
+            fields["end_version"] = version
+        if cal is not None:
+            fields["calibration_id"] = int(cal["id"])
+        if row["size_mm"] is None and version is not None and row["params_version"] is not None:
+            fields["size_mm"] = svc._correction_size(int(row["params_version"]))
+        svc.store.update_suspect(step.suspect_id, **fields)
+        if kind != "none":
+            step.status = "corrected"
+        return suspect_json(svc.store.suspect(step.suspect_id) or {})
+
+    def _correction_size(self, old_version: int) -> float | None:
+        """How far the parameters now in force move a point at the sensor's standoff from where
+        version `old_version` put it, RMS over the schedule's views [mm]."""
+        svc: Service = self  # type: ignore[assignment]
+        try:
+            from app.params import from_json
+
+            _, x_old = from_json(svc.params.history / f"{old_version:04d}.json")
+        except (OSError, ValueError, KeyError, InputError):
+            return None
+        q = np.array([s.q_deg for s in svc.schedule.slots])
+        c = np.tile([0.0, 0.0, IDEAL_STANDOFF_MM], (len(q), 1))
+        return point_shift_mm(svc.model, x_old, svc.x, q, c)
+
+
+def suspect_json(row: Mapping[str, Any]) -> dict[str, Any]:
+    """A suspect interval as events, the status reply and `rvis state suspects` carry it."""
+    from app.line.operator import utc_text
+
+    def utc(t: Any) -> str | None:
+        return None if t is None else utc_text(float(t))
+
+    return {
+        "id": row.get("id"),
+        "state": "open" if row.get("t_end") is None else "closed",
+        "t_start": row.get("t_start"),
+        "t_end": row.get("t_end"),
+        "start_utc": utc(row.get("t_start")),
+        "end_utc": utc(row.get("t_end")),
+        "last_good_id": row.get("last_good_id"),
+        "onset_id": row.get("onset_id"),
+        "params_version": row.get("params_version"),
+        "size_mm": row.get("size_mm"),
+        "group": row.get("group_name"),
+        "text": row.get("text"),
+        "end_reason": row.get("end_reason"),
+        "end_version": row.get("end_version"),
+        "calibration_id": row.get("calibration_id"),
+    }
