@@ -153,10 +153,11 @@ def locate_step(
     sigma_mm: float,
     flag_id: int | None,
 ) -> int:
-    """Where the step happened among the pairs from the CUSUM's change point to the flagging
-    measurement (the CUSUM's estimate can be a few samples early, before a signal it grew
-    slowly towards): the split s that minimises chi2 of "nothing moved" on pairs[:s] plus the
-    best single group's BIC on pairs[s:]. The index s (0: the change point stands)."""
+    """Where the step happened among the pairs up to the flagging measurement (the CUSUM's
+    change point estimate can be a few samples early, before a signal it grew slowly towards,
+    or late, when the first sample after the step did not reach its chart): the split s that
+    minimises chi2 of "nothing moved" on pairs[:s] plus the best single group's BIC on
+    pairs[s:], every pair against a reference from before pairs[0]. The index s."""
     last = (
         len(pairs) - 1
         if flag_id is None

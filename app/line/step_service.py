@@ -24,6 +24,10 @@ from calib.candidates import IDEAL_STANDOFF_MM
 if TYPE_CHECKING:
     from app.line.service import Service
 
+#: the change point is looked for from the CUSUM's estimate less a quarter of the schedule (the
+#: estimate can be late as well as early) up to the measurement that signalled
+LOOK_BACK_DIVISOR = 4
+
 
 class StepHandling:
     """Mixin of Service: a flagged step's attribution, correction and suspect interval."""
@@ -72,18 +76,25 @@ class StepHandling:
         step, r = svc.step, svc.settings.recalib
         if step is None or step.status != "attributing" or not r.step_correction:
             return
-        after = svc.store.measurements(since_id=step.onset_id - 1)
-        before = svc.store.measurements(before_id=step.onset_id, last=2 * len(svc.schedule))
-        pairs = paired(after, before)
-        if len(pairs) < r.step_min_measurements or len(pairs) == step.n_used:
+        lo = max(1, step.onset_id - len(svc.schedule) // LOOK_BACK_DIVISOR)
+        rows = svc.store.measurements(since_id=lo - 1)
+        before = svc.store.measurements(before_id=lo, last=2 * len(svc.schedule))
+        wide = paired(rows, before)  # references before any candidate change point
+        if len(wide) < r.step_min_measurements or len(wide) == step.n_used:
             return
         chart = svc.drift.change.charts.get("*")
         mu = chart.mu if chart is not None and chart.ready else None
         sigma = step_sigma_mm(before, mu, r.seq_measurement_std_mm)
         views = svc._visited_views()
-        n_all = len(pairs)
-        start = locate_step(svc.model, svc.x, pairs, svc.spheres, sigma, step.flag_id)
-        pairs = pairs[start:]
+        n_all = len(wide)
+        start_id = int(
+            wide[locate_step(svc.model, svc.x, wide, svc.spheres, sigma, step.flag_id)][0]["id"]
+        )
+        # the pairs after it, with the freshest references (rows between lo and it included)
+        pairs = paired(
+            [q for q in rows if int(q["id"]) >= start_id],
+            before + [q for q in rows if int(q["id"]) < start_id],
+        )
         if len(pairs) < r.step_min_measurements:
             step.n_used = n_all
             return
@@ -108,7 +119,7 @@ class StepHandling:
         }
         with svc.store.batch():
             fields: dict[str, Any] = {"group_name": a.choice, "text": a.text()}
-            fields |= svc._step_start(step, int(pairs[0][0]["id"]))
+            fields |= svc._step_start(step, start_id)
             if size is not None:
                 fields["size_mm"] = size
             svc.store.update_suspect(step.suspect_id, **fields)
@@ -135,7 +146,7 @@ class StepHandling:
         svc: Service = self  # type: ignore[assignment]
         if start_id == step.start_id:
             return {}
-        step.start_id = start_id
+        step.start_id = svc.change_from_id = start_id  # a change from before it spans it
         before = svc.store.measurements(before_id=start_id, last=1)
         if not before:
             return {}
