@@ -382,6 +382,7 @@ class Service(OperatorCommands, StepHandling):
     def _window(self) -> None:
         self._set_state(State.MEASURING)
         n = self.counters["windows"] + 1
+        t_open = self.clock.time()  # within a poll of the window's rising edge
         try:
             report = self.cycle.run_window(n)
         except DeviceError as exc:
@@ -391,7 +392,9 @@ class Service(OperatorCommands, StepHandling):
         self.counters["overruns"] += report.overrun
         self.counters["withdrawn"] += bool(report.withdrawn)
         self._save_state()
-        self.bus.emit("window", {**report.to_json(), "params_version": self.version})
+        self.bus.emit(
+            "window", {**report.to_json(), "t_open": t_open, "params_version": self.version}
+        )
         self._set_state(State.PAUSED if self.paused else State.IDLE)
         self._between_windows()
 

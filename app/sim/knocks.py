@@ -66,9 +66,9 @@ def campaign_markdown(results: Mapping[str, Sequence[ShiftResult]], command: str
         f" estimator and model unless the command says otherwise). A window is *back* when the"
         f" true RMS error at the line's validation positions with the parameters in force in it"
         f" is within {s.recovered_ratio:g}x the median of the {s.pre_knock_windows} windows"
-        " before the knock; it is *covered* when the bodies measured before it (window time -"
-        " window length) fall inside a suspect interval; *extra* windows are covered but were"
-        " not above the ratio (or came before the knock).",
+        " before the knock; it is *covered* when it opened inside a suspect interval (the"
+        " parameters in force in it were the suspect ones); *extra* windows are covered but"
+        " were not above the ratio (or came before the knock).",
         "",
         "| knock | seeds | windows to recover: median / worst (target <= 3 / <= 5) | per seed"
         " | attributed right | step alarms before the knock | overruns | recall of the"

@@ -46,7 +46,8 @@ F64 = NDArray[np.float64]
 @dataclass
 class WindowRecord:
     """The line after one window: sim time [h], temperature, true RMSE of the parameters in
-    force and of the commissioning parameters [mm], the parameters version."""
+    force and of the commissioning parameters [mm], the parameters version, and the sim time
+    [h] the window opened."""
 
     window: int
     t_h: float
@@ -54,6 +55,7 @@ class WindowRecord:
     rmse_mm: float
     rmse_commissioning_mm: float
     version: int
+    t_open_h: float = float("nan")  # when the window opened (the version was in force then)
 
 
 @dataclass
@@ -264,6 +266,8 @@ class SimulatedLineRun:
                 on_event(event)
             if event["event"] == "window":
                 record = self._record(event.get("params_version"))
+                if "t_open" in event:
+                    record.t_open_h = (event["t_open"] - self.line.clock.start_epoch) / 3600.0
                 s.records.append(record)
                 if on_window is not None:
                     on_window(record)

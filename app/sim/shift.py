@@ -78,9 +78,10 @@ DEMO_SHIFT = ShiftSettings(hours=0.75, knock_at_h=0.25, scale=200.0, slots_per_w
 @dataclass(frozen=True)
 class SuspectScore:
     """The suspect intervals against the truth, per window from the knock on: `bad` windows
-    (true error above recovered_ratio x the pre-knock level), `covered` ones (the bodies
-    measured before the window, at window time - window_s, fall inside an interval), and any
-    window covered before the knock (a false step)."""
+    (the true error of the parameters in force in the window above recovered_ratio x the
+    pre-knock level), `covered` ones (the window opened inside an interval: the parameters in
+    force then were the suspect ones), and any window covered before the knock (a false
+    step)."""
 
     bad: tuple[int, ...]
     covered: tuple[int, ...]
@@ -242,6 +243,11 @@ def run_shift(
     return result
 
 
+def _opened_s(r: WindowRecord, window_s: float) -> float:
+    """When the window opened [sim s] (older runs: the record's time less a window)."""
+    return r.t_open_h * 3600.0 if math.isfinite(r.t_open_h) else r.t_h * 3600.0 - window_s
+
+
 def _minus(t: float | None, epoch: float) -> float | None:
     return None if t is None else t - epoch
 
@@ -266,8 +272,9 @@ def evaluate(result: ShiftResult) -> None:
 
 
 def score_suspects(result: ShiftResult, limit_mm: float) -> SuspectScore:
-    """Which windows the suspect intervals cover (the bodies measured before each window, at
-    its record time - window_s) against those whose true error exceeds `limit_mm`."""
+    """Which windows the suspect intervals cover (at the time each window opened, when the
+    parameters whose true error it records were in force) against those whose true error
+    exceeds `limit_mm`."""
     k = result.knock_window or 10**9
 
     def covered(t_s: float) -> bool:
@@ -280,10 +287,10 @@ def score_suspects(result: ShiftResult, limit_mm: float) -> SuspectScore:
     return SuspectScore(
         bad=tuple(r.window for r in recs if r.window >= k and r.rmse_mm > limit_mm),
         covered=tuple(
-            r.window for r in recs if r.window >= k and covered(r.t_h * 3600 - result.window_s)
+            r.window for r in recs if r.window >= k and covered(_opened_s(r, result.window_s))
         ),
         covered_before_knock=tuple(
-            r.window for r in recs if r.window < k and covered(r.t_h * 3600 - result.window_s)
+            r.window for r in recs if r.window < k and covered(_opened_s(r, result.window_s))
         ),
     )
 

@@ -80,3 +80,34 @@ def test_the_estimator_comparison_runs_each_way_on_the_same_cell(
     md = (out / "shift-estimators.md").read_text()
     assert "| sequential, adaptive |" in md and (out / "shift-estimators.png").stat().st_size > 5000
     assert all(r["mean_mm"] > 0 for r in rows)
+
+
+@pytest.mark.slow
+def test_a_knock_of_each_kind_is_attributed_and_scored_in_a_campaign(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`--knock all --seeds 1`: one short shift per kind (the change charts watch from about
+    window 20 at 2 slots per window), the campaign table with the must-show columns, and the
+    suspect intervals scored against the truth. No warm-up here: the windows above 1.2x of the
+    pre-knock level are the knock's alone (the warm-up's drift after a correction would count
+    too, and is steepest in the first hour)."""
+    out, cell = tmp_path / "knocks", tmp_path / "cell.toml"
+    cell.write_text("[simline]\nwarmup_k = 0.0\n")
+    argv = ["experiment", "shift", "--hours", "0.7", "--knock-at-h", "0.45", "--scale", "120"]
+    argv += ["--slots-per-window", "2", "--knock", "all", "--seeds", "1", "--out", str(out)]
+    argv += ["--cell", str(cell)]
+    assert main(argv) == 0
+    doc = json.loads((out / "shift-knocks.json").read_text())
+    rows = {r["knock"]: r for r in doc["rows"]}
+    assert list(rows) == ["sensor", "fixture", "joint"]
+    for kind, group in (("sensor", "sensor"), ("fixture", "fixture"), ("joint", "J2")):
+        r = rows[kind]
+        assert r["attribution"] == [group], (kind, r)
+        assert r["recovered_after"][0] is not None and r["recovered_after"][0] <= 5, (kind, r)
+        assert r["false_step_alarms_before_knock"] == 0 and r["overruns"] == 0
+        assert r["recall_min"] == 1.0
+        run = doc["runs"][kind][0]
+        assert run["suspects"] and run["suspects"][0]["t_end_s"] is not None
+        assert (out / kind / "seed-0" / "shift.md").exists()
+    md = (out / "shift-knocks.md").read_text()
+    assert "| fixture | 1 |" in md and (out / "shift-knocks.png").stat().st_size > 5000
