@@ -30,6 +30,7 @@ def state_dir_of(args: argparse.Namespace) -> Path:
 def offline_status(state_dir: Path) -> dict[str, Any]:
     """What the files say when the service is not running (read-only)."""
     from app.line.params_store import ParamsStore
+    from app.line.step_service import suspect_json
     from app.line.store import Store
 
     db = state_dir / "rvis.db"
@@ -49,6 +50,7 @@ def offline_status(state_dir: Path) -> dict[str, Any]:
             "measurements": store.counts(),
             "schedule": {"position": store.schedule_position()[0]},
             "alarms": alarms,
+            "suspect_intervals": [suspect_json(r) for r in store.suspects(last=5)],
         }
     finally:
         store.close()
@@ -90,5 +92,23 @@ def run(args: argparse.Namespace) -> int:
     alarms = status.get("alarms", [])
     lines.append(f"alarms              {len(alarms) or 'none'}")
     lines += [f"  #{a['id']} {a['priority']:<7} {a['state']:<8} {a['message']}" for a in alarms]
+    lines += _suspect_lines(status)
     print("\n".join(lines))
     return 0
+
+
+def _suspect_lines(status: dict[str, Any]) -> list[str]:
+    """The step in progress and the last suspect intervals (`rvis state suspects` lists all)."""
+    step = status.get("flagged_step")
+    out = []
+    if step:
+        out.append(f"step                {step.get('status')}: {step.get('text')}")
+    intervals = status.get("suspect_intervals") or []
+    out.append(f"suspect intervals   {len(intervals) or 'none'} (the last {len(intervals)})")
+    for r in intervals:
+        size = "-" if r.get("size_mm") is None else f"{r['size_mm']:.3f} mm"
+        out.append(
+            f"  #{r['id']} {r.get('start_utc')} .. {r.get('end_utc') or 'OPEN'}  {size}"
+            f"  {r.get('group') or ''}"
+        )
+    return out

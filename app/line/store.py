@@ -97,6 +97,7 @@ MIGRATIONS: tuple[tuple[str, ...], ...] = (
     ),
 )
 SCHEMA_VERSION = len(MIGRATIONS)
+SUSPECTS_SCHEMA = 4  # the version that has suspect_intervals
 # SQLite primary result codes: BUSY, LOCKED, NOMEM, READONLY, IOERR, FULL, CANTOPEN, PROTOCOL
 _STORAGE_CODES = frozenset({5, 6, 7, 8, 10, 13, 14, 15})
 _DAMAGED_CODES = frozenset({11, 26})  # CORRUPT, NOTADB
@@ -603,7 +604,10 @@ class Store:
         self, since_t: float | None = None, last: int | None = None
     ) -> list[dict[str, Any]]:
         """Intervals in time order: those still open or ending at or after `since_t` (all
-        when None); only the `last` n when given."""
+        when None); only the `last` n when given. None in a database of an older rvis (read
+        before a service of this one migrated it)."""
+        if self.version() < SUSPECTS_SCHEMA:
+            return []
         sql, args = "SELECT * FROM suspect_intervals", cast(tuple[Any, ...], ())
         if since_t is not None:
             sql, args = sql + " WHERE t_end IS NULL OR t_end >= ?", (since_t,)

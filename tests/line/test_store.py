@@ -182,3 +182,17 @@ def test_suspect_intervals_open_update_close_and_list_by_time(tmp_path: Path) ->
     with pytest.raises(ValueError, match="unknown"):
         store.update_suspect(first, onset_id=1)
     store.close()
+
+
+def test_an_older_database_read_only_has_no_suspect_intervals(tmp_path: Path) -> None:
+    """`rvis status` / `rvis state suspects` before a new service migrated an old database."""
+    db = sqlite3.connect(tmp_path / "rvis.db")
+    for migration in MIGRATIONS[:3]:
+        for sql in migration:
+            db.execute(sql)
+    db.execute("PRAGMA user_version = 3")
+    db.commit()
+    db.close()
+    store = Store.read_only(tmp_path / "rvis.db")
+    assert store.version() == 3 and store.suspects() == []
+    store.close()
