@@ -66,6 +66,7 @@ from app.line.step_service import StepHandling
 from app.line.store import StorageError, Store
 from app.line.sweeps import SweepArchive
 from app.params import plain_document
+from calib.attribution import NONE, SEVERAL, step_groups
 from calib.model import SystemModel
 from drivers.errors import DeviceError
 
@@ -516,14 +517,17 @@ class Service(OperatorCommands, StepHandling):
 
     def _choose(self, slots: Sequence[Slot]) -> Slot:
         """The next slot among those that fit (in the plan's order from the position): for a
-        step being attributed, the one that serves it (app.line.step.step_slot); adaptive
+        step being attributed, the one that serves it (app.line.step.step_slot: the most
+        informative for the group the last attribution chose, or for all of them); adaptive
         scheduling, the most informative for the sequential estimator; else the next."""
         if self.step is not None and self.step.measuring:
             onset = self.step.onset_id
             after = self.store.measurements(since_id=onset - 1)
             before = self.store.measurements(before_id=onset, last=len(self.schedule))
             recent = [int(r["slot"]) for r in reversed(before)]
-            return step_slot(self.model, self.x, slots, after, recent, self.last_visit)
+            lead = [g for g in step_groups(self.model) if g.name == self.step.choice]
+            groups = lead if lead and lead[0].name not in (NONE, SEVERAL) else None
+            return step_slot(self.model, self.x, slots, after, recent, self.last_visit, groups)
         if self.sequential is not None and self.settings.recalib.schedule == "adaptive":
             return self.sequential.most_informative(self.model, slots, self.last_visit)
         return slots[0]

@@ -136,7 +136,7 @@ class RecalibSettings:
     step_correction: bool = True
     step_min_measurements: int = 3  # after the change point: fitted ones + 1 held out
     step_min_margin: float = 10.0  # BIC of the runner-up minus the choice's
-    step_max_std_mm: float = 0.02  # the correction's predicted uncertainty at the views
+    step_max_std_mm: float = 0.012  # the correction's predicted uncertainty at the views
 
     def __post_init__(self) -> None:
         if self.mode not in ("auto", "approve"):

@@ -37,7 +37,15 @@ from app.line.recalib import as_measurements
 from app.line.schedule import Slot
 from app.line.settings import GateSettings, RecalibSettings
 from app.params import plain_document
-from calib.attribution import NONE, SEVERAL, Attribution, attribute, predicted_std_mm, step_groups
+from calib.attribution import (
+    NONE,
+    SEVERAL,
+    Attribution,
+    StepGroup,
+    attribute,
+    predicted_std_mm,
+    step_groups,
+)
 from calib.gates import change_failures
 from calib.identify import residuals
 from calib.model import SystemModel
@@ -247,6 +255,7 @@ def step_slot(
     after: Sequence[Mapping[str, Any]],
     recent_before: Sequence[int],
     seen: Mapping[int, tuple[F64, F64]],
+    groups: Sequence[StepGroup] | None = None,
 ) -> Slot:
     """The slot to measure next while a step is attributed, of those that fit (`pool`, in the
     plan's order): a slot measured just before the change point not measured again yet (most
@@ -262,7 +271,8 @@ def step_slot(
     candidates = [s for s in fresh if s.index in seen]
     if not candidates:
         return fresh[0]
-    groups = [g for g in step_groups(model) if g.name not in (NONE, SEVERAL)]
+    if groups is None:
+        groups = [g for g in step_groups(model) if g.name not in (NONE, SEVERAL)]
     names = tuple(dict.fromkeys(p for g in groups for p in g.params))
     q_have = np.array([r["q_deg"] for r in after]).reshape(-1, 6)
     c_have = np.array([r["c_sensor_mm"] for r in after]).reshape(-1, 3)

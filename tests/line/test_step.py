@@ -190,8 +190,13 @@ def test_the_sequential_estimator_follows_the_attributed_group_without_waiting(
         ln.cell.set_timeline(ln.clock, knock=Knock.of_kind("sensor", ln.clock.monotonic()))
         opened = ln.wait(_is("suspect_interval", state="open"), 20.0)
         n_window = ln.service.counters["windows"]
-        attributed = ln.wait(
-            lambda e: e["event"] == "step_attribution" and e["choice"] == "sensor", 30.0
+        attributed = ln.wait(  # decisive: BIC margin >= step_min_margin
+            lambda e: (
+                e["event"] == "step_attribution"
+                and e["choice"] == "sensor"
+                and (e["attribution"]["margin"] or 1e9) >= 10.0
+            ),
+            30.0,
         )
         seq = ln.service.sequential
         assert seq is not None and seq.group_step and seq.est is not None
