@@ -81,6 +81,16 @@ class DeviceUrl:
         except ValueError as exc:
             raise DeviceConfigError(f"{self.raw}: option {name!r} must be a number") from exc
 
+    def flag(self, name: str, default: bool = False) -> bool:
+        """A yes/no option: 1, true, yes, on or 0, false, no, off (DeviceConfigError else)."""
+        text = self.query.get(name)
+        if text is None:
+            return default
+        value = {"1": True, "true": True, "yes": True, "on": True, "": True}.get(text.lower())
+        if value is None and text.lower() not in ("0", "false", "no", "off"):
+            raise DeviceConfigError(f"{self.raw}: option {name!r} must be 1 or 0, got {text!r}")
+        return bool(value)
+
     def address(self, default_port: int) -> tuple[str, int]:
         if not self.host:
             raise DeviceConfigError(f"{self.raw}: no host")

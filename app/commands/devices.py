@@ -5,7 +5,8 @@ Without ``--cell`` it checks every backend against the fakes out of the box: the
 (RMI controller, Modbus TP mailbox, tracker side-car, line PLC, SCPI DAC on a pty, Aravis GigE
 fake camera) are started on 127.0.0.1 with ephemeral ports, plus the in-process ``fake://``
 backends. With ``--cell`` it reads the ``[devices]`` table (keys camera, galvo, robot, tracker,
-plc; values device URLs). Exit 0 when every device answered, 1 when one failed, 2 on bad input.
+plc; values device URLs). The PLC is opened read-only: the check never writes the app's words
+of a live line. Exit 0 when every device answered, 1 when one failed, 2 on bad input.
 """
 
 from __future__ import annotations
@@ -109,6 +110,8 @@ def _check(
     options: dict[str, Any] = {"timeout_s": timeout}
     if url.startswith("fake://"):
         options["world"] = world
+    if family == "plc":
+        options["read_only"] = True  # looking at a live line never changes its handshake
     try:
         device = create_device(family, url, **options)
     except DeviceConfigError as exc:
