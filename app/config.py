@@ -204,7 +204,9 @@ class PlanningSection(Section):
 
 @dataclass(frozen=True)
 class DevicesSection(Section):
-    """Device URLs (drivers.registry); optional: without it every device is the fake."""
+    """Device URLs (drivers.registry); optional: without it every device is the fake. `trace`:
+    every device's wire traffic to the state directory's trace/wire.jsonl (drivers.trace;
+    one device alone: `?trace=1` in its URL), rotated at trace_max_mb, trace_keep old files."""
 
     name = "devices"
     robot: str = opt("fake://")
@@ -212,6 +214,36 @@ class DevicesSection(Section):
     galvo: str = opt("fake://")
     tracker: str = opt("fake://")
     plc: str = opt("fake://")
+    trace: bool = opt(False)
+    trace_max_mb: float = opt(10.0, gt=0, hi=10000)
+    trace_keep: int = opt(5, lo=1, hi=1000)
+
+    FAMILIES: ClassVar[tuple[str, ...]] = ("robot", "camera", "galvo", "tracker", "plc")
+
+    def urls(self) -> dict[str, str]:
+        """family -> device URL."""
+        return {family: getattr(self, family) for family in self.FAMILIES}
+
+    def traced(self) -> bool:
+        """Whether any device is traced (the setting, or `trace=1` in a URL)."""
+        from drivers.registry import parse_url
+
+        return self.trace or any(parse_url(u).flag("trace") for u in self.urls().values())
+
+    def wire_trace(self, path: Any, *, every_device: bool | None = None) -> Any:
+        """The drivers.trace.WireTrace at `path` these settings ask for, or None when off
+        (`every_device`: trace every device, default: as `trace` says; the simulated line,
+        whose URLs are its own, traces all of them when any tracing is asked for)."""
+        if not self.traced():
+            return None
+        from drivers.trace import WireTrace
+
+        return WireTrace(
+            path,
+            max_bytes=int(self.trace_max_mb * 2**20),
+            keep=self.trace_keep,
+            every_device=self.trace if every_device is None else every_device,
+        )
 
 
 @dataclass(frozen=True)
@@ -443,7 +475,9 @@ def _resolve(s: dict[str, Section], source: str, reader: Any = None) -> CellConf
     sp = s["spheres"]
     if not sp["positions_mm"]:
         raise fail("spheres", "positions_mm", "expected a table of sphere ids -> [x, y, z]")
-    for family, url in s["devices"].items():
+    devices = s["devices"]
+    assert isinstance(devices, DevicesSection)
+    for family, url in devices.urls().items():
         reason = _url_problem(family, url)
         if reason:
             raise fail("devices", family, reason)
@@ -469,7 +503,9 @@ def _url_problem(family: str, url: str) -> str:
     from drivers.registry import BACKENDS, parse_url
 
     try:
-        scheme = parse_url(url).scheme
+        parsed = parse_url(url)
+        scheme = parsed.scheme
+        parsed.flag("trace")
     except DeviceConfigError as exc:
         return str(exc)
     if scheme not in BACKENDS[family]:

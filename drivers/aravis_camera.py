@@ -12,6 +12,10 @@ fixed when Aravis is built) means the camera is gone: the camera is marked lost,
 call raises DeviceConnectionError at once instead of waiting again, and close() does not try to
 stop the acquisition. Close and reopen it when the camera is back. Aravis's own finalisers still
 say goodbye to the camera, so closing while it is unreachable takes those retries once more.
+
+Traced (``?trace=1``): every GenICam request made through ArvCamera (feature writes such as
+the region, exposure, gain, pixel format and trigger, and the reads) with its answer or error,
+and every frame event (id, buffer status, size, timestamp) or its absence.
 """
 
 from __future__ import annotations
@@ -50,6 +54,15 @@ def _translate(what: str, exc: Exception) -> DeviceError:
     return DeviceFault(f"{what}: {text}", code=int(getattr(exc, "code", 0) or 0))
 
 
+def _short(value: Any) -> str:
+    """A GenICam reply for the trace: the value, or its type for anything big (a stream)."""
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return repr(value)
+    if isinstance(value, (tuple, list)) and len(value) <= 8:
+        return repr(tuple(value))
+    return type(value).__name__
+
+
 class AravisCamera(Camera):
     """``AravisCamera("Basler-21234567", settings=CameraSettings(...), packet_size=8192)``."""
 
@@ -70,15 +83,24 @@ class AravisCamera(Camera):
         return cls(url.host, **options)
 
     def _call(self, what: str, fn: Any, *args: Any) -> Any:
+        """One GenICam request through Aravis (traced as sent and answered when on)."""
         self._check_not_lost(what)
+        trace = self.trace
+        if trace is not None:
+            trace.tx(f"{what}{args if args else ''}")
         try:
-            return fn(*args)
+            result = fn(*args)
         except GLib.Error as exc:
             error = _translate(f"{self.name}: {what}", exc)
+            if trace is not None:
+                trace.note(f"{type(error).__name__}: {error}")
             if self._cam is not None and isinstance(error, (DeviceTimeout, DeviceConnectionError)):
                 self._lost = True
                 self.log.error("%s: camera lost: %s", self.name, error)
             raise error from exc
+        if trace is not None:
+            trace.rx(f"{what}: {_short(result)}")
+        return result
 
     def _check_not_lost(self, what: str) -> None:
         if self._lost:
@@ -162,9 +184,17 @@ class AravisCamera(Camera):
         self._check_not_lost("grab")
         buf = self._stream.timeout_pop_buffer(int(timeout_s * 1e6))
         if buf is None:
+            if self.trace is not None:
+                self.trace.note(f"frame: none within {timeout_s:g} s")
             raise DeviceTimeout(f"{self.name}: no frame within {timeout_s:g} s")
         try:
             status = buf.get_status()
+            if self.trace is not None:
+                self.trace.rx(
+                    f"frame {buf.get_frame_id()} {status.value_nick} "
+                    f"{buf.get_image_width()}x{buf.get_image_height()} "
+                    f"timestamp {buf.get_timestamp()} ns"
+                )
             if status != Aravis.BufferStatus.SUCCESS:
                 raise ProtocolError(f"{self.name}: frame {buf.get_frame_id()} {status.value_nick}")
             w, h = buf.get_image_width(), buf.get_image_height()

@@ -50,7 +50,9 @@ class ModbusPlc(Plc):
         return f"line PLC at {self.host}:{self.port} unit {self.unit} base {self.base}"
 
     def _connect(self) -> None:
-        link = ModbusLink(self.host, self.port, unit=self.unit, timeout_s=self.timeout_s)
+        link = ModbusLink(
+            self.host, self.port, unit=self.unit, timeout_s=self.timeout_s, trace=self.trace
+        )
         link.connect()
         self._link = link
 

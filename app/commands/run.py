@@ -56,9 +56,10 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("no plan file (write one with `rvis plan --out ...`)", file=plan)
     x0 = from_json(args.params)[1] if args.params else None
     sensor_model = load_sensor_model(args.sensor_model) if args.sensor_model else None
-    with hold_state(settings.state_dir, settings.operators_group):
+    with hold_state(settings.state_dir, settings.operators_group) as state:
         try:
-            station = Station.open(dict(cfg.devices), guard=cell_guard(cfg))
+            trace = cfg.devices.wire_trace(state.wire_trace)
+            station = Station.open(cfg.devices.urls(), guard=cell_guard(cfg), trace=trace)
         except DeviceConfigError as exc:
             raise InputError(str(exc), file=cfg.source, field="devices") from exc
         except DeviceError as exc:

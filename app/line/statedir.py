@@ -9,6 +9,10 @@ permissions, the one-service lock and the free space under it (DESIGN.md section
         params/current.json      the applied version (derived: rebuilt from the history)
         params/history/NNNN.json every version ever applied
         sweeps/NNNNNNNN.npz      raw sweeps kept for audit ([service] raw_sweeps_keep)
+        trace/wire.jsonl         the devices' wire trace when on ([devices] trace, `?trace=1`),
+                                 rotated to wire.jsonl.1, .2, ... (`rvis devices trace`)
+        commission/              `rvis commission`: its journal, each step's results, the
+                                 report (commission.md, commission.json)
 
 Read-only clients (`rvis status`, `rvis ctl`, `rvis tui`) only need the layout; the service
 also takes the lock before it opens any device (`ServiceLock`), and `prepare()`s the directory.
@@ -33,6 +37,8 @@ LOCK_NAME = "rvis.lock"
 PLAN_NAME = "plan.json"
 PARAMS_DIR = "params"
 SWEEPS_DIR = "sweeps"
+TRACE_DIR = "trace"
+COMMISSION_DIR = "commission"
 
 DIR_MODE, DIR_MODE_GROUP = 0o750, 0o2770  # setgid: new files take the operators' group
 UMASK, UMASK_GROUP = 0o027, 0o007  # files 0640 (0660 with the group)
@@ -79,6 +85,14 @@ class StateDir:
     @property
     def sweeps(self) -> Path:
         return self.root / SWEEPS_DIR
+
+    @property
+    def wire_trace(self) -> Path:
+        return self.root / TRACE_DIR / "wire.jsonl"
+
+    @property
+    def commission(self) -> Path:
+        return self.root / COMMISSION_DIR
 
     def free_mb(self) -> float:
         """Free space [MiB] for an unprivileged writer on the directory's file system."""

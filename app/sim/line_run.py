@@ -29,6 +29,7 @@ from app.line.measure import GeometricSensor, SphereSensor, SweepSensor
 from app.line.schedule import Schedule
 from app.line.service import Service
 from app.line.settings import ServiceSettings, from_cell
+from app.line.statedir import StateDir
 from app.line.station import Station, cell_guard
 from app.simulation import make_cell, simulated_sets, true_sensor_model
 from calib import candidates
@@ -182,7 +183,8 @@ class SimulatedLineRun:
         if self.geometric:
             urls.pop("camera", None)
             urls.pop("galvo", None)
-        station = Station.open(urls, guard=cell_guard(self.cfg))
+        trace = self.cfg.devices.wire_trace(StateDir(self.state_dir).wire_trace, every_device=True)
+        station = Station.open(urls, guard=cell_guard(self.cfg), trace=trace)
         self._stack.callback(station.close)
         sensor: SphereSensor
         if self.geometric:
