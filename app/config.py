@@ -351,6 +351,48 @@ class SimLineSection(Section):
     n_validation: int = opt(100, lo=1, hi=10000)
 
 
+@dataclass(frozen=True)
+class CameraSection(Section):
+    """The camera's acquisition for the sweeps of `rvis run` (full frames, software trigger);
+    `rvis commission` chooses the exposure from its stripe check and writes it here."""
+
+    name = "camera"
+    exposure_us: float = opt(10000.0, gt=0, hi=1e6)
+    gain_db: float = opt(0.0, lo=0, hi=48)
+
+    def settings(self) -> Any:
+        """The drivers.camera.CameraSettings of this section."""
+        from drivers.camera import CameraSettings
+
+        return CameraSettings(exposure_us=self.exposure_us, gain_db=self.gain_db)
+
+
+@dataclass(frozen=True)
+class CommissionSection(Section):
+    """`rvis commission` (docs/commissioning.md): the speed of its motions (the guard refuses
+    more) and the limit each step is checked against before the next one may start."""
+
+    name = "commission"
+    speed_pct: float = opt(10.0, gt=0, hi=100)
+    exposures_us: Vec = opt([2500.0, 5000.0, 10000.0, 20000.0, 40000.0], gt=0, hi=1e6)
+    min_stripe_rows: int = opt(60, lo=1, hi=100000)
+    max_saturated_fraction: float = opt(0.02, lo=0, hi=1)
+    min_peak_fraction: float = opt(0.15, gt=0, hi=1)
+    max_peak_fraction: float = opt(0.9, gt=0, hi=1)
+    max_stripe_width_px: float = opt(3.5, gt=0, hi=100)
+    min_roi_margin_px: int = opt(8, lo=0, hi=10000)
+    chessboards: int = opt(12, lo=3, hi=100)
+    flat_targets: int = opt(4, lo=2, hi=50)
+    max_reprojection_px: float = opt(0.1, gt=0, hi=10)
+    max_plane_rms_mm: float = opt(0.03, gt=0, hi=10)
+    max_target_rms_mm: float = opt(0.05, gt=0, hi=10)
+    max_sphere_offset_mm: float = opt(50.0, gt=0, hi=1e4)
+    max_rejected_fraction: float = opt(0.1, lo=0, hi=1)
+    validation_views: int = opt(3, lo=1, hi=100)
+    max_validation_rmse_mm: float = opt(0.2, gt=0, hi=100)
+    seed: int = opt(0, lo=0, hi=2**32 - 1)
+
+
 SECTIONS: tuple[type[Section], ...] = (
     RobotSection,
     FramesSection,
@@ -366,6 +408,8 @@ SECTIONS: tuple[type[Section], ...] = (
     SweepSection,
     DriftSection,
     SimLineSection,
+    CameraSection,
+    CommissionSection,
 )
 BY_NAME = {s.name: s for s in SECTIONS}
 
@@ -400,6 +444,8 @@ class CellConfig:
     sweep: SweepSection
     drift: DriftSection
     simline: SimLineSection
+    camera: CameraSection
+    commission: CommissionSection
     source: str = "<embedded default>"
 
     @property

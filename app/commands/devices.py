@@ -14,12 +14,12 @@ from __future__ import annotations
 
 import argparse
 import json
-from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from app.devicecheck import describe_and_probe
 from app.errors import InputError
 from drivers import DeviceConfigError, DeviceError, create_device
 from drivers.registry import FAMILIES
@@ -140,43 +140,9 @@ def _check(
         raise InputError(str(exc), file=cell, field=f"devices.{family}") from exc
     try:
         with device:
-            return Row(family, url, "OK", f"{device.describe()}; {PROBES[family](device)}")
+            return Row(family, url, "OK", describe_and_probe(device))
     except DeviceError as exc:
         return Row(family, url, "FAIL", f"{type(exc).__name__}: {exc}")
-
-
-def _probe_robot(robot: Any) -> str:
-    q = ", ".join(f"{v:.2f}" for v in robot.joints_deg())
-    return f"J1..J6 = {q} deg; servo ready {robot.status().servo_ready}"
-
-
-def _probe_camera(camera: Any) -> str:
-    frame = camera.grab()
-    h, w = frame.image.shape
-    return f"frame {frame.frame_id} {w}x{h} {frame.image.dtype}"
-
-
-def _probe_galvo(galvo: Any) -> str:
-    return f"command {galvo.volts() + 0.0:.3f} V"
-
-
-def _probe_tracker(tracker: Any) -> str:
-    status = tracker.status()
-    return f"{len(tracker.targets())} targets; target in beam {status.target_in_beam}"
-
-
-def _probe_plc(plc: Any) -> str:
-    inputs = plc.poll()
-    return f"window {inputs.window_open}, line {inputs.line_running}, beat {inputs.heartbeat}"
-
-
-PROBES: dict[str, Callable[[Any], str]] = {
-    "robot": _probe_robot,
-    "camera": _probe_camera,
-    "galvo": _probe_galvo,
-    "tracker": _probe_tracker,
-    "plc": _probe_plc,
-}
 
 
 def _print_table(rows: list[Row]) -> None:

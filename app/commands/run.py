@@ -59,7 +59,12 @@ def run(args: argparse.Namespace) -> int:
     with hold_state(settings.state_dir, settings.operators_group) as state:
         try:
             trace = cfg.devices.wire_trace(state.wire_trace)
-            station = Station.open(cfg.devices.urls(), guard=cell_guard(cfg), trace=trace)
+            station = Station.open(
+                cfg.devices.urls(),
+                guard=cell_guard(cfg),
+                options={"camera": {"settings": cfg.camera.settings()}},
+                trace=trace,
+            )
         except DeviceConfigError as exc:
             raise InputError(str(exc), file=cfg.source, field="devices") from exc
         except DeviceError as exc:
