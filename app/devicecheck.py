@@ -47,5 +47,3 @@ PROBES: dict[str, Callable[[Any], str]] = {
     "tracker": _probe_tracker,
     "plc": _probe_plc,
 }
-
-

@@ -6,6 +6,9 @@ permissions, the one-service lock and the free space under it (DESIGN.md section
         rvis.lock                the running service's lock (flock) and pid
         rvis.sock                the control socket, 0660
         plan.json                the plan `rvis run` reads when --plan is not given
+        cell.toml                the cell file `rvis commission` wrote (`rvis run --cell`)
+        sensor.toml              the sensor calibration `rvis run` reads when --sensor-model
+                                 is not given (written by `rvis commission`)
         params/current.json      the applied version (derived: rebuilt from the history)
         params/history/NNNN.json every version ever applied
         sweeps/NNNNNNNN.npz      raw sweeps kept for audit ([service] raw_sweeps_keep)
@@ -35,6 +38,8 @@ DB_NAME = "rvis.db"
 SOCKET_NAME = "rvis.sock"
 LOCK_NAME = "rvis.lock"
 PLAN_NAME = "plan.json"
+CELL_NAME = "cell.toml"
+SENSOR_NAME = "sensor.toml"
 PARAMS_DIR = "params"
 SWEEPS_DIR = "sweeps"
 TRACE_DIR = "trace"
@@ -69,6 +74,14 @@ class StateDir:
     @property
     def plan(self) -> Path:
         return self.root / PLAN_NAME
+
+    @property
+    def cell(self) -> Path:
+        return self.root / CELL_NAME
+
+    @property
+    def sensor(self) -> Path:
+        return self.root / SENSOR_NAME
 
     @property
     def params(self) -> Path:
