@@ -72,6 +72,7 @@ class AravisCamera(Camera):
         self.camera_id, self.packet_size = camera_id, packet_size
         self._cam: Any = None
         self._stream: Any = None
+        self._stream_shape: tuple[int, int] = (0, 0)  # (payload bytes, buffers) of _stream
         self._lost = False
 
     @classmethod
@@ -139,7 +140,6 @@ class AravisCamera(Camera):
     def _apply(self, s: CameraSettings) -> CameraSettings:
         cam = self._cam
         self._call("stop", cam.stop_acquisition)
-        self._stream = None
         offered = self._call("pixel formats", cam.dup_available_pixel_formats_as_strings)
         if s.pixel_format not in offered:
             raise DeviceConfigError(f"{self.name}: {s.pixel_format} not offered ({offered})")
@@ -169,11 +169,22 @@ class AravisCamera(Camera):
         return applied
 
     def _start_stream(self, buffers: int) -> None:
+        """Start the acquisition into `stream` when its buffers still fit (an exposure, gain
+        or trigger change), else into a new stream. Reusing it matters: a new stream while the
+        old one is being torn down in Aravis's threads now and then leaves the camera sending
+        nowhere (a CLEARED buffer, then silence; about 1 in 40 exposure changes on loopback)."""
         cam = self._cam
-        stream = self._call("stream", cam.create_stream, None, None)
         payload = self._call("payload", cam.get_payload)
-        for _ in range(buffers):
-            stream.push_buffer(Aravis.Buffer.new_allocate(payload))
+        stream = self._stream
+        if stream is None or (payload, buffers) != self._stream_shape:
+            stream = self._stream = None  # the old one goes before a new one is made
+            stream = self._call("stream", cam.create_stream, None, None)
+            for _ in range(buffers):
+                stream.push_buffer(Aravis.Buffer.new_allocate(payload))
+            self._stream_shape = (payload, buffers)
+        else:  # frames left from before the change are not of these settings
+            while (old := stream.try_pop_buffer()) is not None:
+                stream.push_buffer(old)
         self._stream = stream
         self._call("start", cam.start_acquisition)
 
