@@ -15,7 +15,9 @@ say goodbye to the camera, so closing while it is unreachable takes those retrie
 
 Traced (``?trace=1``): every GenICam request made through ArvCamera (feature writes such as
 the region, exposure, gain, pixel format and trigger, and the reads) with its answer or error,
-and every frame event (id, buffer status, size, timestamp) or its absence.
+and every frame event (id, buffer status, size, timestamp) or its absence. A frame that
+arrives incomplete (packets lost, the buffer timed out) is a lost frame: DeviceTimeout, so the
+camera family re-triggers it once, as when it never arrives.
 """
 
 from __future__ import annotations
@@ -42,6 +44,11 @@ try:
     from gi.repository import Aravis, GLib
 except (ImportError, ValueError) as exc:  # ValueError: typelib missing
     raise ImportError(f"Aravis 0.8 through PyGObject is not available: {exc}") from exc
+
+
+#: Buffer states of a frame that did not arrive whole (packets lost, its time out): a lost frame,
+#: which the camera family re-triggers once (drivers/camera.py), not a malformed one.
+_INCOMPLETE = (Aravis.BufferStatus.TIMEOUT, Aravis.BufferStatus.MISSING_PACKETS)
 
 
 def _translate(what: str, exc: Exception) -> DeviceError:
@@ -205,6 +212,10 @@ class AravisCamera(Camera):
                     f"frame {buf.get_frame_id()} {status.value_nick} "
                     f"{buf.get_image_width()}x{buf.get_image_height()} "
                     f"timestamp {buf.get_timestamp()} ns"
+                )
+            if status in _INCOMPLETE:  # lost on the way: the camera re-triggers it once
+                raise DeviceTimeout(
+                    f"{self.name}: frame {buf.get_frame_id()} incomplete ({status.value_nick})"
                 )
             if status != Aravis.BufferStatus.SUCCESS:
                 raise ProtocolError(f"{self.name}: frame {buf.get_frame_id()} {status.value_nick}")
