@@ -22,6 +22,7 @@ from calib import candidates
 from calib.errors import InsufficientData
 from calib.gates import check_identification
 from calib.identify import Measurements, identify
+from calib.validation import rmse
 
 F64 = NDArray[np.float64]
 
@@ -146,14 +147,14 @@ def validation(ctx: Context) -> StepResult:
         for i, t in enumerate(data.targets)
     ]
     write_csv(ctx.path("validation_errors.csv"), ERROR_COLUMNS, rows)
-    rmse = float(np.sqrt(np.mean(d**2))) if len(d) else float("inf")
-    rmse_nominal = float(np.sqrt(np.mean(np.sum(e_nom**2, axis=1)))) if len(d) else float("inf")
+    error_mm = rmse(e_id) if len(d) else float("inf")
+    nominal_mm = rmse(e_nom) if len(d) else float("inf")
     r.results = {
         "views": len(views),
         "measured": len(data),
-        "rmse_mm": rmse,
+        "rmse_mm": error_mm,
         "max_mm": float(d.max()) if len(d) else float("inf"),
-        "rmse_nominal_mm": rmse_nominal,
+        "rmse_nominal_mm": nominal_mm,
         "rejected": taken.rejected,
     }
     if ctx.truth is not None:
@@ -162,7 +163,7 @@ def validation(ctx: Context) -> StepResult:
         at_least(
             "spheres measured", len(data), len(views) * (1 - cell.commission.max_rejected_fraction)
         ),
-        at_most("validation RMSE", rmse, cell.commission.max_validation_rmse_mm, "mm"),
-        at_most("RMSE, calibrated over nominal", rmse, rmse_nominal, "mm"),
+        at_most("validation RMSE", error_mm, cell.commission.max_validation_rmse_mm, "mm"),
+        at_most("RMSE, calibrated over nominal", error_mm, nominal_mm, "mm"),
     ]
     return r

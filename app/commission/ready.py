@@ -37,7 +37,7 @@ def ready(ctx: Context) -> StepResult:
     write_text(state.cell, dumps_cell(cell, f"written by rvis commission from {ctx.cfg.source}"))
     version = _apply_once(ctx)
     r.results["version"] = version
-    r.results["run"] = f"rvis run --cell {state.cell} --state-dir {state.root}"
+    r.results["run"] = f"rvis run --cell {state.cell}"
     if ctx.truth is not None:  # the simulated line: its own devices, the same cell (seed)
         r.results["run"] = (
             f"rvis run --sim --seed {ctx.truth.seed} --cell {state.cell} "
@@ -48,8 +48,11 @@ def ready(ctx: Context) -> StepResult:
 
 
 def _commissioned_cell(ctx: Context) -> CellConfig:
-    """The cell with the measured spheres and, when the stripe step chose one, its exposure."""
+    """The cell with the measured spheres, this state directory and, when the stripe step
+    chose one, its exposure."""
     cell = ctx.cell()
+    service = dataclasses.replace(cell.service, state_dir=str(ctx.state.root.resolve()))
+    cell = dataclasses.replace(cell, service=service)
     stripe = ctx.path("stripe.json")
     if stripe.exists():
         exposure = float(read_json(stripe)["chosen"]["exposure_us"])

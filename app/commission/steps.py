@@ -92,6 +92,8 @@ def sensor(ctx: Context) -> StepResult:
     reproj, plane = model.camera.rms_reprojection_px, model.laser.rms_plane_mm
     K = model.camera.K
     r.results |= {"fx_px": K[0, 0], "fy_px": K[1, 1], "cx_px": K[0, 2], "cy_px": K[1, 2]}
+    if ctx.truth is not None:  # the simulated line: against its true sensor, never checked
+        r.results["truth"] = ctx.truth.sensor_errors(model)
     r.checks.append(_recorded_at_most("reprojection RMS", reproj, c.max_reprojection_px, "px"))
     r.checks.append(_recorded_at_most("laser plane RMS", plane, c.max_plane_rms_mm, "mm"))
     return r

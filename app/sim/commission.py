@@ -11,6 +11,7 @@ report (the true error of a calibration at the line's validation positions; neve
 from __future__ import annotations
 
 from contextlib import ExitStack
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Self
 
@@ -21,8 +22,9 @@ from app.commission.context import Context
 from app.config import CellConfig
 from app.line.measure import GeometricSensor, SphereSensor, SweepSensor
 from app.sensordata import write_image, write_sweep
+from app.sim.line_run import simline_settings, true_rmse_mm
 from app.simulation import make_cell
-from fakes.line import LineSettings, SimLine
+from fakes.line import SimLine
 from fakes.render_targets import render_calibration_set
 from vision.sensor_model import SensorModel
 
@@ -35,17 +37,9 @@ class SimCommissioning:
     def __init__(self, cfg: CellConfig, seed: int, *, geometric: bool) -> None:
         self.cfg, self.seed, self.geometric = cfg, seed, geometric
         self.cell = make_cell(cfg, seed=seed)
-        s = cfg.simline
-        settings = LineSettings(
-            scale=s.scale,
-            period_s=s.period_s,
-            window_s=s.window_s,
-            beat_s=s.beat_s,
-            warmup=None,
-            knock=None,
-            camera=True,  # the stripe step needs the camera either way
-            n_validation=s.n_validation,
-        )
+        # the line of `rvis run --sim`, steady and at full speed, with its camera either way
+        line = simline_settings(cfg, geometric=True)
+        settings = replace(line, warmup=None, knock=None, camera=True)
         self.line = SimLine(self.cell, settings)
         self._stack = ExitStack()
         self.station: Any = None
@@ -90,11 +84,17 @@ class SimCommissioning:
             write_image(pose / "board.png", board)
             write_sweep(pose, list(frames), list(cs.commands_v))
 
+    def sensor_errors(self, model: SensorModel) -> dict[str, float]:
+        """How far a sensor calibration is from the true sensor: focal lengths and principal
+        point [px]."""
+        true, K = self.cell.sensor, model.camera.K
+        return {
+            "fx_error_px": float(K[0, 0] - true.fx_px),
+            "fy_error_px": float(K[1, 1] - true.fy_px),
+            "cx_error_px": float(K[0, 2] - true.cx_px),
+            "cy_error_px": float(K[1, 2] - true.cy_px),
+        }
+
     def true_rmse_mm(self, model: Any, x: F64) -> float:
         """RMS Euclidean error [mm] of parameters x at the line's validation positions."""
-        truth = self.line.truth
-        v = truth.validation
-        c = truth.validation_centres_sensor_mm()
-        temp = np.full(len(v.q_deg), truth.temp_c())
-        e = model.points_part(x, v.q_deg, c, temp_c=temp) - v.p_part_mm
-        return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
+        return true_rmse_mm(self.line, model, x)

@@ -143,6 +143,15 @@ def random_schedule(cfg: CellConfig, cell: SimulatedCell, seed: int, n_each: int
     return out
 
 
+def true_rmse_mm(line: SimLine, model: Any, x: F64) -> float:
+    """RMS of the Euclidean error [mm] of `model` with parameters x at the line's validation
+    positions, now (the cell's temperature as the PLC reads it)."""
+    v = line.truth.validation
+    c = line.truth.validation_centres_sensor_mm()
+    temp = np.full(len(v.q_deg), line.truth.temp_c())
+    return rmse(model.points_part(x, v.q_deg, c, temp_c=temp) - v.p_part_mm)
+
+
 class SimulatedLineRun:
     """`with SimulatedLineRun(cfg, state_dir, seed=...) as run: run.windows(n)`."""
 
@@ -216,11 +225,7 @@ class SimulatedLineRun:
 
     def true_rmse_mm(self, x: F64) -> float:
         """RMS of the Euclidean error of parameters x at the validation positions, now."""
-        v = self.line.truth.validation
-        c = self.line.truth.validation_centres_sensor_mm()
-        temp = np.full(len(v.q_deg), self.line.truth.temp_c())  # the PLC's reading, as the line
-        e = self.model.points_part(x, v.q_deg, c, temp_c=temp) - v.p_part_mm
-        return rmse(e)
+        return true_rmse_mm(self.line, self.model, x)
 
     def start_service(self) -> None:
         self.thread = threading.Thread(target=self.service.run, name="rvis-service", daemon=True)
