@@ -148,20 +148,20 @@ def test_the_engineer_stops_it_and_a_journal_of_another_set_up_is_refused(
     assert len(err.splitlines()) == 1
 
 
-@pytest.mark.slow  # about 1.5 min: every sphere measured through rendered sweeps
+@pytest.mark.slow  # about 1 min: every sphere measured through rendered sweeps
 def test_the_rendered_commissioning_measures_through_camera_and_galvo(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """The same sequence with every sweep rendered by the simulated cell and measured by the
-    vision pipeline with the sensor calibration of step 3 (fewer frames and views: time)."""
+    vision pipeline with the sensor calibration of step 3 (16 frames a sweep, 1 validation
+    view a sphere: time; fewer calibration targets made it reject 7 of 24 views: it failed)."""
     cell, state = tmp_path / "cell.toml", tmp_path / "state"
     cell.write_text(
-        CELL + "[sweep]\nn_frames = 12\n[commission]\nvalidation_views = 1\nchessboards = 8\n"
-        "flat_targets = 3\n"
+        CELL + "[sweep]\nn_frames = 16\n[commission]\nvalidation_views = 1\n"
     )
     argv = ["commission", "--sim", "--yes", "--cell", str(cell), "--state-dir", str(state)]
     assert main(argv) == 0, capsys.readouterr().out[-3000:]
     report = json.loads((StateDir(state).commission / "commission.json").read_text())
     steps = {s["name"]: s["results"] for s in report["steps"]}
     assert steps["calibration"]["measurements"] >= 22 and steps["calibration"]["rms_mm"] < 0.1
-    assert steps["validation"]["rmse_mm"] < 0.15 and steps["validation"]["true_rmse_mm"] < 0.15
+    assert steps["validation"]["rmse_mm"] < 0.1 and steps["validation"]["true_rmse_mm"] < 0.2
