@@ -156,9 +156,7 @@ def test_the_rendered_commissioning_measures_through_camera_and_galvo(
     vision pipeline with the sensor calibration of step 3 (16 frames a sweep, 1 validation
     view a sphere: time; fewer calibration targets made it reject 7 of 24 views: it failed)."""
     cell, state = tmp_path / "cell.toml", tmp_path / "state"
-    cell.write_text(
-        CELL + "[sweep]\nn_frames = 16\n[commission]\nvalidation_views = 1\n"
-    )
+    cell.write_text(CELL + "[sweep]\nn_frames = 16\n[commission]\nvalidation_views = 1\n")
     argv = ["commission", "--sim", "--yes", "--cell", str(cell), "--state-dir", str(state)]
     assert main(argv) == 0, capsys.readouterr().out[-3000:]
     report = json.loads((StateDir(state).commission / "commission.json").read_text())
