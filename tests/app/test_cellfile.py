@@ -15,7 +15,7 @@ from app.config import SECTIONS, CameraSection, SpheresSection, load_cell
 
 def test_a_cell_reads_back_to_the_same_sections(tmp_path: Path) -> None:
     cfg = load_cell(None)
-    spheres = {"P1": (1.5, -2.25, 3.0), "stand 2": (-1e4, 0.1, 1e-3)}
+    spheres: dict[str, tuple[float, ...]] = {"P1": (1.5, -2.25, 3.0), "stand 2": (-1e4, 0.1, 1e-3)}
     cfg = dataclasses.replace(
         cfg,
         spheres=SpheresSection(frame="part", positions_mm=spheres),
