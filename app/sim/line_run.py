@@ -111,7 +111,8 @@ def service_settings(
 ) -> ServiceSettings:
     """The cell's service settings with the times a scaled line needs: the clamp window's length,
     a margin at the window's end of at least 50 ms real time (what the service computes
-    between a window's last slot and the robot's return: at x60 3 s of the line's time), a poll
+    between a window's last slot and the robot's return: at x60 3 s of the line's time; at most
+    a quarter of the window, so that very fast runs still measure), a poll
     of 10 ms real time, a heartbeat timeout of at least 0.5 s real time and, rendered,
     the real time a frame takes."""
     s = from_cell(cfg, state_dir)
@@ -121,7 +122,7 @@ def service_settings(
     line = replace(
         s.line,
         window_s=cfg.simline.window_s,
-        margin_s=max(s.line.margin_s, 0.05 * scale),
+        margin_s=max(s.line.margin_s, min(0.05 * scale, 0.25 * cfg.simline.window_s)),
         poll_s=max(s.line.poll_s, 0.01 * scale),
         heartbeat_timeout_s=max(s.line.heartbeat_timeout_s, 0.5 * scale),
     )
