@@ -18,8 +18,10 @@ since the previous visit of the same schedule slot (the same joint configuration
 sphere). d does not depend on the parameters at all (the same T_part_sensor maps both), so a step
 of the cell (a knock of the sensor mount, a moved sphere) shows as soon as the first configuration
 is measured again, whatever was applied in between; the baseline (sensor noise, robot
-repeatability and the slow drift over one schedule cycle) is learned once from the first
-`baseline_n` differences and kept; an apply restarts the statistics, not the baseline.
+repeatability and the slow drift over one schedule cycle) is learned from the first
+`baseline_n` differences, and learned again at every apply from the last `baseline_n`
+in-control ones (a baseline of the first hour holds the warm-up's fast drift: measured, its
+mean 0.065 mm against 0.045 mm at 2.5 h, so that a 0.17 mm knock needed a second sample).
 
 Both use the REFERENCE.md limits (upper side only: a smaller statistic is no alarm):
 
@@ -108,6 +110,7 @@ class Chart:
     drifting: bool = False
     onset_ref: int = -1  # first sample after the CUSUM was last zero
     ready: bool = False  # mu and sigma known
+    recent: list[float] = field(default_factory=list)  # the last in-control samples
 
     def seed(self, samples: list[float], sigma_floor_mm: float = 0.0) -> None:
         """Take mu and sigma (at least `sigma_floor_mm`) from these samples (at least 2) at
@@ -148,7 +151,16 @@ class Chart:
                 self.drifting = True
                 onset = self.onset_ref if self.s_hi > 0.0 else ref
                 return DriftSignal(family, stream, chart, value, limit, self.mu, self.sigma, onset)
+        self.recent = [*self.recent, e_mm][-s.baseline_n :]
         return None
+
+    def relearn(self) -> None:
+        """Learn the baseline again from the last in-control samples (when there are
+        `baseline_n` of them), else keep it; restart the statistics either way."""
+        if len(self.recent) >= self.settings.baseline_n:
+            self.seed(list(self.recent))
+        else:
+            self.restart()
 
     def to_json(self) -> dict[str, Any]:
         """Everything but the settings (the service's decision state, app.line.store)."""
@@ -156,7 +168,7 @@ class Chart:
 
     def load_json(self, doc: dict[str, Any]) -> None:
         for k in _CHART_FIELDS:
-            setattr(self, k, doc[k])
+            setattr(self, k, doc.get(k, []) if k == "recent" else doc[k])  # older: no recent
 
     def state(self) -> dict[str, float | bool]:
         return {
@@ -168,7 +180,18 @@ class Chart:
         }
 
 
-_CHART_FIELDS = ("baseline", "mu", "sigma", "z", "s_hi", "t", "drifting", "onset_ref", "ready")
+_CHART_FIELDS = (
+    "baseline",
+    "mu",
+    "sigma",
+    "z",
+    "s_hi",
+    "t",
+    "drifting",
+    "onset_ref",
+    "ready",
+    "recent",
+)
 
 
 class ChartFamily:
@@ -221,7 +244,8 @@ class DriftMonitor:
         """New parameters are in force: the residual charts start again, seeded with the new
         parameters' residuals `seed` (target, e_mm) when given (a sphere with fewer than
         `baseline_n` of them keeps its own mean but takes at least the pooled sigma: 6 samples
-        give sigma +-30 %), else they learn; the change charts keep their baseline and restart."""
+        give sigma +-30 %), else they learn; the change charts learn their baseline again from
+        their last in-control differences (`Chart.relearn`)."""
         self.residual.charts.clear()
         streams: dict[str, list[float]] = {OVERALL: []}
         for target, e_mm in seed:
@@ -238,14 +262,15 @@ class DriftMonitor:
 
     def restart(self) -> None:
         """Parameters close to those in force were applied (a sequential estimator's small
-        step): every chart keeps its baseline and restarts its statistics."""
+        step): every residual chart keeps its baseline and restarts its statistics; the change
+        charts learn theirs again (`Chart.relearn`)."""
         for chart in self.residual.charts.values():
             chart.restart()
         self._restart_change()
 
     def _restart_change(self) -> None:
         for chart in self.change.charts.values():
-            chart.restart()
+            chart.relearn()
 
     def update(
         self, target: str, e_mm: float, ref: int, change_mm: float | None = None

@@ -6,6 +6,7 @@ uses the model."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from app.config import load_cell
 from app.line.drift import OVERALL, DriftMonitor, prediction_inflation, residual_mm
@@ -95,15 +96,23 @@ def test_a_seeded_residual_chart_watches_from_its_first_sample() -> None:
     assert [fresh.update("P1", MU + 10 * SIGMA, i) for i in range(23)] == [[]] * 23  # learning
 
 
-def test_change_charts_keep_their_baseline_across_an_apply() -> None:
+def test_change_charts_learn_their_baseline_again_at_an_apply() -> None:
+    """The first differences hold the warm-up's fast drift: at an apply the change charts take
+    the last in-control ones instead, and a knock that the first baseline let pass for one
+    sample is flagged at its first."""
     rng = np.random.default_rng(7)
     mon = DriftMonitor(DriftSettings(baseline_n=16))
-    for i, d in enumerate(np.abs(rng.normal(0.0, SIGMA, 40))):
+    for i, d in enumerate(np.abs(rng.normal(0.0, 3 * SIGMA, 16))):  # the first hour
         mon.update("P1", MU, i, float(d))
-    mu = mon.change.charts[OVERALL].mu
-    mon.reset()  # parameters applied: residual charts start again, change charts only restart
-    assert mon.change.charts[OVERALL].mu == mu and not mon.residual.charts
-    signals = mon.update("P1", MU, 50, 0.3)  # the knock seen from a configuration measured again
+    first = mon.change.charts[OVERALL].mu
+    for i, d in enumerate(np.abs(rng.normal(0.0, SIGMA, 24)), start=16):  # later, quieter
+        mon.update("P1", MU, i, float(d))
+    mon.reset()  # parameters applied: residual charts start again, change charts learn again
+    chart = mon.change.charts[OVERALL]
+    assert chart.mu == pytest.approx(np.mean(chart.recent)) and chart.mu < 0.6 * first
+    assert not mon.residual.charts
+    knock = first + 3.0 * SIGMA
+    signals = mon.update("P1", MU, 50, knock)  # the knock seen from a configuration again
     assert [s.family for s in signals] == ["change", "change"] and signals[0].onset_ref == 50
 
 
@@ -112,14 +121,17 @@ def test_prediction_inflation() -> None:
     assert prediction_inflation(10**6, 30) < 1.0001
 
 
-def test_restart_keeps_every_baseline() -> None:
+def test_restart_keeps_the_residual_baselines() -> None:
     rng = np.random.default_rng(8)
     mon = DriftMonitor(DriftSettings(baseline_n=8))
     for i, e in enumerate(rng.normal(MU, SIGMA, 20)):
         mon.update("P1", float(e), i, abs(float(e) - MU))
     mon.update("P1", 1.0, 20, 1.0)
     assert mon.drifting
-    mus = (mon.residual.charts[OVERALL].mu, mon.change.charts[OVERALL].mu)
+    mu = mon.residual.charts[OVERALL].mu
     mon.restart()
     assert not mon.drifting
-    assert (mon.residual.charts[OVERALL].mu, mon.change.charts[OVERALL].mu) == mus
+    assert mon.residual.charts[OVERALL].mu == mu  # kept; the change charts learn again from
+    change = mon.change.charts[OVERALL]  # their last in-control samples (not the 1.0 mm one)
+    assert len(change.recent) == 8 and 1.0 not in change.recent
+    assert change.mu == pytest.approx(np.mean(change.recent))
