@@ -54,12 +54,15 @@ F64 = NDArray[np.float64]
 #: E|d| of a 3-D normal difference d with per-coordinate sigma: sigma sqrt(8 / pi)
 _MEAN_NORM_3D = float(np.sqrt(8.0 / np.pi))
 RECENT_FIRST = 2  # slots measured just before the change point revisited first
+#: a refinement's held-out change within the noise: sqrt(chi-square 3 dof, p = 0.99) sigma
+HELD_OUT_NOISE = float(np.sqrt(11.345))
 
 
 @dataclass
 class Step:
     """The step in progress (part of the service's decision state). `status`: attributing
-    (no correction yet), proposed (a correction waits for approval), following (sequential
+    (no correction yet), proposed (a correction waits for approval), refining (the first
+    correction applied, one more window of measurements refines it), following (sequential
     estimator: the suspected group's covariance widened, its candidate awaited), corrected
     (applied; the full recalibration on post-step measurements follows), several (no single
     group: waiting for the full recalibration), none (no step found)."""
@@ -74,6 +77,15 @@ class Step:
     n_used: int = 0  # measurements the last attribution used
     flag_id: int | None = None  # the measurement whose chart signalled
     start_id: int | None = None  # the first measurement after the step, as located
+    # refining (after the first correction): where the interval ends unless the refinement
+    # shows the first correction was off by more than step_refine_mm
+    first_end_t: float | None = None
+    first_end_version: int | None = None
+    first_cal_id: int | None = None
+    n_corrected: int = 0  # measurements when the first correction was made
+    refine_mm: float | None = None  # how far the refinement moved points at the standoff
+    refine_tries: int = 0
+    base_version: int | None = None  # the parameters the first correction was computed from
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -85,7 +97,7 @@ class Step:
     @property
     def measuring(self) -> bool:
         """The schedule serves the attribution (more slots per window, chosen for it)."""
-        return self.status in ("attributing", "following")
+        return self.status in ("attributing", "following", "refining")
 
 
 @dataclass(frozen=True, eq=False)
@@ -195,23 +207,38 @@ def correct_step(
     views: tuple[F64, F64],
     settings: RecalibSettings,
     gates: GateSettings,
+    *,
+    groups: Sequence[StepGroup] | None = None,
+    refine: bool = False,
+    x_in_force: F64 | None = None,
 ) -> tuple[Attribution, StepCorrection | None]:
     """Attribute the step on all pairs but the newest and gate the chosen group's correction
     (module docstring). `views`: the schedule's configurations (K, 6) with their last centres
     (K, 3), where the correction's uncertainty is predicted. The correction is None when no
-    single group was chosen."""
+    single group was chosen. `refine`: a correction already applied is refined (`groups`:
+    nothing or its group; x_current: the parameters the first correction was computed from,
+    as the pairs' differences restore the state before the step relative to them;
+    `x_in_force`: the first correction, which the held-out check and the change bounds are
+    against): no BIC margin is asked for, and the held-out measurement need only be
+    predicted within the noise (chi-square, 3 dof, p = 0.99) when not better."""
+    x_force = x_current if x_in_force is None else x_in_force
     rows = [p[0] for p in pairs]
     ref = reference_mm(model, x_current, [p[1] for p in pairs], spheres)
     data = as_measurements(rows, spheres)
     fit_rows = np.arange(len(rows) - 1)
     a = attribute(
-        model, x_current, data.subset(fit_rows), sigma_mm=sigma_mm, reference_mm=ref[fit_rows]
+        model,
+        x_current,
+        data.subset(fit_rows),
+        sigma_mm=sigma_mm,
+        reference_mm=ref[fit_rows],
+        groups=groups,
     )
     fit = a.chosen
     if a.choice in (NONE, SEVERAL) or fit is None:
         return a, None
     failures = []
-    if a.margin < settings.step_min_margin:
+    if not refine and a.margin < settings.step_min_margin:
         other = a.runner_up
         failures.append(
             f"not decisive: BIC margin {a.margin:.1f} over"
@@ -224,12 +251,13 @@ def correct_step(
         failures.append(f"predicted uncertainty {std:.4f} mm > {settings.step_max_std_mm:g} mm")
     newest = data.subset([len(rows) - 1])
     cand = float(np.linalg.norm(residuals(model, fit.x, newest)[0] - ref[-1]))
-    cur = float(np.linalg.norm(residuals(model, x_current, newest)[0] - ref[-1]))
-    if not cand <= gates.max_holdout_ratio * cur:
+    cur = float(np.linalg.norm(residuals(model, x_force, newest)[0] - ref[-1]))
+    noise = HELD_OUT_NOISE * sigma_mm if refine else 0.0
+    if not cand <= max(gates.max_holdout_ratio * cur, noise):
         failures.append(
             f"held-out change {cand:.4f} mm not better than the parameters in force ({cur:.4f} mm)"
         )
-    failures += change_failures(fit.group.params, fit.x, x_current, gates.calib_gates())
+    failures += change_failures(fit.group.params, fit.x, x_force, gates.calib_gates())
     doc = plain_document(model, fit.x, f"rvis run (step correction: {a.text()})")
     doc["estimator"] = {"kind": "step", "group": fit.group.name, "attribution": a.to_json()}
     doc["success"] = not failures

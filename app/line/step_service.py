@@ -18,7 +18,7 @@ import numpy as np
 
 from app.errors import InputError
 from app.line.step import Step, correct_step, locate_step, paired, step_sigma_mm
-from calib.attribution import NONE, SEVERAL, Attribution, point_shift_mm
+from calib.attribution import NONE, SEVERAL, Attribution, point_shift_mm, step_groups
 from calib.candidates import IDEAL_STANDOFF_MM
 
 if TYPE_CHECKING:
@@ -27,6 +27,7 @@ if TYPE_CHECKING:
 #: the change point is looked for from the CUSUM's estimate less a quarter of the schedule (the
 #: estimate can be late as well as early) up to the measurement that signalled
 LOOK_BACK_DIVISOR = 4
+REFINE_TRIES = 2  # refinements refused before the interval closes at the first correction
 
 
 class StepHandling:
@@ -74,27 +75,19 @@ class StepHandling:
         its gates pass; sequential estimator, widen the suspected group's covariance."""
         svc: Service = self  # type: ignore[assignment]
         step, r = svc.step, svc.settings.recalib
-        if step is None or step.status != "attributing" or not r.step_correction:
+        if step is None or not r.step_correction:
             return
-        lo = max(1, step.onset_id - len(svc.schedule) // LOOK_BACK_DIVISOR)
-        rows = svc.store.measurements(since_id=lo - 1)
-        before = svc.store.measurements(before_id=lo, last=2 * len(svc.schedule))
-        wide = paired(rows, before)  # references before any candidate change point
-        if len(wide) < r.step_min_measurements or len(wide) == step.n_used:
+        if step.status == "refining":
+            svc._refine_step(step)
             return
-        chart = svc.drift.change.charts.get("*")
-        mu = chart.mu if chart is not None and chart.ready else None
-        sigma = step_sigma_mm(before, mu, r.seq_measurement_std_mm)
+        if step.status != "attributing":
+            return
+        got = svc._step_pairs(step, locate=True)
+        if got is None:
+            return
+        wide, start_id, pairs, sigma = got
         views = svc._visited_views()
         n_all = len(wide)
-        start_id = int(
-            wide[locate_step(svc.model, svc.x, wide, svc.spheres, sigma, step.flag_id)][0]["id"]
-        )
-        # the pairs after it, with the freshest references (rows between lo and it included)
-        pairs = paired(
-            [q for q in rows if int(q["id"]) >= start_id],
-            before + [q for q in rows if int(q["id"]) < start_id],
-        )
         if len(pairs) < r.step_min_measurements:
             step.n_used = n_all
             return
@@ -137,8 +130,106 @@ class StepHandling:
         if closed is not None:
             svc.bus.emit("suspect_interval", closed)
         if svc.sequential is None and corr is not None and corr.passed:
-            step.status = "proposed"
+            step.status, step.base_version = "proposed", svc.version
             svc._recal_done(corr)
+
+    def _step_pairs(
+        self, step: Step, *, locate: bool
+    ) -> tuple[list[Any], int, list[Any], float] | None:
+        """(pairs from before any candidate change point, the located start, the pairs from
+        it on with the freshest references, sigma), or None when nothing new was measured.
+        `locate`: look for the change point (else the one located before stands)."""
+        svc: Service = self  # type: ignore[assignment]
+        r = svc.settings.recalib
+        lo = max(1, step.onset_id - len(svc.schedule) // LOOK_BACK_DIVISOR)
+        rows = svc.store.measurements(since_id=lo - 1)
+        before = svc.store.measurements(before_id=lo, last=2 * len(svc.schedule))
+        wide = paired(rows, before)  # references before any candidate change point
+        if len(wide) < r.step_min_measurements or len(wide) == step.n_used:
+            return None
+        chart = svc.drift.change.charts.get("*")
+        mu = chart.mu if chart is not None and chart.ready else None
+        sigma = step_sigma_mm(before, mu, r.seq_measurement_std_mm)
+        if locate or step.start_id is None:
+            i = locate_step(svc.model, svc.x, wide, svc.spheres, sigma, step.flag_id)
+            start_id = int(wide[i][0]["id"])
+        else:
+            start_id = step.start_id
+        # the pairs after it, with the freshest references (rows between lo and it included)
+        pairs = paired(
+            [q for q in rows if int(q["id"]) >= start_id],
+            before + [q for q in rows if int(q["id"]) < start_id],
+        )
+        return wide, start_id, pairs, sigma
+
+    def _refine_step(self, step: Step) -> None:
+        """The first correction is in force; once a window more was measured, its group is
+        fitted again (from the parameters now in force) and applied when its gates pass; the
+        suspect interval then closes (`_close_suspect`). After two refusals, or when nothing is
+        left to refine, it closes where the first correction was applied."""
+        svc: Service = self  # type: ignore[assignment]
+        r = svc.settings.recalib
+        got = svc._step_pairs(step, locate=False)
+        one_window = max(svc.settings.line.step_slots_per_window - 1, 1)
+        if got is None or len(got[0]) < step.n_corrected + one_window:
+            return
+        wide, _, pairs, sigma = got
+        step.n_used = len(wide)
+        groups = [g for g in step_groups(svc.model) if g.name in (NONE, step.choice)]
+        views = svc._visited_views()
+        x_base = svc._version_x(step.base_version)
+        if x_base is None:  # its base is not readable: it ends where it was corrected
+            svc._end_refining()
+            return
+        a, corr = correct_step(
+            svc.model,
+            x_base,
+            pairs,
+            svc.spheres,
+            sigma,
+            views,
+            r,
+            svc.settings.gates,
+            groups=groups,
+            refine=True,
+            x_in_force=svc.x,
+        )
+        size = 0.0
+        if corr is not None and a.chosen is not None:
+            c_std = np.tile([0.0, 0.0, IDEAL_STANDOFF_MM], (len(views[0]), 1))
+            size = point_shift_mm(svc.model, svc.x, a.chosen.x, views[0], c_std)
+        data = {
+            "onset_id": step.onset_id,
+            "n": len(pairs),
+            "choice": a.choice,
+            "text": f"refinement: {a.text()}",
+            "refine": True,
+            "passed": bool(corr is not None and corr.passed),
+            "failures": [] if corr is None else list(corr.failures),
+            "size_mm": size,
+            "attribution": a.to_json(),
+        }
+        svc.bus.emit("step_attribution", data, level=logging.WARNING)
+        if corr is not None and corr.passed:
+            step.refine_mm = size
+            svc._recal_done(corr)  # auto: applied at once, the interval closes
+            return
+        step.refine_tries += 1
+        if corr is None or step.refine_tries >= REFINE_TRIES:
+            svc._end_refining()
+        else:
+            svc._save_state()
+
+    def _end_refining(self) -> None:
+        """No refinement: the interval ends where the first correction was applied."""
+        svc: Service = self  # type: ignore[assignment]
+        assert svc.step is not None
+        svc.step.refine_mm = 0.0
+        with svc.store.batch():
+            closed = svc._close_suspect(svc.clock.time(), None, None, "step")
+            svc._save_state()
+        if closed is not None:
+            svc.bus.emit("suspect_interval", closed)
 
     def _step_start(self, step: Step, start_id: int) -> dict[str, Any]:
         """The suspect interval's start for a step located at measurement `start_id`: the last
@@ -171,14 +262,33 @@ class StepHandling:
         self, t: float, version: int | None, cal: Mapping[str, Any] | None, kind: str
     ) -> dict[str, Any] | None:
         """The step's suspect interval ends now (the apply of its correction, or no step was
-        found); its event data, or None when none is open."""
+        found); its event data, or None when none is open. A first fast correction (auto mode,
+        batch estimator, `step_refine_mm` > 0) leaves it open while it is refined: it then
+        ends at the refinement when that moved points at the standoff by more than
+        `step_refine_mm` (the first correction was off by that much), else where the first
+        correction was applied."""
         svc: Service = self  # type: ignore[assignment]
-        step = svc.step
+        step, r = svc.step, svc.settings.recalib
         if step is None:
             return None
         row = svc.store.suspect(step.suspect_id)
         if row is None or row["t_end"] is not None:
             return None
+        refines = r.step_refine_mm > 0 and r.mode == "auto" and svc.sequential is None
+        if kind == "step" and step.status != "refining" and refines and version is not None:
+            step.first_end_t, step.first_end_version = t, version
+            step.first_cal_id = None if cal is None else int(cal["id"])
+            step.n_corrected, step.status = step.n_used, "refining"
+            svc.store.update_suspect(
+                step.suspect_id,
+                size_mm=svc._correction_size(int(row["params_version"]))
+                if row["params_version"] is not None
+                else None,
+            )
+            return None
+        if step.status == "refining" and (step.refine_mm or 0.0) <= r.step_refine_mm:
+            t, version = step.first_end_t or t, step.first_end_version or version
+            cal = None if step.first_cal_id is None else {"id": step.first_cal_id}
         fields: dict[str, Any] = {"t_end": t, "end_reason": kind}
         if version is not None:
             fields["end_version"] = version
@@ -191,15 +301,24 @@ class StepHandling:
             step.status = "corrected"
         return suspect_json(svc.store.suspect(step.suspect_id) or {})
 
+    def _version_x(self, version: int | None) -> Any:
+        """The parameter vector of history version `version` (None when unreadable)."""
+        svc: Service = self  # type: ignore[assignment]
+        if version is None:
+            return None
+        try:
+            from app.params import from_json
+
+            return from_json(svc.params.history / f"{version:04d}.json")[1]
+        except (OSError, ValueError, KeyError, InputError):
+            return None
+
     def _correction_size(self, old_version: int) -> float | None:
         """How far the parameters now in force move a point at the sensor's standoff from where
         version `old_version` put it, RMS over the schedule's views [mm]."""
         svc: Service = self  # type: ignore[assignment]
-        try:
-            from app.params import from_json
-
-            _, x_old = from_json(svc.params.history / f"{old_version:04d}.json")
-        except (OSError, ValueError, KeyError, InputError):
+        x_old = svc._version_x(old_version)
+        if x_old is None:
             return None
         q = np.array([s.q_deg for s in svc.schedule.slots])
         c = np.tile([0.0, 0.0, IDEAL_STANDOFF_MM], (len(q), 1))

@@ -47,8 +47,11 @@ def test_a_knock_is_attributed_corrected_at_once_and_its_suspect_interval_record
         n_window = ln.service.counters["windows"]
         attributed = ln.wait(_is("step_attribution", passed=True), 30.0)
         applied = ln.wait(_is("parameters_applied"), 10.0)
-        closed = ln.wait(_is("suspect_interval", state="closed"), 10.0)
         windows_to_apply = ln.service.counters["windows"] - n_window
+        after_first = true_rms(ln, val, ln.service.x)
+        # one window more refines it; the interval closes then
+        refined = ln.wait(_is("step_attribution", refine=True), 20.0)
+        closed = ln.wait(_is("suspect_interval", state="closed"), 10.0)
         after = true_rms(ln, val, ln.service.x)
         store = ln.service.store
         cal = store.calibration(applied["calibration_id"])
@@ -57,20 +60,25 @@ def test_a_knock_is_attributed_corrected_at_once_and_its_suspect_interval_record
             a for a in store.alarms() if a["code"] == "drift_step"
         ]
         rows = store.measurements()
-        applied_t = store.applied()[-1]["t"]
+        applied_t = {a["version"]: a["t"] for a in store.applied()}
         ln.stop()
         assert knocked > 2.5 * before
         assert attributed["choice"] == GROUP_OF[kind], attributed["text"]
         assert attributed["n"] >= 3 and windows_to_apply <= 2
         assert cal is not None and cal["document"]["estimator"]["kind"] == "step"
-        assert after <= 1.2 * before + 0.01, (before, knocked, after)
+        assert after_first <= 1.3 * before + 0.01, (before, knocked, after_first)
+        assert after <= 1.2 * before + 0.01, (before, knocked, after_first, after)
         # the interval: from the last trustworthy measurement before the change point (a row
         # before the knock) to the apply, with the correction's size at the standoff
         row_by_id = {r["id"]: r for r in rows}
         assert opened["last_good_id"] == last_before and opened["end_utc"] is None
         assert opened["t_start"] == row_by_id[last_before]["t"]
-        assert closed["id"] == opened["id"] and closed["end_version"] == applied["version"]
-        assert closed["t_end"] == applied_t and closed["group"] == GROUP_OF[kind]
+        # it ends at the first correction unless the refinement moved points by more than
+        # step_refine_mm (then the first was off by that much: it ends at the refinement)
+        assert closed["id"] == opened["id"] and closed["group"] == GROUP_OF[kind]
+        big = refined["passed"] and refined["size_mm"] > RecalibSettings().step_refine_mm
+        end = ln.service.version if big else applied["version"]
+        assert closed["end_version"] == end and closed["t_end"] == applied_t[end]
         assert 0.1 < closed["size_mm"] < 3.0 and closed["end_reason"] == "step"
         assert status["suspect_intervals"][-1]["id"] == closed["id"]
         assert status["suspect_intervals"][-1]["state"] == "closed"
