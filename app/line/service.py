@@ -614,8 +614,10 @@ class Service(OperatorCommands, StepHandling):
         """A residual signal while the change charts watch is slow drift: the service handles
         it (recalibration brought forward), an advisory `drift` alarm of low priority. A step
         (a change signal, or any signal before the change charts watch) may need a person to
-        look at the cell: a `drift_step` alarm of high priority, and only measurements from the
-        change point on are used."""
+        look at the cell: only measurements from the change point on are used, and a
+        `drift_step` alarm of high priority is raised, at once when it cannot be attributed,
+        else once the attribution confirms it (app/line/step_service.py: until then a low
+        `drift` alarm; a step attributed to nothing was drift)."""
         for sig in self.drift.update(target, e_mm, row_id, change_mm):
             where = "all spheres" if sig.stream == "*" else sig.stream
             stat = f"{sig.chart} {sig.value_mm:.3f} > {sig.limit_mm:.3f} mm"
@@ -629,13 +631,18 @@ class Service(OperatorCommands, StepHandling):
                 continue
             if self.drift_onset_id is None:
                 self.drift_onset_id = sig.onset_ref
-                self._open_step(sig.onset_ref, row_id, attribute=sig.family == "change")
+                attribute = sig.family == "change" or len(self.visit_ids) >= len(self.schedule)
+                self._open_step(sig.onset_ref, row_id, attribute=attribute)
             what = "residual" if sig.family == "residual" else "change since the last visit"
+            text = f"step of {where} ({what}, {stat}) since measurement {self.drift_onset_id}"
+            if self.step is not None and self.step.status == "probation":
+                self.step.signal = self.step.signal or text
+                self._alarm("drift", f"{text}: attributing it (a step or drift?)", "low")
+                continue
             self._alarm(
                 "drift_step",
-                f"step of {where} ({what}, {stat}) since measurement {self.drift_onset_id}:"
-                " check the cell (sensor mount, spheres); recalibrating on the measurements"
-                " after it",
+                f"{text}: check the cell (sensor mount, spheres); recalibrating on the"
+                " measurements after it",
                 "high",
             )
 

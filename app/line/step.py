@@ -60,7 +60,8 @@ HELD_OUT_NOISE = float(np.sqrt(11.345))
 
 @dataclass
 class Step:
-    """The step in progress (part of the service's decision state). `status`: attributing
+    """The step in progress (part of the service's decision state). `status`: probation
+    (flagged, not confirmed: a step or drift? no suspect interval yet), attributing
     (no correction yet), proposed (a correction waits for approval), refining (the first
     correction applied, one more window of measurements refines it), following (sequential
     estimator: the suspected group's covariance widened, its candidate awaited), corrected
@@ -68,7 +69,7 @@ class Step:
     group: waiting for the full recalibration), none (no step found)."""
 
     onset_id: int
-    suspect_id: int
+    suspect_id: int | None  # None while on probation
     t_start: float
     last_good_id: int | None
     status: str = "attributing"
@@ -85,6 +86,7 @@ class Step:
     n_corrected: int = 0  # measurements when the first correction was made
     refine_mm: float | None = None  # how far the refinement moved points at the standoff
     refine_tries: int = 0
+    signal: str = ""  # what the drift charts saw (the high alarm's text once confirmed)
     base_version: int | None = None  # the parameters the first correction was computed from
 
     def to_json(self) -> dict[str, Any]:
@@ -97,7 +99,7 @@ class Step:
     @property
     def measuring(self) -> bool:
         """The schedule serves the attribution (more slots per window, chosen for it)."""
-        return self.status in ("attributing", "following", "refining")
+        return self.status in ("probation", "attributing", "following", "refining")
 
 
 @dataclass(frozen=True, eq=False)
@@ -178,10 +180,12 @@ def locate_step(
     or late, when the first sample after the step did not reach its chart): the split s that
     minimises chi2 of "nothing moved" on pairs[:s] plus the best single group's BIC on
     pairs[s:], every pair against a reference from before pairs[0]. The index s."""
+    # up to the first pair after the flagging measurement: the step may lie just before a
+    # measurement that has no reference (a slot not measured before) and so no pair
     last = (
         len(pairs) - 1
         if flag_id is None
-        else max((i for i, (r, _) in enumerate(pairs) if int(r["id"]) <= flag_id), default=0)
+        else next((i for i, (r, _) in enumerate(pairs) if int(r["id"]) > flag_id), len(pairs) - 1)
     )
     candidates = [i for i in range(min(last, len(pairs) - 2) + 1)]
     if len(candidates) <= 1:

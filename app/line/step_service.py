@@ -24,9 +24,9 @@ from calib.candidates import IDEAL_STANDOFF_MM
 if TYPE_CHECKING:
     from app.line.service import Service
 
-#: the change point is looked for from the CUSUM's estimate less a quarter of the schedule (the
+#: the change point is looked for from the CUSUM's estimate less half the schedule (the
 #: estimate can be late as well as early) up to the measurement that signalled
-LOOK_BACK_DIVISOR = 4
+LOOK_BACK_DIVISOR = 2
 REFINE_TRIES = 2  # refinements refused before the interval closes at the first correction
 
 
@@ -34,11 +34,12 @@ class StepHandling:
     """Mixin of Service: a flagged step's attribution, correction and suspect interval."""
 
     def _open_step(self, onset_id: int, flag_id: int, *, attribute: bool) -> None:
-        """A step was flagged at measurement `onset_id`: the suspect interval opens at the last
-        trustworthy measurement before it (inside the transaction of the measurement). With
-        `attribute` (a change chart flagged it: the slots' previous visits are the reference)
-        it is attributed; a residual signal before the change charts watch (no reference
-        yet: the first windows after commissioning) waits for the full recalibration."""
+        """A step was flagged at measurement `onset_id` (inside the transaction of the
+        measurement). With `attribute` (every slot has a previous visit to compare with) it is
+        on probation: the windows measure for its attribution, and `_confirm_step` opens its
+        suspect interval and raises the high alarm once a group (or several) is chosen, while
+        nothing found drops it as drift. Without, the suspect interval opens at once at the last
+        trustworthy measurement before it, and it waits for the full recalibration."""
         svc: Service = self  # type: ignore[assignment]
         attribute = attribute and svc.settings.recalib.step_correction
         if svc.sequential is not None:
@@ -46,28 +47,58 @@ class StepHandling:
                 svc.sequential.hold(onset_id)  # widened once attributed
             else:
                 svc.sequential.widen(onset_id)
-        if svc.step is not None and svc.step.status in ("attributing", "proposed"):
-            return  # the interval of the step in progress goes on
-        before = svc.store.measurements(before_id=onset_id, last=1)
-        onset_rows = svc.store.measurements_by_id([onset_id])
-        last_good = int(before[0]["id"]) if before else None
-        t_start = float(before[0]["t"] if before else onset_rows[0]["t"])
+        if svc.step is not None and svc.step.status in ("probation", "attributing", "proposed"):
+            return  # the step in progress goes on
+        status = "probation" if attribute else SEVERAL
         text = f"step flagged at measurement {onset_id}"
-        suspect_id = svc.store.open_suspect(
-            {
-                "t_start": t_start,
-                "last_good_id": last_good,
-                "onset_id": onset_id,
-                "params_version": svc.version,
-                "text": text,
-            }
+        before = svc.store.measurements(before_id=onset_id, last=1)
+        last_good = int(before[0]["id"]) if before else None
+        t_start = float(
+            before[0]["t"] if before else svc.store.measurements_by_id([onset_id])[0]["t"]
         )
-        status = "attributing" if attribute else SEVERAL
         svc.step = Step(
-            onset_id, suspect_id, t_start, last_good, status=status, text=text, flag_id=flag_id
+            onset_id, None, t_start, last_good, status=status, text=text, flag_id=flag_id
         )
         svc.change_from_id = onset_id
-        svc.bus.emit("suspect_interval", suspect_json(svc.store.suspect(suspect_id) or {}))
+        if not attribute:
+            svc._open_suspect(svc.step)
+
+    def _open_suspect(self, step: Step) -> None:
+        """The step's suspect interval, from its last trustworthy measurement on."""
+        svc: Service = self  # type: ignore[assignment]
+        step.suspect_id = svc.store.open_suspect(
+            {
+                "t_start": step.t_start,
+                "last_good_id": step.last_good_id,
+                "onset_id": step.onset_id,
+                "params_version": svc.version,
+                "text": step.text,
+            }
+        )
+        svc.bus.emit("suspect_interval", suspect_json(svc.store.suspect(step.suspect_id) or {}))
+
+    def _confirm_step(self, step: Step, a: Attribution) -> None:
+        """The attribution found a step: its suspect interval opens (from the last trustworthy
+        measurement before where it was located) and the high alarm names what moved."""
+        svc: Service = self  # type: ignore[assignment]
+        step.status = "attributing"
+        svc._open_suspect(step)
+        svc.store.clear_alarms(svc.clock.time(), "drift")
+        signal = step.signal or f"step since measurement {step.start_id or step.onset_id}"
+        svc._alarm(
+            "drift_step",
+            f"{signal}: check the cell (sensor mount, spheres); recalibrating on the"
+            f" measurements after it | {a.text()}",
+            "high",
+        )
+
+    def _drop_step(self, step: Step) -> None:
+        """The attribution found no step on probation: it was drift (the recalibration is
+        brought forward, on all recent measurements)."""
+        svc: Service = self  # type: ignore[assignment]
+        svc.step, svc.drift_onset_id, svc.drift_due = None, None, True
+        if svc.sequential is not None:
+            svc.sequential.widen(step.onset_id)
 
     def _attribute_step(self) -> None:
         """Between windows, while a step is attributed: attribute it on the measurements from
@@ -80,7 +111,7 @@ class StepHandling:
         if step.status == "refining":
             svc._refine_step(step)
             return
-        if step.status != "attributing":
+        if step.status not in ("attributing", "probation"):
             return
         got = svc._step_pairs(step, locate=True)
         if got is None:
@@ -110,11 +141,24 @@ class StepHandling:
             "size_mm": size,
             "attribution": a.to_json(),
         }
+        decisive = a.margin >= r.step_min_margin
         with svc.store.batch():
             fields: dict[str, Any] = {"group_name": a.choice, "text": a.text()}
             fields |= svc._step_start(step, start_id)
+            if step.status == "probation":
+                if not (decisive or settled):  # the next window measures for it again
+                    svc._save_state()
+                    svc.bus.emit("step_attribution", data, level=logging.WARNING)
+                    return
+                if a.choice == NONE:
+                    svc._drop_step(step)
+                    svc._save_state()
+                    svc.bus.emit("step_attribution", data, level=logging.WARNING)
+                    return
+                svc._confirm_step(step, a)
             if size is not None:
                 fields["size_mm"] = size
+            assert step.suspect_id is not None
             svc.store.update_suspect(step.suspect_id, **fields)
             for alarm in svc.store.active_alarms(code="drift_step"):
                 head = str(alarm["message"]).split(" | ")[0]
@@ -269,7 +313,7 @@ class StepHandling:
         correction was applied."""
         svc: Service = self  # type: ignore[assignment]
         step, r = svc.step, svc.settings.recalib
-        if step is None:
+        if step is None or step.suspect_id is None:
             return None
         row = svc.store.suspect(step.suspect_id)
         if row is None or row["t_end"] is not None:

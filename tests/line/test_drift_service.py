@@ -72,10 +72,19 @@ def test_the_sequential_estimator_follows_a_knock(tmp_path: Path, schedule: str)
         assert ln.service.sequential is not None and ln.service.drift.change_watching
         ln.cell.set_timeline(ln.clock, knock=Knock(at_s=ln.clock.monotonic()))
         knocked = true_rms(ln, val, x_good)
-        ln.wait(lambda e: e["event"] == "alarm" and "change since" in e["message"], 20.0)
+        # the high alarm once the attribution confirms the step (a low one before)
+        alarm = ln.wait(lambda e: e["event"] == "alarm" and e["code"] == "drift_step", 20.0)
+        assert "change since" in alarm["message"] and " | sensor mount moved" in alarm["message"]
         assert ln.service.store.active_alarms(code="drift_step")
         # the covariance is widened once the step is attributed (the sensor group's only)
-        ln.wait(lambda e: e["event"] == "step_attribution" and e["choice"] != "none", 20.0)
+        ln.wait(  # decisive (BIC margin >= step_min_margin): the group is widened then
+            lambda e: (
+                e["event"] == "step_attribution"
+                and e["choice"] not in ("none", "several")
+                and (e["attribution"]["margin"] or 1e9) >= 10.0
+            ),
+            20.0,
+        )
         assert ln.service.sequential.est is not None and ln.service.sequential.est.n_knocks >= 1
         ln.wait(
             lambda e: e["event"] == "parameters_applied" and ln.service.drift_onset_id is None,

@@ -221,3 +221,33 @@ def test_the_sequential_estimator_follows_the_attributed_group_without_waiting(
         assert attributed["onset_id"] >= opened["onset_id"]
     finally:
         ln.close()
+
+
+@pytest.mark.slow
+def test_a_flag_that_the_attribution_explains_by_nothing_is_dropped_as_drift(
+    tmp_path: Path,
+) -> None:
+    """A false step (here flagged by hand on a cell that did not move): on probation the
+    windows measure for its attribution, nothing moved is chosen, and no suspect interval nor
+    high alarm is left; the recalibration is brought forward as for drift."""
+    ln, _, _ = knock_line(tmp_path, None)
+    try:
+        ln.start()
+        ln.windows(6, timeout_s=20.0)
+        svc = ln.service
+        assert svc.request("pause").result(10.0)["ok"]  # between windows: flag a step by hand
+        onset = svc.store.last_measurement_id()
+        with svc.store.batch():
+            svc.drift_onset_id = onset
+            svc._open_step(onset, onset, attribute=True)
+            svc._save_state()
+        assert svc.step is not None and svc.step.status == "probation"
+        assert svc.request("resume").result(10.0)["ok"]
+        dropped = ln.wait(_is("step_attribution", choice="none"), 30.0)
+        ln.windows(1, timeout_s=20.0)
+        suspects, alarms = svc.store.suspects(), svc.store.active_alarms(code="drift_step")
+        ln.stop()
+        assert svc.step is None and svc.drift_onset_id is None
+        assert suspects == [] and not alarms and dropped["n"] >= 3
+    finally:
+        ln.close()
