@@ -137,6 +137,9 @@ class RecalibSettings:
     step_min_measurements: int = 3  # after the change point: fitted ones + 1 held out
     step_min_margin: float = 10.0  # BIC of the runner-up minus the choice's
     step_max_std_mm: float = 0.012  # the correction's predicted uncertainty at the views
+    # a flag is a step (not drift) when the attribution decides for a group and the change
+    # it sees, noise removed, is at least this large (RMS at the measured spheres)
+    step_min_mm: float = 0.05
     # after the first correction one more window refines it (auto mode, batch estimator; 0:
     # no refinement); a refinement that moves points at the standoff by more than this shows
     # the first correction was off: the suspect interval then lasts until the refinement

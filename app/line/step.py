@@ -167,6 +167,16 @@ def reference_mm(
     return out
 
 
+def visible_step_mm(a: Attribution) -> float:
+    """How big the step looks, noise removed: the RMS over the pairs of |after - before| [mm]
+    (from the "nothing moved" fit's chi2) less the 3-D noise of a difference, 3 sigma^2."""
+    none = a.fit(NONE)
+    if not none.determined or a.n == 0:
+        return 0.0
+    excess = none.chi2 * a.sigma_mm**2 / a.n - 3.0 * a.sigma_mm**2
+    return float(np.sqrt(max(excess, 0.0)))
+
+
 def locate_step(
     model: SystemModel,
     x: F64,

@@ -17,7 +17,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from app.errors import InputError
-from app.line.step import Step, correct_step, locate_step, paired, step_sigma_mm
+from app.line.step import (
+    Step,
+    correct_step,
+    locate_step,
+    paired,
+    step_sigma_mm,
+    visible_step_mm,
+)
 from calib.attribution import NONE, SEVERAL, Attribution, point_shift_mm, step_groups
 from calib.candidates import IDEAL_STANDOFF_MM
 
@@ -146,13 +153,13 @@ class StepHandling:
             fields: dict[str, Any] = {"group_name": a.choice, "text": a.text()}
             fields |= svc._step_start(step, start_id)
             if step.status == "probation":
-                if not (decisive or settled):  # the next window measures for it again
-                    svc._save_state()
-                    svc.bus.emit("step_attribution", data, level=logging.WARNING)
-                    return
-                if a.choice == NONE:
-                    svc._drop_step(step)
-                    svc._save_state()
+                seen = visible_step_mm(a)
+                data["visible_mm"] = seen
+                confirmed = a.choice != NONE and decisive and seen >= r.step_min_mm
+                if not confirmed:
+                    if (a.choice == NONE and decisive) or settled:  # drift, not a step
+                        svc._drop_step(step)
+                    svc._save_state()  # else the next window measures for it again
                     svc.bus.emit("step_attribution", data, level=logging.WARNING)
                     return
                 svc._confirm_step(step, a)
