@@ -292,7 +292,7 @@ class ServiceSection(Section):
     step_correction: bool = opt(True)
     step_min_measurements: int = opt(3, lo=2, hi=1000)
     step_min_margin: float = opt(10.0, lo=0, hi=1e6)
-    step_max_std_mm: float = opt(0.012, gt=0, hi=10)
+    step_max_std_mm: float = opt(0.015, gt=0, hi=10)
     step_min_mm: float = opt(0.05, lo=0, hi=100)
     step_refine_mm: float = opt(0.03, lo=0, hi=10)
 

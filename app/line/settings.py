@@ -136,7 +136,7 @@ class RecalibSettings:
     step_correction: bool = True
     step_min_measurements: int = 3  # after the change point: fitted ones + 1 held out
     step_min_margin: float = 10.0  # BIC of the runner-up minus the choice's
-    step_max_std_mm: float = 0.012  # the correction's predicted uncertainty at the views
+    step_max_std_mm: float = 0.015  # the correction's predicted uncertainty at the views
     # a flag is a step (not drift) when the attribution decides for a group and the change
     # it sees, noise removed, is at least this large (RMS at the measured spheres)
     step_min_mm: float = 0.05
