@@ -527,7 +527,16 @@ class Service(OperatorCommands, StepHandling):
             recent = [int(r["slot"]) for r in reversed(before)]
             lead = [g for g in step_groups(self.model) if g.name == self.step.choice]
             groups = lead if lead and lead[0].name not in (NONE, SEVERAL) else None
-            return step_slot(self.model, self.x, slots, after, recent, self.last_visit, groups)
+            return step_slot(
+                self.model,
+                self.x,
+                slots,
+                after,
+                recent,
+                self.last_visit,
+                groups,
+                self._volume_views(),
+            )
         if self.sequential is not None and self.settings.recalib.schedule == "adaptive":
             return self.sequential.most_informative(self.model, slots, self.last_visit)
         return slots[0]

@@ -170,6 +170,9 @@ class ServiceSettings:
     # the full document of a rejected calibration is dropped after this (its gates, figures and
     # reason stay; 0: kept for ever)
     rejected_keep_days: float = 30.0
+    # the sensor's measuring volume [mm]: standoff, half field of view x and y, half depth
+    # (where a step's correction must hold, not only where the spheres appear)
+    measuring_volume_mm: tuple[float, float, float, float] = (130.0, 18.5, 13.5, 5.0)
     line: LineSettings = field(default_factory=LineSettings)
     sweep: SweepSettings = field(default_factory=SweepSettings)
     gates: GateSettings = field(default_factory=GateSettings)
@@ -197,6 +200,12 @@ def from_cell(cfg: Any, state_dir: str | Path | None = None) -> ServiceSettings:
         operators_group=str(svc.operators_group),
         min_free_mb=float(svc.min_free_mb),
         events_keep_days=float(svc.events_keep_days),
+        measuring_volume_mm=(
+            float(cfg.sensor.standoff_mm),
+            float(cfg.sensor.half_fov_x_mm),
+            float(cfg.sensor.half_fov_y_mm),
+            float(cfg.sensor.half_depth_mm),
+        ),
         rejected_keep_days=float(svc.rejected_keep_days),
         line=_section(LineSettings, cfg.line),
         sweep=_section(SweepSettings, cfg.sweep),

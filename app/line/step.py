@@ -12,7 +12,8 @@ correction (the parameters in force with that group replaced) when its gates pas
 
     decisive       BIC margin over the runner-up >= step_min_margin, a single group that
                    explains the step (chi2 plausible; not "several", not "none")
-    bounded cov    its predicted uncertainty at the schedule's views <= step_max_std_mm
+    bounded cov    its predicted uncertainty over the measuring volume at the schedule's
+                   configurations <= step_max_std_mm
     held out       the newest measurement, not fitted, is predicted better than by the
                    parameters in force (ratio <= max_holdout_ratio)
     bounded change every parameter of the group within the in-line change bounds
@@ -118,6 +119,24 @@ class StepCorrection:
 
 
 MIN_SIGMA_PAIRS = 8  # consecutive visits of a slot before the step that set sigma
+
+
+def volume_points_mm(volume_mm: Sequence[float]) -> F64:
+    """Points (7, 3) [mm, sensor frame] that span the measuring volume (standoff, half field of
+    view x and y, half depth): its centre, the four corners of the field of view at 0.8 of its
+    half widths, and the centre at the near and far depth."""
+    s, hx, hy, hd = (float(v) for v in volume_mm)
+    corners = [[sx * 0.8 * hx, sy * 0.8 * hy, s] for sx in (-1, 1) for sy in (-1, 1)]
+    return np.array([[0.0, 0.0, s], *corners, [0.0, 0.0, s - hd], [0.0, 0.0, s + hd]])
+
+
+def volume_views(q_deg: F64, volume_mm: Sequence[float]) -> tuple[F64, F64]:
+    """Every configuration (K, 6) with every point of the measuring volume: (K*7, 6), (K*7, 3)
+    (where a correction's uncertainty is predicted: a sensor's tilt that the spheres near the
+    middle of the field of view do not show moves the points at its edges)."""
+    pts = volume_points_mm(volume_mm)
+    q = np.asarray(q_deg, dtype=float).reshape(-1, 6)
+    return np.repeat(q, len(pts), axis=0), np.tile(pts, (len(q), 1))
 
 
 def step_sigma_mm(
@@ -227,8 +246,8 @@ def correct_step(
     x_in_force: F64 | None = None,
 ) -> tuple[Attribution, StepCorrection | None]:
     """Attribute the step on all pairs but the newest and gate the chosen group's correction
-    (module docstring). `views`: the schedule's configurations (K, 6) with their last centres
-    (K, 3), where the correction's uncertainty is predicted. The correction is None when no
+    (module docstring). `views`: configurations (N, 6) with points (N, 3) in the sensor frame
+    where the correction's uncertainty is predicted (`volume_views`). The correction is None when no
     single group was chosen. `refine`: a correction already applied is refined (`groups`:
     nothing or its group; x_current: the parameters the first correction was computed from,
     as the pairs' differences restore the state before the step relative to them;
@@ -298,12 +317,15 @@ def step_slot(
     recent_before: Sequence[int],
     seen: Mapping[int, tuple[F64, F64]],
     groups: Sequence[StepGroup] | None = None,
+    where: tuple[F64, F64] | None = None,
 ) -> Slot:
     """The slot to measure next while a step is attributed, of those that fit (`pool`, in the
     plan's order): a slot measured just before the change point not measured again yet (most
-    recent first, `recent_before`), else the one that adds the most information about the
-    candidate groups (sum over the single groups of log det of their information matrices,
-    with the rows measured since the change point, `after`). `seen`: slot -> (q, last centre)."""
+    recent first, `recent_before`), else the one after which the candidate groups (`groups`,
+    default every single group) predict the points `where` (configurations, sensor-frame
+    points: the measuring volume at the schedule's configurations; default the slots' own
+    centres) best: the least sum over the groups of trace(cov H^T H), with the rows measured
+    since the change point, `after` (I-optimal). `seen`: slot -> (q, last centre)."""
     done = {int(r["slot"]) for r in after}
     fresh = [s for s in pool if s.index not in done] or list(pool)
     for index in recent_before[:RECENT_FIRST]:
@@ -322,13 +344,16 @@ def step_slot(
     q = np.array([s.q_deg for s in candidates])
     c = np.array([seen[s.index][1] for s in candidates])
     J_new = model.point_jacobian(x, q, c, names)  # (K, 3, L)
+    q_at, c_at = where if where is not None else (q, c)
+    H = model.point_jacobian(x, q_at, c_at, names).reshape(-1, len(names))
     cols = {n: k for k, n in enumerate(names)}
     score = np.zeros(len(candidates))
     for g in groups:
         idx = [cols[p] for p in g.params]
         A = J_have[:, idx].T @ J_have[:, idx]
+        M = H[:, idx].T @ H[:, idx]
         for k in range(len(candidates)):
             B = A + J_new[k][:, idx].T @ J_new[k][:, idx]
             ridge = 1e-9 * max(float(np.trace(B)) / len(idx), 1e-12)
-            score[k] += np.linalg.slogdet(B + ridge * np.eye(len(idx)))[1]
+            score[k] -= float(np.trace(np.linalg.pinv(B + ridge * np.eye(len(idx))) @ M))
     return candidates[int(np.argmax(score))]

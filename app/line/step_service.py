@@ -24,6 +24,7 @@ from app.line.step import (
     paired,
     step_sigma_mm,
     visible_step_mm,
+    volume_views,
 )
 from calib.attribution import NONE, SEVERAL, Attribution, point_shift_mm, step_groups
 from calib.candidates import IDEAL_STANDOFF_MM
@@ -124,7 +125,7 @@ class StepHandling:
         if got is None:
             return
         wide, start_id, pairs, sigma = got
-        views = svc._visited_views()
+        views = svc._volume_views()
         n_all = len(wide)
         if len(pairs) < r.step_min_measurements:
             step.n_used = n_all
@@ -227,7 +228,7 @@ class StepHandling:
         wide, _, pairs, sigma = got
         step.n_used = len(wide)
         groups = [g for g in step_groups(svc.model) if g.name in (NONE, step.choice)]
-        views = svc._visited_views()
+        views = svc._volume_views()
         x_base = svc._version_x(step.base_version)
         if x_base is None:  # its base is not readable: it ends where it was corrected
             svc._end_refining()
@@ -281,6 +282,13 @@ class StepHandling:
             svc._save_state()
         if closed is not None:
             svc.bus.emit("suspect_interval", closed)
+
+    def _volume_views(self) -> tuple[Any, Any]:
+        """The measuring volume's points at every configuration of the schedule (where a
+        correction's uncertainty is predicted, app.line.step.volume_views)."""
+        svc: Service = self  # type: ignore[assignment]
+        q = np.array([s.q_deg for s in svc.schedule.slots])
+        return volume_views(q, svc.settings.measuring_volume_mm)
 
     def _step_start(self, step: Step, start_id: int) -> dict[str, Any]:
         """The suspect interval's start for a step located at measurement `start_id`: the last
