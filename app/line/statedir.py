@@ -9,6 +9,10 @@ permissions, the one-service lock and the free space under it (DESIGN.md section
         params/current.json      the applied version (derived: rebuilt from the history)
         params/history/NNNN.json every version ever applied
         sweeps/NNNNNNNN.npz      raw sweeps kept for audit ([service] raw_sweeps_keep)
+        opcua/server-cert.der    the OPC UA server's certificate (created on first start with
+        opcua/server-key.pem     a security policy; the key 0600)
+        opcua/trusted/           client certificates the OPC UA server trusts (DER or PEM)
+        opcua/rejected/          certificates of clients it refused (move one to trusted/)
 
 Read-only clients (`rvis status`, `rvis ctl`, `rvis tui`) only need the layout; the service
 also takes the lock before it opens any device (`ServiceLock`), and `prepare()`s the directory.
@@ -33,6 +37,7 @@ LOCK_NAME = "rvis.lock"
 PLAN_NAME = "plan.json"
 PARAMS_DIR = "params"
 SWEEPS_DIR = "sweeps"
+OPCUA_DIR = "opcua"
 
 DIR_MODE, DIR_MODE_GROUP = 0o750, 0o2770  # setgid: new files take the operators' group
 UMASK, UMASK_GROUP = 0o027, 0o007  # files 0640 (0660 with the group)
@@ -79,6 +84,26 @@ class StateDir:
     @property
     def sweeps(self) -> Path:
         return self.root / SWEEPS_DIR
+
+    @property
+    def opcua(self) -> Path:
+        return self.root / OPCUA_DIR
+
+    @property
+    def opcua_cert(self) -> Path:
+        return self.opcua / "server-cert.der"
+
+    @property
+    def opcua_key(self) -> Path:
+        return self.opcua / "server-key.pem"
+
+    @property
+    def opcua_trusted(self) -> Path:
+        return self.opcua / "trusted"
+
+    @property
+    def opcua_rejected(self) -> Path:
+        return self.opcua / "rejected"
 
     def free_mb(self) -> float:
         """Free space [MiB] for an unprivileged writer on the directory's file system."""
