@@ -43,6 +43,7 @@ log = logging.getLogger("rvis.line.opcua")
 START_TIMEOUT_S = 60.0
 ACK_TIMEOUT_S = 60.0  # an ack waits for the end of a running window at most this long
 _STOP = {"event": "__opcua_stop__"}
+REFRESH_SEVERITY = 100  # of the RefreshStart/End events around a ConditionRefresh
 
 
 def application_uri(settings: OpcUaSettings) -> str:
@@ -145,6 +146,7 @@ class OpcUaServer:
 
         s = self.settings
         self.server = server = Server(user_manager=security.user_manager(s, self.paths))
+        server.iserver.bind_condition_methods = REFRESH_SEVERITY  # ConditionRefresh(2)
         await server.init()
         server.set_endpoint(s.endpoint)
         server.set_server_name(f"rvis {s.machine_name}")
