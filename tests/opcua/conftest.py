@@ -9,6 +9,7 @@ import asyncio
 import socket
 import time
 from collections.abc import Iterator
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +18,7 @@ from asyncua import Client, Node, ua
 
 from app.config import load_cell
 from app.line.launch import hold_state, serving
+from app.line.opcua.server import OpcUaServer
 from app.line.opcua.space import NS_MACHINERY, NS_RVIS
 from app.sim.line_run import SimulatedLineRun
 
@@ -53,6 +55,25 @@ def line(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SimulatedLineRun]
     ):
         run.start_service()
         yield run
+
+
+@dataclass(frozen=True)
+class Servers:
+    """Two OPC UA servers on the module's service: read-only and one that allows acks."""
+
+    read_only: str
+    acking: str
+
+
+@pytest.fixture(scope="module")
+def servers(line: SimulatedLineRun) -> Iterator[Servers]:
+    urls = Servers(*(f"opc.tcp://127.0.0.1:{free_port()}/rvis" for _ in range(2)))
+    base = replace(line.service.settings.opcua, enabled=True)
+    with (
+        OpcUaServer(line.service, replace(base, endpoint=urls.read_only)),
+        OpcUaServer(line.service, replace(base, endpoint=urls.acking, allow_ack=True)),
+    ):
+        yield urls
 
 
 async def machine_node(client: Client) -> Node:

@@ -6,7 +6,6 @@ reset` (clearing) follow, and ConditionRefresh replays what is active."""
 from __future__ import annotations
 
 import asyncio
-import dataclasses
 import subprocess
 import sys
 import threading
@@ -16,10 +15,9 @@ from typing import Any
 import pytest
 from asyncua import Client, Node, ua
 
-from app.line.opcua.server import OpcUaServer
 from app.sim.line_run import SimulatedLineRun
 from fakes.line_faults import Fault
-from tests.opcua.conftest import Catcher, child, free_port, machine_node, state_dir
+from tests.opcua.conftest import Catcher, Servers, child, machine_node, state_dir
 from tests.opcua.test_publish import ROOT
 
 ACTIVE, ACKED = "ActiveState/Id", "AckedState/Id"
@@ -77,11 +75,10 @@ async def acknowledge(client: Client, condition: Node, event_id: bytes, comment:
     )
 
 
-def test_a_device_fault_as_alarm_events_from_raise_to_clear(line: SimulatedLineRun) -> None:
-    url_ro, url_ack = (f"opc.tcp://127.0.0.1:{free_port()}/rvis" for _ in range(2))
-    base = dataclasses.replace(line.service.settings.opcua, enabled=True)
-    read_only = dataclasses.replace(base, endpoint=url_ro, allow_ack=False)
-    acking = dataclasses.replace(base, endpoint=url_ack, allow_ack=True)
+def test_a_device_fault_as_alarm_events_from_raise_to_clear(
+    line: SimulatedLineRun, servers: Servers
+) -> None:
+    url_ro, url_ack = servers.read_only, servers.acking
 
     async def scenario() -> None:
         async with Client(url_ro) as ro, Client(url_ack) as op:
@@ -132,14 +129,14 @@ def test_a_device_fault_as_alarm_events_from_raise_to_clear(line: SimulatedLineR
                 line.service.status()["alarms"]
             )
 
-    with OpcUaServer(line.service, read_only), OpcUaServer(line.service, acking):
-        asyncio.run(scenario())
+    asyncio.run(scenario())
     assert line.service.state.value != "fault"
 
 
-def test_condition_refresh_replays_the_active_alarms(line: SimulatedLineRun) -> None:
-    url = f"opc.tcp://127.0.0.1:{free_port()}/rvis"
-    settings = dataclasses.replace(line.service.settings.opcua, enabled=True, endpoint=url)
+def test_condition_refresh_replays_the_active_alarms(
+    line: SimulatedLineRun, servers: Servers
+) -> None:
+    url = servers.read_only
     watch = AlarmWatch(line, "device_fault")
     line.line.inject(Fault.ROBOT_DISCONNECT)
     assert watch.seen.wait(20)
@@ -158,6 +155,5 @@ def test_condition_refresh_replays_the_active_alarms(line: SimulatedLineRun) -> 
             await handler.event(_is("device_fault", ActiveState__Id=False))
             return event
 
-    with OpcUaServer(line.service, settings):
-        event = asyncio.run(scenario())
+    event = asyncio.run(scenario())
     assert event.Severity == 900 and "DeviceConnectionError" in event.Message.Text

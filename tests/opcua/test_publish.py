@@ -5,7 +5,6 @@ clock; the machine reads as OPC 40001-1 names it."""
 from __future__ import annotations
 
 import asyncio
-import dataclasses
 import json
 import queue
 import subprocess
@@ -19,11 +18,10 @@ from typing import Any
 import pytest
 from asyncua import Client, ua
 
-from app.line.opcua.server import OpcUaServer
 from app.line.opcua.space import NS_DI, NS_MACHINERY
 from app.meta import version
 from app.sim.line_run import SimulatedLineRun
-from tests.opcua.conftest import Catcher, child, free_port, machine_node, state_dir
+from tests.opcua.conftest import Catcher, Servers, child, machine_node, state_dir
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -85,9 +83,10 @@ def expected(status: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def test_variables_follow_the_windows_and_equal_rvis_status(line: SimulatedLineRun) -> None:
-    url = f"opc.tcp://127.0.0.1:{free_port()}/rvis"
-    settings = dataclasses.replace(line.service.settings.opcua, enabled=True, endpoint=url)
+def test_variables_follow_the_windows_and_equal_rvis_status(
+    line: SimulatedLineRun, servers: Servers
+) -> None:
+    url = servers.read_only
     events = line.service.bus.subscribe()
 
     async def check() -> None:
@@ -140,8 +139,7 @@ def test_variables_follow_the_windows_and_equal_rvis_status(line: SimulatedLineR
                     await handler.changes.get()
 
     try:
-        with OpcUaServer(line.service, settings):
-            asyncio.run(check())
+        asyncio.run(check())
     finally:
         line.service.bus.unsubscribe(events)
 
@@ -155,9 +153,8 @@ def _drain(q: queue.Queue[dict[str, Any]]) -> list[dict[str, Any]]:
             return out
 
 
-def test_identification_as_opc_40001(line: SimulatedLineRun) -> None:
-    url = f"opc.tcp://127.0.0.1:{free_port()}/rvis"
-    settings = dataclasses.replace(line.service.settings.opcua, enabled=True, endpoint=url)
+def test_identification_as_opc_40001(servers: Servers) -> None:
+    url = servers.read_only
 
     async def check() -> dict[str, Any]:
         async with Client(url) as client:
@@ -172,17 +169,15 @@ def test_identification_as_opc_40001(line: SimulatedLineRun) -> None:
             values["unit"] = (await unit.read_value()).DisplayName.Text
             return values
 
-    with OpcUaServer(line.service, settings):
-        values = asyncio.run(check())
+    values = asyncio.run(check())
     assert values["Manufacturer"].Text == "rvis" and values["SerialNumber"] == "SN-0007"
     assert values["ProductInstanceUri"] == "urn:plant-a:body-shop:cell-7"
     assert values["SoftwareRevision"] == version()  # what `rvis --version` prints
     assert values["Model"].Text.startswith("RVIS") and values["unit"] == "mm"
 
 
-def test_a_client_cannot_write(line: SimulatedLineRun) -> None:
-    url = f"opc.tcp://127.0.0.1:{free_port()}/rvis"
-    settings = dataclasses.replace(line.service.settings.opcua, enabled=True, endpoint=url)
+def test_a_client_cannot_write(servers: Servers) -> None:
+    url = servers.acking  # even where acknowledging is allowed
 
     async def check() -> None:
         async with Client(url) as client:
@@ -190,5 +185,4 @@ def test_a_client_cannot_write(line: SimulatedLineRun) -> None:
             with pytest.raises(ua.UaStatusCodeError):
                 await node.write_value(ua.DataValue(ua.Variant("idle", ua.VariantType.String)))
 
-    with OpcUaServer(line.service, settings):
-        asyncio.run(check())
+    asyncio.run(check())
