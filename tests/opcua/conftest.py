@@ -1,7 +1,7 @@
-"""The OPC UA server against the simulated line: one service per module (`rvis run --sim
---geometric` in this process, its control socket served, a window every 0.2 s), OPC UA
-servers started on it by the tests, asyncua clients that browse by name. Tests wait on
-notifications with timeouts, never sleep."""
+"""The OPC UA server against the simulated line: one service for the package (`rvis run --sim
+--geometric` in this process, its control socket served, a window every 0.2 s), two OPC UA
+servers on it (read-only, acknowledging), asyncua clients that browse by name. Every test
+leaves the service running normally. Tests wait on notifications with timeouts, never sleep."""
 
 from __future__ import annotations
 
@@ -42,7 +42,7 @@ def free_port() -> int:
         return port
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="package")
 def line(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SimulatedLineRun]:
     root = tmp_path_factory.mktemp("opcua")
     (root / "cell.toml").write_text(CELL, encoding="utf-8")
@@ -65,7 +65,7 @@ class Servers:
     acking: str
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="package")
 def servers(line: SimulatedLineRun) -> Iterator[Servers]:
     urls = Servers(*(f"opc.tcp://127.0.0.1:{free_port()}/rvis" for _ in range(2)))
     base = replace(line.service.settings.opcua, enabled=True)

@@ -28,7 +28,7 @@ from concurrent.futures import Future
 from typing import TYPE_CHECKING, Any
 
 from app.errors import InputError
-from app.line.opcua.endpoint import endpoint_problem
+from app.line.opcua.endpoint import endpoint_problem, split_endpoint
 from app.line.settings import OpcUaSettings
 from app.line.statedir import StateDir
 
@@ -49,6 +49,22 @@ REFRESH_SEVERITY = 100  # of the RefreshStart/End events around a ConditionRefre
 def application_uri(settings: OpcUaSettings) -> str:
     """The server's ApplicationUri (its certificate names it): host and machine."""
     return f"urn:rvis:{socket.gethostname()}:{settings.machine_name}".replace(" ", "-")
+
+
+def _check_endpoint(settings: OpcUaSettings) -> None:
+    """InputError when the endpoint is not allowed or its port is taken (at once: building
+    the server takes a second or two)."""
+    reason = endpoint_problem(settings.endpoint, settings.security_policy)
+    if reason:
+        raise InputError(reason, field="[opcua] endpoint")
+    host, port = split_endpoint(settings.endpoint)
+    try:
+        socket.create_server((host, port)).close()
+    except OSError as exc:
+        raise InputError(
+            f"cannot listen at {settings.endpoint}: {exc.strerror or exc}",
+            field="[opcua] endpoint",
+        ) from exc
 
 
 class OpcUaServer:
@@ -72,10 +88,11 @@ class OpcUaServer:
 
     # -- life cycle ------------------------------------------------------------------------
     def start(self) -> OpcUaServer:
-        reason = endpoint_problem(self.settings.endpoint, self.settings.security_policy)
-        if reason:
+        try:
+            _check_endpoint(self.settings)
+        except InputError:
             self.service.bus.unsubscribe(self._events)
-            raise InputError(reason, field="[opcua] endpoint")
+            raise
         self._thread.start()
         if not self._ready.wait(START_TIMEOUT_S):
             self._error = TimeoutError(f"not listening after {START_TIMEOUT_S:g} s")
