@@ -78,7 +78,8 @@ class OpcUaServer:
         self.server: Server | None = None
         self.space: AddressSpace | None = None
         self.conditions: Conditions | None = None
-        self.updates = 0  # status replies applied (for tests and the benchmark)
+        self.updates = 0  # status replies applied
+        self._last_status: dict[str, Any] = {}
         self._ready = threading.Event()
         self._error: BaseException | None = None
         self._stopping: asyncio.Event | None = None
@@ -147,7 +148,8 @@ class OpcUaServer:
                 field="[opcua] endpoint",
             ) from exc
         try:
-            await self._apply(self.service.status(), self.service.clock.time())
+            self._last_status = self.service.status()
+            await self._apply(self._last_status, self.service.clock.time())
             self._ready.set()
             await self._stopping.wait()
         finally:
@@ -205,17 +207,28 @@ class OpcUaServer:
                     batch.append(self._events.get_nowait())
             if any(e is _STOP for e in batch):
                 return
-            self._publish(max(float(e.get("t", 0.0)) for e in batch))
+            stopped = any(e["event"] == "stopped" for e in batch)
+            self._publish(max(float(e.get("t", 0.0)) for e in batch), stopped)
 
-    def _publish(self, t: float) -> None:
+    def _publish(self, t: float, stopped: bool = False) -> None:
         """The service's status now, applied in the loop (waited for: the feed's pace is the
-        OPC UA side's); a failure is logged, never the service's."""
+        OPC UA side's); a failure is logged, never the service's. Once the service has
+        stopped (its database closing) the last status is published as `stopped`."""
         loop = self.loop
         if loop is None:
             return
         try:
-            status = self.service.status()
+            if stopped:
+                status = {**self._last_status, "state": "stopped", "step": "stopped"}
+            else:
+                status = self._last_status = self.service.status()
             done: Future[None] = asyncio.run_coroutine_threadsafe(self._apply(status, t), loop)
             done.result(30.0)
         except Exception as exc:  # the service stopping (database closed), a slow loop
-            log.warning("OPC UA update skipped: %s: %s", type(exc).__name__, exc)
+            ending = self.service.state.value in ("stopped", "fault")
+            log.log(
+                logging.DEBUG if ending else logging.WARNING,
+                "OPC UA update skipped: %s: %s",
+                type(exc).__name__,
+                exc,
+            )
