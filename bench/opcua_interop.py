@@ -152,7 +152,8 @@ def scenario(line: SimulatedLineRun, node: Node) -> list[tuple[str, bool, str]]:
         if not diffs:
             break
     checks.append(("read values equal the status reply", not diffs, "; ".join(diffs) or "12 of 12"))
-    ident = f"SerialNumber {read['SerialNumber']['value']}, SoftwareRevision {read['SoftwareRevision']['value']}"
+    serial, revision = read["SerialNumber"]["value"], read["SoftwareRevision"]["value"]
+    ident = f"SerialNumber {serial}, SoftwareRevision {revision}"
     checks.append(("Identification read", read["SerialNumber"]["status"] == "Good", ident))
     svc.request("resume").result(30)
     t0 = time.monotonic()
@@ -164,7 +165,8 @@ def scenario(line: SimulatedLineRun, node: Node) -> list[tuple[str, bool, str]]:
         (
             "device fault -> AlarmConditionType event",
             raised["Severity"] == 900 and raised["Retain"] is True,
-            f"severity {raised['Severity']}, ConditionId {raised['ConditionId']}, {time.monotonic() - t0:.2f} s after the fault was armed",
+            f"severity {raised['Severity']}, ConditionId {raised['ConditionId']},"
+            f" {time.monotonic() - t0:.2f} s after the fault was armed",
         )
     )
     node.send("ack device_fault")
