@@ -178,6 +178,14 @@ def sweep_to_centre(repeats: int) -> tuple[list[float], list[float], float]:
     return times, cpu, err
 
 
+def print_table(rows: list[tuple[str, Any, str]]) -> None:
+    """The benchmark's rows (measure, value, target) as an aligned table."""
+    width = max(len(r[0]) for r in rows)
+    print(f"{'measure':<{width}}  value  target")
+    for name, value, target in rows:
+        print(f"{name:<{width}}  {value}  {target}")
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--windows", type=int, default=30)
@@ -212,10 +220,7 @@ def main(argv: list[str] | None = None) -> int:
             "<= 60",
         )
     )
-    width = max(len(r[0]) for r in rows)
-    print(f"{'measure':<{width}}  value  target")
-    for name, value, target in rows:
-        print(f"{name:<{width}}  {value}  {target}")
+    print_table(rows)
     return 0
 
 

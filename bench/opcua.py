@@ -46,7 +46,7 @@ from app.line.opcua.server import OpcUaServer
 from app.line.opcua.space import NS_MACHINERY, NS_RVIS
 from app.line.service import Service
 from app.line.settings import OpcUaSettings
-from bench.line import BenchPlc, _service
+from bench.line import BenchPlc, _service, print_table
 from drivers.plc import PlcInputs, encode_inputs
 
 MACHINE = "bench-cell"
@@ -285,10 +285,7 @@ def main(argv: list[str] | None = None) -> int:
                 "",
             )
         )
-    width = max(len(r[0]) for r in rows)
-    print(f"{'measure':<{width}}  value  target")
-    for name, value, target in rows:
-        print(f"{name:<{width}}  {value}  {target}")
+    print_table(rows)
     return 0
 
 
