@@ -6,6 +6,7 @@ records what the app writes. ``heartbeat_frozen = True`` simulates a stalled PLC
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Callable
 from typing import Any
 
@@ -25,7 +26,8 @@ class PlcServer(RegisterServer):
         self.heartbeat_frozen = False
         self.temperature: Callable[[], float | None] | None = None
         self.received = PlcOutputs()
-        self.history: list[PlcOutputs] = []  # every change the app made, in order
+        # the newest 1000 changes the app made, in order (bounded: soaks run for days)
+        self.history: deque[PlcOutputs] = deque(maxlen=1000)
 
     def scan(self, now: float, regs: list[int], written: dict[int, int]) -> None:
         inputs = self.cycle.inputs(now - self.t0, self.heartbeat_frozen)

@@ -63,6 +63,7 @@ from drivers.errors import DeviceError
 
 F64 = NDArray[np.float64]
 SPACE_CHECK_S = 60.0  # how often the free space under the state directory is looked at
+RETENTION_S = 3600.0  # how often events past [service] events_keep_days are deleted
 
 
 class State(StrEnum):
@@ -135,7 +136,7 @@ class Service(OperatorCommands):
         self._crash: BaseException | None = None  # from another thread (crash())
         self._unstored_alarms: list[dict[str, Any]] = []  # raised while the storage failed
         self.storage_failed = False  # until a reset finds it writing again
-        self._space_check_t = -np.inf
+        self._space_check_t = self._retention_t = -np.inf
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._commands: Queue[tuple[str, dict[str, Any], int | None, Future[dict[str, Any]]]]
@@ -443,6 +444,27 @@ class Service(OperatorCommands):
             self.store.clear_alarms(self.clock.time(), "low_disk")
             self.bus.emit("alarm_cleared", {"code": "low_disk"})
 
+    def _retain(self) -> None:
+        """At most once an hour: events older than [service] events_keep_days are deleted (in
+        short transactions), and the documents of calibrations rejected more than
+        rejected_keep_days ago dropped; the record (measurements, calibrations with their
+        figures, applied versions, alarms, the operators' audit) is kept."""
+        now = self.clock.monotonic()
+        if now - self._retention_t < RETENTION_S:
+            return
+        self._retention_t = now
+        s, t = self.settings, self.clock.time()
+        if s.events_keep_days > 0:
+            n = self.store.prune_events(t - s.events_keep_days * 86400.0)
+            if n:
+                self.log.info(
+                    "retention: %d events older than %g days deleted", n, s.events_keep_days
+                )
+        if s.rejected_keep_days > 0:
+            n = self.store.prune_rejected_documents(t - s.rejected_keep_days * 86400.0)
+            if n:
+                self.log.info("retention: documents of %d rejected calibrations dropped", n)
+
     def _fault(self, exc: BaseException) -> None:
         self._fault_family = self.note_device_error(exc)
         self._enter_fault("device_fault", f"{type(exc).__name__}: {exc}")
@@ -614,6 +636,7 @@ class Service(OperatorCommands):
         if self.state in (State.IDLE, State.PAUSED):
             self._maybe_recalibrate()
         self._check_space()
+        self._retain()
 
     def _worker_failed(self, exc: BaseException) -> None:
         ids = self.recal_ids or {"train": [], "holdout": []}
