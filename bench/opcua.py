@@ -218,16 +218,19 @@ def latencies(repeats: int, interval_ms: float) -> dict[str, list[float]]:
         client = ClientProcess(url, interval_ms)
         stamps = Stamps(svc, tuple(out))
         try:
-            for k in range(repeats):
-                time.sleep(rng.uniform(0.0, 2 * interval_ms / 1000))  # random phase
+            phase = lambda: time.sleep(rng.uniform(0.0, interval_ms / 1000))  # noqa: E731
+            for k in range(repeats):  # each change at a random phase of the publishing cycle
+                phase()
                 cmd, word = ("pause", "paused") if k % 2 == 0 else ("resume", "idle")
                 svc.request(cmd).result(10)
                 t0 = stamps.next("state")
                 out["state"].append(client.wait(lambda r, w=word: r.get("v") == w) - t0)
+                phase()
                 plc.frozen = True
                 t0 = stamps.next("alarm")
                 t1 = client.wait(lambda r: r.get("code") == "plc_heartbeat" and r["active"])
                 out["alarm"].append(t1 - t0)
+                phase()
                 plc.frozen = False
                 t0 = stamps.next("alarm_cleared")
                 t1 = client.wait(lambda r: r.get("code") == "plc_heartbeat" and not r["active"])
@@ -246,7 +249,7 @@ def _ms(values: list[float]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__)
-    p.add_argument("--repeats", type=int, default=30)
+    p.add_argument("--repeats", type=int, default=40)
     p.add_argument("--idle-s", type=float, default=5.0)
     p.add_argument("--rounds", type=int, default=3)
     p.add_argument("--intervals", type=float, nargs="+", default=[20.0, 100.0])

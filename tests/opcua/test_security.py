@@ -124,3 +124,29 @@ def test_a_port_in_use_is_a_clear_error(line: SimulatedLineRun) -> None:
         with pytest.raises(InputError, match="cannot listen at") as failed:
             OpcUaServer(line.service, settings).start()
     assert "[opcua] endpoint" in str(failed.value)
+
+
+def test_backup_and_restore_keep_the_cells_opcua_identity(
+    line: SimulatedLineRun, tmp_path: Path
+) -> None:
+    """`rvis state backup|restore` carry the server's certificate, its key (0600) and the
+    trusted clients; `rvis state check` flags a key others can read."""
+    from app.commands.state import backup, check, restore
+    from app.line.opcua.security import server_certificate
+    from app.line.opcua.server import application_uri
+
+    paths = StateDir(line.service.settings.state_dir)
+    server_certificate(paths, application_uri(line.service.settings.opcua), "127.0.0.1")
+    cert, _key = asyncio.run(_client_cert(tmp_path, "historian"))
+    (paths.opcua_trusted / "historian.der").write_bytes(cert.read_bytes())
+    manifest = backup(paths, tmp_path / "backup")
+    assert manifest["opcua_files"] >= 3
+    restored = StateDir(tmp_path / "restored")
+    restore(tmp_path / "backup", restored)
+    assert restored.opcua_cert.read_bytes() == paths.opcua_cert.read_bytes()
+    assert restored.opcua_key.read_bytes() == paths.opcua_key.read_bytes()
+    assert stat.S_IMODE(restored.opcua_key.stat().st_mode) == 0o600
+    assert (restored.opcua_trusted / "historian.der").read_bytes() == cert.read_bytes()
+    assert not [p for p in check(restored, 0.0)["problems"] if "opcua" in p]
+    restored.opcua_key.chmod(0o640)
+    assert any("OPC UA private key must be 0600" in p for p in check(restored, 0.0)["problems"])
