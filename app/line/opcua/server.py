@@ -78,7 +78,6 @@ class OpcUaServer:
         self.server: Server | None = None
         self.space: AddressSpace | None = None
         self.conditions: Conditions | None = None
-        self.updates = 0  # status replies applied
         self._last_status: dict[str, Any] = {}
         self._ready = threading.Event()
         self._error: BaseException | None = None
@@ -186,7 +185,6 @@ class OpcUaServer:
         when = clock_utc(t)
         await self.space.apply(status, when)
         await self.conditions.sync(list(status.get("alarms", [])), when)
-        self.updates += 1
 
     async def _acknowledge(self, alarm_id: int, who: str, comment: str) -> str | None:
         """The service's audited `ack` (uid: none; the audit names OPC UA and the user)."""
