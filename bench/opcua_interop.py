@@ -54,6 +54,8 @@ class Node:
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env,
         )  # fmt: skip
         self.lines: queue.Queue[dict[str, Any]] = queue.Queue()
+        self.seen: list[dict[str, Any]] = []  # every line, in order
+        self._pos = 0  # after the line wait() last returned
         threading.Thread(target=self._read, daemon=True).start()
 
     def _read(self) -> None:
@@ -67,11 +69,35 @@ class Node:
         self.proc.stdin.write(line + "\n")
         self.proc.stdin.flush()
 
-    def wait(self, pred: Callable[[dict[str, Any]], bool], timeout_s: float = 20.0) -> dict:
+    def mark(self) -> int:
+        """A point in the output to wait from (lines arrive in any order around a call)."""
+        self._drain()
+        return len(self.seen)
+
+    def _drain(self) -> None:
+        while True:
+            try:
+                self.seen.append(self.lines.get_nowait())
+            except queue.Empty:
+                return
+
+    def wait(
+        self, pred: Callable[[dict[str, Any]], bool], timeout_s: float = 20.0, since: int = -1
+    ) -> dict:
+        """The first line from `since` (default: after the last one returned) that satisfies
+        pred."""
+        self._drain()
+        start = self._pos if since < 0 else since
+        for i in range(start, len(self.seen)):
+            if pred(self.seen[i]):
+                self._pos = i + 1
+                return self.seen[i]
         deadline = time.monotonic() + timeout_s
         while True:
             r = self.lines.get(timeout=max(0.01, deadline - time.monotonic()))
+            self.seen.append(r)
             if pred(r):
+                self._pos = len(self.seen)
                 return r
 
     def close(self) -> None:
@@ -169,10 +195,14 @@ def scenario(line: SimulatedLineRun, node: Node) -> list[tuple[str, bool, str]]:
             f" {time.monotonic() - t0:.2f} s after the fault was armed",
         )
     )
+    before = node.mark()
     node.send("ack device_fault")
-    ack = node.wait(lambda r: r["k"] == "ack")
+    ack = node.wait(lambda r: r["k"] == "ack", since=before)
+    if ack["status"] != "Good":
+        return [*checks, ("Acknowledge method from node-opcua", False, str(ack))]
     acked = node.wait(
-        lambda r: r["k"] == "event" and r["ConditionName"] == "device_fault" and r["AckedState.Id"]
+        lambda r: r["k"] == "event" and r["ConditionName"] == "device_fault" and r["AckedState.Id"],
+        since=before,
     )
     audit = svc.store.actions()[-1]
     checks.append(

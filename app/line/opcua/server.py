@@ -99,19 +99,19 @@ class OpcUaServer:
         if self._error is not None:
             self.stop()
             error = self._error
-            if isinstance(error, InputError):
-                raise error
-            raise InputError(
-                f"the OPC UA server cannot listen at {self.settings.endpoint}: {error}",
-                field="[opcua] endpoint",
-            ) from error
+            if isinstance(error, OSError | TimeoutError):  # the network, the state directory
+                raise InputError(
+                    f"the OPC UA server cannot listen at {self.settings.endpoint}: {error}",
+                    field="[opcua] endpoint",
+                ) from error
+            raise error  # InputError as it is; anything else is an internal error
         self._feed.start()
         log.info("OPC UA server listening at %s", self.settings.endpoint)
         return self
 
     def stop(self) -> None:
         self.service.bus.unsubscribe(self._events)
-        self._events.put(_STOP)
+        self._events.offer(_STOP)  # never blocks: a full queue loses its oldest event
         if self._feed.is_alive():
             self._feed.join(10.0)
         if self.loop is not None and self._stopping is not None and self._thread.is_alive():
