@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.ops.conftest import ROOT, ServiceProcess, rvis, status
+from tests.ops.conftest import ROOT, ServiceProcess, count, rvis, status
 
 TMUX = shutil.which("tmux")
 SUBSCRIBER = """
@@ -123,14 +123,6 @@ def test_a_second_service_on_the_same_state_directory_is_refused(
     assert service.alive and status(service.state_dir)["state"] in ("idle", "measuring")
 
 
-def _count(db: Path, sql: str) -> int:
-    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
-    try:
-        return int(con.execute(sql).fetchone()[0])
-    finally:
-        con.close()
-
-
 def test_kill_9_at_random_points_keeps_every_row_and_the_recalibration_progress(
     tmp_path: Path, cell: Path
 ) -> None:
@@ -148,7 +140,7 @@ def test_kill_9_at_random_points_keeps_every_row_and_the_recalibration_progress(
             svc.wait_log(lambda r: r.get("event") in ("measurement", "state", "window"), 10.0)
         svc.kill9()
         db = state / "rvis.db"
-        now = _count(db, "SELECT COUNT(*) FROM measurements")
+        now = count(db, "SELECT COUNT(*) FROM measurements")
         assert now >= stored  # nothing stored is ever lost
         con = sqlite3.connect(db)
         assert con.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
@@ -156,7 +148,7 @@ def test_kill_9_at_random_points_keeps_every_row_and_the_recalibration_progress(
         stored = now
         assert not list((state / "params").rglob(".*.tmp"))
     assert stored >= 24
-    assert _count(state / "rvis.db", "SELECT COUNT(*) FROM calibrations") >= 1
+    assert count(state / "rvis.db", "SELECT COUNT(*) FROM calibrations") >= 1
     svc = ServiceProcess(state, cell)  # and it still runs, the apply completed
     try:
         svc.wait_ready()
@@ -165,7 +157,7 @@ def test_kill_9_at_random_points_keeps_every_row_and_the_recalibration_progress(
         assert doc["history_version"] == st["params_version"]
     finally:
         assert svc.stop() == 0
-    assert _count(state / "rvis.db", "SELECT MAX(version) FROM applied") == st["params_version"]
+    assert count(state / "rvis.db", "SELECT MAX(version) FROM applied") == st["params_version"]
 
 
 def test_a_damaged_database_is_refused_with_one_line(tmp_path: Path, cell: Path) -> None:
