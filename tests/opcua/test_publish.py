@@ -19,7 +19,6 @@ import pytest
 from asyncua import Client, ua
 
 from app.line.opcua.space import NS_DI, NS_MACHINERY
-from app.meta import version
 from app.sim.line_run import SimulatedLineRun
 from tests.opcua.conftest import Catcher, Servers, child, machine_node, state_dir
 
@@ -172,7 +171,10 @@ def test_identification_as_opc_40001(servers: Servers) -> None:
     values = asyncio.run(check())
     assert values["Manufacturer"].Text == "rvis" and values["SerialNumber"] == "SN-0007"
     assert values["ProductInstanceUri"] == "urn:plant-a:body-shop:cell-7"
-    assert values["SoftwareRevision"] == version()  # what `rvis --version` prints
+    printed = subprocess.run(
+        [sys.executable, "-m", "app.cli", "--version"], capture_output=True, text=True, cwd=ROOT
+    ).stdout.strip()
+    assert f"rvis {values['SoftwareRevision']}" == printed  # what `rvis --version` prints
     assert values["Model"].Text.startswith("RVIS") and values["unit"] == "mm"
 
 

@@ -160,7 +160,7 @@ class OpcUaServer:
         from app.line.opcua import security
         from app.line.opcua.alarms import Conditions
         from app.line.opcua.space import AddressSpace
-        from app.meta import version
+        from app.meta import software_revision
 
         s = self.settings
         self.server = server = Server(user_manager=security.user_manager(s, self.paths))
@@ -171,7 +171,7 @@ class OpcUaServer:
         await server.set_application_uri(application_uri(s))
         await security.secure(server, s, self.paths, application_uri(s))
         self.space = AddressSpace(server, s)
-        machine = await self.space.build(sorted(self.service.spheres), version())
+        machine = await self.space.build(sorted(self.service.spheres), software_revision())
         ack = self._acknowledge if s.allow_ack else None
         self.conditions = Conditions(server, self.space.ns, machine, ack)
         await self.conditions.setup()
