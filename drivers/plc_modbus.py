@@ -9,7 +9,7 @@ Holding registers (16-bit words) relative to ``base``; the PLC is the server:
     word 11  APP_HEARTBEAT  incremented by the app on every poll         (app writes)
 
 The bits are the family's (drivers/plc.py); the app reads words 0-2 and writes words 10-11,
-each in one request. Safety
+each in one request (and reads 10-11 back for a check). ``?read_only=1``: never write. Safety
 interlocks are not here: they stay in the safety PLC.
 """
 
@@ -42,6 +42,7 @@ class ModbusPlc(Plc):
         host, port = url.address(DEFAULT_PORT)
         options.setdefault("unit", int(url.number("unit", 1)))
         options.setdefault("base", int(url.number("base", 0)))
+        options.setdefault("read_only", url.flag("read_only"))
         return cls(host, port, **options)
 
     def describe(self) -> str:
@@ -49,7 +50,9 @@ class ModbusPlc(Plc):
         return f"line PLC at {self.host}:{self.port} unit {self.unit} base {self.base}"
 
     def _connect(self) -> None:
-        link = ModbusLink(self.host, self.port, unit=self.unit, timeout_s=self.timeout_s)
+        link = ModbusLink(
+            self.host, self.port, unit=self.unit, timeout_s=self.timeout_s, trace=self.trace
+        )
         link.connect()
         self._link = link
 
@@ -64,3 +67,7 @@ class ModbusPlc(Plc):
 
     def _write_output_words(self, words: tuple[int, int]) -> None:
         require_link(self._link, self.name).write(self.base + APP_STATUS, list(words))
+
+    def _read_output_words(self) -> tuple[int, int]:
+        status, beat = require_link(self._link, self.name).read(self.base + APP_STATUS, 2)
+        return status, beat

@@ -6,6 +6,9 @@ permissions, the one-service lock and the free space under it (DESIGN.md section
         rvis.lock                the running service's lock (flock) and pid
         rvis.sock                the control socket, 0660
         plan.json                the plan `rvis run` reads when --plan is not given
+        cell.toml                the cell file `rvis commission` wrote (`rvis run --cell`)
+        sensor.toml              the sensor calibration `rvis run` reads when --sensor-model
+                                 is not given (written by `rvis commission`)
         params/current.json      the applied version (derived: rebuilt from the history)
         params/history/NNNN.json every version ever applied
         sweeps/NNNNNNNN.npz      raw sweeps kept for audit ([service] raw_sweeps_keep)
@@ -13,6 +16,10 @@ permissions, the one-service lock and the free space under it (DESIGN.md section
         opcua/server-key.pem     a security policy; the key 0600)
         opcua/trusted/           client certificates the OPC UA server trusts (DER or PEM)
         opcua/rejected/          certificates of clients it refused (move one to trusted/)
+        trace/wire.jsonl         the devices' wire trace when on ([devices] trace, `?trace=1`),
+                                 rotated to wire.jsonl.1, .2, ... (`rvis devices trace`)
+        commission/              `rvis commission`: its journal, each step's results, the
+                                 report (commission.md, commission.json)
 
 Read-only clients (`rvis status`, `rvis ctl`, `rvis tui`) only need the layout; the service
 also takes the lock before it opens any device (`ServiceLock`), and `prepare()`s the directory.
@@ -35,9 +42,13 @@ DB_NAME = "rvis.db"
 SOCKET_NAME = "rvis.sock"
 LOCK_NAME = "rvis.lock"
 PLAN_NAME = "plan.json"
+CELL_NAME = "cell.toml"
+SENSOR_NAME = "sensor.toml"
 PARAMS_DIR = "params"
 SWEEPS_DIR = "sweeps"
 OPCUA_DIR = "opcua"
+TRACE_DIR = "trace"
+COMMISSION_DIR = "commission"
 
 DIR_MODE, DIR_MODE_GROUP = 0o750, 0o2770  # setgid: new files take the operators' group
 UMASK, UMASK_GROUP = 0o027, 0o007  # files 0640 (0660 with the group)
@@ -68,6 +79,14 @@ class StateDir:
     @property
     def plan(self) -> Path:
         return self.root / PLAN_NAME
+
+    @property
+    def cell(self) -> Path:
+        return self.root / CELL_NAME
+
+    @property
+    def sensor(self) -> Path:
+        return self.root / SENSOR_NAME
 
     @property
     def params(self) -> Path:
@@ -104,6 +123,14 @@ class StateDir:
     @property
     def opcua_rejected(self) -> Path:
         return self.opcua / "rejected"
+
+    @property
+    def wire_trace(self) -> Path:
+        return self.root / TRACE_DIR / "wire.jsonl"
+
+    @property
+    def commission(self) -> Path:
+        return self.root / COMMISSION_DIR
 
     def free_mb(self) -> float:
         """Free space [MiB] for an unprivileged writer on the directory's file system."""
