@@ -31,10 +31,9 @@ def _chosen(argv: Sequence[str]) -> str | None:
 
 
 def _version() -> str:
-    from app.meta import git_commit, version
+    from app.meta import software_revision
 
-    commit = git_commit()
-    return f"rvis {version()}" + (f" ({commit})" if commit else "")
+    return f"rvis {software_revision()}"
 
 
 class _Parser(argparse.ArgumentParser):

@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.errors import InputError
+from app.line.opcua.endpoint import SECURITY_POLICIES, endpoint_problem
 from calib import robot as nominal_robot
 
 F64 = NDArray[np.float64]
@@ -354,6 +355,26 @@ class SimLineSection(Section):
 
 
 @dataclass(frozen=True)
+class OpcUaSection(Section):
+    """The service's OPC UA server (DESIGN.md section 8, docs/opcua.md): off by default, on
+    loopback by default; any other endpoint needs a signing-and-encrypting security_policy
+    ("none": no security, loopback only). Identification of the cell as OPC 40001-1 reads it
+    ("" : derived, see docs/opcua.md)."""
+
+    name = "opcua"
+    enabled: bool = opt(False)
+    endpoint: str = opt("opc.tcp://127.0.0.1:4840/rvis")
+    security_policy: str = opt("none", choices=SECURITY_POLICIES)
+    allow_anonymous: bool = opt(False)  # beyond loopback (on loopback anonymous is allowed)
+    allow_ack: bool = opt(False)
+    machine_name: str = opt("rvis-cell")
+    manufacturer: str = opt("rvis")
+    model: str = opt("RVIS in-line self-calibration, FANUC M-710iC/50 + laser-line sensor")
+    serial_number: str = opt("")
+    product_instance_uri: str = opt("")
+
+
+@dataclass(frozen=True)
 class CameraSection(Section):
     """The camera's acquisition for the sweeps of `rvis run` (full frames, software trigger);
     `rvis commission` chooses the exposure from its stripe check and writes it here."""
@@ -410,6 +431,7 @@ SECTIONS: tuple[type[Section], ...] = (
     SweepSection,
     DriftSection,
     SimLineSection,
+    OpcUaSection,
     CameraSection,
     CommissionSection,
 )
@@ -446,6 +468,7 @@ class CellConfig:
     sweep: SweepSection
     drift: DriftSection
     simline: SimLineSection
+    opcua: OpcUaSection
     camera: CameraSection
     commission: CommissionSection
     source: str = "<embedded default>"
@@ -520,6 +543,11 @@ def _resolve(s: dict[str, Section], source: str, reader: Any = None) -> CellConf
     box = s["planning"]["workspace_mm"]
     if box[0] >= box[1] or box[2] >= box[3]:
         raise fail("planning", "workspace_mm", "expected [x_min, x_max, y_min, y_max], min < max")
+    ua = s["opcua"]
+    if ua["enabled"]:
+        reason = endpoint_problem(ua["endpoint"], ua["security_policy"])
+        if reason:
+            raise fail("opcua", "endpoint", reason)
     sp = s["spheres"]
     if not sp["positions_mm"]:
         raise fail("spheres", "positions_mm", "expected a table of sphere ids -> [x, y, z]")

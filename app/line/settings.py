@@ -142,6 +142,22 @@ class RecalibSettings:
 
 
 @dataclass(frozen=True)
+class OpcUaSettings:
+    """The OPC UA server of the service (the cell file's `[opcua]`, app.line.opcua)."""
+
+    enabled: bool = False
+    endpoint: str = "opc.tcp://127.0.0.1:4840/rvis"
+    security_policy: str = "none"  # or a signing-and-encrypting policy (endpoint.py)
+    allow_anonymous: bool = False  # beyond loopback; on loopback anonymous is allowed
+    allow_ack: bool = False  # acknowledging alarms from OPC UA (audited as an operator's ack)
+    machine_name: str = "rvis-cell"
+    manufacturer: str = "rvis"
+    model: str = "RVIS in-line self-calibration, FANUC M-710iC/50 + laser-line sensor"
+    serial_number: str = ""  # "": the host's name
+    product_instance_uri: str = ""  # "": urn:<manufacturer>:<serial number>:<machine name>
+
+
+@dataclass(frozen=True)
 class ServiceSettings:
     """Everything the service needs besides its devices, clock, plan and spheres."""
 
@@ -158,6 +174,7 @@ class ServiceSettings:
     gates: GateSettings = field(default_factory=GateSettings)
     drift: DriftSettings = field(default_factory=DriftSettings)
     recalib: RecalibSettings = field(default_factory=RecalibSettings)
+    opcua: OpcUaSettings = field(default_factory=OpcUaSettings)
 
 
 def _section(cls: type[T], section: Any) -> T:
@@ -168,8 +185,8 @@ def _section(cls: type[T], section: Any) -> T:
 
 def from_cell(cfg: Any, state_dir: str | Path | None = None) -> ServiceSettings:
     """ServiceSettings from a resolved cell configuration (app.config.CellConfig): [line],
-    [sweep], [drift], [service] (recalibration and in-line gates) and [calibration] (RMS and
-    condition limits)."""
+    [sweep], [drift], [service] (recalibration and in-line gates), [calibration] (RMS and
+    condition limits) and [opcua]."""
     svc, cal = cfg.service, cfg.calibration
     gates = _section(
         GateSettings, {**dict(svc), **{k: cal[k] for k in ("max_rms_mm", "max_condition")}}
@@ -186,4 +203,5 @@ def from_cell(cfg: Any, state_dir: str | Path | None = None) -> ServiceSettings:
         gates=gates,
         drift=_section(DriftSettings, cfg.drift),
         recalib=_section(RecalibSettings, svc),
+        opcua=_section(OpcUaSettings, cfg.opcua),
     )

@@ -32,3 +32,26 @@ def test_settings_refuse_nonsense() -> None:
         RecalibSettings(mode="sometimes")  # type: ignore[arg-type]
     with pytest.raises(ValueError):
         RecalibSettings(rolling_size=5)
+
+
+def test_opcua_settings_are_the_cell_files(tmp_path: Path) -> None:
+    """[opcua] reaches the service; the settings' defaults are the cell file's."""
+    from dataclasses import asdict
+
+    from app.config import OpcUaSection
+    from app.line.settings import OpcUaSettings
+
+    assert asdict(OpcUaSettings()) == dict(OpcUaSection())
+    cell = tmp_path / "cell.toml"
+    cell.write_text(
+        '[opcua]\nenabled = true\nendpoint = "opc.tcp://0.0.0.0:4841/x"\n'
+        'security_policy = "Aes256Sha256RsaPss"\nallow_ack = true\n',
+        encoding="utf-8",
+    )
+    s = from_cell(load_cell(cell), tmp_path / "state").opcua
+    assert (s.enabled, s.endpoint, s.security_policy, s.allow_ack) == (
+        True,
+        "opc.tcp://0.0.0.0:4841/x",
+        "Aes256Sha256RsaPss",
+        True,
+    )
