@@ -1,7 +1,9 @@
 """A pymodbus server playing the line PLC (register map in drivers/plc_modbus.py): it runs a
 ClampCycle (for example an 8 s window every 60 s, compressed by ``time_scale`` in tests) and
 records what the app writes. ``heartbeat_frozen = True`` simulates a stalled PLC;
-``temperature`` (a callable returning degC, or None) feeds the cell temperature word.
+``temperature`` (a callable returning degC, or None for "no sensor", 0x8000) feeds the cell
+temperature word; left None, the PLC program never writes the word and it stays 0, as in a PLC
+program that predates the temperature input.
 """
 
 from __future__ import annotations
@@ -31,8 +33,8 @@ class PlcServer(RegisterServer):
         inputs = self.cycle.inputs(now - self.t0, self.heartbeat_frozen)
         p = self.base + PLC_STATUS
         regs[p : p + 2] = encode_inputs(inputs)
-        temp = None if self.temperature is None else self.temperature()
-        regs[self.base + PLC_CELL_TEMP] = encode_temp(temp)
+        if self.temperature is not None:
+            regs[self.base + PLC_CELL_TEMP] = encode_temp(self.temperature())
         a = self.base + APP_STATUS
         if a in written or a + 1 in written:
             out = decode_outputs((written.get(a, regs[a]), written.get(a + 1, regs[a + 1])))

@@ -79,6 +79,27 @@ class WindowWatch:
             return 0.0
         return self.line.window_s - (self.clock.monotonic() - self.opened_t)
 
+    def temperature(self) -> tuple[float | None, str]:
+        """The cell temperature to use: (degC, "") or (None, why there is none).
+
+        Read only when the cell file says the PLC provides it (`[line] plc_temperature`): a PLC
+        program that predates the word leaves 0 there, which must not read as a cell at 0 degC.
+        Provided, the word's "no sensor" (0x8000, or a backend without the word) and a value
+        outside `plc_temp_min_c..plc_temp_max_c` are no temperature, with the reason."""
+        line, inputs = self.line, self.inputs
+        if not line.plc_temperature or inputs is None:
+            return None, ""
+        temp_c = inputs.temp_c
+        if temp_c is None:
+            return None, "the PLC's cell temperature word (2) says no sensor (0x8000)"
+        if not line.plc_temp_min_c <= temp_c <= line.plc_temp_max_c:
+            lo, hi = line.plc_temp_min_c, line.plc_temp_max_c
+            return None, (
+                f"the PLC's cell temperature word (2) reads {temp_c:.2f} degC, outside [line]"
+                f" plc_temp_min_c..plc_temp_max_c = {lo:g}..{hi:g}"
+            )
+        return temp_c, ""
+
 
 class Withdrawal:
     """Watches the PLC from a thread while the robot is out; on a withdrawn window it aborts

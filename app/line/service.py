@@ -345,6 +345,7 @@ class Service(OperatorCommands):
             self._pause_poll()
             return
         self._watch_heartbeat()
+        self._watch_temperature()
         self._unshelve()
         if self.state == State.IDLE and not self.paused and self.watch.fresh_window():
             self._window()
@@ -379,6 +380,23 @@ class Service(OperatorCommands):
         elif self.watch.alive and alarms:
             self.store.clear_alarms(self.clock.time(), "plc_heartbeat")
             self.bus.emit("alarm_cleared", {"code": "plc_heartbeat"})
+
+    def _watch_temperature(self) -> None:
+        """A `temperature` alarm while the PLC should provide the cell temperature and does
+        not (raised once, cleared when a plausible value returns); meanwhile measurements are
+        stored without one and the compliant model leaves its thermal term out."""
+        temp_c, why = self.watch.temperature()
+        alarms = self.store.active_alarms(code="temperature")
+        if why and not alarms:
+            self._alarm(
+                "temperature",
+                f"{why}: no cell temperature; measurements are stored without one and the"
+                " thermal term is left out until a plausible value returns",
+                "medium",
+            )
+        elif temp_c is not None and alarms:
+            self.store.clear_alarms(self.clock.time(), "temperature")
+            self.bus.emit("alarm_cleared", {"code": "temperature"})
 
     # -- faults and alarms -------------------------------------------------------------------------
     def _alarm(self, code: str, message: str, priority: str = "high") -> int:
@@ -469,9 +487,9 @@ class Service(OperatorCommands):
 
     @property
     def cell_temp_c(self) -> float | None:
-        """The cell temperature [degC] from the PLC's last reading (None: no sensor)."""
-        inputs = self.watch.inputs
-        return None if inputs is None else inputs.temp_c
+        """The cell temperature [degC] from the PLC's last reading; None when the PLC does not
+        provide it ([line] plc_temperature) or its reading is not plausible (WindowWatch)."""
+        return self.watch.temperature()[0]
 
     def _position(self) -> int:
         return self.store.schedule_position()[0]

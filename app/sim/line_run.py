@@ -104,13 +104,14 @@ def service_settings(
 ) -> ServiceSettings:
     """The cell's service settings with the times a scaled line needs: the clamp window's length,
     a poll of 10 ms real time, a heartbeat timeout of at least 0.5 s real time and, rendered,
-    the real time a frame takes."""
+    the real time a frame takes; the simulated PLC provides the cell temperature."""
     s = from_cell(cfg, state_dir)
     if not geometric:
         frame_s = max(s.sweep.frame_s, RENDERED_FRAME_REAL_S * scale)
         s = replace(s, sweep=replace(s.sweep, frame_s=frame_s))
     line = replace(
         s.line,
+        plc_temperature=True,  # the simulated PLC writes the cell's temperature in word 2
         window_s=cfg.simline.window_s,
         poll_s=max(s.line.poll_s, 0.01 * scale),
         heartbeat_timeout_s=max(s.line.heartbeat_timeout_s, 0.5 * scale),
