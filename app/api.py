@@ -1,6 +1,8 @@
-"""The Python API for the inspection software: the identified calibration in use.
+"""The Python API for the inspection software: the identified calibration in use. Programs
+import it as `rvis` (rvis/__init__.py: the same code under a name that cannot collide with
+their own packages):
 
-    from app.api import Calibration
+    from rvis import Calibration
 
     cal = Calibration.load("params.json")                 # once; checks the model
     p_part_mm = cal.to_part(q_deg, p_sensor_mm)           # sensor points -> part frame
