@@ -34,6 +34,7 @@ from calib import candidates
 from calib.compliance import CompliantModel, CompliantSettings
 from calib.identify import Measurements, identify, residuals
 from calib.model import SystemModel
+from calib.validation import rmse
 from fakes.cell import SimulatedCell
 
 F64 = NDArray[np.float64]
@@ -132,10 +133,6 @@ class AccuracyOutcome:
     seconds: dict[str, float]  # identification time per model
 
 
-def _rmse(e: F64) -> float:
-    return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
-
-
 def _cells_and_data(
     cfg: CellConfig, seed: int, s: AccuracySettings, temp_range_c: tuple[float, float]
 ) -> tuple[dict[str, WarmData], dict[str, WarmData]]:
@@ -168,7 +165,7 @@ def run_seed(
         ("compliant", compliant, full, "full"),
         ("noise floor", rigid, without_temperature(floor), "floor"),
     )
-    rmse, rmse_truth, seconds = {}, {}, {}
+    rmse_by, rmse_truth, seconds = {}, {}, {}
     values: dict[str, float] = {}
     identified = False
     for label, model, m, cell_name in cases:
@@ -178,12 +175,12 @@ def run_seed(
         v = val[cell_name]
         keep = label == "compliant"  # the only one given the temperatures
         vm, vt = (v.measured, v.truth) if keep else map(without_temperature, (v.measured, v.truth))
-        rmse[label] = _rmse(residuals(model, result.x, vm))
-        rmse_truth[label] = _rmse(residuals(model, result.x, vt))
+        rmse_by[label] = rmse(residuals(model, result.x, vm))
+        rmse_truth[label] = rmse(residuals(model, result.x, vt))
         if keep:
             values = {n: result.value(n) for n in VALUE_NAMES}
             identified = "expansion_per_k" in result.active
-    return AccuracyOutcome(seed, scenario[0], rmse, rmse_truth, values, identified, seconds)
+    return AccuracyOutcome(seed, scenario[0], rmse_by, rmse_truth, values, identified, seconds)
 
 
 HEADER = ["model", "median RMSE mm", "ratio to floor", "median vs truth mm", "seeds within 15 %"]

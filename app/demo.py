@@ -43,7 +43,7 @@ from calib.gates import GateReport, check_identification
 from calib.identify import IdentificationResult, Measurements, identify, residuals
 from calib.model import SystemModel
 from calib.plan import Plan, Progress
-from calib.validation import ErrorStats
+from calib.validation import ErrorStats, rmse
 from fakes.cell import SimulatedCell
 
 F64 = NDArray[np.float64]
@@ -86,18 +86,14 @@ def truth_set(ds: DataSet, c_sensor_mm: F64, with_noise: bool) -> Measurements:
     return Measurements(m.q_deg, c, p, m.targets)
 
 
-def _rmse(e: F64) -> float:
-    return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
-
-
 def error_breakdown(
     cfg: CellConfig, seed: int, model: SystemModel, cal: DataSet, val: DataSet, x_id: F64
 ) -> dict[str, float]:
     """RMSE [mm] of: the identified parameters alone; compliance alone; noise alone."""
     val_truth = truth_set(val, val.truth_c_sensor_mm, with_noise=False)
-    out = {"parameters_alone": _rmse(residuals(model, x_id, val_truth))}
+    out = {"parameters_alone": rmse(residuals(model, x_id, val_truth))}
     clean = identify(model, truth_set(cal, cal.truth_c_sensor_mm, with_noise=False))
-    out["compliance_alone"] = _rmse(residuals(model, clean.x, val_truth))
+    out["compliance_alone"] = rmse(residuals(model, clean.x, val_truth))
     rigid = make_cell(cfg, seed=seed, compliance=False)
     m = cal.measurements
     c_rigid = np.array(
@@ -109,8 +105,8 @@ def error_breakdown(
         [rigid.centre_in_sensor(q, p)[0] for q, p in zip(v.q_deg, val.truth_p_part_mm, strict=True)]
     )
     val_rigid = Measurements(v.q_deg, c_val_rigid, val.truth_p_part_mm, v.targets)
-    out["noise_alone"] = _rmse(residuals(model, noisy.x, val_rigid))
-    out["validation_measurement_noise"] = _rmse(
+    out["noise_alone"] = rmse(residuals(model, noisy.x, val_rigid))
+    out["validation_measurement_noise"] = rmse(
         residuals(model, x_id, val.measurements) - residuals(model, x_id, val_truth)
     )
     return out

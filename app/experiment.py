@@ -40,6 +40,7 @@ from calib.model import SystemModel
 from calib.observability import INDEX_NAMES
 from calib.plan import select_configurations
 from calib.transforms import apply, inverse
+from calib.validation import rmse
 
 F64 = NDArray[np.float64]
 PAPER_O1 = (0.0472, 0.086)
@@ -57,10 +58,6 @@ class SeedOutcome:
     positions_base_mm: dict[str, list[float]]
     errors_mm: dict[str, list[float]]  # Euclidean validation error per position
     seconds: float = 0.0  # the seed's wall time
-
-
-def _rmse(e: F64) -> float:
-    return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
 
 
 def run_seed(
@@ -102,7 +99,7 @@ def run_seed(
             q_by = {sp.name: sp.q_deg for sp in spheres}
             runs[name] = collect(cell, model, pre.x, positions, n_each, rng, q_by_target=q_by)
         runs["random at planned positions"] = collect(cell, model, pre.x, positions, n_each, rng)
-    o1, rmse, rmse_truth, counts, errors = {}, {}, {}, {}, {}
+    o1, rmse_by, rmse_truth, counts, errors = {}, {}, {}, {}, {}
     fits = [("", model)] + ([(" (compliant)", select_model("compliant", model))] * compliant)
     for (suffix, fit), (run, data) in itertools.product(fits, runs.items()):
         label = run + suffix
@@ -110,14 +107,14 @@ def run_seed(
         res = pre if same else identify(fit, data.measurements, loss=loss)
         e = residuals(fit, res.x, val.measurements)
         o1[label] = res.observability.indices["O1"]
-        rmse[label] = _rmse(e)
-        rmse_truth[label] = _rmse(residuals(fit, res.x, val_truth))
+        rmse_by[label] = rmse(e)
+        rmse_truth[label] = rmse(residuals(fit, res.x, val_truth))
         counts[label] = len(data.measurements)
         errors[label] = np.linalg.norm(e, axis=1).tolist()
     base = _base_positions(model, pre.x, positions)
     seconds = time.perf_counter() - t0
     return SeedOutcome(
-        seed, o1, rmse, rmse_truth, counts, plan.seconds["total"], base, errors, seconds
+        seed, o1, rmse_by, rmse_truth, counts, plan.seconds["total"], base, errors, seconds
     )
 
 

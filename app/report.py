@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 from calib.identify import IdentificationResult
 from calib.model import INDEX, SystemModel, group_of, unit_of
 from calib.observability import INDEX_NAMES
-from calib.validation import ErrorStats
+from calib.validation import ErrorStats, rmse
 
 F64 = NDArray[np.float64]
 
@@ -107,14 +107,13 @@ def plot_errors(path: Path, errors_mm: Mapping[str, F64], title: str) -> None:
     fig, ax = plt.subplots(figsize=(9, 4.5), dpi=110)
     for label, e in errors_mm.items():
         d = np.linalg.norm(np.asarray(e).reshape(-1, 3), axis=1)
-        rmse = float(np.sqrt(np.mean(d**2)))
         ax.plot(
             np.arange(1, d.size + 1),
             d,
             marker="o",
             ms=3,
             lw=1,
-            label=f"{label} (RMSE {rmse:.3f} mm)",
+            label=f"{label} (RMSE {rmse(e):.3f} mm)",
         )
     ax.set_xlabel("validation position index")
     ax.set_ylabel("Euclidean position error [mm]")

@@ -29,6 +29,7 @@ from app.errors import InputError
 from calib import candidates
 from calib.identify import Measurements
 from calib.model import SystemModel
+from calib.validation import rmse
 from fakes.cell import CellSpec, MeasuringVolume, SimSettings, SimulatedCell, SweepJob
 from fakes.render_sensor import TrueSensor
 from fakes.render_targets import render_calibration_set
@@ -441,7 +442,7 @@ def measurement_report(measurement: Measurement, sets: Mapping[str, DataSet]) ->
         e_um = 1000.0 * (ds.measurements.c_sensor_mm - ds.truth_c_sensor_mm)
         out[name] = {
             "n": len(ds.measurements),
-            "centre_error_rms_um": float(np.sqrt(np.mean(np.sum(e_um**2, axis=1)))),
+            "centre_error_rms_um": rmse(e_um),
             "centre_error_rms_xyz_um": np.sqrt(np.mean(e_um**2, axis=0)).tolist(),
             "rejected": len(ds.rejected),
             "rejections": [f"{r.target}: {r.reason}" for r in ds.rejected],

@@ -34,15 +34,15 @@ through the rng passed in.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg.lapack import dpotrf, dtrtri
 
 from calib.errors import NoCandidates
+from calib.information import GAIN_CHUNK, RIDGE, Information
+from calib.ioptimal import WeightedInformation, check_weight
 from calib.observability import INDEX_NAMES
 
 F64 = NDArray[np.float64]
@@ -51,14 +51,8 @@ I64 = NDArray[np.int64]
 METHODS = ("detmax", "eae", "random")
 #: Selection criteria: the observability indices and the workspace criterion (calib.ioptimal).
 CRITERIA = (*INDEX_NAMES, "I")
-RIDGE = 1e-6
 #: An improvement of the log criterion below this ends the search.
 TOL = 1e-9
-SHORTLIST = 256
-#: Candidates per chunk of a determinant-lemma sweep (W of a chunk fits in cache).
-GAIN_CHUNK = 1024
-#: A map over chunk starts (the builtin, or a thread pool's).
-ChunkMap = Callable[[Callable[[int], None], Iterable[int]], Iterator[None]]
 
 
 def check_method(name: str) -> str:
@@ -90,152 +84,6 @@ class Selection:
     criterion: str
     method: str
     sweeps: int
-
-
-class _Information:
-    """The information matrix of fixed blocks plus a selection, with its inverse."""
-
-    def __init__(self, G: F64, G_fixed: F64, criterion: str, rank: int) -> None:
-        L = G.shape[2]
-        self.G = G
-        # (L, 3M): the candidates' first rows, then their second rows, then their third
-        m = G.shape[0]
-        self.GT = np.empty((L, 3 * m))
-        for r in range(3):
-            self.GT[:, r * m : (r + 1) * m] = G[:, r, :].T
-        self.criterion = criterion
-        self.rank = rank
-        self.M0 = RIDGE * np.eye(L) + np.einsum("kil,kim->lm", G_fixed, G_fixed)
-        self.sweeps = 0
-        self.all_rows = np.arange(G.shape[0], dtype=np.int64)
-        self.chunk_map: ChunkMap = map  # over chunks of candidates (a thread pool's map)
-        self._recent: dict[tuple[int, ...], F64] = {}  # whole-pool sweeps by selection
-
-    def matrix(self, sel: list[int]) -> F64:
-        Gs = self.G[sel]
-        M: F64 = self.M0 + np.einsum("kil,kim->lm", Gs, Gs)
-        return M
-
-    def log_value(self, M: F64) -> float:
-        if self.criterion == "O1":
-            return float(np.linalg.slogdet(M)[1])
-        lam = np.asarray(np.linalg.eigvalsh(M), dtype=np.float64)[None, :]
-        return float(self._spectral(lam)[0])
-
-    def _spectral(self, lam: F64) -> F64:
-        """Log criterion from eigenvalues (B, L) ascending."""
-        sig = np.sqrt(np.clip(lam[:, ::-1][:, : self.rank], RIDGE, None))
-        s1, sr = sig[:, 0], sig[:, -1]
-        out: F64
-        if self.criterion == "O2":
-            out = np.log(sr / s1)
-        elif self.criterion == "O3":
-            out = np.log(sr)
-        elif self.criterion == "O4":
-            out = np.log(sr**2 / s1)
-        else:  # O5
-            out = -np.log(np.sum(1.0 / sig, axis=1))
-        return out
-
-    def if_added(self, sel: list[int], M: F64, pool: I64) -> F64:
-        """Log criterion after adding each candidate of pool (P,) to sel (a fresh array).
-
-        The searches ask again for selections they swept just before (a failed excursion is
-        retried one level deeper from the same start; after a swap, the exchange sweeps the
-        same rest again): the last few whole-pool sweeps are kept by selection, in order, so
-        a repeat returns the very same values."""
-        key = tuple(sel) if pool is self.all_rows else None
-        if key is not None and key in self._recent:
-            return self._recent[key].copy()
-        values = self._if_added(sel, M, pool)
-        if key is not None:
-            if len(self._recent) >= 8:
-                self._recent.pop(next(iter(self._recent)))
-            self._recent[key] = values.copy()
-        return values
-
-    def _if_added(self, sel: list[int], M: F64, pool: I64) -> F64:
-        self.sweeps += 1
-        gains = self._gains(M, pool, +1.0)
-        base = float(np.linalg.slogdet(M)[1])
-        if self.criterion == "O1":
-            out: F64 = base + gains
-            return out
-        Gp = self.G[pool]
-        _, vec = np.linalg.eigh(M)
-        weak = vec[:, -self.rank]  # the weakest observable direction
-        first_order = np.sum((Gp @ weak) ** 2, axis=1)
-        short = np.union1d(np.argsort(-gains)[:SHORTLIST], np.argsort(-first_order)[:SHORTLIST])
-        values = np.full(pool.size, -np.inf)
-        Ms = M + np.einsum("kil,kim->klm", Gp[short], Gp[short])
-        values[short] = self._spectral(np.linalg.eigvalsh(Ms))
-        return values
-
-    def _gains(self, M: F64, rows: I64, sign: float) -> F64:
-        """log det(I_3 + sign G_c M^-1 G_c^T) for the blocks `rows` (matrix determinant lemma):
-        with M = C C^T (Cholesky), W_r = C^-1 G_r^T (one product with the 30 x 30 inverse factor
-        for all three rows of every candidate) and the six distinct entries of W^T W. In
-        chunks of candidates, so that W stays in cache (a fresh (L, 3M) temporary per sweep
-        costs more in memory traffic and page faults than the products)."""
-        C_inv = _inverse_cholesky(M)
-        n_all = self.G.shape[0]
-        k = rows.size
-        if k == n_all:
-            B, offset = self.GT, n_all
-        else:
-            B, offset = self.GT[:, np.concatenate([rows, rows + n_all, rows + 2 * n_all])], k
-        out = np.empty(k)
-
-        def chunk(a: int) -> None:
-            b = min(a + GAIN_CHUNK, k)
-            W = [C_inv @ B[:, r * offset + a : r * offset + b] for r in range(3)]
-            out[a:b] = _log_det3(W, sign)
-
-        mapper = self.chunk_map if k > 4 * GAIN_CHUNK else map
-        for _ in mapper(chunk, range(0, k, GAIN_CHUNK)):
-            pass
-        return out
-
-    def if_removed(self, sel: list[int], M: F64, removable: list[int]) -> F64:
-        """Log criterion after removing each of `removable` (positions in sel)."""
-        rows = np.array([sel[i] for i in removable], dtype=np.int64)
-        Gr = self.G[rows]
-        if self.criterion == "O1":
-            out: F64 = float(np.linalg.slogdet(M)[1]) + self._gains(M, rows, -1.0)
-            return out
-        Ms = M - np.einsum("kil,kim->klm", Gr, Gr)
-        return self._spectral(np.linalg.eigvalsh(Ms))
-
-
-def _inverse_cholesky(M: F64) -> F64:
-    """C^-1 of M = C C^T (lower), straight from LAPACK (numpy.linalg's wrappers cost more
-    than the 30 x 30 factorisation itself in the swarm's many small sweeps)."""
-    C, info = dpotrf(M, lower=1, clean=1)
-    if info == 0:
-        C_inv, info = dtrtri(C, lower=1)
-    if info != 0:
-        raise np.linalg.LinAlgError("information matrix not positive definite")
-    out: F64 = C_inv
-    return out
-
-
-def _log_det3(W: list[F64], sign: float) -> F64:
-    """log det(I_3 + sign W^T W) per column p of the three (L, P) blocks W; -inf where the
-    determinant is not positive."""
-
-    def dot(a: int, b: int) -> F64:
-        d: F64 = np.einsum("lp,lp->p", W[a], W[b]) * sign
-        return d
-
-    s00, s11, s22, s01, s02, s12 = dot(0, 0), dot(1, 1), dot(2, 2), dot(0, 1), dot(0, 2), dot(1, 2)
-    det = (
-        (1 + s00) * ((1 + s11) * (1 + s22) - s12**2)
-        - s01 * (s01 * (1 + s22) - s12 * s02)
-        + s02 * (s01 * s12 - (1 + s11) * s02)
-    )
-    out: F64 = np.full(det.shape, -np.inf)
-    np.log(det, out=out, where=det > 0.0)
-    return out
 
 
 def select(
@@ -282,12 +130,10 @@ def select(
     if updates not in ("rank3", "svd"):
         raise ValueError(f"unknown update scheme '{updates}' (choose from rank3, svd)")
     if criterion == "I":
-        from calib.ioptimal import WeightedInformation, check_weight  # it builds on this module
-
         W = check_weight(weight, L)
-        info: _Information = WeightedInformation(G, G_fix, W * d[:, None] * d[None, :])
+        info: Information = WeightedInformation(G, G_fix, W * d[:, None] * d[None, :])
     else:
-        info = (_SvdInformation if updates == "svd" else _Information)(G, G_fix, criterion, rank)
+        info = (_SvdInformation if updates == "svd" else Information)(G, G_fix, criterion, rank)
     if start not in ("greedy", "random"):
         raise ValueError(f"unknown start '{start}' (choose from greedy, random)")
     first = [int(i) for i in rng.choice(m_cand, size=n, replace=False)]
@@ -299,7 +145,7 @@ def select(
 
 
 def _run(
-    info: _Information,
+    info: Information,
     method: str,
     start: str,
     first: list[int],
@@ -320,7 +166,7 @@ def _run(
     return Selection(np.array(sel, dtype=np.int64), value, info.criterion, method, info.sweeps)
 
 
-class _SvdInformation(_Information):
+class _SvdInformation(Information):
     """The straightforward reference: a full SVD of the stacked scaled Jacobian per candidate
     (log det M = 2 sum log sigma of [sqrt(lambda) I; G_fixed; G_selected; G_candidate])."""
 
@@ -349,21 +195,21 @@ class _SvdInformation(_Information):
         )
 
 
-def _greedy(info: _Information, n: int) -> list[int]:
+def _greedy(info: Information, n: int) -> list[int]:
     sel: list[int] = []
     for _ in range(n):
         sel = _add_best(info, sel)
     return sel
 
 
-def _add_best(info: _Information, sel: list[int]) -> list[int]:
+def _add_best(info: Information, sel: list[int]) -> list[int]:
     M = info.matrix(sel)
     values = info.if_added(sel, M, info.all_rows)
     values[sel] = -np.inf
     return [*sel, int(np.argmax(values))]
 
 
-def _remove_best(info: _Information, sel: list[int]) -> list[int]:
+def _remove_best(info: Information, sel: list[int]) -> list[int]:
     """Remove the member whose removal lowers the criterion least."""
     M = info.matrix(sel)
     values = info.if_removed(sel, M, list(range(len(sel))))
@@ -371,7 +217,7 @@ def _remove_best(info: _Information, sel: list[int]) -> list[int]:
     return sel[:k] + sel[k + 1 :]
 
 
-def _detmax(info: _Information, sel: list[int], max_depth: int) -> list[int]:
+def _detmax(info: Information, sel: list[int], max_depth: int) -> list[int]:
     """Mitchell's DETMAX: excursions that add then remove `depth` points; a failed excursion
     is retried one level deeper; stop when no excursion up to max_depth improves."""
     current = info.log_value(info.matrix(sel))
@@ -391,7 +237,7 @@ def _detmax(info: _Information, sel: list[int], max_depth: int) -> list[int]:
     return sel
 
 
-def _exchange(info: _Information, sel: list[int]) -> list[int]:
+def _exchange(info: Information, sel: list[int]) -> list[int]:
     """Best single swaps (member out, candidate in) until none improves."""
     current = info.log_value(info.matrix(sel))
     for _ in range(200 * max(len(sel), 1)):
@@ -410,7 +256,7 @@ def _exchange(info: _Information, sel: list[int]) -> list[int]:
     return sel
 
 
-def _eae(info: _Information, sel: list[int], n: int) -> list[int]:
+def _eae(info: Information, sel: list[int], n: int) -> list[int]:
     """Exchange-add-exchange: exchange to convergence, add the best, exchange again, until n."""
     sel = _exchange(info, sel)
     while len(sel) < n:

@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from calib.detmax import GAIN_CHUNK, RIDGE, _Information, _inverse_cholesky
+from calib.information import GAIN_CHUNK, RIDGE, Information, inverse_cholesky
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -81,7 +81,7 @@ def i_index(J_blocks: F64, weight: F64, rank: int | None = None) -> float:
     return 1.0 / np.sqrt(trace) if trace > 0.0 else 0.0
 
 
-class WeightedInformation(_Information):
+class WeightedInformation(Information):
     """DETMAX's information matrix with the criterion -log trace(W M^-1) (W scaled like the
     blocks and projected onto the directions the pool reaches)."""
 
@@ -92,7 +92,7 @@ class WeightedInformation(_Information):
         self.W = P @ weight_scaled @ P
 
     def log_value(self, M: F64) -> float:
-        C_inv = _inverse_cholesky(M)
+        C_inv = inverse_cholesky(M)
         trace = float(np.trace(C_inv @ self.W @ C_inv.T))
         return -np.log(trace) if trace > 0.0 else np.inf
 
@@ -106,7 +106,7 @@ class WeightedInformation(_Information):
 
     def _traces(self, M: F64, rows: I64, sign: float) -> F64:
         """-log trace(W (M + sign G_c^T G_c)^-1) for the blocks `rows`, in chunks."""
-        C_inv = _inverse_cholesky(M)
+        C_inv = inverse_cholesky(M)
         K = C_inv @ self.W @ C_inv.T
         base = float(np.trace(K))
         out = np.empty(rows.size)

@@ -6,9 +6,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 F64 = NDArray[np.float64]
+
+
+def rmse(errors: ArrayLike) -> float:
+    """RMS of the Euclidean lengths of error vectors (..., 3), in their unit (the paper's
+    RMSE, Eq. 19)."""
+    e = np.asarray(errors, dtype=float).reshape(-1, 3)
+    return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
 
 
 @dataclass(frozen=True)
@@ -32,7 +39,7 @@ class ErrorStats:
         mean = np.mean(e, axis=0)
         return ErrorStats(
             n=int(e.shape[0]),
-            rmse_mm=float(np.sqrt(np.mean(d**2))),
+            rmse_mm=rmse(e),
             mean_mm=float(np.mean(d)),
             median_mm=float(np.median(d)),
             max_mm=float(np.max(d)),

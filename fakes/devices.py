@@ -10,6 +10,7 @@ from __future__ import annotations
 import queue
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
@@ -290,7 +291,8 @@ class FakePlc(Plc):
         super().__init__(**kw)
         self.cycle = cycle or ClampCycle()
         self.received = PlcOutputs()
-        self.history: list[PlcOutputs] = []  # every change of busy/done/fault, in order
+        # the newest 1000 changes of busy/done/fault, in order (bounded: soaks run for days)
+        self.history: deque[PlcOutputs] = deque(maxlen=1000)
         self.heartbeat_frozen = False
         self._t0 = time.monotonic()
 

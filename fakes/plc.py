@@ -10,6 +10,7 @@ program that predates the temperature input.
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Callable
 from typing import Any
 
@@ -38,7 +39,8 @@ class PlcServer(RegisterServer):
         self.heartbeat_frozen = False
         self.temperature: Callable[[], float | None] | None = None
         self.received = PlcOutputs()
-        self.history: list[PlcOutputs] = []  # every change the app made, in order
+        # the newest 1000 changes the app made, in order (bounded: soaks run for days)
+        self.history: deque[PlcOutputs] = deque(maxlen=1000)
 
     def scan(self, now: float, regs: list[int], written: dict[int, int]) -> None:
         inputs = self.cycle.inputs(now - self.t0, self.heartbeat_frozen)

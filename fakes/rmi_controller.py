@@ -34,6 +34,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+from collections import deque
 from collections.abc import Callable
 from typing import Any, ClassVar
 
@@ -79,7 +80,8 @@ class RmiController(LineServer):
         self.alarms: list[str] = []  # the active alarms' texts, newest first (FRC_ReadError)
         self.override_pct = 100
         self.uframe, self.utool = 0, 1
-        self.received: list[dict[str, Any]] = []
+        # the newest requests, for tests (bounded: a soak of the simulated line runs for days)
+        self.received: deque[dict[str, Any]] = deque(maxlen=1000)
         self.motion_durations_s: list[float] = []
         self._initialized = False
         self._next_seq = 1

@@ -22,4 +22,5 @@ COMMANDS: dict[str, str] = {
     "status": "state of the in-line service",
     "ctl": "send a command to the in-line service",
     "tui": "the operator's terminal of a running service",
+    "state": "back up, restore and check the service's state directory",
 }

@@ -27,6 +27,7 @@ from calib.errors import CalibError
 from calib.gates import check_identification
 from calib.identify import IdentificationResult, Measurements, identify, residuals
 from calib.model import SystemModel
+from calib.validation import rmse
 
 F64 = NDArray[np.float64]
 
@@ -91,8 +92,7 @@ def select_rolling(
 
 
 def rms_mm(model: SystemModel, x: F64, data: Measurements) -> float:
-    e = np.linalg.norm(residuals(model, x, data), axis=1)
-    return float(np.sqrt(np.mean(e**2)))
+    return rmse(residuals(model, x, data))
 
 
 def check_candidate(result: IdentificationResult, job: RecalJob) -> tuple[list[str], float, float]:

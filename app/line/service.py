@@ -63,6 +63,7 @@ from drivers.errors import DeviceError
 
 F64 = NDArray[np.float64]
 SPACE_CHECK_S = 60.0  # how often the free space under the state directory is looked at
+RETENTION_S = 3600.0  # how often events past [service] events_keep_days are deleted
 
 
 class State(StrEnum):
@@ -135,7 +136,7 @@ class Service(OperatorCommands):
         self._crash: BaseException | None = None  # from another thread (crash())
         self._unstored_alarms: list[dict[str, Any]] = []  # raised while the storage failed
         self.storage_failed = False  # until a reset finds it writing again
-        self._space_check_t = -np.inf
+        self._space_check_t = self._retention_t = -np.inf
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._commands: Queue[tuple[str, dict[str, Any], int | None, Future[dict[str, Any]]]]
@@ -461,6 +462,19 @@ class Service(OperatorCommands):
             self.store.clear_alarms(self.clock.time(), "low_disk")
             self.bus.emit("alarm_cleared", {"code": "low_disk"})
 
+    def _retain(self) -> None:
+        """Events older than [service] events_keep_days are deleted (at most once an hour, in
+        short transactions); the record (measurements, calibrations, applied versions,
+        alarms, the operators' audit) is kept."""
+        keep_s = self.settings.events_keep_days * 86400.0
+        now = self.clock.monotonic()
+        if keep_s <= 0 or now - self._retention_t < RETENTION_S:
+            return
+        self._retention_t = now
+        n = self.store.prune_events(self.clock.time() - keep_s)
+        if n:
+            self.log.info("retention: %d events older than %g days deleted", n, keep_s / 86400)
+
     def _fault(self, exc: BaseException) -> None:
         self._fault_family = self.note_device_error(exc)
         self._enter_fault("device_fault", f"{type(exc).__name__}: {exc}")
@@ -632,6 +646,7 @@ class Service(OperatorCommands):
         if self.state in (State.IDLE, State.PAUSED):
             self._maybe_recalibrate()
         self._check_space()
+        self._retain()
 
     def _worker_failed(self, exc: BaseException) -> None:
         ids = self.recal_ids or {"train": [], "holdout": []}

@@ -216,7 +216,48 @@ class Store:
         return self.version()
 
     def integrity_ok(self) -> bool:
-        return bool(self._rows("PRAGMA integrity_check")[0]["integrity_check"] == "ok")
+        return not self.integrity_problems()
+
+    def integrity_problems(self, limit: int = 10) -> list[str]:
+        """`PRAGMA integrity_check`'s findings (empty: the file is sound)."""
+        rows = self._rows(f"PRAGMA integrity_check({int(limit)})")
+        found = [str(next(iter(r.values()))) for r in rows]
+        return [] if found == ["ok"] else found
+
+    def table_bytes(self) -> dict[str, int]:
+        """Bytes of every table with its indexes (SQLite's dbstat), free pages as `(free)`."""
+        out: dict[str, int] = {}
+        owner = {
+            r["name"]: r["tbl_name"] for r in self._rows("SELECT name, tbl_name FROM sqlite_schema")
+        }
+        for r in self._rows("SELECT name, SUM(pgsize) AS n FROM dbstat GROUP BY name"):
+            table = owner.get(r["name"], r["name"])
+            out[table] = out.get(table, 0) + int(r["n"])
+        page = int(self._rows("PRAGMA page_size")[0]["page_size"])
+        out["(free)"] = page * int(self._rows("PRAGMA freelist_count")[0]["freelist_count"])
+        return out
+
+    def backup(self, dest: str | Path) -> None:
+        """A consistent copy of the database at `dest` while the service keeps writing: SQLite's
+        online backup in one step, i.e. one read transaction, which in WAL mode never blocks
+        the writer (copied in steps, a write by another process would restart it). `dest`
+        must not exist."""
+        dest = Path(dest)
+        if dest.exists():
+            raise InputError("exists already: rvis does not overwrite a database", file=dest)
+        try:
+            target = sqlite3.connect(dest)
+            try:
+                with self._lock:  # the connection is shared with the service's thread
+                    self._db.backup(target)
+                target.execute("PRAGMA journal_mode=DELETE")  # one self-contained file
+            finally:
+                target.close()
+        except sqlite3.DatabaseError as exc:
+            error = self._error(exc)
+            if error is exc:
+                raise
+            raise error from exc
 
     def _rows(self, sql: str, args: Sequence[Any] = ()) -> list[dict[str, Any]]:
         with self._lock:
@@ -425,6 +466,21 @@ class Store:
         return self._insert(
             "INSERT INTO events (t, kind, data) VALUES (?, ?, ?)", (t, kind, _dumps(data))
         )
+
+    def prune_events(self, before_t: float, batch: int = 2000) -> int:
+        """Delete events older than `before_t`, `batch` rows a transaction (the service's
+        writers wait for one short transaction at most); returns how many."""
+        total = 0
+        while True:
+            with self._tx() as db:
+                n = db.execute(
+                    "DELETE FROM events WHERE id IN"
+                    " (SELECT id FROM events WHERE t < ? ORDER BY id LIMIT ?)",
+                    (before_t, batch),
+                ).rowcount
+            total += int(n)
+            if n < batch:
+                return total
 
     def events(self, kind: str | None = None) -> list[dict[str, Any]]:
         where, args = ("WHERE kind = ?", (kind,)) if kind else ("", ())

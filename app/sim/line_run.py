@@ -33,6 +33,7 @@ from app.line.station import Station, cell_guard
 from app.simulation import make_cell, simulated_sets, true_sensor_model
 from calib import candidates
 from calib.identify import identify
+from calib.validation import rmse
 from fakes.cell import SimulatedCell
 from fakes.line import LineSettings as SimLineSettings
 from fakes.line import SimLine
@@ -218,7 +219,7 @@ class SimulatedLineRun:
         c = self.line.truth.validation_centres_sensor_mm()
         temp = np.full(len(v.q_deg), self.line.truth.temp_c())  # the PLC's reading, as the line
         e = self.model.points_part(x, v.q_deg, c, temp_c=temp) - v.p_part_mm
-        return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
+        return rmse(e)
 
     def start_service(self) -> None:
         self.thread = threading.Thread(target=self.service.run, name="rvis-service", daemon=True)

@@ -15,6 +15,7 @@ from calib.candidates import (
     sphere_candidates,
 )
 from calib.errors import EmptyRegion, NoCandidates
+from calib.information import Information
 from calib.model import INDEX, JOINT_NAMES, PAPER_30, unit_of
 from calib.observability import null_space_groups, observability
 from calib.plan import (
@@ -96,7 +97,7 @@ def test_determinant_lemma_gains_equal_direct_log_determinants(
     fixed = np.concatenate([_blocks(cfg, n)[::97][:6] for n in ("P2", "P3", "P4")])[:n_fixed]
     d = detmax.column_scale(np.concatenate([fixed, J]))
     G = J * d
-    info = detmax._Information(G, fixed * d, "O1", 30)
+    info = Information(G, fixed * d, "O1", 30)
     sel = [3, 50, 90, 120, 160, 199]
     M = info.matrix(sel)
     fast = info.if_added(sel, M, info.all_rows)

@@ -8,6 +8,7 @@ import os
 import shutil
 import socket
 import sqlite3
+import stat
 import subprocess
 import sys
 import threading
@@ -137,11 +138,14 @@ def test_kill_9_at_random_points_keeps_every_row_and_the_recalibration_progress(
     state = tmp_path / "state"
     rng = np.random.default_rng(19)
     stored = 0
-    for _ in range(5):
+    for k in range(5):
         svc = ServiceProcess(state, cell)
         svc.wait_ready()
-        svc.wait_windows(int(rng.integers(5, 9)))
-        svc.wait_log(lambda r: r.get("event") in ("measurement", "state", "window"), 10.0)
+        if k == 4:  # as a calibration is decided: killed around its apply
+            svc.wait_log(lambda r: r.get("event") == "calibration", 60.0)
+        else:
+            svc.wait_windows(int(rng.integers(5, 9)))
+            svc.wait_log(lambda r: r.get("event") in ("measurement", "state", "window"), 10.0)
         svc.kill9()
         db = state / "rvis.db"
         now = _count(db, "SELECT COUNT(*) FROM measurements")
@@ -153,11 +157,15 @@ def test_kill_9_at_random_points_keeps_every_row_and_the_recalibration_progress(
         assert not list((state / "params").rglob(".*.tmp"))
     assert stored >= 24
     assert _count(state / "rvis.db", "SELECT COUNT(*) FROM calibrations") >= 1
-    svc = ServiceProcess(state, cell)  # and it still runs
+    svc = ServiceProcess(state, cell)  # and it still runs, the apply completed
     try:
         svc.wait_ready()
+        st = status(state)
+        doc = json.loads((state / "params" / "current.json").read_text())
+        assert doc["history_version"] == st["params_version"]
     finally:
         assert svc.stop() == 0
+    assert _count(state / "rvis.db", "SELECT MAX(version) FROM applied") == st["params_version"]
 
 
 def test_a_damaged_database_is_refused_with_one_line(tmp_path: Path, cell: Path) -> None:
@@ -247,3 +255,54 @@ def test_a_full_disk_faults_the_cell_and_the_service_stays_up(tmp_path: Path, ce
     finally:
         svc.stop()
         subprocess.run(["umount", "-l", str(state)], capture_output=True)
+
+
+def test_a_backup_taken_while_running_restores_to_a_service_that_carries_on(
+    service: ServiceProcess, tmp_path: Path, cell: Path
+) -> None:
+    backup = tmp_path / "backup"
+    out = rvis("state", "backup", str(backup), "--state-dir", str(service.state_dir))
+    assert out.returncode == 0, out.stderr
+    manifest = json.loads(out.stdout)
+    assert manifest["integrity"] == ["ok"] and manifest["applied_version"] >= 1
+    assert sorted(p.name for p in backup.iterdir()) == ["backup.json", "params", "rvis.db"]
+    assert stat.S_IMODE(backup.joinpath("rvis.db").stat().st_mode) & 0o007 == 0
+    again = rvis("state", "backup", str(backup), "--state-dir", str(service.state_dir))
+    assert again.returncode == 2 and "not an empty folder" in again.stderr
+    refused = rvis("state", "restore", str(backup), "--state-dir", str(service.state_dir))
+    assert refused.returncode == 2 and f"(pid {service.proc.pid})" in refused.stderr
+    taken = manifest["measurements"]["ok"] + manifest["measurements"]["rejected"]
+
+    restored = tmp_path / "restored"
+    assert rvis("state", "restore", str(backup), "--state-dir", str(restored)).returncode == 0
+    check = rvis("state", "check", "--state-dir", str(restored), "--json")
+    assert check.returncode == 0, check.stdout
+    assert json.loads(check.stdout)["parameters"]["current_version"] == manifest["applied_version"]
+    svc = ServiceProcess(restored, cell)
+    try:
+        svc.wait_ready()
+        row = svc.wait_log(lambda r: r.get("event") == "measurement", 30.0)
+        assert row["data"]["id"] > taken  # the restored history goes on
+    finally:
+        assert svc.stop() == 0
+
+
+def test_state_check_names_what_is_wrong(tmp_path: Path, cell: Path) -> None:
+    state = tmp_path / "state"
+    svc = ServiceProcess(state, cell)
+    svc.wait_ready()
+    assert svc.stop() == 0
+    ok = rvis("state", "check", "--state-dir", str(state))
+    assert ok.returncode == 0 and "result           ok" in ok.stdout
+    (state / "params" / "current.json").write_text("{ not json")
+    os.chmod(state / "rvis.db", 0o644)
+    found = rvis("state", "check", "--state-dir", str(state), "--json")
+    assert found.returncode == 1
+    problems = json.loads(found.stdout)["problems"]
+    assert any("current.json: unreadable" in p for p in problems)
+    assert any("rvis.db: mode 0644 gives others access" in p for p in problems)
+    (state / "rvis.db").write_bytes(b"garbage" * 1000)
+    damaged = rvis("state", "check", "--state-dir", str(state))
+    assert damaged.returncode == 1 and "damaged" in damaged.stdout
+    missing = rvis("state", "check", "--state-dir", str(tmp_path / "nowhere"))
+    assert missing.returncode == 2 and "no such state directory" in missing.stderr

@@ -1,0 +1,281 @@
+"""`rvis state backup|restore|check`: the service's state directory as something an operator
+can carry (docs/operations.md).
+
+- `backup DEST`: a consistent copy while the service runs (SQLite's online backup of `rvis.db`,
+  then the parameter history, `current.json` and the plan), checked, with a `backup.json`
+  manifest. The history is copied after the database, so it holds every version the copied
+  database names.
+- `restore BACKUP`: a backup into a state directory that no service holds and that has no
+  database (a damaged one is moved aside by a person first: rvis never overwrites a database).
+- `check`: read-only findings about a state directory (integrity, schema, parameters against the
+  history and the database, permissions, free space, the lock holder, the sizes); exit 1 when
+  something is wrong.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import stat
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from app.commands.status import state_dir_of
+from app.errors import InputError
+
+MANIFEST = "backup.json"
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser("state", help="back up, restore and check the service's state directory")
+    verbs = p.add_subparsers(dest="verb", metavar="VERB", parser_class=type(p))
+    verbs.required = True
+    b = verbs.add_parser("backup", help="copy the state while the service runs")
+    b.add_argument("dest", help="new (or empty) folder for the copy")
+    r = verbs.add_parser("restore", help="a backup into a state directory with no database")
+    r.add_argument("backup", help="folder written by `rvis state backup`")
+    c = verbs.add_parser("check", help="check a state directory (read-only)")
+    c.add_argument("--json", action="store_true", help="print the findings as JSON")
+    for q in (b, r, c):
+        q.add_argument("--cell", help="cell configuration TOML (for [service] state_dir)")
+        q.add_argument("--state-dir", help="state directory (default: [service] state_dir)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from app.line.statedir import StateDir
+
+    state = StateDir(state_dir_of(args))
+    if args.verb == "backup":
+        print(json.dumps(backup(state, Path(args.dest))))
+        return 0
+    if args.verb == "restore":
+        restore(Path(args.backup), state)
+        print(f"restored {args.backup} into {state.root}")
+        return 0
+    findings = check(state, _min_free_mb(args))
+    if args.json:
+        print(json.dumps(findings, indent=2))
+    else:
+        print(_report(findings))
+    return 0 if not findings["problems"] else 1
+
+
+def _min_free_mb(args: argparse.Namespace) -> float:
+    from app.config import load_cell
+
+    return float(load_cell(args.cell).service.min_free_mb)
+
+
+# -- backup and restore ---------------------------------------------------------------------
+def _new_folder(path: Path) -> None:
+    if path.exists() and (not path.is_dir() or any(path.iterdir())):
+        raise InputError("exists and is not an empty folder", file=path)
+    try:
+        path.mkdir(mode=0o750, parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create it: {exc.strerror or exc}", file=path) from exc
+
+
+def _copy_params(src_root: Path, dst_root: Path) -> int:
+    """Copy params/history/*.json, then params/current.json and plan.json; the history count."""
+    from app.line.statedir import StateDir
+
+    src, dst = StateDir(src_root), StateDir(dst_root)
+    dst.history.mkdir(parents=True, exist_ok=True)
+    n = 0
+    for f in sorted(src.history.glob("[0-9][0-9][0-9][0-9].json")):
+        shutil.copyfile(f, dst.history / f.name)
+        n += 1
+    for a, b in ((src.current, dst.current), (src.plan, dst.plan)):
+        if a.is_file():
+            shutil.copyfile(a, b)
+    return n
+
+
+def backup(state: Any, dest: Path) -> dict[str, Any]:
+    """Copy the state directory `state` (a StateDir) to `dest`; the manifest."""
+    from app.line.store import Store
+
+    if not state.db.is_file():
+        raise InputError("no service state here (no rvis.db)", file=state.root)
+    _new_folder(dest)
+    old_umask = os.umask(0o027)
+    try:
+        source = Store.read_only(state.db)
+        try:
+            source.backup(dest / state.db.name)
+        finally:
+            source.close()
+        versions = _copy_params(state.root, dest)
+        manifest = {
+            "created_utc": datetime.now(UTC).isoformat(timespec="seconds"),
+            "source": str(state.root.resolve()),
+            **_database_summary(dest / state.db.name),
+            "history_versions": versions,
+        }
+        (dest / MANIFEST).write_text(json.dumps(manifest, indent=1) + "\n", encoding="utf-8")
+    finally:
+        os.umask(old_umask)
+    if manifest["integrity"] != ["ok"]:
+        raise InputError(f"the copy fails its integrity check: {manifest['integrity']}", file=dest)
+    return manifest
+
+
+def _database_summary(db: Path) -> dict[str, Any]:
+    from app.line.store import Store
+
+    store = Store.read_only(db)
+    try:
+        applied = store.applied()
+        return {
+            "integrity": store.integrity_problems() or ["ok"],
+            "schema": store.version(),
+            "applied_version": int(applied[-1]["version"]) if applied else None,
+            "measurements": store.counts(),
+        }
+    finally:
+        store.close()
+
+
+def restore(backup_dir: Path, state: Any) -> None:
+    """A backup into `state` (a StateDir): refused while a service holds it or when it has a
+    database of its own."""
+    from app.line.statedir import holder_pid
+
+    src_db = backup_dir / state.db.name
+    if not (backup_dir / MANIFEST).is_file() or not src_db.is_file():
+        raise InputError("not a backup made by `rvis state backup`", file=backup_dir)
+    pid = holder_pid(state)
+    if pid is not None:
+        raise InputError(f"a service runs on it (pid {pid}): stop it first", file=state.root)
+    if state.db.exists():
+        raise InputError(
+            "has a database: move the state directory (or its rvis.db) aside first",
+            file=state.root,
+        )
+    summary = _database_summary(src_db)
+    if summary["integrity"] != ["ok"]:
+        raise InputError(f"the backup is damaged: {summary['integrity']}", file=src_db)
+    state.root.mkdir(mode=0o750, parents=True, exist_ok=True)
+    old_umask = os.umask(0o027)
+    try:
+        _copy_params(backup_dir, state.root)
+        tmp = state.db.with_name(f".{state.db.name}.restore")
+        shutil.copyfile(src_db, tmp)
+        os.replace(tmp, state.db)  # the database last: a half restore has none
+    finally:
+        os.umask(old_umask)
+
+
+# -- check ------------------------------------------------------------------------------------
+def check(state: Any, min_free_mb: float) -> dict[str, Any]:
+    """Read-only findings about the state directory `state` (a StateDir)."""
+    from app.line.statedir import disk_usage_mb, holder_pid
+
+    if not state.root.is_dir():
+        raise InputError("no such state directory", file=state.root)
+    problems: list[str] = []
+    out: dict[str, Any] = {"state_dir": str(state.root), "problems": problems}
+    pid = holder_pid(state)
+    out["service_pid"] = pid
+    out["database"] = _check_database(state, problems)
+    out["parameters"] = _check_parameters(state, out["database"], problems)
+    out["permissions"] = _check_permissions(state, problems)
+    out["free_mb"] = round(state.free_mb(), 1)
+    if out["free_mb"] < min_free_mb:
+        problems.append(f"{out['free_mb']:.0f} MB free, below min_free_mb = {min_free_mb:.0f}")
+    out["size_mb"] = round(disk_usage_mb(state.root), 3)
+    return out
+
+
+def _check_database(state: Any, problems: list[str]) -> dict[str, Any]:
+    from app.line.store import SCHEMA_VERSION, Store
+
+    if not state.db.is_file():
+        problems.append(f"{state.db}: missing")
+        return {}
+    out: dict[str, Any] = {"path": str(state.db), "bytes": state.db.stat().st_size}
+    try:
+        out.update(_database_summary(state.db))
+        store = Store.read_only(state.db)
+        try:
+            out["tables_bytes"] = store.table_bytes()
+        finally:
+            store.close()
+    except InputError as exc:  # DatabaseDamaged: not a database
+        problems.append(str(exc))
+        return out
+    if out["integrity"] != ["ok"]:
+        problems.append(f"{state.db}: integrity check: {'; '.join(out['integrity'])}")
+    if out["schema"] > SCHEMA_VERSION:
+        problems.append(f"{state.db}: schema {out['schema']} is newer than this rvis's")
+    return out
+
+
+def _check_parameters(state: Any, db: dict[str, Any], problems: list[str]) -> dict[str, Any]:
+    out: dict[str, Any] = {"history_versions": 0}
+    versions = sorted(state.history.glob("[0-9][0-9][0-9][0-9].json"))
+    out["history_versions"] = len(versions)
+    try:
+        current = json.loads(state.current.read_text(encoding="utf-8"))
+        version = int(current["history_version"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        problems.append(f"{state.current}: unreadable ({exc}); the service rebuilds it")
+        return out
+    out["current_version"] = version
+    try:
+        same = current == json.loads(
+            (state.history / f"{version:04d}.json").read_text(encoding="utf-8")
+        )
+    except (OSError, ValueError):
+        same = False
+    if not same:
+        problems.append(f"{state.current}: not history version {version}")
+    applied = db.get("applied_version")
+    if applied is not None and applied != version:
+        problems.append(
+            f"{state.current}: version {version}, the database has {applied} in force"
+            " (the service completes or rebuilds it at start)"
+        )
+    return out
+
+
+def _check_permissions(state: Any, problems: list[str]) -> dict[str, str]:
+    out: dict[str, str] = {}
+    for path in (state.root, state.db, state.current, state.socket):
+        try:
+            mode = stat.S_IMODE(path.stat().st_mode)
+        except OSError:
+            continue
+        out[path.name or str(path)] = f"{mode:04o}"
+        if mode & 0o007:
+            problems.append(f"{path}: mode {mode:04o} gives others access")
+    return out
+
+
+def _report(f: dict[str, Any]) -> str:
+    db, params = f["database"], f["parameters"]
+    pid = f["service_pid"]
+    integrity = "; ".join(db.get("integrity", ["unknown"]))
+    lines = [
+        f"state directory  {f['state_dir']} ({f['size_mb']:.1f} MB, {f['free_mb']:.0f} MB free)",
+        "service          " + ("not running" if pid is None else f"running (pid {pid})"),
+        f"database         schema {db.get('schema', '?')}, integrity {integrity},"
+        f" measurements {db.get('measurements', {})}",
+        f"parameters       current version {params.get('current_version', '?')},"
+        f" {params['history_versions']} in the history, in force by the database"
+        f" {db.get('applied_version', '?')}",
+        f"permissions      {', '.join(f'{k} {v}' for k, v in f['permissions'].items())}",
+    ]
+    sizes = db.get("tables_bytes", {})
+    if sizes:
+        top = sorted(sizes.items(), key=lambda kv: -kv[1])
+        lines.append("sizes            " + ", ".join(f"{k} {v / 1024:.0f} KiB" for k, v in top))
+    problems = f["problems"]
+    lines.append("result           " + ("ok" if not problems else f"{len(problems)} problem(s)"))
+    lines += [f"  - {p}" for p in problems]
+    return "\n".join(lines)
