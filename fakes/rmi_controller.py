@@ -394,6 +394,7 @@ class RmiController(LineServer):
     async def _system_fault(self) -> None:
         self.alarm, self._initialized = True, False
         self.alarms.insert(0, "SRVO-050 Collision Detect Alarm (G:1 A:2)")
+        del self.alarms[rmi.READ_ERROR_MAX_COUNT :]  # what FRC_ReadError can show; bounded
         current = asyncio.current_task()
         if self._motion is not None and self._motion is not current:
             self._motion.cancel()
