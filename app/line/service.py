@@ -137,6 +137,7 @@ class Service(OperatorCommands):
         self._unstored_alarms: list[dict[str, Any]] = []  # raised while the storage failed
         self.storage_failed = False  # until a reset finds it writing again
         self._space_check_t = self._retention_t = -np.inf
+        self._temperature_bad: bool | None = None  # known after the first poll
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._commands: Queue[tuple[str, dict[str, Any], int | None, Future[dict[str, Any]]]]
@@ -384,20 +385,24 @@ class Service(OperatorCommands):
 
     def _watch_temperature(self) -> None:
         """A `temperature` alarm while the PLC should provide the cell temperature and does
-        not (raised once, cleared when a plausible value returns); meanwhile measurements are
-        stored without one and the compliant model leaves its thermal term out."""
-        temp_c, why = self.watch.temperature()
-        alarms = self.store.active_alarms(code="temperature")
-        if why and not alarms:
+        not (raised once, cleared when a plausible value returns, or when the cell file no
+        longer reads the word); meanwhile measurements are stored without one and the compliant
+        model leaves its thermal term out. The database is asked only when that changes."""
+        why = self.watch.temperature()[1]
+        if bool(why) == self._temperature_bad:
+            return  # nothing changed since the last poll: no query
+        active = self.store.active_alarms(code="temperature")
+        if why and not active:
             self._alarm(
                 "temperature",
                 f"{why}: no cell temperature; measurements are stored without one and the"
                 " thermal term is left out until a plausible value returns",
                 "medium",
             )
-        elif temp_c is not None and alarms:
+        elif not why and active:
             self.store.clear_alarms(self.clock.time(), "temperature")
             self.bus.emit("alarm_cleared", {"code": "temperature"})
+        self._temperature_bad = bool(why)
 
     # -- faults and alarms -------------------------------------------------------------------------
     def _alarm(self, code: str, message: str, priority: str = "high") -> int:
