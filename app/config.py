@@ -230,10 +230,12 @@ class ServiceSection(Section):
     max_nfev: int = opt(200, lo=10, hi=10000)
     raw_sweeps_keep: int = opt(0, lo=0, hi=100000)
     # operations: the operators' group of the state directory ("": none, 0750), the free space
-    # below which a warning alarm is raised, and how long events are kept (0: for ever)
+    # below which a warning alarm is raised, how long events and the documents of rejected
+    # calibrations are kept (0: for ever)
     operators_group: str = opt("")
     min_free_mb: float = opt(200.0, lo=0, hi=1e7)
     events_keep_days: float = opt(90.0, lo=0, hi=36500)
+    rejected_keep_days: float = opt(30.0, lo=0, hi=36500)
     max_joint_change_mm: float = opt(5.0, gt=0, hi=1000)
     max_joint_change_deg: float = opt(1.0, gt=0, hi=180)
     max_sensor_change_mm: float = opt(5.0, gt=0, hi=1000)

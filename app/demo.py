@@ -42,7 +42,7 @@ from app.simulation import (
 from calib.gates import GateReport, check_identification
 from calib.identify import IdentificationResult, Measurements, identify, residuals
 from calib.model import SystemModel
-from calib.plan import Plan, Progress
+from calib.plan_settings import Plan, Progress
 from calib.validation import ErrorStats, rmse
 from fakes.cell import SimulatedCell
 

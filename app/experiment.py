@@ -35,10 +35,10 @@ from app.planning import plan_settings, run_plan
 from app.report import markdown_table, save_figure, text_table
 from app.simulation import DataSet, collect, simulated_sets
 from calib.compliance import select_model
+from calib.configurations import select_configurations
 from calib.identify import identify, residuals
 from calib.model import SystemModel
 from calib.observability import INDEX_NAMES
-from calib.plan import select_configurations
 from calib.transforms import apply, inverse
 from calib.validation import rmse
 

@@ -33,7 +33,8 @@ from calib.detmax import CRITERIA, METHODS
 from calib.errors import PlanningError
 from calib.model import SystemModel
 from calib.observability import Observability
-from calib.plan import PLACEMENTS, FeasibleRegion, MapFn, Plan, PlanSettings, plan
+from calib.plan import plan
+from calib.plan_settings import PLACEMENTS, FeasibleRegion, MapFn, Plan, PlanSettings
 from calib.pso import SwarmSettings
 from calib.transforms import apply, inverse
 
@@ -147,7 +148,7 @@ def particle_map(workers: int) -> Iterator[MapFn | None]:
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
 
         def mapper(f: Callable[[F64], F64], blocks: Iterable[F64]) -> Iterable[F64]:
-            # one block of particles per task (calib.plan.PARTICLE_BLOCK): particles differ in
+            # one block of particles per task (calib.placement.PARTICLE_BLOCK): particles differ in
             # cost (an infeasible one returns at once), and the swarm waits for the slowest
             return pool.map(f, list(blocks), chunksize=1)
 

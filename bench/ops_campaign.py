@@ -31,20 +31,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tests.ops.conftest import ServiceProcess, rvis
+from tests.ops.conftest import ServiceProcess, count, rvis
 
 # the service's defaults (rolling set 24, a recalibration every 24 measurements), one window
 # every 0.2 s (60 s clamp cycles at x300)
 CELL = "[simline]\nscale = 300.0\n"
 TRIGGERS = {"start": "recalibration_started", "apply": "calibration"}
-
-
-def _count(db: Path, sql: str) -> int:
-    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
-    try:
-        return int(con.execute(sql).fetchone()[0])
-    finally:
-        con.close()
 
 
 def inspect(state: Path, announced: set[int]) -> dict[str, Any]:
@@ -115,8 +107,8 @@ def life(state: Path, cell: Path, how: str, delay_s: float) -> tuple[set[int], s
 def attempts(db: Path) -> tuple[int, int]:
     """(calibrations attempted, measurements stored)."""
     return (
-        _count(db, "SELECT COUNT(*) FROM calibrations"),
-        _count(db, "SELECT COUNT(*) FROM measurements WHERE status = 'ok'"),
+        count(db, "SELECT COUNT(*) FROM calibrations"),
+        count(db, "SELECT COUNT(*) FROM measurements WHERE status = 'ok'"),
     )
 
 
@@ -185,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
         finally:
             final_code = svc.stop()
         db = state / "rvis.db"
-        windows = _count(db, "SELECT COALESCE(MAX(window), 0) FROM measurements")
+        windows = count(db, "SELECT COALESCE(MAX(window), 0) FROM measurements")
         cal_c, n_c = attempts(db)
         cal_u, n_u, t_u = uninterrupted(root, cell, windows)
     print()

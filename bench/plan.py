@@ -36,7 +36,7 @@ from app.config import load_cell
 from app.planning import plan_settings, run_plan
 from calib import detmax
 from calib.candidates import ViewGrid
-from calib.plan import candidate_blocks
+from calib.configurations import candidate_blocks
 
 
 def timed(fn: Callable[[], Any], repeats: int) -> tuple[float, Any]:

@@ -468,17 +468,25 @@ class Service(OperatorCommands):
             self.bus.emit("alarm_cleared", {"code": "low_disk"})
 
     def _retain(self) -> None:
-        """Events older than [service] events_keep_days are deleted (at most once an hour, in
-        short transactions); the record (measurements, calibrations, applied versions,
-        alarms, the operators' audit) is kept."""
-        keep_s = self.settings.events_keep_days * 86400.0
+        """At most once an hour: events older than [service] events_keep_days are deleted (in
+        short transactions), and the documents of calibrations rejected more than
+        rejected_keep_days ago dropped; the record (measurements, calibrations with their
+        figures, applied versions, alarms, the operators' audit) is kept."""
         now = self.clock.monotonic()
-        if keep_s <= 0 or now - self._retention_t < RETENTION_S:
+        if now - self._retention_t < RETENTION_S:
             return
         self._retention_t = now
-        n = self.store.prune_events(self.clock.time() - keep_s)
-        if n:
-            self.log.info("retention: %d events older than %g days deleted", n, keep_s / 86400)
+        s, t = self.settings, self.clock.time()
+        if s.events_keep_days > 0:
+            n = self.store.prune_events(t - s.events_keep_days * 86400.0)
+            if n:
+                self.log.info(
+                    "retention: %d events older than %g days deleted", n, s.events_keep_days
+                )
+        if s.rejected_keep_days > 0:
+            n = self.store.prune_rejected_documents(t - s.rejected_keep_days * 86400.0)
+            if n:
+                self.log.info("retention: documents of %d rejected calibrations dropped", n)
 
     def _fault(self, exc: BaseException) -> None:
         self._fault_family = self.note_device_error(exc)

@@ -155,6 +155,9 @@ class ServiceSettings:
     operators_group: str = ""  # "" : the state directory is 0750, else 0770 with this group
     min_free_mb: float = 200.0  # below this free space under the state directory: an alarm
     events_keep_days: float = 90.0  # events older than this are deleted (0: kept for ever)
+    # the full document of a rejected calibration is dropped after this (its gates, figures and
+    # reason stay; 0: kept for ever)
+    rejected_keep_days: float = 30.0
     line: LineSettings = field(default_factory=LineSettings)
     sweep: SweepSettings = field(default_factory=SweepSettings)
     gates: GateSettings = field(default_factory=GateSettings)
@@ -182,6 +185,7 @@ def from_cell(cfg: Any, state_dir: str | Path | None = None) -> ServiceSettings:
         operators_group=str(svc.operators_group),
         min_free_mb=float(svc.min_free_mb),
         events_keep_days=float(svc.events_keep_days),
+        rejected_keep_days=float(svc.rejected_keep_days),
         line=_section(LineSettings, cfg.line),
         sweep=_section(SweepSettings, cfg.sweep),
         gates=gates,

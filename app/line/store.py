@@ -120,21 +120,20 @@ class Store:
         self._lock = threading.RLock()
         self._depth = 0  # nesting of _tx: only the outermost one begins and commits
         try:
-            if read_only:
-                uri = f"file:{self.path.resolve()}?mode=ro"
-                self._db = sqlite3.connect(uri, uri=True, check_same_thread=False)
-            else:
-                self.path.parent.mkdir(parents=True, exist_ok=True)
-                self._db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
-                self._open_for_writing()
-        except sqlite3.DatabaseError as exc:
-            error = self._error(exc)
-            if error is exc:
-                raise
-            raise error from exc
+            with self._typed_errors():
+                self._connect(read_only)
         except OSError as exc:
             raise StorageError(f"{self.path}: {exc.strerror or exc}") from exc
         self._db.row_factory = sqlite3.Row
+
+    def _connect(self, read_only: bool) -> None:
+        if read_only:
+            uri = f"file:{self.path.resolve()}?mode=ro"
+            self._db = sqlite3.connect(uri, uri=True, check_same_thread=False)
+        else:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
+            self._open_for_writing()
 
     def _open_for_writing(self) -> None:
         try:
@@ -149,6 +148,17 @@ class Store:
         self._db.execute("PRAGMA synchronous=FULL")
         self._db.execute("PRAGMA busy_timeout=5000")
         self.migrate()
+
+    @contextmanager
+    def _typed_errors(self) -> Iterator[None]:
+        """SQLite failures inside raised as their typed error (`_error`)."""
+        try:
+            yield
+        except sqlite3.DatabaseError as exc:
+            error = self._error(exc)
+            if error is exc:
+                raise
+            raise error from exc
 
     def _error(self, exc: sqlite3.DatabaseError) -> BaseException:
         """The typed error of an SQLite failure by its result code: a storage failure (full,
@@ -245,7 +255,7 @@ class Store:
         dest = Path(dest)
         if dest.exists():
             raise InputError("exists already: rvis does not overwrite a database", file=dest)
-        try:
+        with self._typed_errors():
             target = sqlite3.connect(dest)
             try:
                 with self._lock:  # the connection is shared with the service's thread
@@ -253,21 +263,10 @@ class Store:
                 target.execute("PRAGMA journal_mode=DELETE")  # one self-contained file
             finally:
                 target.close()
-        except sqlite3.DatabaseError as exc:
-            error = self._error(exc)
-            if error is exc:
-                raise
-            raise error from exc
 
     def _rows(self, sql: str, args: Sequence[Any] = ()) -> list[dict[str, Any]]:
-        with self._lock:
-            try:
-                return [dict(r) for r in self._db.execute(sql, tuple(args)).fetchall()]
-            except sqlite3.DatabaseError as exc:
-                error = self._error(exc)
-                if error is exc:
-                    raise
-                raise error from exc
+        with self._lock, self._typed_errors():
+            return [dict(r) for r in self._db.execute(sql, tuple(args)).fetchall()]
 
     def _insert(self, sql: str, args: Sequence[Any]) -> int:
         with self._tx() as db:
@@ -481,6 +480,18 @@ class Store:
             total += int(n)
             if n < batch:
                 return total
+
+    def prune_rejected_documents(self, before_t: float) -> int:
+        """Drop the full documents of calibrations rejected before `before_t` (their gates,
+        figures and reason stay); returns how many."""
+        with self._tx() as db:
+            return int(
+                db.execute(
+                    "UPDATE calibrations SET document = NULL"
+                    " WHERE status = 'rejected' AND t < ? AND document IS NOT NULL",
+                    (before_t,),
+                ).rowcount
+            )
 
     def events(self, kind: str | None = None) -> list[dict[str, Any]]:
         where, args = ("WHERE kind = ?", (kind,)) if kind else ("", ())

@@ -12,9 +12,10 @@ from app.planning import plan_overrides, run_plan
 from app.workspace import weight_for
 from calib import detmax
 from calib.candidates import ViewGrid, sphere_candidates
+from calib.configurations import plan_index, revisit, select_configurations
 from calib.ioptimal import WeightedInformation, i_index, observable_projector, workspace_weight
 from calib.model import PAPER_30
-from calib.plan import PlanSettings, plan_index, revisit, select_configurations
+from calib.plan_settings import PlanSettings
 
 COARSE = ViewGrid(step_deg=20.0)
 GRID30 = ViewGrid(step_deg=30.0)

@@ -14,20 +14,14 @@ from calib.candidates import (
     ViewGrid,
     sphere_candidates,
 )
+from calib.configurations import candidate_blocks, choose, revisit, select_configurations
 from calib.errors import EmptyRegion, NoCandidates
 from calib.information import Information
 from calib.model import INDEX, JOINT_NAMES, PAPER_30, unit_of
 from calib.observability import null_space_groups, observability
-from calib.plan import (
-    FeasibleRegion,
-    PlanSettings,
-    _fitness,
-    candidate_blocks,
-    choose,
-    plan,
-    revisit,
-    select_configurations,
-)
+from calib.placement import fitness
+from calib.plan import plan
+from calib.plan_settings import FeasibleRegion, PlanSettings
 from calib.pso import SwarmSettings, minimize
 from calib.transforms import apply, inverse
 
@@ -324,7 +318,7 @@ def test_swarm_blocks_give_the_fitness_of_each_particle(cfg: CellConfig) -> None
     T_base_part = inverse(model.T_part_base(x))
     p1 = apply(T_base_part, cfg.spheres_part_mm["P1"])
     _, J1, _ = choose(model, x, cfg.spheres_part_mm["P1"], s.search_grid, np.zeros((0, 3, 30)), s)
-    fit = _fitness(model, x, (-260.0,), p1[None, :2], J1, s, FeasibleRegion(), p1[:2] + 900.0)
+    fit = fitness(model, x, (-260.0,), p1[None, :2], J1, s, FeasibleRegion(), p1[:2] + 900.0)
     rng = np.random.default_rng(5)
     particles = rng.uniform(-2000.0, 2000.0, (7, 2))
     particles[0] = p1[:2] + 10.0  # too close to the placed sphere

@@ -1,5 +1,7 @@
 """Retention (issue 19): events older than [service] events_keep_days are deleted between
-windows; the record (measurements, calibrations, alarms, the audit) is kept."""
+windows, and the full documents of calibrations rejected more than rejected_keep_days ago are
+dropped; the record (measurements, calibrations with their figures, alarms, the audit) is
+kept."""
 
 from __future__ import annotations
 
@@ -26,19 +28,42 @@ def test_prune_events_deletes_only_the_old_ones_in_short_transactions(tmp_path: 
     store.close()
 
 
+def _calibration(store: Store, t: float, status: str) -> int:
+    return store.add_calibration(
+        {
+            "t": t,
+            "status": status,
+            "n_measurements": 24,
+            "gates": ["g"],
+            "reason": "r",
+            "rms_mm": 0.03,
+            "document": {"parameters": [], "correlation": [[1.0]]},
+        }
+    )
+
+
 @pytest.mark.parametrize("keep_days", [90.0, 0.0])
 def test_the_service_deletes_events_past_their_retention(tmp_path: Path, keep_days: float) -> None:
     ln = make_line(tmp_path)
-    ln.service.settings = replace(ln.service.settings, events_keep_days=keep_days)
+    ln.service.settings = replace(
+        ln.service.settings, events_keep_days=keep_days, rejected_keep_days=keep_days / 3
+    )
     now = ln.clock.time()
     store = ln.service.store
     old = [store.add_event(now - 100 * DAY_S, "window", {"n": k}) for k in range(3)]
     recent = store.add_event(now - 10 * DAY_S, "window", {"n": 3})
+    old_rejected = _calibration(store, now - 40 * DAY_S, "rejected")
+    new_rejected = _calibration(store, now - 20 * DAY_S, "rejected")
+    old_applied = _calibration(store, now - 40 * DAY_S, "applied")
     try:
         ln.start()
         ln.windows(1)
         ids = {e["id"] for e in store.events()}
+        docs = {i: store.calibration(i) for i in (old_rejected, new_rejected, old_applied)}
     finally:
         ln.close()
     assert recent in ids
     assert set(old).isdisjoint(ids) if keep_days else set(old) <= ids
+    assert all(c is not None and c["rms_mm"] == 0.03 for c in docs.values())  # the record
+    kept = {i for i, c in docs.items() if c is not None and c["document"] is not None}
+    assert kept == ({new_rejected, old_applied} if keep_days else set(docs))

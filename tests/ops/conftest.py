@@ -8,6 +8,7 @@ import json
 import os
 import queue
 import signal
+import sqlite3
 import subprocess
 import sys
 import threading
@@ -103,6 +104,15 @@ def rvis(*args: str, timeout_s: float = 60.0) -> subprocess.CompletedProcess[str
     return subprocess.run(
         [*RVIS, *args], capture_output=True, text=True, cwd=ROOT, timeout=timeout_s
     )
+
+
+def count(db: Path, sql: str) -> int:
+    """One number from the state database, read-only (`SELECT COUNT(*) ...`)."""
+    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
+    try:
+        return int(con.execute(sql).fetchone()[0])
+    finally:
+        con.close()
 
 
 def status(state_dir: Path) -> dict[str, Any]:

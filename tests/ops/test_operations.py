@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.ops.conftest import ROOT, ServiceProcess, rvis, status
+from tests.ops.conftest import ROOT, ServiceProcess, count, rvis, status
 
 TMUX = shutil.which("tmux")
 SUBSCRIBER = """
@@ -123,14 +123,6 @@ def test_a_second_service_on_the_same_state_directory_is_refused(
     assert service.alive and status(service.state_dir)["state"] in ("idle", "measuring")
 
 
-def _count(db: Path, sql: str) -> int:
-    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
-    try:
-        return int(con.execute(sql).fetchone()[0])
-    finally:
-        con.close()
-
-
 def test_kill_9_at_random_points_keeps_every_row_and_the_recalibration_progress(
     tmp_path: Path, cell: Path
 ) -> None:
@@ -148,7 +140,7 @@ def test_kill_9_at_random_points_keeps_every_row_and_the_recalibration_progress(
             svc.wait_log(lambda r: r.get("event") in ("measurement", "state", "window"), 10.0)
         svc.kill9()
         db = state / "rvis.db"
-        now = _count(db, "SELECT COUNT(*) FROM measurements")
+        now = count(db, "SELECT COUNT(*) FROM measurements")
         assert now >= stored  # nothing stored is ever lost
         con = sqlite3.connect(db)
         assert con.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
@@ -156,7 +148,7 @@ def test_kill_9_at_random_points_keeps_every_row_and_the_recalibration_progress(
         stored = now
         assert not list((state / "params").rglob(".*.tmp"))
     assert stored >= 24
-    assert _count(state / "rvis.db", "SELECT COUNT(*) FROM calibrations") >= 1
+    assert count(state / "rvis.db", "SELECT COUNT(*) FROM calibrations") >= 1
     svc = ServiceProcess(state, cell)  # and it still runs, the apply completed
     try:
         svc.wait_ready()
@@ -165,7 +157,7 @@ def test_kill_9_at_random_points_keeps_every_row_and_the_recalibration_progress(
         assert doc["history_version"] == st["params_version"]
     finally:
         assert svc.stop() == 0
-    assert _count(state / "rvis.db", "SELECT MAX(version) FROM applied") == st["params_version"]
+    assert count(state / "rvis.db", "SELECT MAX(version) FROM applied") == st["params_version"]
 
 
 def test_a_damaged_database_is_refused_with_one_line(tmp_path: Path, cell: Path) -> None:
@@ -306,3 +298,49 @@ def test_state_check_names_what_is_wrong(tmp_path: Path, cell: Path) -> None:
     assert damaged.returncode == 1 and "damaged" in damaged.stdout
     missing = rvis("state", "check", "--state-dir", str(tmp_path / "nowhere"))
     assert missing.returncode == 2 and "no such state directory" in missing.stderr
+
+
+def _children(pid: int) -> list[int]:
+    """The child processes of `pid`, whichever of its threads started them."""
+    tasks = Path(f"/proc/{pid}/task")
+    return [int(c) for t in tasks.iterdir() for c in (t / "children").read_text().split()]
+
+
+def _identification_worker(service_pid: int) -> int | None:
+    """The worker process of the service's identification (a child of its forkserver)."""
+    for child in _children(service_pid):
+        cmdline = Path(f"/proc/{child}/cmdline").read_bytes()
+        if b"forkserver" in cmdline:
+            workers = _children(child)
+            return workers[0] if workers else None
+    return None
+
+
+def test_a_worker_killed_by_the_system_faults_the_cell_and_the_supervisor_restarts_it(
+    tmp_path: Path, cell: Path
+) -> None:
+    """The identification worker dies (the OOM killer): the service logs the error with its
+    traceback, raises an urgent alarm, puts the cell in FAULT and exits 1; restarted, it holds
+    the FAULT until an operator's reset, then measures again."""
+    state = tmp_path / "state"
+    svc = ServiceProcess(state, cell)
+    svc.wait_ready()
+    svc.wait_log(lambda r: r.get("event") == "recalibration_started", 60.0)
+    worker = _identification_worker(svc.proc.pid)
+    assert worker is not None
+    os.kill(worker, 9)
+    line = svc.wait_log(lambda r: r.get("event") == "internal_error", 60.0)
+    assert "BrokenProcessPool" in line["msg"] and "Traceback" in line["exc"]
+    svc.wait_log(lambda r: r.get("event") == "alarm" and r["data"]["code"] == "internal_error")
+    assert svc.proc.wait(60) == 1
+    svc.stop()
+    svc = ServiceProcess(state, cell)
+    try:
+        svc.wait_log(lambda r: r.get("event") == "started", 60.0)
+        st = status(state)
+        assert st["state"] == "fault"
+        assert [a["code"] for a in st["alarms"] if a["priority"] == "urgent"] == ["internal_error"]
+        assert rvis("ctl", "--state-dir", str(state), "reset").returncode == 0
+        svc.wait_log(lambda r: r.get("event") == "measurement", 30.0)
+    finally:
+        assert svc.stop() == 0
