@@ -29,7 +29,8 @@ from numpy.typing import NDArray
 from app.config import CellConfig
 from app.files import write_json
 from app.report import markdown_table, text_table
-from app.simulation import make_cell, validation_points
+from app.simulation import make_cell
+from app.workspace import workspace_points
 from calib import candidates
 from calib.compliance import CompliantModel, CompliantSettings
 from calib.identify import Measurements, identify, residuals
@@ -145,7 +146,7 @@ def _cells_and_data(
     rng = np.random.default_rng([seed, 13])
     both = tuple(cells.values())
     views = plan_views(both, rigid, cfg.spheres_part_mm, s.n_each, temp_range_c, rng)
-    val_points = validation_points(cfg, s.n_validation, rng)
+    val_points = workspace_points(cfg, s.n_validation, rng)
     val_views = plan_views(both, rigid, val_points, 1, temp_range_c, rng)
     data = {name: measure_views(c, views) for name, c in cells.items()}
     val = {name: measure_views(c, val_views) for name, c in cells.items()}

@@ -27,7 +27,8 @@ from numpy.typing import NDArray
 
 from app.config import CellConfig
 from app.report import markdown_table
-from app.simulation import collect, make_cell, validation_points
+from app.simulation import collect, make_cell
+from app.workspace import workspace_points
 from calib import candidates
 from calib.compensate import compensate_joints
 from calib.identify import identify
@@ -79,7 +80,7 @@ def view_configurations(cfg: CellConfig, n: int, rng: np.random.Generator) -> F6
     x0 = model.nominal_x()
     out: list[F64] = []
     while len(out) < n:
-        for p in validation_points(cfg, n - len(out), rng).values():
+        for p in workspace_points(cfg, n - len(out), rng).values():
             q = candidates.random_configurations(model, x0, p, 1, rng).q_deg
             out += list(q[:1])
     return np.array(out[:n])

@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 from app.config import CellConfig
 from app.errors import InputError
+from app.workspace import workspace_points
 from calib import candidates
 from calib.identify import Measurements
 from calib.model import SystemModel
@@ -337,27 +338,6 @@ def collect(
     )
 
 
-def validation_points(cfg: CellConfig, n: int, rng: np.random.Generator) -> dict[str, F64]:
-    """n sphere positions (part frame) spread over the workspace: 900-1900 mm from the J1
-    axis, -300..700 mm in height, outside the base plate."""
-    x0, x1, y0, y1 = cfg.base_plate_mm
-    out: dict[str, F64] = {}
-    for _ in range(1000 * n):
-        if len(out) == n:
-            break
-        r, a, z = rng.uniform(900.0, 1900.0), rng.uniform(-np.pi, np.pi), rng.uniform(-300, 700)
-        p_base = np.array([r * np.cos(a), r * np.sin(a), z])
-        if x0 <= p_base[0] <= x1 and y0 <= p_base[1] <= y1:
-            continue
-        out[f"V{len(out) + 1:03d}"] = cfg.T_part_base[:3, :3] @ p_base + cfg.T_part_base[:3, 3]
-    if len(out) < n:
-        raise InputError(
-            "[base_plate]: the plate covers the validation region (900-1900 mm from the J1 axis)",
-            file=cfg.source,
-        )
-    return out
-
-
 def check_complete(
     ds: DataSet, wanted: Mapping[str, int], source: str, total: int | None = None
 ) -> None:
@@ -394,7 +374,7 @@ def validation_set(
     for _ in range(20):
         if have >= n:
             break
-        points = validation_points(cfg, 2 * (n - have), rng)
+        points = workspace_points(cfg, 2 * (n - have), rng)
         points = {f"V{have + k + 1:03d}": p for k, p in enumerate(points.values())}
         ds = collect(cell, model, x, points, 1, rng, measurement=measurement, max_total=n - have)
         keep = [i for i in range(len(ds.measurements))][: n - have]

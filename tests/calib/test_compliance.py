@@ -11,7 +11,8 @@ import pytest
 
 from app.accuracy import WarmData, measure_views, plan_views, simulated_truth
 from app.config import CellConfig, load_cell
-from app.simulation import make_cell, validation_points
+from app.simulation import make_cell
+from app.workspace import workspace_points
 from calib import robot
 from calib.compliance import (
     CompliantModel,
@@ -113,7 +114,7 @@ def warm_data(seed: int, n_points: int, n_each: int, noise: float) -> WarmData:
     cfg = load_cell(None)
     cell = make_cell(cfg, seed=seed, sensor_noise_mm=0.02 * noise, tracker_noise_mm=0.01 * noise)
     rng = np.random.default_rng([seed, 5])
-    points = cfg.spheres_part_mm if n_points == 4 else validation_points(cfg, n_points, rng)
+    points = cfg.spheres_part_mm if n_points == 4 else workspace_points(cfg, n_points, rng)
     views = plan_views((cell,), cfg.model(), points, n_each, (15.0, 35.0), rng)
     return measure_views(cell, views)
 

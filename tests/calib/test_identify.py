@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from app.config import CellConfig
 from calib.errors import InsufficientData, NotIdentifiable
 from calib.identify import Measurements, identify, residuals
 from calib.model import PAPER_30
@@ -15,7 +16,7 @@ from tests.conftest import simulated
 
 
 @pytest.mark.parametrize("seed", [11, 12])
-def test_noise_free_rigid_cell_is_represented_exactly(cfg, seed: int) -> None:  # type: ignore[no-untyped-def]
+def test_noise_free_rigid_cell_is_represented_exactly(cfg: CellConfig, seed: int) -> None:
     cal, val = simulated(
         seed, 40, compliance=False, thermal=False, sensor_noise_mm=0.0, tracker_noise_mm=0.0
     )
@@ -26,7 +27,7 @@ def test_noise_free_rigid_cell_is_represented_exactly(cfg, seed: int) -> None:  
     assert e.max() <= 1e-6
 
 
-def test_default_cell_gains_at_least_20x(cfg) -> None:  # type: ignore[no-untyped-def]
+def test_default_cell_gains_at_least_20x(cfg: CellConfig) -> None:
     cal, val = simulated(0, 100)
     model = cfg.model()
     before = ErrorStats.of(residuals(model, model.nominal_x(), val.measurements))
@@ -39,7 +40,7 @@ def test_default_cell_gains_at_least_20x(cfg) -> None:  # type: ignore[no-untype
     assert np.all(np.isfinite(result.std)) and np.all(np.abs(np.diag(result.corr) - 1) < 1e-9)
 
 
-def test_inputs_are_not_mutated(cfg) -> None:  # type: ignore[no-untyped-def]
+def test_inputs_are_not_mutated(cfg: CellConfig) -> None:
     cal, _ = simulated(0, 100)
     m = cal.measurements
     copies = [m.q_deg.copy(), m.c_sensor_mm.copy(), m.p_part_mm.copy()]
@@ -51,7 +52,7 @@ def test_inputs_are_not_mutated(cfg) -> None:  # type: ignore[no-untyped-def]
     np.testing.assert_array_equal(x0, x0_copy)
 
 
-def test_papers_24_random_configurations_have_rank_30(cfg) -> None:  # type: ignore[no-untyped-def]
+def test_papers_24_random_configurations_have_rank_30(cfg: CellConfig) -> None:
     cal, _ = simulated(0, 100)
     assert len(cal.measurements) == 24
     model = cfg.model()
@@ -62,7 +63,7 @@ def test_papers_24_random_configurations_have_rank_30(cfg) -> None:  # type: ign
     assert 0 < obs.indices["O1"] <= 1 / np.sqrt(24)
 
 
-def test_d3_is_reported_redundant_with_its_partners(cfg) -> None:  # type: ignore[no-untyped-def]
+def test_d3_is_reported_redundant_with_its_partners(cfg: CellConfig) -> None:
     cal, _ = simulated(0, 100)
     with pytest.raises(NotIdentifiable) as info:
         identify(cfg.model(), cal.measurements, active=(*PAPER_30, "d3"))
@@ -72,7 +73,7 @@ def test_d3_is_reported_redundant_with_its_partners(cfg) -> None:  # type: ignor
     assert "d3" in str(info.value)
 
 
-def test_one_configuration_per_sphere_is_degenerate(cfg) -> None:  # type: ignore[no-untyped-def]
+def test_one_configuration_per_sphere_is_degenerate(cfg: CellConfig) -> None:
     cal, _ = simulated(0, 100)
     m = cal.measurements
     first = [m.targets.index(t) for t in sorted(set(m.targets))]
@@ -83,13 +84,13 @@ def test_one_configuration_per_sphere_is_degenerate(cfg) -> None:  # type: ignor
     assert info.value.rank < 30 and info.value.groups
 
 
-def test_too_few_measurements(cfg) -> None:  # type: ignore[no-untyped-def]
+def test_too_few_measurements(cfg: CellConfig) -> None:
     cal, _ = simulated(0, 100)
     with pytest.raises(InsufficientData, match="at least 10 measurements"):
         identify(cfg.model(), cal.measurements.subset(np.arange(9)))
 
 
-def test_robust_loss_beats_least_squares_on_outliers(cfg) -> None:  # type: ignore[no-untyped-def]
+def test_robust_loss_beats_least_squares_on_outliers(cfg: CellConfig) -> None:
     cal, val = simulated(0, 100)
     m = cal.measurements
     c = m.c_sensor_mm.copy()

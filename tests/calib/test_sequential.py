@@ -9,7 +9,8 @@ import pytest
 
 from app.accuracy import measure_views, plan_views, simulated_truth
 from app.config import CellConfig
-from app.simulation import DataSet, make_cell, validation_points
+from app.simulation import DataSet, make_cell
+from app.workspace import workspace_points
 from calib import candidates
 from calib.compliance import CompliantModel, CompliantSettings
 from calib.errors import InsufficientData
@@ -69,7 +70,7 @@ def test_gate_rejects_an_outlier_and_leaves_the_estimate(cfg: CellConfig) -> Non
 
 def stream(cell: SimulatedCell, cfg: CellConfig, n: int, seed: int) -> Measurements:
     rng = np.random.default_rng([seed, 9])
-    points = validation_points(cfg, n, rng)
+    points = workspace_points(cfg, n, rng)
     views = plan_views((cell,), cfg.model(), points, 1, (20.0, 20.0), rng)
     return measure_views(cell, views).measured
 

@@ -52,15 +52,15 @@ class ErrorGalvo(FakeGalvo):
 
 
 @pytest.fixture()
-def opened() -> Iterator[list[object]]:
-    devices: list[object] = []
+def opened() -> Iterator[list[FakeCamera | FakeGalvo]]:
+    devices: list[FakeCamera | FakeGalvo] = []
     yield devices
     for d in devices:
-        d.close()  # type: ignore[attr-defined]
+        d.close()
 
 
 def _sweep(
-    camera_cls: type[FakeCamera], galvo_cls: type[FakeGalvo], opened: list[object]
+    camera_cls: type[FakeCamera], galvo_cls: type[FakeGalvo], opened: list[FakeCamera | FakeGalvo]
 ) -> Callable[[SimulatedCell], SweepSensor]:
     def build(cell: SimulatedCell) -> SweepSensor:
         galvo = galvo_cls()
@@ -79,7 +79,7 @@ def _sweep(
 )
 def test_a_sensor_device_fault_in_a_window(
     tmp_path: Path,
-    opened: list[object],
+    opened: list[FakeCamera | FakeGalvo],
     camera_cls: type[FakeCamera],
     galvo_cls: type[FakeGalvo],
     cause: str,
@@ -104,7 +104,7 @@ def test_a_sensor_device_fault_in_a_window(
         ln.close()
 
 
-def test_a_frame_lost_once_is_retriggered(opened: list[object]) -> None:
+def test_a_frame_lost_once_is_retriggered(opened: list[FakeCamera | FakeGalvo]) -> None:
     world = StaticWorld()
     galvo = FakeGalvo()
     galvo.open()

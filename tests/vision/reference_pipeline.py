@@ -9,10 +9,21 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from vision.spherefit import _robust_scale, _weights
 from vision.stripe import StripePoints, StripeSettings
 
 F64 = NDArray[np.float64]
+
+
+def _robust_scale(r: F64) -> float:
+    """The residuals' MAD scale (the oracle's own, with np.median: not the code it checks)."""
+    return max(1.4826 * float(np.median(np.abs(r - np.median(r)))), 1e-4)
+
+
+def _weights(r: F64, scale: float, *, cauchy: bool) -> F64:
+    """IRLS weights: soft-L1 far from the solution, then Cauchy at c = 2.385 sigma."""
+    if cauchy:
+        return np.asarray(1.0 / (1.0 + (r / (2.385 * scale)) ** 2))
+    return np.asarray(1.0 / np.sqrt(1.0 + (r / (2.0 * scale)) ** 2))
 
 
 def _median_of_codes(codes: NDArray[np.integer]) -> float:
