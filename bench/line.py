@@ -48,6 +48,7 @@ class BenchPlc(Plc):
         self.window_bit = False
         self.last_done = False
         self.beat = 0
+        self.last_words = (0, 0)
         self.opened_t = 0.0
         self.done = threading.Event()
 
@@ -66,6 +67,10 @@ class BenchPlc(Plc):
         if outputs.done and not self.last_done:
             self.done.set()
         self.last_done = outputs.done
+        self.last_words = words
+
+    def _read_output_words(self) -> tuple[int, int]:
+        return self.last_words
 
     def open_window(self) -> None:
         self.done.clear()

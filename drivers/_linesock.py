@@ -1,6 +1,7 @@
 """A blocking TCP connection exchanging one JSON object per line (RMI, tracker side-car).
 
-Maps every socket and JSON error to the device error tree at this boundary.
+Maps every socket and JSON error to the device error tree at this boundary; with a trace
+channel, every line sent and received (and every error) goes to the wire trace.
 """
 
 from __future__ import annotations
@@ -10,7 +11,8 @@ import socket
 import time
 from typing import Any
 
-from drivers.errors import DeviceConnectionError, DeviceTimeout, ProtocolError
+from drivers.errors import DeviceConnectionError, DeviceError, DeviceTimeout, ProtocolError
+from drivers.trace import TraceChannel
 
 _MAX_LINE = 1 << 20
 
@@ -18,8 +20,17 @@ _MAX_LINE = 1 << 20
 class LineJsonSocket:
     """One TCP connection; ``send`` writes a JSON object + terminator, ``recv`` reads one."""
 
-    def __init__(self, host: str, port: int, *, timeout_s: float, terminator: bytes) -> None:
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        *,
+        timeout_s: float,
+        terminator: bytes,
+        trace: TraceChannel | None = None,
+    ) -> None:
         self.host, self.port, self.timeout_s, self.terminator = host, port, timeout_s, terminator
+        self.trace = trace
         self._sock: socket.socket | None = None
         self._buf = b""
 
@@ -47,17 +58,25 @@ class LineJsonSocket:
     def send(self, message: dict[str, Any]) -> None:
         sock = self._require()
         data = json.dumps(message, separators=(",", ":")).encode() + self.terminator
+        if self.trace is not None:
+            self.trace.tx(f"{self.where} {data[: -len(self.terminator)].decode()}")
         try:
             sock.settimeout(self.timeout_s)
             sock.sendall(data)
         except TimeoutError as exc:
-            raise DeviceTimeout(f"{self.where}: send timed out") from exc
+            raise self._noted(DeviceTimeout(f"{self.where}: send timed out")) from exc
         except OSError as exc:
-            raise DeviceConnectionError(f"{self.where}: send failed: {exc}") from exc
+            raise self._noted(DeviceConnectionError(f"{self.where}: send failed: {exc}")) from exc
 
     def recv(self, timeout_s: float | None = None) -> dict[str, Any]:
         """Read one JSON object; DeviceTimeout if no full line arrives within ``timeout_s``."""
-        line = self._read_line(self.timeout_s if timeout_s is None else timeout_s)
+        try:
+            line = self._read_line(self.timeout_s if timeout_s is None else timeout_s)
+        except DeviceError as exc:
+            self._noted(exc)
+            raise
+        if self.trace is not None:
+            self.trace.rx(f"{self.where} {line.decode(errors='replace')}")
         try:
             message = json.loads(line)
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
@@ -65,6 +84,12 @@ class LineJsonSocket:
         if not isinstance(message, dict):
             raise ProtocolError(f"{self.where}: reply is not a JSON object: {line[:80]!r}")
         return message
+
+    def _noted(self, exc: DeviceError) -> DeviceError:
+        """``exc``, written to the trace first (when on)."""
+        if self.trace is not None:
+            self.trace.note(f"{self.where} {type(exc).__name__}: {exc}")
+        return exc
 
     def _require(self) -> socket.socket:
         if self._sock is None:

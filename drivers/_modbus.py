@@ -2,7 +2,8 @@
 word packing shared by the robot mailbox and the PLC register map.
 
 pymodbus does not follow semantic versioning (3.10 renamed ``slave=`` to ``device_id=``); this is
-the only module of drivers/ that calls it, so a pin bump is checked here.
+the only module of drivers/ that calls it, so a pin bump is checked here. With a trace channel
+every request (function code, address, count or words) and its reply or error is traced.
 """
 
 from __future__ import annotations
@@ -14,7 +15,14 @@ from typing import Literal
 from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
-from drivers.errors import DeviceConnectionError, DeviceFault, DeviceTimeout, ProtocolError
+from drivers.errors import (
+    DeviceConnectionError,
+    DeviceError,
+    DeviceFault,
+    DeviceTimeout,
+    ProtocolError,
+)
+from drivers.trace import TraceChannel
 
 WordOrder = Literal["big", "little"]
 
@@ -68,43 +76,70 @@ def require_link(link: ModbusLink | None, name: str) -> ModbusLink:
 class ModbusLink:
     """Holding-register reads and writes to one unit; every failure is a device error."""
 
-    def __init__(self, host: str, port: int, *, unit: int, timeout_s: float) -> None:
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        *,
+        unit: int,
+        timeout_s: float,
+        trace: TraceChannel | None = None,
+    ) -> None:
         self.where = f"{host}:{port}"
         self.unit = unit
+        self.trace = trace
         self._client = ModbusTcpClient(host, port=port, timeout=timeout_s, retries=0)
 
     def connect(self) -> None:
         try:
             ok = self._client.connect()
         except ModbusException as exc:
-            raise DeviceConnectionError(f"{self.where}: cannot connect: {exc}") from exc
+            error = DeviceConnectionError(f"{self.where}: cannot connect: {exc}")
+            raise self._noted(error) from exc
         if not ok:
             self._client.close()
-            raise DeviceConnectionError(f"{self.where}: cannot connect")
+            raise self._noted(DeviceConnectionError(f"{self.where}: cannot connect"))
 
     def close(self) -> None:
         self._client.close()
 
     def read(self, address: int, count: int) -> list[int]:
+        if self.trace is not None:
+            self.trace.tx(f"{self.where} unit {self.unit} fc3 read {address} count {count}")
         try:
             rr = self._client.read_holding_registers(address, count=count, device_id=self.unit)
         except ModbusException as exc:
-            raise self._translate(exc) from exc
+            raise self._noted(self._translate(exc)) from exc
         if rr.isError():
-            raise _exception(self.where, f"read {address}+{count}", self.unit, rr)
+            raise self._noted(_exception(self.where, f"read {address}+{count}", self.unit, rr))
         if len(rr.registers) != count:
-            raise ProtocolError(f"{self.where}: asked {count} registers, got {len(rr.registers)}")
+            raise self._noted(
+                ProtocolError(f"{self.where}: asked {count} registers, got {len(rr.registers)}")
+            )
+        if self.trace is not None:
+            self.trace.rx(f"{self.where} fc3 {address}: {list(rr.registers)}")
         return list(rr.registers)
 
     def write(self, address: int, values: Sequence[int]) -> None:
+        words = list(values)
+        if self.trace is not None:
+            self.trace.tx(f"{self.where} unit {self.unit} fc16 write {address}: {words}")
         try:
-            rr = self._client.write_registers(address, list(values), device_id=self.unit)
+            rr = self._client.write_registers(address, words, device_id=self.unit)
         except ModbusException as exc:
-            raise self._translate(exc) from exc
+            raise self._noted(self._translate(exc)) from exc
         if rr.isError():
-            raise _exception(self.where, f"write {address}", self.unit, rr)
+            raise self._noted(_exception(self.where, f"write {address}", self.unit, rr))
+        if self.trace is not None:
+            self.trace.rx(f"{self.where} fc16 {address}: ok")
 
-    def _translate(self, exc: ModbusException) -> Exception:
+    def _noted(self, exc: DeviceError) -> DeviceError:
+        """``exc``, written to the trace first (when on)."""
+        if self.trace is not None:
+            self.trace.note(f"{self.where} {type(exc).__name__}: {exc}")
+        return exc
+
+    def _translate(self, exc: ModbusException) -> DeviceError:
         self._client.close()  # resynchronise the transaction ids on the next connect
         if isinstance(exc, ConnectionException):
             return DeviceConnectionError(f"{self.where}: {exc}")

@@ -23,6 +23,7 @@ from drivers.errors import CommunicationError, DeviceClosedError, DeviceConfigEr
 
 if TYPE_CHECKING:
     from drivers.registry import DeviceUrl
+    from drivers.trace import TraceChannel
 
 T = TypeVar("T")
 
@@ -40,6 +41,8 @@ class Device(ABC):
     """A device of one family (camera, galvo, robot, tracker, plc) behind one backend."""
 
     family: ClassVar[str] = "device"
+    #: the wire trace of this device (drivers.trace), None when off; set before open()
+    trace: TraceChannel | None = None
 
     def __init__(self, *, timeout_s: float = 5.0, name: str = "") -> None:
         if not timeout_s > 0:

@@ -103,7 +103,9 @@ class ModbusRobot(Robot):
         return cls(host, port, **options)
 
     def _open(self) -> None:
-        link = ModbusLink(self.host, self.port, unit=self.unit, timeout_s=self.timeout_s)
+        link = ModbusLink(
+            self.host, self.port, unit=self.unit, timeout_s=self.timeout_s, trace=self.trace
+        )
         link.connect()
         self._link = link
         app = self._floats(MAILBOX.CMD, MAILBOX.ACK)  # continue the counters the TP last saw

@@ -19,7 +19,13 @@ heartbeat-alive check (a PLC heartbeat unchanged for ``heartbeat_timeout_s`` mea
 the window wait (polls with a deadline, ``poll_s``), busy/done/fault around a window, and the
 outputs reset to zero on every connect. A backend implements only the transport and two
 register-level primitives: ``_connect()``, ``_close()``, ``_read_input_words() -> (status,
-heartbeat[, cell temp])`` and ``_write_output_words((status, heartbeat))``.
+heartbeat[, cell temp])``, ``_write_output_words((status, heartbeat))`` and
+``_read_output_words() -> (status, heartbeat)`` (the app's words as the PLC holds them).
+
+``read_only=True`` (URL option ``?read_only=1``) opens a connection that never writes: no reset
+of the outputs on connect, no heartbeat on poll, and every write (``set_signals``, ``window``)
+is refused with DeviceConfigError. `rvis devices check` and the contract tests on a real PLC
+use it, so that looking at a live line never changes its handshake.
 """
 
 from __future__ import annotations
@@ -112,6 +118,7 @@ class Plc(Device):
         timeout_s: float = 2.0,
         heartbeat_timeout_s: float = 3.0,
         poll_s: float = 0.1,
+        read_only: bool = False,
         name: str = "",
     ) -> None:
         super().__init__(timeout_s=timeout_s, name=name)
@@ -119,6 +126,7 @@ class Plc(Device):
             raise DeviceConfigError("heartbeat_timeout_s and poll_s must be > 0")
         self.heartbeat_timeout_s = float(heartbeat_timeout_s)
         self.poll_s = float(poll_s)
+        self.read_only = bool(read_only)
         self._out = PlcOutputs()
         self._last_beat: tuple[int, float] | None = None
 
@@ -127,13 +135,18 @@ class Plc(Device):
         return self._out
 
     def poll(self) -> PlcInputs:
-        """Read the inputs and send our heartbeat (one exchange)."""
+        """Read the inputs and send our heartbeat (one exchange; read-only: no heartbeat)."""
         inputs = decode_inputs(self._read_retrying(self._read_input_words))
         now = time.monotonic()
         if self._last_beat is None or self._last_beat[0] != inputs.heartbeat:
             self._last_beat = (inputs.heartbeat, now)
-        self._send(replace(self._out, heartbeat=(self._out.heartbeat + 1) & 0xFFFF))
+        if not self.read_only:
+            self._send(replace(self._out, heartbeat=(self._out.heartbeat + 1) & 0xFFFF))
         return inputs
+
+    def read_outputs(self) -> PlcOutputs:
+        """The app's status and heartbeat words as the PLC holds them (read back)."""
+        return decode_outputs(self._read_retrying(self._read_output_words))
 
     def heartbeat_alive(self) -> bool:
         """True when the PLC heartbeat changed within ``heartbeat_timeout_s``."""
@@ -177,16 +190,20 @@ class Plc(Device):
 
     def _send(self, outputs: PlcOutputs) -> None:
         self._check_open()
+        if self.read_only:
+            raise DeviceConfigError(f"{self.name}: opened read-only; outputs are not written")
         words = encode_outputs(outputs)
         self._read_retrying(lambda: self._write_output_words(words))  # idempotent: an image
         self._out = outputs
 
     def _open(self) -> None:
-        """Connect, then reset the outputs: not busy, not done, no fault, heartbeat 0."""
+        """Connect, then reset the outputs: not busy, not done, no fault, heartbeat 0 (not when
+        read-only)."""
         self._connect()
         self._out = PlcOutputs()
         self._last_beat = None
-        self._write_output_words(encode_outputs(self._out))
+        if not self.read_only:
+            self._write_output_words(encode_outputs(self._out))
 
     @abstractmethod
     def _connect(self) -> None:
@@ -199,3 +216,7 @@ class Plc(Device):
     @abstractmethod
     def _write_output_words(self, words: tuple[int, int]) -> None:
         """Write the app's (status word, heartbeat word) in one request."""
+
+    @abstractmethod
+    def _read_output_words(self) -> tuple[int, int]:
+        """Read the app's (status word, heartbeat word) back from the PLC."""

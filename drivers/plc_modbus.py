@@ -9,10 +9,10 @@ Holding registers (16-bit words) relative to ``base``; the PLC is the server:
     word 11  APP_HEARTBEAT  incremented by the app on every poll         (app writes)
 
 The bits are the family's (drivers/plc.py); the app reads words 0-2 and writes words 10-11,
-each in one request, to the PLC's unit id (``unit``, default 1), with function codes 3 (read
-holding registers) and 16 (write multiple registers) only; a PLC server that also offers 6
-(write single register) serves the map as well. Safety interlocks are not here: they stay in
-the safety PLC.
+each in one request (and reads 10-11 back for a check), to the PLC's unit id (``unit``, default
+1), with function codes 3 (read holding registers) and 16 (write multiple registers) only; a PLC
+server that also offers 6 (write single register) serves the map as well. ``?read_only=1``:
+never write. Safety interlocks are not here: they stay in the safety PLC.
 """
 
 from __future__ import annotations
@@ -54,6 +54,7 @@ class ModbusPlc(Plc):
         host, port = url.address(DEFAULT_PORT)
         options.setdefault("unit", int(url.number("unit", DEFAULT_UNIT)))
         options.setdefault("base", int(url.number("base", 0)))
+        options.setdefault("read_only", url.flag("read_only"))
         return cls(host, port, **options)
 
     def describe(self) -> str:
@@ -61,7 +62,9 @@ class ModbusPlc(Plc):
         return f"line PLC at {self.host}:{self.port} unit {self.unit} base {self.base}"
 
     def _connect(self) -> None:
-        link = ModbusLink(self.host, self.port, unit=self.unit, timeout_s=self.timeout_s)
+        link = ModbusLink(
+            self.host, self.port, unit=self.unit, timeout_s=self.timeout_s, trace=self.trace
+        )
         link.connect()
         self._link = link
 
@@ -76,3 +79,7 @@ class ModbusPlc(Plc):
 
     def _write_output_words(self, words: tuple[int, int]) -> None:
         require_link(self._link, self.name).write(self.base + APP_STATUS, list(words))
+
+    def _read_output_words(self) -> tuple[int, int]:
+        status, beat = require_link(self._link, self.name).read(self.base + APP_STATUS, 2)
+        return status, beat

@@ -11,6 +11,8 @@
 
 ``import drivers`` imports none of pymodbus, serial or gi: a backend module is imported when its
 scheme is opened. Options not in the URL (guard, world, timeouts) are passed as keywords.
+Every scheme takes ``?trace=1``: the device's wire traffic goes to the ``trace=`` file the caller
+passes (drivers.trace.WireTrace; with its ``every_device`` set, every device is traced).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ if TYPE_CHECKING:
     from drivers.galvo import Galvo
     from drivers.plc import Plc
     from drivers.robot import Robot
+    from drivers.trace import WireTrace
     from drivers.tracker import Tracker
 
 BACKENDS: dict[str, dict[str, str]] = {
@@ -81,6 +84,16 @@ class DeviceUrl:
         except ValueError as exc:
             raise DeviceConfigError(f"{self.raw}: option {name!r} must be a number") from exc
 
+    def flag(self, name: str, default: bool = False) -> bool:
+        """A yes/no option: 1, true, yes, on or 0, false, no, off (DeviceConfigError else)."""
+        text = self.query.get(name)
+        if text is None:
+            return default
+        value = {"1": True, "true": True, "yes": True, "on": True, "": True}.get(text.lower())
+        if value is None and text.lower() not in ("0", "false", "no", "off"):
+            raise DeviceConfigError(f"{self.raw}: option {name!r} must be 1 or 0, got {text!r}")
+        return bool(value)
+
     def address(self, default_port: int) -> tuple[str, int]:
         if not self.host:
             raise DeviceConfigError(f"{self.raw}: no host")
@@ -121,10 +134,19 @@ def backend_class(family: str, scheme: str) -> type[Device]:
     return cast("type[Device]", getattr(module, class_name))
 
 
-def create_device(family: str, url: str, **options: Any) -> Device:
-    """Build (not open) the device for ``url``."""
+def create_device(
+    family: str, url: str, *, trace: WireTrace | None = None, **options: Any
+) -> Device:
+    """Build (not open) the device for ``url``; traced to ``trace`` when the URL says
+    ``?trace=1`` or the trace is for every device."""
     parsed = parse_url(url)
-    return backend_class(family, parsed.scheme).from_url(parsed, **options)
+    traced = parsed.flag("trace")
+    if traced and trace is None:
+        raise DeviceConfigError(f"{url}: trace=1 needs a trace file (the state directory's)")
+    device = backend_class(family, parsed.scheme).from_url(parsed, **options)
+    if trace is not None and (traced or trace.every_device):
+        device.trace = trace.channel(family, device.name)
+    return device
 
 
 def open_device(family: str, url: str, **options: Any) -> Device:

@@ -87,7 +87,9 @@ class RmiRobot(Robot):
 
     # -- life cycle ---------------------------------------------------------------------------
     def _open(self) -> None:
-        hello = LineJsonSocket(self.host, self.port, timeout_s=self.timeout_s, terminator=b"\r\n")
+        hello = LineJsonSocket(
+            self.host, self.port, timeout_s=self.timeout_s, terminator=b"\r\n", trace=self.trace
+        )
         hello.connect()
         try:
             hello.send({"Communication": "FRC_Connect"})
@@ -98,7 +100,9 @@ class RmiRobot(Robot):
         if not isinstance(session_port, int) or not 0 < session_port < 65536:
             raise ProtocolError(f"{self.name}: FRC_Connect reply without a valid PortNumber")
         self.version = f"{reply.get('MajorVersion', '?')}.{reply.get('MinorVersion', '?')}"
-        sock = LineJsonSocket(self.host, session_port, timeout_s=self.timeout_s, terminator=b"\r\n")
+        sock = LineJsonSocket(
+            self.host, session_port, timeout_s=self.timeout_s, terminator=b"\r\n", trace=self.trace
+        )
         sock.connect()
         self._sock, self._initialized = sock, False
 

@@ -98,12 +98,12 @@ class Robot(Device):
     ) -> FloatArray:
         """Move to ``q_deg`` (controller angles [deg]) and return the joints reached.
 
-        Raises MotionRefused (nothing sent), FaultLatched (reset first), DeviceFault, or a
+        Raises MotionRefused (nothing sent: outside the limits or the envelope, or faster than
+        the guard's ``max_speed_pct``), FaultLatched (reset first), DeviceFault, or a
         CommunicationError (the fault is latched: the state of the robot is unknown), or
         MotionAborted when ``abort()`` stopped it (no fault latched)."""
         self._check_open()
-        if not 0 < speed_pct <= 100:
-            raise DeviceConfigError(f"speed_pct must be in (0, 100], got {speed_pct!r}")
+        speed_pct = self.guard.check_speed(speed_pct)
         if self._fault is not None:
             raise FaultLatched(f"{self.name}: fault not reset: {self._fault}")
         target = self.guard.check(q_deg, self.joints_deg())

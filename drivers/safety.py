@@ -8,7 +8,9 @@ in degrees:
   keep-in joint box, no keep-out joint box, and (optionally) a Cartesian box for points that the
   caller's ``points_mm`` function computes from the joints (the app injects the nominal forward
   kinematics of the flange and sensor; the guard only compares numbers);
-- the move is not larger than ``max_step_deg`` per joint, if configured.
+- the move is not larger than ``max_step_deg`` per joint, if configured;
+- the programmed speed is not above ``max_speed_pct`` (100 by default; the contract tests on a
+  real robot and commissioning moves run at 10).
 
 Limits and envelope are frozen dataclasses resolved from the cell configuration; a refusal raises
 MotionRefused and nothing is sent. This is a process-level check: the robot's own DCS and the
@@ -107,10 +109,22 @@ class SafetyGuard:
     limits: JointLimits = field(default_factory=JointLimits.m710ic50)
     envelope: Envelope = field(default_factory=Envelope)
     points_mm: PointsFn | None = None
+    max_speed_pct: float = 100.0
 
     def __post_init__(self) -> None:
         if self.envelope.cartesian is not None and self.points_mm is None:
             raise DeviceConfigError("a Cartesian envelope needs a points_mm function")
+        if not 0 < self.max_speed_pct <= 100:
+            raise DeviceConfigError(f"max_speed_pct must be in (0, 100], got {self.max_speed_pct}")
+
+    def check_speed(self, speed_pct: float) -> float:
+        """The programmed speed [%] if it is within (0, max_speed_pct]; MotionRefused above
+        the guard's maximum, DeviceConfigError outside (0, 100]."""
+        if not 0 < speed_pct <= 100:
+            raise DeviceConfigError(f"speed_pct must be in (0, 100], got {speed_pct!r}")
+        if speed_pct > self.max_speed_pct:
+            raise MotionRefused(f"speed {speed_pct:g} % above the guard's {self.max_speed_pct:g} %")
+        return float(speed_pct)
 
     def check(self, q_deg: ArrayLike, current_deg: ArrayLike | None = None) -> FloatArray:
         """Return the validated target as float64 (6,), or raise MotionRefused."""

@@ -8,7 +8,7 @@ without a sign, quoted or not). Messages end with LF; answers with LF or CR LF. 
 too (``loop://``, ``socket://host:port``). serial.SerialException (and the OSError or
 termios.error pyserial lets through when the port vanishes while it is opened or drained) ->
 DeviceConnectionError, no line within the timeout -> DeviceTimeout, an unparsable answer ->
-ProtocolError.
+ProtocolError. Traced (``?trace=1``): every line sent and answered, and the errors.
 """
 
 from __future__ import annotations
@@ -18,7 +18,13 @@ from typing import Any
 
 import serial
 
-from drivers.errors import DeviceConfigError, DeviceConnectionError, DeviceTimeout, ProtocolError
+from drivers.errors import (
+    DeviceConfigError,
+    DeviceConnectionError,
+    DeviceError,
+    DeviceTimeout,
+    ProtocolError,
+)
 from drivers.galvo import Galvo
 from drivers.registry import DeviceUrl
 
@@ -104,13 +110,15 @@ class ScpiGalvo(Galvo):
     def _write(self, command: str) -> None:
         if self._serial is None:
             raise DeviceConnectionError(f"{self.name}: not open")
+        if self.trace is not None:
+            self.trace.tx(command)
         try:
             self._serial.write(command.encode("ascii") + b"\n")
             self._serial.flush()
         except serial.SerialTimeoutException as exc:
-            raise DeviceTimeout(f"{self.name}: write timed out") from exc
+            raise self._noted(DeviceTimeout(f"{self.name}: write timed out")) from exc
         except _PORT_ERRORS as exc:
-            raise DeviceConnectionError(f"{self.name}: write failed: {exc}") from exc
+            raise self._noted(DeviceConnectionError(f"{self.name}: write failed: {exc}")) from exc
 
     def _query(self, command: str) -> str:
         self._write(command)
@@ -118,12 +126,24 @@ class ScpiGalvo(Galvo):
         try:
             line = self._serial.readline()
         except _PORT_ERRORS as exc:
-            raise DeviceConnectionError(f"{self.name}: read failed: {exc}") from exc
+            raise self._noted(DeviceConnectionError(f"{self.name}: read failed: {exc}")) from exc
+        if self.trace is not None:
+            self.trace.rx(line.decode("ascii", errors="replace").rstrip("\r\n"))
         if not line.endswith(b"\n"):
             if line:
-                raise ProtocolError(f"{self.name}: truncated answer to {command}: {line!r}")
-            raise DeviceTimeout(f"{self.name}: no answer to {command} in {self.timeout_s:g} s")
+                raise self._noted(
+                    ProtocolError(f"{self.name}: truncated answer to {command}: {line!r}")
+                )
+            raise self._noted(
+                DeviceTimeout(f"{self.name}: no answer to {command} in {self.timeout_s:g} s")
+            )
         try:
             return line.decode("ascii").strip()
         except UnicodeDecodeError as exc:
             raise ProtocolError(f"{self.name}: non-ASCII answer {line!r}") from exc
+
+    def _noted(self, exc: DeviceError) -> DeviceError:
+        """``exc``, written to the trace first (when on)."""
+        if self.trace is not None:
+            self.trace.note(f"{type(exc).__name__}: {exc}")
+        return exc

@@ -40,7 +40,11 @@ class TcpTracker(Tracker):
 
     def _open(self) -> None:
         sock = LineJsonSocket(
-            self.host, self.port, timeout_s=min(self.timeout_s, 5.0), terminator=b"\n"
+            self.host,
+            self.port,
+            timeout_s=min(self.timeout_s, 5.0),
+            terminator=b"\n",
+            trace=self.trace,
         )
         sock.connect()
         self._sock = sock

@@ -20,7 +20,14 @@ import numpy as np
 from drivers.camera import Camera, CameraSettings, Frame
 from drivers.errors import DeviceConfigError, DeviceFault, DeviceTimeout
 from drivers.galvo import Galvo
-from drivers.plc import Plc, PlcInputs, PlcOutputs, decode_outputs, encode_inputs
+from drivers.plc import (
+    Plc,
+    PlcInputs,
+    PlcOutputs,
+    decode_outputs,
+    encode_inputs,
+    encode_outputs,
+)
 from drivers.registry import DeviceUrl
 from drivers.robot import FloatArray, Robot, RobotStatus
 from drivers.tracker import Tracker, TrackerMeasurement, TrackerStatus
@@ -315,3 +322,6 @@ class FakePlc(Plc):
         if (outputs.busy, outputs.done, outputs.fault) != (old.busy, old.done, old.fault):
             self.history.append(outputs)
         self.received = outputs
+
+    def _read_output_words(self) -> tuple[int, int]:
+        return encode_outputs(self.received)

@@ -12,6 +12,12 @@ offsets it reads from the fake's registers.
     with GvCamera(world) as gv:
         camera = AravisCamera(gv.camera_id)     # "127.0.0.1"
 
+One fake per address in the whole machine: GVCP's port 3956 is bound once per address, and a
+second fake (another test process, another worktree's suite) would take its packets. `start()`
+therefore waits for a machine-wide lock of the address (an flock in the temporary folder,
+with the holder's pid in it) and `close()` gives it back: processes take turns instead of
+stealing each other's frames.
+
 ``stall()`` makes the camera stop sending frames while it still answers its control channel (a
 camera that times out); ``resume()`` brings the frames back without a stale one for a trigger
 that came in meanwhile. ``lose_next_frame()`` drops every packet of the next frame on the wire
@@ -20,7 +26,13 @@ that came in meanwhile. ``lose_next_frame()`` drops every packet of the next fra
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
+import fcntl
+import os
+import tempfile
+import time
+from pathlib import Path
 from typing import Any, Self
 
 import numpy as np
@@ -62,6 +74,45 @@ def _aravis() -> tuple[Any, ctypes.CDLL]:
     return Aravis, lib
 
 
+#: How long start() waits for another process's fake on the same address to close.
+ADDRESS_WAIT_S = 600.0
+
+
+class _AddressLock:
+    """A machine-wide exclusive lock of one GVCP address (flock; the kernel drops it when the
+    holder dies)."""
+
+    def __init__(self, address: str) -> None:
+        self.path = Path(tempfile.gettempdir()) / f"rvis-gv-fake-{address}.lock"
+        self._fd: int | None = None
+
+    def acquire(self, timeout_s: float) -> None:
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if time.monotonic() > deadline:
+                    holder = os.pread(fd, 16, 0).decode(errors="replace").strip()
+                    os.close(fd)
+                    raise RuntimeError(
+                        f"{self.path}: another fake GigE camera (pid {holder}) holds the address"
+                    ) from None
+                time.sleep(0.05)  # another process's test is using the camera: wait its turn
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        self._fd = fd
+
+    def release(self) -> None:
+        if self._fd is not None:
+            with contextlib.suppress(OSError):
+                os.ftruncate(self._fd, 0)
+            os.close(self._fd)
+            self._fd = None
+
+
 def _gpointer(obj: Any) -> int:
     get = ctypes.pythonapi.PyCapsule_GetPointer
     get.restype, get.argtypes = ctypes.c_void_p, [ctypes.py_object, ctypes.c_char_p]
@@ -90,11 +141,15 @@ class GvCamera:
         self._fake: Any = None
         self._lib: ctypes.CDLL | None = None
         self._callback: Any = None
+        self._lock = _AddressLock(address)
 
     def start(self) -> Self:
         aravis, self._lib = _aravis()
+        self._lock.acquire(ADDRESS_WAIT_S)
         self._gv = aravis.GvFakeCamera.new(self.address, self.serial)
         if not self._gv.is_running():
+            self._gv = None
+            self._lock.release()
             raise RuntimeError(f"GvFakeCamera could not bind {self.address}")
         self._fake = self._gv.get_fake_camera()
         if self.sensor_wh is not None:
@@ -115,6 +170,7 @@ class GvCamera:
 
         gc.collect()
         self._callback = None
+        self._lock.release()
 
     def stall(self) -> None:
         """Stop streaming (the fake's acquisition register off): grabs time out."""

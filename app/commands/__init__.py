@@ -18,6 +18,7 @@ COMMANDS: dict[str, str] = {
     "export": "export the identified system (URDF)",
     "devices": "check the configured devices",
     "sensor": "laser-line sensor: calibrate, measure",
+    "commission": "guided, resumable commissioning of a cell",
     "run": "the unattended in-line service",
     "status": "state of the in-line service",
     "ctl": "send a command to the in-line service",

@@ -1,23 +1,25 @@
 """`rvis devices check [--cell cell.toml] [--json]`: connect to each configured device, probe it
-and print a status table.
+and print a status table. `rvis devices trace FILE [--rotated] [--device FAMILY] [--json]`:
+print a wire trace (drivers/trace.py; the state directory's `trace/wire.jsonl`) readably.
 
 Without ``--cell`` it checks every backend against the fakes out of the box: the protocol peers
 (RMI controller, Modbus TP mailbox, tracker side-car, line PLC, SCPI DAC on a pty, Aravis GigE
 fake camera) are started on 127.0.0.1 with ephemeral ports, plus the in-process ``fake://``
 backends. With ``--cell`` it reads the ``[devices]`` table (keys camera, galvo, robot, tracker,
-plc; values device URLs). Exit 0 when every device answered, 1 when one failed, 2 on bad input.
+plc; values device URLs). The PLC is opened read-only: the check never writes the app's words
+of a live line. Exit 0 when every device answered, 1 when one failed, 2 on bad input.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from app.devicecheck import describe_and_probe
 from app.errors import InputError
 from drivers import DeviceConfigError, DeviceError, create_device
 from drivers.registry import FAMILIES
@@ -39,7 +41,20 @@ def register(sub: Any) -> None:
     check.add_argument("--cell", type=Path, help="cell configuration (TOML) with a [devices] table")
     check.add_argument("--timeout", type=float, default=3.0, help="per-device timeout [s]")
     check.add_argument("--json", action="store_true", help="print the table as JSON")
+    check.add_argument(
+        "--trace", type=Path, metavar="FILE", help="trace every device's wire traffic to FILE"
+    )
     check.set_defaults(func=run_check)
+    trace = actions.add_parser("trace", help="print a wire trace readably")
+    trace.add_argument("file", type=Path, help="trace file (STATE_DIR/trace/wire.jsonl)")
+    trace.add_argument(
+        "--rotated", action="store_true", help="also the rotated older files (FILE.1, ...)"
+    )
+    trace.add_argument(
+        "--device", action="append", choices=FAMILIES, help="only this device (repeatable)"
+    )
+    trace.add_argument("--json", action="store_true", help="records as JSON lines")
+    trace.set_defaults(func=run_trace)
 
 
 def run_check(args: argparse.Namespace) -> int:
@@ -47,11 +62,16 @@ def run_check(args: argparse.Namespace) -> int:
         raise InputError("must be > 0", field="--timeout")
     world = StaticWorld()
     with ExitStack() as stack:
+        trace = None
+        if args.trace is not None:
+            from drivers.trace import WireTrace
+
+            trace = stack.enter_context(WireTrace(args.trace, every_device=True))
         if args.cell is None:
             devices = _start_peers(world, stack)
         else:
             devices = [(f, u, None) for f, u in read_cell_devices(args.cell).items()]
-        rows = [_check(f, u, skip, world, args.timeout, args.cell) for f, u, skip in devices]
+        rows = [_check(f, u, skip, world, args.timeout, args.cell, trace) for f, u, skip in devices]
     if args.json:
         print(json.dumps([asdict(r) for r in rows], indent=2))
     else:
@@ -63,7 +83,7 @@ def read_cell_devices(path: Path) -> dict[str, str]:
     """The device URLs of a cell file (every family; the fake where the file names none)."""
     from app.config import load_cell
 
-    return dict(load_cell(path).devices)
+    return load_cell(path).devices.urls()
 
 
 def _start_peers(world: StaticWorld, stack: ExitStack) -> list[tuple[str, str, str | None]]:
@@ -103,12 +123,15 @@ def _check(
     world: StaticWorld,
     timeout: float,
     cell: Path | None,
+    trace: Any = None,
 ) -> Row:
     if skip:
         return Row(family, url, "SKIP", skip)
-    options: dict[str, Any] = {"timeout_s": timeout}
+    options: dict[str, Any] = {"timeout_s": timeout, "trace": trace}
     if url.startswith("fake://"):
         options["world"] = world
+    if family == "plc":
+        options["read_only"] = True  # looking at a live line never changes its handshake
     try:
         device = create_device(family, url, **options)
     except DeviceConfigError as exc:
@@ -117,46 +140,26 @@ def _check(
         raise InputError(str(exc), file=cell, field=f"devices.{family}") from exc
     try:
         with device:
-            return Row(family, url, "OK", f"{device.describe()}; {PROBES[family](device)}")
+            return Row(family, url, "OK", describe_and_probe(device))
     except DeviceError as exc:
         return Row(family, url, "FAIL", f"{type(exc).__name__}: {exc}")
-
-
-def _probe_robot(robot: Any) -> str:
-    q = ", ".join(f"{v:.2f}" for v in robot.joints_deg())
-    return f"J1..J6 = {q} deg; servo ready {robot.status().servo_ready}"
-
-
-def _probe_camera(camera: Any) -> str:
-    frame = camera.grab()
-    h, w = frame.image.shape
-    return f"frame {frame.frame_id} {w}x{h} {frame.image.dtype}"
-
-
-def _probe_galvo(galvo: Any) -> str:
-    return f"command {galvo.volts() + 0.0:.3f} V"
-
-
-def _probe_tracker(tracker: Any) -> str:
-    status = tracker.status()
-    return f"{len(tracker.targets())} targets; target in beam {status.target_in_beam}"
-
-
-def _probe_plc(plc: Any) -> str:
-    inputs = plc.poll()
-    return f"window {inputs.window_open}, line {inputs.line_running}, beat {inputs.heartbeat}"
-
-
-PROBES: dict[str, Callable[[Any], str]] = {
-    "robot": _probe_robot,
-    "camera": _probe_camera,
-    "galvo": _probe_galvo,
-    "tracker": _probe_tracker,
-    "plc": _probe_plc,
-}
 
 
 def _print_table(rows: list[Row]) -> None:
     widths = [max(len(getattr(r, k)) for r in rows) for k in ("family", "url", "status")]
     for r in rows:
         print(f"{r.family:<{widths[0]}}  {r.url:<{widths[1]}}  {r.status:<{widths[2]}}  {r.detail}")
+
+
+def run_trace(args: argparse.Namespace) -> int:
+    from app.wiretrace import format_records, read_records, rotated, to_json
+
+    if not args.file.is_file():
+        raise InputError("trace file not found", file=args.file)
+    files = rotated(args.file) if args.rotated else [args.file]
+    wanted = set(args.device or ())
+    records = (r for f in files for r in read_records(f) if not wanted or r.device in wanted)
+    lines = (to_json(r) for r in records) if args.json else format_records(records)
+    for line in lines:
+        print(line)
+    return 0

@@ -26,7 +26,10 @@ def register(sub: Any) -> None:
     p.add_argument("--state-dir", help="state directory (default: [service] state_dir)")
     p.add_argument("--plan", help="plan JSON from `rvis plan` (default: STATE_DIR/plan.json)")
     p.add_argument("--params", help="starting parameters JSON when the state has none yet")
-    p.add_argument("--sensor-model", help="sensor calibration file (default: the design model)")
+    p.add_argument(
+        "--sensor-model",
+        help="sensor calibration file (default: STATE_DIR/sensor.toml if any, else the design)",
+    )
     p.add_argument("--sim", action="store_true", help="run on the simulated line (no hardware)")
     p.add_argument("--geometric", action="store_true", help="--sim: skip rendering (long runs)")
     p.add_argument("--seed", type=int_at_least(0), help="--sim: seed (default [simulation])")
@@ -55,10 +58,18 @@ def run(args: argparse.Namespace) -> int:
     if not plan.is_file():
         raise InputError("no plan file (write one with `rvis plan --out ...`)", file=plan)
     x0 = from_json(args.params)[1] if args.params else None
-    sensor_model = load_sensor_model(args.sensor_model) if args.sensor_model else None
-    with hold_state(settings.state_dir, settings.operators_group):
+    state_sensor = StateDir(settings.state_dir).sensor
+    sensor_path = args.sensor_model or (state_sensor if state_sensor.is_file() else None)
+    sensor_model = load_sensor_model(sensor_path) if sensor_path else None
+    with hold_state(settings.state_dir, settings.operators_group) as state:
         try:
-            station = Station.open(dict(cfg.devices), guard=cell_guard(cfg))
+            trace = cfg.devices.wire_trace(state.wire_trace)
+            station = Station.open(
+                cfg.devices.urls(),
+                guard=cell_guard(cfg),
+                options={"camera": {"settings": cfg.camera.settings()}},
+                trace=trace,
+            )
         except DeviceConfigError as exc:
             raise InputError(str(exc), file=cfg.source, field="devices") from exc
         except DeviceError as exc:

@@ -15,22 +15,19 @@ not determine the sensor; 3 a measurement rejected by its quality checks.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from app.cliargs import float_in
 from app.errors import InputError, QualityError
 from app.files import check_output, write_text
+from app.sensordata import calibrate_dir, read_sweep
 from app.tomlfile import read_toml
-from vision.calibrate import Chessboard
-from vision.calibrate_sensor import calibrate_sensor
-from vision.errors import CalibrationFailed, SensorFileError, VisionError
+from vision.errors import SensorFileError, VisionError
 from vision.measure import measure_sphere_from_sweep
 from vision.sensor_model import (
     SensorModel,
@@ -38,8 +35,6 @@ from vision.sensor_model import (
     dumps_sensor_model,
     sensor_model_from_dict,
 )
-
-SWEEP_HEADER = ["frame", "command_v"]
 
 
 def register(subparsers: Any) -> None:
@@ -67,52 +62,6 @@ def register(subparsers: Any) -> None:
     mea.add_argument("--mode", choices=["fast", "precise"], default="fast")
     mea.add_argument("--json", action="store_true", help="print the result as JSON")
     mea.set_defaults(func=run_measure)
-
-
-def read_image(path: Path) -> NDArray[np.generic]:
-    """A grey PNG (8 or 16 bit) as a 2-D array; InputError names the file."""
-    if not path.is_file():
-        raise InputError("image file not found", file=path)
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise InputError("not a readable image", file=path)
-    if image.ndim == 3:
-        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    return np.asarray(image)
-
-
-def read_sweep(sweep_dir: Path) -> tuple[list[NDArray[np.generic]], NDArray[np.float64]]:
-    """Frames and commands [V] of a recorded sweep (see the module docstring)."""
-    csv_path = sweep_dir / "commands.csv"
-    if not csv_path.is_file():
-        raise InputError("sweep file not found (expected commands.csv)", file=csv_path)
-    frames, commands = [], []
-    try:
-        text = csv_path.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read file: {exc}", file=csv_path) from None
-    reader = csv.reader(text.splitlines())
-    header = next(reader, None)
-    if header is None or [h.strip() for h in header] != SWEEP_HEADER:
-        raise InputError(f"header must be '{','.join(SWEEP_HEADER)}'", file=csv_path, line=1)
-    for line, row in enumerate(reader, start=2):
-        if not row:
-            continue
-        if len(row) != 2:
-            raise InputError("expected 2 fields", file=csv_path, line=line)
-        try:
-            value = float(row[1])
-        except ValueError:
-            raise InputError(
-                f"not a number: {row[1]!r}", file=csv_path, line=line, field="command_v"
-            ) from None
-        if not np.isfinite(value):
-            raise InputError("not finite", file=csv_path, line=line, field="command_v")
-        frames.append(read_image(sweep_dir / row[0].strip()))
-        commands.append(value)
-    if not frames:
-        raise InputError("no frames listed", file=csv_path)
-    return frames, np.array(commands)
 
 
 def _load_model(path: Path | None) -> SensorModel:
@@ -173,46 +122,10 @@ def run_measure(args: argparse.Namespace) -> int:
     return 0
 
 
-def _parse_pattern(text: str) -> tuple[int, int]:
-    try:
-        cols, rows = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise InputError(f"--pattern must be COLSxROWS, got {text!r}") from None
-    if cols < 3 or rows < 3:
-        raise InputError("--pattern needs at least 3x3 inner corners")
-    return cols, rows
-
-
 def run_calibrate(args: argparse.Namespace) -> int:
     """Calibrate from CALIB_DIR and write the sensor TOML."""
     check_output(args.out)
-    board = Chessboard(pattern=_parse_pattern(args.pattern), square_mm=args.square_mm)
-    board_dir, target_dir = args.dir / "chessboards", args.dir / "targets"
-    if not board_dir.is_dir() or not target_dir.is_dir():
-        raise InputError("expected sub-folders chessboards/ and targets/", file=args.dir)
-    boards = [read_image(p) for p in sorted(board_dir.glob("*.png"))]
-    targets, commands = [], None
-    for pose_dir in sorted(p for p in target_dir.iterdir() if p.is_dir()):
-        frames, cmds = read_sweep(pose_dir)
-        if commands is not None and not np.array_equal(cmds, commands):
-            raise InputError(
-                "all target sweeps must use the same commands", file=pose_dir / "commands.csv"
-            )
-        commands = cmds
-        targets.append((read_image(pose_dir / "board.png"), frames))
-    if commands is None:
-        raise InputError("no target poses found", file=target_dir)
-    try:
-        model = calibrate_sensor(
-            boards,
-            targets,
-            commands,
-            board=board,
-            mode=args.mode,
-            name=f"calibrated from {args.dir.name}",
-        )
-    except CalibrationFailed as exc:
-        raise InputError(f"calibration failed: {exc}", file=args.dir) from exc
+    model = calibrate_dir(args.dir, args.pattern, args.square_mm, args.mode)
     write_text(args.out, dumps_sensor_model(model))
     K = model.camera.K
     print(

@@ -6,9 +6,16 @@ permissions, the one-service lock and the free space under it (DESIGN.md section
         rvis.lock                the running service's lock (flock) and pid
         rvis.sock                the control socket, 0660
         plan.json                the plan `rvis run` reads when --plan is not given
+        cell.toml                the cell file `rvis commission` wrote (`rvis run --cell`)
+        sensor.toml              the sensor calibration `rvis run` reads when --sensor-model
+                                 is not given (written by `rvis commission`)
         params/current.json      the applied version (derived: rebuilt from the history)
         params/history/NNNN.json every version ever applied
         sweeps/NNNNNNNN.npz      raw sweeps kept for audit ([service] raw_sweeps_keep)
+        trace/wire.jsonl         the devices' wire trace when on ([devices] trace, `?trace=1`),
+                                 rotated to wire.jsonl.1, .2, ... (`rvis devices trace`)
+        commission/              `rvis commission`: its journal, each step's results, the
+                                 report (commission.md, commission.json)
 
 Read-only clients (`rvis status`, `rvis ctl`, `rvis tui`) only need the layout; the service
 also takes the lock before it opens any device (`ServiceLock`), and `prepare()`s the directory.
@@ -31,8 +38,12 @@ DB_NAME = "rvis.db"
 SOCKET_NAME = "rvis.sock"
 LOCK_NAME = "rvis.lock"
 PLAN_NAME = "plan.json"
+CELL_NAME = "cell.toml"
+SENSOR_NAME = "sensor.toml"
 PARAMS_DIR = "params"
 SWEEPS_DIR = "sweeps"
+TRACE_DIR = "trace"
+COMMISSION_DIR = "commission"
 
 DIR_MODE, DIR_MODE_GROUP = 0o750, 0o2770  # setgid: new files take the operators' group
 UMASK, UMASK_GROUP = 0o027, 0o007  # files 0640 (0660 with the group)
@@ -65,6 +76,14 @@ class StateDir:
         return self.root / PLAN_NAME
 
     @property
+    def cell(self) -> Path:
+        return self.root / CELL_NAME
+
+    @property
+    def sensor(self) -> Path:
+        return self.root / SENSOR_NAME
+
+    @property
     def params(self) -> Path:
         return self.root / PARAMS_DIR
 
@@ -79,6 +98,14 @@ class StateDir:
     @property
     def sweeps(self) -> Path:
         return self.root / SWEEPS_DIR
+
+    @property
+    def wire_trace(self) -> Path:
+        return self.root / TRACE_DIR / "wire.jsonl"
+
+    @property
+    def commission(self) -> Path:
+        return self.root / COMMISSION_DIR
 
     def free_mb(self) -> float:
         """Free space [MiB] for an unprivileged writer on the directory's file system."""

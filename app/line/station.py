@@ -24,6 +24,7 @@ from drivers.plc import Plc
 from drivers.registry import open_device
 from drivers.robot import Robot
 from drivers.safety import SafetyGuard
+from drivers.trace import WireTrace
 from drivers.tracker import Tracker
 
 #: Opened in this order (closed in the reverse one): the PLC first, so a fault can be signalled.
@@ -42,6 +43,8 @@ class Station:
     tracker: Tracker | None = None
     #: family -> the URL each device was opened with (the operator's terminal shows them)
     urls: dict[str, str] = field(default_factory=dict)
+    #: the wire trace the devices write to (drivers.trace.WireTrace), closed with them
+    trace: WireTrace | None = None
 
     @classmethod
     def open(
@@ -50,8 +53,11 @@ class Station:
         *,
         guard: SafetyGuard | None = None,
         options: Mapping[str, Mapping[str, Any]] | None = None,
+        trace: WireTrace | None = None,
     ) -> Station:
-        """Open the devices named in `urls` (family -> URL); robot and plc are required."""
+        """Open the devices named in `urls` (family -> URL); robot and plc are required.
+        `trace`: the wire trace of the devices whose URL asks for it (or of all: see
+        drivers.trace); the station closes it after the devices."""
         opened: dict[str, Device] = {}
         options = options or {}
         try:
@@ -63,7 +69,7 @@ class Station:
                     kw.setdefault("guard", guard or SafetyGuard())
                 if family == "camera" and "galvo" in opened and urls[family] == "fake://":
                     kw.setdefault("galvo", opened["galvo"])  # the fake renders the galvo's angle
-                opened[family] = open_device(family, urls[family], **kw)
+                opened[family] = open_device(family, urls[family], trace=trace, **kw)
             return cls(
                 robot=cast(Robot, opened["robot"]),
                 plc=cast(Plc, opened["plc"]),
@@ -71,10 +77,13 @@ class Station:
                 galvo=cast(Galvo | None, opened.get("galvo")),
                 tracker=cast(Tracker | None, opened.get("tracker")),
                 urls={family: urls[family] for family in opened},
+                trace=trace,
             )
         except BaseException:
             for device in reversed(opened.values()):
                 device.close()
+            if trace is not None:
+                trace.close()
             raise
 
     def devices(self) -> dict[str, Device]:
@@ -92,6 +101,8 @@ class Station:
         for device in reversed(list(self.devices().values())):
             with contextlib.suppress(Exception):
                 device.close()
+        if self.trace is not None:
+            self.trace.close()
 
     def __enter__(self) -> Self:
         return self

@@ -29,6 +29,7 @@ from app.line.measure import GeometricSensor, SphereSensor, SweepSensor
 from app.line.schedule import Schedule
 from app.line.service import Service
 from app.line.settings import ServiceSettings, from_cell
+from app.line.statedir import StateDir
 from app.line.station import Station, cell_guard
 from app.simulation import make_cell, simulated_sets, true_sensor_model
 from calib import candidates
@@ -143,6 +144,15 @@ def random_schedule(cfg: CellConfig, cell: SimulatedCell, seed: int, n_each: int
     return out
 
 
+def true_rmse_mm(line: SimLine, model: Any, x: F64) -> float:
+    """RMS of the Euclidean error [mm] of `model` with parameters x at the line's validation
+    positions, now (the cell's temperature as the PLC reads it)."""
+    v = line.truth.validation
+    c = line.truth.validation_centres_sensor_mm()
+    temp = np.full(len(v.q_deg), line.truth.temp_c())
+    return rmse(model.points_part(x, v.q_deg, c, temp_c=temp) - v.p_part_mm)
+
+
 class SimulatedLineRun:
     """`with SimulatedLineRun(cfg, state_dir, seed=...) as run: run.windows(n)`."""
 
@@ -184,7 +194,8 @@ class SimulatedLineRun:
         if self.geometric:
             urls.pop("camera", None)
             urls.pop("galvo", None)
-        station = Station.open(urls, guard=cell_guard(self.cfg))
+        trace = self.cfg.devices.wire_trace(StateDir(self.state_dir).wire_trace, every_device=True)
+        station = Station.open(urls, guard=cell_guard(self.cfg), trace=trace)
         self._stack.callback(station.close)
         sensor: SphereSensor
         if self.geometric:
@@ -215,11 +226,7 @@ class SimulatedLineRun:
 
     def true_rmse_mm(self, x: F64) -> float:
         """RMS of the Euclidean error of parameters x at the validation positions, now."""
-        v = self.line.truth.validation
-        c = self.line.truth.validation_centres_sensor_mm()
-        temp = np.full(len(v.q_deg), self.line.truth.temp_c())  # the PLC's reading, as the line
-        e = self.model.points_part(x, v.q_deg, c, temp_c=temp) - v.p_part_mm
-        return rmse(e)
+        return true_rmse_mm(self.line, self.model, x)
 
     def start_service(self) -> None:
         self.thread = threading.Thread(target=self.service.run, name="rvis-service", daemon=True)

@@ -1,9 +1,10 @@
-"""Fixtures for the device tests: a leak check that fails a test leaving a device open, the
-`hardware` marker gate, and a small shared world."""
+"""Fixtures for the device tests: a leak check that fails a test leaving a device open, and a
+small shared world. Real devices are one more back end of each contract suite
+(tests/drivers/backends.py: ``RVIS_<FAMILY>_URL``, the ``hardware`` marker, the safety
+profile)."""
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterator
 
 import pytest
@@ -20,15 +21,6 @@ def _no_device_left_open() -> Iterator[None]:
     for device in leaked:
         device.close()
     assert not leaked, f"test left devices open: {[d.name for d in leaked]}"
-
-
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    if os.environ.get("RVIS_HARDWARE") == "1":
-        return
-    skip = pytest.mark.skip(reason="needs real devices (set RVIS_HARDWARE=1)")
-    for item in items:
-        if "hardware" in item.keywords:
-            item.add_marker(skip)
 
 
 @pytest.fixture

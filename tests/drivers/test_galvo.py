@@ -1,4 +1,6 @@
-"""Galvo contract (fake:// and the SCPI DAC behind a pty) and SCPI fault tests."""
+"""Galvo contract: one test body per behaviour, run on fake://, the SCPI DAC behind a pty and a
+real DAC (``RVIS_GALVO_URL``, commanded only within ``RVIS_GALVO_VOLTS``); then the SCPI fault
+tests, which need the peer."""
 
 from __future__ import annotations
 
@@ -22,34 +24,60 @@ from drivers.errors import DeviceConfigError
 from drivers.galvo import Galvo, GalvoSettings
 from drivers.scpi_galvo import ScpiGalvo
 from fakes.scpi_dac import ScpiDac
+from tests.drivers.backends import HARDWARE, backends, galvo_volts, real_url
 
-LIMITS = GalvoSettings(volt_min=-7.5, volt_max=7.5)
+
+@pytest.fixture(params=backends("galvo", ["fake", "scpi"]))
+def backend(request: pytest.FixtureRequest) -> str:
+    return str(request.param)
 
 
-@pytest.fixture(params=["fake", "scpi"])
-def galvo(request: pytest.FixtureRequest) -> Iterator[Galvo]:
+@pytest.fixture
+def tol_v(backend: str) -> float:
+    """Read-back tolerance [V]: exact on the fakes, a 12-bit DAC's step on a real one."""
+    lo, hi = galvo_volts()
+    return (hi - lo) / 4096 if backend == HARDWARE else 1e-6
+
+
+@pytest.fixture
+def galvo(backend: str) -> Iterator[Galvo]:
+    limits = GalvoSettings(*galvo_volts())
     with ExitStack() as stack:
-        if request.param == "fake":
+        if backend == HARDWARE:
+            url = real_url("galvo")
+        elif backend == "fake":
             url = "fake://"
         else:
             dac = stack.enter_context(ScpiDac())
             url = f"scpi+serial://{dac.port}?baud=115200"
-        yield stack.enter_context(open_galvo(url, settings=LIMITS, timeout_s=0.3))
+        device = stack.enter_context(open_galvo(url, settings=limits, timeout_s=0.5))
+        stack.callback(_park, device)
+        yield device
 
 
-def test_volts_round_trip(galvo: Galvo) -> None:
-    for command_v in (-7.5, -3.25, 0.0, 1.234567, 7.5):
+def _park(galvo: Galvo) -> None:
+    """Leave the mirror at the middle of the range (0 V when the range holds it)."""
+    if galvo.is_open:
+        lo, hi = galvo.settings.volt_min, galvo.settings.volt_max
+        galvo.set_volts(min(max(0.0, lo), hi))
+
+
+def test_volts_round_trip(galvo: Galvo, tol_v: float) -> None:
+    lo, hi = galvo.settings.volt_min, galvo.settings.volt_max
+    for command_v in (lo, lo + 0.2833 * (hi - lo), (lo + hi) / 2, lo + 0.7345678 * (hi - lo), hi):
         assert galvo.set_volts(command_v) == command_v
-        assert galvo.volts() == pytest.approx(command_v, abs=1e-6)
+        assert galvo.volts() == pytest.approx(command_v, abs=tol_v)
     assert galvo.describe()
 
 
-def test_commands_outside_the_limits_are_refused(galvo: Galvo) -> None:
-    galvo.set_volts(1.0)
-    for bad in (7.51, -40.0, float("nan"), float("inf")):
+def test_commands_outside_the_limits_are_refused(galvo: Galvo, tol_v: float) -> None:
+    lo, hi = galvo.settings.volt_min, galvo.settings.volt_max
+    middle = (lo + hi) / 2
+    galvo.set_volts(middle)
+    for bad in (hi + 0.01, lo - 32.5, float("nan"), float("inf")):
         with pytest.raises(MotionRefused):
             galvo.set_volts(bad)
-    assert galvo.volts() == pytest.approx(1.0, abs=1e-6)
+    assert galvo.volts() == pytest.approx(middle, abs=tol_v)
 
 
 @given(st.floats(-20, 20), st.floats(-20, 20))

@@ -1,16 +1,19 @@
-"""PLC contract (fake:// and the pymodbus PLC peer): the clamp-window handshake and heartbeat of
-the base class, over each backend's register-level primitives."""
+"""PLC contract: one test body per behaviour, run on fake://, the pymodbus PLC peer and a real
+PLC (``RVIS_PLC_URL``). A real PLC is opened read-only: the handshake tests that write the app's
+outputs run there only with ``RVIS_PLC_WRITE=1`` (tests/drivers/backends.py). What the PLC holds
+is read back through the driver (``read_outputs``), the same on every back end."""
 
 from __future__ import annotations
 
 import time
 from collections.abc import Iterator
 from contextlib import ExitStack
+from dataclasses import dataclass
 from typing import Any
 
 import pytest
 
-from drivers import DeviceConnectionError, DeviceFault, DeviceTimeout, open_plc
+from drivers import DeviceConfigError, DeviceConnectionError, DeviceFault, DeviceTimeout, open_plc
 from drivers.plc import (
     BUSY,
     FAULT,
@@ -28,10 +31,19 @@ from drivers.plc import (
     encode_temp,
 )
 from fakes.devices import ClampCycle, FakePlc
+from tests.drivers.backends import (
+    HARDWARE,
+    backends,
+    fake_only,
+    plc_window_s,
+    plc_writes_allowed,
+    real_url,
+)
 
 # 60 s cycle with an 8 s window, compressed 500x: 120 ms period, 16 ms window, 1 ms beat
 CYCLE = ClampCycle(period_s=60.0, window_s=8.0, beat_s=0.5, time_scale=0.002)
 OPTS: dict[str, Any] = {"poll_s": 0.001, "heartbeat_timeout_s": 0.05, "timeout_s": 0.5}
+REAL_OPTS: dict[str, Any] = {"poll_s": 0.05, "heartbeat_timeout_s": 3.0, "timeout_s": 2.0}
 
 
 def _open(kind: str, cycle: ClampCycle, stack: ExitStack) -> tuple[Plc, Any]:
@@ -45,49 +57,127 @@ def _open(kind: str, cycle: ClampCycle, stack: ExitStack) -> tuple[Plc, Any]:
     return stack.enter_context(open_plc(f"plc+modbus://127.0.0.1:{server.port}", **OPTS)), server
 
 
-@pytest.fixture(params=["fake", "modbus"])
+@dataclass
+class PlcRig:
+    plc: Plc
+    peer: Any  # the fake PLC or the peer server; None on a real PLC
+    window_s: float  # how long a handshake test waits for a clamp window
+
+    def writable(self) -> Plc:
+        """The PLC for a test that writes outputs (skipped on a read-only real PLC)."""
+        if self.plc.read_only:
+            pytest.skip("a real PLC's outputs are written only with RVIS_PLC_WRITE=1")
+        return self.plc
+
+
+@pytest.fixture(params=backends("plc", ["fake", "modbus"]))
 def kind(request: pytest.FixtureRequest) -> str:
     return str(request.param)
 
 
 @pytest.fixture
-def plc_and_peer(kind: str) -> Iterator[tuple[Plc, Any]]:
+def rig(kind: str) -> Iterator[PlcRig]:
     with ExitStack() as stack:
-        yield _open(kind, CYCLE, stack)
+        if kind == HARDWARE:
+            url = real_url("plc")
+            options = REAL_OPTS | {"read_only": not plc_writes_allowed()}
+            plc = stack.enter_context(open_plc(url, **options))
+            yield PlcRig(plc, None, plc_window_s())
+        else:
+            plc, peer = _open(kind, CYCLE, stack)
+            yield PlcRig(plc, peer, 1.0)
 
 
-def test_waits_for_the_window_and_signals_busy_then_done(plc_and_peer: tuple[Plc, Any]) -> None:
-    plc, peer = plc_and_peer
-    with plc.window(timeout_s=1.0) as inputs:
+def _wait_heartbeat_change(plc: Plc) -> int:
+    """Poll until the PLC's heartbeat changes (within the heartbeat timeout); the new value."""
+    first = plc.poll().heartbeat
+    deadline = time.monotonic() + plc.heartbeat_timeout_s
+    while (beat := plc.poll().heartbeat) == first:
+        assert time.monotonic() < deadline, "the PLC heartbeat did not change"
+        time.sleep(plc.poll_s)
+    return beat
+
+
+def test_reads_the_inputs_and_sees_the_heartbeat(rig: PlcRig) -> None:
+    plc = rig.plc
+    _wait_heartbeat_change(plc)
+    assert plc.heartbeat_alive()
+    inputs = plc.poll()
+    assert 0 <= inputs.heartbeat <= 0xFFFF
+    assert inputs.temp_c is None or -40.0 <= inputs.temp_c <= 100.0
+    assert plc.describe()
+
+
+def test_read_only_never_writes(rig: PlcRig) -> None:
+    """A read-only connection to the same PLC (fake://: a read-only PLC of its own) polls,
+    refuses to write, and leaves the app's words as they were (no reset, no heartbeat)."""
+    if rig.peer is None:
+        url, options = real_url("plc"), REAL_OPTS
+    elif isinstance(rig.peer, FakePlc):
+        url, options = "fake://", OPTS | {"cycle": CYCLE}
+    else:
+        url, options = f"plc+modbus://127.0.0.1:{rig.peer.port}", OPTS
+    before = rig.plc.read_outputs()
+    with open_plc(url, read_only=True, **options) as ro:
+        held = ro.read_outputs()
+        assert held == before or isinstance(rig.peer, FakePlc)
+        ro.poll()
+        ro.poll()
+        with pytest.raises(DeviceConfigError, match="read-only"):
+            ro.set_signals(busy=True, done=False, fault=False)
+        assert ro.read_outputs() == held
+    assert rig.plc.read_outputs() == before
+
+
+def test_waits_for_the_window_and_signals_busy_then_done(rig: PlcRig) -> None:
+    plc = rig.writable()
+    with plc.window(timeout_s=rig.window_s) as inputs:
         assert inputs.window_open and inputs.line_running
-        assert peer.received.busy and not peer.received.done
-    assert peer.received.done and not peer.received.busy
-    assert [(o.busy, o.done) for o in peer.history][-2:] == [(True, False), (False, True)]
+        held = plc.read_outputs()
+        assert held.busy and not held.done and not held.fault
+    held = plc.read_outputs()
+    assert held.done and not held.busy and not held.fault
+    if rig.peer is not None:
+        assert [(o.busy, o.done) for o in rig.peer.history][-2:] == [(True, False), (False, True)]
 
 
-def test_heartbeats_flow_both_ways(plc_and_peer: tuple[Plc, Any]) -> None:
-    plc, peer = plc_and_peer
-    plc.wait_window(timeout_s=1.0)
-    first = peer.received.heartbeat
+def test_heartbeats_flow_both_ways(rig: PlcRig) -> None:
+    plc = rig.writable()
+    first = plc.read_outputs().heartbeat
     plc.poll()
-    assert peer.received.heartbeat == (first + 1) & 0xFFFF
+    assert plc.read_outputs().heartbeat == (first + 1) & 0xFFFF == plc.outputs.heartbeat
+    _wait_heartbeat_change(plc)
     assert plc.heartbeat_alive()
 
 
-def test_an_error_inside_the_window_signals_fault(plc_and_peer: tuple[Plc, Any]) -> None:
-    plc, peer = plc_and_peer
-    with pytest.raises(RuntimeError), plc.window(timeout_s=1.0):
+def test_an_error_inside_the_window_signals_fault(rig: PlcRig) -> None:
+    plc = rig.writable()
+    with pytest.raises(RuntimeError), plc.window(timeout_s=rig.window_s):
         raise RuntimeError("measurement failed")
-    assert peer.received.fault and not peer.received.busy and not peer.received.done
+    held = plc.read_outputs()
+    assert held.fault and not held.busy and not held.done
 
 
-def test_lost_plc_heartbeat_means_not_ready(plc_and_peer: tuple[Plc, Any]) -> None:
-    plc, peer = plc_and_peer
+def test_every_connect_resets_the_outputs(rig: PlcRig) -> None:
+    plc = rig.writable()
+    plc.poll()
+    plc.set_signals(busy=True, done=False, fault=True)
+    held = plc.read_outputs()
+    assert held.busy and held.fault and held.heartbeat > 0
+    plc.close()
+    plc.open()  # the handshake of the base class: outputs back to zero, heartbeat from 0
+    assert plc.read_outputs() == PlcOutputs() == plc.outputs
+    assert not plc.heartbeat_alive()  # no PLC heartbeat seen on this connection yet
+
+
+def test_lost_plc_heartbeat_means_not_ready(rig: PlcRig) -> None:
+    peer = fake_only(rig.peer, "heartbeat freeze")
     peer.heartbeat_frozen = True
     with pytest.raises(DeviceTimeout, match="heartbeat lost"):
-        plc.wait_window(timeout_s=0.3)
+        rig.plc.wait_window(timeout_s=0.3)
 
 
+@pytest.mark.parametrize("kind", ["fake", "modbus"])
 def test_line_stopped_never_opens_a_window(kind: str) -> None:
     stopped = ClampCycle(period_s=60.0, window_s=8.0, time_scale=0.002, line_running=False)
     with ExitStack() as stack:
@@ -146,24 +236,12 @@ def test_modbus_plc_peer_gone_and_back() -> None:
             plc.wait_window(timeout_s=1.0)
 
 
-def test_every_connect_resets_the_outputs(plc_and_peer: tuple[Plc, Any]) -> None:
-    plc, peer = plc_and_peer
-    plc.poll()
-    plc.set_signals(busy=True, done=False, fault=True)
-    assert peer.received.busy and peer.received.fault and peer.received.heartbeat > 0
-    plc.close()
-    plc.open()  # the handshake of the base class: outputs back to zero, heartbeat from 0
-    assert peer.received == PlcOutputs()
-    assert plc.outputs == PlcOutputs()
-    assert not plc.heartbeat_alive()  # no PLC heartbeat seen on this connection yet
-
-
-def test_a_withdrawn_window_is_seen_at_once(plc_and_peer: tuple[Plc, Any]) -> None:
-    plc, _ = plc_and_peer
-    opened = plc.wait_window(timeout_s=1.0)
+def test_a_withdrawn_window_is_seen_at_once(rig: PlcRig) -> None:
+    plc = rig.plc
+    opened = plc.wait_window(timeout_s=rig.window_s)
     assert opened.window_open
-    deadline = time.monotonic() + 1.0
-    while plc.ready():  # the 16 ms window closes; ready() follows the PLC's status word
+    deadline = time.monotonic() + rig.window_s
+    while plc.ready():  # the window closes; ready() follows the PLC's status word
         assert time.monotonic() < deadline, "the window never closed"
     assert plc.heartbeat_alive()
 

@@ -73,6 +73,10 @@ def test_url_parsing() -> None:
     for bad in ("robot", "rmi://h:99999"):
         with pytest.raises(DeviceConfigError):
             parse_url(bad)
+    flags = parse_url("plc+modbus://h:502?read_only=1&trace=off&x=maybe")
+    assert flags.flag("read_only") and not flags.flag("trace") and not flags.flag("absent")
+    with pytest.raises(DeviceConfigError, match="'x' must be 1 or 0"):
+        flags.flag("x")
     with pytest.raises(DeviceConfigError, match="known: fake://, rmi://, modbus://"):
         backend_class("robot", "ftp")
 
@@ -120,3 +124,22 @@ def test_bad_cell_file_is_one_line_exit_2(
     err = capsys.readouterr().err.strip()
     assert needle in err and len(err.splitlines()) == 1 and str(cell) in err
     assert main(["devices", "check", "--cell", str(tmp_path / "missing.toml")]) == 2
+
+
+def test_devices_check_never_writes_the_plc(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A running service holds busy on the PLC; checking the devices leaves it so."""
+    from drivers import open_plc
+    from fakes.plc import PlcServer
+
+    with PlcServer() as server, open_plc(f"plc+modbus://127.0.0.1:{server.port}") as service:
+        service.set_signals(busy=True, done=False, fault=False)
+        held = service.read_outputs()
+        cell = tmp_path / "cell.toml"
+        cell.write_text(f'[devices]\nplc = "plc+modbus://127.0.0.1:{server.port}"\n')
+        assert main(["devices", "check", "--cell", str(cell)]) == 0
+        assert "window" in capsys.readouterr().out
+        assert service.read_outputs() == held and held.busy
+        with open_plc(f"plc+modbus://127.0.0.1:{server.port}?read_only=1") as ro:
+            assert ro.read_only and ro.read_outputs() == held

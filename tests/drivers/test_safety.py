@@ -124,3 +124,15 @@ def test_the_drivers_default_limits_are_the_models() -> None:
     model = ModelLimits()
     assert np.array_equal(LIMITS.lower_deg, model.lower_deg)
     assert np.array_equal(LIMITS.upper_deg, model.upper_deg)
+
+
+def test_max_speed_is_part_of_the_guard() -> None:
+    guard = SafetyGuard(max_speed_pct=10.0)
+    assert guard.check_speed(10) == 10.0
+    with pytest.raises(MotionRefused, match="above the guard's 10 %"):
+        guard.check_speed(10.5)
+    with pytest.raises(DeviceConfigError):
+        guard.check_speed(0)
+    for bad in (0.0, 120.0, float("nan")):
+        with pytest.raises(DeviceConfigError):
+            SafetyGuard(max_speed_pct=bad)

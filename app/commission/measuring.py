@@ -1,0 +1,169 @@
+"""The commissioning steps that move the robot and measure spheres: the first calibration from
+the planned configurations, and its validation against the tracker's sphere positions from
+views the calibration has not seen. Every configuration is reached from home and left back
+home, as the service will do between clamping cycles; every motion is confirmed (Context.move).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from app.commission.context import PARAMS_FILE, PLAN_FILE, Context
+from app.commission.journal import StepResult, at_least, at_most, holds
+from app.files import ERROR_COLUMNS, write_csv, write_json, write_measurements, write_targets
+from app.line.measure import Rejected, SphereSensor
+from app.meta import provenance
+from app.params import from_json, to_json
+from app.planning import read_plan
+from calib import candidates
+from calib.errors import InsufficientData
+from calib.gates import check_identification
+from calib.identify import Measurements, identify
+from calib.validation import rmse
+
+F64 = NDArray[np.float64]
+
+
+@dataclass
+class Taken:
+    """The measurements of a run of views (and the views the vision rejected)."""
+
+    targets: list[str] = field(default_factory=list)
+    q_deg: list[F64] = field(default_factory=list)
+    c_sensor_mm: list[F64] = field(default_factory=list)
+    temp_c: list[float | None] = field(default_factory=list)
+    rejected: list[str] = field(default_factory=list)
+
+    def data(self, positions: dict[str, F64]) -> Measurements:
+        temps = None if any(t is None for t in self.temp_c) else np.array(self.temp_c)
+        return Measurements(
+            np.array(self.q_deg).reshape(-1, 6),
+            np.array(self.c_sensor_mm).reshape(-1, 3),
+            np.array([positions[t] for t in self.targets]).reshape(-1, 3),
+            tuple(self.targets),
+            temps,
+        )
+
+    def write(self, path: object) -> None:
+        temps = None if any(t is None for t in self.temp_c) else np.array(self.temp_c)
+        q, c = np.array(self.q_deg).reshape(-1, 6), np.array(self.c_sensor_mm).reshape(-1, 3)
+        write_measurements(path, self.targets, q, c, temps)  # type: ignore[arg-type]
+
+
+def measure_views(
+    ctx: Context, views: list[tuple[str, F64]], sensor: SphereSensor, what: str
+) -> Taken:
+    """Each (sphere, q_deg) from home and back home; the PLC's cell temperature with each.
+    A robot left away from home (a commissioning killed mid-step) goes home first."""
+    taken = Taken()
+    ctx.home()
+    for k, (target, q) in enumerate(views, start=1):
+        ctx.move(q, f"{what} view {k}/{len(views)} (sphere {target})")
+        try:
+            reading = sensor.measure(target)
+        except Rejected as exc:
+            taken.rejected.append(f"{target} view {k}: {exc}")
+            ctx.say(f"    view {k}: rejected by the vision checks ({exc})")
+        else:
+            taken.targets.append(target)
+            taken.q_deg.append(np.asarray(q, dtype=float))
+            taken.c_sensor_mm.append(reading.c_sensor_mm)
+            taken.temp_c.append(ctx.station.plc.poll().temp_c)
+        ctx.home()
+    return taken
+
+
+def calibration(ctx: Context) -> StepResult:
+    """Measure the plan's configurations, identify the parameters, and hold them to the
+    quality gates of [calibration] (converged, rank, RMS, condition, change from nominal)."""
+    cell = ctx.cell()
+    _, qs, _ = read_plan(ctx.path(PLAN_FILE))
+    views = [(t, q) for t, q_list in qs.items() for q in q_list]
+    taken = measure_views(ctx, views, ctx.sphere_sensor(ctx.sensor_model()), "calibration")
+    taken.write(ctx.path("calibration_measurements.csv"))
+    positions = ctx.spheres_part_mm()
+    write_targets(ctx.path("calibration_targets.csv"), positions)
+    r = StepResult(files=["calibration_measurements.csv", "calibration_targets.csv"])
+    rejected = len(taken.rejected) / max(len(views), 1)
+    limit = cell.commission.max_rejected_fraction
+    r.checks.append(at_most("views rejected by vision", rejected, limit))
+    r.results["rejected"] = taken.rejected
+    model = cell.identification_model()
+    try:
+        result = identify(model, taken.data(positions))
+    except InsufficientData as exc:
+        r.checks.append(holds("identification", False, str(exc)))
+        return r
+    report = check_identification(result, model.nominal_x(), cell.calibration.gates())
+    doc = to_json(model, result, report, provenance())
+    write_json(ctx.path(PARAMS_FILE if report.passed else "params-rejected.json"), doc)
+    r.files.append(PARAMS_FILE if report.passed else "params-rejected.json")
+    g = cell.calibration
+    r.results |= {
+        "measurements": len(taken.targets),
+        "rms_mm": result.rms_mm,
+        "max_mm": result.max_mm,
+        "rank": result.observability.rank,
+        "condition": result.observability.condition,
+        "gates": report.reason or "passed",
+    }
+    r.checks += [
+        at_most("residual RMS", result.rms_mm, g.max_rms_mm, "mm"),
+        at_most("condition", result.observability.condition, g.max_condition),
+        holds("quality gates", report.passed, report.reason or "passed"),
+    ]
+    return r
+
+
+def validation(ctx: Context) -> StepResult:
+    """Measure every sphere from `[commission] validation_views` new views (planned on the
+    identified model) and compare the positions the calibrated system computes with the
+    tracker's: the RMS error within its limit and below the nominal model's."""
+    cell = ctx.cell()
+    model, x = from_json(ctx.path(PARAMS_FILE))
+    rigid = cell.model()
+    x_rigid = x[: len(rigid.nominal_x())]
+    positions = ctx.spheres_part_mm()
+    rng = np.random.default_rng([cell.commission.seed, 23])
+    views = []
+    for target, p in positions.items():
+        sample = candidates.random_configurations(
+            rigid, x_rigid, p, cell.commission.validation_views, rng
+        )
+        views += [(target, q) for q in sample.q_deg]
+    taken = measure_views(ctx, views, ctx.sphere_sensor(ctx.sensor_model()), "validation")
+    taken.write(ctx.path("validation_measurements.csv"))
+    r = StepResult(files=["validation_measurements.csv", "validation_errors.csv"])
+    data = taken.data(positions)
+    p_id = model.points_part(x, data.q_deg, data.c_sensor_mm, temp_c=data.temp_c)
+    p_nom = model.points_part(model.nominal_x(), data.q_deg, data.c_sensor_mm, temp_c=data.temp_c)
+    e_id, e_nom = p_id - data.p_part_mm, p_nom - data.p_part_mm
+    d = np.linalg.norm(e_id, axis=1)
+    rows = [
+        [t, *map(float, p_id[i]), *map(float, e_id[i]), float(d[i])]
+        for i, t in enumerate(data.targets)
+    ]
+    write_csv(ctx.path("validation_errors.csv"), ERROR_COLUMNS, rows)
+    error_mm = rmse(e_id) if len(d) else float("inf")
+    nominal_mm = rmse(e_nom) if len(d) else float("inf")
+    r.results = {
+        "views": len(views),
+        "measured": len(data),
+        "rmse_mm": error_mm,
+        "max_mm": float(d.max()) if len(d) else float("inf"),
+        "rmse_nominal_mm": nominal_mm,
+        "rejected": taken.rejected,
+    }
+    if ctx.truth is not None:
+        r.results["true_rmse_mm"] = ctx.truth.true_rmse_mm(model, x)  # simulated line only
+    r.checks += [
+        at_least(
+            "spheres measured", len(data), len(views) * (1 - cell.commission.max_rejected_fraction)
+        ),
+        at_most("validation RMSE", error_mm, cell.commission.max_validation_rmse_mm, "mm"),
+        at_most("RMSE, calibrated over nominal", error_mm, nominal_mm, "mm"),
+    ]
+    return r

@@ -1,0 +1,109 @@
+"""The last step: the state directory made ready for `rvis run`, and checked by reading it back
+the way the service will.
+
+    plan.json      the commissioning's plan (the service's schedule)
+    cell.toml      the cell file with the tracker's sphere positions and the chosen exposure
+    sensor.toml    the sensor calibration (`rvis run` reads it when --sensor-model is not given)
+    params/        the calibration as version 1 of params/current.json and params/history/,
+    rvis.db        and the database's record of it, as the service writes its first version
+
+Run again (killed after the files, before the journal), it finds its own version 1 and goes on;
+a directory holding any other calibration is refused.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from app.cellfile import dumps_cell
+from app.commission.context import PARAMS_FILE, PLAN_FILE, SENSOR_FILE, Context
+from app.commission.journal import Check, StepResult, holds
+from app.config import CameraSection, CellConfig, load_cell
+from app.files import read_json, write_bytes, write_text
+from app.line.params_store import ParamsStore
+from app.line.schedule import Schedule
+from app.line.store import Store
+from app.params import from_json
+
+
+def ready(ctx: Context) -> StepResult:
+    state, r = ctx.state, StepResult()
+    write_bytes(state.plan, ctx.path(PLAN_FILE).read_bytes())
+    write_bytes(state.sensor, ctx.path(SENSOR_FILE).read_bytes())
+    cell = _commissioned_cell(ctx)
+    write_text(state.cell, dumps_cell(cell, f"written by rvis commission from {ctx.cfg.source}"))
+    version = _apply_once(ctx)
+    r.results["version"] = version
+    r.results["run"] = f"rvis run --cell {state.cell}"
+    if ctx.truth is not None:  # the simulated line: its own devices, the same cell (seed)
+        r.results["run"] = (
+            f"rvis run --sim --seed {ctx.truth.seed} --cell {state.cell} "
+            f"--state-dir {state.root} --plan {state.plan}"
+        )
+    r.checks += _read_back(ctx, cell)
+    return r
+
+
+def _commissioned_cell(ctx: Context) -> CellConfig:
+    """The cell with the measured spheres, this state directory and, when the stripe step
+    chose one, its exposure."""
+    cell = ctx.cell()
+    service = dataclasses.replace(cell.service, state_dir=str(ctx.state.root.resolve()))
+    cell = dataclasses.replace(cell, service=service)
+    stripe = ctx.path("stripe.json")
+    if stripe.exists():
+        exposure = float(read_json(stripe)["chosen"]["exposure_us"])
+        cell = dataclasses.replace(cell, camera=CameraSection(exposure, cell.camera.gain_db))
+    return cell
+
+
+def _apply_once(ctx: Context) -> int:
+    """The commissioning's parameters as version 1, exactly once (see the module docstring)."""
+    doc = read_json(ctx.path(PARAMS_FILE))
+    params = ParamsStore(ctx.state.root)
+    store = Store(ctx.state.db)
+    try:
+        current = params.current()
+        if current is None:
+            version = params.apply({**doc, "source": "commissioning"})
+        else:
+            version, _, x = current
+            _, x_ours = from_json(ctx.path(PARAMS_FILE))
+            if version != 1 or x.shape != x_ours.shape or not np.allclose(x, x_ours):
+                raise RuntimeError(f"{ctx.state.current} holds another calibration")
+        if not store.applied():
+            store.add_applied(time.time(), version, None, "commissioning", None)
+        return version
+    finally:
+        store.close()
+
+
+def _read_back(ctx: Context, cell: CellConfig) -> list[Check]:
+    state = ctx.state
+    loaded = load_cell(state.cell)
+    schedule = Schedule.from_plan(state.plan, ctx.line)
+    _, x_ours = from_json(ctx.path(PARAMS_FILE))
+    current = ParamsStore(state.root).current()
+    store = Store(state.db, read_only=True)
+    try:
+        applied = store.applied()
+    finally:
+        store.close()
+    same_spheres = set(loaded.spheres_part_mm) == set(ctx.spheres_part_mm()) and all(
+        np.allclose(loaded.spheres_part_mm[k], v, atol=1e-6)
+        for k, v in ctx.spheres_part_mm().items()
+    )
+    same_spheres &= loaded.camera == cell.camera
+    n = len(schedule)
+    return [
+        holds("cell.toml reads back (spheres, exposure)", same_spheres),
+        holds("plan.json reads as the service's schedule", n > 0, f"{n} slots"),
+        holds(
+            "params/current.json is the calibration (version 1)",
+            current is not None and current[0] == 1 and np.allclose(current[2], x_ours),
+        ),
+        holds("rvis.db records version 1", [a["version"] for a in applied] == [1]),
+    ]

@@ -1,0 +1,65 @@
+"""The commissioning sequence: each step not passed yet, in order, confirmed by the engineer,
+checked, journalled and reported before the next may start (app/commission/__init__.py)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from datetime import UTC, datetime
+
+from app.commission import measuring, ready, steps, stripe
+from app.commission.context import Context
+from app.commission.journal import FAILED, PASSED, STEPS, Journal, StepRecord, StepResult, holds
+from app.commission.report import TITLES, format_value, write_report
+from drivers.errors import DeviceError
+
+RUN: dict[str, Callable[[Context], StepResult]] = {
+    "devices": steps.devices,
+    "stripe": stripe.stripe,
+    "sensor": steps.sensor,
+    "spheres": steps.spheres,
+    "plan": steps.plan,
+    "calibration": measuring.calibration,
+    "validation": measuring.validation,
+    "ready": ready.ready,
+}
+assert tuple(RUN) == STEPS
+
+
+def run_sequence(ctx: Context, journal: Journal) -> str | None:
+    """Run the steps from the first one not passed; the name of the step that failed its
+    checks (None: every step passed). Context.Declined propagates (nothing recorded for the
+    step the engineer stopped)."""
+    n = len(STEPS)
+    for i, name in enumerate(STEPS, start=1):
+        if journal.passed(name):
+            ctx.say(f"step {i}/{n} {name}: passed earlier")
+            continue
+        ctx.ask(f"step {i}/{n} {name}: {TITLES[name]}: start?")
+        ctx.say(f"step {i}/{n} {name}: {TITLES[name]} ...")
+        started = datetime.now(UTC).isoformat(timespec="seconds")
+        t0 = time.monotonic()
+        try:
+            result = RUN[name](ctx)
+        except DeviceError as exc:  # a device failed mid-step: recorded, the step runs again
+            result = StepResult(checks=[holds("devices", False, f"{type(exc).__name__}: {exc}")])
+        seconds = time.monotonic() - t0
+        status = PASSED if result.passed else FAILED
+        record = StepRecord(
+            name,
+            status,
+            started,
+            round(seconds, 3),
+            tuple(result.checks),
+            result.results,
+            tuple(result.files),
+        )
+        journal.record(record)
+        write_report(journal)
+        for c in result.checks:
+            mark = "ok  " if c.ok else "FAIL"
+            ctx.say(f"    {mark} {c.name}: {format_value(c)} ({c.limit})")
+        ctx.say(f"step {i}/{n} {name}: {status} in {seconds:.1f} s")
+        if status == FAILED:
+            return name
+    return None

@@ -1,0 +1,100 @@
+"""`rvis commission --sim`: the commissioning on the simulated line. The line (fakes/line.py,
+the same one `rvis run --sim` uses) runs every device peer on loopback from one simulated cell,
+steady (no warm-up, no knock: a cell is commissioned cold and still); the commissioning opens
+them through the real drivers, as on a real cell. What the simulated cell supplies beyond the
+devices: the sensor-calibration targets (chessboards and flat targets rendered by its true
+sensor, written as a camera would record them), the geometric sphere measurement of fast runs
+(`geometric`: the true centre plus the sensor noise, no rendering), and the truth for the
+report (the true error of a calibration at the line's validation positions; never checked).
+"""
+
+from __future__ import annotations
+
+from contextlib import ExitStack
+from dataclasses import replace
+from pathlib import Path
+from typing import Any, Self
+
+import numpy as np
+from numpy.typing import NDArray
+
+from app.commission.context import Context
+from app.config import CellConfig
+from app.line.measure import GeometricSensor, SphereSensor, SweepSensor
+from app.sensordata import write_image, write_sweep
+from app.sim.line_run import simline_settings, true_rmse_mm
+from app.simulation import make_cell
+from fakes.line import SimLine
+from fakes.render_targets import render_calibration_set
+from vision.sensor_model import SensorModel
+
+F64 = NDArray[np.float64]
+
+
+class SimCommissioning:
+    """`with SimCommissioning(cfg, seed, geometric=True) as sim: sim.urls ...`"""
+
+    def __init__(self, cfg: CellConfig, seed: int, *, geometric: bool) -> None:
+        self.cfg, self.seed, self.geometric = cfg, seed, geometric
+        self.cell = make_cell(cfg, seed=seed)
+        # the line of `rvis run --sim`, steady and at full speed, with its camera either way
+        line = simline_settings(cfg, geometric=True)
+        settings = replace(line, warmup=None, knock=None, camera=True)
+        self.line = SimLine(self.cell, settings)
+        self._stack = ExitStack()
+        self.station: Any = None
+
+    def __enter__(self) -> Self:
+        self._stack.enter_context(self.line)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stack.close()
+
+    @property
+    def urls(self) -> dict[str, str]:
+        return self.line.urls
+
+    def sphere_sensor(self, model: SensorModel) -> SphereSensor:
+        """The geometric sensor of fast runs, or the real sweep through camera and galvo."""
+        if self.geometric:
+            return GeometricSensor(self.line.geometric_centre)
+        assert self.station is not None and self.station.camera is not None
+        from app.line.settings import from_cell
+
+        sweep = from_cell(self.cfg).sweep
+        return SweepSensor(self.station.camera, self.station.galvo, model, sweep)
+
+    def capture(self, calib_dir: Path, ctx: Context) -> None:
+        """The targets the engineer would record, rendered by the cell's true sensor."""
+        c = ctx.cfg.commission
+        ctx.ask(f"record {c.chessboards} chessboard views and {c.flat_targets} flat targets?")
+        rng = np.random.default_rng([self.seed, 11])
+        cs = render_calibration_set(
+            self.cell.sensor,
+            rng,
+            n_chessboards=c.chessboards,
+            n_targets=c.flat_targets,
+            n_commands=9,
+        )
+        for k, board in enumerate(cs.chessboards):
+            write_image(calib_dir / "chessboards" / f"board_{k:02d}.png", board)
+        for k, (board, frames) in enumerate(cs.targets):
+            pose = calib_dir / "targets" / f"pose_{k:02d}"
+            write_image(pose / "board.png", board)
+            write_sweep(pose, list(frames), list(cs.commands_v))
+
+    def sensor_errors(self, model: SensorModel) -> dict[str, float]:
+        """How far a sensor calibration is from the true sensor: focal lengths and principal
+        point [px]."""
+        true, K = self.cell.sensor, model.camera.K
+        return {
+            "fx_error_px": float(K[0, 0] - true.fx_px),
+            "fy_error_px": float(K[1, 1] - true.fy_px),
+            "cx_error_px": float(K[0, 2] - true.cx_px),
+            "cy_error_px": float(K[1, 2] - true.cy_px),
+        }
+
+    def true_rmse_mm(self, model: Any, x: F64) -> float:
+        """RMS Euclidean error [mm] of parameters x at the line's validation positions."""
+        return true_rmse_mm(self.line, model, x)

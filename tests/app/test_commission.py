@@ -1,0 +1,165 @@
+"""`rvis commission --sim` end to end on the simulated line (geometric measurements, a 15 deg
+planning grid to keep it short): killed in the middle of the first calibration, run again it
+continues there; a step that fails its check stops the sequence (exit 3) and runs again next
+time; the state directory it leaves is what `rvis run` needs, and the service runs on it with
+the commissioned parameters."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from app.cli import main
+from app.config import load_cell
+from app.line.params_store import ParamsStore
+from app.line.statedir import StateDir
+from app.line.store import Store
+from app.params import from_json
+
+ROOT = Path(__file__).resolve().parents[2]
+CELL = "[planning]\ngrid_step_deg = 15.0\n"
+STRICT = "[commission]\nmax_validation_rmse_mm = 0.001\n"
+
+
+def _commission(cell: Path, state: Path) -> list[str]:
+    return ["commission", "--sim", "--geometric", "--yes", "--cell", str(cell),
+            "--state-dir", str(state)]  # fmt: skip
+
+
+def _kill_at(argv: list[str], marker: str) -> list[str]:
+    """Run rvis in a child process and SIGKILL it when `marker` appears in its output; the
+    lines it printed."""
+    env = os.environ | {"PYTHONUNBUFFERED": "1"}
+    lines: list[str] = []
+    with subprocess.Popen(
+        [sys.executable, "-m", "app.cli", *argv],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    ) as child:
+        try:
+            assert child.stdout is not None
+            for line in child.stdout:
+                lines.append(line)
+                if marker in line:
+                    child.send_signal(signal.SIGKILL)
+                    break
+            child.wait(timeout=60)
+        finally:
+            if child.poll() is None:
+                child.kill()
+    assert any(marker in line for line in lines), "".join(lines[-20:])
+    assert child.returncode == -signal.SIGKILL
+    return lines
+
+
+def test_commissioning_resumes_after_a_kill_and_leaves_a_cell_ready_to_run(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    cell, state = tmp_path / "cell.toml", tmp_path / "state"
+    paths = StateDir(state)
+    cell.write_text(CELL)
+    _kill_at(_commission(cell, state), "calibration view 3/24")
+    journal = json.loads((paths.commission / "journal.json").read_text())
+    first = {s["name"]: s for s in journal["steps"]}
+    assert list(first) == ["devices", "stripe", "sensor", "spheres", "plan"]  # not calibration
+    assert not paths.current.exists()
+
+    cell.write_text(CELL + STRICT)  # the same cell file, a validation limit nothing can meet
+    assert main(_commission(cell, state)) == 3
+    out = capsys.readouterr().out
+    for i, name in enumerate(first, start=1):
+        assert f"step {i}/8 {name}: passed earlier" in out
+    assert "step 6/8 calibration: passed" in out and "step 7/8 validation: failed" in out
+    assert "FAIL validation RMSE" in out and "step 8/8" not in out
+    report = json.loads((paths.commission / "commission.json").read_text())
+    assert report["next_step"] == "validation" and not report["complete"]
+    steps = {s["name"]: s for s in report["steps"]}
+    assert steps["devices"]["started_utc"] == first["devices"]["started_utc"]  # not run again
+
+    cell.write_text(CELL)
+    assert main(_commission(cell, state)) == 0
+    out = capsys.readouterr().out
+    assert "step 6/8 calibration: passed earlier" in out and "step 8/8 ready: passed" in out
+    report = json.loads((paths.commission / "commission.json").read_text())
+    assert report["complete"] and all(s["status"] == "passed" for s in report["steps"])
+    steps = {s["name"]: s for s in report["steps"]}
+    validation = steps["validation"]["results"]
+    assert validation["rmse_mm"] < 0.1 < 1.0 < validation["rmse_nominal_mm"]
+    assert validation["true_rmse_mm"] < 0.1  # against the simulated cell's truth
+    assert steps["calibration"]["results"]["measurements"] == 24
+    md = (paths.commission / "commission.md").read_text()
+    assert "**8 of 8 steps passed**" in md and "| validation RMSE |" in md
+
+    # the state directory, read the way the service reads it
+    cfg = load_cell(paths.cell)
+    assert set(cfg.spheres_part_mm) == {"P1", "P2", "P3", "P4"} and cfg.spheres.frame == "part"
+    version, _, x = ParamsStore(state).current()  # type: ignore[misc]
+    assert version == 1 and paths.plan.is_file() and paths.sensor.is_file()
+    np.testing.assert_array_equal(x, from_json(paths.commission / "params.json")[1])
+    store = Store(paths.db, read_only=True)
+    assert [a["source"] for a in store.applied()] == ["commissioning"]
+    store.close()
+    assert main(_commission(cell, state)) == 0  # all done: nothing runs again
+    assert "commissioned already" in capsys.readouterr().out
+
+    run = ["run", "--sim", "--geometric", "--seed", "0", "--windows", "2", "--json"]
+    run += ["--cell", str(paths.cell), "--state-dir", str(state), "--plan", str(paths.plan)]
+    assert main(run) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["measurements"] == 2 and summary["true_rmse_start_mm"] < 0.1
+    assert ParamsStore(state).current_version() == 1  # it started from the commissioning
+
+
+def test_the_engineer_stops_it_and_a_journal_of_another_set_up_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import io
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    cell, state = tmp_path / "cell.toml", tmp_path / "state"
+    cell.write_text(CELL)
+    argv = ["commission", "--sim", "--geometric", "--cell", str(cell), "--state-dir", str(state)]
+    monkeypatch.setattr(sys, "stdin", Terminal("y\nn\n"))  # start step 1, not step 2
+    assert main(argv) == 1
+    out = capsys.readouterr().out
+    assert "step 1/8 devices: passed" in out and "stopped: not confirmed" in out
+    report = json.loads((StateDir(state).commission / "commission.json").read_text())
+    assert report["next_step"] == "stripe"
+
+    monkeypatch.setattr(sys, "stdin", io.StringIO(""))  # not a terminal, no --yes
+    assert main(argv) == 2
+    assert "needs a terminal (or --yes)" in capsys.readouterr().err
+    assert main([*argv, "--yes", "--seed", "7"]) == 2  # another simulated cell
+    err = capsys.readouterr().err.strip()
+    assert "journal.json: this commissioning was started with" in err and "--restart" in err
+    assert len(err.splitlines()) == 1
+
+
+@pytest.mark.slow  # about 1 min: every sphere measured through rendered sweeps
+def test_the_rendered_commissioning_measures_through_camera_and_galvo(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The same sequence with every sweep rendered by the simulated cell and measured by the
+    vision pipeline with the sensor calibration of step 3 (16 frames a sweep, 1 validation
+    view a sphere: time; fewer calibration targets made it reject 7 of 24 views: it failed)."""
+    cell, state = tmp_path / "cell.toml", tmp_path / "state"
+    cell.write_text(CELL + "[sweep]\nn_frames = 16\n[commission]\nvalidation_views = 1\n")
+    argv = ["commission", "--sim", "--yes", "--cell", str(cell), "--state-dir", str(state)]
+    assert main(argv) == 0, capsys.readouterr().out[-3000:]
+    report = json.loads((StateDir(state).commission / "commission.json").read_text())
+    steps = {s["name"]: s["results"] for s in report["steps"]}
+    assert steps["calibration"]["measurements"] >= 22 and steps["calibration"]["rms_mm"] < 0.1
+    assert steps["validation"]["rmse_mm"] < 0.1 and steps["validation"]["true_rmse_mm"] < 0.2
