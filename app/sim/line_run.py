@@ -101,19 +101,24 @@ def simline_settings(cfg: CellConfig, *, geometric: bool) -> SimLineSettings:
     )
 
 
+def with_simulated_plc(cfg: CellConfig) -> CellConfig:
+    """The cell as the simulated line's devices are: its PLC writes the cell temperature in
+    word 2 (`[line] plc_temperature` on, whatever the cell file says)."""
+    return dataclasses.replace(cfg, line=dataclasses.replace(cfg.line, plc_temperature=True))
+
+
 def service_settings(
     cfg: CellConfig, state_dir: Path, scale: float, geometric: bool
 ) -> ServiceSettings:
     """The cell's service settings with the times a scaled line needs: the clamp window's length,
     a poll of 10 ms real time, a heartbeat timeout of at least 0.5 s real time and, rendered,
-    the real time a frame takes; the simulated PLC provides the cell temperature."""
+    the real time a frame takes."""
     s = from_cell(cfg, state_dir)
     if not geometric:
         frame_s = max(s.sweep.frame_s, RENDERED_FRAME_REAL_S * scale)
         s = replace(s, sweep=replace(s.sweep, frame_s=frame_s))
     line = replace(
         s.line,
-        plc_temperature=True,  # the simulated PLC writes the cell's temperature in word 2
         window_s=cfg.simline.window_s,
         poll_s=max(s.line.poll_s, 0.01 * scale),
         heartbeat_timeout_s=max(s.line.heartbeat_timeout_s, 0.5 * scale),
@@ -165,6 +170,7 @@ class SimulatedLineRun:
         geometric: bool = False,
         plan: Path | None = None,
     ) -> None:
+        cfg = with_simulated_plc(cfg)
         self.cfg, self.state_dir, self.seed = cfg, Path(state_dir), seed
         self.cell = make_cell(cfg, seed=seed)
         self.line = SimLine(self.cell, simline_settings(cfg, geometric=geometric))
