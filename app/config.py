@@ -307,6 +307,12 @@ class LineSection(Section):
     window_s: float = opt(8.0, gt=0, hi=3600)
     margin_s: float = opt(0.5, lo=0, hi=60)
     slots_per_window: int = opt(1, lo=1, hi=100)
+    # the PLC writes the cell temperature in its word 2 (off: the word is not read; a PLC
+    # program that predates it leaves 0 there, which is not 0 degC)
+    plc_temperature: bool = opt(False)
+    # a reading outside this range is "no temperature" with an alarm, never a number
+    plc_temp_min_c: float = opt(5.0, lo=-40, hi=100)
+    plc_temp_max_c: float = opt(50.0, lo=-40, hi=100)
 
 
 @dataclass(frozen=True)
@@ -536,6 +542,8 @@ def _resolve(s: dict[str, Section], source: str, reader: Any = None) -> CellConf
     plate = s["base_plate"]
     if plate["x_min_mm"] >= plate["x_max_mm"] or plate["y_min_mm"] >= plate["y_max_mm"]:
         raise fail("base_plate", "x_max_mm", "expected x_min < x_max and y_min < y_max")
+    if s["line"]["plc_temp_min_c"] >= s["line"]["plc_temp_max_c"]:
+        raise fail("line", "plc_temp_max_c", "must exceed plc_temp_min_c")
     if s["simline"]["window_s"] >= s["simline"]["period_s"]:
         raise fail("simline", "window_s", "the clamp window must be shorter than period_s")
     if s["service"]["schedule"] == "adaptive" and s["service"]["estimator"] != "sequential":

@@ -92,9 +92,11 @@ def _context(
     urls = cfg.devices.urls()
     if args.sim:
         from app.sim.commission import SimCommissioning
+        from app.sim.line_run import with_simulated_plc
 
         sim = stack.enter_context(SimCommissioning(cfg, seed, geometric=args.geometric))
         urls = sim.urls
+        cfg = with_simulated_plc(cfg)
     guard = replace(cell_guard(cfg), max_speed_pct=float(cfg.commission.speed_pct))
     options = {"camera": {"settings": cfg.camera.settings()}, "plc": {"read_only": True}}
     trace = cfg.devices.wire_trace(state.wire_trace, every_device=True if sim else None)

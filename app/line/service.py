@@ -137,6 +137,7 @@ class Service(OperatorCommands):
         self._unstored_alarms: list[dict[str, Any]] = []  # raised while the storage failed
         self.storage_failed = False  # until a reset finds it writing again
         self._space_check_t = self._retention_t = -np.inf
+        self._temperature_bad: bool | None = None  # known after the first poll
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._commands: Queue[tuple[str, dict[str, Any], int | None, Future[dict[str, Any]]]]
@@ -346,6 +347,7 @@ class Service(OperatorCommands):
             self._pause_poll()
             return
         self._watch_heartbeat()
+        self._watch_temperature()
         self._unshelve()
         if self.state == State.IDLE and not self.paused and self.watch.fresh_window():
             self._window()
@@ -380,6 +382,27 @@ class Service(OperatorCommands):
         elif self.watch.alive and alarms:
             self.store.clear_alarms(self.clock.time(), "plc_heartbeat")
             self.bus.emit("alarm_cleared", {"code": "plc_heartbeat"})
+
+    def _watch_temperature(self) -> None:
+        """A `temperature` alarm while the PLC should provide the cell temperature and does
+        not (raised once, cleared when a plausible value returns, or when the cell file no
+        longer reads the word); meanwhile measurements are stored without one and the compliant
+        model leaves its thermal term out. The database is asked only when that changes."""
+        why = self.watch.temperature()[1]
+        if bool(why) == self._temperature_bad:
+            return  # nothing changed since the last poll: no query
+        active = self.store.active_alarms(code="temperature")
+        if why and not active:
+            self._alarm(
+                "temperature",
+                f"{why}: no cell temperature; measurements are stored without one and the"
+                " thermal term is left out until a plausible value returns",
+                "medium",
+            )
+        elif not why and active:
+            self.store.clear_alarms(self.clock.time(), "temperature")
+            self.bus.emit("alarm_cleared", {"code": "temperature"})
+        self._temperature_bad = bool(why)
 
     # -- faults and alarms -------------------------------------------------------------------------
     def _alarm(self, code: str, message: str, priority: str = "high") -> int:
@@ -491,9 +514,9 @@ class Service(OperatorCommands):
 
     @property
     def cell_temp_c(self) -> float | None:
-        """The cell temperature [degC] from the PLC's last reading (None: no sensor)."""
-        inputs = self.watch.inputs
-        return None if inputs is None else inputs.temp_c
+        """The cell temperature [degC] from the PLC's last reading; None when the PLC does not
+        provide it ([line] plc_temperature) or its reading is not plausible (WindowWatch)."""
+        return self.watch.temperature()[0]
 
     def _position(self) -> int:
         return self.store.schedule_position()[0]

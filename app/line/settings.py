@@ -35,6 +35,9 @@ class LineSettings:
     window_s: float = 8.0  # how long a clamp window lasts (the PLC sends only the bit)
     margin_s: float = 0.5  # kept free at the end of every window
     slots_per_window: int = 1
+    plc_temperature: bool = False  # the PLC provides the cell temperature (word 2)
+    plc_temp_min_c: float = 5.0  # plausible cell air temperatures [degC]; outside: none
+    plc_temp_max_c: float = 50.0
 
     def __post_init__(self) -> None:
         if len(self.joint_speed_deg_s) != 6 or len(self.home_deg) != 6:
@@ -43,6 +46,8 @@ class LineSettings:
             raise ValueError("poll_s, window_s > 0 and override_pct in 1..100")
         if self.slots_per_window < 1:
             raise ValueError("slots_per_window must be >= 1")
+        if not self.plc_temp_min_c < self.plc_temp_max_c:
+            raise ValueError("plc_temp_min_c must be below plc_temp_max_c")
 
 
 @dataclass(frozen=True)

@@ -101,6 +101,12 @@ def simline_settings(cfg: CellConfig, *, geometric: bool) -> SimLineSettings:
     )
 
 
+def with_simulated_plc(cfg: CellConfig) -> CellConfig:
+    """The cell as the simulated line's devices are: its PLC writes the cell temperature in
+    word 2 (`[line] plc_temperature` on, whatever the cell file says)."""
+    return dataclasses.replace(cfg, line=dataclasses.replace(cfg.line, plc_temperature=True))
+
+
 def service_settings(
     cfg: CellConfig, state_dir: Path, scale: float, geometric: bool
 ) -> ServiceSettings:
@@ -164,6 +170,7 @@ class SimulatedLineRun:
         geometric: bool = False,
         plan: Path | None = None,
     ) -> None:
+        cfg = with_simulated_plc(cfg)
         self.cfg, self.state_dir, self.seed = cfg, Path(state_dir), seed
         self.cell = make_cell(cfg, seed=seed)
         self.line = SimLine(self.cell, simline_settings(cfg, geometric=geometric))
