@@ -13,8 +13,10 @@ force on the held-out measurements" (RMS ratio <= max_holdout_ratio).
 from __future__ import annotations
 
 import multiprocessing
-from collections.abc import Callable, Mapping, Sequence
+import signal
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import Executor, Future, ProcessPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -138,9 +140,41 @@ def run_recalibration(job: RecalJob) -> RecalOutcome:
     )
 
 
+STOP_SIGNALS = {signal.SIGTERM, signal.SIGINT}
+
+
+def _ignore_stop_signals() -> None:
+    """In the worker: SIGTERM and SIGINT are the service's to handle (see `stop_signals_held`);
+    the service ends the worker itself (`Recalibrator.close`)."""
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
+
+
+@contextmanager
+def stop_signals_held() -> Iterator[None]:
+    """Hold SIGTERM and SIGINT in this thread while the pool starts its processes, so that the
+    forkserver, the resource tracker and the worker start with them blocked (a signal mask is
+    inherited). A supervisor's stop (systemd signals the whole control group) or Ctrl-C in a
+    terminal (the whole process group) then reaches only the service: a forkserver or worker
+    dying of it would break the pool under a calibration in flight and turn a routine stop
+    into an internal error. A signal for the service that comes meanwhile is delivered when
+    the mask is restored."""
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
 def process_executor() -> Executor:
-    """One worker process (forkserver: no threads or sockets of the service are inherited)."""
-    return ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("forkserver"))
+    """One worker process (forkserver: no threads or sockets of the service are inherited),
+    deaf to the stop signals meant for the service."""
+    return ProcessPoolExecutor(
+        1,
+        mp_context=multiprocessing.get_context("forkserver"),
+        initializer=_ignore_stop_signals,
+    )
 
 
 class Recalibrator:
@@ -159,9 +193,10 @@ class Recalibrator:
         """Start `job` unless one is running; True if started."""
         if self._future is not None:
             return False
-        if self._executor is None:
-            self._executor = self._factory()
-        self._future = self._executor.submit(run_recalibration, job)
+        with stop_signals_held():  # the processes it starts inherit the mask
+            if self._executor is None:
+                self._executor = self._factory()
+            self._future = self._executor.submit(run_recalibration, job)
         return True
 
     def poll(self) -> RecalOutcome | None:

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from app.config import CellConfig
 from app.line.measure import GeometricSensor, SphereSensor, SweepSensor
 from app.line.schedule import Schedule
-from app.line.service import Service
+from app.line.service import Service, State
 from app.line.settings import ServiceSettings, from_cell
 from app.line.statedir import StateDir
 from app.line.station import Station, cell_guard
@@ -239,18 +239,29 @@ class SimulatedLineRun:
         self.thread.start()
 
     def events_until(
-        self, stop: Callable[[dict[str, Any]], bool], timeout_s: float
+        self,
+        stop: Callable[[dict[str, Any]], bool],
+        timeout_s: float,
+        quiet_ok: Callable[[], bool] = lambda: False,
     ) -> Iterator[dict[str, Any]]:
-        """The service's events until `stop(event)` is true (TimeoutError after timeout_s of
-        silence)."""
+        """The service's events until `stop(event)` is true. After timeout_s of silence:
+        TimeoutError (a service that hangs), unless `quiet_ok()` says the silence is the
+        service's own (held in FAULT or paused until an operator acts: keep waiting)."""
         while True:
             try:
                 event = self.events.get(timeout=timeout_s)
             except queue.Empty:
+                if quiet_ok():
+                    continue
                 raise TimeoutError(f"no event from the service in {timeout_s:g} s") from None
             yield event
             if stop(event):
                 return
+
+    def _quiet_by_itself(self) -> bool:
+        """The service is silent on purpose: in FAULT or paused, waiting for an operator."""
+        alive = self.thread is not None and self.thread.is_alive()
+        return alive and (self.service.state == State.FAULT or self.service.paused)
 
     def run_windows(
         self,
@@ -265,7 +276,7 @@ class SimulatedLineRun:
         s = self.summary
         silence_s = 10.0 + 5.0 * self.cfg.simline.period_s / self.scale
         done = lambda e: s.windows >= n or e["event"] == "stopped"  # noqa: E731
-        for event in self.events_until(done, silence_s):
+        for event in self.events_until(done, silence_s, self._quiet_by_itself):
             self._count(event)
             if on_event is not None:
                 on_event(event)
