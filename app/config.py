@@ -227,7 +227,7 @@ class DevicesSection(Section):
 
     def traced(self) -> bool:
         """Whether any device is traced (the setting, or `trace=1` in a URL)."""
-        from drivers.registry import parse_url
+        from drivers.url import parse_url
 
         return self.trace or any(parse_url(u).flag("trace") for u in self.urls().values())
 
@@ -584,8 +584,11 @@ def _resolve(s: dict[str, Section], source: str, reader: Any = None) -> CellConf
 def _url_problem(family: str, url: str) -> str:
     """Why `url` cannot select a `family` backend ("" when it can); imports no backend."""
     from drivers.errors import DeviceConfigError
-    from drivers.registry import BACKENDS, parse_url
+    from drivers.registry import BACKENDS
+    from drivers.url import parse_url
+    from fakes.wiring import register_fakes
 
+    register_fakes()  # a cell's fake:// devices are the simulated cell's
     try:
         parsed = parse_url(url)
         scheme = parsed.scheme

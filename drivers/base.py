@@ -22,8 +22,8 @@ from typing import TYPE_CHECKING, Any, ClassVar, Self, TypeVar
 from drivers.errors import CommunicationError, DeviceClosedError, DeviceConfigError
 
 if TYPE_CHECKING:
-    from drivers.registry import DeviceUrl
     from drivers.trace import TraceChannel
+    from drivers.url import DeviceUrl
 
 T = TypeVar("T")
 

@@ -21,7 +21,7 @@ from typing import Any
 
 from drivers._modbus import ModbusLink, require_link
 from drivers.plc import Plc
-from drivers.registry import DeviceUrl
+from drivers.url import DeviceUrl
 
 DEFAULT_PORT = 502
 DEFAULT_UNIT = 1

@@ -38,10 +38,10 @@ from drivers.errors import (
     DeviceTimeout,
     ProtocolError,
 )
-from drivers.registry import DeviceUrl
 from drivers.rmi_errors import NO_ERROR_TEXT, RMIT_BASE, describe_error
 from drivers.robot import FloatArray, Robot, RobotStatus
 from drivers.safety import SafetyGuard
+from drivers.url import DeviceUrl
 
 DEFAULT_PORT = 16001
 JOINTS = ("J1", "J2", "J3", "J4", "J5", "J6")

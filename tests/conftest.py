@@ -12,6 +12,13 @@ import pytest  # noqa: E402
 
 from app.config import CellConfig, load_cell  # noqa: E402
 from app.simulation import DataSet, simulated_sets  # noqa: E402
+from fakes.wiring import register_fakes  # noqa: E402
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _fakes_wired() -> None:
+    """fake:// opens the simulated cell's devices, as the application wires them."""
+    register_fakes()
 
 
 @pytest.fixture(scope="session")

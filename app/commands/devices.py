@@ -23,6 +23,7 @@ from app.devicecheck import describe_and_probe
 from app.errors import InputError
 from drivers import DeviceConfigError, DeviceError, create_device
 from drivers.registry import FAMILIES
+from fakes.wiring import register_fakes
 from fakes.world import StaticWorld
 
 
@@ -132,6 +133,7 @@ def _check(
         options["world"] = world
     if family == "plc":
         options["read_only"] = True  # looking at a live line never changes its handshake
+    register_fakes()  # a cell's fake:// devices are the simulated cell's
     try:
         device = create_device(family, url, **options)
     except DeviceConfigError as exc:

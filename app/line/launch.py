@@ -30,7 +30,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from app.line.clock import Clock
 from app.line.control import ControlServer
 from app.line.events import JsonLineFormatter
 from app.line.measure import SphereSensor
@@ -40,6 +39,7 @@ from app.line.settings import ServiceSettings
 from app.line.statedir import SOCKET_NAME, ServiceLock, StateDir, prepare
 from app.line.station import Station
 from app.line.store import Store
+from drivers.clock import Clock
 
 __all__ = ["SOCKET_NAME", "build_service", "hold_state", "json_logs", "serve", "serving"]
 

@@ -42,7 +42,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from app.errors import InputError
-from app.line.clock import Clock, RealClock
 from app.line.cycle import Cycle, WindowWatch
 from app.line.drift import DriftMonitor, prediction_inflation, residual_mm
 from app.line.events import EventBus
@@ -59,6 +58,7 @@ from app.line.store import StorageError, Store
 from app.line.sweeps import SweepArchive
 from app.params import plain_document
 from calib.model import SystemModel
+from drivers.clock import Clock, RealClock
 from drivers.errors import DeviceError
 
 F64 = NDArray[np.float64]

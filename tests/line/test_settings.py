@@ -9,9 +9,9 @@ import pytest
 
 from app.config import load_cell
 from app.errors import InputError
-from app.line.clock import RealClock
 from app.line.cycle import WindowWatch
 from app.line.settings import LineSettings, RecalibSettings, from_cell
+from drivers.clock import RealClock
 from drivers.plc import NO_TEMPERATURE, WINDOW_OPEN, decode_inputs, encode_temp
 from fakes.devices import FakePlc
 
