@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.cellfile import dumps_cell
 from app.config import SECTIONS, CameraSection, SpheresSection, load_cell
+from app.config.write import dumps_cell
 
 
 def test_a_cell_reads_back_to_the_same_sections(tmp_path: Path) -> None:

@@ -510,8 +510,8 @@ class CellConfig:
 
 def load_cell(path: str | Path | None = None) -> CellConfig:
     """The embedded default cell, overridden by the TOML file at `path` if given."""
-    from app.configcheck import SectionReader
-    from app.tomlfile import key_lines, read_toml
+    from app.config.check import SectionReader
+    from app.config.tomlfile import key_lines, read_toml
 
     if path is None:
         return _resolve({s.name: s() for s in SECTIONS}, "<embedded default>")
