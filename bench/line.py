@@ -30,10 +30,11 @@ limit_blas_threads()
 import numpy as np
 
 from app.config import load_cell
+from app.config.line import LineSettings
 from app.line.measure import GeometricSensor
 from app.line.schedule import Schedule
 from app.line.service import Service
-from app.line.settings import LineSettings, ServiceSettings
+from app.line.settings import ServiceSettings
 from app.line.station import Station
 from app.simulation import make_cell
 from drivers.plc import Plc, PlcInputs, decode_outputs, encode_inputs

@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT))
 
 
 def child(state_dir: str) -> None:
-    from app.line.settings import RecalibSettings
+    from app.config.line import RecalibSettings
     from fakes.devices import ClampCycle
     from tests.line.helpers import SCALE, line_settings, make_line
 

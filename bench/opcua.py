@@ -42,10 +42,10 @@ limit_blas_threads()
 
 import numpy as np
 
+from app.config.line import OpcUaSettings
 from app.line.opcua.server import OpcUaServer
 from app.line.opcua.space import NS_MACHINERY, NS_RVIS
 from app.line.service import Service
-from app.line.settings import OpcUaSettings
 from bench.line import BenchPlc, _service, print_table
 from drivers.plc import PlcInputs, encode_inputs
 

@@ -48,7 +48,7 @@ class CompensationSettings:
 
     max_joint_change_deg: float = 20.0
     roundtrip_tol_deg: float = 1e-6
-    start_q_deg: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, -90.0, 0.0)
+    start_q_deg: tuple[float, ...] = tuple(robot.HOME_DEG.tolist())
 
     #: max_joint_change_deg is in (0, this]
     MAX_JOINT_CHANGE_DEG: ClassVar[float] = 180.0

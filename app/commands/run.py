@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     state_sensor = StateDir(settings.state_dir).sensor
     sensor_path = args.sensor_model or (state_sensor if state_sensor.is_file() else None)
     sensor_model = load_sensor_model(sensor_path) if sensor_path else None
-    with hold_state(settings.state_dir, settings.operators_group) as state:
+    with hold_state(settings.state_dir, settings.ops.operators_group) as state:
         try:
             trace = cfg.devices.wire_trace(state.wire_trace)
             station = Station.open(
@@ -92,7 +92,7 @@ def _serve_station(
             station.galvo,
             sensor_model or default_sensor_model(),
             settings.sweep,
-            keep_frames=settings.raw_sweeps_keep > 0,
+            keep_frames=settings.ops.raw_sweeps_keep > 0,
         )
         service = build_service(cfg, station, sensor, settings, plan, x0)
         json_logs()

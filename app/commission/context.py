@@ -18,10 +18,12 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from app.config import CellConfig, SpheresSection
+from app.config import CellConfig
+from app.config.cell import SpheresSection
+from app.config.line import LineSettings, SweepSettings
 from app.files import read_targets
 from app.line.measure import SphereSensor
-from app.line.settings import LineSettings, SweepSettings, from_cell
+from app.line.settings import from_cell
 from app.line.statedir import StateDir
 from app.line.station import Station
 from vision.sensor_model import SensorModel

@@ -20,7 +20,8 @@ import numpy as np
 
 from app.commission.context import PARAMS_FILE, PLAN_FILE, SENSOR_FILE, Context
 from app.commission.journal import Check, StepResult, holds
-from app.config import CameraSection, CellConfig, load_cell
+from app.config import CellConfig, load_cell
+from app.config.devices import CameraSection
 from app.config.write import dumps_cell
 from app.files import read_json, write_bytes, write_text
 from app.line.params_store import ParamsStore

@@ -1,30 +1,18 @@
 """The cell file: one declaration per setting.
 
-Every section of the cell TOML is a frozen dataclass whose fields are its keys, their defaults
-the embedded cell and their metadata the checks (app.config.section). The cell's geometry,
-simulation, calibration and planning sections are in app.config.cell with the resolved
-`CellConfig` and `load_cell`; the reader that checks a file is app.config.check, the TOML
-reading app.config.tomlfile, the writer app.config.write.
+Every table of the cell TOML is a frozen section dataclass whose fields are its keys, their
+defaults the embedded cell and their metadata the checks (app.config.section); the code that
+uses a setting takes the section itself. Where each lives:
+
+    app.config.cell     the cell's geometry, simulation, calibration (with the offline gates)
+                        and planning; `CellConfig` and `load_cell`
+    app.config.line     the in-line service: [line], [sweep], [drift], [service], [opcua],
+                        [simline]
+    app.config.devices  [devices], [camera], [commission]
+    app.config.check    reading a file's table into its section (file, line, key in errors)
+    app.config.write    writing a cell file that reads back to the same values
 """
 
-from app.config.cell import (
-    DEFAULTS,
-    SECTIONS,
-    CameraSection,
-    CellConfig,
-    LineSection,
-    OpcUaSection,
-    SpheresSection,
-    load_cell,
-)
+from app.config.cell import DEFAULTS, SECTIONS, CellConfig, load_cell
 
-__all__ = [
-    "DEFAULTS",
-    "SECTIONS",
-    "CameraSection",
-    "CellConfig",
-    "LineSection",
-    "OpcUaSection",
-    "SpheresSection",
-    "load_cell",
-]
+__all__ = ["DEFAULTS", "SECTIONS", "CellConfig", "load_cell"]

@@ -11,16 +11,27 @@ with the close key name suggested on a typo. Sections also read like mappings
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, field
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from app.config.devices import CameraSection, CommissionSection, DevicesSection
+from app.config.line import (
+    DriftSettings,
+    LineSettings,
+    OpcUaSettings,
+    ServiceSection,
+    SimLineSection,
+    SweepSettings,
+)
+from app.config.section import Section, opt
 from app.errors import InputError
-from app.line.opcua.endpoint import SECURITY_POLICIES, endpoint_problem
+from calib import gates as calib_gates
 from calib import robot as nominal_robot
 
 F64 = NDArray[np.float64]
@@ -41,46 +52,6 @@ METHODS = ("detmax", "eae", "random")
 PLACEMENTS = ("fixed", "sequential", "joint", "none")
 LOSSES = ("linear", "huber", "soft_l1", "cauchy", "arctan")
 ROBOT_MODELS = ("fanuc-m710ic50",)
-
-
-def opt(
-    default: Any,
-    *,
-    lo: float | None = None,
-    hi: float | None = None,
-    gt: float | None = None,
-    choices: tuple[str, ...] | None = None,
-    n: int | None = None,
-) -> Any:
-    """A config key: its default and its checks (inclusive lo/hi, exclusive gt, choices,
-    vector length n)."""
-    meta = {"lo": lo, "hi": hi, "gt": gt, "choices": choices, "n": n}
-    if isinstance(default, list):
-        return field(default=tuple(default), metadata=meta)
-    if isinstance(default, dict):
-        return field(default_factory=lambda: dict(default), metadata=meta)
-    return field(default=default, metadata=meta)
-
-
-class Section(Mapping[str, Any]):
-    """Read-only mapping view of a section dataclass (keys = its fields)."""
-
-    name: ClassVar[str] = ""
-
-    def __getitem__(self, key: str) -> Any:
-        if key not in self._keys():
-            raise KeyError(key)
-        return getattr(self, key)
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self._keys())
-
-    def __len__(self) -> int:
-        return len(self._keys())
-
-    @classmethod
-    def _keys(cls) -> tuple[str, ...]:
-        return tuple(f.name for f in dataclasses.fields(cls))  # type: ignore[arg-type]
 
 
 _J = nominal_robot.JointLimits()
@@ -140,6 +111,27 @@ class SimulationSection(Section):
     temp_c: float = opt(20.0, lo=-40, hi=80)
 
 
+_OFF = calib_gates.OFFLINE
+
+
+def _deg(rad: float | None) -> float:
+    assert rad is not None
+    return math.degrees(rad)
+
+
+def gates_of(section: Mapping[str, Any], base: calib_gates.Gates) -> calib_gates.Gates:
+    """calib.gates.Gates from the gate keys a section has (degrees at this boundary, radians in
+    calib), the others from `base`: the one conversion of the cell file's gates."""
+    values: dict[str, Any] = {}
+    for f in dataclasses.fields(base):
+        deg_key = f.name.removesuffix("_rad") + "_deg"
+        if f.name.endswith("_rad") and deg_key in section:
+            values[f.name] = math.radians(section[deg_key])
+        elif f.name in section:
+            values[f.name] = section[f.name]
+    return dataclasses.replace(base, **values)
+
+
 @dataclass(frozen=True)
 class CalibrationSection(Section):
     """Identification and its quality gates (calib.gates): a result is used only when it
@@ -156,27 +148,17 @@ class CalibrationSection(Section):
     reference_temp_c: float = opt(20.0, lo=-40, hi=80)
     configs_per_sphere: int = opt(6, lo=1, hi=1000)
     loss: str = opt("linear", choices=LOSSES)
-    max_rms_mm: float = opt(0.25, gt=0, hi=100)
-    max_condition: float = opt(1000.0, gt=1)
-    max_joint_change_mm: float = opt(5.0, gt=0, hi=1000)
-    max_joint_change_deg: float = opt(1.0, gt=0, hi=180)
-    max_sensor_change_mm: float = opt(20.0, gt=0, hi=1000)
-    max_sensor_change_deg: float = opt(5.0, gt=0, hi=180)
+    max_rms_mm: float = opt(_OFF.max_rms_mm, gt=0, hi=100)
+    max_condition: float = opt(_OFF.max_condition, gt=1)
+    max_joint_change_mm: float = opt(_OFF.max_joint_change_mm, gt=0, hi=1000)
+    max_joint_change_deg: float = opt(_deg(_OFF.max_joint_change_rad), gt=0, hi=180)
+    max_sensor_change_mm: float = opt(_OFF.max_sensor_change_mm, gt=0, hi=1000)
+    max_sensor_change_deg: float = opt(_deg(_OFF.max_sensor_change_rad), gt=0, hi=180)
 
-    def gates(self) -> Any:
-        """The calib.gates.Gates of this section (offline: the part->base pose unbounded)."""
-        import math
-
-        from calib.gates import Gates
-
-        return Gates(
-            max_rms_mm=self.max_rms_mm,
-            max_condition=self.max_condition,
-            max_joint_change_mm=self.max_joint_change_mm,
-            max_joint_change_rad=math.radians(self.max_joint_change_deg),
-            max_sensor_change_mm=self.max_sensor_change_mm,
-            max_sensor_change_rad=math.radians(self.max_sensor_change_deg),
-        )
+    def gates(self) -> calib_gates.Gates:
+        """The calib.gates.Gates of this section (calib.gates.OFFLINE with this file's
+        values: the part->base pose unbounded)."""
+        return gates_of(self, calib_gates.OFFLINE)
 
 
 @dataclass(frozen=True)
@@ -203,225 +185,6 @@ class PlanningSection(Section):
     revisits: int = opt(0, lo=0, hi=10)
 
 
-@dataclass(frozen=True)
-class DevicesSection(Section):
-    """Device URLs (drivers.registry); optional: without it every device is the fake. `trace`:
-    every device's wire traffic to the state directory's trace/wire.jsonl (drivers.trace;
-    one device alone: `?trace=1` in its URL), rotated at trace_max_mb, trace_keep old files."""
-
-    name = "devices"
-    robot: str = opt("fake://")
-    camera: str = opt("fake://")
-    galvo: str = opt("fake://")
-    tracker: str = opt("fake://")
-    plc: str = opt("fake://")
-    trace: bool = opt(False)
-    trace_max_mb: float = opt(10.0, gt=0, hi=10000)
-    trace_keep: int = opt(5, lo=1, hi=1000)
-
-    FAMILIES: ClassVar[tuple[str, ...]] = ("robot", "camera", "galvo", "tracker", "plc")
-
-    def urls(self) -> dict[str, str]:
-        """family -> device URL."""
-        return {family: getattr(self, family) for family in self.FAMILIES}
-
-    def traced(self) -> bool:
-        """Whether any device is traced (the setting, or `trace=1` in a URL)."""
-        from drivers.url import parse_url
-
-        return self.trace or any(parse_url(u).flag("trace") for u in self.urls().values())
-
-    def wire_trace(self, path: Any, *, every_device: bool | None = None) -> Any:
-        """The drivers.trace.WireTrace at `path` these settings ask for, or None when off
-        (`every_device`: trace every device, default: as `trace` says; the simulated line,
-        whose URLs are its own, traces all of them when any tracing is asked for)."""
-        if not self.traced():
-            return None
-        from drivers.trace import WireTrace
-
-        return WireTrace(
-            path,
-            max_bytes=int(self.trace_max_mb * 2**20),
-            keep=self.trace_keep,
-            every_device=self.trace if every_device is None else every_device,
-        )
-
-
-@dataclass(frozen=True)
-class ServiceSection(Section):
-    """The in-line service (`rvis run`): where it keeps its state, how it recalibrates and the
-    gates of an in-line identification (change bounds from the parameters in force, tighter
-    than [calibration]'s offline ones; the candidate must also beat the parameters in force on
-    held-out recent measurements by max_holdout_ratio)."""
-
-    name = "service"
-    state_dir: str = opt("rvis-state")
-    mode: str = opt("auto", choices=("auto", "approve"))
-    rolling_size: int = opt(24, lo=10, hi=100000)
-    holdout_size: int = opt(4, lo=1, hi=1000)
-    every_n: int = opt(24, lo=1, hi=100000)
-    max_nfev: int = opt(200, lo=10, hi=10000)
-    raw_sweeps_keep: int = opt(0, lo=0, hi=100000)
-    # operations: the operators' group of the state directory ("": none, 0750), the free space
-    # below which a warning alarm is raised, how long events and the documents of rejected
-    # calibrations are kept (0: for ever)
-    operators_group: str = opt("")
-    min_free_mb: float = opt(200.0, lo=0, hi=1e7)
-    events_keep_days: float = opt(90.0, lo=0, hi=36500)
-    rejected_keep_days: float = opt(30.0, lo=0, hi=36500)
-    max_joint_change_mm: float = opt(5.0, gt=0, hi=1000)
-    max_joint_change_deg: float = opt(1.0, gt=0, hi=180)
-    max_sensor_change_mm: float = opt(5.0, gt=0, hi=1000)
-    max_sensor_change_deg: float = opt(2.0, gt=0, hi=180)
-    max_base_change_mm: float = opt(5.0, gt=0, hi=1000)
-    max_base_change_deg: float = opt(1.0, gt=0, hi=180)
-    max_holdout_ratio: float = opt(1.0, gt=0, hi=10)
-    estimator: str = opt("batch", choices=("batch", "sequential"))
-    seq_apply_every: int = opt(8, lo=1, hi=100000)
-    seq_measurement_std_mm: float = opt(0.025, gt=0, hi=10)
-    seq_drift_mm: float = opt(0.002, lo=0, hi=10)
-    seq_drift_rad: float = opt(2e-6, lo=0, hi=0.1)
-    seq_drift_extra: float = opt(0.0, lo=0, hi=1)
-    seq_knock_mm: float = opt(0.5, lo=0, hi=100)
-    seq_knock_rad: float = opt(1e-3, lo=0, hi=1)
-    seq_prior_mm: float = opt(0.5, gt=0, hi=100)
-    seq_prior_rad: float = opt(1e-3, gt=0, hi=1)
-    seq_max_std_mm: float = opt(0.025, gt=0, hi=10)
-    schedule: str = opt("cycle", choices=("cycle", "adaptive"))
-
-
-@dataclass(frozen=True)
-class LineSection(Section):
-    """The line handshake and motion-time model of the service's cycle."""
-
-    name = "line"
-    poll_s: float = opt(0.01, gt=0, hi=10)
-    heartbeat_timeout_s: float = opt(3.0, gt=0, hi=600)
-    override_pct: int = opt(100, lo=1, hi=100)
-    speed_pct: float = opt(100.0, gt=0, hi=100)
-    joint_speed_deg_s: Vec = opt([175.0, 175.0, 175.0, 250.0, 250.0, 355.0], gt=0, hi=2000, n=6)
-    accel_s: float = opt(0.4, lo=0, hi=60)
-    settle_s: float = opt(0.2, lo=0, hi=60)
-    home_deg: Vec = opt([0.0, 0.0, 0.0, 0.0, -90.0, 0.0], lo=-720, hi=720, n=6)
-    home_tol_deg: float = opt(0.05, gt=0, hi=5)
-    window_s: float = opt(8.0, gt=0, hi=3600)
-    margin_s: float = opt(0.5, lo=0, hi=60)
-    slots_per_window: int = opt(1, lo=1, hi=100)
-    # the PLC writes the cell temperature in its word 2 (off: the word is not read; a PLC
-    # program that predates it leaves 0 there, which is not 0 degC)
-    plc_temperature: bool = opt(False)
-    # a reading outside this range is "no temperature" with an alarm, never a number
-    plc_temp_min_c: float = opt(5.0, lo=-40, hi=100)
-    plc_temp_max_c: float = opt(50.0, lo=-40, hi=100)
-
-
-@dataclass(frozen=True)
-class SweepSection(Section):
-    """One measurement's galvo sweep: n_frames commands evenly over +-span_v [V]."""
-
-    name = "sweep"
-    n_frames: int = opt(24, lo=3, hi=1000)
-    span_v: float = opt(3.2, gt=0, hi=10)
-    frame_s: float = opt(0.05, gt=0, hi=10)
-    grab_timeout_s: float = opt(1.0, gt=0, hi=60)
-
-
-@dataclass(frozen=True)
-class DriftSection(Section):
-    """Drift charts of the residuals (REFERENCE.md): EWMA (lambda, limit L sigma) and upper
-    CUSUM (slack k, decision h, in sigmas), sigma learned from baseline_n measurements after
-    each applied calibration."""
-
-    name = "drift"
-    ewma_lambda: float = opt(0.2, gt=0, hi=1)
-    ewma_l: float = opt(3.0, gt=0, hi=10)
-    cusum_k: float = opt(0.5, lo=0, hi=5)
-    cusum_h: float = opt(5.0, gt=0, hi=50)
-    baseline_n: int = opt(16, lo=2, hi=1000)
-    min_sigma_mm: float = opt(0.01, gt=0, hi=10)
-
-
-@dataclass(frozen=True)
-class SimLineSection(Section):
-    """The simulated line of `rvis run --sim` (fakes/line.py): time scale, clamp cycle, the
-    cell's warm-up and a knock of the sensor mount (knock_at_s < 0: none)."""
-
-    name = "simline"
-    scale: float = opt(60.0, gt=0, hi=10000)
-    period_s: float = opt(60.0, gt=0, hi=86400)
-    window_s: float = opt(20.0, gt=0, hi=86400)
-    beat_s: float = opt(0.5, gt=0, hi=60)
-    warmup_k: float = opt(8.0, lo=-50, hi=50)
-    warmup_tau_s: float = opt(3600.0, gt=0, hi=1e6)
-    warmup_start_s: float = opt(0.0, lo=0, hi=1e6)
-    knock_at_s: float = opt(-1.0, lo=-1, hi=1e7)
-    knock_mm: float = opt(0.3, lo=0, hi=100)
-    knock_deg: float = opt(0.05, lo=0, hi=90)
-    n_validation: int = opt(100, lo=1, hi=10000)
-
-
-@dataclass(frozen=True)
-class OpcUaSection(Section):
-    """The service's OPC UA server (DESIGN.md section 8, docs/opcua.md): off by default, on
-    loopback by default; any other endpoint needs a signing-and-encrypting security_policy
-    ("none": no security, loopback only). Identification of the cell as OPC 40001-1 reads it
-    ("" : derived, see docs/opcua.md)."""
-
-    name = "opcua"
-    enabled: bool = opt(False)
-    endpoint: str = opt("opc.tcp://127.0.0.1:4840/rvis")
-    security_policy: str = opt("none", choices=SECURITY_POLICIES)
-    allow_anonymous: bool = opt(False)  # beyond loopback (on loopback anonymous is allowed)
-    allow_ack: bool = opt(False)
-    machine_name: str = opt("rvis-cell")
-    manufacturer: str = opt("rvis")
-    model: str = opt("RVIS in-line self-calibration, FANUC M-710iC/50 + laser-line sensor")
-    serial_number: str = opt("")
-    product_instance_uri: str = opt("")
-
-
-@dataclass(frozen=True)
-class CameraSection(Section):
-    """The camera's acquisition for the sweeps of `rvis run` (full frames, software trigger);
-    `rvis commission` chooses the exposure from its stripe check and writes it here."""
-
-    name = "camera"
-    exposure_us: float = opt(10000.0, gt=0, hi=1e6)
-    gain_db: float = opt(0.0, lo=0, hi=48)
-
-    def settings(self) -> Any:
-        """The drivers.camera.CameraSettings of this section."""
-        from drivers.camera import CameraSettings
-
-        return CameraSettings(exposure_us=self.exposure_us, gain_db=self.gain_db)
-
-
-@dataclass(frozen=True)
-class CommissionSection(Section):
-    """`rvis commission` (docs/commissioning.md): the speed of its motions (the guard refuses
-    more) and the limit each step is checked against before the next one may start."""
-
-    name = "commission"
-    speed_pct: float = opt(10.0, gt=0, hi=100)
-    exposures_us: Vec = opt([2500.0, 5000.0, 10000.0, 20000.0, 40000.0], gt=0, hi=1e6)
-    min_stripe_rows: int = opt(60, lo=1, hi=100000)
-    max_saturated_fraction: float = opt(0.02, lo=0, hi=1)
-    min_peak_fraction: float = opt(0.15, gt=0, hi=1)
-    max_peak_fraction: float = opt(0.9, gt=0, hi=1)
-    max_stripe_width_px: float = opt(3.5, gt=0, hi=100)
-    min_roi_margin_px: int = opt(8, lo=0, hi=10000)
-    chessboards: int = opt(12, lo=3, hi=100)
-    flat_targets: int = opt(4, lo=2, hi=50)
-    max_reprojection_px: float = opt(0.1, gt=0, hi=10)
-    max_plane_rms_mm: float = opt(0.03, gt=0, hi=10)
-    max_target_rms_mm: float = opt(0.05, gt=0, hi=10)
-    max_sphere_offset_mm: float = opt(50.0, gt=0, hi=1e4)
-    max_rejected_fraction: float = opt(0.1, lo=0, hi=1)
-    validation_views: int = opt(3, lo=1, hi=100)
-    max_validation_rmse_mm: float = opt(0.2, gt=0, hi=100)
-    seed: int = opt(0, lo=0, hi=2**32 - 1)
-
-
 SECTIONS: tuple[type[Section], ...] = (
     RobotSection,
     FramesSection,
@@ -433,11 +196,11 @@ SECTIONS: tuple[type[Section], ...] = (
     PlanningSection,
     DevicesSection,
     ServiceSection,
-    LineSection,
-    SweepSection,
-    DriftSection,
+    LineSettings,
+    SweepSettings,
+    DriftSettings,
     SimLineSection,
-    OpcUaSection,
+    OpcUaSettings,
     CameraSection,
     CommissionSection,
 )
@@ -470,11 +233,11 @@ class CellConfig:
     planning: PlanningSection
     devices: DevicesSection
     service: ServiceSection
-    line: LineSection
-    sweep: SweepSection
-    drift: DriftSection
+    line: LineSettings
+    sweep: SweepSettings
+    drift: DriftSettings
     simline: SimLineSection
-    opcua: OpcUaSection
+    opcua: OpcUaSettings
     camera: CameraSection
     commission: CommissionSection
     source: str = "<embedded default>"
@@ -542,29 +305,12 @@ def _resolve(s: dict[str, Section], source: str, reader: Any = None) -> CellConf
     plate = s["base_plate"]
     if plate["x_min_mm"] >= plate["x_max_mm"] or plate["y_min_mm"] >= plate["y_max_mm"]:
         raise fail("base_plate", "x_max_mm", "expected x_min < x_max and y_min < y_max")
-    if s["line"]["plc_temp_min_c"] >= s["line"]["plc_temp_max_c"]:
-        raise fail("line", "plc_temp_max_c", "must exceed plc_temp_min_c")
-    if s["simline"]["window_s"] >= s["simline"]["period_s"]:
-        raise fail("simline", "window_s", "the clamp window must be shorter than period_s")
-    if s["service"]["schedule"] == "adaptive" and s["service"]["estimator"] != "sequential":
-        raise fail("service", "schedule", 'adaptive scheduling needs estimator = "sequential"')
     box = s["planning"]["workspace_mm"]
     if box[0] >= box[1] or box[2] >= box[3]:
         raise fail("planning", "workspace_mm", "expected [x_min, x_max, y_min, y_max], min < max")
-    ua = s["opcua"]
-    if ua["enabled"]:
-        reason = endpoint_problem(ua["endpoint"], ua["security_policy"])
-        if reason:
-            raise fail("opcua", "endpoint", reason)
     sp = s["spheres"]
     if not sp["positions_mm"]:
         raise fail("spheres", "positions_mm", "expected a table of sphere ids -> [x, y, z]")
-    devices = s["devices"]
-    assert isinstance(devices, DevicesSection)
-    for family, url in devices.urls().items():
-        reason = _url_problem(family, url)
-        if reason:
-            raise fail("devices", family, reason)
     T_pb = pose(rotvec_to_matrix(np.radians(fr.part_base_rotvec_deg)), fr.part_base_xyz_mm)
     T_fs = pose(rotvec_to_matrix(np.radians(fr.flange_sensor_rotvec_deg)), fr.flange_sensor_xyz_mm)
     spheres = {
@@ -579,23 +325,3 @@ def _resolve(s: dict[str, Section], source: str, reader: Any = None) -> CellConf
         source=source,
         **s,  # type: ignore[arg-type]
     )
-
-
-def _url_problem(family: str, url: str) -> str:
-    """Why `url` cannot select a `family` backend ("" when it can); imports no backend."""
-    from drivers.errors import DeviceConfigError
-    from drivers.registry import BACKENDS
-    from drivers.url import parse_url
-    from fakes.wiring import register_fakes
-
-    register_fakes()  # a cell's fake:// devices are the simulated cell's
-    try:
-        parsed = parse_url(url)
-        scheme = parsed.scheme
-        parsed.flag("trace")
-    except DeviceConfigError as exc:
-        return str(exc)
-    if scheme not in BACKENDS[family]:
-        known = ", ".join(f"{k}://" for k in BACKENDS[family])
-        return f"no {family} backend for {scheme}:// (known: {known})"
-    return ""

@@ -16,9 +16,9 @@ import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
+from app.config.line import LineSettings
 from app.line.measure import Reading, Rejected, SphereMeasurer
 from app.line.schedule import Schedule, Slot
-from app.line.settings import LineSettings
 from drivers.clock import Clock
 from drivers.errors import DeviceError
 from drivers.plc import Plc, PlcInputs

@@ -23,10 +23,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from app.line.settings import GateSettings, RecalibSettings
+from app.config.line import RecalibSettings
 from app.params import to_json
 from calib.errors import CalibError
-from calib.gates import check_identification
+from calib.gates import Gates, check_identification
 from calib.identify import IdentificationResult, Measurements, identify, residuals
 from calib.model import SystemModel
 from calib.validation import rmse
@@ -42,7 +42,7 @@ class RecalJob:
     x_current: F64
     train: Measurements
     holdout: Measurements
-    gates: GateSettings
+    gates: Gates
     max_nfev: int
     first_id: int
     last_id: int
@@ -99,11 +99,12 @@ def rms_mm(model: SystemModel, x: F64, data: Measurements) -> float:
 
 def check_candidate(result: IdentificationResult, job: RecalJob) -> tuple[list[str], float, float]:
     """The gates of a candidate: (failures, candidate held-out RMS, current held-out RMS)."""
-    report = check_identification(result, job.x_current, job.gates.calib_gates())
+    report = check_identification(result, job.x_current, job.gates)
     failures = list(report.failures)
     cand = rms_mm(job.model, result.x, job.holdout)
     cur = rms_mm(job.model, job.x_current, job.holdout)
-    if not cand <= job.gates.max_holdout_ratio * cur:
+    ratio = job.gates.max_holdout_ratio
+    if ratio is not None and not cand <= ratio * cur:
         failures.append(
             f"held-out RMS {cand:.4f} mm not better than the parameters in force ({cur:.4f} mm)"
         )
@@ -122,7 +123,7 @@ def run_recalibration(job: RecalJob) -> RecalOutcome:
             False, (failure,), None, None, None, None, cur, n, job.first_id, job.last_id
         )
     failures, cand, cur = check_candidate(result, job)
-    report = check_identification(result, job.x_current, job.gates.calib_gates())
+    report = check_identification(result, job.x_current, job.gates)
     doc = to_json(
         job.model, result, report, {"source": "rvis run", "ids": [job.first_id, job.last_id]}
     )

@@ -100,7 +100,7 @@ class Service(OperatorCommands):
         self.paths = StateDir(s.state_dir)
         self.store = Store(self.paths.db)
         self.params = ParamsStore(s.state_dir)
-        self.sweeps = SweepArchive(self.paths.sweeps, s.raw_sweeps_keep)
+        self.sweeps = SweepArchive(self.paths.sweeps, s.ops.raw_sweeps_keep)
         self.bus = EventBus(self.store, self.clock)
         self._start_alarms: list[tuple[str, str, str]] = []  # raised once the loop runs
         self._recovered: tuple[int, int | None] | None = None  # an apply to complete
@@ -454,7 +454,7 @@ class Service(OperatorCommands):
         if now - self._space_check_t < SPACE_CHECK_S:
             return
         self._space_check_t = now
-        free, floor = self.paths.free_mb(), self.settings.min_free_mb
+        free, floor = self.paths.free_mb(), self.settings.ops.min_free_mb
         active = self.store.active_alarms(code="low_disk")
         if free < floor and not active:
             self._alarm(
@@ -476,7 +476,7 @@ class Service(OperatorCommands):
         if now - self._retention_t < RETENTION_S:
             return
         self._retention_t = now
-        s, t = self.settings, self.clock.time()
+        s, t = self.settings.ops, self.clock.time()
         if s.events_keep_days > 0:
             n = self.store.prune_events(t - s.events_keep_days * 86400.0)
             if n:

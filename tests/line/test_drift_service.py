@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from app.config import load_cell
-from app.line.settings import RecalibSettings
+from app.config.line import RecalibSettings
 from app.simulation import validation_set
 from calib.identify import Measurements, identify
 from fakes.devices import ClampCycle
@@ -115,7 +115,7 @@ def test_the_sequential_estimator_follows_a_knock(tmp_path: Path, schedule: str)
     """[service] estimator = "sequential": the drift charts flag the knock, the estimator's
     covariance is widened before the post-knock measurements reach it (they are held out
     first), and the parameters it proposes, gated and applied, bring the true accuracy back."""
-    recalib = RecalibSettings(estimator="sequential", schedule=schedule)  # type: ignore[arg-type]
+    recalib = RecalibSettings(estimator="sequential", schedule=schedule)
     ln, x_good, val = _knock_line(tmp_path, recalib)
     try:
         before = _true_rms(ln, val, x_good)

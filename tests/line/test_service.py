@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from app.config import load_cell
+from app.config.line import RecalibSettings
 from app.line.params_store import ParamsStore
 from app.line.service import State
-from app.line.settings import RecalibSettings
 from app.line.store import Store
 from app.params import plain_document
 from app.simulation import validation_set

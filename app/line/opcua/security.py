@@ -36,9 +36,9 @@ from cryptography import x509
 from cryptography.hazmat.primitives.serialization import Encoding
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
+from app.config.line import OpcUaSettings
 from app.errors import InputError
 from app.line.opcua.endpoint import is_loopback, split_endpoint
-from app.line.settings import OpcUaSettings
 from app.line.statedir import StateDir
 
 log = logging.getLogger("rvis.line.opcua")

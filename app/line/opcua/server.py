@@ -27,9 +27,9 @@ import threading
 from concurrent.futures import Future
 from typing import TYPE_CHECKING, Any
 
+from app.config.line import OpcUaSettings
 from app.errors import InputError
 from app.line.opcua.endpoint import endpoint_problem, split_endpoint
-from app.line.settings import OpcUaSettings
 from app.line.statedir import StateDir
 
 if TYPE_CHECKING:

@@ -29,7 +29,7 @@ from typing import Any
 
 from asyncua import Node, Server, ua
 
-from app.line.settings import OpcUaSettings
+from app.config.line import OpcUaSettings
 
 NS_RVIS = "urn:rvis:opcua"  # the same in every cell: clients find the variables by name
 NS_DI = "http://opcfoundation.org/UA/DI/"
