@@ -36,8 +36,7 @@ from calib import candidates
 from calib.identify import identify
 from calib.validation import rmse
 from fakes.cell import SimulatedCell
-from fakes.line import LineSettings as SimLineSettings
-from fakes.line import SimLine
+from fakes.line import SimLine, SimLineSetup
 from fakes.truth import Knock, Warmup
 
 F64 = NDArray[np.float64]
@@ -86,10 +85,10 @@ def sim_scale(cfg: CellConfig, geometric: bool) -> float:
     return cfg.simline.scale if geometric else min(cfg.simline.scale, RENDERED_MAX_SCALE)
 
 
-def simline_settings(cfg: CellConfig, *, geometric: bool) -> SimLineSettings:
+def simline_settings(cfg: CellConfig, *, geometric: bool) -> SimLineSetup:
     s = cfg.simline
     knock = None if s.knock_at_s < 0 else Knock(s.knock_at_s, s.knock_mm, s.knock_deg)
-    return SimLineSettings(
+    return SimLineSetup(
         scale=sim_scale(cfg, geometric),
         period_s=s.period_s,
         window_s=s.window_s,
