@@ -29,8 +29,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from app.files import MAX_ANGLE_DEG, MAX_COORD_MM
-from app.params import from_json
+from app.formats.files import MAX_ANGLE_DEG, MAX_COORD_MM
+from app.formats.params import from_json
 from calib import compensate, urdf
 from calib.model import SystemModel
 from calib.transforms import apply
@@ -44,7 +44,7 @@ MODEL_VERSION = 1
 
 
 def load_parameters(path: str | Path) -> tuple[SystemModel, F64]:
-    """(model, parameters (37,)) of a parameters JSON (app.params.from_json: validated,
+    """(model, parameters (37,)) of a parameters JSON (app.formats.params.from_json: validated,
     refusing another model or a failed identification)."""
     if not isinstance(path, str | os.PathLike):
         raise TypeError(f"path: expected a file name (str or path), got {type(path).__name__}")

@@ -36,7 +36,7 @@ from app.line.schedule import Schedule
 from app.line.service import Service
 from app.line.settings import ServiceSettings
 from app.line.station import Station
-from app.simulation import make_cell
+from app.sim.cell import make_cell
 from drivers.plc import Plc, PlcInputs, decode_outputs, encode_inputs
 from drivers.robot import FloatArray
 from fakes.devices import FakeRobot

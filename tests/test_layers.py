@@ -67,5 +67,5 @@ def test_layer_imports_only_what_it_may(layer: str) -> None:
 
 def test_rule_checker_sees_a_violation(tmp_path: Path) -> None:
     bad = tmp_path / "m.py"
-    bad.write_text("import numpy\nfrom app.cli import main\nimport drivers.base as b\n")
+    bad.write_text("import numpy\nfrom app.commands.cli import main\nimport drivers.base as b\n")
     assert imported_layers(bad) == {("app", 2), ("drivers", 3)}

@@ -19,7 +19,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from app.cliargs import int_at_least
+from app.commands.args import int_at_least
 from app.errors import InputError
 
 
@@ -156,7 +156,7 @@ def _run(ctx: Any, journal: Any, as_json: bool, say: Any) -> int:
 
 def _finish(journal: Any, as_json: bool, code: int) -> int:
     from app.commission.report import to_json, write_report
-    from app.files import dumps_json
+    from app.formats.files import dumps_json
 
     md, _ = write_report(journal)
     if as_json:

@@ -1,7 +1,7 @@
 """`rvis compensate`: compensated joint targets for a controller that runs its nominal model.
 
 Reads intended sensor poses (part frame, FANUC W/P/R) or joint targets taught on the nominal
-model (app/program_files.py), compensates them with the identified parameters
+model (app/formats/programs.py), compensates them with the identified parameters
 (calib/compensate.py) and writes a CSV or a FANUC `.ls` program in joint representation. A row
 that cannot be compensated (out of reach, no solution within the limits, a branch change) is
 an input error naming the file, line and target: nothing is written then.
@@ -15,11 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from app import compensation_check as check
 from app.api import Calibration, command_xyzwpr
 from app.config import load_cell
 from app.errors import InputError
-from app.program_files import (
+from app.formats.programs import (
     LsSettings,
     Targets,
     program_name,
@@ -27,6 +26,7 @@ from app.program_files import (
     write_ls,
     write_result_csv,
 )
+from app.sim import compensation as check
 from calib.compensate import Compensation, CompensationSettings
 
 
@@ -146,7 +146,7 @@ def _lines(t: Targets, rows: np.ndarray) -> str:
 
 def run_compensation_experiment(args: argparse.Namespace) -> int:
     """`rvis experiment compensation`: nominal vs compensated pose error of the true robot of
-    the simulated cell (app/compensation_check.py); writes compensation.md to --out."""
+    the simulated cell (app/sim/compensation.py); writes compensation.md to --out."""
     cfg = load_cell(args.cell)
     out = Path(args.out or f"runs/experiment-{time.strftime('%Y%m%d-%H%M%S')}")
     seeds = list(range(args.first_seed, args.first_seed + (args.seeds or 5)))

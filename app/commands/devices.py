@@ -154,7 +154,7 @@ def _print_table(rows: list[Row]) -> None:
 
 
 def run_trace(args: argparse.Namespace) -> int:
-    from app.wiretrace import format_records, read_records, rotated, to_json
+    from app.formats.wiretrace import format_records, read_records, rotated, to_json
 
     if not args.file.is_file():
         raise InputError("trace file not found", file=args.file)

@@ -16,7 +16,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from app.cliargs import int_at_least
+from app.commands.args import int_at_least
 from app.errors import InputError, RvisError
 
 
@@ -44,11 +44,11 @@ def run(args: argparse.Namespace) -> int:
     if args.geometric or args.windows or args.seed is not None:
         raise InputError("--geometric, --seed and --windows need --sim")
     from app.config import load_cell
+    from app.formats.params import from_json
     from app.line.launch import hold_state
     from app.line.settings import from_cell
     from app.line.statedir import StateDir
     from app.line.station import Station, cell_guard
-    from app.params import from_json
     from drivers.errors import DeviceConfigError, DeviceError
     from vision.sensor_model import load_sensor_model
 
@@ -117,7 +117,7 @@ def run_sim(args: argparse.Namespace) -> int:
     import sys
 
     from app.config import load_cell
-    from app.files import dumps_json
+    from app.formats.files import dumps_json
     from app.line.launch import SOCKET_NAME, hold_state, json_logs, serving
     from app.sim.line_run import SimulatedLineRun, WindowRecord
 

@@ -21,7 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 from app.config import CellConfig
 from app.config.cell import SpheresSection
 from app.config.line import LineSettings, SweepSettings
-from app.files import read_targets
+from app.formats.files import read_targets
 from app.line.measure import SphereSensor
 from app.line.settings import from_cell
 from app.line.statedir import StateDir
@@ -44,7 +44,7 @@ class Declined(Exception):
 
 class TargetCapture(Protocol):
     """Captures the sensor-calibration targets into a folder in the CALIB_DIR layout of
-    app/sensordata.py (chessboards/, targets/<pose>/)."""
+    app/formats/sweeps.py (chessboards/, targets/<pose>/)."""
 
     def capture(self, calib_dir: Path, ctx: Context) -> None: ...
 

@@ -13,11 +13,17 @@ from numpy.typing import NDArray
 
 from app.commission.context import PARAMS_FILE, PLAN_FILE, Context
 from app.commission.journal import StepResult, at_least, at_most, holds
-from app.files import ERROR_COLUMNS, write_csv, write_json, write_measurements, write_targets
+from app.formats.files import (
+    ERROR_COLUMNS,
+    write_csv,
+    write_json,
+    write_measurements,
+    write_targets,
+)
+from app.formats.params import from_json, to_json
 from app.line.cycle import cell_temperature
 from app.line.measure import Rejected, SphereSensor
 from app.meta import provenance
-from app.params import from_json, to_json
 from app.planning import read_plan
 from calib import candidates
 from calib.errors import InsufficientData

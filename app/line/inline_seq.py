@@ -34,9 +34,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.config.line import RecalibSettings
+from app.formats.params import parameters_json, plain_document
 from app.line.recalib import as_measurements, rms_mm
 from app.line.schedule import Slot
-from app.params import parameters_json, plain_document
 from calib.gates import Gates, change_failures
 from calib.model import SystemModel
 from calib.sequential import SequentialEstimator, SequentialSettings

@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.config.line import RecalibSettings
-from app.params import to_json
+from app.formats.params import to_json
 from calib.errors import CalibError
 from calib.gates import Gates, check_identification
 from calib.identify import IdentificationResult, Measurements, identify, residuals

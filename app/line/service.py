@@ -42,6 +42,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from app.errors import InputError
+from app.formats.params import plain_document
 from app.line.cycle import Cycle, WindowWatch
 from app.line.drift import DriftMonitor, prediction_inflation, residual_mm
 from app.line.events import EventBus
@@ -56,7 +57,6 @@ from app.line.statedir import StateDir
 from app.line.station import Station
 from app.line.store import StorageError, Store
 from app.line.sweeps import SweepArchive
-from app.params import plain_document
 from calib.model import SystemModel
 from drivers.clock import Clock, RealClock
 from drivers.errors import DeviceError

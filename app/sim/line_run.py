@@ -31,7 +31,7 @@ from app.line.service import Service, State
 from app.line.settings import ServiceSettings, from_cell
 from app.line.statedir import StateDir
 from app.line.station import Station, cell_guard
-from app.simulation import make_cell, simulated_sets, true_sensor_model
+from app.sim.cell import make_cell, simulated_sets, true_sensor_model
 from calib import candidates
 from calib.identify import identify
 from calib.validation import rmse

@@ -10,14 +10,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.accuracy import measure_views, plan_views
-from app.cli import main
+from app.commands.cli import main
 from app.config import CellConfig
-from app.dataio import load_dataset
 from app.errors import InputError
-from app.files import write_json, write_measurements, write_targets
-from app.params import from_json, to_json
-from app.simulation import make_cell
+from app.formats.csvfiles import load_dataset
+from app.formats.files import write_json, write_measurements, write_targets
+from app.formats.params import from_json, to_json
+from app.sim.accuracy import measure_views, plan_views
+from app.sim.cell import make_cell
 from calib.compliance import CompliantModel, CompliantSettings
 from calib.identify import Measurements, identify
 

@@ -16,12 +16,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.cli import main
+from app.commands.cli import main
 from app.config import load_cell
+from app.formats.params import from_json
 from app.line.params_store import ParamsStore
 from app.line.statedir import StateDir
 from app.line.store import Store
-from app.params import from_json
 
 ROOT = Path(__file__).resolve().parents[2]
 CELL = "[planning]\ngrid_step_deg = 15.0\n"
@@ -39,7 +39,7 @@ def _kill_at(argv: list[str], marker: str) -> list[str]:
     env = os.environ | {"PYTHONUNBUFFERED": "1"}
     lines: list[str] = []
     with subprocess.Popen(
-        [sys.executable, "-m", "app.cli", *argv],
+        [sys.executable, "-m", "app", *argv],
         cwd=ROOT,
         env=env,
         stdout=subprocess.PIPE,

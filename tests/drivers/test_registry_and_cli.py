@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 import drivers
-from app.cli import main
+from app.commands.cli import main
 from drivers import DeviceConfigError, parse_url
 from drivers.registry import BACKENDS, backend_class
 

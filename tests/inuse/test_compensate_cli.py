@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.cli import main
+from app.commands.cli import main
 from calib.wpr import pose_from_xyzwpr, xyzwpr_from_pose
 from tests.inuse.conftest import Calibrated, standoff_error_mm
 

@@ -23,8 +23,8 @@ from app.line.schedule import Schedule
 from app.line.service import Service
 from app.line.settings import ServiceSettings
 from app.line.station import Station
+from app.sim.cell import make_cell
 from app.sim.line_run import random_schedule
-from app.simulation import make_cell
 from calib.model import SystemModel
 from drivers.plc import decode_inputs, decode_outputs, encode_inputs
 from fakes.cell import SimulatedCell

@@ -13,7 +13,7 @@ import pytest
 
 from app.config import load_cell
 from app.config.line import RecalibSettings
-from app.simulation import validation_set
+from app.sim.cell import validation_set
 from calib.identify import Measurements, identify
 from fakes.devices import ClampCycle
 from fakes.truth import Knock

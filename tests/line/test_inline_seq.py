@@ -11,9 +11,9 @@ import numpy as np
 
 from app.config import load_cell
 from app.config.line import RecalibSettings
+from app.formats.params import to_json
 from app.line.inline_seq import InlineSequential, covariance_from
-from app.params import to_json
-from app.simulation import make_cell
+from app.sim.cell import make_cell
 from calib.gates import INLINE
 from calib.identify import Measurements, identify
 from tests.line.helpers import plan_for

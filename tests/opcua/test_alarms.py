@@ -25,7 +25,15 @@ ACTIVE, ACKED = "ActiveState/Id", "AckedState/Id"
 
 def rvis_ctl(run: SimulatedLineRun, *args: str) -> None:
     out = subprocess.run(
-        [sys.executable, "-m", "app.cli", "ctl", "--state-dir", str(state_dir(run)), *args],
+        [
+            sys.executable,
+            "-m",
+            "app",
+            "ctl",
+            "--state-dir",
+            str(state_dir(run)),
+            *args,
+        ],
         capture_output=True,
         text=True,
         cwd=ROOT,

@@ -43,7 +43,15 @@ EXPECTED: dict[str, Callable[[dict[str, Any]], Any]] = {
 
 def rvis_status(run: SimulatedLineRun) -> dict[str, Any]:
     out = subprocess.run(
-        [sys.executable, "-m", "app.cli", "status", "--json", "--state-dir", str(state_dir(run))],
+        [
+            sys.executable,
+            "-m",
+            "app",
+            "status",
+            "--json",
+            "--state-dir",
+            str(state_dir(run)),
+        ],
         capture_output=True,
         text=True,
         cwd=ROOT,
@@ -172,7 +180,10 @@ def test_identification_as_opc_40001(servers: Servers) -> None:
     assert values["Manufacturer"].Text == "rvis" and values["SerialNumber"] == "SN-0007"
     assert values["ProductInstanceUri"] == "urn:plant-a:body-shop:cell-7"
     printed = subprocess.run(
-        [sys.executable, "-m", "app.cli", "--version"], capture_output=True, text=True, cwd=ROOT
+        [sys.executable, "-m", "app", "--version"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
     ).stdout.strip()
     assert f"rvis {values['SoftwareRevision']}" == printed  # what `rvis --version` prints
     assert values["Model"].Text.startswith("RVIS") and values["unit"] == "mm"

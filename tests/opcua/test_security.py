@@ -54,7 +54,7 @@ def test_rvis_run_refuses_an_open_endpoint_without_security(tmp_path: Path) -> N
         encoding="utf-8",
     )
     out = subprocess.run(
-        [sys.executable, "-m", "app.cli", "run", "--sim", "--geometric", "--cell", str(cell),
+        [sys.executable, "-m", "app", "run", "--sim", "--geometric", "--cell", str(cell),
          "--state-dir", str(tmp_path / "state"), "--windows", "1"],
         capture_output=True, text=True, cwd=ROOT, timeout=120,
     )  # fmt: skip

@@ -26,7 +26,7 @@ scale = 300.0
 [service]
 every_n = 8
 """
-RVIS = [sys.executable, "-m", "app.cli"]
+RVIS = [sys.executable, "-m", "app"]
 ROOT = Path(__file__).resolve().parents[2]
 
 

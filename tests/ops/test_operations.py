@@ -79,7 +79,7 @@ def test_quitting_the_operators_terminal_leaves_the_service_running(
 ) -> None:
     assert TMUX is not None
     tmux = [TMUX, "-L", f"rvis-ops-{os.getpid()}", "-f", "/dev/null"]
-    cmd = f"{sys.executable} -m app.cli tui --state-dir {service.state_dir}"
+    cmd = f"{sys.executable} -m app tui --state-dir {service.state_dir}"
     for _ in range(2):  # open and quit twice while the line measures
         subprocess.run(
             [*tmux, "new-session", "-d", "-s", "t", "-x", "100", "-y", "30", cmd],
@@ -205,7 +205,7 @@ def test_an_unusable_state_directory_is_refused_with_one_line(tmp_path: Path) ->
         "--clear-groups",
         sys.executable,
         "-m",
-        "app.cli",
+        "app",
         "run",
         "--sim",
         "--geometric",

@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.errors import InputError
-from app.files import csv_number, csv_rows, write_bytes, write_csv
+from app.formats.files import csv_number, csv_rows, write_bytes, write_csv
 from calib.robot import JointLimits
 
 F64 = NDArray[np.float64]

@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.errors import InputError
-from app.files import read_json
+from app.formats.files import read_json
 from calib.compliance import CompliantModel, CompliantSettings, select_model
 from calib.gates import GateReport
 from calib.identify import IdentificationResult
