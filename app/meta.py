@@ -21,6 +21,13 @@ def version() -> str:
 
 
 @functools.cache
+def software_revision() -> str:
+    """The version and, from a checkout, its commit: what `rvis --version` prints after
+    "rvis " (also the OPC UA Identification's SoftwareRevision)."""
+    commit = git_commit()
+    return version() + (f" ({commit})" if commit else "")
+
+
 def git_commit() -> str | None:
     """The commit of the checkout rvis runs from (with '+dirty' when changed), or None."""
     root = Path(__file__).resolve().parent.parent

@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 
 from app.config import CellConfig
 from app.errors import InputError
-from app.files import read_json
+from app.formats.files import read_json
 from app.workspace import weight_for
 from calib.candidates import FOV_CENTRE_MM, FOV_SPREAD_MM, Clearance, ViewGrid
 from calib.detmax import CRITERIA, METHODS

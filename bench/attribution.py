@@ -25,7 +25,7 @@ limit_blas_threads()
 import numpy as np
 
 from app.config import load_cell
-from app.simulation import make_cell
+from app.sim.cell import make_cell
 from calib import candidates
 from calib.attribution import attribute
 from calib.identify import Measurements, identify, residuals

@@ -27,7 +27,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--repeats", type=int, default=21)
     args = parser.parse_args()
-    rvis = [sys.executable, "-m", "app.cli"]
+    rvis = [sys.executable, "-m", "app"]
     bare = median_s([sys.executable, "-c", "pass"], args.repeats)
     print(f"{'command':<28}{'median s':>10}{'vs python -c pass':>20}")
     print(f"{'python -c pass':<28}{bare:>10.3f}{1.0:>19.1f}x")

@@ -18,7 +18,7 @@ limit_blas_threads()  # as the rvis entry point, before numpy loads
 import numpy as np
 
 from app.config import load_cell
-from app.simulation import collect, make_cell
+from app.sim.cell import collect, make_cell
 from calib.identify import identify
 
 

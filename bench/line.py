@@ -30,12 +30,13 @@ limit_blas_threads()
 import numpy as np
 
 from app.config import load_cell
+from app.config.line import LineSettings
 from app.line.measure import GeometricSensor
 from app.line.schedule import Schedule
 from app.line.service import Service
-from app.line.settings import LineSettings, ServiceSettings
+from app.line.settings import ServiceSettings
 from app.line.station import Station
-from app.simulation import make_cell
+from app.sim.cell import make_cell
 from drivers.plc import Plc, PlcInputs, decode_outputs, encode_inputs
 from drivers.robot import FloatArray
 from fakes.devices import FakeRobot
@@ -87,15 +88,20 @@ class BenchRobot(FakeRobot):
         super()._move(q_deg, speed_pct, timeout_s)
 
 
-def _service(state: Path, poll_s: float) -> tuple[Service, BenchPlc, BenchRobot]:
+def _service(
+    state: Path, poll_s: float, plc: BenchPlc | None = None, **settings: Any
+) -> tuple[Service, BenchPlc, BenchRobot]:
+    """The service on in-process fakes (`plc`: a BenchPlc or a subclass; `settings`: more
+    ServiceSettings, e.g. opcua=, and LineSettings as line_*=)."""
     cfg = load_cell(None)
     cell = make_cell(cfg, 3)
     robot = BenchRobot(cell, time_scale=0.002)
     robot.open()
-    plc = BenchPlc()
+    plc = plc or BenchPlc()
     plc.open()
-    line = LineSettings(poll_s=poll_s, window_s=8.0)
-    settings = ServiceSettings(state_dir=state, line=line)
+    line_kw = {k[5:]: settings.pop(k) for k in list(settings) if k.startswith("line_")}
+    line = LineSettings(poll_s=poll_s, window_s=8.0, **line_kw)
+    service_settings = ServiceSettings(state_dir=state, line=line, **settings)
     svc = Service(
         Station(robot=robot, plc=plc),
         GeometricSensor(cell.measure_target, duration_s=1.2),
@@ -103,7 +109,7 @@ def _service(state: Path, poll_s: float) -> tuple[Service, BenchPlc, BenchRobot]
         cfg.spheres_part_mm,
         cfg.model(),
         cfg.model().nominal_x(),
-        settings=settings,
+        settings=service_settings,
     )
     return svc, plc, robot
 
@@ -178,6 +184,14 @@ def sweep_to_centre(repeats: int) -> tuple[list[float], list[float], float]:
     return times, cpu, err
 
 
+def print_table(rows: list[tuple[str, Any, str]]) -> None:
+    """The benchmark's rows (measure, value, target) as an aligned table."""
+    width = max(len(r[0]) for r in rows)
+    print(f"{'measure':<{width}}  value  target")
+    for name, value, target in rows:
+        print(f"{name:<{width}}  {value}  {target}")
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--windows", type=int, default=30)
@@ -212,10 +226,7 @@ def main(argv: list[str] | None = None) -> int:
             "<= 60",
         )
     )
-    width = max(len(r[0]) for r in rows)
-    print(f"{'measure':<{width}}  value  target")
-    for name, value, target in rows:
-        print(f"{name:<{width}}  {value}  {target}")
+    print_table(rows)
     return 0
 
 

@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT))
 
 
 def child(state_dir: str) -> None:
-    from app.line.settings import RecalibSettings
+    from app.config.line import RecalibSettings
     from fakes.devices import ClampCycle
     from tests.line.helpers import SCALE, line_settings, make_line
 
@@ -45,9 +45,9 @@ def child(state_dir: str) -> None:
 
 
 def check(state_dir: Path, acked: int) -> dict[str, object]:
+    from app.formats.params import from_json
     from app.line.params_store import ParamsStore
     from app.line.store import Store
-    from app.params import from_json
 
     store = Store(state_dir / "rvis.db")
     ok_db = store.integrity_ok()

@@ -25,7 +25,7 @@ def rss_kib() -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from app.line.settings import RecalibSettings
+    from app.config.line import RecalibSettings
     from fakes.devices import ClampCycle
     from tests.line.helpers import line_settings, make_line
 

@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from app.simulation import true_sensor_model
+from app.sim.cell import true_sensor_model
 from fakes.render import default_sweep_commands, render_sphere_sweep
 from fakes.render_sensor import TrueSensor, default_true_sensor
 from fakes.render_targets import CalibrationSet, render_calibration_set
@@ -159,7 +159,7 @@ def bench_calibration(sensor: TrueSensor, sweeps: list, centres: F64, seed: int)
 
 def bench_cell(n_sweeps: int, workers: int) -> None:
     from app.config import load_cell
-    from app.simulation import RenderedMeasurement, make_cell, render_and_measure
+    from app.sim.cell import RenderedMeasurement, make_cell, render_and_measure
     from calib import candidates
 
     cfg = load_cell(None)

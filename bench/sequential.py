@@ -17,9 +17,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from app.accuracy import measure_views, plan_views
 from app.config import load_cell
-from app.simulation import make_cell
+from app.sim.accuracy import measure_views, plan_views
+from app.sim.cell import make_cell
 from calib.compliance import CompliantModel
 from calib.identify import Measurements, identify
 from calib.model import SystemModel

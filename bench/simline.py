@@ -19,7 +19,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from app.config import CellConfig, load_cell
-from app.simulation import make_cell
+from app.sim.cell import make_cell
 from calib import candidates
 from drivers import registry
 from drivers.camera import CameraSettings

@@ -63,7 +63,7 @@ def load_before(rev: str, into: Path) -> ModuleType:
 
 def the_sweep() -> tuple[Any, Any, Any]:
     from app.config import load_cell
-    from app.simulation import make_cell
+    from app.sim.cell import make_cell
     from tests.line.helpers import plan_for
 
     cfg = load_cell(None)

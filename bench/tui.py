@@ -25,8 +25,8 @@ from pathlib import Path
 
 from app.config import load_cell
 from app.sim.line_run import SimulatedLineRun
+from app.sim.tui_line import TuiSimSettings, simulated_service
 from app.tui.app import RvisTui
-from app.tui.sim import TuiSimSettings, simulated_service
 
 
 def banner(app: RvisTui) -> str:
@@ -75,7 +75,16 @@ async def cpu_fraction(state_dir: Path, spans: int, span_s: float) -> dict[str, 
 def cpu_runs(spans: int) -> dict[str, list[float]]:
     with tempfile.TemporaryDirectory() as d:
         state = Path(d)
-        argv = [sys.executable, "-m", "app.cli", "run", "--sim", "--geometric", "--state-dir", d]
+        argv = [
+            sys.executable,
+            "-m",
+            "app",
+            "run",
+            "--sim",
+            "--geometric",
+            "--state-dir",
+            d,
+        ]
         child = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         try:
             while not (state / "rvis.sock").exists():

@@ -23,6 +23,7 @@ is flagged with its reason; nothing is raised for it.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -47,10 +48,13 @@ class CompensationSettings:
 
     max_joint_change_deg: float = 20.0
     roundtrip_tol_deg: float = 1e-6
-    start_q_deg: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, -90.0, 0.0)
+    start_q_deg: tuple[float, ...] = tuple(robot.HOME_DEG.tolist())
+
+    #: max_joint_change_deg is in (0, this]
+    MAX_JOINT_CHANGE_DEG: ClassVar[float] = 180.0
 
     def __post_init__(self) -> None:
-        if not 0.0 < self.max_joint_change_deg <= 180.0:
+        if not 0.0 < self.max_joint_change_deg <= self.MAX_JOINT_CHANGE_DEG:
             raise ValueError("max_joint_change_deg must be in (0, 180]")
         if not 0.0 < self.roundtrip_tol_deg <= 1e-2:
             raise ValueError("roundtrip_tol_deg must be in (0, 0.01]")

@@ -35,6 +35,23 @@ class Gates:
     max_sensor_change_rad: float = float(np.radians(5.0))
     max_base_change_mm: float | None = None
     max_base_change_rad: float | None = None
+    #: in-line only: the candidate's RMS on held-out measurements must not exceed this times
+    #: that of the parameters in force (None: not compared)
+    max_holdout_ratio: float | None = None
+
+
+#: An offline identification against the nominal model: the part->base pose is unbounded
+#: (its guess may be far off; the identification starts from a closed-form alignment).
+OFFLINE = Gates()
+#: An in-line identification against the parameters in force: every change bounded, tighter
+#: for the hand-eye, and the candidate must predict held-out measurements at least as well.
+INLINE = Gates(
+    max_sensor_change_mm=5.0,
+    max_sensor_change_rad=float(np.radians(2.0)),
+    max_base_change_mm=5.0,
+    max_base_change_rad=float(np.radians(1.0)),
+    max_holdout_ratio=1.0,
+)
 
 
 @dataclass(frozen=True)

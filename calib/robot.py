@@ -1,5 +1,6 @@
-"""Nominal FANUC M-710iC/50 (R-30iB): modified-DH geometry, controller joint angles with the
-J2/J3 coupling, joint limits.
+"""Nominal FANUC M-710iC/50 (R-30iB), the one home of its data sheet: modified-DH geometry,
+controller joint angles with the J2/J3 coupling, joint limits and speeds, the cell's home
+position. The cell file's defaults read them; the drivers' guard gets them through it.
 
 Facts from REFERENCE.md (ROS-Industrial `fanuc_m710ic_support`, checked against its URDF):
 the base frame B is FANUC's World frame, on the J1 axis at J2 height (565 mm above the URDF
@@ -98,3 +99,7 @@ class JointLimits:
 
 #: Maximum joint speeds [deg/s] (mechanical manual via ROS-I).
 JOINT_SPEED_DEG_S = np.array([175.0, 175.0, 175.0, 250.0, 250.0, 355.0])
+
+#: The service's home position [deg], controller angles: the sensor looking down, clear of the
+#: car body; every window starts and ends there.
+HOME_DEG = np.array([0.0, 0.0, 0.0, 0.0, -90.0, 0.0])

@@ -11,7 +11,7 @@ TCD:  STACK_SIZE	= 0,
       PAUSE_REQUEST	= 0;
 DEFAULT_GROUP	= 1,*,*,*,*;
 /MN
-   1:  !rvis register mailbox (R553 SNPX) ;
+   1:  !rvis mailbox over Modbus TCP ;
    2:  !app: R1 CMD R2 SPEED R3-8 J1-J6 ;
    3:  !app: R9 RESET R10 ABORT ;
    4:  !TP: R11 ACK R12 DONE R13 STATUS ;

@@ -47,6 +47,24 @@ def words_to_floats(words: Sequence[int], word_order: WordOrder = "little") -> l
     return out
 
 
+#: Modbus exception codes (Modbus Application Protocol V1.1b3, 7) as an operator reads them.
+EXCEPTION_TEXT = {
+    1: "illegal function (the server does not offer this function code)",
+    2: "illegal data address (the registers are not in the server's map)",
+    3: "illegal data value",
+    4: "server device failure",
+    6: "server device busy",
+    10: "gateway path unavailable",
+    11: "gateway target device failed to respond (no such unit id behind this address)",
+}
+
+
+def _exception(where: str, what: str, unit: int, rr: object) -> DeviceFault:
+    code = int(getattr(rr, "exception_code", 0))
+    text = EXCEPTION_TEXT.get(code, str(rr))
+    return DeviceFault(f"{where}: {what} (unit {unit}): exception {code}: {text}", code=code)
+
+
 def require_link(link: ModbusLink | None, name: str) -> ModbusLink:
     """The device's link, or DeviceConnectionError when an earlier reconnect failed (so the
     read-retry policy reconnects again instead of tripping over a missing link)."""
@@ -93,12 +111,7 @@ class ModbusLink:
         except ModbusException as exc:
             raise self._noted(self._translate(exc)) from exc
         if rr.isError():
-            raise self._noted(
-                DeviceFault(
-                    f"{self.where}: read {address}+{count}: {rr}",
-                    code=int(getattr(rr, "exception_code", 0)),
-                )
-            )
+            raise self._noted(_exception(self.where, f"read {address}+{count}", self.unit, rr))
         if len(rr.registers) != count:
             raise self._noted(
                 ProtocolError(f"{self.where}: asked {count} registers, got {len(rr.registers)}")
@@ -116,12 +129,7 @@ class ModbusLink:
         except ModbusException as exc:
             raise self._noted(self._translate(exc)) from exc
         if rr.isError():
-            raise self._noted(
-                DeviceFault(
-                    f"{self.where}: write {address}: {rr}",
-                    code=int(getattr(rr, "exception_code", 0)),
-                )
-            )
+            raise self._noted(_exception(self.where, f"write {address}", self.unit, rr))
         if self.trace is not None:
             self.trace.rx(f"{self.where} fc16 {address}: ok")
 

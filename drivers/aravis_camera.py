@@ -35,7 +35,7 @@ from drivers.errors import (
     DeviceTimeout,
     ProtocolError,
 )
-from drivers.registry import DeviceUrl
+from drivers.url import DeviceUrl
 
 try:
     import gi

@@ -10,6 +10,8 @@ read-only requests after a lost connection, logging, fault latching.
 from __future__ import annotations
 
 import contextlib
+import functools
+import inspect
 import logging
 import threading
 import warnings
@@ -19,16 +21,41 @@ from collections.abc import Callable
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, ClassVar, Self, TypeVar
 
-from drivers.errors import CommunicationError, DeviceClosedError, DeviceConfigError
+from drivers.errors import CommunicationError, DeviceClosedError, DeviceConfigError, DeviceError
 
 if TYPE_CHECKING:
-    from drivers.registry import DeviceUrl
     from drivers.trace import TraceChannel
+    from drivers.url import DeviceUrl
 
 T = TypeVar("T")
 
 _OPEN: weakref.WeakSet[Device] = weakref.WeakSet()
 _OPEN_LOCK = threading.Lock()
+
+
+def _stamped(method: Callable[..., T]) -> Callable[..., T]:
+    """`method` of a device, stamping the DeviceErrors that leave it with the device (the
+    innermost device's stamp wins: a fake camera raising for its galvo names the galvo)."""
+
+    @functools.wraps(method)
+    def wrapper(self: Device, *args: Any, **kwargs: Any) -> T:
+        try:
+            return method(self, *args, **kwargs)
+        except DeviceError as exc:
+            if exc.family is None:
+                exc.family, exc.device = self.family, self.name
+            raise
+
+    wrapper.__stamped__ = True  # type: ignore[attr-defined]
+    return wrapper
+
+
+def _stamp_public_methods(cls: type) -> None:
+    for name, value in list(vars(cls).items()):
+        if name.startswith("_") or not inspect.isfunction(value):
+            continue
+        if not getattr(value, "__stamped__", False):
+            setattr(cls, name, _stamped(value))
 
 
 def open_devices() -> list[Device]:
@@ -43,6 +70,10 @@ class Device(ABC):
     family: ClassVar[str] = "device"
     #: the wire trace of this device (drivers.trace), None when off; set before open()
     trace: TraceChannel | None = None
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        _stamp_public_methods(cls)  # every family's and backend's public methods
 
     def __init__(self, *, timeout_s: float = 5.0, name: str = "") -> None:
         if not timeout_s > 0:
@@ -158,3 +189,6 @@ class Device(ABC):
     @abstractmethod
     def _close(self) -> None:
         """Release the transport. May be called on a half-open device."""
+
+
+_stamp_public_methods(Device)  # open(), describe(): the base's own public methods

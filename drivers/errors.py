@@ -13,6 +13,7 @@
     └── MotionRefused                a command outside its limits was refused; nothing sent
                                      (also a ValueError)
 
+Every error leaving a device's public method carries ``family`` and ``device`` (its name).
 Backends translate vendor errors (OSError, socket.timeout, json, pymodbus, serial, GLib) into the
 most specific leaf at the boundary with ``raise ... from exc``, so callers never import a vendor
 package to catch an error. What a caller can do: fix the configuration (DeviceConfigError), retry
@@ -38,7 +39,12 @@ __all__ = [
 
 
 class DeviceError(Exception):
-    """Root of every error raised by the device layer."""
+    """Root of every error raised by the device layer. A device's public method stamps the
+    errors that leave it with the device's `family` ("robot", "plc", ...) and `device` name
+    (drivers.base), so a caller learns which device failed from the error itself."""
+
+    family: str | None = None
+    device: str | None = None
 
 
 class DeviceConfigError(DeviceError, ValueError):

@@ -33,9 +33,9 @@ from drivers._modbus import (
     words_to_floats,
 )
 from drivers.errors import DeviceFault, DeviceTimeout
-from drivers.registry import DeviceUrl
 from drivers.robot import FloatArray, Robot, RobotStatus
 from drivers.safety import SafetyGuard
+from drivers.url import DeviceUrl
 
 DEFAULT_PORT = 502
 STATUS_IDLE, STATUS_MOVING, STATUS_FAULT = 0, 1, 2

@@ -9,8 +9,10 @@ Holding registers (16-bit words) relative to ``base``; the PLC is the server:
     word 11  APP_HEARTBEAT  incremented by the app on every poll         (app writes)
 
 The bits are the family's (drivers/plc.py); the app reads words 0-2 and writes words 10-11,
-each in one request (and reads 10-11 back for a check). ``?read_only=1``: never write. Safety
-interlocks are not here: they stay in the safety PLC.
+each in one request (and reads 10-11 back for a check), to the PLC's unit id (``unit``, default
+1), with function codes 3 (read holding registers) and 16 (write multiple registers) only; a PLC
+server that also offers 6 (write single register) serves the map as well. ``?read_only=1``:
+never write. Safety interlocks are not here: they stay in the safety PLC.
 """
 
 from __future__ import annotations
@@ -19,9 +21,13 @@ from typing import Any
 
 from drivers._modbus import ModbusLink, require_link
 from drivers.plc import Plc
-from drivers.registry import DeviceUrl
+from drivers.url import DeviceUrl
 
 DEFAULT_PORT = 502
+DEFAULT_UNIT = 1
+#: The function codes of the register map: read holding registers, write single register,
+#: write multiple registers (the driver uses 3 and 16).
+FUNCTION_CODES = (3, 6, 16)
 PLC_STATUS, PLC_HEARTBEAT, PLC_CELL_TEMP, APP_STATUS, APP_HEARTBEAT = 0, 1, 2, 10, 11
 REGISTER_COUNT = 12
 
@@ -30,7 +36,13 @@ class ModbusPlc(Plc):
     """``ModbusPlc("10.0.0.2", 502, unit=1, base=0, heartbeat_timeout_s=3, poll_s=0.1)``."""
 
     def __init__(
-        self, host: str, port: int = DEFAULT_PORT, *, unit: int = 1, base: int = 0, **kw: Any
+        self,
+        host: str,
+        port: int = DEFAULT_PORT,
+        *,
+        unit: int = DEFAULT_UNIT,
+        base: int = 0,
+        **kw: Any,
     ) -> None:
         kw.setdefault("name", f"plc+modbus://{host}:{port}")
         super().__init__(**kw)
@@ -40,7 +52,7 @@ class ModbusPlc(Plc):
     @classmethod
     def from_url(cls, url: DeviceUrl, **options: Any) -> ModbusPlc:
         host, port = url.address(DEFAULT_PORT)
-        options.setdefault("unit", int(url.number("unit", 1)))
+        options.setdefault("unit", int(url.number("unit", DEFAULT_UNIT)))
         options.setdefault("base", int(url.number("base", 0)))
         options.setdefault("read_only", url.flag("read_only"))
         return cls(host, port, **options)

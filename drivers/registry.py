@@ -1,6 +1,7 @@
 """Device selection by URL: one table of backends per family, imported only when chosen.
 
-    fake://                              in-process fake on a fakes.world.World (``world=``)
+    fake://                              in-process fake on a fakes.world.World (``world=``),
+                                         once registered (fakes.wiring.register_fakes)
     aravis://<camera-id>                 camera through Aravis (GenICam; GigE Vision, USB3 Vision)
     scpi+serial:///dev/ttyACM0?baud=115200   galvo DAC speaking SCPI over a serial port
     rmi://host:16001                     FANUC Remote Motion Interface
@@ -18,11 +19,10 @@ passes (drivers.trace.WireTrace; with its ``every_device`` set, every device is 
 from __future__ import annotations
 
 import importlib
-from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, cast
-from urllib.parse import parse_qsl, unquote, urlsplit
 
 from drivers.errors import DeviceConfigError
+from drivers.url import parse_url
 
 if TYPE_CHECKING:
     from drivers.base import Device
@@ -34,88 +34,26 @@ if TYPE_CHECKING:
     from drivers.tracker import Tracker
 
 BACKENDS: dict[str, dict[str, str]] = {
-    "camera": {
-        "fake": "fakes.devices:FakeCamera",
-        "aravis": "drivers.aravis_camera:AravisCamera",
-    },
-    "galvo": {
-        "fake": "fakes.devices:FakeGalvo",
-        "scpi+serial": "drivers.scpi_galvo:ScpiGalvo",
-    },
-    "robot": {
-        "fake": "fakes.devices:FakeRobot",
-        "rmi": "drivers.rmi:RmiRobot",
-        "modbus": "drivers.modbus_robot:ModbusRobot",
-    },
+    "camera": {"aravis": "drivers.aravis_camera:AravisCamera"},
+    "galvo": {"scpi+serial": "drivers.scpi_galvo:ScpiGalvo"},
+    "robot": {"rmi": "drivers.rmi:RmiRobot", "modbus": "drivers.modbus_robot:ModbusRobot"},
     "tracker": {
-        "fake": "fakes.devices:FakeTracker",
         "tracker+tcp": "drivers.tracker_tcp:TcpTracker",
         "tracker+file": "drivers.tracker_file:FileTracker",
     },
-    "plc": {
-        "fake": "fakes.devices:FakePlc",
-        "plc+modbus": "drivers.plc_modbus:ModbusPlc",
-    },
+    "plc": {"plc+modbus": "drivers.plc_modbus:ModbusPlc"},
 }
 FAMILIES = tuple(BACKENDS)
 
 
-@dataclass(frozen=True)
-class DeviceUrl:
-    """A parsed device URL. ``location`` is host for network schemes, the path for files."""
-
-    raw: str
-    scheme: str
-    host: str = ""
-    port: int | None = None
-    path: str = ""
-    query: dict[str, str] = field(default_factory=dict)
-
-    @property
-    def location(self) -> str:
-        return self.path or self.host
-
-    def option(self, name: str, default: str) -> str:
-        return self.query.get(name, default)
-
-    def number(self, name: str, default: float) -> float:
-        try:
-            return float(self.query.get(name, default))
-        except ValueError as exc:
-            raise DeviceConfigError(f"{self.raw}: option {name!r} must be a number") from exc
-
-    def flag(self, name: str, default: bool = False) -> bool:
-        """A yes/no option: 1, true, yes, on or 0, false, no, off (DeviceConfigError else)."""
-        text = self.query.get(name)
-        if text is None:
-            return default
-        value = {"1": True, "true": True, "yes": True, "on": True, "": True}.get(text.lower())
-        if value is None and text.lower() not in ("0", "false", "no", "off"):
-            raise DeviceConfigError(f"{self.raw}: option {name!r} must be 1 or 0, got {text!r}")
-        return bool(value)
-
-    def address(self, default_port: int) -> tuple[str, int]:
-        if not self.host:
-            raise DeviceConfigError(f"{self.raw}: no host")
-        return self.host, self.port if self.port is not None else default_port
-
-
-def parse_url(url: str) -> DeviceUrl:
-    """Split a device URL; DeviceConfigError if it is not one."""
-    if not isinstance(url, str) or "://" not in url:
-        raise DeviceConfigError(f"not a device URL: {url!r} (expected scheme://...)")
-    parts = urlsplit(url)
-    try:
-        port = parts.port
-    except ValueError as exc:
-        raise DeviceConfigError(f"{url}: bad port") from exc
-    scheme = parts.scheme.lower()
-    host = unquote(parts.hostname or "") if scheme != "aravis" else unquote(parts.netloc)
-    path = unquote(parts.path)
-    if scheme.endswith("+file"):  # tracker+file://targets.csv is a relative path
-        host, path = "", unquote(parts.netloc) + path
-    query = dict(parse_qsl(parts.query, keep_blank_values=True))
-    return DeviceUrl(url, scheme, host, port, path, query)
+def register_backend(family: str, scheme: str, target: str) -> None:
+    """Add (or replace) the backend `module:Class` of `family` for URLs of `scheme`, imported
+    when first opened. The drivers know their own schemes; `fake://` is registered by whoever
+    wires the simulated cell in (fakes.wiring.register_fakes), so that drivers/ names nothing
+    of fakes/."""
+    if family not in BACKENDS:
+        raise DeviceConfigError(f"unknown device family {family!r}; one of {', '.join(FAMILIES)}")
+    BACKENDS[family][scheme] = target
 
 
 def backend_class(family: str, scheme: str) -> type[Device]:
@@ -125,7 +63,8 @@ def backend_class(family: str, scheme: str) -> type[Device]:
     target = BACKENDS[family].get(scheme)
     if target is None:
         known = ", ".join(f"{s}://" for s in BACKENDS[family])
-        raise DeviceConfigError(f"no {family} backend for {scheme}://; known: {known}")
+        hint = " (the simulated cell's: not wired in here)" if scheme == "fake" else ""
+        raise DeviceConfigError(f"no {family} backend for {scheme}://{hint}; known: {known}")
     module_name, _, class_name = target.partition(":")
     try:
         module = importlib.import_module(module_name)

@@ -38,10 +38,10 @@ from drivers.errors import (
     DeviceTimeout,
     ProtocolError,
 )
-from drivers.registry import DeviceUrl
-from drivers.rmi_errors import RMIT_BASE, describe_error
+from drivers.rmi_errors import NO_ERROR_TEXT, RMIT_BASE, describe_error
 from drivers.robot import FloatArray, Robot, RobotStatus
 from drivers.safety import SafetyGuard
+from drivers.url import DeviceUrl
 
 DEFAULT_PORT = 16001
 JOINTS = ("J1", "J2", "J3", "J4", "J5", "J6")
@@ -294,7 +294,9 @@ class RmiRobot(Robot):
             self.log.debug("%s: FRC_ReadError: %s", self.name, exc)
             return ""
         text = reply.get("ErrorData")
-        return f": {text}" if isinstance(text, str) and text else ""
+        if not isinstance(text, str) or text.strip() in ("", NO_ERROR_TEXT):
+            return ""
+        return f": {text}"
 
     def _abort_reply(self, msg: dict[str, Any]) -> None:
         code = msg.get("ErrorID")

@@ -51,6 +51,12 @@ RMIT_NAMES: dict[int, str] = {
 }
 
 
+#: FRC_ReadError's ErrorData when the controller has no error to report (as a controller
+#: answers), and the most alarms one FRC_ReadError returns (its Count, 1..5: B-84184EN 2.3.5).
+NO_ERROR_TEXT = "No Error"
+READ_ERROR_MAX_COUNT = 5
+
+
 def rmit(n: int) -> int:
     """The ErrorID of alarm RMIT-n."""
     return RMIT_BASE + n

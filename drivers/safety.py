@@ -73,7 +73,9 @@ class JointLimits(JointBox):
 
     @classmethod
     def m710ic50(cls) -> JointLimits:
-        """FANUC M-710iC/50 controller-angle limits (REFERENCE.md)."""
+        """FANUC M-710iC/50 controller-angle limits and speeds (REFERENCE.md): the fallback of
+        a robot opened without a guard. The data sheet's home is calib/robot.py, which the
+        application's guard reads through the cell file; a test pins this copy to it."""
         return cls(
             lower_deg=(-180.0, -90.0, -160.0, -360.0, -125.0, -360.0),
             upper_deg=(180.0, 135.0, 280.0, 360.0, 125.0, 360.0),

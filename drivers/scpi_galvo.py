@@ -26,7 +26,7 @@ from drivers.errors import (
     ProtocolError,
 )
 from drivers.galvo import Galvo
-from drivers.registry import DeviceUrl
+from drivers.url import DeviceUrl
 
 _ERR = re.compile(r'^\s*([+-]?\d+)\s*,\s*"?(.*?)"?\s*$')
 

@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 
 from drivers.errors import DeviceConfigError, DeviceFault
-from drivers.registry import DeviceUrl
 from drivers.tracker import Tracker, TrackerMeasurement, TrackerStatus
+from drivers.url import DeviceUrl
 
 REQUIRED = ("target", "x_mm", "y_mm", "z_mm")
 OPTIONAL_NUMBERS = ("rms_mm", "temperature_c", "pressure_hpa")

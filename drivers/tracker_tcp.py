@@ -15,8 +15,8 @@ import numpy as np
 
 from drivers._linesock import LineJsonSocket
 from drivers.errors import DeviceConnectionError, DeviceFault, ProtocolError
-from drivers.registry import DeviceUrl
 from drivers.tracker import Tracker, TrackerMeasurement, TrackerStatus
+from drivers.url import DeviceUrl
 
 DEFAULT_PORT = 7700
 PROTOCOL = "rvis-tracker/1"

@@ -9,6 +9,11 @@ default): no background task. A single-register write (FC6) is answered with the
 echo, as Modbus requires: pymodbus reads the register back to build that reply, and no scan runs
 between the write and that read.
 
+As strict as the device it plays, when told: ``unit`` (the Modbus unit id it answers; a request
+to another unit gets exception 0x0B "gateway target device failed to respond", as pymodbus's
+server and a gateway answer; None: any unit) and ``function_codes`` (the ones its register map
+supports; any other gets exception 0x01 "illegal function"; None: every one pymodbus serves).
+
 Fault injection (one-shot): ``fail_next(mode)`` with "exception" (Modbus exception 4, device
 failure), "drop" (close every client connection), "mute" (hold the reply past any timeout) or
 "garble" (send a frame with a wrong protocol id, then hold the reply: the client's stream is out
@@ -18,6 +23,7 @@ of step, as after a corrupted or truncated frame), optionally only for one funct
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Iterable
 from typing import Self
 
 from pymodbus.constants import ExcCodes
@@ -35,9 +41,20 @@ class RegisterServer:
     """Base of the Modbus peers; subclasses implement ``scan``."""
 
     def __init__(
-        self, *, size: int, host: str = "127.0.0.1", port: int = 0, clock: Clock | None = None
+        self,
+        *,
+        size: int,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        clock: Clock | None = None,
+        unit: int | None = None,
+        function_codes: Iterable[int] | None = None,
     ) -> None:
         self.host, self._want_port, self.size = host, port, size
+        if unit is not None and not 1 <= unit <= 247:
+            raise ValueError(f"unit {unit}: a Modbus unit id is 1..247")
+        self.unit = unit
+        self.function_codes = None if function_codes is None else frozenset(function_codes)
         self.clock: Clock = clock if clock is not None else RealClock()  # scan() gets its time
         self.port = 0
         self._faults: list[tuple[str, int | None]] = []
@@ -52,12 +69,13 @@ class RegisterServer:
         return self
 
     async def _start(self) -> None:
-        device = SimDevice(
-            id=0,
-            simdata=[SimData(0, count=self.size, values=0, datatype=DataType.REGISTERS)],
-            action=self._action,
-        )
-        self._server = ModbusTcpServer([device], address=(self.host, self._want_port))
+        data = [SimData(0, count=self.size, values=0, datatype=DataType.REGISTERS)]
+        devices = [
+            SimDevice(id=0 if self.unit is None else self.unit, simdata=data, action=self._action)
+        ]
+        if self.unit is not None:  # every other unit id lands on device 0: no such device
+            devices.append(SimDevice(id=0, simdata=data, action=self._no_such_unit))
+        self._server = ModbusTcpServer(devices, address=(self.host, self._want_port))
         await self._server.serve_forever(background=True)
         self.port = self._server.transport.sockets[0].getsockname()[1]  # type: ignore[attr-defined]
 
@@ -103,6 +121,8 @@ class RegisterServer:
         registers: list[int],
         values: list[int] | list[bool] | None,
     ) -> ExcCodes | None:
+        if self.function_codes is not None and function_code not in self.function_codes:
+            return ExcCodes.ILLEGAL_FUNCTION
         if self._faults and self._faults[0][1] in (None, function_code):
             mode = self._faults.pop(0)[0]
             if mode == "exception":
@@ -120,6 +140,11 @@ class RegisterServer:
         written = {base + i: int(v) for i, v in enumerate(values or [])}
         self.scan(self.clock.monotonic(), registers, written)
         return None
+
+    async def _no_such_unit(self, *request: object) -> ExcCodes:
+        # pymodbus 3.16 turns a unit id it has no device for into a KeyError and exception 4
+        # (device failure): answer as its server means to, and as a gateway does
+        return ExcCodes.GATEWAY_NO_RESPONSE
 
     def scan(self, now: float, regs: list[int], written: dict[int, int]) -> None:
         raise NotImplementedError

@@ -1,8 +1,8 @@
 """Real or simulated time, shared by the simulated line's peers and the service.
 
-The contract is duck-typed (the service declares the same Protocol in app/line/clock.py; fakes
-never import app): ``monotonic()`` [sim s], ``time()`` [sim epoch s], ``sleep(seconds)`` [sim s]
-and ``wait(event, seconds) -> bool`` (the event's flag, after at most ``seconds`` sim s).
+The contract is drivers.clock's Clock: ``monotonic()`` [sim s], ``time()`` [sim epoch s],
+``sleep(seconds)`` [sim s] and ``wait(event, seconds) -> bool`` (the event's flag, after at
+most ``seconds`` sim s); RealClock is drivers.clock's too.
 
 ``ScaledClock(scale)`` runs ``scale`` sim seconds per real second (60: one sim minute per real
 second) from sim time 0 at construction (or at ``start()``, with ``started=False``: it stands at
@@ -15,50 +15,14 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Protocol, runtime_checkable
+
+from drivers.clock import Clock, RealClock, SimClock
+
+__all__ = ["Clock", "RealClock", "ScaledClock", "SimClock"]
 
 #: Longest real wait [s] of ``ScaledClock.wait`` between looks at the clock, so that a waiter
 #: notices ``advance()``; the event itself still wakes it at once.
 _WAIT_CHUNK_REAL_S = 0.1
-
-
-@runtime_checkable
-class Clock(Protocol):
-    """What the service and the peers need of time (all in sim seconds)."""
-
-    def monotonic(self) -> float: ...
-
-    def time(self) -> float: ...
-
-    def sleep(self, seconds: float) -> None: ...
-
-    def wait(self, event: threading.Event, seconds: float) -> bool: ...
-
-
-@runtime_checkable
-class SimClock(Clock, Protocol):
-    """A Clock that also says how many sim seconds pass per real second."""
-
-    @property
-    def scale(self) -> float: ...
-
-
-class RealClock:
-    """Wall-clock time (scale 1)."""
-
-    scale = 1.0
-
-    def monotonic(self) -> float:
-        return time.monotonic()
-
-    def time(self) -> float:
-        return time.time()
-
-    def sleep(self, seconds: float) -> None:
-        time.sleep(max(seconds, 0.0))
-
-    def wait(self, event: threading.Event, seconds: float) -> bool:
-        return event.wait(max(seconds, 0.0))
 
 
 class ScaledClock:

@@ -28,9 +28,9 @@ from drivers.plc import (
     encode_inputs,
     encode_outputs,
 )
-from drivers.registry import DeviceUrl
 from drivers.robot import FloatArray, Robot, RobotStatus
 from drivers.tracker import Tracker, TrackerMeasurement, TrackerStatus
+from drivers.url import DeviceUrl
 from fakes.world import World
 
 SENSOR_WH = (1296, 966)  # Basler acA1300-30um, Sony ICX445

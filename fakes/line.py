@@ -1,6 +1,6 @@
 """The simulated line: one simulated cell driving every protocol peer on 127.0.0.1.
 
-    with SimLine(cell, LineSettings(scale=60, knock=Knock(at_s=4 * 3600))) as line:
+    with SimLine(cell, SimLineSetup(scale=60, knock=Knock(at_s=4 * 3600))) as line:
         robot = open_robot(line.urls["robot"])          # the real drivers, over loopback
         ...
         line.truth.validation_centres_sensor_mm()       # the truth now, for the app's report
@@ -49,7 +49,7 @@ F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
-class LineSettings:
+class SimLineSetup:
     """The simulated line. Times in sim seconds; `scale` sim seconds pass per real second."""
 
     scale: float = 60.0
@@ -102,9 +102,9 @@ class _LineWorld:
 class SimLine:
     """Every peer of the line on loopback, driven by one simulated cell (module docstring)."""
 
-    def __init__(self, cell: SimulatedCell, settings: LineSettings | None = None) -> None:
+    def __init__(self, cell: SimulatedCell, settings: SimLineSetup | None = None) -> None:
         self.cell = cell
-        self.settings = settings or LineSettings()
+        self.settings = settings or SimLineSetup()
         # sim time 0 is when every peer is up (start), not when the line object is built
         self.clock = ScaledClock(self.settings.scale, self.settings.start_epoch, started=False)
         self._stack = ExitStack()
@@ -203,7 +203,7 @@ class SimLine:
             self.controller.fail_next("FRC_JointMotionJRep", "system_fault")
         elif fault is Fault.CAMERA_TIMEOUT:
             if self.camera is None:
-                raise ValueError("camera_timeout needs the camera (LineSettings.camera)")
+                raise ValueError("camera_timeout needs the camera (SimLineSetup.camera)")
             self.camera.stall()
         elif fault is Fault.GALVO_ERROR:
             self.dac.fail_next("SOUR:VOLT", GALVO_ERROR_CODE)

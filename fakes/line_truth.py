@@ -9,7 +9,7 @@ app: for each position, the model's part-frame point of the true sensor-frame ce
 The validation positions are drawn without any inverse kinematics: a seeded random configuration
 in the robot's working range, and a point inside the sensor's measuring volume seen from it at
 sim time 0, kept if it lies in the workspace band of the spheres (900-1900 mm from the J1 axis,
--300..700 mm high in the base frame, as app.simulation's validation points).
+-300..700 mm high in the base frame, as app.sim.cell's validation points).
 """
 
 from __future__ import annotations

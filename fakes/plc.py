@@ -1,7 +1,11 @@
 """A pymodbus server playing the line PLC (register map in drivers/plc_modbus.py): it runs a
 ClampCycle (for example an 8 s window every 60 s, compressed by ``time_scale`` in tests) and
-records what the app writes. ``heartbeat_frozen = True`` simulates a stalled PLC;
-``temperature`` (a callable returning degC, or None) feeds the cell temperature word.
+records what the app writes. Like a PLC it answers only its unit id (``unit``, default 1) and
+the function codes of the register map (3, 6, 16; any other: exception 0x01, illegal function).
+``heartbeat_frozen = True`` simulates a stalled PLC;
+``temperature`` (a callable returning degC, or None for "no sensor", 0x8000) feeds the cell
+temperature word; left None, the PLC program never writes the word and it stays 0, as in a PLC
+program that predates the temperature input.
 """
 
 from __future__ import annotations
@@ -11,7 +15,14 @@ from collections.abc import Callable
 from typing import Any
 
 from drivers.plc import PlcOutputs, decode_outputs, encode_inputs, encode_temp
-from drivers.plc_modbus import APP_STATUS, PLC_CELL_TEMP, PLC_STATUS, REGISTER_COUNT
+from drivers.plc_modbus import (
+    APP_STATUS,
+    DEFAULT_UNIT,
+    FUNCTION_CODES,
+    PLC_CELL_TEMP,
+    PLC_STATUS,
+    REGISTER_COUNT,
+)
 from fakes._modbus_server import RegisterServer
 from fakes.devices import ClampCycle
 
@@ -19,8 +30,10 @@ from fakes.devices import ClampCycle
 class PlcServer(RegisterServer):
     """``with PlcServer(ClampCycle(time_scale=0.01)) as plc: ModbusPlc("127.0.0.1", plc.port)``"""
 
-    def __init__(self, cycle: ClampCycle | None = None, *, base: int = 0, **kw: Any) -> None:
-        super().__init__(size=base + REGISTER_COUNT, **kw)
+    def __init__(
+        self, cycle: ClampCycle | None = None, *, base: int = 0, unit: int = DEFAULT_UNIT, **kw: Any
+    ) -> None:
+        super().__init__(size=base + REGISTER_COUNT, unit=unit, function_codes=FUNCTION_CODES, **kw)
         self.cycle = cycle or ClampCycle()
         self.base = base
         self.heartbeat_frozen = False
@@ -33,8 +46,8 @@ class PlcServer(RegisterServer):
         inputs = self.cycle.inputs(now - self.t0, self.heartbeat_frozen)
         p = self.base + PLC_STATUS
         regs[p : p + 2] = encode_inputs(inputs)
-        temp = None if self.temperature is None else self.temperature()
-        regs[self.base + PLC_CELL_TEMP] = encode_temp(temp)
+        if self.temperature is not None:
+            regs[self.base + PLC_CELL_TEMP] = encode_temp(self.temperature())
         a = self.base + APP_STATUS
         if a in written or a + 1 in written:
             out = decode_outputs((written.get(a, regs[a]), written.get(a + 1, regs[a + 1])))

@@ -3,7 +3,7 @@
 This deliberately does not reuse the estimators' model (vision/): the laser plane at each mirror
 angle is obtained by reflecting the projector's fan plane in the rotated mirror (Householder
 reflection), and pixel rays are obtained by inverting the distortion with its own iteration.
-Nothing here imports vision/: `app.simulation.true_sensor_model` hands the truth over to the
+Nothing here imports vision/: `app.sim.cell.true_sensor_model` hands the truth over to the
 estimators' data types (tests, the demo).
 
 Frame: the camera frame (OpenCV convention), which is also the sensor frame S.

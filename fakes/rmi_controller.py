@@ -77,7 +77,7 @@ class RmiController(LineServer):
         self.pose_of = pose_of
         self.session_port = 0
         self.alarm = False
-        self.last_alarm = ""
+        self.alarms: list[str] = []  # the active alarms' texts, newest first (FRC_ReadError)
         self.override_pct = 100
         self.uframe, self.utool = 0, 1
         # the newest requests, for tests (bounded: a soak of the simulated line runs for days)
@@ -201,6 +201,7 @@ class RmiController(LineServer):
 
     def _reset(self, msg: dict[str, Any]) -> dict[str, Any]:
         self.alarm = False
+        self.alarms.clear()
         return {"ErrorID": 0}
 
     def _get_status(self, msg: dict[str, Any]) -> dict[str, Any]:
@@ -218,7 +219,15 @@ class RmiController(LineServer):
         }
 
     def _read_error(self, msg: dict[str, Any]) -> dict[str, Any]:
-        return {"ErrorID": 0, "Count": 1, "ErrorData": self.last_alarm}
+        """The active alarms, newest first: ``Count`` (1..5, default 1) of them in ErrorData,
+        ErrorData2 .. ErrorData<Count>, each "No Error" when there is none (B-84184EN 2.3.5 as
+        FANUC's fanuc_driver packets.hpp has it; "No Error" as a controller answers)."""
+        count = msg.get("Count", 1)
+        if not (type(count) is int and 1 <= count <= rmi.READ_ERROR_MAX_COUNT):
+            return {"ErrorID": rmi.INVALID_VALUE}
+        texts = [*self.alarms[:count], *[rmi.NO_ERROR_TEXT] * count][:count]
+        keys = ["ErrorData", *(f"ErrorData{k}" for k in range(2, count + 1))]
+        return {"ErrorID": 0, "Count": count, **dict(zip(keys, texts, strict=True))}
 
     def _read_joint_angles(self, msg: dict[str, Any]) -> dict[str, Any]:
         q = self.world.joints_deg()
@@ -384,7 +393,8 @@ class RmiController(LineServer):
 
     async def _system_fault(self) -> None:
         self.alarm, self._initialized = True, False
-        self.last_alarm = "SRVO-050 Collision Detect Alarm (G:1 A:2)"
+        self.alarms.insert(0, "SRVO-050 Collision Detect Alarm (G:1 A:2)")
+        del self.alarms[rmi.READ_ERROR_MAX_COUNT :]  # what FRC_ReadError can show; bounded
         current = asyncio.current_task()
         if self._motion is not None and self._motion is not current:
             self._motion.cancel()

@@ -11,7 +11,14 @@ from functools import cache  # noqa: E402
 import pytest  # noqa: E402
 
 from app.config import CellConfig, load_cell  # noqa: E402
-from app.simulation import DataSet, simulated_sets  # noqa: E402
+from app.sim.cell import DataSet, simulated_sets  # noqa: E402
+from fakes.wiring import register_fakes  # noqa: E402
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _fakes_wired() -> None:
+    """fake:// opens the simulated cell's devices, as the application wires them."""
+    register_fakes()
 
 
 @pytest.fixture(scope="session")

@@ -1,9 +1,9 @@
 """One module per `rvis` subcommand; each exposes `register(subparsers)`.
 
 COMMANDS lists every subcommand with its one-line help, in the order `rvis --help` shows them.
-The command line (app/cli.py) imports only the module of the command being run (so `rvis --help`
-imports none of numpy, OpenCV or the fakes); a command's `register` adds its parser and sets
-`func(args) -> int` as the default handler.
+The command line (app/commands/cli.py; `python -m app`) imports only the module of the command
+being run (so `rvis --help` imports none of numpy, OpenCV or the fakes); a command's `register`
+adds its parser and sets `func(args) -> int` as the default handler.
 """
 
 COMMANDS: dict[str, str] = {

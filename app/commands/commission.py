@@ -19,7 +19,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from app.cliargs import int_at_least
+from app.commands.args import int_at_least
 from app.errors import InputError
 
 
@@ -92,9 +92,11 @@ def _context(
     urls = cfg.devices.urls()
     if args.sim:
         from app.sim.commission import SimCommissioning
+        from app.sim.line_run import with_simulated_plc
 
         sim = stack.enter_context(SimCommissioning(cfg, seed, geometric=args.geometric))
         urls = sim.urls
+        cfg = with_simulated_plc(cfg)
     guard = replace(cell_guard(cfg), max_speed_pct=float(cfg.commission.speed_pct))
     options = {"camera": {"settings": cfg.camera.settings()}, "plc": {"read_only": True}}
     trace = cfg.devices.wire_trace(state.wire_trace, every_device=True if sim else None)
@@ -154,7 +156,7 @@ def _run(ctx: Any, journal: Any, as_json: bool, say: Any) -> int:
 
 def _finish(journal: Any, as_json: bool, code: int) -> int:
     from app.commission.report import to_json, write_report
-    from app.files import dumps_json
+    from app.formats.files import dumps_json
 
     md, _ = write_report(journal)
     if as_json:

@@ -1,7 +1,7 @@
 """`rvis compensate`: compensated joint targets for a controller that runs its nominal model.
 
 Reads intended sensor poses (part frame, FANUC W/P/R) or joint targets taught on the nominal
-model (app/program_files.py), compensates them with the identified parameters
+model (app/formats/programs.py), compensates them with the identified parameters
 (calib/compensate.py) and writes a CSV or a FANUC `.ls` program in joint representation. A row
 that cannot be compensated (out of reach, no solution within the limits, a branch change) is
 an input error naming the file, line and target: nothing is written then.
@@ -15,11 +15,18 @@ from pathlib import Path
 
 import numpy as np
 
-from app import compensation_check as check
 from app.api import Calibration, command_xyzwpr
 from app.config import load_cell
 from app.errors import InputError
-from app.program_files import LsSettings, Targets, read_targets, write_ls, write_result_csv
+from app.formats.programs import (
+    LsSettings,
+    Targets,
+    program_name,
+    read_targets,
+    write_ls,
+    write_result_csv,
+)
+from app.sim import compensation as check
 from calib.compensate import Compensation, CompensationSettings
 
 
@@ -45,21 +52,52 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=d.max_joint_change_deg,
         help=f"largest joint change [deg] before a row is refused ({d.max_joint_change_deg:g})",
     )
-    ls = LsSettings()
-    p.add_argument("--speed", type=int, default=ls.speed_percent, help="joint speed [%%] (.ls)")
-    p.add_argument("--uframe", type=int, default=ls.uframe, help="UF recorded in .ls positions")
-    p.add_argument("--utool", type=int, default=ls.utool, help="UT recorded in .ls positions")
+    ls, r = LsSettings(), LsSettings.RANGES
+    for flag, field, text in LS_FLAGS:
+        lo, hi, _ = r[field]
+        help_text = f"{text}: {lo}..{hi}, default {getattr(ls, field)} (.ls)"
+        p.add_argument(flag, type=int, default=getattr(ls, field), help=help_text)
     p.set_defaults(func=run)
 
 
-def run(args: argparse.Namespace) -> int:
+#: The .ls options: flag, LsSettings field, what the help says.
+LS_FLAGS = (
+    ("--speed", "speed_percent", "joint speed [%%]"),
+    ("--uframe", "uframe", "user frame number recorded with the positions (0: world)"),
+    ("--utool", "utool", "tool frame number recorded with the positions"),
+)
+
+
+def _settings(args: argparse.Namespace) -> tuple[CompensationSettings, LsSettings]:
+    """The settings from the options; a bad value is an error naming the flag and the value."""
+    top = CompensationSettings.MAX_JOINT_CHANGE_DEG
+    if not 0.0 < args.max_joint_change <= top:
+        raise InputError(
+            f"--max-joint-change {args.max_joint_change:g}: expected degrees in (0, {top:g}]"
+        )
+    for flag, field, _ in LS_FLAGS:
+        lo, hi, what = LsSettings.RANGES[field]
+        value = getattr(args, flag.removeprefix("--"))
+        if not lo <= value <= hi:
+            raise InputError(f"{flag} {value}: expected {what} {lo}..{hi}")
+    return (
+        CompensationSettings(max_joint_change_deg=args.max_joint_change),
+        LsSettings(speed_percent=args.speed, uframe=args.uframe, utool=args.utool),
+    )
+
+
+def _program_name(out: Path) -> str:
     try:
-        settings = CompensationSettings(max_joint_change_deg=args.max_joint_change)
-        ls = LsSettings(speed_percent=args.speed, uframe=args.uframe, utool=args.utool)
-    except ValueError as exc:
-        raise InputError(str(exc)) from None
+        return program_name(out)
+    except InputError as exc:
+        raise InputError(f"--out {out}: {exc.reason}") from None
+
+
+def run(args: argparse.Namespace) -> int:
+    settings, ls = _settings(args)
     out = Path(args.out)
     fmt = args.format or ("ls" if out.suffix.lower() == ".ls" else "csv")
+    program = _program_name(out) if fmt == "ls" else ""  # a bad name fails before the work
     cal = Calibration.load(args.params)
     targets = read_targets(args.targets, cal.model.limits)
     result = _compensate(cal, targets, settings)
@@ -73,10 +111,11 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise InputError(f"cannot write: {exc.strerror or exc}", file=out) from exc
     change = result.joint_change_deg
+    what = f"program {program}, UF {ls.uframe}, UT {ls.utool}" if fmt == "ls" else fmt
     print(
         f"compensated {len(targets.ids)} {targets.kind} targets with {args.params}: joint "
         f"change median {np.median(change):.4f} deg, largest {change.max():.4f} deg; "
-        f"wrote {out} ({fmt})"
+        f"wrote {out} ({what})"
     )
     return 0
 
@@ -107,7 +146,7 @@ def _lines(t: Targets, rows: np.ndarray) -> str:
 
 def run_compensation_experiment(args: argparse.Namespace) -> int:
     """`rvis experiment compensation`: nominal vs compensated pose error of the true robot of
-    the simulated cell (app/compensation_check.py); writes compensation.md to --out."""
+    the simulated cell (app/sim/compensation.py); writes compensation.md to --out."""
     cfg = load_cell(args.cell)
     out = Path(args.out or f"runs/experiment-{time.strftime('%Y%m%d-%H%M%S')}")
     seeds = list(range(args.first_seed, args.first_seed + (args.seeds or 5)))

@@ -66,6 +66,8 @@ def run(args: argparse.Namespace) -> int:
         raise RvisError(f"no service is running at {path}") from exc
     except PermissionError as exc:
         raise RvisError(f"not allowed to use {path} (the service's group)") from exc
+    except OSError as exc:  # the service went away meanwhile, or did not answer in time
+        raise RvisError(f"{path}: no answer from the service ({exc.strerror or exc})") from exc
     if args.json:
         print(json.dumps(reply))
     elif reply.get("ok"):

@@ -9,18 +9,18 @@ import time
 from contextlib import closing, nullcontext
 from pathlib import Path
 
-from app.cliargs import int_at_least
+from app.commands.args import int_at_least
 from app.config import CellConfig, load_cell
-from app.demo import run_demo, summary_text
 from app.errors import InputError
+from app.formats.report import parameter_table
 from app.planning import ProgressLine
-from app.report import parameter_table
-from app.simulation import (
+from app.sim.cell import (
     GeometricMeasurement,
     RenderedMeasurement,
     calibrated_sensor_model,
     true_sensor_model,
 )
+from app.sim.demo import run_demo, summary_text
 from fakes.render_sensor import default_true_sensor
 
 

@@ -23,6 +23,7 @@ from app.devicecheck import describe_and_probe
 from app.errors import InputError
 from drivers import DeviceConfigError, DeviceError, create_device
 from drivers.registry import FAMILIES
+from fakes.wiring import register_fakes
 from fakes.world import StaticWorld
 
 
@@ -132,6 +133,7 @@ def _check(
         options["world"] = world
     if family == "plc":
         options["read_only"] = True  # looking at a live line never changes its handshake
+    register_fakes()  # a cell's fake:// devices are the simulated cell's
     try:
         device = create_device(family, url, **options)
     except DeviceConfigError as exc:
@@ -152,7 +154,7 @@ def _print_table(rows: list[Row]) -> None:
 
 
 def run_trace(args: argparse.Namespace) -> int:
-    from app.wiretrace import format_records, read_records, rotated, to_json
+    from app.formats.wiretrace import format_records, read_records, rotated, to_json
 
     if not args.file.is_file():
         raise InputError("trace file not found", file=args.file)

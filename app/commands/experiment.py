@@ -12,14 +12,14 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from app.accuracy import AccuracySettings, run_accuracy
-from app.accuracy import summary_text as accuracy_text
-from app.cliargs import int_at_least
+from app.commands.args import int_at_least
 from app.commands.compensate import run_compensation_experiment
 from app.config import CellConfig, load_cell
 from app.errors import InputError
-from app.experiment import run_experiment, summary_text
 from app.planning import add_plan_options, plan_overrides
+from app.sim.accuracy import AccuracySettings, run_accuracy
+from app.sim.accuracy import summary_text as accuracy_text
+from app.sim.paper import run_experiment, summary_text
 
 if TYPE_CHECKING:
     from app.sim.shift import ShiftSettings
@@ -149,9 +149,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def run_paper_compare(specs: list[str]) -> int:
-    """Print the runs' reductions side by side (app.paper_compare) as a markdown table."""
-    from app.paper_compare import HEADER, compare_rows, load_run
-    from app.report import markdown_table
+    """Print the runs' reductions side by side (app.sim.paper_compare) as a markdown table."""
+    from app.formats.report import markdown_table
+    from app.sim.paper_compare import HEADER, compare_rows, load_run
 
     if not specs:
         raise InputError("name at least one run folder", field="--runs")

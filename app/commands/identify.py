@@ -36,12 +36,12 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from app.config import load_cell
-    from app.dataio import as_input_error, load_dataset_lines
     from app.errors import InputError
-    from app.files import check_output, dumps_json, write_json
+    from app.formats.csvfiles import as_input_error, load_dataset_lines
+    from app.formats.files import check_output, dumps_json, write_json
+    from app.formats.params import to_json
+    from app.formats.report import parameter_table
     from app.meta import provenance
-    from app.params import to_json
-    from app.report import parameter_table
     from calib.gates import check_identification
     from calib.identify import identify
 

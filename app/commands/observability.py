@@ -6,9 +6,9 @@ import argparse
 import json
 
 from app.config import load_cell
-from app.dataio import as_input_error
-from app.files import read_measurements
-from app.params import from_json
+from app.formats.csvfiles import as_input_error
+from app.formats.files import read_measurements
+from app.formats.params import from_json
 from calib.model import PAPER_30
 from calib.observability import INDEX_NAMES, null_space_groups, observability
 

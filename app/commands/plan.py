@@ -7,9 +7,10 @@ import json
 import sys
 
 from app.config import load_cell
-from app.files import check_output, write_json
+from app.formats.files import check_output, write_json
+from app.formats.params import from_json
+from app.formats.report import index_rows, text_table
 from app.meta import provenance
-from app.params import from_json
 from app.planning import (
     ProgressLine,
     add_plan_options,
@@ -17,7 +18,6 @@ from app.planning import (
     plan_to_json,
     run_plan,
 )
-from app.report import index_rows, text_table
 from calib.observability import INDEX_NAMES
 
 

@@ -16,7 +16,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from app.cliargs import int_at_least
+from app.commands.args import int_at_least
 from app.errors import InputError, RvisError
 
 
@@ -44,11 +44,11 @@ def run(args: argparse.Namespace) -> int:
     if args.geometric or args.windows or args.seed is not None:
         raise InputError("--geometric, --seed and --windows need --sim")
     from app.config import load_cell
+    from app.formats.params import from_json
     from app.line.launch import hold_state
     from app.line.settings import from_cell
     from app.line.statedir import StateDir
     from app.line.station import Station, cell_guard
-    from app.params import from_json
     from drivers.errors import DeviceConfigError, DeviceError
     from vision.sensor_model import load_sensor_model
 
@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     state_sensor = StateDir(settings.state_dir).sensor
     sensor_path = args.sensor_model or (state_sensor if state_sensor.is_file() else None)
     sensor_model = load_sensor_model(sensor_path) if sensor_path else None
-    with hold_state(settings.state_dir, settings.operators_group) as state:
+    with hold_state(settings.state_dir, settings.ops.operators_group) as state:
         try:
             trace = cfg.devices.wire_trace(state.wire_trace)
             station = Station.open(
@@ -92,7 +92,7 @@ def _serve_station(
             station.galvo,
             sensor_model or default_sensor_model(),
             settings.sweep,
-            keep_frames=settings.raw_sweeps_keep > 0,
+            keep_frames=settings.ops.raw_sweeps_keep > 0,
         )
         service = build_service(cfg, station, sensor, settings, plan, x0)
         json_logs()
@@ -117,7 +117,7 @@ def run_sim(args: argparse.Namespace) -> int:
     import sys
 
     from app.config import load_cell
-    from app.files import dumps_json
+    from app.formats.files import dumps_json
     from app.line.launch import SOCKET_NAME, hold_state, json_logs, serving
     from app.sim.line_run import SimulatedLineRun, WindowRecord
 

@@ -22,11 +22,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from app.cliargs import float_in
+from app.commands.args import float_in
+from app.config.tomlfile import read_toml
 from app.errors import InputError, QualityError
-from app.files import check_output, write_text
-from app.sensordata import calibrate_dir, read_sweep
-from app.tomlfile import read_toml
+from app.formats.files import check_output, write_text
+from app.formats.sweeps import calibrate_dir, read_sweep
 from vision.errors import SensorFileError, VisionError
 from vision.measure import measure_sphere_from_sweep
 from vision.sensor_model import (

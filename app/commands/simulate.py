@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import argparse
 
-from app.cliargs import int_at_least
+from app.commands.args import int_at_least
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,8 +28,8 @@ def run(args: argparse.Namespace) -> int:
 
     from app.config import load_cell
     from app.errors import InputError
-    from app.files import write_measurements, write_targets
-    from app.simulation import check_complete, simulated_sets
+    from app.formats.files import write_measurements, write_targets
+    from app.sim.cell import check_complete, simulated_sets
 
     cfg = load_cell(args.cell)
     seed = cfg.simulation.seed if args.seed is None else args.seed

@@ -2,8 +2,9 @@
 can carry (docs/operations.md).
 
 - `backup DEST`: a consistent copy while the service runs (SQLite's online backup of `rvis.db`,
-  then the parameter history, `current.json` and the plan), checked, with a `backup.json`
-  manifest. The history is copied after the database, so it holds every version the copied
+  then the parameter history, `current.json`, the plan and the OPC UA server's certificate, key
+  and trusted clients), checked, with a `backup.json` manifest. The history is copied after
+  the database, so it holds every version the copied
   database names.
 - `restore BACKUP`: a backup into a state directory that no service holds and that has no
   database (a damaged one is moved aside by a person first: rvis never overwrites a database).
@@ -118,6 +119,24 @@ def _copy_params(src_root: Path, dst_root: Path) -> int:
     return n
 
 
+def _copy_opcua(src_root: Path, dst_root: Path) -> int:
+    """Copy the OPC UA server's certificate and key (0600) and the trusted clients
+    (docs/opcua.md), so that a restored cell keeps its identity with the plant; the files."""
+    from app.line.statedir import StateDir
+
+    src, dst = StateDir(src_root), StateDir(dst_root)
+    files = [src.opcua_cert, src.opcua_key, *sorted(src.opcua_trusted.glob("*"))]
+    n = 0
+    for f in (f for f in files if f.is_file()):
+        target = dst.root / f.relative_to(src.root)
+        target.parent.mkdir(mode=0o750, parents=True, exist_ok=True)
+        shutil.copyfile(f, target)
+        if f == src.opcua_key:
+            os.chmod(target, 0o600)
+        n += 1
+    return n
+
+
 def backup(state: Any, dest: Path) -> dict[str, Any]:
     """Copy the state directory `state` (a StateDir) to `dest`; the manifest."""
     from app.line.store import Store
@@ -133,11 +152,13 @@ def backup(state: Any, dest: Path) -> dict[str, Any]:
         finally:
             source.close()
         versions = _copy_params(state.root, dest)
+        opcua = _copy_opcua(state.root, dest)
         manifest = {
             "created_utc": datetime.now(UTC).isoformat(timespec="seconds"),
             "source": str(state.root.resolve()),
             **_database_summary(dest / state.db.name),
             "history_versions": versions,
+            "opcua_files": opcua,
         }
         (dest / MANIFEST).write_text(json.dumps(manifest, indent=1) + "\n", encoding="utf-8")
     finally:
@@ -186,6 +207,7 @@ def restore(backup_dir: Path, state: Any) -> None:
     old_umask = os.umask(0o027)
     try:
         _copy_params(backup_dir, state.root)
+        _copy_opcua(backup_dir, state.root)
         tmp = state.db.with_name(f".{state.db.name}.restore")
         shutil.copyfile(src_db, tmp)
         os.replace(tmp, state.db)  # the database last: a half restore has none
@@ -276,6 +298,13 @@ def _check_permissions(state: Any, problems: list[str]) -> dict[str, str]:
         out[path.name or str(path)] = f"{mode:04o}"
         if mode & 0o007:
             problems.append(f"{path}: mode {mode:04o} gives others access")
+    try:
+        mode = stat.S_IMODE(state.opcua_key.stat().st_mode)
+    except OSError:
+        return out
+    out[state.opcua_key.name] = f"{mode:04o}"
+    if mode & 0o077:
+        problems.append(f"{state.opcua_key}: mode {mode:04o}: the OPC UA private key must be 0600")
     return out
 
 

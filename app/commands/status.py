@@ -8,7 +8,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from app.errors import InputError
+from app.errors import InputError, RvisError
 
 
 def register(sub: Any) -> None:
@@ -66,6 +66,8 @@ def fetch_status(state_dir: Path) -> dict[str, Any]:
             reply = client.request("status")
     except (FileNotFoundError, ConnectionRefusedError):
         return offline_status(state_dir)
+    except OSError as exc:  # the service went away meanwhile, or did not answer in time
+        raise RvisError(f"{state_dir}: no answer from the service ({exc.strerror or exc})") from exc
     reply.pop("id", None)
     reply.pop("ok", None)
     return reply

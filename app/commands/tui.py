@@ -3,14 +3,14 @@ service of a state directory (its control socket and, read-only, its database). 
 never stops the service.
 
 `rvis tui --sim [--rendered] [--seed N]`: first start the simulated line and its service in this
-process (geometric measurements unless --rendered, app/tui/sim.py), then attach; closing the
+process (geometric measurements unless --rendered, app/sim/tui_line.py), then attach; closing the
 terminal stops that simulated service. Its log lines go to STATE_DIR/rvis-sim.log."""
 
 from __future__ import annotations
 
 import argparse
 
-from app.cliargs import int_at_least
+from app.commands.args import int_at_least
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
     import logging
 
     from app.line.launch import json_logs
-    from app.tui.sim import TuiSimSettings, simulated_service
+    from app.sim.tui_line import TuiSimSettings, simulated_service
 
     settings = TuiSimSettings(geometric=not args.rendered, seed=args.seed)
     state_dir.mkdir(parents=True, exist_ok=True)

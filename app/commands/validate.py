@@ -8,10 +8,10 @@ from dataclasses import asdict
 
 import numpy as np
 
-from app.dataio import load_dataset
-from app.files import ERROR_COLUMNS, check_output, write_csv
-from app.params import from_json
-from app.report import STATS_HEADER, stats_rows, text_table
+from app.formats.csvfiles import load_dataset
+from app.formats.files import ERROR_COLUMNS, check_output, write_csv
+from app.formats.params import from_json
+from app.formats.report import STATS_HEADER, stats_rows, text_table
 from calib.identify import residuals
 from calib.validation import ErrorStats
 

@@ -7,7 +7,7 @@ galvo, guided pose by pose (docs/commissioning.md, "Sensor calibration"):
   tilted 10-15 deg about alternating axes: its board with the laser off, then the laser on and
   a sweep of 9 commands over `[sweep] span_v` across the white face.
 
-The images go to the CALIB_DIR layout of app/sensordata.py, the same that `rvis sensor
+The images go to the CALIB_DIR layout of app/formats/sweeps.py, the same that `rvis sensor
 calibrate` reads, so a capture can be checked or redone offline.
 """
 
@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from app.commission.context import Context
-from app.sensordata import write_image, write_sweep
+from app.formats.sweeps import write_image, write_sweep
 
 SWEEP_COMMANDS = 9
 

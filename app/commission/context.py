@@ -18,10 +18,12 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from app.config import CellConfig, SpheresSection
-from app.files import read_targets
+from app.config import CellConfig
+from app.config.cell import SpheresSection
+from app.config.line import LineSettings, SweepSettings
+from app.formats.files import read_targets
 from app.line.measure import SphereSensor
-from app.line.settings import LineSettings, SweepSettings, from_cell
+from app.line.settings import from_cell
 from app.line.statedir import StateDir
 from app.line.station import Station
 from vision.sensor_model import SensorModel
@@ -42,7 +44,7 @@ class Declined(Exception):
 
 class TargetCapture(Protocol):
     """Captures the sensor-calibration targets into a folder in the CALIB_DIR layout of
-    app/sensordata.py (chessboards/, targets/<pose>/)."""
+    app/formats/sweeps.py (chessboards/, targets/<pose>/)."""
 
     def capture(self, calib_dir: Path, ctx: Context) -> None: ...
 

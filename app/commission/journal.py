@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from app.errors import InputError
-from app.files import read_json, write_json
+from app.formats.files import read_json, write_json
 
 FORMAT = "rvis-commission/1"
 STEPS = ("devices", "stripe", "sensor", "spheres", "plan", "calibration", "validation", "ready")

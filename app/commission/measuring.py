@@ -13,10 +13,17 @@ from numpy.typing import NDArray
 
 from app.commission.context import PARAMS_FILE, PLAN_FILE, Context
 from app.commission.journal import StepResult, at_least, at_most, holds
-from app.files import ERROR_COLUMNS, write_csv, write_json, write_measurements, write_targets
+from app.formats.files import (
+    ERROR_COLUMNS,
+    write_csv,
+    write_json,
+    write_measurements,
+    write_targets,
+)
+from app.formats.params import from_json, to_json
+from app.line.cycle import cell_temperature
 from app.line.measure import Rejected, SphereSensor
 from app.meta import provenance
-from app.params import from_json, to_json
 from app.planning import read_plan
 from calib import candidates
 from calib.errors import InsufficientData
@@ -36,6 +43,7 @@ class Taken:
     c_sensor_mm: list[F64] = field(default_factory=list)
     temp_c: list[float | None] = field(default_factory=list)
     rejected: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  # why a cell temperature was missing
 
     def data(self, positions: dict[str, F64]) -> Measurements:
         temps = None if any(t is None for t in self.temp_c) else np.array(self.temp_c)
@@ -56,7 +64,8 @@ class Taken:
 def measure_views(
     ctx: Context, views: list[tuple[str, F64]], sensor: SphereSensor, what: str
 ) -> Taken:
-    """Each (sphere, q_deg) from home and back home; the PLC's cell temperature with each.
+    """Each (sphere, q_deg) from home and back home; the PLC's cell temperature with each (when
+    the cell file says the PLC provides it, and plausible: app.line.cycle.cell_temperature).
     A robot left away from home (a commissioning killed mid-step) goes home first."""
     taken = Taken()
     ctx.home()
@@ -71,7 +80,11 @@ def measure_views(
             taken.targets.append(target)
             taken.q_deg.append(np.asarray(q, dtype=float))
             taken.c_sensor_mm.append(reading.c_sensor_mm)
-            taken.temp_c.append(ctx.station.plc.poll().temp_c)
+            temp_c, why = cell_temperature(ctx.station.plc.poll(), ctx.line)
+            if why and why not in taken.notes:
+                taken.notes.append(why)
+                ctx.say(f"    no cell temperature: {why}")
+            taken.temp_c.append(temp_c)
         ctx.home()
     return taken
 

@@ -18,15 +18,16 @@ import time
 
 import numpy as np
 
-from app.cellfile import dumps_cell
 from app.commission.context import PARAMS_FILE, PLAN_FILE, SENSOR_FILE, Context
 from app.commission.journal import Check, StepResult, holds
-from app.config import CameraSection, CellConfig, load_cell
-from app.files import read_json, write_bytes, write_text
+from app.config import CellConfig, load_cell
+from app.config.devices import CameraSection
+from app.config.write import dumps_cell
+from app.formats.files import read_json, write_bytes, write_text
+from app.formats.params import from_json
 from app.line.params_store import ParamsStore
 from app.line.schedule import Schedule
 from app.line.store import Store
-from app.params import from_json
 
 
 def ready(ctx: Context) -> StepResult:

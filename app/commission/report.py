@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from app.commission.journal import STEPS, Check, Journal
-from app.files import dumps_json, write_text
+from app.formats.files import dumps_json, write_text
 
 TITLES = {
     "devices": "Devices answer",

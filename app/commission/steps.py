@@ -16,10 +16,10 @@ from app.commission.context import PLAN_FILE, SENSOR_FILE, TARGETS_FILE, Context
 from app.commission.journal import Check, StepResult, at_least, at_most, holds
 from app.devicecheck import describe_and_probe
 from app.errors import InputError
-from app.files import write_csv, write_json, write_targets, write_text
+from app.formats.files import write_csv, write_json, write_targets, write_text
+from app.formats.sweeps import calibrate_dir
 from app.meta import provenance
 from app.planning import plan_to_json, run_plan
-from app.sensordata import calibrate_dir
 from drivers import open_tracker
 from drivers.errors import DeviceError
 from drivers.tracker_file import OPTIONAL_NUMBERS, REQUIRED

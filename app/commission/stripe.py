@@ -18,8 +18,8 @@ import numpy as np
 
 from app.commission.context import STRIPE_FILE, Context
 from app.commission.journal import StepResult, at_least, at_most, holds
-from app.files import write_json
-from app.sensordata import write_image
+from app.formats.files import write_json
+from app.formats.sweeps import write_image
 from calib import candidates
 from drivers.camera import Camera, CameraSettings
 from vision.stripe import StripePoints, extract_stripe

@@ -16,15 +16,36 @@ import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from app.line.clock import Clock
+from app.config.line import LineSettings
 from app.line.measure import Reading, Rejected, SphereMeasurer
 from app.line.schedule import Schedule, Slot
-from app.line.settings import LineSettings
+from drivers.clock import Clock
 from drivers.errors import DeviceError
 from drivers.plc import Plc, PlcInputs
 
 #: record(slot, window, reading or None, reason) -> stored row id; must commit before returning
 Recorder = Callable[[Slot, int, Reading | None, str], int]
+
+
+def cell_temperature(inputs: PlcInputs | None, line: LineSettings) -> tuple[float | None, str]:
+    """The cell temperature to use: (degC, "") or (None, why there is none).
+
+    Read only when the cell file says the PLC provides it (`[line] plc_temperature`): a PLC
+    program that predates the word leaves 0 there, which must not read as a cell at 0 degC.
+    Provided, the word's "no sensor" (0x8000, or a backend without the word) and a value
+    outside `plc_temp_min_c..plc_temp_max_c` are no temperature, with the reason."""
+    if not line.plc_temperature or inputs is None:
+        return None, ""
+    temp_c = inputs.temp_c
+    if temp_c is None:
+        return None, "the PLC's cell temperature word (2) says no sensor (0x8000)"
+    lo, hi = line.plc_temp_min_c, line.plc_temp_max_c
+    if not lo <= temp_c <= hi:
+        return None, (
+            f"the PLC's cell temperature word (2) reads {temp_c:.2f} degC, outside [line]"
+            f" plc_temp_min_c..plc_temp_max_c = {lo:g}..{hi:g}"
+        )
+    return temp_c, ""
 
 
 class WindowWatch:
@@ -78,6 +99,10 @@ class WindowWatch:
         if self.opened_t is None:
             return 0.0
         return self.line.window_s - (self.clock.monotonic() - self.opened_t)
+
+    def temperature(self) -> tuple[float | None, str]:
+        """The cell temperature of the last reading (cell_temperature)."""
+        return cell_temperature(self.inputs, self.line)
 
 
 class Withdrawal:

@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from app.line.settings import DriftSettings
+from app.config.line import DriftSettings
 from calib.model import SystemModel
 
 OVERALL = "*"

@@ -14,8 +14,8 @@ import queue
 import threading
 from typing import Any
 
-from app.line.clock import Clock
 from app.line.store import StorageError, Store
+from drivers.clock import Clock
 
 log = logging.getLogger("rvis.line")
 

@@ -33,11 +33,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from app.config.line import RecalibSettings
+from app.formats.params import parameters_json, plain_document
 from app.line.recalib import as_measurements, rms_mm
 from app.line.schedule import Slot
-from app.line.settings import GateSettings, RecalibSettings
-from app.params import parameters_json, plain_document
-from calib.gates import change_failures
+from calib.gates import Gates, change_failures
 from calib.model import SystemModel
 from calib.sequential import SequentialEstimator, SequentialSettings
 
@@ -83,7 +83,7 @@ class InlineSequential:
     def __init__(
         self,
         settings: RecalibSettings,
-        gates: GateSettings,
+        gates: Gates,
         spheres: Mapping[str, F64],
         n_slots: int,
     ) -> None:
@@ -238,8 +238,9 @@ class InlineSequential:
         holdout = as_measurements(list(self.queue), self.spheres)
         cand, cur = rms_mm(model, x, holdout), rms_mm(model, x_current, holdout)
         failures = [] if np.all(np.isfinite(x)) else ["non-finite parameters"]
-        failures += change_failures(self.est.active, x, x_current, self.gates.calib_gates())
-        if not cand <= self.gates.max_holdout_ratio * cur:
+        failures += change_failures(self.est.active, x, x_current, self.gates)
+        ratio = self.gates.max_holdout_ratio
+        if ratio is not None and not cand <= ratio * cur:
             failures.append(
                 f"held-out RMS {cand:.4f} mm not better than the parameters in force ({cur:.4f} mm)"
             )

@@ -7,11 +7,12 @@
 `hold_state` comes first, before any device is opened: the state directory private to the
 service (app.line.statedir.prepare), its exclusive lock (a second service exits 2 naming the
 holder's pid), and a quick check of the database (a damaged one exits 2, untouched).
-`serve` runs the control socket and the service loop in the calling (main) thread until SIGTERM
-or SIGINT, then stops safely: the running window finishes (the robot comes home), the
-background identification is shut down and the database closed. It returns the process's exit
-status: 1 after an internal error (the cell in FAULT, the supervisor restarts the process).
-SIGPIPE is ignored while it serves: a client that goes away never ends the service.
+`serve` runs the control socket (and the OPC UA server, app.line.opcua) and the service loop
+in the calling (main) thread until SIGTERM or SIGINT, then stops safely: the running window
+finishes (the robot comes home), the background identification is shut down and the database
+closed. It returns the process's exit status: 1 after an internal error (the cell in FAULT,
+the supervisor restarts the process). SIGPIPE is ignored while it serves: a client that goes
+away never ends the service.
 """
 
 from __future__ import annotations
@@ -29,7 +30,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from app.line.clock import Clock
 from app.line.control import ControlServer
 from app.line.events import JsonLineFormatter
 from app.line.measure import SphereSensor
@@ -39,6 +39,7 @@ from app.line.settings import ServiceSettings
 from app.line.statedir import SOCKET_NAME, ServiceLock, StateDir, prepare
 from app.line.station import Station
 from app.line.store import Store
+from drivers.clock import Clock
 
 __all__ = ["SOCKET_NAME", "build_service", "hold_state", "json_logs", "serve", "serving"]
 
@@ -89,8 +90,9 @@ def json_logs(stream: Any = None, level: int = logging.INFO) -> logging.Handler:
 
 @contextlib.contextmanager
 def serving(service: Service) -> Iterator[ControlServer]:
-    """The control socket of `service`, with SIGPIPE ignored and an unexpected error in any
-    thread of the process handed to the service (FAULT, exit status 1)."""
+    """The control socket of `service` (and its OPC UA server when `[opcua] enabled`), with
+    SIGPIPE ignored and an unexpected error in any thread of the process handed to the
+    service (FAULT, exit status 1)."""
     main = threading.current_thread() is threading.main_thread()  # signals: main thread only
     previous_pipe = signal.signal(signal.SIGPIPE, signal.SIG_IGN) if main else None
     previous_hook = threading.excepthook
@@ -103,7 +105,14 @@ def serving(service: Service) -> Iterator[ControlServer]:
     threading.excepthook = on_thread_error
     socket_path = StateDir(service.settings.state_dir).socket
     try:
-        with ControlServer(service, socket_path, on_error=service.crash) as server:
+        with (
+            ControlServer(service, socket_path, on_error=service.crash) as server,
+            contextlib.ExitStack() as plant,
+        ):
+            if service.settings.opcua.enabled:
+                from app.line.opcua.server import OpcUaServer
+
+                plant.enter_context(OpcUaServer(service))
             yield server
     finally:
         threading.excepthook = previous_hook

@@ -21,7 +21,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from app.line.settings import LineSettings, SweepSettings
+from app.config.line import LineSettings, SweepSettings
 from drivers.camera import Camera
 from drivers.galvo import Galvo
 from drivers.robot import Robot

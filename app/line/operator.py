@@ -59,17 +59,13 @@ def _calibration(svc: Service, cal_id: int) -> dict[str, Any] | None:
 
 
 def device_of(exc: BaseException, devices: Mapping[str, object]) -> str | None:
-    """The family of the device whose method raised `exc` (the first frame of its traceback,
-    or of its cause's, that runs a method of one of `devices`), or None."""
-    families = {id(d): family for family, d in devices.items()}
+    """The family of the device that raised `exc` (the stamp a device's public method puts on
+    its errors, drivers.errors; or its cause's), when it is one of `devices`; else None."""
     seen: BaseException | None = exc
     while seen is not None:
-        tb = seen.__traceback__
-        while tb is not None:
-            family = families.get(id(tb.tb_frame.f_locals.get("self")))
-            if family is not None:
-                return family
-            tb = tb.tb_next
+        family = getattr(seen, "family", None)
+        if isinstance(family, str) and family in devices:
+            return family
         seen = seen.__cause__
     return None
 

@@ -3,8 +3,8 @@
 Every version is written once to `params/history/NNNN.json` and then made current by replacing
 `current.json` atomically (temporary file in the same directory, fsync, os.replace, fsync of the
 directory): after a crash at any moment `current.json` is one complete version of the history.
-A rollback makes an earlier history file current again. Documents are app.params' parameters
-JSON (readable by `app.params.from_json`) with one more key, `history_version`.
+A rollback makes an earlier history file current again. Documents are app.formats.params' parameters
+JSON (readable by `app.formats.params.from_json`) with one more key, `history_version`.
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.errors import InputError
-from app.files import dumps_json, replace_atomically
-from app.params import from_json
+from app.formats.files import dumps_json, replace_atomically
+from app.formats.params import from_json
 from calib.model import SystemModel
 
 F64 = NDArray[np.float64]

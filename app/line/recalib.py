@@ -13,18 +13,20 @@ force on the held-out measurements" (RMS ratio <= max_holdout_ratio).
 from __future__ import annotations
 
 import multiprocessing
-from collections.abc import Callable, Mapping, Sequence
+import signal
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import Executor, Future, ProcessPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from app.line.settings import GateSettings, RecalibSettings
-from app.params import to_json
+from app.config.line import RecalibSettings
+from app.formats.params import to_json
 from calib.errors import CalibError
-from calib.gates import check_identification
+from calib.gates import Gates, check_identification
 from calib.identify import IdentificationResult, Measurements, identify, residuals
 from calib.model import SystemModel
 from calib.validation import rmse
@@ -40,7 +42,7 @@ class RecalJob:
     x_current: F64
     train: Measurements
     holdout: Measurements
-    gates: GateSettings
+    gates: Gates
     max_nfev: int
     first_id: int
     last_id: int
@@ -97,11 +99,12 @@ def rms_mm(model: SystemModel, x: F64, data: Measurements) -> float:
 
 def check_candidate(result: IdentificationResult, job: RecalJob) -> tuple[list[str], float, float]:
     """The gates of a candidate: (failures, candidate held-out RMS, current held-out RMS)."""
-    report = check_identification(result, job.x_current, job.gates.calib_gates())
+    report = check_identification(result, job.x_current, job.gates)
     failures = list(report.failures)
     cand = rms_mm(job.model, result.x, job.holdout)
     cur = rms_mm(job.model, job.x_current, job.holdout)
-    if not cand <= job.gates.max_holdout_ratio * cur:
+    ratio = job.gates.max_holdout_ratio
+    if ratio is not None and not cand <= ratio * cur:
         failures.append(
             f"held-out RMS {cand:.4f} mm not better than the parameters in force ({cur:.4f} mm)"
         )
@@ -120,7 +123,7 @@ def run_recalibration(job: RecalJob) -> RecalOutcome:
             False, (failure,), None, None, None, None, cur, n, job.first_id, job.last_id
         )
     failures, cand, cur = check_candidate(result, job)
-    report = check_identification(result, job.x_current, job.gates.calib_gates())
+    report = check_identification(result, job.x_current, job.gates)
     doc = to_json(
         job.model, result, report, {"source": "rvis run", "ids": [job.first_id, job.last_id]}
     )
@@ -138,9 +141,41 @@ def run_recalibration(job: RecalJob) -> RecalOutcome:
     )
 
 
+STOP_SIGNALS = {signal.SIGTERM, signal.SIGINT}
+
+
+def _ignore_stop_signals() -> None:
+    """In the worker: SIGTERM and SIGINT are the service's to handle (see `stop_signals_held`);
+    the service ends the worker itself (`Recalibrator.close`)."""
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
+
+
+@contextmanager
+def stop_signals_held() -> Iterator[None]:
+    """Hold SIGTERM and SIGINT in this thread while the pool starts its processes, so that the
+    forkserver, the resource tracker and the worker start with them blocked (a signal mask is
+    inherited). A supervisor's stop (systemd signals the whole control group) or Ctrl-C in a
+    terminal (the whole process group) then reaches only the service: a forkserver or worker
+    dying of it would break the pool under a calibration in flight and turn a routine stop
+    into an internal error. A signal for the service that comes meanwhile is delivered when
+    the mask is restored."""
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
 def process_executor() -> Executor:
-    """One worker process (forkserver: no threads or sockets of the service are inherited)."""
-    return ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("forkserver"))
+    """One worker process (forkserver: no threads or sockets of the service are inherited),
+    deaf to the stop signals meant for the service."""
+    return ProcessPoolExecutor(
+        1,
+        mp_context=multiprocessing.get_context("forkserver"),
+        initializer=_ignore_stop_signals,
+    )
 
 
 class Recalibrator:
@@ -159,9 +194,10 @@ class Recalibrator:
         """Start `job` unless one is running; True if started."""
         if self._future is not None:
             return False
-        if self._executor is None:
-            self._executor = self._factory()
-        self._future = self._executor.submit(run_recalibration, job)
+        with stop_signals_held():  # the processes it starts inherit the mask
+            if self._executor is None:
+                self._executor = self._factory()
+            self._future = self._executor.submit(run_recalibration, job)
         return True
 
     def poll(self) -> RecalOutcome | None:

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from app.line.settings import LineSettings
+from app.config.line import LineSettings
 
 F64 = NDArray[np.float64]
 

@@ -48,7 +48,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from app.errors import InputError
-from app.line.clock import Clock, RealClock
+from app.formats.params import plain_document
 from app.line.cycle import Cycle, WindowWatch
 from app.line.drift import DriftMonitor, prediction_inflation, residual_mm
 from app.line.events import EventBus
@@ -65,9 +65,9 @@ from app.line.step import Step, StepCorrection, step_slot
 from app.line.step_service import StepHandling
 from app.line.store import StorageError, Store
 from app.line.sweeps import SweepArchive
-from app.params import plain_document
 from calib.attribution import NONE, SEVERAL, step_groups
 from calib.model import SystemModel
+from drivers.clock import Clock, RealClock
 from drivers.errors import DeviceError
 
 F64 = NDArray[np.float64]
@@ -109,7 +109,7 @@ class Service(OperatorCommands, StepHandling):
         self.paths = StateDir(s.state_dir)
         self.store = Store(self.paths.db)
         self.params = ParamsStore(s.state_dir)
-        self.sweeps = SweepArchive(self.paths.sweeps, s.raw_sweeps_keep)
+        self.sweeps = SweepArchive(self.paths.sweeps, s.ops.raw_sweeps_keep)
         self.bus = EventBus(self.store, self.clock)
         self._start_alarms: list[tuple[str, str, str]] = []  # raised once the loop runs
         self._recovered: tuple[int, int | None] | None = None  # an apply to complete
@@ -155,6 +155,7 @@ class Service(OperatorCommands, StepHandling):
         self._unstored_alarms: list[dict[str, Any]] = []  # raised while the storage failed
         self.storage_failed = False  # until a reset finds it writing again
         self._space_check_t = self._retention_t = -np.inf
+        self._temperature_bad: bool | None = None  # known after the first poll
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._commands: Queue[tuple[str, dict[str, Any], int | None, Future[dict[str, Any]]]]
@@ -373,6 +374,7 @@ class Service(OperatorCommands, StepHandling):
             self._pause_poll()
             return
         self._watch_heartbeat()
+        self._watch_temperature()
         self._unshelve()
         if self.state == State.IDLE and not self.paused and self.watch.fresh_window():
             self._window()
@@ -410,6 +412,27 @@ class Service(OperatorCommands, StepHandling):
         elif self.watch.alive and alarms:
             self.store.clear_alarms(self.clock.time(), "plc_heartbeat")
             self.bus.emit("alarm_cleared", {"code": "plc_heartbeat"})
+
+    def _watch_temperature(self) -> None:
+        """A `temperature` alarm while the PLC should provide the cell temperature and does
+        not (raised once, cleared when a plausible value returns, or when the cell file no
+        longer reads the word); meanwhile measurements are stored without one and the compliant
+        model leaves its thermal term out. The database is asked only when that changes."""
+        why = self.watch.temperature()[1]
+        if bool(why) == self._temperature_bad:
+            return  # nothing changed since the last poll: no query
+        active = self.store.active_alarms(code="temperature")
+        if why and not active:
+            self._alarm(
+                "temperature",
+                f"{why}: no cell temperature; measurements are stored without one and the"
+                " thermal term is left out until a plausible value returns",
+                "medium",
+            )
+        elif not why and active:
+            self.store.clear_alarms(self.clock.time(), "temperature")
+            self.bus.emit("alarm_cleared", {"code": "temperature"})
+        self._temperature_bad = bool(why)
 
     # -- faults and alarms -------------------------------------------------------------------------
     def _alarm(self, code: str, message: str, priority: str = "high") -> int:
@@ -461,7 +484,7 @@ class Service(OperatorCommands, StepHandling):
         if now - self._space_check_t < SPACE_CHECK_S:
             return
         self._space_check_t = now
-        free, floor = self.paths.free_mb(), self.settings.min_free_mb
+        free, floor = self.paths.free_mb(), self.settings.ops.min_free_mb
         active = self.store.active_alarms(code="low_disk")
         if free < floor and not active:
             self._alarm(
@@ -483,7 +506,7 @@ class Service(OperatorCommands, StepHandling):
         if now - self._retention_t < RETENTION_S:
             return
         self._retention_t = now
-        s, t = self.settings, self.clock.time()
+        s, t = self.settings.ops, self.clock.time()
         if s.events_keep_days > 0:
             n = self.store.prune_events(t - s.events_keep_days * 86400.0)
             if n:
@@ -550,9 +573,9 @@ class Service(OperatorCommands, StepHandling):
 
     @property
     def cell_temp_c(self) -> float | None:
-        """The cell temperature [degC] from the PLC's last reading (None: no sensor)."""
-        inputs = self.watch.inputs
-        return None if inputs is None else inputs.temp_c
+        """The cell temperature [degC] from the PLC's last reading; None when the PLC does not
+        provide it ([line] plc_temperature) or its reading is not plausible (WindowWatch)."""
+        return self.watch.temperature()[0]
 
     def _position(self) -> int:
         return self.store.schedule_position()[0]

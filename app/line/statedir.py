@@ -12,6 +12,10 @@ permissions, the one-service lock and the free space under it (DESIGN.md section
         params/current.json      the applied version (derived: rebuilt from the history)
         params/history/NNNN.json every version ever applied
         sweeps/NNNNNNNN.npz      raw sweeps kept for audit ([service] raw_sweeps_keep)
+        opcua/server-cert.der    the OPC UA server's certificate (created on first start with
+        opcua/server-key.pem     a security policy; the key 0600)
+        opcua/trusted/           client certificates the OPC UA server trusts (DER or PEM)
+        opcua/rejected/          certificates of clients it refused (move one to trusted/)
         trace/wire.jsonl         the devices' wire trace when on ([devices] trace, `?trace=1`),
                                  rotated to wire.jsonl.1, .2, ... (`rvis devices trace`)
         commission/              `rvis commission`: its journal, each step's results, the
@@ -42,6 +46,7 @@ CELL_NAME = "cell.toml"
 SENSOR_NAME = "sensor.toml"
 PARAMS_DIR = "params"
 SWEEPS_DIR = "sweeps"
+OPCUA_DIR = "opcua"
 TRACE_DIR = "trace"
 COMMISSION_DIR = "commission"
 
@@ -98,6 +103,26 @@ class StateDir:
     @property
     def sweeps(self) -> Path:
         return self.root / SWEEPS_DIR
+
+    @property
+    def opcua(self) -> Path:
+        return self.root / OPCUA_DIR
+
+    @property
+    def opcua_cert(self) -> Path:
+        return self.opcua / "server-cert.der"
+
+    @property
+    def opcua_key(self) -> Path:
+        return self.opcua / "server-key.pem"
+
+    @property
+    def opcua_trusted(self) -> Path:
+        return self.opcua / "trusted"
+
+    @property
+    def opcua_rejected(self) -> Path:
+        return self.opcua / "rejected"
 
     @property
     def wire_trace(self) -> Path:

@@ -26,6 +26,7 @@ from drivers.robot import Robot
 from drivers.safety import SafetyGuard
 from drivers.trace import WireTrace
 from drivers.tracker import Tracker
+from fakes.wiring import register_fakes
 
 #: Opened in this order (closed in the reverse one): the PLC first, so a fault can be signalled.
 ORDER = ("plc", "robot", "galvo", "camera", "tracker")
@@ -60,6 +61,7 @@ class Station:
         drivers.trace); the station closes it after the devices."""
         opened: dict[str, Device] = {}
         options = options or {}
+        register_fakes()  # a cell's fake:// devices are the simulated cell's
         try:
             for family in ORDER:
                 if family not in urls:

@@ -34,10 +34,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from app.config.line import RecalibSettings
+from app.formats.params import plain_document
 from app.line.recalib import as_measurements
 from app.line.schedule import Slot
-from app.line.settings import GateSettings, RecalibSettings
-from app.params import plain_document
 from calib.attribution import (
     NONE,
     SEVERAL,
@@ -47,7 +47,7 @@ from calib.attribution import (
     predicted_std_mm,
     step_groups,
 )
-from calib.gates import change_failures
+from calib.gates import Gates, change_failures
 from calib.identify import residuals
 from calib.model import SystemModel
 
@@ -239,7 +239,7 @@ def correct_step(
     sigma_mm: float,
     views: tuple[F64, F64],
     settings: RecalibSettings,
-    gates: GateSettings,
+    gates: Gates,
     *,
     groups: Sequence[StepGroup] | None = None,
     refine: bool = False,
@@ -286,11 +286,12 @@ def correct_step(
     cand = float(np.linalg.norm(residuals(model, fit.x, newest)[0] - ref[-1]))
     cur = float(np.linalg.norm(residuals(model, x_force, newest)[0] - ref[-1]))
     noise = HELD_OUT_NOISE * sigma_mm if refine else 0.0
-    if not cand <= max(gates.max_holdout_ratio * cur, noise):
+    ratio = 1.0 if gates.max_holdout_ratio is None else gates.max_holdout_ratio
+    if not cand <= max(ratio * cur, noise):
         failures.append(
             f"held-out change {cand:.4f} mm not better than the parameters in force ({cur:.4f} mm)"
         )
-    failures += change_failures(fit.group.params, fit.x, x_force, gates.calib_gates())
+    failures += change_failures(fit.group.params, fit.x, x_force, gates)
     doc = plain_document(model, fit.x, f"rvis run (step correction: {a.text()})")
     doc["estimator"] = {"kind": "step", "group": fit.group.name, "attribution": a.to_json()}
     doc["success"] = not failures

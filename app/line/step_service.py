@@ -366,7 +366,7 @@ class StepHandling:
         if version is None:
             return None
         try:
-            from app.params import from_json
+            from app.formats.params import from_json
 
             return from_json(svc.params.history / f"{version:04d}.json")[1]
         except (OSError, ValueError, KeyError, InputError):

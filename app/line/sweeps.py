@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.files import replace_atomically
+from app.formats.files import replace_atomically
 from app.line.measure import Reading
 
 

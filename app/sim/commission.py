@@ -20,10 +20,10 @@ from numpy.typing import NDArray
 
 from app.commission.context import Context
 from app.config import CellConfig
+from app.formats.sweeps import write_image, write_sweep
 from app.line.measure import GeometricSensor, SphereSensor, SweepSensor
-from app.sensordata import write_image, write_sweep
+from app.sim.cell import make_cell
 from app.sim.line_run import simline_settings, true_rmse_mm
-from app.simulation import make_cell
 from fakes.line import SimLine
 from fakes.render_targets import render_calibration_set
 from vision.sensor_model import SensorModel

@@ -25,20 +25,19 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.config import CellConfig
+from app.formats.params import from_json
 from app.line.measure import GeometricSensor, SphereSensor, SweepSensor
 from app.line.schedule import Schedule
-from app.line.service import Service
+from app.line.service import Service, State
 from app.line.settings import ServiceSettings, from_cell
 from app.line.statedir import StateDir
 from app.line.station import Station, cell_guard
-from app.params import from_json
-from app.simulation import make_cell, simulated_sets, true_sensor_model
+from app.sim.cell import make_cell, simulated_sets, true_sensor_model
 from calib import candidates
 from calib.identify import identify
 from calib.validation import rmse
 from fakes.cell import SimulatedCell
-from fakes.line import LineSettings as SimLineSettings
-from fakes.line import SimLine
+from fakes.line import SimLine, SimLineSetup
 from fakes.truth import Knock, Warmup
 
 F64 = NDArray[np.float64]
@@ -89,12 +88,12 @@ def sim_scale(cfg: CellConfig, geometric: bool) -> float:
     return cfg.simline.scale if geometric else min(cfg.simline.scale, RENDERED_MAX_SCALE)
 
 
-def simline_settings(cfg: CellConfig, *, geometric: bool) -> SimLineSettings:
+def simline_settings(cfg: CellConfig, *, geometric: bool) -> SimLineSetup:
     s = cfg.simline
     knock = None
     if s.knock_at_s >= 0:
         knock = Knock(s.knock_at_s, s.knock_mm, s.knock_deg, s.knock_kind)
-    return SimLineSettings(
+    return SimLineSetup(
         scale=sim_scale(cfg, geometric),
         period_s=s.period_s,
         window_s=s.window_s,
@@ -104,6 +103,12 @@ def simline_settings(cfg: CellConfig, *, geometric: bool) -> SimLineSettings:
         camera=not geometric,
         n_validation=s.n_validation,
     )
+
+
+def with_simulated_plc(cfg: CellConfig) -> CellConfig:
+    """The cell as the simulated line's devices are: its PLC writes the cell temperature in
+    word 2 (`[line] plc_temperature` on, whatever the cell file says)."""
+    return dataclasses.replace(cfg, line=dataclasses.replace(cfg.line, plc_temperature=True))
 
 
 def service_settings(
@@ -173,6 +178,7 @@ class SimulatedLineRun:
         geometric: bool = False,
         plan: Path | None = None,
     ) -> None:
+        cfg = with_simulated_plc(cfg)
         self.cfg, self.state_dir, self.seed = cfg, Path(state_dir), seed
         self.cell = make_cell(cfg, seed=seed)
         self.line = SimLine(self.cell, simline_settings(cfg, geometric=geometric))
@@ -242,18 +248,29 @@ class SimulatedLineRun:
         self.thread.start()
 
     def events_until(
-        self, stop: Callable[[dict[str, Any]], bool], timeout_s: float
+        self,
+        stop: Callable[[dict[str, Any]], bool],
+        timeout_s: float,
+        quiet_ok: Callable[[], bool] = lambda: False,
     ) -> Iterator[dict[str, Any]]:
-        """The service's events until `stop(event)` is true (TimeoutError after timeout_s of
-        silence)."""
+        """The service's events until `stop(event)` is true. After timeout_s of silence:
+        TimeoutError (a service that hangs), unless `quiet_ok()` says the silence is the
+        service's own (held in FAULT or paused until an operator acts: keep waiting)."""
         while True:
             try:
                 event = self.events.get(timeout=timeout_s)
             except queue.Empty:
+                if quiet_ok():
+                    continue
                 raise TimeoutError(f"no event from the service in {timeout_s:g} s") from None
             yield event
             if stop(event):
                 return
+
+    def _quiet_by_itself(self) -> bool:
+        """The service is silent on purpose: in FAULT or paused, waiting for an operator."""
+        alive = self.thread is not None and self.thread.is_alive()
+        return alive and (self.service.state == State.FAULT or self.service.paused)
 
     def run_windows(
         self,
@@ -268,7 +285,7 @@ class SimulatedLineRun:
         s = self.summary
         silence_s = 10.0 + 5.0 * self.cfg.simline.period_s / self.scale
         done = lambda e: s.windows >= n or e["event"] == "stopped"  # noqa: E731
-        for event in self.events_until(done, silence_s):
+        for event in self.events_until(done, silence_s, self._quiet_by_itself):
             self._count(event)
             if on_event is not None:
                 on_event(event)

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from app.config import CellConfig
-from app.files import dumps_json
+from app.formats.files import dumps_json
 from app.sim.line_run import SimRunSummary, SimulatedLineRun, WindowRecord
 from fakes.truth import KNOCK_KINDS, Knock
 

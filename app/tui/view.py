@@ -93,7 +93,7 @@ def overview_text(status: dict[str, Any] | None) -> str:
     heartbeat = "alive" if win.get("heartbeat_alive") else "LOST"
     running = "yes" if win.get("line_running") else "NO"
     temp = s.get("cell_temp_c")
-    cell = "no temperature sensor" if temp is None else num(temp, ".2f", " degC")
+    cell = "no cell temperature" if temp is None else num(temp, ".2f", " degC")
     devices = device_rows(status)
     bad = [f"{d[0]} {d[2]}" for d in devices if d[2] not in ("OK", "OPEN")]
     return "\n".join(

@@ -10,14 +10,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.accuracy import measure_views, plan_views
-from app.cli import main
+from app.commands.cli import main
 from app.config import CellConfig
-from app.dataio import load_dataset
 from app.errors import InputError
-from app.files import write_json, write_measurements, write_targets
-from app.params import from_json, to_json
-from app.simulation import make_cell
+from app.formats.csvfiles import load_dataset
+from app.formats.files import write_json, write_measurements, write_targets
+from app.formats.params import from_json, to_json
+from app.sim.accuracy import measure_views, plan_views
+from app.sim.cell import make_cell
 from calib.compliance import CompliantModel, CompliantSettings
 from calib.identify import Measurements, identify
 
@@ -112,3 +112,57 @@ def test_experiment_paper_with_the_compliant_model(
     assert rmse["random (compliant)"] < rmse["random"]
     assert rmse["planned (compliant)"] < rmse["planned"]
     assert "## Rigid and compliant model" in (tmp_path / "experiment.md").read_text()
+
+
+@pytest.mark.parametrize(
+    ("change", "field", "reason"),
+    [
+        ({"kind": "compliant"}, "model.kind", "'compliant' does not match model.name"),
+        ({"kind": "compliant", "compliant": {}}, "model.kind", "does not match model.name"),
+        ({"compliant": {"payload_kg": 1.0}}, "model.compliant", "in a rigid one"),
+        ({"kind": "flexible"}, "model.kind", "'flexible' does not match"),
+    ],
+)
+def test_a_params_file_whose_model_name_and_kind_disagree_is_refused(
+    cfg: CellConfig, tmp_path: Path, change: dict[str, object], field: str, reason: str
+) -> None:
+    """The rigid model's name with kind "compliant" (and no compliant settings) was read as a
+    compliant model with default settings: a silently different model."""
+    model = cfg.model()
+    doc = to_json(model, identify(model, warm_rigid(cfg)))
+    doc["model"] = {**doc["model"], **change}
+    write_json(tmp_path / "p.json", doc)
+    with pytest.raises(InputError, match=rf"p\.json: field '{field}': .*{reason}"):
+        from_json(tmp_path / "p.json")
+
+
+def test_a_compliant_params_file_needs_every_compliant_setting(
+    cfg: CellConfig, warm: Measurements, tmp_path: Path
+) -> None:
+    model = CompliantModel.of(cfg.model(), CompliantSettings(payload_kg=4.0))
+    good = to_json(model, identify(model, warm))
+    cases: list[tuple[dict[str, object], str, str]] = [
+        ({"kind": "rigid"}, "model.kind", "'rigid' does not match"),
+        ({"compliant": None}, "model.compliant", "needs the compliant model's settings"),
+        ({"compliant": "yes"}, "model.compliant", "needs the compliant model's settings"),
+    ]
+    settings = good["model"]["compliant"]
+    for key in settings:
+        without = {k: v for k, v in settings.items() if k != key}
+        cases.append(({"compliant": without}, f"model.compliant.{key}", "missing field"))
+    cases += [
+        ({"compliant": {**settings, "payload_kg": "4"}}, "model.compliant.payload_kg", "finite"),
+        ({"compliant": {**settings, "identify_expansion": 1}}, "model.compliant.identify_", "true"),
+        ({"compliant": {**settings, "payload_kg": -1.0}}, "model.compliant", "payload_kg"),
+        ({"compliant": {**settings, "colour": "red"}}, "model.compliant", "unknown setting"),
+    ]
+    for change, field, reason in cases:
+        doc = {**good, "model": {**good["model"], **change}}
+        write_json(tmp_path / "c.json", doc)
+        with pytest.raises(InputError, match=rf"c\.json: field '{field}.*{reason}"):
+            from_json(tmp_path / "c.json")
+    doc = {**good, "model": {**good["model"]}}
+    del doc["model"]["kind"]  # a compliant model's name without its kind: not a rigid model
+    write_json(tmp_path / "c.json", doc)
+    with pytest.raises(InputError, match=r"'rigid' does not match model\.name"):
+        from_json(tmp_path / "c.json")

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from app.cli import main
+from app.commands.cli import main
 
 Cli = Callable[[list[str]], tuple[int, str, str]]
 

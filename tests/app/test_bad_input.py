@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from app.cli import main
+from app.commands.cli import main
 from app.errors import InputError
-from app.files import write_bytes
+from app.formats.files import write_bytes
 from tests.app.conftest import Cli
 
 
@@ -242,14 +242,14 @@ def test_a_failed_write_leaves_the_old_file(
 def test_cli_startup_and_pipes(tmp_path: Path) -> None:
     """`rvis --help` loads no numerical library; `--version`; a closed pipe is no traceback."""
     probe = (
-        "import sys; from app.cli import main\n"
+        "import sys; from app.commands.cli import main\n"
         "try:\n    main(['--help'])\nexcept SystemExit:\n    pass\n"
         "heavy = [m for m in ('numpy', 'cv2', 'scipy', 'fakes') if m in sys.modules]\n"
         "print('HEAVY', heavy)"
     )
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
     assert "HEAVY []" in out.stdout
-    rvis = [sys.executable, "-m", "app.cli"]
+    rvis = [sys.executable, "-m", "app"]
     version = subprocess.run([*rvis, "--version"], capture_output=True, text=True, check=True)
     assert version.stdout.startswith("rvis ")
     proc = subprocess.Popen([*rvis, "--help"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)

@@ -9,8 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.cellfile import dumps_cell
-from app.config import SECTIONS, CameraSection, SpheresSection, load_cell
+from app.config import SECTIONS, load_cell
+from app.config.cell import SpheresSection
+from app.config.devices import CameraSection
+from app.config.write import dumps_cell
 
 
 def test_a_cell_reads_back_to_the_same_sections(tmp_path: Path) -> None:
@@ -33,6 +35,5 @@ def test_a_cell_reads_back_to_the_same_sections(tmp_path: Path) -> None:
 
 def test_only_finite_numbers_are_written() -> None:
     cfg = load_cell(None)
-    bad = dataclasses.replace(cfg, camera=CameraSection(exposure_us=float("nan")))
-    with pytest.raises(ValueError, match="finite"):
-        dumps_cell(bad)
+    with pytest.raises(ValueError, match="finite"):  # refused where the section is made
+        dumps_cell(dataclasses.replace(cfg, camera=CameraSection(exposure_us=float("nan"))))

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from app.cli import main
-from app.cli_logging import configure
+from app.commands.cli import main
+from app.commands.logs import configure
 from tests.app.conftest import Cli
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -48,7 +48,7 @@ def test_a_batch_run_with_alarms_leaves_stderr_clean(tmp_path: Path) -> None:
     argv = ["run", "--sim", "--geometric", "--windows", "16", "--cell", str(cell)]
     argv += ["--state-dir", str(tmp_path / "state")]
     done = subprocess.run(
-        [sys.executable, "-m", "app.cli", *argv],
+        [sys.executable, "-m", "app", *argv],
         cwd=ROOT,
         capture_output=True,
         text=True,

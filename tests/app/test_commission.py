@@ -16,12 +16,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.cli import main
+from app.commands.cli import main
 from app.config import load_cell
+from app.formats.params import from_json
 from app.line.params_store import ParamsStore
 from app.line.statedir import StateDir
 from app.line.store import Store
-from app.params import from_json
 
 ROOT = Path(__file__).resolve().parents[2]
 CELL = "[planning]\ngrid_step_deg = 15.0\n"
@@ -39,7 +39,7 @@ def _kill_at(argv: list[str], marker: str) -> list[str]:
     env = os.environ | {"PYTHONUNBUFFERED": "1"}
     lines: list[str] = []
     with subprocess.Popen(
-        [sys.executable, "-m", "app.cli", *argv],
+        [sys.executable, "-m", "app", *argv],
         cwd=ROOT,
         env=env,
         stdout=subprocess.PIPE,
@@ -97,12 +97,19 @@ def test_commissioning_resumes_after_a_kill_and_leaves_a_cell_ready_to_run(
     assert validation["rmse_mm"] < 0.1 < 1.0 < validation["rmse_nominal_mm"]
     assert validation["true_rmse_mm"] < 0.1  # against the simulated cell's truth
     assert steps["calibration"]["results"]["measurements"] == 24
+    # the simulated PLC writes the cell temperature, and the commissioning cell says so: each
+    # measurement carries it (a PLC that does not would give none, never 0 degC)
+    rows = (paths.commission / "calibration_measurements.csv").read_text().splitlines()
+    assert rows[0].endswith(",temp_c") and len(rows) == 25
+    temps = [float(r.rsplit(",", 1)[1]) for r in rows[1:]]
+    assert all(15.0 < t < 30.0 for t in temps)
     md = (paths.commission / "commission.md").read_text()
     assert "**8 of 8 steps passed**" in md and "| validation RMSE |" in md
 
     # the state directory, read the way the service reads it
     cfg = load_cell(paths.cell)
     assert set(cfg.spheres_part_mm) == {"P1", "P2", "P3", "P4"} and cfg.spheres.frame == "part"
+    assert cfg.line.plc_temperature  # the simulated line's PLC provides it
     version, _, x = ParamsStore(state).current()  # type: ignore[misc]
     assert version == 1 and paths.plan.is_file() and paths.sensor.is_file()
     np.testing.assert_array_equal(x, from_json(paths.commission / "params.json")[1])

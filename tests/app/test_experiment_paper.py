@@ -9,11 +9,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from app.cli import main
+from app.commands.cli import main
 from app.config import CellConfig, load_cell
 from app.errors import InputError
-from app.experiment import run_seed
 from app.planning import plan_settings, run_plan
+from app.sim.paper import run_seed
 from calib.compliance import ARM_COMPLIANCE, select_model
 from calib.model import PAPER_30
 

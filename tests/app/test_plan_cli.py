@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.cli import main
+from app.commands.cli import main
 from app.config import CellConfig
-from app.files import write_json
-from app.params import from_json, to_json
+from app.formats.files import write_json
+from app.formats.params import from_json, to_json
 from app.planning import read_plan
 from calib.identify import identify
 from calib.transforms import apply, inverse

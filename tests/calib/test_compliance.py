@@ -9,9 +9,9 @@ from functools import cache
 import numpy as np
 import pytest
 
-from app.accuracy import WarmData, measure_views, plan_views, simulated_truth
 from app.config import CellConfig, load_cell
-from app.simulation import make_cell
+from app.sim.accuracy import WarmData, measure_views, plan_views, simulated_truth
+from app.sim.cell import make_cell
 from app.workspace import workspace_points
 from calib import robot
 from calib.compliance import (

@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.accuracy import measure_views, plan_views, simulated_truth
 from app.config import CellConfig
-from app.simulation import DataSet, make_cell
+from app.sim.accuracy import measure_views, plan_views, simulated_truth
+from app.sim.cell import DataSet, make_cell
 from app.workspace import workspace_points
 from calib import candidates
 from calib.compliance import CompliantModel, CompliantSettings

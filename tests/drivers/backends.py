@@ -128,9 +128,9 @@ class RobotProfile:
 @cache
 def robot_profile() -> RobotProfile:
     """The robot's safety profile from the environment (validated once)."""
-    from app.config import LineSection
+    from app.config.line import LineSettings
 
-    home = _env_numbers("RVIS_ROBOT_HOME_DEG", LineSection().home_deg, 6)
+    home = _env_numbers("RVIS_ROBOT_HOME_DEG", LineSettings().home_deg, 6)
     (box,) = _env_numbers("RVIS_ROBOT_BOX_DEG", (5.0,), 1)
     if not 0 < box <= MAX_BOX_DEG:
         pytest.fail(f"RVIS_ROBOT_BOX_DEG={box:g}: must be in (0, {MAX_BOX_DEG:g}]", pytrace=False)

@@ -19,7 +19,7 @@ from pyModbusTCP.client import ModbusClient
 from pyModbusTCP.server import DataBank, ModbusServer
 from pyModbusTCP.utils import decode_ieee, encode_ieee, long_list_to_word, word_list_to_long
 
-from drivers import DeviceTimeout, open_plc
+from drivers import DeviceFault, DeviceTimeout, open_plc
 from drivers.modbus_robot import MAILBOX, STATUS_IDLE
 from fakes.devices import ClampCycle
 from fakes.modbus_robot import ModbusRobotServer
@@ -125,3 +125,47 @@ def test_our_plc_driver_against_a_pymodbustcp_server(third_party_plc: ThirdParty
             assert peer.app_words()[0] == 0x1  # busy
         bits, beat = peer.app_words()
         assert bits == 0x2 and beat == plc.outputs.heartbeat > 0  # done, our heartbeat
+
+
+def test_the_plc_peer_answers_only_its_unit_and_the_function_codes_of_its_map() -> None:
+    """As a PLC's Modbus server: unit 1 (configurable), holding registers through FC3, FC6 and
+    FC16; another function code is exception 1 (illegal function), another unit exception 11
+    (gateway target device failed to respond). The peer answered any unit, and FC1 and FC4."""
+    with PlcServer(CYCLE) as plc, PlcServer(CYCLE, unit=7) as plc7:
+        c = client(plc.port)
+        try:
+            assert c.read_holding_registers(0, 3) is not None and c.last_except == 0
+            assert c.write_single_register(11, 5) and c.write_multiple_registers(10, [0, 6])
+            calls = {
+                1: lambda: c.read_coils(0, 1),
+                2: lambda: c.read_discrete_inputs(0, 1),
+                4: lambda: c.read_input_registers(0, 3),
+                5: lambda: c.write_single_coil(0, True),
+                15: lambda: c.write_multiple_coils(0, [True]),
+            }
+            for fc, call in calls.items():
+                assert call() in (None, False), fc
+                assert c.last_except == 1, fc  # illegal function
+        finally:
+            c.close()
+        for port, unit in ((plc.port, 2), (plc.port, 0), (plc7.port, 1)):
+            other = ModbusClient(host="127.0.0.1", port=port, unit_id=unit, timeout=2.0)
+            try:
+                assert other.read_holding_registers(0, 3) is None
+                assert other.last_except == 11, (port, unit)
+            finally:
+                other.close()
+        seven = ModbusClient(host="127.0.0.1", port=plc7.port, unit_id=7, timeout=2.0)
+        try:
+            assert seven.read_holding_registers(0, 3) is not None
+        finally:
+            seven.close()
+
+
+def test_our_plc_driver_names_the_unit_a_plc_does_not_answer() -> None:
+    with PlcServer(CYCLE) as server:
+        with pytest.raises(DeviceFault, match=r"\(unit 3\): exception 11: gateway target") as exc:
+            open_plc(f"plc+modbus://127.0.0.1:{server.port}?unit=3", timeout_s=0.5)
+        assert exc.value.code == 11
+        with open_plc(f"plc+modbus://127.0.0.1:{server.port}?unit=1", timeout_s=0.5) as plc:
+            assert plc.poll().line_running in (True, False)

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,7 +17,7 @@ from drivers import (
     FaultLatched,
 )
 from drivers._modbus import floats_to_words, words_to_floats
-from drivers.modbus_robot import ModbusRobot
+from drivers.modbus_robot import MAILBOX, ModbusRobot
 from fakes.modbus_robot import ERR_LIMIT, ModbusRobotServer
 from fakes.world import StaticWorld
 
@@ -138,3 +140,26 @@ def test_controller_gone_and_back(world: StaticWorld) -> None:
             np.testing.assert_allclose(robot.move_joints(A, speed_pct=100), A, atol=1e-4)
     finally:
         server.close()
+
+
+def test_the_tp_listing_serves_the_drivers_mailbox_over_modbus_tcp() -> None:
+    """docs/RVIS_MBX.ls: its first line names the protocol it serves (Modbus TCP; it said "R553
+    SNPX", HMI Device, a different protocol), and every R[] it uses sits at the word offset
+    the driver reads or writes (R[n] at words 2 (n - 1), a REAL in two words)."""
+    text = (Path(__file__).resolve().parents[2] / "docs" / "RVIS_MBX.ls").read_text()
+    first = re.search(r"^\s+1:\s+!(.*);$", text, re.M)
+    assert first is not None and "Modbus TCP" in first.group(1)
+    assert "SNPX" not in text and "R553" not in text
+    offsets = {
+        "CMD": MAILBOX.CMD,
+        "SPEED": MAILBOX.SPEED,
+        **{f"J{i + 1}": MAILBOX.TARGET + 2 * i for i in range(6)},
+        "ACK": MAILBOX.ACK,
+        "DONE": MAILBOX.DONE,
+        "STATUS": MAILBOX.STATUS,
+        "ERROR": MAILBOX.ERROR,
+    }
+    used = set(re.findall(r"(?<![A-Z])R\[(\d+):([A-Z0-9]+)\]", text))
+    assert {name for _, name in used} == set(offsets)
+    for number, name in used:
+        assert 2 * (int(number) - 1) == offsets[name], name

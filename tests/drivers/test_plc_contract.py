@@ -272,7 +272,11 @@ def test_the_modbus_plc_reads_the_cell_temperature_from_its_peer() -> None:
         PlcServer(CYCLE) as server,
         open_plc(f"plc+modbus://127.0.0.1:{server.port}", **OPTS) as plc,
     ):
-        assert plc.poll().temp_c is None  # no sensor configured on the peer
+        assert plc.poll().temp_c == 0.0  # a PLC program that never writes the word
+        server.temperature = lambda: None
+        deadline = time.monotonic() + 2.0
+        while plc.poll().temp_c is not None:  # "no sensor": 0x8000
+            assert time.monotonic() < deadline, "the no-sensor word never arrived"
         server.temperature = lambda: 24.56
         deadline = time.monotonic() + 2.0
         while plc.poll().temp_c != 24.56:  # the peer's next scan writes the word

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 import drivers
-from app.cli import main
+from app.commands.cli import main
 from drivers import DeviceConfigError, parse_url
 from drivers.registry import BACKENDS, backend_class
 
@@ -77,7 +77,7 @@ def test_url_parsing() -> None:
     assert flags.flag("read_only") and not flags.flag("trace") and not flags.flag("absent")
     with pytest.raises(DeviceConfigError, match="'x' must be 1 or 0"):
         flags.flag("x")
-    with pytest.raises(DeviceConfigError, match="known: fake://, rmi://, modbus://"):
+    with pytest.raises(DeviceConfigError, match="known: rmi://, modbus://, fake://"):
         backend_class("robot", "ftp")
 
 
@@ -143,3 +143,25 @@ def test_devices_check_never_writes_the_plc(
         assert service.read_outputs() == held and held.busy
         with open_plc(f"plc+modbus://127.0.0.1:{server.port}?read_only=1") as ro:
             assert ro.read_only and ro.read_outputs() == held
+
+
+def test_the_drivers_alone_know_no_fake_scheme() -> None:
+    """drivers/ names nothing of fakes/: fake:// exists once the simulated cell is wired in."""
+    code = (
+        "from drivers import DeviceConfigError, create_device\n"
+        "try:\n    create_device('robot', 'fake://')\n"
+        "except DeviceConfigError as e:\n    print(e)\n"
+        "from fakes.wiring import register_fakes\nregister_fakes()\n"
+        "from fakes.world import StaticWorld\n"
+        "print(type(create_device('robot', 'fake://', world=StaticWorld())).__name__)\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        cwd=Path(__file__).resolve().parents[2],
+    )
+    assert out.returncode == 0, out.stderr
+    first, second = out.stdout.splitlines()
+    assert "no robot backend for fake:// (the simulated cell's: not wired in here)" in first
+    assert second == "FakeRobot"

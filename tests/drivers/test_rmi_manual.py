@@ -168,6 +168,28 @@ def test_peer_error_codes_follow_the_manual(client: RawClient) -> None:
     assert reply == {"Instruction": "FRC_JointMotionJRep", "ErrorID": 0, "SequenceID": 1}
 
 
+def test_read_error_answers_as_the_controller(ctrl: RmiController, client: RawClient) -> None:
+    """FRC_ReadError (B-84184EN 2.3.5, FANUC fanuc_driver packets.hpp): Count 1..5 of the
+    controller's errors, newest first, in ErrorData, ErrorData2, ...; "No Error" where there is
+    none. The peer answered Count 1 whatever was asked, and an empty ErrorData."""
+    quiet = client.ask(Command="FRC_ReadError")
+    assert quiet == {"Command": "FRC_ReadError", "ErrorID": 0, "Count": 1, "ErrorData": "No Error"}
+    ctrl.raise_system_fault()
+    assert client.file.readline().startswith(b'{"Communication": "FRC_SystemFault"')
+    three = client.ask(Command="FRC_ReadError", Count=3)
+    assert three["Count"] == 3 and three["ErrorData"].startswith("SRVO-050 ")
+    assert (three["ErrorData2"], three["ErrorData3"]) == ("No Error", "No Error")
+    assert "ErrorData4" not in three
+    five = client.ask(Command="FRC_ReadError", Count=5)
+    assert [k for k in five if k.startswith("ErrorData")] == ["ErrorData"] + [
+        f"ErrorData{k}" for k in range(2, 6)
+    ]
+    for bad in (0, 6, "2", 1.5, True):
+        assert client.ask(Command="FRC_ReadError", Count=bad)["ErrorID"] == rmi.INVALID_VALUE
+    assert client.ask(Command="FRC_Reset")["ErrorID"] == 0
+    assert client.ask(Command="FRC_ReadError")["ErrorData"] == "No Error"
+
+
 def test_peer_packets_clients_use(
     ctrl: RmiController, client: RawClient, world: StaticWorld
 ) -> None:

@@ -117,13 +117,15 @@ def test_duration_is_the_slowest_joint() -> None:
     assert t == pytest.approx(2.0)
 
 
-def test_the_drivers_default_limits_are_the_models() -> None:
-    """drivers/ may not import calib/: the M-710iC/50 limits live in both layers, bound here."""
-    from calib.robot import JointLimits as ModelLimits
+def test_the_drivers_fallback_limits_are_the_data_sheets() -> None:
+    """The data sheet's home is calib/robot.py and the app's guard reads it through the cell
+    file (app.line.station.cell_guard); drivers/ may not import calib/, so the fallback of a
+    robot driver opened without a guard (tests, fakes) repeats it, pinned here."""
+    from calib import robot
 
-    model = ModelLimits()
-    assert np.array_equal(LIMITS.lower_deg, model.lower_deg)
-    assert np.array_equal(LIMITS.upper_deg, model.upper_deg)
+    assert np.array_equal(LIMITS.lower_deg, robot.JointLimits().lower_deg)
+    assert np.array_equal(LIMITS.upper_deg, robot.JointLimits().upper_deg)
+    assert np.array_equal(LIMITS.speed_deg_s, robot.JOINT_SPEED_DEG_S)
 
 
 def test_max_speed_is_part_of_the_guard() -> None:

@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.compensation_check import view_configurations
 from app.config import load_cell
-from app.files import write_json
-from app.params import to_json
-from app.simulation import collect, make_cell
+from app.formats.files import write_json
+from app.formats.params import to_json
+from app.sim.cell import collect, make_cell
+from app.sim.compensation import view_configurations
 from calib.identify import identify
 from calib.model import SystemModel
 from fakes.cell import SimulatedCell

@@ -1,20 +1,23 @@
 """The API example of docs/api.md runs as written, and its results match the simulated cell's
-true robot; the shapes `to_part` accepts; a parameters file of another model is refused."""
+true robot; the shapes `to_part` accepts; every function checks its arguments and names the
+wrong one; a parameters file of another model is refused."""
 
 from __future__ import annotations
 
 import json
 import re
 import shutil
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
-from app.api import Calibration
+from app.api import Calibration, command_xyzwpr
 from app.errors import InputError
 from calib.transforms import apply
-from calib.wpr import pose_from_xyzwpr
+from calib.wpr import pose_from_xyzwpr, xyzwpr_from_pose
 from tests.inuse.conftest import Calibrated, standoff_error_mm
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "api.md"
@@ -60,10 +63,56 @@ def test_to_part_shapes(calibrated: Calibrated) -> None:
     assert np.allclose(cal.to_part(q[1], p[1]), profiles[1])
     T = cal.model.fk(calibrated.x, q)
     assert np.allclose(profiles[3, 4], T[3, :3, :3] @ p[3, 4] + T[3, :3, 3])
-    with pytest.raises(ValueError, match="4 configurations but 3 points"):
+    assert np.allclose(cal.to_part(q[1], p[1, 0]), profiles[1, 0])
+    with pytest.raises(ValueError, match="p_sensor_mm: 3 rows of points but q_deg has 4"):
         cal.to_part(q, p[:3, 0])
-    with pytest.raises(ValueError, match="expected joints"):
+    with pytest.raises(ValueError, match=r"q_deg: expected shape \(N, 6\)"):
         cal.to_part(q[:, :5], p)
+
+
+NAN_Q = [10.0, float("nan"), -5.0, 30.0, -60.0, 15.0]
+
+
+def test_every_api_function_checks_its_arguments_and_names_them(calibrated: Calibrated) -> None:
+    """NaN joints gave NaN points or "no inverse kinematics solution", wrong shapes raw numpy
+    IndexErrors, and a q_hint_deg with more rows than poses was accepted."""
+    cal = Calibration.load(calibrated.params)
+    q = calibrated.views_deg[:2]
+    xyzwpr = xyzwpr_from_pose(cal.model.fk(cal.model.nominal_x(), q))
+    anything: Any = 20  # not what the signature says: checked at run time
+    bad_calls: list[tuple[Callable[[], object], type[Exception], str]] = [
+        (lambda: cal.to_part([q[0], NAN_Q], [[0, 0, 130]] * 2), ValueError, r"q_deg\[1, 1\] = nan"),
+        (lambda: cal.to_part(q, [[0, 0, np.inf]] * 2), ValueError, r"p_sensor_mm\[0, 2\] = inf"),
+        (lambda: cal.to_part(q, np.zeros((2, 4, 2))), ValueError, r"p_sensor_mm: expected shape"),
+        (lambda: cal.to_part(q, np.zeros(3)), ValueError, r"p_sensor_mm: expected shape"),
+        (lambda: cal.to_part(q[0], np.zeros((2, 2, 3))), ValueError, r"p_sensor_mm: expected"),
+        (lambda: cal.to_part(q[0], [[0, 0, 1e6]]), ValueError, r"p_sensor_mm\[0, 2\] = 1000000"),
+        (lambda: cal.to_part(np.zeros((2, 1, 6)), np.zeros((2, 3))), ValueError, r"q_deg: exp"),
+        (lambda: cal.to_part(q, "abc"), ValueError, r"p_sensor_mm: not an array of numbers"),
+        (lambda: cal.sensor_pose(NAN_Q), ValueError, r"q_deg\[0, 1\] = nan"),
+        (lambda: cal.sensor_pose(np.zeros((0, 6))), ValueError, r"q_deg: .* N >= 1"),
+        (lambda: cal.sensor_pose([0, 0, 0, 0, 0, 1e4]), ValueError, r"within \+-720 deg"),
+        (lambda: cal.compensate_joints([NAN_Q]), ValueError, r"q_deg\[0, 1\] = nan"),
+        (lambda: cal.compensate_joints(q[:, :4]), ValueError, r"q_deg: expected shape"),
+        (lambda: cal.compensate_joints(q, settings=anything), TypeError, r"settings: expected"),
+        (lambda: cal.compensate_poses(xyzwpr[:, :5]), ValueError, r"xyzwpr: expected shape"),
+        (lambda: cal.compensate_poses([[np.nan] * 6]), ValueError, r"xyzwpr\[0, 0\] = nan"),
+        (lambda: cal.compensate_poses(xyzwpr, q[[0, 1, 1]]), ValueError, r"q_hint_deg: 3 rows"),
+        (lambda: cal.compensate_poses(xyzwpr, q[:1]), ValueError, r"q_hint_deg: 1 rows"),
+        (lambda: cal.compensate_poses(xyzwpr, [q[0], NAN_Q]), ValueError, r"q_hint_deg\[1\]"),
+        (lambda: cal.compensate_poses(xyzwpr, q[:, :3]), ValueError, r"q_hint_deg: expected"),
+        (lambda: command_xyzwpr(anything), TypeError, r"result: expected a Compensation"),
+        (lambda: Calibration(cal.model, cal.x[:30]), ValueError, r"x: expected shape \(37,\)"),
+        (lambda: Calibration(cal.model, np.full(37, np.nan)), ValueError, r"x\[0\] = nan"),
+        (lambda: Calibration.load(anything), TypeError, r"path: expected a file name"),
+    ]
+    for call, error, message in bad_calls:
+        with pytest.raises(error, match=message):
+            call()
+    # what is right still works: a NaN hint row is "no hint", a single pose takes a (6,) hint
+    hints = np.array([q[0], [np.nan] * 6])
+    assert cal.compensate_poses(xyzwpr, hints).ok.all()
+    assert cal.compensate_poses(xyzwpr[0], q[0]).ok.all()
 
 
 def test_load_refuses_other_models_and_other_files(calibrated: Calibrated, tmp_path: Path) -> None:

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.cli import main
+from app.commands.cli import main
 from calib.wpr import pose_from_xyzwpr, xyzwpr_from_pose
 from tests.inuse.conftest import Calibrated, standoff_error_mm
 
@@ -102,14 +102,15 @@ def test_ls_program_holds_the_compensated_joints(
     csv_out, ls_out = tmp_path / "comp.csv", tmp_path / "insp_01.ls"
     base = ["compensate", "--params", str(c.params), "--targets", str(targets)]
     assert run([*base, "--out", str(csv_out)], capsys)[0] == 0
-    assert run([*base, "--out", str(ls_out), "--speed", "25"], capsys)[0] == 0
+    code, stdout, _ = run([*base, "--out", str(ls_out), "--speed", "25"], capsys)
+    assert code == 0 and "(program INSP_01, UF 0, UT 1)" in stdout
     text = ls_out.read_text()
     assert text.startswith("/PROG  INSP_01\n/ATTR\n") and text.endswith("/END\n")
     assert "LINE_COUNT\t= 5;" in text
     moves = re.findall(r"^\s+(\d+):J P\[(\d+):(T\d+)\] 25% FINE    ;$", text, re.M)
     assert [m[:2] for m in moves] == [(str(k), str(k)) for k in range(1, 6)]
     positions = re.findall(
-        r'P\[(\d+):"(T\d+)"\]\{\n   GP1:\n\tUF : 0, UT : 0,\t\n\t'
+        r'P\[(\d+):"(T\d+)"\]\{\n   GP1:\n\tUF : 0, UT : 1,\t\n\t'
         + r",\s*".join(rf"J{i}=\s*(-?\d+\.\d{{3}}) deg" for i in range(1, 7))
         + r"\n\};",
         text,
@@ -148,6 +149,59 @@ def test_bad_inputs_are_one_line_errors_naming_the_row(
     write_joints(tmp_path / "j.csv", q)
     code, _, err = run(ls_base, capsys)
     assert code == 2 and "1st.ls: the program name (from the file name) must start" in err
+
+
+@pytest.mark.parametrize(
+    ("option", "message"),
+    [
+        (["--utool", "0"], "--utool 0: expected a tool frame number 1..10"),
+        (["--utool", "11"], "--utool 11: expected a tool frame number 1..10"),
+        (["--uframe", "10"], "--uframe 10: expected a user frame number (0: world) 0..9"),
+        (["--uframe", "-1"], "--uframe -1: expected a user frame number (0: world) 0..9"),
+        (["--speed", "0"], "--speed 0: expected a joint speed [%] 1..100"),
+        (["--speed", "150"], "--speed 150: expected a joint speed [%] 1..100"),
+        (["--max-joint-change", "0"], "--max-joint-change 0: expected degrees in (0, 180]"),
+        (["--max-joint-change", "nan"], "--max-joint-change nan: expected degrees in (0, 180]"),
+        (
+            ["--out", "a_long_inspection_program_name_of_cell_4.ls"],
+            "--out a_long_inspection_program_name_of_cell_4.ls: the program name (from the file"
+            " name) 'A_LONG_INSPECTION_PROGRAM_NAME_OF_CELL_4' has 40 characters; a FANUC"
+            " program name has at most 36",
+        ),
+    ],
+)
+def test_a_bad_option_names_the_flag_and_the_value(
+    calibrated: Calibrated,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    option: list[str],
+    message: str,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The range errors named neither flag nor value (and mentioned `decimals`, no option, or
+    `speed_percent`); a long output name was cut to 36 characters without a word."""
+    monkeypatch.chdir(tmp_path)  # a relative --out lands here
+    targets = write_joints(tmp_path / "t.csv", calibrated.views_deg[:2])
+    out = tmp_path / "prog.ls"
+    argv = ["compensate", "--params", str(calibrated.params), "--targets", str(targets)]
+    code, _, err = run([*argv, "--out", str(out), *option], capsys)
+    assert code == 2 and err.count("\n") == 1, err
+    assert f"rvis compensate: error: {message}" in err
+    assert "decimals" not in err and "speed_percent" not in err
+    assert not out.exists() and not list(tmp_path.glob("*.ls"))
+
+
+def test_the_tool_and_frame_numbers_reach_the_program(
+    calibrated: Calibrated, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    targets = write_joints(tmp_path / "t.csv", calibrated.views_deg[:2])
+    name = "P" * 36  # the longest name is kept whole
+    out = tmp_path / f"{name}.ls"
+    argv = ["compensate", "--params", str(calibrated.params), "--targets", str(targets)]
+    assert run([*argv, "--out", str(out), "--utool", "10", "--uframe", "3"], capsys)[0] == 0
+    text = out.read_text()
+    assert text.startswith(f"/PROG  {name}\n")
+    assert text.count("UF : 3, UT : 10,") == 2
 
 
 def test_parameters_of_another_model_are_refused(

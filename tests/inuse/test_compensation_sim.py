@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.compensation_check import CASES, run_seed
 from app.config import load_cell
+from app.sim.compensation import CASES, run_seed
 
 
 def rms(v: np.ndarray) -> float:

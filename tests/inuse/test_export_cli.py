@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yourdfpy
 
-from app.cli import main
+from app.commands.cli import main
 from calib.urdf import urdf_angles
 from tests.inuse.conftest import Calibrated
 

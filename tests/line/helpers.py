@@ -17,13 +17,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.config import load_cell
+from app.config.line import LineSettings, RecalibSettings
 from app.line.measure import GeometricSensor, SphereSensor
 from app.line.schedule import Schedule
 from app.line.service import Service
-from app.line.settings import LineSettings, RecalibSettings, ServiceSettings
+from app.line.settings import ServiceSettings
 from app.line.station import Station
+from app.sim.cell import make_cell, validation_set
 from app.sim.line_run import random_schedule
-from app.simulation import make_cell, validation_set
 from calib.identify import Measurements, identify
 from calib.model import SystemModel
 from drivers.plc import decode_inputs, decode_outputs, encode_inputs

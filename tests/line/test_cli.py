@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.cli import main
+from app.commands.cli import main
 from app.line.control import ControlServer
 from app.line.launch import serve
 from tests.line.helpers import Line, make_line

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from app.config import load_cell
+from app.config.line import DriftSettings
 from app.line.drift import OVERALL, DriftMonitor, prediction_inflation, residual_mm
-from app.line.settings import DriftSettings
 
 MU, SIGMA = 0.05, 0.01
 

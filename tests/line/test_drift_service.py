@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.line.settings import RecalibSettings
+from app.config.line import RecalibSettings
 from fakes.truth import Knock
 from tests.line.helpers import knock_line, true_rms
 
@@ -63,7 +63,7 @@ def test_the_sequential_estimator_follows_a_knock(tmp_path: Path, schedule: str)
     covariance is widened (the attributed group's) before the post-knock measurements reach it
     (they wait until the step is attributed), and the parameters it proposes, gated and
     applied, bring the true accuracy back."""
-    recalib = RecalibSettings(estimator="sequential", schedule=schedule)  # type: ignore[arg-type]
+    recalib = RecalibSettings(estimator="sequential", schedule=schedule)
     ln, x_good, val = knock_line(tmp_path, recalib)
     try:
         before = true_rms(ln, val, x_good)

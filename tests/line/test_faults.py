@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
+from app.config.line import SweepSettings
 from app.line.measure import SweepSensor
 from app.line.service import State
-from app.line.settings import SweepSettings
 from drivers.errors import DeviceConnectionError, DeviceTimeout
 from drivers.robot import FloatArray
 from fakes.cell import SimulatedCell

@@ -10,10 +10,11 @@ from typing import Any
 import numpy as np
 
 from app.config import load_cell
+from app.config.line import RecalibSettings
+from app.formats.params import to_json
 from app.line.inline_seq import InlineSequential, covariance_from
-from app.line.settings import GateSettings, RecalibSettings
-from app.params import to_json
-from app.simulation import make_cell
+from app.sim.cell import make_cell
+from calib.gates import INLINE
 from calib.identify import Measurements, identify
 from tests.line.helpers import plan_for
 
@@ -57,7 +58,7 @@ def test_held_out_lag_and_gated_candidates_that_improve_the_nominal() -> None:
     rows, cfg = _rows(3)
     model = cfg.model()
     settings = RecalibSettings(estimator="sequential", seq_apply_every=8, holdout_size=4)
-    seq = InlineSequential(settings, GateSettings(), cfg.spheres_part_mm, 24)
+    seq = InlineSequential(settings, INLINE, cfg.spheres_part_mm, 24)
     seq.restart(model, model.nominal_x(), None)
     x_in_force = model.nominal_x()
     applied = 0
@@ -85,7 +86,7 @@ def test_a_step_drops_stale_held_out_rows_and_waits_for_a_certain_estimate() -> 
     rows, cfg = _rows(3)
     model = cfg.model()
     settings = RecalibSettings(estimator="sequential", seq_apply_every=4, holdout_size=4)
-    seq = InlineSequential(settings, GateSettings(), cfg.spheres_part_mm, 24)
+    seq = InlineSequential(settings, INLINE, cfg.spheres_part_mm, 24)
     seq.restart(model, model.nominal_x(), None)
     views_q = np.array([r["q_deg"] for r in rows[:24]])
     views_c = np.array([r["c_sensor_mm"] for r in rows[:24]])

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from app.config import load_cell
+from app.config.line import LineSettings, SweepSettings
 from app.line.measure import GeometricSensor, Rejected, SphereMeasurer, SweepSensor
-from app.line.settings import LineSettings, SweepSettings
-from app.simulation import make_cell
+from app.sim.cell import make_cell
 from fakes.cell import SimulatedCell
 from fakes.devices import FakeCamera, FakeGalvo, FakeRobot
 from tests.line.helpers import plan_for

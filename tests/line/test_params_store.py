@@ -14,8 +14,8 @@ import pytest
 
 from app.config import load_cell
 from app.errors import InputError
+from app.formats.params import from_json, plain_document
 from app.line.params_store import ParamsStore
-from app.params import from_json, plain_document
 from calib.model import INDEX
 
 
@@ -36,7 +36,9 @@ def test_apply_numbers_versions_and_current_reads_back(tmp_path: Path) -> None:
     version, model, x = current
     assert version == 2
     assert x[0] - model.nominal_x()[0] == pytest.approx(1.5)
-    _, x_file = from_json(tmp_path / "params" / "history" / "0002.json")  # app.params reads it
+    _, x_file = from_json(
+        tmp_path / "params" / "history" / "0002.json"
+    )  # app.formats.params reads it
     assert np.array_equal(x_file, x)
 
 

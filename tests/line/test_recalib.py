@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from app.config import load_cell
+from app.config.line import RecalibSettings
 from app.line.recalib import (
     Recalibrator,
     RecalJob,
@@ -18,7 +19,7 @@ from app.line.recalib import (
     run_recalibration,
     select_rolling,
 )
-from app.line.settings import GateSettings, RecalibSettings
+from calib.gates import INLINE
 from calib.identify import Measurements, identify
 from calib.model import INDEX
 from tests.conftest import simulated
@@ -26,7 +27,7 @@ from tests.conftest import simulated
 
 def _job(train: Measurements, holdout: Measurements, x_current: np.ndarray) -> RecalJob:
     model = load_cell(None).model()
-    return RecalJob(model, x_current, train, holdout, GateSettings(), 200, 1, len(train))
+    return RecalJob(model, x_current, train, holdout, INLINE, 200, 1, len(train))
 
 
 def _sets() -> tuple[Measurements, Measurements]:

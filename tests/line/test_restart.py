@@ -13,10 +13,10 @@ from typing import Any
 import numpy as np
 import pytest
 
+from app.config.line import RecalibSettings
 from app.errors import InputError
 from app.line.measure import GeometricSensor
 from app.line.recalib import Recalibrator
-from app.line.settings import RecalibSettings
 from app.line.statedir import StateDir
 from app.line.store import DatabaseDamaged, Store
 from fakes.cell import SimulatedCell

@@ -45,9 +45,10 @@ def _calibration(store: Store, t: float, status: str) -> int:
 @pytest.mark.parametrize("keep_days", [90.0, 0.0])
 def test_the_service_deletes_events_past_their_retention(tmp_path: Path, keep_days: float) -> None:
     ln = make_line(tmp_path)
-    ln.service.settings = replace(
-        ln.service.settings, events_keep_days=keep_days, rejected_keep_days=keep_days / 3
+    ops = replace(
+        ln.service.settings.ops, events_keep_days=keep_days, rejected_keep_days=keep_days / 3
     )
+    ln.service.settings = replace(ln.service.settings, ops=ops)
     now = ln.clock.time()
     store = ln.service.store
     old = [store.add_event(now - 100 * DAY_S, "window", {"n": k}) for k in range(3)]

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from app.cli import main
+from app.commands.cli import main
 
 
 def test_run_sim_geometric_windows_json(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

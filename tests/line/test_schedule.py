@@ -8,8 +8,8 @@ from collections.abc import Sequence
 import numpy as np
 import pytest
 
+from app.config.line import LineSettings
 from app.line.schedule import Schedule, Slot, motion_time_s
-from app.line.settings import LineSettings
 from drivers.safety import SafetyGuard
 
 HOME = np.array([0.0, 0.0, 0.0, 0.0, -90.0, 0.0])

@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 from app.config import load_cell
+from app.config.line import RecalibSettings
+from app.formats.params import plain_document
 from app.line.params_store import ParamsStore
 from app.line.service import State
-from app.line.settings import RecalibSettings
 from app.line.store import Store
-from app.params import plain_document
-from app.simulation import validation_set
+from app.sim.cell import validation_set
 from fakes.devices import ClampCycle
 from tests.line.helpers import SCALE, Line, line_settings, make_line
 

@@ -13,8 +13,8 @@ from typing import Any
 import numpy as np
 import pytest
 
+from app.config.line import RecalibSettings
 from app.line.schedule import Slot
-from app.line.settings import RecalibSettings
 from app.line.step import Step, paired, step_sigma_mm, step_slot
 from fakes.truth import Knock
 from tests.line.helpers import knock_line, true_rms
@@ -158,7 +158,7 @@ def test_while_attributing_the_slots_measured_just_before_come_first(cfg) -> Non
 def test_rvis_state_suspects_lists_them_since_a_time_or_age(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from app.cli import main
+    from app.commands.cli import main
     from app.commands.state import parse_since
     from app.line.store import Store
 

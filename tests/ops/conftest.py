@@ -26,7 +26,7 @@ scale = 300.0
 [service]
 every_n = 8
 """
-RVIS = [sys.executable, "-m", "app.cli"]
+RVIS = [sys.executable, "-m", "app"]
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -91,6 +91,17 @@ class ServiceProcess:
         code = self.proc.wait(60)
         self._close()
         return code
+
+    def errors(self) -> list[str]:
+        """The internal errors the service logged (after it ended), with their tracebacks."""
+        out: list[str] = []
+        while True:
+            try:
+                line = self.lines.get_nowait()
+            except queue.Empty:
+                return out + ([self.stderr] if self.stderr.strip() else [])
+            if line.get("level") == "error":
+                out.append(f"{line.get('msg')}\n{line.get('exc', '')}")
 
     def _close(self) -> None:
         assert self.proc.stdout is not None and self.proc.stderr is not None

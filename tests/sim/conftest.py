@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from app.config import CellConfig
-from app.simulation import make_cell
+from app.sim.cell import make_cell
 from calib import candidates
 from drivers.base import open_devices
 from fakes.cell import SimulatedCell

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from app.config import CellConfig
-from app.simulation import make_cell
+from app.sim.cell import make_cell
 from fakes.cell import NotVisible
 
 

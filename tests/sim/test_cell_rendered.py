@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from app.config import CellConfig
-from app.simulation import (
+from app.sim.cell import (
     GeometricMeasurement,
     RenderedMeasurement,
     collect,
@@ -178,7 +178,7 @@ def test_fake_camera_sees_the_stripe_on_a_sphere(
 def test_the_demo_sensor_calibration_is_close_to_the_truth() -> None:
     """`rvis demo` measures with a sensor calibrated from rendered chessboards and target
     sweeps (as the line would), not with the truth: a few px at most off in K."""
-    from app.simulation import calibrated_sensor_model
+    from app.sim.cell import calibrated_sensor_model
     from fakes.render_sensor import default_true_sensor
 
     model, info = calibrated_sensor_model(default_true_sensor(), seed=0)

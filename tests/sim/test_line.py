@@ -16,7 +16,7 @@ from drivers import registry
 from drivers.camera import CameraSettings
 from drivers.galvo import Galvo
 from fakes.cell import SimulatedCell
-from fakes.line import LineSettings, SimLine
+from fakes.line import SimLine, SimLineSetup
 from fakes.truth import Knock
 
 HOME = np.array([0.0, 0.0, 0.0, 0.0, -90.0, 0.0])
@@ -27,7 +27,7 @@ ViewOf = Callable[[SimulatedCell, str], np.ndarray]  # the view_of fixture (conf
 
 @pytest.fixture()
 def line(line_cell: SimulatedCell) -> Iterator[SimLine]:
-    with SimLine(line_cell, LineSettings(scale=30.0, camera=False)) as sim:
+    with SimLine(line_cell, SimLineSetup(scale=30.0, camera=False)) as sim:
         yield sim
 
 
@@ -106,7 +106,7 @@ def test_the_geometric_shortcut_is_the_true_centre_plus_noise_and_follows_the_kn
     cfg: CellConfig, line_cell: SimulatedCell, view_of: ViewOf
 ) -> None:
     knock = Knock(at_s=3600.0, shift_mm=0.3, tilt_deg=0.05)
-    settings = LineSettings(scale=30.0, camera=False, knock=knock)
+    settings = SimLineSetup(scale=30.0, camera=False, knock=knock)
     q = view_of(line_cell, "P1")
     p = cfg.spheres_part_mm["P1"]
     noise_mm = line_cell.settings.sensor_noise_mm
@@ -128,7 +128,7 @@ def test_galvo_via_scpi_moves_the_stripe_the_aravis_camera_streams(
 ) -> None:
     q = view_of(line_cell, "P2")
     with (
-        SimLine(line_cell, LineSettings(scale=60.0)) as sim,
+        SimLine(line_cell, SimLineSetup(scale=60.0)) as sim,
         registry.open_robot(sim.urls["robot"]) as robot,
         registry.open_galvo(sim.urls["galvo"]) as galvo,
         registry.open_camera(sim.urls["camera"], settings=FULL, timeout_s=5.0) as camera,
@@ -153,7 +153,7 @@ def test_a_camera_region_is_cut_at_its_offsets_and_a_view_without_sphere_is_dark
     q = view_of(line_cell, "P3")
     region = CameraSettings(region=(200, 100, 800, 600), pixel_format="Mono8")
     with (
-        SimLine(line_cell, LineSettings(scale=60.0)) as sim,
+        SimLine(line_cell, SimLineSetup(scale=60.0)) as sim,
         registry.open_camera(sim.urls["camera"], settings=region, timeout_s=5.0) as camera,
     ):
         assert camera.sensor_size() == (1296, 966)
@@ -190,7 +190,7 @@ def test_every_thread_socket_pty_and_the_gige_fake_close_on_exit(
 ) -> None:
     def one_shift() -> None:
         with (
-            SimLine(line_cell, LineSettings(scale=60.0)) as sim,
+            SimLine(line_cell, SimLineSetup(scale=60.0)) as sim,
             registry.open_plc(sim.urls["plc"]) as plc,
             registry.open_robot(sim.urls["robot"]) as robot,
             registry.open_galvo(sim.urls["galvo"]) as galvo,
@@ -210,3 +210,20 @@ def test_every_thread_socket_pty_and_the_gige_fake_close_on_exit(
         assert threading.active_count() <= before[2]  # Python threads: joined by close()
     after = _settled_within(before, 5.0)
     assert all(n <= m for n, m in zip(after, before, strict=True)), (after, before)
+
+
+def test_the_cell_files_simline_defaults_are_the_simulated_lines() -> None:
+    """[simline] (app.config.line) declares the simulated line's settings for the cell file;
+    fakes/ cannot import app/, so its SimLineSetup and Warmup repeat the defaults, pinned."""
+    from app.config.line import SimLineSection
+    from fakes.truth import Warmup
+
+    s, setup, warm = SimLineSection(), SimLineSetup(), Warmup()
+    assert (s.scale, s.period_s, s.window_s, s.beat_s, s.n_validation) == (
+        setup.scale,
+        setup.period_s,
+        setup.window_s,
+        setup.beat_s,
+        setup.n_validation,
+    )
+    assert (s.warmup_k, s.warmup_tau_s, s.warmup_start_s) == (warm.rise_k, warm.tau_s, warm.start_s)

@@ -12,7 +12,7 @@ import pytest
 from drivers import registry
 from drivers.errors import DeviceConnectionError, DeviceFault, DeviceTimeout, FaultLatched
 from fakes.cell import SimulatedCell
-from fakes.line import LineSettings, SimLine
+from fakes.line import SimLine, SimLineSetup
 from fakes.line_faults import GALVO_ERROR_CODE, Fault
 
 HOME = np.array([0.0, 0.0, 0.0, 0.0, -90.0, 0.0])
@@ -21,7 +21,7 @@ AWAY = HOME + np.array([60.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # 3.43 sim s at 10 %
 
 @pytest.fixture()
 def line(line_cell: SimulatedCell) -> Iterator[SimLine]:
-    with SimLine(line_cell, LineSettings(scale=120.0, camera=False)) as sim:
+    with SimLine(line_cell, SimLineSetup(scale=120.0, camera=False)) as sim:
         yield sim
 
 
@@ -91,7 +91,7 @@ def test_galvo_scpi_error_is_a_device_fault_with_the_dac_code(line: SimLine) -> 
 
 def test_camera_timeout_until_cleared(line_cell: SimulatedCell) -> None:
     with (
-        SimLine(line_cell, LineSettings(scale=60.0)) as sim,
+        SimLine(line_cell, SimLineSetup(scale=60.0)) as sim,
         registry.open_camera(sim.urls["camera"], timeout_s=0.3) as camera,
     ):
         first = camera.grab()

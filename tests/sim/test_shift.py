@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from app.cli import main
+from app.commands.cli import main
 from app.config import CellConfig
 from app.sim.shift import ShiftSettings, run_shift, summary_lines, write_outputs
 

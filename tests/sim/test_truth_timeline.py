@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from app.config import CellConfig
-from app.simulation import collect, make_cell
+from app.sim.cell import collect, make_cell
 from calib.identify import identify
 from fakes.cell import SimulatedCell
 from fakes.clock import ScaledClock

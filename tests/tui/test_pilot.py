@@ -33,9 +33,9 @@ from textual.widgets import DataTable
 
 from app.config import CellConfig, load_cell
 from app.sim.line_run import SimulatedLineRun
+from app.sim.tui_line import TuiSimSettings, simulated_service
 from app.tui.app import RvisTui
 from app.tui.history import HistoryReader
-from app.tui.sim import TuiSimSettings, simulated_service
 from tests.tui.helpers import IdleSkipper, confirm, press, text_of, until
 
 SIM = TuiSimSettings(geometric=True, seed=3, scale=40.0, mode="approve", start_at_s=2400.0)
@@ -168,8 +168,8 @@ def _latest_applied(history: HistoryReader) -> dict[str, Any]:
 def test_killed_service_shows_disconnected_and_the_terminal_reconnects(tmp_path: Path) -> None:
     """A service in its own process (`rvis run --sim`) killed with SIGKILL (its socket file
     stays behind), then a service back on the same state directory, stopped cleanly."""
-    resource_tracker.ensure_running()  # before Textual replaces sys.stderr (see app/tui/sim.py)
-    run_sim = [sys.executable, "-m", "app.cli", "run", "--sim", "--geometric"]
+    resource_tracker.ensure_running()  # before Textual replaces sys.stderr (app/sim/tui_line.py)
+    run_sim = [sys.executable, "-m", "app", "run", "--sim", "--geometric"]
 
     async def scenario() -> None:
         app = RvisTui(tmp_path)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.simulation import true_sensor_model
+from app.sim.cell import true_sensor_model
 from fakes.render_sensor import TrueSensor, default_true_sensor
 from vision.sensor_model import SensorModel
 

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from app.cli import main
+from app.commands.cli import main
 from fakes.render import default_sweep_commands, render_sphere_sweep
 from fakes.render_noise import NoiseSettings
 from fakes.render_sensor import TrueSensor

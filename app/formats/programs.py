@@ -9,9 +9,12 @@ Targets CSV, one of two kinds, told apart by the header:
 
 Every bad value is an InputError naming file, line (header = line 1) and field. The `.ls`
 program has one joint move per target and the P[] positions in joint representation
-(`P[1:"id"]{ GP1: UF : 0, UT : 0, J1=     0.000 deg, ... };`, the layout a controller
+(`P[1:"id"]{ GP1: UF : 0, UT : 1, J1=     0.000 deg, ... };`, the layout a controller
 exports), which a controller runs as they are:
-no inverse kinematics on the controller, so no branch to get wrong.
+no inverse kinematics on the controller, so no branch to get wrong. The UF/UT numbers a joint
+position records do not move the robot; they are the frames the pendant uses when the position
+is shown or converted to Cartesian (docs: README "rvis compensate"), so they default to the
+world frame (UF 0) and the first tool frame (UT 1, of the controller's 1..10).
 """
 
 from __future__ import annotations
@@ -21,12 +24,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 from app.errors import InputError
-from app.files import csv_number, csv_rows, write_csv
+from app.formats.files import csv_number, csv_rows, write_bytes, write_csv
 from calib.robot import JointLimits
 
 F64 = NDArray[np.float64]
@@ -128,31 +132,51 @@ def write_result_csv(
 @dataclass(frozen=True)
 class LsSettings:
     """The `.ls` program: joint-move speed [%], termination, the UF/UT numbers recorded with
-    each position (joint positions do not depend on them), decimals of the joint angles
-    (FANUC writes 3; 0.001 deg is about 0.035 mm at 2 m reach)."""
+    each position (joint positions do not depend on them: module docstring), decimals of the
+    joint angles (FANUC writes 3; 0.001 deg is about 0.035 mm at 2 m reach)."""
 
     speed_percent: int = 10
     termination: str = "FINE"
     uframe: int = 0
-    utool: int = 0
+    utool: int = 1
     decimals: int = 3
 
+    #: field -> (lowest, highest, what it is): the controller's ranges (R-30iB: user frames
+    #: 0 = world and 1..9, tool frames 1..10)
+    RANGES: ClassVar[dict[str, tuple[int, int, str]]] = {
+        "speed_percent": (1, 100, "a joint speed [%]"),
+        "uframe": (0, 9, "a user frame number (0: world)"),
+        "utool": (1, 10, "a tool frame number"),
+        "decimals": (1, 6, "a number of decimals"),
+    }
+
     def __post_init__(self) -> None:
-        if not 1 <= self.speed_percent <= 100:
-            raise ValueError("speed_percent must be in 1..100")
+        for name, (lo, hi, what) in self.RANGES.items():
+            value = getattr(self, name)
+            if not (isinstance(value, int) and lo <= value <= hi):
+                raise ValueError(f"{name} = {value!r}: expected {what} {lo}..{hi}")
         if not re.fullmatch(r"FINE|CNT(100|[1-9]?[0-9])", self.termination):
-            raise ValueError("termination must be FINE or CNT0..CNT100")
-        if not (0 <= self.uframe <= 9 and 0 <= self.utool <= 10 and 1 <= self.decimals <= 6):
-            raise ValueError("uframe 0..9, utool 0..10, decimals 1..6")
+            raise ValueError(f"termination = {self.termination!r}: expected FINE or CNT0..CNT100")
+
+
+#: The longest FANUC TP program name (R-30iA and later).
+MAX_PROGRAM_NAME = 36
 
 
 def program_name(path: str | Path) -> str:
-    """The program name from the file name: upper case, letters, digits and _, at most 36
-    characters, starting with a letter."""
-    name = re.sub(r"[^A-Z0-9_]", "_", Path(path).stem.upper())[:36]
+    """The program name from the file name: upper case, characters other than letters, digits
+    and _ replaced by _, starting with a letter, at most 36 characters (a longer one is an
+    error, never cut: the controller would know the program by another name)."""
+    name = re.sub(r"[^A-Z0-9_]", "_", Path(path).stem.upper())
     if not name or not name[0].isalpha():
         raise InputError(
             "the program name (from the file name) must start with a letter", file=path
+        )
+    if len(name) > MAX_PROGRAM_NAME:
+        raise InputError(
+            f"the program name (from the file name) {name!r} has {len(name)} characters; a"
+            f" FANUC program name has at most {MAX_PROGRAM_NAME}: choose a shorter file name",
+            file=path,
         )
     return name
 
@@ -201,8 +225,9 @@ def _position(label: str, q: F64, s: LsSettings) -> str:
     )
 
 
-def write_ls(path: str | Path, ids: Sequence[str], q_deg: F64, settings: LsSettings) -> None:
-    path = Path(path)
-    text = ls_program(program_name(path), ids, q_deg, settings, datetime.now())
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(text, encoding="ascii", errors="replace")
+def write_ls(path: str | Path, ids: Sequence[str], q_deg: F64, settings: LsSettings) -> str:
+    """Write the program (atomically, as every file rvis writes); its program name."""
+    name = program_name(path)
+    text = ls_program(name, ids, q_deg, settings, datetime.now())
+    write_bytes(path, text.encode("ascii", errors="replace"))
+    return name

@@ -27,9 +27,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.config import CellConfig
-from app.files import write_json
-from app.report import markdown_table, text_table
-from app.simulation import make_cell
+from app.formats.files import write_json
+from app.formats.report import markdown_table, text_table
+from app.sim.cell import make_cell
 from app.workspace import workspace_points
 from calib import candidates
 from calib.compliance import CompliantModel, CompliantSettings

@@ -1,6 +1,6 @@
-"""Checking the values of one cell-file section against its dataclass (app/config.py): the
-type from the annotation, the range, choices and vector length from the field's metadata.
-Every failure is an InputError `file:line: [section] key: reason`."""
+"""Reading one cell-file table into its section (app.config.section): the type from the
+annotation, the range, choices and vector length from the field's metadata, then the section's
+own checks. Every failure is an InputError `file:line: [section] key: reason`."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import difflib
 import math
 from typing import Any, get_type_hints
 
+from app.config.section import SectionProblem, range_problem
 from app.errors import InputError
 
 
@@ -39,7 +40,10 @@ class SectionReader:
             if key not in fields:
                 raise self.fail(cls.name, key, "unknown key" + _hint(key, tuple(fields)))
             out[key] = self._value(cls.name, key, value, hints[key], fields[key].metadata)
-        return cls(**out)
+        try:
+            return cls(**out)
+        except SectionProblem as exc:  # a rule between keys (Section.cross_checks)
+            raise self.fail(cls.name, exc.key, exc.reason) from None
 
     def _value(self, section: str, key: str, value: Any, kind: Any, meta: Any) -> Any:
         text = str(kind)
@@ -93,13 +97,9 @@ class SectionReader:
         return tuple(self._number(section, key, v, meta, what) for v in value)
 
     def _range(self, section: str, key: str, value: float, meta: Any, what: str = "") -> None:
-        lo, hi, gt = meta.get("lo"), meta.get("hi"), meta.get("gt")
-        if gt is not None and not value > gt:
-            raise self.fail(section, key, f"{what}must be > {gt:g}, got {value!r}")
-        if lo is not None and value < lo:
-            raise self.fail(section, key, f"{what}must be >= {lo:g}, got {value!r}")
-        if hi is not None and value > hi:
-            raise self.fail(section, key, f"{what}must be <= {hi:g}, got {value!r}")
+        reason = range_problem(value, meta, what)
+        if reason:
+            raise self.fail(section, key, reason)
 
 
 def _hint(word: str, known: tuple[str, ...]) -> str:

@@ -26,8 +26,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.config import CellConfig
-from app.report import markdown_table
-from app.simulation import collect, make_cell
+from app.formats.report import markdown_table
+from app.sim.cell import collect, make_cell
 from app.workspace import workspace_points
 from calib import candidates
 from calib.compensate import compensate_joints
@@ -166,7 +166,7 @@ def markdown(results: list[SeedResult], command: str) -> str:
     lines = [
         "# Compensation on the simulated cell",
         "",
-        f"Produced by `{command}` (app/compensation_check.py). Intended sensor poses: joint",
+        f"Produced by `{command}` (app/sim/compensation.py). Intended sensor poses: joint",
         "targets planned on the nominal model (random views of random workspace points); the",
         "true robot of the simulated cell (with unmodelled J2/J3 compliance) is sent the",
         "original joints, the compensated joints, and the compensated joints rounded to the 3",

@@ -17,11 +17,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.config import CellConfig
-from app.files import write_json, write_measurements, write_targets, write_text
-from app.meta import provenance
-from app.params import to_json
-from app.planning import plan_to_json, run_plan
-from app.report import (
+from app.formats.files import write_json, write_measurements, write_targets, write_text
+from app.formats.params import to_json
+from app.formats.report import (
     PARAM_HEADER,
     STATS_HEADER,
     markdown_table,
@@ -30,7 +28,9 @@ from app.report import (
     stats_rows,
     text_table,
 )
-from app.simulation import (
+from app.meta import provenance
+from app.planning import plan_to_json, run_plan
+from app.sim.cell import (
     DataSet,
     GeometricMeasurement,
     Measurement,

@@ -27,13 +27,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.config import CellConfig
-from app.demo import truth_set
 from app.errors import InputError
-from app.files import dumps_json, read_json, write_json, write_text
+from app.formats.files import dumps_json, read_json, write_json, write_text
+from app.formats.report import markdown_table, save_figure, text_table
 from app.meta import provenance
 from app.planning import plan_settings, run_plan
-from app.report import markdown_table, save_figure, text_table
-from app.simulation import DataSet, collect, simulated_sets
+from app.sim.cell import DataSet, collect, simulated_sets
+from app.sim.demo import truth_set
 from calib.compliance import select_model
 from calib.configurations import select_configurations
 from calib.identify import identify, residuals

@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import TypeVar
 
 from app.errors import InputError
-from app.files import match_targets, read_measurements, read_targets
+from app.formats.files import match_targets, read_measurements, read_targets
 from calib.errors import CalibError
 from calib.identify import Measurements
 from calib.robot import JointLimits

@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.errors import InputError
-from app.files import write_bytes, write_csv
+from app.formats.files import write_bytes, write_csv
 from vision.calibrate import Chessboard
 from vision.calibrate_sensor import calibrate_sensor
 from vision.errors import CalibrationFailed

@@ -31,10 +31,9 @@ def _chosen(argv: Sequence[str]) -> str | None:
 
 
 def _version() -> str:
-    from app.meta import git_commit, version
+    from app.meta import software_revision
 
-    commit = git_commit()
-    return f"rvis {version()}" + (f" ({commit})" if commit else "")
+    return f"rvis {software_revision()}"
 
 
 class _Parser(argparse.ArgumentParser):
@@ -73,7 +72,7 @@ def build_parser(argv: Sequence[str] = ()) -> argparse.ArgumentParser:
 
 
 def _add_log_level(parser: argparse.ArgumentParser, default: str) -> None:
-    from app.cli_logging import LEVELS
+    from app.commands.logs import LEVELS
 
     parser.add_argument(
         "--log-level",
@@ -93,7 +92,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         # `rvis ... | head`: a closed pipe ends the process quietly, as for any Unix tool
         signal.signal(signal.SIGPIPE, signal.SIG_DFL)
     args = build_parser(argv).parse_args(argv)
-    from app.cli_logging import configure
+    from app.commands.logs import configure
 
     configure(args.log_level)
     try:

@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.errors import InputError
-from app.files import read_json
+from app.formats.files import read_json
 
 F64 = NDArray[np.float64]
 HEADER = [

@@ -126,12 +126,12 @@ def plot_errors(path: Path, errors_mm: Mapping[str, F64], title: str) -> None:
 
 
 def save_figure(fig: Any, path: Path) -> None:
-    """Write a matplotlib figure as PNG atomically (app.files.write_bytes) and close it."""
+    """Write a matplotlib figure as PNG atomically (app.formats.files.write_bytes) and close it."""
     import io
 
     import matplotlib.pyplot as plt
 
-    from app.files import write_bytes
+    from app.formats.files import write_bytes
 
     buf = io.BytesIO()
     fig.savefig(buf, format="png")

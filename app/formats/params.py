@@ -3,7 +3,7 @@ parameter with names, units and standard uncertainties, residual statistics, ran
 
 from __future__ import annotations
 
-from dataclasses import asdict
+from dataclasses import asdict, fields
 from pathlib import Path
 from typing import Any
 
@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.errors import InputError
-from app.files import read_json
+from app.formats.files import read_json
 from calib.compliance import CompliantModel, CompliantSettings, select_model
 from calib.gates import GateReport
 from calib.identify import IdentificationResult
@@ -143,9 +143,9 @@ def _model(data: dict[str, Any], path: Path) -> SystemModel:
         if any(not np.all(np.isfinite(a)) for a in (*arrays, *limits)):
             raise ValueError("non-finite values")
         model = SystemModel(arrays[0].reshape(4, 4), arrays[1].reshape(4, 4), JointLimits(*limits))
-        return _with_kind(model, m)
     except (ValueError, TypeError) as exc:
         raise InputError(f"bad model: {exc}", file=path, field="model") from exc
+    return _with_kind(model, m, path)
 
 
 def from_json(path: str | Path, *, allow_failed: bool = False) -> tuple[SystemModel, F64]:
@@ -202,12 +202,58 @@ def _kind_fields(model: SystemModel) -> dict[str, Any]:
     return {"kind": model.kind, "compliant": asdict(model.settings)}
 
 
-def _with_kind(model: SystemModel, m: dict[str, Any]) -> SystemModel:
-    kind = m.get("kind", "rigid")
-    settings = m.get("compliant", {}) if kind == "compliant" else {}
-    if not isinstance(settings, dict):
-        raise ValueError("model.compliant is not an object")
-    return select_model(str(kind), model, CompliantSettings(**settings))
+#: The kind each model name is of: name and kind must agree (a file without a kind is rigid).
+KIND_OF_NAME = {SystemModel.name: SystemModel.kind, CompliantModel.name: CompliantModel.kind}
+
+
+def _with_kind(model: SystemModel, m: dict[str, Any], path: Path) -> SystemModel:
+    """The model of the document's kind, which must be the kind of its name; the compliant
+    model's settings are required (every one of them), the rigid model has none."""
+    kind, name = m.get("kind", "rigid"), m["name"]
+    if kind != KIND_OF_NAME[name]:
+        raise InputError(
+            f"{kind!r} does not match model.name {name!r} (a {KIND_OF_NAME[name]!r} model)",
+            file=path,
+            field="model.kind",
+        )
+    if kind == "rigid":
+        if "compliant" in m:
+            raise InputError(
+                "settings of the compliant model in a rigid one", file=path, field="model.compliant"
+            )
+        return select_model("rigid", model)
+    return select_model("compliant", model, _compliant_settings(m, path))
+
+
+def _compliant_settings(m: dict[str, Any], path: Path) -> CompliantSettings:
+    """model.compliant: every CompliantSettings field, a finite number (identify_expansion: a
+    boolean), within the model's ranges."""
+    doc = m.get("compliant")
+    if not isinstance(doc, dict):
+        raise InputError(
+            'model.kind "compliant" needs the compliant model\'s settings (an object)',
+            file=path,
+            field="model.compliant",
+        )
+    values: dict[str, Any] = {}
+    for f in fields(CompliantSettings):
+        key = f"model.compliant.{f.name}"
+        if f.name not in doc:
+            raise InputError("missing field", file=path, field=key)
+        v = doc[f.name]
+        if f.name == "identify_expansion":
+            if not isinstance(v, bool):
+                raise InputError(f"{v!r} is not true or false", file=path, field=key)
+            values[f.name] = v
+        else:
+            values[f.name] = _finite(v, path, key)
+    unknown = sorted(set(doc) - set(values))
+    if unknown:
+        raise InputError(f"unknown setting {unknown[0]!r}", file=path, field="model.compliant")
+    try:
+        return CompliantSettings(**values)
+    except ValueError as exc:
+        raise InputError(str(exc), file=path, field="model.compliant") from exc
 
 
 __all__ = ["ALL_NAMES", "from_json", "to_json"]

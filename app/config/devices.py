@@ -1,0 +1,124 @@
+"""The cell's devices: their URLs (`[devices]`, drivers.registry), the camera's acquisition
+(`[camera]`) and the commissioning's limits (`[commission]`)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+from app.config.section import Section, opt
+
+Vec = tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class DevicesSection(Section):
+    """Device URLs (drivers.registry); optional: without it every device is the fake. `trace`:
+    every device's wire traffic to the state directory's trace/wire.jsonl (drivers.trace;
+    one device alone: `?trace=1` in its URL), rotated at trace_max_mb, trace_keep old files."""
+
+    name = "devices"
+    robot: str = opt("fake://")
+    camera: str = opt("fake://")
+    galvo: str = opt("fake://")
+    tracker: str = opt("fake://")
+    plc: str = opt("fake://")
+    trace: bool = opt(False)
+    trace_max_mb: float = opt(10.0, gt=0, hi=10000)
+    trace_keep: int = opt(5, lo=1, hi=1000)
+
+    FAMILIES: ClassVar[tuple[str, ...]] = ("robot", "camera", "galvo", "tracker", "plc")
+
+    def urls(self) -> dict[str, str]:
+        """family -> device URL."""
+        return {family: getattr(self, family) for family in self.FAMILIES}
+
+    def traced(self) -> bool:
+        """Whether any device is traced (the setting, or `trace=1` in a URL)."""
+        from drivers.url import parse_url
+
+        return self.trace or any(parse_url(u).flag("trace") for u in self.urls().values())
+
+    def wire_trace(self, path: Any, *, every_device: bool | None = None) -> Any:
+        """The drivers.trace.WireTrace at `path` these settings ask for, or None when off
+        (`every_device`: trace every device, default: as `trace` says; the simulated line,
+        whose URLs are its own, traces all of them when any tracing is asked for)."""
+        if not self.traced():
+            return None
+        from drivers.trace import WireTrace
+
+        return WireTrace(
+            path,
+            max_bytes=int(self.trace_max_mb * 2**20),
+            keep=self.trace_keep,
+            every_device=self.trace if every_device is None else every_device,
+        )
+
+    def cross_checks(self) -> Iterator[tuple[str, str]]:
+        for family, url in self.urls().items():
+            reason = url_problem(family, url)
+            if reason:
+                yield family, reason
+
+
+@dataclass(frozen=True)
+class CameraSection(Section):
+    """The camera's acquisition for the sweeps of `rvis run` (full frames, software trigger);
+    `rvis commission` chooses the exposure from its stripe check and writes it here."""
+
+    name = "camera"
+    exposure_us: float = opt(10000.0, gt=0, hi=1e6)
+    gain_db: float = opt(0.0, lo=0, hi=48)
+
+    def settings(self) -> Any:
+        """The drivers.camera.CameraSettings of this section."""
+        from drivers.camera import CameraSettings
+
+        return CameraSettings(exposure_us=self.exposure_us, gain_db=self.gain_db)
+
+
+@dataclass(frozen=True)
+class CommissionSection(Section):
+    """`rvis commission` (docs/commissioning.md): the speed of its motions (the guard refuses
+    more) and the limit each step is checked against before the next one may start."""
+
+    name = "commission"
+    speed_pct: float = opt(10.0, gt=0, hi=100)
+    exposures_us: Vec = opt([2500.0, 5000.0, 10000.0, 20000.0, 40000.0], gt=0, hi=1e6)
+    min_stripe_rows: int = opt(60, lo=1, hi=100000)
+    max_saturated_fraction: float = opt(0.02, lo=0, hi=1)
+    min_peak_fraction: float = opt(0.15, gt=0, hi=1)
+    max_peak_fraction: float = opt(0.9, gt=0, hi=1)
+    max_stripe_width_px: float = opt(3.5, gt=0, hi=100)
+    min_roi_margin_px: int = opt(8, lo=0, hi=10000)
+    chessboards: int = opt(12, lo=3, hi=100)
+    flat_targets: int = opt(4, lo=2, hi=50)
+    max_reprojection_px: float = opt(0.1, gt=0, hi=10)
+    max_plane_rms_mm: float = opt(0.03, gt=0, hi=10)
+    max_target_rms_mm: float = opt(0.05, gt=0, hi=10)
+    max_sphere_offset_mm: float = opt(50.0, gt=0, hi=1e4)
+    max_rejected_fraction: float = opt(0.1, lo=0, hi=1)
+    validation_views: int = opt(3, lo=1, hi=100)
+    max_validation_rmse_mm: float = opt(0.2, gt=0, hi=100)
+    seed: int = opt(0, lo=0, hi=2**32 - 1)
+
+
+def url_problem(family: str, url: str) -> str:
+    """Why `url` cannot select a `family` backend ("" when it can); imports no backend."""
+    from drivers.errors import DeviceConfigError
+    from drivers.registry import BACKENDS
+    from drivers.url import parse_url
+    from fakes.wiring import register_fakes
+
+    register_fakes()  # a cell's fake:// devices are the simulated cell's
+    try:
+        parsed = parse_url(url)
+        scheme = parsed.scheme
+        parsed.flag("trace")
+    except DeviceConfigError as exc:
+        return str(exc)
+    if scheme not in BACKENDS[family]:
+        known = ", ".join(f"{k}://" for k in BACKENDS[family])
+        return f"no {family} backend for {scheme}:// (known: {known})"
+    return ""

@@ -1,0 +1,239 @@
+"""The in-line service's settings, each declared once: the cell file's `[line]`, `[sweep]`,
+`[drift]`, `[service]`, `[opcua]` and `[simline]` tables are these sections, and the service
+uses them as they are (app.line.settings.from_cell gathers them).
+
+`[service]` is one table in the file and three concerns in the code: how the service
+recalibrates (`RecalibSettings`), the gates of an in-line identification (`InlineGateSettings`,
+defaults from calib.gates.INLINE) and its operations (`OperationsSettings`); `ServiceSection`
+is the three together. Times are in the clock's seconds, angles at this boundary in degrees.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from app.config.section import Section, opt
+from app.line.opcua.endpoint import SECURITY_POLICIES, endpoint_problem
+from calib import gates as calib_gates
+from calib import robot
+
+Vec = tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class LineSettings(Section):
+    """The PLC handshake and the motion-time model of one window."""
+
+    name = "line"
+    poll_s: float = opt(0.01, gt=0, hi=10)
+    heartbeat_timeout_s: float = opt(3.0, gt=0, hi=600)
+    override_pct: int = opt(100, lo=1, hi=100)
+    speed_pct: float = opt(100.0, gt=0, hi=100)
+    joint_speed_deg_s: Vec = opt(robot.JOINT_SPEED_DEG_S.tolist(), gt=0, hi=2000, n=6)
+    accel_s: float = opt(0.4, lo=0, hi=60)  # per move: acceleration and deceleration allowance
+    settle_s: float = opt(0.2, lo=0, hi=60)  # per move: settling at FINE
+    home_deg: Vec = opt(robot.HOME_DEG.tolist(), lo=-720, hi=720, n=6)
+    home_tol_deg: float = opt(0.05, gt=0, hi=5)
+    window_s: float = opt(8.0, gt=0, hi=3600)  # a clamp window (the PLC sends only the bit)
+    margin_s: float = opt(0.5, lo=0, hi=60)  # kept free at the end of every window
+    slots_per_window: int = opt(1, lo=1, hi=100)
+    # after a step is flagged and until it is corrected: up to this many slots in a window
+    # (those that fit its time budget), to determine what moved at once (app/line/step.py)
+    step_slots_per_window: int = opt(6, lo=1, hi=100)
+    # the PLC writes the cell temperature in its word 2 (off: the word is not read; a PLC
+    # program that predates it leaves 0 there, which is not 0 degC)
+    plc_temperature: bool = opt(False)
+    # a reading outside this range is "no temperature" with an alarm, never a number
+    plc_temp_min_c: float = opt(5.0, lo=-40, hi=100)
+    plc_temp_max_c: float = opt(50.0, lo=-40, hi=100)
+
+    def cross_checks(self) -> Iterator[tuple[str, str]]:
+        if self.plc_temp_min_c >= self.plc_temp_max_c:
+            yield "plc_temp_max_c", "must exceed plc_temp_min_c"
+
+
+@dataclass(frozen=True)
+class SweepSettings(Section):
+    """The galvo sweep of one measurement: n_frames commands [V] evenly over +-span_v."""
+
+    name = "sweep"
+    n_frames: int = opt(24, lo=3, hi=1000)
+    span_v: float = opt(3.2, gt=0, hi=10)
+    frame_s: float = opt(0.05, gt=0, hi=10)  # set the galvo, settle, expose, transfer
+    grab_timeout_s: float = opt(1.0, gt=0, hi=60)
+
+    def commands_v(self) -> tuple[float, ...]:
+        return tuple(float(v) for v in np.linspace(-self.span_v, self.span_v, self.n_frames))
+
+    @property
+    def duration_s(self) -> float:
+        return self.n_frames * self.frame_s
+
+
+@dataclass(frozen=True)
+class DriftSettings(Section):
+    """Drift charts of the residuals (REFERENCE.md): EWMA (lambda, limit L sigma) and upper
+    CUSUM (slack k, decision h, in sigmas), sigma learned from baseline_n measurements after
+    each applied calibration (with a floor for noise-free baselines)."""
+
+    name = "drift"
+    ewma_lambda: float = opt(0.2, gt=0, hi=1)
+    ewma_l: float = opt(3.0, gt=0, hi=10)
+    cusum_k: float = opt(0.5, lo=0, hi=5)
+    cusum_h: float = opt(5.0, gt=0, hi=50)
+    baseline_n: int = opt(16, lo=2, hi=1000)
+    min_sigma_mm: float = opt(0.01, gt=0, hi=10)
+
+
+@dataclass(frozen=True)
+class RecalibSettings(Section):
+    """When and how the service recalibrates (part of `[service]`)."""
+
+    name = "service"
+    mode: str = opt("auto", choices=("auto", "approve"))
+    rolling_size: int = opt(24, lo=10, hi=100000)
+    holdout_size: int = opt(4, lo=1, hi=1000)
+    every_n: int = opt(24, lo=1, hi=100000)  # new measurements between recalibrations
+    max_nfev: int = opt(200, lo=10, hi=10000)
+    # "batch": identification on the rolling set; "sequential": app.line.inline_seq
+    estimator: str = opt("batch", choices=("batch", "sequential"))
+    seq_apply_every: int = opt(8, lo=1, hi=100000)  # accepted updates between two candidates
+    seq_measurement_std_mm: float = opt(0.025, gt=0, hi=10)
+    seq_drift_mm: float = opt(0.002, lo=0, hi=10)  # random-walk standard deviation per update
+    seq_drift_rad: float = opt(2e-6, lo=0, hi=0.1)
+    seq_drift_extra: float = opt(0.0, lo=0, hi=1)
+    seq_knock_mm: float = opt(0.5, lo=0, hi=100)  # added to the std when a step is flagged
+    seq_knock_rad: float = opt(1e-3, lo=0, hi=1)
+    seq_prior_mm: float = opt(0.5, gt=0, hi=100)  # prior without an identification's covariance
+    seq_prior_rad: float = opt(1e-3, gt=0, hi=1)
+    seq_max_std_mm: float = opt(0.025, gt=0, hi=10)  # after a step: before a candidate
+    # "cycle": the plan's configurations in turn; "adaptive" (sequential only): the most
+    # informative configuration that fits the window
+    schedule: str = opt("cycle", choices=("cycle", "adaptive"))
+    # a step (a knock): attribute it to one rigid group and correct that group at once
+    # (app/line/step.py, app/line/step_service.py)
+    step_correction: bool = opt(True)
+    step_min_measurements: int = opt(3, lo=2, hi=1000)  # after the change point, 1 held out
+    step_min_margin: float = opt(10.0, lo=0, hi=1e6)  # BIC of the runner-up minus the choice's
+    # the correction's predicted uncertainty over the measuring volume at the schedule's
+    # configurations (per coordinate)
+    step_max_std_mm: float = opt(0.015, gt=0, hi=10)
+    # a flag is a step (not drift) when the attribution decides for a group and the change it
+    # sees, noise removed, is at least this large (RMS at the measured spheres)
+    step_min_mm: float = opt(0.05, lo=0, hi=100)
+    # after the first correction one more window refines it (auto mode, batch estimator; 0:
+    # none); a refinement that moves points at the standoff by more than this shows the first
+    # correction was off: the suspect interval then lasts until the refinement
+    step_refine_mm: float = opt(0.03, lo=0, hi=10)
+
+    def cross_checks(self) -> Iterator[tuple[str, str]]:
+        if self.schedule == "adaptive" and self.estimator != "sequential":
+            yield "schedule", 'adaptive scheduling needs estimator = "sequential"'
+
+
+def _deg(rad: float | None) -> float:
+    assert rad is not None
+    return math.degrees(rad)
+
+
+_IN = calib_gates.INLINE
+
+
+@dataclass(frozen=True)
+class InlineGateSettings(Section):
+    """The gates of an in-line identification (part of `[service]`; calib.gates.INLINE): the
+    change from the parameters in force, bounded per chain piece, and the candidate's RMS on
+    held-out measurements at most max_holdout_ratio times that of the parameters in force. RMS
+    and condition limits are [calibration]'s."""
+
+    name = "service"
+    max_joint_change_mm: float = opt(_IN.max_joint_change_mm, gt=0, hi=1000)
+    max_joint_change_deg: float = opt(_deg(_IN.max_joint_change_rad), gt=0, hi=180)
+    max_sensor_change_mm: float = opt(_IN.max_sensor_change_mm, gt=0, hi=1000)
+    max_sensor_change_deg: float = opt(_deg(_IN.max_sensor_change_rad), gt=0, hi=180)
+    max_base_change_mm: float = opt(_IN.max_base_change_mm, gt=0, hi=1000)
+    max_base_change_deg: float = opt(_deg(_IN.max_base_change_rad), gt=0, hi=180)
+    max_holdout_ratio: float = opt(_IN.max_holdout_ratio, gt=0, hi=10)
+
+
+@dataclass(frozen=True)
+class OperationsSettings(Section):
+    """Where the service keeps its state and how it keeps it (part of `[service]`;
+    docs/operations.md): the state directory, its operators' group ("": none, 0750), the free
+    space below which a warning alarm is raised, the raw sweeps kept, and how long events and
+    the documents of rejected calibrations are kept (0: for ever)."""
+
+    name = "service"
+    state_dir: str = opt("rvis-state")
+    operators_group: str = opt("")
+    min_free_mb: float = opt(200.0, lo=0, hi=1e7)
+    raw_sweeps_keep: int = opt(0, lo=0, hi=100000)
+    events_keep_days: float = opt(90.0, lo=0, hi=36500)
+    rejected_keep_days: float = opt(30.0, lo=0, hi=36500)
+
+
+@dataclass(frozen=True)
+class ServiceSection(OperationsSettings, InlineGateSettings, RecalibSettings):
+    """The in-line service (`rvis run`): the cell file's `[service]` table, the three settings
+    above in one (each consumer takes its part with app.config.section.project)."""
+
+    name = "service"
+
+    def cross_checks(self) -> Iterator[tuple[str, str]]:
+        yield from RecalibSettings.cross_checks(self)
+
+
+@dataclass(frozen=True)
+class OpcUaSettings(Section):
+    """The service's OPC UA server (DESIGN.md section 8, docs/opcua.md): off by default, on
+    loopback by default; any other endpoint needs a signing-and-encrypting security_policy
+    ("none": no security, loopback only). Identification of the cell as OPC 40001-1 reads it
+    ("" : derived, see docs/opcua.md)."""
+
+    name = "opcua"
+    enabled: bool = opt(False)
+    endpoint: str = opt("opc.tcp://127.0.0.1:4840/rvis")
+    security_policy: str = opt("none", choices=SECURITY_POLICIES)
+    allow_anonymous: bool = opt(False)  # beyond loopback (on loopback anonymous is allowed)
+    allow_ack: bool = opt(False)  # acknowledging alarms from OPC UA (audited)
+    machine_name: str = opt("rvis-cell")
+    manufacturer: str = opt("rvis")
+    model: str = opt("RVIS in-line self-calibration, FANUC M-710iC/50 + laser-line sensor")
+    serial_number: str = opt("")  # "": the host's name
+    product_instance_uri: str = opt("")  # "": urn:<manufacturer>:<serial number>:<machine>
+
+    def cross_checks(self) -> Iterator[tuple[str, str]]:
+        if self.enabled:
+            reason = endpoint_problem(self.endpoint, self.security_policy)
+            if reason:
+                yield "endpoint", reason
+
+
+@dataclass(frozen=True)
+class SimLineSection(Section):
+    """The simulated line of `rvis run --sim` (fakes/line.py): time scale, clamp cycle, the
+    cell's warm-up and a knock (knock_at_s < 0: none) of the sensor mount (knock_kind sensor:
+    knock_mm shift and knock_deg tilt), of the spheres' frame (fixture: the same about the
+    spheres' centroid) or of the J2 encoder zero (joint: a slip of knock_deg)."""
+
+    name = "simline"
+    scale: float = opt(60.0, gt=0, hi=10000)
+    period_s: float = opt(60.0, gt=0, hi=86400)
+    window_s: float = opt(20.0, gt=0, hi=86400)
+    beat_s: float = opt(0.5, gt=0, hi=60)
+    warmup_k: float = opt(8.0, lo=-50, hi=50)
+    warmup_tau_s: float = opt(3600.0, gt=0, hi=1e6)
+    warmup_start_s: float = opt(0.0, lo=0, hi=1e6)
+    knock_at_s: float = opt(-1.0, lo=-1, hi=1e7)
+    knock_mm: float = opt(0.3, lo=0, hi=100)
+    knock_deg: float = opt(0.05, lo=0, hi=90)
+    knock_kind: str = opt("sensor", choices=("sensor", "fixture", "joint"))
+    n_validation: int = opt(100, lo=1, hi=10000)
+
+    def cross_checks(self) -> Iterator[tuple[str, str]]:
+        if self.window_s >= self.period_s:
+            yield "window_s", "the clamp window must be shorter than period_s"

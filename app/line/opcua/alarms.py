@@ -1,0 +1,213 @@
+"""The service's alarms as OPC UA Alarms & Conditions (docs/opcua.md), so that a SCADA alarm
+list shows them.
+
+One condition per alarm code (`Alarms/<code>` under the machine, an AlarmConditionType
+instance referenced by HasCondition): the service keeps at most one active alarm per code, and
+each of its alarm rows is one occurrence of that condition. `sync(alarms)` compares the
+status reply's alarms with the occurrences it published and triggers an event for every
+change, from the machine and from the Server object, with the condition's variables written to
+match:
+
+    raised              ActiveState Active, AckedState Unacknowledged, Retain true
+    acked               AckedState Acknowledged
+    shelved / unshelved ShelvingState TimedShelved / Unshelved (SuppressedOrShelved)
+    cleared             ActiveState Inactive, Retain false (the service needs no ack after)
+
+Severity follows the ISA-18.2 priority (urgent 900, high 700, medium 500, low 300). Retained
+conditions are replayed by ConditionRefresh (on subscriptions to the Server object).
+Acknowledge (the AcknowledgeableConditionType method, on the type or the condition) is refused
+unless `[opcua] allow_ack`; allowed, it goes through the service's audited `ack` command.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import uuid
+from collections.abc import Awaitable, Callable, Mapping
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from typing import Any
+
+from asyncua import Node, Server, ua
+from asyncua.common.event_objects import AlarmCondition
+
+from app.line.opcua.security import caller
+
+log = logging.getLogger("rvis.line.opcua")
+
+SEVERITY = {"urgent": 900, "high": 700, "medium": 500, "low": 300}
+SHELVING_IDS = {
+    "Unshelved": ua.ObjectIds.ShelvedStateMachineType_Unshelved,
+    "TimedShelved": ua.ObjectIds.ShelvedStateMachineType_TimedShelved,
+}
+PROCESS_CODES = ("drift", "drift_step")  # the process's alarms; the others are the system's
+
+#: acknowledge(alarm id, who, comment) -> None when done, else the service's reason
+AckHandler = Callable[[int, str, str], Awaitable[str | None]]
+
+
+@dataclass
+class Occurrence:
+    """The alarm row published on a condition."""
+
+    alarm_id: int
+    state: str  # raised | acked | shelved
+    acked: bool = False
+    event_ids: set[bytes] = field(default_factory=set)
+
+
+def condition_fields(
+    alarm: Mapping[str, Any], occ: Occurrence, active: bool
+) -> dict[str, tuple[Any, ua.VariantType]]:
+    """The condition's fields (event field path -> value, type) for this occurrence."""
+    shelving = "TimedShelved" if occ.state == "shelved" else "Unshelved"
+    klass = "Process" if alarm["code"] in PROCESS_CODES else "System"
+    class_id = getattr(ua.ObjectIds, f"{klass}ConditionClassType")
+    text = ua.VariantType.LocalizedText
+    return {
+        "ConditionName": (str(alarm["code"]), ua.VariantType.String),
+        "ConditionClassId": (ua.NodeId(class_id), ua.VariantType.NodeId),
+        "ConditionClassName": (ua.LocalizedText(klass), text),
+        "Severity": (SEVERITY.get(str(alarm["priority"]), 500), ua.VariantType.UInt16),
+        "Message": (ua.LocalizedText(str(alarm["message"])), text),
+        "Retain": (active, ua.VariantType.Boolean),
+        "EnabledState": (ua.LocalizedText("Enabled"), text),
+        "EnabledState/Id": (True, ua.VariantType.Boolean),
+        "ActiveState": (ua.LocalizedText("Active" if active else "Inactive"), text),
+        "ActiveState/Id": (active, ua.VariantType.Boolean),
+        "AckedState": (ua.LocalizedText("Acknowledged" if occ.acked else "Unacknowledged"), text),
+        "AckedState/Id": (occ.acked, ua.VariantType.Boolean),
+        "ShelvingState/CurrentState": (ua.LocalizedText(shelving), text),
+        "ShelvingState/CurrentState/Id": (ua.NodeId(SHELVING_IDS[shelving]), ua.VariantType.NodeId),
+        "SuppressedOrShelved": (shelving != "Unshelved", ua.VariantType.Boolean),
+    }
+
+
+class Conditions:
+    """The alarm conditions of one machine node."""
+
+    def __init__(
+        self, server: Server, ns: int, machine: Node, ack: AckHandler | None = None
+    ) -> None:
+        self.server, self.ns, self.machine, self.ack = server, ns, machine, ack
+        self._folder: Node | None = None
+        self._nodes: dict[str, Node] = {}  # code -> condition node
+        self._codes: dict[ua.NodeId, str] = {}  # condition node id -> code
+        self._vars: dict[tuple[str, str], Node | None] = {}  # (code, field path) -> variable
+        self._now: dict[str, tuple[Occurrence, dict[str, Any]]] = {}  # code -> occurrence
+        self.name = ""
+
+    async def setup(self) -> None:
+        """The Alarms folder, the event notifiers and the Acknowledge method's callback."""
+        self.name = (await self.machine.read_browse_name()).Name
+        self._folder = await self.machine.add_folder(
+            ua.NodeId(f"{self.name}.Alarms", self.ns), ua.QualifiedName("Alarms", self.ns)
+        )
+        await self.machine.set_event_notifier([ua.EventNotifier.SubscribeToEvents])
+        await self.server.nodes.server.add_reference(self.machine.nodeid, ua.ObjectIds.HasNotifier)
+        method = self.server.get_node(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge)
+        self.server.link_method(method, self._acknowledge)
+
+    async def _condition(self, code: str) -> Node:
+        node = self._nodes.get(code)
+        if node is None:
+            assert self._folder is not None, "setup() first"
+            node = await self._folder.add_object(
+                ua.NodeId(f"{self.name}.Alarms.{code}", self.ns),
+                ua.QualifiedName(code, self.ns),
+                objecttype=ua.ObjectIds.AlarmConditionType,
+            )
+            await self.machine.add_reference(node.nodeid, ua.ObjectIds.HasCondition)
+            with contextlib.suppress(ua.UaError):
+                own = await node.get_child("0:Acknowledge")
+                self.server.link_method(own, self._acknowledge)
+            self._nodes[code], self._codes[node.nodeid] = node, code
+        return node
+
+    async def sync(self, alarms: list[Mapping[str, Any]], t: datetime) -> int:
+        """Publish what changed since the last call (`alarms`: the status reply's, one per
+        code); the number of events triggered."""
+        events = 0
+        seen = {str(a["code"]): a for a in alarms}
+        for code, (occ, last) in list(self._now.items()):
+            if code not in seen or int(seen[code]["id"]) != occ.alarm_id:
+                await self._event(code, last, occ, False, t)  # cleared (or replaced)
+                del self._now[code]
+                events += 1
+        for code, alarm in seen.items():
+            published = self._now.get(code)
+            state = str(alarm["state"])
+            if published is not None and published[0].state == state:
+                continue
+            occ = published[0] if published else Occurrence(int(alarm["id"]), state)
+            occ.acked = state == "acked" or (state == "shelved" and occ.acked)
+            occ.state = state
+            self._now[code] = (occ, dict(alarm))
+            await self._event(code, alarm, occ, True, t)
+            events += 1
+        return events
+
+    async def _event(
+        self, code: str, alarm: Mapping[str, Any], occ: Occurrence, active: bool, t: datetime
+    ) -> None:
+        node = await self._condition(code)
+        fields = condition_fields(alarm, occ, active)
+        event = AlarmCondition()
+        event.add_property("NodeId", node.nodeid, ua.VariantType.NodeId)  # the ConditionId
+        for path, (value, vtype) in fields.items():
+            event.add_property(path, value, vtype)
+        event_id = uuid.uuid4().bytes
+        occ.event_ids.add(event_id)
+        event.EventId, event.Time = event_id, t
+        event.ReceiveTime = datetime.now(UTC)
+        event.SourceNode, event.SourceName = self.machine.nodeid, self.name
+        subscriptions = self.server.iserver.subscription_service
+        for emitter in (self.machine.nodeid, ua.NodeId(ua.ObjectIds.Server)):
+            event.emitting_node = emitter  # the Server object last: ConditionRefresh's source
+            await subscriptions.trigger_event(event)
+        await self._write(code, node, {**fields, "EventId": (event_id, ua.VariantType.ByteString)})
+
+    async def _write(
+        self, code: str, node: Node, fields: Mapping[str, tuple[Any, ua.VariantType]]
+    ) -> None:
+        """The condition node's variables in step with its last event."""
+        for path, (value, vtype) in fields.items():
+            key = (code, path)
+            if key not in self._vars:
+                try:
+                    self._vars[key] = await node.get_child([f"0:{p}" for p in path.split("/")])
+                except ua.UaError:
+                    self._vars[key] = None  # an optional field this instance does not have
+            var = self._vars[key]
+            if var is not None:
+                await self.server.write_attribute_value(
+                    var.nodeid, ua.DataValue(ua.Variant(value, vtype))
+                )
+
+    async def _acknowledge(
+        self, condition: ua.NodeId, event_id: ua.Variant, comment: ua.Variant | None = None
+    ) -> ua.StatusCode | list[ua.Variant]:
+        """The Acknowledge method (Part 9): refused unless allowed, else the service's `ack`
+        of the alarm the event belongs to, audited with who asked and the comment."""
+        code = self._codes.get(condition)
+        published = self._now.get(code) if code is not None else None
+        if published is None or event_id.Value not in published[0].event_ids:
+            return ua.StatusCode(ua.StatusCodes.BadEventIdUnknown)
+        occ = published[0]
+        who = caller()
+        if self.ack is None:
+            log.warning(
+                "OPC UA acknowledge of alarm %d by %s refused: [opcua] allow_ack is false",
+                occ.alarm_id,
+                who,
+            )
+            return ua.StatusCode(ua.StatusCodes.BadUserAccessDenied)
+        if occ.acked:
+            return ua.StatusCode(ua.StatusCodes.BadConditionBranchAlreadyAcked)
+        text = comment.Value.Text if comment is not None and comment.Value is not None else ""
+        error = await self.ack(occ.alarm_id, who, text or "")
+        if error is not None:
+            log.warning("OPC UA acknowledge of alarm %d by %s failed: %s", occ.alarm_id, who, error)
+            return ua.StatusCode(ua.StatusCodes.BadInvalidState)
+        return []

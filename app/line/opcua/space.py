@@ -1,0 +1,423 @@
+"""The address space of the cell (docs/opcua.md): a machine modelled on OPC 40001-1 (Machinery)
+with rvis's own variables, and how a status reply of the service becomes their values.
+
+    Objects/Machines (Machinery)                     FolderType
+        <machine_name> (rvis)                        BaseObjectType, an event notifier
+            Identification (DI)                      Manufacturer, Model, SerialNumber, ...
+            MachineryBuildingBlocks (Machinery)      HasAddIn Identification, MachineryItemState
+            MachineryItemState (Machinery)           FiniteStateMachineType: CurrentState, Id
+            ServiceState, Step, CalibrationVersion, ... (rvis)   VARIABLES below
+            Spheres/<id>/DriftEwmaMm, Drifting (rvis)
+            Alarms/<code> (rvis)                     AlarmConditionType (app.line.opcua.alarms)
+
+The DI and Machinery namespaces hold only the nodes named here (their NodeSets are not loaded):
+the browse names, the Machines folder and the MachineryItemState's state ids are the standard
+ones, the type definitions are the base types they derive from (docs/opcua.md lists exactly
+what is standard). Every variable is read-only; a value the service does not have (no fit RMS
+for initial parameters, no temperature sensor, a chart not yet started) reads as BadNoValue, a
+value the status reply left out (the state storage failing) keeps its last value as
+UncertainLastUsableValue.
+"""
+
+from __future__ import annotations
+
+import socket
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from typing import Any
+
+from asyncua import Node, Server, ua
+
+from app.config.line import OpcUaSettings
+
+NS_RVIS = "urn:rvis:opcua"  # the same in every cell: clients find the variables by name
+NS_DI = "http://opcfoundation.org/UA/DI/"
+NS_MACHINERY = "http://opcfoundation.org/UA/Machinery/"
+
+#: OPC 40001-1 node ids in the Machinery namespace (Opc.Ua.Machinery.NodeIds.csv)
+MACHINES_ID = 1001
+ITEM_STATE_IDS = {
+    "OutOfService": 5004,
+    "NotAvailable": 5005,
+    "Executing": 5006,
+    "NotExecuting": 5007,
+}
+#: the service's state -> MachineryItemState (40001-1: NotExecuting = ready, waiting for work)
+ITEM_STATE_OF = {
+    "starting": "NotAvailable",
+    "idle": "NotExecuting",
+    "measuring": "Executing",
+    "paused": "OutOfService",
+    "fault": "OutOfService",
+    "stopped": "NotAvailable",
+}
+
+UNECE = "http://www.opcfoundation.org/UA/units/un/cefact"
+#: engineering units: (UNECE common code, display name, description)
+UNITS = {"mm": ("MMT", "mm", "millimetre"), "degC": ("CEL", "°C", "degree Celsius")}
+NO_VALUE = ua.StatusCodes.BadNoValue
+LEFT_OUT = ua.StatusCodes.UncertainLastUsableValue
+
+
+def _alarm_count(alarms: Any) -> int:
+    return len(alarms)
+
+
+def _utc(text: Any) -> datetime:
+    return datetime.fromisoformat(str(text))
+
+
+def _id_or_zero(value: Any) -> int:
+    return 0 if value is None else int(value)
+
+
+@dataclass(frozen=True)
+class Var:
+    """One variable: browse name, where `rvis status --json` holds its value, its type, unit
+    and range (EURange) and how the status value becomes the OPC UA value."""
+
+    name: str
+    path: tuple[str, ...]
+    vtype: ua.VariantType
+    description: str
+    unit: str | None = None
+    eu_range: tuple[float, float] | None = None
+    convert: Callable[[Any], Any] | None = None
+    none_is_value: bool = False  # None goes through convert (e.g. PendingCalibration 0)
+
+
+VARIABLES = (
+    Var("ServiceState", ("state",), ua.VariantType.String, "the state word of `rvis status`"),
+    Var("Step", ("step",), ua.VariantType.String, "what the service is doing, in a few words"),
+    Var(
+        "CalibrationVersion",
+        ("calibration", "version"),
+        ua.VariantType.UInt32,
+        "the parameters version in force",
+    ),
+    Var(
+        "CalibrationRmsMm",
+        ("calibration", "rms_mm"),
+        ua.VariantType.Double,
+        "RMS residual of the identification in force (BadNoValue: not identified in-line)",
+        unit="mm",
+        eu_range=(0.0, 1.0),
+    ),
+    Var(
+        "CalibrationAppliedUtc",
+        ("calibration", "applied_utc"),
+        ua.VariantType.DateTime,
+        "when the parameters in force were applied",
+        convert=_utc,
+    ),
+    Var(
+        "PendingCalibration",
+        ("pending_calibration",),
+        ua.VariantType.UInt32,
+        "the calibration waiting for approval (0: none)",
+        convert=_id_or_zero,
+        none_is_value=True,
+    ),
+    Var("Windows", ("counters", "windows"), ua.VariantType.UInt32, "clamp windows used"),
+    Var("Overruns", ("counters", "overruns"), ua.VariantType.UInt32, "windows overrun"),
+    Var("MeasurementsOk", ("measurements", "ok"), ua.VariantType.UInt32, "measurements stored"),
+    Var(
+        "MeasurementsRejected",
+        ("measurements", "rejected"),
+        ua.VariantType.UInt32,
+        "measurements rejected by the vision checks",
+    ),
+    Var(
+        "CellTemperatureC",
+        ("cell_temp_c",),
+        ua.VariantType.Double,
+        "the cell's air temperature from the PLC (BadNoValue: no sensor)",
+        unit="degC",
+        eu_range=(-40.0, 80.0),
+    ),
+    Var(
+        "ActiveAlarms",
+        ("alarms",),
+        ua.VariantType.UInt32,
+        "alarms raised, acknowledged or shelved (each also an AlarmConditionType event)",
+        convert=_alarm_count,
+    ),
+    # issue 20 (suspect intervals) adds its status field here when it lands on main
+)
+
+
+def sphere_vars(sphere: str) -> tuple[Var, ...]:
+    """The drift chart of one sphere ("*": all spheres together, published as `All`)."""
+    return (
+        Var(
+            "DriftEwmaMm",
+            ("drift", sphere, "ewma_mm"),
+            ua.VariantType.Double,
+            "EWMA of the sphere's residual against its known centre",
+            unit="mm",
+            eu_range=(0.0, 1.0),
+        ),
+        Var(
+            "Drifting",
+            ("drift", sphere, "drifting"),
+            ua.VariantType.Boolean,
+            "the residual chart signalled since the last applied calibration",
+        ),
+    )
+
+
+_MISSING = object()
+
+
+def lookup(status: Mapping[str, Any], path: tuple[str, ...]) -> Any:
+    """The value at `path` of a status reply (_MISSING when the reply left it out)."""
+    value: Any = status
+    for key in path:
+        if not isinstance(value, Mapping) or key not in value:
+            return _MISSING
+        value = value[key]
+    return value
+
+
+def data_value(var: Var, raw: Any, t: datetime, last: ua.Variant | None) -> ua.DataValue:
+    """The OPC UA value of `var` for the status value `raw`, timestamped `t`."""
+    if raw is _MISSING and last is not None and last.VariantType != ua.VariantType.Null:
+        return ua.DataValue(last, StatusCode=ua.StatusCode(LEFT_OUT), SourceTimestamp=t)
+    if raw is _MISSING or (raw is None and not var.none_is_value):
+        return ua.DataValue(StatusCode=ua.StatusCode(NO_VALUE), SourceTimestamp=t)
+    value = var.convert(raw) if var.convert is not None else raw
+    if var.vtype == ua.VariantType.Double:
+        value = float(value)
+    return ua.DataValue(ua.Variant(value, var.vtype), SourceTimestamp=t)
+
+
+def identity(settings: OpcUaSettings) -> dict[str, str]:
+    """SerialNumber and ProductInstanceUri as published ("" settings derived)."""
+    serial = settings.serial_number or socket.gethostname()
+    uri = settings.product_instance_uri or (
+        f"urn:{settings.manufacturer}:{serial}:{settings.machine_name}".replace(" ", "-")
+    )
+    return {"serial_number": serial, "product_instance_uri": uri}
+
+
+class AddressSpace:
+    """Builds the nodes (`build`) and writes a status reply into them (`apply`)."""
+
+    def __init__(self, server: Server, settings: OpcUaSettings) -> None:
+        self.server, self.settings = server, settings
+        self.machine: Node | None = None
+        self._vars: dict[str, tuple[Var, Node]] = {}  # node path -> variable and its node
+        self._last: dict[str, ua.DataValue] = {}
+        self._state: tuple[Node, Node] | None = None  # CurrentState and its Id
+        self._state_now: str | None = None  # the MachineryItemState published
+        self.ns = self.ns_di = self.ns_machinery = 0
+
+    async def build(self, spheres: list[str], software_revision: str) -> Node:
+        s = self.server
+        self.ns = await s.register_namespace(NS_RVIS)
+        self.ns_di = await s.register_namespace(NS_DI)
+        self.ns_machinery = await s.register_namespace(NS_MACHINERY)
+        machines = await self._add(
+            s.nodes.objects,
+            ua.NodeId(MACHINES_ID, self.ns_machinery),
+            ua.QualifiedName("Machines", self.ns_machinery),
+            ua.ObjectIds.FolderType,
+            ua.ObjectIds.Organizes,
+        )
+        name = self.settings.machine_name
+        self.machine = machine = await self._add(
+            machines, self._id(name), ua.QualifiedName(name, self.ns), ua.ObjectIds.BaseObjectType
+        )
+        ident = await self._identification(machine, software_revision)
+        state = await self._item_state(machine)
+        blocks = await self._add(
+            machine,
+            self._id(name, "MachineryBuildingBlocks"),
+            ua.QualifiedName("MachineryBuildingBlocks", self.ns_machinery),
+            ua.ObjectIds.FolderType,
+        )
+        for node in (ident, state):
+            await blocks.add_reference(node.nodeid, ua.ObjectIds.HasAddIn)
+        for var in VARIABLES:
+            await self._variable(machine, (name,), var)
+        folder = await self._add(
+            machine,
+            self._id(name, "Spheres"),
+            ua.QualifiedName("Spheres", self.ns),
+            ua.ObjectIds.FolderType,
+        )
+        for sphere in [*spheres, "*"]:
+            label = "All" if sphere == "*" else sphere
+            obj = await self._add(
+                folder,
+                self._id(name, "Spheres", label),
+                ua.QualifiedName(label, self.ns),
+                ua.ObjectIds.BaseObjectType,
+            )
+            for var in sphere_vars(sphere):
+                await self._variable(obj, (name, "Spheres", label), var)
+        return machine
+
+    def _id(self, *path: str) -> ua.NodeId:
+        return ua.NodeId(".".join(path), self.ns)
+
+    async def _identification(self, machine: Node, software_revision: str) -> Node:
+        """OPC 40001-1 Identification (MachineIdentificationType's mandatory properties and
+        SoftwareRevision), an AddIn of the machine."""
+        s, name = self.settings, self.settings.machine_name
+        ident = await self._add(
+            machine,
+            self._id(name, "Identification"),
+            ua.QualifiedName("Identification", self.ns_di),
+            ua.ObjectIds.BaseObjectType,
+            ua.ObjectIds.HasAddIn,
+        )
+        derived = identity(s)
+        props: list[tuple[str, Any, ua.VariantType]] = [
+            ("Manufacturer", ua.LocalizedText(s.manufacturer), ua.VariantType.LocalizedText),
+            ("Model", ua.LocalizedText(s.model), ua.VariantType.LocalizedText),
+            ("SerialNumber", derived["serial_number"], ua.VariantType.String),
+            ("SoftwareRevision", software_revision, ua.VariantType.String),
+            ("ProductInstanceUri", derived["product_instance_uri"], ua.VariantType.String),
+        ]
+        for prop, value, vtype in props:
+            await ident.add_property(
+                self._id(name, "Identification", prop),
+                ua.QualifiedName(prop, self.ns_di),
+                ua.Variant(value, vtype),
+            )
+        return ident
+
+    async def _item_state(self, machine: Node) -> Node:
+        """MachineryItemState: a FiniteStateMachine with CurrentState and its Id (the
+        standard state NodeIds of MachineryItemState_StateMachineType)."""
+        name = self.settings.machine_name
+        obj = await self._add(
+            machine,
+            self._id(name, "MachineryItemState"),
+            ua.QualifiedName("MachineryItemState", self.ns_machinery),
+            ua.ObjectIds.FiniteStateMachineType,
+            ua.ObjectIds.HasAddIn,
+        )
+        current = await self._add(
+            obj,
+            self._id(name, "MachineryItemState", "CurrentState"),
+            ua.QualifiedName("CurrentState", 0),
+            ua.ObjectIds.FiniteStateVariableType,
+            nodeclass=ua.NodeClass.Variable,
+            value=ua.Variant(ua.LocalizedText("NotAvailable"), ua.VariantType.LocalizedText),
+            datatype=ua.ObjectIds.LocalizedText,
+        )
+        state_id = await current.add_property(
+            self._id(name, "MachineryItemState", "CurrentState", "Id"),
+            ua.QualifiedName("Id", 0),
+            ua.Variant(self._state_id("NotAvailable"), ua.VariantType.NodeId),
+        )
+        self._state = (current, state_id)
+        return obj
+
+    def _state_id(self, state: str) -> ua.NodeId:
+        return ua.NodeId(ITEM_STATE_IDS[state], self.ns_machinery)
+
+    async def _variable(self, parent: Node, where: tuple[str, ...], var: Var) -> None:
+        typedef = ua.ObjectIds.AnalogItemType if var.unit else ua.ObjectIds.BaseDataVariableType
+        node = await self._add(
+            parent,
+            self._id(*where, var.name),
+            ua.QualifiedName(var.name, self.ns),
+            typedef,
+            nodeclass=ua.NodeClass.Variable,
+            datatype=int(var.vtype.value),
+            description=var.description,
+        )
+        if var.unit:
+            code, shown, text = UNITS[var.unit]
+            unit_id = int.from_bytes(code.encode("ascii"), "big")
+            eu = ua.EUInformation(UNECE, unit_id, ua.LocalizedText(shown), ua.LocalizedText(text))
+            await node.add_property(
+                self._id(*where, var.name, "EngineeringUnits"),
+                ua.QualifiedName("EngineeringUnits", 0),
+                ua.Variant(eu, ua.VariantType.ExtensionObject),
+                datatype=ua.NodeId(ua.ObjectIds.EUInformation),
+            )
+            lo, hi = var.eu_range or (0.0, 0.0)
+            await node.add_property(
+                self._id(*where, var.name, "EURange"),
+                ua.QualifiedName("EURange", 0),
+                ua.Variant(ua.Range(lo, hi), ua.VariantType.ExtensionObject),
+                datatype=ua.NodeId(ua.ObjectIds.Range),
+            )
+        self._vars[".".join((*where, var.name))] = (var, node)
+
+    async def _add(
+        self,
+        parent: Node,
+        nodeid: ua.NodeId,
+        qname: ua.QualifiedName,
+        typedef: int,
+        reftype: int = ua.ObjectIds.HasComponent,
+        *,
+        nodeclass: ua.NodeClass = ua.NodeClass.Object,
+        value: ua.Variant | None = None,
+        datatype: int | None = None,
+        description: str = "",
+    ) -> Node:
+        """One node with its type definition and reference from `parent` (asyncua's helpers
+        fix both); variables are read-only."""
+        item = ua.AddNodesItem()
+        item.RequestedNewNodeId, item.BrowseName = nodeid, qname
+        item.NodeClass, item.ParentNodeId = nodeclass, parent.nodeid
+        item.ReferenceTypeId = ua.NodeId(reftype)
+        item.TypeDefinition = ua.NodeId(typedef)
+        attrs: ua.ObjectAttributes | ua.VariableAttributes
+        if nodeclass == ua.NodeClass.Variable:
+            attrs = ua.VariableAttributes()
+            attrs.Value = value if value is not None else ua.Variant(None)
+            attrs.DataType = ua.NodeId(datatype or ua.ObjectIds.BaseDataType)
+            attrs.ValueRank = ua.ValueRank.Scalar
+            attrs.AccessLevel = attrs.UserAccessLevel = ua.AccessLevel.CurrentRead.mask
+        else:
+            attrs = ua.ObjectAttributes()
+        attrs.DisplayName = ua.LocalizedText(qname.Name)
+        if description:
+            attrs.Description = ua.LocalizedText(description)
+        item.NodeAttributes = attrs
+        result = (await self.server.iserver.isession.add_nodes([item]))[0]
+        result.StatusCode.check()
+        return self.server.get_node(result.AddedNodeId)
+
+    async def apply(self, status: Mapping[str, Any], t: datetime) -> int:
+        """Write the values of a status reply (only those that changed, timestamped `t`, the
+        service's clock); the number written."""
+        written = 0
+        for key, (var, node) in self._vars.items():
+            last = self._last.get(key)
+            dv = data_value(var, lookup(status, var.path), t, last.Value if last else None)
+            if last is not None and (last.Value, last.StatusCode) == (dv.Value, dv.StatusCode):
+                continue
+            await self.server.write_attribute_value(node.nodeid, dv)
+            self._last[key] = dv
+            written += 1
+        return written + await self._apply_state(status.get("state"), t)
+
+    async def _apply_state(self, state: Any, t: datetime) -> int:
+        item = ITEM_STATE_OF.get(str(state))
+        if item is None or self._state is None or self._state_now == item:
+            return 0
+        current, state_id = self._state
+        text = ua.Variant(ua.LocalizedText(item), ua.VariantType.LocalizedText)
+        await self.server.write_attribute_value(
+            current.nodeid, ua.DataValue(text, SourceTimestamp=t)
+        )
+        node_id = ua.Variant(self._state_id(item), ua.VariantType.NodeId)
+        await self.server.write_attribute_value(
+            state_id.nodeid, ua.DataValue(node_id, SourceTimestamp=t)
+        )
+        self._state_now = item
+        return 1
+
+
+def clock_utc(t: float) -> datetime:
+    """A service clock time (seconds since the epoch) as an aware UTC datetime."""
+    return datetime.fromtimestamp(t, UTC)

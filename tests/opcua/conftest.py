@@ -1,0 +1,119 @@
+"""The OPC UA server against the simulated line: one service for the package (`rvis run --sim
+--geometric` in this process, its control socket served, a window every 0.2 s), two OPC UA
+servers on it (read-only, acknowledging), asyncua clients that browse by name. Every test
+leaves the service running normally. Tests wait on notifications with timeouts, never sleep."""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import pytest
+from asyncua import Client, Node, ua
+
+from app.config import load_cell
+from app.line.launch import hold_state, serving
+from app.line.opcua.server import OpcUaServer
+from app.line.opcua.space import NS_MACHINERY, NS_RVIS
+from app.sim.line_run import SimulatedLineRun
+
+# 60 s clamp cycles at x300: a window every 0.2 s; no warm-up: the cell temperature is constant
+CELL = """
+[simline]
+scale = 300.0
+warmup_k = 0.0
+[opcua]
+machine_name = "cell-7"
+serial_number = "SN-0007"
+product_instance_uri = "urn:plant-a:body-shop:cell-7"
+"""
+MACHINE = "cell-7"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port: int = s.getsockname()[1]
+        return port
+
+
+@pytest.fixture(scope="package")
+def line(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SimulatedLineRun]:
+    root = tmp_path_factory.mktemp("opcua")
+    (root / "cell.toml").write_text(CELL, encoding="utf-8")
+    cfg = load_cell(root / "cell.toml")
+    state = root / "state"
+    with (
+        hold_state(state),
+        SimulatedLineRun(cfg, state, seed=3, geometric=True) as run,
+        serving(run.service),
+    ):
+        run.start_service()
+        yield run
+
+
+@dataclass(frozen=True)
+class Servers:
+    """Two OPC UA servers on the module's service: read-only and one that allows acks."""
+
+    read_only: str
+    acking: str
+
+
+@pytest.fixture(scope="package")
+def servers(line: SimulatedLineRun) -> Iterator[Servers]:
+    urls = Servers(*(f"opc.tcp://127.0.0.1:{free_port()}/rvis" for _ in range(2)))
+    base = replace(line.service.settings.opcua, enabled=True)
+    with (
+        OpcUaServer(line.service, replace(base, endpoint=urls.read_only)),
+        OpcUaServer(line.service, replace(base, endpoint=urls.acking, allow_ack=True)),
+    ):
+        yield urls
+
+
+async def machine_node(client: Client) -> Node:
+    """Objects/Machines/<machine>, by browse names."""
+    ns = await client.get_namespace_index(NS_RVIS)
+    ns_m = await client.get_namespace_index(NS_MACHINERY)
+    node: Node = await client.nodes.objects.get_child([f"{ns_m}:Machines", f"{ns}:{MACHINE}"])
+    return node
+
+
+async def child(client: Client, parent: Node, *names: str) -> Node:
+    """A descendant by rvis browse names ("ns:Name" when another namespace)."""
+    ns = await client.get_namespace_index(NS_RVIS)
+    path = [n if ":" in n else f"{ns}:{n}" for n in names]
+    node: Node = await parent.get_child(path)
+    return node
+
+
+class Catcher:
+    """asyncua subscription handler: every data change and event with its arrival time."""
+
+    def __init__(self) -> None:
+        self.changes: asyncio.Queue[tuple[float, Node, Any, ua.DataValue]] = asyncio.Queue()
+        self.events: asyncio.Queue[tuple[float, Any]] = asyncio.Queue()
+
+    def datachange_notification(self, node: Node, val: Any, data: Any) -> None:
+        dv = data.monitored_item.Value
+        self.changes.put_nowait((time.monotonic(), node, val, dv))
+
+    def event_notification(self, event: Any) -> None:
+        self.events.put_nowait((time.monotonic(), event))
+
+    async def event(self, pred: Any, timeout_s: float = 10.0) -> tuple[float, Any]:
+        """The first event from now on for which pred(event) holds."""
+        async with asyncio.timeout(timeout_s):
+            while True:
+                t, event = await self.events.get()
+                if pred(event):
+                    return t, event
+
+
+def state_dir(run: SimulatedLineRun) -> Path:
+    return Path(run.service.settings.state_dir)

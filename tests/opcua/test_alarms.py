@@ -1,0 +1,167 @@
+"""The service's alarms as Alarms & Conditions events: an injected device fault arrives within
+1 s of the service's alarm, with the priority's severity; acknowledging is refused unless
+`[opcua] allow_ack`, and when allowed is the service's audited `ack`; shelving and `rvis ctl
+reset` (clearing) follow, and ConditionRefresh replays what is active."""
+
+from __future__ import annotations
+
+import asyncio
+import subprocess
+import sys
+import threading
+import time
+from typing import Any
+
+import pytest
+from asyncua import Client, Node, ua
+
+from app.sim.line_run import SimulatedLineRun
+from fakes.line_faults import Fault
+from tests.opcua.conftest import Catcher, Servers, child, machine_node, state_dir
+from tests.opcua.test_publish import ROOT
+
+ACTIVE, ACKED = "ActiveState/Id", "AckedState/Id"
+
+
+def rvis_ctl(run: SimulatedLineRun, *args: str) -> None:
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "app",
+            "ctl",
+            "--state-dir",
+            str(state_dir(run)),
+            *args,
+        ],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=60,
+    )
+    assert out.returncode == 0, out.stderr
+
+
+class AlarmWatch:
+    """The real time at which the service's event bus carries an alarm of `code`."""
+
+    def __init__(self, run: SimulatedLineRun, code: str) -> None:
+        self.run, self.code = run, code
+        self.t: float | None = None
+        self._q = run.service.bus.subscribe()
+        self.seen = threading.Event()
+        threading.Thread(target=self._wait, daemon=True).start()
+
+    def _wait(self) -> None:
+        while True:
+            event = self._q.get()
+            if event["event"] == "alarm" and event["code"] == self.code:
+                self.t = time.monotonic()
+                self.seen.set()
+                self.run.service.bus.unsubscribe(self._q)
+                return
+
+
+def _field(event: Any, name: str) -> Any:
+    return getattr(event, name, None)
+
+
+def _is(code: str, **fields: Any) -> Any:
+    def pred(event: Any) -> bool:
+        if _field(event, "ConditionName") != code:
+            return False
+        return all(_field(event, k.replace("__", "/")) == v for k, v in fields.items())
+
+    return pred
+
+
+async def acknowledge(client: Client, condition: Node, event_id: bytes, comment: str) -> None:
+    await condition.call_method(
+        ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge),
+        ua.Variant(event_id, ua.VariantType.ByteString),
+        ua.Variant(ua.LocalizedText(comment), ua.VariantType.LocalizedText),
+    )
+
+
+def test_a_device_fault_as_alarm_events_from_raise_to_clear(
+    line: SimulatedLineRun, servers: Servers
+) -> None:
+    url_ro, url_ack = servers.read_only, servers.acking
+
+    async def scenario() -> None:
+        async with Client(url_ro) as ro, Client(url_ack) as op:
+            handler, handler_op = Catcher(), Catcher()
+            for client, h in ((ro, handler), (op, handler_op)):
+                sub = await client.create_subscription(20, h)
+                await sub.subscribe_events(client.nodes.server, ua.ObjectIds.AlarmConditionType)
+            watch = AlarmWatch(line, "device_fault")
+            line.line.inject(Fault.CONTROLLER_ALARM)  # the next motion stops on it
+            t_opc, raised = await handler.event(_is("device_fault", ActiveState__Id=True), 10)
+            assert watch.seen.wait(5) and watch.t is not None
+            assert t_opc - watch.t < 1.0, f"{t_opc - watch.t:.3f} s after the service's alarm"
+            assert raised.Severity == 900 and raised.Retain  # urgent
+            assert _field(raised, ACKED) is False and "DeviceFault" in raised.Message.Text
+            alarm = line.service.store.active_alarms(code="device_fault")[0]
+
+            # read-only server: the Acknowledge method is refused, nothing audited
+            m_ro = await machine_node(ro)
+            condition = await child(ro, m_ro, "Alarms", "device_fault")
+            assert raised.NodeId == condition.nodeid  # the event's ConditionId
+            n_actions = len(line.service.store.actions())
+            with pytest.raises(ua.uaerrors.BadUserAccessDenied):
+                await acknowledge(ro, condition, raised.EventId, "seen")
+            assert len(line.service.store.actions()) == n_actions
+
+            # allowed (another server: its own event ids): the service's ack, audited
+            _, raised_op = await handler_op.event(_is("device_fault", ActiveState__Id=True))
+            condition_op = op.get_node(raised_op.NodeId)
+            await acknowledge(op, condition_op, raised_op.EventId, "seen from SCADA")
+            _, acked = await handler.event(_is("device_fault", AckedState__Id=True))
+            assert _field(acked, ACTIVE) is True and acked.Retain
+            last = line.service.store.actions()[-1]
+            assert last["cmd"] == "ack" and last["ok"]
+            assert last["args"]["alarm"] == alarm["id"] and last["args"]["via"] == "opcua"
+            assert last["args"]["comment"] == "seen from SCADA"
+            assert line.service.store.alarms()[alarm["id"] - 1]["state"] == "acked"
+            _, acked_op = await handler_op.event(_is("device_fault", AckedState__Id=True))
+            with pytest.raises(ua.uaerrors.BadConditionBranchAlreadyAcked):
+                await acknowledge(op, condition_op, acked_op.EventId, "again")
+
+            # shelved by an operator at the terminal, then the fault reset
+            await asyncio.to_thread(rvis_ctl, line, "shelve", str(alarm["id"]), "robot checked")
+            await handler.event(_is("device_fault", SuppressedOrShelved=True))
+            await asyncio.to_thread(rvis_ctl, line, "reset")
+            _, cleared = await handler.event(_is("device_fault", ActiveState__Id=False))
+            assert not cleared.Retain and cleared.NodeId == condition.nodeid
+            assert (await (await child(ro, m_ro, "ActiveAlarms")).read_value()) == len(
+                line.service.status()["alarms"]
+            )
+
+    asyncio.run(scenario())
+    assert line.service.state.value != "fault"
+
+
+def test_condition_refresh_replays_the_active_alarms(
+    line: SimulatedLineRun, servers: Servers
+) -> None:
+    url = servers.read_only
+    watch = AlarmWatch(line, "device_fault")
+    line.line.inject(Fault.ROBOT_DISCONNECT)
+    assert watch.seen.wait(20)
+
+    async def scenario() -> Any:
+        async with Client(url) as client:  # connects after the alarm was raised
+            handler = Catcher()
+            sub = await client.create_subscription(20, handler)
+            await sub.subscribe_events(client.nodes.server, ua.ObjectIds.AlarmConditionType)
+            await client.nodes.server.call_method(
+                ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh),
+                ua.Variant(sub.subscription_id, ua.VariantType.UInt32),
+            )
+            _, event = await handler.event(_is("device_fault", ActiveState__Id=True))
+            await asyncio.to_thread(rvis_ctl, line, "reset")
+            await handler.event(_is("device_fault", ActiveState__Id=False))
+            return event
+
+    event = asyncio.run(scenario())
+    assert event.Severity == 900 and "DeviceConnectionError" in event.Message.Text

@@ -1,0 +1,201 @@
+"""The variables by browse name: they follow the simulated line window by window and equal
+`rvis status` (read through its socket, in another process), timestamped with the service's
+clock; the machine reads as OPC 40001-1 names it."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import queue
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import pytest
+from asyncua import Client, ua
+
+from app.line.opcua.space import NS_DI, NS_MACHINERY
+from app.sim.line_run import SimulatedLineRun
+from tests.opcua.conftest import Catcher, Servers, child, machine_node, state_dir
+
+ROOT = Path(__file__).resolve().parents[2]
+
+#: browse name -> its value in `rvis status --json` (None: no value, BadNoValue)
+EXPECTED: dict[str, Callable[[dict[str, Any]], Any]] = {
+    "ServiceState": lambda s: s["state"],
+    "Step": lambda s: s["step"],
+    "CalibrationVersion": lambda s: s["calibration"]["version"],
+    "CalibrationRmsMm": lambda s: s["calibration"]["rms_mm"],
+    "CalibrationAppliedUtc": lambda s: datetime.fromisoformat(s["calibration"]["applied_utc"]),
+    "PendingCalibration": lambda s: s["pending_calibration"] or 0,
+    "Windows": lambda s: s["counters"]["windows"],
+    "Overruns": lambda s: s["counters"]["overruns"],
+    "MeasurementsOk": lambda s: s["measurements"]["ok"],
+    "MeasurementsRejected": lambda s: s["measurements"]["rejected"],
+    "CellTemperatureC": lambda s: s["cell_temp_c"],
+    "ActiveAlarms": lambda s: len(s["alarms"]),
+}
+
+
+def rvis_status(run: SimulatedLineRun) -> dict[str, Any]:
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "app",
+            "status",
+            "--json",
+            "--state-dir",
+            str(state_dir(run)),
+        ],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=60,
+    )
+    assert out.returncode == 0, out.stderr
+    status: dict[str, Any] = json.loads(out.stdout)
+    return status
+
+
+def plain(dv: ua.DataValue) -> Any:
+    if dv.StatusCode.value == ua.StatusCodes.BadNoValue:
+        return None
+    assert dv.StatusCode.is_good(), dv.StatusCode
+    return dv.Value.Value
+
+
+async def published(client: Client, spheres: list[str]) -> dict[str, Any]:
+    m = await machine_node(client)
+    out = {}
+    for name in EXPECTED:
+        out[name] = plain(await (await child(client, m, name)).read_data_value(False))
+    for sphere in spheres:
+        label = "All" if sphere == "*" else sphere
+        for name in ("DriftEwmaMm", "Drifting"):
+            node = await child(client, m, "Spheres", label, name)
+            out[f"{sphere}.{name}"] = plain(await node.read_data_value(False))
+    return out
+
+
+def expected(status: dict[str, Any]) -> dict[str, Any]:
+    out = {name: get(status) for name, get in EXPECTED.items()}
+    for sphere, chart in status["drift"].items():
+        out[f"{sphere}.DriftEwmaMm"] = chart["ewma_mm"]
+        out[f"{sphere}.Drifting"] = chart["drifting"]
+    return out
+
+
+def test_variables_follow_the_windows_and_equal_rvis_status(
+    line: SimulatedLineRun, servers: Servers
+) -> None:
+    url = servers.read_only
+    events = line.service.bus.subscribe()
+
+    async def check() -> None:
+        async with Client(url) as client:
+            m = await machine_node(client)
+            handler = Catcher()
+            sub = await client.create_subscription(20, handler)
+            windows = await child(client, m, "Windows")
+            state = await child(client, m, "ServiceState")
+            await sub.subscribe_data_change([windows, state])
+            seen: list[int] = []
+            async with asyncio.timeout(20):
+                while len(seen) < 4:  # the initial value, then three windows
+                    _, node, value, _ = await handler.changes.get()
+                    if node == windows:
+                        seen.append(value)
+            assert seen == sorted(seen) and len(set(seen)) == 4, seen
+
+            reply = await asyncio.to_thread(lambda: line.service.request("pause").result(30))
+            assert reply["ok"], reply
+            async with asyncio.timeout(20):
+                while (await state.read_value()) != "paused":
+                    await handler.changes.get()
+            async with asyncio.timeout(30):  # a calibration may still land while paused
+                while True:
+                    status = await asyncio.to_thread(rvis_status, line)
+                    ours = await published(client, list(status["drift"]))
+                    if expected(status) == ours:
+                        break
+            assert status["state"] == "paused" and status["counters"]["windows"] >= 3
+            assert status["drift"] and ours["Windows"] == status["counters"]["windows"]
+
+            # timestamped with the service's clock (the simulated line runs ahead of the wall)
+            ts = (await state.read_data_value()).SourceTimestamp
+            t_paused = next(
+                e["t"] for e in _drain(events) if e["event"] == "state" and e["to"] == "paused"
+            )
+            assert abs(ts.timestamp() - t_paused) < 1.0
+            assert ts.timestamp() - time.time() > 60.0
+
+            ns_m = await client.get_namespace_index(NS_MACHINERY)
+            current = await m.get_child([f"{ns_m}:MachineryItemState", "0:CurrentState"])
+            assert (await current.read_value()).Text == "OutOfService"
+            state_id = await current.get_child("0:Id")
+            assert await state_id.read_value() == ua.NodeId(5004, ns_m)  # OutOfService
+            reply = await asyncio.to_thread(lambda: line.service.request("resume").result(30))
+            assert reply["ok"], reply
+            async with asyncio.timeout(20):
+                while (await current.read_value()).Text not in ("NotExecuting", "Executing"):
+                    await handler.changes.get()
+
+    try:
+        asyncio.run(check())
+    finally:
+        line.service.bus.unsubscribe(events)
+
+
+def _drain(q: queue.Queue[dict[str, Any]]) -> list[dict[str, Any]]:
+    out = []
+    while True:
+        try:
+            out.append(q.get_nowait())
+        except queue.Empty:
+            return out
+
+
+def test_identification_as_opc_40001(servers: Servers) -> None:
+    url = servers.read_only
+
+    async def check() -> dict[str, Any]:
+        async with Client(url) as client:
+            m = await machine_node(client)
+            ns_di = await client.get_namespace_index(NS_DI)
+            ident = await m.get_child(f"{ns_di}:Identification")
+            values = {}
+            for prop in await ident.get_properties():
+                values[(await prop.read_browse_name()).Name] = await prop.read_value()
+            rms = await child(client, m, "CalibrationRmsMm")
+            unit = await rms.get_child("0:EngineeringUnits")
+            values["unit"] = (await unit.read_value()).DisplayName.Text
+            return values
+
+    values = asyncio.run(check())
+    assert values["Manufacturer"].Text == "rvis" and values["SerialNumber"] == "SN-0007"
+    assert values["ProductInstanceUri"] == "urn:plant-a:body-shop:cell-7"
+    printed = subprocess.run(
+        [sys.executable, "-m", "app", "--version"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    ).stdout.strip()
+    assert f"rvis {values['SoftwareRevision']}" == printed  # what `rvis --version` prints
+    assert values["Model"].Text.startswith("RVIS") and values["unit"] == "mm"
+
+
+def test_a_client_cannot_write(servers: Servers) -> None:
+    url = servers.acking  # even where acknowledging is allowed
+
+    async def check() -> None:
+        async with Client(url) as client:
+            node = await child(client, await machine_node(client), "ServiceState")
+            with pytest.raises(ua.UaStatusCodeError):
+                await node.write_value(ua.DataValue(ua.Variant("idle", ua.VariantType.String)))
+
+    asyncio.run(check())

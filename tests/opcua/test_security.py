@@ -1,0 +1,152 @@
+"""Who may connect: an endpoint beyond loopback without a signing-and-encrypting policy is
+refused (one line, exit 2 at `rvis run`); with a policy the server makes its certificate on
+first start, offers nothing unencrypted and accepts a client only once its certificate is in
+the trusted folder (a refused one is kept in rejected/); a port in use is a clear error."""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import socket
+import stat
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from asyncua import Client, ua
+from asyncua.crypto import security_policies
+from asyncua.crypto.cert_gen import setup_self_signed_certificate
+from cryptography.x509.oid import ExtendedKeyUsageOID
+
+from app.errors import InputError
+from app.line.opcua.endpoint import endpoint_problem
+from app.line.opcua.server import OpcUaServer
+from app.line.statedir import StateDir
+from app.sim.line_run import SimulatedLineRun
+from tests.opcua.conftest import child, free_port, machine_node
+from tests.opcua.test_publish import ROOT
+
+
+@pytest.mark.parametrize(
+    ("endpoint", "policy", "problem"),
+    [
+        ("opc.tcp://127.0.0.1:4840/rvis", "none", ""),
+        ("opc.tcp://localhost:4841", "none", ""),
+        ("opc.tcp://[::1]:4840/rvis", "none", ""),
+        ("opc.tcp://0.0.0.0:4840/rvis", "none", "0.0.0.0 is not a loopback address"),
+        ("opc.tcp://cell7.plant.example:4840", "none", "not a loopback address"),
+        ("opc.tcp://10.1.2.3:4840/rvis", "Basic256Sha256", ""),
+        ("opc.tcp://0.0.0.0:4840/rvis", "Aes256Sha256RsaPss", ""),
+        ("http://127.0.0.1:4840/rvis", "none", "expected opc.tcp://host:port/path"),
+        ("opc.tcp://127.0.0.1:70000/rvis", "none", "bad port"),
+    ],
+)
+def test_endpoint_rules(endpoint: str, policy: str, problem: str) -> None:
+    found = endpoint_problem(endpoint, policy)
+    assert (problem in found) if problem else found == ""
+
+
+def test_rvis_run_refuses_an_open_endpoint_without_security(tmp_path: Path) -> None:
+    cell = tmp_path / "cell.toml"
+    cell.write_text(
+        '[simline]\nscale = 300.0\n\n[opcua]\nenabled = true\nendpoint = "opc.tcp://0.0.0.0:4840/rvis"\n',
+        encoding="utf-8",
+    )
+    out = subprocess.run(
+        [sys.executable, "-m", "app", "run", "--sim", "--geometric", "--cell", str(cell),
+         "--state-dir", str(tmp_path / "state"), "--windows", "1"],
+        capture_output=True, text=True, cwd=ROOT, timeout=120,
+    )  # fmt: skip
+    assert out.returncode == 2, out.stderr
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in out.stderr
+    assert f"{cell}:6" in lines[0] and "[opcua] endpoint" in lines[0]
+    assert "not a loopback address" in lines[0] and "Basic256Sha256" in lines[0]
+    assert not (tmp_path / "state").exists()  # refused before anything started
+
+
+async def _client_cert(folder: Path, name: str) -> tuple[Path, Path]:
+    cert, key = folder / f"{name}.der", folder / f"{name}.pem"
+    await setup_self_signed_certificate(
+        key, cert, f"urn:test:{name}", "localhost", [ExtendedKeyUsageOID.CLIENT_AUTH], {}
+    )
+    return cert, key
+
+
+async def _read_state(url: str, cert: Path | None, key: Path | None, server: Path) -> str:
+    client = Client(url)
+    client.application_uri = f"urn:test:{cert.stem}" if cert else client.application_uri
+    if cert is not None and key is not None:
+        await client.set_security(
+            security_policies.SecurityPolicyBasic256Sha256,
+            str(cert),
+            str(key),
+            server_certificate=str(server),
+            mode=ua.MessageSecurityMode.SignAndEncrypt,
+        )
+    async with client:
+        node = await child(client, await machine_node(client), "ServiceState")
+        value: str = await node.read_value()
+        return value
+
+
+def test_a_secure_server_trusts_only_the_certificates_in_its_folder(
+    line: SimulatedLineRun, tmp_path: Path
+) -> None:
+    url = f"opc.tcp://127.0.0.1:{free_port()}/rvis"
+    settings = dataclasses.replace(
+        line.service.settings.opcua, enabled=True, endpoint=url, security_policy="Basic256Sha256"
+    )
+    paths = StateDir(line.service.settings.state_dir)
+    cert, key = asyncio.run(_client_cert(tmp_path, "scada"))
+    with OpcUaServer(line.service, settings):
+        assert paths.opcua_cert.is_file()
+        assert stat.S_IMODE(paths.opcua_key.stat().st_mode) == 0o600
+        with pytest.raises(ua.uaerrors.BadCertificateUntrusted):
+            asyncio.run(_read_state(url, cert, key, paths.opcua_cert))
+        rejected = list(paths.opcua_rejected.glob("*.der"))
+        assert [p.read_bytes() for p in rejected] == [cert.read_bytes()]
+        with pytest.raises(ua.UaError, match="No matching endpoints"):  # nothing unencrypted
+            asyncio.run(_read_state(url, None, None, paths.opcua_cert))
+        rejected[0].rename(paths.opcua_trusted / rejected[0].name)  # an administrator trusts it
+        state = asyncio.run(_read_state(url, cert, key, paths.opcua_cert))
+    assert state in ("idle", "measuring")
+
+
+def test_a_port_in_use_is_a_clear_error(line: SimulatedLineRun) -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        url = f"opc.tcp://127.0.0.1:{port}/rvis"
+        settings = dataclasses.replace(line.service.settings.opcua, enabled=True, endpoint=url)
+        with pytest.raises(InputError, match="cannot listen at") as failed:
+            OpcUaServer(line.service, settings).start()
+    assert "[opcua] endpoint" in str(failed.value)
+
+
+def test_backup_and_restore_keep_the_cells_opcua_identity(
+    line: SimulatedLineRun, tmp_path: Path
+) -> None:
+    """`rvis state backup|restore` carry the server's certificate, its key (0600) and the
+    trusted clients; `rvis state check` flags a key others can read."""
+    from app.commands.state import backup, check, restore
+    from app.line.opcua.security import server_certificate
+    from app.line.opcua.server import application_uri
+
+    paths = StateDir(line.service.settings.state_dir)
+    server_certificate(paths, application_uri(line.service.settings.opcua), "127.0.0.1")
+    cert, _key = asyncio.run(_client_cert(tmp_path, "historian"))
+    (paths.opcua_trusted / "historian.der").write_bytes(cert.read_bytes())
+    manifest = backup(paths, tmp_path / "backup")
+    assert manifest["opcua_files"] >= 3
+    restored = StateDir(tmp_path / "restored")
+    restore(tmp_path / "backup", restored)
+    assert restored.opcua_cert.read_bytes() == paths.opcua_cert.read_bytes()
+    assert restored.opcua_key.read_bytes() == paths.opcua_key.read_bytes()
+    assert stat.S_IMODE(restored.opcua_key.stat().st_mode) == 0o600
+    assert (restored.opcua_trusted / "historian.der").read_bytes() == cert.read_bytes()
+    assert not [p for p in check(restored, 0.0)["problems"] if "opcua" in p]
+    restored.opcua_key.chmod(0o640)
+    assert any("OPC UA private key must be 0600" in p for p in check(restored, 0.0)["problems"])
