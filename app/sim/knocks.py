@@ -119,6 +119,14 @@ def plot_campaign(results: Mapping[str, Sequence[ShiftResult]], path: Path) -> N
     _plot_shift(path, 0.5, draw, own_axes=True)
 
 
+def load_campaign(path: Path) -> dict[str, list[ShiftResult]]:
+    """The runs of a campaign's `shift-knocks.json`, scored again (app.sim.shift.evaluate)."""
+    import json
+
+    doc = json.loads(path.read_text(encoding="utf-8"))
+    return {k: [ShiftResult.from_json(r) for r in runs] for k, runs in doc["runs"].items()}
+
+
 def write_campaign(
     results: Mapping[str, Sequence[ShiftResult]], out: Path, command: str
 ) -> list[Path]:

@@ -137,12 +137,35 @@ class ShiftResult:
     # suspect intervals (sim s from the line's start) and how they cover the windows whose true
     # error was above recovered_ratio x the pre-knock level (SuspectScore)
     suspects: list[dict[str, Any]] = field(default_factory=list)
-    attribution: str | None = None  # the last step attribution's choice
+    attribution: str | None = None  # what the confirmed step was attributed to
     suspect_score: SuspectScore | None = None
 
     @property
     def records(self) -> list[WindowRecord]:
         return self.summary.records
+
+    @staticmethod
+    def from_json(doc: dict[str, Any]) -> ShiftResult:
+        """A result as `to_json` wrote it (to score or tabulate a finished run again)."""
+        sm = dict(doc["summary"])
+        records = [WindowRecord(**r) for r in sm.pop("timeline")]
+        summary = SimRunSummary(**sm, records=records)
+        result = ShiftResult(
+            ShiftSettings(**doc["settings"]),
+            int(doc["seed"]),
+            float(doc["scale"]),
+            summary,
+            drift_alarm_windows=list(doc["drift_alarm_windows"]),
+            step_alarm_windows=list(doc["step_alarm_windows"]),
+            applied_windows=list(doc["applied_windows"]),
+            rejected_windows=list(doc["rejected_windows"]),
+            window_s=float(doc["window_s"]),
+            real_s=float(doc["real_s"]),
+            suspects=list(doc.get("suspects", [])),
+        )
+        result.attribution = attributed_group(result.suspects)
+        evaluate(result)
+        return result
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -236,8 +259,7 @@ def run_shift(
             {**r, "t_start_s": r["t_start"] - epoch, "t_end_s": _minus(r["t_end"], epoch)}
             for r in run.service.store.suspects()
         ]
-        steps = run.service.store.events("step_attribution")
-        result.attribution = str(steps[-1]["data"]["choice"]) if steps else None
+        result.attribution = attributed_group(result.suspects)
     result.real_s = time.perf_counter() - t0
     evaluate(result)
     return result
@@ -246,6 +268,12 @@ def run_shift(
 def _opened_s(r: WindowRecord, window_s: float) -> float:
     """When the window opened [sim s] (older runs: the record's time less a window)."""
     return r.t_open_h * 3600.0 if math.isfinite(r.t_open_h) else r.t_h * 3600.0 - window_s
+
+
+def attributed_group(suspects: list[dict[str, Any]]) -> str | None:
+    """What the service found moved: the group of its last suspect interval (a confirmed
+    step; None when no step was confirmed)."""
+    return str(suspects[-1]["group_name"]) if suspects else None
 
 
 def _minus(t: float | None, epoch: float) -> float | None:
