@@ -18,6 +18,7 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import Executor, Future, ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
+from multiprocessing import resource_tracker
 from typing import Any
 
 import numpy as np
@@ -161,6 +162,9 @@ def stop_signals_held() -> Iterator[None]:
     dying of it would break the pool under a calibration in flight and turn a routine stop
     into an internal error. A signal for the service that comes meanwhile is delivered when
     the mask is restored."""
+    # the resource tracker blocks and then UNBLOCKS these signals around its own start: it
+    # starts first, or it would undo the mask before the forkserver starts
+    resource_tracker.ensure_running()
     old = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
     try:
         yield

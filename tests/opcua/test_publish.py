@@ -11,7 +11,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
-from datetime import datetime
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +38,8 @@ EXPECTED: dict[str, Callable[[dict[str, Any]], Any]] = {
     "MeasurementsRejected": lambda s: s["measurements"]["rejected"],
     "CellTemperatureC": lambda s: s["cell_temp_c"],
     "ActiveAlarms": lambda s: len(s["alarms"]),
+    "SuspectOpen": lambda s: any(r["state"] == "open" for r in s["suspect_intervals"]),
+    "SuspectIntervals": lambda s: json.dumps(s["suspect_intervals"]),
 }
 
 
@@ -199,3 +201,25 @@ def test_a_client_cannot_write(servers: Servers) -> None:
                 await node.write_value(ua.DataValue(ua.Variant("idle", ua.VariantType.String)))
 
     asyncio.run(check())
+
+
+def test_the_suspect_interval_variables_of_a_status_reply() -> None:
+    """An open suspect interval (a knock, app.line.step) reads as SuspectOpen with its start and
+    size; a closed one leaves the start and size without a value."""
+    from app.line.opcua.space import VARIABLES, data_value, lookup
+
+    t = datetime.now(UTC)
+    closed = {"state": "closed", "start_utc": "2026-11-25T08:00:00+00:00", "size_mm": 0.2}
+    opened = {"state": "open", "start_utc": "2026-11-25T09:30:00+00:00", "size_mm": 0.31}
+    by_name = {v.name: v for v in VARIABLES}
+
+    def read(name: str, rows: list[dict[str, Any]]) -> Any:
+        var = by_name[name]
+        return plain(data_value(var, lookup({"suspect_intervals": rows}, var.path), t, None))
+
+    assert read("SuspectOpen", [closed, opened]) is True
+    assert read("SuspectStartUtc", [closed, opened]) == datetime(2026, 11, 25, 9, 30, tzinfo=UTC)
+    assert read("SuspectSizeMm", [closed, opened]) == 0.31
+    assert json.loads(read("SuspectIntervals", [closed, opened])) == [closed, opened]
+    assert read("SuspectOpen", [closed]) is False
+    assert read("SuspectStartUtc", [closed]) is None and read("SuspectSizeMm", []) is None

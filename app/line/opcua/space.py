@@ -21,6 +21,7 @@ UncertainLastUsableValue.
 
 from __future__ import annotations
 
+import json
 import socket
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -68,6 +69,18 @@ def _utc(text: Any) -> datetime:
     return datetime.fromisoformat(str(text))
 
 
+def _open_suspect(rows: Any) -> dict[str, Any] | None:
+    """The newest open suspect interval of the status reply, or None."""
+    open_ = [r for r in rows or () if r.get("state") == "open"]
+    return open_[-1] if open_ else None
+
+
+def _open_field(rows: Any, key: str) -> Any:
+    """A field of the newest open suspect interval (None: none open)."""
+    row = _open_suspect(rows)
+    return None if row is None else row.get(key)
+
+
 def _id_or_zero(value: Any) -> int:
     return 0 if value is None else int(value)
 
@@ -85,6 +98,7 @@ class Var:
     eu_range: tuple[float, float] | None = None
     convert: Callable[[Any], Any] | None = None
     none_is_value: bool = False  # None goes through convert (e.g. PendingCalibration 0)
+    none_if: Callable[[Any], bool] | None = None  # values that read as "no value" (BadNoValue)
 
 
 VARIABLES = (
@@ -143,7 +157,40 @@ VARIABLES = (
         "alarms raised, acknowledged or shelved (each also an AlarmConditionType event)",
         convert=_alarm_count,
     ),
-    # issue 20 (suspect intervals) adds its status field here when it lands on main
+    Var(
+        "SuspectOpen",
+        ("suspect_intervals",),
+        ua.VariantType.Boolean,
+        "a suspect interval is open: the calibration in force may be wrong since SuspectStartUtc"
+        " (bodies measured meanwhile may need measuring again; rvis state suspects)",
+        convert=lambda rows: _open_suspect(rows) is not None,
+    ),
+    Var(
+        "SuspectStartUtc",
+        ("suspect_intervals",),
+        ua.VariantType.DateTime,
+        "the start of the open suspect interval (BadNoValue: none open)",
+        convert=lambda rows: _utc(_open_field(rows, "start_utc")),
+        none_if=lambda rows: _open_field(rows, "start_utc") is None,
+    ),
+    Var(
+        "SuspectSizeMm",
+        ("suspect_intervals",),
+        ua.VariantType.Double,
+        "the open suspect interval's estimated error at the standoff (BadNoValue: none open)",
+        unit="mm",
+        eu_range=(0.0, 10.0),
+        convert=lambda rows: _open_field(rows, "size_mm"),
+        none_if=lambda rows: _open_field(rows, "size_mm") is None,
+    ),
+    Var(
+        "SuspectIntervals",
+        ("suspect_intervals",),
+        ua.VariantType.String,
+        "the last suspect intervals as JSON (start_utc, end_utc, size_mm, group, text), oldest"
+        " first, as `rvis state suspects --json` prints them",
+        convert=lambda rows: json.dumps(rows),
+    ),
 )
 
 
@@ -184,7 +231,8 @@ def data_value(var: Var, raw: Any, t: datetime, last: ua.Variant | None) -> ua.D
     """The OPC UA value of `var` for the status value `raw`, timestamped `t`."""
     if raw is _MISSING and last is not None and last.VariantType != ua.VariantType.Null:
         return ua.DataValue(last, StatusCode=ua.StatusCode(LEFT_OUT), SourceTimestamp=t)
-    if raw is _MISSING or (raw is None and not var.none_is_value):
+    no_value = raw is None and not var.none_is_value
+    if raw is _MISSING or no_value or (var.none_if is not None and var.none_if(raw)):
         return ua.DataValue(StatusCode=ua.StatusCode(NO_VALUE), SourceTimestamp=t)
     value = var.convert(raw) if var.convert is not None else raw
     if var.vtype == ua.VariantType.Double:
