@@ -42,7 +42,7 @@ async def latency_ms(run: SimulatedLineRun, repeats: int) -> list[float]:
         for k in range(repeats):
             message = f"bench alarm {k}"
             t0 = time.perf_counter()
-            svc._alarm(f"bench{k}", message, "high")
+            svc.alarm(f"bench{k}", message, "high")
             while message not in banner(app):
                 await pilot.pause(0.002)
             out.append(1e3 * (time.perf_counter() - t0))

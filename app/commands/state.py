@@ -358,7 +358,7 @@ def parse_since(text: str, now: float) -> float:
 def suspects(state: Any, since_t: float | None) -> list[dict[str, Any]]:
     """The suspect intervals of the state directory (open ones always, closed ones ending at or
     after `since_t`), as the service's events carry them (app.line.step_service.suspect_json)."""
-    from app.line.step_service import suspect_json
+    from app.line.status import suspect_json
     from app.line.store import Store
 
     if not state.db.is_file():

@@ -30,7 +30,7 @@ def state_dir_of(args: argparse.Namespace) -> Path:
 def offline_status(state_dir: Path) -> dict[str, Any]:
     """What the files say when the service is not running (read-only)."""
     from app.line.params_store import ParamsStore
-    from app.line.step_service import suspect_json
+    from app.line.status import suspect_json
     from app.line.store import Store
 
     db = state_dir / "rvis.db"

@@ -27,7 +27,7 @@ traceback, alarmed (`internal_error`), puts the cell in FAULT, and `run()` retur
 alarm and stays in FAULT until an operator resets it.
 
 A step (a knock) flagged by the drift charts opens a suspect interval and is attributed to the
-rigid group that moved after every window, with a fast correction of that group (StepHandling,
+rigid group that moved after every window, with a fast correction of that group (StepHandler,
 app/line/step_service.py; the numbers in app/line/step.py and calib/attribution.py); until it
 is corrected the windows measure the slots that serve the attribution (`_choose`,
 `_slots_wanted`).
@@ -40,8 +40,6 @@ import logging
 import threading
 from collections.abc import Mapping, Sequence
 from concurrent.futures import Future
-from enum import StrEnum
-from queue import Empty, Queue
 from typing import Any
 
 import numpy as np
@@ -54,15 +52,17 @@ from app.line.drift import DriftMonitor, prediction_inflation, residual_mm
 from app.line.events import EventBus
 from app.line.inline_seq import InlineSequential, SequentialCandidate
 from app.line.measure import Reading, SphereMeasurer, SphereSensor
-from app.line.operator import FAULT_CODES, OperatorCommands
+from app.line.operator import Operator
 from app.line.params_store import ParamsStore
 from app.line.recalib import Recalibrator, RecalJob, RecalOutcome, as_measurements, select_rolling
 from app.line.schedule import Schedule, Slot
 from app.line.settings import ServiceSettings
 from app.line.statedir import StateDir
+from app.line.states import FAULT_CODES, State, utc_text
 from app.line.station import Station
+from app.line.status import device_of, status_reply
 from app.line.step import Step, StepCorrection, step_slot
-from app.line.step_service import StepHandling
+from app.line.step_service import StepHandler
 from app.line.store import StorageError, Store
 from app.line.sweeps import SweepArchive
 from calib.attribution import NONE, SEVERAL, step_groups
@@ -75,16 +75,7 @@ SPACE_CHECK_S = 60.0  # how often the free space under the state directory is lo
 RETENTION_S = 3600.0  # how often events past [service] events_keep_days are deleted
 
 
-class State(StrEnum):
-    STARTING = "starting"
-    IDLE = "idle"
-    MEASURING = "measuring"
-    PAUSED = "paused"
-    FAULT = "fault"
-    STOPPED = "stopped"
-
-
-class Service(OperatorCommands, StepHandling):
+class Service:
     """`Service(station, sensor, schedule, spheres, model, x0, clock=, settings=)`; `run()`
     in a thread (or the main one), `stop()` from anywhere; `request()` for commands."""
 
@@ -152,18 +143,20 @@ class Service(OperatorCommands, StepHandling):
         self.recal_ids: dict[str, list[int]] | None = None  # the calibration in flight
         self.exit_code = 0  # 1 after an internal error: the supervisor restarts the process
         self._crash: BaseException | None = None  # from another thread (crash())
-        self._unstored_alarms: list[dict[str, Any]] = []  # raised while the storage failed
+        self.unstored_alarms: list[dict[str, Any]] = []  # raised while the storage failed
         self.storage_failed = False  # until a reset finds it writing again
         self._space_check_t = self._retention_t = -np.inf
         self._temperature_bad: bool | None = None  # known after the first poll
         self._stop = threading.Event()
-        self._wake = threading.Event()
-        self._commands: Queue[tuple[str, dict[str, Any], int | None, Future[dict[str, Any]]]]
-        self._commands = Queue()
+        self.wake = threading.Event()
+        self.device_errors: dict[str, dict[str, str]] = {}  # family -> {"error", "utc"}
+        self.fault_family: str | None = None  # the device of the fault in force (None: unknown)
+        self.operator = Operator(self)  # the operator's commands (app.line.operator)
+        self.steps = StepHandler(self)  # a flagged step's handling (app.line.step_service)
         self.log = logging.getLogger("rvis.line")
-        self._restore()
+        self.restore()
         if self._recovered is not None:  # an apply the database does not know yet
-            self._in_force(*self._recovered, "recovered", None)
+            self.in_force(*self._recovered, "recovered", None)
 
     # -- life cycle ---------------------------------------------------------------------------
     def _load_params(self, model: SystemModel, x0: F64) -> tuple[SystemModel, F64, int]:
@@ -209,7 +202,7 @@ class Service(OperatorCommands, StepHandling):
         return current
 
     # -- the decision state (store.save_state) -------------------------------------------------
-    def _snapshot(self) -> dict[str, Any]:
+    def snapshot(self) -> dict[str, Any]:
         return {
             "params_version": self.version,
             "last_measurement_id": self.store.last_measurement_id(),
@@ -230,10 +223,10 @@ class Service(OperatorCommands, StepHandling):
             "sequential_step": None if self.sequential is None else self.sequential.step_json(),
         }
 
-    def _save_state(self) -> None:
-        self.store.save_state(self.clock.time(), self._snapshot())
+    def save_state(self) -> None:
+        self.store.save_state(self.clock.time(), self.snapshot())
 
-    def _restore(self) -> None:
+    def restore(self) -> None:
         """The decision state from the database (at start, and after a storage fault)."""
         doc = self.store.load_state()
         if doc is None:  # a state directory of an older rvis: what the rows tell
@@ -259,13 +252,34 @@ class Service(OperatorCommands, StepHandling):
     def stop(self) -> None:
         """Ask `run()` to return after the current window (safe from a signal handler)."""
         self._stop.set()
-        self._wake.set()
+        self.wake.set()
 
     def crash(self, exc: BaseException) -> None:
         """An unexpected error in another thread of the service: the loop ends as for its own
         (safe from any thread)."""
         self._crash = exc
-        self._wake.set()
+        self.wake.set()
+
+    def request(
+        self, cmd: str, args: dict[str, Any] | None = None, uid: int | None = None
+    ) -> Future[dict[str, Any]]:
+        """An operator's command (app.line.operator); the future's result is the reply."""
+        return self.operator.request(cmd, args, uid)
+
+    def status(self) -> dict[str, Any]:
+        """The status reply (app.line.status), from any thread."""
+        return status_reply(self)
+
+    def note_device_error(self, exc: BaseException) -> str | None:
+        """Keep `exc` as the last error of the device it came from (the status reply's
+        `devices`); returns that device's family (None: not attributable to one)."""
+        family = device_of(exc, self.station.devices())
+        if family is not None:
+            self.device_errors[family] = {
+                "error": f"{type(exc).__name__}: {exc}",
+                "utc": utc_text(self.clock.time()),
+            }
+        return family
 
     def run(self) -> None:
         """The service loop; returns after stop() with the robot home and the database closed,
@@ -298,10 +312,10 @@ class Service(OperatorCommands, StepHandling):
             "started", {"params_version": self.version, "state_dir": str(self.settings.state_dir)}
         )
         for code, message, priority in self._start_alarms:
-            self._alarm(code, message, priority)
+            self.alarm(code, message, priority)
         self.pending_calibration = self.store.pending_calibration()
         if self.pending_calibration is not None and self.settings.recalib.mode == "auto":
-            self._apply_calibration(self.pending_calibration, None, "auto")  # killed before
+            self.apply_calibration(self.pending_calibration, None, "auto")  # killed before
         self._resubmit()
         self._check_space()
         held = [a for a in self.store.active_alarms() if a["code"] in FAULT_CODES]
@@ -318,11 +332,11 @@ class Service(OperatorCommands, StepHandling):
             q = np.round(self.station.robot.joints_deg(), 3).tolist()
             self._enter_fault("robot_not_home", f"robot not at home at start (J = {q} deg)")
             return
-        self._set_state(State.PAUSED if self.paused else State.IDLE)
+        self.set_state(State.PAUSED if self.paused else State.IDLE)
 
     def _hold_fault(self, alarm: dict[str, Any]) -> None:
         """Restarted with a fault alarm in force: stay in FAULT until an operator's reset."""
-        self._set_state(State.FAULT)
+        self.set_state(State.FAULT)
         with contextlib.suppress(Exception):
             self.station.robot.abort()
         with contextlib.suppress(Exception):
@@ -333,18 +347,13 @@ class Service(OperatorCommands, StepHandling):
 
     def _shutdown(self) -> None:
         self.recalibrator.close()
-        self._set_state(State.STOPPED)
+        self.set_state(State.STOPPED)
         with contextlib.suppress(Exception):
             self.bus.emit("stopped", {"counters": dict(self.counters)})
-        while True:  # nobody will execute what is still queued
-            try:
-                *_, future = self._commands.get_nowait()
-            except Empty:
-                break
-            future.set_result({"ok": False, "error": "service stopped"})
+        self.operator.cancel_queued("service stopped")  # nobody will execute them
         self.store.close()
 
-    def _set_state(self, state: State) -> None:
+    def set_state(self, state: State) -> None:
         if state != self.state:
             old, self.state = self.state, state
             if state != State.STOPPED:
@@ -357,15 +366,15 @@ class Service(OperatorCommands, StepHandling):
         try:
             self._step_once()
         except StorageError as exc:
-            self._storage_fault(exc)
+            self.storage_fault(exc)
             self._pause_poll()
 
     def _pause_poll(self) -> None:
-        self.clock.wait(self._wake, self.settings.line.poll_s)
-        self._wake.clear()
+        self.clock.wait(self.wake, self.settings.line.poll_s)
+        self.wake.clear()
 
     def _step_once(self) -> None:
-        self._run_commands()
+        self.operator.run_commands()
         try:
             self.watch.poll()
         except DeviceError as exc:
@@ -383,7 +392,7 @@ class Service(OperatorCommands, StepHandling):
         self._pause_poll()
 
     def _window(self) -> None:
-        self._set_state(State.MEASURING)
+        self.set_state(State.MEASURING)
         n = self.counters["windows"] + 1
         t_open = self.clock.time()  # within a poll of the window's rising edge
         try:
@@ -394,11 +403,11 @@ class Service(OperatorCommands, StepHandling):
         self.counters["windows"] = n
         self.counters["overruns"] += report.overrun
         self.counters["withdrawn"] += bool(report.withdrawn)
-        self._save_state()
+        self.save_state()
         self.bus.emit(
             "window", {**report.to_json(), "t_open": t_open, "params_version": self.version}
         )
-        self._set_state(State.PAUSED if self.paused else State.IDLE)
+        self.set_state(State.PAUSED if self.paused else State.IDLE)
         self._between_windows()
 
     def _unshelve(self) -> None:
@@ -408,7 +417,7 @@ class Service(OperatorCommands, StepHandling):
     def _watch_heartbeat(self) -> None:
         alarms = self.store.active_alarms(code="plc_heartbeat")
         if self.watch.lost and not alarms:
-            self._alarm("plc_heartbeat", "PLC heartbeat lost: no window is used until it returns")
+            self.alarm("plc_heartbeat", "PLC heartbeat lost: no window is used until it returns")
         elif self.watch.alive and alarms:
             self.store.clear_alarms(self.clock.time(), "plc_heartbeat")
             self.bus.emit("alarm_cleared", {"code": "plc_heartbeat"})
@@ -423,7 +432,7 @@ class Service(OperatorCommands, StepHandling):
             return  # nothing changed since the last poll: no query
         active = self.store.active_alarms(code="temperature")
         if why and not active:
-            self._alarm(
+            self.alarm(
                 "temperature",
                 f"{why}: no cell temperature; measurements are stored without one and the"
                 " thermal term is left out until a plausible value returns",
@@ -435,7 +444,7 @@ class Service(OperatorCommands, StepHandling):
         self._temperature_bad = bool(why)
 
     # -- faults and alarms -------------------------------------------------------------------------
-    def _alarm(self, code: str, message: str, priority: str = "high") -> int:
+    def alarm(self, code: str, message: str, priority: str = "high") -> int:
         """Raise an alarm (stored; kept in memory while the storage fails); its id."""
         try:
             alarm_id = self.store.raise_alarm(self.clock.time(), code, message, priority)
@@ -449,11 +458,11 @@ class Service(OperatorCommands, StepHandling):
         return alarm_id
 
     def _unstored_alarm(self, code: str, message: str, priority: str) -> int:
-        for a in self._unstored_alarms:
+        for a in self.unstored_alarms:
             if a["code"] == code:
                 return int(a["id"])
-        alarm_id = -(len(self._unstored_alarms) + 1)  # negative: not in the database (yet)
-        self._unstored_alarms.append(
+        alarm_id = -(len(self.unstored_alarms) + 1)  # negative: not in the database (yet)
+        self.unstored_alarms.append(
             {
                 "id": alarm_id,
                 "code": code,
@@ -465,7 +474,7 @@ class Service(OperatorCommands, StepHandling):
         )
         return alarm_id
 
-    def _storage_fault(self, exc: StorageError) -> None:
+    def storage_fault(self, exc: StorageError) -> None:
         """The state storage failed: FAULT with the robot stopped, nothing acknowledged."""
         if self.state == State.FAULT and self.storage_failed:
             return
@@ -487,7 +496,7 @@ class Service(OperatorCommands, StepHandling):
         free, floor = self.paths.free_mb(), self.settings.ops.min_free_mb
         active = self.store.active_alarms(code="low_disk")
         if free < floor and not active:
-            self._alarm(
+            self.alarm(
                 "low_disk",
                 f"{free:.0f} MB free under {self.paths.root} (below [service] min_free_mb ="
                 f" {floor:g}): free space before the state storage fills",
@@ -519,17 +528,17 @@ class Service(OperatorCommands, StepHandling):
                 self.log.info("retention: documents of %d rejected calibrations dropped", n)
 
     def _fault(self, exc: BaseException) -> None:
-        self._fault_family = self.note_device_error(exc)
+        self.fault_family = self.note_device_error(exc)
         self._enter_fault("device_fault", f"{type(exc).__name__}: {exc}")
 
     def _enter_fault(self, code: str, message: str) -> None:
         """FAULT: stop the robot, set the PLC fault bit, raise the alarm (each best effort)."""
-        self._set_state(State.FAULT)
+        self.set_state(State.FAULT)
         with contextlib.suppress(Exception):
             self.station.robot.abort()
         with contextlib.suppress(Exception):
             self.station.plc.set_signals(busy=False, done=False, fault=True)
-        self._alarm(code, message, "urgent")
+        self.alarm(code, message, "urgent")
 
     # -- measurements --------------------------------------------------------------------------
     def _visited_views(self) -> tuple[F64, F64]:
@@ -558,7 +567,7 @@ class Service(OperatorCommands, StepHandling):
                 recent,
                 self.last_visit,
                 groups,
-                self._volume_views(),
+                self.steps.volume_views(),
             )
         if self.sequential is not None and self.settings.recalib.schedule == "adaptive":
             return self.sequential.most_informative(self.model, slots, self.last_visit)
@@ -609,7 +618,7 @@ class Service(OperatorCommands, StepHandling):
                 self._drift(slot.target, e, change, row_id)
                 if self.sequential is not None:
                     self.sequential.offer({**row, "id": row_id})
-            self._save_state()
+            self.save_state()
         if reading is not None:
             try:
                 self.sweeps.keep(row_id, reading)
@@ -655,7 +664,7 @@ class Service(OperatorCommands, StepHandling):
             stat = f"{sig.chart} {sig.value_mm:.3f} > {sig.limit_mm:.3f} mm"
             if sig.family == "residual" and self.drift.change_watching:
                 self.drift_due = True
-                self._alarm(
+                self.alarm(
                     "drift",
                     f"drift of {where} (residual, {stat}): recalibration brought forward",
                     "low",
@@ -664,14 +673,14 @@ class Service(OperatorCommands, StepHandling):
             if self.drift_onset_id is None:
                 self.drift_onset_id = sig.onset_ref
                 attribute = sig.family == "change" or len(self.visit_ids) >= len(self.schedule)
-                self._open_step(sig.onset_ref, row_id, attribute=attribute)
+                self.steps.open_step(sig.onset_ref, row_id, attribute=attribute)
             what = "residual" if sig.family == "residual" else "change since the last visit"
             text = f"step of {where} ({what}, {stat}) since measurement {self.drift_onset_id}"
             if self.step is not None and self.step.status == "probation":
                 self.step.signal = self.step.signal or text
-                self._alarm("drift", f"{text}: attributing it (a step or drift?)", "low")
+                self.alarm("drift", f"{text}: attributing it (a step or drift?)", "low")
                 continue
-            self._alarm(
+            self.alarm(
                 "drift_step",
                 f"{text}: check the cell (sensor mount, spheres); recalibrating on the"
                 " measurements after it",
@@ -728,9 +737,9 @@ class Service(OperatorCommands, StepHandling):
             self._worker_failed(exc)
             raise
         if outcome is not None:
-            self._recal_done(outcome)
+            self.recal_done(outcome)
         if self.state in (State.IDLE, State.PAUSED):
-            self._attribute_step()
+            self.steps.attribute_step()
             self._maybe_recalibrate()
         self._check_space()
         self._retain()
@@ -750,7 +759,7 @@ class Service(OperatorCommands, StepHandling):
                 }
             )
             self.recal_ids = None
-            self._save_state()
+            self.save_state()
 
     def _recal_due(self) -> bool:
         r = self.settings.recalib
@@ -762,7 +771,7 @@ class Service(OperatorCommands, StepHandling):
     def _maybe_recalibrate(self) -> None:
         if self.sequential is not None:
             if self.pending_calibration is None and self.sequential.due(self._visited_views):
-                self._recal_done(self.sequential.candidate(self.model, self.x))
+                self.recal_done(self.sequential.candidate(self.model, self.x))
             return
         if self.recalibrator.busy or self.pending_calibration is not None or not self._recal_due():
             return
@@ -781,7 +790,7 @@ class Service(OperatorCommands, StepHandling):
                 "train": [int(t["id"]) for t in train],
                 "holdout": [int(h["id"]) for h in holdout],
             }
-            self._save_state()
+            self.save_state()
         self._submit(train, holdout)
 
     def _resubmit(self) -> None:
@@ -818,12 +827,12 @@ class Service(OperatorCommands, StepHandling):
             {"n": len(train), "first_id": job.first_id, "last_id": job.last_id},
         )
 
-    def _recal_done(self, out: RecalOutcome | SequentialCandidate | StepCorrection) -> None:
+    def recal_done(self, out: RecalOutcome | SequentialCandidate | StepCorrection) -> None:
         status = "pending" if out.passed else "rejected"
         with self.store.batch():
             cal_id = self._add_calibration(out, status)
             self.recal_ids = None
-            self._save_state()
+            self.save_state()
         self.bus.emit(
             "calibration",
             {
@@ -838,7 +847,7 @@ class Service(OperatorCommands, StepHandling):
         if not out.passed:
             return
         if self.settings.recalib.mode == "auto":
-            self._apply_calibration(cal_id, None, "auto")
+            self.apply_calibration(cal_id, None, "auto")
         else:
             self.pending_calibration = cal_id
 
@@ -861,7 +870,7 @@ class Service(OperatorCommands, StepHandling):
             }
         )
 
-    def _apply_calibration(self, cal_id: int, uid: int | None, source: str) -> int:
+    def apply_calibration(self, cal_id: int, uid: int | None, source: str) -> int:
         """Write calibration `cal_id` as the next parameters version and put it in force (the
         document names the calibration, so that an apply killed half-way is completed at the
         next start)."""
@@ -871,10 +880,10 @@ class Service(OperatorCommands, StepHandling):
             version = self.params.apply({**cal["document"], "calibration_id": cal_id})
         except OSError as exc:
             raise StorageError(f"{self.params.dir}: {exc}") from exc
-        self._in_force(version, cal_id, source, uid)
+        self.in_force(version, cal_id, source, uid)
         return version
 
-    def _in_force(self, version: int, cal_id: int | None, source: str, uid: int | None) -> None:
+    def in_force(self, version: int, cal_id: int | None, source: str, uid: int | None) -> None:
         """Parameters `version` are current: reload them, restart the drift charts (seeded with
         the new parameters' residuals); the drift alarm and onset are cleared when the
         calibration was trained on measurements after the onset only. The database learns it
@@ -903,12 +912,12 @@ class Service(OperatorCommands, StepHandling):
             self.store.clear_alarms(t, "drift")
             first_id = None if cal is None else int(cal["first_id"] or 0)
             after_step = first_id is not None and onset is not None and first_id >= onset
-            closed = self._close_suspect(t, version, cal, kind) if after_step else None
+            closed = self.steps.close_suspect(t, version, cal, kind) if after_step else None
             if onset is None or after_step:
                 self.store.clear_alarms(t, "drift_step")
                 if kind != "step":  # a full calibration trained after the step: it is over
                     self.drift_onset_id, self.step = None, None
-            self._save_state()
+            self.save_state()
         self.bus.emit(
             "parameters_applied",
             {"version": version, "calibration_id": cal_id, "source": source, "uid": uid},

@@ -1,22 +1,26 @@
-"""The service's handling of a step (a knock) between its flag and its correction: a mixin of
-app.line.service.Service, as app.line.operator's commands are.
+"""The service's handling of a step (a knock) between its flag and its correction:
+`StepHandler`, a collaborator of app.line.service.Service that sees it as app.line.host.LineHost
+(as app.line.operator's commands do).
 
 The flag opens a suspect interval and a `Step` (app.line.step); after every window the step is
 attributed (calib.attribution through app.line.step.correct_step, at the change point located
 by `locate_step`) and, batch estimator, its group's fast correction applied or proposed when its
 gates pass; the sequential estimator widens the attributed group's covariance instead. The apply
-of a correction trained after the change point closes the interval (Service._in_force).
+of a correction trained after the change point closes the interval (Service.in_force).
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from app.errors import InputError
+from app.formats.params import from_json
+from app.line.host import LineHost
+from app.line.status import suspect_json
 from app.line.step import (
     Step,
     correct_step,
@@ -29,26 +33,27 @@ from app.line.step import (
 from calib.attribution import NONE, SEVERAL, Attribution, point_shift_mm, step_groups
 from calib.candidates import IDEAL_STANDOFF_MM
 
-if TYPE_CHECKING:
-    from app.line.service import Service
-
 #: the change point is looked for from the CUSUM's estimate less half the schedule (the
 #: estimate can be late as well as early) up to the measurement that signalled
 LOOK_BACK_DIVISOR = 2
 REFINE_TRIES = 2  # refinements refused before the interval closes at the first correction
 
 
-class StepHandling:
-    """Mixin of Service: a flagged step's attribution, correction and suspect interval."""
+class StepHandler:
+    """A flagged step's attribution, correction and suspect interval, on the service `svc`
+    (whose decision state holds the step: `svc.step`)."""
 
-    def _open_step(self, onset_id: int, flag_id: int, *, attribute: bool) -> None:
+    def __init__(self, svc: LineHost) -> None:
+        self.svc = svc
+
+    def open_step(self, onset_id: int, flag_id: int, *, attribute: bool) -> None:
         """A step was flagged at measurement `onset_id` (inside the transaction of the
         measurement). With `attribute` (every slot has a previous visit to compare with) it is
         on probation: the windows measure for its attribution, and `_confirm_step` opens its
         suspect interval and raises the high alarm once a group (or several) is chosen, while
         nothing found drops it as drift. Without, the suspect interval opens at once at the last
         trustworthy measurement before it, and it waits for the full recalibration."""
-        svc: Service = self  # type: ignore[assignment]
+        svc = self.svc
         attribute = attribute and svc.settings.recalib.step_correction
         if svc.sequential is not None:
             if attribute:
@@ -69,11 +74,11 @@ class StepHandling:
         )
         svc.change_from_id = onset_id
         if not attribute:
-            svc._open_suspect(svc.step)
+            self._open_suspect(svc.step)
 
     def _open_suspect(self, step: Step) -> None:
         """The step's suspect interval, from its last trustworthy measurement on."""
-        svc: Service = self  # type: ignore[assignment]
+        svc = self.svc
         step.suspect_id = svc.store.open_suspect(
             {
                 "t_start": step.t_start,
@@ -88,12 +93,12 @@ class StepHandling:
     def _confirm_step(self, step: Step, a: Attribution) -> None:
         """The attribution found a step: its suspect interval opens (from the last trustworthy
         measurement before where it was located) and the high alarm names what moved."""
-        svc: Service = self  # type: ignore[assignment]
+        svc = self.svc
         step.status = "attributing"
-        svc._open_suspect(step)
+        self._open_suspect(step)
         svc.store.clear_alarms(svc.clock.time(), "drift")
         signal = step.signal or f"step since measurement {step.start_id or step.onset_id}"
-        svc._alarm(
+        svc.alarm(
             "drift_step",
             f"{signal}: check the cell (sensor mount, spheres); recalibrating on the"
             f" measurements after it | {a.text()}",
@@ -103,29 +108,29 @@ class StepHandling:
     def _drop_step(self, step: Step) -> None:
         """The attribution found no step on probation: it was drift (the recalibration is
         brought forward, on all recent measurements)."""
-        svc: Service = self  # type: ignore[assignment]
+        svc = self.svc
         svc.step, svc.drift_onset_id, svc.drift_due = None, None, True
         if svc.sequential is not None:
             svc.sequential.widen(step.onset_id)
 
-    def _attribute_step(self) -> None:
+    def attribute_step(self) -> None:
         """Between windows, while a step is attributed: attribute it on the measurements from
         its change point on and, batch estimator, apply or propose the fast correction when
         its gates pass; sequential estimator, widen the suspected group's covariance."""
-        svc: Service = self  # type: ignore[assignment]
+        svc = self.svc
         step, r = svc.step, svc.settings.recalib
         if step is None or not r.step_correction:
             return
         if step.status == "refining":
-            svc._refine_step(step)
+            self._refine_step(step)
             return
         if step.status not in ("attributing", "probation"):
             return
-        got = svc._step_pairs(step, locate=True)
+        got = self._step_pairs(step, locate=True)
         if got is None:
             return
         wide, start_id, pairs, sigma = got
-        views = svc._volume_views()
+        views = self.volume_views()
         n_all = len(wide)
         if len(pairs) < r.step_min_measurements:
             step.n_used = n_all
@@ -152,18 +157,18 @@ class StepHandling:
         decisive = a.margin >= r.step_min_margin
         with svc.store.batch():
             fields: dict[str, Any] = {"group_name": a.choice, "text": a.text()}
-            fields |= svc._step_start(step, start_id)
+            fields |= self._step_start(step, start_id)
             if step.status == "probation":
                 seen = visible_step_mm(a)
                 data["visible_mm"] = seen
                 confirmed = a.choice != NONE and decisive and seen >= r.step_min_mm
                 if not confirmed:
                     if (a.choice == NONE and decisive) or settled:  # drift, not a step
-                        svc._drop_step(step)
-                    svc._save_state()  # else the next window measures for it again
+                        self._drop_step(step)
+                    svc.save_state()  # else the next window measures for it again
                     svc.bus.emit("step_attribution", data, level=logging.WARNING)
                     return
-                svc._confirm_step(step, a)
+                self._confirm_step(step, a)
             if size is not None:
                 fields["size_mm"] = size
             assert step.suspect_id is not None
@@ -175,15 +180,15 @@ class StepHandling:
             if a.choice in (SEVERAL, NONE) and settled:
                 step.status = a.choice
                 if a.choice == NONE:
-                    closed = svc._close_suspect(svc.clock.time(), None, None, "none")
-            svc._widen_sequential(a, step)
-            svc._save_state()
+                    closed = self.close_suspect(svc.clock.time(), None, None, "none")
+            self._widen_sequential(a, step)
+            svc.save_state()
         svc.bus.emit("step_attribution", data, level=logging.WARNING)
         if closed is not None:
             svc.bus.emit("suspect_interval", closed)
         if svc.sequential is None and corr is not None and corr.passed:
             step.status, step.base_version = "proposed", svc.version
-            svc._recal_done(corr)
+            svc.recal_done(corr)
 
     def _step_pairs(
         self, step: Step, *, locate: bool
@@ -191,7 +196,7 @@ class StepHandling:
         """(pairs from before any candidate change point, the located start, the pairs from
         it on with the freshest references, sigma), or None when nothing new was measured.
         `locate`: look for the change point (else the one located before stands)."""
-        svc: Service = self  # type: ignore[assignment]
+        svc = self.svc
         r = svc.settings.recalib
         lo = max(1, step.onset_id - len(svc.schedule) // LOOK_BACK_DIVISOR)
         rows = svc.store.measurements(since_id=lo - 1)
@@ -217,21 +222,21 @@ class StepHandling:
     def _refine_step(self, step: Step) -> None:
         """The first correction is in force; once a window more was measured, its group is
         fitted again (from the parameters now in force) and applied when its gates pass; the
-        suspect interval then closes (`_close_suspect`). After two refusals, or when nothing is
+        suspect interval then closes (`close_suspect`). After two refusals, or when nothing is
         left to refine, it closes where the first correction was applied."""
-        svc: Service = self  # type: ignore[assignment]
+        svc = self.svc
         r = svc.settings.recalib
-        got = svc._step_pairs(step, locate=False)
+        got = self._step_pairs(step, locate=False)
         one_window = max(svc.settings.line.step_slots_per_window - 1, 1)
         if got is None or len(got[0]) < step.n_corrected + one_window:
             return
         wide, _, pairs, sigma = got
         step.n_used = len(wide)
         groups = [g for g in step_groups(svc.model) if g.name in (NONE, step.choice)]
-        views = svc._volume_views()
-        x_base = svc._version_x(step.base_version)
+        views = self.volume_views()
+        x_base = self._version_x(step.base_version)
         if x_base is None:  # its base is not readable: it ends where it was corrected
-            svc._end_refining()
+            self._end_refining()
             return
         a, corr = correct_step(
             svc.model,
@@ -264,36 +269,36 @@ class StepHandling:
         svc.bus.emit("step_attribution", data, level=logging.WARNING)
         if corr is not None and corr.passed:
             step.refine_mm = size
-            svc._recal_done(corr)  # auto: applied at once, the interval closes
+            svc.recal_done(corr)  # auto: applied at once, the interval closes
             return
         step.refine_tries += 1
         if corr is None or step.refine_tries >= REFINE_TRIES:
-            svc._end_refining()
+            self._end_refining()
         else:
-            svc._save_state()
+            svc.save_state()
 
     def _end_refining(self) -> None:
         """No refinement: the interval ends where the first correction was applied."""
-        svc: Service = self  # type: ignore[assignment]
+        svc = self.svc
         assert svc.step is not None
         svc.step.refine_mm = 0.0
         with svc.store.batch():
-            closed = svc._close_suspect(svc.clock.time(), None, None, "step")
-            svc._save_state()
+            closed = self.close_suspect(svc.clock.time(), None, None, "step")
+            svc.save_state()
         if closed is not None:
             svc.bus.emit("suspect_interval", closed)
 
-    def _volume_views(self) -> tuple[Any, Any]:
+    def volume_views(self) -> tuple[Any, Any]:
         """The measuring volume's points at every configuration of the schedule (where a
         correction's uncertainty is predicted, app.line.step.volume_views)."""
-        svc: Service = self  # type: ignore[assignment]
+        svc = self.svc
         q = np.array([s.q_deg for s in svc.schedule.slots])
         return volume_views(q, svc.settings.measuring_volume_mm)
 
     def _step_start(self, step: Step, start_id: int) -> dict[str, Any]:
         """The suspect interval's start for a step located at measurement `start_id`: the last
         good measurement before it (fields to update; none when unchanged)."""
-        svc: Service = self  # type: ignore[assignment]
+        svc = self.svc
         if start_id == step.start_id:
             return {}
         step.start_id = svc.change_from_id = start_id  # a change from before it spans it
@@ -307,7 +312,7 @@ class StepHandling:
         """The sequential estimator follows the step through its process noise: the suspected
         group's covariance widened once the choice is decisive (all of it for several groups,
         or when no group was found)."""
-        svc: Service = self  # type: ignore[assignment]
+        svc = self.svc
         seq, r = svc.sequential, svc.settings.recalib
         if seq is None:
             return
@@ -317,7 +322,7 @@ class StepHandling:
             seq.widen_group(a.fit(a.choice).group.params)
             step.status = "following"
 
-    def _close_suspect(
+    def close_suspect(
         self, t: float, version: int | None, cal: Mapping[str, Any] | None, kind: str
     ) -> dict[str, Any] | None:
         """The step's suspect interval ends now (the apply of its correction, or no step was
@@ -326,7 +331,7 @@ class StepHandling:
         ends at the refinement when that moved points at the standoff by more than
         `step_refine_mm` (the first correction was off by that much), else where the first
         correction was applied."""
-        svc: Service = self  # type: ignore[assignment]
+        svc = self.svc
         step, r = svc.step, svc.settings.recalib
         if step is None or step.suspect_id is None:
             return None
@@ -340,7 +345,7 @@ class StepHandling:
             step.n_corrected, step.status = step.n_used, "refining"
             svc.store.update_suspect(
                 step.suspect_id,
-                size_mm=svc._correction_size(int(row["params_version"]))
+                size_mm=self._correction_size(int(row["params_version"]))
                 if row["params_version"] is not None
                 else None,
             )
@@ -354,7 +359,7 @@ class StepHandling:
         if cal is not None:
             fields["calibration_id"] = int(cal["id"])
         if row["size_mm"] is None and version is not None and row["params_version"] is not None:
-            fields["size_mm"] = svc._correction_size(int(row["params_version"]))
+            fields["size_mm"] = self._correction_size(int(row["params_version"]))
         svc.store.update_suspect(step.suspect_id, **fields)
         if kind != "none":
             step.status = "corrected"
@@ -362,12 +367,10 @@ class StepHandling:
 
     def _version_x(self, version: int | None) -> Any:
         """The parameter vector of history version `version` (None when unreadable)."""
-        svc: Service = self  # type: ignore[assignment]
+        svc = self.svc
         if version is None:
             return None
         try:
-            from app.formats.params import from_json
-
             return from_json(svc.params.history / f"{version:04d}.json")[1]
         except (OSError, ValueError, KeyError, InputError):
             return None
@@ -375,36 +378,10 @@ class StepHandling:
     def _correction_size(self, old_version: int) -> float | None:
         """How far the parameters now in force move a point at the sensor's standoff from where
         version `old_version` put it, RMS over the schedule's views [mm]."""
-        svc: Service = self  # type: ignore[assignment]
-        x_old = svc._version_x(old_version)
+        svc = self.svc
+        x_old = self._version_x(old_version)
         if x_old is None:
             return None
         q = np.array([s.q_deg for s in svc.schedule.slots])
         c = np.tile([0.0, 0.0, IDEAL_STANDOFF_MM], (len(q), 1))
         return point_shift_mm(svc.model, x_old, svc.x, q, c)
-
-
-def suspect_json(row: Mapping[str, Any]) -> dict[str, Any]:
-    """A suspect interval as events, the status reply and `rvis state suspects` carry it."""
-    from app.line.operator import utc_text
-
-    def utc(t: Any) -> str | None:
-        return None if t is None else utc_text(float(t))
-
-    return {
-        "id": row.get("id"),
-        "state": "open" if row.get("t_end") is None else "closed",
-        "t_start": row.get("t_start"),
-        "t_end": row.get("t_end"),
-        "start_utc": utc(row.get("t_start")),
-        "end_utc": utc(row.get("t_end")),
-        "last_good_id": row.get("last_good_id"),
-        "onset_id": row.get("onset_id"),
-        "params_version": row.get("params_version"),
-        "size_mm": row.get("size_mm"),
-        "group": row.get("group_name"),
-        "text": row.get("text"),
-        "end_reason": row.get("end_reason"),
-        "end_version": row.get("end_version"),
-        "calibration_id": row.get("calibration_id"),
-    }

@@ -28,9 +28,10 @@ from app.config import CellConfig
 from app.formats.params import from_json
 from app.line.measure import GeometricSensor, SphereSensor, SweepSensor
 from app.line.schedule import Schedule
-from app.line.service import Service, State
+from app.line.service import Service
 from app.line.settings import ServiceSettings, from_cell
 from app.line.statedir import StateDir
+from app.line.states import State
 from app.line.station import Station, cell_guard
 from app.sim.cell import make_cell, simulated_sets, true_sensor_model
 from calib import candidates

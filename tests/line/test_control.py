@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from app.line.control import ControlClient, ControlServer
-from app.line.service import State
+from app.line.states import State
 from tests.line.helpers import Line, make_line
 
 

@@ -12,7 +12,7 @@ import pytest
 
 from app.config.line import SweepSettings
 from app.line.measure import SweepSensor
-from app.line.service import State
+from app.line.states import State
 from drivers.errors import DeviceConnectionError, DeviceTimeout
 from drivers.robot import FloatArray
 from fakes.cell import SimulatedCell

@@ -14,7 +14,7 @@ from typing import Any
 import pytest
 
 from app.line.launch import serving
-from app.line.service import State
+from app.line.states import State
 from app.line.store import Store
 from tests.line.helpers import Line, make_line
 

@@ -15,7 +15,7 @@ from app.config import load_cell
 from app.config.line import RecalibSettings
 from app.formats.params import plain_document
 from app.line.params_store import ParamsStore
-from app.line.service import State
+from app.line.states import State
 from app.line.store import Store
 from app.sim.cell import validation_set
 from fakes.devices import ClampCycle

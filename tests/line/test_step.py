@@ -238,8 +238,8 @@ def test_a_flag_that_the_attribution_explains_by_nothing_is_dropped_as_drift(
         onset = svc.store.last_measurement_id()
         with svc.store.batch():
             svc.drift_onset_id = onset
-            svc._open_step(onset, onset, attribute=True)
-            svc._save_state()
+            svc.steps.open_step(onset, onset, attribute=True)
+            svc.save_state()
         assert svc.step is not None and svc.step.status == "probation"
         assert svc.request("resume").result(10.0)["ok"]
         dropped = ln.wait(_is("step_attribution", choice="none"), 30.0)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from app.line.service import State
+from app.line.states import State
 from app.sim.line_run import SimulatedLineRun
 
 

@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from app.config import CellConfig
-from app.line.service import State
+from app.line.states import State
 from app.sim.line_run import SimulatedLineRun
 from fakes.line_faults import Fault
 from tests.sim.fault_checks import all_announced_stored, faulted

@@ -10,7 +10,7 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
-from app.line.operator import device_of
+from app.line.status import device_of
 from drivers.errors import DeviceError, DeviceFault, DeviceTimeout
 from fakes.devices import FakePlc, FakeRobot
 from fakes.world import StaticWorld

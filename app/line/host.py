@@ -1,0 +1,101 @@
+"""What the service's collaborators use of it: `LineHost`, the service as the operator's
+commands (app.line.operator), the step handling (app.line.step_service) and the status reply
+(app.line.status) see it. `app.line.service.Service` is the one implementation; the
+collaborators import this protocol, not the service, so no import runs back to it."""
+
+from __future__ import annotations
+
+import logging
+import threading
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from app.line.cycle import WindowWatch
+from app.line.drift import DriftMonitor
+from app.line.events import EventBus
+from app.line.inline_seq import InlineSequential, SequentialCandidate
+from app.line.measure import SphereMeasurer
+from app.line.params_store import ParamsStore
+from app.line.recalib import Recalibrator, RecalOutcome
+from app.line.schedule import Schedule
+from app.line.settings import ServiceSettings
+from app.line.statedir import StateDir
+from app.line.states import State
+from app.line.station import Station
+from app.line.step import Step, StepCorrection
+from app.line.store import StorageError, Store
+from calib.model import SystemModel
+from drivers.clock import Clock
+
+F64 = NDArray[np.float64]
+
+
+class LineHost(Protocol):
+    """The service's state and the actions its collaborators may take on it."""
+
+    # what it is made of
+    settings: ServiceSettings
+    clock: Clock
+    station: Station
+    schedule: Schedule
+    spheres: dict[str, F64]
+    paths: StateDir
+    store: Store
+    params: ParamsStore
+    bus: EventBus
+    drift: DriftMonitor
+    recalibrator: Recalibrator
+    sequential: InlineSequential | None
+    watch: WindowWatch
+    measurer: SphereMeasurer
+    log: logging.Logger
+    wake: threading.Event  # set: the loop looks at its queue now
+
+    # the parameters in force
+    model: SystemModel
+    x: F64
+    version: int
+
+    # the decision state (snapshot / restore)
+    state: State
+    paused: bool
+    counters: dict[str, int]
+    pending_calibration: int | None
+    force_recal: bool
+    drift_onset_id: int | None
+    drift_due: bool
+    change_from_id: int
+    step: Step | None
+
+    # faults
+    storage_failed: bool
+    unstored_alarms: list[dict[str, Any]]  # raised while the storage failed
+    device_errors: dict[str, dict[str, str]]  # family -> its last error {"error", "utc"}
+    fault_family: str | None  # the device of the fault in force (None: unknown)
+
+    @property
+    def cell_temp_c(self) -> float | None: ...
+
+    def status(self) -> dict[str, Any]: ...
+
+    def snapshot(self) -> dict[str, Any]: ...
+
+    def save_state(self) -> None: ...
+
+    def restore(self) -> None: ...
+
+    def set_state(self, state: State) -> None: ...
+
+    def alarm(self, code: str, message: str, priority: str = "high") -> int: ...
+
+    def storage_fault(self, exc: StorageError) -> None: ...
+
+    def note_device_error(self, exc: BaseException) -> str | None: ...
+
+    def recal_done(self, out: RecalOutcome | SequentialCandidate | StepCorrection) -> None: ...
+
+    def apply_calibration(self, cal_id: int, uid: int | None, source: str) -> int: ...
+
+    def in_force(self, version: int, cal_id: int | None, source: str, uid: int | None) -> None: ...

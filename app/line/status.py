@@ -1,0 +1,206 @@
+"""The status reply of the service (`rvis status`, the TUI, OPC UA): pure functions of the
+service as its collaborators see it (app.line.host.LineHost)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from app.line.host import LineHost
+from app.line.states import utc_text
+from app.line.store import StorageError
+from calib.model import ALL_NAMES
+
+SUSPECTS_IN_STATUS = 5  # the status reply's last suspect intervals
+
+
+def status_reply(svc: LineHost) -> dict[str, Any]:
+    """The status reply; answered even when the state storage fails (what could not be
+    read is left out and `storage_error` says why)."""
+    try:
+        return _status(svc)
+    except StorageError as exc:
+        return {
+            "state": svc.state.value,
+            "paused": svc.paused,
+            "params_version": svc.version,
+            "counters": dict(svc.counters),
+            "alarms": [alarm_status(a) for a in svc.unstored_alarms],
+            "step": step_text(svc),
+            "storage_error": str(exc),
+        }
+
+
+def alarm_status(a: dict[str, Any]) -> dict[str, Any]:
+    """An alarm as the status reply carries it (the message also as `text`)."""
+    out = {k: a[k] for k in ("id", "code", "priority", "message", "state")}
+    out["text"] = a["message"]
+    out["raised_utc"] = utc_text(a["t_raised"])
+    return out
+
+
+def step_text(svc: LineHost) -> str:
+    """What the service is doing, in a few words (the TUI's status line)."""
+    if svc.recalibrator.busy:
+        return "recalibrating"
+    steps = {
+        "MEASURING": "measuring in the window",
+        "IDLE": "waiting for a window",
+        "PAUSED": "paused by the operator",
+        "FAULT": "stopped on a fault, reset needed",
+    }
+    return steps.get(svc.state.name, svc.state.value.lower())
+
+
+def device_of(exc: BaseException, devices: Mapping[str, object]) -> str | None:
+    """The family of the device that raised `exc` (the stamp a device's public method puts on
+    its errors, drivers.errors; or its cause's), when it is one of `devices`; else None."""
+    seen: BaseException | None = exc
+    while seen is not None:
+        family = getattr(seen, "family", None)
+        if isinstance(family, str) and family in devices:
+            return family
+        seen = seen.__cause__
+    return None
+
+
+def suspect_json(row: Mapping[str, Any]) -> dict[str, Any]:
+    """A suspect interval as events, the status reply and `rvis state suspects` carry it."""
+
+    def utc(t: Any) -> str | None:
+        return None if t is None else utc_text(float(t))
+
+    return {
+        "id": row.get("id"),
+        "state": "open" if row.get("t_end") is None else "closed",
+        "t_start": row.get("t_start"),
+        "t_end": row.get("t_end"),
+        "start_utc": utc(row.get("t_start")),
+        "end_utc": utc(row.get("t_end")),
+        "last_good_id": row.get("last_good_id"),
+        "onset_id": row.get("onset_id"),
+        "params_version": row.get("params_version"),
+        "size_mm": row.get("size_mm"),
+        "group": row.get("group_name"),
+        "text": row.get("text"),
+        "end_reason": row.get("end_reason"),
+        "end_version": row.get("end_version"),
+        "calibration_id": row.get("calibration_id"),
+    }
+
+
+def _status(svc: LineHost) -> dict[str, Any]:
+    w = svc.watch
+    return {
+        "state": svc.state.value,
+        "paused": svc.paused,
+        "params_version": svc.version,
+        "pending_calibration": svc.pending_calibration,
+        "recalibrating": svc.recalibrator.busy,
+        "mode": svc.settings.recalib.mode,
+        "counters": dict(svc.counters),
+        "measurements": svc.store.counts(),
+        "schedule": {"position": svc.store.schedule_position()[0], "slots": len(svc.schedule)},
+        "plc": None
+        if w.inputs is None
+        else {
+            "window_open": w.inputs.window_open,
+            "line_running": w.inputs.line_running,
+            "heartbeat_alive": w.alive,
+        },
+        "window": _window_status(svc),
+        "calibration": _calibration_status(svc),
+        "alarms": [alarm_status(a) for a in svc.store.active_alarms() + svc.unstored_alarms],
+        "cell_temp_c": svc.cell_temp_c,
+        "drift": svc.drift.state(),
+        "drift_change": svc.drift.change_state(),
+        "step": step_text(svc),
+        "devices": _device_status(svc),
+        "pending": _pending_status(svc),
+        "now_utc": utc_text(svc.clock.time()),  # the service's clock (sim: ahead)
+        "flagged_step": None if svc.step is None else svc.step.to_json(),
+        "suspect_intervals": [
+            suspect_json(r) for r in svc.store.suspects(last=SUSPECTS_IN_STATUS)
+        ],  # the last ones, oldest first; the open one has no end yet
+    }
+
+
+def _device_status(svc: LineHost) -> dict[str, dict[str, Any]]:
+    """Per device family: the URL it was opened with, its state (closed; fault: the device of
+    the fault in force, or every device when that one is unknown; the PLC without heartbeat;
+    ok), and the last error the service saw from it with its time (kept after a reset)."""
+    faulted = bool(svc.store.active_alarms(code="device_fault"))
+    out = {}
+    for family, device in svc.station.devices().items():
+        state = "ok"
+        if not device.is_open:
+            state = "closed"
+        elif faulted and svc.fault_family in (None, family):
+            state = "fault"
+        elif family == "plc" and svc.watch.lost:
+            state = "no heartbeat"
+        last = svc.device_errors.get(family, {})
+        out[family] = {
+            "url": svc.station.urls.get(family, ""),
+            "state": state,
+            "last_error": last.get("error"),
+            "last_error_utc": last.get("utc"),
+        }
+    return out
+
+
+def _calibration_status(svc: LineHost) -> dict[str, Any]:
+    """The parameters in force: version, when applied (UTC), the fit's RMS if identified."""
+    applied = [a for a in svc.store.applied() if a["version"] == svc.version]
+    last = applied[-1] if applied else None
+    rms = None
+    if last is not None and last["calibration_id"] is not None:
+        cal = svc.store.calibration(int(last["calibration_id"]))
+        rms = None if cal is None else cal["rms_mm"]
+    return {
+        "version": svc.version,
+        "pending": svc.pending_calibration,
+        "applied_utc": None if last is None else utc_text(last["t"]),
+        "rms_mm": rms,
+    }
+
+
+def _pending_status(svc: LineHost) -> dict[str, Any] | None:
+    """The calibration waiting for approval: fit, gates and each parameter's change."""
+    cal_id = svc.pending_calibration
+    cal = None if cal_id is None else svc.store.calibration(cal_id)
+    if cal is None:
+        return None
+    current = dict(zip(ALL_NAMES, (float(v) for v in svc.x), strict=True))
+    params = (cal.get("document") or {}).get("parameters", [])
+    return {
+        "id": cal_id,
+        "rms_mm": cal["rms_mm"],
+        "holdout_rms_mm": cal["holdout_rms_mm"],
+        "current_holdout_rms_mm": cal["current_holdout_rms_mm"],
+        "gates": {"passed": not cal["gates"], "failures": list(cal["gates"])},
+        "parameters": [
+            {
+                "name": p["name"],
+                "unit": p.get("unit", ""),
+                "current": current.get(p["name"]),
+                "value": p.get("value"),
+                "std": p.get("std"),
+            }
+            for p in params
+            if p.get("identified", True)
+        ],
+    }
+
+
+def _window_status(svc: LineHost) -> dict[str, Any]:
+    """The line as the TUI shows it: window open and the time left, line, heartbeat."""
+    w = svc.watch
+    i = w.inputs
+    is_open = bool(i is not None and i.window_open)
+    return {
+        "open": is_open,
+        "remaining_s": w.remaining_s() if is_open and w.opened_t is not None else None,
+        "line_running": bool(i is not None and i.line_running),
+        "heartbeat_alive": w.alive,
+    }
