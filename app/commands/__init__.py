@@ -1,10 +1,16 @@
 """One module per `rvis` subcommand; each exposes `register(subparsers)`.
 
-COMMANDS lists every subcommand with its one-line help, in the order `rvis --help` shows them.
+COMMANDS lists every subcommand with its one-line help, in the order `rvis --help` shows them;
+it is the help's only home: a command's `register` adds its parser with `add_command`.
 The command line (app/commands/cli.py; `python -m app`) imports only the module of the command
 being run (so `rvis --help` imports none of numpy, OpenCV or the fakes); a command's `register`
 adds its parser and sets `func(args) -> int` as the default handler.
 """
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
 
 COMMANDS: dict[str, str] = {
     "demo": "simulate, identify, validate and report on the simulated cell",
@@ -12,10 +18,10 @@ COMMANDS: dict[str, str] = {
     "identify": "identify the kinematic parameters from measurements",
     "validate": "errors of a parameter set at validation positions",
     "observability": "rank, condition and O1..O5 of measurements",
-    "plan": "plan sphere positions and measurement configurations",
-    "experiment": "reproduce the paper's experiment on the simulated cell",
+    "plan": "plan sphere positions (PSO) and measurement configurations (DETMAX)",
+    "experiment": "experiments on the simulated cell (the paper's, accuracy, compensation, shift)",
     "compensate": "compensated joint targets for the controller (CSV or .ls)",
-    "export": "export the identified system (URDF)",
+    "export": "export the identified calibration (URDF)",
     "devices": "check the configured devices",
     "sensor": "laser-line sensor: calibrate, measure",
     "commission": "guided, resumable commissioning of a cell",
@@ -25,3 +31,11 @@ COMMANDS: dict[str, str] = {
     "tui": "the operator's terminal of a running service",
     "state": "back up, restore, check the state directory; list suspect intervals",
 }
+
+
+def add_command(sub: argparse._SubParsersAction, name: str, **kw: Any) -> argparse.ArgumentParser:
+    """The parser of command `name`, with its help from COMMANDS (also its description)."""
+    parser: argparse.ArgumentParser = sub.add_parser(
+        name, help=COMMANDS[name], description=kw.pop("description", COMMANDS[name]), **kw
+    )
+    return parser

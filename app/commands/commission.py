@@ -19,12 +19,13 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from app.commands import add_command
 from app.commands.args import int_at_least
 from app.errors import InputError
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser("commission", help="guided, resumable commissioning of a cell")
+    p = add_command(sub, "commission")
     p.add_argument("--cell", type=Path, help="cell configuration TOML (default: embedded)")
     p.add_argument("--state-dir", type=Path, help="state directory (default: [service])")
     p.add_argument("--yes", action="store_true", help="confirm every step and motion")

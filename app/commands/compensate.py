@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from app.api import Calibration, command_xyzwpr
+from app.commands import add_command
 from app.config import load_cell
 from app.errors import InputError
 from app.formats.programs import (
@@ -31,9 +32,7 @@ from calib.compensate import Compensation, CompensationSettings
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
-        "compensate", help="compensated joint targets for the controller (CSV or .ls)"
-    )
+    p = add_command(sub, "compensate")
     p.add_argument("--params", required=True, help="parameters JSON (from rvis identify)")
     p.add_argument(
         "--targets",

@@ -12,11 +12,12 @@ import argparse
 import json
 from typing import Any
 
+from app.commands import add_command
 from app.errors import RvisError
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser("ctl", help="send a command to the in-line service")
+    p = add_command(sub, "ctl")
     p.add_argument("--cell", help="cell configuration TOML (for [service] state_dir)")
     p.add_argument("--state-dir", help="state directory (default: [service] state_dir)")
     p.add_argument("--json", action="store_true", help="print the reply as JSON")

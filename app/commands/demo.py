@@ -9,6 +9,7 @@ import time
 from contextlib import closing, nullcontext
 from pathlib import Path
 
+from app.commands import add_command
 from app.commands.args import int_at_least
 from app.config import CellConfig, load_cell
 from app.errors import InputError
@@ -25,7 +26,7 @@ from fakes.render_sensor import default_true_sensor
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("demo", help="simulate, identify, validate and report on the simulated cell")
+    p = add_command(sub, "demo")
     p.add_argument("--seed", type=int_at_least(0), help="seed (default: [simulation] seed)")
     p.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")
     p.add_argument("--out", help="run folder (default runs/demo-<time>)")

@@ -19,6 +19,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from app.commands import add_command
 from app.devicecheck import describe_and_probe
 from app.errors import InputError
 from drivers import DeviceConfigError, DeviceError, create_device
@@ -36,7 +37,7 @@ class Row:
 
 
 def register(sub: Any) -> None:
-    parser = sub.add_parser("devices", help="check the configured devices")
+    parser = add_command(sub, "devices")
     actions = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     check = actions.add_parser("check", help="connect to each device and print a status table")
     check.add_argument("--cell", type=Path, help="cell configuration (TOML) with a [devices] table")

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from app.commands import add_command
 from app.commands.args import int_at_least
 from app.commands.compensate import run_compensation_experiment
 from app.config import CellConfig, load_cell
@@ -25,24 +26,46 @@ if TYPE_CHECKING:
     from app.sim.shift import ShiftSettings
 
 
+EXPERIMENTS: dict[str, str] = {
+    "paper": "the paper's experiment over many seeds (plan, identify, validate; fig. 11)",
+    "paper-compare": "the reductions of paper runs side by side",
+    "accuracy": "the rigid vs the compliance-aware model against the noise floor",
+    "compensation": "nominal vs compensated pose error of the true robot",
+    "shift": "a compressed shift of the in-line service with warm-up and a knock",
+}
+
+
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("experiment", help="experiments on the simulated cell")
-    p.add_argument(
-        "name",
-        choices=("paper", "paper-compare", "accuracy", "compensation", "shift"),
-        help="which experiment",
+    p = add_command(sub, "experiment")
+    names = p.add_subparsers(dest="name", metavar="NAME", required=True, parser_class=type(p))
+    parsers = {n: names.add_parser(n, help=h, description=h) for n, h in EXPERIMENTS.items()}
+    for name, default in (("paper", 20), ("accuracy", 10), ("compensation", 5), ("shift", 1)):
+        e = parsers[name]
+        e.add_argument("--seeds", type=int, help=f"number of seeds ({default})")
+        e.add_argument("--first-seed", type=int, default=0, help="first seed (0)")
+        e.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")
+        e.add_argument("--out", help="output folder (default runs/<experiment>-<time>)")
+        if name != "shift":
+            e.add_argument(
+                "--validation", type=int, default=100, help="validation positions / poses (100)"
+            )
+    _paper_options(parsers["paper"])
+    parsers["paper-compare"].add_argument(
+        "--runs",
+        nargs="+",
+        metavar="[NAME=]DIR",
+        required=True,
+        help="output folders of paper runs, the first is the reference",
     )
-    p.add_argument("--seeds", type=int, help="number of seeds (paper 20, accuracy 10, 5)")
-    p.add_argument("--first-seed", type=int, default=0, help="first seed (0)")
-    p.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")
-    p.add_argument("--out", help="output folder (default runs/experiment-<time>)")
-    p.add_argument("--validation", type=int, default=100, help="validation positions / poses (100)")
-    p.add_argument(
-        "--views-per-sphere",
-        type=int,
-        default=10,
-        help="accuracy: random calibration views per sphere (10)",
+    parsers["accuracy"].add_argument(
+        "--views-per-sphere", type=int, default=10, help="random calibration views per sphere (10)"
     )
+    _shift_options(parsers["shift"])
+    for e in parsers.values():
+        e.set_defaults(func=run)
+
+
+def _paper_options(p: argparse.ArgumentParser) -> None:
     add_plan_options(p)
     p.add_argument(
         "--criteria-grid-step",
@@ -52,7 +75,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--compliant",
         action="store_true",
-        help="paper: also identify and validate every run with the compliant model",
+        help="also identify and validate every run with the compliant model",
     )
     p.add_argument(
         "--no-criteria", action="store_true", help="skip ranking O1..O5 as selection criteria"
@@ -61,55 +84,49 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--plan-model",
         choices=("rigid", "compliant"),
         default="rigid",
-        help="paper: plan for the rigid model's 30 parameters (default) or the compliant "
-        "model's (with the arm compliance, on its own pre-calibration)",
-    )
-    p.add_argument(
-        "--runs",
-        nargs="+",
-        metavar="[NAME=]DIR",
-        help="paper-compare: output folders of paper runs, the first is the reference",
+        help="plan for the rigid model's 30 parameters (default) or the compliant model's"
+        " (with the arm compliance, on its own pre-calibration)",
     )
     p.add_argument(
         "--resume",
         action="store_true",
-        help="paper: keep the seeds already in --out's seeds.json, run the others",
+        help="keep the seeds already in --out's seeds.json, run the others",
     )
-    g = p.add_argument_group("shift")
-    g.add_argument("--hours", type=float, default=8.0, help="shift: sim hours (8)")
-    g.add_argument("--knock-at-h", type=float, default=4.0, help="shift: knock at hour (4)")
+
+
+def _shift_options(g: argparse.ArgumentParser) -> None:
+    g.add_argument("--hours", type=float, default=8.0, help="sim hours (8)")
+    g.add_argument("--knock-at-h", type=float, default=4.0, help="knock at hour (4)")
     g.add_argument(
         "--knock",
         choices=("sensor", "fixture", "joint", "all"),
         default="sensor",
-        help="shift: what the knock moves: the sensor mount (0.3 mm, 0.05 deg; default), the"
-        " spheres' frame (0.5 mm, 0.03 deg) or the J2 zero (0.01 deg); all: each in turn",
+        help="what the knock moves: the sensor mount (0.3 mm, 0.05 deg; default), the"
+        " spheres' frame (0.5 mm, 0.03 deg) or the J2 zero (0.01 deg); all: each in turn"
+        " (with --seeds: a campaign, shift-knocks.md)",
     )
-    g.add_argument("--seed", type=int_at_least(0), default=0, help="shift: seed (0)")
-    g.add_argument("--scale", type=float, help="shift: time scale (default [simline] scale)")
-    g.add_argument("--slots-per-window", type=int_at_least(1), help="shift: default [line]")
-    g.add_argument(
-        "--geometric", action="store_true", help="shift: geometric measurements (the default)"
-    )
-    g.add_argument("--rendered", action="store_true", help="shift: measure through images")
+    g.add_argument("--seed", type=int_at_least(0), default=0, help="seed of one shift (0)")
+    g.add_argument("--scale", type=float, help="time scale (default [simline] scale)")
+    g.add_argument("--slots-per-window", type=int_at_least(1), help="default [line]")
+    g.add_argument("--geometric", action="store_true", help="geometric measurements (default)")
+    g.add_argument("--rendered", action="store_true", help="measure through images")
     g.add_argument(
         "--model",
         choices=("rigid", "compliant"),
-        help="shift: the model the service identifies (default [calibration] model)",
+        help="the model the service identifies (default [calibration] model)",
     )
     g.add_argument(
         "--estimator",
         choices=("batch", "sequential", "compare"),
-        help="shift: the service's estimator (default [service] estimator); compare: one shift"
-        " each with batch, sequential and sequential with adaptive scheduling, and"
+        help="the service's estimator (default [service] estimator); compare: one shift each"
+        " with batch, sequential and sequential with adaptive scheduling, and"
         " shift-estimators.md",
     )
-    p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     for key in ("seeds", "validation", "views_per_sphere"):
-        value = getattr(args, key)
+        value = getattr(args, key, None)
         if value is not None and value < 1:
             raise InputError(f"must be >= 1, got {value}", field=f"--{key.replace('_', '-')}")
     if args.name == "compensation":
@@ -119,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
             return run_knock_campaign(args)
         return run_shift_experiment(args)
     if args.name == "paper-compare":
-        return run_paper_compare(args.runs or [])
+        return run_paper_compare(args.runs)
     cfg = load_cell(args.cell)
     out = Path(args.out or f"runs/experiment-{time.strftime('%Y%m%d-%H%M%S')}")
     if args.name == "accuracy":

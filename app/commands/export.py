@@ -11,11 +11,12 @@ import argparse
 from pathlib import Path
 
 from app.api import Calibration
+from app.commands import add_command
 from app.errors import InputError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("export", help="export the identified calibration (URDF)")
+    p = add_command(sub, "export")
     p.add_argument("what", choices=("urdf",), help="what to export")
     p.add_argument("--params", required=True, help="parameters JSON (from rvis identify)")
     p.add_argument("--out", required=True, help="file to write (robot.urdf)")

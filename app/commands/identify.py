@@ -9,11 +9,13 @@ from __future__ import annotations
 import argparse
 import sys
 
+from app.commands import add_command
+
 LOSSES = ("linear", "huber", "soft_l1", "cauchy", "arctan")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("identify", help="identify the kinematic parameters from measurements")
+    p = add_command(sub, "identify")
     p.add_argument("--targets", required=True, help="targets CSV (tracker centres, part frame)")
     p.add_argument("--measurements", required=True, help="measurements CSV")
     p.add_argument("--out", required=True, help="parameters JSON to write")

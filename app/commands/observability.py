@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
+from app.commands import add_command
 from app.config import load_cell
 from app.formats.csvfiles import as_input_error
 from app.formats.files import read_measurements
@@ -14,7 +15,7 @@ from calib.observability import INDEX_NAMES, null_space_groups, observability
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("observability", help="rank, condition and O1..O5 of measurements")
+    p = add_command(sub, "observability")
     p.add_argument("--measurements", required=True, help="measurements CSV")
     p.add_argument("--params", help="parameters JSON to evaluate at (default: nominal)")
     p.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")

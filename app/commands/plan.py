@@ -6,6 +6,7 @@ import argparse
 import json
 import sys
 
+from app.commands import add_command
 from app.config import load_cell
 from app.formats.files import check_output, write_json
 from app.formats.params import from_json
@@ -22,9 +23,7 @@ from calib.observability import INDEX_NAMES
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
-        "plan", help="plan sphere positions (PSO) and measurement configurations (DETMAX)"
-    )
+    p = add_command(sub, "plan")
     p.add_argument("--out", required=True, help="plan JSON to write")
     p.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")
     p.add_argument("--params", help="pre-calibrated parameters JSON to plan on (default: nominal)")

@@ -16,19 +16,21 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from app.commands import add_command
 from app.commands.args import int_at_least
 from app.errors import InputError, RvisError
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser("run", help="the unattended in-line service")
+    p = add_command(sub, "run")
     p.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")
     p.add_argument("--state-dir", help="state directory (default: [service] state_dir)")
     p.add_argument("--plan", help="plan JSON from `rvis plan` (default: STATE_DIR/plan.json)")
     p.add_argument("--params", help="starting parameters JSON when the state has none yet")
     p.add_argument(
-        "--sensor-model",
-        help="sensor calibration file (default: STATE_DIR/sensor.toml if any, else the design)",
+        "--sensor",
+        help="sensor calibration TOML from `rvis sensor calibrate` (default: STATE_DIR/sensor.toml"
+        " if any, else the design)",
     )
     p.add_argument("--sim", action="store_true", help="run on the simulated line (no hardware)")
     p.add_argument("--geometric", action="store_true", help="--sim: skip rendering (long runs)")
@@ -59,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("no plan file (write one with `rvis plan --out ...`)", file=plan)
     x0 = from_json(args.params)[1] if args.params else None
     state_sensor = StateDir(settings.state_dir).sensor
-    sensor_path = args.sensor_model or (state_sensor if state_sensor.is_file() else None)
+    sensor_path = args.sensor or (state_sensor if state_sensor.is_file() else None)
     sensor_model = load_sensor_model(sensor_path) if sensor_path else None
     with hold_state(settings.state_dir, settings.ops.operators_group) as state:
         try:

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from app.commands import add_command
 from app.commands.args import float_in
 from app.config.tomlfile import read_toml
 from app.errors import InputError, QualityError
@@ -39,7 +40,7 @@ from vision.sensor_model import (
 
 def register(subparsers: Any) -> None:
     """Add `rvis sensor {calibrate,measure}`."""
-    parser = subparsers.add_parser("sensor", help="laser-line sensor: calibrate, measure")
+    parser = add_command(subparsers, "sensor")
     sub = parser.add_subparsers(dest="sensor_command", metavar="ACTION", required=True)
     cal = sub.add_parser("calibrate", help="calibrate the sensor from recorded images")
     cal.add_argument("dir", type=Path, help="folder with chessboards/ and targets/<pose>/")

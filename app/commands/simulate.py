@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import argparse
 
+from app.commands import add_command
 from app.commands.args import int_at_least
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("simulate", help="write simulated calibration and validation sets")
+    p = add_command(sub, "simulate")
     p.add_argument("--out", required=True, help="folder to write the CSV files into")
     p.add_argument("--seed", type=int_at_least(0), help="default: [simulation] seed")
     p.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")

@@ -30,6 +30,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from app.commands import add_command
 from app.commands.status import state_dir_of
 from app.errors import InputError
 
@@ -37,9 +38,7 @@ MANIFEST = "backup.json"
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser(
-        "state", help="back up, restore, check the state directory; list suspect intervals"
-    )
+    p = add_command(sub, "state")
     verbs = p.add_subparsers(dest="verb", metavar="VERB", parser_class=type(p))
     verbs.required = True
     b = verbs.add_parser("backup", help="copy the state while the service runs")

@@ -8,11 +8,12 @@ import json
 from pathlib import Path
 from typing import Any
 
+from app.commands import add_command
 from app.errors import InputError, RvisError
 
 
 def register(sub: Any) -> None:
-    p = sub.add_parser("status", help="state of the in-line service")
+    p = add_command(sub, "status")
     p.add_argument("--cell", help="cell configuration TOML (for [service] state_dir)")
     p.add_argument("--state-dir", help="state directory (default: [service] state_dir)")
     p.add_argument("--json", action="store_true", help="print the status as JSON")

@@ -10,11 +10,12 @@ from __future__ import annotations
 
 import argparse
 
+from app.commands import add_command
 from app.commands.args import int_at_least
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("tui", help="the operator's terminal of a running service")
+    p = add_command(sub, "tui")
     p.add_argument("--state-dir", help="the service's state directory (default: [service])")
     p.add_argument("--cell", help="cell configuration TOML (for the default state directory)")
     p.add_argument("--sim", action="store_true", help="run a simulated line and service here")

@@ -8,6 +8,7 @@ from dataclasses import asdict
 
 import numpy as np
 
+from app.commands import add_command
 from app.formats.csvfiles import load_dataset
 from app.formats.files import ERROR_COLUMNS, check_output, write_csv
 from app.formats.params import from_json
@@ -17,7 +18,7 @@ from calib.validation import ErrorStats
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("validate", help="errors of a parameter set at validation positions")
+    p = add_command(sub, "validate")
     p.add_argument("--params", required=True, help="parameters JSON (from rvis identify)")
     p.add_argument("--targets", required=True, help="validation targets CSV")
     p.add_argument("--measurements", required=True, help="validation measurements CSV")

@@ -3,7 +3,7 @@ the way the service will.
 
     plan.json      the commissioning's plan (the service's schedule)
     cell.toml      the cell file with the tracker's sphere positions and the chosen exposure
-    sensor.toml    the sensor calibration (`rvis run` reads it when --sensor-model is not given)
+    sensor.toml    the sensor calibration (`rvis run` reads it when --sensor is not given)
     params/        the calibration as version 1 of params/current.json and params/history/,
     rvis.db        and the database's record of it, as the service writes its first version
 

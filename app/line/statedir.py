@@ -7,7 +7,7 @@ permissions, the one-service lock and the free space under it (DESIGN.md section
         rvis.sock                the control socket, 0660
         plan.json                the plan `rvis run` reads when --plan is not given
         cell.toml                the cell file `rvis commission` wrote (`rvis run --cell`)
-        sensor.toml              the sensor calibration `rvis run` reads when --sensor-model
+        sensor.toml              the sensor calibration `rvis run` reads when --sensor
                                  is not given (written by `rvis commission`)
         params/current.json      the applied version (derived: rebuilt from the history)
         params/history/NNNN.json every version ever applied

@@ -131,4 +131,6 @@ def test_paper_compare_pairs_the_seeds_of_runs(
     assert base[9] == "40.0 %"  # 1 - 0.03 / 0.05: the validation noise stays
     assert other[2] == "3" and other[4] == "10.0 %" and other[7] == "2/3"
     assert other[10].startswith("-9.1 %, 2/3")  # median of -10 %, 0 %, -9.1 %
-    assert main(["experiment", "paper-compare"]) == 2
+    with pytest.raises(SystemExit) as missing:  # --runs is required: a usage error
+        main(["experiment", "paper-compare"])
+    assert missing.value.code == 2
