@@ -46,9 +46,15 @@ except (ImportError, ValueError) as exc:  # ValueError: typelib missing
     raise ImportError(f"Aravis 0.8 through PyGObject is not available: {exc}") from exc
 
 
-#: Buffer states of a frame that did not arrive whole (packets lost, its time out): a lost frame,
-#: which the camera family re-triggers once (drivers/camera.py), not a malformed one.
-_INCOMPLETE = (Aravis.BufferStatus.TIMEOUT, Aravis.BufferStatus.MISSING_PACKETS)
+#: Buffer states of a frame that did not arrive whole (packets lost, its time out) or not at all
+#: (CLEARED: the stream handed the buffer back unfilled, seen on loopback under load right after
+#: a stream starts): a lost frame, which the camera family re-triggers once
+#: (drivers/camera.py), not a malformed one.
+_INCOMPLETE = (
+    Aravis.BufferStatus.TIMEOUT,
+    Aravis.BufferStatus.MISSING_PACKETS,
+    Aravis.BufferStatus.CLEARED,
+)
 
 
 def _translate(what: str, exc: Exception) -> DeviceError:
