@@ -65,20 +65,20 @@ def build_parser(argv: Sequence[str] = ()) -> argparse.ArgumentParser:
     for name, help_text in COMMANDS.items():
         if name == chosen:
             importlib.import_module(f"app.commands.{name}").register(sub)
-            for command in _parsers(sub.choices[name]):  # also after the command's words
+            for command in command_parsers(sub.choices[name]):  # also after the command's words
                 _add_log_level(command, argparse.SUPPRESS)
         else:
             sub.add_parser(name, help=help_text, add_help=False)
     return parser
 
 
-def _parsers(parser: argparse.ArgumentParser) -> list[argparse.ArgumentParser]:
+def command_parsers(parser: argparse.ArgumentParser) -> list[argparse.ArgumentParser]:
     """`parser` and the parsers of its sub-commands (`rvis experiment shift`, ...)."""
     found = [parser]
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction):
             for child in action.choices.values():
-                found += _parsers(child)
+                found += command_parsers(child)
     return found
 
 

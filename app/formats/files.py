@@ -67,6 +67,21 @@ def csv_rows(path: Path, columns: Sequence[str]) -> Iterator[tuple[int, dict[str
         yield line, {h: cell.strip() for h, cell in zip(header, raw, strict=True)}
 
 
+def check_joint_limits(
+    q_deg: Sequence[float] | NDArray[np.float64], limits: JointLimits, path: Path, line: int
+) -> None:
+    """InputError naming the joint's column (`j1_deg` ...) when a joint is outside its limits."""
+    for j, value in enumerate(q_deg):
+        if not limits.lower_deg[j] <= value <= limits.upper_deg[j]:
+            raise InputError(
+                f"{value:g} deg is outside the joint limits "
+                f"[{limits.lower_deg[j]:g}, {limits.upper_deg[j]:g}]",
+                file=path,
+                line=line,
+                field=f"j{j + 1}_deg",
+            )
+
+
 def csv_number(row: dict[str, str], field: str, path: Path, line: int) -> float:
     """The finite number in `field`, within the magnitude its unit allows (_deg, _mm)."""
     text = row[field]
@@ -165,15 +180,7 @@ def read_measurements(path: str | Path, limits: JointLimits | None = None) -> Me
             temps.append(_temperature(row, path, line))
         ids.append(_target_id(row, path, line))
         q = [csv_number(row, f, path, line) for f in MEASUREMENT_COLUMNS[1:7]]
-        for j, value in enumerate(q):
-            if not limits.lower_deg[j] <= value <= limits.upper_deg[j]:
-                raise InputError(
-                    f"{value:g} deg is outside the joint limits "
-                    f"[{limits.lower_deg[j]:g}, {limits.upper_deg[j]:g}]",
-                    file=path,
-                    line=line,
-                    field=MEASUREMENT_COLUMNS[1 + j],
-                )
+        check_joint_limits(q, limits, path, line)
         qs.append(q)
         cs.append([csv_number(row, f, path, line) for f in MEASUREMENT_COLUMNS[7:]])
         lines.append(line)

@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.errors import InputError
-from app.formats.files import csv_number, csv_rows, write_bytes, write_csv
+from app.formats.files import check_joint_limits, csv_number, csv_rows, write_bytes, write_csv
 from calib.robot import JointLimits
 
 F64 = NDArray[np.float64]
@@ -88,11 +88,11 @@ def read_targets(path: str | Path, limits: JointLimits) -> Targets:
             raise InputError(f"duplicate id '{tid}'", file=path, line=line, field="id")
         v = [csv_number(row, f, path, line) for f in columns[1:]]
         if kind == "joints":
-            _check_limits(np.array(v), limits, path, line)
+            check_joint_limits(np.array(v), limits, path, line)
         hint = np.full(6, np.nan)
         if has_hint and any(row[f] for f in JOINT_COLUMNS[1:]):
             hint = np.array([csv_number(row, f, path, line) for f in JOINT_COLUMNS[1:]])
-            _check_limits(hint, limits, path, line)
+            check_joint_limits(hint, limits, path, line)
         ids.append(tid)
         seen.add(tid)
         lines.append(line)
@@ -101,18 +101,6 @@ def read_targets(path: str | Path, limits: JointLimits) -> Targets:
     if not ids:
         raise InputError("no targets in file", file=path)
     return Targets(path, kind, ids, lines, np.array(values), np.array(hints))
-
-
-def _check_limits(q_deg: F64, limits: JointLimits, path: Path, line: int) -> None:
-    for j, value in enumerate(q_deg):
-        if not limits.lower_deg[j] <= value <= limits.upper_deg[j]:
-            raise InputError(
-                f"{value:g} deg is outside the joint limits "
-                f"[{limits.lower_deg[j]:g}, {limits.upper_deg[j]:g}]",
-                file=path,
-                line=line,
-                field=JOINT_COLUMNS[1 + j],
-            )
 
 
 def write_result_csv(

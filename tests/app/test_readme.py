@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from app.commands import COMMANDS
-from app.commands.cli import build_parser
+from app.commands.cli import build_parser, command_parsers
 from app.config import SECTIONS
 
 README = Path(__file__).resolve().parents[2] / "README.md"
@@ -34,15 +34,6 @@ def _invocations(cell: str) -> list[tuple[str, list[str]]]:
     return out
 
 
-def _parsers(parser: argparse.ArgumentParser) -> list[argparse.ArgumentParser]:
-    found = [parser]
-    for action in parser._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            for child in action.choices.values():
-                found += _parsers(child)
-    return found
-
-
 def _subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction):
@@ -53,7 +44,7 @@ def _subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.Argument
 def _flags(parser: argparse.ArgumentParser) -> set[str]:
     return {
         s
-        for p in _parsers(parser)
+        for p in command_parsers(parser)
         for a in p._actions
         for s in a.option_strings
         if s.startswith("--") and s not in NOT_LISTED
