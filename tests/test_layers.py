@@ -69,3 +69,54 @@ def test_rule_checker_sees_a_violation(tmp_path: Path) -> None:
     bad = tmp_path / "m.py"
     bad.write_text("import numpy\nfrom app.commands.cli import main\nimport drivers.base as b\n")
     assert imported_layers(bad) == {("app", 2), ("drivers", 3)}
+
+
+def _module_of(path: Path) -> str:
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _import_graph() -> dict[str, set[str]]:
+    """Module -> the modules of the tree it imports (at the top, in functions and under
+    TYPE_CHECKING alike: an import that runs back is a circle wherever it stands)."""
+    files = {_module_of(p): p for layer in LAYERS for p in (ROOT / layer).rglob("*.py")}
+    graph: dict[str, set[str]] = {}
+    for module, path in files.items():
+        tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+        targets: set[str] = set()
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                targets |= {a.name for a in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                targets.add(node.module)
+                targets |= {f"{node.module}.{a.name}" for a in node.names}
+        graph[module] = {t for t in targets if t in files and t != module}
+    return graph
+
+
+def test_no_import_circles() -> None:
+    """No module reaches itself through imports (app.line's collaborators see the service as
+    app.line.host.LineHost, not by importing app.line.service; a package's __init__ that
+    re-exports its modules is not counted as importing its parent back)."""
+    graph = _import_graph()
+    circles: list[list[str]] = []
+    state: dict[str, int] = {}  # 1: on the path, 2: done
+    path: list[str] = []
+
+    def visit(m: str) -> None:
+        state[m] = 1
+        path.append(m)
+        for n in sorted(graph[m]):
+            if n.startswith(m + "."):  # a package importing its own modules
+                continue
+            if state.get(n) == 1:
+                circles.append([*path[path.index(n) :], n])
+            elif n not in state:
+                visit(n)
+        path.pop()
+        state[m] = 2
+
+    for m in sorted(graph):
+        if m not in state:
+            visit(m)
+    assert circles == [], "\n".join(" -> ".join(c) for c in circles)

@@ -29,6 +29,12 @@ def _same_planes(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarr
 def test_default_model_is_the_renderers_truth(true_sensor: TrueSensor) -> None:
     model = default_sensor_model()
     assert _same_planes(model.laser.planes(COMMANDS_V), true_sensor.laser_planes(COMMANDS_V)) < 1e-9
+    # the camera too: the renderer's truth is written independently of the estimators' model
+    # (fakes/ does not import vision/), so this is where the two declarations are held equal
+    cam, t = model.camera, true_sensor
+    assert (cam.width_px, cam.height_px) == (t.width_px, t.height_px)
+    np.testing.assert_allclose(cam.K, [[t.fx_px, 0, t.cx_px], [0, t.fy_px, t.cy_px], [0, 0, 1]])
+    np.testing.assert_allclose(np.ravel(cam.dist), t.dist)
 
 
 def test_planes_contain_the_mirror_axis_and_turn_twice_the_mirror_angle() -> None:
