@@ -33,7 +33,8 @@ def test_default_model_is_the_renderers_truth(true_sensor: TrueSensor) -> None:
     # (fakes/ does not import vision/), so this is where the two declarations are held equal
     cam, t = model.camera, true_sensor
     assert (cam.width_px, cam.height_px) == (t.width_px, t.height_px)
-    np.testing.assert_allclose(cam.K, [[t.fx_px, 0, t.cx_px], [0, t.fy_px, t.cy_px], [0, 0, 1]])
+    k_true = np.array([[t.fx_px, 0.0, t.cx_px], [0.0, t.fy_px, t.cy_px], [0.0, 0.0, 1.0]])
+    np.testing.assert_allclose(np.asarray(cam.K, dtype=float), k_true)
     np.testing.assert_allclose(np.ravel(cam.dist), t.dist)
 
 
