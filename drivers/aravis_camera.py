@@ -46,15 +46,9 @@ except (ImportError, ValueError) as exc:  # ValueError: typelib missing
     raise ImportError(f"Aravis 0.8 through PyGObject is not available: {exc}") from exc
 
 
-#: Buffer states of a frame that did not arrive whole (packets lost, its time out) or not at all
-#: (CLEARED: the stream handed the buffer back unfilled, seen on loopback under load right after
-#: a stream starts): a lost frame, which the camera family re-triggers once
-#: (drivers/camera.py), not a malformed one.
-_INCOMPLETE = (
-    Aravis.BufferStatus.TIMEOUT,
-    Aravis.BufferStatus.MISSING_PACKETS,
-    Aravis.BufferStatus.CLEARED,
-)
+#: Buffer states of a frame that did not arrive whole (packets lost, its time out): a lost frame,
+#: which the camera family re-triggers once (drivers/camera.py), not a malformed one.
+_INCOMPLETE = (Aravis.BufferStatus.TIMEOUT, Aravis.BufferStatus.MISSING_PACKETS)
 
 
 def _translate(what: str, exc: Exception) -> DeviceError:
@@ -201,6 +195,17 @@ class AravisCamera(Camera):
         self._stream = stream
         self._call("start", cam.start_acquisition)
 
+    def _restart_stream(self) -> None:
+        """A new stream in place of one that handed back a buffer it never filled (CLEARED: the
+        stream is not receiving; seen on loopback under load right after a new stream started).
+        The camera family re-triggers once after the DeviceTimeout that follows."""
+        self.log.warning("%s: an unfilled buffer from the stream: a new stream", self.name)
+        if self.trace is not None:
+            self.trace.note("stream restarted (a cleared buffer)")
+        self._call("stop", self._cam.stop_acquisition)
+        self._stream, self._stream_shape = None, (0, 0)
+        self._start_stream(self.settings.buffers)
+
     def _trigger(self) -> None:
         self._call("software trigger", self._cam.software_trigger)
 
@@ -211,6 +216,9 @@ class AravisCamera(Camera):
             if self.trace is not None:
                 self.trace.note(f"frame: none within {timeout_s:g} s")
             raise DeviceTimeout(f"{self.name}: no frame within {timeout_s:g} s")
+        if buf.get_status() == Aravis.BufferStatus.CLEARED:
+            self._restart_stream()  # the buffer belongs to the stream it replaces
+            raise DeviceTimeout(f"{self.name}: frame {buf.get_frame_id()} not delivered (cleared)")
         try:
             status = buf.get_status()
             if self.trace is not None:

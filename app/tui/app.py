@@ -157,6 +157,11 @@ class RvisTui(App[None]):
         if self._refresher is None or self._refresher.is_finished:
             self._refresher = self._refresh_loop()
 
+    @property
+    def refreshing(self) -> bool:
+        """A refresh of the screen is asked for or running (tests wait for it to settle)."""
+        return self._dirty or (self._refresher is not None and not self._refresher.is_finished)
+
     @work(group="refresh", exit_on_error=False)
     async def _refresh_loop(self) -> None:
         while self._dirty:

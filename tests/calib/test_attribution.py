@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from numpy.typing import NDArray
 
+from app.config import CellConfig
 from calib import candidates
 from calib.attribution import (
     NONE,
@@ -25,6 +27,10 @@ from calib.errors import InsufficientData
 from calib.identify import Measurements, residuals
 from calib.model import BASE_NAMES, INDEX, PAPER_30, SENSOR_NAMES, SystemModel
 from calib.transforms import apply
+
+F64 = NDArray[np.float64]
+#: the model, the spheres in the part frame, the parameters in force, the true cell before the step
+World = tuple[SystemModel, dict[str, F64], F64, F64]
 
 NOISE_MM = 0.02  # one coordinate of a measured centre
 
@@ -45,7 +51,9 @@ def _views(model: SystemModel, spheres: dict[str, np.ndarray], n: int, seed: int
     return Measurements(q_arr, np.zeros((n, 3)), np.array(ps), tuple(tids))
 
 
-def _measure(model: SystemModel, x: np.ndarray, views: Measurements, rng) -> Measurements:  # type: ignore[no-untyped-def]
+def _measure(
+    model: SystemModel, x: np.ndarray, views: Measurements, rng: np.random.Generator
+) -> Measurements:
     """The sphere centres in the sensor frame the cell `x` gives, plus noise."""
     T = model.fk(x, views.q_deg)
     c = np.array([apply(np.linalg.inv(Ti), p) for Ti, p in zip(T, views.p_part_mm, strict=True)])
@@ -69,7 +77,7 @@ def _step(kind: str, rng: np.random.Generator) -> tuple[list[str], np.ndarray]:
 
 
 @pytest.fixture(scope="module")
-def world(cfg):  # type: ignore[no-untyped-def]
+def world(cfg: CellConfig) -> World:
     model = cfg.model()
     rng = np.random.default_rng(7)
     x_ref = model.nominal_x()
@@ -85,7 +93,9 @@ def world(cfg):  # type: ignore[no-untyped-def]
     return model, cfg.spheres_part_mm, x_ref, x_true
 
 
-def _knocked(world, kind: str, n: int, seed: int):  # type: ignore[no-untyped-def]
+def _knocked(
+    world: World, kind: str, n: int, seed: int
+) -> tuple[SystemModel, F64, F64, F64, Measurements, F64]:
     model, spheres, x_ref, x_true = world
     rng = np.random.default_rng([seed, 2])
     views = _views(model, spheres, n, seed)
@@ -102,8 +112,8 @@ def _knocked(world, kind: str, n: int, seed: int):  # type: ignore[no-untyped-de
     "kind,group", [("sensor", "sensor"), ("fixture", "fixture"), ("joint", "J2")]
 )
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_a_known_step_is_attributed_to_its_group_from_five_measurements(  # type: ignore[no-untyped-def]
-    world, kind: str, group: str, seed: int
+def test_a_known_step_is_attributed_to_its_group_from_five_measurements(
+    world: World, kind: str, group: str, seed: int
 ) -> None:
     model, x_ref, x_true, x_after, after, reference = _knocked(world, kind, 5, seed)
     sigma = NOISE_MM * np.sqrt(2.0)  # a difference of two measurements
@@ -125,7 +135,7 @@ def test_a_known_step_is_attributed_to_its_group_from_five_measurements(  # type
     assert f"{len(after)} measurements" in a.text()
 
 
-def test_the_sensor_step_size_is_reported_in_mm_and_deg(world) -> None:  # type: ignore[no-untyped-def]
+def test_the_sensor_step_size_is_reported_in_mm_and_deg(world: World) -> None:
     model, x_ref, _, _, after, reference = _knocked(world, "sensor", 8, 3)
     a = attribute(model, x_ref, after, sigma_mm=NOISE_MM * np.sqrt(2.0), reference_mm=reference)
     fit = a.chosen
@@ -144,7 +154,7 @@ def test_the_sensor_step_size_is_reported_in_mm_and_deg(world) -> None:  # type:
     assert doc["text"] == a.text() and isinstance(doc["fits"], list)
 
 
-def test_two_groups_moved_at_once_is_several(world) -> None:  # type: ignore[no-untyped-def]
+def test_two_groups_moved_at_once_is_several(world: World) -> None:
     model, spheres, x_ref, x_true = world
     rng = np.random.default_rng(5)
     views = _views(model, spheres, 8, 5)
@@ -165,7 +175,7 @@ def test_two_groups_moved_at_once_is_several(world) -> None:  # type: ignore[no-
     assert "several groups moved" in a.text() and "waiting for the full recalibration" in a.text()
 
 
-def test_too_few_equations_leave_a_group_undetermined(world) -> None:  # type: ignore[no-untyped-def]
+def test_too_few_equations_leave_a_group_undetermined(world: World) -> None:
     model, x_ref, _, _, after, reference = _knocked(world, "joint", 1, 6)
     a = attribute(model, x_ref, after, sigma_mm=0.03, reference_mm=reference[:1])
     sensor = a.fit("sensor")
@@ -175,7 +185,7 @@ def test_too_few_equations_leave_a_group_undetermined(world) -> None:  # type: i
     assert [f.group.name for f in a.fits][-1] in ("sensor", "fixture", SEVERAL)
 
 
-def test_no_step_is_none(world) -> None:  # type: ignore[no-untyped-def]
+def test_no_step_is_none(world: World) -> None:
     """A false alarm: the same cell measured again, nothing moved."""
     model, spheres, x_ref, x_true = world
     rng = np.random.default_rng(9)
@@ -192,13 +202,13 @@ def test_no_step_is_none(world) -> None:  # type: ignore[no-untyped-def]
     assert a.text().startswith("no step found")
 
 
-def test_groups_of_the_model(cfg) -> None:  # type: ignore[no-untyped-def]
+def test_groups_of_the_model(cfg: CellConfig) -> None:
     names = [g.name for g in step_groups(cfg.model())]
     assert names == [NONE, "sensor", "fixture", "J2", "J3", "J4", "J5", SEVERAL]
     assert step_groups(cfg.model())[-1].params == PAPER_30
 
 
-def test_bad_input_is_refused(world) -> None:  # type: ignore[no-untyped-def]
+def test_bad_input_is_refused(world: World) -> None:
     model, x_ref, _, _, after, reference = _knocked(world, "joint", 3, 8)
     with pytest.raises(InsufficientData):
         attribute(model, x_ref, after.subset(np.arange(0)), sigma_mm=0.03)

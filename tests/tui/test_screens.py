@@ -34,7 +34,13 @@ async def screenshot(pane: str, size: tuple[int, int]) -> str:
     app = FrozenTui()
     async with app.run_test(size=size) as pilot:
         await pilot.press(str(PANES.index(pane) + 1))
-        for _ in range(6):  # let the refresh and the tab switch land (loaded machines need more)
+        await pilot.pause()  # the tab switch asks for a refresh (the pane's history)
+        for _ in range(1000):  # until it has landed (the history is read in a thread): 10 s
+            if not app.refreshing:
+                break
+            await pilot.pause(0.01)
+        assert not app.refreshing, "the screen did not settle"
+        for _ in range(3):  # the widgets it changed are laid out and painted
             await pilot.pause()
         await pilot.wait_for_scheduled_animations()
         return app.export_screenshot(title=f"rvis tui: {pane}")
