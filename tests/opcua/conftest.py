@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import asyncio
 import socket
+import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
@@ -117,3 +119,21 @@ class Catcher:
 
 def state_dir(run: SimulatedLineRun) -> Path:
     return Path(run.service.settings.state_dir)
+
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def rvis(run: SimulatedLineRun, *args: str) -> str:
+    """`rvis ARGS --state-dir <the run's>` as its own process (as an operator would type it);
+    its standard output, after asserting it succeeded."""
+    command, *rest = args
+    out = subprocess.run(
+        [sys.executable, "-m", "app", command, "--state-dir", str(state_dir(run)), *rest],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=60,
+    )
+    assert out.returncode == 0, out.stderr
+    return out.stdout

@@ -6,8 +6,6 @@ reset` (clearing) follow, and ConditionRefresh replays what is active."""
 from __future__ import annotations
 
 import asyncio
-import subprocess
-import sys
 import threading
 import time
 from typing import Any
@@ -17,29 +15,9 @@ from asyncua import Client, Node, ua
 
 from app.sim.line_run import SimulatedLineRun
 from fakes.line_faults import Fault
-from tests.opcua.conftest import Catcher, Servers, child, machine_node, state_dir
-from tests.opcua.test_publish import ROOT
+from tests.opcua.conftest import Catcher, Servers, child, machine_node, rvis
 
 ACTIVE, ACKED = "ActiveState/Id", "AckedState/Id"
-
-
-def rvis_ctl(run: SimulatedLineRun, *args: str) -> None:
-    out = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "app",
-            "ctl",
-            "--state-dir",
-            str(state_dir(run)),
-            *args,
-        ],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        timeout=60,
-    )
-    assert out.returncode == 0, out.stderr
 
 
 class AlarmWatch:
@@ -128,9 +106,9 @@ def test_a_device_fault_as_alarm_events_from_raise_to_clear(
                 await acknowledge(op, condition_op, acked_op.EventId, "again")
 
             # shelved by an operator at the terminal, then the fault reset
-            await asyncio.to_thread(rvis_ctl, line, "shelve", str(alarm["id"]), "robot checked")
+            await asyncio.to_thread(rvis, line, "ctl", "shelve", str(alarm["id"]), "robot checked")
             await handler.event(_is("device_fault", SuppressedOrShelved=True))
-            await asyncio.to_thread(rvis_ctl, line, "reset")
+            await asyncio.to_thread(rvis, line, "ctl", "reset")
             _, cleared = await handler.event(_is("device_fault", ActiveState__Id=False))
             assert not cleared.Retain and cleared.NodeId == condition.nodeid
             assert (await (await child(ro, m_ro, "ActiveAlarms")).read_value()) == len(
@@ -159,7 +137,7 @@ def test_condition_refresh_replays_the_active_alarms(
                 ua.Variant(sub.subscription_id, ua.VariantType.UInt32),
             )
             _, event = await handler.event(_is("device_fault", ActiveState__Id=True))
-            await asyncio.to_thread(rvis_ctl, line, "reset")
+            await asyncio.to_thread(rvis, line, "ctl", "reset")
             await handler.event(_is("device_fault", ActiveState__Id=False))
             return event
 

@@ -6,8 +6,7 @@ import re
 import subprocess
 import sys
 
-from tests.opcua.conftest import MACHINE, Servers
-from tests.opcua.test_publish import ROOT
+from tests.opcua.conftest import MACHINE, ROOT, Servers
 
 DOC = ROOT / "docs" / "opcua.md"
 

@@ -12,7 +12,6 @@ import sys
 import time
 from collections.abc import Callable
 from datetime import UTC, datetime
-from pathlib import Path
 from typing import Any
 
 import pytest
@@ -20,9 +19,7 @@ from asyncua import Client, ua
 
 from app.line.opcua.space import NS_DI, NS_MACHINERY
 from app.sim.line_run import SimulatedLineRun
-from tests.opcua.conftest import Catcher, Servers, child, machine_node, state_dir
-
-ROOT = Path(__file__).resolve().parents[2]
+from tests.opcua.conftest import ROOT, Catcher, Servers, child, machine_node, rvis
 
 #: browse name -> its value in `rvis status --json` (None: no value, BadNoValue)
 EXPECTED: dict[str, Callable[[dict[str, Any]], Any]] = {
@@ -44,23 +41,7 @@ EXPECTED: dict[str, Callable[[dict[str, Any]], Any]] = {
 
 
 def rvis_status(run: SimulatedLineRun) -> dict[str, Any]:
-    out = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "app",
-            "status",
-            "--json",
-            "--state-dir",
-            str(state_dir(run)),
-        ],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        timeout=60,
-    )
-    assert out.returncode == 0, out.stderr
-    status: dict[str, Any] = json.loads(out.stdout)
+    status: dict[str, Any] = json.loads(rvis(run, "status", "--json"))
     return status
 
 

@@ -24,8 +24,7 @@ from app.line.opcua.endpoint import endpoint_problem
 from app.line.opcua.server import OpcUaServer
 from app.line.statedir import StateDir
 from app.sim.line_run import SimulatedLineRun
-from tests.opcua.conftest import child, free_port, machine_node
-from tests.opcua.test_publish import ROOT
+from tests.opcua.conftest import ROOT, child, free_port, machine_node
 
 
 @pytest.mark.parametrize(
