@@ -23,6 +23,7 @@ from app.line.host import LineHost
 from app.line.status import suspect_json
 from app.line.step import (
     Step,
+    StepCorrection,
     correct_step,
     locate_step,
     paired,
@@ -140,20 +141,8 @@ class StepHandler:
         )
         step.n_used, step.choice, step.text = n_all, a.choice, a.text()
         settled = len(pairs) >= len(svc.schedule) // 2  # no single group after that many
-        size = None
-        if corr is not None and a.chosen is not None:
-            c_std = np.tile([0.0, 0.0, IDEAL_STANDOFF_MM], (len(views[0]), 1))
-            size = point_shift_mm(svc.model, svc.x, a.chosen.x, views[0], c_std)
-        data = {
-            "onset_id": step.onset_id,
-            "n": len(pairs),
-            "choice": a.choice,
-            "text": a.text(),
-            "passed": bool(corr is not None and corr.passed),
-            "failures": [] if corr is None else list(corr.failures),
-            "size_mm": size,
-            "attribution": a.to_json(),
-        }
+        data = self._attribution_event(step, len(pairs), a, corr, views)
+        size = data["size_mm"]
         decisive = a.margin >= r.step_min_margin
         with svc.store.batch():
             fields: dict[str, Any] = {"group_name": a.choice, "text": a.text()}
@@ -251,21 +240,8 @@ class StepHandler:
             refine=True,
             x_in_force=svc.x,
         )
-        size = 0.0
-        if corr is not None and a.chosen is not None:
-            c_std = np.tile([0.0, 0.0, IDEAL_STANDOFF_MM], (len(views[0]), 1))
-            size = point_shift_mm(svc.model, svc.x, a.chosen.x, views[0], c_std)
-        data = {
-            "onset_id": step.onset_id,
-            "n": len(pairs),
-            "choice": a.choice,
-            "text": f"refinement: {a.text()}",
-            "refine": True,
-            "passed": bool(corr is not None and corr.passed),
-            "failures": [] if corr is None else list(corr.failures),
-            "size_mm": size,
-            "attribution": a.to_json(),
-        }
+        data = self._attribution_event(step, len(pairs), a, corr, views, refine=True)
+        size = data["size_mm"]
         svc.bus.emit("step_attribution", data, level=logging.WARNING)
         if corr is not None and corr.passed:
             step.refine_mm = size
@@ -276,6 +252,38 @@ class StepHandler:
             self._end_refining()
         else:
             svc.save_state()
+
+    def _attribution_event(
+        self,
+        step: Step,
+        n: int,
+        a: Attribution,
+        corr: StepCorrection | None,
+        views: tuple[Any, Any],
+        *,
+        refine: bool = False,
+    ) -> dict[str, Any]:
+        """The `step_attribution` event's data: the choice, its gates, and how far the
+        correction moves points at the standoff from the parameters in force (`size_mm`; with
+        no correction None, for a refinement 0: nothing moved)."""
+        svc = self.svc
+        size = 0.0 if refine else None
+        if corr is not None and a.chosen is not None:
+            c_std = np.tile([0.0, 0.0, IDEAL_STANDOFF_MM], (len(views[0]), 1))
+            size = point_shift_mm(svc.model, svc.x, a.chosen.x, views[0], c_std)
+        data: dict[str, Any] = {
+            "onset_id": step.onset_id,
+            "n": n,
+            "choice": a.choice,
+            "text": f"refinement: {a.text()}" if refine else a.text(),
+            "passed": bool(corr is not None and corr.passed),
+            "failures": [] if corr is None else list(corr.failures),
+            "size_mm": size,
+            "attribution": a.to_json(),
+        }
+        if refine:
+            data["refine"] = True
+        return data
 
     def _end_refining(self) -> None:
         """No refinement: the interval ends where the first correction was applied."""
