@@ -65,7 +65,7 @@ def test_the_plc_window_opens_and_closes_on_the_sim_clock(line: SimLine) -> None
         # the close is the PLC peer's state, with nothing to wait on: poll it every 2 ms (not
         # a busy loop that takes a core from the peer's thread)
         while plc.poll().window_open and time.monotonic() < deadline:
-            time.sleep(0.002)
+            time.sleep(0.002)  # sleep-ok: a poll of the peer, bounded by the deadline
         t_close = line.clock.monotonic()
     assert opens <= t_open < opens + 1.5
     assert closes <= t_close < closes + 1.5
