@@ -240,25 +240,83 @@ def _circle_polyline(
     sensor: TrueSensor, c: F64, r: float, n: F64, d: float, facing: bool = True
 ) -> F64:
     """True stripe centre line: plane-sphere circle, visible and lit part, projected (m, 2)."""
+    P = _visible_arc(sensor, c, r, n, d)
+    return np.asarray(sensor.project(P)) if len(P) else np.zeros((0, 2))
+
+
+def _visible_arc(
+    sensor: TrueSensor, c: F64, r: float, n: F64, d: float, n_points: int = 20000
+) -> F64:
+    """The plane-sphere circle's part that the camera sees and the laser lights: surface points
+    (m, 3) [mm] of n_points around the circle, contiguous along the circle."""
     dist = float(n @ c - d)
     if abs(dist) >= r:
-        return np.zeros((0, 2))
+        return np.zeros((0, 3))
     q = c - dist * n
     rho = np.sqrt(r * r - dist * dist)
     e1 = np.cross(n, [0.0, 0.0, 1.0])
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(n, e1)
-    phi = np.linspace(0.0, 2 * np.pi, 20000, endpoint=False)
+    phi = np.linspace(0.0, 2 * np.pi, n_points, endpoint=False)
     P = q + rho * (np.outer(np.cos(phi), e1) + np.outer(np.sin(phi), e2))
     Nrm = (P - c) / r
     keep = np.einsum("ij,ij->i", Nrm, -P) > 0
     keep &= np.einsum("ij,ij->i", Nrm, _axis_foot(sensor, P) - P) > 0
     if not np.any(keep):
-        return np.zeros((0, 2))
+        return np.zeros((0, 3))
     # start the arc at a hidden point so the visible part is contiguous
     start = int(np.argmin(keep)) if not np.all(keep) else 0
     P, keep = np.roll(P, -start, axis=0), np.roll(keep, -start)
-    return np.asarray(sensor.project(P[keep]))
+    return np.asarray(P[keep])
+
+
+@dataclass(frozen=True, eq=False)
+class StripeRows:
+    """The noise-free stripe of one frame as a row-wise extractor reports it: one point per image
+    row that the visible, lit stripe crosses exactly once (rows it crosses twice are left out,
+    as an extractor rejects a row with two peaks); u_px, v_px shape=(n,) (v_px integer rows),
+    and the Lambertian factor of the surface there (how bright the stripe is, 0..1)."""
+
+    u_px: F64
+    v_px: F64
+    lambert: F64
+
+
+def stripe_rows(
+    sensor: TrueSensor, c_sensor_mm: F64, radius_mm: float, commands_v: F64
+) -> list[StripeRows]:
+    """The true sensor's observation of a sphere without an image: for each mirror command, the
+    plane-sphere circle's visible and lit arc projected by the true camera, sampled at the image
+    rows. What a perfect stripe extractor would hand to triangulation (no speckle, no noise)."""
+    c = np.asarray(c_sensor_mm, dtype=np.float64)
+    normals, offsets = sensor.laser_planes(np.asarray(commands_v, dtype=np.float64))
+    out = []
+    for n, d in zip(normals, offsets, strict=True):
+        P = _visible_arc(sensor, c, radius_mm, n, float(d), n_points=4000)
+        out.append(_rows_of_arc(sensor, c, radius_mm, P))
+    return out
+
+
+def _rows_of_arc(sensor: TrueSensor, c: F64, r: float, P: F64) -> StripeRows:
+    """Sample an arc of surface points P (m, 3), ordered along the arc, at integer image rows."""
+    empty = StripeRows(np.zeros(0), np.zeros(0), np.zeros(0))
+    if len(P) < 2:
+        return empty
+    uv = sensor.project(P)
+    k = np.floor(uv[:, 1])
+    seg = np.flatnonzero(k[1:] != k[:-1])
+    if seg.size == 0:
+        return empty
+    row = np.maximum(k[seg], k[seg + 1])
+    t = (row - uv[seg, 1]) / (uv[seg + 1, 1] - uv[seg, 1])
+    u = uv[seg, 0] + t * (uv[seg + 1, 0] - uv[seg, 0])
+    X = P[seg] + t[:, None] * (P[seg + 1] - P[seg])
+    lam, _ = _surface_terms(sensor, X, (X - c) / r, Lighting())
+    rows, counts = np.unique(row, return_counts=True)
+    once = np.isin(row, rows[counts == 1])
+    once &= (row >= 0) & (row < sensor.height_px) & (u >= 0) & (u <= sensor.width_px - 1)
+    order = np.argsort(row[once])
+    return StripeRows(u[once][order], row[once][order], lam[once][order])
 
 
 @dataclass(frozen=True, eq=False)

@@ -52,7 +52,6 @@ def run(args: argparse.Namespace) -> int:
     from app.line.statedir import StateDir
     from app.line.station import Station, cell_guard
     from drivers.errors import DeviceConfigError, DeviceError
-    from vision.sensor_model import load_sensor_model
 
     cfg = load_cell(args.cell)
     settings = from_cell(cfg, args.state_dir)
@@ -60,9 +59,7 @@ def run(args: argparse.Namespace) -> int:
     if not plan.is_file():
         raise InputError("no plan file (write one with `rvis plan --out ...`)", file=plan)
     x0 = from_json(args.params)[1] if args.params else None
-    state_sensor = StateDir(settings.state_dir).sensor
-    sensor_path = args.sensor or (state_sensor if state_sensor.is_file() else None)
-    sensor_model = load_sensor_model(sensor_path) if sensor_path else None
+    sensor_model = _sensor_model(args, settings.state_dir)
     with hold_state(settings.state_dir, settings.ops.operators_group) as state:
         try:
             trace = cfg.devices.wire_trace(state.wire_trace)
@@ -77,6 +74,17 @@ def run(args: argparse.Namespace) -> int:
         except DeviceError as exc:
             raise RvisError(f"cannot open the devices: {type(exc).__name__}: {exc}") from exc
         return _serve_station(station, cfg, settings, plan, x0, sensor_model)
+
+
+def _sensor_model(args: argparse.Namespace, state_dir: Path) -> Any:
+    """The sensor calibration to measure with: --sensor, else STATE_DIR/sensor.toml (what
+    commissioning wrote), else None (the caller's default)."""
+    from app.line.statedir import StateDir
+    from vision.sensor_model import load_sensor_model
+
+    state_sensor = StateDir(state_dir).sensor
+    path = args.sensor or (state_sensor if state_sensor.is_file() else None)
+    return load_sensor_model(path) if path else None
 
 
 def _serve_station(
@@ -143,7 +151,14 @@ def run_sim(args: argparse.Namespace) -> int:
     group = str(cfg.service.operators_group)
     with (
         hold_state(state_dir, group),
-        SimulatedLineRun(cfg, state_dir, seed=seed, geometric=args.geometric, plan=plan) as sim,
+        SimulatedLineRun(
+            cfg,
+            state_dir,
+            seed=seed,
+            geometric=args.geometric,
+            plan=plan,
+            sensor_model=None if args.geometric else _sensor_model(args, state_dir),
+        ) as sim,
     ):
         if not quiet:
             json_logs()

@@ -147,7 +147,8 @@ def validation(ctx: Context) -> StepResult:
             rigid, x_rigid, p, cell.commission.validation_views, rng
         )
         views += [(target, q) for q in sample.q_deg]
-    taken = measure_views(ctx, views, ctx.sphere_sensor(ctx.sensor_model()), "validation")
+    sensor_model = ctx.sensor_model()
+    taken = measure_views(ctx, views, ctx.sphere_sensor(sensor_model), "validation")
     taken.write(ctx.path("validation_measurements.csv"))
     r = StepResult(files=["validation_measurements.csv", "validation_errors.csv"])
     data = taken.data(positions)
@@ -171,7 +172,8 @@ def validation(ctx: Context) -> StepResult:
         "rejected": taken.rejected,
     }
     if ctx.truth is not None:
-        r.results["true_rmse_mm"] = ctx.truth.true_rmse_mm(model, x)  # simulated line only
+        # simulated line only: the end-to-end error over the workspace (app/sim/truth.py)
+        r.results["true_rmse_mm"] = ctx.truth.true_rmse_mm(model, x, sensor_model)
     r.checks += [
         at_least(
             "spheres measured", len(data), len(views) * (1 - cell.commission.max_rejected_fraction)

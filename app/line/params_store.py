@@ -42,7 +42,8 @@ class ParamsStore:
         for stale in self.history.glob(".*.tmp"):
             stale.unlink(missing_ok=True)
 
-    def _path(self, version: int) -> Path:
+    def version_path(self, version: int) -> Path:
+        """The history file of a version."""
         return self.history / f"{version:04d}.json"
 
     def versions(self) -> list[int]:
@@ -52,13 +53,13 @@ class ParamsStore:
         """Write `doc` as the next history version and make it current; returns the version."""
         version = max(self.versions(), default=0) + 1
         doc = {**doc, "history_version": version}
-        atomic_write_json(self._path(version), doc)
+        atomic_write_json(self.version_path(version), doc)
         atomic_write_json(self.current_path, doc)
         return version
 
     def rollback(self, version: int) -> int:
         """Make history version `version` current again (InputError if there is none)."""
-        path = self._path(version)
+        path = self.version_path(version)
         if not path.is_file():
             raise InputError(f"no parameters version {version}", file=path)
         atomic_write_json(self.current_path, json.loads(path.read_text(encoding="utf-8")))

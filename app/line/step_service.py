@@ -379,7 +379,7 @@ class StepHandler:
         if version is None:
             return None
         try:
-            return from_json(svc.params.history / f"{version:04d}.json")[1]
+            return from_json(svc.params.version_path(version))[1]
         except (OSError, ValueError, KeyError, InputError):
             return None
 

@@ -20,10 +20,12 @@ from numpy.typing import NDArray
 
 from app.commission.context import Context
 from app.config import CellConfig
+from app.config.line import SweepSettings
 from app.formats.sweeps import write_image, write_sweep
 from app.line.measure import GeometricSensor, SphereSensor, SweepSensor
 from app.sim.cell import make_cell
 from app.sim.line_run import simline_settings, true_rmse_mm
+from app.sim.truth import EndToEndTruth
 from fakes.line import SimLine
 from fakes.render_targets import render_calibration_set
 from vision.sensor_model import SensorModel
@@ -43,6 +45,7 @@ class SimCommissioning:
         self.line = SimLine(self.cell, settings)
         self._stack = ExitStack()
         self.station: Any = None
+        self.truth: EndToEndTruth | None = None
 
     def __enter__(self) -> Self:
         self._stack.enter_context(self.line)
@@ -60,10 +63,12 @@ class SimCommissioning:
         if self.geometric:
             return GeometricSensor(self.line.geometric_centre)
         assert self.station is not None and self.station.camera is not None
+        return SweepSensor(self.station.camera, self.station.galvo, model, self._sweep())
+
+    def _sweep(self) -> SweepSettings:
         from app.line.settings import from_cell
 
-        sweep = from_cell(self.cfg).sweep
-        return SweepSensor(self.station.camera, self.station.galvo, model, sweep)
+        return from_cell(self.cfg).sweep
 
     def capture(self, calib_dir: Path, ctx: Context) -> None:
         """The targets the engineer would record, rendered by the cell's true sensor."""
@@ -95,6 +100,11 @@ class SimCommissioning:
             "cy_error_px": float(K[1, 2] - true.cy_px),
         }
 
-    def true_rmse_mm(self, model: Any, x: F64) -> float:
-        """RMS Euclidean error [mm] of parameters x at the line's validation positions."""
-        return true_rmse_mm(self.line, model, x)
+    def true_rmse_mm(self, model: Any, x: F64, sensor_model: SensorModel) -> float:
+        """The end-to-end true error [mm, RMS] of parameters x at the line's validation
+        positions: on the rendered path measured through `sensor_model`, on the geometric path
+        the kinematic error (app/sim/truth.py)."""
+        in_use = None if self.geometric else sensor_model
+        if self.truth is None or self.truth.sensor_model is not in_use:
+            self.truth = EndToEndTruth(self.cell.sensor, in_use, self._sweep().commands_v())
+        return true_rmse_mm(self.line, self.truth, model, x)

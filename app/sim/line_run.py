@@ -7,7 +7,8 @@ scaled clock. The service starts from a commissioning calibration of the cold ce
 identification of 4 spheres x 6 random views, as `rvis simulate` + `rvis identify` would give)
 and measures the schedule's configurations in the clamp windows. After every window the true
 error of the parameters in force is evaluated at the line's validation positions (the truth is
-known here, never to the service).
+known here, never to the service): the one truth of app/sim/truth.py, points measured through the
+sensor model in use (rendered) or the true centres (geometric), mapped with the parameters.
 """
 
 from __future__ import annotations
@@ -34,12 +35,13 @@ from app.line.statedir import StateDir
 from app.line.states import State
 from app.line.station import Station, cell_guard
 from app.sim.cell import make_cell, simulated_sets, true_sensor_model
+from app.sim.truth import EndToEndTruth
 from calib import candidates
 from calib.identify import identify
-from calib.validation import rmse
 from fakes.cell import SimulatedCell
 from fakes.line import SimLine, SimLineSetup
 from fakes.truth import Knock, Warmup
+from vision.sensor_model import SensorModel
 
 F64 = NDArray[np.float64]
 
@@ -135,11 +137,18 @@ def service_settings(
     return replace(s, line=line)
 
 
-def commissioning(cfg: CellConfig, seed: int) -> F64:
+def commissioning(cfg: CellConfig, seed: int, truth: EndToEndTruth | None = None) -> F64:
     """Parameters of an offline calibration of the cold cell (4 spheres x 6 random views) with
-    the cell's model ([calibration] model; the cold cell's temperature with every view)."""
+    the cell's model ([calibration] model; the cold cell's temperature with every view). With
+    `truth`, each view is measured through its sensor model (the centre it reports plus the
+    sensor noise; views its vision checks reject left out), as the line will measure."""
     sim = simulated_sets(cfg, seed, n_validation=1)
     data = sim.calibration.measurements
+    if truth is not None and not truth.kinematic_only:
+        c_true = sim.calibration.truth_c_sensor_mm
+        c_seen, ok = truth.centres(c_true)
+        data = dataclasses.replace(data, c_sensor_mm=data.c_sensor_mm + (c_seen - c_true))
+        data = data.subset(np.flatnonzero(ok))
     if data.temp_c is None:
         data = dataclasses.replace(data, temp_c=np.full(len(data), sim.cell.temp_c))
     return identify(cfg.identification_model(), data).x
@@ -158,13 +167,14 @@ def random_schedule(cfg: CellConfig, cell: SimulatedCell, seed: int, n_each: int
     return out
 
 
-def true_rmse_mm(line: SimLine, model: Any, x: F64) -> float:
-    """RMS of the Euclidean error [mm] of `model` with parameters x at the line's validation
-    positions, now (the cell's temperature as the PLC reads it)."""
+def true_rmse_mm(line: SimLine, truth: EndToEndTruth, model: Any, x: F64) -> float:
+    """The end-to-end true error [mm, RMS] of `model` with parameters x at the line's validation
+    positions, now (the cell's temperature as the PLC reads it): each position's sphere observed
+    by the true sensor, measured through the sensor model in use (`truth`), mapped with x."""
     v = line.truth.validation
     c = line.truth.validation_centres_sensor_mm()
     temp = np.full(len(v.q_deg), line.truth.temp_c())
-    return rmse(model.points_part(x, v.q_deg, c, temp_c=temp) - v.p_part_mm)
+    return truth.rmse_mm(model, x, v.q_deg, c, v.p_part_mm, temp)
 
 
 class SimulatedLineRun:
@@ -178,7 +188,10 @@ class SimulatedLineRun:
         seed: int = 0,
         geometric: bool = False,
         plan: Path | None = None,
+        sensor_model: SensorModel | None = None,
     ) -> None:
+        """sensor_model: the sensor calibration the rendered line measures with (default: the
+        true sensor's, a perfect calibration); unused on the geometric path."""
         cfg = with_simulated_plc(cfg)
         self.cfg, self.state_dir, self.seed = cfg, Path(state_dir), seed
         self.cell = make_cell(cfg, seed=seed)
@@ -187,7 +200,16 @@ class SimulatedLineRun:
         self.settings = service_settings(cfg, self.state_dir, self.scale, geometric)
         self.geometric, self.plan = geometric, plan
         self.model = cfg.identification_model()
-        self.x_commissioning = commissioning(cfg, seed)
+        if not geometric and sensor_model is None:
+            sensor_model = true_sensor_model(self.cell.sensor)
+        self.sensor_model = None if geometric else sensor_model
+        commands = self.settings.sweep.commands_v()
+        self.truth = EndToEndTruth(self.cell.sensor, self.sensor_model, commands)
+        # the cold cell's calibration, measured as the line measures (a commissioned state
+        # directory's first version replaces it once the service has read it)
+        self.x_commissioning = commissioning(
+            cfg, seed, EndToEndTruth(self.cell.sensor, self.sensor_model, commands)
+        )
         self.summary = SimRunSummary()
         self._versions: dict[int, F64] = {}
         self._stack = contextlib.ExitStack()
@@ -218,8 +240,10 @@ class SimulatedLineRun:
             sensor = GeometricSensor(line.geometric_centre, self.settings.sweep.duration_s)
         else:
             assert station.camera is not None and station.galvo is not None
-            model = true_sensor_model(self.cell.sensor)
-            sensor = SweepSensor(station.camera, station.galvo, model, self.settings.sweep)
+            assert self.sensor_model is not None
+            sensor = SweepSensor(
+                station.camera, station.galvo, self.sensor_model, self.settings.sweep
+            )
         if self.plan is not None:
             schedule = Schedule.from_plan(self.plan, self.settings.line)
         else:
@@ -238,11 +262,14 @@ class SimulatedLineRun:
             settings=self.settings,
         )
         self.events = self.service.bus.subscribe()
+        if self.service.params.version_path(1).is_file():
+            self.x_commissioning = self._x_of(1)
         self.summary.true_rmse_start_mm = self.true_rmse_mm(self.service.x)
 
     def true_rmse_mm(self, x: F64) -> float:
-        """RMS of the Euclidean error of parameters x at the validation positions, now."""
-        return true_rmse_mm(self.line, self.model, x)
+        """The end-to-end true error [mm, RMS] of parameters x at the validation positions,
+        now."""
+        return true_rmse_mm(self.line, self.truth, self.model, x)
 
     def start_service(self) -> None:
         self.thread = threading.Thread(target=self.service.run, name="rvis-service", daemon=True)
@@ -336,8 +363,7 @@ class SimulatedLineRun:
     def _x_of(self, version: int) -> F64:
         """The parameters of history version `version` (read once)."""
         if version not in self._versions:
-            path = self.service.params.history / f"{version:04d}.json"
-            self._versions[version] = from_json(path)[1]
+            self._versions[version] = from_json(self.service.params.version_path(version))[1]
         return self._versions[version]
 
     def close(self) -> None:

@@ -1,0 +1,101 @@
+"""The one end-to-end truth (app/sim/truth.py) against what the renderer and vision measure."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from app.config import CellConfig
+from app.config.line import SweepSettings
+from app.sim.cell import true_sensor_model
+from app.sim.truth import EndToEndTruth, observe
+from fakes.render import render_sphere_sweep
+from fakes.render_sensor import default_true_sensor
+from vision.measure import measure_sphere_from_sweep
+from vision.sensor_model import SensorModel
+
+COMMANDS_V = np.array(SweepSettings().commands_v())
+TRUE = default_true_sensor()
+
+
+def scaled_model(focal_scale: float, cx_shift_px: float = 0.0) -> SensorModel:
+    """The true sensor's model with its focal lengths scaled and its principal point moved:
+    a sensor calibration with a known error."""
+    m = true_sensor_model(TRUE)
+    K = m.camera.K.copy()
+    K[0, 0] *= focal_scale
+    K[1, 1] *= focal_scale
+    K[0, 2] += cx_shift_px
+    return dataclasses.replace(m, camera=dataclasses.replace(m.camera, K=K))
+
+
+CENTRES_MM = [np.array([0.0, 0.0, 130.0]), np.array([7.0, -9.0, 127.0])]
+
+
+@pytest.mark.parametrize("c_true", CENTRES_MM)
+def test_a_perfect_sensor_model_reports_the_true_centre(c_true: np.ndarray) -> None:
+    seen = observe(TRUE, true_sensor_model(TRUE), c_true, COMMANDS_V)
+    assert seen.c_sensor_mm is not None
+    assert np.abs(seen.c_sensor_mm - c_true).max() < 0.5e-3  # the stripe sampling: < 0.5 um
+
+
+@pytest.mark.parametrize("c_true", CENTRES_MM)
+def test_the_truth_equals_a_rendered_measurement_within_its_noise(c_true: np.ndarray) -> None:
+    """A sensor model 0.1 % off in focal length and 2 px in the principal point: the truth's
+    centre is the rendered measurement's (mean of 3 sweeps) within a few micrometres, while both
+    are tens of micrometres from the true centre."""
+    model = scaled_model(1.001, 2.0)
+    seen = observe(TRUE, model, c_true, COMMANDS_V)
+    assert seen.c_sensor_mm is not None
+    rng = np.random.default_rng(5)
+    rendered = []
+    for _ in range(3):
+        frames, cmds, _ = render_sphere_sweep(c_true, 15.0, TRUE, rng, commands_v=COMMANDS_V)
+        rendered.append(measure_sphere_from_sweep(frames, cmds, model).c_sensor_mm)
+    mean = np.mean(rendered, axis=0)
+    assert np.linalg.norm(seen.c_sensor_mm - c_true) > 0.05  # the model's error is visible
+    assert np.abs(seen.c_sensor_mm - mean).max() < 4e-3
+
+
+def test_the_cached_correction_follows_a_moved_centre() -> None:
+    """A view whose true centre moved less than refresh_mm keeps its correction: within 0.5 um
+    of a fresh computation; a larger move computes it again."""
+    model = scaled_model(1.001, 2.0)
+    truth = EndToEndTruth(TRUE, model, tuple(COMMANDS_V))
+    c0 = np.array([[3.0, 4.0, 129.0]])
+    truth.centres(c0)
+    moved = c0 + np.array([[0.15, -0.1, 0.1]])
+    cached, ok = truth.centres(moved)
+    fresh = observe(TRUE, model, moved[0], COMMANDS_V).c_sensor_mm
+    assert ok[0] and fresh is not None
+    assert np.abs(cached[0] - fresh).max() < 0.5e-3
+    far = c0 + np.array([[2.0, 0.0, 0.0]])
+    again, _ = truth.centres(far)
+    fresh_far = observe(TRUE, model, far[0], COMMANDS_V).c_sensor_mm
+    assert fresh_far is not None and np.allclose(again[0], fresh_far, atol=1e-9)
+
+
+def test_the_geometric_path_is_the_kinematic_error(cfg: CellConfig) -> None:
+    """Without a sensor model the measured centre is the true one: the error is the parameters'
+    alone, the formula the perfect-sensor figure always used."""
+    model = cfg.model()
+    x = model.nominal_x()
+    rng = np.random.default_rng(2)
+    q = rng.uniform(-30, 30, (5, 6))
+    c = rng.uniform(-5, 5, (5, 3)) + np.array([0.0, 0.0, 130.0])
+    p_true = model.points_part(x, q, c) + rng.normal(0, 0.1, (5, 3))
+    truth = EndToEndTruth(TRUE, None, tuple(COMMANDS_V))
+    assert truth.kinematic_only
+    e = truth.errors_mm(model, x, q, c, p_true)
+    assert np.allclose(e, model.points_part(x, q, c) - p_true)
+
+
+def test_a_view_the_vision_rejects_is_left_out_and_named() -> None:
+    """A sphere out of the field of view gives too few stripe points, as on the line."""
+    truth = EndToEndTruth(TRUE, true_sensor_model(TRUE), tuple(COMMANDS_V))
+    c = np.array([[0.0, 0.0, 130.0], [0.0, 30.0, 130.0]])
+    _, ok = truth.centres(c)
+    assert ok.tolist() == [True, False]
+    assert list(truth.rejected()) == [1]
