@@ -335,6 +335,16 @@ class SimulatedCell:
     def target_true_mm(self, target_id: str) -> F64:
         return self._spheres[target_id].copy()
 
+    def place_sphere(self, target_id: str, p_part_mm: ArrayLike) -> None:
+        """Put a sphere (a new one, or move one) at p_part_mm: the validation sphere on its
+        tracker nest, which the camera and the tracker then see like the fixed ones."""
+        with self._lock:
+            self._spheres = {**self._spheres, target_id: np.array(p_part_mm, dtype=float)}
+
+    def remove_sphere(self, target_id: str) -> None:
+        with self._lock:
+            self._spheres = {k: v for k, v in self._spheres.items() if k != target_id}
+
     def measure_target(self, target_id: str) -> F64:
         """Sensor measurement of a named sphere from the current joints."""
         return self.measure_point(self.joints_deg(), self._spheres[target_id])
@@ -404,10 +414,10 @@ class SimulatedCell:
         """True centre in the sensor frame [mm] of the nearest sphere wholly in front of the
         sensor (the spheres stand metres apart: at most one is ever in the field of view)."""
         q = self.joints_deg()
-        ids = self.target_ids()
-        if not ids:
+        spheres = self._spheres  # replaced whole when a sphere is placed: one snapshot
+        if not spheres:
             return None
-        pts = np.array([self._spheres[k] for k in ids])
+        pts = np.array(list(spheres.values()))
         T = self.T_part_sensor(q[None, :])[0]
         c = (pts - T[:3, 3]) @ T[:3, :3]
         front = c[:, 2] > self.spec.sphere_radius_mm

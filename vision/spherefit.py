@@ -40,7 +40,8 @@ class FitQuality:
     """n_points, n_inliers; rms_mm of inlier residuals; coverage_deg: 95th percentile of the
     angle between the point normals and the cap's mean normal; radius_free_mm; radius_dev_mm =
     free - certified (0 without a certified radius); centre_shift_mm between free and certified
-    fits; iterations of the geometric fit."""
+    fits; iterations of the geometric fit; form_mm: the range (max - min) of the free fit's
+    radial residuals over its inliers, VDI/VDE 2634-2's probing error form PF."""
 
     n_points: int
     n_inliers: int
@@ -50,6 +51,7 @@ class FitQuality:
     radius_dev_mm: float
     centre_shift_mm: float
     iterations: int
+    form_mm: float = 0.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -193,6 +195,7 @@ def fit_sphere(
         raise TooFewPoints(len(X), th.min_points)
     c0, r0 = fit_sphere_pratt(X)
     c_free, r_free, res, cov, iters = fit_sphere_geometric(X, c0, r0, fixed_radius=False)
+    form_mm = _form_range(res)
     c, radius, cov_c = c_free, r_free, cov[:3, :3]
     shift, dev = 0.0, 0.0
     if certified_radius_mm is not None:
@@ -213,10 +216,17 @@ def fit_sphere(
         radius_dev_mm=dev,
         centre_shift_mm=shift,
         iterations=iters,
+        form_mm=form_mm,
     )
     _check(quality, th)
     cov_c = cov_c * _correlation_inflation(res)
     return SphereFit(centre_mm=c, radius_mm=radius, cov_mm2=cov_c, quality=quality)
+
+
+def _form_range(res: F64) -> float:
+    """Range of the residuals within 4 robust sigmas of their median (the fit's inliers)."""
+    inl = res[np.abs(res - _median(res)) < 4.0 * _robust_scale(res)]
+    return float(inl.max() - inl.min()) if inl.size else float("inf")
 
 
 def _check(q: FitQuality, th: FitThresholds) -> None:

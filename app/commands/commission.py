@@ -124,6 +124,7 @@ def _context(
         sensor_data=args.sensor_data,
         targets_file=args.targets,
         truth=sim,
+        placement=sim,
     )
 
 

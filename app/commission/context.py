@@ -52,6 +52,15 @@ class TargetCapture(Protocol):
 SensorFactory = Callable[[SensorModel], SphereSensor]
 
 
+class SpherePlacement(Protocol):
+    """Where the cell's own parts differ when a sphere is placed by hand: the simulated line
+    puts it in its world (a real cell's engineer does it, asked by `Context.place`)."""
+
+    def place_sphere(self, target_id: str, p_part_mm: F64) -> None: ...
+
+    def remove_sphere(self, target_id: str) -> None: ...
+
+
 @dataclass
 class Context:
     """The commissioning of one cell (see the module docstring)."""
@@ -67,6 +76,7 @@ class Context:
     sensor_data: Path | None = None  # --sensor-data: targets recorded earlier
     targets_file: Path | None = None  # --targets: the tracker's export
     truth: Any = None  # the simulated line (reports figures against its truth; never checked)
+    placement: SpherePlacement | None = None  # the simulated line's hands
 
     @property
     def folder(self) -> Path:
@@ -96,6 +106,19 @@ class Context:
         angles = ", ".join(f"{v:.2f}" for v in q)
         self.ask(f"move the robot to {what} (J1..J6 {angles} deg) at {self.line.speed_pct:g} %?")
         self.station.robot.move_joints(q, speed_pct=self.line.speed_pct)
+
+    def place(self, target_id: str, p_part_mm: F64, where: str) -> None:
+        """The engineer places the validation sphere (tracker target `target_id`) near
+        p_part_mm; confirmed like a motion."""
+        self.ask(f"place the validation sphere (tracker target {target_id}) at {where}?")
+        if self.placement is not None:
+            self.placement.place_sphere(target_id, p_part_mm)
+
+    def remove(self, target_id: str) -> None:
+        """The validation sphere leaves the cell (the spheres of the cell file stay)."""
+        self.say(f"    remove the validation sphere (tracker target {target_id}) from the cell")
+        if self.placement is not None:
+            self.placement.remove_sphere(target_id)
 
     def home(self) -> None:
         """Back home (confirmed like every motion) unless it is there already."""

@@ -14,7 +14,18 @@ from app.errors import InputError
 from app.formats.files import read_json, write_json
 
 FORMAT = "rvis-commission/1"
-STEPS = ("devices", "stripe", "sensor", "spheres", "plan", "calibration", "validation", "ready")
+STEPS = (
+    "devices",
+    "stripe",
+    "sensor",
+    "spheres",
+    "plan",
+    "calibration",
+    "acceptance",
+    "validation",
+    "workspace",
+    "ready",
+)
 PASSED, FAILED = "passed", "failed"
 
 

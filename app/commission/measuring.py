@@ -7,6 +7,7 @@ home, as the service will do between clamping cycles; every motion is confirmed 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -44,6 +45,7 @@ class Taken:
     temp_c: list[float | None] = field(default_factory=list)
     rejected: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)  # why a cell temperature was missing
+    quality: list[dict[str, Any]] = field(default_factory=list)  # each reading's fit figures
 
     def data(self, positions: dict[str, F64]) -> Measurements:
         temps = None if any(t is None for t in self.temp_c) else np.array(self.temp_c)
@@ -80,6 +82,7 @@ def measure_views(
             taken.targets.append(target)
             taken.q_deg.append(np.asarray(q, dtype=float))
             taken.c_sensor_mm.append(reading.c_sensor_mm)
+            taken.quality.append(reading.quality)
             temp_c, why = cell_temperature(ctx.station.plc.poll(), ctx.line)
             if why and why not in taken.notes:
                 taken.notes.append(why)

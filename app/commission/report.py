@@ -18,7 +18,9 @@ TITLES = {
     "spheres": "Sphere positions from the tracker",
     "plan": "Measurement plan",
     "calibration": "First calibration",
-    "validation": "Validation against the tracker",
+    "acceptance": "Sensor acceptance (VDI/VDE 2634-2: PF, PS, SD)",
+    "validation": "Quick check: the calibration spheres from new views",
+    "workspace": "Validation at workspace positions against the tracker (the paper's)",
     "ready": "State directory ready for `rvis run`",
 }
 

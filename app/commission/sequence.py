@@ -7,7 +7,7 @@ import time
 from collections.abc import Callable
 from datetime import UTC, datetime
 
-from app.commission import measuring, ready, steps, stripe
+from app.commission import acceptance, measuring, ready, steps, stripe, workspace
 from app.commission.context import Context
 from app.commission.journal import FAILED, PASSED, STEPS, Journal, StepRecord, StepResult, holds
 from app.commission.report import TITLES, format_value, write_report
@@ -20,7 +20,9 @@ RUN: dict[str, Callable[[Context], StepResult]] = {
     "spheres": steps.spheres,
     "plan": steps.plan,
     "calibration": measuring.calibration,
+    "acceptance": acceptance.acceptance_step,
     "validation": measuring.validation,
+    "workspace": workspace.workspace_validation,
     "ready": ready.ready,
 }
 assert tuple(RUN) == STEPS

@@ -101,6 +101,12 @@ class CommissionSection(Section):
     max_rejected_fraction: float = opt(0.1, lo=0, hi=1)
     validation_views: int = opt(3, lo=1, hi=100)
     max_validation_rmse_mm: float = opt(0.2, gt=0, hi=100)
+    # the paper's validation (section 4, eq. 19): a sphere on a tracker nest at this many
+    # workspace positions, each measured by the tracker (target `validation_target`) and by
+    # rvis from a view the calibration did not use; its RMS error held to max_workspace_rmse_mm
+    workspace_positions: int = opt(20, lo=3, hi=1000)
+    validation_target: str = opt("VAL")
+    max_workspace_rmse_mm: float = opt(0.2, gt=0, hi=100)
     seed: int = opt(0, lo=0, hi=2**32 - 1)
 
 

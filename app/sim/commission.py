@@ -46,6 +46,7 @@ class SimCommissioning:
         self._stack = ExitStack()
         self.station: Any = None
         self.truth: EndToEndTruth | None = None
+        self._placed = 0
 
     def __enter__(self) -> Self:
         self._stack.enter_context(self.line)
@@ -88,6 +89,16 @@ class SimCommissioning:
             pose = calib_dir / "targets" / f"pose_{k:02d}"
             write_image(pose / "board.png", board)
             write_sweep(pose, list(frames), list(cs.commands_v))
+
+    def place_sphere(self, target_id: str, p_part_mm: F64) -> None:
+        """The engineer puts the validation sphere's nest near p_part_mm: within a few
+        millimetres (3 mm RMS per axis, seeded); the tracker measures where it really is."""
+        rng = np.random.default_rng([self.seed, 41, self._placed])
+        self._placed += 1
+        self.cell.place_sphere(target_id, np.asarray(p_part_mm) + rng.normal(0.0, 3.0, 3))
+
+    def remove_sphere(self, target_id: str) -> None:
+        self.cell.remove_sphere(target_id)
 
     def sensor_errors(self, model: SensorModel) -> dict[str, float]:
         """How far a sensor calibration is from the true sensor: focal lengths and principal

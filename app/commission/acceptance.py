@@ -1,0 +1,130 @@
+"""The sensor's acceptance test (VDI/VDE 2634-2 style, vision/acceptance.py): one of the cell's
+spheres measured at positions across the sensor's measuring volume, the robot moving the sensor
+without turning it, PF, PS and SD against the limits of `[sensor]`.
+
+The positions are fractions of `[sensor]` half field of view and half depth about the standoff:
+centre, left, right, top, bottom, near, far and two opposite corners (9; the guideline asks for
+7-10). The views are solved on the calibrated kinematic model (the first calibration's), which
+is also the reference of the robot's motion for SD. The step runs in `rvis commission` after the
+first calibration and alone as `rvis sensor verify`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from app.commission.context import PARAMS_FILE, Context
+from app.commission.journal import StepResult, at_least, at_most, holds
+from app.commission.measuring import measure_views
+from app.formats.files import ERROR_COLUMNS, write_csv
+from app.formats.params import from_json
+from app.line.measure import GeometricSensor
+from calib import candidates
+from calib.ik_refine import sensor_target, solve_on_model
+from calib.model import SystemModel
+from vision.acceptance import AcceptanceLimits, acceptance
+
+F64 = NDArray[np.float64]
+
+#: Where the sphere is put in the measuring volume: fractions of half_fov_x, half_fov_y and
+#: half_depth about (0, 0, standoff).
+POSITIONS = (
+    ("centre", (0.0, 0.0, 0.0)),
+    ("left", (-0.6, 0.0, 0.0)),
+    ("right", (0.6, 0.0, 0.0)),
+    ("top", (0.0, -0.6, 0.0)),
+    ("bottom", (0.0, 0.6, 0.0)),
+    ("near", (0.0, 0.0, -0.8)),
+    ("far", (0.0, 0.0, 0.8)),
+    ("corner near", (-0.5, -0.5, -0.5)),
+    ("corner far", (0.5, 0.5, 0.5)),
+)
+FILE = "acceptance.csv"
+
+
+def volume_positions(ctx: Context) -> F64:
+    """The sphere centres (9, 3) [mm] in the sensor frame (POSITIONS)."""
+    s = ctx.cfg.sensor
+    half = np.array([s.half_fov_x_mm, s.half_fov_y_mm, s.half_depth_mm])
+    out = np.array([np.asarray(f) * half for _, f in POSITIONS])
+    out[:, 2] += s.standoff_mm
+    return out
+
+
+def views(
+    model: SystemModel, x: F64, p_part_mm: F64, c_sensor_mm: F64, rng: np.random.Generator
+) -> F64:
+    """Configurations (k, 6) [deg] that put the sphere at each c_sensor_mm (k, 3) with one
+    sensor orientation (a reachable downward view of the sphere), each the branch nearest the
+    first: the robot moves the sensor by short translations only."""
+    base = candidates.random_configurations(model, x, p_part_mm, 1, rng)
+    if not len(base.q_deg):
+        return np.zeros((0, 6))
+    q0 = base.q_deg[0]
+    R = model.fk(x, q0[None, :])[0, :3, :3]
+    out = []
+    for c in c_sensor_mm:
+        sols = solve_on_model(model, x, sensor_target(p_part_mm, c, R))
+        ok = np.flatnonzero(sols.converged)
+        if not ok.size:
+            return np.zeros((0, 6))
+        out.append(sols.q_deg[ok[np.argmin(np.abs(sols.q_deg[ok] - q0).max(axis=1))]])
+    return np.array(out)
+
+
+def acceptance_step(ctx: Context) -> StepResult:
+    """Measure the first sphere at the 9 positions; PF, PS, SD within `[sensor]`."""
+    cell = ctx.cell()
+    _, x_full = from_json(ctx.path(PARAMS_FILE))
+    model = cell.model()  # the rigid chain: the compliant model's extra terms do not turn it
+    x = x_full[: len(model.nominal_x())]
+    target, p = sorted(cell.spheres_part_mm.items())[0]
+    c_planned = volume_positions(ctx)
+    qs = views(model, x, p, c_planned, np.random.default_rng([cell.commission.seed, 29]))
+    r = StepResult()
+    if len(qs) != len(c_planned):
+        r.checks.append(holds("views reach every position", False, f"sphere {target}"))
+        return r
+    sensor = ctx.sphere_sensor(ctx.sensor_model())
+    if isinstance(sensor, GeometricSensor):  # the simulated line's fast path: no images
+        r.results["not applicable"] = "the geometric sensor measures no images (run rendered)"
+        return r
+    taken = measure_views(ctx, [(target, q) for q in qs], sensor, "acceptance")
+    r.checks.append(at_least("positions measured", len(taken.targets), len(POSITIONS)))
+    if len(taken.targets) < len(POSITIONS):
+        r.results["rejected"] = taken.rejected
+        return r
+    s = cell.sensor
+    limits = AcceptanceLimits(s.max_pf_mm, s.max_ps_mm, s.max_sd_mm)
+    T = model.fk(x, np.array(taken.q_deg))
+    quality = taken.quality
+    acc = acceptance(
+        np.array([q["form_mm"] for q in quality]),
+        np.array([q["radius_free_mm"] for q in quality]),
+        s.sphere_radius_mm,
+        np.array(taken.c_sensor_mm),
+        T,
+        limits,
+    )
+    rows = [
+        [name, *map(float, c_planned[i]), float(acc.pf_mm[i]), float(acc.ps_mm[i])]
+        for i, (name, _) in enumerate(POSITIONS)
+    ]
+    write_csv(ctx.path(FILE), ["position", *ERROR_COLUMNS[1:4], "pf_mm", "ps_mm"], rows)
+    r.files.append(FILE)
+    f = acc.figures
+    r.results = {
+        "sphere": target,
+        "pf_mm": f["PF"],
+        "ps_mm": f["PS"],
+        "sd_mm": f["SD"],
+        "sd_pairs": len(acc.sd_mm),
+        "message": acc.message,
+    }
+    r.checks += [
+        at_most("probing error form PF", abs(f["PF"]), s.max_pf_mm, "mm"),
+        at_most("probing error size |PS|", abs(f["PS"]), s.max_ps_mm, "mm"),
+        at_most("sphere-spacing error |SD|", abs(f["SD"]), s.max_sd_mm, "mm"),
+    ]
+    return r

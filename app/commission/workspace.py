@@ -1,0 +1,109 @@
+"""The paper's validation (Yu, Chen & Xi 2018, section 4, eq. 19), the protocol a plant audits:
+a sphere on a tracker nest placed at N positions spread over the workspace (`[commission]
+workspace_positions`, default 20; the paper used 100), each measured by the laser tracker
+(`[commission] validation_target`, the nest's reflector) and by rvis from a configuration it
+chooses on the calibrated model (a random reachable view: none the calibration used). The error
+of each position is the distance between the point rvis computes in the part frame and the
+tracker's; the step reports RMS, mean, max, the 95th percentile and a 95 % bootstrap interval
+of the RMS, and writes every position's error (`workspace_errors.csv`). This is the end-to-end
+error the inspection software sees; the quick check (the `validation` step) measures only the
+calibration's own spheres again and is labelled as such.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from app.commission.context import PARAMS_FILE, Context
+from app.commission.journal import StepResult, at_least, at_most, holds
+from app.commission.measuring import measure_views
+from app.formats.files import ERROR_COLUMNS, write_csv
+from app.formats.params import from_json
+from app.workspace import workspace_points
+from calib import candidates
+from calib.identify import Measurements
+from calib.validation import rmse
+
+F64 = NDArray[np.float64]
+
+FILE = "workspace_errors.csv"
+
+
+def rms_interval(d_mm: F64, rng: np.random.Generator, n_boot: int = 2000) -> tuple[float, float]:
+    """A 95 % bootstrap interval [mm] of the RMS of the distances d_mm (n,)."""
+    d = np.asarray(d_mm, dtype=np.float64)
+    idx = rng.integers(0, len(d), (n_boot, len(d)))
+    boot = np.sqrt(np.mean(d[idx] ** 2, axis=1))
+    lo, hi = np.percentile(boot, [2.5, 97.5])
+    return float(lo), float(hi)
+
+
+def workspace_validation(ctx: Context) -> StepResult:
+    """Place, track and measure the validation sphere at each workspace position."""
+    cell = ctx.cell()
+    c = cell.commission
+    model, x = from_json(ctx.path(PARAMS_FILE))
+    rigid = cell.model()
+    x_rigid = x[: len(rigid.nominal_x())]
+    rng = np.random.default_rng([c.seed, 31])
+    proposed = workspace_points(cell, c.workspace_positions, rng)
+    r = StepResult(files=[FILE])
+    if ctx.station.tracker is None:
+        r.checks.append(holds("a tracker for the validation sphere", False, "none in [devices]"))
+        return r
+    target = c.validation_target
+    tracked: dict[str, F64] = {}
+    views: list[tuple[str, Measurements]] = []
+    sensor = ctx.sphere_sensor(ctx.sensor_model())
+    T_base_part = np.linalg.inv(cell.T_part_base)
+    try:
+        for k, (name, p) in enumerate(proposed.items(), start=1):
+            p_base = T_base_part[:3, :3] @ p + T_base_part[:3, 3]
+            where = ", ".join(f"{v:.0f}" for v in p_base)
+            ctx.place(target, p, f"position {k}/{len(proposed)} near ({where}) mm, base frame")
+            p_tracker = ctx.station.tracker.measure(target).point_mm
+            view = candidates.random_configurations(rigid, x_rigid, p_tracker, 1, rng)
+            if not len(view.q_deg):
+                ctx.say(f"    {name}: no reachable view; position skipped")
+                continue
+            taken = measure_views(ctx, [(target, view.q_deg[0])], sensor, f"workspace {name}")
+            if not taken.targets:
+                r.results.setdefault("rejected", []).extend(taken.rejected)
+                continue
+            tracked[name] = p_tracker
+            views.append((name, taken.data({target: p_tracker})))
+    finally:
+        ctx.remove(target)
+    names = [n for n, _ in views]
+    data = [d for _, d in views]
+    r.checks.append(
+        at_least("positions measured", len(names), len(proposed) * (1 - c.max_rejected_fraction))
+    )
+    if not names:
+        return r
+    q = np.concatenate([d.q_deg for d in data])
+    cs = np.concatenate([d.c_sensor_mm for d in data])
+    temps = [d.temp_c for d in data if d.temp_c is not None]
+    temp = np.concatenate(temps) if len(temps) == len(data) else None
+    p_sys = model.points_part(x, q, cs, temp_c=temp)
+    p_ref = np.array([tracked[n] for n in names])
+    e = p_sys - p_ref
+    d = np.linalg.norm(e, axis=1)
+    rows = [[n, *map(float, p_sys[i]), *map(float, e[i]), float(d[i])] for i, n in enumerate(names)]
+    write_csv(ctx.path(FILE), ERROR_COLUMNS, rows)
+    lo, hi = rms_interval(d, np.random.default_rng([c.seed, 37]))
+    r.results |= {
+        "positions": len(proposed),
+        "measured": len(names),
+        "rmse_mm": rmse(e),
+        "mean_mm": float(d.mean()),
+        "max_mm": float(d.max()),
+        "worst": names[int(np.argmax(d))],
+        "p95_mm": float(np.percentile(d, 95)),
+        "rmse_95_interval_mm": [lo, hi],
+    }
+    if ctx.truth is not None:  # the simulated line: the end-to-end truth at its 100 positions
+        r.results["true_rmse_mm"] = ctx.truth.true_rmse_mm(model, x, ctx.sensor_model())
+    r.checks.append(at_most("workspace RMSE", rmse(e), c.max_workspace_rmse_mm, "mm"))
+    return r
