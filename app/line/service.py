@@ -56,6 +56,7 @@ from app.line.operator import Operator
 from app.line.params_store import ParamsStore
 from app.line.recalib import Recalibrator, RecalJob, RecalOutcome, as_measurements, select_rolling
 from app.line.schedule import Schedule, Slot
+from app.line.sensor_watch import SensorWatch
 from app.line.settings import ServiceSettings
 from app.line.statedir import StateDir
 from app.line.states import FAULT_CODES, State, utc_text
@@ -112,6 +113,9 @@ class Service:
             self.store.close()
             raise
         self.drift = DriftMonitor(s.drift, residual_baseline_n=len(schedule))
+        d = s.drift
+        self.sensor_watch = SensorWatch(s.max_ps_mm, d.ewma_lambda, d.cusum_h, d.baseline_n)
+        self.sensor_watch.replay([r["quality"] for r in self.store.measurements(last=500)])
         self.recalibrator = recalibrator or Recalibrator()
         self.sequential: InlineSequential | None = None
         if s.recalib.estimator == "sequential":
@@ -620,6 +624,7 @@ class Service:
                     self.sequential.offer({**row, "id": row_id})
             self.save_state()
         if reading is not None:
+            self._watch_sensor(reading.quality)
             try:
                 self.sweeps.keep(row_id, reading)
             except OSError as exc:
@@ -636,6 +641,13 @@ class Service:
             },
         )
         return row_id
+
+    def _watch_sensor(self, quality: dict[str, Any]) -> None:
+        """Chart the measurement's PS (app/line/sensor_watch.py): a change says the sensor
+        changed, not the robot (the `sensor` alarm)."""
+        ps = SensorWatch.ps_of(quality)
+        if ps is not None and (text := self.sensor_watch.update(ps)):
+            self.alarm("sensor", text, "high")
 
     def _change_mm(self, slot: Slot, c_sensor_mm: F64, row_id: int) -> float | None:
         """How far the centre moved since this slot's previous visit (same configuration);

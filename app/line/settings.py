@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from app.config.cell import gates_of
+from app.config.cell import SensorSection, gates_of
 from app.config.line import (
     DriftSettings,
     LineSettings,
@@ -40,6 +40,8 @@ class ServiceSettings:
     # the sensor's measuring volume [mm]: standoff, half field of view x and y, half depth
     # ([sensor]; where a step's correction must hold, not only where the spheres appear)
     measuring_volume_mm: tuple[float, float, float, float] = (130.0, 18.5, 13.5, 5.0)
+    # the sensor's acceptance limit on PS ([sensor] max_ps_mm), charted in-line
+    max_ps_mm: float = SensorSection.max_ps_mm
 
 
 def from_cell(cfg: Any, state_dir: str | Path | None = None) -> ServiceSettings:
@@ -63,4 +65,5 @@ def from_cell(cfg: Any, state_dir: str | Path | None = None) -> ServiceSettings:
             float(cfg.sensor.half_fov_y_mm),
             float(cfg.sensor.half_depth_mm),
         ),
+        max_ps_mm=float(cfg.sensor.max_ps_mm),
     )

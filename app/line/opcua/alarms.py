@@ -41,7 +41,8 @@ SHELVING_IDS = {
     "Unshelved": ua.ObjectIds.ShelvedStateMachineType_Unshelved,
     "TimedShelved": ua.ObjectIds.ShelvedStateMachineType_TimedShelved,
 }
-PROCESS_CODES = ("drift", "drift_step")  # the process's alarms; the others are the system's
+#: the process's alarms; the others are the system's
+PROCESS_CODES = ("drift", "drift_step", "sensor")
 
 #: acknowledge(alarm id, who, comment) -> None when done, else the service's reason
 AckHandler = Callable[[int, str, str], Awaitable[str | None]]
