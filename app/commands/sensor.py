@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -63,6 +64,24 @@ def register(subparsers: Any) -> None:
     mea.add_argument("--mode", choices=["fast", "precise"], default="fast")
     mea.add_argument("--json", action="store_true", help="print the result as JSON")
     mea.set_defaults(func=run_measure)
+    ver = sub.add_parser(
+        "verify",
+        help="the sensor's acceptance test on the cell (VDI/VDE 2634-2: PF, PS, SD)",
+        description="Measure one of the cell's spheres at 9 positions across the sensor's "
+        "measuring volume (the robot moves the sensor without turning it) and hold the "
+        "probing errors form PF and size PS and the sphere-spacing error SD to [sensor] "
+        "max_pf_mm, max_ps_mm, max_sd_mm. Needs the devices (the service stopped). Results in "
+        "STATE_DIR/verify/. Exit 0 passed, 3 failed, 1 stopped, 2 bad input.",
+    )
+    ver.add_argument("--cell", type=Path, help="cell TOML (default: STATE_DIR/cell.toml)")
+    ver.add_argument("--state-dir", type=Path, help="state directory (default: [service])")
+    ver.add_argument("--sensor", type=Path, help="sensor TOML (default: STATE_DIR/sensor.toml)")
+    ver.add_argument("--params", type=Path, help="parameters (default: the ones in force)")
+    ver.add_argument("--yes", action="store_true", help="confirm every motion")
+    ver.add_argument("--sim", action="store_true", help="on the simulated line (no hardware)")
+    ver.add_argument("--seed", type=int, help="--sim: seed (default [simulation])")
+    ver.add_argument("--json", action="store_true", help="print the result as JSON")
+    ver.set_defaults(func=run_verify)
 
 
 def _load_model(path: Path | None) -> SensorModel:
@@ -121,6 +140,62 @@ def run_measure(args: argparse.Namespace) -> int:
             f"{q.rms_mm * 1000:.1f}  free_radius_mm {q.radius_free_mm:.4f}"
         )
     return 0
+
+
+def run_verify(args: argparse.Namespace) -> int:
+    """`rvis sensor verify`: the acceptance step of the commissioning, alone."""
+    from contextlib import ExitStack
+
+    from app.commands.commission import _confirmation, _context, _printer
+    from app.commission.acceptance import verify
+    from app.commission.journal import StepResult
+    from app.commission.report import format_value
+    from app.config import load_cell
+    from app.formats.params import from_json
+    from app.line.launch import hold_state
+    from app.line.statedir import StateDir
+    from vision.sensor_model import load_sensor_model
+
+    if args.seed is not None and not args.sim:
+        raise InputError("--seed needs --sim")
+    state_dir = args.state_dir or Path(load_cell(args.cell).service.state_dir)
+    paths = StateDir(state_dir)
+    cell_path = args.cell or (paths.cell if paths.cell.is_file() else None)
+    cfg = load_cell(cell_path)
+    sensor_path = args.sensor or paths.sensor
+    params_path = args.params or paths.current
+    for what, path in (("sensor calibration", sensor_path), ("parameters", params_path)):
+        if not Path(path).is_file():
+            raise InputError(f"no {what}: commission the cell first (rvis commission)", file=path)
+    sensor_model, x = load_sensor_model(sensor_path), from_json(params_path)[1]
+    say = _printer(sys.stderr if args.json else sys.stdout)
+    seed = cfg.simulation.seed if args.seed is None else args.seed
+    opts = argparse.Namespace(
+        sim=args.sim, geometric=False, sensor=None, sensor_data=None, targets=None
+    )
+    with hold_state(state_dir, str(cfg.service.operators_group)) as state, ExitStack() as stack:
+        ctx = _context(opts, cfg, state, seed, _confirmation(args.yes, say), say, stack)
+        ctx.out_dir = state.root / "verify"
+        ctx.out_dir.mkdir(exist_ok=True)
+        from app.commission.context import Declined
+
+        try:
+            result: StepResult = verify(ctx, x, sensor_model)
+        except Declined as exc:
+            say(f"stopped: not confirmed: {exc}")
+            return 1
+    if args.json:
+        doc = {"passed": result.passed, "results": result.results}
+        doc["checks"] = [c.__dict__ for c in result.checks]
+        print(json.dumps(doc, indent=2))
+    else:
+        for c in result.checks:
+            print(f"{'ok  ' if c.ok else 'FAIL'} {c.name}: {format_value(c)} ({c.limit})")
+        for why in result.results.get("rejected", []):
+            print(f"rejected: {why}")
+        where = f"; per position: {ctx.out_dir / result.files[0]}" if result.files else ""
+        print(f"sensor {'passed' if result.passed else 'FAILED'} its acceptance test{where}")
+    return 0 if result.passed else 3
 
 
 def run_calibrate(args: argparse.Namespace) -> int:

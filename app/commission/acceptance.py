@@ -24,6 +24,7 @@ from calib import candidates
 from calib.ik_refine import sensor_target, solve_on_model
 from calib.model import SystemModel
 from vision.acceptance import AcceptanceLimits, acceptance
+from vision.sensor_model import SensorModel
 
 F64 = NDArray[np.float64]
 
@@ -74,9 +75,14 @@ def views(
 
 
 def acceptance_step(ctx: Context) -> StepResult:
-    """Measure the first sphere at the 9 positions; PF, PS, SD within `[sensor]`."""
+    """The commissioning's step: with the first calibration and the sensor step's model."""
+    return verify(ctx, from_json(ctx.path(PARAMS_FILE))[1], ctx.sensor_model())
+
+
+def verify(ctx: Context, x_full: F64, sensor_model: SensorModel) -> StepResult:
+    """Measure the first sphere at the 9 positions with `sensor_model`, the views solved on the
+    parameters x_full; PF, PS, SD within `[sensor]` (`rvis sensor verify` and the step)."""
     cell = ctx.cell()
-    _, x_full = from_json(ctx.path(PARAMS_FILE))
     model = cell.model()  # the rigid chain: the compliant model's extra terms do not turn it
     x = x_full[: len(model.nominal_x())]
     target, p = sorted(cell.spheres_part_mm.items())[0]
@@ -86,7 +92,7 @@ def acceptance_step(ctx: Context) -> StepResult:
     if len(qs) != len(c_planned):
         r.checks.append(holds("views reach every position", False, f"sphere {target}"))
         return r
-    sensor = ctx.sphere_sensor(ctx.sensor_model())
+    sensor = ctx.sphere_sensor(sensor_model)
     if isinstance(sensor, GeometricSensor):  # the simulated line's fast path: no images
         r.results["not applicable"] = "the geometric sensor measures no images (run rendered)"
         return r

@@ -77,10 +77,11 @@ class Context:
     targets_file: Path | None = None  # --targets: the tracker's export
     truth: Any = None  # the simulated line (reports figures against its truth; never checked)
     placement: SpherePlacement | None = None  # the simulated line's hands
+    out_dir: Path | None = None  # where results go (default: the commissioning's folder)
 
     @property
     def folder(self) -> Path:
-        return self.state.commission
+        return self.out_dir or self.state.commission
 
     def path(self, name: str) -> Path:
         return self.folder / name

@@ -1,0 +1,61 @@
+"""`rvis sensor verify` on a commissioned state directory of the simulated line: the sensor
+calibration in use measured at 9 positions across the measuring volume through rendered sweeps;
+a calibration whose scale is 0.1 % off fails its acceptance (exit 3, PS and SD named), and a
+directory with nothing commissioned is a one-line input error."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import pytest
+
+from app.commands.cli import main
+from app.config import load_cell
+from app.formats.params import plain_document
+from app.line.params_store import ParamsStore
+from app.line.statedir import StateDir
+from app.sim.cell import make_cell, true_sensor_model
+from app.sim.line_run import commissioning
+from vision.sensor_model import save_sensor_model
+
+
+@pytest.fixture(scope="module")
+def commissioned(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A state directory as commissioning leaves it, for what verify reads: the parameters in
+    force (a calibration of the simulated cell) and the sensor calibration (the true one)."""
+    state = tmp_path_factory.mktemp("verify") / "state"
+    cfg = load_cell(None)
+    x = commissioning(cfg, 0)
+    ParamsStore(state).apply(plain_document(cfg.identification_model(), x, "commissioning"))
+    save_sensor_model(true_sensor_model(make_cell(cfg, seed=0).sensor), StateDir(state).sensor)
+    return state
+
+
+def test_a_sensor_with_a_scale_error_fails_its_acceptance(
+    commissioned: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    true = true_sensor_model(make_cell(load_cell(None), seed=0).sensor)
+    K = true.camera.K.copy()
+    K[0, 0] *= 1.001
+    K[1, 1] *= 1.001
+    scaled = dataclasses.replace(true, camera=dataclasses.replace(true.camera, K=K))
+    save_sensor_model(scaled, tmp_path / "scaled.toml")
+    capsys.readouterr()
+    argv = ["sensor", "verify", "--sim", "--yes", "--state-dir", str(commissioned), "--json"]
+    assert main([*argv, "--sensor", str(tmp_path / "scaled.toml")]) == 3
+    doc = json.loads(capsys.readouterr().out)
+    failed = {c["name"] for c in doc["checks"] if not c["ok"]}
+    assert failed == {"probing error size |PS|", "sphere-spacing error |SD|"}
+    assert doc["results"]["ps_mm"] < -0.015  # the sphere measured smaller
+    assert (StateDir(commissioned).root / "verify" / "acceptance.csv").is_file()
+
+
+def test_nothing_commissioned_is_an_input_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["sensor", "verify", "--sim", "--yes", "--state-dir", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "sensor.toml" in err and "commission the cell first" in err
+    assert len(err.splitlines()) == 1
