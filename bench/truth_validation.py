@@ -33,6 +33,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 
+ACCEPTANCE = ("pf_mm", "ps_mm", "sd_mm")
+
+
 def commission(state: Path, seed: int, geometric: bool) -> tuple[int, dict[str, Any], float]:
     """Run the commissioning; (exit code, the journal's steps by name, seconds)."""
     argv = [sys.executable, "-m", "app", "commission", "--sim", "--yes", "--seed", str(seed)]
@@ -82,7 +85,7 @@ def row(seed: int, root: Path) -> dict[str, Any]:
             "true_mm": res.get("workspace", {}).get("true_rmse_mm")
             or res.get("validation", {}).get("true_rmse_mm"),
             "rejected": len(res.get("calibration", {}).get("rejected", [])),
-            "acceptance": {k: res.get("acceptance", {}).get(k) for k in ("pf_mm", "ps_mm", "sd_mm")},
+            "acceptance": {k: res.get("acceptance", {}).get(k) for k in ACCEPTANCE},
             "failed": [k for k, v in steps.items() if v["status"] != "passed"],
         }
         if (state / "commission" / "params.json").exists():
@@ -97,7 +100,7 @@ def fmt(v: Any, scale: float = 1.0, digits: int = 4) -> str:
 def table(rows: list[dict[str, Any]]) -> str:
     head = (
         "| seed | quick check | workspace (95 %) | end to end | workspace / truth | "
-        "quick / truth | old \"true\" (kinematic) | geometric truth | rendered / geometric | "
+        'quick / truth | old "true" (kinematic) | geometric truth | rendered / geometric | '
         "rejected of 24 | PF / PS / SD um | exit |"
     )
     lines = [head, "|" + "---:|" * 12]
@@ -106,7 +109,7 @@ def table(rows: list[dict[str, Any]]) -> str:
         t, gt = a["true_mm"], g["true_mm"]
         ws = a["workspace_95_mm"]
         acc = a["acceptance"]
-        pps = " / ".join(fmt(acc[k], 1000, 1) for k in ("pf_mm", "ps_mm", "sd_mm"))
+        pps = " / ".join(fmt(acc[k], 1000, 1) for k in ACCEPTANCE)
         lines.append(
             f"| {r['seed']} | {fmt(a['quick_mm'])} | {fmt(a['workspace_mm'])}"
             f" ({fmt(ws[0] if ws else None, 1, 3)}-{fmt(ws[1] if ws else None, 1, 3)}) |"
