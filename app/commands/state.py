@@ -39,6 +39,8 @@ MANIFEST = "backup.json"
 
 def register(sub: Any) -> None:
     p = add_command(sub, "state")
+    p.add_argument("--cell", help="cell configuration TOML (for [service] state_dir)")
+    p.add_argument("--state-dir", help="state directory (default: [service] state_dir)")
     verbs = p.add_subparsers(dest="verb", metavar="VERB", parser_class=type(p))
     verbs.required = True
     b = verbs.add_parser("backup", help="copy the state while the service runs")
@@ -56,9 +58,6 @@ def register(sub: Any) -> None:
         " (90m, 8h, 2d); default: all",
     )
     s.add_argument("--json", action="store_true", help="print the intervals as JSON")
-    for q in (b, r, c, s):
-        q.add_argument("--cell", help="cell configuration TOML (for [service] state_dir)")
-        q.add_argument("--state-dir", help="state directory (default: [service] state_dir)")
     p.set_defaults(func=run)
 
 
