@@ -86,6 +86,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _min_free_mb(args: argparse.Namespace) -> float:
+    """The cell file's [service] min_free_mb; without `--cell` its default (no file loaded)."""
+    if args.cell is None:
+        from app.line.statedir import MIN_FREE_MB
+
+        return MIN_FREE_MB
     from app.config import load_cell
 
     return float(load_cell(args.cell).service.min_free_mb)
@@ -355,8 +360,8 @@ def parse_since(text: str, now: float) -> float:
 
 def suspects(state: Any, since_t: float | None) -> list[dict[str, Any]]:
     """The suspect intervals of the state directory (open ones always, closed ones ending at or
-    after `since_t`), as the service's events carry them (app.line.step_service.suspect_json)."""
-    from app.line.status import suspect_json
+    after `since_t`), as the service's events carry them (app.line.states.suspect_json)."""
+    from app.line.states import suspect_json
     from app.line.store import Store
 
     if not state.db.is_file():

@@ -12,10 +12,12 @@ import json
 import logging
 import queue
 import threading
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from app.line.store import StorageError, Store
-from drivers.clock import Clock
+
+if TYPE_CHECKING:  # an annotation only: the socket's clients (rvis status) load no drivers
+    from drivers.clock import Clock
 
 log = logging.getLogger("rvis.line")
 
