@@ -14,6 +14,7 @@ import queue
 import threading
 from typing import TYPE_CHECKING, Any
 
+from app.formats.jsontext import finite_json
 from app.line.store import StorageError, Store
 
 if TYPE_CHECKING:  # an annotation only: the socket's clients (rvis status) load no drivers
@@ -35,7 +36,7 @@ class JsonLineFormatter(logging.Formatter):
                 out[key] = getattr(record, key)
         if record.exc_info:
             out["exc"] = self.formatException(record.exc_info)
-        return json.dumps(out, default=str)
+        return json.dumps(finite_json(out), default=str, allow_nan=False)
 
 
 class Subscription(queue.Queue[dict[str, Any]]):
