@@ -7,7 +7,8 @@ identified parameters, residual RMS <= `max_rms_mm`, column-scaled condition num
 bounded change from a reference (the nominal model for an offline identification, the applied
 parameters in-line): lengths in mm, angles in rad, per chain piece. The part->base pose is
 checked only when a bound is given (offline its guess may be far off; the identification
-starts from a closed-form alignment instead).
+starts from a closed-form alignment instead). The limits themselves (`Gates`, `OFFLINE`,
+`INLINE`) are plain numbers in calib/gate_limits.py.
 """
 
 from __future__ import annotations
@@ -17,41 +18,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from calib.gate_limits import Gates
 from calib.identify import IdentificationResult
 from calib.model import BASE_NAMES, INDEX, SENSOR_NAMES, unit_of
 
 F64 = NDArray[np.float64]
-
-
-@dataclass(frozen=True)
-class Gates:
-    """Limits of an acceptable identification (None: that change is not checked)."""
-
-    max_rms_mm: float = 0.25
-    max_condition: float = 1000.0
-    max_joint_change_mm: float = 5.0
-    max_joint_change_rad: float = float(np.radians(1.0))
-    max_sensor_change_mm: float = 20.0
-    max_sensor_change_rad: float = float(np.radians(5.0))
-    max_base_change_mm: float | None = None
-    max_base_change_rad: float | None = None
-    #: in-line only: the candidate's RMS on held-out measurements must not exceed this times
-    #: that of the parameters in force (None: not compared)
-    max_holdout_ratio: float | None = None
-
-
-#: An offline identification against the nominal model: the part->base pose is unbounded
-#: (its guess may be far off; the identification starts from a closed-form alignment).
-OFFLINE = Gates()
-#: An in-line identification against the parameters in force: every change bounded, tighter
-#: for the hand-eye, and the candidate must predict held-out measurements at least as well.
-INLINE = Gates(
-    max_sensor_change_mm=5.0,
-    max_sensor_change_rad=float(np.radians(2.0)),
-    max_base_change_mm=5.0,
-    max_base_change_rad=float(np.radians(1.0)),
-    max_holdout_ratio=1.0,
-)
 
 
 @dataclass(frozen=True)

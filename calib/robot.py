@@ -1,6 +1,8 @@
 """Nominal FANUC M-710iC/50 (R-30iB), the one home of its data sheet: modified-DH geometry,
 controller joint angles with the J2/J3 coupling, joint limits and speeds, the cell's home
-position. The cell file's defaults read them; the drivers' guard gets them through it.
+position. The limits, speeds and home are plain numbers in calib/datasheet.py (the cell file's
+defaults read them there without numpy); this module makes them arrays. The drivers' guard gets
+them through the cell file.
 
 Facts from REFERENCE.md (ROS-Industrial `fanuc_m710ic_support`, checked against its URDF):
 the base frame B is FANUC's World frame, on the J1 axis at J2 height (565 mm above the URDF
@@ -20,6 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from calib import datasheet
 
 F64 = NDArray[np.float64]
 
@@ -65,12 +69,8 @@ class JointLimits:
     """Controller joint limits [deg], shape (6,) each. J3 applies to the controller angle
     (measured from the horizon), as the pendant enforces it."""
 
-    lower_deg: F64 = field(
-        default_factory=lambda: np.array([-180.0, -90.0, -160.0, -360.0, -125.0, -360.0])
-    )
-    upper_deg: F64 = field(
-        default_factory=lambda: np.array([180.0, 135.0, 280.0, 360.0, 125.0, 360.0])
-    )
+    lower_deg: F64 = field(default_factory=lambda: np.array(datasheet.JOINT_LOWER_DEG))
+    upper_deg: F64 = field(default_factory=lambda: np.array(datasheet.JOINT_UPPER_DEG))
 
     def __post_init__(self) -> None:
         lo, hi = np.asarray(self.lower_deg, float), np.asarray(self.upper_deg, float)
@@ -97,9 +97,8 @@ class JointLimits:
         return out
 
 
-#: Maximum joint speeds [deg/s] (mechanical manual via ROS-I).
-JOINT_SPEED_DEG_S = np.array([175.0, 175.0, 175.0, 250.0, 250.0, 355.0])
+#: Maximum joint speeds [deg/s] (calib.datasheet).
+JOINT_SPEED_DEG_S = np.array(datasheet.JOINT_SPEED_DEG_S)
 
-#: The service's home position [deg], controller angles: the sensor looking down, clear of the
-#: car body; every window starts and ends there.
-HOME_DEG = np.array([0.0, 0.0, 0.0, 0.0, -90.0, 0.0])
+#: The service's home position [deg], controller angles (calib.datasheet).
+HOME_DEG = np.array(datasheet.HOME_DEG)

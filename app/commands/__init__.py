@@ -5,6 +5,11 @@ it is the help's only home: a command's `register` adds its parser with `add_com
 The command line (app/commands/cli.py; `python -m app`) imports only the module of the command
 being run (so `rvis --help` imports none of numpy, OpenCV or the fakes); a command's `register`
 adds its parser and sets `func(args) -> int` as the default handler.
+
+A command with verbs (`rvis ctl pause`, `rvis state check`) declares the options every verb
+takes once, on the command's parser; the command line gives each verb a copy
+(cli.share_options), so they may stand before or after the verb. An option of one verb alone
+goes on that verb's parser.
 """
 
 from __future__ import annotations

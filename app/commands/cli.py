@@ -8,6 +8,7 @@ app.commands.COMMANDS), so `rvis --help` starts fast and loads no numerical libr
 from __future__ import annotations
 
 import argparse
+import copy
 import importlib
 import signal
 import sys
@@ -65,8 +66,8 @@ def build_parser(argv: Sequence[str] = ()) -> argparse.ArgumentParser:
     for name, help_text in COMMANDS.items():
         if name == chosen:
             importlib.import_module(f"app.commands.{name}").register(sub)
-            for command in command_parsers(sub.choices[name]):  # also after the command's words
-                _add_log_level(command, argparse.SUPPRESS)
+            _add_log_level(sub.choices[name], argparse.SUPPRESS)  # also after the command's name
+            share_options(sub.choices[name])
         else:
             sub.add_parser(name, help=help_text, add_help=False)
     return parser
@@ -80,6 +81,29 @@ def command_parsers(parser: argparse.ArgumentParser) -> list[argparse.ArgumentPa
             for child in action.choices.values():
                 found += command_parsers(child)
     return found
+
+
+def share_options(parser: argparse.ArgumentParser) -> None:
+    """Every option of `parser` is also an option of each of its verbs, and so on down: an
+    option of a command applies to all its verbs and may stand before or after the verb
+    (`rvis ctl pause --state-dir S` reads as `rvis ctl --state-dir S pause`).
+
+    The verb's copy defaults to SUPPRESS: argparse copies a verb's namespace over the
+    command's, so a real default there would reset the value given before the verb. An option
+    declared on a command and again on one of its verbs would have two homes: refused."""
+    options = [a for a in parser._actions if a.option_strings and a.dest != "help"]
+    for action in parser._actions:
+        if not isinstance(action, argparse._SubParsersAction):
+            continue
+        for verb in action.choices.values():
+            have = {s for a in verb._actions for s in a.option_strings}
+            for option in options:
+                if have & set(option.option_strings):
+                    raise ValueError(f"{verb.prog}: {option.option_strings[0]} is {parser.prog}'s")
+                shared = copy.copy(option)
+                shared.default = argparse.SUPPRESS
+                verb._add_action(shared)
+            share_options(verb)
 
 
 def _add_log_level(parser: argparse.ArgumentParser, default: str) -> None:

@@ -57,9 +57,9 @@ def request_args(args: argparse.Namespace) -> dict[str, Any]:
 def run(args: argparse.Namespace) -> int:
     from app.commands.status import state_dir_of
     from app.line.control import ControlClient
-    from app.line.launch import SOCKET_NAME
+    from app.line.statedir import StateDir
 
-    path = state_dir_of(args) / SOCKET_NAME
+    path = StateDir(state_dir_of(args)).socket
     try:
         with ControlClient(path) as client:
             reply = client.request(args.action, request_args(args))

@@ -38,11 +38,13 @@ class Row:
 
 def register(sub: Any) -> None:
     parser = add_command(sub, "devices")
+    parser.add_argument(
+        "--json", action="store_true", help="print JSON (check: the table; trace: one per line)"
+    )
     actions = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     check = actions.add_parser("check", help="connect to each device and print a status table")
     check.add_argument("--cell", type=Path, help="cell configuration (TOML) with a [devices] table")
     check.add_argument("--timeout", type=float, default=3.0, help="per-device timeout [s]")
-    check.add_argument("--json", action="store_true", help="print the table as JSON")
     check.add_argument(
         "--trace", type=Path, metavar="FILE", help="trace every device's wire traffic to FILE"
     )
@@ -55,7 +57,6 @@ def register(sub: Any) -> None:
     trace.add_argument(
         "--device", action="append", choices=FAMILIES, help="only this device (repeatable)"
     )
-    trace.add_argument("--json", action="store_true", help="records as JSON lines")
     trace.set_defaults(func=run_trace)
 
 

@@ -8,7 +8,7 @@ in the middle of a batch command's output. Instead:
 - by default (`--log-level off`) the records go nowhere: batch commands (`rvis demo`,
   `rvis experiment shift`, `rvis run --sim --windows N`) report alarms in their summary, and the
   service (`rvis run`, `rvis run --sim` without --windows) writes its JSON-line log on stdout as
-  before (app.line.launch.json_logs);
+  before (app.line.launch.json_logs; stdout has JSON lines only, docs/operations.md);
 - `--log-level error|warning|info|debug` prints the records of that level and above on stderr,
   one line each with the event's data (`rvis demo --log-level warning`).
 """

@@ -8,7 +8,13 @@ simulated line (app/sim/line_run.py): every device peer on loopback, reached thr
 drivers, one simulated cell drifting with time ([simline] of the cell file: time scale, clamp
 cycle, warm-up, knock). With --windows it stops after N windows and prints a summary (windows,
 measurements, overruns, calibrations applied and rejected, alarms, true RMSE at the validation
-positions); without, it runs until SIGTERM or Ctrl-C."""
+positions); without, it runs until SIGTERM or Ctrl-C.
+
+stdout carries JSON lines only, in every mode (docs/operations.md, "What the service prints"):
+the service's log (without --windows), the simulation's `sim_window` line after every window
+(its truth: the true RMSE of the parameters in force) and, with --windows, a last
+`sim_summary` line; `--json` prints the summary alone as one JSON document. The words for a
+person (the start line, the batch summary) go to stderr."""
 
 from __future__ import annotations
 
@@ -123,12 +129,14 @@ def _exit(code: int) -> int:
 
 
 def run_sim(args: argparse.Namespace) -> int:
+    import logging
     import signal
     import sys
 
     from app.config import load_cell
-    from app.formats.files import dumps_json
-    from app.line.launch import SOCKET_NAME, hold_state, json_logs, serving
+    from app.formats.jsontext import dumps_json, finite_json
+    from app.line.launch import hold_state, json_logs, serving
+    from app.line.statedir import StateDir
     from app.sim.line_run import SimulatedLineRun, WindowRecord
 
     cfg = load_cell(args.cell)
@@ -137,59 +145,71 @@ def run_sim(args: argparse.Namespace) -> int:
     seed = cfg.simulation.seed if args.seed is None else args.seed
     if plan is not None and not plan.is_file():
         raise InputError("plan file not found", file=plan)
-    quiet = args.json or args.windows is not None
+    batch = args.windows is not None
+    lines = logging.getLogger(SIM_LOGGER)  # the simulation's own JSON lines on stdout
 
     def progress(r: WindowRecord) -> None:
-        if not args.json and (r.window % 10 == 0 or r.window == args.windows):
-            print(
-                f"  window {r.window:5d}  t {r.t_h:6.2f} h  {r.temp_c:5.1f} C  true RMSE "
-                f"{r.rmse_mm:.4f} mm (commissioning only {r.rmse_commissioning_mm:.4f})  "
-                f"v{r.version}",
-                flush=True,
-            )
+        lines.info("sim_window", extra={"event": "sim_window", "data": finite_json(r.__dict__)})
 
     group = str(cfg.service.operators_group)
-    with (
-        hold_state(state_dir, group),
-        SimulatedLineRun(
-            cfg,
-            state_dir,
-            seed=seed,
-            geometric=args.geometric,
-            plan=plan,
-            sensor_model=None if args.geometric else _sensor_model(args, state_dir),
-        ) as sim,
-    ):
-        if not quiet:
-            json_logs()
-        sock = state_dir / SOCKET_NAME
-        with serving(sim.service):
-            if not args.json:
-                print(
-                    f"rvis run --sim: seed {seed}, {'geometric' if args.geometric else 'rendered'}"
-                    f" measurements, time x{sim.scale:g}, socket {sock}",
-                    file=sys.stderr if not quiet else sys.stdout,
-                    flush=True,
-                )
-            previous = signal.signal(signal.SIGTERM, lambda *_: sim.service.stop())
-            try:
-                summary = sim.run_windows(args.windows or 10**9, on_window=progress)
-            except KeyboardInterrupt:
-                summary = sim.summary
-            finally:
-                signal.signal(signal.SIGTERM, previous)
-        code = sim.service.exit_code
-    if code:
-        return _exit(code)
-    if args.json:
-        print(dumps_json(summary.to_json()))
-    elif args.windows is not None:
-        s = summary
-        print(
-            f"{s.windows} windows, {s.measurements} measurements stored ({s.rejected} rejected), "
-            f"{s.overruns} overruns, {s.withdrawn} withdrawn; calibrations applied "
-            f"{s.calibrations_applied}, rejected {s.calibrations_rejected}; alarms "
-            f"{len(s.alarms)}{': ' + '; '.join(s.alarms[:5]) if s.alarms else ''}; true RMSE "
-            f"{s.true_rmse_start_mm:.4f} mm at the start, {s.true_rmse_final_mm:.4f} mm at the end"
-        )
+    handler: logging.Handler | None = None
+    if not args.json:  # the service's log too, unless a batch run (its summary says it all)
+        handler = json_logs(logger=SIM_LOGGER if batch else "rvis")
+    try:
+        with (
+            hold_state(state_dir, group),
+            SimulatedLineRun(
+                cfg,
+                state_dir,
+                seed=seed,
+                geometric=args.geometric,
+                plan=plan,
+                sensor_model=None if args.geometric else _sensor_model(args, state_dir),
+            ) as sim,
+        ):
+            with serving(sim.service):
+                if not args.json:
+                    print(
+                        f"rvis run --sim: seed {seed}, "
+                        f"{'geometric' if args.geometric else 'rendered'} measurements, "
+                        f"time x{sim.scale:g}, socket {StateDir(state_dir).socket}",
+                        file=sys.stderr,
+                        flush=True,
+                    )
+                previous = signal.signal(signal.SIGTERM, lambda *_: sim.service.stop())
+                try:
+                    summary = sim.run_windows(
+                        args.windows or 10**9, on_window=None if args.json else progress
+                    )
+                except KeyboardInterrupt:
+                    summary = sim.summary
+                finally:
+                    signal.signal(signal.SIGTERM, previous)
+            code = sim.service.exit_code
+        if code:
+            return _exit(code)
+        if args.json:
+            print(dumps_json(summary.to_json()))
+        elif batch:
+            doc = {k: v for k, v in summary.to_json().items() if k != "timeline"}
+            lines.info("sim_summary", extra={"event": "sim_summary", "data": finite_json(doc)})
+            print(_summary_text(summary), file=sys.stderr)
+    finally:
+        if handler is not None:
+            logging.getLogger(SIM_LOGGER if batch else "rvis").removeHandler(handler)
     return 0
+
+
+#: The logger of `rvis run --sim`'s own lines (sim_window, sim_summary), JSON on stdout.
+SIM_LOGGER = "rvis.sim.run"
+
+
+def _summary_text(s: Any) -> str:
+    """A batch run's summary (app.sim.line_run.SimRunSummary) in words, for a person."""
+    return (
+        f"{s.windows} windows, {s.measurements} measurements stored ({s.rejected} rejected), "
+        f"{s.overruns} overruns, {s.withdrawn} withdrawn; calibrations applied "
+        f"{s.calibrations_applied}, rejected {s.calibrations_rejected}; alarms "
+        f"{len(s.alarms)}{': ' + '; '.join(s.alarms[:5]) if s.alarms else ''}; true RMSE "
+        f"{s.true_rmse_start_mm:.4f} mm at the start, {s.true_rmse_final_mm:.4f} mm at the end"
+    )

@@ -42,6 +42,12 @@ from vision.sensor_model import (
 def register(subparsers: Any) -> None:
     """Add `rvis sensor {calibrate,measure}`."""
     parser = add_command(subparsers, "sensor")
+    parser.add_argument(
+        "--mode",
+        choices=["fast", "precise"],
+        default="fast",
+        help="stripe extraction: fast (windowed centroid, default) or precise (Steger)",
+    )
     sub = parser.add_subparsers(dest="sensor_command", metavar="ACTION", required=True)
     cal = sub.add_parser("calibrate", help="calibrate the sensor from recorded images")
     cal.add_argument("dir", type=Path, help="folder with chessboards/ and targets/<pose>/")
@@ -50,7 +56,6 @@ def register(subparsers: Any) -> None:
     cal.add_argument(
         "--square-mm", type=float_in(0.0, 1000.0), default=2.5, help="square size [mm]"
     )
-    cal.add_argument("--mode", choices=["fast", "precise"], default="fast")
     cal.set_defaults(func=run_calibrate)
     mea = sub.add_parser("measure", help="measure a sphere centre from one recorded sweep")
     mea.add_argument("sweep_dir", type=Path, help="folder with commands.csv and the PNG frames")
@@ -61,7 +66,6 @@ def register(subparsers: Any) -> None:
         default=15.0,
         help="certified sphere radius [mm]; 0 fits a free radius",
     )
-    mea.add_argument("--mode", choices=["fast", "precise"], default="fast")
     mea.add_argument("--json", action="store_true", help="print the result as JSON")
     mea.set_defaults(func=run_measure)
     ver = sub.add_parser(

@@ -39,6 +39,8 @@ MANIFEST = "backup.json"
 
 def register(sub: Any) -> None:
     p = add_command(sub, "state")
+    p.add_argument("--cell", help="cell configuration TOML (for [service] state_dir)")
+    p.add_argument("--state-dir", help="state directory (default: [service] state_dir)")
     verbs = p.add_subparsers(dest="verb", metavar="VERB", parser_class=type(p))
     verbs.required = True
     b = verbs.add_parser("backup", help="copy the state while the service runs")
@@ -56,9 +58,6 @@ def register(sub: Any) -> None:
         " (90m, 8h, 2d); default: all",
     )
     s.add_argument("--json", action="store_true", help="print the intervals as JSON")
-    for q in (b, r, c, s):
-        q.add_argument("--cell", help="cell configuration TOML (for [service] state_dir)")
-        q.add_argument("--state-dir", help="state directory (default: [service] state_dir)")
     p.set_defaults(func=run)
 
 
@@ -87,6 +86,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _min_free_mb(args: argparse.Namespace) -> float:
+    """The cell file's [service] min_free_mb; without `--cell` its default (no file loaded)."""
+    if args.cell is None:
+        from app.line.statedir import MIN_FREE_MB
+
+        return MIN_FREE_MB
     from app.config import load_cell
 
     return float(load_cell(args.cell).service.min_free_mb)
@@ -356,8 +360,8 @@ def parse_since(text: str, now: float) -> float:
 
 def suspects(state: Any, since_t: float | None) -> list[dict[str, Any]]:
     """The suspect intervals of the state directory (open ones always, closed ones ending at or
-    after `since_t`), as the service's events carry them (app.line.step_service.suspect_json)."""
-    from app.line.status import suspect_json
+    after `since_t`), as the service's events carry them (app.line.states.suspect_json)."""
+    from app.line.states import suspect_json
     from app.line.store import Store
 
     if not state.db.is_file():

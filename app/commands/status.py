@@ -1,5 +1,10 @@
 """`rvis status [--state-dir DIR] [--json]`: the state of the in-line service, from its control
-socket; when no service is running, what its database and parameters say."""
+socket; when no service is running, what its database and parameters say.
+
+It imports only what it uses (the socket's client, SQLite, the state directory's layout): no
+numerics, no devices, no service, and no cell file unless `--cell` names one (then the file is
+read and checked whole). `rvis ctl` and `rvis state` share these helpers;
+tests/app/test_light_commands.py holds all of them to it."""
 
 from __future__ import annotations
 
@@ -21,8 +26,14 @@ def register(sub: Any) -> None:
 
 
 def state_dir_of(args: argparse.Namespace) -> Path:
+    """`--state-dir`, else the cell file's [service] state_dir (the file read and checked
+    whole), else the default (app.line.statedir.DEFAULT_ROOT, no cell file loaded)."""
     if args.state_dir:
         return Path(args.state_dir)
+    if args.cell is None:
+        from app.line.statedir import DEFAULT_ROOT
+
+        return Path(DEFAULT_ROOT)
     from app.config import load_cell
 
     return Path(load_cell(args.cell).service.state_dir)
@@ -30,14 +41,14 @@ def state_dir_of(args: argparse.Namespace) -> Path:
 
 def offline_status(state_dir: Path) -> dict[str, Any]:
     """What the files say when the service is not running (read-only)."""
-    from app.line.params_store import ParamsStore
-    from app.line.status import suspect_json
+    from app.line.statedir import StateDir
+    from app.line.states import suspect_json
     from app.line.store import Store
 
-    db = state_dir / "rvis.db"
-    if not db.is_file():
+    state = StateDir(state_dir)
+    if not state.db.is_file():
         raise InputError("no service state here (no rvis.db)", file=state_dir)
-    store = Store.read_only(db)
+    store = Store.read_only(state.db)
     try:
         alarms = [
             {k: a[k] for k in ("id", "code", "priority", "message", "state")}
@@ -46,7 +57,7 @@ def offline_status(state_dir: Path) -> dict[str, Any]:
         pending = [c["id"] for c in store.calibrations("pending")]
         out = {
             "state": "not running",
-            "params_version": ParamsStore(state_dir).current_version(),
+            "params_version": state.current_version(),
             "pending_calibration": pending[-1] if pending else None,
             "measurements": store.counts(),
             "schedule": {"position": store.schedule_position()[0]},
@@ -60,10 +71,10 @@ def offline_status(state_dir: Path) -> dict[str, Any]:
 
 def fetch_status(state_dir: Path) -> dict[str, Any]:
     from app.line.control import ControlClient
-    from app.line.launch import SOCKET_NAME
+    from app.line.statedir import StateDir
 
     try:
-        with ControlClient(state_dir / SOCKET_NAME, timeout_s=10.0) as client:
+        with ControlClient(StateDir(state_dir).socket, timeout_s=10.0) as client:
             reply = client.request("status")
     except (FileNotFoundError, ConnectionRefusedError):
         return offline_status(state_dir)

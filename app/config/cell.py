@@ -15,10 +15,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
-
-import numpy as np
-from numpy.typing import NDArray
+from typing import TYPE_CHECKING, Any
 
 from app.config.devices import CameraSection, CommissionSection, DevicesSection
 from app.config.line import (
@@ -31,10 +28,16 @@ from app.config.line import (
 )
 from app.config.section import Section, opt
 from app.errors import InputError
-from calib import gates as calib_gates
-from calib import robot as nominal_robot
+from calib import datasheet
+from calib.gate_limits import OFFLINE, Gates
 
-F64 = NDArray[np.float64]
+if TYPE_CHECKING:  # the sections load no numerics: a command that reads only its settings
+    import numpy as np  # (`rvis status`) starts fast; the geometry is resolved by load_cell
+    from numpy.typing import NDArray
+
+    from calib.robot import JointLimits
+
+    F64 = NDArray[np.float64]
 Vec = tuple[float, ...]
 
 PAPER_TABLE1_BASE_MM = {
@@ -54,15 +57,12 @@ LOSSES = ("linear", "huber", "soft_l1", "cauchy", "arctan")
 ROBOT_MODELS = ("fanuc-m710ic50",)
 
 
-_J = nominal_robot.JointLimits()
-
-
 @dataclass(frozen=True)
 class RobotSection(Section):
     name = "robot"
     model: str = opt("fanuc-m710ic50", choices=ROBOT_MODELS)
-    joint_lower_deg: Vec = opt(list(map(float, _J.lower_deg)), lo=-720, hi=720, n=6)
-    joint_upper_deg: Vec = opt(list(map(float, _J.upper_deg)), lo=-720, hi=720, n=6)
+    joint_lower_deg: Vec = opt(list(datasheet.JOINT_LOWER_DEG), lo=-720, hi=720, n=6)
+    joint_upper_deg: Vec = opt(list(datasheet.JOINT_UPPER_DEG), lo=-720, hi=720, n=6)
 
 
 @dataclass(frozen=True)
@@ -117,7 +117,7 @@ class SimulationSection(Section):
     temp_c: float = opt(20.0, lo=-40, hi=80)
 
 
-_OFF = calib_gates.OFFLINE
+_OFF = OFFLINE
 
 
 def _deg(rad: float | None) -> float:
@@ -125,9 +125,9 @@ def _deg(rad: float | None) -> float:
     return math.degrees(rad)
 
 
-def gates_of(section: Mapping[str, Any], base: calib_gates.Gates) -> calib_gates.Gates:
-    """calib.gates.Gates from the gate keys a section has (degrees at this boundary, radians in
-    calib), the others from `base`: the one conversion of the cell file's gates."""
+def gates_of(section: Mapping[str, Any], base: Gates) -> Gates:
+    """calib.gate_limits.Gates from the gate keys a section has (degrees at this boundary,
+    radians in calib), the others from `base`: the one conversion of the cell file's gates."""
     values: dict[str, Any] = {}
     for f in dataclasses.fields(base):
         deg_key = f.name.removesuffix("_rad") + "_deg"
@@ -161,10 +161,10 @@ class CalibrationSection(Section):
     max_sensor_change_mm: float = opt(_OFF.max_sensor_change_mm, gt=0, hi=1000)
     max_sensor_change_deg: float = opt(_deg(_OFF.max_sensor_change_rad), gt=0, hi=180)
 
-    def gates(self) -> calib_gates.Gates:
-        """The calib.gates.Gates of this section (calib.gates.OFFLINE with this file's
-        values: the part->base pose unbounded)."""
-        return gates_of(self, calib_gates.OFFLINE)
+    def gates(self) -> Gates:
+        """The calib.gate_limits.Gates of this section (OFFLINE with this file's values: the
+        part->base pose unbounded)."""
+        return gates_of(self, OFFLINE)
 
 
 @dataclass(frozen=True)
@@ -227,7 +227,7 @@ class CellConfig:
 
     T_part_base: F64
     T_flange_sensor: F64
-    limits: nominal_robot.JointLimits
+    limits: JointLimits
     spheres_part_mm: dict[str, F64]
     robot: RobotSection
     frames: FramesSection
@@ -296,6 +296,9 @@ def load_cell(path: str | Path | None = None) -> CellConfig:
 
 
 def _resolve(s: dict[str, Section], source: str, reader: Any = None) -> CellConfig:
+    import numpy as np
+
+    from calib.robot import JointLimits
     from calib.transforms import apply, pose, rotvec_to_matrix
 
     def fail(section: str, key: str, reason: str) -> InputError:
@@ -326,7 +329,7 @@ def _resolve(s: dict[str, Section], source: str, reader: Any = None) -> CellConf
     return CellConfig(
         T_part_base=T_pb,
         T_flange_sensor=T_fs,
-        limits=nominal_robot.JointLimits(lower, upper),
+        limits=JointLimits(lower, upper),
         spheres_part_mm=spheres,
         source=source,
         **s,  # type: ignore[arg-type]

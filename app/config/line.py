@@ -4,7 +4,7 @@ uses them as they are (app.line.settings.from_cell gathers them).
 
 `[service]` is one table in the file and three concerns in the code: how the service
 recalibrates (`RecalibSettings`), the gates of an in-line identification (`InlineGateSettings`,
-defaults from calib.gates.INLINE) and its operations (`OperationsSettings`); `ServiceSection`
+defaults from calib.gate_limits.INLINE) and its operations (`OperationsSettings`); `ServiceSection`
 is the three together. Times are in the clock's seconds, angles at this boundary in degrees.
 """
 
@@ -14,12 +14,11 @@ import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 
-import numpy as np
-
 from app.config.section import Section, opt
 from app.line.opcua.endpoint import SECURITY_POLICIES, endpoint_problem
-from calib import gates as calib_gates
-from calib import robot
+from app.line.statedir import DEFAULT_ROOT, MIN_FREE_MB
+from calib import datasheet
+from calib.gate_limits import INLINE
 
 Vec = tuple[float, ...]
 
@@ -33,10 +32,10 @@ class LineSettings(Section):
     heartbeat_timeout_s: float = opt(3.0, gt=0, hi=600)
     override_pct: int = opt(100, lo=1, hi=100)
     speed_pct: float = opt(100.0, gt=0, hi=100)
-    joint_speed_deg_s: Vec = opt(robot.JOINT_SPEED_DEG_S.tolist(), gt=0, hi=2000, n=6)
+    joint_speed_deg_s: Vec = opt(list(datasheet.JOINT_SPEED_DEG_S), gt=0, hi=2000, n=6)
     accel_s: float = opt(0.4, lo=0, hi=60)  # per move: acceleration and deceleration allowance
     settle_s: float = opt(0.2, lo=0, hi=60)  # per move: settling at FINE
-    home_deg: Vec = opt(robot.HOME_DEG.tolist(), lo=-720, hi=720, n=6)
+    home_deg: Vec = opt(list(datasheet.HOME_DEG), lo=-720, hi=720, n=6)
     home_tol_deg: float = opt(0.05, gt=0, hi=5)
     window_s: float = opt(8.0, gt=0, hi=3600)  # a clamp window (the PLC sends only the bit)
     margin_s: float = opt(0.5, lo=0, hi=60)  # kept free at the end of every window
@@ -67,6 +66,8 @@ class SweepSettings(Section):
     grab_timeout_s: float = opt(1.0, gt=0, hi=60)
 
     def commands_v(self) -> tuple[float, ...]:
+        import numpy as np  # not at import: reading the settings loads no numerics
+
         return tuple(float(v) for v in np.linspace(-self.span_v, self.span_v, self.n_frames))
 
     @property
@@ -141,12 +142,12 @@ def _deg(rad: float | None) -> float:
     return math.degrees(rad)
 
 
-_IN = calib_gates.INLINE
+_IN = INLINE
 
 
 @dataclass(frozen=True)
 class InlineGateSettings(Section):
-    """The gates of an in-line identification (part of `[service]`; calib.gates.INLINE): the
+    """The gates of an in-line identification (part of `[service]`; calib.gate_limits.INLINE): the
     change from the parameters in force, bounded per chain piece, and the candidate's RMS on
     held-out measurements at most max_holdout_ratio times that of the parameters in force. RMS
     and condition limits are [calibration]'s."""
@@ -169,9 +170,9 @@ class OperationsSettings(Section):
     the documents of rejected calibrations are kept (0: for ever)."""
 
     name = "service"
-    state_dir: str = opt("rvis-state")
+    state_dir: str = opt(DEFAULT_ROOT)
     operators_group: str = opt("")
-    min_free_mb: float = opt(200.0, lo=0, hi=1e7)
+    min_free_mb: float = opt(MIN_FREE_MB, lo=0, hi=1e7)
     raw_sweeps_keep: int = opt(0, lo=0, hi=100000)
     events_keep_days: float = opt(90.0, lo=0, hi=36500)
     rejected_keep_days: float = opt(30.0, lo=0, hi=36500)

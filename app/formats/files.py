@@ -20,6 +20,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.errors import InputError
+from app.formats.jsontext import dumps_json as dumps_json
+from app.formats.jsontext import finite_json as finite_json
 from calib.robot import JointLimits
 
 F64 = NDArray[np.float64]
@@ -336,22 +338,6 @@ def read_json(path: str | Path) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise InputError("expected a JSON object", file=path, line=1)
     return data
-
-
-def finite_json(data: Any) -> Any:
-    """`data` with every NaN or infinite float replaced by None (JSON has no such numbers)."""
-    if isinstance(data, float):
-        return data if math.isfinite(data) else None
-    if isinstance(data, dict):
-        return {k: finite_json(v) for k, v in data.items()}
-    if isinstance(data, list | tuple):
-        return [finite_json(v) for v in data]
-    return data
-
-
-def dumps_json(data: Any, indent: int | None = None) -> str:
-    """Strict JSON text: never NaN or Infinity."""
-    return json.dumps(finite_json(data), indent=indent, allow_nan=False)
 
 
 def write_json(path: str | Path, data: dict[str, Any]) -> None:

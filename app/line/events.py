@@ -12,10 +12,13 @@ import json
 import logging
 import queue
 import threading
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+from app.formats.jsontext import finite_json
 from app.line.store import StorageError, Store
-from drivers.clock import Clock
+
+if TYPE_CHECKING:  # an annotation only: the socket's clients (rvis status) load no drivers
+    from drivers.clock import Clock
 
 log = logging.getLogger("rvis.line")
 
@@ -33,7 +36,7 @@ class JsonLineFormatter(logging.Formatter):
                 out[key] = getattr(record, key)
         if record.exc_info:
             out["exc"] = self.formatException(record.exc_info)
-        return json.dumps(out, default=str)
+        return json.dumps(finite_json(out), default=str, allow_nan=False)
 
 
 class Subscription(queue.Queue[dict[str, Any]]):

@@ -37,7 +37,8 @@ from app.config.line import RecalibSettings
 from app.formats.params import parameters_json, plain_document
 from app.line.recalib import as_measurements, rms_mm
 from app.line.schedule import Slot
-from calib.gates import Gates, change_failures
+from calib.gate_limits import Gates
+from calib.gates import change_failures
 from calib.model import SystemModel
 from calib.sequential import SequentialEstimator, SequentialSettings
 

@@ -78,11 +78,14 @@ def build_service(
     )
 
 
-def json_logs(stream: Any = None, level: int = logging.INFO) -> logging.Handler:
-    """Structured logs: every `rvis.*` record as one JSON line on stdout."""
+def json_logs(
+    stream: Any = None, level: int = logging.INFO, logger: str = "rvis"
+) -> logging.Handler:
+    """Structured logs: every record of `logger` (default every `rvis.*` one) as one JSON line
+    on stdout; returns the handler (`logging.getLogger(logger).removeHandler` ends it)."""
     handler = logging.StreamHandler(stream or sys.stdout)
     handler.setFormatter(JsonLineFormatter())
-    root = logging.getLogger("rvis")
+    root = logging.getLogger(logger)
     root.addHandler(handler)
     root.setLevel(level)
     return handler

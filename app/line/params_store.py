@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from app.errors import InputError
 from app.formats.files import dumps_json, replace_atomically
 from app.formats.params import from_json
+from app.line.statedir import StateDir
 from calib.model import SystemModel
 
 F64 = NDArray[np.float64]
@@ -33,10 +34,11 @@ class ParamsStore:
     """`state_dir/params`: apply a document as a new version, read the current one, roll back."""
 
     def __init__(self, state_dir: str | Path) -> None:
-        self.dir = Path(state_dir) / "params"
-        self.history = self.dir / "history"
+        self.state = StateDir(state_dir)
+        self.dir = self.state.params
+        self.history = self.state.history
         self.history.mkdir(parents=True, exist_ok=True)
-        self.current_path = self.dir / "current.json"
+        self.current_path = self.state.current
         for stale in self.dir.glob(".*.tmp"):  # left by a crash before os.replace
             stale.unlink(missing_ok=True)
         for stale in self.history.glob(".*.tmp"):
@@ -66,10 +68,7 @@ class ParamsStore:
         return version
 
     def current_version(self) -> int | None:
-        if not self.current_path.is_file():
-            return None
-        doc = json.loads(self.current_path.read_text(encoding="utf-8"))
-        return int(doc["history_version"])
+        return self.state.current_version()
 
     def current(self) -> tuple[int, SystemModel, F64] | None:
         """(version, model, parameter vector) in force, or None before the first apply."""

@@ -27,7 +27,8 @@ from numpy.typing import NDArray
 from app.config.line import RecalibSettings
 from app.formats.params import to_json
 from calib.errors import CalibError
-from calib.gates import Gates, check_identification
+from calib.gate_limits import Gates
+from calib.gates import check_identification
 from calib.identify import IdentificationResult, Measurements, identify, residuals
 from calib.model import SystemModel
 from calib.validation import rmse

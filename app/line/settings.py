@@ -1,7 +1,7 @@
 """What the service needs besides its devices, clock, plan and spheres, gathered from the cell
 file: each part is a section of app.config.line as it is declared there (the one declaration
-of every setting), and the gates are calib.gates.Gates (calib.gates.INLINE with the file's
-values, RMS and condition limits from [calibration]).
+of every setting), and the gates are calib.gate_limits.Gates (calib.gate_limits.INLINE with
+the file's values, RMS and condition limits from [calibration]).
 """
 
 from __future__ import annotations
@@ -20,7 +20,8 @@ from app.config.line import (
     SweepSettings,
 )
 from app.config.section import project
-from calib.gates import INLINE, Gates
+from app.line.statedir import DEFAULT_ROOT
+from calib.gate_limits import INLINE, Gates
 
 __all__ = ["ServiceSettings", "from_cell"]
 
@@ -29,7 +30,7 @@ __all__ = ["ServiceSettings", "from_cell"]
 class ServiceSettings:
     """The service's settings: its state directory (resolved) and the sections it uses."""
 
-    state_dir: Path = Path("rvis-state")
+    state_dir: Path = Path(DEFAULT_ROOT)
     ops: OperationsSettings = field(default_factory=OperationsSettings)
     line: LineSettings = field(default_factory=LineSettings)
     sweep: SweepSettings = field(default_factory=SweepSettings)

@@ -31,6 +31,7 @@ import contextlib
 import errno
 import fcntl
 import grp
+import json
 import os
 import stat
 from dataclasses import dataclass
@@ -49,6 +50,13 @@ SWEEPS_DIR = "sweeps"
 OPCUA_DIR = "opcua"
 TRACE_DIR = "trace"
 COMMISSION_DIR = "commission"
+
+#: The state directory when neither the cell file nor `--state-dir` names one ([service]
+#: state_dir's default), and the free space [MiB] below which it is low ([service]
+#: min_free_mb's default: the `low_disk` alarm, a `rvis state check` problem). Here, where the
+#: commands that only read the directory find them without loading the cell file's sections.
+DEFAULT_ROOT = "rvis-state"
+MIN_FREE_MB = 200.0
 
 DIR_MODE, DIR_MODE_GROUP = 0o750, 0o2770  # setgid: new files take the operators' group
 UMASK, UMASK_GROUP = 0o027, 0o007  # files 0640 (0660 with the group)
@@ -131,6 +139,13 @@ class StateDir:
     @property
     def commission(self) -> Path:
         return self.root / COMMISSION_DIR
+
+    def current_version(self) -> int | None:
+        """The parameters version `params/current.json` holds (None before the first apply);
+        reads only. ValueError, KeyError or TypeError when the file is damaged."""
+        if not self.current.is_file():
+            return None
+        return int(json.loads(self.current.read_text(encoding="utf-8"))["history_version"])
 
     def free_mb(self) -> float:
         """Free space [MiB] for an unprivileged writer on the directory's file system."""

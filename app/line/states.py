@@ -1,11 +1,14 @@
 """The in-line service's vocabulary, shared by the service and its collaborators (the
-operator's commands, the step handling, the status reply): its states, the alarms that hold
-the cell in FAULT, and the UTC text of the service's clock."""
+operator's commands, the step handling, the status reply) and by the commands that read its
+database (`rvis status`, `rvis state suspects`): its states, the alarms that hold the cell in
+FAULT, the UTC text of the service's clock and a suspect interval as JSON. Light: no numerics."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from datetime import UTC, datetime
 from enum import StrEnum
+from typing import Any
 
 
 class State(StrEnum):
@@ -26,3 +29,28 @@ FAULT_CODES = ("device_fault", "robot_not_home", "internal_error", "state_storag
 def utc_text(t: float) -> str:
     """ISO 8601 UTC of a clock time (seconds since the epoch)."""
     return datetime.fromtimestamp(t, UTC).isoformat(timespec="seconds")
+
+
+def suspect_json(row: Mapping[str, Any]) -> dict[str, Any]:
+    """A suspect interval as events, the status reply and `rvis state suspects` carry it."""
+
+    def utc(t: Any) -> str | None:
+        return None if t is None else utc_text(float(t))
+
+    return {
+        "id": row.get("id"),
+        "state": "open" if row.get("t_end") is None else "closed",
+        "t_start": row.get("t_start"),
+        "t_end": row.get("t_end"),
+        "start_utc": utc(row.get("t_start")),
+        "end_utc": utc(row.get("t_end")),
+        "last_good_id": row.get("last_good_id"),
+        "onset_id": row.get("onset_id"),
+        "params_version": row.get("params_version"),
+        "size_mm": row.get("size_mm"),
+        "group": row.get("group_name"),
+        "text": row.get("text"),
+        "end_reason": row.get("end_reason"),
+        "end_version": row.get("end_version"),
+        "calibration_id": row.get("calibration_id"),
+    }

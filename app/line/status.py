@@ -7,7 +7,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from app.line.host import LineHost
-from app.line.states import utc_text
+from app.line.states import suspect_json, utc_text
 from app.line.store import StorageError
 from calib.model import ALL_NAMES
 
@@ -62,31 +62,6 @@ def device_of(exc: BaseException, devices: Mapping[str, object]) -> str | None:
             return family
         seen = seen.__cause__
     return None
-
-
-def suspect_json(row: Mapping[str, Any]) -> dict[str, Any]:
-    """A suspect interval as events, the status reply and `rvis state suspects` carry it."""
-
-    def utc(t: Any) -> str | None:
-        return None if t is None else utc_text(float(t))
-
-    return {
-        "id": row.get("id"),
-        "state": "open" if row.get("t_end") is None else "closed",
-        "t_start": row.get("t_start"),
-        "t_end": row.get("t_end"),
-        "start_utc": utc(row.get("t_start")),
-        "end_utc": utc(row.get("t_end")),
-        "last_good_id": row.get("last_good_id"),
-        "onset_id": row.get("onset_id"),
-        "params_version": row.get("params_version"),
-        "size_mm": row.get("size_mm"),
-        "group": row.get("group_name"),
-        "text": row.get("text"),
-        "end_reason": row.get("end_reason"),
-        "end_version": row.get("end_version"),
-        "calibration_id": row.get("calibration_id"),
-    }
 
 
 def _status(svc: LineHost) -> dict[str, Any]:

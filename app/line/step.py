@@ -47,7 +47,8 @@ from calib.attribution import (
     predicted_std_mm,
     step_groups,
 )
-from calib.gates import Gates, change_failures
+from calib.gate_limits import Gates
+from calib.gates import change_failures
 from calib.identify import residuals
 from calib.model import SystemModel
 

@@ -20,7 +20,7 @@ import numpy as np
 from app.errors import InputError
 from app.formats.params import from_json
 from app.line.host import LineHost
-from app.line.status import suspect_json
+from app.line.states import suspect_json
 from app.line.step import (
     Step,
     StepCorrection,

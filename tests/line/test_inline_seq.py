@@ -14,7 +14,7 @@ from app.config.line import RecalibSettings
 from app.formats.params import to_json
 from app.line.inline_seq import InlineSequential, covariance_from
 from app.sim.cell import make_cell
-from calib.gates import INLINE
+from calib.gate_limits import INLINE
 from calib.identify import Measurements, identify
 from tests.line.helpers import plan_for
 

@@ -19,7 +19,7 @@ from app.line.recalib import (
     run_recalibration,
     select_rolling,
 )
-from calib.gates import INLINE
+from calib.gate_limits import INLINE
 from calib.identify import Measurements, identify
 from calib.model import INDEX
 from tests.conftest import simulated

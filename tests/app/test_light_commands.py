@@ -1,0 +1,146 @@
+"""The commands that only talk to the service's socket or read its state directory (`rvis status`,
+`rvis ctl`, `rvis state check`, `rvis state suspects`) import only what they use: no numerics,
+no devices' field-bus libraries, no UI (issue 31: `rvis status` took 0.74 s and 147 MiB to say
+that no service runs, numpy and scipy loaded through the service's modules and the cell file's).
+
+Each command runs as its own process, as an operator's script runs it, under `-X importtime`,
+whose report names every module the process imported."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from collections.abc import Iterator
+from concurrent.futures import Future
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from app.line.control import ControlServer
+from app.line.statedir import DEFAULT_ROOT, StateDir
+from app.line.store import Store
+
+ROOT = Path(__file__).resolve().parents[2]
+#: what these commands never need: numerics, vision, UI, OPC UA, Modbus (top-level packages)
+HEAVY = ("numpy", "scipy", "calib", "vision", "cv2", "textual", "asyncua", "pymodbus")
+
+
+@dataclass
+class Run:
+    code: int
+    out: str
+    err: list[str]  # stderr without the import report
+    modules: set[str]
+
+    def heavy(self) -> set[str]:
+        """The heavy packages' modules imported, and the service's (app.line.service)."""
+        return {m for m in self.modules if m.split(".")[0] in HEAVY or m == "app.line.service"}
+
+
+def rvis(*argv: str, cwd: Path = ROOT) -> Run:
+    done = subprocess.run(
+        [sys.executable, "-X", "importtime", "-m", "app", *argv],
+        cwd=cwd,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    report = [line for line in done.stderr.splitlines() if line.startswith("import time:")]
+    modules = {line.rsplit("|", 1)[1].strip() for line in report[1:]}  # [0] is the header
+    err = [line for line in done.stderr.splitlines() if not line.startswith("import time:")]
+    return Run(done.returncode, done.stdout, err, modules)
+
+
+@pytest.fixture()
+def state(tmp_path: Path) -> StateDir:
+    """A state directory as a stopped service leaves it: a database with a suspect interval
+    and parameters version 3 in force."""
+    state = StateDir(tmp_path / DEFAULT_ROOT)
+    state.root.mkdir(mode=0o750)
+    store = Store(state.db)
+    store.open_suspect({"t_start": 1.8e9, "onset_id": 12, "size_mm": 0.31, "text": "sensor"})
+    store.close()
+    state.history.mkdir(parents=True)
+    for path in (state.history / "0003.json", state.current):
+        path.write_text(json.dumps({"history_version": 3}))
+    for path in (state.root / "rvis.db", state.current, state.history / "0003.json"):
+        path.chmod(0o640)
+    return state
+
+
+class _Service:
+    """Answers every command at once, as the service does when it accepts it."""
+
+    bus: Any = None
+
+    def __init__(self) -> None:
+        self.asked: list[tuple[str, dict[str, Any]]] = []
+
+    def request(self, cmd: str, args: dict[str, Any] | None = None, uid: int | None = None) -> Any:
+        self.asked.append((cmd, args or {}))
+        reply: Future[dict[str, Any]] = Future()
+        reply.set_result({"ok": True, "state": "idle", "message": f"{cmd}: done"})
+        return reply
+
+
+@pytest.fixture()
+def service(state: StateDir) -> Iterator[_Service]:
+    svc = _Service()
+    with ControlServer(svc, state.socket):
+        yield svc
+
+
+def test_status_without_a_service_reads_the_database_only(state: StateDir) -> None:
+    run = rvis("status", "--json", "--state-dir", str(state.root))
+    assert run.code == 0, run.err
+    status = json.loads(run.out)
+    assert status["state"] == "not running" and status["params_version"] == 3
+    assert [s["size_mm"] for s in status["suspect_intervals"]] == [0.31]
+    assert "app.line.store" in run.modules  # the report is read: it names what was imported
+    assert run.heavy() == set()
+
+
+def test_status_in_the_default_state_directory_loads_no_cell_file(state: StateDir) -> None:
+    run = rvis("status", cwd=state.root.parent)  # ./rvis-state, the default
+    assert run.code == 0, run.err
+    assert "state               not running" in run.out
+    assert "app.config" not in run.modules and run.heavy() == set()
+
+
+def test_status_and_ctl_through_the_socket(state: StateDir, service: _Service) -> None:
+    run = rvis("status", "--json", "--state-dir", str(state.root))
+    assert run.code == 0, run.err
+    assert json.loads(run.out)["state"] == "idle" and run.heavy() == set()
+    run = rvis("ctl", "pause", "--state-dir", str(state.root))
+    assert (run.code, run.out.strip()) == (0, "pause: done") and run.heavy() == set()
+    run = rvis("ctl", "--state-dir", str(state.root), "shelve", "7", "dusty", "--minutes", "5")
+    assert run.code == 0 and run.heavy() == set()
+    assert service.asked[1:] == [
+        ("pause", {}),
+        ("shelve", {"alarm": 7, "reason": "dusty", "minutes": 5.0}),
+    ]
+
+
+def test_ctl_without_a_service(state: StateDir) -> None:
+    run = rvis("ctl", "resume", "--state-dir", str(state.root))
+    (line,) = run.err
+    assert run.code == 1 and line == f"rvis ctl: error: no service is running at {state.socket}"
+    assert run.heavy() == set()
+
+
+def test_state_check_and_suspects_read_the_database_only(state: StateDir) -> None:
+    run = rvis("state", "check", "--json", "--state-dir", str(state.root))
+    findings = json.loads(run.out)
+    assert run.code == 0, findings["problems"]
+    assert findings["parameters"]["current_version"] == 3 and findings["service_pid"] is None
+    assert run.heavy() == set()
+    run = rvis("state", "suspects", "--json", "--state-dir", str(state.root))
+    assert run.code == 0, run.err
+    (interval,) = json.loads(run.out)
+    assert (interval["state"], interval["size_mm"]) == ("open", 0.31)
+    assert run.heavy() == set()
