@@ -26,6 +26,7 @@ import json
 import os
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -49,12 +50,16 @@ class WireTrace:
         max_bytes: int = 10 * 2**20,
         keep: int = 5,
         every_device: bool = False,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
+        """clock: the monotonic time of each line [s] (read under the lock, so that lines from
+        several writers land in the order of their times)."""
         if max_bytes < 1024 or keep < 1:
             raise DeviceConfigError(f"trace needs max_bytes >= 1024 and keep >= 1 ({path})")
         self.path = Path(path)
         self.max_bytes, self.keep, self.every_device = int(max_bytes), int(keep), every_device
         self._lock = threading.Lock()
+        self._clock = clock
         self._file: Any = None
         self._size = 0
 
@@ -67,10 +72,10 @@ class WireTrace:
     def write(self, device: str, direction: str, message: str) -> None:
         if len(message) > MAX_MSG:
             message = f"{message[:MAX_MSG]}... ({len(message)} chars)"
-        record = {"t": round(time.monotonic(), 6), "dev": device, "dir": direction}
-        line = json.dumps(record | {"msg": message}, separators=(",", ":")) + "\n"
-        data = line.encode("utf-8", errors="replace")
         with self._lock:
+            record = {"t": round(self._clock(), 6), "dev": device, "dir": direction}
+            line = json.dumps(record | {"msg": message}, separators=(",", ":")) + "\n"
+            data = line.encode("utf-8", errors="replace")
             if self._file is None or self._size + len(data) > self.max_bytes:
                 self._start_file(rotate=self._file is not None)
             self._file.write(data)
@@ -97,7 +102,7 @@ class WireTrace:
             self._rotate()
         self._file = open(self.path, "ab")  # noqa: SIM115 (held open between writes)
         self._size = self._file.tell()
-        header = {"t": round(time.monotonic(), 6), "wall": time.time(), "format": FORMAT}
+        header = {"t": round(self._clock(), 6), "wall": time.time(), "format": FORMAT}
         data = (json.dumps(header | {"pid": os.getpid()}) + "\n").encode()
         self._file.write(data)
         self._size += len(data)

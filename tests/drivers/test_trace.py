@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 from collections.abc import Iterator
 from contextlib import ExitStack
 from pathlib import Path
@@ -139,6 +140,34 @@ def test_untraced_devices_write_nothing_and_trace_1_needs_a_file(
         with every, open_device("tracker", url, trace=every) as tracker:
             tracker.measure("S1")  # type: ignore[attr-defined]
         assert any(r["dev"] == "tracker" and r["dir"] == "<" for r in records(trace.path))
+
+
+def test_lines_of_several_writers_land_in_the_order_of_their_times(tmp_path: Path) -> None:
+    """Four threads write at once through a clock that yields right after it is read (as a
+    thread may be preempted there): the file's times still never go back."""
+
+    def yielding_clock() -> float:
+        t = time.monotonic()
+        time.sleep(0.0001)
+        return t
+
+    path = tmp_path / "wire.jsonl"
+    with WireTrace(path, clock=yielding_clock) as trace:
+        channels = [trace.channel(f"dev{i}") for i in range(4)]
+
+        def writer(i: int) -> None:
+            for n in range(100):
+                channels[i].tx(f"request {n}")
+
+        threads = [threading.Thread(target=writer, args=(i,)) for i in range(4)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+    rows = records(path)
+    assert len(rows) == 4 * 101 and {r["dev"] for r in rows} == {f"dev{i}" for i in range(4)}
+    times = [r["t"] for r in rows]
+    assert times == sorted(times)
 
 
 def test_the_file_rotates_and_keeps_whole_lines(tmp_path: Path) -> None:
