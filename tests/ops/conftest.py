@@ -36,6 +36,7 @@ class ServiceProcess:
     def __init__(self, state_dir: Path, cell: Path) -> None:
         self.state_dir, self.cell = state_dir, cell
         self.lines: queue.Queue[dict[str, Any]] = queue.Queue()
+        self.logged_ids: list[int] = []  # measurements the service announced (committed first)
         self.stderr = ""
         argv = [*RVIS, "run", "--sim", "--geometric", "--cell", str(cell)]
         self.proc = subprocess.Popen(
@@ -52,7 +53,10 @@ class ServiceProcess:
         assert self.proc.stdout is not None
         for raw in self.proc.stdout:
             try:
-                self.lines.put(json.loads(raw))
+                line = json.loads(raw)
+                if line.get("event") == "measurement":
+                    self.logged_ids.append(int(line["data"]["id"]))
+                self.lines.put(line)
             except ValueError:
                 self.lines.put({"raw": raw.decode(errors="replace")})
 
@@ -84,6 +88,12 @@ class ServiceProcess:
         os.killpg(self.proc.pid, signal.SIGKILL)
         self.proc.wait(30)
         self._close()
+
+    def wait_exit(self, timeout_s: float = 60.0) -> int:
+        """The exit code once the service ends by itself (no signal from here)."""
+        code = self.proc.wait(timeout_s)
+        self._close()
+        return code
 
     def stop(self) -> int:
         if self.alive:
