@@ -95,7 +95,7 @@ class SensorSection(Section):
     # probing errors form PF and size PS and of the sphere-spacing error SD [mm]; the in-line
     # chart of PS (app/line/sensor_watch.py) raises the `sensor` alarm beyond max_ps_mm
     max_pf_mm: float = opt(0.15, gt=0, hi=10)
-    max_ps_mm: float = opt(0.015, gt=0, hi=10)
+    max_ps_mm: float = opt(0.025, gt=0, hi=10)
     max_sd_mm: float = opt(0.015, gt=0, hi=10)
 
 
