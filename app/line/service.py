@@ -38,7 +38,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import threading
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future
 from typing import Any
 
@@ -151,6 +151,9 @@ class Service:
         self.wake = threading.Event()
         self.device_errors: dict[str, dict[str, str]] = {}  # family -> {"error", "utc"}
         self.fault_family: str | None = None  # the device of the fault in force (None: unknown)
+        # called in the loop's thread after each window and what follows it between windows
+        # (the simulated line holds the service there, its virtual time standing, to look)
+        self.after_window: Callable[[], None] | None = None
         self.operator = Operator(self)  # the operator's commands (app.line.operator)
         self.steps = StepHandler(self)  # a flagged step's handling (app.line.step_service)
         self.log = logging.getLogger("rvis.line")
@@ -409,6 +412,8 @@ class Service:
         )
         self.set_state(State.PAUSED if self.paused else State.IDLE)
         self._between_windows()
+        if self.after_window is not None:
+            self.after_window()
 
     def _unshelve(self) -> None:
         for alarm_id in self.store.unshelve_expired(self.clock.time()):
