@@ -238,8 +238,10 @@ class SimLineSection(Section):
     # edge is seen up to this late, which the window's margin takes in
     poll_s: float = opt(0.5, gt=0, hi=60)
     # the modelled cost of one in-line identification (the worker's compute): its outcome is
-    # seen this long after it was submitted, however fast the machine computed it
-    identification_s: float = opt(10.0, lo=0, hi=3600)
+    # seen this long after it was submitted, however fast the machine computed it (one
+    # identification of the rolling set computes in 20-75 ms on the 2-core development machine:
+    # 2 s leaves room for a slower cell PC and the hand-over to the worker)
+    identification_s: float = opt(2.0, lo=0, hi=3600)
     camera_readout_s: float = opt(0.033, lo=0, hi=10)  # per frame, after its exposure
     galvo_settle_s: float = opt(0.002, lo=0, hi=10)  # per galvo command
     warmup_k: float = opt(8.0, lo=-50, hi=50)
