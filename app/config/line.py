@@ -236,7 +236,7 @@ class SimLineSection(Section):
     # the service's PLC poll on the simulated line (in place of [line] poll_s): every poll is a
     # real exchange over loopback, so this sets how fast an unpaced run goes; a window's rising
     # edge is seen up to this late, which the window's margin takes in
-    poll_s: float = opt(0.5, gt=0, hi=60)
+    poll_s: float = opt(1.0, gt=0, hi=60)
     # the modelled cost of one in-line identification (the worker's compute): its outcome is
     # seen this long after it was submitted, however fast the machine computed it (one
     # identification of the rolling set computes in 20-75 ms on the 2-core development machine:

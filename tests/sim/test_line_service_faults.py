@@ -94,9 +94,9 @@ def test_plc_heartbeat_loss_raises_the_alarm_and_no_window_is_used(run: Simulate
 
 
 def test_a_window_withdrawn_early_aborts_and_goes_home(run: SimulatedLineRun) -> None:
-    # window 1 is withdrawn 0.75 s after it opens: the service sees it open within a poll
-    # (0.5 s) and is out measuring then
-    played = run.line.schedule(Fault.WINDOW_WITHDRAWN, window=1, after_s=0.75)
+    # window 1 is withdrawn 1.5 s after it opens: the service sees it open within a poll
+    # ([simline] poll_s, 1 s) and is out measuring then (a sweep alone takes 1.2 s)
+    played = run.line.schedule(Fault.WINDOW_WITHDRAWN, window=1, after_s=1.5)
     events = _until(run, lambda e: e["event"] == "window")
     events += _until(run, lambda e: e["event"] == "window")
     assert played.is_set()
