@@ -25,7 +25,7 @@ from drivers import registry
 from drivers.camera import CameraSettings
 from drivers.galvo import Galvo
 from fakes.cell import SimulatedCell
-from fakes.line import LineSettings, SimLine
+from fakes.line import SimLine, SimLineSetup
 from fakes.render import sphere_scene
 from vision.measure import measure_sphere_from_sweep
 from vision.sensor_model import default_sensor_model
@@ -63,7 +63,7 @@ def motion_error_s(cell: SimulatedCell, scale: float) -> float:
     """Median (sim time of move_joints - expected motion time) [sim s] for 2 s moves."""
     errors = []
     with (
-        SimLine(cell, LineSettings(scale=scale, camera=False)) as line,
+        SimLine(cell, SimLineSetup(scale=scale, clock="scaled", camera=False)) as line,
         registry.open_robot(line.urls["robot"]) as robot,
     ):
         for k in range(5):
@@ -82,7 +82,7 @@ def sweep_through_drivers(
     q = view_of(cell, cfg, "P2")
     p = cfg.spheres_part_mm["P2"]
     with (
-        SimLine(cell, LineSettings(scale=1.0)) as line,
+        SimLine(cell, SimLineSetup(scale=1.0, clock="scaled")) as line,
         registry.open_robot(line.urls["robot"]) as robot,
         registry.open_galvo(line.urls["galvo"]) as galvo,
         registry.open_camera(line.urls["camera"], settings=FULL, timeout_s=5.0) as camera,
@@ -112,9 +112,9 @@ def main() -> None:
     _ = cell.sensor.pixel_rays
     print("| what | median |")
     print("|---|---|")
-    for settings in (LineSettings(camera=False), LineSettings(camera=True)):
+    for settings in (SimLineSetup(camera=False), SimLineSetup(camera=True)):
 
-        def start_close(settings: LineSettings = settings) -> float:
+        def start_close(settings: SimLineSetup = settings) -> float:
             return timed(lambda: SimLine(cell, settings).start().close())
 
         s = median_of(start_close, 5)
@@ -128,7 +128,7 @@ def main() -> None:
     print(f"| one lit frame: grab through Aravis | {1000 * grab_s:.0f} ms |")
     print(f"| ratio grab / render (same run) | {grab_s / render_s:.2f} |")
     print(f"| sweep of 24 (galvo + grab each) | {sweep_s:.2f} s |")
-    line = SimLine(cell, LineSettings(camera=False)).start()
+    line = SimLine(cell, SimLineSetup(camera=False)).start()
     try:
         cell.set_joints_deg(view_of(cell, cfg, "P2"))
         g = median_of(lambda: timed(lambda: line.geometric_centre("P2")), 50)

@@ -2,14 +2,22 @@
 time, sleep, wait on an event), all in the clock's own seconds.
 
 Everything in app/line takes its time from a Clock, never from `time` directly, so the
-simulated line can run the service at a time scale (fakes.clock.ScaledClock: sim seconds,
-`scale` of them per real second). `RealClock` is the machine's (scale 1).
+simulated line can run the service in its own time: virtual time (fakes.clock.VirtualClock),
+which moves only by the simulated durations of what happens, or a wall clock at a time scale
+(fakes.clock.ScaledClock). `RealClock` is the machine's (scale 1).
+
+A clock whose time moves only when a caller makes it pass is a `TimerClock`: `sleep` and `wait`
+make their sim seconds pass (they are the waits of the one actor that drives time, the
+service's loop), and a watcher that must act at a sim time while something else makes time
+pass (the window watch while the robot moves) registers a callback with `call_at`, run at that
+sim time by whoever is making time pass then.
 """
 
 from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from typing import Protocol, runtime_checkable
 
 
@@ -32,6 +40,24 @@ class SimClock(Clock, Protocol):
 
     @property
     def scale(self) -> float: ...
+
+
+class Timer(Protocol):
+    """A callback registered with `TimerClock.call_at`."""
+
+    def cancel(self) -> None:
+        """It will not run (if it has not run yet)."""
+        ...
+
+
+@runtime_checkable
+class TimerClock(Clock, Protocol):
+    """A Clock whose time moves only when a caller makes it pass (module docstring)."""
+
+    def call_at(self, t: float, fn: Callable[[], None]) -> Timer:
+        """Run `fn()` when the clock passes monotonic time `t` (a time already passed: the next
+        time it moves)."""
+        ...
 
 
 class RealClock:

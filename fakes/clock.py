@@ -4,25 +4,177 @@ The contract is drivers.clock's Clock: ``monotonic()`` [sim s], ``time()`` [sim 
 ``sleep(seconds)`` [sim s] and ``wait(event, seconds) -> bool`` (the event's flag, after at
 most ``seconds`` sim s); RealClock is drivers.clock's too.
 
+``VirtualClock()``: the simulated line's time. It moves only when something makes it pass: the
+service's own waits (``sleep``, ``wait``: its loop is the one actor that drives time) and the
+durations the peers charge for what they simulate (``elapse``: a robot motion at its speeds, a
+camera exposure and read-out, the DAC's settling, a geometric sweep). Every other thread only
+reads it, or registers a callback with ``call_at`` that runs at its sim time in the thread
+that makes time pass then (the window watch, the fault scheduler). So the outcome of a run
+depends on the seed and the settings alone, not on how fast the machine computed. With
+``pace=`` (sim s per real s) each passing also waits for the wall clock, for a person who
+watches; what happens is the same, only later (a machine too slow for the pace lags behind).
+
 ``ScaledClock(scale)`` runs ``scale`` sim seconds per real second (60: one sim minute per real
 second) from sim time 0 at construction (or at ``start()``, with ``started=False``: it stands at
-0 until then); ``advance(seconds)`` jumps it forward (fast-forward to the interesting part of a
-shift in a test). Both clocks carry ``scale``, which the protocol peers
-use to turn a sim duration into a real sleep on their event loops.
+0 until then): time follows the wall clock, so what fits in a window depends on how fast the
+machine computes (peers driven by hand in tests and benches). Both clocks carry ``scale``, and
+``advance(seconds)`` jumps them forward (fast-forward to the interesting part of a shift).
 """
 
 from __future__ import annotations
 
+import heapq
+import itertools
+import math
 import threading
 import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
 
-from drivers.clock import Clock, RealClock, SimClock
+from drivers.clock import Clock, RealClock, SimClock, TimerClock
 
-__all__ = ["Clock", "RealClock", "ScaledClock", "SimClock"]
+__all__ = ["Clock", "RealClock", "ScaledClock", "SimClock", "TimerClock", "VirtualClock"]
 
 #: Longest real wait [s] of ``ScaledClock.wait`` between looks at the clock, so that a waiter
 #: notices ``advance()``; the event itself still wakes it at once.
 _WAIT_CHUNK_REAL_S = 0.1
+
+#: A paced VirtualClock that falls more than this behind the wall clock [real s] (a machine too
+#: slow for the pace) starts pacing again from where it is instead of catching up in a burst.
+_MAX_LAG_REAL_S = 0.5
+
+
+@dataclass(order=True)
+class _Timer:
+    at: float
+    seq: int
+    fn: Callable[[], None] = field(compare=False)
+    cancelled: bool = field(default=False, compare=False)
+
+    def cancel(self) -> None:
+        self.cancelled = True
+
+
+class VirtualClock:
+    """Sim time that moves only when something makes it pass (module docstring).
+
+    start_epoch: the Unix time [s] that sim time 0 stands for (default: now, to the whole
+    second, so that sim epoch times less the epoch are the same numbers in every run);
+    pace: sim seconds per real second while time passes (None: as fast as the CPU)."""
+
+    def __init__(self, start_epoch: float | None = None, *, pace: float | None = None) -> None:
+        if pace is not None and not (pace > 0 and pace < math.inf):
+            raise ValueError(f"clock pace must be a positive number, got {pace!r}")
+        self.start_epoch = float(int(time.time())) if start_epoch is None else float(start_epoch)
+        self.pace = None if pace is None else float(pace)
+        self._now = 0.0
+        self._mover = threading.RLock()  # one passing of time at a time
+        self._timers_lock = threading.Lock()
+        self._timers: list[_Timer] = []
+        self._seq = itertools.count()
+        self._anchor: tuple[float, float] | None = None  # pacing: (real s, sim s) in step
+        self.passed_s = 0.0  # sim seconds made to pass by elapse/sleep/wait (not advance)
+
+    @property
+    def scale(self) -> float:
+        """Sim seconds per real second: the pace, or infinity (as fast as the CPU)."""
+        return math.inf if self.pace is None else self.pace
+
+    def start(self) -> None:
+        """Start pacing from now (a paced clock; idempotent). Time itself stands until
+        something makes it pass."""
+        with self._mover:
+            if self._anchor is None:
+                self._anchor = (time.monotonic(), self._now)
+
+    def monotonic(self) -> float:
+        return self._now
+
+    def time(self) -> float:
+        return self.start_epoch + self._now
+
+    # -- callbacks at a sim time --------------------------------------------------------------
+    def call_at(self, t: float, fn: Callable[[], None]) -> _Timer:
+        """Run `fn()` when time passes `t`, in the thread making it pass (a time already
+        passed: the next time it moves). Callbacks at the same time run in the order
+        registered; a callback must not wait for the thread that is making time pass."""
+        timer = _Timer(float(t), next(self._seq), fn)
+        with self._timers_lock:
+            heapq.heappush(self._timers, timer)
+        return timer
+
+    def _due(self, until: float) -> _Timer | None:
+        """The next callback due by `until` (removed from the queue), or None."""
+        with self._timers_lock:
+            while self._timers and self._timers[0].cancelled:
+                heapq.heappop(self._timers)
+            if self._timers and self._timers[0].at <= until:
+                return heapq.heappop(self._timers)
+        return None
+
+    # -- making time pass ---------------------------------------------------------------------
+    def elapse(self, seconds: float, stop: threading.Event | None = None) -> float:
+        """Let `seconds` of sim time pass (a simulated duration), running the callbacks due on
+        the way at their times; paced, also wait for the wall clock. Stops early when `stop`
+        is set (looked at before each callback, and at once while pacing). Returns the sim
+        seconds that passed."""
+        with self._mover:
+            t0 = self._now
+            self._pass(t0 + max(float(seconds), 0.0), stop, paced=True)
+            self.passed_s += self._now - t0
+            return self._now - t0
+
+    def advance(self, seconds: float) -> None:
+        """Jump sim time forward by `seconds` (tests; the TUI's start into a shift), running
+        the callbacks due on the way; paced, without waiting for the wall clock."""
+        if seconds < 0:
+            raise ValueError("a monotonic clock cannot go back")
+        with self._mover:
+            self._pass(self._now + seconds, None, paced=False)
+            if self._anchor is not None:
+                self._anchor = (time.monotonic(), self._now)
+
+    def sleep(self, seconds: float) -> None:
+        """The driving actor's wait: `seconds` of sim time pass."""
+        self.elapse(seconds)
+
+    def wait(self, event: threading.Event, seconds: float) -> bool:
+        """The driving actor's wait on an event: True at once if it is set, else `seconds` of
+        sim time pass (less when it is set meanwhile) and its flag is returned."""
+        if event.is_set():
+            return True
+        self.elapse(seconds, stop=event)
+        return event.is_set()
+
+    def _pass(self, end: float, stop: threading.Event | None, *, paced: bool) -> None:
+        while stop is None or not stop.is_set():
+            timer = self._due(end)
+            t = end if timer is None else max(timer.at, self._now)
+            if paced and self.pace is not None and not self._pace_to(t, stop):
+                return
+            self._now = max(self._now, t)
+            if timer is None:
+                return
+            timer.fn()
+
+    def _pace_to(self, t: float, stop: threading.Event | None) -> bool:
+        """Wait until the wall clock reaches sim time t at the pace; False when `stop` was set
+        meanwhile (sim time is then where the wall clock had brought it)."""
+        assert self.pace is not None
+        if self._anchor is None:
+            self._anchor = (time.monotonic(), self._now)
+        real0, sim0 = self._anchor
+        delay = real0 + (t - sim0) / self.pace - time.monotonic()
+        if delay < -_MAX_LAG_REAL_S:
+            self._anchor = (time.monotonic(), t)  # fallen behind: pace on from here
+        elif delay > 0:
+            if stop is None:
+                time.sleep(delay)  # sleep-ok: the pace a person watches at
+            elif stop.wait(delay):
+                reached = sim0 + (time.monotonic() - real0) * self.pace
+                self._now = min(max(self._now, reached), t)
+                return False
+        return True
 
 
 class ScaledClock:

@@ -3,6 +3,10 @@
 They are real backends of the driver families, not mocks: the family base classes apply the same
 policy (safety guard, fault latch, limits) and the fakes raise the same errors as hardware.
 Fault injection is explicit (``inject_fault``), never patched in.
+
+On a VirtualClock (``clock=``) the robot lets each motion's duration pass on the clock instead of
+waiting it in real time (an abort stops it where it is), and the PLC runs its clamp cycle on the
+clock's time: the service's tests then see the same sequence on a loaded machine.
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ from drivers.plc import (
 from drivers.robot import FloatArray, Robot, RobotStatus
 from drivers.tracker import Tracker, TrackerMeasurement, TrackerStatus
 from drivers.url import DeviceUrl
+from fakes.clock import VirtualClock
 from fakes.world import World
 
 SENSOR_WH = (1296, 966)  # Basler acA1300-30um, Sony ICX445
@@ -55,13 +60,43 @@ def move_along(world: World, target: FloatArray, duration_s: float, stop: thread
     return True
 
 
+#: A motion on a VirtualClock passes in steps of at most this [sim s], the joints set after each.
+PASS_STEP_S = 0.05
+
+
+def pass_along(
+    world: World, target: FloatArray, duration_s: float, clock: VirtualClock, stop: threading.Event
+) -> bool:
+    """Move the world's joints to ``target`` while ``duration_s`` passes on the clock (in steps:
+    what reads the joints meanwhile, at a sim time, sees them on the way); False if stopped."""
+    start = world.joints_deg()
+    n = max(1, int(np.ceil(duration_s / PASS_STEP_S)))
+    passed = 0.0
+    for _ in range(n):
+        passed += clock.elapse(duration_s / n, stop)
+        frac = min(passed / duration_s, 1.0) if duration_s > 0 else 1.0
+        world.set_joints_deg(start + frac * (target - start))
+        if stop.is_set():
+            return False
+    world.set_joints_deg(target)
+    return True
+
+
 class FakeRobot(Robot):
     """Moves the world's robot in joint space; motion time = max |dq| / (speed x override) x
-    time_scale, each appended to ``motion_durations_s``."""
+    time_scale, each appended to ``motion_durations_s``; on a VirtualClock (``clock=``) the
+    motion time without time_scale passes on the clock."""
 
-    def __init__(self, world: World, *, time_scale: float = 1.0, **kw: Any) -> None:
+    def __init__(
+        self,
+        world: World,
+        *,
+        time_scale: float = 1.0,
+        clock: VirtualClock | None = None,
+        **kw: Any,
+    ) -> None:
         super().__init__(**kw)
-        self.world, self.time_scale = world, float(time_scale)
+        self.world, self.time_scale, self.clock = world, float(time_scale), clock
         self._stop = threading.Event()
         self._pending: DeviceFault | None = None
         self.override_pct = 100
@@ -103,6 +138,11 @@ class FakeRobot(Robot):
         duration *= 100.0 / self.override_pct
         if duration * self.time_scale > timeout_s:
             raise DeviceTimeout(f"{self.name}: motion would take {duration:.1f} s")
+        if self.clock is not None:
+            self.motion_durations_s.append(duration)
+            if not pass_along(self.world, q_deg, duration, self.clock, self._stop):
+                raise DeviceFault(f"{self.name}: motion aborted")
+            return
         self.motion_durations_s.append(duration * self.time_scale)
         if not move_along(self.world, q_deg, duration * self.time_scale, self._stop):
             raise DeviceFault(f"{self.name}: motion aborted")
@@ -292,11 +332,15 @@ class ClampCycle:
 
 
 class FakePlc(Plc):
-    """A PLC in memory running a ClampCycle from the moment it is opened."""
+    """A PLC in memory running a ClampCycle from the moment it is opened (on a VirtualClock,
+    ``clock=``: from its sim time 0, the cycle's time_scale applied to its sim seconds as to
+    real ones)."""
 
-    def __init__(self, cycle: ClampCycle | None = None, **kw: Any) -> None:
+    def __init__(
+        self, cycle: ClampCycle | None = None, *, clock: VirtualClock | None = None, **kw: Any
+    ) -> None:
         super().__init__(**kw)
-        self.cycle = cycle or ClampCycle()
+        self.cycle, self.clock = cycle or ClampCycle(), clock
         self.received = PlcOutputs()
         # the newest 1000 changes of busy/done/fault, in order (bounded: soaks run for days)
         self.history: deque[PlcOutputs] = deque(maxlen=1000)
@@ -315,7 +359,11 @@ class FakePlc(Plc):
         pass
 
     def _read_input_words(self) -> tuple[int, int]:
-        return encode_inputs(self.cycle.inputs(time.monotonic() - self._t0, self.heartbeat_frozen))
+        if self.clock is not None:
+            elapsed = self.clock.monotonic() * self.cycle.time_scale
+        else:
+            elapsed = time.monotonic() - self._t0
+        return encode_inputs(self.cycle.inputs(elapsed, self.heartbeat_frozen))
 
     def _write_output_words(self, words: tuple[int, int]) -> None:
         outputs, old = decode_outputs(words), self.received

@@ -18,6 +18,9 @@ therefore waits for a machine-wide lock of the address (an flock in the temporar
 with the holder's pid in it) and `close()` gives it back: processes take turns instead of
 stealing each other's frames.
 
+On the simulated line's VirtualClock (``clock=``) every frame lets its exposure and
+``readout_s`` of sim time pass before it is rendered (the scene at the end of the exposure).
+
 ``stall()`` makes the camera stop sending frames while it still answers its control channel (a
 camera that times out); ``resume()`` brings the frames back without a stale one for a trigger
 that came in meanwhile. ``lose_next_frame()`` drops every packet of the next frame on the wire
@@ -37,6 +40,7 @@ from typing import Any, Self
 
 import numpy as np
 
+from fakes.clock import VirtualClock
 from fakes.world import World
 
 _FILL = ctypes.CFUNCTYPE(
@@ -129,8 +133,11 @@ class GvCamera:
         address: str = "127.0.0.1",
         serial: str = "RVIS0001",
         sensor_wh: tuple[int, int] | None = None,
+        clock: VirtualClock | None = None,
+        readout_s: float = 0.0,
     ) -> None:
         self.world, self.address, self.serial = world, address, serial
+        self.clock, self.readout_s = clock, float(readout_s)
         self.sensor_wh = sensor_wh
         self.camera_id = address
         self.frames_filled = 0
@@ -212,6 +219,8 @@ class GvCamera:
             h = self._lib.arv_buffer_get_image_height(buffer)
             bits = (pixel_format >> 16) & 0xFF
             ptr = self._lib.arv_buffer_get_data(buffer, ctypes.byref(ctypes.c_size_t()))
+            if self.clock is not None:
+                self.clock.elapse(exposure_us * 1e-6 + self.readout_s)
             image = self._render(w, h, float(exposure_us), float(gain))
             top, dtype = (255, np.uint8) if bits == 8 else (65535, np.dtype("<u2"))
             values = np.round(np.clip(image, 0.0, 1.0) * top).astype(dtype)

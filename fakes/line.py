@@ -1,12 +1,15 @@
 """The simulated line: one simulated cell driving every protocol peer on 127.0.0.1.
 
-    with SimLine(cell, SimLineSetup(scale=60, knock=Knock(at_s=4 * 3600))) as line:
+    with SimLine(cell, SimLineSetup(knock=Knock(at_s=4 * 3600))) as line:
         robot = open_robot(line.urls["robot"])          # the real drivers, over loopback
         ...
         line.truth.validation_centres_sensor_mm()       # the truth now, for the app's report
 
-What runs, all on the line's clock (`ScaledClock`: `scale` sim seconds per real second, sim time 0
-at the start; the cell's warm-up and knock follow it):
+What runs, all on the line's clock (sim time 0 at the start; the cell's warm-up and knock follow
+it). By default a `VirtualClock`: time passes only by what is simulated (the service's waits,
+the motions, exposures, read-outs, the DAC's settling), so a seed gives one run whatever the
+machine's load; `scale` paces it for a person who watches. `clock="scaled"`: a `ScaledClock`,
+the wall clock x `scale` (peers driven by hand, nobody making time pass).
 
     plc      plc+modbus://127.0.0.1:PORT   Modbus PLC with the clamp cycle (a window of
                                            `window_s` at the end of every `period_s`)
@@ -35,7 +38,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from fakes.cell import SimulatedCell
-from fakes.clock import ScaledClock
+from fakes.clock import ScaledClock, VirtualClock
 from fakes.devices import ClampCycle
 from fakes.gv_camera import GvCamera
 from fakes.line_faults import GALVO_ERROR_CODE, Fault, FaultScheduler, LinePlc, window_bounds_s
@@ -50,10 +53,13 @@ F64 = NDArray[np.float64]
 
 @dataclass(frozen=True)
 class SimLineSetup:
-    """The simulated line. Times in sim seconds; `scale` sim seconds pass per real second."""
+    """The simulated line. Times in sim seconds. clock "virtual": time passes by the simulated
+    durations, paced at `scale` sim seconds per real second (None: as fast as the CPU);
+    "scaled": `scale` sim seconds pass per real second, whatever happens."""
 
-    scale: float = 60.0
-    start_epoch: float | None = None  # Unix time of sim time 0 (None: now)
+    scale: float | None = None
+    clock: str = "virtual"  # "virtual" | "scaled"
+    start_epoch: float | None = None  # Unix time of sim time 0 (None: now, whole seconds)
     period_s: float = 60.0  # clamp cycle: one window a minute ...
     window_s: float = 20.0  # ... open for its last window_s
     beat_s: float = 0.5  # PLC heartbeat period
@@ -62,10 +68,20 @@ class SimLineSetup:
     camera: bool = True  # start the GigE fake (False: geometric runs, no rendering)
     camera_address: str = "127.0.0.1"
     n_validation: int = 100
+    camera_readout_s: float = 0.033  # virtual clock: a frame's read-out after its exposure
+    galvo_settle_s: float = 0.002  # virtual clock: the mirror settling after a command
 
     def __post_init__(self) -> None:
-        if not (0 < self.window_s < self.period_s and self.beat_s > 0 and self.scale > 0):
-            raise ValueError("line needs 0 < window_s < period_s, beat_s > 0 and scale > 0")
+        if not (0 < self.window_s < self.period_s and self.beat_s > 0):
+            raise ValueError("line needs 0 < window_s < period_s and beat_s > 0")
+        if self.clock not in ("virtual", "scaled"):
+            raise ValueError(f"clock must be virtual or scaled, got {self.clock!r}")
+        if self.scale is not None and not self.scale > 0:
+            raise ValueError("scale must be > 0")
+        if self.clock == "scaled" and self.scale is None:
+            raise ValueError("a scaled clock needs a scale")
+        if self.camera_readout_s < 0 or self.galvo_settle_s < 0:
+            raise ValueError("camera_readout_s and galvo_settle_s must be >= 0")
         if self.n_validation < 1:
             raise ValueError("n_validation must be >= 1")
 
@@ -105,10 +121,17 @@ class SimLine:
     def __init__(self, cell: SimulatedCell, settings: SimLineSetup | None = None) -> None:
         self.cell = cell
         self.settings = settings or SimLineSetup()
+        s = self.settings
         # sim time 0 is when every peer is up (start), not when the line object is built
-        self.clock = ScaledClock(self.settings.scale, self.settings.start_epoch, started=False)
+        self.clock: VirtualClock | ScaledClock
+        self.virtual: VirtualClock | None = None
+        if s.clock == "scaled":
+            assert s.scale is not None
+            self.clock = ScaledClock(s.scale, s.start_epoch, started=False)
+        else:
+            self.clock = self.virtual = VirtualClock(s.start_epoch, pace=s.scale)
         self._stack = ExitStack()
-        self.dac = ScpiDac()
+        self.dac = ScpiDac(clock=self.virtual, settle_s=s.galvo_settle_s)
         self.world = _LineWorld(cell, self.dac)
         seed = cell.settings.seed
         self.plc = LinePlc(self.settings.cycle, self.clock)
@@ -121,7 +144,11 @@ class SimLine:
             _ = cell.sensor.pixel_rays  # built once (~1-3 s) now, not inside the first grab
             sensor_wh = (cell.sensor.width_px, cell.sensor.height_px)
             self.camera = GvCamera(
-                self.world, address=self.settings.camera_address, sensor_wh=sensor_wh
+                self.world,
+                address=s.camera_address,
+                sensor_wh=sensor_wh,
+                clock=self.virtual,
+                readout_s=s.camera_readout_s,
             )
         rng = np.random.default_rng([seed, 8])
         self.truth = LineTruth(cell, validation_positions(cell, self.settings.n_validation, rng))
@@ -178,10 +205,13 @@ class SimLine:
         return urls
 
     # -- measuring without images -----------------------------------------------------------
-    def geometric_centre(self, target_id: str) -> F64:
+    def geometric_centre(self, target_id: str, sweep_s: float = 0.0) -> F64:
         """The true centre (3,) [mm] of sphere `target_id` in the true sensor frame at the
-        robot's current joints and the current sim time, plus the cell's sensor noise.
-        Raises fakes.cell.NotVisible outside the measuring volume."""
+        robot's current joints and the sim time at the end of the sweep, plus the cell's sensor
+        noise. sweep_s: the sweep's duration, which passes on a VirtualClock first (no camera
+        charges it on this path). Raises fakes.cell.NotVisible outside the measuring volume."""
+        if self.virtual is not None:
+            self.virtual.elapse(sweep_s)
         return self.cell.measure_target(target_id)
 
     # -- clamp windows ----------------------------------------------------------------------

@@ -10,8 +10,10 @@ the driver raises on hardware:
     camera_timeout       the camera stops streaming (until cleared)  -> DeviceTimeout on grab
     galvo_error          the next voltage command queues a DAC error -> DeviceFault(code -240)
 
-`FaultScheduler` plays faults at chosen sim times on the line's clock (a daemon thread waiting
-on the clock; closed with the line).
+`FaultScheduler` plays faults at chosen sim times on the line's clock: on a VirtualClock as
+callbacks at those times (run by whatever makes time pass: a fault lands at the same point of a
+run every time), on a ScaledClock from a daemon thread waiting on the clock; closed with the
+line.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from typing import Any
 
 from drivers.plc import WINDOW_OPEN
 from drivers.plc_modbus import PLC_STATUS
-from fakes.clock import Clock
+from fakes.clock import Clock, TimerClock
 from fakes.devices import ClampCycle
 from fakes.plc import PlcServer
 
@@ -102,7 +104,8 @@ class FaultScheduler:
         self._thread = threading.Thread(target=self._run, name="line-faults", daemon=True)
 
     def start(self) -> None:
-        self._thread.start()
+        if not isinstance(self._clock, TimerClock):
+            self._thread.start()
 
     def close(self) -> None:
         self._stopping = True
@@ -113,6 +116,9 @@ class FaultScheduler:
     def plan(self, fault: Fault, at_s: float) -> threading.Event:
         """Play `fault` at sim time at_s; the event is set once it has been played."""
         item = _Planned(float(at_s), Fault(fault))
+        if isinstance(self._clock, TimerClock):
+            self._clock.call_at(item.at_s, lambda: self._play_now(item))
+            return item.done
         with self._lock:
             self._planned.append(item)
             self._planned.sort()
@@ -135,6 +141,11 @@ class FaultScheduler:
                 continue
             with self._lock:
                 self._planned.remove(due)
-            self._play(due.fault)
-            self.played.append((due.fault, self._clock.monotonic()))
-            due.done.set()
+            self._play_now(due)
+
+    def _play_now(self, item: _Planned) -> None:
+        if self._stopping:
+            return
+        self._play(item.fault)
+        self.played.append((item.fault, self._clock.monotonic()))
+        item.done.set()

@@ -11,7 +11,9 @@ override). Instructions, executed one after the other and answered when done: FR
 FRC_JointRelativeJRep (SpeedType "Percent", Speed 1..100, TermType FINE/CNT/CR; a motion takes max
 |dq| / (speed x override) x time_scale seconds, moving the World's joints along the way; each
 duration is appended to ``motion_durations_s``; time follows ``clock``, real time by
-default), FRC_WaitTime, FRC_SetUFrame, FRC_SetUTool.
+default: on a VirtualClock the motion's duration passes on the clock, off the event loop so
+that an FRC_Abort sent meanwhile is served, and the joints are set where the motion is when it
+ends or is stopped), FRC_WaitTime, FRC_SetUFrame, FRC_SetUTool.
 Like the controller it refuses out-of-order SequenceIDs (RMIT-029), instructions before
 FRC_Initialize (RMIT-009), motion outside the joint limits (RMIT-036) and anything while an alarm
 is active (RMIT-007, until FRC_Reset). Bad JSON and unknown packets are answered with the
@@ -34,8 +36,11 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import threading
 from collections import deque
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
@@ -43,7 +48,7 @@ import numpy as np
 from drivers import rmi_errors as rmi
 from drivers.safety import JointLimits
 from fakes._lineserver import LineServer
-from fakes.clock import RealClock, SimClock
+from fakes.clock import RealClock, SimClock, VirtualClock
 from fakes.world import World
 
 JOINTS = ("J1", "J2", "J3", "J4", "J5", "J6")
@@ -52,6 +57,17 @@ JOINTS = ("J1", "J2", "J3", "J4", "J5", "J6")
 ERR_RMI_MOVE_SELECTED = 7015
 TERM_TYPES = ("FINE", "CNT", "CR")
 PoseOf = Callable[[np.ndarray], dict[str, float]]
+
+
+@dataclass(frozen=True, eq=False)
+class _Moving:
+    """A motion whose duration is passing on a VirtualClock."""
+
+    start: np.ndarray
+    target: np.ndarray
+    duration_s: float
+    t0: float
+    stop: threading.Event
 
 
 class RmiController(LineServer):
@@ -86,10 +102,20 @@ class RmiController(LineServer):
         self._initialized = False
         self._next_seq = 1
         self._motion: asyncio.Task[None] | None = None
+        self._moving: _Moving | None = None
+        # virtual time passes here, off the event loop (an abort must be served meanwhile)
+        self._mover: ThreadPoolExecutor | None = None
+        if isinstance(self.clock, VirtualClock):
+            self._mover = ThreadPoolExecutor(1, thread_name_prefix="rmi-motion")
 
     async def _start(self) -> None:
         await super()._start()
         self.session_port = await self._listen(0)
+
+    def close(self) -> None:
+        super().close()
+        if self._mover is not None:
+            self._mover.shutdown(wait=True, cancel_futures=True)
 
     # -- test controls (thread-safe) ----------------------------------------------------------
     def terminate_sessions(self) -> None:
@@ -347,7 +373,9 @@ class RmiController(LineServer):
                 await previous
         name, seq = msg["Instruction"], msg["SequenceID"]
         error = 0
-        if name == "FRC_WaitTime":
+        if name == "FRC_WaitTime" and self._mover is not None:
+            await self._elapse(float(msg["Time"]) * self.time_scale, threading.Event())
+        elif name == "FRC_WaitTime":
             await asyncio.sleep(float(msg["Time"]) * self.time_scale / self.clock.scale)
         elif name == "FRC_SetUFrame":
             self.uframe = int(msg["FrameNumber"])
@@ -369,6 +397,8 @@ class RmiController(LineServer):
         speeds = np.asarray(self.limits.speed_deg_s) * speed_pct * self.override_pct / 1e4
         duration = float(np.max(np.abs(target - start) / speeds)) * self.time_scale
         self.motion_durations_s.append(duration)
+        if self._mover is not None:
+            return await self._run_motion_virtual(start, target, duration, half_way)
         t0 = self.clock.monotonic()
         # the joints follow the clock (not a count of sleeps, whose overheads would add up)
         while (frac := (self.clock.monotonic() - t0) / duration if duration > 0 else 1.0) < 1.0:
@@ -384,6 +414,44 @@ class RmiController(LineServer):
         self.world.set_joints_deg(target)
         return 0
 
+    async def _elapse(self, seconds: float, stop: threading.Event) -> None:
+        """Let `seconds` pass on the VirtualClock (in the mover thread)."""
+        assert self._mover is not None and isinstance(self.clock, VirtualClock)
+        loop = asyncio.get_running_loop()
+        await loop.run_in_executor(self._mover, self.clock.elapse, seconds, stop)
+
+    async def _run_motion_virtual(
+        self, start: np.ndarray, target: np.ndarray, duration: float, half_way: str | None
+    ) -> int:
+        """The motion's duration (half of it, for a fault half-way) passes on the clock; the
+        joints land at its end, or where it is when an abort stops it (`_halt`)."""
+        moving = _Moving(start, target, duration, self.clock.monotonic(), threading.Event())
+        self._moving = moving
+        try:
+            await self._elapse(duration * (0.5 if half_way is not None else 1.0), moving.stop)
+        except asyncio.CancelledError:
+            self._halt()
+            raise
+        if moving.stop.is_set():  # halted (the task is being cancelled): no reply
+            return -1
+        self._moving = None
+        if half_way is not None:
+            self.world.set_joints_deg(start + (target - start) * 0.5)
+            await self._half_way_fault(half_way)
+            return -1
+        self.world.set_joints_deg(target)
+        return 0
+
+    def _halt(self) -> None:
+        """Stop a motion passing on the VirtualClock where it is now."""
+        moving, self._moving = self._moving, None
+        if moving is None:
+            return
+        moving.stop.set()
+        done = self.clock.monotonic() - moving.t0
+        frac = min(done / moving.duration_s, 1.0) if moving.duration_s > 0 else 1.0
+        self.world.set_joints_deg(moving.start + (moving.target - moving.start) * frac)
+
     async def _half_way_fault(self, mode: str) -> None:
         if mode == "system_fault":
             await self._system_fault()
@@ -397,6 +465,7 @@ class RmiController(LineServer):
         del self.alarms[rmi.READ_ERROR_MAX_COUNT :]  # what FRC_ReadError can show; bounded
         current = asyncio.current_task()
         if self._motion is not None and self._motion is not current:
+            self._halt()
             self._motion.cancel()
         await self._broadcast(
             {"Communication": "FRC_SystemFault", "SequenceID": self._next_seq - 1}
@@ -404,6 +473,7 @@ class RmiController(LineServer):
 
     def _stop_motion(self) -> None:
         if self._motion is not None:
+            self._halt()
             self._motion.cancel()
             self._motion = None
 

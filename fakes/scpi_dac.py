@@ -12,6 +12,9 @@ without its LF), "drop" (the board vanishes on receipt, as a USB-CDC device unpl
 mid-command), or an int error code queued in place of executing the command. ``unplug()`` removes
 the board at once, ``replug()`` brings it back.
 
+On the simulated line's VirtualClock (``clock=``) a voltage command lets ``settle_s`` of sim time
+pass: the mirror settling at its new angle.
+
 With ``link=`` (a path), ``.port`` is a symlink to the pty, re-pointed on ``replug()``: the stable
 name udev gives a USB serial device (/dev/serial/by-id/...), so the driver can reopen the same
 port after the board has been away. Without it, ``.port`` is the pty itself.
@@ -30,6 +33,7 @@ import tty
 from typing import ClassVar, Self
 
 from fakes._scpi import ScpiError, ScpiInstrument, parse_number
+from fakes.clock import VirtualClock
 
 IDN = "rvis,FakeDAC-1,0001,1.0"
 
@@ -48,9 +52,17 @@ class ScpiDac(ScpiInstrument):
     )
     identity = IDN
 
-    def __init__(self, *, volt_limit: float = 10.0, link: str | os.PathLike[str] | None = None):
+    def __init__(
+        self,
+        *,
+        volt_limit: float = 10.0,
+        link: str | os.PathLike[str] | None = None,
+        clock: VirtualClock | None = None,
+        settle_s: float = 0.0,
+    ):
         super().__init__()
         self.volt_limit = volt_limit
+        self.clock, self.settle_s = clock, float(settle_s)
         self.volts = 0.0
         self.commands_received: list[str] = []
         self._faults: dict[str, str | int] = {}
@@ -200,4 +212,6 @@ class ScpiDac(ScpiInstrument):
         if abs(value) > self.volt_limit:
             raise ScpiError(-222)
         self.volts = value
+        if self.clock is not None:
+            self.clock.elapse(self.settle_s)  # the mirror settles at its new angle
         return None

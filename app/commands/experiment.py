@@ -106,7 +106,12 @@ def _shift_options(g: argparse.ArgumentParser) -> None:
         " (with --seeds: a campaign, shift-knocks.md)",
     )
     g.add_argument("--seed", type=int_at_least(0), default=0, help="seed of one shift (0)")
-    g.add_argument("--scale", type=float, help="time scale (default [simline] scale)")
+    g.add_argument(
+        "--scale",
+        type=float,
+        help="pace the virtual time at this many sim seconds per real second, to watch it"
+        " (default: as fast as the CPU; the outcome is the same)",
+    )
     g.add_argument("--slots-per-window", type=int_at_least(1), help="default [line]")
     g.add_argument("--geometric", action="store_true", help="geometric measurements (default)")
     g.add_argument("--rendered", action="store_true", help="measure through images")
@@ -262,11 +267,13 @@ def _shift_settings(args: argparse.Namespace) -> ShiftSettings:
         raise InputError(str(exc), field="--hours/--knock-at-h/--scale") from exc
 
 
-def _shift_command(args: argparse.Namespace, scale: float, out: Path) -> str:
+def _shift_command(args: argparse.Namespace, scale: float | None, out: Path) -> str:
     """The command line that reproduces a shift (for the outputs' headers)."""
     return (
         f"rvis experiment shift --hours {args.hours:g} --knock-at-h {args.knock_at_h:g}"
-        f" --knock {args.knock} --scale {scale:g} --out {out}"
+        f" --knock {args.knock}"
+        + ("" if scale is None else f" --scale {scale:g}")
+        + f" --out {out}"
         + (f" --slots-per-window {args.slots_per_window}" if args.slots_per_window else "")
         + (" --rendered" if args.rendered else "")
         + (f" --estimator {args.estimator}" if args.estimator else "")

@@ -5,10 +5,12 @@ directory).
 
 `rvis run --sim [--geometric] [--seed N] [--windows N] [--json]`: the same service on the
 simulated line (app/sim/line_run.py): every device peer on loopback, reached through the real
-drivers, one simulated cell drifting with time ([simline] of the cell file: time scale, clamp
-cycle, warm-up, knock). With --windows it stops after N windows and prints a summary (windows,
-measurements, overruns, calibrations applied and rejected, alarms, true RMSE at the validation
-positions); without, it runs until SIGTERM or Ctrl-C.
+drivers, one simulated cell drifting with time ([simline] of the cell file: clamp cycle,
+warm-up, knock, the pace). Its time is virtual (passed by what is simulated: a seed gives one
+run). With --windows it runs as fast as the CPU, stops after N windows and prints a summary
+(windows, measurements, overruns, calibrations applied and rejected, alarms, true RMSE at the
+validation positions); without, paced at [simline] scale for a person who watches, it runs
+until SIGTERM or Ctrl-C.
 
 stdout carries JSON lines only, in every mode (docs/operations.md, "What the service prints"):
 the service's log (without --windows), the simulation's `sim_window` line after every window
@@ -138,6 +140,7 @@ def run_sim(args: argparse.Namespace) -> int:
     from app.line.launch import hold_state, json_logs, serving
     from app.line.statedir import StateDir
     from app.sim.line_run import SimulatedLineRun, WindowRecord
+    from app.sim.shift import time_text
 
     cfg = load_cell(args.cell)
     state_dir = Path(args.state_dir or cfg.service.state_dir)
@@ -165,6 +168,8 @@ def run_sim(args: argparse.Namespace) -> int:
                 geometric=args.geometric,
                 plan=plan,
                 sensor_model=None if args.geometric else _sensor_model(args, state_dir),
+                # a person watches a run without --windows: paced; a counted run as fast as it can
+                pace=None if batch else cfg.simline.scale,
             ) as sim,
         ):
             with serving(sim.service):
@@ -172,7 +177,7 @@ def run_sim(args: argparse.Namespace) -> int:
                     print(
                         f"rvis run --sim: seed {seed}, "
                         f"{'geometric' if args.geometric else 'rendered'} measurements, "
-                        f"time x{sim.scale:g}, socket {StateDir(state_dir).socket}",
+                        f"{time_text(sim.pace)}, socket {StateDir(state_dir).socket}",
                         file=sys.stderr,
                         flush=True,
                     )

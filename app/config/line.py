@@ -217,16 +217,34 @@ class OpcUaSettings(Section):
 
 @dataclass(frozen=True)
 class SimLineSection(Section):
-    """The simulated line of `rvis run --sim` (fakes/line.py): time scale, clamp cycle, the
+    """The simulated line of `rvis run --sim` (fakes/line.py): its time, clamp cycle, the
     cell's warm-up and a knock (knock_at_s < 0: none) of the sensor mount (knock_kind sensor:
     knock_mm shift and knock_deg tilt), of the spheres' frame (fixture: the same about the
-    spheres' centroid) or of the J2 encoder zero (joint: a slip of knock_deg)."""
+    spheres' centroid) or of the J2 encoder zero (joint: a slip of knock_deg).
+
+    Time on the simulated line is virtual: it passes by the simulated durations of what
+    happens (motions, exposures and read-outs, the DAC's settling, the service's own waits,
+    an identification's modelled cost), so a seed and these settings give one outcome. `scale`
+    paces it at that many sim seconds per real second for a person who watches (`rvis tui
+    --sim`, `rvis run --sim` without --windows, `--scale`); otherwise it runs as fast as the
+    CPU."""
 
     name = "simline"
     scale: float = opt(60.0, gt=0, hi=10000)
     period_s: float = opt(60.0, gt=0, hi=86400)
     window_s: float = opt(20.0, gt=0, hi=86400)
     beat_s: float = opt(0.5, gt=0, hi=60)
+    # the service's PLC poll on the simulated line (in place of [line] poll_s): every poll is a
+    # real exchange over loopback, so this sets how fast an unpaced run goes; a window's rising
+    # edge is seen up to this late, which the window's margin takes in
+    poll_s: float = opt(1.0, gt=0, hi=60)
+    # the modelled cost of one in-line identification (the worker's compute): its outcome is
+    # seen this long after it was submitted, however fast the machine computed it (one
+    # identification of the rolling set computes in 20-75 ms on the 2-core development machine:
+    # 2 s leaves room for a slower cell PC and the hand-over to the worker)
+    identification_s: float = opt(2.0, lo=0, hi=3600)
+    camera_readout_s: float = opt(0.033, lo=0, hi=10)  # per frame, after its exposure
+    galvo_settle_s: float = opt(0.002, lo=0, hi=10)  # per galvo command
     warmup_k: float = opt(8.0, lo=-50, hi=50)
     warmup_tau_s: float = opt(3600.0, gt=0, hi=1e6)
     warmup_start_s: float = opt(0.0, lo=0, hi=1e6)

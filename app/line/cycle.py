@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from app.config.line import LineSettings
 from app.line.measure import Reading, Rejected, SphereMeasurer
 from app.line.schedule import Schedule, Slot
-from drivers.clock import Clock
+from drivers.clock import Clock, Timer, TimerClock
 from drivers.errors import DeviceError
 from drivers.plc import Plc, PlcInputs
 
@@ -106,8 +106,10 @@ class WindowWatch:
 
 
 class Withdrawal:
-    """Watches the PLC from a thread while the robot is out; on a withdrawn window it aborts
-    the robot once and latches `withdrawn` (with `why`)."""
+    """Watches the PLC while the robot is out, every `poll_s`; on a withdrawn window it aborts
+    the robot once and latches `withdrawn` (with `why`). From a thread waiting on the clock; on
+    a TimerClock (virtual time, which the robot's motion makes pass) from callbacks at the poll
+    times instead, so that it looks at the PLC at the same sim times in every run."""
 
     def __init__(self, watch: WindowWatch, abort: Callable[[], None]) -> None:
         self.watch, self._abort = watch, abort
@@ -115,31 +117,60 @@ class Withdrawal:
         self.why = ""
         self.error: BaseException | None = None
         self._stop = threading.Event()
+        clock = watch.clock
+        self._timers: TimerClock | None = clock if isinstance(clock, TimerClock) else None
+        self._timer: Timer | None = None
+        self._tick_lock = threading.Lock()  # a callback running, in whichever thread
         self._thread = threading.Thread(target=self._run, name="rvis-window-watch", daemon=True)
 
     def __enter__(self) -> Withdrawal:
-        self._thread.start()
+        if self._timers is not None:
+            self._next_tick()
+        else:
+            self._thread.start()
         return self
 
     def __exit__(self, *exc: object) -> None:
         self._stop.set()
-        self._thread.join()
+        if self._timers is not None:
+            with self._tick_lock:  # a callback in another thread finishes first
+                if self._timer is not None:
+                    self._timer.cancel()
+        else:
+            self._thread.join()
+
+    def _next_tick(self) -> None:
+        assert self._timers is not None
+        t = self._timers.monotonic() + self.watch.line.poll_s
+        self._timer = self._timers.call_at(t, self._tick)
+
+    def _tick(self) -> None:
+        with self._tick_lock:
+            if not self._stop.is_set() and not self._look():
+                self._next_tick()
 
     def _run(self) -> None:
         w = self.watch
         while not w.clock.wait(self._stop, w.line.poll_s):
-            try:
-                w.poll()
-            except DeviceError as exc:  # the PLC link itself failed: stop the robot too
-                self.error = exc
-            if self.error is not None or not w.ready():
-                self.why = self._reason()
-                self.withdrawn = True
-                try:
-                    self._abort()
-                except DeviceError as exc:
-                    self.error = self.error or exc
+            if self._look():
                 return
+
+    def _look(self) -> bool:
+        """Poll the PLC; True when the window is gone (the robot aborted)."""
+        w = self.watch
+        try:
+            w.poll()
+        except DeviceError as exc:  # the PLC link itself failed: stop the robot too
+            self.error = exc
+        if self.error is None and w.ready():
+            return False
+        self.why = self._reason()
+        self.withdrawn = True
+        try:
+            self._abort()
+        except DeviceError as exc:
+            self.error = self.error or exc
+        return True
 
     def _reason(self) -> str:
         w, i = self.watch, self.watch.inputs

@@ -75,8 +75,11 @@ class EventBus:
         self._subs: list[Subscription] = []
         self._lock = threading.Lock()
 
-    def subscribe(self, *, drop_when_full: bool = False) -> Subscription:
-        q = Subscription(self.max_queue, drop_when_full)
+    def subscribe(self, *, drop_when_full: bool = False, every: bool = False) -> Subscription:
+        """A subscriber's queue; `every`: unbounded, for a consumer in the same process that
+        must see every event (the simulated line's run, whose service can run ahead of it in
+        virtual time)."""
+        q = Subscription(0 if every else self.max_queue, drop_when_full)
         with self._lock:
             self._subs.append(q)
         return q

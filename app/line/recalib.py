@@ -4,10 +4,14 @@ The set is the last `rolling_size` good measurements before the `holdout_size` m
 (only measurements after the last drift onset when drift was flagged); it must hold every sphere
 and every configuration of the schedule. The identification (calib.identify, starting from the
 parameters in force) runs in a separate process, so the cycle never waits for it; `poll()`
-collects the outcome between windows. The gates (`check_candidate`, the one place to fold into
-calib.gates later): the calib.gates checks (converged, finite, rank, RMS <= max_rms_mm,
-condition, bounded change from the parameters in force) plus "better than the parameters in
-force on the held-out measurements" (RMS ratio <= max_holdout_ratio).
+collects the outcome between windows. On the simulated line's virtual time (`cost_s` and the
+service's `clock`) the identification has a modelled cost: its outcome is seen exactly when the
+clock passes its submission + `cost_s` (waiting for the worker then, if it is not done yet), so
+when a calibration lands does not depend on how fast the machine computed it. The gates
+(`check_candidate`, the one place to fold into calib.gates later): the calib.gates checks
+(converged, finite, rank, RMS <= max_rms_mm, condition, bounded change from the parameters in
+force) plus "better than the parameters in force on the held-out measurements" (RMS ratio <=
+max_holdout_ratio).
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ from calib.gates import check_identification
 from calib.identify import IdentificationResult, Measurements, identify, residuals
 from calib.model import SystemModel
 from calib.validation import rmse
+from drivers.clock import Clock
 
 F64 = NDArray[np.float64]
 
@@ -143,6 +148,10 @@ def run_recalibration(job: RecalJob) -> RecalOutcome:
     )
 
 
+def _ready() -> None:
+    """A job that does nothing: the worker is up."""
+
+
 STOP_SIGNALS = {signal.SIGTERM, signal.SIGINT}
 
 
@@ -184,16 +193,36 @@ def process_executor() -> Executor:
 
 
 class Recalibrator:
-    """Runs one recalibration at a time in the background; `poll()` never blocks."""
+    """Runs one recalibration at a time in the background; `poll()` never blocks, unless a
+    modelled cost (`cost_s` sim seconds on `clock`, virtual time) has passed and the worker
+    is not done yet."""
 
-    def __init__(self, executor_factory: Callable[[], Executor] = process_executor) -> None:
+    def __init__(
+        self,
+        executor_factory: Callable[[], Executor] = process_executor,
+        *,
+        cost_s: float | None = None,
+        clock: Clock | None = None,
+    ) -> None:
+        if (cost_s is None) != (clock is None) or (cost_s is not None and cost_s < 0):
+            raise ValueError("a modelled cost needs both cost_s >= 0 and the clock")
         self._factory = executor_factory
         self._executor: Executor | None = None
         self._future: Future[RecalOutcome] | None = None
+        self.cost_s, self._clock = cost_s, clock
+        self._ready_t = 0.0  # the clock time its outcome is seen at (modelled cost)
 
     @property
     def busy(self) -> bool:
         return self._future is not None
+
+    def prestart(self) -> None:
+        """Start the worker now rather than with the first job (the simulated line: its start-up
+        then overlaps the first windows instead of the first identification)."""
+        with stop_signals_held():
+            if self._executor is None:
+                self._executor = self._factory()
+            self._executor.submit(_ready)
 
     def submit(self, job: RecalJob) -> bool:
         """Start `job` unless one is running; True if started."""
@@ -203,21 +232,34 @@ class Recalibrator:
             if self._executor is None:
                 self._executor = self._factory()
             self._future = self._executor.submit(run_recalibration, job)
+        if self._clock is not None and self.cost_s is not None:
+            self._ready_t = self._clock.monotonic() + self.cost_s
         return True
 
     def poll(self) -> RecalOutcome | None:
-        """The finished outcome, once; None while running or idle."""
-        if self._future is None or not self._future.done():
+        """The finished outcome, once; None while running or idle. With a modelled cost: None
+        until the clock has passed it, then the outcome (waiting for the worker if need be)."""
+        if self._future is None:
             return None
+        if self._clock is not None:
+            if self._clock.monotonic() < self._ready_t:
+                return None
+        elif not self._future.done():
+            return None
+        return self._take()
+
+    def _take(self) -> RecalOutcome:
+        assert self._future is not None
         future, self._future = self._future, None
         return future.result()
 
     def wait(self, timeout_s: float) -> RecalOutcome | None:
-        """Block until the running job is done (tests and shutdown only)."""
+        """Block until the running job is done (tests and shutdown only), whatever its
+        modelled cost."""
         if self._future is None:
             return None
         self._future.exception(timeout=timeout_s)
-        return self.poll()
+        return self._take()
 
     def close(self) -> None:
         if self._executor is not None:

@@ -38,7 +38,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import threading
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future
 from typing import Any
 
@@ -145,6 +145,10 @@ class Service:
         self.new_since_recal = 0
         self.force_recal = False
         self.recal_ids: dict[str, list[int]] | None = None  # the calibration in flight
+        # good measurements recorded by this process, and the (count, since) at which the
+        # rolling set was last found incomplete: not looked for again until one more comes
+        self._good_rows = 0
+        self._incomplete: tuple[int, int] | None = None
         self.exit_code = 0  # 1 after an internal error: the supervisor restarts the process
         self._crash: BaseException | None = None  # from another thread (crash())
         self.unstored_alarms: list[dict[str, Any]] = []  # raised while the storage failed
@@ -155,6 +159,9 @@ class Service:
         self.wake = threading.Event()
         self.device_errors: dict[str, dict[str, str]] = {}  # family -> {"error", "utc"}
         self.fault_family: str | None = None  # the device of the fault in force (None: unknown)
+        # called in the loop's thread after each window and what follows it between windows
+        # (the simulated line holds the service there, its virtual time standing, to look)
+        self.after_window: Callable[[], None] | None = None
         self.operator = Operator(self)  # the operator's commands (app.line.operator)
         self.steps = StepHandler(self)  # a flagged step's handling (app.line.step_service)
         self.log = logging.getLogger("rvis.line")
@@ -413,6 +420,8 @@ class Service:
         )
         self.set_state(State.PAUSED if self.paused else State.IDLE)
         self._between_windows()
+        if self.after_window is not None:
+            self.after_window()
 
     def _unshelve(self) -> None:
         for alarm_id in self.store.unshelve_expired(self.clock.time()):
@@ -618,6 +627,7 @@ class Service:
             row_id = self.store.add_measurement(row)
             if reading is not None and e is not None:
                 self.new_since_recal += 1
+                self._good_rows += 1
                 change = self._change_mm(slot, reading.c_sensor_mm, row_id)
                 self._drift(slot.target, e, change, row_id)
                 if self.sequential is not None:
@@ -788,12 +798,16 @@ class Service:
         if self.recalibrator.busy or self.pending_calibration is not None or not self._recal_due():
             return
         since = 0 if self.drift_onset_id is None else self.drift_onset_id - 1
+        attempt = (self._good_rows, since)
+        if attempt == self._incomplete:
+            return  # no good measurement since the rolling set was found incomplete
         r = self.settings.recalib
         rows = self.store.measurements(
             status="ok", since_id=since, last=r.rolling_size + r.holdout_size
         )
         chosen = select_rolling(rows, len(self.schedule), self.schedule.targets, r)
         if chosen is None:
+            self._incomplete = attempt
             return
         train, holdout = chosen
         with self.store.batch():

@@ -39,9 +39,13 @@ class SimCommissioning:
     def __init__(self, cfg: CellConfig, seed: int, *, geometric: bool) -> None:
         self.cfg, self.seed, self.geometric = cfg, seed, geometric
         self.cell = make_cell(cfg, seed=seed)
-        # the line of `rvis run --sim`, steady and at full speed, with its camera either way
+        # the line of `rvis run --sim`, steady, with its camera either way; on a scaled wall
+        # clock (the commissioning steps wait for the PLC in real time: nothing of theirs makes
+        # virtual time pass)
         line = simline_settings(cfg, geometric=True)
-        settings = replace(line, warmup=None, knock=None, camera=True)
+        settings = replace(
+            line, warmup=None, knock=None, camera=True, clock="scaled", scale=cfg.simline.scale
+        )
         self.line = SimLine(self.cell, settings)
         self._stack = ExitStack()
         self.station: Any = None

@@ -3,7 +3,8 @@
 The simulated line (fakes/line.py) runs every device peer on loopback from one simulated cell
 whose truth drifts with time (warm-up, an optional knock of the sensor mount); the service opens
 them through the real drivers (drivers.registry), exactly as on a real cell, with the line's
-scaled clock. The service starts from a commissioning calibration of the cold cell (an offline
+virtual clock (time passes by what is simulated, so a seed gives one run; paced for a person
+who watches). The service starts from a commissioning calibration of the cold cell (an offline
 identification of 4 spheres x 6 random views, as `rvis simulate` + `rvis identify` would give)
 and measures the schedule's configurations in the clamp windows. After every window the true
 error of the parameters in force is evaluated at the line's validation positions (the truth is
@@ -28,6 +29,7 @@ from numpy.typing import NDArray
 from app.config import CellConfig
 from app.formats.params import from_json
 from app.line.measure import GeometricSensor, SphereSensor, SweepSensor
+from app.line.recalib import Recalibrator
 from app.line.schedule import Schedule
 from app.line.service import Service
 from app.line.settings import ServiceSettings, from_cell
@@ -39,6 +41,7 @@ from app.sim.truth import EndToEndTruth
 from calib import candidates
 from calib.identify import identify
 from fakes.cell import SimulatedCell
+from fakes.clock import VirtualClock
 from fakes.line import SimLine, SimLineSetup
 from fakes.truth import Knock, Warmup
 from vision.sensor_model import SensorModel
@@ -81,23 +84,22 @@ class SimRunSummary:
         }
 
 
-#: Rendering a frame and grabbing it through Aravis take about 0.1-0.15 s of real time: rendered
-#: runs go at most this fast, and the schedule budgets this much real time per frame.
-RENDERED_MAX_SCALE = 2.0
-RENDERED_FRAME_REAL_S = 0.15
-
-
-def sim_scale(cfg: CellConfig, geometric: bool) -> float:
-    return cfg.simline.scale if geometric else min(cfg.simline.scale, RENDERED_MAX_SCALE)
-
-
-def simline_settings(cfg: CellConfig, *, geometric: bool) -> SimLineSetup:
+def simline_settings(
+    cfg: CellConfig,
+    *,
+    geometric: bool,
+    pace: float | None = None,
+    start_epoch: float | None = None,
+) -> SimLineSetup:
+    """The simulated line of the cell file's [simline], in virtual time paced at `pace` sim
+    seconds per real second (None: as fast as the CPU)."""
     s = cfg.simline
     knock = None
     if s.knock_at_s >= 0:
         knock = Knock(s.knock_at_s, s.knock_mm, s.knock_deg, s.knock_kind)
     return SimLineSetup(
-        scale=sim_scale(cfg, geometric),
+        scale=pace,
+        start_epoch=start_epoch,
         period_s=s.period_s,
         window_s=s.window_s,
         beat_s=s.beat_s,
@@ -105,6 +107,8 @@ def simline_settings(cfg: CellConfig, *, geometric: bool) -> SimLineSetup:
         knock=knock,
         camera=not geometric,
         n_validation=s.n_validation,
+        camera_readout_s=s.camera_readout_s,
+        galvo_settle_s=s.galvo_settle_s,
     )
 
 
@@ -114,25 +118,18 @@ def with_simulated_plc(cfg: CellConfig) -> CellConfig:
     return dataclasses.replace(cfg, line=dataclasses.replace(cfg.line, plc_temperature=True))
 
 
-def service_settings(
-    cfg: CellConfig, state_dir: Path, scale: float, geometric: bool
-) -> ServiceSettings:
-    """The cell's service settings with the times a scaled line needs: the clamp window's length,
-    a margin at the window's end of at least 50 ms real time (what the service computes
-    between a window's last slot and the robot's return: at x60 3 s of the line's time; at most
-    a quarter of the window, so that very fast runs still measure), a poll
-    of 10 ms real time, a heartbeat timeout of at least 0.5 s real time and, rendered,
-    the real time a frame takes."""
+def service_settings(cfg: CellConfig, state_dir: Path) -> ServiceSettings:
+    """The cell's service settings on the simulated line: the clamp window's length, the PLC
+    poll of [simline] poll_s (in virtual time every poll is a real exchange: it sets how fast
+    a run goes) and a window margin that takes in a rising edge seen up to a poll late."""
     s = from_cell(cfg, state_dir)
-    if not geometric:
-        frame_s = max(s.sweep.frame_s, RENDERED_FRAME_REAL_S * scale)
-        s = replace(s, sweep=replace(s.sweep, frame_s=frame_s))
+    poll_s = cfg.simline.poll_s
     line = replace(
         s.line,
         window_s=cfg.simline.window_s,
-        margin_s=max(s.line.margin_s, min(0.05 * scale, 0.25 * cfg.simline.window_s)),
-        poll_s=max(s.line.poll_s, 0.01 * scale),
-        heartbeat_timeout_s=max(s.line.heartbeat_timeout_s, 0.5 * scale),
+        margin_s=s.line.margin_s + poll_s,
+        poll_s=poll_s,
+        heartbeat_timeout_s=max(s.line.heartbeat_timeout_s, 4.0 * poll_s),
     )
     return replace(s, line=line)
 
@@ -167,18 +164,26 @@ def random_schedule(cfg: CellConfig, cell: SimulatedCell, seed: int, n_each: int
     return out
 
 
-def true_rmse_mm(line: SimLine, truth: EndToEndTruth, model: Any, x: F64) -> float:
+def true_rmse_mm(
+    line: SimLine, truth: EndToEndTruth, model: Any, x: F64, t_s: float | None = None
+) -> float:
     """The end-to-end true error [mm, RMS] of `model` with parameters x at the line's validation
-    positions, now (the cell's temperature as the PLC reads it): each position's sphere observed
-    by the true sensor, measured through the sensor model in use (`truth`), mapped with x."""
+    positions at sim time t_s (default now; the cell's temperature as the PLC reads it): each
+    position's sphere observed by the true sensor, measured through the sensor model in use
+    (`truth`), mapped with x."""
     v = line.truth.validation
-    c = line.truth.validation_centres_sensor_mm()
-    temp = np.full(len(v.q_deg), line.truth.temp_c())
+    c = line.truth.validation_centres_sensor_mm(t_s)
+    temp = np.full(len(v.q_deg), line.truth.temp_c(t_s))
     return truth.rmse_mm(model, x, v.q_deg, c, v.p_part_mm, temp)
 
 
 class SimulatedLineRun:
-    """`with SimulatedLineRun(cfg, state_dir, seed=...) as run: run.windows(n)`."""
+    """`with SimulatedLineRun(cfg, state_dir, seed=...) as run: run.run_windows(n)`.
+
+    The line runs in virtual time (fakes.clock.VirtualClock): as fast as the CPU, or paced at
+    `pace` sim seconds per real second for a person who watches. `run_windows(n)` holds the
+    service after its n-th window (its loop waits there and time stands) until the next
+    `run_windows` or `close`: what is evaluated then is the same in every run of a seed."""
 
     def __init__(
         self,
@@ -189,15 +194,20 @@ class SimulatedLineRun:
         geometric: bool = False,
         plan: Path | None = None,
         sensor_model: SensorModel | None = None,
+        pace: float | None = None,
+        start_epoch: float | None = None,
     ) -> None:
         """sensor_model: the sensor calibration the rendered line measures with (default: the
-        true sensor's, a perfect calibration); unused on the geometric path."""
+        true sensor's, a perfect calibration); unused on the geometric path. pace: sim seconds
+        per real second (None: as fast as the CPU); start_epoch: the Unix time of sim time 0
+        (None: now, to the whole second)."""
         cfg = with_simulated_plc(cfg)
         self.cfg, self.state_dir, self.seed = cfg, Path(state_dir), seed
         self.cell = make_cell(cfg, seed=seed)
-        self.line = SimLine(self.cell, simline_settings(cfg, geometric=geometric))
-        self.scale = sim_scale(cfg, geometric)
-        self.settings = service_settings(cfg, self.state_dir, self.scale, geometric)
+        setup = simline_settings(cfg, geometric=geometric, pace=pace, start_epoch=start_epoch)
+        self.line = SimLine(self.cell, setup)
+        self.pace = pace
+        self.settings = service_settings(cfg, self.state_dir)
         self.geometric, self.plan = geometric, plan
         self.model = cfg.identification_model()
         if not geometric and sensor_model is None:
@@ -214,6 +224,16 @@ class SimulatedLineRun:
         self._versions: dict[int, F64] = {}
         self._stack = contextlib.ExitStack()
         self.thread: threading.Thread | None = None
+        self._gate = threading.Condition()
+        self._hold_at = float("inf")  # hold the service after this many windows
+        self._held = False
+        self._closing = False
+
+    @property
+    def clock(self) -> VirtualClock:
+        """The line's (and the service's) clock."""
+        assert self.line.virtual is not None
+        return self.line.virtual
 
     def __enter__(self) -> SimulatedLineRun:
         try:
@@ -237,7 +257,8 @@ class SimulatedLineRun:
         self._stack.callback(station.close)
         sensor: SphereSensor
         if self.geometric:
-            sensor = GeometricSensor(line.geometric_centre, self.settings.sweep.duration_s)
+            sweep_s = self.settings.sweep.duration_s
+            sensor = GeometricSensor(lambda t: line.geometric_centre(t, sweep_s), sweep_s)
         else:
             assert station.camera is not None and station.galvo is not None
             assert self.sensor_model is not None
@@ -251,6 +272,8 @@ class SimulatedLineRun:
             schedule = Schedule(
                 random_schedule(self.cfg, self.cell, self.seed, n_each), self.settings.line
             )
+        recalibrator = Recalibrator(cost_s=self.cfg.simline.identification_s, clock=self.clock)
+        recalibrator.prestart()
         self.service = Service(
             station,
             sensor,
@@ -258,22 +281,46 @@ class SimulatedLineRun:
             self.cfg.spheres_part_mm,
             self.model,
             self.x_commissioning,
-            clock=line.clock,
+            clock=self.clock,
             settings=self.settings,
+            recalibrator=recalibrator,
         )
-        self.events = self.service.bus.subscribe()
+        self.service.after_window = self._hold
+        self.events = self.service.bus.subscribe(every=True)
         if self.service.params.version_path(1).is_file():
             self.x_commissioning = self._x_of(1)
         self.summary.true_rmse_start_mm = self.true_rmse_mm(self.service.x)
 
-    def true_rmse_mm(self, x: F64) -> float:
-        """The end-to-end true error [mm, RMS] of parameters x at the validation positions,
-        now."""
-        return true_rmse_mm(self.line, self.truth, self.model, x)
+    def true_rmse_mm(self, x: F64, t_s: float | None = None) -> float:
+        """The end-to-end true error [mm, RMS] of parameters x at the validation positions at
+        sim time t_s (default now)."""
+        return true_rmse_mm(self.line, self.truth, self.model, x, t_s)
 
     def start_service(self) -> None:
         self.thread = threading.Thread(target=self.service.run, name="rvis-service", daemon=True)
         self.thread.start()
+
+    # -- holding the service between windows ----------------------------------------------------
+    def _hold(self) -> None:
+        """In the service's loop after each window: wait there while it has measured the
+        windows asked for (its virtual time stands meanwhile)."""
+        with self._gate:
+            while self.service.counters["windows"] >= self._hold_at and not self._closing:
+                self._held = True
+                self._gate.notify_all()
+                self._gate.wait()
+            self._held = False
+
+    def _held_or_gone(self, timeout_s: float) -> None:
+        """Wait until the service holds after its window (or its loop ended)."""
+
+        def still() -> bool:
+            return self._held or self.thread is None or not self.thread.is_alive()
+
+        with self._gate:
+            while not self._gate.wait_for(still, timeout=timeout_s):
+                if not self._quiet_by_itself():
+                    raise TimeoutError(f"the service did not hold in {timeout_s:g} s")
 
     def events_until(
         self,
@@ -306,24 +353,30 @@ class SimulatedLineRun:
         on_window: Callable[[WindowRecord], None] | None = None,
         on_event: Callable[[dict[str, Any]], None] | None = None,
     ) -> SimRunSummary:
-        """Run the service until n windows have passed; the summary of the run. `on_event` sees
-        every event of the service after it is counted."""
+        """Run the service until n windows have passed (counted from the start) and hold it
+        there; the summary of the run. `on_event` sees every event of the service after it is
+        counted."""
+        with self._gate:
+            self._hold_at = n
+            self._gate.notify_all()
         if self.thread is None:
             self.start_service()
         s = self.summary
-        silence_s = 10.0 + 5.0 * self.cfg.simline.period_s / self.scale
+        silence_s = (
+            10.0 if self.pace is None else 10.0 + 5.0 * self.cfg.simline.period_s / self.pace
+        )
         done = lambda e: s.windows >= n or e["event"] == "stopped"  # noqa: E731
-        for event in self.events_until(done, silence_s, self._quiet_by_itself):
-            self._count(event)
-            if on_event is not None:
-                on_event(event)
-            if event["event"] == "window":
-                record = self._record(event.get("params_version"))
-                if "t_open" in event:
-                    record.t_open_h = (event["t_open"] - self.line.clock.start_epoch) / 3600.0
-                s.records.append(record)
-                if on_window is not None:
-                    on_window(record)
+        if s.windows < n:
+            for event in self.events_until(done, silence_s, self._quiet_by_itself):
+                self._count(event)
+                if on_event is not None:
+                    on_event(event)
+                if event["event"] == "window":
+                    record = self._record(event)
+                    s.records.append(record)
+                    if on_window is not None:
+                        on_window(record)
+        self._held_or_gone(silence_s)
         s.true_rmse_final_mm = self.true_rmse_mm(self.service.x)
         return s
 
@@ -331,6 +384,8 @@ class SimulatedLineRun:
         s, kind = self.summary, event["event"]
         if kind == "window":
             s.windows += 1
+            s.overruns += bool(event.get("overrun"))
+            s.withdrawn += bool(event.get("withdrawn"))
         elif kind == "measurement":
             ok = event.get("status", "ok") == "ok"
             s.measurements += ok
@@ -341,24 +396,28 @@ class SimulatedLineRun:
             s.calibrations_rejected += 1
         elif kind == "alarm":
             s.alarms.append(str(event.get("message") or event.get("code")))
-        s.overruns = int(self.service.counters.get("overruns", 0))
-        s.withdrawn = int(self.service.counters.get("withdrawn", 0))
 
-    def _record(self, version: int | None) -> WindowRecord:
-        """The line after a window: the true error of the parameters the service had in force
-        in it (`version`, from the window event: what the bodies measured just before the
-        window were measured with; a correction applied right after it shows in the next)."""
-        truth = self.line.truth
+    def _record(self, event: dict[str, Any]) -> WindowRecord:
+        """The line after a window, at the sim time of its event: the true error of the
+        parameters the service had in force in it (`params_version`: what the bodies measured
+        just before the window were measured with; a correction applied right after it shows
+        in the next)."""
+        truth, epoch = self.line.truth, self.clock.start_epoch
+        version = event.get("params_version")
         if version is None:
             version = self.service.version
-        return WindowRecord(
+        t_s = float(event["t"]) - epoch
+        record = WindowRecord(
             window=self.summary.windows,
-            t_h=truth.now_s() / 3600.0,
-            temp_c=truth.temp_c(),
-            rmse_mm=self.true_rmse_mm(self._x_of(version)),
-            rmse_commissioning_mm=self.true_rmse_mm(self.x_commissioning),
+            t_h=t_s / 3600.0,
+            temp_c=truth.temp_c(t_s),
+            rmse_mm=self.true_rmse_mm(self._x_of(version), t_s),
+            rmse_commissioning_mm=self.true_rmse_mm(self.x_commissioning, t_s),
             version=version,
         )
+        if "t_open" in event:
+            record.t_open_h = (event["t_open"] - epoch) / 3600.0
+        return record
 
     def _x_of(self, version: int) -> F64:
         """The parameters of history version `version` (read once)."""
@@ -369,5 +428,8 @@ class SimulatedLineRun:
     def close(self) -> None:
         if self.thread is not None and self.thread.is_alive():
             self.service.stop()
+            with self._gate:
+                self._closing = True
+                self._gate.notify_all()
             self.thread.join(60)
         self._stack.close()

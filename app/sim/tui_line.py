@@ -24,9 +24,9 @@ from app.sim.line_run import SimulatedLineRun
 class TuiSimSettings:
     """How `rvis tui --sim` runs the simulated line (defaults: responsive on a laptop).
 
-    geometric: skip rendering (sphere centres from the truth plus noise) - rendered runs are
-    capped at a low time scale; seed: the simulation's seed (None: [simulation] seed);
-    scale: simulated seconds per real second (None: [simline] scale); mode: the service's
+    geometric: skip rendering (sphere centres from the truth plus noise); seed: the
+    simulation's seed (None: [simulation] seed); scale: the pace of the line's virtual time,
+    simulated seconds per real second (None: [simline] scale); mode: the service's
     recalibration mode (None: [service]), e.g. "approve" to show the approval flow;
     start_at_s: the sim time the service starts at (the line's clock is advanced that far
     first, e.g. into the cell's warm-up, so that it has drifted from the commissioning)."""
@@ -46,7 +46,9 @@ def simulated_service(
     if settings.scale is not None:
         cfg = replace(cfg, simline=replace(cfg.simline, scale=settings.scale))
     seed = cfg.simulation.seed if settings.seed is None else settings.seed
-    run = SimulatedLineRun(cfg, state_dir, seed=seed, geometric=settings.geometric)
+    run = SimulatedLineRun(
+        cfg, state_dir, seed=seed, geometric=settings.geometric, pace=cfg.simline.scale
+    )
     if settings.mode is not None:
         run.settings = replace(
             run.settings, recalib=replace(run.settings.recalib, mode=settings.mode)
@@ -55,6 +57,6 @@ def simulated_service(
     # still the real one (a Textual app replaces sys.stderr with one that has no file number)
     resource_tracker.ensure_running()
     with hold_state(state_dir), run, serving(run.service):
-        run.line.clock.advance(settings.start_at_s)
+        run.clock.advance(settings.start_at_s)
         run.start_service()
         yield run

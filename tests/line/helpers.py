@@ -1,5 +1,8 @@
-"""Helpers of the service tests: a scaled clock, the simulated line of in-process fakes on a
-SimulatedCell (geometric sensor), and waiting on the service's events (never sleeping)."""
+"""Helpers of the service tests: the simulated line of in-process fakes on a SimulatedCell
+(geometric sensor) in virtual time (the robot's motions, the sensor's sweep and the service's
+own waits make it pass: what the service does does not depend on the machine's load; paced at
+x50 for the tests that talk to it while it runs), and waiting on the service's events (never
+sleeping)."""
 
 from __future__ import annotations
 
@@ -29,11 +32,11 @@ from calib.identify import Measurements, identify
 from calib.model import SystemModel
 from drivers.plc import decode_inputs, decode_outputs, encode_inputs
 from fakes.cell import SimulatedCell
-from fakes.clock import ScaledClock
+from fakes.clock import VirtualClock
 from fakes.devices import ClampCycle, FakePlc, FakeRobot
 
 F64 = NDArray[np.float64]
-SCALE = 0.02  # real seconds per simulated second (the fakes' time_scale; the clock runs x50)
+SCALE = 0.02  # the fakes' time_scale (real seconds per simulated second on the wall clock)
 
 
 class LinePlc(FakePlc):
@@ -101,7 +104,7 @@ class Line:
     robot: FakeRobot
     plc: LinePlc
     service: Service
-    clock: ScaledClock
+    clock: VirtualClock
     thread: threading.Thread | None = None
     events: queue.Queue[dict[str, Any]] = field(default_factory=queue.Queue)
 
@@ -164,10 +167,10 @@ def make_line(
     cfg = load_cell(None)
     cell = make_cell(cfg, seed, **cell_overrides)
     model = cfg.model()
-    clock = ScaledClock(1.0 / SCALE)
+    clock = VirtualClock(pace=1.0 / SCALE)  # watched live (the socket, restarts): paced x50
     cycle = cycle or ClampCycle(period_s=12.0, window_s=8.0, beat_s=0.5, time_scale=SCALE)
-    robot = robot_class(cell, time_scale=SCALE).open()
-    plc = LinePlc(cycle)
+    robot = robot_class(cell, time_scale=SCALE, clock=clock).open()
+    plc = LinePlc(cycle, clock=clock)
     plc.open()
     plc.world, plc.db_path = cell, state_dir / "rvis.db"
     settings = ServiceSettings(
@@ -175,9 +178,12 @@ def make_line(
         line=line or line_settings(window_s=cycle.window_s),
         recalib=recalib or RecalibSettings(),
     )
-    sphere_sensor = (
-        GeometricSensor(cell.measure_target, duration_s=1.2) if sensor is None else sensor(cell)
-    )
+
+    def sweep(target: str, sweep_s: float = 1.2) -> F64:
+        clock.elapse(sweep_s)  # the sweep's time, as the simulated line's geometric path
+        return cell.measure_target(target)
+
+    sphere_sensor = GeometricSensor(sweep, duration_s=1.2) if sensor is None else sensor(cell)
     schedule = Schedule(plan_for(seed), settings.line)
     x0 = model.nominal_x() if x_initial is None else x_initial
     service = Service(

@@ -24,7 +24,8 @@ from app.line.opcua.server import OpcUaServer
 from app.line.opcua.space import NS_MACHINERY, NS_RVIS
 from app.sim.line_run import SimulatedLineRun
 
-# 60 s clamp cycles at x300: a window every 0.2 s; no warm-up: the cell temperature is constant
+# 60 s clamp cycles paced at x300 (the clients watch it live): a window every 0.2 s; no warm-up:
+# the cell temperature is constant
 CELL = """
 [simline]
 scale = 300.0
@@ -52,7 +53,7 @@ def line(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SimulatedLineRun]
     state = root / "state"
     with (
         hold_state(state),
-        SimulatedLineRun(cfg, state, seed=3, geometric=True) as run,
+        SimulatedLineRun(cfg, state, seed=3, geometric=True, pace=cfg.simline.scale) as run,
         serving(run.service),
     ):
         run.start_service()

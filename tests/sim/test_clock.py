@@ -1,5 +1,8 @@
-"""The line's clock: sim time runs `scale` times faster than real time, waits and sleeps are in
-sim seconds, `advance` jumps ahead and wakes sleepers, a clock built stopped stands at 0."""
+"""The line's clocks. VirtualClock: time stands until something makes it pass, passes exactly
+the sim seconds asked, runs callbacks at their sim times in the thread making it pass, stops
+where a stop event was set; paced, it waits for the wall clock without changing what happens.
+ScaledClock: sim time runs `scale` times faster than real time, waits and sleeps are in sim
+seconds, `advance` jumps ahead and wakes sleepers, a clock built stopped stands at 0."""
 
 from __future__ import annotations
 
@@ -8,12 +11,88 @@ import time
 
 import pytest
 
-from fakes.clock import Clock, RealClock, ScaledClock, SimClock
+from fakes.clock import Clock, RealClock, ScaledClock, SimClock, TimerClock, VirtualClock
 
 
-def test_both_clocks_satisfy_the_protocol() -> None:
-    for clock in (RealClock(), ScaledClock(10.0)):
+def test_the_clocks_satisfy_the_protocol() -> None:
+    for clock in (RealClock(), ScaledClock(10.0), VirtualClock(), VirtualClock(pace=10.0)):
         assert isinstance(clock, Clock) and isinstance(clock, SimClock)
+    assert isinstance(VirtualClock(), TimerClock)
+    assert not isinstance(ScaledClock(10.0), TimerClock) and not isinstance(RealClock(), TimerClock)
+
+
+def test_virtual_time_stands_until_made_to_pass_and_passes_exactly() -> None:
+    clock = VirtualClock(start_epoch=1_000_000.0)
+    assert clock.monotonic() == 0.0 and clock.time() == 1_000_000.0
+    assert clock.scale == float("inf")  # as fast as the CPU
+    busy_until = time.monotonic() + 0.05
+    while time.monotonic() < busy_until:  # real time passes, not sim time
+        pass
+    assert clock.monotonic() == 0.0
+    assert clock.elapse(2.5) == 2.5
+    clock.sleep(0.25)  # sleep-ok: the driving actor's wait, under test (no real time)
+    assert clock.monotonic() == 2.75 and clock.passed_s == 2.75
+    event = threading.Event()
+    assert clock.wait(event, 1.0) is False and clock.monotonic() == 3.75
+    event.set()
+    assert clock.wait(event, 3600.0) is True and clock.monotonic() == 3.75  # set: no time
+    clock.advance(100.0)  # a jump, not a simulated duration
+    assert clock.monotonic() == 103.75 and clock.passed_s == 3.75
+    with pytest.raises(ValueError):
+        clock.advance(-1.0)
+
+
+def test_callbacks_run_at_their_sim_times_in_the_thread_making_time_pass() -> None:
+    clock = VirtualClock()
+    seen: list[tuple[str, float, str]] = []
+
+    def note(name: str) -> None:
+        seen.append((name, clock.monotonic(), threading.current_thread().name))
+
+    clock.call_at(3.0, lambda: note("c"))
+    clock.call_at(1.0, lambda: note("a"))
+    clock.call_at(1.0, lambda: note("b"))  # same time: in the order registered
+    clock.call_at(2.0, lambda: note("never")).cancel()
+    clock.call_at(10.0, lambda: note("later"))
+    mover = threading.Thread(target=clock.elapse, args=(5.0,), name="mover")
+    mover.start()
+    mover.join(5.0)
+    assert seen == [("a", 1.0, "mover"), ("b", 1.0, "mover"), ("c", 3.0, "mover")]
+    assert clock.monotonic() == 5.0
+    clock.call_at(4.0, lambda: note("past"))  # already passed: the next time it moves
+    clock.elapse(0.0)
+    assert seen[-1] == ("past", 5.0, "MainThread")
+    clock.advance(5.0)  # a jump runs what is due on the way too
+    assert seen[-1] == ("later", 10.0, "MainThread")
+
+
+def test_a_callback_that_stops_the_passing_time_leaves_it_at_its_own() -> None:
+    clock = VirtualClock()
+    stop = threading.Event()
+    clock.call_at(0.4, lambda: None)
+    clock.call_at(1.5, stop.set)  # e.g. an abort sent from the window watch
+    assert clock.elapse(4.0, stop) == 1.5
+    assert clock.monotonic() == 1.5
+
+
+def test_a_paced_clock_waits_for_the_wall_clock_and_jumps_do_not() -> None:
+    clock = VirtualClock(pace=50.0)
+    clock.start()
+    r0 = time.monotonic()
+    clock.elapse(10.0)  # 10 sim s = 0.2 real s
+    assert 0.2 <= time.monotonic() - r0 < 1.0
+    assert clock.monotonic() == 10.0  # exactly, whatever the machine's load
+    r0 = time.monotonic()
+    clock.advance(3600.0)
+    assert time.monotonic() - r0 < 0.1 and clock.monotonic() == 3610.0
+    event = threading.Event()
+    threading.Timer(0.05, event.set).start()  # an operator's command, 2.5 sim s in
+    r0 = time.monotonic()
+    assert clock.wait(event, 600.0) is True
+    assert time.monotonic() - r0 < 1.0
+    assert 3610.0 < clock.monotonic() < 3610.0 + 600.0
+    with pytest.raises(ValueError):
+        VirtualClock(pace=0.0)
 
 
 def test_sim_time_runs_at_the_scale() -> None:

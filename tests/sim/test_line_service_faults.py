@@ -2,11 +2,13 @@
 real drivers over loopback (SimulatedLineRun, geometric) and a fault is played by a peer during a
 clamp window (`SimLine.schedule`). Checked against what the peers really saw: the service's
 state, the alarm and its cause, the fault bit the PLC peer received, the robot's true joints not
-moving until a reset, and every measurement of a window reported done in the database."""
+moving until a reset, and every measurement of a window reported done in the database. The line
+runs in virtual time, as fast as the CPU: a fault scheduled at a sim time lands at the same point
+of the run every time; the test's own actions (inject, reset) come whenever its thread gets to
+them, so what follows them is scheduled from the line's clock."""
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -25,8 +27,7 @@ WAIT_S = 10.0
 
 @pytest.fixture()
 def run(cfg: CellConfig, tmp_path: Path) -> Iterator[SimulatedLineRun]:
-    fast = dataclasses.replace(cfg, simline=dataclasses.replace(cfg.simline, scale=120.0))
-    with SimulatedLineRun(fast, tmp_path / "state", seed=5, geometric=True) as sim:
+    with SimulatedLineRun(cfg, tmp_path / "state", seed=5, geometric=True) as sim:
         sim.start_service()
         yield sim
 
@@ -42,6 +43,11 @@ def _windows_done(events: list[dict[str, Any]]) -> int:
     return sum(e["event"] == "window" for e in events)
 
 
+def _plc_window_from_now(run: SimulatedLineRun, k: int) -> int:
+    """The index of the PLC's clamp window k windows after the one of the line's time now."""
+    return int(run.clock.monotonic() // run.line.settings.period_s) + k
+
+
 def _motion_fault(run: SimulatedLineRun, fault: Fault, cause: str) -> None:
     played = run.line.schedule(fault, window=2, after_s=1.0)
     events = _until(run, lambda e: e["event"] == "alarm" and e["code"] == "device_fault")
@@ -49,7 +55,7 @@ def _motion_fault(run: SimulatedLineRun, fault: Fault, cause: str) -> None:
     faulted(run, events, cause)
     q_stopped = run.cell.joints_deg().copy()
     # two more windows open and close on the line: no motion, still FAULT
-    later = run.line.schedule(Fault.WINDOW_WITHDRAWN, window=4, after_s=0.0)
+    later = run.line.schedule(Fault.WINDOW_WITHDRAWN, window=_plc_window_from_now(run, 2))
     assert later.wait(WAIT_S)
     assert run.service.state == State.FAULT
     np.testing.assert_allclose(run.cell.joints_deg(), q_stopped, atol=1e-9)
@@ -77,7 +83,7 @@ def test_plc_heartbeat_loss_raises_the_alarm_and_no_window_is_used(run: Simulate
     events = _until(run, lambda e: e["event"] == "alarm" and e["code"] == "plc_heartbeat")
     q_lost = run.cell.joints_deg().copy()
     n_windows = run.service.counters["windows"]
-    later = run.line.schedule(Fault.WINDOW_WITHDRAWN, window=run.service.counters["windows"] + 3)
+    later = run.line.schedule(Fault.WINDOW_WITHDRAWN, window=_plc_window_from_now(run, 3))
     assert later.wait(WAIT_S)
     assert run.service.counters["windows"] <= n_windows + 1  # at most the one in progress
     np.testing.assert_allclose(run.cell.joints_deg(), q_lost, atol=1e-9)
@@ -88,11 +94,12 @@ def test_plc_heartbeat_loss_raises_the_alarm_and_no_window_is_used(run: Simulate
 
 
 def test_a_window_withdrawn_early_aborts_and_goes_home(run: SimulatedLineRun) -> None:
+    # window 1 is withdrawn 1.5 s after it opens: the service sees it open within a poll
+    # ([simline] poll_s, 1 s) and is out measuring then (a sweep alone takes 1.2 s)
+    played = run.line.schedule(Fault.WINDOW_WITHDRAWN, window=1, after_s=1.5)
     events = _until(run, lambda e: e["event"] == "window")
-    # withdraw the window once the service has started measuring in it (busy to the PLC)
-    events += _until(run, lambda e: e["event"] == "state" and e["to"] == State.MEASURING.value)
-    run.line.inject(Fault.WINDOW_WITHDRAWN)
     events += _until(run, lambda e: e["event"] == "window")
+    assert played.is_set()
     assert run.service.counters["withdrawn"] == 1 and events[-1]["withdrawn"]
     assert run.service.state != State.FAULT and not run.line.plc.received.fault
     home = np.array(run.service.settings.line.home_deg)

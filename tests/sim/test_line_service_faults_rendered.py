@@ -7,10 +7,10 @@ alarm naming the driver's typed error, the fault bit the PLC peer received, the 
 joints not moving until a reset, and every measurement the service announced stored. A frame
 lost once is re-triggered by the camera driver and is not a fault.
 
-The line is shortened for speed (8-frame sweeps, an 8 s clamp period at the rendered line's time
-scale of 2, the fault in the first window). The galvo error and the camera timeout (the same
-path, two grab timeouts longer) are marked slow: `-m "not slow"` leaves them out of a quick
-run; the test command runs them."""
+The line is shortened for speed (8-frame sweeps, an 8 s clamp period, the fault in the first
+window); it runs in virtual time, as fast as the renderer. The galvo error and the camera
+timeout (the same path, two grab timeouts longer) are marked slow: `-m "not slow"` leaves them
+out of a quick run; the test command runs them."""
 
 from __future__ import annotations
 
@@ -35,7 +35,7 @@ WAIT_S = 20.0
 def _short_line(cfg: CellConfig) -> CellConfig:
     """The rendered line with short sweeps and short clamp cycles (sim seconds)."""
     simline = dataclasses.replace(
-        cfg.simline, scale=2.0, period_s=8.0, window_s=7.0, warmup_k=0.0, n_validation=4
+        cfg.simline, period_s=8.0, window_s=7.0, warmup_k=0.0, n_validation=4
     )
     sweep = dataclasses.replace(cfg.sweep, n_frames=8, grab_timeout_s=0.5)
     return dataclasses.replace(cfg, simline=simline, sweep=sweep)

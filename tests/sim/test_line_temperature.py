@@ -21,7 +21,6 @@ def test_measurements_carry_the_plc_temperature_and_the_compliant_model_uses_it(
 ) -> None:
     fast = dataclasses.replace(
         cfg,
-        simline=dataclasses.replace(cfg.simline, scale=150.0),
         calibration=dataclasses.replace(cfg.calibration, model="compliant"),
         line=dataclasses.replace(cfg.line, slots_per_window=2),
     )
@@ -63,7 +62,6 @@ def test_a_plc_that_never_writes_the_word_is_no_temperature_with_an_alarm(
     clears the alarm when a plausible value returns; the "no sensor" code alarms the same."""
     fast = dataclasses.replace(
         cfg,
-        simline=dataclasses.replace(cfg.simline, scale=150.0),
         calibration=dataclasses.replace(cfg.calibration, model="compliant"),
     )
     with SimulatedLineRun(fast, tmp_path / "state", seed=5, geometric=True) as run:

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -15,12 +17,13 @@ import pytest
 
 from app.commands.cli import main
 from app.config import CellConfig
+from app.line.store import Store
 from app.sim.shift import ShiftSettings, run_shift, summary_lines, write_outputs
 
 
 def test_a_knock_is_flagged_and_the_service_recovers(cfg: CellConfig, tmp_path: Path) -> None:
     cold = dataclasses.replace(cfg, simline=dataclasses.replace(cfg.simline, warmup_k=0.0))
-    settings = ShiftSettings(hours=0.8, knock_at_h=0.25, scale=150.0, slots_per_window=2)
+    settings = ShiftSettings(hours=0.8, knock_at_h=0.25, slots_per_window=2)
     result = run_shift(cold, tmp_path / "state", settings, seed=3)
     recs, k = result.records, result.knock_window
     assert result.summary.windows == 48 and k is not None
@@ -44,6 +47,46 @@ def test_a_knock_is_flagged_and_the_service_recovers(cfg: CellConfig, tmp_path: 
     assert any("flagged by the drift alarm after" in line for line in summary_lines(result))
 
 
+def _shift_doc(cfg: CellConfig, state: Path, busy: bool) -> tuple[dict[str, Any], list[Any]]:
+    """A short shift (a knock, a recalibration): its shift.json document less the wall time,
+    and its stored measurements. busy: with a thread beside it that computes all along (the
+    interpreter's threads then interleave differently: what must not change anything)."""
+    settings = ShiftSettings(hours=0.3, knock_at_h=0.15, slots_per_window=2)
+    done = threading.Event()
+
+    def spin() -> None:
+        while not done.is_set():
+            sum(i * i for i in range(2_000))
+            time.sleep(0)  # sleep-ok: yields the interpreter, a load generator's step
+
+    hog = threading.Thread(target=spin, daemon=True)
+    if busy:
+        hog.start()
+    try:
+        result = run_shift(cfg, state, settings, seed=3)
+    finally:
+        done.set()
+    doc = result.to_json()
+    assert doc.pop("real_s") > 0
+    rows = Store(state / "rvis.db").measurements()
+    return json.loads(json.dumps(doc)), rows
+
+
+def test_one_seed_one_shift_whatever_the_load(cfg: CellConfig, tmp_path: Path) -> None:
+    """The line runs in virtual time: two runs of a seed are the same shift, field by field
+    and measurement by measurement, also with the interpreter busy beside the second."""
+    first, rows_1 = _shift_doc(cfg, tmp_path / "a", busy=False)
+    second, rows_2 = _shift_doc(cfg, tmp_path / "b", busy=True)
+    sm = first["summary"]
+    assert sm["windows"] == 18 and sm["measurements"] >= 30 and sm["overruns"] == 0
+    assert sm["calibrations_applied"] >= 1  # a worker's outcome, seen at its modelled time
+    for key in first:
+        assert second[key] == first[key], key
+    assert len(rows_1) == len(rows_2)
+    for a, b in zip(rows_1, rows_2, strict=True):
+        assert a == b
+
+
 def test_shift_settings_refuse_a_knock_outside_the_shift() -> None:
     with pytest.raises(ValueError, match="knock_at_h"):
         ShiftSettings(hours=2.0, knock_at_h=2.0)
@@ -65,7 +108,7 @@ def test_the_estimator_comparison_runs_each_way_on_the_same_cell(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "cmp"
-    argv = ["experiment", "shift", "--hours", "0.15", "--knock-at-h", "0.1", "--scale", "200"]
+    argv = ["experiment", "shift", "--hours", "0.15", "--knock-at-h", "0.1"]
     assert (
         main([*argv, "--slots-per-window", "2", "--estimator", "compare", "--out", str(out)]) == 0
     )
@@ -97,7 +140,7 @@ def test_a_knock_is_attributed_and_scored_in_a_campaign(
     steepest in the first hour)."""
     out, cell = tmp_path / "knocks", tmp_path / "cell.toml"
     cell.write_text("[simline]\nwarmup_k = 0.0\n")
-    argv = ["experiment", "shift", "--hours", "0.7", "--knock-at-h", "0.45", "--scale", "120"]
+    argv = ["experiment", "shift", "--hours", "0.7", "--knock-at-h", "0.45"]
     argv += ["--slots-per-window", "2", "--knock", "sensor", "--seeds", "1", "--out", str(out)]
     argv += ["--cell", str(cell)]
     assert main(argv) == 0
