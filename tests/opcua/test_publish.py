@@ -204,3 +204,62 @@ def test_the_suspect_interval_variables_of_a_status_reply() -> None:
     assert json.loads(read("SuspectIntervals", [closed, opened])) == [closed, opened]
     assert read("SuspectOpen", [closed]) is False
     assert read("SuspectStartUtc", [closed]) is None and read("SuspectSizeMm", []) is None
+
+
+async def _values_under(client: Client, root: Any) -> list[tuple[str, ua.DataValue]]:
+    """Every variable's value below `root` (browsed recursively), read with both timestamps."""
+    variables: list[Any] = []
+    todo, seen = [root], {root.nodeid}
+    while todo:
+        node = todo.pop()
+        refs = await node.get_references(
+            refs=ua.ObjectIds.HierarchicalReferences, direction=ua.BrowseDirection.Forward
+        )
+        for ref in refs:
+            if ref.NodeId in seen or ref.NodeId.NamespaceIndex == 0:
+                continue  # the standard's own nodes (types, the server object)
+            if ref.NodeClass in (ua.NodeClass.Object, ua.NodeClass.Variable):
+                seen.add(ref.NodeId)
+                child_node = client.get_node(ref.NodeId)
+                if ref.NodeClass == ua.NodeClass.Variable:
+                    variables.append(child_node)
+                todo.append(child_node)
+    params = ua.ReadParameters()
+    params.TimestampsToReturn = ua.TimestampsToReturn.Both
+    for node in variables:
+        rv = ua.ReadValueId()
+        rv.NodeId, rv.AttributeId = node.nodeid, ua.AttributeIds.Value
+        params.NodesToRead.append(rv)
+    results = await client.uaclient.read(params)
+    return [(node.nodeid.to_string(), dv) for node, dv in zip(variables, results, strict=True)]
+
+
+def test_every_value_rvis_writes_carries_a_server_timestamp(
+    line: SimulatedLineRun, servers: Servers
+) -> None:
+    """rvis's variables, Identification, MachineryItemState and the alarm conditions' states:
+    ServerTimestamp is the server's (wall) clock, SourceTimestamp the service's."""
+
+    async def check() -> list[tuple[str, ua.DataValue]]:
+        async with Client(servers.read_only) as client:
+            m = await machine_node(client)
+            values = await _values_under(client, m)
+            names = [
+                "ServiceState",
+                "Windows",
+                "CellTemperatureC",
+                "Alarms/sensor/0:ActiveState/0:Id",
+            ]
+            for name in names:
+                parts = name.split("/")
+                node = await child(client, m, *parts)
+                assert node.nodeid.to_string() in dict(values), name
+            return values
+
+    values = asyncio.run(check())
+    now = time.time()
+    written = [(n, dv) for n, dv in values if dv.StatusCode.is_good() or dv.SourceTimestamp]
+    assert len(written) > 40
+    missing = [n for n, dv in written if dv.ServerTimestamp is None]
+    assert not missing, missing
+    assert all(abs(dv.ServerTimestamp.timestamp() - now) < 600 for _, dv in written)

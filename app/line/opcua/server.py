@@ -43,7 +43,22 @@ log = logging.getLogger("rvis.line.opcua")
 START_TIMEOUT_S = 60.0
 ACK_TIMEOUT_S = 60.0  # an ack waits for the end of a running window at most this long
 _STOP = {"event": "__opcua_stop__"}
+FLUSH_TIMEOUT_S = 2.0  # the last values' publishing at the end, at most
+FLUSH_POLL_S = 0.005
 REFRESH_SEVERITY = 100  # of the RefreshStart/End events around a ConditionRefresh
+
+
+async def flush(server: Server, timeout_s: float) -> bool:
+    """Wait until every subscription has sent what was triggered (the last values and events
+    reach the clients before the server goes); False when `timeout_s` passed first (a client
+    that sends no Publish request)."""
+    subscriptions = server.iserver.subscription_service.subscriptions
+    deadline = asyncio.get_running_loop().time() + timeout_s
+    while any(s._triggered_datachanges or s._triggered_events for s in subscriptions.values()):
+        if asyncio.get_running_loop().time() > deadline:
+            return False
+        await asyncio.sleep(FLUSH_POLL_S)  # asyncua signals no "sent"; its publish loop runs
+    return True
 
 
 def application_uri(settings: OpcUaSettings) -> str:
@@ -82,6 +97,7 @@ class OpcUaServer:
         self._ready = threading.Event()
         self._error: BaseException | None = None
         self._stopping: asyncio.Event | None = None
+        self._stopped_published = False
         self._events = service.bus.subscribe()
         self._thread = threading.Thread(target=self._run, name="rvis-opcua", daemon=True)
         self._feed = threading.Thread(target=self._feed_loop, name="rvis-opcua-feed", daemon=True)
@@ -110,10 +126,14 @@ class OpcUaServer:
         return self
 
     def stop(self) -> None:
+        """Stop the server; when the service has stopped, its `stopped` state (and
+        MachineryItemState NotAvailable) is published and sent to the subscribers first."""
         self.service.bus.unsubscribe(self._events)
         self._events.offer(_STOP)  # never blocks: a full queue loses its oldest event
         if self._feed.is_alive():
             self._feed.join(10.0)
+        if self.service.state.value == "stopped" and not self._stopped_published:
+            self._publish(self.service.clock.time(), stopped=True)
         if self.loop is not None and self._stopping is not None and self._thread.is_alive():
             self.loop.call_soon_threadsafe(self._stopping.set)
         if self._thread.is_alive():
@@ -151,6 +171,7 @@ class OpcUaServer:
             await self._apply(self._last_status, self.service.clock.time())
             self._ready.set()
             await self._stopping.wait()
+            await flush(server, FLUSH_TIMEOUT_S)
         finally:
             await server.stop()
 
@@ -203,10 +224,12 @@ class OpcUaServer:
             with contextlib.suppress(queue.Empty):
                 while True:
                     batch.append(self._events.get_nowait())
-            if any(e is _STOP for e in batch):
+            events = [e for e in batch if e is not _STOP]
+            if events:  # `stopped` too when it came with the end (the service ended first)
+                stopped = any(e["event"] == "stopped" for e in events)
+                self._publish(max(float(e.get("t", 0.0)) for e in events), stopped)
+            if len(events) < len(batch):
                 return
-            stopped = any(e["event"] == "stopped" for e in batch)
-            self._publish(max(float(e.get("t", 0.0)) for e in batch), stopped)
 
     def _publish(self, t: float, stopped: bool = False) -> None:
         """The service's status now, applied in the loop (waited for: the feed's pace is the
@@ -218,6 +241,7 @@ class OpcUaServer:
         try:
             if stopped:
                 status = {**self._last_status, "state": "stopped", "step": "stopped"}
+                self._stopped_published = True
             else:
                 status = self._last_status = self.service.status()
             done: Future[None] = asyncio.run_coroutine_threadsafe(self._apply(status, t), loop)

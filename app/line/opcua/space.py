@@ -21,6 +21,7 @@ UncertainLastUsableValue.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import socket
 from collections.abc import Callable, Mapping
@@ -444,7 +445,7 @@ class AddressSpace:
             dv = data_value(var, lookup(status, var.path), t, last.Value if last else None)
             if last is not None and (last.Value, last.StatusCode) == (dv.Value, dv.StatusCode):
                 continue
-            await self.server.write_attribute_value(node.nodeid, dv)
+            await self.server.write_attribute_value(node.nodeid, stamped(dv))
             self._last[key] = dv
             written += 1
         return written + await self._apply_state(status.get("state"), t)
@@ -456,14 +457,24 @@ class AddressSpace:
         current, state_id = self._state
         text = ua.Variant(ua.LocalizedText(item), ua.VariantType.LocalizedText)
         await self.server.write_attribute_value(
-            current.nodeid, ua.DataValue(text, SourceTimestamp=t)
+            current.nodeid, stamped(ua.DataValue(text, SourceTimestamp=t))
         )
         node_id = ua.Variant(self._state_id(item), ua.VariantType.NodeId)
         await self.server.write_attribute_value(
-            state_id.nodeid, ua.DataValue(node_id, SourceTimestamp=t)
+            state_id.nodeid, stamped(ua.DataValue(node_id, SourceTimestamp=t))
         )
         self._state_now = item
         return 1
+
+
+def now_utc() -> datetime:
+    """The server's clock (ServerTimestamp): the wall clock, whatever the service's clock."""
+    return datetime.now(UTC)
+
+
+def stamped(dv: ua.DataValue) -> ua.DataValue:
+    """`dv` with the ServerTimestamp of now (every value rvis writes carries one)."""
+    return dataclasses.replace(dv, ServerTimestamp=now_utc())
 
 
 def clock_utc(t: float) -> datetime:
