@@ -31,15 +31,16 @@ import signal
 import sys
 import threading
 from datetime import datetime
-from typing import IO, TYPE_CHECKING, Any
+from types import SimpleNamespace
+from typing import IO, TYPE_CHECKING, Any, cast
 
-from app.config.line import OpcUaSettings
 from app.errors import InputError
 from app.line.statedir import StateDir
 
 if TYPE_CHECKING:
     from asyncua import Server
 
+    from app.config.line import OpcUaSettings
     from app.line.opcua.alarms import Conditions
     from app.line.opcua.space import AddressSpace
 
@@ -120,7 +121,9 @@ class Child:
     """The server of one configuration, fed from the inbox."""
 
     def __init__(self, config: dict[str, Any], out: Out, inbox: queue.Queue[dict[str, Any]]):
-        self.settings = OpcUaSettings(**config["settings"])
+        # the settings as read by the service (app.config is not imported here: it brings the
+        # numerics, a second or more and 100 MB of this process, for one small dataclass)
+        self.settings = cast("OpcUaSettings", SimpleNamespace(**config["settings"]))
         self.paths = StateDir(config["state_dir"])
         self.spheres: list[str] = list(config["spheres"])
         self.revision = str(config["software_revision"])

@@ -28,12 +28,14 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from asyncua import Node, Server, ua
 from asyncua.common.instantiate_util import instantiate
 
-from app.config.line import OpcUaSettings
+if TYPE_CHECKING:
+    from app.config.line import OpcUaSettings  # (the server process does not import it)
+
 
 NS_RVIS = "urn:rvis:opcua"  # the same in every cell: clients find the variables by name
 NS_DI = "http://opcfoundation.org/UA/DI/"
