@@ -248,6 +248,8 @@ def main() -> int:
     root.handlers[:] = [ToService(out)]
     root.setLevel(logging.INFO)
     logging.getLogger("asyncua").setLevel(logging.WARNING)
+    # the NodeSets' import warns of a DI structure it cannot classify, harmlessly, each start
+    logging.getLogger("asyncua.common.xmlimporter").setLevel(logging.ERROR)
     first = sys.stdin.buffer.readline()
     if not first:
         return 0
