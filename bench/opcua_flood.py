@@ -374,6 +374,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"peers: {total}")
     print(f"service exit status {code}; log lines with 'refused': {len(refusals)};"
           f" tracebacks on stderr: {tracebacks} ({len(svc.stderr)} stderr lines)")  # fmt: skip
+    for line in svc.stderr[:5]:
+        print(f"  stderr: {line.rstrip()[:160]}")
+    for r in refusals[:3]:
+        print(f"  log: {str(r.get('msg'))[:160]}")
     if args.json:
         args.json.write_text(json.dumps({"rows": rows, "peers": total}, indent=1))
     return 0
