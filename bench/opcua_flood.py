@@ -25,6 +25,7 @@ import argparse
 import json
 import os
 import queue
+import resource
 import signal
 import socket
 import statistics
@@ -100,6 +101,8 @@ def peer(url: str, seconds: float, index: int) -> dict[str, Any]:
                     out["err_replies"] += 1
             except OSError:
                 pass
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    out["cpu_s"] = round(usage.ru_utime + usage.ru_stime, 1)
     return out
 
 
@@ -366,7 +369,7 @@ def main(argv: list[str] | None = None) -> int:
             code = svc.stop()
         logs = svc.drain()
     rows = [quiet.row(), flood.row(), after.row()]
-    total = {k: sum(d[k] for d in done) for k in done[0]} if done else {}
+    total = {k: round(sum(d[k] for d in done), 1) for k in done[0]} if done else {}
     tracebacks = sum("Traceback" in line for line in svc.stderr)
     refusals = [r for r in logs if "refused" in str(r.get("msg", ""))]
     for key in rows[0]:

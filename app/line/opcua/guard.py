@@ -14,8 +14,9 @@ and one log line, then closes the connection:
   at most 4096 bytes) or smaller than its header (Bad_TcpMessageTooLarge);
 - a message asyncua cannot decode or process (Bad_DecodingError), instead of its traceback.
 
-So a connection holds at most one chunk (64 KiB by default), the messages it assembles are
-bounded by `LIMITS`, and the connections by MAX_CONNECTIONS. Refusals are logged at most once
+So a connection holds at most one chunk (64 KiB by default) here and RECEIVE_BUFFER_BYTES in
+the kernel, the messages it assembles are bounded by `limits()`, and the connections by
+MAX_CONNECTIONS. Refusals are logged at most once
 per LOG_EVERY_S per peer host (with the number refused meanwhile), so a flood cannot flood the
 log. `install(server)` puts the guard in front of an asyncua Server before its start.
 """
@@ -25,6 +26,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+import socket
 import struct
 import time
 from typing import Any
@@ -42,6 +44,7 @@ HEADER = struct.Struct("<3scI")  # MessageType, ChunkType, MessageSize (OPC 1000
 HELLO_MAX_BYTES = 8 + 5 * 4 + 4 + 4096  # header, 5 UInt32, the endpoint URL (<= 4096 bytes)
 CHUNK_BYTES = 65535  # the receive and send buffers (asyncua's default)
 MAX_MESSAGE_BYTES = 4 * 1024 * 1024  # a request of rvis's clients is a few kB
+RECEIVE_BUFFER_BYTES = 2 * 65536  # two chunks in flight (the kernel's, per connection)
 MAX_CONNECTIONS = 64  # a cell's clients: SCADA, MES, a historian, engineering tools
 ACTIVATION_S = 10.0  # a connection without an activated session is closed after this
 LOG_EVERY_S = 10.0
@@ -168,6 +171,15 @@ def _host(peer: Any) -> str:
 
 
 class GuardedBinaryServer(binary_server_asyncio.BinaryServer):
+    async def start(self) -> None:
+        """Listen, with each connection's kernel receive buffer fixed at RECEIVE_BUFFER_BYTES
+        (inherited from the listening socket): a peer can push at most that much ahead of
+        what the server has read, so a refused connection's stream ends at once, and the
+        kernel's memory per connection is bounded too."""
+        await super().start()
+        for sock in self._server.sockets if self._server is not None else ():
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER_BYTES)
+
     def _make_protocol(self) -> GuardedProtocol:
         return GuardedProtocol(
             iserver=self.iserver,
