@@ -141,6 +141,10 @@ class Child:
         except InputError as exc:
             self.out.send({"error": exc.reason, "field": exc.field, "file": exc.file})
             return 2
+        except OSError as exc:  # the state directory's certificate folder, the network
+            reason = f"the OPC UA server cannot start at {self.settings.endpoint}: {exc}"
+            self.out.send({"error": reason, "field": "[opcua] endpoint"})
+            return 2
         try:
             first = await self._next()
             if "status" in first:
