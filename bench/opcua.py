@@ -5,8 +5,9 @@ notification.
     nice -n 5 .venv/bin/python bench/opcua.py [--repeats 30] [--idle-s 5] [--rounds 3]
 
 The service runs with the real clock on bench/line.py's in-process fakes (10 ms poll), the OPC
-UA server on loopback in its own thread, the client (asyncua) in another process, so that its
-CPU is not the service's. Latencies use CLOCK_MONOTONIC, shared by the two processes: from the
+UA server on loopback in its own process (fed by the service's threads; its CPU counted with
+the service's), the client (asyncua) in another process, so that its CPU is not the
+service's. Latencies use CLOCK_MONOTONIC, shared by the two processes: from the
 service's `bus.emit` of the event (the instant `rvis status` would show it) to the client's
 handler. Events: `state` (pause / resume -> ServiceState data change), `alarm` and
 `alarm_cleared` (the PLC heartbeat frozen and restored -> AlarmConditionType events), at two
@@ -141,7 +142,9 @@ async def client_main(url: str, interval_ms: float) -> None:
 
 
 @contextmanager
-def service(opcua: bool, plc: BenchPlc | None = None) -> Iterator[tuple[Service, str]]:
+def service(
+    opcua: bool, plc: BenchPlc | None = None
+) -> Iterator[tuple[Service, str, OpcUaServer | None]]:
     """The waiting service in a thread (and its OPC UA server); the endpoint URL."""
     port = _free_port()
     url = f"opc.tcp://127.0.0.1:{port}/rvis"
@@ -154,7 +157,7 @@ def service(opcua: bool, plc: BenchPlc | None = None) -> Iterator[tuple[Service,
         thread = threading.Thread(target=svc.run)
         thread.start()
         try:
-            yield svc, url
+            yield svc, url, server
         finally:
             svc.stop()
             thread.join()
@@ -185,13 +188,22 @@ def _thread_cpu_s(prefix: str) -> float:
     return total
 
 
-def cpu_share(seconds: float) -> tuple[float, float]:
-    """CPU time per wall second over `seconds`: the process, and its OPC UA threads."""
+def _process_cpu_s(pid: int | None) -> float:
+    """CPU seconds so far of another process (the OPC UA server's; 0 when none)."""
+    if pid is None:
+        return 0.0
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def cpu_share(seconds: float, server_pid: int | None = None) -> tuple[float, float]:
+    """CPU time per wall second over `seconds`: the service's process, and the OPC UA server
+    (its threads in the service's process and its own process)."""
     r0, t0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
-    u0 = _thread_cpu_s("rvis-opcua")
+    u0 = _thread_cpu_s("rvis-opcua") + _process_cpu_s(server_pid)
     time.sleep(seconds)
     r1, t1 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
-    u1 = _thread_cpu_s("rvis-opcua")
+    u1 = _thread_cpu_s("rvis-opcua") + _process_cpu_s(server_pid)
     process = (r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime)
     return process / (t1 - t0), (u1 - u0) / (t1 - t0)
 
@@ -201,10 +213,10 @@ def idle_cpu(idle_s: float, rounds: int) -> dict[str, list[tuple[float, float]]]
     out: dict[str, list[tuple[float, float]]] = {name: [] for name in names}
     for _ in range(rounds):
         for name in out:
-            with service(opcua=name != "alone") as (_svc, url):
+            with service(opcua=name != "alone") as (_svc, url, server):
                 client = ClientProcess(url, 100.0) if "client" in name else None
                 time.sleep(1.0)  # past the start
-                out[name].append(cpu_share(idle_s))
+                out[name].append(cpu_share(idle_s, server.pid if server else None))
                 if client is not None:
                     client.close()
     return out
@@ -214,7 +226,7 @@ def latencies(repeats: int, interval_ms: float) -> dict[str, list[float]]:
     plc = FreezablePlc()
     out: dict[str, list[float]] = {"state": [], "alarm": [], "alarm_cleared": []}
     rng = np.random.default_rng(int(interval_ms))
-    with service(opcua=True, plc=plc) as (svc, url):
+    with service(opcua=True, plc=plc) as (svc, url, _server):
         client = ClientProcess(url, interval_ms)
         stamps = Stamps(svc, tuple(out))
         try:
@@ -284,7 +296,7 @@ def main(argv: list[str] | None = None) -> int:
                 f"idle CPU, service {name}, 10 ms poll [% of a core]",
                 f"{100 * med:.2f} (x{med / alone:.2f} of alone; rounds "
                 + ", ".join(f"{100 * p:.2f}" for p, _ in values)
-                + (f"; the OPC UA threads {100 * threads:.3f})" if name != "alone" else ")"),
+                + (f"; the OPC UA server {100 * threads:.3f})" if name != "alone" else ")"),
                 "",
             )
         )

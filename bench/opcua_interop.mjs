@@ -59,6 +59,55 @@ const ids = found.map((r, i) => {
 const labels = [...NAMES, "SerialNumber", "SoftwareRevision", "MachineryItemState"];
 out({ k: "resolved", n: ids.length, namespaces: { rvis, mach, di } });
 
+// By the official types only (OPC 40001-1): under Machines (Machinery i=1001), the object with
+// a HasAddIn to a MachineIdentificationType (i=1012) and to a MachineryItemState_StateMachineType
+// (i=1002); Identification's properties and the state read through those nodes.
+async function children(nodeId, referenceTypeId) {
+  const r = await session.browse({
+    nodeId, referenceTypeId, browseDirection: ua.BrowseDirection.Forward,
+    includeSubtypes: true, resultMask: 63,
+  });
+  return r.references || [];
+}
+const typeOf = (ref) => ref.typeDefinition.toString();
+const machineType = (i) => ua.coerceNodeId(`ns=${mach};i=${i}`).toString();
+const official = { k: "official", machines: [] };
+for (const m of await children(ua.coerceNodeId(`ns=${mach};i=1001`), "Organizes")) {
+  const addIns = await children(m.nodeId, "HasAddIn");
+  const ident = addIns.find((r) => typeOf(r) === machineType(1012));
+  const state = addIns.find((r) => typeOf(r) === machineType(1002));
+  if (!ident || !state) continue;
+  const entry = { browseName: m.browseName.toString(), identification: {} };
+  for (const p of await children(ident.nodeId, "HasProperty")) {
+    const dv = await session.read({ nodeId: p.nodeId, attributeId: ua.AttributeIds.Value });
+    entry.identification[p.browseName.name] = plain(dv.value.value);
+  }
+  const [cs] = await session.translateBrowsePath([ua.makeBrowsePath(state.nodeId, "/CurrentState")]);
+  const csId = cs.targets[0].targetId;
+  const [idPath] = await session.translateBrowsePath([ua.makeBrowsePath(csId, ".Id")]);
+  const current = await session.read({ nodeId: csId, attributeId: ua.AttributeIds.Value });
+  const stateId = await session.read({ nodeId: idPath.targets[0].targetId, attributeId: ua.AttributeIds.Value });
+  const stateNode = await session.read({ nodeId: stateId.value.value, attributeId: ua.AttributeIds.BrowseName });
+  entry.currentState = plain(current.value.value);
+  entry.stateId = stateId.value.value.toString();
+  entry.stateNode = stateNode.value.value.toString();
+  entry.identificationType = typeOf(ident);
+  entry.stateType = typeOf(state);
+  official.machines.push(entry);
+}
+const versions = {};
+for (const n of await children(ua.resolveNodeId("Server_Namespaces"), "HasComponent")) {
+  const [uri, version] = await session.translateBrowsePath([
+    ua.makeBrowsePath(n.nodeId, ".NamespaceUri"), ua.makeBrowsePath(n.nodeId, ".NamespaceVersion"),
+  ]);
+  if (!uri.targets || !version.targets) continue;
+  const u = await session.read({ nodeId: uri.targets[0].targetId, attributeId: ua.AttributeIds.Value });
+  const v = await session.read({ nodeId: version.targets[0].targetId, attributeId: ua.AttributeIds.Value });
+  versions[u.value.value] = v.value.value;
+}
+official.namespaceVersions = versions;
+out(official);
+
 async function read() {
   const dvs = await session.read(ids.map((nodeId) => ({ nodeId, attributeId: ua.AttributeIds.Value })));
   const values = {};

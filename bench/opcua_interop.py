@@ -4,11 +4,13 @@ Node.js SDK, npm `node-opcua-client`), on the simulated line (issue 21).
     npm install --prefix ~/.cache/rvis-node node-opcua-client@2.186.4
     nice -n 5 .venv/bin/python bench/opcua_interop.py --node-modules ~/.cache/rvis-node/node_modules
 
-bench/opcua_interop.mjs resolves the variables by browse path, reads them, subscribes to Windows
-and to AlarmConditionType events; this script runs the service on the simulated line (x300,
-geometric) with the OPC UA server (allow_ack), pauses it and compares what node-opcua read with
-the service's status reply, plays a controller alarm, lets node-opcua acknowledge it (the
-audit row is checked), resets, and prints one line per check. Exit status 1 if any failed.
+bench/opcua_interop.mjs finds the machine by the official OPC 40001-1 type NodeIds alone and
+reads Identification and MachineryItemState through them (issue 29), resolves the variables by
+browse path, reads them, subscribes to Windows and to AlarmConditionType events; this script
+runs the service on the simulated line (x300, geometric) with the OPC UA server (allow_ack),
+pauses it and compares what node-opcua read with the service's status reply, plays a controller
+alarm, lets node-opcua acknowledge it (the audit row is checked), resets, and prints one line
+per check. Exit status 1 if any failed.
 """
 
 from __future__ import annotations
@@ -166,6 +168,43 @@ def scenario(line: SimulatedLineRun, node: Node) -> list[tuple[str, bool, str]]:
     checks = []
     resolved = node.wait(lambda r: r["k"] == "resolved")
     checks.append(("browse paths resolved by namespace URI", True, f"{resolved['n']} nodes"))
+    official = node.wait(lambda r: r["k"] == "official")
+    machines = official["machines"]
+    found = machines[0] if len(machines) == 1 else {}
+    ident = found.get("identification", {})
+    checks.append(
+        (
+            "machine found by the official type NodeIds",
+            bool(found) and found["browseName"].endswith("interop-cell"),
+            f"{found.get('browseName')}: HasAddIn {found.get('identificationType')}"
+            f" (MachineIdentificationType), {found.get('stateType')}"
+            " (MachineryItemState_StateMachineType)",
+        )
+    )
+    checks.append(
+        (
+            "Identification through MachineIdentificationType",
+            ident.get("Manufacturer") == "rvis" and bool(ident.get("SerialNumber")),
+            ", ".join(f"{k} {v}" for k, v in sorted(ident.items())),
+        )
+    )
+    checks.append(
+        (
+            "MachineryItemState through its type",
+            found.get("currentState") == found.get("stateNode", "").split(":")[-1],
+            f"CurrentState {found.get('currentState')}, Id {found.get('stateId')}"
+            f" -> {found.get('stateNode')}",
+        )
+    )
+    versions = official["namespaceVersions"]
+    checks.append(
+        (
+            "Server/Namespaces: DI and Machinery versions",
+            versions.get("http://opcfoundation.org/UA/DI/") == "1.04.0"
+            and versions.get("http://opcfoundation.org/UA/Machinery/") == "1.03.0",
+            ", ".join(f"{k} {v}" for k, v in versions.items()),
+        )
+    )
     node.wait(lambda r: r["k"] == "ready")
     seen = [node.wait(lambda r: r["k"] == "data")["v"] for _ in range(3)]
     checks.append(("Windows data changes", seen == sorted(seen) and len(set(seen)) == 3, f"{seen}"))

@@ -25,6 +25,24 @@ class State(StrEnum):
 #: alarms that hold the cell in FAULT until a reset
 FAULT_CODES = ("device_fault", "robot_not_home", "internal_error", "state_storage")
 
+#: every alarm code the service can raise, and its condition class: "process" (the measured
+#: cell: the robot's accuracy, the sensor) or "system" (devices, storage, software). The one
+#: list of codes: OPC UA makes one condition of each from the start (app.line.opcua.alarms);
+#: tests/line/test_alarm_codes.py checks the service raises no other.
+ALARM_CODES: dict[str, str] = {
+    "device_fault": "system",
+    "robot_not_home": "system",
+    "internal_error": "system",
+    "state_storage": "system",
+    "params_rebuilt": "system",
+    "plc_heartbeat": "system",
+    "temperature": "system",
+    "low_disk": "system",
+    "drift": "process",
+    "drift_step": "process",
+    "sensor": "process",
+}
+
 
 def utc_text(t: float) -> str:
     """ISO 8601 UTC of a clock time (seconds since the epoch)."""

@@ -13,6 +13,7 @@ from typing import Any
 import pytest
 from asyncua import Client, Node, ua
 
+from app.line.states import ALARM_CODES
 from app.sim.line_run import SimulatedLineRun
 from fakes.line_faults import Fault
 from tests.opcua.conftest import Catcher, Servers, child, machine_node, rvis
@@ -143,3 +144,36 @@ def test_condition_refresh_replays_the_active_alarms(
 
     event = asyncio.run(scenario())
     assert event.Severity == 900 and "DeviceConnectionError" in event.Message.Text
+
+
+def test_every_alarm_condition_is_there_from_the_start(
+    line: SimulatedLineRun, servers: Servers
+) -> None:
+    """Alarms/ holds one AlarmConditionType condition per code of ALARM_CODES (raised or not),
+    each subscribable: the codes not active read ActiveState Inactive, Retain false."""
+    active = {a["code"] for a in line.service.status()["alarms"]}
+
+    async def check() -> dict[str, tuple[bool, bool, Any]]:
+        async with Client(servers.read_only) as client:
+            folder = await child(client, await machine_node(client), "Alarms")
+            out = {}
+            items = []
+            for node in await folder.get_children():
+                name = (await node.read_browse_name()).Name
+                typedef = await node.read_type_definition()
+                state = await node.get_child(["0:ActiveState", "0:Id"])
+                retain = await node.get_child("0:Retain")
+                out[name] = (await state.read_value(), await retain.read_value(), typedef)
+                items.append(state)
+            sub = await client.create_subscription(50, Catcher())
+            handles = await sub.subscribe_data_change(items)
+            assert all(isinstance(h, int) for h in handles)  # each monitored item created
+            return out
+
+    conditions = asyncio.run(check())
+    assert set(conditions) == set(ALARM_CODES)
+    alarm_type = ua.NodeId(ua.ObjectIds.AlarmConditionType)
+    assert all(t == alarm_type for _, _, t in conditions.values())
+    for code, (state, retain, _) in conditions.items():
+        if code not in active:
+            assert state is False and retain is False, code

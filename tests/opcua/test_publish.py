@@ -19,7 +19,7 @@ from asyncua import Client, ua
 
 from app.line.opcua.space import NS_DI, NS_MACHINERY
 from app.sim.line_run import SimulatedLineRun
-from tests.opcua.conftest import ROOT, Catcher, Servers, child, machine_node, rvis
+from tests.opcua.conftest import MACHINE, ROOT, Catcher, Servers, child, machine_node, rvis
 
 #: browse name -> its value in `rvis status --json` (None: no value, BadNoValue)
 EXPECTED: dict[str, Callable[[dict[str, Any]], Any]] = {
@@ -204,3 +204,137 @@ def test_the_suspect_interval_variables_of_a_status_reply() -> None:
     assert json.loads(read("SuspectIntervals", [closed, opened])) == [closed, opened]
     assert read("SuspectOpen", [closed]) is False
     assert read("SuspectStartUtc", [closed]) is None and read("SuspectSizeMm", []) is None
+
+
+async def _values_under(client: Client, root: Any) -> list[tuple[str, ua.DataValue]]:
+    """Every variable's value below `root` (browsed recursively), read with both timestamps."""
+    variables: list[Any] = []
+    todo, seen = [root], {root.nodeid}
+    while todo:
+        node = todo.pop()
+        refs = await node.get_references(
+            refs=ua.ObjectIds.HierarchicalReferences, direction=ua.BrowseDirection.Forward
+        )
+        for ref in refs:
+            if ref.NodeId in seen or ref.NodeId.NamespaceIndex == 0:
+                continue  # the standard's own nodes (types, the server object)
+            if ref.NodeClass in (ua.NodeClass.Object, ua.NodeClass.Variable):
+                seen.add(ref.NodeId)
+                child_node = client.get_node(ref.NodeId)
+                if ref.NodeClass == ua.NodeClass.Variable:
+                    variables.append(child_node)
+                todo.append(child_node)
+    params = ua.ReadParameters()
+    params.TimestampsToReturn = ua.TimestampsToReturn.Both
+    for node in variables:
+        rv = ua.ReadValueId()
+        rv.NodeId, rv.AttributeId = node.nodeid, ua.AttributeIds.Value
+        params.NodesToRead.append(rv)
+    results = await client.uaclient.read(params)
+    return [(node.nodeid.to_string(), dv) for node, dv in zip(variables, results, strict=True)]
+
+
+def test_every_value_rvis_writes_carries_a_server_timestamp(
+    line: SimulatedLineRun, servers: Servers
+) -> None:
+    """rvis's variables, Identification, MachineryItemState and the alarm conditions' states:
+    ServerTimestamp is the server's (wall) clock, SourceTimestamp the service's."""
+
+    async def check() -> list[tuple[str, ua.DataValue]]:
+        async with Client(servers.read_only) as client:
+            m = await machine_node(client)
+            values = await _values_under(client, m)
+            names = [
+                "ServiceState",
+                "Windows",
+                "CellTemperatureC",
+                "Alarms/sensor/0:ActiveState/0:Id",
+            ]
+            for name in names:
+                parts = name.split("/")
+                node = await child(client, m, *parts)
+                assert node.nodeid.to_string() in dict(values), name
+            return values
+
+    values = asyncio.run(check())
+    now = time.time()
+    written = [(n, dv) for n, dv in values if dv.StatusCode.is_good() or dv.SourceTimestamp]
+    assert len(written) > 40
+    missing = [n for n, dv in written if dv.ServerTimestamp is None]
+    assert not missing, missing
+    assert all(abs(dv.ServerTimestamp.timestamp() - now) < 600 for _, dv in written)
+
+
+#: official NodeIds that exist only when the NodeSets are loaded (Machinery; DI)
+MACHINERY_IDS = {
+    1012: "MachineIdentificationType",
+    1004: "MachineryItemIdentificationType",
+    1002: "MachineryItemState_StateMachineType",
+    1008: "MachineryOperationModeStateMachineType",
+    5004: "OutOfService",
+    5005: "NotAvailable",
+    5006: "Executing",
+    5007: "NotExecuting",
+}
+DI_IDS = {15054: "ISupportInfoType", 15035: "IVendorNameplateType", 1005: "FunctionalGroupType"}
+
+
+def test_the_machine_found_by_the_official_types(line: SimulatedLineRun, servers: Servers) -> None:
+    """A client that knows only OPC 40001-1 finds the cell under Machines by the official
+    NodeIds (an AddIn whose type is MachineIdentificationType, i=1012; one whose type is
+    MachineryItemState_StateMachineType, i=1002) and reads Identification and the state through
+    them; the types and states are the NodeSets' nodes, their versions in Server/Namespaces."""
+
+    async def check() -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        async with Client(servers.read_only) as client:
+            ns_m = await client.get_namespace_index(NS_MACHINERY)
+            ns_di = await client.get_namespace_index(NS_DI)
+            for ns, ids in ((ns_m, MACHINERY_IDS), (ns_di, DI_IDS)):
+                for i, name in ids.items():
+                    browse = await client.get_node(ua.NodeId(i, ns)).read_browse_name()
+                    assert browse.Name == name, (i, browse)
+            versions = {}
+            namespaces = await client.nodes.server.get_child("0:Namespaces")
+            for node in await namespaces.get_children():
+                uri = await (await node.get_child("0:NamespaceUri")).read_value()
+                versions[uri] = await (await node.get_child("0:NamespaceVersion")).read_value()
+            out["versions"] = versions
+
+            machines = client.get_node(ua.NodeId(1001, ns_m))
+            found = []
+            for machine in await machines.get_children(refs=ua.ObjectIds.Organizes):
+                add_ins = await machine.get_references(
+                    refs=ua.ObjectIds.HasAddIn, direction=ua.BrowseDirection.Forward
+                )
+                by_type = {r.TypeDefinition: client.get_node(r.NodeId) for r in add_ins}
+                ident = by_type.get(ua.NodeId(1012, ns_m))
+                state = by_type.get(ua.NodeId(1002, ns_m))
+                if ident is not None and state is not None:
+                    found.append((machine, ident, state))
+            assert len(found) == 1, found
+            machine, ident, state = found[0]
+            out["machine"] = (await machine.read_browse_name()).Name
+            for prop in ("Manufacturer", "SerialNumber", "ProductInstanceUri", "Model"):
+                out[prop] = await (await ident.get_child(f"{ns_di}:{prop}")).read_value()
+            current = await state.get_child("0:CurrentState")
+            state_id = await (await current.get_child("0:Id")).read_value()
+            out["state"] = (await current.read_value()).Text
+            out["state_node"] = (await client.get_node(state_id).read_browse_name()).Name
+            out["state_id"] = state_id
+            blocks = await machine.get_child(f"{ns_m}:MachineryBuildingBlocks")
+            in_blocks = await blocks.get_references(
+                refs=ua.ObjectIds.HasAddIn, direction=ua.BrowseDirection.Forward
+            )
+            out["blocks"] = {r.NodeId for r in in_blocks} == {ident.nodeid, state.nodeid}
+            out["ns_m"] = ns_m
+        return out
+
+    got = asyncio.run(check())
+    assert got["versions"][NS_DI] == "1.04.0" and got["versions"][NS_MACHINERY] == "1.03.0"
+    assert got["machine"] == MACHINE and got["blocks"]
+    assert got["SerialNumber"] == "SN-0007" and got["Manufacturer"].Text == "rvis"
+    assert got["ProductInstanceUri"] == "urn:plant-a:body-shop:cell-7"
+    assert got["state"] == got["state_node"]  # CurrentState/Id is the official state object
+    assert got["state_id"].NamespaceIndex == got["ns_m"]
+    assert got["state_id"].Identifier in (5004, 5006, 5007)  # the line runs or is paused

@@ -1,15 +1,31 @@
 """`rvis run --sim` with `[opcua] enabled`: the service as its own process publishes over OPC UA
-from its start to its SIGTERM, and says where it listens in its log."""
+from its start to its SIGTERM, says where it listens in its log, and its subscribers see it
+stop (`stopped`, MachineryItemState NotAvailable) before the server goes."""
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import threading
 from pathlib import Path
+from typing import Any
 
 from asyncua import Client
 
-from tests.opcua.conftest import CELL, child, free_port, machine_node
+from app.line.opcua.space import NS_MACHINERY
+from tests.opcua.conftest import CELL, Catcher, child, free_port, machine_node
 from tests.ops.conftest import ServiceProcess
+
+
+def _start(tmp_path: Path) -> tuple[ServiceProcess, str]:
+    url = f"opc.tcp://127.0.0.1:{free_port()}/rvis"
+    cell = tmp_path / "cell.toml"
+    cell.write_text(CELL + f'enabled = true\nendpoint = "{url}"\n', encoding="utf-8")
+    svc = ServiceProcess(tmp_path / "state", cell)
+    line = svc.wait_log(lambda r: "OPC UA server listening" in r.get("msg", ""), 60.0)
+    assert url in line["msg"]
+    svc.wait_ready()
+    return svc, url
 
 
 async def _read(url: str) -> tuple[str, int]:
@@ -21,16 +37,54 @@ async def _read(url: str) -> tuple[str, int]:
 
 
 def test_rvis_run_publishes_over_opcua(tmp_path: Path) -> None:
-    url = f"opc.tcp://127.0.0.1:{free_port()}/rvis"
-    cell = tmp_path / "cell.toml"
-    cell.write_text(CELL + f'enabled = true\nendpoint = "{url}"\n', encoding="utf-8")
-    svc = ServiceProcess(tmp_path / "state", cell)
+    svc, url = _start(tmp_path)
     try:
-        line = svc.wait_log(lambda r: "OPC UA server listening" in r.get("msg", ""), 60.0)
-        assert url in line["msg"]
-        svc.wait_ready()
         state, windows = asyncio.run(_read(url))
         assert state in ("idle", "measuring") and windows >= 1
     finally:
         code = svc.stop()
     assert code == 0, svc.stderr
+
+
+def test_subscribers_see_the_service_stop(tmp_path: Path) -> None:
+    """SIGTERM to the service's process group: a subscriber (20 ms publishing) receives
+    ServiceState `stopped` and MachineryItemState NotAvailable before the connection ends."""
+    svc, url = _start(tmp_path)
+    seen: list[tuple[str, Any]] = []
+    subscribed = threading.Event()
+
+    async def watch() -> None:
+        client = Client(url, timeout=5)
+        client.session_timeout = 5000
+        await client.connect()
+        try:
+            m = await machine_node(client)
+            ns_m = await client.get_namespace_index(NS_MACHINERY)
+            state = await child(client, m, "ServiceState")
+            current = await m.get_child([f"{ns_m}:MachineryItemState", "0:CurrentState"])
+            handler = Catcher()
+            sub = await client.create_subscription(20, handler)
+            await sub.subscribe_data_change([state, current])
+            subscribed.set()
+            async with asyncio.timeout(60):
+                while True:
+                    _, node, value, _ = await handler.changes.get()
+                    text = value if node == state else value.Text
+                    seen.append(("state" if node == state else "item", text))
+                    if ("state", "stopped") in seen and ("item", "NotAvailable") in seen:
+                        return
+        finally:
+            with contextlib.suppress(Exception):  # the server has gone
+                await client.disconnect()
+
+    watcher = threading.Thread(target=lambda: asyncio.run(watch()))
+    watcher.start()
+    try:
+        assert subscribed.wait(30)
+        svc.wait_windows(1)
+    finally:
+        code = svc.stop()
+    watcher.join(60)
+    assert code == 0, svc.stderr
+    # the service was ready when subscribed: NotAvailable comes only with the stop
+    assert ("state", "stopped") in seen and ("item", "NotAvailable") in seen, seen

@@ -1,10 +1,12 @@
-"""The cell's state over OPC UA (DESIGN.md section 8, docs/opcua.md): an asyncua server inside
-the service, fed by the service's events, never polling it.
+"""The cell's state over OPC UA (DESIGN.md section 8, docs/opcua.md): an asyncua server in a
+process of its own, fed by the service's events, never polling it, with no say over the cycle.
 
 endpoint   the endpoint URL's checks and the security policies (no asyncua import: the cell
            file's check uses it)
+server     in the service's process: starts, feeds and supervises the server process
+child      the server process (`python -m app.line.opcua.child`): builds and serves
+guard      the transport guard: oversized or malformed messages get ERR, never buffered
 security   the server's certificate, the trusted clients, identities and what a client may do
-space      the address space: the machine (OPC 40001-1 subset) and rvis's variables
+space      the address space: the OPC 40001-1 machine (the official NodeSets) and rvis's variables
 alarms     the service's alarms as Alarms & Conditions (AlarmConditionType), acknowledge
-server     the server's thread and event loop, fed from the service's event bus
 """

@@ -2,11 +2,12 @@
 list shows them.
 
 One condition per alarm code (`Alarms/<code>` under the machine, an AlarmConditionType
-instance referenced by HasCondition): the service keeps at most one active alarm per code, and
-each of its alarm rows is one occurrence of that condition. `sync(alarms)` compares the
-status reply's alarms with the occurrences it published and triggers an event for every
-change, from the machine and from the Server object, with the condition's variables written to
-match:
+instance referenced by HasCondition), every code of app.line.states.ALARM_CODES from the start
+(inactive, so that a client can browse and subscribe to all of them): the service keeps at most
+one active alarm per code, and each of its alarm rows is one occurrence of that condition.
+`sync(alarms)` compares the status reply's alarms with the occurrences it published and
+triggers an event for every change, from the machine and from the Server object, with the
+condition's variables written to match:
 
     raised              ActiveState Active, AckedState Unacknowledged, Retain true
     acked               AckedState Acknowledged
@@ -33,6 +34,8 @@ from asyncua import Node, Server, ua
 from asyncua.common.event_objects import AlarmCondition
 
 from app.line.opcua.security import caller
+from app.line.opcua.space import now_utc
+from app.line.states import ALARM_CODES
 
 log = logging.getLogger("rvis.line.opcua")
 
@@ -41,8 +44,6 @@ SHELVING_IDS = {
     "Unshelved": ua.ObjectIds.ShelvedStateMachineType_Unshelved,
     "TimedShelved": ua.ObjectIds.ShelvedStateMachineType_TimedShelved,
 }
-#: the process's alarms; the others are the system's
-PROCESS_CODES = ("drift", "drift_step", "sensor")
 
 #: acknowledge(alarm id, who, comment) -> None when done, else the service's reason
 AckHandler = Callable[[int, str, str], Awaitable[str | None]]
@@ -63,7 +64,7 @@ def condition_fields(
 ) -> dict[str, tuple[Any, ua.VariantType]]:
     """The condition's fields (event field path -> value, type) for this occurrence."""
     shelving = "TimedShelved" if occ.state == "shelved" else "Unshelved"
-    klass = "Process" if alarm["code"] in PROCESS_CODES else "System"
+    klass = "Process" if ALARM_CODES.get(str(alarm["code"])) == "process" else "System"
     class_id = getattr(ua.ObjectIds, f"{klass}ConditionClassType")
     text = ua.VariantType.LocalizedText
     return {
@@ -109,6 +110,13 @@ class Conditions:
         await self.server.nodes.server.add_reference(self.machine.nodeid, ua.ObjectIds.HasNotifier)
         method = self.server.get_node(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge)
         self.server.link_method(method, self._acknowledge)
+        for code in ALARM_CODES:
+            node = await self._condition(code)
+            idle = {"code": code, "priority": "", "message": ""}
+            fields = condition_fields(idle, Occurrence(0, "cleared"), False)
+            fields.pop("Severity")  # no occurrence yet: the type's default
+            fields.pop("Message")
+            await self._write(code, node, fields)
 
     async def _condition(self, code: str) -> Node:
         node = self._nodes.get(code)
@@ -183,7 +191,7 @@ class Conditions:
             var = self._vars[key]
             if var is not None:
                 await self.server.write_attribute_value(
-                    var.nodeid, ua.DataValue(ua.Variant(value, vtype))
+                    var.nodeid, ua.DataValue(ua.Variant(value, vtype), ServerTimestamp=now_utc())
                 )
 
     async def _acknowledge(

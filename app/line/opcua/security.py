@@ -25,7 +25,7 @@ import logging
 import os
 import socket
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from asyncua import Server, ua
 from asyncua.common.utils import ServiceError
@@ -36,10 +36,12 @@ from cryptography import x509
 from cryptography.hazmat.primitives.serialization import Encoding
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
-from app.config.line import OpcUaSettings
 from app.errors import InputError
 from app.line.opcua.endpoint import is_loopback, split_endpoint
 from app.line.statedir import StateDir
+
+if TYPE_CHECKING:
+    from app.config.line import OpcUaSettings  # (the server process does not import it)
 
 log = logging.getLogger("rvis.line.opcua")
 

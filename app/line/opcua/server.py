@@ -1,49 +1,60 @@
-"""The OPC UA server of the service: its own thread and event loop, fed by the service's events.
+"""The OPC UA server of the service: its own process, fed by the service's events, supervised.
 
     with OpcUaServer(service):          # app.line.launch.serving() when [opcua] enabled
         service.run()
 
-Two threads, neither of which the service ever waits for:
-- `rvis-opcua`: asyncua's event loop (the server, its clients, the alarm conditions);
+The server (asyncua, its clients, the alarm conditions) runs in a child process
+(app.line.opcua.child), so that nothing a network peer sends can take the service's CPU or
+memory. In the service's process, two threads, neither of which the service ever waits for:
 - `rvis-opcua-feed`: blocks on a subscription to the service's event bus; after an event (and
   the others queued behind it) it takes one status reply, exactly what `rvis status` answers,
-  and hands it to the loop, which writes the variables that changed (timestamped with the
-  service's clock: the event's time) and triggers the alarm events. While the loop works, the
-  events queue up in the subscription (bounded; the oldest dropped first: the next status
-  reply carries their effect), so a slow OPC UA side costs the service nothing.
+  and writes it to the child, which writes the variables that changed (timestamped with the
+  service's clock: the event's time) and triggers the alarm events. While the child is busy,
+  the pipe fills and this thread waits; the events queue up in the subscription (bounded; the
+  oldest dropped first: the next status reply carries their effect).
+- `rvis-opcua-watch`: reads the child's lines (its log records, logged here; its acknowledge
+  requests, the service's `ack` command, only with `[opcua] allow_ack`: the child has no other
+  way back) and restarts the child when it dies (after RESTART_S, doubling up to
+  RESTART_MAX_S), with the last status.
 
 `start()` returns once the server listens (InputError when it cannot: exit 2 at `rvis run`).
-An OPC UA acknowledge is the service's `ack` command (queued and audited like the socket's).
+`stop()` publishes `stopped` when the service has stopped and lets the child flush it to the
+subscribers before it exits.
 """
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
+import dataclasses
+import json
 import logging
+import os
 import queue
 import socket
+import subprocess
+import sys
 import threading
-from concurrent.futures import Future
-from typing import TYPE_CHECKING, Any
+import time
+from pathlib import Path
+from typing import IO, TYPE_CHECKING, Any
 
 from app.config.line import OpcUaSettings
 from app.errors import InputError
 from app.line.opcua.endpoint import endpoint_problem, split_endpoint
-from app.line.statedir import StateDir
 
 if TYPE_CHECKING:
-    from asyncua import Server
-
-    from app.line.opcua.alarms import Conditions
-    from app.line.opcua.space import AddressSpace
     from app.line.service import Service
 
 log = logging.getLogger("rvis.line.opcua")
 START_TIMEOUT_S = 60.0
-ACK_TIMEOUT_S = 60.0  # an ack waits for the end of a running window at most this long
+STOP_TIMEOUT_S = 15.0  # the child's flush (2 s at most) and its server's stop
+ACK_TIMEOUT_S = 60.0
+RESTART_S = 1.0
+RESTART_MAX_S = 30.0
+HEALTHY_S = 60.0  # a child that ran this long restarts after RESTART_S again
+MAX_LINE = 64 * 1024  # a line from the child (longer: ignored)
 _STOP = {"event": "__opcua_stop__"}
-REFRESH_SEVERITY = 100  # of the RefreshStart/End events around a ConditionRefresh
+_ROOT = Path(__file__).resolve().parents[3]  # where `app` is: the child runs the same code
 
 
 def application_uri(settings: OpcUaSettings) -> str:
@@ -67,57 +78,93 @@ def _check_endpoint(settings: OpcUaSettings) -> None:
         ) from exc
 
 
+def _close_pipes(proc: subprocess.Popen[bytes]) -> None:
+    for stream in (proc.stdin, proc.stdout):
+        with contextlib.suppress(OSError):
+            if stream is not None:
+                stream.close()
+
+
 class OpcUaServer:
     """The OPC UA server publishing `service` (settings: service.settings.opcua)."""
 
     def __init__(self, service: Service, settings: OpcUaSettings | None = None) -> None:
         self.service = service
         self.settings = settings or service.settings.opcua
-        self.paths = StateDir(service.settings.state_dir)
-        self.loop: asyncio.AbstractEventLoop | None = None
-        self.server: Server | None = None
-        self.space: AddressSpace | None = None
-        self.conditions: Conditions | None = None
+        self._proc: subprocess.Popen[bytes] | None = None
+        self._send_lock = threading.Lock()
         self._last_status: dict[str, Any] = {}
-        self._ready = threading.Event()
-        self._error: BaseException | None = None
-        self._stopping: asyncio.Event | None = None
+        self._last_t = 0.0
+        self._stopped_published = False
+        self._ready = threading.Event()  # a child listens
+        self._stopping = threading.Event()
+        self.restarts = 0
+        self.restarted = threading.Event()  # set at every restart (tests wait on it)
         self._events = service.bus.subscribe()
-        self._thread = threading.Thread(target=self._run, name="rvis-opcua", daemon=True)
         self._feed = threading.Thread(target=self._feed_loop, name="rvis-opcua-feed", daemon=True)
+        self._watch = threading.Thread(
+            target=self._watch_loop, name="rvis-opcua-watch", daemon=True
+        )
 
     # -- life cycle ------------------------------------------------------------------------
+    @property
+    def pid(self) -> int | None:
+        """The server process's id (None: not running)."""
+        proc = self._proc
+        return proc.pid if proc is not None and proc.poll() is None else None
+
+    def wait_ready(self, timeout_s: float) -> bool:
+        """Whether a server process listens (waiting up to `timeout_s` for one)."""
+        return self._ready.wait(timeout_s)
+
     def start(self) -> OpcUaServer:
         try:
             _check_endpoint(self.settings)
-        except InputError:
+            self._spawn()
+            self._await_start()
+        except BaseException:
             self.service.bus.unsubscribe(self._events)
+            self._kill()
+            if self._proc is not None:
+                _close_pipes(self._proc)
             raise
-        self._thread.start()
-        if not self._ready.wait(START_TIMEOUT_S):
-            self._error = TimeoutError(f"not listening after {START_TIMEOUT_S:g} s")
-        if self._error is not None:
-            self.stop()
-            error = self._error
-            if isinstance(error, OSError | TimeoutError):  # the network, the state directory
-                raise InputError(
-                    f"the OPC UA server cannot listen at {self.settings.endpoint}: {error}",
-                    field="[opcua] endpoint",
-                ) from error
-            raise error  # InputError as it is; anything else is an internal error
+        self._watch.start()
         self._feed.start()
-        log.info("OPC UA server listening at %s", self.settings.endpoint)
+        log.info(
+            "OPC UA server listening at %s (process %s)", self.settings.endpoint, self.pid or "-"
+        )
         return self
 
     def stop(self) -> None:
+        """Stop the server; when the service has stopped, its `stopped` state (and
+        MachineryItemState NotAvailable) is published and sent to the subscribers first."""
         self.service.bus.unsubscribe(self._events)
         self._events.offer(_STOP)  # never blocks: a full queue loses its oldest event
         if self._feed.is_alive():
             self._feed.join(10.0)
-        if self.loop is not None and self._stopping is not None and self._thread.is_alive():
-            self.loop.call_soon_threadsafe(self._stopping.set)
-        if self._thread.is_alive():
-            self._thread.join(30.0)
+        if self._feed.is_alive():  # blocked on a child that reads nothing: it goes
+            log.warning("OPC UA server process %s does not read: killed", self.pid)
+            self._kill()
+        if self.service.state.value == "stopped" and not self._stopped_published:
+            self._publish(self.service.clock.time(), stopped=True)
+        self._stopping.set()
+        proc = self._proc
+        if proc is not None:
+            self._send({"stop": True})
+            if self._send_lock.acquire(timeout=STOP_TIMEOUT_S):
+                with contextlib.suppress(OSError):
+                    if proc.stdin is not None:
+                        proc.stdin.close()
+                self._send_lock.release()
+            try:
+                proc.wait(STOP_TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                log.warning("OPC UA server process %d did not stop: killed", proc.pid)
+                self._kill()
+        if self._watch.is_alive():
+            self._watch.join(10.0)
+        if proc is not None:
+            _close_pipes(proc)
 
     def __enter__(self) -> OpcUaServer:
         return self.start()
@@ -125,76 +172,173 @@ class OpcUaServer:
     def __exit__(self, *exc: object) -> None:
         self.stop()
 
-    # -- the event loop's thread -------------------------------------------------------------
-    def _run(self) -> None:
-        try:
-            asyncio.run(self._serve())
-        except BaseException as exc:
-            if self._ready.is_set():
-                raise  # after start: the service's thread hook alarms it (FAULT, restart)
-            self._error = exc
-            self._ready.set()
-
-    async def _serve(self) -> None:
-        self.loop = asyncio.get_running_loop()
-        self._stopping = asyncio.Event()
-        server = await self._build()
-        try:
-            await server.start()
-        except OSError as exc:
-            raise InputError(
-                f"cannot listen at {self.settings.endpoint}: {exc.strerror or exc}",
-                field="[opcua] endpoint",
-            ) from exc
-        try:
-            self._last_status = self.service.status()
-            await self._apply(self._last_status, self.service.clock.time())
-            self._ready.set()
-            await self._stopping.wait()
-        finally:
-            await server.stop()
-
-    async def _build(self) -> Server:
-        from asyncua import Server
-
-        from app.line.opcua import security
-        from app.line.opcua.alarms import Conditions
-        from app.line.opcua.space import AddressSpace
+    # -- the child process -------------------------------------------------------------------
+    def _spawn(self) -> None:
+        """A new server process, given its configuration and the last status."""
+        from app.line.statedir import StateDir
         from app.meta import software_revision
 
-        s = self.settings
-        self.server = server = Server(user_manager=security.user_manager(s, self.paths))
-        server.iserver.bind_condition_methods = REFRESH_SEVERITY  # ConditionRefresh(2)
-        await server.init()
-        server.set_endpoint(s.endpoint)
-        server.set_server_name(f"rvis {s.machine_name}")
-        await server.set_application_uri(application_uri(s))
-        await security.secure(server, s, self.paths, application_uri(s))
-        self.space = AddressSpace(server, s)
-        machine = await self.space.build(sorted(self.service.spheres), software_revision())
-        ack = self._acknowledge if s.allow_ack else None
-        self.conditions = Conditions(server, self.space.ns, machine, ack)
-        await self.conditions.setup()
-        return server
+        env = dict(os.environ)
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (str(_ROOT), env.get("PYTHONPATH", "")) if p)
+        self._proc = subprocess.Popen(
+            [sys.executable, "-m", "app.line.opcua.child"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            env=env,
+        )
+        config = {
+            "settings": dataclasses.asdict(self.settings),
+            "state_dir": str(StateDir(self.service.settings.state_dir).root),
+            "spheres": sorted(self.service.spheres),
+            "software_revision": software_revision(),
+            "application_uri": application_uri(self.settings),
+        }
+        self._send({"config": config})
+        if not self._last_status:
+            self._last_status = self.service.status()
+            self._last_t = self.service.clock.time()
+        self._send({"status": self._last_status, "t": self._last_t})
 
-    async def _apply(self, status: dict[str, Any], t: float) -> None:
-        """One status reply into the address space and the alarm conditions."""
-        from app.line.opcua.space import clock_utc
+    def _await_start(self) -> None:
+        """Until the child listens (its log lines logged meanwhile); InputError when it
+        cannot."""
+        deadline = time.monotonic() + START_TIMEOUT_S
+        assert self._proc is not None and self._proc.stdout is not None
+        stream = self._proc.stdout
+        result: queue.Queue[dict[str, Any] | None] = queue.Queue()
 
-        assert self.space is not None and self.conditions is not None
-        when = clock_utc(t)
-        await self.space.apply(status, when)
-        await self.conditions.sync(list(status.get("alarms", [])), when)
+        def read() -> None:
+            while True:
+                msg = self._read(stream)
+                if msg is None or "ready" in msg or "error" in msg:
+                    result.put(msg)
+                    return
 
-    async def _acknowledge(self, alarm_id: int, who: str, comment: str) -> str | None:
-        """The service's audited `ack` (uid: none; the audit names OPC UA and the user)."""
-        args = {"alarm": alarm_id, "via": "opcua", "user": who, "comment": comment}
-        future = self.service.request("ack", args)
+        threading.Thread(target=read, name="rvis-opcua-start", daemon=True).start()
         try:
-            reply = await asyncio.wait_for(asyncio.wrap_future(future), ACK_TIMEOUT_S)
-        except TimeoutError:
-            return f"no reply from the service in {ACK_TIMEOUT_S:g} s"
-        return None if reply.get("ok") else str(reply.get("error", "refused"))
+            msg = result.get(timeout=max(0.0, deadline - time.monotonic()))
+        except queue.Empty:
+            raise InputError(
+                f"the OPC UA server cannot listen at {self.settings.endpoint}: not listening"
+                f" after {START_TIMEOUT_S:g} s",
+                field="[opcua] endpoint",
+            ) from None
+        if msg is None:
+            code = self._proc.wait()
+            raise RuntimeError(f"the OPC UA server process exited ({code}) before it listened")
+        if "error" in msg:
+            if msg.get("internal"):
+                raise RuntimeError(f"the OPC UA server failed: {msg['error']}")
+            raise InputError(str(msg["error"]), file=msg.get("file"), field=msg.get("field"))
+        self._ready.set()
+
+    def _read(self, stream: IO[bytes]) -> dict[str, Any] | None:
+        """The next message of the child (its log lines logged here); None at its end."""
+        while True:
+            try:
+                raw = stream.readline(MAX_LINE)
+            except (OSError, ValueError):  # closed meanwhile (the child killed)
+                return None
+            if not raw:
+                return None
+            try:
+                msg = json.loads(raw)
+            except ValueError:
+                log.warning("OPC UA server process: an unreadable line ignored")
+                continue
+            if not isinstance(msg, dict):
+                continue
+            if "log" in msg:
+                level = msg["log"] if isinstance(msg["log"], int) else logging.WARNING
+                log.log(level, "%s", str(msg.get("msg", ""))[:2000])
+                continue
+            return msg
+
+    def _send(self, obj: dict[str, Any]) -> bool:
+        """One line to the child (False when it is gone: the watcher restarts it)."""
+        proc = self._proc
+        if proc is None or proc.stdin is None:
+            return False
+        data = (json.dumps(obj, default=str) + "\n").encode()
+        if not self._send_lock.acquire(timeout=STOP_TIMEOUT_S):
+            return False  # a wedged child (the watcher or stop() kills it)
+        try:
+            proc.stdin.write(data)
+            proc.stdin.flush()
+        except (OSError, ValueError):
+            return False
+        finally:
+            self._send_lock.release()
+        return True
+
+    def _kill(self) -> None:
+        proc = self._proc
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+    # -- the watcher's thread ----------------------------------------------------------------
+    def _watch_loop(self) -> None:
+        try:
+            self._watch_children()
+        except Exception as exc:  # never the service's error: the server is not its cycle
+            log.error("OPC UA server not supervised any more: %s: %s", type(exc).__name__, exc)
+
+    def _watch_children(self) -> None:
+        delay = RESTART_S
+        while True:
+            proc = self._proc
+            assert proc is not None and proc.stdout is not None
+            started = time.monotonic()
+            while (msg := self._read(proc.stdout)) is not None:
+                if "ack" in msg:
+                    self._ack(msg)
+            self._ready.clear()
+            code = proc.wait()
+            if self._stopping.is_set():
+                return
+            delay = RESTART_S if time.monotonic() - started > HEALTHY_S else delay
+            log.warning(
+                "OPC UA server process %d exited (%s): restarting it in %g s", proc.pid, code, delay
+            )
+            if self._stopping.wait(delay):
+                return
+            delay = min(2 * delay, RESTART_MAX_S)
+            _close_pipes(proc)
+            try:
+                self._spawn()
+                self._await_start()
+            except Exception as exc:
+                log.warning("OPC UA server not restarted: %s", exc)
+                continue
+            self.restarts += 1
+            self.restarted.set()
+            log.info(
+                "OPC UA server listening again at %s (process %s)", self.settings.endpoint, self.pid
+            )
+
+    def _ack(self, msg: dict[str, Any]) -> None:
+        """An OPC UA Acknowledge: the service's `ack` (refused unless allow_ack), its reply
+        sent back when the service has run it."""
+        n = msg.get("ack")
+        if not self.settings.allow_ack:
+            self._send({"reply": n, "error": "[opcua] allow_ack is false"})
+            return
+        args = {
+            "alarm": msg.get("alarm"),
+            "via": "opcua",
+            "user": str(msg.get("user", "unknown"))[:200],
+            "comment": str(msg.get("comment", ""))[:2000],
+        }
+        future = self.service.request("ack", args)
+
+        def done(f: Any) -> None:  # in the service's thread: the reply goes from another one
+            reply = f.result()
+            error = None if reply.get("ok") else str(reply.get("error", "refused"))
+            answer = {"reply": n, "error": error}
+            threading.Thread(target=self._send, args=(answer,), daemon=True).start()
+
+        future.add_done_callback(done)
 
     # -- the feed's thread -------------------------------------------------------------------
     def _feed_loop(self) -> None:
@@ -203,26 +347,26 @@ class OpcUaServer:
             with contextlib.suppress(queue.Empty):
                 while True:
                     batch.append(self._events.get_nowait())
-            if any(e is _STOP for e in batch):
+            events = [e for e in batch if e is not _STOP]
+            if events:  # `stopped` too when it came with the end (the service ended first)
+                stopped = any(e["event"] == "stopped" for e in events)
+                self._publish(max(float(e.get("t", 0.0)) for e in events), stopped)
+            if len(events) < len(batch):
                 return
-            stopped = any(e["event"] == "stopped" for e in batch)
-            self._publish(max(float(e.get("t", 0.0)) for e in batch), stopped)
 
     def _publish(self, t: float, stopped: bool = False) -> None:
-        """The service's status now, applied in the loop (waited for: the feed's pace is the
-        OPC UA side's); a failure is logged, never the service's. Once the service has
-        stopped (its database closing) the last status is published as `stopped`."""
-        loop = self.loop
-        if loop is None:
-            return
+        """The service's status now, to the server process; a failure is logged, never the
+        service's. Once the service has stopped (its database closing) the last status is
+        published as `stopped`."""
         try:
             if stopped:
                 status = {**self._last_status, "state": "stopped", "step": "stopped"}
+                self._stopped_published = True
             else:
-                status = self._last_status = self.service.status()
-            done: Future[None] = asyncio.run_coroutine_threadsafe(self._apply(status, t), loop)
-            done.result(30.0)
-        except Exception as exc:  # the service stopping (database closed), a slow loop
+                status = self.service.status()
+            self._last_status, self._last_t = status, t
+            self._send({"status": status, "t": t})
+        except Exception as exc:  # the service stopping (database closed)
             ending = self.service.state.value in ("stopped", "fault")
             log.log(
                 logging.DEBUG if ending else logging.WARNING,

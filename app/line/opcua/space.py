@@ -1,43 +1,57 @@
-"""The address space of the cell (docs/opcua.md): a machine modelled on OPC 40001-1 (Machinery)
-with rvis's own variables, and how a status reply of the service becomes their values.
+"""The address space of the cell (docs/opcua.md): a machine of OPC 40001-1 (Machinery) with
+rvis's own variables, and how a status reply of the service becomes their values.
 
-    Objects/Machines (Machinery)                     FolderType
-        <machine_name> (rvis)                        BaseObjectType, an event notifier
-            Identification (DI)                      Manufacturer, Model, SerialNumber, ...
+    Objects/Machines (Machinery, i=1001)            from the official Machinery NodeSet
+        <machine_name> (rvis)                        RvisCellType, an event notifier
+            Identification (DI)                      MachineIdentificationType (HasAddIn)
             MachineryBuildingBlocks (Machinery)      HasAddIn Identification, MachineryItemState
-            MachineryItemState (Machinery)           FiniteStateMachineType: CurrentState, Id
+            MachineryItemState (Machinery)           MachineryItemState_StateMachineType (HasAddIn)
             ServiceState, Step, CalibrationVersion, ... (rvis)   VARIABLES below
             Spheres/<id>/DriftEwmaMm, Drifting (rvis)
             Alarms/<code> (rvis)                     AlarmConditionType (app.line.opcua.alarms)
 
-The DI and Machinery namespaces hold only the nodes named here (their NodeSets are not loaded):
-the browse names, the Machines folder and the MachineryItemState's state ids are the standard
-ones, the type definitions are the base types they derive from (docs/opcua.md lists exactly
-what is standard). Every variable is read-only; a value the service does not have (no fit RMS
-for initial parameters, no temperature sensor, a chart not yet started) reads as BadNoValue, a
-value the status reply left out (the state storage failing) keeps its last value as
-UncertainLastUsableValue.
+The OPC Foundation's DI and Machinery NodeSets (NODESETS, shipped as they are in `nodesets/`)
+are imported first, so the types, the Machines folder and the states the MachineryItemState's
+CurrentState/Id points to are the official nodes. asyncua's `instantiate` links an instance
+with HasComponent: the AddIns are re-linked with HasAddIn. Every variable is read-only; a value
+the service does not have (no fit RMS for initial parameters, no temperature sensor, a chart not
+yet started) reads as BadNoValue, a value the status reply left out (the state storage failing)
+keeps its last value as UncertainLastUsableValue.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import socket
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from asyncua import Node, Server, ua
+from asyncua.common.instantiate_util import instantiate
 
-from app.config.line import OpcUaSettings
+if TYPE_CHECKING:
+    from app.config.line import OpcUaSettings  # (the server process does not import it)
+
 
 NS_RVIS = "urn:rvis:opcua"  # the same in every cell: clients find the variables by name
 NS_DI = "http://opcfoundation.org/UA/DI/"
 NS_MACHINERY = "http://opcfoundation.org/UA/Machinery/"
 
+#: the official NodeSets rvis loads, in import order (DI first: Machinery requires it); the
+#: files are the OPC Foundation's, as published (docs/opcua.md names their versions)
+NODESET_DIR = Path(__file__).resolve().parent / "nodesets"
+NODESETS = (
+    (NS_DI, "Opc.Ua.Di.NodeSet2.xml"),
+    (NS_MACHINERY, "Opc.Ua.Machinery.NodeSet2.xml"),
+)
 #: OPC 40001-1 node ids in the Machinery namespace (Opc.Ua.Machinery.NodeIds.csv)
 MACHINES_ID = 1001
+MACHINE_IDENTIFICATION_TYPE = 1012
+ITEM_STATE_TYPE = 1002  # MachineryItemState_StateMachineType
 ITEM_STATE_IDS = {
     "OutOfService": 5004,
     "NotAvailable": 5005,
@@ -263,19 +277,23 @@ class AddressSpace:
 
     async def build(self, spheres: list[str], software_revision: str) -> Node:
         s = self.server
+        await load_nodesets(s)
+        self.ns_di = await s.get_namespace_index(NS_DI)
+        self.ns_machinery = await s.get_namespace_index(NS_MACHINERY)
         self.ns = await s.register_namespace(NS_RVIS)
-        self.ns_di = await s.register_namespace(NS_DI)
-        self.ns_machinery = await s.register_namespace(NS_MACHINERY)
-        machines = await self._add(
-            s.nodes.objects,
-            ua.NodeId(MACHINES_ID, self.ns_machinery),
-            ua.QualifiedName("Machines", self.ns_machinery),
-            ua.ObjectIds.FolderType,
-            ua.ObjectIds.Organizes,
+        machines = s.get_node(ua.NodeId(MACHINES_ID, self.ns_machinery))
+        cell_type = await s.nodes.base_object_type.add_object_type(
+            ua.NodeId("RvisCellType", self.ns), ua.QualifiedName("RvisCellType", self.ns)
         )
+        text = ua.Variant(ua.LocalizedText(CELL_TYPE_TEXT), ua.VariantType.LocalizedText)
+        await cell_type.write_attribute(ua.AttributeIds.Description, ua.DataValue(text))
         name = self.settings.machine_name
         self.machine = machine = await self._add(
-            machines, self._id(name), ua.QualifiedName(name, self.ns), ua.ObjectIds.BaseObjectType
+            machines,
+            self._id(name),
+            ua.QualifiedName(name, self.ns),
+            cell_type.nodeid,
+            ua.ObjectIds.Organizes,
         )
         ident = await self._identification(machine, software_revision)
         state = await self._item_state(machine)
@@ -310,59 +328,68 @@ class AddressSpace:
     def _id(self, *path: str) -> ua.NodeId:
         return ua.NodeId(".".join(path), self.ns)
 
-    async def _identification(self, machine: Node, software_revision: str) -> Node:
-        """OPC 40001-1 Identification (MachineIdentificationType's mandatory properties and
-        SoftwareRevision), an AddIn of the machine."""
-        s, name = self.settings, self.settings.machine_name
-        ident = await self._add(
+    async def _add_in(self, machine: Node, type_id: int, browse: ua.QualifiedName) -> Node:
+        """An instance of the Machinery type `type_id` (its mandatory nodes), an AddIn of the
+        machine: asyncua's `instantiate` links it with HasComponent, 40001-1 asks HasAddIn."""
+        name = self.settings.machine_name
+        node_type = self.server.get_node(ua.NodeId(type_id, self.ns_machinery))
+        nodes = await instantiate(
             machine,
-            self._id(name, "Identification"),
+            node_type,
+            nodeid=self._id(name, browse.Name),
+            bname=browse,
+            instantiate_optional=False,
+        )
+        node = nodes[0]
+        await machine.delete_reference(node.nodeid, ua.ObjectIds.HasComponent)
+        await machine.add_reference(node.nodeid, ua.ObjectIds.HasAddIn)
+        return node
+
+    async def _identification(self, machine: Node, software_revision: str) -> Node:
+        """Identification: a MachineIdentificationType (its mandatory Manufacturer,
+        SerialNumber, ProductInstanceUri), with the optional Model and SoftwareRevision."""
+        s, name = self.settings, self.settings.machine_name
+        ident = await self._add_in(
+            machine,
+            MACHINE_IDENTIFICATION_TYPE,
             ua.QualifiedName("Identification", self.ns_di),
-            ua.ObjectIds.BaseObjectType,
-            ua.ObjectIds.HasAddIn,
         )
         derived = identity(s)
-        props: list[tuple[str, Any, ua.VariantType]] = [
+        values: list[tuple[str, Any, ua.VariantType]] = [
             ("Manufacturer", ua.LocalizedText(s.manufacturer), ua.VariantType.LocalizedText),
             ("Model", ua.LocalizedText(s.model), ua.VariantType.LocalizedText),
             ("SerialNumber", derived["serial_number"], ua.VariantType.String),
             ("SoftwareRevision", software_revision, ua.VariantType.String),
             ("ProductInstanceUri", derived["product_instance_uri"], ua.VariantType.String),
         ]
-        for prop, value, vtype in props:
-            await ident.add_property(
-                self._id(name, "Identification", prop),
-                ua.QualifiedName(prop, self.ns_di),
-                ua.Variant(value, vtype),
+        for prop, value, vtype in values:
+            qname = ua.QualifiedName(prop, self.ns_di)
+            try:
+                node = await ident.get_child(qname)
+            except ua.UaError:  # an optional property the type's instance has not
+                node = await ident.add_property(
+                    self._id(name, "Identification", prop),
+                    qname,
+                    ua.Variant(value, vtype),
+                    datatype=ua.NodeId(ua.ObjectIds.LocalizedText)
+                    if vtype == ua.VariantType.LocalizedText
+                    else None,
+                )
+            await self.server.write_attribute_value(
+                node.nodeid, stamped(ua.DataValue(ua.Variant(value, vtype)))
             )
         return ident
 
     async def _item_state(self, machine: Node) -> Node:
-        """MachineryItemState: a FiniteStateMachine with CurrentState and its Id (the
-        standard state NodeIds of MachineryItemState_StateMachineType)."""
-        name = self.settings.machine_name
-        obj = await self._add(
-            machine,
-            self._id(name, "MachineryItemState"),
-            ua.QualifiedName("MachineryItemState", self.ns_machinery),
-            ua.ObjectIds.FiniteStateMachineType,
-            ua.ObjectIds.HasAddIn,
+        """MachineryItemState: a MachineryItemState_StateMachineType; CurrentState and its Id
+        point to the type's state objects (ITEM_STATE_IDS)."""
+        obj = await self._add_in(
+            machine, ITEM_STATE_TYPE, ua.QualifiedName("MachineryItemState", self.ns_machinery)
         )
-        current = await self._add(
-            obj,
-            self._id(name, "MachineryItemState", "CurrentState"),
-            ua.QualifiedName("CurrentState", 0),
-            ua.ObjectIds.FiniteStateVariableType,
-            nodeclass=ua.NodeClass.Variable,
-            value=ua.Variant(ua.LocalizedText("NotAvailable"), ua.VariantType.LocalizedText),
-            datatype=ua.ObjectIds.LocalizedText,
-        )
-        state_id = await current.add_property(
-            self._id(name, "MachineryItemState", "CurrentState", "Id"),
-            ua.QualifiedName("Id", 0),
-            ua.Variant(self._state_id("NotAvailable"), ua.VariantType.NodeId),
-        )
+        current = await obj.get_child("0:CurrentState")
+        state_id = await current.get_child("0:Id")
         self._state = (current, state_id)
+        await self._write_state("NotAvailable", None)
         return obj
 
     def _state_id(self, state: str) -> ua.NodeId:
@@ -403,7 +430,7 @@ class AddressSpace:
         parent: Node,
         nodeid: ua.NodeId,
         qname: ua.QualifiedName,
-        typedef: int,
+        typedef: int | ua.NodeId,
         reftype: int = ua.ObjectIds.HasComponent,
         *,
         nodeclass: ua.NodeClass = ua.NodeClass.Object,
@@ -417,7 +444,7 @@ class AddressSpace:
         item.RequestedNewNodeId, item.BrowseName = nodeid, qname
         item.NodeClass, item.ParentNodeId = nodeclass, parent.nodeid
         item.ReferenceTypeId = ua.NodeId(reftype)
-        item.TypeDefinition = ua.NodeId(typedef)
+        item.TypeDefinition = typedef if isinstance(typedef, ua.NodeId) else ua.NodeId(typedef)
         attrs: ua.ObjectAttributes | ua.VariableAttributes
         if nodeclass == ua.NodeClass.Variable:
             attrs = ua.VariableAttributes()
@@ -444,7 +471,7 @@ class AddressSpace:
             dv = data_value(var, lookup(status, var.path), t, last.Value if last else None)
             if last is not None and (last.Value, last.StatusCode) == (dv.Value, dv.StatusCode):
                 continue
-            await self.server.write_attribute_value(node.nodeid, dv)
+            await self.server.write_attribute_value(node.nodeid, stamped(dv))
             self._last[key] = dv
             written += 1
         return written + await self._apply_state(status.get("state"), t)
@@ -453,17 +480,44 @@ class AddressSpace:
         item = ITEM_STATE_OF.get(str(state))
         if item is None or self._state is None or self._state_now == item:
             return 0
+        await self._write_state(item, t)
+        return 1
+
+    async def _write_state(self, item: str, t: datetime | None) -> None:
+        """CurrentState (the state's name) and its Id (the type's state object)."""
+        assert self._state is not None
         current, state_id = self._state
         text = ua.Variant(ua.LocalizedText(item), ua.VariantType.LocalizedText)
         await self.server.write_attribute_value(
-            current.nodeid, ua.DataValue(text, SourceTimestamp=t)
+            current.nodeid, stamped(ua.DataValue(text, SourceTimestamp=t))
         )
         node_id = ua.Variant(self._state_id(item), ua.VariantType.NodeId)
         await self.server.write_attribute_value(
-            state_id.nodeid, ua.DataValue(node_id, SourceTimestamp=t)
+            state_id.nodeid, stamped(ua.DataValue(node_id, SourceTimestamp=t))
         )
         self._state_now = item
-        return 1
+
+
+CELL_TYPE_TEXT = (
+    "A cell of a robotic visual inspection system that calibrates itself in-line (rvis): a"
+    " machine of OPC 40001-1 with rvis's own variables and alarm conditions"
+)
+
+
+async def load_nodesets(server: Server) -> None:
+    """Import the official NodeSets (NODESETS, in order) into `server`."""
+    for _uri, filename in NODESETS:
+        await server.import_xml(str(NODESET_DIR / filename))
+
+
+def now_utc() -> datetime:
+    """The server's clock (ServerTimestamp): the wall clock, whatever the service's clock."""
+    return datetime.now(UTC)
+
+
+def stamped(dv: ua.DataValue) -> ua.DataValue:
+    """`dv` with the ServerTimestamp of now (every value rvis writes carries one)."""
+    return dataclasses.replace(dv, ServerTimestamp=now_utc())
 
 
 def clock_utc(t: float) -> datetime:

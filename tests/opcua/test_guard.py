@@ -1,0 +1,155 @@
+"""The server is out of the cycle's way: it runs in its own process (restarted when it dies,
+the service untouched), and a peer's oversized or malformed message gets the protocol's ERR
+message and one log line (never a traceback) and its connection closed at once, while the
+other clients are served."""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import logging
+import os
+import signal
+import socket
+import struct
+import threading
+import time
+from collections.abc import Iterator
+
+import pytest
+from asyncua import Client, ua
+
+from app.line.opcua.server import OpcUaServer
+from app.sim.line_run import SimulatedLineRun
+from tests.opcua.conftest import Servers, child, free_port, machine_node
+
+
+def hello_message(url: str, size_claimed: int | None = None) -> bytes:
+    """A Hello; with `size_claimed`, its header claims that size (the rest never comes)."""
+    endpoint = url.encode()
+    body = struct.pack("<IIIIIi", 0, 65535, 65535, 0, 0, len(endpoint)) + endpoint
+    size = 8 + len(body) if size_claimed is None else size_claimed
+    return struct.pack("<3scI", b"HEL", b"F", size) + body
+
+
+def exchange(
+    url: str, data: bytes, stream_s: float = 0.0, hello: bool = False
+) -> tuple[bytes, float]:
+    """Send `data` (after a Hello and its Acknowledge when `hello`; then zeros for up to
+    `stream_s`, as a flood would) and read until the server closes: what it answered after
+    the Acknowledge and how long the connection lasted."""
+    host, port = url.split("//")[1].split("/")[0].split(":")
+    t0 = time.monotonic()
+    with socket.create_connection((host, int(port)), timeout=10) as s:
+        if hello:
+            s.sendall(hello_message(url))
+            ack = b""
+            while len(ack) < 28:  # the Acknowledge: header and five UInt32
+                ack += s.recv(28 - len(ack))
+            assert ack[:4] == b"ACKF", ack
+        s.sendall(data)
+        junk = bytes(65536)
+        deadline = t0 + stream_s
+        try:
+            while time.monotonic() < deadline:
+                s.sendall(junk)
+        except OSError:
+            pass  # closed by the server: what it sent is still readable
+        answer = b""
+        try:
+            while chunk := s.recv(65536):
+                answer += chunk
+        except OSError:
+            pass  # a reset after the ERR
+    return answer, time.monotonic() - t0
+
+
+def error_code(answer: bytes) -> int:
+    assert answer[:4] == b"ERRF", answer[:16]
+    code: int = struct.unpack_from("<I", answer, 8)[0]
+    return code
+
+
+class Records(logging.Handler):
+    """The OPC UA log records of this process (the server process's are logged here)."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.DEBUG)
+        self.records: list[logging.LogRecord] = []
+        self.refused = threading.Event()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.append(record)
+        if "refused" in record.getMessage():
+            self.refused.set()
+
+
+@pytest.fixture
+def records() -> Iterator[Records]:
+    handler = Records()
+    logger = logging.getLogger("rvis.line.opcua")
+    old = logger.level
+    logger.setLevel(logging.DEBUG)
+    logger.addHandler(handler)
+    try:
+        yield handler
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(old)
+
+
+def test_oversized_and_malformed_messages_get_err_and_are_closed(
+    servers: Servers, records: Records
+) -> None:
+    url = servers.read_only
+    # a header claiming 4 GB, then data streamed: closed at the header, not after 30 s
+    answer, lasted = exchange(url, hello_message(url, size_claimed=0xFFFFFFF0), stream_s=3.0)
+    assert error_code(answer) == ua.StatusCodes.BadTcpMessageTooLarge and lasted < 5.0
+    assert records.refused.wait(10)
+    # a message type a server does not receive, a secure message before any Hello
+    for data in (b"XYZF" + struct.pack("<I", 16) + bytes(8), b"MSGF" + struct.pack("<I", 40)):
+        answer, _ = exchange(url, data + bytes(32))
+        assert error_code(answer) == ua.StatusCodes.BadTcpMessageTypeInvalid
+    # a Hello whose body cannot be decoded (its URL length beyond the message)
+    bad = struct.pack("<3scI", b"HEL", b"F", 40) + struct.pack("<IIIIIi", 0, 1, 1, 0, 0, 9999)
+    answer, _ = exchange(url, bad + bytes(8))
+    assert error_code(answer) == ua.StatusCodes.BadDecodingError
+    # after the Hello and its Acknowledge, a chunk beyond the negotiated buffer
+    answer, _ = exchange(url, b"OPNF" + struct.pack("<I", 1 << 20) + bytes(64), hello=True)
+    assert error_code(answer) == ua.StatusCodes.BadTcpMessageTooLarge
+
+    async def read() -> str:  # the server still serves its clients
+        async with Client(url) as client:
+            node = await child(client, await machine_node(client), "ServiceState")
+            value: str = await node.read_value()
+            return value
+
+    assert asyncio.run(read()) in ("idle", "measuring", "paused")
+    lines = [r.getMessage() for r in records.records]
+    assert any("BadTcpMessageTooLarge" in m for m in lines), lines
+    assert not any("Traceback" in r.getMessage() or r.exc_info for r in records.records)
+    # one line per peer host per 10 s: the six refusals made one or two lines
+    assert sum("refused" in m for m in lines) <= 2
+
+
+def test_the_server_process_is_restarted_when_it_dies(line: SimulatedLineRun) -> None:
+    url = f"opc.tcp://127.0.0.1:{free_port()}/rvis"
+    settings = dataclasses.replace(line.service.settings.opcua, enabled=True, endpoint=url)
+    with OpcUaServer(line.service, settings) as server:
+        first = server.pid
+        assert first is not None and first != os.getpid()
+        os.kill(first, signal.SIGKILL)
+        assert server.restarted.wait(60)  # the watcher saw it die and started another
+        assert server.wait_ready(60)
+        assert server.pid not in (first, None) and server.restarts == 1
+
+        async def read() -> tuple[str, int]:
+            async with Client(url) as client:
+                m = await machine_node(client)
+                state = await (await child(client, m, "ServiceState")).read_value()
+                windows = await (await child(client, m, "Windows")).read_value()
+                return state, windows
+
+        state, windows = asyncio.run(read())
+    assert state == line.service.status()["state"] or state in ("idle", "measuring")
+    assert windows >= 1 and line.service.state.value != "fault"
