@@ -2,10 +2,10 @@
 can carry (docs/operations.md).
 
 - `backup DEST`: a consistent copy while the service runs (SQLite's online backup of `rvis.db`,
-  then the parameter history, `current.json`, the plan and the OPC UA server's certificate, key
-  and trusted clients), checked, with a `backup.json` manifest. The history is copied after
-  the database, so it holds every version the copied
-  database names.
+  then what `StateDir.carried()` names: the parameter history, `current.json`, the plan, the
+  commissioned `cell.toml` and `sensor.toml`, `commission/` and the OPC UA server's
+  certificate, key and trusted clients), checked, with a `backup.json` manifest. The history
+  is copied after the database, so it holds every version the copied database names.
 - `restore BACKUP`: a backup into a state directory that no service holds and that has no
   database (a damaged one is moved aside by a person first: rvis never overwrites a database).
 - `suspects [--since T] [--json]`: the suspect intervals (app/line/step.py): from the last
@@ -13,8 +13,8 @@ can carry (docs/operations.md).
   force was wrong, with its estimated size, for the inspection software to re-measure or flag
   the bodies measured then.
 - `check`: read-only findings about a state directory (integrity, schema, parameters against the
-  history and the database, permissions, free space, the lock holder, the sizes); exit 1 when
-  something is wrong.
+  history and the database, the files the commissioning wrote, permissions, free space, the
+  lock holder, the sizes); exit 1 when something is wrong.
 """
 
 from __future__ import annotations
@@ -33,8 +33,6 @@ from typing import Any
 from app.commands import add_command
 from app.commands.status import state_dir_of
 from app.errors import InputError
-
-MANIFEST = "backup.json"
 
 
 def register(sub: Any) -> None:
@@ -106,64 +104,48 @@ def _new_folder(path: Path) -> None:
         raise InputError(f"cannot create it: {exc.strerror or exc}", file=path) from exc
 
 
-def _copy_params(src_root: Path, dst_root: Path) -> int:
-    """Copy params/history/*.json, then params/current.json and plan.json; the history count."""
-    from app.line.statedir import StateDir
-
-    src, dst = StateDir(src_root), StateDir(dst_root)
-    dst.history.mkdir(parents=True, exist_ok=True)
-    n = 0
-    for f in sorted(src.history.glob("[0-9][0-9][0-9][0-9].json")):
-        shutil.copyfile(f, dst.history / f.name)
-        n += 1
-    for a, b in ((src.current, dst.current), (src.plan, dst.plan)):
-        if a.is_file():
-            shutil.copyfile(a, b)
-    return n
-
-
-def _copy_opcua(src_root: Path, dst_root: Path) -> int:
-    """Copy the OPC UA server's certificate and key (0600) and the trusted clients
-    (docs/opcua.md), so that a restored cell keeps its identity with the plant; the files."""
-    from app.line.statedir import StateDir
-
-    src, dst = StateDir(src_root), StateDir(dst_root)
-    files = [src.opcua_cert, src.opcua_key, *sorted(src.opcua_trusted.glob("*"))]
-    n = 0
-    for f in (f for f in files if f.is_file()):
-        target = dst.root / f.relative_to(src.root)
+def _copy_carried(src: Any, dst: Any) -> list[str]:
+    """Copy what a backup carries besides the database (`StateDir.carried()`: the history
+    first, then current.json, the plan, cell.toml, sensor.toml, commission/, the OPC UA
+    server's identity) from the StateDir `src` to `dst`; their paths relative to the root."""
+    private = set(src.private)
+    copied = []
+    for f in src.carried():
+        rel = f.relative_to(src.root)
+        target = dst.root / rel
         target.parent.mkdir(mode=0o750, parents=True, exist_ok=True)
         shutil.copyfile(f, target)
-        if f == src.opcua_key:
+        if f in private:
             os.chmod(target, 0o600)
-        n += 1
-    return n
+        copied.append(rel.as_posix())
+    return copied
 
 
 def backup(state: Any, dest: Path) -> dict[str, Any]:
     """Copy the state directory `state` (a StateDir) to `dest`; the manifest."""
+    from app.line.statedir import StateDir
     from app.line.store import Store
 
     if not state.db.is_file():
         raise InputError("no service state here (no rvis.db)", file=state.root)
     _new_folder(dest)
+    copy = StateDir(dest)
     old_umask = os.umask(0o027)
     try:
         source = Store.read_only(state.db)
         try:
-            source.backup(dest / state.db.name)
+            source.backup(copy.db)
         finally:
             source.close()
-        versions = _copy_params(state.root, dest)
-        opcua = _copy_opcua(state.root, dest)
+        files = _copy_carried(state, copy)
         manifest = {
             "created_utc": datetime.now(UTC).isoformat(timespec="seconds"),
             "source": str(state.root.resolve()),
-            **_database_summary(dest / state.db.name),
-            "history_versions": versions,
-            "opcua_files": opcua,
+            **_database_summary(copy.db),
+            "history_versions": len(copy.versions()),
+            "files": files,
         }
-        (dest / MANIFEST).write_text(json.dumps(manifest, indent=1) + "\n", encoding="utf-8")
+        copy.manifest.write_text(json.dumps(manifest, indent=1) + "\n", encoding="utf-8")
     finally:
         os.umask(old_umask)
     if manifest["integrity"] != ["ok"]:
@@ -181,19 +163,20 @@ def _database_summary(db: Path) -> dict[str, Any]:
             "integrity": store.integrity_problems() or ["ok"],
             "schema": store.version(),
             "applied_version": int(applied[-1]["version"]) if applied else None,
+            "commissioned": any(a["source"] == "commissioning" for a in applied),
             "measurements": store.counts(),
         }
     finally:
         store.close()
 
 
-def restore(backup_dir: Path, state: Any) -> None:
+def restore(backup_dir: Path, state: Any) -> list[str]:
     """A backup into `state` (a StateDir): refused while a service holds it or when it has a
-    database of its own."""
-    from app.line.statedir import holder_pid
+    database of its own; the files put back besides the database."""
+    from app.line.statedir import StateDir, holder_pid
 
-    src_db = backup_dir / state.db.name
-    if not (backup_dir / MANIFEST).is_file() or not src_db.is_file():
+    copy = StateDir(backup_dir)
+    if not copy.manifest.is_file() or not copy.db.is_file():
         raise InputError("not a backup made by `rvis state backup`", file=backup_dir)
     pid = holder_pid(state)
     if pid is not None:
@@ -203,19 +186,19 @@ def restore(backup_dir: Path, state: Any) -> None:
             "has a database: move the state directory (or its rvis.db) aside first",
             file=state.root,
         )
-    summary = _database_summary(src_db)
+    summary = _database_summary(copy.db)
     if summary["integrity"] != ["ok"]:
-        raise InputError(f"the backup is damaged: {summary['integrity']}", file=src_db)
+        raise InputError(f"the backup is damaged: {summary['integrity']}", file=copy.db)
     state.root.mkdir(mode=0o750, parents=True, exist_ok=True)
     old_umask = os.umask(0o027)
     try:
-        _copy_params(backup_dir, state.root)
-        _copy_opcua(backup_dir, state.root)
+        files = _copy_carried(copy, state)
         tmp = state.db.with_name(f".{state.db.name}.restore")
-        shutil.copyfile(src_db, tmp)
+        shutil.copyfile(copy.db, tmp)
         os.replace(tmp, state.db)  # the database last: a half restore has none
     finally:
         os.umask(old_umask)
+    return files
 
 
 # -- check ------------------------------------------------------------------------------------
@@ -231,6 +214,7 @@ def check(state: Any, min_free_mb: float) -> dict[str, Any]:
     out["service_pid"] = pid
     out["database"] = _check_database(state, problems)
     out["parameters"] = _check_parameters(state, out["database"], problems)
+    out["commissioned"] = _check_commissioned(state, out["database"], problems)
     out["permissions"] = _check_permissions(state, problems)
     out["free_mb"] = round(state.free_mb(), 1)
     if out["free_mb"] < min_free_mb:
@@ -264,9 +248,7 @@ def _check_database(state: Any, problems: list[str]) -> dict[str, Any]:
 
 
 def _check_parameters(state: Any, db: dict[str, Any], problems: list[str]) -> dict[str, Any]:
-    out: dict[str, Any] = {"history_versions": 0}
-    versions = sorted(state.history.glob("[0-9][0-9][0-9][0-9].json"))
-    out["history_versions"] = len(versions)
+    out: dict[str, Any] = {"history_versions": len(state.versions())}
     try:
         current = json.loads(state.current.read_text(encoding="utf-8"))
         version = int(current["history_version"])
@@ -275,9 +257,7 @@ def _check_parameters(state: Any, db: dict[str, Any], problems: list[str]) -> di
         return out
     out["current_version"] = version
     try:
-        same = current == json.loads(
-            (state.history / f"{version:04d}.json").read_text(encoding="utf-8")
-        )
+        same = current == json.loads(state.version_file(version).read_text(encoding="utf-8"))
     except (OSError, ValueError):
         same = False
     if not same:
@@ -289,6 +269,22 @@ def _check_parameters(state: Any, db: dict[str, Any], problems: list[str]) -> di
             " (the service completes or rebuilds it at start)"
         )
     return out
+
+
+def _check_commissioned(state: Any, db: dict[str, Any], problems: list[str]) -> dict[str, Any]:
+    """When `rvis commission` made this directory (its database records the commissioning's
+    apply), the files its last step wrote for `rvis run`: without sensor.toml the service
+    measures with the design sensor model, without cell.toml or plan.json it does not start
+    as commissioned."""
+    if not db.get("commissioned"):
+        return {"by_commissioning": False}
+    missing = [p.name for p in state.commissioned if not p.is_file()]
+    for name in missing:
+        problems.append(
+            f"{state.root / name}: missing, although rvis commission wrote it (restore it from"
+            " a backup, or run the commissioning's last step again)"
+        )
+    return {"by_commissioning": True, "missing": missing}
 
 
 def _check_permissions(state: Any, problems: list[str]) -> dict[str, str]:

@@ -101,6 +101,7 @@ class Service:
         self.paths = StateDir(s.state_dir)
         self.store = Store(self.paths.db)
         self.params = ParamsStore(s.state_dir)
+        self.params.remove_stale()  # the service alone cleans (read-only callers never do)
         self.sweeps = SweepArchive(self.paths.sweeps, s.ops.raw_sweeps_keep)
         self.bus = EventBus(self.store, self.clock)
         self._start_alarms: list[tuple[str, str, str]] = []  # raised once the loop runs

@@ -29,6 +29,7 @@ from textual.widgets import (
 )
 from textual.worker import Worker
 
+from app.line.statedir import StateDir
 from app.tui import view
 from app.tui.client import Event, ServiceClient, ServiceUnavailable
 from app.tui.history import HistoryReader
@@ -74,8 +75,9 @@ class RvisTui(App[None]):
     def __init__(self, state_dir: str | Path) -> None:
         super().__init__()
         self.state_dir = Path(state_dir)
-        self.history = HistoryReader(self.state_dir / "rvis.db")
-        self.client = ServiceClient(self.state_dir / "rvis.sock", self._on_event, self._on_link)
+        paths = StateDir(self.state_dir)
+        self.history = HistoryReader(paths.db)
+        self.client = ServiceClient(paths.socket, self._on_event, self._on_link)
         self.status: dict[str, Any] | None = None
         self.connection = (False, "connecting ...")
         self.events_seen = 0
