@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 import signal
 import subprocess
 import sys
@@ -127,9 +128,12 @@ def test_commissioning_resumes_after_a_kill_and_leaves_a_cell_ready_to_run(
     assert main(_commission(cell, state)) == 0  # all done: nothing runs again
     assert "commissioned already" in capsys.readouterr().out
 
-    run = ["run", "--sim", "--geometric", "--seed", "0", "--windows", "2", "--json"]
-    run += ["--cell", str(paths.cell), "--state-dir", str(state), "--plan", str(paths.plan)]
-    assert main(run) == 0
+    # the command the commissioning prints: the state directory supplies the cell file, the
+    # plan and the sensor, and the line measures as it was commissioned (geometric)
+    run = shlex.split(steps["ready"]["results"]["run"])
+    assert run[:3] == ["rvis", "run", "--sim"] and "--geometric" in run
+    assert "--cell" not in run and "--plan" not in run
+    assert main([*run[1:], "--windows", "2", "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["measurements"] == 2 and summary["true_rmse_start_mm"] < 0.1
     assert ParamsStore(state).current_version() == 1  # it started from the commissioning
