@@ -19,6 +19,7 @@ from app.line.inline_seq import InlineSequential, SequentialCandidate
 from app.line.measure import SphereMeasurer
 from app.line.params_store import ParamsStore
 from app.line.recalib import Recalibrator, RecalOutcome
+from app.line.roles import Roles
 from app.line.schedule import Schedule
 from app.line.settings import ServiceSettings
 from app.line.statedir import StateDir
@@ -42,6 +43,7 @@ class LineHost(Protocol):
     schedule: Schedule
     spheres: dict[str, F64]
     paths: StateDir
+    roles: Roles
     store: Store
     params: ParamsStore
     bus: EventBus

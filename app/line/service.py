@@ -55,6 +55,7 @@ from app.line.measure import Reading, SphereMeasurer, SphereSensor
 from app.line.operator import Operator
 from app.line.params_store import ParamsStore
 from app.line.recalib import Recalibrator, RecalJob, RecalOutcome, as_measurements, select_rolling
+from app.line.roles import Roles
 from app.line.schedule import Schedule, Slot
 from app.line.sensor_watch import SensorWatch
 from app.line.settings import ServiceSettings
@@ -99,6 +100,7 @@ class Service:
         self.spheres = {k: np.asarray(v, dtype=np.float64) for k, v in spheres_part_mm.items()}
         s.state_dir.mkdir(parents=True, exist_ok=True)
         self.paths = StateDir(s.state_dir)
+        self.roles = Roles.of(s.ops.engineers_group)  # who may approve, reset, ... (or exit 2)
         self.store = Store(self.paths.db)
         self.params = ParamsStore(s.state_dir)
         self.params.remove_stale()  # the service alone cleans (read-only callers never do)
@@ -266,10 +268,15 @@ class Service:
         self.wake.set()
 
     def request(
-        self, cmd: str, args: dict[str, Any] | None = None, uid: int | None = None
+        self,
+        cmd: str,
+        args: dict[str, Any] | None = None,
+        uid: int | None = None,
+        groups: tuple[int, ...] | None = None,
     ) -> Future[dict[str, Any]]:
-        """An operator's command (app.line.operator); the future's result is the reply."""
-        return self.operator.request(cmd, args, uid)
+        """An operator's command (app.line.operator) from the peer `uid` in `groups` (None:
+        from the group database; uid None: this process); the future's result is the reply."""
+        return self.operator.request(cmd, args, uid, groups)
 
     def status(self) -> dict[str, Any]:
         """The status reply (app.line.status), from any thread."""

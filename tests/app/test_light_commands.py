@@ -81,7 +81,13 @@ class _Service:
     def __init__(self) -> None:
         self.asked: list[tuple[str, dict[str, Any]]] = []
 
-    def request(self, cmd: str, args: dict[str, Any] | None = None, uid: int | None = None) -> Any:
+    def request(
+        self,
+        cmd: str,
+        args: dict[str, Any] | None = None,
+        uid: int | None = None,
+        groups: tuple[int, ...] | None = None,
+    ) -> Any:
         self.asked.append((cmd, args or {}))
         reply: Future[dict[str, Any]] = Future()
         reply.set_result({"ok": True, "state": "idle", "message": f"{cmd}: done"})
