@@ -43,6 +43,7 @@ def register(sub: Any) -> None:
     verbs.required = True
     b = verbs.add_parser("backup", help="copy the state while the service runs")
     b.add_argument("dest", help="new (or empty) folder for the copy")
+    b.add_argument("--json", action="store_true", help="print the manifest as JSON")
     r = verbs.add_parser("restore", help="a backup into a state directory with no database")
     r.add_argument("backup", help="folder written by `rvis state backup`")
     c = verbs.add_parser("check", help="check a state directory (read-only)")
@@ -64,7 +65,8 @@ def run(args: argparse.Namespace) -> int:
 
     state = StateDir(state_dir_of(args))
     if args.verb == "backup":
-        print(json.dumps(backup(state, Path(args.dest))))
+        manifest = backup(state, Path(args.dest))
+        print(json.dumps(manifest, indent=1) if args.json else _backup_text(manifest, args.dest))
         return 0
     if args.verb == "suspects":
         since = None if args.since is None else parse_since(args.since, time.time())
@@ -151,6 +153,24 @@ def backup(state: Any, dest: Path) -> dict[str, Any]:
     if manifest["integrity"] != ["ok"]:
         raise InputError(f"the copy fails its integrity check: {manifest['integrity']}", file=dest)
     return manifest
+
+
+def _backup_text(manifest: dict[str, Any], dest: str) -> str:
+    """What a backup holds, in words (`--json`: the manifest itself)."""
+    from app.line.statedir import StateDir
+
+    m = manifest["measurements"]
+    version = manifest["applied_version"]
+    return (
+        f"backed up {manifest['source']} to {dest} ({manifest['created_utc']})\n"
+        f"  database    schema {manifest['schema']}, integrity"
+        f" {'; '.join(manifest['integrity'])}, measurements {m.get('ok', 0)} ok,"
+        f" {m.get('rejected', 0)} rejected\n"
+        f"  parameters  version {'-' if version is None else version} in force,"
+        f" {manifest['history_versions']} in the history\n"
+        f"  files       {len(manifest['files'])} besides the database"
+        f" (listed in {StateDir(dest).manifest})"
+    )
 
 
 def _database_summary(db: Path) -> dict[str, Any]:
@@ -311,14 +331,24 @@ def _report(f: dict[str, Any]) -> str:
     db, params = f["database"], f["parameters"]
     pid = f["service_pid"]
     integrity = "; ".join(db.get("integrity", ["unknown"]))
+    m = db.get("measurements")
+    counts = "?" if not m else f"{m.get('ok', 0)} ok, {m.get('rejected', 0)} rejected"
+    commissioned = f.get("commissioned", {})
+    made_by = "no (no file of rvis commission expected)"
+    if commissioned.get("by_commissioning"):
+        missing = commissioned.get("missing") or []
+        made_by = "by rvis commission: " + (
+            f"{', '.join(missing)} missing" if missing else "its cell, sensor and plan files here"
+        )
     lines = [
         f"state directory  {f['state_dir']} ({f['size_mb']:.1f} MB, {f['free_mb']:.0f} MB free)",
         "service          " + ("not running" if pid is None else f"running (pid {pid})"),
         f"database         schema {db.get('schema', '?')}, integrity {integrity},"
-        f" measurements {db.get('measurements', {})}",
+        f" measurements {counts}",
         f"parameters       current version {params.get('current_version', '?')},"
         f" {params['history_versions']} in the history, in force by the database"
         f" {db.get('applied_version', '?')}",
+        f"commissioned     {made_by}",
         f"permissions      {', '.join(f'{k} {v}' for k, v in f['permissions'].items())}",
     ]
     sizes = db.get("tables_bytes", {})

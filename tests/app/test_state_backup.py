@@ -108,3 +108,24 @@ def test_state_check_cli_leaves_temporary_files_alone(commissioned: StateDir) ->
     assert done.returncode == 0, done.stdout + done.stderr
     assert json.loads(done.stdout)["commissioned"] == {"by_commissioning": True, "missing": []}
     assert stale.exists()
+
+
+def test_backup_prints_words_and_json_on_request(commissioned: StateDir, tmp_path: Path) -> None:
+    """Issue 30 item 10: words for a person; the manifest with --json."""
+
+    def backup_cli(dest: Path, *more: str) -> subprocess.CompletedProcess[str]:
+        argv = ["state", "backup", str(dest), "--state-dir", str(commissioned.root), *more]
+        return subprocess.run(
+            [sys.executable, "-m", "app", *argv], cwd=ROOT, capture_output=True, text=True
+        )
+
+    words = backup_cli(tmp_path / "b1")
+    assert words.returncode == 0, words.stderr
+    lines = words.stdout.splitlines()
+    assert lines[0].startswith(f"backed up {commissioned.root.resolve()} to {tmp_path / 'b1'}")
+    assert "integrity ok, measurements 0 ok, 0 rejected" in lines[1]
+    assert lines[2] == "  parameters  version 1 in force, 1 in the history"
+    assert lines[3].startswith("  files       ") and "backup.json" in lines[3]
+    as_json = backup_cli(tmp_path / "b2", "--json")
+    manifest = json.loads(as_json.stdout)
+    assert manifest["applied_version"] == 1 and "sensor.toml" in manifest["files"]
