@@ -190,7 +190,11 @@ class Operator:
         svc = self.svc
         svc.force_recal = True
         svc.save_state()
-        return {"message": "recalibration requested"}
+        wait = svc.recal_wait()
+        return {
+            "message": f"recalibration requested: {wait or 'it starts now'}",
+            "waits": bool(wait),
+        }
 
     def _pending_id(self, args: dict[str, Any]) -> int:
         svc = self.svc

@@ -147,6 +147,7 @@ class Service:
         self.step: Step | None = None  # a flagged step: attribution, correction (app.line.step)
         self.new_since_recal = 0
         self.force_recal = False
+        self._skipped: tuple[int, int] | None = None  # the set a recalibration was skipped on
         self.recal_ids: dict[str, list[int]] | None = None  # the calibration in flight
         self.exit_code = 0  # 1 after an internal error: the supervisor restarts the process
         self._crash: BaseException | None = None  # from another thread (crash())
@@ -795,15 +796,25 @@ class Service:
             return
         if self.recalibrator.busy or self.pending_calibration is not None or not self._recal_due():
             return
-        since = 0 if self.drift_onset_id is None else self.drift_onset_id - 1
-        r = self.settings.recalib
-        rows = self.store.measurements(
-            status="ok", since_id=since, last=r.rolling_size + r.holdout_size
-        )
-        chosen = select_rolling(rows, len(self.schedule), self.schedule.targets, r)
+        chosen = self.rolling_set()
         if chosen is None:
             return
         train, holdout = chosen
+        if self.trained_on(chosen):  # nothing new to learn from: wait for a new measurement
+            key = (int(train[0]["id"]), int(holdout[-1]["id"]))
+            if self._skipped != key:
+                self._skipped = key
+                self.bus.emit(
+                    "recalibration_skipped",
+                    {
+                        "version": self.version,
+                        "first_id": key[0],
+                        "last_id": key[1],
+                        "reason": f"the parameters in force (version {self.version}) were"
+                        " trained on these measurements; it runs after the next measurement",
+                    },
+                )
+            return
         with self.store.batch():
             self.force_recal, self.new_since_recal = False, 0
             self.recal_ids = {
@@ -812,6 +823,61 @@ class Service:
             }
             self.save_state()
         self._submit(train, holdout)
+
+    def rolling_set(
+        self,
+    ) -> tuple[list[Mapping[str, Any]], list[Mapping[str, Any]]] | None:
+        """The (training, held-out) measurements a recalibration would use now: the last ones,
+        after the step's change point when one is flagged (None: not complete yet)."""
+        since = 0 if self.drift_onset_id is None else self.drift_onset_id - 1
+        r = self.settings.recalib
+        rows = self.store.measurements(
+            status="ok", since_id=since, last=r.rolling_size + r.holdout_size
+        )
+        return select_rolling(rows, len(self.schedule), self.schedule.targets, r)
+
+    def trained_on(
+        self, chosen: tuple[Sequence[Mapping[str, Any]], Sequence[Mapping[str, Any]]]
+    ) -> bool:
+        """The parameters in force came from a calibration on exactly these measurements (a
+        rolling set is contiguous: its first and last ids and its size name it)."""
+        cal_id = (self.params.current_document() or {}).get("calibration_id")
+        cal = None if cal_id is None else self.store.calibration(int(cal_id))
+        if cal is None:
+            return False
+        train, holdout = chosen
+        return (cal["first_id"], cal["last_id"], cal["n_measurements"]) == (
+            int(train[0]["id"]),
+            int(holdout[-1]["id"]),
+            len(train),
+        )
+
+    def recal_wait(self) -> str:
+        """Why a recalibration asked for now does not start at once, in words ("": it does)."""
+        if self.sequential is not None:
+            return ""
+        if self.pending_calibration is not None:
+            return (
+                f"it waits for the decision on calibration {self.pending_calibration}"
+                " (approve or reject it)"
+            )
+        if self.recalibrator.busy:
+            return "a recalibration is running; another follows on the measurements after it"
+        chosen = self.rolling_set()
+        r = self.settings.recalib
+        if chosen is None:
+            if self.drift_onset_id is not None:
+                return (
+                    f"it waits for the measurements after the step (from #{self.drift_onset_id}"
+                    f"; {r.rolling_size + r.holdout_size} needed, every sphere)"
+                )
+            return f"it waits for a complete rolling set ({r.rolling_size + r.holdout_size})"
+        if self.trained_on(chosen):
+            return (
+                f"the parameters in force (version {self.version}) were trained on the"
+                " current measurements: it runs after the next window's measurement"
+            )
+        return ""
 
     def _resubmit(self) -> None:
         """A calibration that was in flight when the service stopped runs again (the same
