@@ -71,8 +71,10 @@ def test_commissioning_resumes_after_a_kill_and_leaves_a_cell_ready_to_run(
     cell.write_text(CELL)
     _kill_at(_commission(cell, state), "calibration view 3/24")
     journal = json.loads((paths.commission / "journal.json").read_text())
-    first = {s["name"]: s for s in journal["steps"]}
+    first = {s["name"]: s for s in journal["steps"] if s["status"] == "passed"}
     assert list(first) == ["devices", "stripe", "sensor", "spheres", "plan"]  # not calibration
+    assert journal["steps"][-1]["name"] == "calibration"
+    assert journal["steps"][-1]["status"] == "started"  # found so next time: interrupted
     assert not paths.current.exists()
 
     cell.write_text(CELL + STRICT)  # the same cell file, a validation limit nothing can meet
@@ -93,6 +95,10 @@ def test_commissioning_resumes_after_a_kill_and_leaves_a_cell_ready_to_run(
     assert "step 6/10 calibration: passed earlier" in out and "step 10/10 ready: passed" in out
     report = json.loads((paths.commission / "commission.json").read_text())
     assert report["complete"] and all(s["status"] == "passed" for s in report["steps"])
+    md = (paths.commission / "commission.md").read_text()  # each step that ran again says so
+    started = journal["steps"][-1]["started_utc"]
+    assert f"Run 2 times: interrupted (started {started}), then passed." in md
+    assert "failed validation RMSE), then passed." in md
     steps = {s["name"]: s for s in report["steps"]}
     validation = steps["validation"]["results"]
     assert validation["rmse_mm"] < 0.1 < 1.0 < validation["rmse_nominal_mm"]
