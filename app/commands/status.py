@@ -97,7 +97,8 @@ def run(args: argparse.Namespace) -> int:
 def status_lines(status: dict[str, Any]) -> list[str]:
     """The status in words, one fact a line (what `--json` has, compactly)."""
     m = status.get("measurements", {})
-    state = f"{status['state']}" + (" (paused)" if status.get("paused") else "")
+    paused = status.get("paused") and status["state"] != "paused"  # a pause still to come
+    state = f"{status['state']}" + (" (paused)" if paused else "")
     if status.get("step"):
         state += f": {status['step']}"
     lines = [
