@@ -109,6 +109,7 @@ class Operator:
         svc = self.svc
         handler: Callable[[dict[str, Any], int | None], dict[str, Any]]
         handler = getattr(self, f"_cmd_{cmd}")
+        reply: dict[str, Any]
         try:
             if refusal:
                 reply = {"ok": False, "error": refusal, "role": NEEDS[cmd]}
