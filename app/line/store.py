@@ -348,6 +348,15 @@ class Store:
     def last_measurement_id(self) -> int:
         return int(self._rows("SELECT COALESCE(MAX(id), 0) AS n FROM measurements")[0]["n"])
 
+    def last_time(self) -> float | None:
+        """The latest time [s, the service's clock] the database records (None: empty)."""
+        r = self._rows(
+            "SELECT MAX(t) AS t FROM (SELECT MAX(t) AS t FROM events"
+            " UNION ALL SELECT MAX(t) FROM measurements UNION ALL SELECT MAX(t) FROM applied)"
+        )
+        t = r[0]["t"] if r else None
+        return None if t is None else float(t)
+
     def counts(self) -> dict[str, int]:
         out = {"ok": 0, "rejected": 0}
         for r in self._rows("SELECT status, COUNT(*) AS n FROM measurements GROUP BY status"):
