@@ -4,7 +4,7 @@
     -> {"id": 1, "cmd": "status"}
     <- {"id": 1, "ok": true, "state": "idle", ...}
     -> {"id": 2, "cmd": "ack", "args": {"alarm": 3}}     (or {"id": 2, "cmd": "ack", "alarm": 3})
-    <- {"id": 2, "ok": false, "error": "no raised alarm 3"}
+    <- {"id": 2, "ok": false, "error": "no unacknowledged alarm 3"}
     -> {"id": 3, "cmd": "subscribe"}
     <- {"id": 3, "ok": true}   then one {"event": ..., "t": ..., ...} per line until closed
 

@@ -233,7 +233,7 @@ class Operator:
         svc = self.svc
         alarm_id = _int(args, "alarm")
         if not svc.store.ack_alarm(alarm_id, svc.clock.time(), uid):
-            raise CommandError(f"no raised alarm {alarm_id}")
+            raise CommandError(f"no unacknowledged alarm {alarm_id}")
         return {"message": f"alarm {alarm_id} acknowledged"}
 
     def _cmd_shelve(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:

@@ -447,10 +447,14 @@ class Store:
             db.execute("UPDATE alarms SET message = ? WHERE id = ?", (message, alarm_id))
 
     def ack_alarm(self, alarm_id: int, t: float, uid: int | None) -> bool:
+        """Acknowledge an alarm nobody has acknowledged yet: a raised one (it becomes acked)
+        or one that cleared meanwhile (ISA-18.2's "returned to normal, unacknowledged": it
+        stays cleared, acknowledged now). False when there is none such."""
         with self._tx() as db:
             n = db.execute(
-                "UPDATE alarms SET state = 'acked', t_acked = ?, acked_uid = ?"
-                " WHERE id = ? AND state = 'raised'",
+                "UPDATE alarms SET t_acked = ?, acked_uid = ?,"
+                " state = CASE state WHEN 'raised' THEN 'acked' ELSE state END"
+                " WHERE id = ? AND t_acked IS NULL AND state IN ('raised', 'cleared')",
                 (t, uid, alarm_id),
             ).rowcount
         return n == 1
