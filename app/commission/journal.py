@@ -18,6 +18,7 @@ from typing import Any
 
 from app.errors import InputError
 from app.formats.files import read_json, write_json
+from app.line.statedir import JOURNAL_NAME
 
 FORMAT = "rvis-commission/1"
 STEPS = (
@@ -131,7 +132,7 @@ class Journal:
 
     def __init__(self, folder: Path, setup: dict[str, Any]) -> None:
         self.folder, self.setup = folder, setup
-        self.path = folder / "journal.json"
+        self.path = folder / JOURNAL_NAME
         self.steps: dict[str, StepRecord] = {}
         self._before: dict[str, StepRecord | None] = {}  # the records of the steps running
         if self.path.exists():

@@ -15,6 +15,7 @@ from typing import Any
 
 from app.commission.journal import INTERRUPTED, STARTED, STEPS, Check, Journal, StepRecord
 from app.formats.files import dumps_json, write_text
+from app.line.statedir import REPORT_JSON_NAME, REPORT_MD_NAME
 
 TITLES = {
     "devices": "Devices answer",
@@ -174,7 +175,7 @@ def to_json(journal: Journal) -> dict[str, Any]:
 
 
 def write_report(journal: Journal) -> tuple[Path, Path]:
-    md, js = journal.folder / "commission.md", journal.folder / "commission.json"
+    md, js = journal.folder / REPORT_MD_NAME, journal.folder / REPORT_JSON_NAME
     write_text(md, markdown(journal))
     write_text(js, dumps_json(to_json(journal), indent=2) + "\n")
     return md, js

@@ -18,8 +18,9 @@ permissions, the one-service lock and the free space under it (DESIGN.md section
         opcua/rejected/          certificates of clients it refused (move one to trusted/)
         trace/wire.jsonl         the devices' wire trace when on ([devices] trace, `?trace=1`),
                                  rotated to wire.jsonl.1, .2, ... (`rvis devices trace`)
-        commission/              `rvis commission`: its journal, each step's results, the
-                                 report (commission.md, commission.json)
+        commission/              `rvis commission`: its journal (journal.json), each step's
+                                 results, the report (commission.md, commission.json)
+        commission.<time>/       an earlier commissioning kept by `rvis commission --restart`
         verify/                  `rvis sensor verify`: its results
         rvis-sim.log             `rvis tui --sim`: the simulated service's log
 
@@ -68,6 +69,9 @@ REJECTED_DIR = "rejected"  # in opcua/
 TRACE_DIR = "trace"
 WIRE_TRACE_NAME = "wire.jsonl"  # in trace/
 COMMISSION_DIR = "commission"
+JOURNAL_NAME = "journal.json"  # in commission/: the commissioning's journal
+REPORT_MD_NAME = "commission.md"  # in commission/: its report
+REPORT_JSON_NAME = "commission.json"
 VERIFY_DIR = "verify"
 #: the manifest `rvis state backup` writes beside the copy (a backup is laid out as a state
 #: directory plus this file)
@@ -190,6 +194,15 @@ class StateDir:
     @property
     def commission(self) -> Path:
         return self.root / COMMISSION_DIR
+
+    @property
+    def commission_report(self) -> Path:
+        """`commission/commission.md`: the commissioning's report."""
+        return self.commission / REPORT_MD_NAME
+
+    def commission_kept(self, stamp: str) -> Path:
+        """`commission.<stamp>`: an earlier commissioning kept by `rvis commission --restart`."""
+        return self.root / f"{COMMISSION_DIR}.{stamp}"
 
     @property
     def verify(self) -> Path:
