@@ -100,10 +100,19 @@ def _cell(args: argparse.Namespace) -> Any:
     from app.line.statedir import StateDir
 
     if args.cell is None and args.state_dir:
-        commissioned = StateDir(args.state_dir).cell
-        if commissioned.is_file():
+        commissioned = _existing(StateDir(args.state_dir).cell)
+        if commissioned is not None:
             return load_cell(commissioned)
     return load_cell(args.cell)
+
+
+def _existing(path: Path) -> Path | None:
+    """`path` when it is a file; None when it is not, or cannot be looked at (a state directory
+    the user may not enter is refused, with its reason, when the state is taken)."""
+    try:
+        return path if path.is_file() else None
+    except OSError:
+        return None
 
 
 def _sensor_model(args: argparse.Namespace, state_dir: Path) -> Any:
@@ -164,8 +173,7 @@ def run_sim(args: argparse.Namespace) -> int:
 
     cfg = _cell(args)
     state_dir = Path(args.state_dir or cfg.service.state_dir)
-    state_plan = StateDir(state_dir).plan
-    plan = Path(args.plan) if args.plan else (state_plan if state_plan.is_file() else None)
+    plan = Path(args.plan) if args.plan else _existing(StateDir(state_dir).plan)
     seed = cfg.simulation.seed if args.seed is None else args.seed
     if plan is not None and not plan.is_file():
         raise InputError("plan file not found", file=plan)
