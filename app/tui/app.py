@@ -247,7 +247,12 @@ class RvisTui(App[None]):
         pending = (self.status or {}).get("pending")
         title = self.query_one("#pending-title", Static)
         if not pending:
-            title.update("no calibration pending")
+            unknown = self.status is None or "pending" not in self.status
+            title.update(
+                "pending calibration unknown (no reply from the service)"
+                if unknown
+                else "no calibration pending"
+            )
             self._fill("pending", [])
             return
         gates = pending.get("gates") or {}

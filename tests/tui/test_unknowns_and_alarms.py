@@ -24,6 +24,7 @@ def test_without_a_service_the_overview_says_unknown(tmp_path: Path) -> None:
             assert text_of(app, "#status").startswith("DISCONNECTED")
             assert not any(fact in overview for fact in FACTS), overview
             assert "Devices   unknown" in overview and "window unknown" in overview
+            assert text_of(app, "#pending-title").startswith("pending calibration unknown")
 
     asyncio.run(scenario())
 
