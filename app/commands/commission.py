@@ -62,14 +62,14 @@ def run(args: argparse.Namespace) -> int:
         setup |= {"seed": seed, "geometric": args.geometric}
     with hold_state(state_dir, str(cfg.service.operators_group)) as state, ExitStack() as stack:
         if args.restart and state.commission.exists():
-            kept = state.commission.with_name(f"commission.{datetime.now(UTC):%Y%m%dT%H%M%S}")
+            kept = state.commission_kept(f"{datetime.now(UTC):%Y%m%dT%H%M%S}")
             state.commission.rename(kept)
             say(f"the earlier commissioning is kept in {kept}")
         from app.commission.journal import Journal
 
         journal = Journal(state.commission, setup)
         if journal.next_step() is None:
-            say(f"commissioned already: {state.commission / 'commission.md'}")
+            say(f"commissioned already: {state.commission_report}")
             return _finish(journal, args.json, 0)
         ctx = _context(args, cfg, state, seed, confirm, say, stack)
         return _run(ctx, journal, args.json, say)

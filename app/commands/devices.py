@@ -1,6 +1,7 @@
 """`rvis devices check [--cell cell.toml] [--json]`: connect to each configured device, probe it
-and print a status table. `rvis devices trace FILE [--rotated] [--device FAMILY] [--json]`:
-print a wire trace (drivers/trace.py; the state directory's `trace/wire.jsonl`) readably.
+and print a status table. `rvis devices trace FILE [--rotated] [--device FAMILY] [--all] [--json]`:
+print a wire trace (drivers/trace.py; the state directory's `trace/wire.jsonl`) readably, the
+polls that changed nothing folded (app/formats/wiretrace.py) unless --all.
 
 Without ``--cell`` it checks every backend against the fakes out of the box: the protocol peers
 (RMI controller, Modbus TP mailbox, tracker side-car, line PLC, SCPI DAC on a pty, Aravis GigE
@@ -56,6 +57,11 @@ def register(sub: Any) -> None:
     )
     trace.add_argument(
         "--device", action="append", choices=FAMILIES, help="only this device (repeatable)"
+    )
+    trace.add_argument(
+        "--all",
+        action="store_true",
+        help="print every record (default: polls that changed nothing folded into one line)",
     )
     trace.set_defaults(func=run_trace)
 
@@ -163,7 +169,7 @@ def run_trace(args: argparse.Namespace) -> int:
     files = rotated(args.file) if args.rotated else [args.file]
     wanted = set(args.device or ())
     records = (r for f in files for r in read_records(f) if not wanted or r.device in wanted)
-    lines = (to_json(r) for r in records) if args.json else format_records(records)
+    lines = (to_json(r) for r in records) if args.json else format_records(records, not args.all)
     for line in lines:
         print(line)
     return 0

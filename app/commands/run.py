@@ -3,6 +3,10 @@ service (DESIGN.md section 6) on the devices of the cell file. Logs are JSON lin
 operators use `rvis status`, `rvis ctl` and `rvis tui` (the control socket in the state
 directory).
 
+Without --cell and --plan, a state directory named by --state-dir supplies them
+(`STATE_DIR/cell.toml`, `STATE_DIR/plan.json`: what `rvis commission` leaves there), as it
+supplies the sensor calibration (`STATE_DIR/sensor.toml`) when --sensor is not given.
+
 `rvis run --sim [--geometric] [--seed N] [--windows N] [--json]`: the same service on the
 simulated line (app/sim/line_run.py): every device peer on loopback, reached through the real
 drivers, one simulated cell drifting with time ([simline] of the cell file: clamp cycle,
@@ -31,9 +35,17 @@ from app.errors import InputError, RvisError
 
 def register(sub: Any) -> None:
     p = add_command(sub, "run")
-    p.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")
+    p.add_argument(
+        "--cell",
+        help="cell configuration TOML (default: STATE_DIR/cell.toml when --state-dir names a"
+        " directory that has one, as `rvis commission` leaves it; else the embedded cell)",
+    )
     p.add_argument("--state-dir", help="state directory (default: [service] state_dir)")
-    p.add_argument("--plan", help="plan JSON from `rvis plan` (default: STATE_DIR/plan.json)")
+    p.add_argument(
+        "--plan",
+        help="plan JSON from `rvis plan` (default: STATE_DIR/plan.json; --sim without one:"
+        " the simulated line plans its own)",
+    )
     p.add_argument("--params", help="starting parameters JSON when the state has none yet")
     p.add_argument(
         "--sensor",
@@ -53,7 +65,6 @@ def run(args: argparse.Namespace) -> int:
         return run_sim(args)
     if args.geometric or args.windows or args.seed is not None:
         raise InputError("--geometric, --seed and --windows need --sim")
-    from app.config import load_cell
     from app.formats.params import from_json
     from app.line.launch import hold_state
     from app.line.settings import from_cell
@@ -61,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     from app.line.station import Station, cell_guard
     from drivers.errors import DeviceConfigError, DeviceError
 
-    cfg = load_cell(args.cell)
+    cfg = _cell(args)
     settings = from_cell(cfg, args.state_dir)
     plan = Path(args.plan) if args.plan else StateDir(settings.state_dir).plan
     if not plan.is_file():
@@ -82,6 +93,28 @@ def run(args: argparse.Namespace) -> int:
         except DeviceError as exc:
             raise RvisError(f"cannot open the devices: {type(exc).__name__}: {exc}") from exc
         return _serve_station(station, cfg, settings, plan, x0, sensor_model)
+
+
+def _cell(args: argparse.Namespace) -> Any:
+    """--cell, else STATE_DIR/cell.toml when --state-dir names a directory that has one (the
+    cell file `rvis commission` wrote there), else the embedded cell."""
+    from app.config import load_cell
+    from app.line.statedir import StateDir
+
+    if args.cell is None and args.state_dir:
+        commissioned = _existing(StateDir(args.state_dir).cell)
+        if commissioned is not None:
+            return load_cell(commissioned)
+    return load_cell(args.cell)
+
+
+def _existing(path: Path) -> Path | None:
+    """`path` when it is a file; None when it is not, or cannot be looked at (a state directory
+    the user may not enter is refused, with its reason, when the state is taken)."""
+    try:
+        return path if path.is_file() else None
+    except OSError:
+        return None
 
 
 def _sensor_model(args: argparse.Namespace, state_dir: Path) -> Any:
@@ -135,16 +168,15 @@ def run_sim(args: argparse.Namespace) -> int:
     import signal
     import sys
 
-    from app.config import load_cell
     from app.formats.jsontext import dumps_json, finite_json
     from app.line.launch import hold_state, json_logs, serving
     from app.line.statedir import StateDir
     from app.sim.line_run import SimulatedLineRun, WindowRecord
     from app.sim.shift import time_text
 
-    cfg = load_cell(args.cell)
+    cfg = _cell(args)
     state_dir = Path(args.state_dir or cfg.service.state_dir)
-    plan = Path(args.plan) if args.plan else None
+    plan = Path(args.plan) if args.plan else _existing(StateDir(state_dir).plan)
     seed = cfg.simulation.seed if args.seed is None else args.seed
     if plan is not None and not plan.is_file():
         raise InputError("plan file not found", file=plan)

@@ -179,7 +179,7 @@ def run_verify(args: argparse.Namespace) -> int:
     )
     with hold_state(state_dir, str(cfg.service.operators_group)) as state, ExitStack() as stack:
         ctx = _context(opts, cfg, state, seed, _confirmation(args.yes, say), say, stack)
-        ctx.out_dir = state.root / "verify"
+        ctx.out_dir = state.verify
         ctx.out_dir.mkdir(exist_ok=True)
         from app.commission.context import Declined
 

@@ -2,10 +2,10 @@
 can carry (docs/operations.md).
 
 - `backup DEST`: a consistent copy while the service runs (SQLite's online backup of `rvis.db`,
-  then the parameter history, `current.json`, the plan and the OPC UA server's certificate, key
-  and trusted clients), checked, with a `backup.json` manifest. The history is copied after
-  the database, so it holds every version the copied
-  database names.
+  then what `StateDir.carried()` names: the parameter history, `current.json`, the plan, the
+  commissioned `cell.toml` and `sensor.toml`, `commission/` and the OPC UA server's
+  certificate, key and trusted clients), checked, with a `backup.json` manifest. The history
+  is copied after the database, so it holds every version the copied database names.
 - `restore BACKUP`: a backup into a state directory that no service holds and that has no
   database (a damaged one is moved aside by a person first: rvis never overwrites a database).
 - `suspects [--since T] [--json]`: the suspect intervals (app/line/step.py): from the last
@@ -13,8 +13,8 @@ can carry (docs/operations.md).
   force was wrong, with its estimated size, for the inspection software to re-measure or flag
   the bodies measured then.
 - `check`: read-only findings about a state directory (integrity, schema, parameters against the
-  history and the database, permissions, free space, the lock holder, the sizes); exit 1 when
-  something is wrong.
+  history and the database, the files the commissioning wrote, permissions, free space, the
+  lock holder, the sizes); exit 1 when something is wrong.
 """
 
 from __future__ import annotations
@@ -34,8 +34,6 @@ from app.commands import add_command
 from app.commands.status import state_dir_of
 from app.errors import InputError
 
-MANIFEST = "backup.json"
-
 
 def register(sub: Any) -> None:
     p = add_command(sub, "state")
@@ -45,6 +43,7 @@ def register(sub: Any) -> None:
     verbs.required = True
     b = verbs.add_parser("backup", help="copy the state while the service runs")
     b.add_argument("dest", help="new (or empty) folder for the copy")
+    b.add_argument("--json", action="store_true", help="print the manifest as JSON")
     r = verbs.add_parser("restore", help="a backup into a state directory with no database")
     r.add_argument("backup", help="folder written by `rvis state backup`")
     c = verbs.add_parser("check", help="check a state directory (read-only)")
@@ -66,7 +65,8 @@ def run(args: argparse.Namespace) -> int:
 
     state = StateDir(state_dir_of(args))
     if args.verb == "backup":
-        print(json.dumps(backup(state, Path(args.dest))))
+        manifest = backup(state, Path(args.dest))
+        print(json.dumps(manifest, indent=1) if args.json else _backup_text(manifest, args.dest))
         return 0
     if args.verb == "suspects":
         since = None if args.since is None else parse_since(args.since, time.time())
@@ -106,69 +106,71 @@ def _new_folder(path: Path) -> None:
         raise InputError(f"cannot create it: {exc.strerror or exc}", file=path) from exc
 
 
-def _copy_params(src_root: Path, dst_root: Path) -> int:
-    """Copy params/history/*.json, then params/current.json and plan.json; the history count."""
-    from app.line.statedir import StateDir
-
-    src, dst = StateDir(src_root), StateDir(dst_root)
-    dst.history.mkdir(parents=True, exist_ok=True)
-    n = 0
-    for f in sorted(src.history.glob("[0-9][0-9][0-9][0-9].json")):
-        shutil.copyfile(f, dst.history / f.name)
-        n += 1
-    for a, b in ((src.current, dst.current), (src.plan, dst.plan)):
-        if a.is_file():
-            shutil.copyfile(a, b)
-    return n
-
-
-def _copy_opcua(src_root: Path, dst_root: Path) -> int:
-    """Copy the OPC UA server's certificate and key (0600) and the trusted clients
-    (docs/opcua.md), so that a restored cell keeps its identity with the plant; the files."""
-    from app.line.statedir import StateDir
-
-    src, dst = StateDir(src_root), StateDir(dst_root)
-    files = [src.opcua_cert, src.opcua_key, *sorted(src.opcua_trusted.glob("*"))]
-    n = 0
-    for f in (f for f in files if f.is_file()):
-        target = dst.root / f.relative_to(src.root)
+def _copy_carried(src: Any, dst: Any) -> list[str]:
+    """Copy what a backup carries besides the database (`StateDir.carried()`: the history
+    first, then current.json, the plan, cell.toml, sensor.toml, commission/, the OPC UA
+    server's identity) from the StateDir `src` to `dst`; their paths relative to the root."""
+    private = set(src.private)
+    copied = []
+    for f in src.carried():
+        rel = f.relative_to(src.root)
+        target = dst.root / rel
         target.parent.mkdir(mode=0o750, parents=True, exist_ok=True)
         shutil.copyfile(f, target)
-        if f == src.opcua_key:
+        if f in private:
             os.chmod(target, 0o600)
-        n += 1
-    return n
+        copied.append(rel.as_posix())
+    return copied
 
 
 def backup(state: Any, dest: Path) -> dict[str, Any]:
     """Copy the state directory `state` (a StateDir) to `dest`; the manifest."""
+    from app.line.statedir import StateDir
     from app.line.store import Store
 
     if not state.db.is_file():
         raise InputError("no service state here (no rvis.db)", file=state.root)
     _new_folder(dest)
+    copy = StateDir(dest)
     old_umask = os.umask(0o027)
     try:
         source = Store.read_only(state.db)
         try:
-            source.backup(dest / state.db.name)
+            source.backup(copy.db)
         finally:
             source.close()
-        versions = _copy_params(state.root, dest)
-        opcua = _copy_opcua(state.root, dest)
+        files = _copy_carried(state, copy)
         manifest = {
             "created_utc": datetime.now(UTC).isoformat(timespec="seconds"),
             "source": str(state.root.resolve()),
-            **_database_summary(dest / state.db.name),
-            "history_versions": versions,
-            "opcua_files": opcua,
+            **_database_summary(copy.db),
+            "history_versions": len(copy.versions()),
+            "files": files,
         }
-        (dest / MANIFEST).write_text(json.dumps(manifest, indent=1) + "\n", encoding="utf-8")
+        copy.manifest.write_text(json.dumps(manifest, indent=1) + "\n", encoding="utf-8")
     finally:
         os.umask(old_umask)
     if manifest["integrity"] != ["ok"]:
         raise InputError(f"the copy fails its integrity check: {manifest['integrity']}", file=dest)
     return manifest
+
+
+def _backup_text(manifest: dict[str, Any], dest: str) -> str:
+    """What a backup holds, in words (`--json`: the manifest itself)."""
+    from app.line.statedir import StateDir
+
+    m = manifest["measurements"]
+    version = manifest["applied_version"]
+    return (
+        f"backed up {manifest['source']} to {dest} ({manifest['created_utc']})\n"
+        f"  database    schema {manifest['schema']}, integrity"
+        f" {'; '.join(manifest['integrity'])}, measurements {m.get('ok', 0)} ok,"
+        f" {m.get('rejected', 0)} rejected\n"
+        f"  parameters  version {'-' if version is None else version} in force,"
+        f" {manifest['history_versions']} in the history\n"
+        f"  files       {len(manifest['files'])} besides the database"
+        f" (listed in {StateDir(dest).manifest})"
+    )
 
 
 def _database_summary(db: Path) -> dict[str, Any]:
@@ -181,19 +183,20 @@ def _database_summary(db: Path) -> dict[str, Any]:
             "integrity": store.integrity_problems() or ["ok"],
             "schema": store.version(),
             "applied_version": int(applied[-1]["version"]) if applied else None,
+            "commissioned": any(a["source"] == "commissioning" for a in applied),
             "measurements": store.counts(),
         }
     finally:
         store.close()
 
 
-def restore(backup_dir: Path, state: Any) -> None:
+def restore(backup_dir: Path, state: Any) -> list[str]:
     """A backup into `state` (a StateDir): refused while a service holds it or when it has a
-    database of its own."""
-    from app.line.statedir import holder_pid
+    database of its own; the files put back besides the database."""
+    from app.line.statedir import StateDir, holder_pid
 
-    src_db = backup_dir / state.db.name
-    if not (backup_dir / MANIFEST).is_file() or not src_db.is_file():
+    copy = StateDir(backup_dir)
+    if not copy.manifest.is_file() or not copy.db.is_file():
         raise InputError("not a backup made by `rvis state backup`", file=backup_dir)
     pid = holder_pid(state)
     if pid is not None:
@@ -203,19 +206,19 @@ def restore(backup_dir: Path, state: Any) -> None:
             "has a database: move the state directory (or its rvis.db) aside first",
             file=state.root,
         )
-    summary = _database_summary(src_db)
+    summary = _database_summary(copy.db)
     if summary["integrity"] != ["ok"]:
-        raise InputError(f"the backup is damaged: {summary['integrity']}", file=src_db)
+        raise InputError(f"the backup is damaged: {summary['integrity']}", file=copy.db)
     state.root.mkdir(mode=0o750, parents=True, exist_ok=True)
     old_umask = os.umask(0o027)
     try:
-        _copy_params(backup_dir, state.root)
-        _copy_opcua(backup_dir, state.root)
+        files = _copy_carried(copy, state)
         tmp = state.db.with_name(f".{state.db.name}.restore")
-        shutil.copyfile(src_db, tmp)
+        shutil.copyfile(copy.db, tmp)
         os.replace(tmp, state.db)  # the database last: a half restore has none
     finally:
         os.umask(old_umask)
+    return files
 
 
 # -- check ------------------------------------------------------------------------------------
@@ -231,6 +234,7 @@ def check(state: Any, min_free_mb: float) -> dict[str, Any]:
     out["service_pid"] = pid
     out["database"] = _check_database(state, problems)
     out["parameters"] = _check_parameters(state, out["database"], problems)
+    out["commissioned"] = _check_commissioned(state, out["database"], problems)
     out["permissions"] = _check_permissions(state, problems)
     out["free_mb"] = round(state.free_mb(), 1)
     if out["free_mb"] < min_free_mb:
@@ -264,9 +268,7 @@ def _check_database(state: Any, problems: list[str]) -> dict[str, Any]:
 
 
 def _check_parameters(state: Any, db: dict[str, Any], problems: list[str]) -> dict[str, Any]:
-    out: dict[str, Any] = {"history_versions": 0}
-    versions = sorted(state.history.glob("[0-9][0-9][0-9][0-9].json"))
-    out["history_versions"] = len(versions)
+    out: dict[str, Any] = {"history_versions": len(state.versions())}
     try:
         current = json.loads(state.current.read_text(encoding="utf-8"))
         version = int(current["history_version"])
@@ -275,9 +277,7 @@ def _check_parameters(state: Any, db: dict[str, Any], problems: list[str]) -> di
         return out
     out["current_version"] = version
     try:
-        same = current == json.loads(
-            (state.history / f"{version:04d}.json").read_text(encoding="utf-8")
-        )
+        same = current == json.loads(state.version_file(version).read_text(encoding="utf-8"))
     except (OSError, ValueError):
         same = False
     if not same:
@@ -289,6 +289,22 @@ def _check_parameters(state: Any, db: dict[str, Any], problems: list[str]) -> di
             " (the service completes or rebuilds it at start)"
         )
     return out
+
+
+def _check_commissioned(state: Any, db: dict[str, Any], problems: list[str]) -> dict[str, Any]:
+    """When `rvis commission` made this directory (its database records the commissioning's
+    apply), the files its last step wrote for `rvis run`: without sensor.toml the service
+    measures with the design sensor model, without cell.toml or plan.json it does not start
+    as commissioned."""
+    if not db.get("commissioned"):
+        return {"by_commissioning": False}
+    missing = [p.name for p in state.commissioned if not p.is_file()]
+    for name in missing:
+        problems.append(
+            f"{state.root / name}: missing, although rvis commission wrote it (restore it from"
+            " a backup, or run the commissioning's last step again)"
+        )
+    return {"by_commissioning": True, "missing": missing}
 
 
 def _check_permissions(state: Any, problems: list[str]) -> dict[str, str]:
@@ -315,14 +331,24 @@ def _report(f: dict[str, Any]) -> str:
     db, params = f["database"], f["parameters"]
     pid = f["service_pid"]
     integrity = "; ".join(db.get("integrity", ["unknown"]))
+    m = db.get("measurements")
+    counts = "?" if not m else f"{m.get('ok', 0)} ok, {m.get('rejected', 0)} rejected"
+    commissioned = f.get("commissioned", {})
+    made_by = "no (no file of rvis commission expected)"
+    if commissioned.get("by_commissioning"):
+        missing = commissioned.get("missing") or []
+        made_by = "by rvis commission: " + (
+            f"{', '.join(missing)} missing" if missing else "its cell, sensor and plan files here"
+        )
     lines = [
         f"state directory  {f['state_dir']} ({f['size_mb']:.1f} MB, {f['free_mb']:.0f} MB free)",
         "service          " + ("not running" if pid is None else f"running (pid {pid})"),
         f"database         schema {db.get('schema', '?')}, integrity {integrity},"
-        f" measurements {db.get('measurements', {})}",
+        f" measurements {counts}",
         f"parameters       current version {params.get('current_version', '?')},"
         f" {params['history_versions']} in the history, in force by the database"
         f" {db.get('applied_version', '?')}",
+        f"commissioned     {made_by}",
         f"permissions      {', '.join(f'{k} {v}' for k, v in f['permissions'].items())}",
     ]
     sizes = db.get("tables_bytes", {})

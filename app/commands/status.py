@@ -90,13 +90,28 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(status, indent=2))
         return 0
+    print("\n".join(status_lines(status)))
+    return 0
+
+
+def status_lines(status: dict[str, Any]) -> list[str]:
+    """The status in words, one fact a line (what `--json` has, compactly)."""
     m = status.get("measurements", {})
+    paused = status.get("paused") and status["state"] != "paused"  # a pause still to come
+    state = f"{status['state']}" + (" (paused)" if paused else "")
+    if status.get("step"):
+        state += f": {status['step']}"
     lines = [
-        f"state               {status['state']}" + (" (paused)" if status.get("paused") else ""),
+        f"state               {state}",
         f"parameters version  {status.get('params_version')}",
         f"pending calibration {status.get('pending_calibration') or '-'}",
-        f"measurements        {m.get('ok', 0)} ok, {m.get('rejected', 0)} rejected",
     ]
+    if "cell_temp_c" in status:
+        temp = status["cell_temp_c"]
+        lines.append(f"cell temperature    {'unknown' if temp is None else f'{temp:.1f} degC'}")
+    lines += _device_lines(status.get("devices"))
+    lines += _drift_lines(status.get("drift"))
+    lines.append(f"measurements        {m.get('ok', 0)} ok, {m.get('rejected', 0)} rejected")
     counters = status.get("counters")
     if counters:
         lines.append(
@@ -107,8 +122,38 @@ def run(args: argparse.Namespace) -> int:
     lines.append(f"alarms              {len(alarms) or 'none'}")
     lines += [f"  #{a['id']} {a['priority']:<7} {a['state']:<8} {a['message']}" for a in alarms]
     lines += _suspect_lines(status)
-    print("\n".join(lines))
-    return 0
+    return lines
+
+
+def _device_lines(devices: dict[str, Any] | None) -> list[str]:
+    """`devices  robot ok, plc no heartbeat, ...`, then the last error of each that has one."""
+    if not devices:
+        return []
+    out = ["devices             " + ", ".join(f"{k} {d['state']}" for k, d in devices.items())]
+    out += [
+        f"  {k}: last error {d['last_error']} ({d.get('last_error_utc') or 'time unknown'})"
+        for k, d in devices.items()
+        if d.get("last_error")
+    ]
+    return out
+
+
+def _drift_lines(drift: dict[str, Any] | None) -> list[str]:
+    """`drift  EWMA of the residual, mm: all 0.013, P1 0.012 ...; drifting: none`."""
+    if not drift:
+        return []
+
+    def mm(chart: dict[str, Any]) -> str:
+        value = chart.get("ewma_mm")
+        return f"{value:.3f}" if isinstance(value, int | float) and value == value else "-"
+
+    names = sorted(drift, key=lambda k: (k != "*", k))
+    charts = ", ".join(f"{'all' if k == '*' else k} {mm(drift[k])}" for k in names)
+    drifting = [("all" if k == "*" else k) for k in names if drift[k].get("drifting")]
+    return [
+        f"drift               EWMA of the residual, mm: {charts};"
+        f" drifting: {', '.join(drifting) or 'none'}"
+    ]
 
 
 def _suspect_lines(status: dict[str, Any]) -> list[str]:

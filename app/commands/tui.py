@@ -47,12 +47,13 @@ def run(args: argparse.Namespace) -> int:
     import logging
 
     from app.line.launch import json_logs
+    from app.line.statedir import StateDir
     from app.sim.tui_line import TuiSimSettings, simulated_service
 
     settings = TuiSimSettings(geometric=not args.rendered, seed=args.seed)
     state_dir.mkdir(parents=True, exist_ok=True)
     # the service's log lines go to a file: on the terminal they would draw over the screen
-    with open(state_dir / "rvis-sim.log", "a") as log:
+    with open(StateDir(state_dir).sim_log, "a") as log:
         handler = json_logs(log)
         try:
             with simulated_service(cfg, state_dir, settings):

@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.commission.context import PARAMS_FILE, Context
-from app.commission.journal import StepResult, at_least, at_most, holds
+from app.commission.journal import StepResult, at_most, count_at_least, holds
 from app.commission.measuring import measure_views
 from app.formats.files import ERROR_COLUMNS, write_csv
 from app.formats.params import from_json
@@ -97,7 +97,8 @@ def verify(ctx: Context, x_full: F64, sensor_model: SensorModel) -> StepResult:
         r.results["not applicable"] = "the geometric sensor measures no images (run rendered)"
         return r
     taken = measure_views(ctx, [(target, q) for q in qs], sensor, "acceptance")
-    r.checks.append(at_least("positions measured", len(taken.targets), len(POSITIONS)))
+    n = len(POSITIONS)
+    r.checks.append(count_at_least("positions measured", len(taken.targets), n, n))
     if len(taken.targets) < len(POSITIONS):
         r.results["rejected"] = taken.rejected
         return r

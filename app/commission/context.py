@@ -24,15 +24,15 @@ from app.config.line import LineSettings, SweepSettings
 from app.formats.files import read_targets
 from app.line.measure import SphereSensor
 from app.line.settings import from_cell
-from app.line.statedir import StateDir
+from app.line.statedir import PLAN_NAME, SENSOR_NAME, StateDir
 from app.line.station import Station
 from vision.sensor_model import SensorModel
 
 F64 = NDArray[np.float64]
 
-SENSOR_FILE = "sensor.toml"
+SENSOR_FILE = SENSOR_NAME  # the state directory's names: the last step copies them there
 TARGETS_FILE = "targets.csv"
-PLAN_FILE = "plan.json"
+PLAN_FILE = PLAN_NAME
 PARAMS_FILE = "params.json"
 STRIPE_FILE = "stripe.json"
 

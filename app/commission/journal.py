@@ -1,17 +1,24 @@
 """The commissioning's journal, `STATE_DIR/commission/journal.json`: how it was started (the
 set-up: cell file, simulated or not, seed) and every step run so far with its checks, results
 and files, replaced atomically after each step. A step counts as done once it passed; a failed
-or interrupted step runs again next time."""
+or interrupted step runs again next time.
+
+A step is journalled as `started` before it runs: found so at the next run, it was interrupted
+(the process was killed, the machine went down). Each record keeps its step's earlier runs
+(`earlier`: when each started, and whether it was interrupted or failed, with the checks that
+failed), so the report can say that a step ran more than once and why."""
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from app.errors import InputError
 from app.formats.files import read_json, write_json
+from app.line.statedir import JOURNAL_NAME
 
 FORMAT = "rvis-commission/1"
 STEPS = (
@@ -26,7 +33,8 @@ STEPS = (
     "workspace",
     "ready",
 )
-PASSED, FAILED = "passed", "failed"
+PASSED, FAILED, STARTED = "passed", "failed", "started"
+INTERRUPTED = "interrupted"  # an earlier run found `started`
 
 
 @dataclass(frozen=True)
@@ -41,12 +49,36 @@ class Check:
     unit: str = ""
 
 
+def _unit(unit: str) -> str:
+    return f" {unit}" if unit else ""
+
+
 def at_most(name: str, value: float, limit: float, unit: str = "") -> Check:
-    return Check(name, float(value), f"<= {limit:g}", bool(value <= limit), unit)
+    return Check(name, float(value), f"<= {limit:g}{_unit(unit)}", bool(value <= limit), unit)
 
 
 def at_least(name: str, value: float, limit: float, unit: str = "") -> Check:
-    return Check(name, float(value), f">= {limit:g}", bool(value >= limit), unit)
+    return Check(name, float(value), f">= {limit:g}{_unit(unit)}", bool(value >= limit), unit)
+
+
+def within(name: str, value: float, lo: float, hi: float, unit: str = "") -> Check:
+    """lo <= value <= hi, one check (its limit "15-90 %")."""
+    return Check(name, float(value), f"{lo:g}-{hi:g}{_unit(unit)}", bool(lo <= value <= hi), unit)
+
+
+def share_at_most(name: str, n: int, total: int, limit: float) -> Check:
+    """n of total at most the fraction `limit`: the value in per cent, the counts in the name
+    ("views rejected by vision (1 of 24)": 4.167 %, limit "<= 10 %")."""
+    percent = 100.0 * n / total if total else 0.0
+    return Check(
+        f"{name} ({n} of {total})", percent, f"<= {100 * limit:g} %", n <= limit * total, "%"
+    )
+
+
+def count_at_least(name: str, n: int, total: int, limit: float) -> Check:
+    """n of total at least `limit` (a count: "8 of 9", its limit ">= 9 of 9")."""
+    need = math.ceil(limit - 1e-9)
+    return Check(name, f"{n} of {total}", f">= {need} of {total}", bool(n >= limit))
 
 
 def holds(name: str, ok: bool, detail: str = "") -> Check:
@@ -76,6 +108,7 @@ class StepRecord:
     checks: tuple[Check, ...]
     results: dict[str, Any]
     files: tuple[str, ...]
+    earlier: tuple[dict[str, Any], ...] = ()  # the step's earlier runs, oldest first
 
     def to_json(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -83,7 +116,14 @@ class StepRecord:
     @classmethod
     def from_json(cls, doc: dict[str, Any]) -> StepRecord:
         checks = tuple(Check(**c) for c in doc["checks"])
-        return cls(**{**doc, "checks": checks, "files": tuple(doc["files"])})
+        earlier = tuple(dict(e) for e in doc.get("earlier", ()))
+        return cls(**{**doc, "checks": checks, "files": tuple(doc["files"]), "earlier": earlier})
+
+    def as_earlier(self) -> dict[str, Any]:
+        """This run as an earlier one: when it started, how it ended, the checks it failed."""
+        status = INTERRUPTED if self.status == STARTED else self.status
+        failed = [c.name for c in self.checks if not c.ok]
+        return {"started_utc": self.started_utc, "status": status, "failed_checks": failed}
 
 
 class Journal:
@@ -92,8 +132,9 @@ class Journal:
 
     def __init__(self, folder: Path, setup: dict[str, Any]) -> None:
         self.folder, self.setup = folder, setup
-        self.path = folder / "journal.json"
+        self.path = folder / JOURNAL_NAME
         self.steps: dict[str, StepRecord] = {}
+        self._before: dict[str, StepRecord | None] = {}  # the records of the steps running
         if self.path.exists():
             doc = read_json(self.path)
             if doc.get("format") != FORMAT:
@@ -117,8 +158,34 @@ class Journal:
         """The first step not passed yet (None: all passed)."""
         return next((s for s in STEPS if not self.passed(s)), None)
 
+    def start(self, name: str, started_utc: str) -> None:
+        """Journal that step `name` starts now (its earlier runs kept)."""
+        prev = self.steps.get(name)
+        self._before[name] = prev
+        earlier = () if prev is None else (*prev.earlier, prev.as_earlier())
+        self.record(StepRecord(name, STARTED, started_utc, 0.0, (), {}, (), earlier))
+
+    def finish(self, record: StepRecord) -> None:
+        """The step's outcome, with the earlier runs `start` journalled."""
+        started = self.steps.get(record.name)
+        earlier = started.earlier if started is not None else ()
+        self._before.pop(record.name, None)
+        self.record(dataclasses.replace(record, earlier=earlier))
+
+    def abandon(self, name: str) -> None:
+        """The engineer stopped the step: the journal as it was before it started."""
+        prev = self._before.pop(name, None)
+        if prev is None:
+            self.steps.pop(name, None)
+            self._write()
+        else:
+            self.record(prev)
+
     def record(self, record: StepRecord) -> None:
         self.steps[record.name] = record
+        self._write()
+
+    def _write(self) -> None:
         self.folder.mkdir(parents=True, exist_ok=True)
         ordered = [self.steps[s].to_json() for s in STEPS if s in self.steps]
         write_json(self.path, {"format": FORMAT, "setup": self.setup, "steps": ordered})

@@ -13,7 +13,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.commission.context import PARAMS_FILE, PLAN_FILE, Context
-from app.commission.journal import StepResult, at_least, at_most, holds
+from app.commission.journal import (
+    StepResult,
+    at_most,
+    count_at_least,
+    holds,
+    share_at_most,
+)
 from app.formats.files import (
     ERROR_COLUMNS,
     write_csv,
@@ -103,9 +109,10 @@ def calibration(ctx: Context) -> StepResult:
     positions = ctx.spheres_part_mm()
     write_targets(ctx.path("calibration_targets.csv"), positions)
     r = StepResult(files=["calibration_measurements.csv", "calibration_targets.csv"])
-    rejected = len(taken.rejected) / max(len(views), 1)
     limit = cell.commission.max_rejected_fraction
-    r.checks.append(at_most("views rejected by vision", rejected, limit))
+    r.checks.append(
+        share_at_most("views rejected by vision", len(taken.rejected), len(views), limit)
+    )
     r.results["rejected"] = taken.rejected
     model = cell.identification_model()
     try:
@@ -178,8 +185,11 @@ def validation(ctx: Context) -> StepResult:
         # simulated line only: the end-to-end error over the workspace (app/sim/truth.py)
         r.results["true_rmse_mm"] = ctx.truth.true_rmse_mm(model, x, sensor_model)
     r.checks += [
-        at_least(
-            "spheres measured", len(data), len(views) * (1 - cell.commission.max_rejected_fraction)
+        count_at_least(
+            "spheres measured",
+            len(data),
+            len(views),
+            len(views) * (1 - cell.commission.max_rejected_fraction),
         ),
         at_most("validation RMSE", error_mm, cell.commission.max_validation_rmse_mm, "mm"),
         at_most("RMSE, calibrated over nominal", error_mm, nominal_mm, "mm"),

@@ -14,6 +14,7 @@ a directory holding any other calibration is refused.
 from __future__ import annotations
 
 import dataclasses
+import shlex
 import time
 
 import numpy as np
@@ -38,11 +39,13 @@ def ready(ctx: Context) -> StepResult:
     write_text(state.cell, dumps_cell(cell, f"written by rvis commission from {ctx.cfg.source}"))
     version = _apply_once(ctx)
     r.results["version"] = version
-    r.results["run"] = f"rvis run --cell {state.cell}"
+    # `rvis run --state-dir S` reads S/cell.toml, S/plan.json and S/sensor.toml
+    r.results["run"] = f"rvis run --state-dir {shlex.quote(str(state.root))}"
     if ctx.truth is not None:  # the simulated line: its own devices, the same cell (seed)
+        geometric = " --geometric" if ctx.truth.geometric else ""  # measured as commissioned
         r.results["run"] = (
-            f"rvis run --sim --seed {ctx.truth.seed} --cell {state.cell} "
-            f"--state-dir {state.root} --plan {state.plan}"
+            f"rvis run --sim{geometric} --seed {ctx.truth.seed}"
+            f" --state-dir {shlex.quote(str(state.root))}"
         )
     r.checks += _read_back(ctx, cell)
     return r

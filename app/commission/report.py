@@ -1,6 +1,11 @@
 """The commissioning report, `commission/commission.md` and `commission/commission.json`,
 rewritten from the journal after every step: what was set up, each step's checks against their
-limits, its figures and files, and what is left."""
+limits (with their units; shares in per cent with their counts), its figures and files, how
+many times it ran and why it ran again (an earlier run interrupted or failed), and what is left.
+
+Figures are written whole, nested ones as sub-lists or tables. The simulated line's truth
+(results named `truth` or `true_...`: what no real cell can know) is marked "simulation only".
+"""
 
 from __future__ import annotations
 
@@ -8,8 +13,9 @@ import json
 from pathlib import Path
 from typing import Any
 
-from app.commission.journal import STEPS, Check, Journal
+from app.commission.journal import INTERRUPTED, STARTED, STEPS, Check, Journal, StepRecord
 from app.formats.files import dumps_json, write_text
+from app.line.statedir import REPORT_JSON_NAME, REPORT_MD_NAME
 
 TITLES = {
     "devices": "Devices answer",
@@ -32,18 +38,83 @@ def format_value(c: Check) -> str:
     return f"{c.value}{' ' + c.unit if c.unit and not isinstance(c.value, bool) else ''}"
 
 
+SIMULATION_ONLY = "simulation only: the simulated cell's truth, unknown on a real cell"
+
+
+def simulation_only(key: str) -> bool:
+    """A result that only the simulated line can give (its truth)."""
+    return key == "truth" or key.startswith("true_")
+
+
+def _scalar(value: Any) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    if isinstance(value, list | tuple) and all(not isinstance(v, dict | list) for v in value):
+        return ", ".join(_scalar(v) for v in value)
+    if isinstance(value, dict | list | tuple):
+        return json.dumps(value, default=str)
+    return str(value)
+
+
+def _is_scalar(value: Any) -> bool:
+    """A number, a text, or a list of them (one line)."""
+    if isinstance(value, dict):
+        return False
+    return not isinstance(value, list | tuple) or all(
+        not isinstance(v, dict | list | tuple) for v in value
+    )
+
+
+def _table(rows: list[tuple[str, dict[str, Any]]], first: str) -> list[str]:
+    """Rows (name, fields) as a Markdown table; `first`: the name column's heading ("" none)."""
+    keys = list(dict.fromkeys(k for _, fields in rows for k in fields))
+    head = ([first] if first else []) + keys
+    out = ["", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for name, fields in rows:
+        cells = ([name] if first else []) + [_scalar(fields.get(k)) for k in keys]
+        out.append("| " + " | ".join(cells) + " |")
+    return [*out, ""]
+
+
 def _results(results: dict[str, Any]) -> list[str]:
+    """Each figure whole: a scalar or list on its line, a dict as a sub-list, a list of
+    records or a dict of records as a table."""
     lines = []
     for key, value in results.items():
-        if isinstance(value, float):
-            text = f"{value:.6g}"
-        elif isinstance(value, str):
-            text = value
+        label = f"{key} ({SIMULATION_ONLY})" if simulation_only(key) else key
+        if _is_scalar(value):
+            lines.append(f"- {label}: {_scalar(value)}")
+        elif isinstance(value, dict) and all(_is_scalar(v) for v in value.values()):
+            lines.append(f"- {label}:")
+            lines += [f"  - {k}: {_scalar(v)}" for k, v in value.items()]
+        elif isinstance(value, dict) and all(isinstance(v, dict) for v in value.values()):
+            lines.append(f"- {label}:")
+            lines += _table([(str(k), v) for k, v in value.items()], "name")
+        elif isinstance(value, list) and all(isinstance(v, dict) for v in value):
+            lines.append(f"- {label}:")
+            lines += _table([("", v) for v in value], "")
         else:
-            text = json.dumps(value, default=str)
-            text = text if len(text) <= 400 else text[:400] + " ..."
-        lines.append(f"- {key}: {text}")
+            lines.append(f"- {label}: {json.dumps(value, default=str)}")
     return lines
+
+
+def status_of(rec: StepRecord) -> str:
+    """A step's status as the report says it (`started` found later: interrupted)."""
+    return INTERRUPTED if rec.status == STARTED else rec.status
+
+
+def _runs(rec: StepRecord) -> str:
+    """ "Run 3 times: interrupted (started ...), failed (started ...: checks ...), then passed."."""
+    if not rec.earlier:
+        return ""
+    parts = []
+    for e in rec.earlier:
+        failed = e.get("failed_checks") or []
+        why = f"; failed {', '.join(failed)}" if failed else ""
+        parts.append(f"{e['status']} (started {e['started_utc']}{why})")
+    return f"Run {len(rec.earlier) + 1} times: {', '.join(parts)}, then {status_of(rec)}."
 
 
 def markdown(journal: Journal) -> str:
@@ -58,24 +129,30 @@ def markdown(journal: Journal) -> str:
         f"**{len(done)} of {len(STEPS)} steps passed**"
         + ("; the cell is ready for `rvis run`." if nxt is None else f"; next: `{nxt}`."),
         "",
-        "| # | step | status | checks passed | seconds |",
-        "|---|------|--------|---------------|---------|",
+        "| # | step | status | checks passed | seconds | runs |",
+        "|---|------|--------|---------------|---------|------|",
     ]
     for i, name in enumerate(STEPS, start=1):
         rec = journal.steps.get(name)
         if rec is None:
-            lines.append(f"| {i} | {name} | not run | | |")
+            lines.append(f"| {i} | {name} | not run | | | |")
             continue
         ok = sum(c.ok for c in rec.checks)
         lines.append(
-            f"| {i} | {name} | {rec.status} | {ok}/{len(rec.checks)} | {rec.seconds:.1f} |"
+            f"| {i} | {name} | {status_of(rec)} | {ok}/{len(rec.checks)} | {rec.seconds:.1f} |"
+            f" {len(rec.earlier) + 1} |"
         )
     for i, name in enumerate(STEPS, start=1):
         rec = journal.steps.get(name)
         if rec is None:
             continue
-        lines += ["", f"## {i}. {TITLES[name]} ({name}): {rec.status}", ""]
-        lines.append(f"Started {rec.started_utc}, {rec.seconds:.1f} s.")
+        lines += ["", f"## {i}. {TITLES[name]} ({name}): {status_of(rec)}", ""]
+        if rec.status == STARTED:
+            lines.append(f"Started {rec.started_utc}; interrupted (no outcome): it runs again.")
+        else:
+            lines.append(f"Started {rec.started_utc}, {rec.seconds:.1f} s.")
+        if rec.earlier:
+            lines.append(_runs(rec))
         lines += ["", "| check | value | limit | ok |", "|---|---|---|---|"]
         lines += [
             f"| {c.name} | {format_value(c)} | {c.limit} | {'yes' if c.ok else '**NO**'} |"
@@ -98,7 +175,7 @@ def to_json(journal: Journal) -> dict[str, Any]:
 
 
 def write_report(journal: Journal) -> tuple[Path, Path]:
-    md, js = journal.folder / "commission.md", journal.folder / "commission.json"
+    md, js = journal.folder / REPORT_MD_NAME, journal.folder / REPORT_JSON_NAME
     write_text(md, markdown(journal))
     write_text(js, dumps_json(to_json(journal), indent=2) + "\n")
     return md, js

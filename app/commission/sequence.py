@@ -8,7 +8,7 @@ from collections.abc import Callable
 from datetime import UTC, datetime
 
 from app.commission import acceptance, measuring, ready, steps, stripe, workspace
-from app.commission.context import Context
+from app.commission.context import Context, Declined
 from app.commission.journal import FAILED, PASSED, STEPS, Journal, StepRecord, StepResult, holds
 from app.commission.report import TITLES, format_value, write_report
 from drivers.errors import DeviceError
@@ -40,11 +40,15 @@ def run_sequence(ctx: Context, journal: Journal) -> str | None:
         ctx.ask(f"step {i}/{n} {name}: {TITLES[name]}: start?")
         ctx.say(f"step {i}/{n} {name}: {TITLES[name]} ...")
         started = datetime.now(UTC).isoformat(timespec="seconds")
+        journal.start(name, started)  # found so at the next run: this run was interrupted
         t0 = time.monotonic()
         try:
             result = RUN[name](ctx)
         except DeviceError as exc:  # a device failed mid-step: recorded, the step runs again
             result = StepResult(checks=[holds("devices", False, f"{type(exc).__name__}: {exc}")])
+        except Declined:  # the engineer stopped it: as if it had not started
+            journal.abandon(name)
+            raise
         seconds = time.monotonic() - t0
         status = PASSED if result.passed else FAILED
         record = StepRecord(
@@ -56,7 +60,7 @@ def run_sequence(ctx: Context, journal: Journal) -> str | None:
             result.results,
             tuple(result.files),
         )
-        journal.record(record)
+        journal.finish(record)
         write_report(journal)
         for c in result.checks:
             mark = "ok  " if c.ok else "FAIL"

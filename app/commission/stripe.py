@@ -17,7 +17,13 @@ from typing import Any
 import numpy as np
 
 from app.commission.context import STRIPE_FILE, Context
-from app.commission.journal import StepResult, at_least, at_most, holds
+from app.commission.journal import (
+    StepResult,
+    at_least,
+    at_most,
+    holds,
+    within,
+)
 from app.formats.files import write_json
 from app.formats.sweeps import write_image
 from calib import candidates
@@ -58,9 +64,16 @@ def stripe(ctx: Context) -> StepResult:
     r.files += [STRIPE_FILE, "stripe.png"]
     r.checks += [
         at_least("stripe rows", best["rows"], c.min_stripe_rows),
-        at_most("saturated rows", best["saturated_fraction"], c.max_saturated_fraction),
-        at_least("peak / full scale", best["peak_fraction"], c.min_peak_fraction),
-        at_most("peak / full scale", best["peak_fraction"], c.max_peak_fraction),
+        at_most(
+            "saturated rows", 100 * best["saturated_fraction"], 100 * c.max_saturated_fraction, "%"
+        ),
+        within(
+            "stripe peak, of full scale",
+            100 * best["peak_fraction"],
+            100 * c.min_peak_fraction,
+            100 * c.max_peak_fraction,
+            "%",
+        ),
         at_most("stripe width (RMS)", best["width_px"], c.max_stripe_width_px, "px"),
     ]
     return r

@@ -16,7 +16,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.commission.context import PARAMS_FILE, Context
-from app.commission.journal import StepResult, at_least, at_most, holds
+from app.commission.journal import (
+    StepResult,
+    at_most,
+    count_at_least,
+    holds,
+)
 from app.commission.measuring import measure_views
 from app.formats.files import ERROR_COLUMNS, write_csv
 from app.formats.params import from_json
@@ -78,7 +83,12 @@ def workspace_validation(ctx: Context) -> StepResult:
     names = [n for n, _ in views]
     data = [d for _, d in views]
     r.checks.append(
-        at_least("positions measured", len(names), len(proposed) * (1 - c.max_rejected_fraction))
+        count_at_least(
+            "positions measured",
+            len(names),
+            len(proposed),
+            len(proposed) * (1 - c.max_rejected_fraction),
+        )
     )
     if not names:
         return r

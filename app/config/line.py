@@ -165,13 +165,16 @@ class InlineGateSettings(Section):
 @dataclass(frozen=True)
 class OperationsSettings(Section):
     """Where the service keeps its state and how it keeps it (part of `[service]`;
-    docs/operations.md): the state directory, its operators' group ("": none, 0750), the free
+    docs/operations.md): the state directory, its operators' group ("": none, 0750), the
+    engineers' group (who may approve, reject, roll back, reset, shelve; "": everyone who can
+    connect, app/line/roles.py), the free
     space below which a warning alarm is raised, the raw sweeps kept, and how long events and
     the documents of rejected calibrations are kept (0: for ever)."""
 
     name = "service"
     state_dir: str = opt(DEFAULT_ROOT)
     operators_group: str = opt("")
+    engineers_group: str = opt("")
     min_free_mb: float = opt(MIN_FREE_MB, lo=0, hi=1e7)
     raw_sweeps_keep: int = opt(0, lo=0, hi=100000)
     events_keep_days: float = opt(90.0, lo=0, hi=36500)

@@ -4,13 +4,14 @@
     -> {"id": 1, "cmd": "status"}
     <- {"id": 1, "ok": true, "state": "idle", ...}
     -> {"id": 2, "cmd": "ack", "args": {"alarm": 3}}     (or {"id": 2, "cmd": "ack", "alarm": 3})
-    <- {"id": 2, "ok": false, "error": "no raised alarm 3"}
+    <- {"id": 2, "ok": false, "error": "no unacknowledged alarm 3"}
     -> {"id": 3, "cmd": "subscribe"}
     <- {"id": 3, "ok": true}   then one {"event": ..., "t": ..., ...} per line until closed
 
-The peer's uid (SO_PEERCRED) goes with every command to the service, which writes it to the
-audit log. Each connection has its own thread; the server never blocks the service loop. A
-client that goes away costs only its own connection (writes use MSG_NOSIGNAL: no SIGPIPE); a
+The peer's credentials (SO_PEERCRED: uid, gid; SO_PEERGROUPS: its groups; app/line/roles.py)
+go with every command to the service, which decides the peer's role from them and writes the
+uid to the audit log. Each connection has its own thread; the server never blocks the service
+loop. A client that goes away costs only its own connection (writes use MSG_NOSIGNAL: no SIGPIPE); a
 subscriber that falls `EventBus.max_queue` events behind, or whose socket accepts nothing for
 `SEND_TIMEOUT_S`, is dropped with a reason (a last `{"event": "dropped", "reason": ...}` line
 when it can still be sent). A request line longer than MAX_LINE gets an error and the
@@ -33,6 +34,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from app.line.events import EventBus
+from app.line.roles import Peer, peer_credentials
 
 MAX_LINE = 64 * 1024
 REPLY_TIMEOUT_S = 60.0  # a queued command waits at most for the end of a running window
@@ -44,18 +46,12 @@ class Commandable(Protocol):
     bus: EventBus
 
     def request(
-        self, cmd: str, args: dict[str, Any] | None = None, uid: int | None = None
+        self,
+        cmd: str,
+        args: dict[str, Any] | None = None,
+        uid: int | None = None,
+        groups: tuple[int, ...] | None = None,
     ) -> Any: ...
-
-
-def peer_uid(conn: socket.socket) -> int | None:
-    """The uid of the process at the other end of a Unix socket (Linux SO_PEERCRED)."""
-    so_peercred = getattr(socket, "SO_PEERCRED", None)
-    if so_peercred is None:
-        return None
-    creds = conn.getsockopt(socket.SOL_SOCKET, so_peercred, struct.calcsize("3i"))
-    _pid, uid, _gid = struct.unpack("3i", creds)
-    return int(uid)
 
 
 def _send(conn: socket.socket, obj: dict[str, Any]) -> None:
@@ -145,7 +141,7 @@ class ControlServer:
 
     def _serve(self, conn: socket.socket) -> None:
         try:
-            uid = peer_uid(conn)
+            peer = peer_credentials(conn)
             _send_timeout(conn, SEND_TIMEOUT_S)
             with conn, conn.makefile("rb") as lines:
                 while not self._stop.is_set():
@@ -155,7 +151,7 @@ class ControlServer:
                     if len(raw) > MAX_LINE and not raw.endswith(b"\n"):
                         _send(conn, {"id": None, "ok": False, "error": "request line too long"})
                         return
-                    if not self._handle(conn, raw, uid):
+                    if not self._handle(conn, raw, peer):
                         return
         except OSError:
             return  # the client went away or stopped reading: only its connection ends
@@ -167,7 +163,7 @@ class ControlServer:
             with self._lock:
                 self._conns.discard(conn)
 
-    def _handle(self, conn: socket.socket, raw: bytes, uid: int | None) -> bool:
+    def _handle(self, conn: socket.socket, raw: bytes, peer: Peer | None) -> bool:
         """Answer one request line; False when the connection is done."""
         try:
             req = json.loads(raw)
@@ -187,7 +183,8 @@ class ControlServer:
             self._stream(conn)
             return False
         try:
-            reply = self.service.request(req["cmd"], args, uid).result(REPLY_TIMEOUT_S)
+            uid, groups = (None, None) if peer is None else (peer.uid, peer.groups)
+            reply = self.service.request(req["cmd"], args, uid, groups).result(REPLY_TIMEOUT_S)
         except TimeoutError:
             reply = {"ok": False, "error": "the service did not answer in time"}
         _send(conn, {"id": rid, **reply})

@@ -19,6 +19,7 @@ from app.line.inline_seq import InlineSequential, SequentialCandidate
 from app.line.measure import SphereMeasurer
 from app.line.params_store import ParamsStore
 from app.line.recalib import Recalibrator, RecalOutcome
+from app.line.roles import Roles
 from app.line.schedule import Schedule
 from app.line.settings import ServiceSettings
 from app.line.statedir import StateDir
@@ -42,6 +43,7 @@ class LineHost(Protocol):
     schedule: Schedule
     spheres: dict[str, F64]
     paths: StateDir
+    roles: Roles
     store: Store
     params: ParamsStore
     bus: EventBus
@@ -93,6 +95,8 @@ class LineHost(Protocol):
     def storage_fault(self, exc: StorageError) -> None: ...
 
     def note_device_error(self, exc: BaseException) -> str | None: ...
+
+    def recal_wait(self) -> str: ...
 
     def recal_done(self, out: RecalOutcome | SequentialCandidate | StepCorrection) -> None: ...
 

@@ -36,12 +36,12 @@ from app.line.measure import SphereSensor
 from app.line.schedule import Schedule
 from app.line.service import Service
 from app.line.settings import ServiceSettings
-from app.line.statedir import SOCKET_NAME, ServiceLock, StateDir, prepare
+from app.line.statedir import ServiceLock, StateDir, prepare
 from app.line.station import Station
 from app.line.store import Store
 from drivers.clock import Clock
 
-__all__ = ["SOCKET_NAME", "build_service", "hold_state", "json_logs", "serve", "serving"]
+__all__ = ["build_service", "hold_state", "json_logs", "serve", "serving"]
 
 
 @contextlib.contextmanager

@@ -4,7 +4,8 @@ a collaborator of app.line.service.Service that sees it as app.line.host.LineHos
 `status` and `subscribe` are answered at once from any thread; every other command is queued
 and executed by the service loop between windows (`run_commands`; so a reply can wait for the
 end of a running window), and written to the audit log (`actions` table) with the peer's uid,
-its arguments, and whether it succeeded.
+its arguments, and whether it succeeded. A command the peer's role does not allow
+(app/line/roles.py) is refused with the role it needs, and audited the same way.
 
     pause | resume | reset | recalibrate | approve [calibration] | reject [calibration]
     rollback version | ack alarm | shelve alarm reason [minutes]
@@ -18,6 +19,7 @@ from queue import Empty, Queue
 from typing import Any
 
 from app.line.host import LineHost
+from app.line.roles import NEEDS
 from app.line.states import FAULT_CODES, State
 from app.line.store import StorageError
 from drivers.errors import DeviceError
@@ -52,13 +54,19 @@ class Operator:
 
     def __init__(self, svc: LineHost) -> None:
         self.svc = svc
-        self._commands: Queue[tuple[str, dict[str, Any], int | None, Future[dict[str, Any]]]]
+        self._commands: Queue[tuple[str, dict[str, Any], int | None, str, Future[dict[str, Any]]]]
         self._commands = Queue()
 
     def request(
-        self, cmd: str, args: dict[str, Any] | None = None, uid: int | None = None
+        self,
+        cmd: str,
+        args: dict[str, Any] | None = None,
+        uid: int | None = None,
+        groups: tuple[int, ...] | None = None,
     ) -> Future[dict[str, Any]]:
-        """Queue a command; the future's result is the reply body ({"ok": ...})."""
+        """Queue a command; the future's result is the reply body ({"ok": ...}). A command
+        the peer's role may not run is queued as refused: its audit row is written by the
+        loop like any other's."""
         future: Future[dict[str, Any]] = Future()
         args = dict(args or {})
         if cmd not in COMMANDS or cmd == "subscribe":
@@ -66,7 +74,8 @@ class Operator:
         elif cmd == "status":
             future.set_result({"ok": True, **self.svc.status()})
         else:
-            self._commands.put((cmd, args, uid, future))
+            refusal = self.svc.roles.refusal(cmd, uid, groups)
+            self._commands.put((cmd, args, uid, refusal, future))
             self.svc.wake.set()
         return future
 
@@ -83,22 +92,29 @@ class Operator:
         """Execute the queued commands (in the service loop, between windows)."""
         while True:
             try:
-                cmd, args, uid, future = self._commands.get_nowait()
+                cmd, args, uid, refusal, future = self._commands.get_nowait()
             except Empty:
                 return
             reply: dict[str, Any] = {"ok": False, "error": "internal error"}
             try:
-                reply = self._run_command(cmd, args, uid)
+                reply = self._run_command(cmd, args, uid, refusal)
             finally:
                 future.set_result(reply)
 
-    def _run_command(self, cmd: str, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
-        """One command and its audit row (a storage failure fails the command, not the loop)."""
+    def _run_command(
+        self, cmd: str, args: dict[str, Any], uid: int | None, refusal: str = ""
+    ) -> dict[str, Any]:
+        """One command and its audit row (a storage failure fails the command, not the loop);
+        a refused one is only audited."""
         svc = self.svc
         handler: Callable[[dict[str, Any], int | None], dict[str, Any]]
         handler = getattr(self, f"_cmd_{cmd}")
+        reply: dict[str, Any]
         try:
-            reply = {"ok": True, **handler(args, uid)}
+            if refusal:
+                reply = {"ok": False, "error": refusal, "role": NEEDS[cmd]}
+            else:
+                reply = {"ok": True, **handler(args, uid)}
         except CommandError as exc:
             reply = {"ok": False, "error": str(exc)}
         except StorageError as exc:
@@ -175,7 +191,11 @@ class Operator:
         svc = self.svc
         svc.force_recal = True
         svc.save_state()
-        return {"message": "recalibration requested"}
+        wait = svc.recal_wait()
+        return {
+            "message": f"recalibration requested: {wait or 'it starts now'}",
+            "waits": bool(wait),
+        }
 
     def _pending_id(self, args: dict[str, Any]) -> int:
         svc = self.svc
@@ -213,7 +233,7 @@ class Operator:
         svc = self.svc
         alarm_id = _int(args, "alarm")
         if not svc.store.ack_alarm(alarm_id, svc.clock.time(), uid):
-            raise CommandError(f"no raised alarm {alarm_id}")
+            raise CommandError(f"no unacknowledged alarm {alarm_id}")
         return {"message": f"alarm {alarm_id} acknowledged"}
 
     def _cmd_shelve(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:

@@ -5,6 +5,10 @@ Every version is written once to `params/history/NNNN.json` and then made curren
 directory): after a crash at any moment `current.json` is one complete version of the history.
 A rollback makes an earlier history file current again. Documents are app.formats.params' parameters
 JSON (readable by `app.formats.params.from_json`) with one more key, `history_version`.
+
+Naming a store reads and changes nothing (read-only callers use it too); `apply` creates the
+folders it writes to, and only the service, which holds the state directory's lock, removes the
+temporary files a crash left (`remove_stale`). The names are app/line/statedir.py's.
 """
 
 from __future__ import annotations
@@ -37,22 +41,26 @@ class ParamsStore:
         self.state = StateDir(state_dir)
         self.dir = self.state.params
         self.history = self.state.history
-        self.history.mkdir(parents=True, exist_ok=True)
         self.current_path = self.state.current
-        for stale in self.dir.glob(".*.tmp"):  # left by a crash before os.replace
-            stale.unlink(missing_ok=True)
-        for stale in self.history.glob(".*.tmp"):
-            stale.unlink(missing_ok=True)
+
+    def remove_stale(self) -> int:
+        """Remove the temporary files a crash left before os.replace (the service, at start,
+        holding the lock); how many."""
+        stale = self.state.stale_temporaries()
+        for path in stale:
+            path.unlink(missing_ok=True)
+        return len(stale)
 
     def version_path(self, version: int) -> Path:
         """The history file of a version."""
-        return self.history / f"{version:04d}.json"
+        return self.state.version_file(version)
 
     def versions(self) -> list[int]:
-        return sorted(int(p.stem) for p in self.history.glob("[0-9][0-9][0-9][0-9].json"))
+        return self.state.versions()
 
     def apply(self, doc: dict[str, Any]) -> int:
         """Write `doc` as the next history version and make it current; returns the version."""
+        self.history.mkdir(parents=True, exist_ok=True)
         version = max(self.versions(), default=0) + 1
         doc = {**doc, "history_version": version}
         atomic_write_json(self.version_path(version), doc)

@@ -55,6 +55,7 @@ from app.line.measure import Reading, SphereMeasurer, SphereSensor
 from app.line.operator import Operator
 from app.line.params_store import ParamsStore
 from app.line.recalib import Recalibrator, RecalJob, RecalOutcome, as_measurements, select_rolling
+from app.line.roles import Roles
 from app.line.schedule import Schedule, Slot
 from app.line.sensor_watch import SensorWatch
 from app.line.settings import ServiceSettings
@@ -99,8 +100,10 @@ class Service:
         self.spheres = {k: np.asarray(v, dtype=np.float64) for k, v in spheres_part_mm.items()}
         s.state_dir.mkdir(parents=True, exist_ok=True)
         self.paths = StateDir(s.state_dir)
+        self.roles = Roles.of(s.ops.engineers_group)  # who may approve, reset, ... (or exit 2)
         self.store = Store(self.paths.db)
         self.params = ParamsStore(s.state_dir)
+        self.params.remove_stale()  # the service alone cleans (read-only callers never do)
         self.sweeps = SweepArchive(self.paths.sweeps, s.ops.raw_sweeps_keep)
         self.bus = EventBus(self.store, self.clock)
         self._start_alarms: list[tuple[str, str, str]] = []  # raised once the loop runs
@@ -144,6 +147,7 @@ class Service:
         self.step: Step | None = None  # a flagged step: attribution, correction (app.line.step)
         self.new_since_recal = 0
         self.force_recal = False
+        self._skipped: tuple[int, int] | None = None  # the set a recalibration was skipped on
         self.recal_ids: dict[str, list[int]] | None = None  # the calibration in flight
         # good measurements recorded by this process, and the (count, since) at which the
         # rolling set was last found incomplete: not looked for again until one more comes
@@ -272,10 +276,15 @@ class Service:
         self.wake.set()
 
     def request(
-        self, cmd: str, args: dict[str, Any] | None = None, uid: int | None = None
+        self,
+        cmd: str,
+        args: dict[str, Any] | None = None,
+        uid: int | None = None,
+        groups: tuple[int, ...] | None = None,
     ) -> Future[dict[str, Any]]:
-        """An operator's command (app.line.operator); the future's result is the reply."""
-        return self.operator.request(cmd, args, uid)
+        """An operator's command (app.line.operator) from the peer `uid` in `groups` (None:
+        from the group database; uid None: this process); the future's result is the reply."""
+        return self.operator.request(cmd, args, uid, groups)
 
     def status(self) -> dict[str, Any]:
         """The status reply (app.line.status), from any thread."""
@@ -801,15 +810,26 @@ class Service:
         attempt = (self._good_rows, since)
         if attempt == self._incomplete:
             return  # no good measurement since the rolling set was found incomplete
-        r = self.settings.recalib
-        rows = self.store.measurements(
-            status="ok", since_id=since, last=r.rolling_size + r.holdout_size
-        )
-        chosen = select_rolling(rows, len(self.schedule), self.schedule.targets, r)
+        chosen = self.rolling_set()
         if chosen is None:
             self._incomplete = attempt
             return
         train, holdout = chosen
+        if self.trained_on(chosen):  # nothing new to learn from: wait for a new measurement
+            key = (int(train[0]["id"]), int(holdout[-1]["id"]))
+            if self._skipped != key:
+                self._skipped = key
+                self.bus.emit(
+                    "recalibration_skipped",
+                    {
+                        "version": self.version,
+                        "first_id": key[0],
+                        "last_id": key[1],
+                        "reason": f"the parameters in force (version {self.version}) were"
+                        " trained on these measurements; it runs after the next measurement",
+                    },
+                )
+            return
         with self.store.batch():
             self.force_recal, self.new_since_recal = False, 0
             self.recal_ids = {
@@ -818,6 +838,61 @@ class Service:
             }
             self.save_state()
         self._submit(train, holdout)
+
+    def rolling_set(
+        self,
+    ) -> tuple[list[Mapping[str, Any]], list[Mapping[str, Any]]] | None:
+        """The (training, held-out) measurements a recalibration would use now: the last ones,
+        after the step's change point when one is flagged (None: not complete yet)."""
+        since = 0 if self.drift_onset_id is None else self.drift_onset_id - 1
+        r = self.settings.recalib
+        rows = self.store.measurements(
+            status="ok", since_id=since, last=r.rolling_size + r.holdout_size
+        )
+        return select_rolling(rows, len(self.schedule), self.schedule.targets, r)
+
+    def trained_on(
+        self, chosen: tuple[Sequence[Mapping[str, Any]], Sequence[Mapping[str, Any]]]
+    ) -> bool:
+        """The parameters in force came from a calibration on exactly these measurements (a
+        rolling set is contiguous: its first and last ids and its size name it)."""
+        cal_id = (self.params.current_document() or {}).get("calibration_id")
+        cal = None if cal_id is None else self.store.calibration(int(cal_id))
+        if cal is None:
+            return False
+        train, holdout = chosen
+        return (cal["first_id"], cal["last_id"], cal["n_measurements"]) == (
+            int(train[0]["id"]),
+            int(holdout[-1]["id"]),
+            len(train),
+        )
+
+    def recal_wait(self) -> str:
+        """Why a recalibration asked for now does not start at once, in words ("": it does)."""
+        if self.sequential is not None:
+            return ""
+        if self.pending_calibration is not None:
+            return (
+                f"it waits for the decision on calibration {self.pending_calibration}"
+                " (approve or reject it)"
+            )
+        if self.recalibrator.busy:
+            return "a recalibration is running; another follows on the measurements after it"
+        chosen = self.rolling_set()
+        r = self.settings.recalib
+        if chosen is None:
+            if self.drift_onset_id is not None:
+                return (
+                    f"it waits for the measurements after the step (from #{self.drift_onset_id}"
+                    f"; {r.rolling_size + r.holdout_size} needed, every sphere)"
+                )
+            return f"it waits for a complete rolling set ({r.rolling_size + r.holdout_size})"
+        if self.trained_on(chosen):
+            return (
+                f"the parameters in force (version {self.version}) were trained on the"
+                " current measurements: it runs after the next window's measurement"
+            )
+        return ""
 
     def _resubmit(self) -> None:
         """A calibration that was in flight when the service stopped runs again (the same

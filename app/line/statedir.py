@@ -18,11 +18,22 @@ permissions, the one-service lock and the free space under it (DESIGN.md section
         opcua/rejected/          certificates of clients it refused (move one to trusted/)
         trace/wire.jsonl         the devices' wire trace when on ([devices] trace, `?trace=1`),
                                  rotated to wire.jsonl.1, .2, ... (`rvis devices trace`)
-        commission/              `rvis commission`: its journal, each step's results, the
-                                 report (commission.md, commission.json)
+        commission/              `rvis commission`: its journal (journal.json), each step's
+                                 results, the report (commission.md, commission.json)
+        commission.<time>/       an earlier commissioning kept by `rvis commission --restart`
+        verify/                  `rvis sensor verify`: its results
+        rvis-sim.log             `rvis tui --sim`: the simulated service's log
 
-Read-only clients (`rvis status`, `rvis ctl`, `rvis tui`) only need the layout; the service
-also takes the lock before it opens any device (`ServiceLock`), and `prepare()`s the directory.
+This module is the one place that spells these names (tests/test_layers.py holds every other
+module of app/ to it): the service, `rvis state backup|restore|check`, `rvis status`, the TUI
+and the commissioning reach them through `StateDir`. What a backup carries besides the
+database is `StateDir.carried()`: the parameter history first, then `current.json`, the plan,
+the commissioned cell and sensor files, the commissioning's folder and the OPC UA server's
+identity (not the lock, the socket, raw sweeps, wire traces or rejected certificates).
+
+Read-only clients (`rvis status`, `rvis ctl`, `rvis tui`, `rvis state check`) only name paths:
+nothing here creates, cleans or changes a file unless the caller is the service (`prepare()`,
+`ServiceLock`) or a writer of the parameters (app/line/params_store.py).
 """
 
 from __future__ import annotations
@@ -45,11 +56,38 @@ LOCK_NAME = "rvis.lock"
 PLAN_NAME = "plan.json"
 CELL_NAME = "cell.toml"
 SENSOR_NAME = "sensor.toml"
+SIM_LOG_NAME = "rvis-sim.log"
 PARAMS_DIR = "params"
+CURRENT_NAME = "current.json"  # in params/
+HISTORY_DIR = "history"  # in params/
 SWEEPS_DIR = "sweeps"
 OPCUA_DIR = "opcua"
+OPCUA_CERT_NAME = "server-cert.der"  # in opcua/
+OPCUA_KEY_NAME = "server-key.pem"  # in opcua/, 0600
+TRUSTED_DIR = "trusted"  # in opcua/
+REJECTED_DIR = "rejected"  # in opcua/
 TRACE_DIR = "trace"
+WIRE_TRACE_NAME = "wire.jsonl"  # in trace/
 COMMISSION_DIR = "commission"
+JOURNAL_NAME = "journal.json"  # in commission/: the commissioning's journal
+REPORT_MD_NAME = "commission.md"  # in commission/: its report
+REPORT_JSON_NAME = "commission.json"
+VERIFY_DIR = "verify"
+#: the manifest `rvis state backup` writes beside the copy (a backup is laid out as a state
+#: directory plus this file)
+MANIFEST_NAME = "backup.json"
+
+
+def version_name(version: int) -> str:
+    """The name of a parameters version's history file: 0007.json."""
+    return f"{version:04d}.json"
+
+
+def version_of(name: str) -> int | None:
+    """The version a history file's name stands for (None: not a version file)."""
+    stem, dot, ext = name.partition(".")
+    return int(stem) if dot and ext == "json" and len(stem) == 4 and stem.isdigit() else None
+
 
 #: The state directory when neither the cell file nor `--state-dir` names one ([service]
 #: state_dir's default), and the free space [MiB] below which it is low ([service]
@@ -102,11 +140,28 @@ class StateDir:
 
     @property
     def current(self) -> Path:
-        return self.params / "current.json"
+        return self.params / CURRENT_NAME
 
     @property
     def history(self) -> Path:
-        return self.params / "history"
+        return self.params / HISTORY_DIR
+
+    def version_file(self, version: int) -> Path:
+        """`params/history/NNNN.json`: the history file of a parameters version."""
+        return self.history / version_name(version)
+
+    def versions(self) -> list[int]:
+        """The versions in the history, ascending (reads the folder only)."""
+        if not self.history.is_dir():
+            return []
+        found = (version_of(p.name) for p in self.history.iterdir() if p.is_file())
+        return sorted(v for v in found if v is not None)
+
+    def stale_temporaries(self) -> list[Path]:
+        """Temporary files a crash left before their os.replace (`.NAME.XXXX.tmp` beside the
+        parameters): the service removes them; read-only callers never do."""
+        folders = (self.params, self.history)
+        return [p for d in folders if d.is_dir() for p in d.glob(".*.tmp")]
 
     @property
     def sweeps(self) -> Path:
@@ -118,27 +173,76 @@ class StateDir:
 
     @property
     def opcua_cert(self) -> Path:
-        return self.opcua / "server-cert.der"
+        return self.opcua / OPCUA_CERT_NAME
 
     @property
     def opcua_key(self) -> Path:
-        return self.opcua / "server-key.pem"
+        return self.opcua / OPCUA_KEY_NAME
 
     @property
     def opcua_trusted(self) -> Path:
-        return self.opcua / "trusted"
+        return self.opcua / TRUSTED_DIR
 
     @property
     def opcua_rejected(self) -> Path:
-        return self.opcua / "rejected"
+        return self.opcua / REJECTED_DIR
 
     @property
     def wire_trace(self) -> Path:
-        return self.root / TRACE_DIR / "wire.jsonl"
+        return self.root / TRACE_DIR / WIRE_TRACE_NAME
 
     @property
     def commission(self) -> Path:
         return self.root / COMMISSION_DIR
+
+    @property
+    def commission_report(self) -> Path:
+        """`commission/commission.md`: the commissioning's report."""
+        return self.commission / REPORT_MD_NAME
+
+    def commission_kept(self, stamp: str) -> Path:
+        """`commission.<stamp>`: an earlier commissioning kept by `rvis commission --restart`."""
+        return self.root / f"{COMMISSION_DIR}.{stamp}"
+
+    @property
+    def verify(self) -> Path:
+        return self.root / VERIFY_DIR
+
+    @property
+    def sim_log(self) -> Path:
+        return self.root / SIM_LOG_NAME
+
+    @property
+    def manifest(self) -> Path:
+        """`backup.json`: only in a backup (`rvis state backup`)."""
+        return self.root / MANIFEST_NAME
+
+    @property
+    def commissioned(self) -> tuple[Path, ...]:
+        """The files the commissioning's last step writes for `rvis run` (app/commission/
+        ready.py): a directory it commissioned is incomplete without them."""
+        return (self.plan, self.cell, self.sensor)
+
+    def carried(self) -> list[Path]:
+        """The files, besides the database, that a backup copies and a restore puts back, in
+        that order (the history first: a copy holds every version its database names); the
+        ones that exist. Private ones (the OPC UA key) are in `private`."""
+        tree = [self.commission, self.verify]
+        files = [
+            *(self.version_file(v) for v in self.versions()),
+            self.current,
+            *self.commissioned,
+            *(p for d in tree if d.is_dir() for p in sorted(d.rglob("*"))),
+            self.opcua_cert,
+            self.opcua_key,
+            *(sorted(self.opcua_trusted.glob("*")) if self.opcua_trusted.is_dir() else []),
+        ]
+        return [p for p in files if p.is_file() and not p.is_symlink()]
+
+    @property
+    def private(self) -> tuple[Path, ...]:
+        """Files only the service's user may read (0600 whatever the group)."""
+        return (self.opcua_key,)
 
     def current_version(self) -> int | None:
         """The parameters version `params/current.json` holds (None before the first apply);
@@ -269,12 +373,12 @@ def disk_usage_mb(root: Path) -> float:
 
 
 __all__ = [
-    "DB_NAME",
     "SOCKET_MODE",
-    "SOCKET_NAME",
     "ServiceLock",
     "StateDir",
     "disk_usage_mb",
     "holder_pid",
     "prepare",
+    "version_name",
+    "version_of",
 ]

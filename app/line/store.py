@@ -348,6 +348,15 @@ class Store:
     def last_measurement_id(self) -> int:
         return int(self._rows("SELECT COALESCE(MAX(id), 0) AS n FROM measurements")[0]["n"])
 
+    def last_time(self) -> float | None:
+        """The latest time [s, the service's clock] the database records (None: empty)."""
+        r = self._rows(
+            "SELECT MAX(t) AS t FROM (SELECT MAX(t) AS t FROM events"
+            " UNION ALL SELECT MAX(t) FROM measurements UNION ALL SELECT MAX(t) FROM applied)"
+        )
+        t = r[0]["t"] if r else None
+        return None if t is None else float(t)
+
     def counts(self) -> dict[str, int]:
         out = {"ok": 0, "rejected": 0}
         for r in self._rows("SELECT status, COUNT(*) AS n FROM measurements GROUP BY status"):
@@ -438,10 +447,14 @@ class Store:
             db.execute("UPDATE alarms SET message = ? WHERE id = ?", (message, alarm_id))
 
     def ack_alarm(self, alarm_id: int, t: float, uid: int | None) -> bool:
+        """Acknowledge an alarm nobody has acknowledged yet: a raised one (it becomes acked)
+        or one that cleared meanwhile (ISA-18.2's "returned to normal, unacknowledged": it
+        stays cleared, acknowledged now). False when there is none such."""
         with self._tx() as db:
             n = db.execute(
-                "UPDATE alarms SET state = 'acked', t_acked = ?, acked_uid = ?"
-                " WHERE id = ? AND state = 'raised'",
+                "UPDATE alarms SET t_acked = ?, acked_uid = ?,"
+                " state = CASE state WHEN 'raised' THEN 'acked' ELSE state END"
+                " WHERE id = ? AND t_acked IS NULL AND state IN ('raised', 'cleared')",
                 (t, uid, alarm_id),
             ).rowcount
         return n == 1

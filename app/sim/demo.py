@@ -28,6 +28,7 @@ from app.formats.report import (
     stats_rows,
     text_table,
 )
+from app.line.statedir import PLAN_NAME
 from app.meta import provenance
 from app.planning import plan_to_json, run_plan
 from app.sim.cell import (
@@ -205,7 +206,8 @@ def _write_run(
             d / "params_planned.json", to_json(model, pr.result, demo.gates(pr.result), meta)
         )
         plan_doc = plan_to_json(demo.cfg, model, demo.result.x, pr.plan)
-        write_json(d / "plan.json", {**plan_doc, "provenance": meta})
+        # named as a state directory names its plan: `rvis run --plan` or a copy to STATE_DIR
+        write_json(d / PLAN_NAME, {**plan_doc, "provenance": meta})
     report: dict[str, Any] = {
         "provenance": meta,
         "quality_gates": demo.gates(demo.result).to_json(),

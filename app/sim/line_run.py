@@ -18,6 +18,7 @@ import contextlib
 import dataclasses
 import queue
 import threading
+import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -36,6 +37,7 @@ from app.line.settings import ServiceSettings, from_cell
 from app.line.statedir import StateDir
 from app.line.states import State
 from app.line.station import Station, cell_guard
+from app.line.store import Store
 from app.sim.cell import make_cell, simulated_sets, true_sensor_model
 from app.sim.truth import EndToEndTruth
 from calib import candidates
@@ -110,6 +112,22 @@ def simline_settings(
         camera_readout_s=s.camera_readout_s,
         galvo_settle_s=s.galvo_settle_s,
     )
+
+
+def continued_epoch(state_dir: Path, start_epoch: float | None = None) -> float:
+    """The Unix time a simulated line's clock starts at: `start_epoch` (default now), or just
+    after the last time the state directory's database records when that is later (a run
+    before ran ahead)."""
+    now = time.time() if start_epoch is None else start_epoch
+    db = StateDir(state_dir).db
+    if not db.is_file():
+        return now
+    store = Store.read_only(db)
+    try:
+        last = store.last_time()
+    finally:
+        store.close()
+    return now if last is None else max(now, last + 1.0)
 
 
 def with_simulated_plc(cfg: CellConfig) -> CellConfig:
@@ -204,7 +222,11 @@ class SimulatedLineRun:
         cfg = with_simulated_plc(cfg)
         self.cfg, self.state_dir, self.seed = cfg, Path(state_dir), seed
         self.cell = make_cell(cfg, seed=seed)
-        setup = simline_settings(cfg, geometric=geometric, pace=pace, start_epoch=start_epoch)
+        # the service's clock never goes back: on a state directory with a history, the
+        # simulated line's time starts where that history ends (else its records would
+        # interleave with an earlier run's, which ran ahead of the wall clock)
+        epoch = continued_epoch(self.state_dir, start_epoch)
+        setup = simline_settings(cfg, geometric=geometric, pace=pace, start_epoch=epoch)
         self.line = SimLine(self.cell, setup)
         self.pace = pace
         self.settings = service_settings(cfg, self.state_dir)

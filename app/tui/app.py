@@ -29,6 +29,7 @@ from textual.widgets import (
 )
 from textual.worker import Worker
 
+from app.line.statedir import StateDir
 from app.tui import view
 from app.tui.client import Event, ServiceClient, ServiceUnavailable
 from app.tui.history import HistoryReader
@@ -74,14 +75,16 @@ class RvisTui(App[None]):
     def __init__(self, state_dir: str | Path) -> None:
         super().__init__()
         self.state_dir = Path(state_dir)
-        self.history = HistoryReader(self.state_dir / "rvis.db")
-        self.client = ServiceClient(self.state_dir / "rvis.sock", self._on_event, self._on_link)
+        paths = StateDir(self.state_dir)
+        self.history = HistoryReader(paths.db)
+        self.client = ServiceClient(paths.socket, self._on_event, self._on_link)
         self.status: dict[str, Any] | None = None
         self.connection = (False, "connecting ...")
         self.events_seen = 0
         self._dirty = False
         self._refresher: Worker[None] | None = None
         self._shown: dict[str, list[Sequence[Any]]] = {}  # the rows each table shows
+        self._alarms: list[dict[str, Any]] = []  # the Alarms table's alarms, in its order
         #: the wall clock of the ages shown (replaced in the screenshot tests)
         self.now: Callable[[], datetime] = lambda: datetime.now(UTC)
 
@@ -105,8 +108,9 @@ class RvisTui(App[None]):
                 yield DataTable(id="calibrations-table", cursor_type="row")
                 yield Label("Parameter versions (b: roll back to the selected one):")
                 yield DataTable(id="versions-table", cursor_type="row")
-            with TabPane("4 Alarms", id="alarms"):
+            with TabPane("4 Alarms", id="alarms"), Vertical():
                 yield DataTable(id="alarms-table", cursor_type="row")
+                yield Static("no alarm selected", id="alarm-detail")  # the selected one whole
             with TabPane("5 Devices", id="devices"):
                 yield DataTable(id="devices-table", cursor_type="row")
             with TabPane("6 Log", id="log"), Vertical():
@@ -122,7 +126,15 @@ class RvisTui(App[None]):
             "pending": ("parameter", "unit", "current", "pending", "change", "std", "|chg|/std"),
             "calibrations-table": ("cal", "time (UTC)", "status", "version", "RMS mm", "gates"),
             "versions-table": ("version", "in force since (UTC)", "source", "cal"),
-            "alarms-table": ("id", "prio", "state", "raised (UTC)", "alarm", "shelved"),
+            "alarms-table": (
+                "id",
+                "prio",
+                "state",
+                "raised (UTC)",
+                "acked by",
+                "alarm",
+                "shelved",
+            ),
             "devices-table": ("device", "URL", "state", "last error (UTC)", "error"),
             "log-table": ("time (UTC)", "event", "what happened"),
             "suspects-table": ("id", "from (UTC)", "to (UTC)", "size mm", "what"),
@@ -143,6 +155,7 @@ class RvisTui(App[None]):
         if connected:
             self.refresh_all()
         else:
+            self.status = None  # no reply, no facts: the screens say "unknown" (app.tui.view)
             self._show_status()
 
     async def _on_event(self, event: Event) -> None:
@@ -185,7 +198,9 @@ class RvisTui(App[None]):
                 reply = await self.client.request("status")
                 self.status = reply if reply.get("ok") else self.status
             except ServiceUnavailable:
-                pass
+                self.status = None
+        else:
+            self.status = None
         self._show_status()
         sphere = self.query_one("#sphere-filter", Input).value.strip() or None
         text = self.query_one("#log-filter", Input).value.strip()
@@ -232,7 +247,12 @@ class RvisTui(App[None]):
         pending = (self.status or {}).get("pending")
         title = self.query_one("#pending-title", Static)
         if not pending:
-            title.update("no calibration pending")
+            unknown = self.status is None or "pending" not in self.status
+            title.update(
+                "pending calibration unknown (no reply from the service)"
+                if unknown
+                else "no calibration pending"
+            )
             self._fill("pending", [])
             return
         gates = pending.get("gates") or {}
@@ -259,13 +279,26 @@ class RvisTui(App[None]):
             self._fill("versions-table", view.version_rows(hist["applied"]))
         if "alarms" in hist:
             alarms = hist["alarms"] or list((self.status or {}).get("alarms") or [])
-            self._fill("alarms-table", view.alarm_rows(alarms))
+            self._alarms = sorted(alarms, key=lambda a: a.get("id", 0), reverse=True)
+            self._fill("alarms-table", view.alarm_rows(self._alarms))
+            self._show_alarm_detail()
         if "events" in hist:
             self._fill("log-table", view.log_rows(hist["events"]))
         if "recent" in hist:
             self._show_drift(hist["recent"])
         if "suspects" in hist:
             self._fill("suspects-table", view.suspect_rows(hist["suspects"]))
+
+    def on_data_table_row_highlighted(self, event: DataTable.RowHighlighted) -> None:
+        if event.data_table.id == "alarms-table":
+            self._show_alarm_detail()
+
+    def _show_alarm_detail(self) -> None:
+        """The selected alarm whole under the table: its text, who acknowledged it, when."""
+        table: DataTable[Any] = self.query_one("#alarms-table", DataTable)
+        row = table.cursor_row
+        selected = self._alarms[row] if 0 <= row < len(self._alarms) else None
+        self.query_one("#alarm-detail", Static).update(Text(view.alarm_detail(selected)))
 
     def _fill(self, table_id: str, rows: Sequence[Sequence[Any]]) -> None:
         """Replace a table's rows (unless unchanged), keeping the cursor on the same row index."""
@@ -304,6 +337,8 @@ class RvisTui(App[None]):
     # -- actions -----------------------------------------------------------------------------
     def action_show(self, pane: str) -> None:
         self.query_one(TabbedContent).active = pane
+        if pane == "alarms":  # up/down select an alarm at once: its text whole under the table
+            self.query_one("#alarms-table", DataTable).focus()
 
     def on_input_submitted(self) -> None:
         self.refresh_all()

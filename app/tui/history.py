@@ -69,6 +69,8 @@ class HistoryReader:
                 **r,
                 "text": r.get("message", ""),
                 "raised_utc": _utc(r.get("t_raised")),
+                "acked_utc": _utc(r.get("t_acked")),
+                "cleared_utc": _utc(r.get("t_cleared")),
                 "shelved_until_utc": _utc(r.get("shelved_until")),
             }
             for r in rows

@@ -2,11 +2,17 @@
 service's status (the socket's `status` reply) and of its history (the database), so that the
 Textual widgets only place them. Abnormal values carry a style class; normal ones none
 (ISA-101: colour only for the abnormal, and never colour alone: the text says it too).
+
+Without a status reply (no service, or the connection lost) nothing the reply would say is
+stated: the values read "unknown" or "-", never a default that looks like a fact (a line "not
+running", a heartbeat "lost", "all 0 devices OK"). Times are the service's clock throughout:
+the history's times are its, and ages are counted on its `now_utc`.
 """
 
 from __future__ import annotations
 
 import json
+import pwd
 from datetime import UTC, datetime
 from typing import Any
 
@@ -59,16 +65,32 @@ def num(value: Any, fmt: str = ".3f", unit: str = "") -> str:
     return "-"
 
 
+UNKNOWN = "unknown"
+
+
+def window_text(status: dict[str, Any] | None) -> str:
+    """The clamp window, the same words on the status line and the Overview: "window OPEN
+    12 s left", "window closed", "window unknown" (no reply, or none in it)."""
+    win = (status or {}).get("window")
+    if not isinstance(win, dict) or "open" not in win:
+        return f"window {UNKNOWN}"
+    if not win.get("open"):
+        return "window closed"
+    return "window OPEN " + num(win.get("remaining_s"), ".0f", " s left")
+
+
+def _yes_no(value: Any, yes: str, no: str) -> str:
+    """A boolean of the reply in words; "unknown" when the reply does not say."""
+    return UNKNOWN if not isinstance(value, bool) else (yes if value else no)
+
+
 def status_line(
     status: dict[str, Any] | None, connected: bool, detail: str, now: datetime | None = None
 ) -> str:
     """The one-line summary at the top of every screen (fits 80 columns when normal)."""
     if not connected or status is None:
         return f"DISCONNECTED - {detail}"
-    win = status.get("window") or {}
-    window = (
-        f"window {num(win.get('remaining_s'), '.0f', ' s')}" if win.get("open") else ("no window")
-    )
+    window = window_text(status)
     cal = status.get("calibration") or {}
     version = cal.get("version")
     calib = (
@@ -84,25 +106,38 @@ def status_line(
 
 def overview_text(status: dict[str, Any] | None) -> str:
     """The Overview's lines: service, line (running, PLC heartbeat, window), devices that are
-    not OK, counters."""
-    s = status or {}
+    not OK, counters; "unknown" for what there is no reply about (module docstring)."""
+    if status is None:
+        return "\n".join(
+            (
+                f"Service   {UNKNOWN} (no reply from the service)",
+                f"Line      running {UNKNOWN}, PLC heartbeat {UNKNOWN}, window {UNKNOWN}",
+                f"Cell      {UNKNOWN}",
+                f"Devices   {UNKNOWN}",
+                "Counters  -",
+                "Knock     -",
+            )
+        )
+    s = status
     win, counts = s.get("window") or {}, s.get("counters") or {}
-    window = "closed"
-    if win.get("open"):
-        window = "OPEN " + num(win.get("remaining_s"), ".0f", " s left")
-    heartbeat = "alive" if win.get("heartbeat_alive") else "LOST"
-    running = "yes" if win.get("line_running") else "NO"
+    heartbeat = _yes_no(win.get("heartbeat_alive"), "alive", "LOST")
+    running = _yes_no(win.get("line_running"), "yes", "NO")
     temp = s.get("cell_temp_c")
-    cell = "no cell temperature" if temp is None else num(temp, ".2f", " degC")
+    cell = (
+        UNKNOWN
+        if "cell_temp_c" not in s
+        else ("no cell temperature" if temp is None else num(temp, ".2f", " degC"))
+    )
     devices = device_rows(status)
     bad = [f"{d[0]} {d[2]}" for d in devices if d[2] not in ("OK", "OPEN")]
+    device_text = ", ".join(bad) or (f"all {len(devices)} OK" if devices else UNKNOWN)
     return "\n".join(
         (
-            f"Service   {s.get('state', '-')}   step: {s.get('step', '-')}",
-            f"Line      running {running}, PLC heartbeat {heartbeat}, window {window}",
+            f"Service   {s.get('state', UNKNOWN)}   step: {s.get('step') or '-'}",
+            f"Line      running {running}, PLC heartbeat {heartbeat}, {window_text(s)}",
             f"Cell      {cell}",
-            "Devices   " + (", ".join(bad) if bad else f"all {len(devices)} OK"),
-            "Counters  " + ", ".join(f"{k} {v}" for k, v in counts.items()),
+            f"Devices   {device_text}",
+            "Counters  " + (", ".join(f"{k} {v}" for k, v in counts.items()) or "-"),
             "Knock     " + knock_text(s),
         )
     )
@@ -296,8 +331,36 @@ def _failures(failures: Any) -> str:
     return "; " + "; ".join(str(f) for f in failures) if failures else ""
 
 
+def user_name(uid: Any) -> str:
+    """Who a uid is on this machine ("alice"; "uid 1001" without an account; "-")."""
+    if not isinstance(uid, int) or isinstance(uid, bool):
+        return "-"
+    try:
+        return pwd.getpwuid(uid).pw_name
+    except KeyError:
+        return f"uid {uid}"
+
+
+def alarm_state(a: dict[str, Any]) -> str:
+    """ISA-18.2's state: RAISED (unacknowledged), ACKED, SHELVED, CLEARED (acknowledged), or
+    CLEARED UNACK (returned to normal without an acknowledgement: it can still be acked)."""
+    state = str(a.get("state", "")).upper()
+    if state == "CLEARED" and a.get("t_acked") is None and "t_acked" in a:
+        return "CLEARED UNACK"
+    return state
+
+
+def acked_text(a: dict[str, Any]) -> str:
+    """Who acknowledged the alarm and when ("-": nobody yet)."""
+    if a.get("t_acked") is None:
+        return "-"
+    who = "OPC UA" if a.get("acked_uid") is None else user_name(a.get("acked_uid"))
+    return f"{who} {time_text(a.get('acked_utc'))[11:16]}".strip()
+
+
 def alarm_rows(alarms: list[dict[str, Any]]) -> list[tuple[Any, ...]]:
-    """(id, priority, state, raised, text, shelved until/reason) per alarm, newest first."""
+    """(id, priority, state, raised, acked by, text, shelved until/reason) per alarm, newest
+    first."""
     rows = []
     for a in sorted(alarms, key=lambda a: a.get("id", 0), reverse=True):
         shelved = a.get("shelved_until_utc") or ""
@@ -307,13 +370,38 @@ def alarm_rows(alarms: list[dict[str, Any]]) -> list[tuple[Any, ...]]:
             (
                 str(a.get("id", "")),
                 priority_cell(str(a.get("priority", "")), str(a.get("state", ""))),
-                str(a.get("state", "")).upper(),
+                alarm_state(a),
                 time_text(a.get("raised_utc")),
+                acked_text(a),
                 str(a.get("text", "")),
                 shelved,
             )
         )
     return rows
+
+
+def alarm_detail(a: dict[str, Any] | None) -> str:
+    """The selected alarm whole (the table cuts its text at the screen's width)."""
+    if a is None:
+        return "no alarm selected"
+    prio = PRIORITY_TEXT.get(str(a.get("priority")), str(a.get("priority", "")))
+    lines = [
+        f"#{a.get('id')} {prio} {a.get('code', '')}, {alarm_state(a)};"
+        f" raised {time_text(a.get('raised_utc'))}"
+    ]
+    if a.get("t_acked") is not None:
+        who = "OPC UA" if a.get("acked_uid") is None else user_name(a.get("acked_uid"))
+        uid = "" if a.get("acked_uid") is None else f" (uid {a.get('acked_uid')})"
+        lines[0] += f"; acknowledged by {who}{uid} at {time_text(a.get('acked_utc'))}"
+    if a.get("cleared_utc"):
+        lines[0] += f"; cleared {time_text(a.get('cleared_utc'))}"
+    if a.get("shelved_until_utc"):
+        lines[0] += (
+            f"; shelved until {time_text(a.get('shelved_until_utc'))}:"
+            f" {a.get('shelve_reason') or ''}"
+        )
+    lines.append(str(a.get("text", "")))
+    return "\n".join(lines)
 
 
 PRIORITY_STYLE = {

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 import signal
 import subprocess
 import sys
@@ -70,8 +71,10 @@ def test_commissioning_resumes_after_a_kill_and_leaves_a_cell_ready_to_run(
     cell.write_text(CELL)
     _kill_at(_commission(cell, state), "calibration view 3/24")
     journal = json.loads((paths.commission / "journal.json").read_text())
-    first = {s["name"]: s for s in journal["steps"]}
+    first = {s["name"]: s for s in journal["steps"] if s["status"] == "passed"}
     assert list(first) == ["devices", "stripe", "sensor", "spheres", "plan"]  # not calibration
+    assert journal["steps"][-1]["name"] == "calibration"
+    assert journal["steps"][-1]["status"] == "started"  # found so next time: interrupted
     assert not paths.current.exists()
 
     cell.write_text(CELL + STRICT)  # the same cell file, a validation limit nothing can meet
@@ -92,6 +95,10 @@ def test_commissioning_resumes_after_a_kill_and_leaves_a_cell_ready_to_run(
     assert "step 6/10 calibration: passed earlier" in out and "step 10/10 ready: passed" in out
     report = json.loads((paths.commission / "commission.json").read_text())
     assert report["complete"] and all(s["status"] == "passed" for s in report["steps"])
+    md = (paths.commission / "commission.md").read_text()  # each step that ran again says so
+    started = journal["steps"][-1]["started_utc"]
+    assert f"Run 2 times: interrupted (started {started}), then passed." in md
+    assert "failed validation RMSE), then passed." in md
     steps = {s["name"]: s for s in report["steps"]}
     validation = steps["validation"]["results"]
     assert validation["rmse_mm"] < 0.1 < 1.0 < validation["rmse_nominal_mm"]
@@ -127,9 +134,12 @@ def test_commissioning_resumes_after_a_kill_and_leaves_a_cell_ready_to_run(
     assert main(_commission(cell, state)) == 0  # all done: nothing runs again
     assert "commissioned already" in capsys.readouterr().out
 
-    run = ["run", "--sim", "--geometric", "--seed", "0", "--windows", "2", "--json"]
-    run += ["--cell", str(paths.cell), "--state-dir", str(state), "--plan", str(paths.plan)]
-    assert main(run) == 0
+    # the command the commissioning prints: the state directory supplies the cell file, the
+    # plan and the sensor, and the line measures as it was commissioned (geometric)
+    run = shlex.split(steps["ready"]["results"]["run"])
+    assert run[:3] == ["rvis", "run", "--sim"] and "--geometric" in run
+    assert "--cell" not in run and "--plan" not in run
+    assert main([*run[1:], "--windows", "2", "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["measurements"] == 2 and summary["true_rmse_start_mm"] < 0.1
     assert ParamsStore(state).current_version() == 1  # it started from the commissioning

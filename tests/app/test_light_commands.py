@@ -80,11 +80,21 @@ class _Service:
 
     def __init__(self) -> None:
         self.asked: list[tuple[str, dict[str, Any]]] = []
+        self.status: dict[str, Any] = {"state": "idle"}
 
-    def request(self, cmd: str, args: dict[str, Any] | None = None, uid: int | None = None) -> Any:
+    def request(
+        self,
+        cmd: str,
+        args: dict[str, Any] | None = None,
+        uid: int | None = None,
+        groups: tuple[int, ...] | None = None,
+    ) -> Any:
         self.asked.append((cmd, args or {}))
         reply: Future[dict[str, Any]] = Future()
-        reply.set_result({"ok": True, "state": "idle", "message": f"{cmd}: done"})
+        if cmd == "status":
+            reply.set_result({"ok": True, **self.status})
+        else:
+            reply.set_result({"ok": True, "state": "idle", "message": f"{cmd}: done"})
         return reply
 
 
@@ -126,6 +136,48 @@ def test_status_and_ctl_through_the_socket(state: StateDir, service: _Service) -
     ]
 
 
+def test_plain_status_says_the_step_temperature_devices_and_drift(
+    state: StateDir, service: _Service
+) -> None:
+    """Issue 30 item 10: what only `--json` said, in words too."""
+    chart = {"mu_mm": 0.01, "sigma_mm": 0.002, "cusum_mm": 0.0}
+    service.status = {
+        "state": "idle",
+        "step": "waiting for a window",
+        "params_version": 4,
+        "cell_temp_c": 23.46,
+        "devices": {
+            "robot": {"state": "ok", "last_error": None},
+            "plc": {
+                "state": "no heartbeat",
+                "last_error": "PlcTimeout: no answer",
+                "last_error_utc": "2026-11-25T06:00:00Z",
+            },
+        },
+        "drift": {
+            "*": {**chart, "ewma_mm": 0.0131, "drifting": False},
+            "P2": {**chart, "ewma_mm": 0.0412, "drifting": True},
+            "P1": {**chart, "ewma_mm": None, "drifting": False},
+        },
+        "measurements": {"ok": 12, "rejected": 1},
+        "alarms": [],
+    }
+    run = rvis("status", "--state-dir", str(state.root))
+    assert run.code == 0, run.err
+    lines = run.out.splitlines()
+    assert "state               idle: waiting for a window" in lines
+    assert "cell temperature    23.5 degC" in lines
+    assert "devices             robot ok, plc no heartbeat" in lines
+    assert "  plc: last error PlcTimeout: no answer (2026-11-25T06:00:00Z)" in lines
+    assert (
+        "drift               EWMA of the residual, mm: all 0.013, P1 -, P2 0.041;"
+        " drifting: P2" in lines
+    )
+    service.status = {**service.status, "cell_temp_c": None}
+    assert "cell temperature    unknown" in rvis("status", "--state-dir", str(state.root)).out
+    assert run.heavy() == set()
+
+
 def test_ctl_without_a_service(state: StateDir) -> None:
     run = rvis("ctl", "resume", "--state-dir", str(state.root))
     (line,) = run.err
@@ -139,6 +191,9 @@ def test_state_check_and_suspects_read_the_database_only(state: StateDir) -> Non
     assert run.code == 0, findings["problems"]
     assert findings["parameters"]["current_version"] == 3 and findings["service_pid"] is None
     assert run.heavy() == set()
+    run = rvis("state", "check", "--state-dir", str(state.root))  # words, not a Python dict
+    assert run.code == 0 and "{" not in run.out
+    assert "measurements 0 ok, 0 rejected" in run.out and "commissioned     no" in run.out
     run = rvis("state", "suspects", "--json", "--state-dir", str(state.root))
     assert run.code == 0, run.err
     (interval,) = json.loads(run.out)

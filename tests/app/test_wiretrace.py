@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from app.commands.cli import main
+from app.formats.wiretrace import TraceRecord, format_records
 from app.line.statedir import StateDir
 
 
@@ -38,6 +39,55 @@ def test_a_simulated_run_traces_every_device_and_the_trace_prints(
     assert main(["devices", "trace", str(path), "--json"]) == 0
     printed = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
     assert len(printed) == len(lines) - 1 and all(r["wall"] > 1e9 for r in printed)
+
+    # the PLC's polls that changed nothing fold (issue 30 item 10); --all prints every record
+    plc = [r for r in lines[1:] if r["dev"] == "plc"]
+    assert main(["devices", "trace", str(path), "--device", "plc", "--all"]) == 0
+    assert len(capsys.readouterr().out.splitlines()) == len(plc)
+    assert main(["devices", "trace", str(path), "--device", "plc"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    folds = [
+        line for line in out if line.endswith("lines of plc polls: nothing changed but counters)")
+    ]
+    assert folds and len(out) < len(plc) / 5
+    folded = sum(int(line.split("(")[1].split()[0]) for line in folds)
+    assert folded + len(out) - len(folds) == len(plc)  # every record printed or counted
+
+
+def _records(*exchanges: tuple[str, str]) -> list[TraceRecord]:
+    out = []
+    for k, (request, reply) in enumerate(exchanges):
+        out += [TraceRecord(2 * k, "plc", ">", request), TraceRecord(2 * k + 1, "plc", "<", reply)]
+    return out
+
+
+def test_a_poll_folds_when_only_counters_moved_and_a_change_prints() -> None:
+    # the PLC's heartbeat (word 1) steps by 3 per poll (a fast simulated clock), the service's
+    # (the write's last number) by 1; word 0 is the window bit: 2 (line running), 3 (open)
+    def poll(k: int, bits: int = 2) -> tuple[str, str]:
+        return ("read 0 count 3", f"fc3 0: [{bits}, {80 + 3 * k}, 2009]")
+
+    def beat(k: int) -> tuple[str, str]:
+        return (f"write 10: [0, {1500 + k}]", "fc16 10: ok")
+
+    exchanges = [x for k in range(10) for x in (poll(k), beat(k))]
+    exchanges += [poll(10, bits=3), beat(10), poll(11, bits=3), beat(11), poll(12)]
+    out = [line[30:] for line in format_records(_records(*exchanges), fold=True)]  # no times
+    shown = [line for line in out if "polls:" not in line]
+    assert shown == [
+        # the first exchange of each shape, and the counters' first two steps (learning)
+        *("plc      >  read 0 count 3", "plc      <  fc3 0: [2, 80, 2009]  [1000.00 ms]"),
+        *("plc      >  write 10: [0, 1500]", "plc      <  fc16 10: ok  [1000.00 ms]"),
+        *("plc      >  read 0 count 3", "plc      <  fc3 0: [2, 83, 2009]  [1000.00 ms]"),
+        *("plc      >  write 10: [0, 1501]", "plc      <  fc16 10: ok  [1000.00 ms]"),
+        *("plc      >  read 0 count 3", "plc      <  fc3 0: [2, 86, 2009]  [1000.00 ms]"),
+        *("plc      >  write 10: [0, 1502]", "plc      <  fc16 10: ok  [1000.00 ms]"),
+        # the window opens and closes: changes, printed however the heartbeat moved
+        *("plc      >  read 0 count 3", "plc      <  fc3 0: [3, 110, 2009]  [1000.00 ms]"),
+        *("plc      >  read 0 count 3", "plc      <  fc3 0: [2, 116, 2009]  [1000.00 ms]"),
+    ]
+    assert "plc      .  (28 lines of plc polls: nothing changed but counters)" in out
+    assert len(list(format_records(_records(*exchanges)))) == 2 * len(exchanges)  # --all
 
 
 def test_rotated_files_print_oldest_first_and_bad_lines_are_named(

@@ -46,9 +46,9 @@ def test_status_and_ctl_talk_to_the_running_service(
     code, out, _ = _cli(capsys, ["ctl", "--state-dir", str(tmp_path), "pause"])
     assert (code, out.strip()) == (0, "paused")
     code, out, _ = _cli(capsys, ["status", "--state-dir", str(tmp_path)])
-    assert out.splitlines()[0].split() == ["state", "paused", "(paused)"]
+    assert out.splitlines()[0] == "state               paused: paused by the operator"
     code, _, err = _cli(capsys, ["ctl", "--state-dir", str(tmp_path), "ack", "42"])
-    assert code == 1 and err.strip() == "rvis ctl: error: no raised alarm 42"
+    assert code == 1 and err.strip() == "rvis ctl: error: no unacknowledged alarm 42"
     with pytest.raises(SystemExit) as exit_info:
         main(["ctl", "--state-dir", str(tmp_path), "rollback", "x"])
     assert exit_info.value.code == 2 and "invalid int value" in capsys.readouterr().err

@@ -56,7 +56,7 @@ def test_commands_are_executed_and_audited_with_the_peer_uid(served: tuple[Line,
         assert ln.service.counters["windows"] == windows
         assert c.request("resume")["ok"]
         bad = c.request("ack", {"alarm": 99})
-        assert bad == {"id": 3, "ok": False, "error": "no raised alarm 99"}
+        assert bad == {"id": 3, "ok": False, "error": "no unacknowledged alarm 99"}
         assert c.request("ack", {"alarm": "x"})["error"] == "'alarm' must be an integer"
         assert c.request("reset")["error"] == "nothing to reset in state idle"
         assert c.request("fly")["error"] == "unknown command 'fly'"
@@ -87,7 +87,7 @@ def test_bad_request_lines_get_an_error_and_the_connection_stays(
         }
         assert c.request("status")["ok"]
         c.sock.sendall(b'{"id": 9, "cmd": "ack", "alarm": 99}\n')  # arguments next to cmd
-        assert c.read() == {"id": 9, "ok": False, "error": "no raised alarm 99"}
+        assert c.read() == {"id": 9, "ok": False, "error": "no unacknowledged alarm 99"}
 
 
 def test_subscribe_streams_the_events(served: tuple[Line, Path]) -> None:

@@ -55,12 +55,14 @@ def test_rollback_makes_an_earlier_version_current(tmp_path: Path) -> None:
         store.rollback(17)
 
 
-def test_stale_temporary_files_are_removed(tmp_path: Path) -> None:
+def test_stale_temporary_files_are_removed_by_the_writer_only(tmp_path: Path) -> None:
     store = ParamsStore(tmp_path)
     store.apply(_doc(0.0))
     stale = store.dir / ".current.json.abc.tmp"
     stale.write_text("{", encoding="utf-8")
-    ParamsStore(tmp_path)
+    ParamsStore(tmp_path)  # a reader: cleans nothing
+    assert stale.exists()
+    assert ParamsStore(tmp_path).remove_stale() == 1  # the service, at start
     assert not stale.exists()
 
 

@@ -34,3 +34,43 @@ def test_run_sim_geometric_windows_json(tmp_path: Path, capsys: pytest.CaptureFi
 def test_sim_options_need_sim(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["run", "--windows", "3"]) == 2
     assert "need --sim" in capsys.readouterr().err
+
+
+def test_the_state_directory_supplies_the_cell_file_and_the_plan(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`rvis run --sim --state-dir S` reads S/cell.toml and S/plan.json (as `rvis commission`
+    leaves them) when --cell and --plan do not name others; each is checked as it is read."""
+    state = tmp_path / "state"
+    state.mkdir()
+    run = ["run", "--sim", "--geometric", "--windows", "1", "--state-dir", str(state)]
+    (state / "cell.toml").write_text("[service]\nevery_n = -3\n")
+    assert main(run) == 2
+    err = capsys.readouterr().err
+    assert "cell.toml" in err and "every_n" in err
+    (state / "cell.toml").write_text("[simulation]\nseed = 5\n")
+    (state / "plan.json").write_text("{ not a plan")
+    assert main(run) == 2
+    assert "plan.json" in capsys.readouterr().err
+    assert main([*run, "--plan", str(tmp_path / "none.json")]) == 2  # --plan names another
+    assert "none.json" in capsys.readouterr().err
+
+
+def test_a_restarted_simulated_line_continues_the_services_clock(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The simulated line runs ahead of the wall clock; run again on the same state directory
+    its clock starts where the history ends, so that every record (the Calibrations screen's
+    versions and calibrations, the measurements) is on one timeline (issue 30 item 8)."""
+    state = tmp_path / "state"
+    run = ["run", "--sim", "--geometric", "--windows", "3", "--json", "--state-dir", str(state)]
+    assert main(run) == 0
+    with sqlite3.connect(state / "rvis.db") as db:
+        first_last = db.execute("SELECT MAX(t) FROM events").fetchone()[0]
+    assert main(run) == 0
+    capsys.readouterr()
+    with sqlite3.connect(state / "rvis.db") as db:
+        times = [r[0] for r in db.execute("SELECT t FROM events ORDER BY id")]
+        started = db.execute("SELECT t FROM events WHERE kind = 'started' ORDER BY id").fetchall()
+    assert len(started) == 2 and started[1][0] > first_last
+    assert times == sorted(times)  # never back in time

@@ -5,6 +5,7 @@ a restart that resumes the schedule. Waits are on events and conditions, never s
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -227,3 +228,37 @@ def test_parameters_applied_just_before_a_crash_are_recorded_at_restart(
         (1, "initial"),
         (2, "recovered"),
     ]
+
+
+def test_recalibrating_on_the_measurements_in_force_waits_for_a_new_one(
+    tmp_path: Path, lines: list[Line]
+) -> None:
+    """Issue 30 item 7: "recalibrate now" right after a calibration on the same measurements
+    would apply a copy of the version in force; it is skipped, said in the reply and as an
+    event, and runs once a new measurement arrives."""
+    ln = make_line(tmp_path, cycle=LONG, line=line_settings(window_s=32.0, slots_per_window=8))
+    lines.append(ln)
+    # every candidate passes (this test is about which measurements, not about the gates)
+    gates = dataclasses.replace(ln.service.settings.gates, max_holdout_ratio=None)
+    ln.service.settings = dataclasses.replace(ln.service.settings, gates=gates)
+    ln.start()
+    ln.wait(lambda e: e["event"] == "recalibration_started", 60.0)
+    assert ln.service.request("pause").result(30)["ok"]  # no new measurement from here on
+    ln.wait(lambda e: e["event"] == "parameters_applied", 60.0)
+    reply = ln.service.request("recalibrate").result(30)
+    if not reply["waits"]:  # measurements came after that calibration's: one on them first
+        assert reply["message"] == "recalibration requested: it starts now"
+        ln.wait(lambda e: e["event"] == "parameters_applied", 60.0)
+        reply = ln.service.request("recalibrate").result(30)
+    version = ln.service.version
+    assert reply["ok"] and reply["waits"]
+    assert reply["message"] == (
+        f"recalibration requested: the parameters in force (version {version}) were trained"
+        " on the current measurements: it runs after the next window's measurement"
+    )
+    skipped = ln.wait(lambda e: e["event"] in ("recalibration_skipped", "recalibration_started"))
+    assert skipped["event"] == "recalibration_skipped" and skipped["version"] == version
+    assert ln.service.request("resume").result(30)["ok"]
+    started = ln.wait(lambda e: e["event"] == "recalibration_started", 60.0)
+    assert started["last_id"] > skipped["last_id"]  # on a set with the new measurement
+    assert ln.service.version == version

@@ -97,6 +97,20 @@ def test_measurements_round_trip_and_move_the_schedule_position(tmp_path: Path) 
     store.close()
 
 
+def test_an_alarm_that_cleared_unacknowledged_can_still_be_acknowledged(tmp_path: Path) -> None:
+    """ISA-18.2: an alarm that returned to normal before anybody acknowledged it is still
+    unacknowledged; acknowledging it records who and when, and it stays cleared."""
+    store = Store(tmp_path / "rvis.db")
+    a = store.raise_alarm(1.0, "plc_heartbeat", "PLC heartbeat lost", "high")
+    assert store.clear_alarms(2.0, "plc_heartbeat") == 1
+    assert store.ack_alarm(a, 3.0, uid=1000)
+    assert not store.ack_alarm(a, 4.0, uid=1001)  # once
+    (row,) = store.alarms()
+    assert (row["state"], row["t_acked"], row["acked_uid"]) == ("cleared", 3.0, 1000)
+    assert store.active_alarms() == []
+    store.close()
+
+
 def test_alarm_life_cycle(tmp_path: Path) -> None:
     store = Store(tmp_path / "rvis.db")
     a = store.raise_alarm(1.0, "drift", "drift of P1", "medium")

@@ -268,7 +268,7 @@ def test_a_backup_taken_while_running_restores_to_a_service_that_carries_on(
     service: ServiceProcess, tmp_path: Path, cell: Path
 ) -> None:
     backup = tmp_path / "backup"
-    out = rvis("state", "backup", str(backup), "--state-dir", str(service.state_dir))
+    out = rvis("state", "backup", str(backup), "--state-dir", str(service.state_dir), "--json")
     assert out.returncode == 0, out.stderr
     manifest = json.loads(out.stdout)
     assert manifest["integrity"] == ["ok"] and manifest["applied_version"] >= 1

@@ -125,14 +125,33 @@ HISTORY: dict[str, list[dict[str, Any]]] = {
         {"version": 2, "utc": "2026-11-22T22:40:00", "source": "auto", "calibration_id": 1},
         {"version": 1, "utc": "2026-11-22T08:00:00", "source": "initial", "calibration_id": None},
     ],
-    "alarms": [
-        {**STATUS["alarms"][0], "shelved_until_utc": ""},
+    "alarms": [  # as app.tui.history reads them (every column of the alarms table)
+        {**STATUS["alarms"][0], "t_acked": None, "acked_uid": None, "shelved_until_utc": ""},
         {
             "id": 6,
+            "code": "plc_heartbeat",
             "priority": "high",
-            "state": "cleared",
+            "state": "cleared",  # and never acknowledged (ISA-18.2: returned to normal, unack)
             "raised_utc": "2026-11-23T04:01:00",
+            "cleared_utc": "2026-11-23T04:03:10",
+            "t_acked": None,
+            "acked_uid": None,
             "text": "PLC heartbeat lost: no window is used until it returns",
+            "shelved_until_utc": "",
+        },
+        {
+            "id": 5,
+            "code": "device_fault",
+            "priority": "urgent",
+            "state": "cleared",
+            "raised_utc": "2026-11-23T04:12:09",
+            "acked_utc": "2026-11-23T04:15:30",
+            "cleared_utc": "2026-11-23T04:20:00",
+            "t_acked": 1795407330.0,
+            "acked_uid": 0,
+            "text": "robot: DeviceFault: SRVO-050 Collision Detect Alarm (G:1 A:2): the robot is"
+            " stopped, the PLC fault bit set; nothing moves until an operator resets the cell"
+            " after removing the cause",
             "shelved_until_utc": "",
         },
     ],
