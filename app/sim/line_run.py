@@ -247,7 +247,8 @@ class SimulatedLineRun:
         self._stack = contextlib.ExitStack()
         self.thread: threading.Thread | None = None
         self._gate = threading.Condition()
-        self._hold_at = float("inf")  # hold the service after this many windows
+        self._hold_at = float("inf")  # hold the service after this many windows of this run
+        self._windows_before = 0
         self._held = False
         self._closing = False
 
@@ -308,6 +309,8 @@ class SimulatedLineRun:
             recalibrator=recalibrator,
         )
         self.service.after_window = self._hold
+        # a restarted state directory's service counts its windows on: hold by this run's
+        self._windows_before = int(self.service.counters.get("windows", 0))
         self.events = self.service.bus.subscribe(every=True)
         if self.service.params.version_path(1).is_file():
             self.x_commissioning = self._x_of(1)
@@ -327,7 +330,10 @@ class SimulatedLineRun:
         """In the service's loop after each window: wait there while it has measured the
         windows asked for (its virtual time stands meanwhile)."""
         with self._gate:
-            while self.service.counters["windows"] >= self._hold_at and not self._closing:
+            while (
+                self.service.counters["windows"] - self._windows_before >= self._hold_at
+                and not self._closing
+            ):
                 self._held = True
                 self._gate.notify_all()
                 self._gate.wait()

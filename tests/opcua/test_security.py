@@ -139,7 +139,8 @@ def test_backup_and_restore_keep_the_cells_opcua_identity(
     cert, _key = asyncio.run(_client_cert(tmp_path, "historian"))
     (paths.opcua_trusted / "historian.der").write_bytes(cert.read_bytes())
     manifest = backup(paths, tmp_path / "backup")
-    assert manifest["opcua_files"] >= 3
+    carried = {paths.root / f for f in manifest["files"]}
+    assert {paths.opcua_cert, paths.opcua_key, paths.opcua_trusted / "historian.der"} <= carried
     restored = StateDir(tmp_path / "restored")
     restore(tmp_path / "backup", restored)
     assert restored.opcua_cert.read_bytes() == paths.opcua_cert.read_bytes()
