@@ -16,7 +16,7 @@ from calib.candidates import (
 )
 from calib.configurations import candidate_blocks, choose, revisit, select_configurations
 from calib.errors import EmptyRegion, NoCandidates
-from calib.information import Information
+from calib.information import Information, scaled_blocks
 from calib.model import INDEX, JOINT_NAMES, PAPER_30, unit_of
 from calib.observability import null_space_groups, observability
 from calib.placement import fitness
@@ -350,3 +350,22 @@ def test_revisits_raise_the_criterion_of_the_sequential_choice(cfg: CellConfig) 
     assert seen and seen[0] == ("revisit", 1)
     with pytest.raises(ValueError, match="revisits"):
         PlanSettings(revisits=-1)
+
+
+def test_scaled_blocks_share_the_sweeps_layout_and_scale_without_a_copy(cfg: CellConfig) -> None:
+    """DETMAX's column scale of several block arrays is that of their concatenation, and the
+    scaled blocks are a view of the (L, 3M) array the sweeps read (no second copy)."""
+    J, fixed = _blocks(cfg, "P2"), _blocks(cfg, "P1")[:6]
+    d = detmax.column_scale(fixed, J)
+    assert np.allclose(d, detmax.column_scale(np.concatenate([fixed, J])), rtol=1e-13, atol=0.0)
+    assert np.allclose(d, 1.0 / np.sqrt(np.mean(np.sum(np.concatenate([fixed, J]) ** 2, axis=1),
+                                                axis=0)), rtol=1e-13)  # fmt: skip
+    G = scaled_blocks(J, d)
+    assert np.array_equal(G, J * d) and not G.flags.c_contiguous
+    info = Information(G, fixed * d, "O1", 30)
+    assert np.shares_memory(info.GT, G)
+    m = len(J)
+    for r in range(3):
+        assert np.array_equal(info.GT[:, r * m : (r + 1) * m], (J * d)[:, r, :].T)
+    copied = Information(J * d, fixed * d, "O1", 30)  # any other layout: copied as before
+    assert np.array_equal(copied.GT, info.GT) and not np.shares_memory(copied.GT, J)
