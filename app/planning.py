@@ -48,6 +48,7 @@ PLAN_OPTIONS = (
     "criterion",
     "method",
     "iterations",
+    "patience",
     "swarm_size",
     "grid_step_deg",
     "search_step_deg",
@@ -65,6 +66,12 @@ def add_plan_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--method", choices=METHODS, help="selection method (default detmax)")
     p.add_argument("--iterations", type=int, help="PSO iterations (default 30)")
+    p.add_argument(
+        "--patience",
+        type=int,
+        help="stop a swarm after N iterations without an improvement of its best by more than "
+        "[planning] stall_tolerance (0: run every iteration)",
+    )
     p.add_argument("--swarm", type=int, dest="swarm_size", help="PSO swarm size (default 50)")
     p.add_argument("--grid-step", type=float, dest="grid_step_deg", help="final grid [deg]")
     p.add_argument("--search-step", type=float, dest="search_step_deg", help="PSO grid [deg]")
@@ -84,7 +91,13 @@ def plan_overrides(args: argparse.Namespace) -> dict[str, Any]:
             f"unknown criterion '{out['criterion']}' (choose from {', '.join(CRITERIA)})",
             field="--criterion",
         )
-    for key, lo in (("iterations", 1), ("swarm_size", 2), ("workers", 1), ("revisits", 0)):
+    for key, lo in (
+        ("iterations", 1),
+        ("patience", 0),
+        ("swarm_size", 2),
+        ("workers", 1),
+        ("revisits", 0),
+    ):
         if key in out and out[key] < lo:
             option = "--swarm" if key == "swarm_size" else f"--{key}"
             raise InputError(f"must be >= {lo}, got {out[key]}", field=option)
@@ -108,7 +121,12 @@ def plan_settings(cfg: CellConfig, **overrides: Any) -> tuple[PlanSettings, Feas
         placement=str(p["placement"]),
         grid=grid,
         search_grid=replace(grid, step_deg=max(float(p["search_step_deg"]), grid.step_deg)),
-        swarm=SwarmSettings(n_particles=int(p["swarm_size"]), n_iterations=int(p["iterations"])),
+        swarm=SwarmSettings(
+            n_particles=int(p["swarm_size"]),
+            n_iterations=int(p["iterations"]),
+            patience=int(p["patience"]),
+            tolerance=float(p["stall_tolerance"]),
+        ),
         clearance=Clearance(
             float(p["clearance_above_sphere_mm"]),
             float(p["floor_z_mm"]),
@@ -219,6 +237,8 @@ def plan_to_json(cfg: CellConfig, model: SystemModel, x: F64, result: Plan) -> d
             "max_tilt_deg": s.grid.max_tilt_deg,
             "swarm_size": s.swarm.n_particles,
             "iterations": s.swarm.n_iterations,
+            "patience": s.swarm.patience,
+            "stall_tolerance": s.swarm.tolerance,
             "seed": s.seed,
             "revisits": s.revisits,
             "parameters": list(s.active),

@@ -41,7 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from calib.errors import NoCandidates
-from calib.information import GAIN_CHUNK, RIDGE, Information
+from calib.information import GAIN_CHUNK, RIDGE, Information, scaled_blocks
 from calib.ioptimal import WeightedInformation, check_weight
 from calib.observability import INDEX_NAMES
 
@@ -67,9 +67,11 @@ def check_criterion(name: str) -> str:
     return name
 
 
-def column_scale(J_blocks: F64) -> F64:
-    """Scale factors d (L,) from configuration blocks (K, 3, L): 1 / RMS block column norm."""
-    ms = np.mean(np.sum(J_blocks**2, axis=1), axis=0)
+def column_scale(*J_blocks: F64) -> F64:
+    """Scale factors d (L,) from configuration blocks (K, 3, L), of one array or several taken
+    together (no concatenated copy): 1 / RMS block column norm."""
+    total = sum(np.einsum("kil,kil->l", J, J) for J in J_blocks)
+    ms = np.asarray(total, dtype=float) / max(sum(J.shape[0] for J in J_blocks), 1)
     d: F64 = np.where(ms > 0.0, 1.0 / np.sqrt(np.where(ms > 0.0, ms, 1.0)), 0.0)
     return d
 
@@ -120,8 +122,8 @@ def select(
     if m_cand < n:
         raise NoCandidates(f"{m_cand} candidate configurations, {n} needed")
     J_fix = np.zeros((0, 3, L)) if J_fixed is None else np.asarray(J_fixed, dtype=float)
-    d = column_scale(np.concatenate([J_fix, J_candidates])) if scale is None else scale
-    G, G_fix = J_candidates * d, J_fix * d
+    d = column_scale(J_fix, J_candidates) if scale is None else scale
+    G, G_fix = scaled_blocks(J_candidates, d), J_fix * d
     rank = L
     if criterion not in ("O1", "I"):
         pool_info = np.einsum("kil,kim->lm", G, G) + np.einsum("kil,kim->lm", G_fix, G_fix)

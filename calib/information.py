@@ -32,17 +32,33 @@ GAIN_CHUNK = 1024
 ChunkMap = Callable[[Callable[[int], None], Iterable[int]], Iterator[None]]
 
 
+def scaled_blocks(J_blocks: F64, d: F64) -> F64:
+    """The column-scaled blocks J * d (M, 3, L), as a view of an (L, 3, M) array: the layout
+    of `Information.GT`, which then needs no second copy (on the full grid each is ~100 MB:
+    a fresh array of that size costs its page faults)."""
+    M, _, L = J_blocks.shape
+    GT3 = np.empty((L, 3, M))
+    np.multiply(J_blocks.transpose(2, 1, 0), d[:, None, None], out=GT3)
+    out: F64 = GT3.transpose(2, 1, 0)
+    return out
+
+
 class Information:
     """The information matrix of fixed blocks plus a selection, with its inverse."""
 
     def __init__(self, G: F64, G_fixed: F64, criterion: str, rank: int) -> None:
         L = G.shape[2]
         self.G = G
-        # (L, 3M): the candidates' first rows, then their second rows, then their third
+        # (L, 3M): the candidates' first rows, then their second rows, then their third (G
+        # as `scaled_blocks` makes it is a view of such an array: no copy)
         m = G.shape[0]
-        self.GT = np.empty((L, 3 * m))
-        for r in range(3):
-            self.GT[:, r * m : (r + 1) * m] = G[:, r, :].T
+        GT3 = G.transpose(2, 1, 0)
+        if GT3.flags.c_contiguous:
+            self.GT = GT3.reshape(L, 3 * m)
+        else:
+            self.GT = np.empty((L, 3 * m))
+            for r in range(3):
+                self.GT[:, r * m : (r + 1) * m] = G[:, r, :].T
         self.criterion = criterion
         self.rank = rank
         self.M0 = RIDGE * np.eye(L) + np.einsum("kil,kim->lm", G_fixed, G_fixed)

@@ -170,6 +170,7 @@ class SystemModel:
     #: which model ("rigid" here; calib.compliance.CompliantModel: "compliant") and the
     #: names of its full parameter vector
     _last_constants: list[Any] = field(default_factory=list, init=False, repr=False, compare=False)
+    _last_links: list[Any] = field(default_factory=list, init=False, repr=False, compare=False)
     kind: ClassVar[str] = "rigid"
     names: ClassVar[tuple[str, ...]] = ALL_NAMES
 
@@ -286,68 +287,162 @@ class SystemModel:
         active: Sequence[str],
         temp_c: ArrayLike | None = None,
     ) -> tuple[F64, F64]:
-        """`points_part` and `point_jacobian` together (N, 3), (N, 3, L), cheaper than both."""
+        """`points_part` and `point_jacobian` together (N, 3), (N, 3, L), cheaper than both.
+
+        Link frames: F_l is the frame just after joint l's rotation (F_0 the robot base, the
+        part->base pose) and p_l the point in it. Every elementary operation acts in a link's
+        frame, about or along a constant axis u through a constant origin o of that frame, so
+        its column is R_l (u x (p_l - o)) for a rotation and R_l u for a translation: one
+        (3 m, 3) product with p_l for the m operations of a link, then R_l. The points p_l come
+        backwards from the sensor, the rotations R_l forwards from the base, both as rows of
+        N-vectors, in chunks of configurations that keep every temporary in cache."""
         q = np.atleast_2d(np.asarray(q_deg, dtype=float))
-        c_s = np.broadcast_to(np.asarray(c_sensor_mm, dtype=float), (q.shape[0], 3))
-        p = apply(self.fk(x, q), c_s)
-        want = {name: j for j, name in enumerate(active)}
-        J = np.zeros((q.shape[0], 3, len(active)))
+        n = q.shape[0]
+        c_s = np.broadcast_to(np.asarray(c_sensor_mm, dtype=float), (n, 3))
         phi = self.joint_phi(x, q)
-        c_phi, s_phi = np.cos(phi), np.sin(phi)
-        pieces = self._pieces(x)
-        T_pb = pieces.T_pb
-        self._base_columns(J, want, x, T_pb, p)
-        # The frame before each elementary operation is A @ P: A (N, 4, 4) changes only at
-        # the joints, P (4, 4) collects the constant operations since the last joint.
-        A = np.broadcast_to(T_pb, (q.shape[0], 4, 4)).copy()
-        P = np.eye(4)
-        for (kind, name, joint), E in zip(CHAIN[1:-1], pieces.elems, strict=True):
-            if kind == "rz":
-                A = A @ P
-                P = np.eye(4)
-            col = want.get(name)
-            if col is not None:
-                axis_p = A[:, :3, :3] @ P[:3, _AXIS[kind]]
-                if kind[0] == "r":
-                    origin = A[:, :3, :3] @ P[:3, 3] + A[:, :3, 3]
-                    J[:, :, col] = cross(axis_p, p - origin)
-                else:
-                    J[:, :, col] = axis_p
-            if kind == "rz":
-                col0 = A[:, :, 0].copy()
-                A[:, :, 0] = col0 * c_phi[:, joint, None] + A[:, :, 1] * s_phi[:, joint, None]
-                A[:, :, 1] = A[:, :, 1] * c_phi[:, joint, None] - col0 * s_phi[:, joint, None]
-            elif E is not None:
-                P = P @ E
-        A = A @ P
-        self._sensor_columns(J, want, x, A, c_s)
+        links = self._jacobian_links(x, tuple(active))
+        p = np.empty((n, 3))
+        J = np.zeros((n, 3, len(active)))
+        for a in range(0, n, JACOBIAN_CHUNK):
+            b = min(a + JACOBIAN_CHUNK, n)
+            _jacobian_chunk(links, phi[a:b], c_s[a:b], len(active), p[a:b], J[a:b])
         return p, J
 
-    def _base_columns(self, J: F64, want: dict[str, int], x: F64, T_pb: F64, p: F64) -> None:
-        R = T_pb[:3, :3]
-        for k in range(3):
-            if (col := want.get(BASE_NAMES[k])) is not None:
-                J[:, k, col] = 1.0
-        rot_cols = [want.get(n) for n in BASE_NAMES[3:]]
-        if any(c is not None for c in rot_cols):
-            p_b = apply(inverse(T_pb), p)
-            D = -R @ skew(p_b) @ so3_right_jacobian(x[3:6])
-            for k, col in enumerate(rot_cols):
-                if col is not None:
-                    J[:, :, col] = D[:, :, k]
+    def _jacobian_links(self, x: F64, active: tuple[str, ...]) -> _Links:
+        """The constant part of `point_and_jacobian` at x for `active` (the last one kept)."""
+        key = (x.tobytes(), active)
+        entry = self._last_links[0] if self._last_links else None
+        if entry is not None and entry[0] == key:
+            links: _Links = entry[1]
+            return links
+        links = _links(self._pieces(x), x, active)
+        self._last_links[:] = [(key, links)]
+        return links
 
-    def _sensor_columns(self, J: F64, want: dict[str, int], x: F64, A: F64, c_s: F64) -> None:
-        R_a = A[:, :3, :3]
-        for k in range(3):
-            if (col := want.get(SENSOR_NAMES[k])) is not None:
-                J[:, :, col] = R_a[:, :, k]
-        rot_cols = [want.get(n) for n in SENSOR_NAMES[3:]]
-        if any(c is not None for c in rot_cols):
-            R_fs = self._pieces(x).T_fs[:3, :3]
-            D = -(R_a @ R_fs) @ skew(c_s) @ so3_right_jacobian(x[_FS_R])
-            for k, col in enumerate(rot_cols):
-                if col is not None:
-                    J[:, :, col] = D[:, :, k]
+
+class _Link(NamedTuple):
+    """The columns of the operations in one link frame: J[:, :, cols] = R_l (K p_l + b)."""
+
+    cols: NDArray[np.intp]  # (m,)
+    K: F64  # (3 m, 3)
+    b: F64  # (3 m,)
+
+
+class _Links(NamedTuple):
+    consts: tuple[F64, ...]  # C0..C6 (4, 4)
+    L0: F64  # (4, 4): the base frame -> before joint 1's rotation (C0 = T_pb L0)
+    T_pb: F64
+    links: tuple[_Link | None, ...]  # link 0 (already in the part frame: R_0 = I) .. link 6
+
+
+def _links(pieces: _Pieces, x: F64, active: tuple[str, ...]) -> _Links:
+    want = {name: j for j, name in enumerate(active)}
+    ops: list[list[tuple[int, bool, F64, F64]]] = [[] for _ in range(7)]  # col, rotation, u, o
+    link, P, L0 = 0, np.eye(4), np.eye(4)
+    for (kind, name, _), E in zip(CHAIN[1:-1], pieces.elems, strict=True):
+        if kind == "rz":
+            L0 = P if link == 0 else L0
+            link, P = link + 1, np.eye(4)
+        col = want.get(name)
+        if col is not None:
+            ops[link].append((col, kind[0] == "r", P[:3, _AXIS[kind]].copy(), P[:3, 3].copy()))
+        if E is not None:
+            P = P @ E
+    # the sensor's pose in link 6 is P T_fs: its translations along the flange frame's axes,
+    # its rotation vector's columns about the sensor origin (so3 right Jacobian)
+    T_fs = pieces.T_fs
+    Jr_fs = P[:3, :3] @ T_fs[:3, :3] @ so3_right_jacobian(x[_FS_R])
+    o_fs = P[:3, :3] @ T_fs[:3, 3] + P[:3, 3]
+    for k in range(3):
+        if (col := want.get(SENSOR_NAMES[k])) is not None:
+            ops[6].append((col, False, P[:3, k].copy(), np.zeros(3)))
+        if (col := want.get(SENSOR_NAMES[3 + k])) is not None:
+            ops[6].append((col, True, Jr_fs[:, k].copy(), o_fs))
+    T_pb = pieces.T_pb
+    R_pb, Jr_pb = T_pb[:3, :3], so3_right_jacobian(x[3:6])
+    out: list[_Link | None] = []
+    for ell, link_ops in enumerate(ops):
+        base = ell == 0
+        if base:  # link 0's frame is the constant part->base pose: columns in the part frame
+            for k in range(3):
+                if (col := want.get(BASE_NAMES[3 + k])) is not None:
+                    link_ops.append((col, True, Jr_pb[:, k].copy(), np.zeros(3)))
+        m = len(link_ops) + (3 if base else 0)
+        K, b, cols = np.zeros((m, 3, 3)), np.zeros((m, 3)), []
+        for i, (col, rotation, u, o) in enumerate(link_ops):
+            cols.append(col)
+            if rotation:
+                K[i] = skew(u)
+                b[i] = -np.cross(u, o)
+            else:
+                b[i] = u
+            if base:
+                K[i], b[i] = R_pb @ K[i], R_pb @ b[i]
+        if base:  # the part->base translations: unit columns, exactly
+            for k in range(3):
+                if (col := want.get(BASE_NAMES[k])) is not None:
+                    b[len(cols), k] = 1.0
+                    cols.append(col)
+        m = len(cols)
+        out.append(_Link(np.array(cols, dtype=np.intp), K[:m].reshape(3 * m, 3), b[:m].reshape(-1))
+                   if m else None)  # fmt: skip
+    return _Links(pieces.consts, L0, T_pb, tuple(out))
+
+
+#: Configurations per chunk of `point_and_jacobian` (every (3, chunk) temporary in cache).
+JACOBIAN_CHUNK = 1024
+
+
+def _jacobian_chunk(links: _Links, phi: F64, c_s: F64, n_cols: int, p: F64, J: F64) -> None:
+    """Points p (n, 3) and Jacobian rows J (n, 3, L) of a chunk of configurations."""
+    n = phi.shape[0]
+    c, s = np.cos(phi).T, np.sin(phi).T  # (6, n) rows
+    C = links.consts
+    # backwards: p_6 = C6 c_s, p_{l-1} = C_{l-1} Rz(phi_l) p_l; p_0 in the base frame
+    pts: list[F64 | None] = [None] * 7
+    v = C[6][:3, :3] @ c_s.T + C[6][:3, 3:4]
+    pts[6] = v
+    for ell in range(6, 0, -1):
+        w = np.empty((3, n))
+        w[0] = c[ell - 1] * v[0] - s[ell - 1] * v[1]
+        w[1] = s[ell - 1] * v[0] + c[ell - 1] * v[1]
+        w[2] = v[2]
+        T = C[ell - 1] if ell > 1 else links.L0
+        v = T[:3, :3] @ w + T[:3, 3:4]
+        pts[ell - 1] = v
+    p_base = pts[0]
+    assert p_base is not None
+    T_pb = links.T_pb
+    p[...] = (T_pb[:3, :3] @ p_base + T_pb[:3, 3:4]).T
+    if n_cols == 0:
+        return
+    JT = np.zeros((n_cols, 3, n))
+    last = max((ell for ell, lk in enumerate(links.links) if lk is not None), default=0)
+    # forwards: R_1 = C0 Rz(phi_1), R_l = R_{l-1} C_{l-1} Rz(phi_l), as (3, 3, n)
+    R = np.empty((3, 3, n))
+    for ell in range(last + 1):
+        lk = links.links[ell]
+        if ell > 0:
+            Rc = C[0][:3, :3] if ell == 1 else None
+            if Rc is not None:
+                a0, a1 = Rc[:, 0:1], Rc[:, 1:2]
+                R[:, 2] = Rc[:, 2:3]
+                R0 = a0 * c[0] + a1 * s[0]
+                R[:, 1] = a1 * c[0] - a0 * s[0]
+                R[:, 0] = R0
+            else:
+                R = np.matmul(C[ell - 1][:3, :3].T, R)  # R[i] <- C^T R[i]: rows of R C
+                R0 = R[:, 0] * c[ell - 1] + R[:, 1] * s[ell - 1]
+                R[:, 1] = R[:, 1] * c[ell - 1] - R[:, 0] * s[ell - 1]
+                R[:, 0] = R0
+        if lk is None:
+            continue
+        pt = pts[ell]
+        assert pt is not None
+        m = lk.cols.size
+        W = (lk.K @ pt + lk.b[:, None]).reshape(m, 3, n)
+        JT[lk.cols] = W if ell == 0 else np.einsum("ikn,okn->oin", R, W)
+    J[...] = JT.transpose(2, 1, 0)
 
 
 def cross(a: F64, b: F64) -> F64:

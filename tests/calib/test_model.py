@@ -6,7 +6,16 @@ import numpy as np
 import pytest
 
 from calib import robot
-from calib.model import ALL_NAMES, PAPER_30, SystemModel, group_of, unit_of
+from calib.compliance import CompliantModel
+from calib.model import (
+    ALL_NAMES,
+    COMPLIANCE_NAMES,
+    INDEX,
+    PAPER_30,
+    SystemModel,
+    group_of,
+    unit_of,
+)
 from calib.transforms import (
     matrix_to_rotvec,
     pose,
@@ -15,6 +24,7 @@ from calib.transforms import (
     so3_right_jacobian,
 )
 from fakes.truth import TrueRobot
+from tests.calib.reference_jacobian import reference_point_and_jacobian
 
 
 def random_q(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -65,6 +75,35 @@ def test_analytic_jacobian_equals_central_differences(seed: int) -> None:
     scale = np.linalg.norm(J_fd, axis=0)
     rel = np.abs(J - J_fd).max(axis=0) / scale
     assert rel.max() < 1e-6, dict(zip(ALL_NAMES, rel.round(9), strict=True))
+
+
+@pytest.mark.parametrize("n", [1, 7, 3000])
+def test_jacobian_in_link_frames_equals_the_former_part_frame_computation(n: int) -> None:
+    """The link-frame Jacobian (chunks of JACOBIAN_CHUNK rows) against the former computation
+    in the part frame (tests/calib/reference_jacobian.py): any parameter subset and order,
+    off-nominal x, the rigid and the compliant model (deflected joint angles)."""
+    rng = np.random.default_rng(n)
+    T_pb = pose(rotvec_to_matrix([0.1, -0.2, 1.4]), [1500.0, -2500.0, 700.0])
+    T_fs = pose(rotvec_to_matrix([0.0, 1.5707, 0.3]), [10.0, -90.0, 160.0])
+    rigid = SystemModel(T_pb, T_fs)
+    x = rigid.nominal_x() + rng.normal(0.0, 1e-2, len(ALL_NAMES))
+    q = random_q(rng, n)
+    c = rng.normal([0, 0, 130], 10.0, (n, 3))
+    shuffled = tuple(rng.permutation(ALL_NAMES))
+    for active in (ALL_NAMES, PAPER_30, shuffled[:9], ("rz_FS", "x_PB", "beta2"), ()):
+        p, J = rigid.point_and_jacobian(x, q, c, active)
+        p_ref, J_ref = reference_point_and_jacobian(rigid, x, q, c, active)
+        assert J.shape == J_ref.shape == (n, 3, len(active))
+        assert np.abs(p - p_ref).max() < 1e-9  # mm, points ~3000 mm from the part origin
+        assert np.abs(J - J_ref).max(initial=0.0) <= 1e-12 * np.abs(J_ref).max(initial=1.0)
+    compliant = CompliantModel.of(rigid)
+    xc = compliant.nominal_x()
+    xc[: len(ALL_NAMES)] = x
+    xc[[INDEX[k] for k in COMPLIANCE_NAMES]] = [2e-4, 3e-4, -1e-4, 1e-4, 2e-4]
+    p, J = compliant.point_and_jacobian(xc, q, c, PAPER_30)
+    p_ref, J_ref = reference_point_and_jacobian(compliant, xc, q, c, PAPER_30)
+    assert np.abs(p - p_ref).max() < 1e-9
+    assert np.abs(J - J_ref).max() <= 1e-12 * np.abs(J_ref).max()
 
 
 def test_rotvec_helpers() -> None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -16,7 +18,7 @@ from calib.candidates import (
 )
 from calib.configurations import candidate_blocks, choose, revisit, select_configurations
 from calib.errors import EmptyRegion, NoCandidates
-from calib.information import Information
+from calib.information import Information, scaled_blocks
 from calib.model import INDEX, JOINT_NAMES, PAPER_30, unit_of
 from calib.observability import null_space_groups, observability
 from calib.placement import fitness
@@ -350,3 +352,72 @@ def test_revisits_raise_the_criterion_of_the_sequential_choice(cfg: CellConfig) 
     assert seen and seen[0] == ("revisit", 1)
     with pytest.raises(ValueError, match="revisits"):
         PlanSettings(revisits=-1)
+
+
+def test_scaled_blocks_share_the_sweeps_layout_and_scale_without_a_copy(cfg: CellConfig) -> None:
+    """DETMAX's column scale of several block arrays is that of their concatenation, and the
+    scaled blocks are a view of the (L, 3M) array the sweeps read (no second copy)."""
+    J, fixed = _blocks(cfg, "P2"), _blocks(cfg, "P1")[:6]
+    d = detmax.column_scale(fixed, J)
+    assert np.allclose(d, detmax.column_scale(np.concatenate([fixed, J])), rtol=1e-13, atol=0.0)
+    assert np.allclose(d, 1.0 / np.sqrt(np.mean(np.sum(np.concatenate([fixed, J]) ** 2, axis=1),
+                                                axis=0)), rtol=1e-13)  # fmt: skip
+    G = scaled_blocks(J, d)
+    assert np.array_equal(G, J * d) and not G.flags.c_contiguous
+    info = Information(G, fixed * d, "O1", 30)
+    assert np.shares_memory(info.GT, G)
+    m = len(J)
+    for r in range(3):
+        assert np.array_equal(info.GT[:, r * m : (r + 1) * m], (J * d)[:, r, :].T)
+    copied = Information(J * d, fixed * d, "O1", 30)  # any other layout: copied as before
+    assert np.array_equal(copied.GT, info.GT) and not np.shares_memory(copied.GT, J)
+
+
+def test_swarm_stops_once_the_best_stalls_for_patience_iterations() -> None:
+    """A stopped swarm is the first iterations of the full one (the same random stream), and
+    stops exactly `patience` iterations after the last improvement beyond the tolerance."""
+    target = np.array([1.5, -2.0])
+
+    def f(p: np.ndarray) -> np.ndarray:
+        # a plateau: nothing below 0.5 counts (every particle near the target scores 0.5)
+        return np.maximum(np.sum((p - target) ** 2, axis=1), 0.5)
+
+    full = minimize(f, [-5, -5], [5, 5], np.random.default_rng(0), SwarmSettings(20, 40))
+    seen: list[tuple[int, int]] = []
+    stopped = minimize(f, [-5, -5], [5, 5], np.random.default_rng(0),
+                       SwarmSettings(20, 40, patience=4, tolerance=1e-3),
+                       progress=lambda it, n, best: seen.append((it, n)))  # fmt: skip
+    n_it = len(stopped.history) - 1
+    assert stopped.stopped_early and not full.stopped_early and n_it < 40
+    assert np.array_equal(stopped.history, full.history[: n_it + 1])
+    assert stopped.n_evaluations == 20 * (n_it + 1)
+    mark, last = stopped.history[0], 0  # the last improvement by more than the tolerance
+    for i, h in enumerate(stopped.history[1:], start=1):
+        if mark - h > 1e-3 * abs(mark):
+            mark, last = h, i
+    assert n_it - last == 4 and stopped.f_best == pytest.approx(0.5)
+    assert seen[-1] == (n_it, n_it) and seen[-2] == (n_it - 1, 40)  # the last line ends
+    # patience 0 runs every iteration; a never-stalling run is not cut short either
+    assert len(minimize(f, [-5, -5], [5, 5], np.random.default_rng(0),
+                        SwarmSettings(20, 5, patience=0)).history) == 6  # fmt: skip
+    with pytest.raises(ValueError, match="patience"):
+        SwarmSettings(patience=-1)
+
+
+def test_plan_swarms_stop_after_patience_iterations_without_improvement(cfg: CellConfig) -> None:
+    """With `patience` the first sphere's swarm is the first iterations of the full one (the
+    same particles, the same fitness) and stops once its best stalled that long."""
+    model = cfg.model()
+    x = model.nominal_x()
+    s = PlanSettings(
+        grid=ViewGrid(step_deg=25.0),
+        search_grid=ViewGrid(step_deg=30.0),
+        swarm=SwarmSettings(n_particles=6, n_iterations=8),
+    )
+    full = plan(model, x, cfg.spheres_part_mm, s)
+    short = plan(model, x, cfg.spheres_part_mm,
+                 replace(s, swarm=replace(s.swarm, patience=2, tolerance=1e-3)))  # fmt: skip
+    h_full, h = full.fitness_history["P1"], short.fitness_history["P1"]
+    assert len(h) < len(h_full) and np.array_equal(h, h_full[: len(h)])
+    assert all(len(v) <= len(h_full) for v in short.fitness_history.values())
+    assert short.observability.rank == 30
