@@ -196,6 +196,9 @@ class _SvdInformation(Information):
             [self._logdet_rows(self.G[[s for j, s in enumerate(sel) if j != i]]) for i in removable]
         )
 
+    def best_exchange(self, sel: list[int], floor: float) -> tuple[float, int, int]:
+        return self._best_exchange_by_sweeps(sel, floor)
+
 
 def _greedy(info: Information, n: int) -> list[int]:
     sel: list[int] = []
@@ -243,14 +246,7 @@ def _exchange(info: Information, sel: list[int]) -> list[int]:
     """Best single swaps (member out, candidate in) until none improves."""
     current = info.log_value(info.matrix(sel))
     for _ in range(200 * max(len(sel), 1)):
-        best = (current + TOL, -1, -1)
-        for k in range(len(sel)):
-            rest = sel[:k] + sel[k + 1 :]
-            values = info.if_added(rest, info.matrix(rest), info.all_rows)
-            values[sel] = -np.inf
-            j = int(np.argmax(values))
-            if values[j] > best[0]:
-                best = (float(values[j]), k, j)
+        best = info.best_exchange(sel, current + TOL)
         if best[1] < 0:
             return sel
         sel = [*sel[: best[1]], best[2], *sel[best[1] + 1 :]]

@@ -152,6 +152,83 @@ class Information:
             pass
         return out
 
+    def best_exchange(self, sel: list[int], floor: float) -> tuple[float, int, int]:
+        """The best single exchange (member k of sel out, candidate j in) whose log criterion
+        exceeds `floor`: (value, k, j), the first k and j of equal values; (floor, -1, -1)
+        when none does. O1 in one pass over the candidates (`_best_exchange_o1`), the others
+        by a sweep per member."""
+        if self.criterion == "O1":
+            return self._best_exchange_o1(sel, floor)
+        return self._best_exchange_by_sweeps(sel, floor)
+
+    def _best_exchange_by_sweeps(self, sel: list[int], floor: float) -> tuple[float, int, int]:
+        best = (floor, -1, -1)
+        for k in range(len(sel)):
+            rest = sel[:k] + sel[k + 1 :]
+            values = self.if_added(rest, self.matrix(rest), self.all_rows)
+            values[sel] = -np.inf
+            j = int(np.argmax(values))
+            if values[j] > best[0]:
+                best = (float(values[j]), k, j)
+        return best
+
+    def _best_exchange_o1(self, sel: list[int], floor: float) -> tuple[float, int, int]:
+        """All members' exchanges from one product per chunk. With M = C C^T of sel,
+        W_c = C^-1 G_c^T and V_i = C^-1 G_i^T (member i), removing member i turns
+        G_c M^-1 G_c^T = W_c^T W_c into W_c^T W_c + Y_ic^T Y_ic, Y_ic = R_i^-1 V_i^T W_c,
+        R_i R_i^T = I - V_i^T V_i (Woodbury), and log det M into log det M + log det R_i R_i^T:
+        the W of a sweep and a (3 k, L) x (L, P) product instead of a sweep per member. Both
+        terms are positive semi-definite and come afresh from this selection's factor (no
+        cancellation, nothing carried over). Candidates in sel are never swapped in."""
+        self.sweeps += 1
+        k, n, L = len(sel), self.G.shape[0], self.GT.shape[0]
+        M = self.matrix(sel)
+        C_inv = inverse_cholesky(M)
+        logdet = float(np.linalg.slogdet(M)[1])
+        V = C_inv @ self.GT[:, [r * n + s for r in range(3) for s in sel]]  # (L, 3 k)
+        Zt = np.zeros((3 * k, L))
+        base = np.full(k, -np.inf)  # log det of M without member i
+        for i in range(k):
+            Vi = V[:, [i, k + i, 2 * k + i]]
+            S = np.eye(3) - Vi.T @ Vi
+            if np.linalg.eigvalsh(S)[0] <= 0.0:  # removing it leaves M singular: no swap
+                continue
+            R_inv = np.linalg.inv(np.linalg.cholesky(S))
+            Zt[3 * i : 3 * i + 3] = R_inv @ Vi.T
+            base[i] = logdet + float(np.linalg.slogdet(S)[1])
+        members = np.asarray(sel, dtype=np.int64)
+        found: dict[int, list[tuple[float, int]]] = {}
+
+        def chunk(a: int) -> None:
+            b = min(a + GAIN_CHUNK, n)
+            W = [C_inv @ self.GT[:, r * n + a : r * n + b] for r in range(3)]
+            D = _pair_dots(W)  # the six distinct entries of W_c^T W_c
+            Y = [Zt @ w for w in W]  # (3 k, P) each
+            inside = members[(members >= a) & (members < b)] - a
+            out = []
+            for i in range(k):
+                if not np.isfinite(base[i]):
+                    out.append((-np.inf, -1))
+                    continue
+                E = _pair_dots([y[3 * i : 3 * i + 3] for y in Y])
+                E += D
+                values = _log_det3_from_entries(E)
+                values[inside] = -np.inf
+                j = int(np.argmax(values))
+                out.append((float(values[j]) + base[i], a + j))
+            found[a] = out
+
+        mapper = self.chunk_map if n > 4 * GAIN_CHUNK else map
+        for _ in mapper(chunk, range(0, n, GAIN_CHUNK)):
+            pass
+        best = (floor, -1, -1)
+        for i in range(k):  # members in order, chunks in order: the first of equal values
+            for a in range(0, n, GAIN_CHUNK):
+                v, j = found[a][i]
+                if v > best[0]:
+                    best = (v, i, j)
+        return best
+
     def if_removed(self, sel: list[int], M: F64, removable: list[int]) -> F64:
         """Log criterion after removing each of `removable` (positions in sel)."""
         rows = np.array([sel[i] for i in removable], dtype=np.int64)
@@ -172,6 +249,26 @@ def inverse_cholesky(M: F64) -> F64:
     if info != 0:
         raise np.linalg.LinAlgError("information matrix not positive definite")
     out: F64 = C_inv
+    return out
+
+
+def _pair_dots(W: list[F64]) -> F64:
+    """The six distinct entries (00, 11, 22, 01, 02, 12) of W_p^T W_p per column p of the
+    three (k, P) blocks W: (6, P)."""
+    out = np.empty((6, W[0].shape[1]))
+    for i, (a, b) in enumerate(((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))):
+        np.einsum("lp,lp->p", W[a], W[b], out=out[i])
+    return out
+
+
+def _log_det3_from_entries(E: F64) -> F64:
+    """log det(I_3 + E) per column of the six distinct entries E (6, P) of a symmetric E;
+    -inf where the determinant is not positive."""
+    a, b, c = 1.0 + E[0], 1.0 + E[1], 1.0 + E[2]
+    d, e, f = E[3], E[4], E[5]
+    det = a * (b * c - f * f) - d * (d * c - f * e) + e * (d * f - b * e)
+    out: F64 = np.full(det.shape, -np.inf)
+    np.log(det, out=out, where=det > 0.0)
     return out
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 
 import numpy as np
@@ -371,6 +372,37 @@ def test_scaled_blocks_share_the_sweeps_layout_and_scale_without_a_copy(cfg: Cel
         assert np.array_equal(info.GT[:, r * m : (r + 1) * m], (J * d)[:, r, :].T)
     copied = Information(J * d, fixed * d, "O1", 30)  # any other layout: copied as before
     assert np.array_equal(copied.GT, info.GT) and not np.shares_memory(copied.GT, J)
+
+
+@pytest.mark.parametrize("n_fixed", [0, 18])
+def test_one_pass_exchange_finds_the_best_single_swap(cfg: CellConfig, n_fixed: int) -> None:
+    """The O1 exchange of all members in one pass over the candidates finds the swap a sweep
+    per member finds, and the brute-force best over every (member, candidate) pair, with its
+    log determinant; a floor above it leaves no swap. Partial (rank 18 + 6 blocks, ridge)
+    and full-rank plans, on threads over chunks too."""
+    J = _blocks(cfg, "P1", ViewGrid(step_deg=12.0))[::2]
+    fixed = np.concatenate([_blocks(cfg, n)[::97][:6] for n in ("P2", "P3", "P4")])[:n_fixed]
+    assert len(J) > 4 * detmax.GAIN_CHUNK
+    d = detmax.column_scale(fixed, J)
+    G = J * d
+    info = Information(scaled_blocks(J, d), fixed * d, "O1", 30)
+    rng = np.random.default_rng(n_fixed)
+    for _ in range(3):
+        sel = [int(c) for c in rng.choice(len(G), 6, replace=False)]
+        value, k, j = info.best_exchange(sel, -np.inf)
+        assert (k, j) == info._best_exchange_by_sweeps(sel, -np.inf)[1:]
+        assert j not in sel
+        assert value == pytest.approx(_logdet(G, fixed * d, [*sel[:k], j, *sel[k + 1 :]]),
+                                      abs=1e-6)  # fmt: skip
+        rests = [sel[:i] + sel[i + 1 :] for i in range(6)]
+        swept = [info.if_added(r, info.matrix(r), info.all_rows) for r in rests]
+        brute = max((swept[i][c], i, c) for i in range(6) for c in range(len(G)) if c not in sel)
+        assert value >= brute[0] - 1e-7
+        assert info.best_exchange(sel, value + 1e-6)[1:] == (-1, -1)
+        with ThreadPoolExecutor(max_workers=2) as pool:
+            info.chunk_map = pool.map
+            assert info.best_exchange(sel, -np.inf) == (value, k, j)
+        info.chunk_map = map
 
 
 def test_swarm_stops_once_the_best_stalls_for_patience_iterations() -> None:
