@@ -202,21 +202,16 @@ class Information:
         def chunk(a: int) -> None:
             b = min(a + GAIN_CHUNK, n)
             W = [C_inv @ self.GT[:, r * n + a : r * n + b] for r in range(3)]
-            D = _pair_dots(W)  # the six distinct entries of W_c^T W_c
-            Y = [Zt @ w for w in W]  # (3 k, P) each
-            inside = members[(members >= a) & (members < b)] - a
-            out = []
-            for i in range(k):
-                if not np.isfinite(base[i]):
-                    out.append((-np.inf, -1))
-                    continue
-                E = _pair_dots([y[3 * i : 3 * i + 3] for y in Y])
-                E += D
-                values = _log_det3_from_entries(E)
-                values[inside] = -np.inf
-                j = int(np.argmax(values))
-                out.append((float(values[j]) + base[i], a + j))
-            found[a] = out
+            D = _pair_dots(W)  # the six distinct entries of W_c^T W_c, (6, P)
+            Y = [(Zt @ w).reshape(k, 3, b - a) for w in W]  # Y_ic's rows, per member
+            E = np.empty((6, k, b - a))  # the entries of Y_ic^T Y_ic, all members at once
+            for e, (r, s) in enumerate(_PAIRS):
+                np.einsum("iqp,iqp->ip", Y[r], Y[s], out=E[e])
+            E += D[:, None, :]
+            values = _log_det3_from_entries(E)  # (k, P)
+            values[:, members[(members >= a) & (members < b)] - a] = -np.inf
+            j = np.argmax(values, axis=1)
+            found[a] = [(float(values[i, j[i]]) + base[i], a + int(j[i])) for i in range(k)]
 
         mapper = self.chunk_map if n > 4 * GAIN_CHUNK else map
         for _ in mapper(chunk, range(0, n, GAIN_CHUNK)):
@@ -252,18 +247,22 @@ def inverse_cholesky(M: F64) -> F64:
     return out
 
 
+#: The six distinct entries (r, r') of a symmetric 3x3 block, in the order used here.
+_PAIRS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
+
+
 def _pair_dots(W: list[F64]) -> F64:
-    """The six distinct entries (00, 11, 22, 01, 02, 12) of W_p^T W_p per column p of the
+    """The six distinct entries (in the order of _PAIRS) of W_p^T W_p per column p of the
     three (k, P) blocks W: (6, P)."""
     out = np.empty((6, W[0].shape[1]))
-    for i, (a, b) in enumerate(((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))):
+    for i, (a, b) in enumerate(_PAIRS):
         np.einsum("lp,lp->p", W[a], W[b], out=out[i])
     return out
 
 
 def _log_det3_from_entries(E: F64) -> F64:
-    """log det(I_3 + E) per column of the six distinct entries E (6, P) of a symmetric E;
-    -inf where the determinant is not positive."""
+    """log det(I_3 + E) for the six distinct entries E (6, ...) of symmetric 3x3 blocks
+    (in the order of _PAIRS); -inf where the determinant is not positive."""
     a, b, c = 1.0 + E[0], 1.0 + E[1], 1.0 + E[2]
     d, e, f = E[3], E[4], E[5]
     det = a * (b * c - f * f) - d * (d * c - f * e) + e * (d * f - b * e)
