@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 from app.commission.context import PARAMS_FILE, Context
 from app.commission.journal import StepResult, at_most, count_at_least, holds
 from app.commission.measuring import measure_views
+from app.config.cell import SensorSection
 from app.formats.files import ERROR_COLUMNS, write_csv
 from app.formats.params import from_json
 from app.line.measure import GeometricSensor
@@ -44,9 +45,9 @@ POSITIONS = (
 FILE = "acceptance.csv"
 
 
-def volume_positions(ctx: Context) -> F64:
-    """The sphere centres (9, 3) [mm] in the sensor frame (POSITIONS)."""
-    s = ctx.cfg.sensor
+def volume_positions(s: SensorSection) -> F64:
+    """The sphere centres (9, 3) [mm] in the sensor frame (POSITIONS) of the `[sensor]`
+    measuring volume."""
     half = np.array([s.half_fov_x_mm, s.half_fov_y_mm, s.half_depth_mm])
     out = np.array([np.asarray(f) * half for _, f in POSITIONS])
     out[:, 2] += s.standoff_mm
@@ -86,7 +87,7 @@ def verify(ctx: Context, x_full: F64, sensor_model: SensorModel) -> StepResult:
     model = cell.model()  # the rigid chain: the compliant model's extra terms do not turn it
     x = x_full[: len(model.nominal_x())]
     target, p = sorted(cell.spheres_part_mm.items())[0]
-    c_planned = volume_positions(ctx)
+    c_planned = volume_positions(cell.sensor)
     qs = views(model, x, p, c_planned, np.random.default_rng([cell.commission.seed, 29]))
     r = StepResult()
     if len(qs) != len(c_planned):

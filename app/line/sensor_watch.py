@@ -107,5 +107,5 @@ class SensorWatch:
             ps = self.ps_of(q)
             if ps is not None:
                 self.update(ps)
-        if self.ewma_mm == self.ewma_mm and abs(self.ewma_mm) > self.limit_mm:
+        if not math.isnan(self.ewma_mm) and abs(self.ewma_mm) > self.limit_mm:
             self.ewma_signalled = True  # its alarm was raised before the restart

@@ -464,6 +464,18 @@ def true_sensor_model(true: TrueSensor) -> SensorModel:
     return SensorModel(camera=camera, laser=laser, name="simulated truth")
 
 
+def scaled_sensor_model(
+    model: SensorModel, focal_scale: float, cx_shift_px: float = 0.0
+) -> SensorModel:
+    """`model` with its focal lengths scaled and its principal point moved by cx_shift_px: a
+    sensor calibration with a known error (0.1 % in scale: focal_scale 1.001)."""
+    K = model.camera.K.copy()
+    K[0, 0] *= focal_scale
+    K[1, 1] *= focal_scale
+    K[0, 2] += cx_shift_px
+    return replace(model, camera=replace(model.camera, K=K))
+
+
 def calibrated_sensor_model(true: TrueSensor, seed: int) -> tuple[SensorModel, dict[str, float]]:
     """The sensor calibrated the way the line would (vision.calibrate_sensor from 12 rendered
     chessboards and 4 flat-target sweeps of 9 commands), and how far it is from the truth:

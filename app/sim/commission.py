@@ -28,7 +28,7 @@ from app.sim.line_run import simline_settings, true_rmse_mm
 from app.sim.truth import EndToEndTruth
 from fakes.line import SimLine
 from fakes.render_targets import render_calibration_set
-from vision.sensor_model import SensorModel
+from vision.sensor_model import SensorModel, dumps_sensor_model
 
 F64 = NDArray[np.float64]
 
@@ -50,6 +50,7 @@ class SimCommissioning:
         self._stack = ExitStack()
         self.station: Any = None
         self.truth: EndToEndTruth | None = None
+        self._truth_key = ""  # the sensor calibration self.truth measures with, as its file
         self._placed = 0
 
     def __enter__(self) -> Self:
@@ -120,6 +121,9 @@ class SimCommissioning:
         positions: on the rendered path measured through `sensor_model`, on the geometric path
         the kinematic error (app/sim/truth.py)."""
         in_use = None if self.geometric else sensor_model
-        if self.truth is None or self.truth.sensor_model is not in_use:
+        # each step loads the calibration again: the same file keeps its views' corrections
+        key = "" if in_use is None else dumps_sensor_model(in_use)
+        if self.truth is None or key != self._truth_key:
             self.truth = EndToEndTruth(self.cell.sensor, in_use, self._sweep().commands_v())
+            self._truth_key = key
         return true_rmse_mm(self.line, self.truth, model, x)

@@ -5,7 +5,6 @@ directory with nothing commissioned is a one-line input error."""
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from pathlib import Path
 
@@ -16,7 +15,7 @@ from app.config import load_cell
 from app.formats.params import plain_document
 from app.line.params_store import ParamsStore
 from app.line.statedir import StateDir
-from app.sim.cell import make_cell, true_sensor_model
+from app.sim.cell import make_cell, scaled_sensor_model, true_sensor_model
 from app.sim.line_run import commissioning
 from vision.sensor_model import save_sensor_model
 
@@ -37,10 +36,7 @@ def test_a_sensor_with_a_scale_error_fails_its_acceptance(
     commissioned: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     true = true_sensor_model(make_cell(load_cell(None), seed=0).sensor)
-    K = true.camera.K.copy()
-    K[0, 0] *= 1.001
-    K[1, 1] *= 1.001
-    scaled = dataclasses.replace(true, camera=dataclasses.replace(true.camera, K=K))
+    scaled = scaled_sensor_model(true, 1.001)
     save_sensor_model(scaled, tmp_path / "scaled.toml")
     capsys.readouterr()
     argv = ["sensor", "verify", "--sim", "--yes", "--state-dir", str(commissioned), "--json"]

@@ -148,7 +148,7 @@ def test_lines_of_several_writers_land_in_the_order_of_their_times(tmp_path: Pat
 
     def yielding_clock() -> float:
         t = time.monotonic()
-        time.sleep(0.0001)
+        time.sleep(0.0001)  # sleep-ok: a preemption right after the read, on purpose
         return t
 
     path = tmp_path / "wire.jsonl"

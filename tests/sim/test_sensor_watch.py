@@ -15,9 +15,8 @@ import numpy as np
 from app.config import CellConfig
 from app.line.measure import SweepSensor
 from app.line.sensor_watch import SensorWatch
-from app.sim.cell import make_cell, true_sensor_model
+from app.sim.cell import make_cell, scaled_sensor_model, true_sensor_model
 from app.sim.line_run import SimulatedLineRun
-from vision.sensor_model import SensorModel
 
 WAIT_S = 240.0  # a guard against a hung line: the run itself takes well under
 
@@ -31,13 +30,6 @@ def _short_line(cfg: CellConfig) -> CellConfig:
     sweep = dataclasses.replace(cfg.sweep, n_frames=12, grab_timeout_s=0.5)
     drift = dataclasses.replace(cfg.drift, baseline_n=6)
     return dataclasses.replace(cfg, simline=simline, sweep=sweep, drift=drift)
-
-
-def _scaled(model: SensorModel, focal_scale: float) -> SensorModel:
-    K = model.camera.K.copy()
-    K[0, 0] *= focal_scale
-    K[1, 1] *= focal_scale
-    return dataclasses.replace(model, camera=dataclasses.replace(model.camera, K=K))
 
 
 def _measure(cfg: CellConfig, tmp: Path, focal_scale: float) -> tuple[list[str], list[str]]:
@@ -58,7 +50,7 @@ def _measure(cfg: CellConfig, tmp: Path, focal_scale: float) -> tuple[list[str],
                 if len(seen) == 8:
                     sensor = run.service.measurer.sensor
                     assert isinstance(sensor, SweepSensor)
-                    sensor.sensor_model = _scaled(true, focal_scale)
+                    sensor.sensor_model = scaled_sensor_model(true, focal_scale)
             elif e["event"] == "alarm" and e["code"] == "sensor":
                 alarms.append(e["message"])
     return alarms, seen

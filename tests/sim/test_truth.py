@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
 from app.config import CellConfig
 from app.config.line import SweepSettings
-from app.sim.cell import true_sensor_model
+from app.sim.cell import scaled_sensor_model, true_sensor_model
 from app.sim.truth import EndToEndTruth, observe
 from fakes.render import render_sphere_sweep
 from fakes.render_sensor import default_true_sensor
@@ -21,14 +19,8 @@ TRUE = default_true_sensor()
 
 
 def scaled_model(focal_scale: float, cx_shift_px: float = 0.0) -> SensorModel:
-    """The true sensor's model with its focal lengths scaled and its principal point moved:
-    a sensor calibration with a known error."""
-    m = true_sensor_model(TRUE)
-    K = m.camera.K.copy()
-    K[0, 0] *= focal_scale
-    K[1, 1] *= focal_scale
-    K[0, 2] += cx_shift_px
-    return dataclasses.replace(m, camera=dataclasses.replace(m.camera, K=K))
+    """The true sensor's model with a known calibration error."""
+    return scaled_sensor_model(true_sensor_model(TRUE), focal_scale, cx_shift_px)
 
 
 CENTRES_MM = [np.array([0.0, 0.0, 130.0]), np.array([7.0, -9.0, 127.0])]

@@ -4,15 +4,13 @@ with the true model (passes) and with a model whose scale is 0.1 % off (fails PS
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
-from app.commission.acceptance import POSITIONS
+from app.commission.acceptance import volume_positions
 from app.config import load_cell
 from app.config.line import SweepSettings
-from app.sim.cell import true_sensor_model
+from app.sim.cell import scaled_sensor_model, true_sensor_model
 from fakes.render import render_sphere_sweep
 from fakes.render_sensor import default_true_sensor
 from vision.acceptance import Acceptance, AcceptanceLimits, acceptance, spacing_errors
@@ -25,20 +23,6 @@ S = load_cell(None).sensor
 LIMITS = AcceptanceLimits(S.max_pf_mm, S.max_ps_mm, S.max_sd_mm)
 
 
-def _positions() -> np.ndarray:
-    half = np.array([S.half_fov_x_mm, S.half_fov_y_mm, S.half_depth_mm])
-    c = np.array([np.asarray(f) * half for _, f in POSITIONS])
-    c[:, 2] += S.standoff_mm
-    return c
-
-
-def _scaled(model: SensorModel, focal_scale: float) -> SensorModel:
-    K = model.camera.K.copy()
-    K[0, 0] *= focal_scale
-    K[1, 1] *= focal_scale
-    return dataclasses.replace(model, camera=dataclasses.replace(model.camera, K=K))
-
-
 def _accept(model: SensorModel) -> Acceptance:
     """The sphere fixed at p in a reference frame; the sensor translated so that it appears at
     each position (T_ref_sensor = translation p - c)."""
@@ -46,7 +30,7 @@ def _accept(model: SensorModel) -> Acceptance:
     cmds = np.array(SweepSettings().commands_v())
     p = np.array([100.0, -50.0, 400.0])
     form, radius, centres, poses = [], [], [], []
-    for c in _positions():
+    for c in volume_positions(S):
         frames, cm, _ = render_sphere_sweep(c, RADIUS_MM, TRUE, rng, commands_v=cmds)
         m = measure_sphere_from_sweep(frames, cm, model)
         form.append(m.quality.form_mm)
@@ -75,7 +59,7 @@ def test_the_true_sensor_model_passes(with_truth: Acceptance) -> None:
 
 
 def test_a_sensor_model_with_a_scale_error_of_0_1_percent_fails() -> None:
-    acc = _accept(_scaled(true_sensor_model(TRUE), 1.001))
+    acc = _accept(scaled_sensor_model(true_sensor_model(TRUE), 1.001))
     assert not acc.passed
     assert not acc.passed_each["PS"] and not acc.passed_each["SD"]
     assert acc.figures["PS"] < -LIMITS.ps_mm  # the sphere measured smaller
