@@ -128,9 +128,14 @@ class RecalibSettings(Section):
     # sees, noise removed, is at least this large (RMS at the measured spheres)
     step_min_mm: float = opt(0.05, lo=0, hi=100)
     # after the first correction one more window refines it (auto mode, batch estimator; 0:
-    # none); a refinement that moves points at the standoff by more than this shows the first
-    # correction was off: the suspect interval then lasts until the refinement
+    # none). Any value > 0 turns it on: since the recovery test judges where the interval ends,
+    # the size no longer decides it (kept so that existing cell files stay valid)
     step_refine_mm: float = opt(0.03, lo=0, hi=10)
+    # after a correction the suspect interval stays open (and the windows measure for the step)
+    # until the held-out residuals measured with it are not higher than before the step, by a
+    # one-sided F test at this confidence on at least recovery_min_measurements of them
+    recovery_confidence: float = opt(0.95, gt=0, hi=0.999)
+    recovery_min_measurements: int = opt(6, lo=1, hi=1000)
 
     def cross_checks(self) -> Iterator[tuple[str, str]]:
         if self.schedule == "adaptive" and self.estimator != "sequential":

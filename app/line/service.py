@@ -849,7 +849,12 @@ class Service:
         rows = self.store.measurements(
             status="ok", since_id=since, last=r.rolling_size + r.holdout_size
         )
-        return select_rolling(rows, len(self.schedule), self.schedule.targets, r)
+        n_slots = len(self.schedule)
+        if self.step is not None and self.step.status in ("refining", "recovering"):
+            # the windows measure for the step: as soon as the post-step measurements span
+            # half the schedule (the identification's rank and condition gates judge the rest)
+            n_slots = (n_slots + 1) // 2
+        return select_rolling(rows, n_slots, self.schedule.targets, r)
 
     def trained_on(
         self, chosen: tuple[Sequence[Mapping[str, Any]], Sequence[Mapping[str, Any]]]
@@ -1013,8 +1018,10 @@ class Service:
             self.store.clear_alarms(t, "drift")
             first_id = None if cal is None else int(cal["first_id"] or 0)
             after_step = first_id is not None and onset is not None and first_id >= onset
-            closed = self.steps.close_suspect(t, version, cal, kind) if after_step else None
-            if onset is None or after_step:
+            recovering = after_step and self._suspect_open()
+            if recovering:  # the interval closes when the residuals say the cell is back
+                self.steps.corrected(t, version, cal, kind)
+            elif onset is None or after_step:
                 self.store.clear_alarms(t, "drift_step")
                 if kind != "step":  # a full calibration trained after the step: it is over
                     self.drift_onset_id, self.step = None, None
@@ -1023,8 +1030,13 @@ class Service:
             "parameters_applied",
             {"version": version, "calibration_id": cal_id, "source": source, "uid": uid},
         )
-        if closed is not None:
-            self.bus.emit("suspect_interval", closed)
+
+    def _suspect_open(self) -> bool:
+        """A step's suspect interval is open."""
+        if self.step is None or self.step.suspect_id is None:
+            return False
+        row = self.store.suspect(self.step.suspect_id)
+        return row is not None and row["t_end"] is None
 
 
 def _kind(document: Mapping[str, Any] | None) -> str:

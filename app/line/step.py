@@ -18,17 +18,20 @@ correction (the parameters in force with that group replaced) when its gates pas
                    parameters in force (ratio <= max_holdout_ratio)
     bounded change every parameter of the group within the in-line change bounds
 
-It is applied (auto) or proposed (approve) like any calibration; the full recalibration follows
-when the post-step rolling set is complete (the service's existing rule). Until the correction
-is applied the schedule measures up to `step_slots_per_window` slots per window that fit its
-time budget: first the configurations measured just before the change point (freshest
+It is applied (auto) or proposed (approve) like any calibration. The suspect interval then stays
+open until the held-out residuals measured with the correction in force are back at their level
+before the step (`recovery_test`, app.line.step_service.StepHandler.check_recovery); meanwhile the
+full recalibration on post-step measurements runs as soon as they span half the schedule.
+Until the interval closes the schedule measures up to `step_slots_per_window` slots per window
+that fit its time budget: first the configurations measured just before the change point (freshest
 references), then the one most informative for the candidate groups (`step_slot`).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -80,28 +83,38 @@ class Step:
     n_used: int = 0  # measurements the last attribution used
     flag_id: int | None = None  # the measurement whose chart signalled
     start_id: int | None = None  # the first measurement after the step, as located
-    # refining (after the first correction): where the interval ends unless the refinement
-    # shows the first correction was off by more than step_refine_mm
-    first_end_t: float | None = None
-    first_end_version: int | None = None
-    first_cal_id: int | None = None
     n_corrected: int = 0  # measurements when the first correction was made
     refine_mm: float | None = None  # how far the refinement moved points at the standoff
     refine_tries: int = 0
     signal: str = ""  # what the drift charts saw (the high alarm's text once confirmed)
     base_version: int | None = None  # the parameters the first correction was computed from
+    # recovering (a correction trained after the step is in force; the interval stays open
+    # until the held-out residuals measured with it are back at the level before the step)
+    recover_version: int | None = None  # the correction under test
+    recover_t: float | None = None  # when it went in force (where the interval ends if back)
+    recover_cal_id: int | None = None
+    recover_kind: str | None = None  # "step" | "batch" | "sequential"
+    recover_from_id: int = 0  # its held-out measurements are the ones after this id
+    level_mm: float | None = None  # held-out residual RMS before the step
+    level_n: int = 0
+    full_recals: int = 0  # full recalibrations applied since the step
+    recovery: str = ""  # the last recovery test, in words
+    change_from_before: int = 0  # the service's change_from_id before the flag (a drop restores)
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
 
     @staticmethod
     def from_json(doc: Mapping[str, Any] | None) -> Step | None:
-        return None if doc is None else Step(**dict(doc))
+        if doc is None:
+            return None
+        known = {f.name for f in fields(Step)}  # a state saved by an older version: its fields
+        return Step(**{k: v for k, v in doc.items() if k in known})
 
     @property
     def measuring(self) -> bool:
         """The schedule serves the attribution (more slots per window, chosen for it)."""
-        return self.status in ("probation", "attributing", "following", "refining")
+        return self.status in ("probation", "attributing", "following", "refining", "recovering")
 
 
 @dataclass(frozen=True, eq=False)
@@ -120,6 +133,69 @@ class StepCorrection:
 
 
 MIN_SIGMA_PAIRS = 8  # consecutive visits of a slot before the step that set sigma
+
+
+@dataclass(frozen=True)
+class Recovery:
+    """Are the held-out residuals after a correction back at their level before the step?
+    `verdict`: "back" (not higher at the stated confidence), "higher" (higher at it) or
+    "undetermined" (too few measurements after the correction yet)."""
+
+    verdict: str
+    rms_after_mm: float
+    n_after: int
+    rms_before_mm: float
+    n_before: int
+    ratio_f: float  # (rms_after / rms_before)^2
+    limit_f: float  # the F quantile it is held to (inf while undetermined)
+    confidence: float
+
+    @property
+    def text(self) -> str:
+        head = (
+            f"held-out RMS {self.rms_after_mm:.4f} mm on {self.n_after} measurements after the"
+            f" correction, {self.rms_before_mm:.4f} mm on {self.n_before} before the step"
+        )
+        if self.verdict == "undetermined":
+            return f"{head}: too few to judge yet"
+        word = "higher" if self.verdict == "higher" else "not higher"
+        return (
+            f"{head}: {word} at {self.confidence:.0%} confidence"
+            f" (F {self.ratio_f:.2f} {'>' if self.verdict == 'higher' else '<='}"
+            f" {self.limit_f:.2f})"
+        )
+
+    def to_json(self) -> dict[str, Any]:
+        return {**asdict(self), "text": self.text}
+
+
+def recovery_test(
+    before_mm: Sequence[float], after_mm: Sequence[float], confidence: float, min_after: int
+) -> Recovery:
+    """One-sided F test of the held-out residuals `after_mm` (norms [mm] of measurements taken
+    with the correction in force, none of them used to compute it) against `before_mm` (those
+    of the in-control measurements just before the step): each norm^2 carries 3 degrees of
+    freedom. "higher" when (RMS after / RMS before)^2 exceeds the F(3 n_after, 3 n_before)
+    quantile at `confidence`; "back" when not and at least `min_after` were measured."""
+    from scipy.stats import f as f_dist
+
+    a = np.asarray(after_mm, dtype=float)
+    b = np.asarray(before_mm, dtype=float)
+    rms_a = float(np.sqrt(np.mean(a**2))) if len(a) else float("nan")
+    rms_b = float(np.sqrt(np.mean(b**2))) if len(b) else float("nan")
+    if len(a) == 0 or len(b) == 0 or not rms_b > 0:
+        return Recovery(
+            "undetermined", rms_a, len(a), rms_b, len(b), float("nan"), math.inf, confidence
+        )
+    ratio = (rms_a / rms_b) ** 2
+    limit = float(f_dist.ppf(confidence, 3 * len(a), 3 * len(b)))
+    if ratio > limit:
+        verdict = "higher"
+    elif len(a) >= min_after:
+        verdict = "back"
+    else:
+        verdict, limit = "undetermined", math.inf
+    return Recovery(verdict, rms_a, len(a), rms_b, len(b), ratio, limit, confidence)
 
 
 def volume_points_mm(volume_mm: Sequence[float]) -> F64:

@@ -5,8 +5,9 @@
 The flag opens a suspect interval and a `Step` (app.line.step); after every window the step is
 attributed (calib.attribution through app.line.step.correct_step, at the change point located
 by `locate_step`) and, batch estimator, its group's fast correction applied or proposed when its
-gates pass; the sequential estimator widens the attributed group's covariance instead. The apply
-of a correction trained after the change point closes the interval (Service.in_force).
+gates pass; the sequential estimator widens the attributed group's covariance instead. A
+correction trained after the change point in force (Service.in_force -> `corrected`), the interval
+closes when the held-out residuals measured with it are back (`check_recovery`).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from app.line.step import (
     correct_step,
     locate_step,
     paired,
+    recovery_test,
     step_sigma_mm,
     visible_step_mm,
     volume_views,
@@ -71,7 +73,14 @@ class StepHandler:
             before[0]["t"] if before else svc.store.measurements_by_id([onset_id])[0]["t"]
         )
         svc.step = Step(
-            onset_id, None, t_start, last_good, status=status, text=text, flag_id=flag_id
+            onset_id,
+            None,
+            t_start,
+            last_good,
+            status=status,
+            text=text,
+            flag_id=flag_id,
+            change_from_before=svc.change_from_id,
         )
         svc.change_from_id = onset_id
         if not attribute:
@@ -111,6 +120,9 @@ class StepHandler:
         brought forward, on all recent measurements)."""
         svc = self.svc
         svc.step, svc.drift_onset_id, svc.drift_due = None, None, True
+        # no step: a change since a visit before the flag is a change again (else a knock
+        # right after a dropped flag goes unseen until every slot was visited again)
+        svc.change_from_id = step.change_from_before
         if svc.sequential is not None:
             svc.sequential.widen(step.onset_id)
 
@@ -124,6 +136,9 @@ class StepHandler:
             return
         if step.status == "refining":
             self._refine_step(step)
+            return
+        if step.status == "recovering":
+            self.check_recovery()
             return
         if step.status not in ("attributing", "probation"):
             return
@@ -169,7 +184,7 @@ class StepHandler:
             if a.choice in (SEVERAL, NONE) and settled:
                 step.status = a.choice
                 if a.choice == NONE:
-                    closed = self.close_suspect(svc.clock.time(), None, None, "none")
+                    closed = self.close_none(svc.clock.time())
             self._widen_sequential(a, step)
             svc.save_state()
         svc.bus.emit("step_attribution", data, level=logging.WARNING)
@@ -210,9 +225,9 @@ class StepHandler:
 
     def _refine_step(self, step: Step) -> None:
         """The first correction is in force; once a window more was measured, its group is
-        fitted again (from the parameters now in force) and applied when its gates pass; the
-        suspect interval then closes (`close_suspect`). After two refusals, or when nothing is
-        left to refine, it closes where the first correction was applied."""
+        fitted again (from the parameters now in force) and applied when its gates pass (then
+        tested for recovery, `corrected`). After two refusals, or when nothing is left to
+        refine, the first correction is tested for recovery."""
         svc = self.svc
         r = svc.settings.recalib
         got = self._step_pairs(step, locate=False)
@@ -286,15 +301,13 @@ class StepHandler:
         return data
 
     def _end_refining(self) -> None:
-        """No refinement: the interval ends where the first correction was applied."""
+        """No refinement: the first correction is tested for recovery (`check_recovery`)."""
         svc = self.svc
         assert svc.step is not None
         svc.step.refine_mm = 0.0
-        with svc.store.batch():
-            closed = self.close_suspect(svc.clock.time(), None, None, "step")
-            svc.save_state()
-        if closed is not None:
-            svc.bus.emit("suspect_interval", closed)
+        svc.step.status = "recovering"
+        svc.save_state()
+        self.check_recovery()
 
     def volume_views(self) -> tuple[Any, Any]:
         """The measuring volume's points at every configuration of the schedule (where a
@@ -309,7 +322,8 @@ class StepHandler:
         svc = self.svc
         if start_id == step.start_id:
             return {}
-        step.start_id = svc.change_from_id = start_id  # a change from before it spans it
+        # a change from before it spans it; the measurements after the step are from it on
+        step.start_id = svc.change_from_id = svc.drift_onset_id = start_id
         before = svc.store.measurements(before_id=start_id, last=1)
         if not before:
             return {}
@@ -330,15 +344,16 @@ class StepHandler:
             seq.widen_group(a.fit(a.choice).group.params)
             step.status = "following"
 
-    def close_suspect(
-        self, t: float, version: int | None, cal: Mapping[str, Any] | None, kind: str
+    def corrected(
+        self, t: float, version: int, cal: Mapping[str, Any] | None, kind: str
     ) -> dict[str, Any] | None:
-        """The step's suspect interval ends now (the apply of its correction, or no step was
-        found); its event data, or None when none is open. A first fast correction (auto mode,
-        batch estimator, `step_refine_mm` > 0) leaves it open while it is refined: it then
-        ends at the refinement when that moved points at the standoff by more than
-        `step_refine_mm` (the first correction was off by that much), else where the first
-        correction was applied."""
+        """A correction trained after the step (`kind`: a fast "step" correction, a "batch" or
+        "sequential" calibration) went in force at `t` as `version`. The suspect interval
+        stays open: the windows go on measuring for the step, and `check_recovery` closes it
+        at this correction when the held-out residuals measured with it are back at their level
+        before the step (a first fast correction, auto mode, batch estimator, is first refined
+        once, `_refine_step`). Returns the closed interval's event data when it was already
+        closed by nothing found (None otherwise)."""
         svc = self.svc
         step, r = svc.step, svc.settings.recalib
         if step is None or step.suspect_id is None:
@@ -346,31 +361,104 @@ class StepHandler:
         row = svc.store.suspect(step.suspect_id)
         if row is None or row["t_end"] is not None:
             return None
-        refines = r.step_refine_mm > 0 and r.mode == "auto" and svc.sequential is None
-        if kind == "step" and step.status != "refining" and refines and version is not None:
-            step.first_end_t, step.first_end_version = t, version
-            step.first_cal_id = None if cal is None else int(cal["id"])
-            step.n_corrected, step.status = step.n_used, "refining"
+        if row["size_mm"] is None and row["params_version"] is not None:
             svc.store.update_suspect(
-                step.suspect_id,
-                size_mm=self._correction_size(int(row["params_version"]))
-                if row["params_version"] is not None
-                else None,
+                step.suspect_id, size_mm=self._correction_size(int(row["params_version"]))
             )
-            return None
-        if step.status == "refining" and (step.refine_mm or 0.0) <= r.step_refine_mm:
-            t, version = step.first_end_t or t, step.first_end_version or version
-            cal = None if step.first_cal_id is None else {"id": step.first_cal_id}
-        fields: dict[str, Any] = {"t_end": t, "end_reason": kind}
-        if version is not None:
-            fields["end_version"] = version
-        if cal is not None:
-            fields["calibration_id"] = int(cal["id"])
-        if row["size_mm"] is None and version is not None and row["params_version"] is not None:
-            fields["size_mm"] = self._correction_size(int(row["params_version"]))
+        if step.level_mm is None:
+            self._set_level(step)
+        step.recover_version, step.recover_t, step.recover_kind = version, t, kind
+        step.recover_cal_id = None if cal is None else int(cal["id"])
+        last = svc.store.measurements(last=1)
+        step.recover_from_id = int(last[0]["id"]) if last else 0
+        if kind != "step":
+            step.full_recals += 1
+        refines = r.step_refine_mm > 0 and r.mode == "auto" and svc.sequential is None
+        if kind == "step" and step.status not in ("refining", "recovering") and refines:
+            step.n_corrected, step.status = step.n_used, "refining"
+        else:
+            step.status = "recovering"
+        return None
+
+    def _set_level(self, step: Step) -> None:
+        """The in-control level: the residuals (held out: each measured with parameters trained
+        before it) of a schedule cycle of good measurements before the step's start."""
+        level = self._level_rows(step)
+        if level:
+            step.level_mm = float(np.sqrt(np.mean(np.square(level))))
+            step.level_n = len(level)
+
+    def _level_rows(self, step: Step) -> list[float]:
+        """The residuals [mm] of the in-control level (`_set_level`)."""
+        svc = self.svc
+        first = step.start_id or step.onset_id
+        rows = svc.store.measurements(status="ok", before_id=first, last=len(svc.schedule))
+        return [float(q["residual_mm"]) for q in rows if q["residual_mm"] is not None]
+
+    def check_recovery(self) -> None:
+        """Between windows while recovering: the recovery test (app.line.step.recovery_test)
+        on the measurements taken with the correction under test in force. Back: the suspect
+        interval ends where that correction went in force. Higher: it stays open and the
+        windows go on measuring for the full recalibration on post-step measurements; after
+        two full recalibrations since the step the cell has a new level and it closes."""
+        svc = self.svc
+        step, r = svc.step, svc.settings.recalib
+        if step is None or step.status != "recovering" or step.recover_version is None:
+            return
+        rows = [
+            q
+            for q in svc.store.measurements(status="ok", since_id=step.recover_from_id)
+            if q["params_version"] == step.recover_version and q["residual_mm"] is not None
+        ]
+        if len(rows) == step.n_used:
+            return  # nothing new measured
+        step.n_used = len(rows)
+        test = recovery_test(
+            self._level_rows(step),
+            [float(q["residual_mm"]) for q in rows],
+            r.recovery_confidence,
+            r.recovery_min_measurements,
+        )
+        step.recovery = test.text
+        svc.bus.emit(
+            "recovery",
+            {"onset_id": step.onset_id, "version": step.recover_version, **test.to_json()},
+        )
+        settled = test.verdict == "higher" and step.full_recals >= 2
+        if test.verdict != "back" and not settled:
+            svc.save_state()
+            return
+        with svc.store.batch():
+            closed = self._close(step, "new level" if settled else step.recover_kind or "step")
+            svc.store.clear_alarms(svc.clock.time(), "drift_step")
+            if step.recover_kind != "step":  # a full calibration after the step: it is over
+                svc.drift_onset_id, svc.step = None, None
+            svc.save_state()
+        if closed is not None:
+            svc.bus.emit("suspect_interval", closed)
+
+    def _close(self, step: Step, reason: str) -> dict[str, Any] | None:
+        """End the suspect interval where the correction under test went in force."""
+        svc = self.svc
+        assert step.suspect_id is not None
+        fields: dict[str, Any] = {"t_end": step.recover_t, "end_reason": reason}
+        if step.recover_version is not None:
+            fields["end_version"] = step.recover_version
+        if step.recover_cal_id is not None:
+            fields["calibration_id"] = step.recover_cal_id
+        if step.recovery:
+            fields["text"] = f"{step.text}; {step.recovery}"
         svc.store.update_suspect(step.suspect_id, **fields)
-        if kind != "none":
-            step.status = "corrected"
+        step.status = "corrected"
+        return suspect_json(svc.store.suspect(step.suspect_id) or {})
+
+    def close_none(self, t: float) -> dict[str, Any] | None:
+        """No step was found: the interval ends now."""
+        svc = self.svc
+        step = svc.step
+        if step is None or step.suspect_id is None:
+            return None
+        svc.store.update_suspect(step.suspect_id, t_end=t, end_reason="none")
         return suspect_json(svc.store.suspect(step.suspect_id) or {})
 
     def _version_x(self, version: int | None) -> Any:

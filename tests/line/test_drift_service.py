@@ -100,9 +100,10 @@ def test_the_sequential_estimator_follows_a_knock(tmp_path: Path, schedule: str)
         ln.stop()
         assert cal["document"]["estimator"]["kind"] == "sequential"
         in_turn = np.mean([b == (a + 1) % 24 for a, b in itertools.pairwise(slots)])
-        # cycled: in turn but for a slot that did not fit a window's rest; adaptive: by
+        # cycled: in turn but for a slot that did not fit a window's rest and the windows that
+        # measured for the step (until the recovery test showed the cell back); adaptive: by
         # information, mostly not the next one
-        assert in_turn > 0.8 if schedule == "cycle" else in_turn < 0.5, in_turn
+        assert in_turn > 0.7 if schedule == "cycle" else in_turn < 0.5, in_turn
         assert knocked > 3 * before
         assert first <= 1.5 * before + 0.01 and after <= 1.2 * before + 0.01, (
             before,

@@ -14,8 +14,9 @@ import numpy as np
 import pytest
 
 from app.config.line import RecalibSettings
+from app.formats.params import from_json
 from app.line.schedule import Slot
-from app.line.step import Step, paired, step_sigma_mm, step_slot
+from app.line.step import Step, paired, recovery_test, step_sigma_mm, step_slot
 from fakes.truth import Knock
 from tests.line.helpers import knock_line, true_rms
 
@@ -49,10 +50,20 @@ def test_a_knock_is_attributed_corrected_at_once_and_its_suspect_interval_record
         applied = ln.wait(_is("parameters_applied"), 10.0)
         windows_to_apply = ln.service.counters["windows"] - n_window
         after_first = true_rms(ln, val, ln.service.x)
-        # one window more refines it; the interval closes then
-        refined = ln.wait(_is("step_attribution", refine=True), 20.0)
-        closed = ln.wait(_is("suspect_interval", state="closed"), 10.0)
-        after = true_rms(ln, val, ln.service.x)
+        # the interval stays open until the held-out residuals measured with a correction in
+        # force are back at their level before the step; it closes where that one was applied
+        # (or, after two full recalibrations on post-step measurements, at a new level)
+        tests: list[dict[str, Any]] = []
+        closed = ln.wait(
+            lambda e: (
+                tests.append(e)
+                if e["event"] == "recovery"
+                else _is("suspect_interval", state="closed")(e)
+            ),
+            40.0,
+        )
+        back = tests[-1]
+        after = true_rms(ln, val, from_json(ln.service.params.version_path(back["version"]))[1])
         store = ln.service.store
         cal = store.calibration(applied["calibration_id"])
         status = ln.service.status()
@@ -73,13 +84,17 @@ def test_a_knock_is_attributed_corrected_at_once_and_its_suspect_interval_record
         row_by_id = {r["id"]: r for r in rows}
         assert opened["last_good_id"] == last_before and opened["end_utc"] is None
         assert opened["t_start"] == row_by_id[last_before]["t"]
-        # it ends at the first correction unless the refinement moved points by more than
-        # step_refine_mm (then the first was off by that much: it ends at the refinement)
         assert closed["id"] == opened["id"] and closed["group"] == GROUP_OF[kind]
-        big = refined["passed"] and refined["size_mm"] > RecalibSettings().step_refine_mm
-        end = ln.service.version if big else applied["version"]
-        assert closed["end_version"] == end and closed["t_end"] == applied_t[end]
-        assert 0.1 < closed["size_mm"] < 3.0 and closed["end_reason"] == "step"
+        assert closed["end_version"] == back["version"] >= applied["version"]
+        assert closed["t_end"] == applied_t[back["version"]]
+        assert 0.1 < closed["size_mm"] < 3.0 and back["text"] in closed["text"]
+        assert back["n_after"] >= RecalibSettings().recovery_min_measurements
+        if back["verdict"] == "back":
+            assert back["ratio_f"] <= back["limit_f"], back
+            assert closed["end_reason"] in ("step", "batch")
+        else:  # the residuals stayed higher after two full recalibrations: a new level
+            assert back["verdict"] == "higher" and closed["end_reason"] == "new level"
+            assert sum(e["verdict"] == "higher" for e in tests) >= 2
         assert status["suspect_intervals"][-1]["id"] == closed["id"]
         assert status["suspect_intervals"][-1]["state"] == "closed"
         # the alarm names what moved
@@ -104,9 +119,29 @@ def test_in_approve_mode_the_correction_waits_and_the_interval_stays_open(tmp_pa
         assert status["suspect_intervals"][-1]["state"] == "open"
         reply = ln.service.request("approve", {"calibration": pending["id"]}).result(10.0)
         assert reply["ok"], reply
-        closed = ln.wait(_is("suspect_interval", state="closed"), 10.0)
+        # the interval stays open until a correction in force shows the cell back (or at a new
+        # level): each calibration the service proposes meanwhile waits for the engineer
+        versions, tests = [reply["version"]], []
+        while True:
+            e = ln.wait(
+                lambda e: (
+                    e["event"] in ("recovery", "suspect_interval")
+                    or _is("calibration", status="pending")(e)
+                ),
+                40.0,
+            )
+            if e["event"] == "recovery":
+                tests.append(e)
+            elif e["event"] == "calibration":
+                assert ln.service.status()["suspect_intervals"][-1]["state"] == "open"
+                r = ln.service.request("approve", {"calibration": e["id"]}).result(10.0)
+                versions.append(r["version"])
+            elif e["state"] == "closed":
+                break
         ln.stop()
-        assert closed["end_version"] == reply["version"]
+        assert tests and tests[-1]["verdict"] in ("back", "higher"), tests
+        assert e["end_version"] == tests[-1]["version"] == versions[-1]
+        assert all(t["verdict"] != "back" for t in tests[:-1])
     finally:
         ln.close()
 
@@ -196,7 +231,8 @@ def test_the_sequential_estimator_follows_the_attributed_group_without_waiting(
 ) -> None:
     """Sequential estimator: the post-step rows wait until the step is attributed, then only
     the sensor group's covariance is widened and the candidate is due as soon as the filter
-    predicts the schedule's views again (no full schedule cycle): it closes the interval."""
+    predicts the schedule's views again (no full schedule cycle); the interval closes when the
+    measurements taken with it show the cell back."""
     ln, x_good, val = knock_line(tmp_path, RecalibSettings(estimator="sequential"))
     try:
         before = true_rms(ln, val, x_good)
@@ -216,14 +252,27 @@ def test_the_sequential_estimator_follows_the_attributed_group_without_waiting(
         seq = ln.service.sequential
         assert seq is not None and seq.group_step and seq.est is not None
         widened = dict(zip(seq.est.active, seq.est.std, strict=True))
-        closed = ln.wait(_is("suspect_interval", state="closed"), 60.0)
+        ln.wait(_is("parameters_applied"), 60.0)
         windows = ln.service.counters["windows"] - n_window
+        # closed once the measurements taken with a candidate show the cell back
+        tests: list[dict[str, Any]] = []
+        closed = ln.wait(
+            lambda e: (
+                tests.append(e)
+                if e["event"] == "recovery"
+                else _is("suspect_interval", state="closed")(e)
+            ),
+            60.0,
+        )
+        windows_closed = ln.service.counters["windows"] - n_window
         after = true_rms(ln, val, ln.service.x)
         ln.stop()
         # the sensor group's uncertainty grew, a joint's did not (only the group was widened)
         assert widened["x_FS"] > 0.05 and widened["a2"] < 0.05
         assert closed["id"] == opened["id"] and closed["end_reason"] == "sequential"
         assert windows <= 2  # a full schedule cycle of post-step updates would take 3+
+        assert tests[-1]["verdict"] == "back" and closed["end_version"] == tests[-1]["version"]
+        assert windows_closed <= 6
         assert after <= 1.5 * before + 0.01, (before, after)
         assert attributed["onset_id"] >= opened["onset_id"]
     finally:
@@ -258,3 +307,23 @@ def test_a_flag_that_the_attribution_explains_by_nothing_is_dropped_as_drift(
         assert suspects == [] and not alarms and dropped["n"] >= 3
     finally:
         ln.close()
+
+
+def test_the_recovery_test_says_higher_back_or_too_few_at_its_confidence() -> None:
+    # norms of 3-D normal residuals, sigma 0.03 per coordinate before the step
+    rng = np.random.default_rng(3)
+
+    def norms(sigma: float, n: int) -> Any:
+        return np.linalg.norm(rng.normal(0.0, sigma, (n, 3)), axis=1)
+
+    before = norms(0.03, 24)
+    assert recovery_test(before, norms(0.03, 12), 0.95, 6).verdict == "back"
+    higher = recovery_test(before, norms(0.06, 12), 0.95, 6)
+    assert higher.verdict == "higher" and higher.ratio_f > higher.limit_f > 1.0
+    assert "higher at 95% confidence" in higher.text
+    # too few to say it is back, but already enough to say it is higher
+    assert recovery_test(before, norms(0.03, 3), 0.95, 6).verdict == "undetermined"
+    assert recovery_test(before, norms(0.2, 3), 0.95, 6).verdict == "higher"
+    # the false-alarm rate is the stated one: 1 - confidence
+    same = [recovery_test(norms(0.03, 24), norms(0.03, 8), 0.95, 6).verdict for _ in range(400)]
+    assert 0.02 < same.count("higher") / 400 < 0.09
