@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from app.commands import add_command
-from app.commands.args import float_in, int_at_least
+from app.commands.args import int_at_least
 from app.commands.compensate import run_compensation_experiment
 from app.config import CellConfig, load_cell
 from app.errors import InputError
@@ -121,6 +121,9 @@ def _knock_hours(args: argparse.Namespace) -> list[tuple[float, float]]:
     the knock + `--after-h` (rounded to the microhour, so that its reproduce command gives it)."""
     if args.after_h is not None and args.hours is not None:
         raise InputError("give --hours or --after-h, not both", field="--after-h")
+    for name, value in (("--hours", args.hours), ("--after-h", args.after_h)):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise InputError(f"must be > 0, got {value:g}", field=name)
     out = []
     for knock_h in args.knock_at_h:
         if args.after_h is not None:
@@ -138,7 +141,7 @@ def _knock_hours(args: argparse.Namespace) -> list[tuple[float, float]]:
 def _shift_options(g: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--hours",
-        type=float_in(0.0, math.inf),
+        type=float,
         help=f"sim hours of a shift ({DEFAULT_HOURS:g}; not with --after-h)",
     )
     g.add_argument(
@@ -151,7 +154,7 @@ def _shift_options(g: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--after-h",
-        type=float_in(0.0, math.inf),
+        type=float,
         help="each shift runs to its knock's hour + this many hours (instead of --hours)",
     )
     g.add_argument(
