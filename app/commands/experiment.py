@@ -8,9 +8,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from app.commands import add_command
 from app.commands.args import int_at_least
@@ -23,7 +25,7 @@ from app.sim.accuracy import summary_text as accuracy_text
 from app.sim.paper import run_experiment, summary_text
 
 if TYPE_CHECKING:
-    from app.sim.shift import ShiftSettings
+    from app.sim.shift import ShiftResult, ShiftSettings
 
 
 EXPERIMENTS: dict[str, str] = {
@@ -94,9 +96,73 @@ def _paper_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+DEFAULT_HOURS = 8.0  # `--hours` when neither it nor --after-h is given
+
+
+def hours_list(text: str) -> list[float]:
+    """`--knock-at-h`: one hour or a comma list of distinct hours, each a finite number > 0
+    (that each lies inside its shift is checked with --hours, `_knock_hours`)."""
+    hours: list[float] = []
+    for part in text.split(","):
+        try:
+            value = float(part)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"'{part.strip()}' is not a number") from None
+        if not (math.isfinite(value) and value > 0):
+            raise argparse.ArgumentTypeError(f"each hour must be > 0, got {part.strip()}")
+        if value in hours:
+            raise argparse.ArgumentTypeError(f"{part.strip()} is given twice")
+        hours.append(value)
+    return hours
+
+
+def _knock_hours(args: argparse.Namespace) -> list[tuple[float, float]]:
+    """(knock hour, shift hours) per `--knock-at-h` value: the shift runs to `--hours`, or to
+    the knock + `--after-h` (rounded to the microhour, so that its reproduce command gives it)."""
+    if args.after_h is not None and args.hours is not None:
+        raise InputError("give --hours or --after-h, not both", field="--after-h")
+    for name, value in (("--hours", args.hours), ("--after-h", args.after_h)):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise InputError(f"must be > 0, got {value:g}", field=name)
+    out = []
+    for knock_h in args.knock_at_h:
+        if args.after_h is not None:
+            out.append((knock_h, round(knock_h + args.after_h, 6)))
+            continue
+        hours = DEFAULT_HOURS if args.hours is None else args.hours
+        if not knock_h < hours:
+            raise InputError(
+                f"each hour must be < --hours ({hours:g}), got {knock_h:g}", field="--knock-at-h"
+            )
+        out.append((knock_h, hours))
+    return out
+
+
 def _shift_options(g: argparse.ArgumentParser) -> None:
-    g.add_argument("--hours", type=float, default=8.0, help="sim hours (8)")
-    g.add_argument("--knock-at-h", type=float, default=4.0, help="knock at hour (4)")
+    g.add_argument(
+        "--hours",
+        type=float,
+        help=f"sim hours of a shift ({DEFAULT_HOURS:g}; not with --after-h)",
+    )
+    g.add_argument(
+        "--knock-at-h",
+        type=hours_list,
+        default=[4.0],
+        metavar="H[,H...]",
+        help="knock at hour (4); a comma list (0.5,0.75,1.5): a campaign with a row per knock"
+        " kind and hour, each hour > 0 and < the shift's hours",
+    )
+    g.add_argument(
+        "--after-h",
+        type=float,
+        help="each shift runs to its knock's hour + this many hours (instead of --hours)",
+    )
+    g.add_argument(
+        "--jobs",
+        type=int_at_least(1),
+        default=1,
+        help="a campaign's shifts in this many worker processes (1; the same results)",
+    )
     g.add_argument(
         "--knock",
         choices=("sensor", "fixture", "joint", "all"),
@@ -137,7 +203,7 @@ def run(args: argparse.Namespace) -> int:
     if args.name == "compensation":
         return run_compensation_experiment(args)
     if args.name == "shift":
-        if args.seeds is not None or args.knock == "all":
+        if args.seeds is not None or args.knock == "all" or len(args.knock_at_h) > 1:
             return run_knock_campaign(args)
         return run_shift_experiment(args)
     if args.name == "paper-compare":
@@ -205,7 +271,8 @@ def run_shift_experiment(args: argparse.Namespace) -> int:
         write_outputs,
     )
 
-    settings = _shift_settings(args)
+    ((knock_h, hours),) = _knock_hours(args)
+    settings = _shift_settings(args, knock_h, hours)
     cfg = load_cell(args.cell)
     out = Path(args.out or f"runs/shift-{time.strftime('%Y%m%d-%H%M%S')}")
     if (out / "state").exists():
@@ -220,7 +287,7 @@ def run_shift_experiment(args: argparse.Namespace) -> int:
                 flush=True,
             )
 
-    print(f"rvis experiment shift: {args.hours:g} h, knock at {args.knock_at_h:g} h -> {out}/")
+    print(f"rvis experiment shift: {hours:g} h, knock at {knock_h:g} h -> {out}/")
     runs = {  # the name in the comparison -> (estimator, schedule)
         "batch": ("batch", "cycle"),
         "sequential": ("sequential", "cycle"),
@@ -228,6 +295,7 @@ def run_shift_experiment(args: argparse.Namespace) -> int:
     }
     names = list(runs) if args.estimator == "compare" else [args.estimator]
     results = {}
+    when = f"--hours {hours:g} --knock-at-h {knock_h:g}"
     for name in names:
         estimator, schedule = runs[name] if args.estimator == "compare" else (name, None)
         s = dataclasses.replace(settings, estimator=estimator, schedule=schedule)
@@ -237,7 +305,7 @@ def run_shift_experiment(args: argparse.Namespace) -> int:
         results[str(name)] = result = run_shift(
             cfg, sub / "state", s, seed=args.seed, on_window=progress
         )
-        command = _shift_command(args, result.scale, out) + f" --seed {args.seed}"
+        command = _shift_command(args, result.scale, out, when) + f" --seed {args.seed}"
         paths = write_outputs(result, sub, command)
         print()
         print("\n".join(summary_lines(result)))
@@ -248,15 +316,15 @@ def run_shift_experiment(args: argparse.Namespace) -> int:
     return 0
 
 
-def _shift_settings(args: argparse.Namespace) -> ShiftSettings:
+def _shift_settings(args: argparse.Namespace, knock_h: float, hours: float) -> ShiftSettings:
     from app.sim.shift import ShiftSettings
 
     if args.geometric and args.rendered:
         raise InputError("choose --geometric or --rendered", field="--rendered")
     try:
         return ShiftSettings(
-            hours=args.hours,
-            knock_at_h=args.knock_at_h,
+            hours=hours,
+            knock_at_h=knock_h,
             knock="sensor" if args.knock == "all" else args.knock,
             geometric=not args.rendered,
             scale=args.scale,
@@ -267,10 +335,11 @@ def _shift_settings(args: argparse.Namespace) -> ShiftSettings:
         raise InputError(str(exc), field="--hours/--knock-at-h/--scale") from exc
 
 
-def _shift_command(args: argparse.Namespace, scale: float | None, out: Path) -> str:
-    """The command line that reproduces a shift (for the outputs' headers)."""
+def _shift_command(args: argparse.Namespace, scale: float | None, out: Path, when: str) -> str:
+    """The command line that reproduces a shift or a campaign (for the outputs' headers);
+    `when`: its --hours / --knock-at-h / --after-h part."""
     return (
-        f"rvis experiment shift --hours {args.hours:g} --knock-at-h {args.knock_at_h:g}"
+        f"rvis experiment shift {when}"
         f" --knock {args.knock}"
         + ("" if scale is None else f" --scale {scale:g}")
         + f" --out {out}"
@@ -281,37 +350,152 @@ def _shift_command(args: argparse.Namespace, scale: float | None, out: Path) -> 
     )
 
 
+def _campaign_when(args: argparse.Namespace, plan: list[tuple[float, float]]) -> str:
+    """The campaign's --hours / --knock-at-h / --after-h, as given (one hour: as before)."""
+    knocks = ",".join(f"{h:g}" for h, _ in plan)
+    if args.after_h is not None:
+        return f"--knock-at-h {knocks} --after-h {args.after_h:g}"
+    return f"--hours {plan[0][1]:g} --knock-at-h {knocks}"
+
+
+@dataclasses.dataclass(frozen=True)
+class _CampaignShift:
+    """One shift of a campaign: what a worker process needs to run it and write its outputs."""
+
+    kind: str
+    knock_h: float
+    seed: int
+    folder: Path
+    settings: ShiftSettings
+    header: str  # the command line in its shift.md
+    reproduce: str  # the command that runs it alone
+
+
+def _run_campaign_shift(cfg: CellConfig, task: _CampaignShift) -> ShiftResult:
+    """Run one shift of a campaign and write its shift.md/.json/.png (in a worker process
+    with --jobs N: a module-level function, its arguments and result picklable)."""
+    from app.sim.shift import run_shift, write_outputs
+
+    result = run_shift(cfg, task.folder / "state", task.settings, seed=task.seed)
+    write_outputs(result, task.folder, task.header)
+    return result
+
+
 def run_knock_campaign(args: argparse.Namespace) -> int:
-    """`--seeds N` (from `--first-seed`) and/or `--knock all`: the shift for every seed and
-    knock kind, each in `out/<kind>/seed-<n>/`, then `shift-knocks.md/.json/.png` (app.sim.knocks,
-    rewritten after every run so that a campaign stopped half-way keeps what it measured)."""
+    """`--seeds N` (from `--first-seed`), `--knock all` and/or several `--knock-at-h` hours:
+    the shift for every knock kind, hour and seed, each in `out/<kind>/seed-<n>/` (several
+    hours: `out/<kind>/at-<h>h/seed-<n>/`), then `shift-knocks.md/.json/.png` (app.sim.knocks,
+    rewritten after every run so that a campaign stopped half-way keeps what it measured).
+    `--jobs N` runs the shifts in N worker processes: each shift is deterministic (virtual
+    time) and independent, and the campaign is assembled in the same order, so the outputs are
+    those of --jobs 1 apart from the wall times."""
     from app.sim.knocks import write_campaign
-    from app.sim.shift import ShiftResult, run_shift, summary_lines, write_outputs
+    from app.sim.shift import summary_lines
 
     if args.estimator == "compare":
         raise InputError("a campaign runs one estimator", field="--estimator")
-    base = dataclasses.replace(_shift_settings(args), estimator=args.estimator)
+    plan = _knock_hours(args)
+    bases = {h: _shift_settings(args, h, hours) for h, hours in plan}
     cfg = load_cell(args.cell)
     out = Path(args.out or f"runs/knocks-{time.strftime('%Y%m%d-%H%M%S')}")
     kinds = ["sensor", "fixture", "joint"] if args.knock == "all" else [args.knock]
     seeds = list(range(args.first_seed, args.first_seed + (args.seeds or 1)))
+    several = len(plan) > 1
+    command = _shift_command(args, args.scale, out, _campaign_when(args, plan)) + (
+        f" --seeds {len(seeds)} --first-seed {args.first_seed}"
+    )
+    tasks = []
     for kind in kinds:
-        if any((out / kind / f"seed-{n}" / "state").exists() for n in seeds):
-            raise InputError("the output folder already holds a campaign's state", file=out)
-    print(f"rvis experiment shift: {len(kinds)} knock kinds x {len(seeds)} seeds -> {out}/")
-    results: dict[str, list[ShiftResult]] = {k: [] for k in kinds}
-    command = ""
-    for kind in kinds:
-        for seed in seeds:
-            sub = out / kind / f"seed-{seed}"
-            result = run_shift(cfg, sub / "state", dataclasses.replace(base, knock=kind), seed=seed)
-            command = _shift_command(args, result.scale, out) + (
-                f" --seeds {len(seeds)} --first-seed {args.first_seed}"
-            )
-            write_outputs(result, sub, command + f" (seed {seed})")
-            results[kind].append(result)
-            print(f"{kind} seed {seed}: " + "; ".join(summary_lines(result)[:3]), flush=True)
-            write_campaign({k: v for k, v in results.items() if v}, out, command)
-    paths = write_campaign(results, out, command)
+        for knock_h, hours in plan:
+            for seed in seeds:
+                folder = out / kind / (f"at-{knock_h:g}h" if several else "") / f"seed-{seed}"
+                if (folder / "state").exists():
+                    raise InputError("the output folder already holds a campaign's state", file=out)
+                reproduce = _reproduce(args, kind, knock_h, hours, seed)
+                tasks.append(
+                    _CampaignShift(
+                        kind,
+                        knock_h,
+                        seed,
+                        folder,
+                        dataclasses.replace(bases[knock_h], knock=kind),
+                        reproduce if several else command + f" (seed {seed})",
+                        reproduce,
+                    )
+                )
+    what = f"{len(kinds)} knock kinds x {len(seeds)} seeds"
+    if several:
+        what += f" x {len(plan)} knock hours"
+    jobs = min(args.jobs, len(tasks))
+    print(f"rvis experiment shift: {what} -> {out}/" + (f" ({jobs} jobs)" if jobs > 1 else ""))
+    done: dict[int, ShiftResult] = {}
+
+    def finished(i: int, result: ShiftResult) -> None:
+        done[i] = result
+        t = tasks[i]
+        at = f" at {t.knock_h:g} h" if several else ""
+        print(f"{t.kind}{at} seed {t.seed}: " + "; ".join(summary_lines(result)[:3]), flush=True)
+        write_campaign(_by_kind(tasks, done), out, command, commands=_commands(tasks, done))
+
+    if jobs == 1:
+        for i, task in enumerate(tasks):
+            finished(i, _run_campaign_shift(cfg, task))
+    else:
+        _run_in_workers(cfg, tasks, jobs, finished, getattr(args, "log_level", "off"))
+    paths = write_campaign(_by_kind(tasks, done), out, command, commands=_commands(tasks, done))
     print(f"written {', '.join(str(p) for p in paths)}")
     return 0
+
+
+def _reproduce(args: argparse.Namespace, kind: str, knock_h: float, hours: float, seed: int) -> str:
+    """The command that runs one shift of a campaign alone."""
+    alone = argparse.Namespace(**{**vars(args), "knock": kind})
+    out = Path("runs") / f"{kind}-{knock_h:g}h-seed-{seed}"
+    when = f"--hours {hours:g} --knock-at-h {knock_h:g}"
+    return _shift_command(alone, args.scale, out, when) + f" --seed {seed}"
+
+
+def _by_kind(tasks: list[_CampaignShift], done: dict[int, ShiftResult]) -> dict[str, list[Any]]:
+    """The finished shifts per knock kind, in the campaign's order (kind, hour, seed)."""
+    out: dict[str, list[Any]] = {}
+    for i, task in enumerate(tasks):
+        if i in done:
+            out.setdefault(task.kind, []).append(done[i])
+    return out
+
+
+def _commands(tasks: list[_CampaignShift], done: dict[int, ShiftResult]) -> list[str]:
+    return [t.reproduce for i, t in enumerate(tasks) if i in done]
+
+
+def _run_in_workers(
+    cfg: CellConfig,
+    tasks: list[_CampaignShift],
+    jobs: int,
+    finished: Callable[[int, ShiftResult], None],
+    log_level: str = "off",
+) -> None:
+    """The shifts in `jobs` fresh worker processes (spawned: nothing of this process's state,
+    threads or caches is inherited; their logging as the command's, `log_level`),
+    `finished(i, result)` as each ends."""
+    import multiprocessing
+    from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+
+    from app.commands.logs import configure
+
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(
+        max_workers=jobs, mp_context=context, initializer=configure, initargs=(log_level,)
+    ) as pool:
+        pending: dict[Future[ShiftResult], int] = {
+            pool.submit(_run_campaign_shift, cfg, task): i for i, task in enumerate(tasks)
+        }
+        try:
+            while pending:
+                ready, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for future in sorted(ready, key=lambda f: pending[f]):
+                    finished(pending.pop(future), future.result())
+        except BaseException:
+            for future in pending:
+                future.cancel()
+            raise

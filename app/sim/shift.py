@@ -47,6 +47,9 @@ class ShiftSettings:
     schedule: str | None = None  # "cycle" | "adaptive" (sequential); None: the cell's
     recovered_ratio: float = 1.2  # "back": error with the service <= this x its pre-knock level
     pre_knock_windows: int = 10  # windows before the knock whose median sets the pre-knock level
+    # the knock's episode ends at the last window above the ratio before this many windows in a
+    # row back within it (SuspectScore.episode_end)
+    episode_gap_windows: int = 10
 
     def __post_init__(self) -> None:
         if not (self.hours > 0 and 0 <= self.knock_at_h < self.hours):
@@ -59,8 +62,10 @@ class ShiftSettings:
             raise ValueError("model must be rigid or compliant")
         if self.schedule not in (None, "cycle", "adaptive"):
             raise ValueError("schedule must be cycle or adaptive")
-        if self.recovered_ratio < 1 or self.pre_knock_windows < 1:
-            raise ValueError("recovered_ratio >= 1 and pre_knock_windows >= 1")
+        if self.recovered_ratio < 1 or self.pre_knock_windows < 1 or self.episode_gap_windows < 1:
+            raise ValueError(
+                "recovered_ratio >= 1, pre_knock_windows >= 1 and episode_gap_windows >= 1"
+            )
         if self.knock not in KNOCK_KINDS:
             raise ValueError(f"knock must be one of {', '.join(KNOCK_KINDS)}")
 
@@ -86,18 +91,42 @@ class SuspectScore:
     (the true error of the parameters in force in the window above recovered_ratio x the
     pre-knock level), `covered` ones (the window opened inside an interval: the parameters in
     force then were the suspect ones), and any window covered before the knock (a false
-    step)."""
+    step).
+
+    The knock's *episode* runs from the knock's window to `episode_end`: the last bad window
+    before the error stays back within the ratio for `episode_gap_windows` windows in a row (or
+    the shift ends). The bad windows later (a full recalibration's spread, the warm-up's drift
+    hours after the knock) are not the knock's: `episode_recall` leaves them out, `recall`
+    (every bad window to the end of the shift) does not."""
 
     bad: tuple[int, ...]
     covered: tuple[int, ...]
     covered_before_knock: tuple[int, ...]
+    episode_end: int | None = None  # None: no bad window after the knock
 
     @property
     def recall(self) -> float:
-        """Share of the bad windows covered (1 when none was bad)."""
+        """Share of the bad windows covered, to the end of the shift (1 when none was bad)."""
         if not self.bad:
             return 1.0
         return len(set(self.bad) & set(self.covered)) / len(self.bad)
+
+    @property
+    def episode_bad(self) -> tuple[int, ...]:
+        """The bad windows of the knock's episode (the knock's window to `episode_end`)."""
+        end = self.episode_end
+        return () if end is None else tuple(w for w in self.bad if w <= end)
+
+    @property
+    def episode_covered(self) -> tuple[int, ...]:
+        """The episode's bad windows that were covered."""
+        return tuple(sorted(set(self.episode_bad) & set(self.covered)))
+
+    @property
+    def episode_recall(self) -> float:
+        """Share of the episode's bad windows covered (1 when none was bad)."""
+        bad = self.episode_bad
+        return len(self.episode_covered) / len(bad) if bad else 1.0
 
     @property
     def extra(self) -> int:
@@ -118,6 +147,10 @@ class SuspectScore:
             "recall": self.recall,
             "extra": self.extra,
             "extra_share": self.extra_share,
+            "episode_end": self.episode_end,
+            "episode_bad": list(self.episode_bad),
+            "episode_covered": list(self.episode_covered),
+            "episode_recall": self.episode_recall,
         }
 
 
@@ -323,15 +356,30 @@ def score_suspects(result: ShiftResult, limit_mm: float) -> SuspectScore:
         )
 
     recs = result.records
+    bad = tuple(r.window for r in recs if r.window >= k and r.rmse_mm > limit_mm)
     return SuspectScore(
-        bad=tuple(r.window for r in recs if r.window >= k and r.rmse_mm > limit_mm),
+        bad=bad,
         covered=tuple(
             r.window for r in recs if r.window >= k and covered(_opened_s(r, result.window_s))
         ),
         covered_before_knock=tuple(
             r.window for r in recs if r.window < k and covered(_opened_s(r, result.window_s))
         ),
+        episode_end=episode_end(bad, result.settings.episode_gap_windows),
     )
+
+
+def episode_end(bad: tuple[int, ...], gap: int) -> int | None:
+    """The last of the knock's bad windows (`bad`: ascending, from the knock's window on): the
+    last one before `gap` windows in a row that were not bad; None when none was bad."""
+    if not bad:
+        return None
+    end = bad[0]
+    for w in bad[1:]:
+        if w - end - 1 >= gap:
+            break
+        end = w
+    return end
 
 
 def hourly_rows(result: ShiftResult) -> list[dict[str, float]]:
@@ -404,8 +452,15 @@ def _suspects_text(result: ShiftResult) -> str:
         f"suspect intervals: {spans or 'none'}; they cover {len(sc.covered)} windows after the"
         f" knock, {len(sc.bad)} were above {result.settings.recovered_ratio:g}x (recall"
         f" {100 * sc.recall:.0f} %, target 100 %), {sc.extra} covered that were not"
-        f" ({100 * sc.extra_share:.0f} % of the covered, target <= 10 %)"
+        f" ({100 * sc.extra_share:.0f} % of the covered, target <= 10 %); over the knock's"
+        f" episode ({_episode_span(result.knock_window, sc.episode_end)}):"
+        f" {len(sc.episode_covered)} of {len(sc.episode_bad)} above covered (recall"
+        f" {100 * sc.episode_recall:.0f} %, target >= 95 %)"
     )
+
+
+def _episode_span(knock_window: int | None, end: int | None) -> str:
+    return "no window above" if end is None else f"windows {knock_window}-{end}"
 
 
 def _alarms_text(result: ShiftResult) -> str:

@@ -15,10 +15,18 @@ from typing import Any
 
 import pytest
 
-from app.commands.cli import main
+from app.commands.cli import build_parser, main
+from app.commands.experiment import _knock_hours, hours_list
 from app.config import CellConfig
 from app.line.store import Store
-from app.sim.shift import ShiftSettings, run_shift, summary_lines, write_outputs
+from app.sim.shift import (
+    ShiftSettings,
+    SuspectScore,
+    episode_end,
+    run_shift,
+    summary_lines,
+    write_outputs,
+)
 
 
 def test_a_knock_is_flagged_and_the_service_recovers(cfg: CellConfig, tmp_path: Path) -> None:
@@ -173,3 +181,114 @@ def _covered_until_the_correction(run: dict[str, Any]) -> bool:
     timeline = run["summary"]["timeline"]
     opened = [r["t_open_h"] for r in timeline if run["knock_window"] <= r["window"] < first_apply]
     return bool(opened) and all(t0_h <= t <= t1_h for t in opened)
+
+
+def test_knock_hours_parse_as_a_list() -> None:
+    assert hours_list("0.5,0.75,1.5,2.5") == [0.5, 0.75, 1.5, 2.5]
+    assert hours_list("4") == [4.0]
+    args = build_parser(["experiment"]).parse_args(
+        ["experiment", "shift", "--knock-at-h", "0.5,2.5", "--after-h", "1"]
+    )
+    assert _knock_hours(args) == [(0.5, 1.5), (2.5, 3.5)]
+    args = build_parser(["experiment"]).parse_args(["experiment", "shift", "--knock-at-h", "0.5,2"])
+    assert _knock_hours(args) == [(0.5, 8.0), (2.0, 8.0)]
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["--knock-at-h", "0.5,abc"],
+        ["--knock-at-h", "0,1"],
+        ["--knock-at-h", "-1"],
+        ["--knock-at-h", "1,1"],
+        ["--knock-at-h", "0.5,"],
+        ["--jobs", "0"],
+    ],
+)
+def test_a_bad_knock_hour_list_is_a_usage_error(
+    argv: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Refused where argparse reads it: one line naming the option, exit code 2."""
+    with pytest.raises(SystemExit) as exc:
+        main(["experiment", "shift", "--out", str(tmp_path / "x"), *argv])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and argv[0] in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "x").exists()
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["--knock-at-h", "0.5,9"],
+        ["--knock-at-h", "2", "--hours", "2"],
+        ["--knock-at-h", "1", "--hours", "3", "--after-h", "1"],
+        ["--knock-at-h", "1", "--after-h", "0"],
+    ],
+)
+def test_a_knock_hour_outside_its_shift_exits_2(
+    argv: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code = main(["experiment", "shift", "--out", str(tmp_path / "x"), *argv])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert ("--knock-at-h" in err or "--after-h" in err) and "Traceback" not in err
+    assert not (tmp_path / "x").exists()
+
+
+def test_the_episode_ends_before_a_long_run_back() -> None:
+    assert episode_end((), 10) is None
+    assert episode_end((5, 6, 7), 10) == 7
+    assert episode_end((5, 6, 9, 17), 10) == 17  # 9 windows back between 9 and 19: one episode
+    assert episode_end((5, 6, 9, 20, 21), 10) == 9  # 10 back in a row: 20 is not the knock's
+    score = SuspectScore(
+        bad=(5, 6, 9, 40), covered=(5, 6, 9), covered_before_knock=(), episode_end=9
+    )
+    assert score.episode_recall == 1.0 and score.recall == 0.75 and score.episode_bad == (5, 6, 9)
+
+
+def _without_wall_time(doc: Any) -> Any:
+    if isinstance(doc, dict):
+        return {k: _without_wall_time(v) for k, v in doc.items() if k != "real_s"}
+    if isinstance(doc, list):
+        return [_without_wall_time(v) for v in doc]
+    return doc
+
+
+@pytest.mark.slow
+def test_a_campaign_over_two_knock_hours_in_two_jobs(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`--knock-at-h 0.15,0.2 --after-h 0.1`: one kind, one seed, two hours; a row per (kind,
+    hour), an overall line, every run's seed, kind, hour and reproduce command, each shift
+    0.1 h past its knock; --jobs 2 gives the same outputs as --jobs 1 but the wall times."""
+    argv = ["experiment", "shift", "--knock-at-h", "0.15,0.2", "--after-h", "0.1"]
+    argv += ["--slots-per-window", "2", "--knock", "sensor", "--seeds", "1"]
+    docs, mds = [], []
+    for jobs in (1, 2):
+        out = tmp_path / f"jobs-{jobs}"
+        assert main([*argv, "--jobs", str(jobs), "--out", str(out)]) == 0
+        docs.append(json.loads((out / "shift-knocks.json").read_text()))
+        mds.append((out / "shift-knocks.md").read_text().replace(str(out), "OUT"))
+        for h in ("0.15", "0.2"):
+            assert (out / "sensor" / f"at-{h}h" / "seed-0" / "shift.json").exists()
+    doc = docs[0]
+    assert [(r["knock"], r["knock_at_h"]) for r in doc["rows"]] == [
+        ("sensor", [0.15]),
+        ("sensor", [0.2]),
+    ]
+    assert [r["knock_at_h"] for r in doc["overall"]] == [[0.15, 0.2]]
+    runs = doc["per_run"]
+    assert [(r["knock"], r["knock_at_h"], r["hours"], r["seed"]) for r in runs] == [
+        ("sensor", 0.15, 0.25, 0),
+        ("sensor", 0.2, 0.3, 0),
+    ]
+    assert runs[0]["command"].startswith(
+        "rvis experiment shift --hours 0.25 --knock-at-h 0.15 --knock sensor"
+    )
+    assert runs[0]["command"].endswith("--seed 0") and runs[0]["episode_recall"] is not None
+    assert runs[0]["command"] in mds[0]
+    md = mds[0]
+    assert "| sensor | 0.15 | 1 |" in md and "| sensor | 0.2 | 1 |" in md
+    assert "| sensor | **all** | 2 |" in md
+    assert _without_wall_time(docs[1]) == _without_wall_time(doc)
+    assert mds[1] == md
