@@ -27,6 +27,18 @@ def _is(kind: str, **fields: Any) -> Any:
     return lambda e: e["event"] == kind and all(e.get(k) == v for k, v in fields.items())
 
 
+def _until_closed(ln: Any, timeout_s: float) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """The suspect interval's closing event and the recovery tests before it."""
+    tests: list[dict[str, Any]] = []
+
+    def closing(e: dict[str, Any]) -> bool:
+        if e["event"] == "recovery":
+            tests.append(e)
+        return bool(e["event"] == "suspect_interval" and e["state"] == "closed")
+
+    return ln.wait(closing, timeout_s), tests
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", ["sensor", "fixture", "joint"])
 def test_a_knock_is_attributed_corrected_at_once_and_its_suspect_interval_recorded(
@@ -53,15 +65,7 @@ def test_a_knock_is_attributed_corrected_at_once_and_its_suspect_interval_record
         # the interval stays open until the held-out residuals measured with a correction in
         # force are back at their level before the step; it closes where that one was applied
         # (or, after two full recalibrations on post-step measurements, at a new level)
-        tests: list[dict[str, Any]] = []
-        closed = ln.wait(
-            lambda e: (
-                tests.append(e)
-                if e["event"] == "recovery"
-                else _is("suspect_interval", state="closed")(e)
-            ),
-            40.0,
-        )
+        closed, tests = _until_closed(ln, 40.0)
         back = tests[-1]
         after = true_rms(ln, val, from_json(ln.service.params.version_path(back["version"]))[1])
         store = ln.service.store
@@ -255,15 +259,7 @@ def test_the_sequential_estimator_follows_the_attributed_group_without_waiting(
         ln.wait(_is("parameters_applied"), 60.0)
         windows = ln.service.counters["windows"] - n_window
         # closed once the measurements taken with a candidate show the cell back
-        tests: list[dict[str, Any]] = []
-        closed = ln.wait(
-            lambda e: (
-                tests.append(e)
-                if e["event"] == "recovery"
-                else _is("suspect_interval", state="closed")(e)
-            ),
-            60.0,
-        )
+        closed, tests = _until_closed(ln, 60.0)
         windows_closed = ln.service.counters["windows"] - n_window
         after = true_rms(ln, val, ln.service.x)
         ln.stop()
