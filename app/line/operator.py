@@ -21,6 +21,7 @@ from typing import Any
 from app.line.host import LineHost
 from app.line.roles import NEEDS
 from app.line.states import FAULT_CODES, State
+from app.line.step import StepStatus
 from app.line.store import StorageError
 from drivers.errors import DeviceError
 
@@ -215,8 +216,8 @@ class Operator:
         cal_id = self._pending_id(args)
         svc.store.decide_calibration(cal_id, "rejected", svc.clock.time(), uid)
         svc.pending_calibration = None
-        if svc.step is not None and svc.step.status == "proposed":
-            svc.step.status = "attributing"  # its correction refused: the next one, with more
+        if svc.step is not None and svc.step.status == StepStatus.PROPOSED:
+            svc.step.move(StepStatus.ATTRIBUTING)  # its correction refused: the next one, with more
             svc.save_state()
         return {"message": f"calibration {cal_id} rejected"}
 

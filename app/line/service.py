@@ -63,7 +63,7 @@ from app.line.statedir import StateDir
 from app.line.states import FAULT_CODES, State, utc_text
 from app.line.station import Station
 from app.line.status import device_of, status_reply
-from app.line.step import Step, StepCorrection, step_slot
+from app.line.step import Step, StepCorrection, StepStatus, step_alarm_text, step_slot
 from app.line.step_service import StepHandler
 from app.line.store import StorageError, Store
 from app.line.sweeps import SweepArchive
@@ -707,16 +707,12 @@ class Service:
                 self.steps.open_step(sig.onset_ref, row_id, attribute=attribute)
             what = "residual" if sig.family == "residual" else "change since the last visit"
             text = f"step of {where} ({what}, {stat}) since measurement {self.drift_onset_id}"
-            if self.step is not None and self.step.status == "probation":
+            if self.step is not None:
                 self.step.signal = self.step.signal or text
-                self.alarm("drift", f"{text}: attributing it (a step or drift?)", "low")
-                continue
-            self.alarm(
-                "drift_step",
-                f"{text}: check the cell (sensor mount, spheres); recalibrating on the"
-                " measurements after it",
-                "high",
-            )
+                if self.step.status == StepStatus.PROBATION:
+                    self.alarm("drift", f"{text}: attributing it (a step or drift?)", "low")
+                    continue
+            self.alarm("drift_step", step_alarm_text(text), "high")
 
     def _drift_seed(self, cal: dict[str, Any] | None) -> list[tuple[str, float]]:
         """Residuals of the parameters in force on recent good measurements: the rolling set of
@@ -850,7 +846,10 @@ class Service:
             status="ok", since_id=since, last=r.rolling_size + r.holdout_size
         )
         n_slots = len(self.schedule)
-        if self.step is not None and self.step.status in ("refining", "recovering"):
+        if self.step is not None and self.step.status in (
+            StepStatus.REFINING,
+            StepStatus.RECOVERING,
+        ):
             # the windows measure for the step: as soon as the post-step measurements span
             # half the schedule (the identification's rank and condition gates judge the rest)
             n_slots = (n_slots + 1) // 2

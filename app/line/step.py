@@ -32,6 +32,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, fields
+from enum import StrEnum
 from typing import Any
 
 import numpy as np
@@ -63,6 +64,39 @@ RECENT_FIRST = 2  # slots measured just before the change point revisited first
 HELD_OUT_NOISE = float(np.sqrt(11.345))
 
 
+class StepStatus(StrEnum):
+    """Where a flagged step is in its life (the `Step` docstring says what each means)."""
+
+    PROBATION = "probation"
+    ATTRIBUTING = "attributing"
+    PROPOSED = "proposed"
+    REFINING = "refining"
+    FOLLOWING = "following"
+    RECOVERING = "recovering"
+    CORRECTED = "corrected"
+    SEVERAL = "several"
+    NONE = "none"
+
+
+_S = StepStatus
+#: the moves a step may make (`Step.move`); a step is born on probation, or "several" when it
+#: cannot be attributed; it leaves the service's decision state after a full recalibration
+#: trained after it (or dropped as drift from probation)
+TRANSITIONS: dict[StepStatus, frozenset[StepStatus]] = {
+    _S.PROBATION: frozenset({_S.ATTRIBUTING}),
+    _S.ATTRIBUTING: frozenset({_S.PROPOSED, _S.FOLLOWING, _S.SEVERAL, _S.NONE, _S.RECOVERING}),
+    _S.PROPOSED: frozenset({_S.ATTRIBUTING, _S.REFINING, _S.RECOVERING}),
+    _S.REFINING: frozenset({_S.RECOVERING}),
+    _S.FOLLOWING: frozenset({_S.FOLLOWING, _S.SEVERAL, _S.NONE, _S.RECOVERING}),
+    _S.RECOVERING: frozenset({_S.RECOVERING, _S.CORRECTED}),
+    _S.CORRECTED: frozenset({_S.RECOVERING}),
+    _S.SEVERAL: frozenset({_S.SEVERAL, _S.RECOVERING, _S.FOLLOWING}),
+    _S.NONE: frozenset({_S.NONE}),
+}
+#: the statuses in which the windows measure for the step (more slots, chosen for it)
+MEASURING = frozenset({_S.PROBATION, _S.ATTRIBUTING, _S.FOLLOWING, _S.REFINING, _S.RECOVERING})
+
+
 @dataclass
 class Step:
     """The step in progress (part of the service's decision state). `status`: probation
@@ -77,7 +111,7 @@ class Step:
     suspect_id: int | None  # None while on probation
     t_start: float
     last_good_id: int | None
-    status: str = "attributing"
+    status: StepStatus = StepStatus.ATTRIBUTING
     choice: str | None = None
     text: str = ""
     n_used: int = 0  # measurements the last attribution used
@@ -109,12 +143,32 @@ class Step:
         if doc is None:
             return None
         known = {f.name for f in fields(Step)}  # a state saved by an older version: its fields
-        return Step(**{k: v for k, v in doc.items() if k in known})
+        step = Step(**{k: v for k, v in doc.items() if k in known})
+        step.status = StepStatus(step.status)
+        return step
 
     @property
     def measuring(self) -> bool:
         """The schedule serves the attribution (more slots per window, chosen for it)."""
-        return self.status in ("probation", "attributing", "following", "refining", "recovering")
+        return self.status in MEASURING
+
+    def move(self, to: StepStatus | str) -> None:
+        """Change the status along an allowed transition (`TRANSITIONS`; ValueError else)."""
+        new = StepStatus(to)
+        if new not in TRANSITIONS[self.status]:
+            raise ValueError(f"a step cannot go from {self.status} to {new}")
+        self.status = new
+
+
+def step_alarm_text(signal: str, attribution: str = "") -> str:
+    """The high `drift_step` alarm's message: what the drift charts saw (`signal`) and, once
+    attributed, what moved (`attribution`, the attribution's text). The one place it is built;
+    the parts themselves are kept as data (`Step.signal`, the suspect interval's text)."""
+    head = (
+        f"{signal}: check the cell (sensor mount, spheres); recalibrating on the measurements"
+        " after it"
+    )
+    return f"{head} | {attribution}" if attribution else head
 
 
 @dataclass(frozen=True, eq=False)

@@ -25,10 +25,12 @@ from app.line.states import suspect_json
 from app.line.step import (
     Step,
     StepCorrection,
+    StepStatus,
     correct_step,
     locate_step,
     paired,
     recovery_test,
+    step_alarm_text,
     step_sigma_mm,
     visible_step_mm,
     volume_views,
@@ -63,9 +65,13 @@ class StepHandler:
                 svc.sequential.hold(onset_id)  # widened once attributed
             else:
                 svc.sequential.widen(onset_id)
-        if svc.step is not None and svc.step.status in ("probation", "attributing", "proposed"):
+        if svc.step is not None and svc.step.status in (
+            StepStatus.PROBATION,
+            StepStatus.ATTRIBUTING,
+            StepStatus.PROPOSED,
+        ):
             return  # the step in progress goes on
-        status = "probation" if attribute else SEVERAL
+        status = StepStatus.PROBATION if attribute else StepStatus.SEVERAL
         text = f"step flagged at measurement {onset_id}"
         before = svc.store.measurements(before_id=onset_id, last=1)
         last_good = int(before[0]["id"]) if before else None
@@ -104,16 +110,12 @@ class StepHandler:
         """The attribution found a step: its suspect interval opens (from the last trustworthy
         measurement before where it was located) and the high alarm names what moved."""
         svc = self.svc
-        step.status = "attributing"
+        step.move(StepStatus.ATTRIBUTING)
         self._open_suspect(step)
         svc.store.clear_alarms(svc.clock.time(), "drift")
         signal = step.signal or f"step since measurement {step.start_id or step.onset_id}"
-        svc.alarm(
-            "drift_step",
-            f"{signal}: check the cell (sensor mount, spheres); recalibrating on the"
-            f" measurements after it | {a.text()}",
-            "high",
-        )
+        step.signal = signal
+        svc.alarm("drift_step", step_alarm_text(signal, a.text()), "high")
 
     def _drop_step(self, step: Step) -> None:
         """The attribution found no step on probation: it was drift (the recalibration is
@@ -134,13 +136,13 @@ class StepHandler:
         step, r = svc.step, svc.settings.recalib
         if step is None or not r.step_correction:
             return
-        if step.status == "refining":
+        if step.status == StepStatus.REFINING:
             self._refine_step(step)
             return
-        if step.status == "recovering":
+        if step.status == StepStatus.RECOVERING:
             self.check_recovery()
             return
-        if step.status not in ("attributing", "probation"):
+        if step.status not in (StepStatus.ATTRIBUTING, StepStatus.PROBATION):
             return
         got = self._step_pairs(step, locate=True)
         if got is None:
@@ -162,7 +164,7 @@ class StepHandler:
         with svc.store.batch():
             fields: dict[str, Any] = {"group_name": a.choice, "text": a.text()}
             fields |= self._step_start(step, start_id)
-            if step.status == "probation":
+            if step.status == StepStatus.PROBATION:
                 seen = visible_step_mm(a)
                 data["visible_mm"] = seen
                 confirmed = a.choice != NONE and decisive and seen >= r.step_min_mm
@@ -178,11 +180,11 @@ class StepHandler:
             assert step.suspect_id is not None
             svc.store.update_suspect(step.suspect_id, **fields)
             for alarm in svc.store.active_alarms(code="drift_step"):
-                head = str(alarm["message"]).split(" | ")[0]
-                svc.store.update_alarm_message(int(alarm["id"]), f"{head} | {a.text()}")
+                text = step_alarm_text(step.signal, a.text())
+                svc.store.update_alarm_message(int(alarm["id"]), text)
             closed = None
             if a.choice in (SEVERAL, NONE) and settled:
-                step.status = a.choice
+                step.move(a.choice)
                 if a.choice == NONE:
                     closed = self.close_none(svc.clock.time())
             self._widen_sequential(a, step)
@@ -191,7 +193,8 @@ class StepHandler:
         if closed is not None:
             svc.bus.emit("suspect_interval", closed)
         if svc.sequential is None and corr is not None and corr.passed:
-            step.status, step.base_version = "proposed", svc.version
+            step.move(StepStatus.PROPOSED)
+            step.base_version = svc.version
             svc.recal_done(corr)
 
     def _step_pairs(
@@ -305,7 +308,7 @@ class StepHandler:
         svc = self.svc
         assert svc.step is not None
         svc.step.refine_mm = 0.0
-        svc.step.status = "recovering"
+        svc.step.move(StepStatus.RECOVERING)
         svc.save_state()
         self.check_recovery()
 
@@ -338,11 +341,11 @@ class StepHandler:
         seq, r = svc.sequential, svc.settings.recalib
         if seq is None:
             return
-        if step.status in (SEVERAL, NONE):
+        if step.status in (StepStatus.SEVERAL, StepStatus.NONE):
             seq.widen(step.onset_id)
         elif a.choice not in (SEVERAL, NONE) and a.margin >= r.step_min_margin:
             seq.widen_group(a.fit(a.choice).group.params)
-            step.status = "following"
+            step.move(StepStatus.FOLLOWING)
 
     def corrected(
         self, t: float, version: int, cal: Mapping[str, Any] | None, kind: str
@@ -374,10 +377,12 @@ class StepHandler:
         if kind != "step":
             step.full_recals += 1
         refines = r.step_refine_mm > 0 and r.mode == "auto" and svc.sequential is None
-        if kind == "step" and step.status not in ("refining", "recovering") and refines:
-            step.n_corrected, step.status = step.n_used, "refining"
+        busy = (StepStatus.REFINING, StepStatus.RECOVERING)
+        if kind == "step" and step.status not in busy and refines:
+            step.n_corrected = step.n_used
+            step.move(StepStatus.REFINING)
         else:
-            step.status = "recovering"
+            step.move(StepStatus.RECOVERING)
         return None
 
     def _set_level(self, step: Step) -> None:
@@ -403,7 +408,7 @@ class StepHandler:
         two full recalibrations since the step the cell has a new level and it closes."""
         svc = self.svc
         step, r = svc.step, svc.settings.recalib
-        if step is None or step.status != "recovering" or step.recover_version is None:
+        if step is None or step.status != StepStatus.RECOVERING or step.recover_version is None:
             return
         rows = [
             q
@@ -449,7 +454,7 @@ class StepHandler:
         if step.recovery:
             fields["text"] = f"{step.text}; {step.recovery}"
         svc.store.update_suspect(step.suspect_id, **fields)
-        step.status = "corrected"
+        step.move(StepStatus.CORRECTED)
         return suspect_json(svc.store.suspect(step.suspect_id) or {})
 
     def close_none(self, t: float) -> dict[str, Any] | None:

@@ -16,7 +16,7 @@ import pytest
 from app.config.line import RecalibSettings
 from app.formats.params import from_json
 from app.line.schedule import Slot
-from app.line.step import Step, paired, recovery_test, step_sigma_mm, step_slot
+from app.line.step import Step, StepStatus, paired, recovery_test, step_sigma_mm, step_slot
 from fakes.truth import Knock
 from tests.line.helpers import knock_line, true_rms
 
@@ -323,3 +323,17 @@ def test_the_recovery_test_says_higher_back_or_too_few_at_its_confidence() -> No
     # the false-alarm rate is the stated one: 1 - confidence
     same = [recovery_test(norms(0.03, 24), norms(0.03, 8), 0.95, 6).verdict for _ in range(400)]
     assert 0.02 < same.count("higher") / 400 < 0.09
+
+
+def test_a_step_moves_only_along_its_transitions_and_survives_a_restart_as_an_enum() -> None:
+    step = Step(10, None, 0.0, 9, status=StepStatus.PROBATION)
+    for to in ("attributing", "proposed", "refining", "recovering", "corrected"):
+        step.move(to)
+    assert step.status is StepStatus.CORRECTED
+    with pytest.raises(ValueError, match="from corrected to proposed"):
+        step.move(StepStatus.PROPOSED)
+    back = Step.from_json(json.loads(json.dumps(step.to_json())))
+    assert back is not None and back.status is StepStatus.CORRECTED and not back.measuring
+    # a decision state saved before the recovery fields existed still loads
+    old = {k: v for k, v in step.to_json().items() if not k.startswith("recover")}
+    assert Step.from_json({**old, "first_end_t": 1.0}) is not None
