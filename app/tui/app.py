@@ -85,6 +85,7 @@ class RvisTui(App[None]):
         self._refresher: Worker[None] | None = None
         self._shown: dict[str, list[Sequence[Any]]] = {}  # the rows each table shows
         self._alarms: list[dict[str, Any]] = []  # the Alarms table's alarms, in its order
+        self._suspects: list[dict[str, Any]] = []  # the suspect intervals' table's, in its order
         #: the wall clock of the ages shown (replaced in the screenshot tests)
         self.now: Callable[[], datetime] = lambda: datetime.now(UTC)
 
@@ -99,6 +100,7 @@ class RvisTui(App[None]):
                 yield Vertical(id="drift")
                 yield Label("Suspect intervals (bodies measured then: re-measure or flag):")
                 yield DataTable(id="suspects-table", cursor_type="row")
+                yield Static("no suspect interval selected", id="suspect-detail")  # its bodies
             with TabPane("2 Measurements", id="measurements"), Vertical():
                 yield Input(placeholder="filter by sphere (e.g. P2), Enter", id="sphere-filter")
                 yield DataTable(id="measurements-table", cursor_type="row")
@@ -137,7 +139,7 @@ class RvisTui(App[None]):
             ),
             "devices-table": ("device", "URL", "state", "last error (UTC)", "error"),
             "log-table": ("time (UTC)", "event", "what happened"),
-            "suspects-table": ("id", "from (UTC)", "to (UTC)", "size mm", "what"),
+            "suspects-table": ("id", "from (UTC)", "to (UTC)", "size mm", "bodies", "what"),
         }
         for table_id, cols in columns.items():
             self.query_one(f"#{table_id}", DataTable).add_columns(*cols)
@@ -287,11 +289,22 @@ class RvisTui(App[None]):
         if "recent" in hist:
             self._show_drift(hist["recent"])
         if "suspects" in hist:
-            self._fill("suspects-table", view.suspect_rows(hist["suspects"]))
+            self._suspects = hist["suspects"]
+            self._fill("suspects-table", view.suspect_rows(self._suspects))
+            self._show_suspect_detail()
 
     def on_data_table_row_highlighted(self, event: DataTable.RowHighlighted) -> None:
         if event.data_table.id == "alarms-table":
             self._show_alarm_detail()
+        elif event.data_table.id == "suspects-table":
+            self._show_suspect_detail()
+
+    def _show_suspect_detail(self) -> None:
+        """The selected suspect interval's bodies, all of them, under the table."""
+        table: DataTable[Any] = self.query_one("#suspects-table", DataTable)
+        row = table.cursor_row
+        selected = self._suspects[row] if 0 <= row < len(self._suspects) else None
+        self.query_one("#suspect-detail", Static).update(Text(view.suspect_detail(selected)))
 
     def _show_alarm_detail(self) -> None:
         """The selected alarm whole under the table: its text, who acknowledged it, when."""

@@ -68,7 +68,7 @@ def test_a_version_1_database_gains_the_temperature_column_and_keeps_its_rows(
     db.commit()
     db.close()
     store = Store(tmp_path / "rvis.db")  # an older service's state directory
-    assert store.version() == SCHEMA_VERSION == 4
+    assert store.version() == SCHEMA_VERSION == 5
     (old,) = store.measurements()
     assert old["c_sensor_mm"] == [1, 2, 3] and old["temp_c"] is None
     store.add_measurement({**_row(1), "temp_c": 23.45})
