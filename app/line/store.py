@@ -32,7 +32,7 @@ import threading
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager, suppress
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 from app.errors import InputError, RvisError
 
@@ -151,7 +151,8 @@ def suspect_rows(
     version = int(db.execute("PRAGMA user_version").fetchone()[0])
     if version < SUSPECTS_SCHEMA:
         return []
-    where, args = [], cast(list[Any], [])
+    where: list[str] = []
+    args: list[Any] = []
     if since_t is not None:
         where.append("(t_end IS NULL OR t_end >= ?)")
         args.append(since_t)

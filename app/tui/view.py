@@ -337,7 +337,7 @@ def event_text(kind: Any, detail: Any) -> str:
             + (f" to {time_text(g('end_utc'))}" if g("end_utc") else "")
             + f", {num(g('size_mm'), '.3f', ' mm')}"
             + (f" ({g('group')})" if g("group") else "")
-            + (f", bodies {bodies_text(g('bodies'))}" if g("bodies") else "")
+            + (f", bodies {bodies_text(g('bodies') or [])}" if g("bodies") else "")
         ),
     }
     make = texts.get(str(kind))

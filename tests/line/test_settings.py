@@ -143,7 +143,7 @@ def test_the_window_watch_reads_the_body_once_at_each_rising_edge_only_when_aske
         plc.close()
     # a window open at the first reading is a body too (the service started inside it)
     clock = VirtualClock(start_epoch=0.0)
-    plc = FakePlc(cycle, clock=clock)
+    plc = _CountingPlc(cycle, clock=clock)
     plc.open()
     clock.advance(55.0)
     watch = WindowWatch(plc, clock, LineSettings(plc_body_id="u32"))

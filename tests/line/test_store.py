@@ -224,7 +224,8 @@ def test_a_suspect_intervals_bodies_are_those_of_the_windows_inside_it(tmp_path:
     store.update_suspect(closed, t_end=160.0, end_reason="step")
     opened = store.open_suspect({"t_start": 500.0, "onset_id": onset})
     assert [r["bodies"] for r in store.suspects()] == [[], []]
-    windows = [(90.0, 1), (100.0, 2), (130.0, 3), (135.0, 3), (140.0, None), (160.0, 4)]
+    windows: list[tuple[float, int | str | None]] = [(90.0, 1), (100.0, 2), (130.0, 3)]
+    windows += [(135.0, 3), (140.0, None), (160.0, 4)]
     windows += [(170.0, 5), (499.0, 6), (510.0, "B0000007"), (520.0, 8)]
     for t, body in windows:
         store.add_window(t, body)
