@@ -17,6 +17,7 @@ from textual import work
 from textual.app import App, ComposeResult
 from textual.binding import Binding, BindingType
 from textual.containers import Horizontal, Vertical, VerticalScroll
+from textual.dom import NoScreen
 from textual.widgets import (
     DataTable,
     Footer,
@@ -291,20 +292,25 @@ class RvisTui(App[None]):
         if "suspects" in hist:
             self._suspects = hist["suspects"]
             self._fill("suspects-table", view.suspect_rows(self._suspects))
-            self._show_suspect_detail()
+            self._show_suspect_detail(self.query_one("#suspects-table", DataTable))
 
     def on_data_table_row_highlighted(self, event: DataTable.RowHighlighted) -> None:
         if event.data_table.id == "alarms-table":
             self._show_alarm_detail()
         elif event.data_table.id == "suspects-table":
-            self._show_suspect_detail()
+            self._show_suspect_detail(event.data_table)
 
-    def _show_suspect_detail(self) -> None:
-        """The selected suspect interval's bodies, all of them, under the table."""
-        table: DataTable[Any] = self.query_one("#suspects-table", DataTable)
+    def _show_suspect_detail(self, table: DataTable[Any]) -> None:
+        """The selected suspect interval's bodies, all of them, under its table (found from
+        the table: another screen, a dialog, may be on top; none while the app closes)."""
         row = table.cursor_row
         selected = self._suspects[row] if 0 <= row < len(self._suspects) else None
-        self.query_one("#suspect-detail", Static).update(Text(view.suspect_detail(selected)))
+        try:
+            screen = table.screen
+        except NoScreen:  # a highlight that arrives as the app shuts down
+            return
+        for detail in screen.query("#suspect-detail").results(Static):
+            detail.update(Text(view.suspect_detail(selected)))
 
     def _show_alarm_detail(self) -> None:
         """The selected alarm whole under the table: its text, who acknowledged it, when."""
