@@ -9,6 +9,12 @@ real hardware"):
                  heartbeat     a counter the PLC increments (at least every second)
                  cell temp     optional third word: the cell's air temperature in 0.01 degC,
                                signed 16 bit; 0x8000 = no sensor (a backend may omit the word)
+                 body id       optional words after it: the clamped body's identifier, held
+                               from before the window opens until it closes; "u32": a 32-bit
+                               body number in two words, high word first (0 = no body),
+                               "serial8": up to 8 ASCII characters in four words, two a word,
+                               the first in the high byte, NUL- or space-padded (blank = no
+                               body). Read once at each window's rising edge (`read_body_id`)
     app -> PLC   status word   bit 0 busy (the robot is out of home / measuring), bit 1 done (the
                                measurement finished and the robot is home), bit 2 fault (the app
                                has a fault; the PLC must not wait for done)
@@ -20,7 +26,8 @@ the window wait (polls with a deadline, ``poll_s``), busy/done/fault around a wi
 outputs reset to zero on every connect. A backend implements only the transport and two
 register-level primitives: ``_connect()``, ``_close()``, ``_read_input_words() -> (status,
 heartbeat[, cell temp])``, ``_write_output_words((status, heartbeat))`` and
-``_read_output_words() -> (status, heartbeat)`` (the app's words as the PLC holds them).
+``_read_output_words() -> (status, heartbeat)`` (the app's words as the PLC holds them); a
+backend that has the body id words also ``_read_body_words(count)``.
 
 ``read_only=True`` (URL option ``?read_only=1``) opens a connection that never writes: no reset
 of the outputs on connect, no heartbeat on poll, and every write (``set_signals``, ``window``)
@@ -42,6 +49,9 @@ from drivers.errors import DeviceConfigError, DeviceTimeout
 WINDOW_OPEN, LINE_RUNNING = 0x1, 0x2  # PLC status word bits
 BUSY, DONE, FAULT = 0x1, 0x2, 0x4  # app status word bits
 NO_TEMPERATURE = 0x8000  # the cell temperature word when the PLC has no sensor
+#: the body id's formats and their word counts (module docstring)
+BODY_ID_WORDS = {"u32": 2, "serial8": 4}
+BodyId = int | str
 
 
 @dataclass(frozen=True)
@@ -74,6 +84,39 @@ def encode_temp(temp_c: float | None) -> int:
         return NO_TEMPERATURE
     centi = max(-32767, min(32767, round(float(temp_c) * 100.0)))
     return centi & 0xFFFF
+
+
+def _body_words(fmt: str) -> int:
+    if fmt not in BODY_ID_WORDS:
+        raise DeviceConfigError(f"body id format {fmt!r}: one of {', '.join(BODY_ID_WORDS)}")
+    return BODY_ID_WORDS[fmt]
+
+
+def decode_body_id(words: Sequence[int], fmt: str) -> BodyId | None:
+    """The body id words in format `fmt` -> the body number (u32) or serial (serial8); None
+    when the PLC says no body is clamped (0, blank)."""
+    n = _body_words(fmt)
+    words = [int(w) & 0xFFFF for w in words[:n]]
+    if len(words) < n:
+        return None
+    if fmt == "u32":
+        number = (words[0] << 16) | words[1]
+        return number or None
+    raw = b"".join(w.to_bytes(2, "big") for w in words)
+    text = raw.rstrip(b"\0 ").decode("ascii", errors="replace")
+    return text.strip() or None
+
+
+def encode_body_id(body: BodyId | None, fmt: str) -> tuple[int, ...]:
+    """A body number or serial -> its words in format `fmt` (None: no body)."""
+    n = _body_words(fmt)
+    if body is None:
+        return (0,) * n
+    if fmt == "u32":
+        number = int(body) & 0xFFFFFFFF
+        return number >> 16, number & 0xFFFF
+    raw = str(body).encode("ascii", errors="replace")[: 2 * n].ljust(2 * n, b"\0")
+    return tuple(int.from_bytes(raw[k : k + 2], "big") for k in range(0, 2 * n, 2))
 
 
 def decode_inputs(words: Sequence[int]) -> PlcInputs:
@@ -144,6 +187,13 @@ class Plc(Device):
             self._send(replace(self._out, heartbeat=(self._out.heartbeat + 1) & 0xFFFF))
         return inputs
 
+    def read_body_id(self, fmt: str) -> BodyId | None:
+        """The clamped body's identifier in format `fmt` (BODY_ID_WORDS), one request; None when
+        the PLC says no body, or the backend has no body id words."""
+        n = _body_words(fmt)
+        words = self._read_retrying(lambda: self._read_body_words(n))
+        return None if words is None else decode_body_id(words, fmt)
+
     def read_outputs(self) -> PlcOutputs:
         """The app's status and heartbeat words as the PLC holds them (read back)."""
         return decode_outputs(self._read_retrying(self._read_output_words))
@@ -212,6 +262,10 @@ class Plc(Device):
     @abstractmethod
     def _read_input_words(self) -> tuple[int, ...]:
         """The PLC's (status word, heartbeat word) or (status, heartbeat, cell temperature)."""
+
+    def _read_body_words(self, count: int) -> tuple[int, ...] | None:
+        """The `count` body id words (None: this backend has none)."""
+        return None
 
     @abstractmethod
     def _write_output_words(self, words: tuple[int, int]) -> None:

@@ -5,13 +5,17 @@ Holding registers (16-bit words) relative to ``base``; the PLC is the server:
     word 0   PLC_STATUS     bit 0 window_open, bit 1 line_running        (PLC writes)
     word 1   PLC_HEARTBEAT  incremented by the PLC at least every second  (PLC writes)
     word 2   PLC_CELL_TEMP  cell air temperature, signed 0.01 degC; 0x8000 none (PLC writes)
+    word 3-6 PLC_BODY_ID    the clamped body's id: "u32" in words 3-4 (high word first, 0 none)
+                            or "serial8" in words 3-6 (8 ASCII, 2 a word)   (PLC writes)
     word 10  APP_STATUS     bit 0 busy, bit 1 done, bit 2 fault           (app writes)
     word 11  APP_HEARTBEAT  incremented by the app on every poll         (app writes)
 
 The bits are the family's (drivers/plc.py); the app reads words 0-2 and writes words 10-11,
-each in one request (and reads 10-11 back for a check), to the PLC's unit id (``unit``, default
-1), with function codes 3 (read holding registers) and 16 (write multiple registers) only; a PLC
-server that also offers 6 (write single register) serves the map as well. ``?read_only=1``:
+each in one request (and reads 10-11 back for a check), and, when the cell file asks for the
+body id (`[line] plc_body_id`), words 3-4 or 3-6 in one request at each window's rising edge;
+to the PLC's unit id (``unit``, default 1), with function codes 3 (read holding registers) and
+16 (write multiple registers) only; a PLC server that also offers 6 (write single register)
+serves the map as well. ``?read_only=1``:
 never write. Safety interlocks are not here: they stay in the safety PLC.
 """
 
@@ -29,6 +33,7 @@ DEFAULT_UNIT = 1
 #: write multiple registers (the driver uses 3 and 16).
 FUNCTION_CODES = (3, 6, 16)
 PLC_STATUS, PLC_HEARTBEAT, PLC_CELL_TEMP, APP_STATUS, APP_HEARTBEAT = 0, 1, 2, 10, 11
+PLC_BODY_ID = 3  # 2 (u32) or 4 (serial8) words
 REGISTER_COUNT = 12
 
 
@@ -76,6 +81,9 @@ class ModbusPlc(Plc):
     def _read_input_words(self) -> tuple[int, ...]:
         status, beat, temp = require_link(self._link, self.name).read(self.base + PLC_STATUS, 3)
         return status, beat, temp
+
+    def _read_body_words(self, count: int) -> tuple[int, ...]:
+        return tuple(require_link(self._link, self.name).read(self.base + PLC_BODY_ID, count))
 
     def _write_output_words(self, words: tuple[int, int]) -> None:
         require_link(self._link, self.name).write(self.base + APP_STATUS, list(words))

@@ -29,6 +29,7 @@ from drivers.plc import (
     PlcInputs,
     PlcOutputs,
     decode_outputs,
+    encode_body_id,
     encode_inputs,
     encode_outputs,
 )
@@ -307,17 +308,26 @@ def measure_target(
     return TrackerMeasurement(target_id, point, rms, now, temperature_c, pressure_hpa)
 
 
+def body_id_of(number: int, fmt: str) -> int | str:
+    """How the simulated PLC writes body `number` in format `fmt` (drivers.plc.BODY_ID_WORDS):
+    the number itself (u32), or "B" and its last 7 digits (serial8)."""
+    return f"B{number % 10**7:07d}" if fmt == "serial8" else number
+
+
 @dataclass(frozen=True)
 class ClampCycle:
     """The line's clamp cycle: every ``period_s`` the window is open for ``window_s`` (at the
     end of the period). ``time_scale`` < 1 compresses time for tests; the PLC heartbeat ticks
-    every ``beat_s``. Pure: the state is a function of the elapsed time."""
+    every ``beat_s``. Every period clamps the next body: period k (0, 1, ...) holds body number
+    ``first_body + k`` from its start until its window closes. Pure: the state is a function of
+    the elapsed time."""
 
     period_s: float = 60.0
     window_s: float = 8.0
     beat_s: float = 0.5
     time_scale: float = 1.0
     line_running: bool = True
+    first_body: int = 100001
 
     def __post_init__(self) -> None:
         if not (0 < self.window_s < self.period_s and self.beat_s > 0 and self.time_scale > 0):
@@ -330,17 +340,27 @@ class ClampCycle:
         beat = 0 if heartbeat_frozen else int(t / self.beat_s) & 0xFFFF
         return PlcInputs(window_open=window, line_running=self.line_running, heartbeat=beat)
 
+    def body(self, elapsed_s: float) -> int:
+        """The number of the body clamped at `elapsed_s` (the body of the period it falls in)."""
+        return self.window_body(int((elapsed_s / self.time_scale) // self.period_s))
+
+    def window_body(self, k: int) -> int:
+        """The number of the body clamped in period k, whose window is the k-th (from 0)."""
+        return self.first_body + k
+
 
 class FakePlc(Plc):
     """A PLC in memory running a ClampCycle from the moment it is opened (on a VirtualClock,
     ``clock=``: from its sim time 0, the cycle's time_scale applied to its sim seconds as to
-    real ones)."""
+    real ones). It holds the clamped body's id in ``body_format`` (drivers.plc.BODY_ID_WORDS;
+    None: a PLC program without the body id words)."""
 
     def __init__(
         self, cycle: ClampCycle | None = None, *, clock: VirtualClock | None = None, **kw: Any
     ) -> None:
         super().__init__(**kw)
         self.cycle, self.clock = cycle or ClampCycle(), clock
+        self.body_format: str | None = "u32"
         self.received = PlcOutputs()
         # the newest 1000 changes of busy/done/fault, in order (bounded: soaks run for days)
         self.history: deque[PlcOutputs] = deque(maxlen=1000)
@@ -358,12 +378,20 @@ class FakePlc(Plc):
     def _close(self) -> None:
         pass
 
-    def _read_input_words(self) -> tuple[int, int]:
+    def _elapsed(self) -> float:
         if self.clock is not None:
-            elapsed = self.clock.monotonic() * self.cycle.time_scale
-        else:
-            elapsed = time.monotonic() - self._t0
-        return encode_inputs(self.cycle.inputs(elapsed, self.heartbeat_frozen))
+            return self.clock.monotonic() * self.cycle.time_scale
+        return time.monotonic() - self._t0
+
+    def _read_input_words(self) -> tuple[int, int]:
+        return encode_inputs(self.cycle.inputs(self._elapsed(), self.heartbeat_frozen))
+
+    def _read_body_words(self, count: int) -> tuple[int, ...]:
+        if self.body_format is None:
+            return (0,) * count  # the words are there, the PLC program never writes them
+        body = body_id_of(self.cycle.body(self._elapsed()), self.body_format)
+        words = encode_body_id(body, self.body_format)
+        return (*words, 0, 0, 0, 0)[:count]
 
     def _write_output_words(self, words: tuple[int, int]) -> None:
         outputs, old = decode_outputs(words), self.received

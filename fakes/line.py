@@ -12,7 +12,9 @@ machine's load; `scale` paces it for a person who watches. `clock="scaled"`: a `
 the wall clock x `scale` (peers driven by hand, nobody making time pass).
 
     plc      plc+modbus://127.0.0.1:PORT   Modbus PLC with the clamp cycle (a window of
-                                           `window_s` at the end of every `period_s`)
+                                           `window_s` at the end of every `period_s`); it
+                                           counts bodies: period k clamps body `first_body` + k
+                                           (its id in `body_format`)
     robot    rmi://127.0.0.1:PORT          RMI controller moving the cell's joints; motion time
                                            = max |dq| / (joint speed x speed% x override)
     galvo    scpi+serial:///dev/pts/N      SCPI DAC on a pty; the camera renders its voltage
@@ -63,6 +65,8 @@ class SimLineSetup:
     period_s: float = 60.0  # clamp cycle: one window a minute ...
     window_s: float = 20.0  # ... open for its last window_s
     beat_s: float = 0.5  # PLC heartbeat period
+    first_body: int = 100001  # the number of the body clamped in the first period
+    body_format: str = "u32"  # how the PLC writes it: "u32" (the number) or "serial8"
     warmup: Warmup | None = field(default_factory=Warmup)
     knock: Knock | None = None
     camera: bool = True  # start the GigE fake (False: geometric runs, no rendering)
@@ -84,10 +88,17 @@ class SimLineSetup:
             raise ValueError("camera_readout_s and galvo_settle_s must be >= 0")
         if self.n_validation < 1:
             raise ValueError("n_validation must be >= 1")
+        if self.body_format not in ("u32", "serial8") or not 0 < self.first_body < 2**32:
+            raise ValueError("body_format must be u32 or serial8, first_body 1..2**32-1")
 
     @property
     def cycle(self) -> ClampCycle:
-        return ClampCycle(period_s=self.period_s, window_s=self.window_s, beat_s=self.beat_s)
+        return ClampCycle(
+            period_s=self.period_s,
+            window_s=self.window_s,
+            beat_s=self.beat_s,
+            first_body=self.first_body,
+        )
 
 
 class _LineWorld:
@@ -135,6 +146,7 @@ class SimLine:
         self.world = _LineWorld(cell, self.dac)
         seed = cell.settings.seed
         self.plc = LinePlc(self.settings.cycle, self.clock)
+        self.plc.body_format = s.body_format
         self.controller = RmiController(self.world, clock=self.clock)
         self.tracker = TrackerService(
             self.world, seed=_derived_seed(seed, 6), noise_mm=cell.settings.tracker_noise_mm
@@ -218,6 +230,11 @@ class SimLine:
     def window_bounds_s(self, k: int) -> tuple[float, float]:
         """Sim times at which clamp window k opens and closes (the PLC's own schedule)."""
         return window_bounds_s(self.settings.cycle, k)
+
+    def window_body(self, k: int) -> int | str:
+        """The id of the body the PLC clamps in period k, whose window is clamp window k (as
+        the PLC writes it in its body id words)."""
+        return self.plc.body(self.window_bounds_s(k)[0])
 
     # -- faults -----------------------------------------------------------------------------
     def inject(self, fault: Fault | str) -> None:

@@ -10,8 +10,8 @@ can carry (docs/operations.md).
   database (a damaged one is moved aside by a person first: rvis never overwrites a database).
 - `suspects [--since T] [--json]`: the suspect intervals (app/line/step.py): from the last
   trustworthy measurement before a step to the apply of its correction, when the calibration in
-  force was wrong, with its estimated size, for the inspection software to re-measure or flag
-  the bodies measured then.
+  force was wrong, with its estimated size and the bodies measured then (their ids as the line
+  PLC gives them, `[line] plc_body_id`), for the inspection software to re-measure or flag.
 - `check`: read-only findings about a state directory (integrity, schema, parameters against the
   history and the database, the files the commissioning wrote, permissions, free space, the
   lock holder, the sizes); exit 1 when something is wrong.
@@ -400,13 +400,22 @@ def suspects(state: Any, since_t: float | None) -> list[dict[str, Any]]:
 
 
 def _suspects_table(rows: list[dict[str, Any]]) -> str:
+    """One line per interval, then its bodies whole (wrapped), when the PLC names them."""
+    import textwrap
+
+    from app.line.states import bodies_text
+
     if not rows:
         return "no suspect intervals"
-    lines = [f"{'id':>4}  {'from (UTC)':<25} {'to (UTC)':<25} {'size mm':>8}  what"]
+    lines = [f"{'id':>4}  {'from (UTC)':<25} {'to (UTC)':<25} {'size mm':>8}  {'bodies':<8}  what"]
     for r in rows:
         size = "-" if r["size_mm"] is None else f"{r['size_mm']:.3f}"
+        bodies = r.get("bodies") or []
         lines.append(
             f"{r['id']:>4}  {r['start_utc']:<25} {r['end_utc'] or 'open':<25} {size:>8}"
-            f"  {r['text'] or ''}"
+            f"  {len(bodies):<8}  {r['text'] or ''}"
         )
+        if bodies:
+            text = f"bodies ({bodies_text(bodies)}): {', '.join(map(str, bodies))}"
+            lines += textwrap.wrap(text, 96, initial_indent="      ", subsequent_indent="        ")
     return "\n".join(lines)

@@ -158,6 +158,8 @@ def _drift_lines(drift: dict[str, Any] | None) -> list[str]:
 
 def _suspect_lines(status: dict[str, Any]) -> list[str]:
     """The step in progress and the last suspect intervals (`rvis state suspects` lists all)."""
+    from app.line.states import bodies_text
+
     step = status.get("flagged_step")
     out = []
     if step:
@@ -166,8 +168,9 @@ def _suspect_lines(status: dict[str, Any]) -> list[str]:
     out.append(f"suspect intervals   {len(intervals) or 'none'} (the last {len(intervals)})")
     for r in intervals:
         size = "-" if r.get("size_mm") is None else f"{r['size_mm']:.3f} mm"
+        bodies = r.get("bodies") or []
         out.append(
             f"  #{r['id']} {r.get('start_utc')} .. {r.get('end_utc') or 'OPEN'}  {size}"
-            f"  {r.get('group') or ''}"
+            f"  {r.get('group') or ''}" + (f"  bodies {bodies_text(bodies)}" if bodies else "")
         )
     return out

@@ -49,6 +49,11 @@ class LineSettings(Section):
     # a reading outside this range is "no temperature" with an alarm, never a number
     plc_temp_min_c: float = opt(5.0, lo=-40, hi=100)
     plc_temp_max_c: float = opt(50.0, lo=-40, hi=100)
+    # the PLC holds the clamped body's identifier in its words 3-6, read at each window's rising
+    # edge and stored with the window (the bodies of a suspect interval): "u32" a 32-bit body
+    # number (words 3-4), "serial8" a serial of up to 8 characters (words 3-6), "none" off (the
+    # words are not read: a PLC program without them may not have the registers at all)
+    plc_body_id: str = opt("none", choices=("none", "u32", "serial8"))
 
     def cross_checks(self) -> Iterator[tuple[str, str]]:
         if self.plc_temp_min_c >= self.plc_temp_max_c:

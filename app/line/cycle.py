@@ -13,6 +13,7 @@ done. A device error propagates (the service goes to FAULT); so does nothing els
 from __future__ import annotations
 
 import threading
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -21,7 +22,7 @@ from app.line.measure import Reading, Rejected, SphereMeasurer
 from app.line.schedule import Schedule, Slot
 from drivers.clock import Clock, Timer, TimerClock
 from drivers.errors import DeviceError
-from drivers.plc import Plc, PlcInputs
+from drivers.plc import BodyId, Plc, PlcInputs
 
 #: record(slot, window, reading or None, reason) -> stored row id; must commit before returning
 Recorder = Callable[[Slot, int, Reading | None, str], int]
@@ -49,11 +50,15 @@ def cell_temperature(inputs: PlcInputs | None, line: LineSettings) -> tuple[floa
 
 
 class WindowWatch:
-    """The PLC inputs seen through the service's clock: heartbeat age, window edges."""
+    """The PLC inputs seen through the service's clock: heartbeat age, window edges, and the
+    body clamped in each window (`[line] plc_body_id`): at every rising edge of the window bit
+    (and a window open at the first reading) the PLC's body id is read and queued in `clamped`
+    as (clock time, body id or None) for the service to store."""
 
     def __init__(self, plc: Plc, clock: Clock, line: LineSettings) -> None:
         self.plc, self.clock, self.line = plc, clock, line
         self.inputs: PlcInputs | None = None
+        self.clamped: deque[tuple[float, BodyId | None]] = deque()
         self._beat: int | None = None
         self._beat_t = 0.0
         self._changed = False
@@ -65,6 +70,10 @@ class WindowWatch:
         """One exchange with the PLC (sends our heartbeat too)."""
         inputs = self.plc.poll()
         now = self.clock.monotonic()
+        was_open = self.inputs is not None and self.inputs.window_open
+        if inputs.window_open and not was_open and self.line.plc_body_id != "none":
+            body = self.plc.read_body_id(self.line.plc_body_id)
+            self.clamped.append((self.clock.time(), body))
         if inputs.heartbeat != self._beat:
             self._changed = self._beat is not None  # the first value read is not a beat
             self._beat, self._beat_t = inputs.heartbeat, now

@@ -404,6 +404,7 @@ class Service:
             return
         self._watch_heartbeat()
         self._watch_temperature()
+        self._store_clamped()
         self._unshelve()
         if self.state == State.IDLE and not self.paused and self.watch.fresh_window():
             self._window()
@@ -464,6 +465,15 @@ class Service:
             self.store.clear_alarms(self.clock.time(), "temperature")
             self.bus.emit("alarm_cleared", {"code": "temperature"})
         self._temperature_bad = bool(why)
+
+    def _store_clamped(self) -> None:
+        """The windows the PLC opened since the last poll, each with the body clamped in it
+        ([line] plc_body_id; WindowWatch): one row each, taken from the queue once stored (a
+        storage failure keeps them until a reset finds it writing again)."""
+        clamped = self.watch.clamped
+        while clamped and not self.storage_failed:
+            self.store.add_window(*clamped[0])
+            clamped.popleft()
 
     # -- faults and alarms -------------------------------------------------------------------------
     def alarm(self, code: str, message: str, priority: str = "high") -> int:

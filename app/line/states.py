@@ -5,7 +5,7 @@ FAULT, the UTC text of the service's clock and a suspect interval as JSON. Light
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from datetime import UTC, datetime
 from enum import StrEnum
 from typing import Any
@@ -50,7 +50,9 @@ def utc_text(t: float) -> str:
 
 
 def suspect_json(row: Mapping[str, Any]) -> dict[str, Any]:
-    """A suspect interval as events, the status reply and `rvis state suspects` carry it."""
+    """A suspect interval as events, the status reply and `rvis state suspects` carry it;
+    `bodies`: the ids of the bodies clamped in the windows inside it, in order (an open one's
+    up to now; app.line.store.suspect_rows; empty when the PLC's body id is not read)."""
 
     def utc(t: Any) -> str | None:
         return None if t is None else utc_text(float(t))
@@ -71,4 +73,14 @@ def suspect_json(row: Mapping[str, Any]) -> dict[str, Any]:
         "end_reason": row.get("end_reason"),
         "end_version": row.get("end_version"),
         "calibration_id": row.get("calibration_id"),
+        "bodies": list(row.get("bodies") or ()),
     }
+
+
+def bodies_text(bodies: Sequence[Any]) -> str:
+    """A suspect interval's bodies in a few characters: how many, the first and the last."""
+    if not bodies:
+        return "none"
+    if len(bodies) == 1:
+        return f"1: {bodies[0]}"
+    return f"{len(bodies)}: {bodies[0]} .. {bodies[-1]}"

@@ -11,7 +11,9 @@ pending/applied/rejected), applied (parameter versions in force, in order), alar
 life cycle: raised, acked, cleared, shelved with reason and expiry), events, actions (operator
 audit with the peer's uid), schedule (the position to resume from), suspect_intervals (from the last
 trustworthy measurement before a step to the apply of its correction: when the calibration in
-force was wrong, with its estimated size), service_state (one JSON
+force was wrong, with its estimated size), windows (the clamp windows the PLC opened, with the
+body clamped in each when `[line] plc_body_id` reads it: a suspect interval's bodies are those
+of the windows inside it), service_state (one JSON
 document: what the service's decisions depend on beyond the rows themselves, written in the
 same transaction as the measurement or the apply that changed it, so a restarted service
 resumes exactly where it stopped).
@@ -30,7 +32,7 @@ import threading
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager, suppress
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 from app.errors import InputError, RvisError
 
@@ -95,9 +97,17 @@ MIGRATIONS: tuple[tuple[str, ...], ...] = (
             end_reason TEXT, end_version INTEGER, calibration_id INTEGER)""",
         "CREATE INDEX suspect_intervals_t ON suspect_intervals (t_start)",
     ),
+    # 4 -> 5: the clamp windows with the body the PLC clamped in each (app.line.cycle
+    # WindowWatch; NULL: the PLC said no body). body_id has no type: an integer body number
+    # stays an integer, a serial text
+    (
+        "CREATE TABLE windows (id INTEGER PRIMARY KEY, t REAL NOT NULL, body_id)",
+        "CREATE INDEX windows_t ON windows (t)",
+    ),
 )
 SCHEMA_VERSION = len(MIGRATIONS)
 SUSPECTS_SCHEMA = 4  # the version that has suspect_intervals
+WINDOWS_SCHEMA = 5  # the version that has windows (the bodies)
 # SQLite primary result codes: BUSY, LOCKED, NOMEM, READONLY, IOERR, FULL, CANTOPEN, PROTOCOL
 _STORAGE_CODES = frozenset({5, 6, 7, 8, 10, 13, 14, 15})
 _DAMAGED_CODES = frozenset({11, 26})  # CORRUPT, NOTADB
@@ -123,6 +133,57 @@ def _measurement_row(r: dict[str, Any]) -> dict[str, Any]:
 
 def _dumps(value: Any) -> str:
     return json.dumps(value, separators=(",", ":"))
+
+
+def suspect_rows(
+    db: sqlite3.Connection,
+    *,
+    since_t: float | None = None,
+    last: int | None = None,
+    suspect_id: int | None = None,
+) -> list[dict[str, Any]]:
+    """Suspect intervals in time order, each with `bodies`: the ids of the bodies clamped in
+    the windows that opened inside it (from t_start to t_end, an open one up to now), in
+    order, each once; in one query. Those still open or ending at or after `since_t` (all
+    when None), only the `last` n when given, or only `suspect_id`. None in a database of an
+    older rvis (read before a service of this one migrated it); no bodies before the windows
+    table. Every reader of suspect intervals comes here (the store, the TUI's history)."""
+    version = int(db.execute("PRAGMA user_version").fetchone()[0])
+    if version < SUSPECTS_SCHEMA:
+        return []
+    where: list[str] = []
+    args: list[Any] = []
+    if since_t is not None:
+        where.append("(t_end IS NULL OR t_end >= ?)")
+        args.append(since_t)
+    if suspect_id is not None:
+        where.append("id = ?")
+        args.append(suspect_id)
+    sql = "SELECT * FROM suspect_intervals"
+    sql += f" WHERE {' AND '.join(where)}" if where else ""
+    sql += " ORDER BY t_start DESC, id DESC"
+    if last is not None:
+        sql += " LIMIT ?"
+        args.append(last)
+    if version < WINDOWS_SCHEMA:
+        sql = f"SELECT s.*, NULL AS body FROM ({sql}) AS s ORDER BY s.t_start, s.id"
+    else:
+        sql = (
+            f"SELECT s.*, w.body_id AS body FROM ({sql}) AS s LEFT JOIN windows AS w"
+            " ON w.body_id IS NOT NULL AND w.t >= s.t_start"
+            " AND (s.t_end IS NULL OR w.t <= s.t_end)"
+            " ORDER BY s.t_start, s.id, w.t, w.id"
+        )
+    out: dict[int, dict[str, Any]] = {}
+    cur = db.execute(sql, args)
+    names = [d[0] for d in cur.description]
+    for r in cur.fetchall():
+        row = dict(zip(names, r, strict=True))
+        body = row.pop("body")
+        interval = out.setdefault(int(row["id"]), {**row, "bodies": []})
+        if body is not None and body not in interval["bodies"]:
+            interval["bodies"].append(body)
+    return list(out.values())
 
 
 class Store:
@@ -610,24 +671,29 @@ class Store:
             )
 
     def suspect(self, suspect_id: int) -> dict[str, Any] | None:
-        rows = self._rows("SELECT * FROM suspect_intervals WHERE id = ?", (suspect_id,))
+        """One interval with its bodies (`suspect_rows`), None: no such one."""
+        with self._lock, self._typed_errors():
+            rows = suspect_rows(self._db, suspect_id=suspect_id)
         return rows[0] if rows else None
 
     def suspects(
         self, since_t: float | None = None, last: int | None = None
     ) -> list[dict[str, Any]]:
-        """Intervals in time order: those still open or ending at or after `since_t` (all
-        when None); only the `last` n when given. None in a database of an older rvis (read
-        before a service of this one migrated it)."""
-        if self.version() < SUSPECTS_SCHEMA:
+        """Intervals in time order with their bodies (`suspect_rows`): those still open or
+        ending at or after `since_t` (all when None); only the `last` n when given."""
+        with self._lock, self._typed_errors():
+            return suspect_rows(self._db, since_t=since_t, last=last)
+
+    # -- clamp windows and their bodies -----------------------------------------------------------
+    def add_window(self, t: float, body_id: int | str | None) -> int:
+        """A clamp window that opened at `t` with the body the PLC clamped in it (None: none)."""
+        return self._insert("INSERT INTO windows (t, body_id) VALUES (?, ?)", (t, body_id))
+
+    def windows(self) -> list[dict[str, Any]]:
+        """Every clamp window recorded, in time order (t, body_id)."""
+        if self.version() < WINDOWS_SCHEMA:
             return []
-        sql, args = "SELECT * FROM suspect_intervals", cast(tuple[Any, ...], ())
-        if since_t is not None:
-            sql, args = sql + " WHERE t_end IS NULL OR t_end >= ?", (since_t,)
-        sql += " ORDER BY t_start DESC, id DESC"
-        if last is not None:
-            sql, args = sql + " LIMIT ?", (*args, last)
-        return self._rows(sql, args)[::-1]
+        return self._rows("SELECT * FROM windows ORDER BY t, id")
 
     # -- the service's decision state ---------------------------------------------------------
     def save_state(self, t: float, doc: dict[str, Any]) -> None:

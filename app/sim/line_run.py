@@ -111,6 +111,7 @@ def simline_settings(
         n_validation=s.n_validation,
         camera_readout_s=s.camera_readout_s,
         galvo_settle_s=s.galvo_settle_s,
+        body_format="serial8" if cfg.line.plc_body_id == "serial8" else "u32",
     )
 
 
@@ -132,8 +133,12 @@ def continued_epoch(state_dir: Path, start_epoch: float | None = None) -> float:
 
 def with_simulated_plc(cfg: CellConfig) -> CellConfig:
     """The cell as the simulated line's devices are: its PLC writes the cell temperature in
-    word 2 (`[line] plc_temperature` on, whatever the cell file says)."""
-    return dataclasses.replace(cfg, line=dataclasses.replace(cfg.line, plc_temperature=True))
+    word 2 (`[line] plc_temperature` on, whatever the cell file says) and counts bodies, the
+    body number in words 3-4 (`[line] plc_body_id` "u32" unless the cell file says "serial8":
+    then the simulated PLC writes serials)."""
+    body = "u32" if cfg.line.plc_body_id == "none" else cfg.line.plc_body_id
+    line = dataclasses.replace(cfg.line, plc_temperature=True, plc_body_id=body)
+    return dataclasses.replace(cfg, line=line)
 
 
 def service_settings(cfg: CellConfig, state_dir: Path) -> ServiceSettings:

@@ -17,6 +17,7 @@ from textual import work
 from textual.app import App, ComposeResult
 from textual.binding import Binding, BindingType
 from textual.containers import Horizontal, Vertical, VerticalScroll
+from textual.dom import NoScreen
 from textual.widgets import (
     DataTable,
     Footer,
@@ -85,6 +86,7 @@ class RvisTui(App[None]):
         self._refresher: Worker[None] | None = None
         self._shown: dict[str, list[Sequence[Any]]] = {}  # the rows each table shows
         self._alarms: list[dict[str, Any]] = []  # the Alarms table's alarms, in its order
+        self._suspects: list[dict[str, Any]] = []  # the suspect intervals' table's, in its order
         #: the wall clock of the ages shown (replaced in the screenshot tests)
         self.now: Callable[[], datetime] = lambda: datetime.now(UTC)
 
@@ -99,6 +101,7 @@ class RvisTui(App[None]):
                 yield Vertical(id="drift")
                 yield Label("Suspect intervals (bodies measured then: re-measure or flag):")
                 yield DataTable(id="suspects-table", cursor_type="row")
+                yield Static("no suspect interval selected", id="suspect-detail")  # its bodies
             with TabPane("2 Measurements", id="measurements"), Vertical():
                 yield Input(placeholder="filter by sphere (e.g. P2), Enter", id="sphere-filter")
                 yield DataTable(id="measurements-table", cursor_type="row")
@@ -137,7 +140,7 @@ class RvisTui(App[None]):
             ),
             "devices-table": ("device", "URL", "state", "last error (UTC)", "error"),
             "log-table": ("time (UTC)", "event", "what happened"),
-            "suspects-table": ("id", "from (UTC)", "to (UTC)", "size mm", "what"),
+            "suspects-table": ("id", "from (UTC)", "to (UTC)", "size mm", "bodies", "what"),
         }
         for table_id, cols in columns.items():
             self.query_one(f"#{table_id}", DataTable).add_columns(*cols)
@@ -287,11 +290,27 @@ class RvisTui(App[None]):
         if "recent" in hist:
             self._show_drift(hist["recent"])
         if "suspects" in hist:
-            self._fill("suspects-table", view.suspect_rows(hist["suspects"]))
+            self._suspects = hist["suspects"]
+            self._fill("suspects-table", view.suspect_rows(self._suspects))
+            self._show_suspect_detail(self.query_one("#suspects-table", DataTable))
 
     def on_data_table_row_highlighted(self, event: DataTable.RowHighlighted) -> None:
         if event.data_table.id == "alarms-table":
             self._show_alarm_detail()
+        elif event.data_table.id == "suspects-table":
+            self._show_suspect_detail(event.data_table)
+
+    def _show_suspect_detail(self, table: DataTable[Any]) -> None:
+        """The selected suspect interval's bodies, all of them, under its table (found from
+        the table: another screen, a dialog, may be on top; none while the app closes)."""
+        row = table.cursor_row
+        selected = self._suspects[row] if 0 <= row < len(self._suspects) else None
+        try:
+            screen = table.screen
+        except NoScreen:  # a highlight that arrives as the app shuts down
+            return
+        for detail in screen.query("#suspect-detail").results(Static):
+            detail.update(Text(view.suspect_detail(selected)))
 
     def _show_alarm_detail(self) -> None:
         """The selected alarm whole under the table: its text, who acknowledged it, when."""

@@ -11,6 +11,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from app.line.store import suspect_rows
+
 
 def _utc(t: Any) -> str:
     if not isinstance(t, int | float):
@@ -77,8 +79,17 @@ class HistoryReader:
         ]
 
     def suspects(self, limit: int = 50) -> list[dict[str, Any]]:
-        """Suspect intervals after steps, newest first (app/line/step.py)."""
-        rows = self._query("SELECT * FROM suspect_intervals ORDER BY id DESC LIMIT ?", (limit,))
+        """Suspect intervals after steps, newest first (app/line/step.py), each with the bodies
+        measured in it (the store's query, app.line.store.suspect_rows)."""
+        if not self.db_path.exists():
+            return []
+        con = sqlite3.connect(f"file:{self.db_path}?mode=ro", uri=True, timeout=1.0)
+        try:
+            rows = suspect_rows(con, last=limit)[::-1]
+        except sqlite3.OperationalError:
+            return []  # a database still being created or migrated: nothing to show yet
+        finally:
+            con.close()
         return [
             {
                 **r,

@@ -18,6 +18,8 @@ from typing import Any
 
 from rich.text import Text
 
+from app.line.states import bodies_text
+
 PRIORITY_CLASS = {
     "urgent": "alarm-high",
     "high": "alarm-high",
@@ -154,9 +156,11 @@ def knock_text(status: dict[str, Any]) -> str:
         return "none"
     last = intervals[-1]
     end = "OPEN" if last.get("end_utc") is None else time_text(last.get("end_utc"))[11:]
+    bodies = last.get("bodies") or []
     return (
         f"last suspect interval {time_text(last.get('start_utc'))[5:]} - {end},"
         f" {num(last.get('size_mm'), '.3f', ' mm')} ({last.get('group') or '?'})"
+        + (f", bodies {bodies_text(bodies)}" if bodies else "")
     )
 
 
@@ -245,17 +249,31 @@ def version_rows(rows: list[dict[str, Any]]) -> list[tuple[str, ...]]:
 
 
 def suspect_rows(rows: list[dict[str, Any]]) -> list[tuple[str, ...]]:
-    """(id, from, to, size, what) per suspect interval, as app.tui.history gives them."""
+    """(id, from, to, size, bodies, what) per suspect interval, as app.tui.history gives them;
+    bodies: how many, the first and the last (suspect_detail lists them all)."""
     return [
         (
             str(r.get("id")),
             time_text(r.get("start_utc")),
             time_text(r.get("end_utc")) or "OPEN",
             num(r.get("size_mm"), ".3f"),
+            bodies_text(r.get("bodies") or []),
             str(r.get("text") or ""),
         )
         for r in rows
     ]
+
+
+def suspect_detail(r: dict[str, Any] | None) -> str:
+    """The selected suspect interval's bodies, every one (the table shows the first and last)."""
+    if r is None:
+        return "no suspect interval selected"
+    bodies = r.get("bodies") or []
+    head = f"#{r.get('id')} from {time_text(r.get('start_utc'))}"
+    head += f" to {time_text(r.get('end_utc')) or 'now (OPEN)'}"
+    if not bodies:
+        return f"{head}: no bodies known (the PLC's body id is read with [line] plc_body_id)"
+    return f"{head}: {len(bodies)} bodies: {', '.join(map(str, bodies))}"
 
 
 def log_rows(rows: list[dict[str, Any]]) -> list[tuple[str, ...]]:
@@ -319,6 +337,7 @@ def event_text(kind: Any, detail: Any) -> str:
             + (f" to {time_text(g('end_utc'))}" if g("end_utc") else "")
             + f", {num(g('size_mm'), '.3f', ' mm')}"
             + (f" ({g('group')})" if g("group") else "")
+            + (f", bodies {bodies_text(g('bodies') or [])}" if g("bodies") else "")
         ),
     }
     make = texts.get(str(kind))

@@ -59,11 +59,13 @@ def rvis(*argv: str, cwd: Path = ROOT) -> Run:
 @pytest.fixture()
 def state(tmp_path: Path) -> StateDir:
     """A state directory as a stopped service leaves it: a database with a suspect interval
-    and parameters version 3 in force."""
+    in which the PLC clamped two bodies, and parameters version 3 in force."""
     state = StateDir(tmp_path / DEFAULT_ROOT)
     state.root.mkdir(mode=0o750)
     store = Store(state.db)
     store.open_suspect({"t_start": 1.8e9, "onset_id": 12, "size_mm": 0.31, "text": "sensor"})
+    for t, body in ((1.8e9 - 60.0, 100006), (1.8e9 + 60.0, 100007), (1.8e9 + 120.0, 100008)):
+        store.add_window(t, body)
     store.close()
     state.history.mkdir(parents=True)
     for path in (state.history / "0003.json", state.current):
@@ -111,6 +113,7 @@ def test_status_without_a_service_reads_the_database_only(state: StateDir) -> No
     status = json.loads(run.out)
     assert status["state"] == "not running" and status["params_version"] == 3
     assert [s["size_mm"] for s in status["suspect_intervals"]] == [0.31]
+    assert [s["bodies"] for s in status["suspect_intervals"]] == [[100007, 100008]]
     assert "app.line.store" in run.modules  # the report is read: it names what was imported
     assert run.heavy() == set()
 
@@ -198,4 +201,8 @@ def test_state_check_and_suspects_read_the_database_only(state: StateDir) -> Non
     assert run.code == 0, run.err
     (interval,) = json.loads(run.out)
     assert (interval["state"], interval["size_mm"]) == ("open", 0.31)
+    assert interval["bodies"] == [100007, 100008]
+    assert run.heavy() == set()
+    run = rvis("state", "suspects", "--state-dir", str(state.root))
+    assert run.code == 0 and "bodies (2: 100007 .. 100008): 100007, 100008" in run.out
     assert run.heavy() == set()

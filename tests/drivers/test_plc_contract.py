@@ -23,9 +23,11 @@ from drivers.plc import (
     Plc,
     PlcInputs,
     PlcOutputs,
+    decode_body_id,
     decode_inputs,
     decode_outputs,
     decode_temp,
+    encode_body_id,
     encode_inputs,
     encode_outputs,
     encode_temp,
@@ -281,3 +283,45 @@ def test_the_modbus_plc_reads_the_cell_temperature_from_its_peer() -> None:
         deadline = time.monotonic() + 2.0
         while plc.poll().temp_c != 24.56:  # the peer's next scan writes the word
             assert time.monotonic() < deadline, "the temperature word never arrived"
+
+
+def test_the_body_id_words_hold_a_32_bit_number_or_an_8_character_serial() -> None:
+    for number in (1, 100001, 0x12345678, 0xFFFFFFFF):
+        words = encode_body_id(number, "u32")
+        assert len(words) == 2 and all(0 <= w <= 0xFFFF for w in words)
+        assert decode_body_id(words, "u32") == number
+    assert encode_body_id(0x0001_86A1, "u32") == (0x0001, 0x86A1)  # high word first
+    assert decode_body_id((0, 0), "u32") is None  # 0: no body clamped
+    for serial in ("B0100001", "WVW1234", "A"):
+        words = encode_body_id(serial, "serial8")
+        assert len(words) == 4 and decode_body_id(words, "serial8") == serial
+    assert encode_body_id("AB", "serial8") == (0x4142, 0, 0, 0)  # the first in the high byte
+    assert decode_body_id((0x4142, 0x2020, 0x2020, 0x2020), "serial8") == "AB"  # space-padded
+    assert decode_body_id((0, 0, 0, 0), "serial8") is None  # blank: no body
+    assert decode_body_id((0x2020,) * 4, "serial8") is None
+    with pytest.raises(DeviceConfigError, match="body id format"):
+        decode_body_id((1, 2), "u64")
+
+
+@pytest.mark.parametrize("kind", ["fake", "modbus"])
+def test_the_simulated_plc_holds_the_number_of_the_body_it_clamps(kind: str) -> None:
+    """Period k of the clamp cycle holds body first_body + k (the fake counts bodies); read in
+    one request, in the format the PLC writes it; a PLC program that never writes the words
+    reads as no body."""
+    cycle = ClampCycle(period_s=600.0, window_s=8.0, beat_s=0.5, first_body=555)
+    assert [cycle.body(t) for t in (0.0, 599.0, 600.0, 1250.0)] == [555, 555, 556, 557]
+    assert cycle.window_body(3) == 558
+    for fmt, expected in (("u32", 555), ("serial8", "B0000555"), (None, None)):
+        with ExitStack() as stack:
+            if kind == "fake":
+                plc = stack.enter_context(open_plc("fake://", cycle=cycle, **OPTS))
+                assert isinstance(plc, FakePlc)
+                plc.body_format = fmt
+            else:
+                from fakes.plc import PlcServer
+
+                server = PlcServer(cycle)
+                server.body_format = fmt
+                stack.enter_context(server)
+                plc = stack.enter_context(open_plc(f"plc+modbus://127.0.0.1:{server.port}", **OPTS))
+            assert plc.read_body_id(fmt or "u32") == expected

@@ -14,7 +14,8 @@ from app.line.cycle import WindowWatch
 from app.line.settings import from_cell
 from drivers.clock import RealClock
 from drivers.plc import NO_TEMPERATURE, WINDOW_OPEN, decode_inputs, encode_temp
-from fakes.devices import FakePlc
+from fakes.clock import VirtualClock
+from fakes.devices import ClampCycle, FakePlc
 
 
 def test_from_cell_reads_the_sections(tmp_path: Path) -> None:
@@ -93,3 +94,59 @@ def test_an_implausible_or_missing_plc_temperature_is_none_with_the_reason() -> 
     ):
         temp_c, reason = _watch(on, word).temperature()
         assert temp_c is None and why in reason
+
+
+def test_the_plc_body_id_is_off_unless_the_cell_file_names_its_format(tmp_path: Path) -> None:
+    """`[line] plc_body_id`: "none" by default (the words are not read: a PLC program without
+    them may not have the registers), "u32" or "serial8" from the cell file, nothing else."""
+    assert load_cell(None).line.plc_body_id == "none"
+    cell = tmp_path / "cell.toml"
+    for fmt in ("u32", "serial8", "none"):
+        cell.write_text(f'[line]\nplc_body_id = "{fmt}"\n', encoding="utf-8")
+        assert from_cell(load_cell(cell)).line.plc_body_id == fmt
+    cell.write_text('[line]\nplc_body_id = "u64"\n', encoding="utf-8")
+    with pytest.raises(InputError, match=r"cell.toml:2: \[line\] plc_body_id.*u32, serial8"):
+        load_cell(cell)
+    with pytest.raises(ValueError):
+        LineSettings(plc_body_id="vin17")
+
+
+class _CountingPlc(FakePlc):
+    """The fake PLC counting the requests for the body id words."""
+
+    body_reads = 0
+
+    def _read_body_words(self, count: int) -> tuple[int, ...]:
+        self.body_reads += 1
+        return super()._read_body_words(count)
+
+
+def test_the_window_watch_reads_the_body_once_at_each_rising_edge_only_when_asked() -> None:
+    """Each window the PLC opens queues (the clock's time, the clamped body's id), read once at
+    its rising edge (a window open at the first reading counts); never with plc_body_id off."""
+    cycle = ClampCycle(period_s=60.0, window_s=8.0, beat_s=0.5, first_body=700)
+    for fmt, expected in (("u32", [701, 702]), ("serial8", ["B0000701", "B0000702"])):
+        clock = VirtualClock(start_epoch=1000.0)
+        plc = _CountingPlc(cycle, clock=clock)
+        plc.body_format = fmt
+        plc.open()
+        watch = WindowWatch(plc, clock, LineSettings(plc_body_id=fmt))
+        for t in (30.0, 113.0, 115.0, 119.9, 121.0, 173.0, 179.0):  # windows 1 and 2 open
+            clock.advance(t - clock.monotonic())
+            watch.poll()
+        assert list(watch.clamped) == [(1113.0, expected[0]), (1173.0, expected[1])]
+        assert plc.body_reads == 2  # once a window
+        off = WindowWatch(plc, clock, LineSettings())
+        clock.advance(60.0)
+        off.poll()  # window 3 open at its first reading: not read, nothing queued
+        assert not off.clamped and plc.body_reads == 2
+        plc.close()
+    # a window open at the first reading is a body too (the service started inside it)
+    clock = VirtualClock(start_epoch=0.0)
+    plc = _CountingPlc(cycle, clock=clock)
+    plc.open()
+    clock.advance(55.0)
+    watch = WindowWatch(plc, clock, LineSettings(plc_body_id="u32"))
+    watch.poll()
+    assert list(watch.clamped) == [(55.0, 700)]
+    plc.close()

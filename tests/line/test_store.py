@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from app.line.states import suspect_json
 from app.line.store import MIGRATIONS, SCHEMA_VERSION, StorageError, Store
 
 
@@ -68,7 +69,7 @@ def test_a_version_1_database_gains_the_temperature_column_and_keeps_its_rows(
     db.commit()
     db.close()
     store = Store(tmp_path / "rvis.db")  # an older service's state directory
-    assert store.version() == SCHEMA_VERSION == 4
+    assert store.version() == SCHEMA_VERSION == 5
     (old,) = store.measurements()
     assert old["c_sensor_mm"] == [1, 2, 3] and old["temp_c"] is None
     store.add_measurement({**_row(1), "temp_c": 23.45})
@@ -209,4 +210,63 @@ def test_an_older_database_read_only_has_no_suspect_intervals(tmp_path: Path) ->
     db.close()
     store = Store.read_only(tmp_path / "rvis.db")
     assert store.version() == 3 and store.suspects() == []
+    store.close()
+
+
+def test_a_suspect_intervals_bodies_are_those_of_the_windows_inside_it(tmp_path: Path) -> None:
+    """Migration 5: the clamp windows with their bodies. An interval's bodies are the non-null
+    body ids of the windows from its start to its end, both included (an open one: up to now),
+    in time order, each once (a window the PLC gave back keeps its body); in the rows of
+    `suspects` and `suspect`, and in suspect_json."""
+    store = Store(tmp_path / "rvis.db")
+    onset = store.add_measurement(_row(1))
+    closed = store.open_suspect({"t_start": 100.0, "onset_id": onset})
+    store.update_suspect(closed, t_end=160.0, end_reason="step")
+    opened = store.open_suspect({"t_start": 500.0, "onset_id": onset})
+    assert [r["bodies"] for r in store.suspects()] == [[], []]
+    windows: list[tuple[float, int | str | None]] = [(90.0, 1), (100.0, 2), (130.0, 3)]
+    windows += [(135.0, 3), (140.0, None), (160.0, 4)]
+    windows += [(170.0, 5), (499.0, 6), (510.0, "B0000007"), (520.0, 8)]
+    for t, body in windows:
+        store.add_window(t, body)
+    assert [(w["t"], w["body_id"]) for w in store.windows()] == windows
+    rows = store.suspects()
+    assert [r["bodies"] for r in rows] == [[2, 3, 4], ["B0000007", 8]]
+    one = store.suspect(opened)
+    assert one is not None and one["bodies"] == ["B0000007", 8]
+    assert [r["bodies"] for r in store.suspects(last=1)] == [["B0000007", 8]]
+    assert [r["bodies"] for r in store.suspects(since_t=200.0)] == [["B0000007", 8]]
+    assert suspect_json(rows[0])["bodies"] == [2, 3, 4]  # the body numbers stay numbers
+    assert suspect_json({"id": 1, "t_start": 1.0})["bodies"] == []
+    store.close()
+
+
+def test_a_version_4_database_gains_the_windows_and_keeps_its_suspect_intervals(
+    tmp_path: Path,
+) -> None:
+    """Read-only before a service of this rvis migrated it, a version 4 database lists its
+    intervals without bodies; opened by the service it gains the windows table (migration 5)
+    and every row it had."""
+    db = sqlite3.connect(tmp_path / "rvis.db")
+    for migration in MIGRATIONS[:4]:
+        for sql in migration:
+            db.execute(sql)
+    db.execute(
+        "INSERT INTO suspect_intervals (t_start, t_end, onset_id, size_mm, text)"
+        " VALUES (100.0, 160.0, 7, 0.31, 'sensor mount moved')"
+    )
+    db.execute("PRAGMA user_version = 4")
+    db.commit()
+    db.close()
+    old = Store.read_only(tmp_path / "rvis.db")
+    (row,) = old.suspects()
+    assert old.version() == 4 and row["bodies"] == [] and row["size_mm"] == 0.31
+    assert old.windows() == []
+    old.close()
+    store = Store(tmp_path / "rvis.db")
+    assert store.version() == SCHEMA_VERSION == 5
+    (row,) = store.suspects()
+    assert (row["t_end"], row["text"], row["bodies"]) == (160.0, "sensor mount moved", [])
+    store.add_window(120.0, 100001)
+    assert store.suspects()[0]["bodies"] == [100001]
     store.close()

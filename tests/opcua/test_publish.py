@@ -36,6 +36,10 @@ EXPECTED: dict[str, Callable[[dict[str, Any]], Any]] = {
     "CellTemperatureC": lambda s: s["cell_temp_c"],
     "ActiveAlarms": lambda s: len(s["alarms"]),
     "SuspectOpen": lambda s: any(r["state"] == "open" for r in s["suspect_intervals"]),
+    "SuspectBodies": lambda s: next(
+        (json.dumps(r["bodies"]) for r in s["suspect_intervals"][::-1] if r["state"] == "open"),
+        None,
+    ),
     "SuspectIntervals": lambda s: json.dumps(s["suspect_intervals"]),
 }
 
@@ -204,6 +208,10 @@ def test_the_suspect_interval_variables_of_a_status_reply() -> None:
     assert json.loads(read("SuspectIntervals", [closed, opened])) == [closed, opened]
     assert read("SuspectOpen", [closed]) is False
     assert read("SuspectStartUtc", [closed]) is None and read("SuspectSizeMm", []) is None
+    # the bodies measured in the open interval so far (the line PLC's ids), none when closed
+    assert json.loads(read("SuspectBodies", [closed, {**opened, "bodies": [100007]}])) == [100007]
+    assert json.loads(read("SuspectBodies", [opened])) == []  # the PLC gives no body ids
+    assert read("SuspectBodies", [closed]) is None
 
 
 async def _values_under(client: Client, root: Any) -> list[tuple[str, ua.DataValue]]:

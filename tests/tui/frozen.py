@@ -68,6 +68,7 @@ STATUS: dict[str, Any] = {
             "size_mm": 0.226,
             "group": "sensor",
             "text": "sensor mount moved 0.66 mm / 0.229 deg (0.22 mm at the measured spheres)",
+            "bodies": [100412, 100413, 100414],
         }
     ],
 }
@@ -162,6 +163,7 @@ HISTORY: dict[str, list[dict[str, Any]]] = {
             "end_utc": "2026-11-23T07:43:30",
             "size_mm": 0.226,
             "text": "sensor mount moved 0.66 mm / 0.229 deg (0.22 mm at the measured spheres)",
+            "bodies": [100412, 100413, 100414],
         },
         {
             "id": 1,

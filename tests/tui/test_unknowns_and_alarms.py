@@ -94,3 +94,21 @@ def test_the_alarm_rows_say_who_acknowledged_and_an_unacknowledged_clear() -> No
         ("2", "ACKED", "root 04:15"),
         ("1", "CLEARED UNACK", "-"),
     ]
+
+
+def test_the_selected_suspect_interval_lists_every_body_measured_in_it() -> None:
+    """Issue 28 item 4: the table shows how many bodies and the first and last; the selected
+    interval's bodies are listed whole under it."""
+
+    async def scenario() -> None:
+        app = FrozenTui()
+        async with app.run_test(size=(100, 30)) as pilot:
+            await until(pilot, lambda: "3 bodies" in text_of(app, "#suspect-detail"))
+            assert "#2 from 2026-11-23 07:41:12" in text_of(app, "#suspect-detail")
+            assert "100412, 100413, 100414" in text_of(app, "#suspect-detail")
+            app.query_one("#suspects-table").focus()
+            await press(pilot, "down")
+            await until(pilot, lambda: "#1 from" in text_of(app, "#suspect-detail"))
+            assert "no bodies known" in text_of(app, "#suspect-detail")
+
+    asyncio.run(scenario())

@@ -53,6 +53,10 @@ def test_the_log_shows_each_event_as_a_line_for_people() -> None:
         "suspect interval 1 closed: from 2026-11-23 06:29:11 to 2026-11-23 06:35:02,"
         " 0.225 mm (sensor)"
     )
+    assert line("suspect_interval", {**interval, "bodies": [100007, 100008, 100009]}) == (
+        "suspect interval 1 closed: from 2026-11-23 06:29:11 to 2026-11-23 06:35:02,"
+        " 0.225 mm (sensor), bodies 3: 100007 .. 100009"
+    )
     assert line("started", {"params_version": 1}) == "params_version 1"  # any other kind
     assert "{" not in line(
         "measurement",
@@ -78,4 +82,14 @@ def test_the_overview_names_the_knock_and_lists_the_suspect_intervals() -> None:
     )
     assert "Knock     none" in view.overview_text({})
     rows = view.suspect_rows([{**interval, "start_utc": "2026-11-23T07:41:12"}])
-    assert rows == [("2", "2026-11-23 07:41:12", "OPEN", "0.226", "sensor mount moved")]
+    assert rows == [("2", "2026-11-23 07:41:12", "OPEN", "0.226", "none", "sensor mount moved")]
+    # the bodies measured inside: how many, the first and the last in the row, all on selection
+    bodies = {**interval, "bodies": [100412, 100413, 100414]}
+    assert view.suspect_rows([bodies])[0][4] == "3: 100412 .. 100414"
+    assert view.suspect_rows([{**interval, "bodies": ["B0100412"]}])[0][4] == "1: B0100412"
+    assert "bodies 3: 100412 .. 100414" in view.overview_text({"suspect_intervals": [bodies]})
+    assert view.suspect_detail(bodies) == (
+        "#2 from 2026-11-23 07:41:12 to now (OPEN): 3 bodies: 100412, 100413, 100414"
+    )
+    assert "no bodies known" in view.suspect_detail(interval)
+    assert view.suspect_detail(None) == "no suspect interval selected"

@@ -198,11 +198,20 @@ VARIABLES = (
         none_if=lambda rows: _open_field(rows, "size_mm") is None,
     ),
     Var(
+        "SuspectBodies",
+        ("suspect_intervals",),
+        ua.VariantType.String,
+        "the bodies measured so far in the open suspect interval, as a JSON array of the ids the"
+        " line PLC gave them ([line] plc_body_id; [] when it gives none; BadNoValue: none open)",
+        convert=lambda rows: json.dumps(_open_field(rows, "bodies") or []),
+        none_if=lambda rows: _open_suspect(rows) is None,
+    ),
+    Var(
         "SuspectIntervals",
         ("suspect_intervals",),
         ua.VariantType.String,
-        "the last suspect intervals as JSON (start_utc, end_utc, size_mm, group, text), oldest"
-        " first, as `rvis state suspects --json` prints them",
+        "the last suspect intervals as JSON (start_utc, end_utc, size_mm, group, text, bodies),"
+        " oldest first, as `rvis state suspects --json` prints them",
         convert=lambda rows: json.dumps(rows),
     ),
 )
