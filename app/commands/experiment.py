@@ -330,6 +330,7 @@ def _shift_settings(args: argparse.Namespace, knock_h: float, hours: float) -> S
             scale=args.scale,
             slots_per_window=args.slots_per_window,
             model=args.model,
+            estimator=None if args.estimator in (None, "compare") else args.estimator,
         )
     except ValueError as exc:
         raise InputError(str(exc), field="--hours/--knock-at-h/--scale") from exc

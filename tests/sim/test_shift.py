@@ -292,3 +292,19 @@ def test_a_campaign_over_two_knock_hours_in_two_jobs(
     assert "| sensor | **all** | 2 |" in md
     assert _without_wall_time(docs[1]) == _without_wall_time(doc)
     assert mds[1] == md
+
+
+def test_a_campaigns_shifts_run_the_estimator_and_model_the_command_names() -> None:
+    """`--estimator` and `--model` reach every shift of a campaign (they once reached only the
+    single shift: a campaign "with the sequential estimator" ran the cell file's)."""
+    from app.commands.experiment import _shift_settings
+
+    argv = ["experiment", "shift", "--knock-at-h", "0.5,0.75", "--after-h", "1"]
+    argv += ["--knock", "all", "--seeds", "2", "--estimator", "sequential", "--model", "compliant"]
+    args = build_parser(argv).parse_args(argv)
+    for knock_h, hours in _knock_hours(args):
+        s = _shift_settings(args, knock_h, hours)
+        assert (s.estimator, s.model, s.knock_at_h) == ("sequential", "compliant", knock_h)
+    plain = ["experiment", "shift", "--knock-at-h", "0.5"]
+    s = _shift_settings(build_parser(plain).parse_args(plain), 0.5, 8.0)
+    assert s.estimator is None and s.model is None  # the cell file's
