@@ -271,21 +271,28 @@ def volume_views(q_deg: F64, volume_mm: Sequence[float]) -> tuple[F64, F64]:
 
 
 def step_sigma_mm(
-    before: Sequence[Mapping[str, Any]], change_mu_mm: float | None, measurement_std_mm: float
+    before: Sequence[Mapping[str, Any]],
+    change_mu_mm: float | None,
+    measurement_std_mm: float,
+    residuals_mm: F64 | None = None,
 ) -> float:
     """One coordinate's standard deviation of a measurement minus its pre-step reference, as
     the attribution's pairs have it (noise and the drift over about a schedule cycle): from the
     mean |c_t - c_prev| of consecutive visits of the same slot in the rows `before` the step
     when there are at least MIN_SIGMA_PAIRS (recent: the warm-up's drift is that of now), else
     the change charts' baseline mean (learned once), else sqrt(2) x one measurement's; for a
-    3-D normal difference E|d| = sigma sqrt(8 / pi)."""
-    last: dict[int, Mapping[str, Any]] = {}
+    3-D normal difference E|d| = sigma sqrt(8 / pi). `residuals_mm` (n, 3), the rows' residuals
+    with the parameters in force: the differences are taken on them instead of on the raw
+    centres, so that the drift the model predicts (the compliant model's thermal term in the
+    warm-up) is not counted as noise, as the attribution's pairs do not count it."""
+    last: dict[int, tuple[Mapping[str, Any], Any]] = {}
     d = []
-    for r in before:
+    for k, r in enumerate(before):
+        v = r["c_sensor_mm"] if residuals_mm is None else residuals_mm[k]
         prev = last.get(int(r["slot"]))
-        if prev is not None and np.allclose(prev["q_deg"], r["q_deg"], atol=1e-6):
-            d.append(float(np.linalg.norm(np.subtract(r["c_sensor_mm"], prev["c_sensor_mm"]))))
-        last[int(r["slot"])] = r
+        if prev is not None and np.allclose(prev[0]["q_deg"], r["q_deg"], atol=1e-6):
+            d.append(float(np.linalg.norm(np.subtract(v, prev[1]))))
+        last[int(r["slot"])] = (r, v)
     if len(d) >= MIN_SIGMA_PAIRS:
         return float(np.mean(d)) / _MEAN_NORM_3D
     if change_mu_mm is not None and change_mu_mm > 0:

@@ -30,6 +30,7 @@ from app.line.step import (
     locate_step,
     paired,
     recovery_test,
+    reference_mm,
     step_alarm_text,
     step_sigma_mm,
     visible_step_mm,
@@ -213,7 +214,8 @@ class StepHandler:
             return None
         chart = svc.drift.change.charts.get("*")
         mu = chart.mu if chart is not None and chart.ready else None
-        sigma = step_sigma_mm(before, mu, r.seq_measurement_std_mm)
+        res = reference_mm(svc.model, svc.x, before, svc.spheres) if before else None
+        sigma = step_sigma_mm(before, mu, r.seq_measurement_std_mm, res)
         if locate or step.start_id is None:
             i = locate_step(svc.model, svc.x, wide, svc.spheres, sigma, step.flag_id)
             start_id = int(wide[i][0]["id"])

@@ -161,6 +161,13 @@ def test_the_sigma_of_a_difference_comes_from_recent_revisits_or_the_change_char
     assert step_sigma_mm(rows, None, 0.02) == pytest.approx(0.03, rel=0.2)
     assert step_sigma_mm(rows[:30], 0.03 * np.sqrt(8.0 / np.pi), 0.02) == pytest.approx(0.03)
     assert step_sigma_mm([], None, 0.02) == pytest.approx(0.02 * np.sqrt(2.0))
+    # a warm-up's drift of 0.05 mm per visit that the model predicts (its residuals remove it)
+    # is not noise: taken on the residuals, sigma is the noise's again
+    drift = np.array([[0.0, 0.0, 0.05 * (k // 24)] for k in range(48)])
+    warm = [{**r, "c_sensor_mm": r["c_sensor_mm"] + drift[k]} for k, r in enumerate(rows)]
+    assert step_sigma_mm(warm, None, 0.02) > 1.3 * step_sigma_mm(rows, None, 0.02)
+    res = np.array([r["c_sensor_mm"] for r in warm]) - drift
+    assert step_sigma_mm(warm, None, 0.02, res) == pytest.approx(step_sigma_mm(rows, None, 0.02))
 
 
 def test_rows_after_a_step_pair_with_the_last_visit_of_their_slot() -> None:
