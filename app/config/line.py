@@ -121,7 +121,7 @@ class RecalibSettings(Section):
     # informative configuration that fits the window
     schedule: str = opt("cycle", choices=("cycle", "adaptive"))
     # a step (a knock): attribute it to one rigid group and correct that group at once
-    # (app/line/step.py, app/line/step_service.py)
+    # (app/line/step.py, app/line/step_handler.py)
     step_correction: bool = opt(True)
     step_min_measurements: int = opt(3, lo=2, hi=1000)  # after the change point, 1 held out
     step_min_margin: float = opt(10.0, lo=0, hi=1e6)  # BIC of the runner-up minus the choice's

@@ -1,5 +1,5 @@
 """What the service's collaborators use of it: `LineHost`, the service as the operator's
-commands (app.line.operator), the step handling (app.line.step_service) and the status reply
+commands (app.line.operator), the step handling (app.line.step_handler) and the status reply
 (app.line.status) see it. `app.line.service.Service` is the one implementation; the
 collaborators import this protocol, not the service, so no import runs back to it."""
 

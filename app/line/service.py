@@ -28,7 +28,7 @@ alarm and stays in FAULT until an operator resets it.
 
 A step (a knock) flagged by the drift charts opens a suspect interval and is attributed to the
 rigid group that moved after every window, with a fast correction of that group (StepHandler,
-app/line/step_service.py; the numbers in app/line/step.py and calib/attribution.py); until it
+app/line/step_handler.py; the numbers in app/line/step.py and calib/attribution.py); until it
 is corrected the windows measure the slots that serve the attribution (`_choose`,
 `_slots_wanted`).
 """
@@ -64,7 +64,7 @@ from app.line.states import FAULT_CODES, State, utc_text
 from app.line.station import Station
 from app.line.status import device_of, status_reply
 from app.line.step import Step, StepCorrection, StepStatus, step_alarm_text, step_slot
-from app.line.step_service import StepHandler
+from app.line.step_handler import StepHandler
 from app.line.store import StorageError, Store
 from app.line.sweeps import SweepArchive
 from calib.attribution import NONE, SEVERAL, step_groups
@@ -167,7 +167,7 @@ class Service:
         # (the simulated line holds the service there, its virtual time standing, to look)
         self.after_window: Callable[[], None] | None = None
         self.operator = Operator(self)  # the operator's commands (app.line.operator)
-        self.steps = StepHandler(self)  # a flagged step's handling (app.line.step_service)
+        self.step_handler = StepHandler(self)  # a flagged step's handling (app.line.step_handler)
         self.log = logging.getLogger("rvis.line")
         self.restore()
         if self._recovered is not None:  # an apply the database does not know yet
@@ -599,7 +599,7 @@ class Service:
                 recent,
                 self.last_visit,
                 groups,
-                self.steps.volume_views(),
+                self.step_handler.volume_views(),
             )
         if self.sequential is not None and self.settings.recalib.schedule == "adaptive":
             return self.sequential.most_informative(self.model, slots, self.last_visit)
@@ -698,7 +698,7 @@ class Service:
         (a change signal, or any signal before the change charts watch) may need a person to
         look at the cell: only measurements from the change point on are used, and a
         `drift_step` alarm of high priority is raised, at once when it cannot be attributed,
-        else once the attribution confirms it (app/line/step_service.py: until then a low
+        else once the attribution confirms it (app/line/step_handler.py: until then a low
         `drift` alarm; a step attributed to nothing was drift)."""
         for sig in self.drift.update(target, e_mm, row_id, change_mm):
             where = "all spheres" if sig.stream == "*" else sig.stream
@@ -714,7 +714,7 @@ class Service:
             if self.drift_onset_id is None:
                 self.drift_onset_id = sig.onset_ref
                 attribute = sig.family == "change" or len(self.visit_ids) >= len(self.schedule)
-                self.steps.open_step(sig.onset_ref, row_id, attribute=attribute)
+                self.step_handler.open_step(sig.onset_ref, row_id, attribute=attribute)
             what = "residual" if sig.family == "residual" else "change since the last visit"
             text = f"step of {where} ({what}, {stat}) since measurement {self.drift_onset_id}"
             if self.step is not None:
@@ -776,7 +776,7 @@ class Service:
         if outcome is not None:
             self.recal_done(outcome)
         if self.state in (State.IDLE, State.PAUSED):
-            self.steps.attribute_step()
+            self.step_handler.attribute_step()
             self._maybe_recalibrate()
         self._check_space()
         self._retain()
@@ -1029,7 +1029,7 @@ class Service:
             after_step = first_id is not None and onset is not None and first_id >= onset
             recovering = after_step and self._suspect_open()
             if recovering:  # the interval closes when the residuals say the cell is back
-                self.steps.corrected(t, version, cal, kind)
+                self.step_handler.corrected(t, version, cal, kind)
             elif onset is None or after_step:
                 self.store.clear_alarms(t, "drift_step")
                 if kind != "step":  # a full calibration trained after the step: it is over

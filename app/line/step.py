@@ -20,7 +20,7 @@ correction (the parameters in force with that group replaced) when its gates pas
 
 It is applied (auto) or proposed (approve) like any calibration. The suspect interval then stays
 open until the held-out residuals measured with the correction in force are back at their level
-before the step (`recovery_test`, app.line.step_service.StepHandler.check_recovery); meanwhile the
+before the step (`recovery_test`, app.line.step_handler.StepHandler.check_recovery); meanwhile the
 full recalibration on post-step measurements runs as soon as they span half the schedule.
 Until the interval closes the schedule measures up to `step_slots_per_window` slots per window
 that fit its time budget: first the configurations measured just before the change point (freshest

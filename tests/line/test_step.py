@@ -301,7 +301,7 @@ def test_a_flag_that_the_attribution_explains_by_nothing_is_dropped_as_drift(
         onset = svc.store.last_measurement_id()
         with svc.store.batch():
             svc.drift_onset_id = onset
-            svc.steps.open_step(onset, onset, attribute=True)
+            svc.step_handler.open_step(onset, onset, attribute=True)
             svc.save_state()
         assert svc.step is not None and svc.step.status == "probation"
         assert svc.request("resume").result(10.0)["ok"]
