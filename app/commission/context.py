@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -26,6 +26,7 @@ from app.line.measure import SphereSensor
 from app.line.settings import from_cell
 from app.line.statedir import PLAN_NAME, SENSOR_NAME, StateDir
 from app.line.station import Station
+from drivers.clock import Clock, RealClock
 from vision.sensor_model import SensorModel
 
 F64 = NDArray[np.float64]
@@ -78,6 +79,7 @@ class Context:
     truth: Any = None  # the simulated line (reports figures against its truth; never checked)
     placement: SpherePlacement | None = None  # the simulated line's hands
     out_dir: Path | None = None  # where results go (default: the commissioning's folder)
+    clock: Clock = field(default_factory=RealClock)  # the time the first version is applied at
 
     @property
     def folder(self) -> Path:
