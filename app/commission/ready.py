@@ -18,8 +18,9 @@ import shlex
 
 import numpy as np
 
-from app.commission.context import PARAMS_FILE, PLAN_FILE, SENSOR_FILE, Context
-from app.commission.journal import Check, StepResult, holds
+from app.commission.checks import Check, StepResult, holds
+from app.commission.context import Context
+from app.commission.files import PARAMS_FILE, PLAN_FILE, SENSOR_FILE, STRIPE_FILE
 from app.config import CellConfig, load_cell
 from app.config.devices import CameraSection
 from app.config.write import dumps_cell
@@ -56,7 +57,7 @@ def _commissioned_cell(ctx: Context) -> CellConfig:
     cell = ctx.cell()
     service = dataclasses.replace(cell.service, state_dir=str(ctx.state.root.resolve()))
     cell = dataclasses.replace(cell, service=service)
-    stripe = ctx.path("stripe.json")
+    stripe = ctx.path(STRIPE_FILE)
     if stripe.exists():
         exposure = float(read_json(stripe)["chosen"]["exposure_us"])
         cell = dataclasses.replace(cell, camera=CameraSection(exposure, cell.camera.gain_db))
