@@ -8,6 +8,7 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
+from app.commission import files
 from app.line import statedir
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -66,3 +67,38 @@ def test_the_checker_sees_each_kind(tmp_path: Path) -> None:
         encoding="utf-8",
     )
     assert len(spelled(bad)) == 4
+
+
+COMMISSION_HOME = ROOT / "app" / "commission" / "files.py"
+COMMISSION_NAMES = {
+    v
+    for k, v in vars(files).items()
+    if k.endswith(("_FILE", "_DIR")) and isinstance(v, str) and v not in NAMES
+}
+#: the same name for another folder's file: the demo's report folder has its own params.json
+OTHER_FOLDERS = {("app/sim/demo.py", "params.json")}
+
+
+def constants(path: Path, names: set[str]) -> set[tuple[str, str]]:
+    """(module, name) for each string constant of `path` that is one of `names`."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    rel = str(path.relative_to(ROOT))
+    return {
+        (rel, node.value)
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Constant) and isinstance(node.value, str) and node.value in names
+    }
+
+
+def test_only_the_commissioning_files_module_spells_its_files() -> None:
+    """The commissioning folder's file names (issue 33 item 6) are spelled in
+    app/commission/files.py only."""
+    assert {"params.json", "targets.csv", "stripe.json", "acceptance.csv"} <= COMMISSION_NAMES
+    where = {
+        hit
+        for top in ("app", "rvis")
+        for p in sorted((ROOT / top).rglob("*.py"))
+        if p != COMMISSION_HOME
+        for hit in constants(p, COMMISSION_NAMES)
+    }
+    assert where - OTHER_FOLDERS == set()

@@ -152,7 +152,7 @@ def run_verify(args: argparse.Namespace) -> int:
 
     from app.commands.commission import _confirmation, _context, _printer
     from app.commission.acceptance import verify
-    from app.commission.journal import StepResult
+    from app.commission.checks import StepResult
     from app.commission.report import format_value
     from app.config import load_cell
     from app.formats.params import from_json

@@ -14,8 +14,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from app.commission.context import PARAMS_FILE, Context
-from app.commission.journal import StepResult, at_most, count_at_least, holds
+from app.commission.checks import StepResult, at_most, count_at_least, holds
+from app.commission.context import Context
+from app.commission.files import ACCEPTANCE_FILE, PARAMS_FILE
 from app.commission.measuring import measure_views
 from app.config.cell import SensorSection
 from app.formats.files import ERROR_COLUMNS, write_csv
@@ -42,7 +43,6 @@ POSITIONS = (
     ("corner near", (-0.5, -0.5, -0.5)),
     ("corner far", (0.5, 0.5, 0.5)),
 )
-FILE = "acceptance.csv"
 
 
 def volume_positions(s: SensorSection) -> F64:
@@ -119,8 +119,8 @@ def verify(ctx: Context, x_full: F64, sensor_model: SensorModel) -> StepResult:
         [name, *map(float, c_planned[i]), float(acc.pf_mm[i]), float(acc.ps_mm[i])]
         for i, (name, _) in enumerate(POSITIONS)
     ]
-    write_csv(ctx.path(FILE), ["position", *ERROR_COLUMNS[1:4], "pf_mm", "ps_mm"], rows)
-    r.files.append(FILE)
+    write_csv(ctx.path(ACCEPTANCE_FILE), ["position", *ERROR_COLUMNS[1:4], "pf_mm", "ps_mm"], rows)
+    r.files.append(ACCEPTANCE_FILE)
     f = acc.figures
     r.results = {
         "sphere": target,

@@ -11,30 +11,26 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from app.commission.files import SENSOR_FILE, TARGETS_FILE
 from app.config import CellConfig
 from app.config.cell import SpheresSection
 from app.config.line import LineSettings, SweepSettings
 from app.formats.files import read_targets
 from app.line.measure import SphereSensor
 from app.line.settings import from_cell
-from app.line.statedir import PLAN_NAME, SENSOR_NAME, StateDir
+from app.line.statedir import StateDir
 from app.line.station import Station
+from drivers.clock import Clock, RealClock
 from vision.sensor_model import SensorModel
 
 F64 = NDArray[np.float64]
-
-SENSOR_FILE = SENSOR_NAME  # the state directory's names: the last step copies them there
-TARGETS_FILE = "targets.csv"
-PLAN_FILE = PLAN_NAME
-PARAMS_FILE = "params.json"
-STRIPE_FILE = "stripe.json"
 
 
 class Declined(Exception):
@@ -78,6 +74,7 @@ class Context:
     truth: Any = None  # the simulated line (reports figures against its truth; never checked)
     placement: SpherePlacement | None = None  # the simulated line's hands
     out_dir: Path | None = None  # where results go (default: the commissioning's folder)
+    clock: Clock = field(default_factory=RealClock)  # the time the first version is applied at
 
     @property
     def folder(self) -> Path:

@@ -11,92 +11,19 @@ failed), so the report can say that a step ran more than once and why."""
 from __future__ import annotations
 
 import dataclasses
-import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from app.commission.checks import Check
+from app.commission.table import NAMES
 from app.errors import InputError
 from app.formats.files import read_json, write_json
 from app.line.statedir import JOURNAL_NAME
 
 FORMAT = "rvis-commission/1"
-STEPS = (
-    "devices",
-    "stripe",
-    "sensor",
-    "spheres",
-    "plan",
-    "calibration",
-    "acceptance",
-    "validation",
-    "workspace",
-    "ready",
-)
 PASSED, FAILED, STARTED = "passed", "failed", "started"
 INTERRUPTED = "interrupted"  # an earlier run found `started`
-
-
-@dataclass(frozen=True)
-class Check:
-    """One checked figure: its value, the limit it is held to (as text: "<= 0.1") and whether
-    it passed; `unit` for the report."""
-
-    name: str
-    value: float | int | str | bool
-    limit: str
-    ok: bool
-    unit: str = ""
-
-
-def _unit(unit: str) -> str:
-    return f" {unit}" if unit else ""
-
-
-def at_most(name: str, value: float, limit: float, unit: str = "") -> Check:
-    return Check(name, float(value), f"<= {limit:g}{_unit(unit)}", bool(value <= limit), unit)
-
-
-def at_least(name: str, value: float, limit: float, unit: str = "") -> Check:
-    return Check(name, float(value), f">= {limit:g}{_unit(unit)}", bool(value >= limit), unit)
-
-
-def within(name: str, value: float, lo: float, hi: float, unit: str = "") -> Check:
-    """lo <= value <= hi, one check (its limit "15-90 %")."""
-    return Check(name, float(value), f"{lo:g}-{hi:g}{_unit(unit)}", bool(lo <= value <= hi), unit)
-
-
-def share_at_most(name: str, n: int, total: int, limit: float) -> Check:
-    """n of total at most the fraction `limit`: the value in per cent, the counts in the name
-    ("views rejected by vision (1 of 24)": 4.167 %, limit "<= 10 %")."""
-    percent = 100.0 * n / total if total else 0.0
-    return Check(
-        f"{name} ({n} of {total})", percent, f"<= {100 * limit:g} %", n <= limit * total, "%"
-    )
-
-
-def count_at_least(name: str, n: int, total: int, limit: float) -> Check:
-    """n of total at least `limit` (a count: "8 of 9", its limit ">= 9 of 9")."""
-    need = math.ceil(limit - 1e-9)
-    return Check(name, f"{n} of {total}", f">= {need} of {total}", bool(n >= limit))
-
-
-def holds(name: str, ok: bool, detail: str = "") -> Check:
-    return Check(name, detail or ("yes" if ok else "no"), "yes", bool(ok))
-
-
-@dataclass
-class StepResult:
-    """What a step returns: its checks, the figures the report shows, the files it wrote
-    (relative to the commission folder)."""
-
-    checks: list[Check] = field(default_factory=list)
-    results: dict[str, Any] = field(default_factory=dict)
-    files: list[str] = field(default_factory=list)
-
-    @property
-    def passed(self) -> bool:
-        return all(c.ok for c in self.checks)
 
 
 @dataclass(frozen=True)
@@ -156,7 +83,7 @@ class Journal:
 
     def next_step(self) -> str | None:
         """The first step not passed yet (None: all passed)."""
-        return next((s for s in STEPS if not self.passed(s)), None)
+        return next((s for s in NAMES if not self.passed(s)), None)
 
     def start(self, name: str, started_utc: str) -> None:
         """Journal that step `name` starts now (its earlier runs kept)."""
@@ -187,5 +114,5 @@ class Journal:
 
     def _write(self) -> None:
         self.folder.mkdir(parents=True, exist_ok=True)
-        ordered = [self.steps[s].to_json() for s in STEPS if s in self.steps]
+        ordered = [self.steps[s].to_json() for s in NAMES if s in self.steps]
         write_json(self.path, {"format": FORMAT, "setup": self.setup, "steps": ordered})

@@ -12,13 +12,22 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from app.commission.context import PARAMS_FILE, PLAN_FILE, Context
-from app.commission.journal import (
+from app.commission.checks import (
     StepResult,
     at_most,
     count_at_least,
     holds,
     share_at_most,
+)
+from app.commission.context import Context
+from app.commission.files import (
+    CALIBRATION_MEASUREMENTS_FILE,
+    CALIBRATION_TARGETS_FILE,
+    PARAMS_FILE,
+    PARAMS_REJECTED_FILE,
+    PLAN_FILE,
+    VALIDATION_ERRORS_FILE,
+    VALIDATION_MEASUREMENTS_FILE,
 )
 from app.formats.files import (
     ERROR_COLUMNS,
@@ -105,10 +114,10 @@ def calibration(ctx: Context) -> StepResult:
     _, qs, _ = read_plan(ctx.path(PLAN_FILE))
     views = [(t, q) for t, q_list in qs.items() for q in q_list]
     taken = measure_views(ctx, views, ctx.sphere_sensor(ctx.sensor_model()), "calibration")
-    taken.write(ctx.path("calibration_measurements.csv"))
+    taken.write(ctx.path(CALIBRATION_MEASUREMENTS_FILE))
     positions = ctx.spheres_part_mm()
-    write_targets(ctx.path("calibration_targets.csv"), positions)
-    r = StepResult(files=["calibration_measurements.csv", "calibration_targets.csv"])
+    write_targets(ctx.path(CALIBRATION_TARGETS_FILE), positions)
+    r = StepResult(files=[CALIBRATION_MEASUREMENTS_FILE, CALIBRATION_TARGETS_FILE])
     limit = cell.commission.max_rejected_fraction
     r.checks.append(
         share_at_most("views rejected by vision", len(taken.rejected), len(views), limit)
@@ -122,8 +131,8 @@ def calibration(ctx: Context) -> StepResult:
         return r
     report = check_identification(result, model.nominal_x(), cell.calibration.gates())
     doc = to_json(model, result, report, provenance())
-    write_json(ctx.path(PARAMS_FILE if report.passed else "params-rejected.json"), doc)
-    r.files.append(PARAMS_FILE if report.passed else "params-rejected.json")
+    write_json(ctx.path(PARAMS_FILE if report.passed else PARAMS_REJECTED_FILE), doc)
+    r.files.append(PARAMS_FILE if report.passed else PARAMS_REJECTED_FILE)
     g = cell.calibration
     r.results |= {
         "measurements": len(taken.targets),
@@ -159,8 +168,8 @@ def validation(ctx: Context) -> StepResult:
         views += [(target, q) for q in sample.q_deg]
     sensor_model = ctx.sensor_model()
     taken = measure_views(ctx, views, ctx.sphere_sensor(sensor_model), "validation")
-    taken.write(ctx.path("validation_measurements.csv"))
-    r = StepResult(files=["validation_measurements.csv", "validation_errors.csv"])
+    taken.write(ctx.path(VALIDATION_MEASUREMENTS_FILE))
+    r = StepResult(files=[VALIDATION_MEASUREMENTS_FILE, VALIDATION_ERRORS_FILE])
     data = taken.data(positions)
     p_id = model.points_part(x, data.q_deg, data.c_sensor_mm, temp_c=data.temp_c)
     p_nom = model.points_part(model.nominal_x(), data.q_deg, data.c_sensor_mm, temp_c=data.temp_c)
@@ -170,7 +179,7 @@ def validation(ctx: Context) -> StepResult:
         [t, *map(float, p_id[i]), *map(float, e_id[i]), float(d[i])]
         for i, t in enumerate(data.targets)
     ]
-    write_csv(ctx.path("validation_errors.csv"), ERROR_COLUMNS, rows)
+    write_csv(ctx.path(VALIDATION_ERRORS_FILE), ERROR_COLUMNS, rows)
     error_mm = rmse(e_id) if len(d) else float("inf")
     nominal_mm = rmse(e_nom) if len(d) else float("inf")
     r.results = {

@@ -15,18 +15,18 @@ from __future__ import annotations
 
 import dataclasses
 import shlex
-import time
 
 import numpy as np
 
-from app.commission.context import PARAMS_FILE, PLAN_FILE, SENSOR_FILE, Context
-from app.commission.journal import Check, StepResult, holds
+from app.commission.checks import Check, StepResult, holds
+from app.commission.context import Context
+from app.commission.files import PARAMS_FILE, PLAN_FILE, SENSOR_FILE, STRIPE_FILE
 from app.config import CellConfig, load_cell
 from app.config.devices import CameraSection
 from app.config.write import dumps_cell
 from app.formats.files import read_json, write_bytes, write_text
 from app.formats.params import from_json
-from app.line.params_store import ParamsStore
+from app.line.params_store import ParamsStore, first_in_force
 from app.line.schedule import Schedule
 from app.line.store import Store
 
@@ -57,7 +57,7 @@ def _commissioned_cell(ctx: Context) -> CellConfig:
     cell = ctx.cell()
     service = dataclasses.replace(cell.service, state_dir=str(ctx.state.root.resolve()))
     cell = dataclasses.replace(cell, service=service)
-    stripe = ctx.path("stripe.json")
+    stripe = ctx.path(STRIPE_FILE)
     if stripe.exists():
         exposure = float(read_json(stripe)["chosen"]["exposure_us"])
         cell = dataclasses.replace(cell, camera=CameraSection(exposure, cell.camera.gain_db))
@@ -65,22 +65,21 @@ def _commissioned_cell(ctx: Context) -> CellConfig:
 
 
 def _apply_once(ctx: Context) -> int:
-    """The commissioning's parameters as version 1, exactly once (see the module docstring)."""
+    """The commissioning's parameters as version 1, exactly once (see the module docstring),
+    by the service's rule for a first version (`first_in_force`) at the context's clock."""
     doc = read_json(ctx.path(PARAMS_FILE))
     params = ParamsStore(ctx.state.root)
     store = Store(ctx.state.db)
     try:
         current = params.current()
-        if current is None:
-            version = params.apply({**doc, "source": "commissioning"})
-        else:
+        if current is not None:  # an earlier run wrote it: ours, or another calibration
             version, _, x = current
             _, x_ours = from_json(ctx.path(PARAMS_FILE))
             if version != 1 or x.shape != x_ours.shape or not np.allclose(x, x_ours):
                 raise RuntimeError(f"{ctx.state.current} holds another calibration")
-        if not store.applied():
-            store.add_applied(time.time(), version, None, "commissioning", None)
-        return version
+        doc = {**doc, "source": "commissioning"}
+        written = None if current is None else current[0]
+        return first_in_force(params, store, doc, "commissioning", ctx.clock, written)
     finally:
         store.close()
 

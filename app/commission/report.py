@@ -13,22 +13,11 @@ import json
 from pathlib import Path
 from typing import Any
 
-from app.commission.journal import INTERRUPTED, STARTED, STEPS, Check, Journal, StepRecord
+from app.commission.checks import Check
+from app.commission.journal import INTERRUPTED, STARTED, Journal, StepRecord
+from app.commission.table import NAMES, TITLES
 from app.formats.files import dumps_json, write_text
 from app.line.statedir import REPORT_JSON_NAME, REPORT_MD_NAME
-
-TITLES = {
-    "devices": "Devices answer",
-    "stripe": "Laser stripe seen by the camera",
-    "sensor": "Sensor calibration",
-    "spheres": "Sphere positions from the tracker",
-    "plan": "Measurement plan",
-    "calibration": "First calibration",
-    "acceptance": "Sensor acceptance (VDI/VDE 2634-2: PF, PS, SD)",
-    "validation": "Quick check: the calibration spheres from new views",
-    "workspace": "Validation at workspace positions against the tracker (the paper's)",
-    "ready": "State directory ready for `rvis run`",
-}
 
 
 def format_value(c: Check) -> str:
@@ -118,7 +107,7 @@ def _runs(rec: StepRecord) -> str:
 
 
 def markdown(journal: Journal) -> str:
-    done = [s for s in STEPS if journal.passed(s)]
+    done = [s for s in NAMES if journal.passed(s)]
     nxt = journal.next_step()
     setup = ", ".join(f"{k} {v}" for k, v in journal.setup.items())
     lines = [
@@ -126,13 +115,13 @@ def markdown(journal: Journal) -> str:
         "",
         f"Set-up: {setup}.",
         "",
-        f"**{len(done)} of {len(STEPS)} steps passed**"
+        f"**{len(done)} of {len(NAMES)} steps passed**"
         + ("; the cell is ready for `rvis run`." if nxt is None else f"; next: `{nxt}`."),
         "",
         "| # | step | status | checks passed | seconds | runs |",
         "|---|------|--------|---------------|---------|------|",
     ]
-    for i, name in enumerate(STEPS, start=1):
+    for i, name in enumerate(NAMES, start=1):
         rec = journal.steps.get(name)
         if rec is None:
             lines.append(f"| {i} | {name} | not run | | | |")
@@ -142,7 +131,7 @@ def markdown(journal: Journal) -> str:
             f"| {i} | {name} | {status_of(rec)} | {ok}/{len(rec.checks)} | {rec.seconds:.1f} |"
             f" {len(rec.earlier) + 1} |"
         )
-    for i, name in enumerate(STEPS, start=1):
+    for i, name in enumerate(NAMES, start=1):
         rec = journal.steps.get(name)
         if rec is None:
             continue
@@ -170,7 +159,7 @@ def to_json(journal: Journal) -> dict[str, Any]:
         "setup": journal.setup,
         "complete": journal.next_step() is None,
         "next_step": journal.next_step(),
-        "steps": [journal.steps[s].to_json() for s in STEPS if s in journal.steps],
+        "steps": [journal.steps[s].to_json() for s in NAMES if s in journal.steps],
     }
 
 

@@ -4,28 +4,14 @@ checked, journalled and reported before the next may start (app/commission/__ini
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from datetime import UTC, datetime
 
-from app.commission import acceptance, measuring, ready, steps, stripe, workspace
+from app.commission.checks import StepResult, holds
 from app.commission.context import Context, Declined
-from app.commission.journal import FAILED, PASSED, STEPS, Journal, StepRecord, StepResult, holds
-from app.commission.report import TITLES, format_value, write_report
+from app.commission.journal import FAILED, PASSED, Journal, StepRecord
+from app.commission.report import format_value, write_report
+from app.commission.table import STEPS
 from drivers.errors import DeviceError
-
-RUN: dict[str, Callable[[Context], StepResult]] = {
-    "devices": steps.devices,
-    "stripe": stripe.stripe,
-    "sensor": steps.sensor,
-    "spheres": steps.spheres,
-    "plan": steps.plan,
-    "calibration": measuring.calibration,
-    "acceptance": acceptance.acceptance_step,
-    "validation": measuring.validation,
-    "workspace": workspace.workspace_validation,
-    "ready": ready.ready,
-}
-assert tuple(RUN) == STEPS
 
 
 def run_sequence(ctx: Context, journal: Journal) -> str | None:
@@ -33,17 +19,18 @@ def run_sequence(ctx: Context, journal: Journal) -> str | None:
     checks (None: every step passed). Context.Declined propagates (nothing recorded for the
     step the engineer stopped)."""
     n = len(STEPS)
-    for i, name in enumerate(STEPS, start=1):
+    for i, step in enumerate(STEPS, start=1):
+        name = step.name
         if journal.passed(name):
             ctx.say(f"step {i}/{n} {name}: passed earlier")
             continue
-        ctx.ask(f"step {i}/{n} {name}: {TITLES[name]}: start?")
-        ctx.say(f"step {i}/{n} {name}: {TITLES[name]} ...")
+        ctx.ask(f"step {i}/{n} {name}: {step.title}: start?")
+        ctx.say(f"step {i}/{n} {name}: {step.title} ...")
         started = datetime.now(UTC).isoformat(timespec="seconds")
         journal.start(name, started)  # found so at the next run: this run was interrupted
         t0 = time.monotonic()
         try:
-            result = RUN[name](ctx)
+            result = step.run(ctx)
         except DeviceError as exc:  # a device failed mid-step: recorded, the step runs again
             result = StepResult(checks=[holds("devices", False, f"{type(exc).__name__}: {exc}")])
         except Declined:  # the engineer stopped it: as if it had not started

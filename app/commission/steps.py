@@ -12,8 +12,15 @@ from pathlib import Path
 
 import numpy as np
 
-from app.commission.context import PLAN_FILE, SENSOR_FILE, TARGETS_FILE, Context
-from app.commission.journal import Check, StepResult, at_least, at_most, holds
+from app.commission.checks import Check, StepResult, at_least, at_most, holds
+from app.commission.context import Context
+from app.commission.files import (
+    PLAN_FILE,
+    SENSOR_DATA_DIR,
+    SENSOR_FILE,
+    TARGETS_FILE,
+    TRACKER_EXPORT_FILE,
+)
 from app.devicecheck import describe_and_probe
 from app.errors import InputError
 from app.formats.files import write_csv, write_json, write_targets, write_text
@@ -81,10 +88,10 @@ def sensor(ctx: Context) -> StepResult:
     else:
         data = ctx.sensor_data
         if data is None:
-            data = ctx.path("sensor-data")
+            data = ctx.path(SENSOR_DATA_DIR)
             shutil.rmtree(data, ignore_errors=True)
             ctx.capture.capture(data, ctx)
-            r.files.append("sensor-data/")
+            r.files.append(f"{SENSOR_DATA_DIR}/")
         r.results["source"] = f"targets in {data}"
         model = calibrate_dir(data)
     write_text(ctx.path(SENSOR_FILE), dumps_sensor_model(model))
@@ -112,7 +119,7 @@ def spheres(ctx: Context) -> StepResult:
     c = ctx.cfg.commission
     r = StepResult()
     ids = list(ctx.cfg.spheres_part_mm)
-    export = ctx.path("tracker-export.csv")
+    export = ctx.path(TRACKER_EXPORT_FILE)
     if ctx.targets_file is not None:
         export.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(ctx.targets_file, export)

@@ -16,14 +16,15 @@ from typing import Any
 
 import numpy as np
 
-from app.commission.context import STRIPE_FILE, Context
-from app.commission.journal import (
+from app.commission.checks import (
     StepResult,
     at_least,
     at_most,
     holds,
     within,
 )
+from app.commission.context import Context
+from app.commission.files import STRIPE_FILE, STRIPE_IMAGE_FILE
 from app.formats.files import write_json
 from app.formats.sweeps import write_image
 from calib import candidates
@@ -53,7 +54,7 @@ def stripe(ctx: Context) -> StepResult:
         chosen = dataclasses.replace(wanted, exposure_us=best["exposure_us"])
         camera.configure(chosen)
         roi, frame = _region(camera, galvo, ctx)
-        write_image(ctx.path("stripe.png"), frame)
+        write_image(ctx.path(STRIPE_IMAGE_FILE), frame)
     finally:
         galvo.set_volts(0.0)
         camera.configure(chosen)
@@ -61,7 +62,7 @@ def stripe(ctx: Context) -> StepResult:
     c = ctx.cfg.commission
     r.results |= {"exposures": rows, "chosen": best, "region_px": roi}
     write_json(ctx.path(STRIPE_FILE), r.results)
-    r.files += [STRIPE_FILE, "stripe.png"]
+    r.files += [STRIPE_FILE, STRIPE_IMAGE_FILE]
     r.checks += [
         at_least("stripe rows", best["rows"], c.min_stripe_rows),
         at_most(

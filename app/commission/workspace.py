@@ -15,13 +15,14 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from app.commission.context import PARAMS_FILE, Context
-from app.commission.journal import (
+from app.commission.checks import (
     StepResult,
     at_most,
     count_at_least,
     holds,
 )
+from app.commission.context import Context
+from app.commission.files import PARAMS_FILE, WORKSPACE_ERRORS_FILE
 from app.commission.measuring import measure_views
 from app.formats.files import ERROR_COLUMNS, write_csv
 from app.formats.params import from_json
@@ -31,8 +32,6 @@ from calib.identify import Measurements
 from calib.validation import rmse
 
 F64 = NDArray[np.float64]
-
-FILE = "workspace_errors.csv"
 
 
 def rms_interval(d_mm: F64, rng: np.random.Generator, n_boot: int = 2000) -> tuple[float, float]:
@@ -53,7 +52,7 @@ def workspace_validation(ctx: Context) -> StepResult:
     x_rigid = x[: len(rigid.nominal_x())]
     rng = np.random.default_rng([c.seed, 31])
     proposed = workspace_points(cell, c.workspace_positions, rng)
-    r = StepResult(files=[FILE])
+    r = StepResult(files=[WORKSPACE_ERRORS_FILE])
     if ctx.station.tracker is None:
         r.checks.append(holds("a tracker for the validation sphere", False, "none in [devices]"))
         return r
@@ -101,7 +100,7 @@ def workspace_validation(ctx: Context) -> StepResult:
     e = p_sys - p_ref
     d = np.linalg.norm(e, axis=1)
     rows = [[n, *map(float, p_sys[i]), *map(float, e[i]), float(d[i])] for i, n in enumerate(names)]
-    write_csv(ctx.path(FILE), ERROR_COLUMNS, rows)
+    write_csv(ctx.path(WORKSPACE_ERRORS_FILE), ERROR_COLUMNS, rows)
     lo, hi = rms_interval(d, np.random.default_rng([c.seed, 37]))
     r.results |= {
         "positions": len(proposed),

@@ -9,13 +9,16 @@ JSON (readable by `app.formats.params.from_json`) with one more key, `history_ve
 Naming a store reads and changes nothing (read-only callers use it too); `apply` creates the
 folders it writes to, and only the service, which holds the state directory's lock, removes the
 temporary files a crash left (`remove_stale`). The names are app/line/statedir.py's.
+
+`first_in_force` is the one rule by which a state directory gets its first version: the
+service's start on a new directory and the commissioning's last step both use it.
 """
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -25,6 +28,10 @@ from app.formats.files import dumps_json, replace_atomically
 from app.formats.params import from_json
 from app.line.statedir import StateDir
 from calib.model import SystemModel
+
+if TYPE_CHECKING:
+    from app.line.store import Store
+    from drivers.clock import Clock
 
 F64 = NDArray[np.float64]
 
@@ -92,3 +99,22 @@ class ParamsStore:
             return None
         doc = json.loads(self.current_path.read_text(encoding="utf-8"))
         return doc if isinstance(doc, dict) else None
+
+
+def first_in_force(
+    params: ParamsStore,
+    store: Store,
+    doc: dict[str, Any],
+    source: str,
+    clock: Clock,
+    written: int | None = None,
+) -> int:
+    """Put a state directory's first parameters version in force: `doc` written as the next
+    version and made current, then the database's applied row for it (no calibration, no
+    user) at `clock`'s time, unless the database records one already. `written`: the version
+    `current.json` holds already (a run killed after writing it, before the database learnt
+    it), only recorded. Returns the version in force."""
+    version = params.apply(doc) if written is None else written
+    if not store.applied():
+        store.add_applied(clock.time(), version, None, source, None)
+    return version

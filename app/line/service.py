@@ -53,7 +53,7 @@ from app.line.events import EventBus
 from app.line.inline_seq import InlineSequential, SequentialCandidate
 from app.line.measure import Reading, SphereMeasurer, SphereSensor
 from app.line.operator import Operator
-from app.line.params_store import ParamsStore
+from app.line.params_store import ParamsStore, first_in_force
 from app.line.recalib import Recalibrator, RecalJob, RecalOutcome, as_measurements, select_rolling
 from app.line.roles import Roles
 from app.line.schedule import Schedule, Slot
@@ -186,8 +186,8 @@ class Service:
         except (InputError, OSError, ValueError, KeyError, TypeError) as exc:
             current, damage = None, f"damaged ({exc})"
         if current is None and last is None:  # a new state directory
-            version = self.params.apply(plain_document(model, x0, "initial parameters"))
-            self.store.add_applied(self.clock.time(), version, None, "initial", None)
+            doc = plain_document(model, x0, "initial parameters")
+            version = first_in_force(self.params, self.store, doc, "initial", self.clock)
             return model, x0.copy(), version
         if current is None:
             assert last is not None

@@ -9,16 +9,8 @@ import json
 from pathlib import Path
 from typing import Any
 
-from app.commission.journal import (
-    PASSED,
-    Check,
-    Journal,
-    StepRecord,
-    at_most,
-    count_at_least,
-    share_at_most,
-    within,
-)
+from app.commission.checks import Check, at_most, count_at_least, share_at_most, within
+from app.commission.journal import PASSED, Journal, StepRecord
 from app.commission.report import markdown, to_json
 
 SETUP = {"cell": "cell.toml", "sim": True}

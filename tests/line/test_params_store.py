@@ -15,7 +15,8 @@ import pytest
 from app.config import load_cell
 from app.errors import InputError
 from app.formats.params import from_json, plain_document
-from app.line.params_store import ParamsStore
+from app.line.params_store import ParamsStore, first_in_force
+from app.line.store import Store
 from calib.model import INDEX
 
 
@@ -69,7 +70,8 @@ def test_stale_temporary_files_are_removed_by_the_writer_only(tmp_path: Path) ->
 APPLIER = """
 import sys
 from tests.line.test_params_store import _doc
-from app.line.params_store import ParamsStore
+from app.line.params_store import ParamsStore, first_in_force
+from app.line.store import Store
 store = ParamsStore(sys.argv[1])
 k = 0
 while True:
@@ -96,3 +98,49 @@ def test_kill_9_during_apply_leaves_one_complete_version(tmp_path: Path, n_appli
     history = json.loads((store.history / f"{version:04d}.json").read_text(encoding="utf-8"))
     assert history == current
     assert store.current() is not None
+
+
+class _Stopped:
+    """A clock standing at one time (first_in_force reads only `time`)."""
+
+    def __init__(self, t: float) -> None:
+        self.t = t
+
+    def monotonic(self) -> float:
+        return self.t
+
+    def time(self) -> float:
+        return self.t
+
+    def sleep(self, seconds: float) -> None:
+        self.t += seconds
+
+    def wait(self, event: object, seconds: float) -> bool:
+        self.t += seconds
+        return False
+
+
+def test_the_first_version_in_force_is_recorded_at_the_clock_given(tmp_path: Path) -> None:
+    """One rule for the first version (the service's start, the commissioning's last step):
+    written as version 1, recorded once at the caller's clock; a run killed after writing it
+    is only recorded; a run after the record changes nothing."""
+    params, store = ParamsStore(tmp_path), Store(tmp_path / "rvis.db")
+    try:
+        assert first_in_force(params, store, _doc(0.0), "commissioning", _Stopped(1234.5)) == 1
+        rows = [(r["t"], r["version"], r["source"]) for r in store.applied()]
+        assert rows == [(1234.5, 1, "commissioning")]
+        assert params.versions() == [1]
+        again = first_in_force(params, store, _doc(0.0), "commissioning", _Stopped(99.0), 1)
+        assert again == 1 and params.versions() == [1] and len(store.applied()) == 1
+    finally:
+        store.close()
+    fresh = tmp_path / "killed"  # current.json written, the database not told yet
+    params = ParamsStore(fresh)
+    written = params.apply(_doc(0.0))
+    store = Store(fresh / "rvis.db")
+    try:
+        assert first_in_force(params, store, _doc(1.0), "initial", _Stopped(7.0), written) == 1
+        assert params.versions() == [1]
+        assert [(r["t"], r["version"]) for r in store.applied()] == [(7.0, 1)]
+    finally:
+        store.close()

@@ -1,6 +1,7 @@
 """`rvis run --sim` with `[opcua] enabled`: the service as its own process publishes over OPC UA
 from its start to its SIGTERM, says where it listens in its log, and its subscribers see it
-stop (`stopped`, MachineryItemState NotAvailable) before the server goes."""
+stop (`stopped`, MachineryItemState NotAvailable: the last values they receive) before the
+server drops their session."""
 
 from __future__ import annotations
 
@@ -47,16 +48,24 @@ def test_rvis_run_publishes_over_opcua(tmp_path: Path) -> None:
 
 
 def test_subscribers_see_the_service_stop(tmp_path: Path) -> None:
-    """SIGTERM to the service's process group: a subscriber (20 ms publishing) receives
-    ServiceState `stopped` and MachineryItemState NotAvailable before the connection ends."""
+    """SIGTERM to the service's process group: a subscriber (20 ms publishing), listening
+    until the server drops its session, receives ServiceState `stopped` and
+    MachineryItemState NotAvailable as the last values before the drop."""
     svc, url = _start(tmp_path)
     seen: list[tuple[str, Any]] = []
+    dropped: list[bool] = []  # the server dropped the session (not the client)
+    failed: list[BaseException] = []
     subscribed = threading.Event()
 
     async def watch() -> None:
         client = Client(url, timeout=5)
         client.session_timeout = 5000
         await client.connect()
+
+        def gone() -> bool:  # the server closed the connection
+            protocol = client.uaclient.protocol
+            return protocol is None or protocol.is_closed
+
         try:
             m = await machine_node(client)
             ns_m = await client.get_namespace_index(NS_MACHINERY)
@@ -66,13 +75,24 @@ def test_subscribers_see_the_service_stop(tmp_path: Path) -> None:
             sub = await client.create_subscription(20, handler)
             await sub.subscribe_data_change([state, current])
             subscribed.set()
+
+            def note(node: Any, value: Any) -> None:
+                seen.append(("state", value) if node == state else ("item", value.Text))
+
             async with asyncio.timeout(60):
-                while True:
-                    _, node, value, _ = await handler.changes.get()
-                    text = value if node == state else value.Text
-                    seen.append(("state" if node == state else "item", text))
-                    if ("state", "stopped") in seen and ("item", "NotAvailable") in seen:
-                        return
+                while not gone():
+                    with contextlib.suppress(TimeoutError):
+                        async with asyncio.timeout(0.05):
+                            _, node, value, _ = await handler.changes.get()
+                            note(node, value)
+            await asyncio.sleep(0.5)  # notifications received before the drop, still handled
+            while not handler.changes.empty():
+                _, node, value, _ = handler.changes.get_nowait()
+                note(node, value)
+            dropped.append(True)
+        except BaseException as exc:
+            failed.append(exc)
+            raise
         finally:
             with contextlib.suppress(Exception):  # the server has gone
                 await client.disconnect()
@@ -86,5 +106,10 @@ def test_subscribers_see_the_service_stop(tmp_path: Path) -> None:
         code = svc.stop()
     watcher.join(60)
     assert code == 0, svc.stderr
-    # the service was ready when subscribed: NotAvailable comes only with the stop
-    assert ("state", "stopped") in seen and ("item", "NotAvailable") in seen, seen
+    assert not failed and dropped == [True], (failed, seen)
+    # the service was ready when subscribed: NotAvailable comes only with the stop, and the
+    # stop is the last thing the subscriber heard before the server went
+    states = [v for k, v in seen if k == "state"]
+    items = [v for k, v in seen if k == "item"]
+    assert states[-1] == "stopped" and states.index("stopped") == len(states) - 1, seen
+    assert items[-1] == "NotAvailable" and items.index("NotAvailable") == len(items) - 1, seen

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import errno
 import socket
 import stat
 import subprocess
@@ -20,7 +21,7 @@ from asyncua.crypto.cert_gen import setup_self_signed_certificate
 from cryptography.x509.oid import ExtendedKeyUsageOID
 
 from app.errors import InputError
-from app.line.opcua.endpoint import endpoint_problem
+from app.line.opcua.endpoint import cannot_listen, endpoint_problem
 from app.line.opcua.server import OpcUaServer
 from app.line.statedir import StateDir
 from app.sim.line_run import SimulatedLineRun
@@ -113,16 +114,61 @@ def test_a_secure_server_trusts_only_the_certificates_in_its_folder(
     assert state in ("idle", "measuring")
 
 
+@pytest.mark.parametrize(
+    ("why", "says"),
+    [
+        (OSError(errno.EADDRINUSE, "address already in use"), "port 4841 is in use"),
+        (OSError(errno.EACCES, "permission denied"), "permission denied for port 4841"),
+        (OSError(errno.EADDRNOTAVAIL, "x"), "10.9.8.7 is not an address of this machine"),
+        (socket.gaierror(socket.EAI_NONAME, "Name or service not known"), "does not resolve"),
+        (OSError(errno.EINVAL, "invalid\nargument"), "invalid argument"),
+        ("not listening after 60 s", "not listening after 60 s"),
+    ],
+)
+def test_a_listen_error_is_one_line_naming_the_endpoint(why: OSError | str, says: str) -> None:
+    url = "opc.tcp://10.9.8.7:4841/rvis"
+    line = cannot_listen(url, why)
+    assert line.startswith(f"cannot listen at {url}: ") and says in line and "\n" not in line
+
+
 def test_a_port_in_use_is_a_clear_error(line: SimulatedLineRun) -> None:
+    """The server's own listen fails (nothing probes the port first) and says so in one line."""
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
         url = f"opc.tcp://127.0.0.1:{port}/rvis"
         settings = dataclasses.replace(line.service.settings.opcua, enabled=True, endpoint=url)
-        with pytest.raises(InputError, match="cannot listen at") as failed:
+        with pytest.raises(InputError) as failed:
             OpcUaServer(line.service, settings).start()
-    assert "[opcua] endpoint" in str(failed.value)
+    said = f"cannot listen at {url}: port {port} is in use by another program"
+    assert failed.value.reason == said
+    assert failed.value.field == "[opcua] endpoint"
+
+
+def test_rvis_run_on_a_port_in_use_exits_2_with_one_line(tmp_path: Path) -> None:
+    """`rvis run --sim` with [opcua] enabled on a port another socket listens on: exit
+    status 2, one line naming the setting, the endpoint and the port."""
+    cell = tmp_path / "cell.toml"
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        url = f"opc.tcp://127.0.0.1:{port}/rvis"
+        cell.write_text(
+            f'[simline]\nscale = 300.0\n\n[opcua]\nenabled = true\nendpoint = "{url}"\n',
+            encoding="utf-8",
+        )
+        out = subprocess.run(
+            [sys.executable, "-m", "app", "run", "--sim", "--geometric", "--cell", str(cell),
+             "--state-dir", str(tmp_path / "state"), "--windows", "1"],
+            capture_output=True, text=True, cwd=ROOT, timeout=120,
+        )  # fmt: skip
+    assert out.returncode == 2, out.stderr
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in out.stderr, out.stderr
+    said = f"cannot listen at {url}: port {port} is in use by another program"
+    assert lines[0] == f"rvis run: error: field '[opcua] endpoint': {said}"
 
 
 def test_backup_and_restore_keep_the_cells_opcua_identity(

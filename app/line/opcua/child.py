@@ -35,6 +35,7 @@ from types import SimpleNamespace
 from typing import IO, TYPE_CHECKING, Any, cast
 
 from app.errors import InputError
+from app.line.opcua.endpoint import FIELD, cannot_listen
 from app.line.statedir import StateDir
 
 if TYPE_CHECKING:
@@ -143,7 +144,7 @@ class Child:
             return 2
         except OSError as exc:  # the state directory's certificate folder, the network
             reason = f"the OPC UA server cannot start at {self.settings.endpoint}: {exc}"
-            self.out.send({"error": reason, "field": "[opcua] endpoint"})
+            self.out.send({"error": reason, "field": FIELD})
             return 2
         try:
             first = await self._next()
@@ -202,10 +203,7 @@ class Child:
         try:
             await server.start()
         except OSError as exc:
-            raise InputError(
-                f"cannot listen at {self.settings.endpoint}: {exc.strerror or exc}",
-                field="[opcua] endpoint",
-            ) from exc
+            raise InputError(cannot_listen(self.settings.endpoint, exc), field=FIELD) from exc
 
     async def _apply(self, msg: dict[str, Any]) -> None:
         """One status reply into the address space and the alarm conditions."""

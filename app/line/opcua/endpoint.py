@@ -2,12 +2,16 @@
 
 Anonymous, unencrypted access is for the machine itself: an endpoint that listens beyond the
 loopback interface must offer only a signing-and-encrypting security policy (DESIGN.md
-section 8). `endpoint_problem` says why an endpoint cannot be used ("" when it can).
+section 8). `endpoint_problem` says why an endpoint cannot be used ("" when it can);
+`cannot_listen` why the server could not listen at one (the one mapping of listen errors: the
+server's own listen fails, nothing probes the port before it).
 """
 
 from __future__ import annotations
 
+import errno
 import ipaddress
+import socket
 from urllib.parse import urlsplit
 
 #: the security policies the server offers (always in SignAndEncrypt mode); "none": no security
@@ -15,6 +19,7 @@ SECURITY_POLICIES = ("none", "Basic256Sha256", "Aes128Sha256RsaOaep", "Aes256Sha
 SCHEME = "opc.tcp"
 DEFAULT_PORT = 4840
 LOOPBACK_NAMES = ("localhost", "localhost.localdomain", "ip6-localhost")
+FIELD = "[opcua] endpoint"  # the setting an error about the endpoint names
 
 
 def split_endpoint(endpoint: str) -> tuple[str, int]:
@@ -57,3 +62,26 @@ def endpoint_problem(endpoint: str, security_policy: str) -> str:
             'encrypting security_policy ("Basic256Sha256" or newer) and certificates'
         )
     return ""
+
+
+def cannot_listen(endpoint: str, why: OSError | str) -> str:
+    """The one line that says why the server cannot listen at `endpoint`: a listen's OSError
+    by its errno in words (the port taken, a privileged port, a host that is not this
+    machine's, a name that does not resolve), another one by its text, or the reason given."""
+    try:
+        host, port = split_endpoint(endpoint)
+    except ValueError:
+        host, port = endpoint, DEFAULT_PORT
+    if isinstance(why, str):
+        reason = why
+    elif isinstance(why, socket.gaierror):
+        reason = f"the host name {host} does not resolve ({why.strerror or why})"
+    elif why.errno == errno.EADDRINUSE:
+        reason = f"port {port} is in use by another program"
+    elif why.errno == errno.EACCES:
+        reason = f"permission denied for port {port} (ports below 1024 need privileges)"
+    elif why.errno == errno.EADDRNOTAVAIL:
+        reason = f"{host} is not an address of this machine"
+    else:
+        reason = why.strerror or str(why)
+    return " ".join(f"cannot listen at {endpoint}: {reason}".split())

@@ -40,7 +40,7 @@ from typing import IO, TYPE_CHECKING, Any
 
 from app.config.line import OpcUaSettings
 from app.errors import InputError
-from app.line.opcua.endpoint import endpoint_problem, split_endpoint
+from app.line.opcua.endpoint import FIELD, cannot_listen, endpoint_problem
 
 if TYPE_CHECKING:
     from app.line.service import Service
@@ -63,19 +63,12 @@ def application_uri(settings: OpcUaSettings) -> str:
 
 
 def _check_endpoint(settings: OpcUaSettings) -> None:
-    """InputError when the endpoint is not allowed or its port is taken (at once: building
-    the server takes a second or two)."""
+    """InputError when the endpoint is not allowed (at once, before the server process). A
+    port that cannot be listened on is the child's own listen failing (`cannot_listen`), not
+    probed here: a probe's bind tells nothing of the moment the server listens."""
     reason = endpoint_problem(settings.endpoint, settings.security_policy)
     if reason:
-        raise InputError(reason, field="[opcua] endpoint")
-    host, port = split_endpoint(settings.endpoint)
-    try:
-        socket.create_server((host, port)).close()
-    except OSError as exc:
-        raise InputError(
-            f"cannot listen at {settings.endpoint}: {exc.strerror or exc}",
-            field="[opcua] endpoint",
-        ) from exc
+        raise InputError(reason, field=FIELD)
 
 
 def _close_pipes(proc: subprocess.Popen[bytes]) -> None:
@@ -218,11 +211,8 @@ class OpcUaServer:
         try:
             msg = result.get(timeout=max(0.0, deadline - time.monotonic()))
         except queue.Empty:
-            raise InputError(
-                f"the OPC UA server cannot listen at {self.settings.endpoint}: not listening"
-                f" after {START_TIMEOUT_S:g} s",
-                field="[opcua] endpoint",
-            ) from None
+            why = f"not listening after {START_TIMEOUT_S:g} s"
+            raise InputError(cannot_listen(self.settings.endpoint, why), field=FIELD) from None
         if msg is None:
             code = self._proc.wait()
             raise RuntimeError(f"the OPC UA server process exited ({code}) before it listened")
