@@ -359,6 +359,9 @@ def _campaign_when(args: argparse.Namespace, plan: list[tuple[float, float]]) ->
     return f"--hours {plan[0][1]:g} --knock-at-h {knocks}"
 
 
+BASELINE = "without-knock"  # the counterfactual shifts' folder in a campaign
+
+
 @dataclasses.dataclass(frozen=True)
 class _CampaignShift:
     """One shift of a campaign: what a worker process needs to run it and write its outputs."""
@@ -391,7 +394,7 @@ def run_knock_campaign(args: argparse.Namespace) -> int:
     time) and independent, and the campaign is assembled in the same order, so the outputs are
     those of --jobs 1 apart from the wall times."""
     from app.sim.knocks import write_campaign
-    from app.sim.shift import summary_lines
+    from app.sim.shift import evaluate, summary_lines, write_outputs
 
     if args.estimator == "compare":
         raise InputError("a campaign runs one estimator", field="--estimator")
@@ -424,25 +427,51 @@ def run_knock_campaign(args: argparse.Namespace) -> int:
                         reproduce,
                     )
                 )
+    # the counterfactual: each seed's longest shift without the knock (which windows the knock
+    # caused: above the ratio of the pre-knock level and of this run's error in the window)
+    longest_h, longest = max(plan, key=lambda p: p[1])
+    baselines = [
+        _CampaignShift(
+            BASELINE,
+            longest_h,
+            seed,
+            out / BASELINE / f"seed-{seed}",
+            dataclasses.replace(bases[longest_h], knock_mm=0.0, knock_deg=0.0),
+            f"{command} (seed {seed}, the same shift without its knock)",
+            "",
+        )
+        for seed in seeds
+    ]
     what = f"{len(kinds)} knock kinds x {len(seeds)} seeds"
     if several:
         what += f" x {len(plan)} knock hours"
-    jobs = min(args.jobs, len(tasks))
+    what += f", and {len(seeds)} shifts of {longest:g} h without a knock"
+    jobs = min(args.jobs, len(tasks) + len(baselines))
     print(f"rvis experiment shift: {what} -> {out}/" + (f" ({jobs} jobs)" if jobs > 1 else ""))
     done: dict[int, ShiftResult] = {}
+    base_of: dict[int, list[float]] = {}
 
     def finished(i: int, result: ShiftResult) -> None:
+        if i >= len(tasks):  # a counterfactual
+            base_of[result.seed] = [r.rmse_mm for r in result.records]
+            print(f"seed {result.seed} without the knock: done", flush=True)
+            return
         done[i] = result
         t = tasks[i]
         at = f" at {t.knock_h:g} h" if several else ""
         print(f"{t.kind}{at} seed {t.seed}: " + "; ".join(summary_lines(result)[:3]), flush=True)
         write_campaign(_by_kind(tasks, done), out, command, commands=_commands(tasks, done))
 
+    everything = tasks + baselines
     if jobs == 1:
-        for i, task in enumerate(tasks):
+        for i, task in enumerate(everything):
             finished(i, _run_campaign_shift(cfg, task))
     else:
-        _run_in_workers(cfg, tasks, jobs, finished, getattr(args, "log_level", "off"))
+        _run_in_workers(cfg, everything, jobs, finished, getattr(args, "log_level", "off"))
+    for i, result in done.items():  # scored again against the counterfactual
+        result.baseline_mm = base_of.get(result.seed)
+        evaluate(result)
+        write_outputs(result, tasks[i].folder, tasks[i].header)
     paths = write_campaign(_by_kind(tasks, done), out, command, commands=_commands(tasks, done))
     print(f"written {', '.join(str(p) for p in paths)}")
     return 0

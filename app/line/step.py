@@ -86,7 +86,7 @@ TRANSITIONS: dict[StepStatus, frozenset[StepStatus]] = {
     _S.PROBATION: frozenset({_S.ATTRIBUTING}),
     _S.ATTRIBUTING: frozenset({_S.PROPOSED, _S.FOLLOWING, _S.SEVERAL, _S.NONE, _S.RECOVERING}),
     _S.PROPOSED: frozenset({_S.ATTRIBUTING, _S.REFINING, _S.RECOVERING}),
-    _S.REFINING: frozenset({_S.RECOVERING}),
+    _S.REFINING: frozenset({_S.RECOVERING, _S.CORRECTED}),
     _S.FOLLOWING: frozenset({_S.FOLLOWING, _S.SEVERAL, _S.NONE, _S.RECOVERING}),
     _S.RECOVERING: frozenset({_S.RECOVERING, _S.CORRECTED}),
     _S.CORRECTED: frozenset({_S.RECOVERING}),
@@ -133,6 +133,7 @@ class Step:
     level_n: int = 0
     full_recals: int = 0  # full recalibrations applied since the step
     recovery: str = ""  # the last recovery test, in words
+    recover_n: int = 0  # measurements the last recovery test used
     change_from_before: int = 0  # the service's change_from_id before the flag (a drop restores)
 
     def to_json(self) -> dict[str, Any]:

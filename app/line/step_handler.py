@@ -138,7 +138,10 @@ class StepHandler:
         if step is None or not r.step_correction:
             return
         if step.status == StepStatus.REFINING:
-            self._refine_step(step)
+            # the first correction's own measurements first: back, it ends there (no
+            # refinement needed); else one window more of them refines it
+            if not self.check_recovery():
+                self._refine_step(step)
             return
         if step.status == StepStatus.RECOVERING:
             self.check_recovery()
@@ -373,6 +376,7 @@ class StepHandler:
         if step.level_mm is None:
             self._set_level(step)
         step.recover_version, step.recover_t, step.recover_kind = version, t, kind
+        step.recover_n = 0
         step.recover_cal_id = None if cal is None else int(cal["id"])
         last = svc.store.measurements(last=1)
         step.recover_from_id = int(last[0]["id"]) if last else 0
@@ -402,24 +406,26 @@ class StepHandler:
         rows = svc.store.measurements(status="ok", before_id=first, last=len(svc.schedule))
         return [float(q["residual_mm"]) for q in rows if q["residual_mm"] is not None]
 
-    def check_recovery(self) -> None:
+    def check_recovery(self) -> bool:
         """Between windows while recovering: the recovery test (app.line.step.recovery_test)
         on the measurements taken with the correction under test in force. Back: the suspect
         interval ends where that correction went in force. Higher: it stays open and the
         windows go on measuring for the full recalibration on post-step measurements; after
-        two full recalibrations since the step the cell has a new level and it closes."""
+        two full recalibrations since the step the cell has a new level and it closes. While
+        the first correction is refined, only "back" closes it. True when it closed."""
         svc = self.svc
         step, r = svc.step, svc.settings.recalib
-        if step is None or step.status != StepStatus.RECOVERING or step.recover_version is None:
-            return
+        testing = (StepStatus.RECOVERING, StepStatus.REFINING)
+        if step is None or step.status not in testing or step.recover_version is None:
+            return False
         rows = [
             q
             for q in svc.store.measurements(status="ok", since_id=step.recover_from_id)
             if q["params_version"] == step.recover_version and q["residual_mm"] is not None
         ]
-        if len(rows) == step.n_used:
-            return  # nothing new measured
-        step.n_used = len(rows)
+        if len(rows) == step.recover_n:
+            return False  # nothing new measured
+        step.recover_n = len(rows)
         test = recovery_test(
             self._level_rows(step),
             [float(q["residual_mm"]) for q in rows],
@@ -431,10 +437,14 @@ class StepHandler:
             "recovery",
             {"onset_id": step.onset_id, "version": step.recover_version, **test.to_json()},
         )
-        settled = test.verdict == "higher" and step.full_recals >= 2
+        settled = (
+            test.verdict == "higher"
+            and step.full_recals >= 2
+            and step.status == StepStatus.RECOVERING
+        )
         if test.verdict != "back" and not settled:
             svc.save_state()
-            return
+            return False
         with svc.store.batch():
             closed = self._close(step, "new level" if settled else step.recover_kind or "step")
             svc.store.clear_alarms(svc.clock.time(), "drift_step")
@@ -443,6 +453,7 @@ class StepHandler:
             svc.save_state()
         if closed is not None:
             svc.bus.emit("suspect_interval", closed)
+        return True
 
     def _close(self, step: Step, reason: str) -> dict[str, Any] | None:
         """End the suspect interval where the correction under test went in force."""

@@ -146,13 +146,16 @@ def campaign_markdown(
         f" is within {s.recovered_ratio:g}x the median of the {s.pre_knock_windows} windows"
         " before the knock; it is *covered* when it opened inside a suspect interval (the"
         " parameters in force in it were the suspect ones); *extra* windows are covered but"
-        " were not above the ratio (or came before the knock). The knock's *episode* runs from"
-        f" the knock to the last window above {s.recovered_ratio:g}x before"
-        f" {s.episode_gap_windows} windows in a row back within it (later windows above it are"
-        " not the knock's: the spread of a full recalibration, the warm-up's drift); its recall"
-        " is the share of its windows above the ratio that were covered (min over the seeds /"
-        " all the seeds' windows together). The recall to the end of the shift counts every"
-        " window above the ratio after the knock.",
+        " were not above the ratio (or came before the knock). A window above the ratio is"
+        " *caused by the knock* when its error is also above the ratio x the error the same"
+        " seed had in that window without the knock (the counterfactual: each seed's longest"
+        " shift run once more with a knock of size 0, in `without-knock/`; the warm-up's drift"
+        " between two recalibrations puts the rigid model above 1.2x of a level measured 10"
+        " windows earlier whether or not there was a knock). The knock's *episode* runs from"
+        f" the knock to the last window it caused before {s.episode_gap_windows} windows in a"
+        " row it did not; its recall is the share of the windows it caused that were covered"
+        " (min over the seeds / all the seeds' windows together). The recall to the end of the"
+        " shift counts every window above the ratio after the knock.",
         "",
         "| knock |"
         + (" knock at [h] |" if several else "")

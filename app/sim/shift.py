@@ -103,6 +103,10 @@ class SuspectScore:
     covered: tuple[int, ...]
     covered_before_knock: tuple[int, ...]
     episode_end: int | None = None  # None: no bad window after the knock
+    # the bad windows the knock caused: also above the ratio x the error the same seed had in
+    # that window without the knock (the counterfactual, `ShiftResult.baseline_mm`); None:
+    # no counterfactual, every bad window counts
+    caused: tuple[int, ...] | None = None
 
     @property
     def recall(self) -> float:
@@ -113,9 +117,11 @@ class SuspectScore:
 
     @property
     def episode_bad(self) -> tuple[int, ...]:
-        """The bad windows of the knock's episode (the knock's window to `episode_end`)."""
+        """The bad windows of the knock's episode (the knock's window to `episode_end`; with a
+        counterfactual, those the knock caused)."""
         end = self.episode_end
-        return () if end is None else tuple(w for w in self.bad if w <= end)
+        bad = self.bad if self.caused is None else self.caused
+        return () if end is None else tuple(w for w in bad if w <= end)
 
     @property
     def episode_covered(self) -> tuple[int, ...]:
@@ -151,6 +157,7 @@ class SuspectScore:
             "episode_bad": list(self.episode_bad),
             "episode_covered": list(self.episode_covered),
             "episode_recall": self.episode_recall,
+            "caused": None if self.caused is None else list(self.caused),
         }
 
 
@@ -177,6 +184,9 @@ class ShiftResult:
     suspects: list[dict[str, Any]] = field(default_factory=list)
     attribution: str | None = None  # what the confirmed step was attributed to
     suspect_score: SuspectScore | None = None
+    # the counterfactual: the true error per window (window 1 first) of the same seed and
+    # settings without the knock (a campaign runs it once per seed); None: not run
+    baseline_mm: list[float] | None = None
 
     @property
     def records(self) -> list[WindowRecord]:
@@ -200,6 +210,7 @@ class ShiftResult:
             window_s=float(doc["window_s"]),
             real_s=float(doc["real_s"]),
             suspects=list(doc.get("suspects", [])),
+            baseline_mm=doc.get("baseline_mm"),
         )
         result.attribution = attributed_group(result.suspects)
         evaluate(result)
@@ -223,6 +234,7 @@ class ShiftResult:
             "attribution": self.attribution,
             "suspects": self.suspects,
             "suspect_score": None if self.suspect_score is None else self.suspect_score.to_json(),
+            "baseline_mm": self.baseline_mm,
             "summary": self.summary.to_json(),
         }
 
@@ -357,6 +369,15 @@ def score_suspects(result: ShiftResult, limit_mm: float) -> SuspectScore:
 
     recs = result.records
     bad = tuple(r.window for r in recs if r.window >= k and r.rmse_mm > limit_mm)
+    caused = None
+    base = result.baseline_mm
+    if base is not None:
+        ratio = result.settings.recovered_ratio
+        caused = tuple(
+            r.window
+            for r in recs
+            if r.window in bad and (r.window > len(base) or r.rmse_mm > ratio * base[r.window - 1])
+        )
     return SuspectScore(
         bad=bad,
         covered=tuple(
@@ -365,7 +386,10 @@ def score_suspects(result: ShiftResult, limit_mm: float) -> SuspectScore:
         covered_before_knock=tuple(
             r.window for r in recs if r.window < k and covered(_opened_s(r, result.window_s))
         ),
-        episode_end=episode_end(bad, result.settings.episode_gap_windows),
+        episode_end=episode_end(
+            bad if caused is None else caused, result.settings.episode_gap_windows
+        ),
+        caused=caused,
     )
 
 

@@ -270,7 +270,15 @@ def test_a_campaign_over_two_knock_hours_in_two_jobs(
         docs.append(json.loads((out / "shift-knocks.json").read_text()))
         mds.append((out / "shift-knocks.md").read_text().replace(str(out), "OUT"))
         for h in ("0.15", "0.2"):
-            assert (out / "sensor" / f"at-{h}h" / "seed-0" / "shift.json").exists()
+            shift = json.loads((out / "sensor" / f"at-{h}h" / "seed-0" / "shift.json").read_text())
+            # scored against the same seed without the knock: the windows the knock caused are
+            # those above 1.2x of the pre-knock level and of the counterfactual's error
+            base, score = shift["baseline_mm"], shift["suspect_score"]
+            assert len(base) >= len(shift["summary"]["timeline"])
+            assert set(score["caused"]) <= set(score["bad"])
+            for w in score["caused"]:
+                assert shift["summary"]["timeline"][w - 1]["rmse_mm"] > 1.2 * base[w - 1]
+        assert (out / "without-knock" / "seed-0" / "shift.json").exists()
     doc = docs[0]
     assert [(r["knock"], r["knock_at_h"]) for r in doc["rows"]] == [
         ("sensor", [0.15]),
