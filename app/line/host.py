@@ -25,7 +25,8 @@ from app.line.settings import ServiceSettings
 from app.line.statedir import StateDir
 from app.line.states import State
 from app.line.station import Station
-from app.line.step import Step, StepCorrection
+from app.line.step import Step
+from app.line.step_fit import StepCorrection
 from app.line.store import StorageError, Store
 from calib.model import SystemModel
 from drivers.clock import Clock

@@ -63,7 +63,8 @@ from app.line.statedir import StateDir
 from app.line.states import FAULT_CODES, State, utc_text
 from app.line.station import Station
 from app.line.status import device_of, status_reply
-from app.line.step import Step, StepCorrection, StepStatus, step_alarm_text, step_slot
+from app.line.step import Step, StepStatus, step_alarm_text
+from app.line.step_fit import StepCorrection, step_slot
 from app.line.step_handler import StepHandler
 from app.line.store import StorageError, Store
 from app.line.sweeps import SweepArchive
@@ -581,7 +582,7 @@ class Service:
 
     def _choose(self, slots: Sequence[Slot]) -> Slot:
         """The next slot among those that fit (in the plan's order from the position): for a
-        step being attributed, the one that serves it (app.line.step.step_slot: the most
+        step being attributed, the one that serves it (app.line.step_fit.step_slot: the most
         informative for the group the last attribution chose, or for all of them); adaptive
         scheduling, the most informative for the sequential estimator; else the next."""
         if self.step is not None and self.step.measuring:
@@ -1050,7 +1051,7 @@ class Service:
 
 def _kind(document: Mapping[str, Any] | None) -> str:
     """Where a calibration came from: "sequential" (app.line.inline_seq), "step" (a fast
-    correction, app.line.step) or "batch"."""
+    correction, app.line.step_fit) or "batch"."""
     kind = (document or {}).get("estimator", {}).get("kind")
     return str(kind) if kind in ("sequential", "step") else "batch"
 

@@ -22,16 +22,13 @@ from app.errors import InputError
 from app.formats.params import from_json
 from app.line.host import LineHost
 from app.line.states import suspect_json
-from app.line.step import (
-    Step,
+from app.line.step import Step, StepStatus, recovery_test, step_alarm_text
+from app.line.step_fit import (
     StepCorrection,
-    StepStatus,
     correct_step,
     locate_step,
     paired,
-    recovery_test,
     reference_mm,
-    step_alarm_text,
     step_sigma_mm,
     visible_step_mm,
     volume_views,

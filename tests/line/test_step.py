@@ -16,7 +16,8 @@ import pytest
 from app.config.line import RecalibSettings
 from app.formats.params import from_json
 from app.line.schedule import Slot
-from app.line.step import Step, StepStatus, paired, recovery_test, step_sigma_mm, step_slot
+from app.line.step import Step, StepStatus, recovery_test
+from app.line.step_fit import paired, step_sigma_mm, step_slot
 from fakes.truth import Knock
 from tests.line.helpers import knock_line, true_rms
 
