@@ -97,9 +97,9 @@ def run(args: argparse.Namespace) -> int:
             )
         except DeviceConfigError as exc:
             raise InputError(str(exc), file=cfg.source, field="devices") from exc
-        for family, exc in station.unreachable.items():
+        for family, error in station.unreachable.items():
             print(
-                f"rvis run: {family} unreachable ({type(exc).__name__}: {exc}): starting in"
+                f"rvis run: {family} unreachable ({type(error).__name__}: {error}): starting in"
                 " FAULT, retrying (`rvis status`)",
                 file=sys.stderr,
                 flush=True,

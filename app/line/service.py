@@ -407,18 +407,8 @@ class Service:
                 self._clear_unreachable(True, attempts)
                 return True
             self.fault_family = next(iter(errors))
-            self.log.info(
-                "attempt %d: still unreachable: %s",
-                attempts,
-                ", ".join(errors),
-                extra={
-                    "event": "device_retry",
-                    "data": {
-                        "attempts": attempts,
-                        "unreachable": {f: f"{type(e).__name__}: {e}" for f, e in errors.items()},
-                    },
-                },
-            )
+            unreachable = {f: f"{type(e).__name__}: {e}" for f, e in errors.items()}
+            self.bus.emit("device_retry", {"attempts": attempts, "unreachable": unreachable})
 
     def _unreachable_text(self, errors: Mapping[str, DeviceError]) -> str:
         parts = [
