@@ -4,10 +4,13 @@
 One uninterrupted `rvis commission --sim` (rendered) is the reference; then, for each kill
 point, a fresh commissioning is killed when its output reaches `calibration view K/N` and run
 again (no --restart) until it ends. Each resumed run must end 0 with the calibration step's
-results (measurements, views rejected, residual RMS) and its measurements file identical to the
-reference's, and the later steps' figures too.
+views, the views rejected and the measured sphere centres the reference's: the centres within
+1e-4 mm (the same images; the vision's last bits are not reproducible run to run, about 1e-9 mm,
+where a different image noise moves them by micrometres: 3.6 um before the fix), the residual
+RMS within 1e-6 mm.
 
     nice -n 5 .venv/bin/python bench/commission_resume.py [--views 2 12 23] [--out DIR]
+    .venv/bin/python bench/commission_resume.py --out DIR --report   # the table again
 
 The figures go to `--out` (default a temporary folder) as `commission_resume.json` and are
 printed as a table (docs/results/commission-resume.md keeps the last run's).
@@ -16,6 +19,7 @@ printed as a table (docs/results/commission-resume.md keeps the last run's).
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import os
 import signal
@@ -73,71 +77,93 @@ def run_and_kill(cell: Path, state: Path, marker: str) -> float:
 def figures(state: Path) -> dict[str, Any]:
     report = json.loads((state / "commission" / "commission.json").read_text(encoding="utf-8"))
     steps = {s["name"]: s for s in report["steps"]}
-    cal = steps["calibration"]
-    out: dict[str, Any] = {
-        "runs_of_calibration": 1 + len(cal.get("earlier", [])),
-        "measurements_csv": (state / "commission" / "calibration_measurements.csv").read_text(
-            encoding="utf-8"
-        ),
+    with (state / "commission" / "calibration_measurements.csv").open(encoding="utf-8") as f:
+        rows = list(csv.reader(f))[1:]
+    return {
+        "runs_of_calibration": 1 + len(steps["calibration"].get("earlier", [])),
+        "views": [(r[0], *map(float, r[1:7])) for r in rows],
+        "centres_mm": [tuple(map(float, r[7:10])) for r in rows],
+        **{name: steps[name]["results"] for name in COMPARED},
     }
-    for name in COMPARED:
-        out[name] = {k: v for k, v in steps[name]["results"].items() if k != "seconds"}
-    return out
+
+
+def compare(ref: dict[str, Any], got: dict[str, Any]) -> dict[str, Any]:
+    """The resumed run against the reference: the largest differences, and whether it is the
+    same (module docstring)."""
+    same_views = got["views"] == ref["views"]
+    d_centre = max(
+        (abs(a - b) for r, g in zip(ref["centres_mm"], got["centres_mm"], strict=False)
+         for a, b in zip(r, g, strict=True)),
+        default=0.0,
+    )  # fmt: skip
+    d_rms = abs(got["calibration"]["rms_mm"] - ref["calibration"]["rms_mm"])
+    d_val = abs(got["validation"]["rmse_mm"] - ref["validation"]["rmse_mm"])
+    same = (
+        same_views
+        and got["calibration"]["rejected"] == ref["calibration"]["rejected"]
+        and d_centre <= 1e-4
+        and d_rms <= 1e-6
+    )
+    return {"d_centre_mm": d_centre, "d_rms_mm": d_rms, "d_validation_mm": d_val, "same": same}
+
+
+def row(kill: str, code: int, seconds: float, f: dict[str, Any], ref: dict[str, Any]) -> dict:
+    return {
+        "kill": kill,
+        "exit": code,
+        "seconds": round(seconds, 1),
+        "runs": f["runs_of_calibration"],
+        "rejected": len(f["calibration"]["rejected"]),
+        "rms_mm": f["calibration"]["rms_mm"],
+        "validation_rmse_mm": f["validation"]["rmse_mm"],
+        **compare(ref, f),
+    }
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--views", type=int, nargs="+", default=[2, 12, 23], help="kill at view K")
     ap.add_argument("--out", type=Path, help="folder for the state directories and figures")
+    ap.add_argument("--report", action="store_true", help="only the table of --out's runs")
     args = ap.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix="rvis-commission-resume-"))
     out.mkdir(parents=True, exist_ok=True)
-    cell = out / "cell.toml"
-    cell.write_text(CELL, encoding="utf-8")
-    code, seconds = run_to_end(cell, out / "reference")
+    saved = out / "commission_resume.json"
+    if args.report:
+        runs = json.loads(saved.read_text(encoding="utf-8"))["runs"]
+    else:
+        cell = out / "cell.toml"
+        cell.write_text(CELL, encoding="utf-8")
+        code, seconds = run_to_end(cell, out / "reference")
+        runs = [{"folder": "reference", "kill": "none", "exit": code, "seconds": seconds}]
+        n = _views(out / "reference")
+        for k in args.views:
+            state = out / f"kill-{k}"
+            killed_s = run_and_kill(cell, state, f"calibration view {k}/{n} ")
+            code, seconds = run_to_end(cell, state)
+            kill = f"view {k}/{n} ({killed_s:.0f} s after the start)"
+            runs.append({"folder": state.name, "kill": kill, "exit": code, "seconds": seconds})
     ref = figures(out / "reference")
-    rows: list[dict[str, Any]] = [
-        {"kill": "none", "exit": code, "seconds": round(seconds, 1), "same": True, **_short(ref)}
-    ]
-    n = ref["calibration"]["measurements"] + len(ref["calibration"]["rejected"])
-    for k in args.views:
-        state = out / f"kill-{k}"
-        killed_s = run_and_kill(cell, state, f"calibration view {k}/{n} ")
-        code, seconds = run_to_end(cell, state)
-        got = figures(state)
-        same = all(got[s] == ref[s] for s in COMPARED) and (
-            got["measurements_csv"] == ref["measurements_csv"]
-        )
-        rows.append(
-            {
-                "kill": f"view {k}/{n} ({killed_s:.1f} s)",
-                "exit": code,
-                "seconds": round(seconds, 1),
-                "same": same,
-                **_short(got),
-            }
-        )
-    doc = {"cell": CELL, "rows": rows}
-    (out / "commission_resume.json").write_text(json.dumps(doc, indent=2), encoding="utf-8")
-    print("| killed at | resumed run exit | its time [s] | calibration runs | rejected |"
-          " residual RMS [mm] | validation RMSE [mm] | same as uninterrupted |")  # fmt: skip
-    print("|---|---:|---:|---:|---:|---:|---:|---|")
+    rows = [row(r["kill"], r["exit"], r["seconds"], figures(out / r["folder"]), ref) for r in runs]
+    saved.write_text(json.dumps({"cell": CELL, "runs": runs, "rows": rows}, indent=2), "utf-8")
+    print("| killed at | exit | time of the (resumed) run [s] | calibration runs | rejected |"
+          " residual RMS [mm] | validation RMSE [mm] | max abs diff. of a centre [mm] |"
+          " abs diff. of the RMS [mm] | same as uninterrupted |")  # fmt: skip
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---|")
     for r in rows:
         print(
             f"| {r['kill']} | {r['exit']} | {r['seconds']} | {r['runs']} | {r['rejected']} |"
-            f" {r['rms_mm']:.6f} | {r['validation_rmse_mm']:.6f} | {'yes' if r['same'] else 'NO'} |"
+            f" {r['rms_mm']:.6f} | {r['validation_rmse_mm']:.6f} | {r['d_centre_mm']:.1e} |"
+            f" {r['d_rms_mm']:.1e} | {'yes' if r['same'] else 'NO'} |"
         )
-    print(f"figures: {out / 'commission_resume.json'}")
+    print(f"figures: {saved}")
     return 0 if all(r["exit"] == 0 and r["same"] for r in rows) else 1
 
 
-def _short(f: dict[str, Any]) -> dict[str, Any]:
-    return {
-        "runs": f["runs_of_calibration"],
-        "rejected": len(f["calibration"]["rejected"]),
-        "rms_mm": f["calibration"]["rms_mm"],
-        "validation_rmse_mm": f["validation"]["rmse_mm"],
-    }
+def _views(state: Path) -> int:
+    """The calibration step's number of views (measured and rejected)."""
+    cal = figures(state)["calibration"]
+    return int(cal["measurements"]) + len(cal["rejected"])
 
 
 if __name__ == "__main__":

@@ -262,14 +262,24 @@ def test_a_rendered_commissioning_killed_in_its_calibration_resumes_with_the_sam
     assert journal["steps"][-1]["status"] == "started"
 
     assert main([*argv, str(killed)]) == 0, capsys.readouterr().out[-3000:]
-    name = "calibration_measurements.csv"
-    got = (StateDir(killed).commission / name).read_text()
-    assert got == (StateDir(reference).commission / name).read_text()
+    got, ref = _measured(killed), _measured(reference)
+    assert [r[:7] for r in got] == [r[:7] for r in ref]  # the same views, none rejected more
+    # the same images: the centres agree to the vision's last bits (different image noise, as
+    # before the fix, moved them by up to 3.6 um: bench/commission_resume.py)
+    diff = np.abs(np.array([r[7:] for r in got], float) - np.array([r[7:] for r in ref], float))
+    assert diff.max() <= 1e-4
     report = json.loads((StateDir(killed).commission / "commission.json").read_text())
     steps = {s["name"]: s for s in report["steps"]}
     assert [e["status"] for e in steps["calibration"]["earlier"]] == ["interrupted"]
-    ref = json.loads((StateDir(reference).commission / "journal.json").read_text())
-    ref_cal = next(s for s in ref["steps"] if s["name"] == "calibration")
-    assert steps["calibration"]["results"]["rms_mm"] == ref_cal["results"]["rms_mm"]
-    assert steps["calibration"]["results"]["rejected"] == ref_cal["results"]["rejected"]
+    ref_journal = json.loads((StateDir(reference).commission / "journal.json").read_text())
+    ref_cal = next(s for s in ref_journal["steps"] if s["name"] == "calibration")["results"]
+    cal = steps["calibration"]["results"]
+    assert cal["rejected"] == ref_cal["rejected"]
+    assert cal["rms_mm"] == pytest.approx(ref_cal["rms_mm"], abs=1e-6)
     assert all(s["status"] == "passed" for s in report["steps"])
+
+
+def _measured(state: Path) -> list[list[str]]:
+    """The calibration step's measurements (target, joints, centre, temperature) as text."""
+    text = (StateDir(state).commission / "calibration_measurements.csv").read_text()
+    return [line.split(",") for line in text.splitlines()[1:]]
