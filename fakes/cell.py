@@ -412,11 +412,15 @@ class SimulatedCell:
         self, command_v: float, exposure_us: float, gain_db: float
     ) -> np.random.Generator:
         """The noise of the frame at the current joints (module docstring): seeded by the
-        cell's seed, the frame's key (joints to 1e-4 deg, command to 1 uV, exposure to 0.01 us,
-        gain to 0.001 dB) and how many times the key was rendered before. Under _render_lock."""
+        cell's seed, the frame's key (joints to 0.1 deg, command to 1 uV, exposure to 0.01 us,
+        gain to 0.001 dB) and how many times the key was rendered before. Under _render_lock.
+        The joints' grid is coarse on purpose: views of one step are degrees apart, and a view
+        planned again in a resumed run differs from the first plan in its last bits (the
+        parameters it is planned on do), which a fine grid would sometimes round to another
+        key, another noise."""
         key = np.concatenate(
             [
-                np.round(self.joints_deg() * 1e4),
+                np.round(self.joints_deg() * 10.0),
                 np.round([command_v * 1e6, exposure_us * 100.0, gain_db * 1e3]),
             ]
         ).astype(np.int64)
