@@ -10,6 +10,7 @@ the wall clock, its [line] window the peers' window in wall seconds."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import socket
 import time
@@ -49,15 +50,16 @@ def _free_port() -> int:
         return port
 
 
-@pytest.fixture
-def line(tmp_path: Path) -> Iterator[tuple[SimLine, Path, int]]:
-    """The simulated line's peers (the PLC left out: port `plc_port`, closed) and a cell file
+@contextlib.contextmanager
+def _peers(tmp_path: Path, *, camera: bool) -> Iterator[tuple[SimLine, Path, int]]:
+    """The simulated line's peers (the PLC left out: port `plc_port`, closed; without `camera`
+    no GigE fake either, the camera's URL an address where none answers) and a cell file
     naming them, with a plan."""
     base = tmp_path / "base.toml"
     base.write_text(CELL, encoding="utf-8")
     cfg = load_cell(base)
     setup = replace(
-        simline_settings(cfg, geometric=False),
+        simline_settings(cfg, geometric=not camera),
         warmup=None,
         clock="scaled",
         scale=SCALE,
@@ -66,21 +68,20 @@ def line(tmp_path: Path) -> Iterator[tuple[SimLine, Path, int]]:
     )
     plc_port = _free_port()
     with SimLine(make_cell(cfg, seed=cfg.simulation.seed), setup) as sim:
-        urls = {**sim.urls, "plc": f"plc+modbus://127.0.0.1:{plc_port}"}
+        urls = {"camera": "aravis://127.0.0.3", **sim.urls}
+        urls["plc"] = f"plc+modbus://127.0.0.1:{plc_port}"
         devices = "\n".join(f'{k} = "{v}"' for k, v in urls.items())
         cell = tmp_path / "cell.toml"
         cell.write_text(f"{CELL}\n[devices]\n{devices}\n", encoding="utf-8")
-        plan = [
-            "plan",
-            "--cell",
-            str(cell),
-            "--placement",
-            "fixed",
-            "--out",
-            str(tmp_path / "plan.json"),
-        ]
-        assert main(plan) == 0
+        plan = ["plan", "--cell", str(cell), "--placement", "fixed", "--out"]
+        assert main([*plan, str(tmp_path / "plan.json")]) == 0
         yield sim, cell, plc_port
+
+
+@pytest.fixture
+def line(tmp_path: Path) -> Iterator[tuple[SimLine, Path, int]]:
+    with _peers(tmp_path, camera=True) as peers:
+        yield peers
 
 
 def _start(tmp_path: Path, cell: Path) -> ServiceProcess:
@@ -154,17 +155,23 @@ def setup_cycle(sim: SimLine) -> Any:
     return sim.settings.cycle
 
 
-def test_sigterm_during_the_retries_is_a_clean_stop(
-    tmp_path: Path, line: tuple[SimLine, Path, int]
-) -> None:
-    _, cell, _ = line
-    service = _start(tmp_path, cell)
-    try:
-        _wait_fault(service)
-        service.wait_log(lambda r: r.get("event") == "device_retry", 10.0)  # retrying
-    finally:
-        code = service.stop()
+def test_sigterm_during_the_retries_is_a_clean_stop(tmp_path: Path) -> None:
+    """Two devices unreachable (the PLC, and the camera: no GigE fake, each try 2-3 s)."""
+    with _peers(tmp_path, camera=False) as (_, cell, plc_port):
+        service = _start(tmp_path, cell)
+        try:
+            status = _wait_fault(service)
+            [alarm] = [a for a in status["alarms"] if a["code"] == "device_unreachable"]
+            assert alarm["text"].startswith(f"plc (plc+modbus://127.0.0.1:{plc_port})")
+            assert "; camera (aravis://127.0.0.3) unreachable" in alarm["text"]
+            assert status["devices"]["camera"]["state"] == "unreachable"
+            service.wait_log(lambda r: r.get("event") == "device_retry", 20.0)  # retrying
+        finally:
+            t0 = time.monotonic()
+            code = service.stop()
+            stop_s = time.monotonic() - t0
     assert code == 0, service.stderr
+    assert stop_s < 10.0  # at most a try in progress (the camera's: 2-3 s), then out
     assert "Traceback" not in service.stderr and "Connection to" not in service.stderr
     assert not (service.state_dir / "rvis.sock").exists()
     assert _status(service.state_dir)["state"] == "not running"
