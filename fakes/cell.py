@@ -188,6 +188,10 @@ class SimulatedCell:
         self._render_lock = threading.Lock()
         self._sweeps = 0  # sweeps handed out: the index in each sweep's noise seed
         self._frames_seen: dict[int, int] = {}  # a frame's key -> times rendered (_frame_rng)
+        # a new draw of every frame's noise (0: the first): a commissioning step run again
+        # after it failed sees new noise, as a real camera's, where one resumed after a kill
+        # (same draw) renders the frames of an uninterrupted run
+        self.noise_draw = 0
         self._scene: SphereScene | None = None
         self.sweep_commands_v = default_sweep_commands(SWEEP_FRAMES, SWEEP_SPAN_V)
 
@@ -427,7 +431,8 @@ class SimulatedCell:
         digest = int.from_bytes(hashlib.blake2b(key.tobytes(), digest_size=8).digest(), "little")
         n = self._frames_seen.get(digest, 0)
         self._frames_seen[digest] = n + 1
-        return np.random.default_rng([self.settings.seed, 4, digest, n])
+        draw = [self.noise_draw] if self.noise_draw else []
+        return np.random.default_rng([self.settings.seed, 4, digest, n, *draw])
 
     def _scene_of(self, sensor: TrueSensor, c_sensor_mm: F64) -> SphereScene:
         """The sphere scene at c_sensor_mm: the last one if the sphere moved less than
