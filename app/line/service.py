@@ -415,10 +415,10 @@ class Service:
             f"{f} ({self.station.urls.get(f, '')}) unreachable: {type(e).__name__}: {e}"
             for f, e in errors.items()
         ]
-        waits = ", ".join(f"{w:g}" for w in DEVICE_RETRY_S)
+        waits = ", ".join(f"{w:g}" for w in DEVICE_RETRY_S[:-1])
         return (
-            f"{'; '.join(parts)}; the service retries (after {waits} s, then every"
-            f" {DEVICE_RETRY_S[-1]:g} s) and leaves FAULT by itself when it answers"
+            f"{'; '.join(parts)}; the service tries again after {waits} s, then every"
+            f" {DEVICE_RETRY_S[-1]:g} s, and leaves FAULT by itself once every device answers"
         )
 
     def _clear_unreachable(self, raised: bool, attempts: int | None) -> None:
