@@ -41,31 +41,38 @@ COMPARED = ("calibration", "acceptance", "validation", "workspace")
 
 def _argv(cell: Path, state: Path) -> list[str]:
     return [sys.executable, "-m", "app", "commission", "--sim", "--yes", "--cell", str(cell),
-            "--state-dir", str(state)]  # fmt: skip
+            "--state-dir", str(state), "--log-level", "warning"]  # fmt: skip
+
+
+def _lost(text: str) -> int:
+    """Frames the camera driver re-triggered (its warning "frame lost, re-triggering once")."""
+    return text.count("frame lost")
 
 
 def _env() -> dict[str, str]:
     return os.environ | {"PYTHONUNBUFFERED": "1", "PYTHONPATH": str(ROOT)}
 
 
-def run_to_end(cell: Path, state: Path) -> tuple[int, float]:
+def run_to_end(cell: Path, state: Path) -> tuple[int, float, int]:
+    """Exit status, seconds, frames lost."""
     t0 = time.monotonic()
     done = subprocess.run(_argv(cell, state), cwd=ROOT, env=_env(), capture_output=True, text=True)
     if done.returncode:
         print(done.stdout[-3000:], done.stderr[-3000:], file=sys.stderr)
-    return done.returncode, time.monotonic() - t0
+    return done.returncode, time.monotonic() - t0, _lost(done.stderr)
 
 
-def run_and_kill(cell: Path, state: Path, marker: str) -> float:
+def run_and_kill(cell: Path, state: Path, marker: str) -> tuple[float, int]:
     """Run until `marker` is printed, then SIGKILL; seconds from the calibration step's start
-    to the kill."""
-    t0 = time.monotonic()
+    to the kill, frames lost."""
+    t0, lost = time.monotonic(), 0
     with subprocess.Popen(
         _argv(cell, state), cwd=ROOT, env=_env(), stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT, text=True,
     ) as child:  # fmt: skip
         assert child.stdout is not None
         for line in child.stdout:
+            lost += _lost(line)
             if line.startswith("step 6/10 calibration:") and line.rstrip().endswith("..."):
                 t0 = time.monotonic()
             if marker in line:
@@ -74,7 +81,7 @@ def run_and_kill(cell: Path, state: Path, marker: str) -> float:
         child.wait(60)
     if child.returncode != -signal.SIGKILL:
         raise SystemExit(f"{marker!r} never printed (exit {child.returncode})")
-    return time.monotonic() - t0
+    return time.monotonic() - t0, lost
 
 
 def figures(state: Path) -> dict[str, Any]:
@@ -137,28 +144,36 @@ def main() -> int:
     else:
         cell = out / "cell.toml"
         cell.write_text(CELL, encoding="utf-8")
-        code, seconds = run_to_end(cell, out / "reference")
-        runs = [{"folder": "reference", "kill": "none", "exit": code, "seconds": seconds}]
+        code, seconds, lost = run_to_end(cell, out / "reference")
+        runs = [{"folder": "reference", "kill": "none", "exit": code, "seconds": seconds,
+                 "lost": lost}]  # fmt: skip
         n = _views(out / "reference")
         for k in args.views:
             state = out / f"kill-{k}"
-            killed_s = run_and_kill(cell, state, f"calibration view {k}/{n} ")
-            code, seconds = run_to_end(cell, state)
+            killed_s, lost_before = run_and_kill(cell, state, f"calibration view {k}/{n} ")
+            code, seconds, lost = run_to_end(cell, state)
             kill = f"view {k}/{n}, {killed_s:.0f} s into the step"
-            runs.append({"folder": state.name, "kill": kill, "exit": code, "seconds": seconds})
+            runs.append({"folder": state.name, "kill": kill, "exit": code, "seconds": seconds,
+                         "lost": lost_before + lost})  # fmt: skip
     ref = figures(out / "reference")
-    rows = [row(r["kill"], r["exit"], r["seconds"], figures(out / r["folder"]), ref) for r in runs]
+    rows = [
+        {**row(r["kill"], r["exit"], r["seconds"], figures(out / r["folder"]), ref),
+         "lost": r.get("lost")}
+        for r in runs
+    ]  # fmt: skip
     saved.write_text(json.dumps({"cell": CELL, "runs": runs, "rows": rows}, indent=2), "utf-8")
     print("| killed at | exit | time of the (resumed) run [s] | calibration runs | rejected |"
           " residual RMS [mm] | validation RMSE [mm] | max abs diff. of a centre [mm] |"
           " abs diff. of the RMS [mm] | abs diff. of the validation RMSE [mm] |"
-          " same as uninterrupted |")  # fmt: skip
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|")
+          " frames lost (re-triggered) | same as uninterrupted |")  # fmt: skip
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|")
     for r in rows:
+        lost = "?" if r["lost"] is None else r["lost"]
         print(
             f"| {r['kill']} | {r['exit']} | {r['seconds']} | {r['runs']} | {r['rejected']} |"
             f" {r['rms_mm']:.6f} | {r['validation_rmse_mm']:.6f} | {r['d_centre_mm']:.1e} |"
-            f" {r['d_rms_mm']:.1e} | {r['d_validation_mm']:.1e} | {'yes' if r['same'] else 'NO'} |"
+            f" {r['d_rms_mm']:.1e} | {r['d_validation_mm']:.1e} | {lost} |"
+            f" {'yes' if r['same'] else 'NO'} |"
         )
     print(f"figures: {saved}")
     return 0 if all(r["exit"] == 0 and r["same"] for r in rows) else 1

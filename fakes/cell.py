@@ -188,6 +188,7 @@ class SimulatedCell:
         self._render_lock = threading.Lock()
         self._sweeps = 0  # sweeps handed out: the index in each sweep's noise seed
         self._frames_seen: dict[int, int] = {}  # a frame's key -> times rendered (_frame_rng)
+        self._last_frame: tuple[int, int] = (-1, 0)  # the key and draw index rendered last
         # a new draw of every frame's noise (0: the first): a commissioning step run again
         # after it failed sees new noise, as a real camera's, where one resumed after a kill
         # (same draw) renders the frames of an uninterrupted run
@@ -417,7 +418,10 @@ class SimulatedCell:
     ) -> np.random.Generator:
         """The noise of the frame at the current joints (module docstring): seeded by the
         cell's seed, the frame's key (joints to 0.1 deg, command to 1 uV, exposure to 0.01 us,
-        gain to 0.001 dB) and how many times the key was rendered before. Under _render_lock.
+        gain to 0.001 dB) and how many times the key was rendered before, other frames in
+        between (a frame rendered again straight after itself, as a lost frame the camera
+        driver re-triggers, keeps its noise: whether a frame is lost depends on the machine's
+        load, which must not change the images). Under _render_lock.
         The joints' grid is coarse on purpose: views of one step are degrees apart, and a view
         planned again in a resumed run differs from the first plan in its last bits (the
         parameters it is planned on do), which a fine grid would sometimes round to another
@@ -429,8 +433,11 @@ class SimulatedCell:
             ]
         ).astype(np.int64)
         digest = int.from_bytes(hashlib.blake2b(key.tobytes(), digest_size=8).digest(), "little")
-        n = self._frames_seen.get(digest, 0)
-        self._frames_seen[digest] = n + 1
+        last, n = self._last_frame
+        if digest != last:
+            n = self._frames_seen.get(digest, 0)
+            self._frames_seen[digest] = n + 1
+            self._last_frame = (digest, n)
         draw = [self.noise_draw] if self.noise_draw else []
         return np.random.default_rng([self.settings.seed, 4, digest, n, *draw])
 

@@ -192,9 +192,10 @@ def test_a_frame_s_noise_belongs_to_the_frame_not_to_the_frames_before_it(
     cfg: CellConfig, sensor: TrueSensor
 ) -> None:
     """The camera hook's image noise is seeded by the frame (joints, command, exposure, gain,
-    the n-th rendering of it), so a cell in a new process renders what a cell that rendered
-    other frames first does (a commissioning step resumed after a kill: issue 30); a second
-    rendering of a frame, or another draw (a step run again after a failure), has new noise."""
+    the n-th visit of it), so a cell in a new process renders what a cell that rendered other
+    frames first does (a commissioning step resumed after a kill: issue 30), and a frame
+    rendered again at once (a lost one, re-triggered) is the same; a second visit, or another
+    draw (a step run again after a failure), has new noise."""
     q = views_of(make_cell(cfg, seed=7, sensor=sensor), cfg, "P2", 1, seed=5)[0]
 
     def frame(cell: SimulatedCell, volts: float = 1.0) -> np.ndarray:
@@ -205,7 +206,9 @@ def test_a_frame_s_noise_belongs_to_the_frame_not_to_the_frames_before_it(
     busy = make_cell(cfg, seed=7, sensor=sensor)
     again = [frame(busy, v) for v in (-1.0, 0.5, 1.0)]  # other frames first, then this one
     assert np.array_equal(again[-1], first)
-    assert not np.array_equal(frame(busy), first)  # its second rendering: new noise
+    assert np.array_equal(frame(busy), first)  # at once again (a lost frame): the same
+    frame(busy, 0.5)
+    assert not np.array_equal(frame(busy), first)  # a second visit: new noise
     redraw = make_cell(cfg, seed=7, sensor=sensor)
     redraw.noise_draw = 1
     other = frame(redraw)
