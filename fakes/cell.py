@@ -413,6 +413,26 @@ class SimulatedCell:
         out: F64 = frame[:height, :width].astype(np.float64) / 4095.0
         return out
 
+    def warm_up(self) -> None:
+        """Render one frame of a sphere and throw it away (no noise drawn from the cell's
+        frames, no scene kept): the one-time costs of the first rendering (about 0.3 s) are
+        paid now, not by the camera's first frame at a sphere, which a loaded machine would
+        deliver after the driver's timeout (a commissioning resumed at its calibration)."""
+        sensor = self.sensor
+        scene = sphere_scene(sensor, np.array([0.0, 0.0, 130.0]), self.spec.sphere_radius_mm)
+        with self._render_lock:
+            render_sphere_sweep(
+                scene.c_sensor_mm,
+                scene.radius_mm,
+                sensor,
+                np.random.default_rng(0),
+                commands_v=np.array([0.0]),
+                noise=NoiseSettings(bits=12),
+                light=Lighting(),
+                stripe_truth=False,
+                scene=scene,
+            )
+
     def _frame_rng(
         self, command_v: float, exposure_us: float, gain_db: float
     ) -> np.random.Generator:
