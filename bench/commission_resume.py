@@ -156,11 +156,7 @@ def main() -> int:
             runs.append({"folder": state.name, "kill": kill, "exit": code, "seconds": seconds,
                          "lost": lost_before + lost})  # fmt: skip
     ref = figures(out / "reference")
-    rows = [
-        {**row(r["kill"], r["exit"], r["seconds"], figures(out / r["folder"]), ref),
-         "lost": r.get("lost")}
-        for r in runs
-    ]  # fmt: skip
+    rows = [{**_row(out, r, ref), "lost": r.get("lost")} for r in runs]
     saved.write_text(json.dumps({"cell": CELL, "runs": runs, "rows": rows}, indent=2), "utf-8")
     print("| killed at | exit | time of the (resumed) run [s] | calibration runs | rejected |"
           " residual RMS [mm] | validation RMSE [mm] | max abs diff. of a centre [mm] |"
@@ -177,6 +173,20 @@ def main() -> int:
         )
     print(f"figures: {saved}")
     return 0 if all(r["exit"] == 0 and r["same"] for r in rows) else 1
+
+
+def _row(out: Path, run: dict[str, Any], ref: dict[str, Any]) -> dict[str, Any]:
+    """A run's row; a run whose calibration did not pass has its exit status alone."""
+    seconds = run["seconds"] if run["seconds"] is not None else float("nan")
+    try:
+        return row(run["kill"], run["exit"], seconds, figures(out / run["folder"]), ref)
+    except (OSError, KeyError):
+        nan = float("nan")
+        figures_nan = dict.fromkeys(
+            ("rms_mm", "validation_rmse_mm", "d_centre_mm", "d_rms_mm", "d_validation_mm"), nan
+        )
+        return {"kill": run["kill"], "exit": run["exit"], "seconds": round(seconds, 1),
+                "runs": "-", "rejected": "-", **figures_nan, "same": False}  # fmt: skip
 
 
 def _views(state: Path) -> int:
