@@ -4,10 +4,17 @@ word packing shared by the robot mailbox and the PLC register map.
 pymodbus does not follow semantic versioning (3.10 renamed ``slave=`` to ``device_id=``); this is
 the only module of drivers/ that calls it, so a pin bump is checked here. With a trace channel
 every request (function code, address, count or words) and its reply or error is traced.
+
+pymodbus logs on its own loggers (`pymodbus.logging`: "Connection to (127.0.0.1, 502) failed:
+..." at ERROR). With no handler there Python's last resort printed that raw line on the user's
+terminal beside rvis's own message, which already says it (as a device error). Its records go
+to rvis's logging instead, as DEBUG records of `rvis.drivers.pymodbus` (their own level in the
+text): quiet unless `--log-level debug` asks for them.
 """
 
 from __future__ import annotations
 
+import logging
 import struct
 from collections.abc import Sequence
 from typing import Literal
@@ -25,6 +32,28 @@ from drivers.errors import (
 from drivers.trace import TraceChannel
 
 WordOrder = Literal["big", "little"]
+
+
+class _ToRvisDebug(logging.Handler):
+    """Every record of pymodbus's logger again as a DEBUG record of `rvis.drivers.pymodbus`."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.target = logging.getLogger("rvis.drivers.pymodbus")
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if self.target.isEnabledFor(logging.DEBUG):
+            self.target.debug("%s: %s", record.levelname, record.getMessage())
+
+
+def _route_pymodbus_logs() -> None:
+    logger = logging.getLogger("pymodbus")
+    if not any(isinstance(h, _ToRvisDebug) for h in logger.handlers):
+        logger.addHandler(_ToRvisDebug())
+    logger.propagate = False  # nothing of pymodbus's reaches the root logger's handlers
+
+
+_route_pymodbus_logs()
 
 
 def floats_to_words(values: Sequence[float], word_order: WordOrder = "little") -> list[int]:

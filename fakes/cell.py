@@ -9,11 +9,16 @@ model. Two ways to measure a sphere:
   frames with vision/ (this module never imports vision/).
 
 `render_frame` is the camera hook of the device fakes' World protocol: the frame the camera sees
-at the current joints and the current galvo command.
+at the current joints and the current galvo command. Its image noise is seeded by the frame
+itself (the cell's seed, the joints, the mirror command, exposure and gain, and how many times
+this cell rendered that frame before), not drawn from one stream: a frame never depends on how
+many frames were grabbed before it, so a commissioning step resumed in a new process (killed
+mid-step) renders the very frames an uninterrupted run renders.
 """
 
 from __future__ import annotations
 
+import hashlib
 import threading
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
@@ -182,7 +187,12 @@ class SimulatedCell:
         self._lock = threading.Lock()  # device fakes call from their own threads
         self._render_lock = threading.Lock()
         self._sweeps = 0  # sweeps handed out: the index in each sweep's noise seed
-        self._camera_rng = np.random.default_rng([s.seed, 4])
+        self._frames_seen: dict[int, int] = {}  # a frame's key -> times rendered (_frame_rng)
+        self._last_frame: tuple[int, int] = (-1, 0)  # the key and draw index rendered last
+        # a new draw of every frame's noise (0: the first): a commissioning step run again
+        # after it failed sees new noise, as a real camera's, where one resumed after a kill
+        # (same draw) renders the frames of an uninterrupted run
+        self.noise_draw = 0
         self._scene: SphereScene | None = None
         self.sweep_commands_v = default_sweep_commands(SWEEP_FRAMES, SWEEP_SPAN_V)
 
@@ -384,15 +394,16 @@ class SimulatedCell:
         light = replace(Lighting(), power=Lighting().power * exposure * gain)
         c = self._sphere_in_view()
         with self._render_lock:
+            rng = self._frame_rng(command_v, exposure_us, gain_db)
             if c is None:
-                frame = dark_frame((sensor.height_px, sensor.width_px), noise, self._camera_rng)
+                frame = dark_frame((sensor.height_px, sensor.width_px), noise, rng)
             else:
                 scene = self._scene_of(sensor, c)
                 frame = render_sphere_sweep(
                     scene.c_sensor_mm,
                     scene.radius_mm,
                     sensor,
-                    self._camera_rng,
+                    rng,
                     commands_v=np.array([command_v]),
                     noise=noise,
                     light=light,
@@ -401,6 +412,54 @@ class SimulatedCell:
                 )[0][0]
         out: F64 = frame[:height, :width].astype(np.float64) / 4095.0
         return out
+
+    def warm_up(self) -> None:
+        """Render one frame of a sphere and throw it away (no noise drawn from the cell's
+        frames, no scene kept): the one-time costs of the first rendering (about 0.3 s) are
+        paid now, not by the camera's first frame at a sphere, which a loaded machine would
+        deliver after the driver's timeout (a commissioning resumed at its calibration)."""
+        sensor = self.sensor
+        scene = sphere_scene(sensor, np.array([0.0, 0.0, 130.0]), self.spec.sphere_radius_mm)
+        with self._render_lock:
+            render_sphere_sweep(
+                scene.c_sensor_mm,
+                scene.radius_mm,
+                sensor,
+                np.random.default_rng(0),
+                commands_v=np.array([0.0]),
+                noise=NoiseSettings(bits=12),
+                light=Lighting(),
+                stripe_truth=False,
+                scene=scene,
+            )
+
+    def _frame_rng(
+        self, command_v: float, exposure_us: float, gain_db: float
+    ) -> np.random.Generator:
+        """The noise of the frame at the current joints (module docstring): seeded by the
+        cell's seed, the frame's key (joints to 0.1 deg, command to 1 uV, exposure to 0.01 us,
+        gain to 0.001 dB) and how many times the key was rendered before, other frames in
+        between (a frame rendered again straight after itself, as a lost frame the camera
+        driver re-triggers, keeps its noise: whether a frame is lost depends on the machine's
+        load, which must not change the images). Under _render_lock.
+        The joints' grid is coarse on purpose: views of one step are degrees apart, and a view
+        planned again in a resumed run differs from the first plan in its last bits (the
+        parameters it is planned on do), which a fine grid would sometimes round to another
+        key, another noise."""
+        key = np.concatenate(
+            [
+                np.round(self.joints_deg() * 10.0),
+                np.round([command_v * 1e6, exposure_us * 100.0, gain_db * 1e3]),
+            ]
+        ).astype(np.int64)
+        digest = int.from_bytes(hashlib.blake2b(key.tobytes(), digest_size=8).digest(), "little")
+        last, n = self._last_frame
+        if digest != last:
+            n = self._frames_seen.get(digest, 0)
+            self._frames_seen[digest] = n + 1
+            self._last_frame = (digest, n)
+        draw = [self.noise_draw] if self.noise_draw else []
+        return np.random.default_rng([self.settings.seed, 4, digest, n, *draw])
 
     def _scene_of(self, sensor: TrueSensor, c_sensor_mm: F64) -> SphereScene:
         """The sphere scene at c_sensor_mm: the last one if the sphere moved less than

@@ -154,6 +154,7 @@ class SimLine:
         self.camera: GvCamera | None = None
         if self.settings.camera:
             _ = cell.sensor.pixel_rays  # built once (~1-3 s) now, not inside the first grab
+            cell.warm_up()  # and the first rendering's one-time costs
             sensor_wh = (cell.sensor.width_px, cell.sensor.height_px)
             self.camera = GvCamera(
                 self.world,

@@ -16,6 +16,11 @@ run). With --windows it runs as fast as the CPU, stops after N windows and print
 validation positions); without, paced at [simline] scale for a person who watches, it runs
 until SIGTERM or Ctrl-C.
 
+A device that cannot be reached at start (its URL right, nothing answering) does not end the
+command: the service starts in FAULT with a `device_unreachable` alarm naming it, answers
+`rvis status`, and retries with back-off (app/line/service.py); a wrong cell file or URL is
+still exit 2 at once.
+
 stdout carries JSON lines only, in every mode (docs/operations.md, "What the service prints"):
 the service's log (without --windows), the simulation's `sim_window` line after every window
 (its truth: the true RMSE of the parameters in force) and, with --windows, a last
@@ -25,12 +30,13 @@ person (the start line, the batch summary) go to stderr."""
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
 from app.commands import add_command
 from app.commands.args import int_at_least
-from app.errors import InputError, RvisError
+from app.errors import InputError
 
 
 def register(sub: Any) -> None:
@@ -70,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
     from app.line.settings import from_cell
     from app.line.statedir import StateDir
     from app.line.station import Station, cell_guard
-    from drivers.errors import DeviceConfigError, DeviceError
+    from drivers.errors import DeviceConfigError
 
     cfg = _cell(args)
     settings = from_cell(cfg, args.state_dir)
@@ -87,11 +93,17 @@ def run(args: argparse.Namespace) -> int:
                 guard=cell_guard(cfg),
                 options={"camera": {"settings": cfg.camera.settings()}},
                 trace=trace,
+                defer_unreachable=True,  # the service starts in FAULT and retries it
             )
         except DeviceConfigError as exc:
             raise InputError(str(exc), file=cfg.source, field="devices") from exc
-        except DeviceError as exc:
-            raise RvisError(f"cannot open the devices: {type(exc).__name__}: {exc}") from exc
+        for family, error in station.unreachable.items():
+            print(
+                f"rvis run: {family} unreachable ({type(error).__name__}: {error}): starting in"
+                " FAULT, retrying (`rvis status`)",
+                file=sys.stderr,
+                flush=True,
+            )
         return _serve_station(station, cfg, settings, plan, x0, sensor_model)
 
 

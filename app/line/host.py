@@ -77,6 +77,7 @@ class LineHost(Protocol):
     unstored_alarms: list[dict[str, Any]]  # raised while the storage failed
     device_errors: dict[str, dict[str, str]]  # family -> its last error {"error", "utc"}
     fault_family: str | None  # the device of the fault in force (None: unknown)
+    device_retry: dict[str, Any] | None  # a device unreachable at start: its retries
 
     @property
     def cell_temp_c(self) -> float | None: ...

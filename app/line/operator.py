@@ -150,6 +150,12 @@ class Operator:
         svc = self.svc
         if svc.state != State.FAULT:
             raise CommandError(f"nothing to reset in state {svc.state.value}")
+        if svc.station.unreachable:
+            names = ", ".join(svc.station.unreachable)
+            raise CommandError(
+                f"{names} unreachable since the start: the service retries and leaves FAULT by"
+                " itself when it answers (no reset needed)"
+            )
         self._storage_back()
         try:
             svc.station.robot.reset()

@@ -26,6 +26,13 @@ traceback, alarmed (`internal_error`), puts the cell in FAULT, and `run()` retur
 `exit_code` 1 so that the supervisor restarts the process; a restarted service finds the urgent
 alarm and stays in FAULT until an operator resets it.
 
+A device that cannot be reached at start (`Station.open(defer_unreachable=True)`: its URL is
+right, nothing answers) does not end the process: the service starts in FAULT with a
+`device_unreachable` alarm naming the device, answers its socket and OPC UA, and tries to open
+it again after 1, 2, 5, 10, then every 30 s of its clock (`DEVICE_RETRY_S`). Nothing has moved,
+so once every device is open the alarm clears by itself and the start goes on as usual (a fault
+alarm held from before still waits for a reset; a robot away from home is `robot_not_home`).
+
 A step (a knock) flagged by the drift charts opens a suspect interval and is attributed to the
 rigid group that moved after every window, with a fast correction of that group (StepHandler,
 app/line/step_handler.py; the numbers in app/line/step.py and calib/attribution.py); until it
@@ -76,6 +83,8 @@ from drivers.errors import DeviceError
 F64 = NDArray[np.float64]
 SPACE_CHECK_S = 60.0  # how often the free space under the state directory is looked at
 RETENTION_S = 3600.0  # how often events past [service] events_keep_days are deleted
+#: the waits [s] between attempts to open a device unreachable at start (then the last, again)
+DEVICE_RETRY_S = (1.0, 2.0, 5.0, 10.0, 30.0)
 
 
 class Service:
@@ -164,6 +173,8 @@ class Service:
         self.wake = threading.Event()
         self.device_errors: dict[str, dict[str, str]] = {}  # family -> {"error", "utc"}
         self.fault_family: str | None = None  # the device of the fault in force (None: unknown)
+        # while a device unreachable at start is retried: {"attempts", "next_utc", "wait_s"}
+        self.device_retry: dict[str, Any] | None = None
         # called in the loop's thread after each window and what follows it between windows
         # (the simulated line holds the service there, its virtual time standing, to look)
         self.after_window: Callable[[], None] | None = None
@@ -339,6 +350,8 @@ class Service:
             self.apply_calibration(self.pending_calibration, None, "auto")  # killed before
         self._resubmit()
         self._check_space()
+        if not self._await_devices():
+            return  # stopped while waiting for a device
         held = [a for a in self.store.active_alarms() if a["code"] in FAULT_CODES]
         if held:
             self._hold_fault(held[0])
@@ -354,6 +367,74 @@ class Service:
             self._enter_fault("robot_not_home", f"robot not at home at start (J = {q} deg)")
             return
         self.set_state(State.PAUSED if self.paused else State.IDLE)
+
+    def _await_devices(self) -> bool:
+        """Every device open (module docstring): at once, or after retries with back-off in
+        FAULT with a `device_unreachable` alarm, the operator's commands answered meanwhile;
+        False when stopped first."""
+        stale = self.store.active_alarms(code="device_unreachable")  # from a killed process
+        if not self.station.unreachable:
+            self._clear_unreachable(bool(stale), None)
+            return True
+        if stale:
+            self.store.clear_alarms(self.clock.time(), "device_unreachable")
+        errors = dict(self.station.unreachable)
+        for exc in errors.values():
+            self.note_device_error(exc)
+        self.fault_family = next(iter(errors))
+        self._enter_fault("device_unreachable", self._unreachable_text(errors))
+        attempts = 0
+        while True:
+            wait_s = DEVICE_RETRY_S[min(attempts, len(DEVICE_RETRY_S) - 1)]
+            due = self.clock.monotonic() + wait_s
+            self.device_retry = {
+                "attempts": attempts,
+                "wait_s": wait_s,
+                "next_utc": utc_text(self.clock.time() + wait_s),
+            }
+            while (left := due - self.clock.monotonic()) > 0 and not self._stop.is_set():
+                self.clock.wait(self.wake, left)
+                self.wake.clear()
+                if self._crash is not None:
+                    raise self._crash
+                self.operator.run_commands()
+            if self._stop.is_set():
+                return False
+            attempts += 1
+            errors = self.station.open_unreachable()
+            for exc in errors.values():
+                self.note_device_error(exc)
+            if not errors:
+                self._clear_unreachable(True, attempts)
+                return True
+            self.fault_family = next(iter(errors))
+            unreachable = {f: f"{type(e).__name__}: {e}" for f, e in errors.items()}
+            self.bus.emit("device_retry", {"attempts": attempts, "unreachable": unreachable})
+
+    def _unreachable_text(self, errors: Mapping[str, DeviceError]) -> str:
+        parts = [
+            f"{f} ({self.station.urls.get(f, '')}) unreachable: {type(e).__name__}: {e}"
+            for f, e in errors.items()
+        ]
+        waits = ", ".join(f"{w:g}" for w in DEVICE_RETRY_S[:-1])
+        return (
+            f"{'; '.join(parts)}; the service tries again after {waits} s, then every"
+            f" {DEVICE_RETRY_S[-1]:g} s, and leaves FAULT by itself once every device answers"
+        )
+
+    def _clear_unreachable(self, raised: bool, attempts: int | None) -> None:
+        """Every device is open: the `device_unreachable` alarm (if any) cleared, the PLC's
+        fault bit it set taken back, the fault's device forgotten."""
+        self.device_retry = None
+        if not raised:
+            return
+        self.store.clear_alarms(self.clock.time(), "device_unreachable")
+        self.bus.emit("alarm_cleared", {"code": "device_unreachable"})
+        self.fault_family = None
+        with contextlib.suppress(DeviceError):
+            self.station.plc.set_signals(busy=False, done=False, fault=False)
+        if attempts is not None:
+            self.bus.emit("devices_opened", {"attempts": attempts})
 
     def _hold_fault(self, alarm: dict[str, Any]) -> None:
         """Restarted with a fault alarm in force: stay in FAULT until an operator's reset."""

@@ -31,6 +31,7 @@ FAULT_CODES = ("device_fault", "robot_not_home", "internal_error", "state_storag
 #: tests/line/test_alarm_codes.py checks the service raises no other.
 ALARM_CODES: dict[str, str] = {
     "device_fault": "system",
+    "device_unreachable": "system",  # at start; retried, cleared when it answers (not reset)
     "robot_not_home": "system",
     "internal_error": "system",
     "state_storage": "system",

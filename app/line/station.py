@@ -6,7 +6,11 @@ safety guard on the robot, and closed together.
 
 `options` passes backend keyword arguments per family (e.g. `world=` for `fake://`). A device
 that fails to open closes those opened before it and the error propagates (a typed
-drivers.errors.DeviceError).
+drivers.errors.DeviceError). With `defer_unreachable=True` (the service, `rvis run`), a device
+that is configured right but cannot be reached (any DeviceError but DeviceConfigError) is kept
+built and unopened instead: `unreachable` names it with its error, the others are open, and
+`open_unreachable()` tries it again (the service's retries with back-off). A wrong URL or
+option is still a DeviceConfigError at once.
 """
 
 from __future__ import annotations
@@ -19,9 +23,10 @@ from typing import Any, Self, cast
 
 from drivers.base import Device
 from drivers.camera import Camera
+from drivers.errors import DeviceConfigError, DeviceError
 from drivers.galvo import Galvo
 from drivers.plc import Plc
-from drivers.registry import open_device
+from drivers.registry import create_device
 from drivers.robot import Robot
 from drivers.safety import SafetyGuard
 from drivers.trace import WireTrace
@@ -46,6 +51,8 @@ class Station:
     urls: dict[str, str] = field(default_factory=dict)
     #: the wire trace the devices write to (drivers.trace.WireTrace), closed with them
     trace: WireTrace | None = None
+    #: family -> the error of a device built but not opened (`defer_unreachable`), in ORDER
+    unreachable: dict[str, DeviceError] = field(default_factory=dict)
 
     @classmethod
     def open(
@@ -55,11 +62,14 @@ class Station:
         guard: SafetyGuard | None = None,
         options: Mapping[str, Mapping[str, Any]] | None = None,
         trace: WireTrace | None = None,
+        defer_unreachable: bool = False,
     ) -> Station:
         """Open the devices named in `urls` (family -> URL); robot and plc are required.
         `trace`: the wire trace of the devices whose URL asks for it (or of all: see
-        drivers.trace); the station closes it after the devices."""
+        drivers.trace); the station closes it after the devices. `defer_unreachable`: see the
+        module docstring."""
         opened: dict[str, Device] = {}
+        unreachable: dict[str, DeviceError] = {}
         options = options or {}
         register_fakes()  # a cell's fake:// devices are the simulated cell's
         try:
@@ -71,7 +81,17 @@ class Station:
                     kw.setdefault("guard", guard or SafetyGuard())
                 if family == "camera" and "galvo" in opened and urls[family] == "fake://":
                     kw.setdefault("galvo", opened["galvo"])  # the fake renders the galvo's angle
-                opened[family] = open_device(family, urls[family], trace=trace, **kw)
+                device = create_device(family, urls[family], trace=trace, **kw)
+                opened[family] = device  # built: closed (a no-op if unopened) on failure
+                try:
+                    device.open()
+                except DeviceConfigError:
+                    raise
+                except DeviceError as exc:
+                    _stamp(exc, device)
+                    if not defer_unreachable:
+                        raise
+                    unreachable[family] = exc
             return cls(
                 robot=cast(Robot, opened["robot"]),
                 plc=cast(Plc, opened["plc"]),
@@ -80,6 +100,7 @@ class Station:
                 tracker=cast(Tracker | None, opened.get("tracker")),
                 urls={family: urls[family] for family in opened},
                 trace=trace,
+                unreachable=unreachable,
             )
         except BaseException:
             for device in reversed(opened.values()):
@@ -87,6 +108,19 @@ class Station:
             if trace is not None:
                 trace.close()
             raise
+
+    def open_unreachable(self) -> dict[str, DeviceError]:
+        """Try to open every device in `unreachable` again (in ORDER); the ones still
+        unreachable, with their new errors (empty: every device is open)."""
+        devices, still = self.devices(), {}
+        for family in [f for f in ORDER if f in self.unreachable]:
+            device = devices[family]
+            try:
+                device.open()
+            except DeviceError as exc:
+                still[family] = _stamp(exc, device)
+        self.unreachable = still  # replaced whole: the status reply reads it from its thread
+        return dict(still)
 
     def devices(self) -> dict[str, Device]:
         out: dict[str, Device | None] = {
@@ -113,6 +147,13 @@ class Station:
         self, t: type[BaseException] | None, e: BaseException | None, tb: TracebackType | None
     ) -> None:
         self.close()
+
+
+def _stamp(exc: DeviceError, device: Device) -> DeviceError:
+    """The device's stamp on an error of its open() (drivers.base stamps its other methods)."""
+    if exc.family is None:
+        exc.family, exc.device = device.family, device.name
+    return exc
 
 
 def cell_guard(cfg: Any) -> SafetyGuard:

@@ -43,6 +43,9 @@ def step_text(svc: LineHost) -> str:
     """What the service is doing, in a few words (the TUI's status line)."""
     if svc.recalibrator.busy:
         return "recalibrating"
+    if svc.station.unreachable and svc.device_retry is not None:
+        names = ", ".join(svc.station.unreachable)
+        return f"waiting for {names} (unreachable): next try {svc.device_retry['next_utc']}"
     steps = {
         "MEASURING": "measuring in the window",
         "IDLE": "waiting for a window",
@@ -91,6 +94,7 @@ def _status(svc: LineHost) -> dict[str, Any]:
         "drift_change": svc.drift.change_state(),
         "step": step_text(svc),
         "devices": _device_status(svc),
+        "device_retry": svc.device_retry,
         "pending": _pending_status(svc),
         "now_utc": utc_text(svc.clock.time()),  # the service's clock (sim: ahead)
         "flagged_step": None if svc.step is None else svc.step.to_json(),
@@ -101,14 +105,17 @@ def _status(svc: LineHost) -> dict[str, Any]:
 
 
 def _device_status(svc: LineHost) -> dict[str, dict[str, Any]]:
-    """Per device family: the URL it was opened with, its state (closed; fault: the device of
-    the fault in force, or every device when that one is unknown; the PLC without heartbeat;
-    ok), and the last error the service saw from it with its time (kept after a reset)."""
+    """Per device family: the URL it was opened with, its state (unreachable: not opened yet
+    since the start, retried; closed; fault: the device of the fault in force, or every device
+    when that one is unknown; the PLC without heartbeat; ok), and the last error the service saw
+    from it with its time (kept after a reset)."""
     faulted = bool(svc.store.active_alarms(code="device_fault"))
     out = {}
     for family, device in svc.station.devices().items():
         state = "ok"
-        if not device.is_open:
+        if family in svc.station.unreachable:
+            state = "unreachable"
+        elif not device.is_open:
             state = "closed"
         elif faulted and svc.fault_family in (None, family):
             state = "fault"

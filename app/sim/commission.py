@@ -95,6 +95,13 @@ class SimCommissioning:
             write_image(pose / "board.png", board)
             write_sweep(pose, list(frames), list(cs.commands_v))
 
+    def step_started(self, name: str, failed_before: int) -> None:
+        """A commissioning step starts, after `failed_before` runs of it that failed their
+        checks: the camera's image noise is that run's draw (fakes.cell: a step resumed after
+        a kill renders the frames of an uninterrupted run; one run again after a failure sees
+        new noise, as on a real cell, instead of failing the same way at every rerun)."""
+        self.cell.noise_draw = failed_before
+
     def place_sphere(self, target_id: str, p_part_mm: F64) -> None:
         """The engineer puts the validation sphere's nest near p_part_mm: within a few
         millimetres (3 mm RMS per axis, seeded); the tracker measures where it really is."""

@@ -31,14 +31,15 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 class ServiceProcess:
-    """`rvis run --sim --geometric` as a child process (its own process group)."""
+    """`rvis run --sim --geometric` (or `argv`, without --state-dir) as a child process (its
+    own process group)."""
 
-    def __init__(self, state_dir: Path, cell: Path) -> None:
+    def __init__(self, state_dir: Path, cell: Path, argv: list[str] | None = None) -> None:
         self.state_dir, self.cell = state_dir, cell
         self.lines: queue.Queue[dict[str, Any]] = queue.Queue()
         self.logged_ids: list[int] = []  # measurements the service announced (committed first)
         self.stderr = ""
-        argv = [*RVIS, "run", "--sim", "--geometric", "--cell", str(cell)]
+        argv = argv or [*RVIS, "run", "--sim", "--geometric", "--cell", str(cell)]
         self.proc = subprocess.Popen(
             [*argv, "--state-dir", str(state_dir)],
             stdout=subprocess.PIPE,

@@ -186,3 +186,31 @@ def test_the_demo_sensor_calibration_is_close_to_the_truth() -> None:
     assert abs(info["cx_error_px"]) < 8 and abs(info["cy_error_px"]) < 8
     assert info["reprojection_rms_px"] < 0.1
     assert model.camera.K[0, 0] != default_true_sensor().fx_px  # a real estimate
+
+
+def test_a_frame_s_noise_belongs_to_the_frame_not_to_the_frames_before_it(
+    cfg: CellConfig, sensor: TrueSensor
+) -> None:
+    """The camera hook's image noise is seeded by the frame (joints, command, exposure, gain,
+    the n-th visit of it), so a cell in a new process renders what a cell that rendered other
+    frames first does (a commissioning step resumed after a kill: issue 30), and a frame
+    rendered again at once (a lost one, re-triggered) is the same; a second visit, or another
+    draw (a step run again after a failure), has new noise."""
+    q = views_of(make_cell(cfg, seed=7, sensor=sensor), cfg, "P2", 1, seed=5)[0]
+
+    def frame(cell: SimulatedCell, volts: float = 1.0) -> np.ndarray:
+        cell.set_joints_deg(q)
+        return cell.render_frame_v(1296, 966, 10000.0, 0.0, volts)
+
+    first = frame(make_cell(cfg, seed=7, sensor=sensor))
+    busy = make_cell(cfg, seed=7, sensor=sensor)
+    again = [frame(busy, v) for v in (-1.0, 0.5, 1.0)]  # other frames first, then this one
+    assert np.array_equal(again[-1], first)
+    assert np.array_equal(frame(busy), first)  # at once again (a lost frame): the same
+    frame(busy, 0.5)
+    assert not np.array_equal(frame(busy), first)  # a second visit: new noise
+    redraw = make_cell(cfg, seed=7, sensor=sensor)
+    redraw.noise_draw = 1
+    other = frame(redraw)
+    assert not np.array_equal(other, first)
+    assert np.abs(other - first).mean() < 0.01  # the same scene, only the noise differs
