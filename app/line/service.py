@@ -941,9 +941,12 @@ class Service:
         if self.step is not None and self.step.status in (
             StepStatus.REFINING,
             StepStatus.RECOVERING,
+            StepStatus.CORRECTED,
         ):
-            # the windows measure for the step: as soon as the post-step measurements span
-            # half the schedule (the identification's rank and condition gates judge the rest)
+            # after a correction: as soon as the post-step measurements span half the schedule
+            # (the identification's rank and condition gates judge the rest), not a whole
+            # schedule cycle later (measured: in the warm-up a cycle's wait let the rigid model
+            # drift to 1.2x of the same shift without the knock)
             n_slots = (n_slots + 1) // 2
         return select_rolling(rows, n_slots, self.schedule.targets, r)
 
