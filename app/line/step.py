@@ -52,8 +52,12 @@ TRANSITIONS: dict[StepStatus, frozenset[StepStatus]] = {
     _S.SEVERAL: frozenset({_S.SEVERAL, _S.RECOVERING, _S.FOLLOWING}),
     _S.NONE: frozenset({_S.NONE}),
 }
-#: the statuses in which the windows measure for the step (more slots, chosen for it)
-MEASURING = frozenset({_S.PROBATION, _S.ATTRIBUTING, _S.FOLLOWING, _S.REFINING, _S.RECOVERING})
+#: the statuses in which the windows measure for the step (more slots, chosen for it): until
+#: the full recalibration on post-step measurements is in force (corrected: the interval has
+#: closed on a fast correction, the post-step measurements are still gathered for it)
+MEASURING = frozenset(
+    {_S.PROBATION, _S.ATTRIBUTING, _S.FOLLOWING, _S.REFINING, _S.RECOVERING, _S.CORRECTED}
+)
 
 
 @dataclass

@@ -209,7 +209,7 @@ def test_while_attributing_the_slots_measured_just_before_come_first(cfg) -> Non
         assert step_slot(model, x, pool_d, after, [3, 1, 0], seen_d).index == new
     assert (
         Step(5, 1, 0.0, 4).measuring
-        and not Step(5, 1, 0.0, 4, status=StepStatus.CORRECTED).measuring
+        and not Step(5, 1, 0.0, 4, status=StepStatus.NONE).measuring
     )
 
 
@@ -344,7 +344,9 @@ def test_a_step_moves_only_along_its_transitions_and_survives_a_restart_as_an_en
     with pytest.raises(ValueError, match="from corrected to proposed"):
         step.move(StepStatus.PROPOSED)
     back = Step.from_json(json.loads(json.dumps(step.to_json())))
-    assert back is not None and back.status is StepStatus.CORRECTED and not back.measuring
+    # corrected: the windows go on measuring for the full recalibration on post-step rows
+    assert back is not None and back.status is StepStatus.CORRECTED and back.measuring
+    assert not Step(10, None, 0.0, 9, status=StepStatus.NONE).measuring
     # a decision state saved before the recovery fields existed still loads
     old = {k: v for k, v in step.to_json().items() if not k.startswith("recover")}
     assert Step.from_json({**old, "first_end_t": 1.0}) is not None
