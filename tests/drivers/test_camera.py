@@ -144,7 +144,10 @@ def test_aravis_stream_stops_when_the_camera_vanishes(world: StaticWorld) -> Non
     gv = GvCamera(world).start()
     try:
         with open_camera(url, settings=settings, timeout_s=0.3) as cam:
-            cam.grab()
+            try:
+                cam.grab()
+            except DeviceTimeout:  # a first buffer left unfilled on a loaded machine (the
+                cam.grab()  # driver made a new stream): streaming, the next one comes
             gv.close()  # gone mid-acquisition: what is queued drains, then nothing comes
             with pytest.raises(DeviceTimeout):
                 for _ in range(settings.buffers + 2):
@@ -168,7 +171,10 @@ def test_aravis_lost_control_channel_fails_fast_until_reopened(world: StaticWorl
     gv = GvCamera(world).start()
     try:
         with open_camera(url, settings=settings, timeout_s=0.3) as cam:
-            cam.grab()
+            try:
+                cam.grab()
+            except DeviceTimeout:  # a first buffer left unfilled on a loaded machine (the
+                cam.grab()  # driver made a new stream): streaming, the next one comes
             gv.close()
             with pytest.raises(DeviceTimeout, match="software trigger"):
                 cam.grab()

@@ -10,6 +10,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
+import pytest
 from asyncua import Client
 
 from app.line.opcua.space import NS_MACHINERY
@@ -36,6 +37,7 @@ async def _read(url: str) -> tuple[str, int]:
         return state, windows
 
 
+@pytest.mark.slow  # started first on a worker (tests/conftest.py)
 def test_rvis_run_publishes_over_opcua(tmp_path: Path) -> None:
     svc, url = _start(tmp_path)
     try:
@@ -46,6 +48,7 @@ def test_rvis_run_publishes_over_opcua(tmp_path: Path) -> None:
     assert code == 0, svc.stderr
 
 
+@pytest.mark.slow  # started first on a worker (tests/conftest.py)
 def test_subscribers_see_the_service_stop(tmp_path: Path) -> None:
     """SIGTERM to the service's process group: a subscriber (20 ms publishing) receives
     ServiceState `stopped` and MachineryItemState NotAvailable before the connection ends."""
