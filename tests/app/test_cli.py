@@ -175,6 +175,7 @@ def test_demo_writes_a_report(tmp_path: Path, cli: Cli) -> None:
     assert "Measurements: geometric" in out
 
 
+@pytest.mark.slow  # started first on a worker (tests/conftest.py)
 def test_demo_renders_by_default(tmp_path: Path, cli: Cli) -> None:
     """Rendered sweeps measured by the vision pipeline (4 x 4 calibration + 3 validation sweeps
     in this process): the centres agree with the cell's truth to a few um, the report says so."""

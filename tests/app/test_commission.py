@@ -23,6 +23,9 @@ from app.formats.params import from_json
 from app.line.params_store import ParamsStore
 from app.line.statedir import StateDir
 from app.line.store import Store
+from tests.groups import GIGE_CAMERA
+
+pytestmark = GIGE_CAMERA
 
 ROOT = Path(__file__).resolve().parents[2]
 CELL = "[planning]\ngrid_step_deg = 15.0\n"

@@ -16,6 +16,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from app.line.events import JsonLineFormatter
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -48,6 +50,7 @@ def test_a_batch_run_prints_json_lines_only(tmp_path: Path) -> None:
     assert started.startswith("rvis run --sim: seed 0") and said.startswith("2 windows, ")
 
 
+@pytest.mark.slow  # started first on a worker (tests/conftest.py)
 def test_the_service_prints_json_lines_only(tmp_path: Path) -> None:
     """The service (no --windows) until it is stopped: its log and the simulation's lines."""
     argv = [*RVIS, "--state-dir", str(tmp_path / "state")]

@@ -17,7 +17,10 @@ from app.line.params_store import ParamsStore
 from app.line.statedir import StateDir
 from app.sim.cell import make_cell, scaled_sensor_model, true_sensor_model
 from app.sim.line_run import commissioning
+from tests.groups import GIGE_CAMERA
 from vision.sensor_model import save_sensor_model
+
+pytestmark = GIGE_CAMERA
 
 
 @pytest.fixture(scope="module")

@@ -17,6 +17,7 @@ from drivers.camera import Camera, CameraSettings
 from fakes.devices import FakeCamera, FakeGalvo
 from fakes.world import StaticWorld
 from tests.drivers.backends import HARDWARE, backends, real_url
+from tests.groups import GIGE_CAMERA
 
 
 def _aravis_available() -> bool:
@@ -38,7 +39,9 @@ class CameraRig:
     streams_world: bool = False  # the frames are the world's render, pixel for pixel
 
 
-@pytest.fixture(params=backends("camera", ["fake", pytest.param("aravis", marks=ARAVIS)]))
+@pytest.fixture(
+    params=backends("camera", ["fake", pytest.param("aravis", marks=[ARAVIS, GIGE_CAMERA])])
+)
 def rig(request: pytest.FixtureRequest, world: StaticWorld) -> Iterator[CameraRig]:
     with ExitStack() as stack:
         if request.param == HARDWARE:
@@ -120,6 +123,7 @@ def test_aravis_unknown_camera_is_a_connection_error() -> None:
 
 
 @ARAVIS
+@GIGE_CAMERA
 def test_aravis_mono12_refused_when_not_offered(world: StaticWorld) -> None:
     from fakes.gv_camera import GvCamera
 
@@ -131,6 +135,7 @@ def test_aravis_mono12_refused_when_not_offered(world: StaticWorld) -> None:
 
 
 @ARAVIS
+@GIGE_CAMERA
 def test_aravis_stream_stops_when_the_camera_vanishes(world: StaticWorld) -> None:
     from fakes.gv_camera import GvCamera
 
@@ -139,7 +144,10 @@ def test_aravis_stream_stops_when_the_camera_vanishes(world: StaticWorld) -> Non
     gv = GvCamera(world).start()
     try:
         with open_camera(url, settings=settings, timeout_s=0.3) as cam:
-            cam.grab()
+            try:
+                cam.grab()
+            except DeviceTimeout:  # a first buffer left unfilled on a loaded machine (the
+                cam.grab()  # driver made a new stream): streaming, the next one comes
             gv.close()  # gone mid-acquisition: what is queued drains, then nothing comes
             with pytest.raises(DeviceTimeout):
                 for _ in range(settings.buffers + 2):
@@ -152,6 +160,7 @@ def test_aravis_stream_stops_when_the_camera_vanishes(world: StaticWorld) -> Non
 
 
 @ARAVIS
+@GIGE_CAMERA
 def test_aravis_lost_control_channel_fails_fast_until_reopened(world: StaticWorld) -> None:
     """A software trigger to a vanished camera times out once (Aravis's own GVCP retries,
     about 2.5 s); after that the camera is lost and calls fail at once, with no stop request."""
@@ -162,7 +171,10 @@ def test_aravis_lost_control_channel_fails_fast_until_reopened(world: StaticWorl
     gv = GvCamera(world).start()
     try:
         with open_camera(url, settings=settings, timeout_s=0.3) as cam:
-            cam.grab()
+            try:
+                cam.grab()
+            except DeviceTimeout:  # a first buffer left unfilled on a loaded machine (the
+                cam.grab()  # driver made a new stream): streaming, the next one comes
             gv.close()
             with pytest.raises(DeviceTimeout, match="software trigger"):
                 cam.grab()

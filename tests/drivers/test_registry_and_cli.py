@@ -13,6 +13,7 @@ import drivers
 from app.commands.cli import main
 from drivers import DeviceConfigError, parse_url
 from drivers.registry import BACKENDS, backend_class
+from tests.groups import GIGE_CAMERA
 
 
 def test_import_drivers_imports_no_vendor_library() -> None:
@@ -81,6 +82,7 @@ def test_url_parsing() -> None:
         backend_class("robot", "ftp")
 
 
+@GIGE_CAMERA
 def test_devices_check_against_the_fakes(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["devices", "check", "--json", "--timeout", "2"]) == 0
     rows = json.loads(capsys.readouterr().out)

@@ -80,7 +80,7 @@ def test_unknown_packet_reply_is_a_typed_fault_at_once(
     t0 = time.monotonic()
     with pytest.raises(DeviceFault, match="did not understand FRC_GetStatus") as info:
         robot.status()
-    assert time.monotonic() - t0 < 0.2  # well under the 2 s timeout, no reconnect
+    assert time.monotonic() - t0 < 1.0  # half the 2 s timeout: not waited for, no reconnect
     assert info.value.code == rmi.INVALID_COMMAND
     assert "RMIT-013 Invalid RMI Command" in str(info.value)
     assert [m for m in ctrl.received if m.get("Communication") == "FRC_Connect"] == [
@@ -93,7 +93,7 @@ def test_unknown_reply_to_a_motion_is_a_latched_fault(ctrl: RmiController, robot
     t0 = time.monotonic()
     with pytest.raises(DeviceFault) as info:
         robot.move_joints(A, speed_pct=100)
-    assert time.monotonic() - t0 < 0.5
+    assert time.monotonic() - t0 < 1.0  # half the 2 s motion timeout
     assert info.value.code == rmi.INVALID_INSTRUCTION
     with pytest.raises(FaultLatched):
         robot.move_joints(A, speed_pct=100)
@@ -241,7 +241,7 @@ def test_terminate_during_a_motion_is_a_connection_error_at_once() -> None:
     world = _MovingWorld()
     with (
         RmiController(world, time_scale=1.0) as slow,  # the move takes seconds
-        RmiRobot("127.0.0.1", slow.port, timeout_s=1.0, motion_timeout_s=10.0) as robot,
+        RmiRobot("127.0.0.1", slow.port, timeout_s=5.0, motion_timeout_s=10.0) as robot,
     ):
         failure: list[BaseException] = []
         moving = threading.Thread(target=lambda: _move_catching(robot, A, failure))
@@ -249,8 +249,8 @@ def test_terminate_during_a_motion_is_a_connection_error_at_once() -> None:
         assert world.moved.wait(2.0), "the motion never started"
         t0 = time.monotonic()
         slow.terminate_sessions()
-        moving.join(2.0)
-        assert time.monotonic() - t0 < 0.5
+        moving.join(5.0)
+        assert time.monotonic() - t0 < 2.5  # half the 5 s timeout: at once
         assert len(failure) == 1 and isinstance(failure[0], DeviceConnectionError)
         assert isinstance(robot.fault, DeviceConnectionError)  # the robot's state is unknown
 

@@ -78,7 +78,7 @@ def test_abort_during_a_long_move_stops_the_robot_at_once(
     elapsed_s = time.monotonic() - t0
     mover.join(2.0)
     assert not mover.is_alive()
-    assert elapsed_s <= 0.2
+    assert elapsed_s <= 0.5  # half the 1 s timeout: not waited for (nor the 3.4 s move)
     assert len(outcome) == 1 and isinstance(outcome[0], MotionAborted)
     stopped = world.joints_deg()
     assert 0.05 < stopped[0] < FAR[0] - 10.0  # short of the target, by far

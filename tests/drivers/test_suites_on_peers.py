@@ -17,6 +17,9 @@ import pytest
 
 from fakes.devices import ClampCycle
 from fakes.world import StaticWorld
+from tests.groups import GIGE_CAMERA
+
+pytestmark = GIGE_CAMERA
 
 ROOT = Path(__file__).resolve().parents[2]
 SUITES = [

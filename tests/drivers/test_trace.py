@@ -17,6 +17,7 @@ import pytest
 from drivers import DeviceConfigError, DeviceTimeout, open_device
 from drivers.trace import WireTrace
 from fakes.world import StaticWorld
+from tests.groups import GIGE_CAMERA
 
 
 def records(path: Path) -> list[dict[str, Any]]:
@@ -87,6 +88,7 @@ def test_each_back_end_traces_its_requests_and_replies(
     assert times == sorted(times)  # monotonic
 
 
+@GIGE_CAMERA
 def test_the_camera_traces_its_feature_writes_and_frames(
     trace: WireTrace, world: StaticWorld
 ) -> None:

@@ -105,6 +105,7 @@ def decisions(state_dir: Path) -> dict[str, Any]:
         store.close()
 
 
+@pytest.mark.slow  # started first on a worker (tests/conftest.py)
 def test_a_restarted_service_decides_as_one_that_never_stopped(tmp_path: Path) -> None:
     once, restarted = tmp_path / "once", tmp_path / "restarted"
     run_line(once, 9)

@@ -11,6 +11,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
+import pytest
 from asyncua import Client
 
 from app.line.opcua.space import NS_MACHINERY
@@ -37,6 +38,7 @@ async def _read(url: str) -> tuple[str, int]:
         return state, windows
 
 
+@pytest.mark.slow  # started first on a worker (tests/conftest.py)
 def test_rvis_run_publishes_over_opcua(tmp_path: Path) -> None:
     svc, url = _start(tmp_path)
     try:
@@ -47,6 +49,7 @@ def test_rvis_run_publishes_over_opcua(tmp_path: Path) -> None:
     assert code == 0, svc.stderr
 
 
+@pytest.mark.slow  # started first on a worker (tests/conftest.py)
 def test_subscribers_see_the_service_stop(tmp_path: Path) -> None:
     """SIGTERM to the service's process group: a subscriber (20 ms publishing), listening
     until the server drops its session, receives ServiceState `stopped` and

@@ -124,6 +124,7 @@ def test_a_second_service_on_the_same_state_directory_is_refused(
     assert service.alive and status(service.state_dir)["state"] in ("idle", "measuring")
 
 
+@pytest.mark.slow  # started first on a worker (tests/conftest.py)
 def test_kill_9_at_random_points_keeps_every_row_and_the_recalibration_progress(
     tmp_path: Path, cell: Path
 ) -> None:
@@ -186,6 +187,7 @@ def test_a_damaged_database_is_refused_with_one_line(tmp_path: Path, cell: Path)
     assert (state / "rvis.db").read_bytes() == b"garbage" * 1000
 
 
+@pytest.mark.slow  # started first on a worker (tests/conftest.py)
 def test_a_damaged_current_json_is_rebuilt_with_an_alarm(tmp_path: Path, cell: Path) -> None:
     state = tmp_path / "state"
     svc = ServiceProcess(state, cell)
@@ -264,6 +266,7 @@ def test_a_full_disk_faults_the_cell_and_the_service_stays_up(tmp_path: Path, ce
         subprocess.run(["umount", "-l", str(state)], capture_output=True)
 
 
+@pytest.mark.slow  # started first on a worker (tests/conftest.py)
 def test_a_backup_taken_while_running_restores_to_a_service_that_carries_on(
     service: ServiceProcess, tmp_path: Path, cell: Path
 ) -> None:
@@ -294,6 +297,7 @@ def test_a_backup_taken_while_running_restores_to_a_service_that_carries_on(
         assert svc.stop() == 0
 
 
+@pytest.mark.slow  # started first on a worker (tests/conftest.py)
 def test_state_check_names_what_is_wrong(tmp_path: Path, cell: Path) -> None:
     state = tmp_path / "state"
     svc = ServiceProcess(state, cell)
@@ -331,6 +335,7 @@ def _identification_worker(service_pid: int) -> int | None:
     return None
 
 
+@pytest.mark.slow  # started first on a worker (tests/conftest.py)
 def test_a_worker_killed_by_the_system_faults_the_cell_and_the_supervisor_restarts_it(
     tmp_path: Path, cell: Path
 ) -> None:
@@ -363,16 +368,21 @@ def test_a_worker_killed_by_the_system_faults_the_cell_and_the_supervisor_restar
     assert code == 0, svc.errors()
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
 def test_a_stop_signal_to_the_whole_group_during_a_calibration_is_a_clean_stop(
-    tmp_path: Path, cell: Path
+    tmp_path: Path, cell: Path, sig: signal.Signals
 ) -> None:
     """systemd's stop (SIGTERM to every process of the unit) or Ctrl-C in a terminal (SIGINT to
     the process group) while the identification worker runs: only the service acts on it, the
     calibration in flight ends, and the exit is 0 (not an internal error in FAULT)."""
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        svc = ServiceProcess(tmp_path / f"state-{sig}", cell)
+    svc = ServiceProcess(tmp_path / "state", cell)
+    try:
         svc.wait_ready()
         svc.wait_log(lambda r: r.get("event") == "recalibration_started", 60.0)
         os.killpg(svc.proc.pid, sig)
         code = svc.wait_exit(60.0)  # this signal alone ends it: nothing sent again
         assert code == 0, svc.errors()
+    finally:
+        if svc.alive:  # (a failed wait: the service is not left running for the next tests)
+            svc.kill9()

@@ -80,6 +80,7 @@ def as_peer(sock: Path, uid: int, gids: list[int], cmd: str, **args: Any) -> dic
     return out
 
 
+@pytest.mark.slow  # started first on a worker (tests/conftest.py)
 def test_an_operator_is_refused_the_engineers_commands_and_the_refusal_is_audited(
     groups: tuple[str, str], base: Path
 ) -> None:

@@ -78,16 +78,18 @@ def test_a_paced_clock_waits_for_the_wall_clock_and_jumps_do_not() -> None:
     clock.start()
     r0 = time.monotonic()
     clock.elapse(10.0)  # 10 sim s = 0.2 real s
-    assert 0.2 <= time.monotonic() - r0 < 1.0
+    # (the upper bounds on the wall time tell the behaviour from the other one by a wide
+    # margin, so that a loaded machine's delays cannot fail them: the pace is the lower bound)
+    assert 0.2 <= time.monotonic() - r0 < 2.0
     assert clock.monotonic() == 10.0  # exactly, whatever the machine's load
     r0 = time.monotonic()
     clock.advance(3600.0)
-    assert time.monotonic() - r0 < 0.1 and clock.monotonic() == 3610.0
+    assert time.monotonic() - r0 < 7.2 and clock.monotonic() == 3610.0  # paced: 72 s
     event = threading.Event()
     threading.Timer(0.05, event.set).start()  # an operator's command, 2.5 sim s in
     r0 = time.monotonic()
     assert clock.wait(event, 600.0) is True
-    assert time.monotonic() - r0 < 1.0
+    assert time.monotonic() - r0 < 6.0  # the whole wait: 12 s
     assert 3610.0 < clock.monotonic() < 3610.0 + 600.0
     with pytest.raises(ValueError):
         VirtualClock(pace=0.0)
@@ -95,13 +97,17 @@ def test_a_paced_clock_waits_for_the_wall_clock_and_jumps_do_not() -> None:
 
 def test_sim_time_runs_at_the_scale() -> None:
     clock = ScaledClock(50.0, start_epoch=1_000_000.0)
-    r0, s0 = time.monotonic(), clock.monotonic()
+    # each sim reading between two real ones: the scale checked within what the readings
+    # bracket, however long the machine keeps this thread from running between them
+    r0, s0, r0_after = time.monotonic(), clock.monotonic(), time.monotonic()
     clock.sleep(10.0)  # sleep-ok: the clock's own sleep under test (10 sim s = 0.2 real s)
-    real, sim = time.monotonic() - r0, clock.monotonic() - s0
+    r1_before, s1, r1 = time.monotonic(), clock.monotonic(), time.monotonic()
+    sim = s1 - s0
     assert sim >= 10.0
-    assert sim == pytest.approx(50.0 * real, rel=0.02)
-    assert 0.2 <= real < 0.4
-    assert clock.time() == pytest.approx(1_000_000.0 + clock.monotonic(), abs=0.5)
+    assert 50.0 * (r1_before - r0_after) * 0.999 <= sim <= 50.0 * (r1 - r0) * 1.001
+    assert 0.2 <= r1 - r0 < 2.0  # (a wide upper bound: a loaded machine wakes a sleeper late)
+    m0, t, m1 = clock.monotonic(), clock.time(), clock.monotonic()
+    assert 1_000_000.0 + m0 <= t <= 1_000_000.0 + m1
 
 
 def test_wait_returns_the_event_flag_after_sim_seconds() -> None:
@@ -109,11 +115,11 @@ def test_wait_returns_the_event_flag_after_sim_seconds() -> None:
     event = threading.Event()
     r0 = time.monotonic()
     assert clock.wait(event, 20.0) is False  # 20 sim s = 0.2 real s
-    assert 0.2 <= time.monotonic() - r0 < 0.4
+    assert 0.2 <= time.monotonic() - r0 < 2.0
     event.set()
     r0 = time.monotonic()
     assert clock.wait(event, 3600.0) is True
-    assert time.monotonic() - r0 < 0.05
+    assert time.monotonic() - r0 < 3.6  # at once, not after the 36 s
 
 
 def test_advance_jumps_ahead_and_wakes_a_sleeper() -> None:

@@ -20,6 +20,7 @@ from drivers.galvo import Galvo
 from fakes.cell import SimulatedCell
 from fakes.line import SimLine, SimLineSetup
 from fakes.truth import Knock
+from tests.groups import GIGE_CAMERA
 
 HOME = np.array([0.0, 0.0, 0.0, 0.0, -90.0, 0.0])
 FULL = CameraSettings(exposure_us=10_000.0, gain_db=0.0, pixel_format="Mono8")
@@ -124,6 +125,7 @@ def test_the_geometric_shortcut_is_the_true_centre_plus_noise_and_follows_the_kn
     assert np.linalg.norm(truth_after - truth_before) > 0.2  # the knock, seen by the sensor
 
 
+@GIGE_CAMERA
 def test_galvo_via_scpi_moves_the_stripe_the_aravis_camera_streams(
     cfg: CellConfig, line_cell: SimulatedCell, view_of: ViewOf
 ) -> None:
@@ -148,6 +150,7 @@ def test_galvo_via_scpi_moves_the_stripe_the_aravis_camera_streams(
     assert stripe_offset_px(columns[-0.5], columns[0.5]) > 30.0  # the stripe moved with the mirror
 
 
+@GIGE_CAMERA
 def test_a_camera_region_is_cut_at_its_offsets_and_a_view_without_sphere_is_dark(
     cfg: CellConfig, line_cell: SimulatedCell, view_of: ViewOf
 ) -> None:
@@ -186,6 +189,7 @@ def _settled_within(limit: tuple[int, int, int], timeout_s: float) -> tuple[int,
     return now
 
 
+@GIGE_CAMERA
 def test_every_thread_socket_pty_and_the_gige_fake_close_on_exit(
     line_cell: SimulatedCell,
 ) -> None:
@@ -232,6 +236,7 @@ def test_the_cell_files_simline_defaults_are_the_simulated_lines() -> None:
     assert (s.warmup_k, s.warmup_tau_s, s.warmup_start_s) == (warm.rise_k, warm.tau_s, warm.start_s)
 
 
+@GIGE_CAMERA
 def test_a_rendered_sweep_passes_its_exposures_read_outs_and_settling(
     line_cell: SimulatedCell,
 ) -> None:

@@ -16,6 +16,7 @@ from drivers.errors import DeviceConnectionError, DeviceFault, DeviceTimeout, Fa
 from fakes.cell import SimulatedCell
 from fakes.line import SimLine, SimLineSetup
 from fakes.line_faults import GALVO_ERROR_CODE, Fault
+from tests.groups import GIGE_CAMERA
 
 HOME = np.array([0.0, 0.0, 0.0, 0.0, -90.0, 0.0])
 AWAY = HOME + np.array([60.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # 3.43 sim s at 10 %
@@ -94,6 +95,7 @@ def test_galvo_scpi_error_is_a_device_fault_with_the_dac_code(line: SimLine) -> 
         assert line.dac.volts == pytest.approx(0.5)
 
 
+@GIGE_CAMERA
 def test_camera_timeout_until_cleared(line_cell: SimulatedCell) -> None:
     with (
         SimLine(line_cell, SimLineSetup()) as sim,

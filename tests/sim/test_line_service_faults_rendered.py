@@ -27,7 +27,10 @@ from app.config import CellConfig
 from app.line.states import State
 from app.sim.line_run import SimulatedLineRun
 from fakes.line_faults import Fault
+from tests.groups import GIGE_CAMERA
 from tests.sim.fault_checks import all_announced_stored, faulted
+
+pytestmark = GIGE_CAMERA
 
 WAIT_S = 20.0
 

@@ -17,6 +17,7 @@ from app.line.measure import SweepSensor
 from app.line.sensor_watch import SensorWatch
 from app.sim.cell import make_cell, scaled_sensor_model, true_sensor_model
 from app.sim.line_run import SimulatedLineRun
+from tests.groups import GIGE_CAMERA
 
 WAIT_S = 240.0  # a guard against a hung line: the run itself takes well under
 
@@ -56,6 +57,7 @@ def _measure(cfg: CellConfig, tmp: Path, focal_scale: float) -> tuple[list[str],
     return alarms, seen
 
 
+@GIGE_CAMERA
 def test_a_change_of_the_sensor_by_0_1_percent_raises_the_sensor_alarm(
     cfg: CellConfig, tmp_path: Path
 ) -> None:
@@ -65,6 +67,7 @@ def test_a_change_of_the_sensor_by_0_1_percent_raises_the_sensor_alarm(
     assert "not the robot" in text and "shifted from its baseline" in text
 
 
+@GIGE_CAMERA
 def test_an_unchanged_sensor_raises_none(cfg: CellConfig, tmp_path: Path) -> None:
     alarms, seen = _measure(cfg, tmp_path, 1.0)
     assert seen == ["ok"] * 14 and alarms == []

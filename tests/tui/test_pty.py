@@ -4,6 +4,7 @@ screen shows the simulated service's state, and q quits, stopping that service."
 
 from __future__ import annotations
 
+import os
 import shutil
 import socket
 import subprocess
@@ -41,7 +42,7 @@ def _listening(path: Path) -> bool:
 @pytest.mark.skipif(TMUX is None, reason="tmux not installed")
 def test_tui_sim_in_a_terminal_shows_the_service_and_quits(tmp_path: Path) -> None:
     assert TMUX is not None
-    tmux = [TMUX, "-L", f"rvis-test-{tmp_path.name}", "-f", "/dev/null"]
+    tmux = [TMUX, "-L", f"rvis-test-{os.getpid()}-{tmp_path.name}", "-f", "/dev/null"]
     cmd = f"{RVIS} tui --sim --state-dir {tmp_path}"
     subprocess.run(
         [*tmux, "new-session", "-d", "-s", "t", "-x", "100", "-y", "30", cmd], check=True

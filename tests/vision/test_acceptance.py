@@ -58,6 +58,7 @@ def test_the_true_sensor_model_passes(with_truth: Acceptance) -> None:
     assert abs(acc.figures["SD"]) < 0.5 * LIMITS.sd_mm
 
 
+@pytest.mark.slow  # started first on a worker (tests/conftest.py)
 def test_a_sensor_model_with_a_scale_error_of_0_1_percent_fails() -> None:
     acc = _accept(scaled_sensor_model(true_sensor_model(TRUE), 1.001))
     assert not acc.passed

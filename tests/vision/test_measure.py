@@ -33,6 +33,7 @@ def _measure(
     return measure_sphere_from_sweep(frames, cmds, model, mode=mode)
 
 
+@pytest.mark.slow  # started first on a worker (tests/conftest.py)
 @pytest.mark.parametrize("mode", ["fast", "precise"])
 def test_centre_bias_and_scatter_over_the_field_of_view(
     true_sensor: TrueSensor, perfect_model: SensorModel, rng: np.random.Generator, mode: str
