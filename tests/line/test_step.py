@@ -207,10 +207,7 @@ def test_while_attributing_the_slots_measured_just_before_come_first(cfg) -> Non
         pool_d = [Slot(k, "P1", qd[k]) for k in range(5)]
         seen_d = {k: (qd[k], np.array([0.0, 0.0, 130.0])) for k in range(5)}
         assert step_slot(model, x, pool_d, after, [3, 1, 0], seen_d).index == new
-    assert (
-        Step(5, 1, 0.0, 4).measuring
-        and not Step(5, 1, 0.0, 4, status=StepStatus.NONE).measuring
-    )
+    assert Step(5, 1, 0.0, 4).measuring and not Step(5, 1, 0.0, 4, status=StepStatus.NONE).measuring
 
 
 def test_rvis_state_suspects_lists_them_since_a_time_or_age(
