@@ -665,8 +665,11 @@ class Service:
         """The next slot among those that fit (in the plan's order from the position): for a
         step being attributed, the one that serves it (app.line.step_fit.step_slot: the most
         informative for the group the last attribution chose, or for all of them); adaptive
-        scheduling, the most informative for the sequential estimator; else the next."""
-        if self.step is not None and self.step.measuring:
+        scheduling, the most informative for the sequential estimator; else the next (also
+        while a corrected step's post-step measurements are gathered: the whole schedule)."""
+        if self._measuring_for_step() and self.step is not None:
+            if self.step.status == StepStatus.CORRECTED:
+                return slots[0]
             onset = self.step.onset_id
             after = self.store.measurements(since_id=onset - 1)
             before = self.store.measurements(before_id=onset, last=len(self.schedule))
@@ -690,9 +693,18 @@ class Service:
     def _slots_wanted(self) -> int:
         """Slots this window may measure: more while a step is attributed (as many as fit)."""
         line = self.settings.line
-        if self.step is not None and self.step.measuring:
+        if self._measuring_for_step():
             return max(line.slots_per_window, line.step_slots_per_window)
         return line.slots_per_window
+
+    def _measuring_for_step(self) -> bool:
+        """The windows measure for a flagged step (more slots): while it is attributed,
+        corrected and tested; once a fast correction is shown back, until the post-step
+        measurements complete a rolling set for the full recalibration."""
+        step = self.step
+        if step is None or not step.measuring:
+            return False
+        return step.status != StepStatus.CORRECTED or self.rolling_set() is None
 
     @property
     def cell_temp_c(self) -> float | None:
