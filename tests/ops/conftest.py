@@ -30,6 +30,17 @@ RVIS = [sys.executable, "-m", "app"]
 ROOT = Path(__file__).resolve().parents[2]
 
 
+def _plant_signals() -> None:
+    """In the service's process before it starts: the stop signals at their defaults and not
+    blocked, as systemd or a terminal starts it. An ignored signal is inherited through exec:
+    a suite started in the background by a non-interactive shell (`scripts/test &`) runs with
+    SIGINT ignored, Python then installs no handler of its own, and the service ignored the
+    Ctrl-C under test (`nohup scripts/test &`: SIGHUP, SIGINT and SIGQUIT ignored)."""
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
+
+
 class ServiceProcess:
     """`rvis run --sim --geometric` (or `argv`, without --state-dir) as a child process (its
     own process group)."""
@@ -46,6 +57,7 @@ class ServiceProcess:
             stderr=subprocess.PIPE,
             cwd=ROOT,
             start_new_session=True,
+            preexec_fn=_plant_signals,
         )
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
