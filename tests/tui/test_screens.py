@@ -40,10 +40,18 @@ async def screenshot(pane: str, size: tuple[int, int]) -> str:
                 break
             await pilot.pause(0.01)
         assert not app.refreshing, "the screen did not settle"
-        for _ in range(3):  # the widgets it changed are laid out and painted
-            await pilot.pause()
-        await pilot.wait_for_scheduled_animations()
-        return app.export_screenshot(title=f"rvis tui: {pane}")
+        # the widgets it changed are laid out and painted: until two screenshots agree (a table
+        # sizes its columns to its rows a frame after they land; on a loaded machine 3 pauses
+        # caught the header before it: CI saw the measurements pane's narrow header once)
+        shot = ""
+        for _ in range(100):
+            await pilot.pause(0.02)
+            await pilot.wait_for_scheduled_animations()
+            again = app.export_screenshot(title=f"rvis tui: {pane}")
+            if again == shot:
+                break
+            shot = again
+        return shot
 
 
 @pytest.mark.parametrize("size", SIZES, ids=lambda s: f"{s[0]}x{s[1]}")
