@@ -37,22 +37,35 @@ def _commission(cell: Path, state: Path) -> list[str]:
             "--state-dir", str(state)]  # fmt: skip
 
 
-def _kill_at(argv: list[str], marker: str) -> list[str]:
-    """Run rvis in a child process and SIGKILL it when `marker` appears in its output; the
-    lines it printed."""
-    env = os.environ | {"PYTHONUNBUFFERED": "1"}
+def _kill_at(argv: list[str], marker: str, timeout_s: float = 600.0) -> list[str]:
+    """Run rvis in a child process until `marker` appears in its output (waited for with a
+    timeout, no sleep), then SIGKILL it; the lines it printed."""
+    import queue
+    import threading
+    import time
+
+    env = os.environ | {"PYTHONUNBUFFERED": "1", "PYTHONPATH": str(ROOT)}
     lines: list[str] = []
+    out: queue.Queue[str | None] = queue.Queue()
     with subprocess.Popen(
-        [sys.executable, "-m", "app", *argv],
-        cwd=ROOT,
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    ) as child:
+        [sys.executable, "-m", "app", *argv], cwd=ROOT, env=env, stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT, text=True,
+    ) as child:  # fmt: skip
+        assert child.stdout is not None
+        stream = child.stdout
+
+        def read() -> None:
+            for line in stream:
+                out.put(line)
+            out.put(None)
+
+        threading.Thread(target=read, daemon=True).start()
+        deadline = time.monotonic() + timeout_s
         try:
-            assert child.stdout is not None
-            for line in child.stdout:
+            while (left := deadline - time.monotonic()) > 0:
+                line = out.get(timeout=left)
+                if line is None:
+                    break
                 lines.append(line)
                 if marker in line:
                     child.send_signal(signal.SIGKILL)
@@ -202,48 +215,6 @@ RENDERED_SHORT = (
 )
 
 
-def _run_until(argv: list[str], marker: str, timeout_s: float) -> list[str]:
-    """Run rvis in a child process until `marker` appears in its output (waited for with a
-    timeout, no sleep), then SIGKILL it; the lines it printed."""
-    import queue
-    import threading
-    import time
-
-    env = os.environ | {"PYTHONUNBUFFERED": "1", "PYTHONPATH": str(ROOT)}
-    lines: list[str] = []
-    out: queue.Queue[str | None] = queue.Queue()
-    with subprocess.Popen(
-        [sys.executable, "-m", "app", *argv], cwd=ROOT, env=env, stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT, text=True,
-    ) as child:  # fmt: skip
-        assert child.stdout is not None
-        stream = child.stdout
-
-        def read() -> None:
-            for line in stream:
-                out.put(line)
-            out.put(None)
-
-        threading.Thread(target=read, daemon=True).start()
-        deadline = time.monotonic() + timeout_s
-        try:
-            while (left := deadline - time.monotonic()) > 0:
-                line = out.get(timeout=left)
-                if line is None:
-                    break
-                lines.append(line)
-                if marker in line:
-                    child.send_signal(signal.SIGKILL)
-                    break
-            child.wait(timeout=60)
-        finally:
-            if child.poll() is None:
-                child.kill()
-    assert any(marker in line for line in lines), "".join(lines[-20:])
-    assert child.returncode == -signal.SIGKILL
-    return lines
-
-
 @pytest.mark.slow  # about 2.5 min: two rendered commissionings up to their calibration
 def test_a_rendered_commissioning_killed_in_its_calibration_resumes_with_the_same_views(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
@@ -258,8 +229,8 @@ def test_a_rendered_commissioning_killed_in_its_calibration_resumes_with_the_sam
     reference, killed = tmp_path / "reference", tmp_path / "killed"
     argv = ["commission", "--sim", "--yes", "--cell", str(cell), "--state-dir"]
     # the reference: uninterrupted to the end of its calibration (the journal has it then)
-    _run_until([*argv, str(reference)], "step 6/10 calibration: passed", 600)
-    _run_until([*argv, str(killed)], "calibration view 10/20 ", 600)
+    _kill_at([*argv, str(reference)], "step 6/10 calibration: passed", 600)
+    _kill_at([*argv, str(killed)], "calibration view 10/20 ", 600)
     journal = json.loads((StateDir(killed).commission / "journal.json").read_text())
     assert journal["steps"][-1]["name"] == "calibration"
     assert journal["steps"][-1]["status"] == "started"

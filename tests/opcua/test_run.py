@@ -88,7 +88,7 @@ def test_subscribers_see_the_service_stop(tmp_path: Path) -> None:
                         async with asyncio.timeout(0.05):
                             _, node, value, _ = await handler.changes.get()
                             note(node, value)
-            await asyncio.sleep(0.5)  # notifications received before the drop, still handled
+            await asyncio.sleep(0.5)  # sleep-ok: a grace for notifications sent before the drop
             while not handler.changes.empty():
                 _, node, value, _ = handler.changes.get_nowait()
                 note(node, value)
