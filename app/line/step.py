@@ -92,8 +92,6 @@ class Step:
     recover_cal_id: int | None = None
     recover_kind: str | None = None  # "step" | "batch" | "sequential"
     recover_from_id: int = 0  # its held-out measurements are the ones after this id
-    level_mm: float | None = None  # held-out residual RMS before the step
-    level_n: int = 0
     full_recals: int = 0  # full recalibrations applied since the step
     recovery: str = ""  # the last recovery test, in words
     recover_n: int = 0  # measurements the last recovery test used

@@ -370,8 +370,6 @@ class StepHandler:
             svc.store.update_suspect(
                 step.suspect_id, size_mm=self._correction_size(int(row["params_version"]))
             )
-        if step.level_mm is None:
-            self._set_level(step)
         step.recover_version, step.recover_t, step.recover_kind = version, t, kind
         step.recover_n = 0
         step.recover_cal_id = None if cal is None else int(cal["id"])
@@ -388,16 +386,9 @@ class StepHandler:
             step.move(StepStatus.RECOVERING)
         return None
 
-    def _set_level(self, step: Step) -> None:
-        """The in-control level: the residuals (held out: each measured with parameters trained
-        before it) of a schedule cycle of good measurements before the step's start."""
-        level = self._level_rows(step)
-        if level:
-            step.level_mm = float(np.sqrt(np.mean(np.square(level))))
-            step.level_n = len(level)
-
     def _level_rows(self, step: Step) -> list[float]:
-        """The residuals [mm] of the in-control level (`_set_level`)."""
+        """The in-control level: the residuals [mm] (held out: each measured with parameters
+        trained before it) of a schedule cycle of good measurements before the step's start."""
         svc = self.svc
         first = step.start_id or step.onset_id
         rows = svc.store.measurements(status="ok", before_id=first, last=len(svc.schedule))
