@@ -189,23 +189,6 @@ def test_the_engineer_stops_it_and_a_journal_of_another_set_up_is_refused(
     assert len(err.splitlines()) == 1
 
 
-@pytest.mark.slow  # about 1 min: every sphere measured through rendered sweeps
-def test_the_rendered_commissioning_measures_through_camera_and_galvo(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    """The same sequence with every sweep rendered by the simulated cell and measured by the
-    vision pipeline with the sensor calibration of step 3 (16 frames a sweep, 1 validation
-    view a sphere: time; fewer calibration targets made it reject 7 of 24 views: it failed)."""
-    cell, state = tmp_path / "cell.toml", tmp_path / "state"
-    cell.write_text(CELL + "[sweep]\nn_frames = 16\n[commission]\nvalidation_views = 1\n")
-    argv = ["commission", "--sim", "--yes", "--cell", str(cell), "--state-dir", str(state)]
-    assert main(argv) == 0, capsys.readouterr().out[-3000:]
-    report = json.loads((StateDir(state).commission / "commission.json").read_text())
-    steps = {s["name"]: s["results"] for s in report["steps"]}
-    assert steps["calibration"]["measurements"] >= 22 and steps["calibration"]["rms_mm"] < 0.1
-    assert steps["validation"]["rmse_mm"] < 0.1 and steps["validation"]["true_rmse_mm"] < 0.2
-
-
 #: the shortest rendered commissioning that passes: 12 frames a sweep, 5 configurations a
 #: sphere (20 calibration views), one validation view a sphere, 3 workspace positions
 RENDERED_SHORT = (
@@ -213,23 +196,51 @@ RENDERED_SHORT = (
     + "[sweep]\nn_frames = 12\n[calibration]\nconfigs_per_sphere = 5\n"
     + "[commission]\nvalidation_views = 1\nworkspace_positions = 3\n"
 )
+RENDERED = ["commission", "--sim", "--yes", "--state-dir"]
 
 
-@pytest.mark.slow  # about 2.5 min: two rendered commissionings up to their calibration
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The state directory of one uninterrupted rendered commissioning (RENDERED_SHORT), run to
+    its end as a process: the reference of the tests below (about 1 min)."""
+    folder = tmp_path_factory.mktemp("rendered")
+    (folder / "cell.toml").write_text(RENDERED_SHORT)
+    state = folder / "state"
+    env = os.environ | {"PYTHONPATH": str(ROOT)}
+    argv = [sys.executable, "-m", "app", *RENDERED, str(state), "--cell", str(folder / "cell.toml")]
+    out = subprocess.run(argv, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, (out.stdout + out.stderr)[-3000:]
+    return state
+
+
+@pytest.mark.slow  # its fixture: every sphere measured through rendered sweeps
+def test_the_rendered_commissioning_measures_through_camera_and_galvo(rendered: Path) -> None:
+    """The sequence with every sweep rendered by the simulated cell and measured by the vision
+    pipeline with the sensor calibration of step 3 (RENDERED_SHORT: fewer frames or views made
+    it reject too many views, 7 of 24 with fewer calibration targets: it failed)."""
+    report = json.loads((StateDir(rendered).commission / "commission.json").read_text())
+    assert report["complete"] and all(s["status"] == "passed" for s in report["steps"])
+    steps = {s["name"]: s["results"] for s in report["steps"]}
+    assert steps["calibration"]["measurements"] >= 18 and steps["calibration"]["rms_mm"] < 0.1
+    assert steps["validation"]["rmse_mm"] < 0.1 and steps["validation"]["true_rmse_mm"] < 0.2
+    assert "not applicable" not in str(steps["acceptance"])  # images: the acceptance ran
+    ws = steps["workspace"]
+    assert ws["measured"] == ws["positions"] == 3 and ws["true_rmse_mm"] < 0.2
+
+
+@pytest.mark.slow  # about 1.5 min: a rendered commissioning killed in its calibration, resumed
 def test_a_rendered_commissioning_killed_in_its_calibration_resumes_with_the_same_views(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    rendered: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """Killed (kill -9) in the middle of its calibration step, a rendered commissioning run
-    again measures the very images an uninterrupted run measures there (the simulated camera's
-    noise belongs to the frame, not to how many frames came before: issue 30, where a resumed
-    run rejected 3 views where an uninterrupted one rejected 2, every rerun the same 3), and
-    passes. bench/commission_resume.py kills it at three points of the step."""
+    again measures the very images an uninterrupted run (the fixture's) measures there (the
+    simulated camera's noise belongs to the frame, not to how many frames came before: issue
+    30, where a resumed run rejected 3 views where an uninterrupted one rejected 2, every rerun
+    the same 3), and passes. bench/commission_resume.py kills it at three points of the step."""
     cell = tmp_path / "cell.toml"
     cell.write_text(RENDERED_SHORT)
-    reference, killed = tmp_path / "reference", tmp_path / "killed"
-    argv = ["commission", "--sim", "--yes", "--cell", str(cell), "--state-dir"]
-    # the reference: uninterrupted to the end of its calibration (the journal has it then)
-    _kill_at([*argv, str(reference)], "step 6/10 calibration: passed", 600)
+    reference, killed = rendered, tmp_path / "killed"
+    argv = [*RENDERED[:-1], "--cell", str(cell), "--state-dir"]
     _kill_at([*argv, str(killed)], "calibration view 10/20 ", 600)
     journal = json.loads((StateDir(killed).commission / "journal.json").read_text())
     assert journal["steps"][-1]["name"] == "calibration"
