@@ -1,6 +1,7 @@
 """Shared fixtures: the default cell and simulated data sets (seeded, cached per session), and how
-the tests are shared out between pytest-xdist's workers (`scripts/test` runs `-n 2 --dist
-loadgroup`; a session fixture is built once per worker, a worker being a process of its own)."""
+the tests are shared out between pytest-xdist's workers (`scripts/test` runs `-n 3 --dist
+loadgroup` on 2 cores; a session fixture is built once per worker, a worker being a process of its
+own, in a network namespace of its own where it may: tests/netns.py)."""
 
 from __future__ import annotations
 
