@@ -12,11 +12,13 @@ offsets it reads from the fake's registers.
     with GvCamera(world) as gv:
         camera = AravisCamera(gv.camera_id)     # "127.0.0.1"
 
-One fake per address in the whole machine: GVCP's port 3956 is bound once per address, and a
+One fake per address in a network namespace: GVCP's port 3956 is bound once per address, and a
 second fake (another test process, another worktree's suite) would take its packets. `start()`
-therefore waits for a machine-wide lock of the address (an flock in the temporary folder,
-with the holder's pid in it) and `close()` gives it back: processes take turns instead of
-stealing each other's frames.
+therefore waits for a lock of the address in its network namespace (an flock in the temporary
+folder, named by the namespace and the address, with the holder's pid in it) and `close()` gives
+it back: processes take turns instead of stealing each other's frames. Processes in different
+network namespaces (the test suite's workers, tests/netns.py) each have a loopback of their own
+and do not wait for each other.
 
 On the simulated line's VirtualClock (``clock=``) every frame lets its exposure and
 ``readout_s`` of sim time pass before it is rendered (the scene at the end of the exposure).
@@ -82,12 +84,21 @@ def _aravis() -> tuple[Any, ctypes.CDLL]:
 ADDRESS_WAIT_S = 600.0
 
 
+def _network_namespace() -> str:
+    """The calling thread's network namespace ("4026531840"; "" where /proc does not say)."""
+    try:
+        return str(os.stat("/proc/thread-self/ns/net").st_ino)
+    except OSError:
+        return ""
+
+
 class _AddressLock:
-    """A machine-wide exclusive lock of one GVCP address (flock; the kernel drops it when the
-    holder dies)."""
+    """An exclusive lock of one GVCP address in this network namespace (flock; the kernel drops
+    it when the holder dies)."""
 
     def __init__(self, address: str) -> None:
-        self.path = Path(tempfile.gettempdir()) / f"rvis-gv-fake-{address}.lock"
+        name = f"rvis-gv-fake-{_network_namespace()}-{address}.lock"
+        self.path = Path(tempfile.gettempdir()) / name
         self._fd: int | None = None
 
     def acquire(self, timeout_s: float) -> None:

@@ -1,6 +1,7 @@
 """Shared fixtures: the default cell and simulated data sets (seeded, cached per session), and how
-the tests are shared out between pytest-xdist's workers (`scripts/test` runs `-n 2 --dist
-loadgroup`; a session fixture is built once per worker, a worker being a process of its own)."""
+the tests are shared out between pytest-xdist's workers (`scripts/test` runs `-n 3 --dist
+loadgroup` on 2 cores; a session fixture is built once per worker, a worker being a process of its
+own, in a network namespace of its own where it may: tests/netns.py)."""
 
 from __future__ import annotations
 
@@ -17,6 +18,17 @@ import pytest  # noqa: E402
 from app.config import CellConfig, load_cell  # noqa: E402
 from app.sim.cell import DataSet, simulated_sets  # noqa: E402
 from fakes.wiring import register_fakes  # noqa: E402
+from tests.netns import enter_own_network_namespace  # noqa: E402
+
+#: why this worker shares the host's network namespace (None: it has one of its own)
+_SHARED_NETWORK = pytest.StashKey[str | None]()
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """A pytest-xdist worker enters a network namespace of its own (tests/netns.py) before any
+    test runs: its loopback servers cannot meet the other worker's."""
+    if hasattr(config, "workerinput"):
+        config.stash[_SHARED_NETWORK] = enter_own_network_namespace()
 
 
 @pytest.fixture(scope="session", autouse=True)
@@ -84,13 +96,17 @@ def _suffix_groups(items: list[pytest.Item]) -> None:
 def pytest_collection_modifyitems(
     config: pytest.Config, items: list[pytest.Item]
 ) -> Generator[None, None, None]:
-    """On a pytest-xdist worker: the tests of a shared fixture grouped (tests/groups.py), and
+    """On a pytest-xdist worker: the tests of a shared fixture grouped (tests/groups.py), the
+    GigE camera's tests in one group unless the worker has a network namespace of its own, and
     the tests marked slow first, so that no worker starts one at the end while the other has
     finished (xdist hands tests out in collection order). A serial run keeps the file order."""
     worker = hasattr(config, "workerinput")
     if worker:
+        one_camera = config.stash.get(_SHARED_NETWORK, None) is not None
         for item in items:
-            if item.get_closest_marker("xdist_group") is None:
+            if one_camera and item.get_closest_marker("gige_camera") is not None:
+                item.add_marker(pytest.mark.xdist_group("gige-camera"))
+            elif item.get_closest_marker("xdist_group") is None:
                 group = _shared_fixture_group(item)
                 if group is not None:
                     item.add_marker(pytest.mark.xdist_group(group))

@@ -264,6 +264,7 @@ class SimulatedLineRun:
         self._windows_before = 0
         self._held = False
         self._closing = False
+        self._loop_ended = False
 
     @property
     def clock(self) -> VirtualClock:
@@ -335,8 +336,19 @@ class SimulatedLineRun:
         return true_rmse_mm(self.line, self.truth, self.model, x, t_s)
 
     def start_service(self) -> None:
-        self.thread = threading.Thread(target=self.service.run, name="rvis-service", daemon=True)
+        self._loop_ended = False
+        self.thread = threading.Thread(target=self._serve, name="rvis-service", daemon=True)
         self.thread.start()
+
+    def _serve(self) -> None:
+        """The service's loop; when it ends (stopped, or an internal error), whoever waits for
+        it to hold hears so at once instead of at the end of its timeout (a stop took 11 s)."""
+        try:
+            self.service.run()
+        finally:
+            with self._gate:
+                self._loop_ended = True  # the thread is still alive here: is_alive() says no later
+                self._gate.notify_all()
 
     # -- holding the service between windows ----------------------------------------------------
     def _hold(self) -> None:
@@ -356,7 +368,7 @@ class SimulatedLineRun:
         """Wait until the service holds after its window (or its loop ended)."""
 
         def still() -> bool:
-            return self._held or self.thread is None or not self.thread.is_alive()
+            return self._held or self._loop_ended or self.thread is None
 
         with self._gate:
             while not self._gate.wait_for(still, timeout=timeout_s):

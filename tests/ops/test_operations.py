@@ -3,6 +3,7 @@ silent death, never a lost stored measurement."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -244,13 +245,11 @@ def test_a_full_disk_faults_the_cell_and_the_service_stays_up(tmp_path: Path, ce
     try:
         svc.wait_ready()
         ballast = state / "ballast"
-        with open(ballast, "wb") as fh:  # fill the disk to the last byte
-            try:
-                while True:
-                    fh.write(b"\0" * 65536)
-                    fh.flush()
-            except OSError:
-                pass
+        # fill the disk to the last byte, unbuffered: a buffered file would try to write the rest
+        # of its buffer again when it closes, and raise ENOSPC there
+        with open(ballast, "wb", buffering=0) as fh, contextlib.suppress(OSError):
+            while True:
+                fh.write(b"\0" * 65536)
         svc.wait_log(lambda r: r.get("event") == "alarm" and r["data"]["code"] == "state_storage")
         st = status(state)  # the service answers
         assert st["state"] == "fault" and svc.alive
