@@ -305,7 +305,8 @@ def load_cell(path: str | Path | None = None) -> CellConfig:
         sections[cls.name] = reader.section(cls, doc.get(cls.name, {}))
     calibration, service = doc.get("calibration", {}), doc.get("service", {})
     if "model" in calibration and "model" not in service:  # a file from before [service] model
-        sections["service"] = dataclasses.replace(sections["service"], model=calibration["model"])
+        service_section: Any = sections["service"]
+        sections["service"] = dataclasses.replace(service_section, model=calibration["model"])
     return _resolve(sections, str(path), reader)
 
 
