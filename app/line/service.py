@@ -918,8 +918,11 @@ class Service:
         return flagged and self.new_since_recal >= r.holdout_size
 
     def _maybe_recalibrate(self) -> None:
-        if self.sequential is not None:
-            if self.pending_calibration is None and self.sequential.due(self._visited_views):
+        if self.sequential is not None:  # "calibrate now" proposes the filter's state at once
+            forced = self.force_recal and self.sequential.can_propose()
+            due = forced or self.sequential.due(self._visited_views)
+            if self.pending_calibration is None and due:
+                self.force_recal = False
                 self.recal_done(self.sequential.candidate(self.model, self.x))
             return
         if self.recalibrator.busy or self.pending_calibration is not None or not self._recal_due():

@@ -190,7 +190,7 @@ def test_approve_mode_waits_for_the_operator_and_rollback_restores(
         tmp_path,
         cycle=LONG,
         line=line_settings(window_s=32.0, slots_per_window=8),
-        recalib=RecalibSettings(mode="approve"),
+        recalib=RecalibSettings(mode="approve", estimator="batch"),
     )
     lines.append(ln)
     ln.start()
