@@ -109,11 +109,12 @@ class RecalibSettings(Section):
     # term, with [calibration]'s payload and thermal settings) or "rigid" (the paper's). A
     # version in force of a rigid model (a rigid commissioning) is carried into the compliant
     # model at start. A cell file that sets [calibration] model and not this key keeps its
-    # service on that model (load_cell). Default by the knock campaign (issue 28,
-    # docs/results/shift-knocks/): compliant + sequential was best on accuracy and recovery
+    # service on that model (load_cell). The default by the knock campaign (issue 28,
+    # docs/results/shift-knocks/configurations.md): compliant + batch measured every body
+    # better than rigid + batch and kept the worst window after a knock's correction lowest
     model: str = opt("compliant", choices=("rigid", "compliant"))
     # "batch": identification on the rolling set; "sequential": app.line.inline_seq
-    estimator: str = opt("sequential", choices=("batch", "sequential"))
+    estimator: str = opt("batch", choices=("batch", "sequential"))
     seq_apply_every: int = opt(8, lo=1, hi=100000)  # accepted updates between two candidates
     seq_measurement_std_mm: float = opt(0.025, gt=0, hi=10)
     seq_drift_mm: float = opt(0.002, lo=0, hi=10)  # random-walk standard deviation per update

@@ -20,8 +20,8 @@ from typing import Any
 import pytest
 
 # 60 s clamp cycles at x300: a window every 0.2 s; a recalibration every 8 measurements, by the
-# batch estimator: its identification runs in a worker process, which these tests kill and
-# signal (the sequential estimator, the default, runs in the service's own loop)
+# batch estimator (said here, not left to the default): its identification runs in a worker
+# process, which these tests kill and signal (the sequential one runs in the service's loop)
 CELL = """
 [simline]
 scale = 300.0
