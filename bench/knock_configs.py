@@ -73,7 +73,8 @@ def main() -> None:
     args = ap.parse_args()
     print(
         "| configuration | knock | runs | pre-knock level (median) [mm] | mean true error over"
-        " the shift [mm] | mean after the knock [mm] | worst window from the 3rd after the knock [mm] |"
+        " the shift [mm] | mean after the knock [mm] | worst window from the 3rd after the"
+        " knock [mm] |"
         " windows after the knock above 1.2x their pre-knock level | windows to recover:"
         " median / worst | episode recall (all runs) |"
     )
