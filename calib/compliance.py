@@ -121,6 +121,18 @@ class CompliantModel(SystemModel):
             x[INDEX[name]] = value
         return x
 
+    def carried(self, x: F64) -> F64:
+        """A full vector of this model from one of a rigid model (37 entries): the rigid part
+        kept, the compliance and expansion terms at their nominal values (where a compliant
+        identification starts); a vector of this model is returned as it is."""
+        x = np.asarray(x, dtype=float)
+        if x.shape == (len(self.names),):
+            return x.copy()
+        n_rigid = len(self.names) - len(EXTRA_NAMES)
+        if x.shape != (n_rigid,):
+            raise ValueError(f"expected {n_rigid} or {len(self.names)} parameters, got {x.shape}")
+        return np.concatenate([x, self.nominal_x()[n_rigid:]])
+
     def default_active(self, temp_c: F64 | None = None) -> tuple[str, ...]:
         """The paper's 30, the arm compliance and, when the temperatures span enough and the
         settings ask for it, the expansion coefficient."""
@@ -286,6 +298,16 @@ def temp_span_k(temp_c: ArrayLike | None) -> float:
         return 0.0
     t = np.asarray(temp_c, dtype=float)
     return float(t.max() - t.min()) if t.size else 0.0
+
+
+def carry(target: SystemModel, model: SystemModel, x: F64) -> tuple[SystemModel, F64]:
+    """(model, x) of parameters of `model` as a service that identifies `target` uses them: a
+    rigid model's carried into a compliant target (CompliantModel.carried); otherwise as they
+    are (a compliant version keeps its compliance under a rigid target: nothing is thrown
+    away)."""
+    if isinstance(target, CompliantModel) and not isinstance(model, CompliantModel):
+        return target, target.carried(x)
+    return model, x
 
 
 def select_model(

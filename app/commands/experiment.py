@@ -184,7 +184,7 @@ def _shift_options(g: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--model",
         choices=("rigid", "compliant"),
-        help="the model the service identifies (default [calibration] model)",
+        help="the model the service identifies (default [service] model)",
     )
     g.add_argument(
         "--estimator",

@@ -263,8 +263,17 @@ class CellConfig:
         return SystemModel(self.T_part_base, self.T_flange_sensor, self.limits)
 
     def identification_model(self) -> Any:
-        """The model `rvis identify` fits: rigid, or compliant ([calibration] model) with the
-        section's payload and thermal settings (calib.compliance)."""
+        """The model `rvis identify`, the plan and the commissioning fit: rigid, or compliant
+        ([calibration] model) with the section's payload and thermal settings
+        (calib.compliance)."""
+        return self._model_of(self.calibration.model)
+
+    def service_model(self) -> Any:
+        """The model the in-line service identifies ([service] model), with [calibration]'s
+        payload and thermal settings."""
+        return self._model_of(self.service.model)
+
+    def _model_of(self, kind: str) -> Any:
         from calib.compliance import CompliantSettings, select_model
 
         c = self.calibration
@@ -276,7 +285,7 @@ class CellConfig:
             min_temp_span_k=c.min_temp_span_k,
             reference_temp_c=c.reference_temp_c,
         )
-        return select_model(c.model, self.model(), settings)
+        return select_model(kind, self.model(), settings)
 
 
 def load_cell(path: str | Path | None = None) -> CellConfig:
@@ -294,6 +303,10 @@ def load_cell(path: str | Path | None = None) -> CellConfig:
             raise reader.unknown_section(name, tuple(BY_NAME))
     for cls in SECTIONS:
         sections[cls.name] = reader.section(cls, doc.get(cls.name, {}))
+    calibration, service = doc.get("calibration", {}), doc.get("service", {})
+    if "model" in calibration and "model" not in service:  # a file from before [service] model
+        service_section: Any = sections["service"]
+        sections["service"] = dataclasses.replace(service_section, model=calibration["model"])
     return _resolve(sections, str(path), reader)
 
 

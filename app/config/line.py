@@ -105,6 +105,14 @@ class RecalibSettings(Section):
     holdout_size: int = opt(4, lo=1, hi=1000)
     every_n: int = opt(24, lo=1, hi=100000)  # new measurements between recalibrations
     max_nfev: int = opt(200, lo=10, hi=10000)
+    # the model the service identifies: "compliant" (J2/J3 gravity deflection and the thermal
+    # term, with [calibration]'s payload and thermal settings) or "rigid" (the paper's). A
+    # version in force of a rigid model (a rigid commissioning) is carried into the compliant
+    # model at start. A cell file that sets [calibration] model and not this key keeps its
+    # service on that model (load_cell). The default by the knock campaign (issue 28,
+    # docs/results/shift-knocks/configurations.md): compliant + batch measured every body
+    # better than rigid + batch and kept the worst window after a knock's correction lowest
+    model: str = opt("compliant", choices=("rigid", "compliant"))
     # "batch": identification on the rolling set; "sequential": app.line.inline_seq
     estimator: str = opt("batch", choices=("batch", "sequential"))
     seq_apply_every: int = opt(8, lo=1, hi=100000)  # accepted updates between two candidates

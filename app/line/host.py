@@ -58,6 +58,7 @@ class LineHost(Protocol):
 
     # the parameters in force
     model: SystemModel
+    service_model: SystemModel  # [service] model: what the service identifies
     x: F64
     version: int
 

@@ -213,6 +213,16 @@ class InlineSequential:
         q = np.array([s.q_deg for s in slots])
         return slots[self.est.choose_next(q, np.array(c))]
 
+    def can_propose(self) -> bool:
+        """A candidate can be made now (an operator's "calibrate now"): the filter runs, has
+        held-out rows to gate it on and is not holding rows for a step being attributed."""
+        return (
+            self.est is not None
+            and self.first_id is not None
+            and bool(self.queue)
+            and (not self.holding)
+        )
+
     def due(self, views: Callable[[], tuple[F64, F64]]) -> bool:
         """A candidate is due: `seq_apply_every` accepted updates since the last one; after a
         step, a full schedule cycle of them and the estimate's predicted point uncertainty at

@@ -67,11 +67,11 @@ def build_service(
     clock: Clock | None = None,
 ) -> Service:
     """The service of a resolved cell configuration (app.config.CellConfig): the plan's
-    schedule, the cell's spheres, its model ([calibration] model: rigid or compliant, with the
+    schedule, the cell's spheres, its model ([service] model: rigid or compliant, with the
     thermal term) (x_initial: the starting parameters when the state directory has none yet;
     default nominal)."""
     schedule = Schedule.from_plan(plan_path, settings.line)
-    model = cfg.identification_model()
+    model = cfg.service_model()
     x0 = model.nominal_x() if x_initial is None else np.asarray(x_initial, dtype=float)
     return Service(
         station, sensor, schedule, cfg.spheres_part_mm, model, x0, clock=clock, settings=settings

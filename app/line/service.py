@@ -76,6 +76,7 @@ from app.line.step_handler import StepHandler
 from app.line.store import StorageError, Store
 from app.line.sweeps import SweepArchive
 from calib.attribution import NONE, SEVERAL, step_groups
+from calib.compliance import CompliantModel, carry
 from calib.model import SystemModel
 from drivers.clock import Clock, RealClock
 from drivers.errors import DeviceError
@@ -118,6 +119,7 @@ class Service:
         self.bus = EventBus(self.store, self.clock)
         self._start_alarms: list[tuple[str, str, str]] = []  # raised once the loop runs
         self._recovered: tuple[int, int | None] | None = None  # an apply to complete
+        self.service_model = model  # [service] model: what it identifies
         try:
             self.model, self.x, self.version = self._load_params(
                 model, np.asarray(x_initial, float)
@@ -193,11 +195,13 @@ class Service:
         applied = self.store.applied()
         last = int(applied[-1]["version"]) if applied else None
         try:
-            current = self.params.current()
+            current = self.current_params()
             damage = "missing" if current is None else ""
         except (InputError, OSError, ValueError, KeyError, TypeError) as exc:
             current, damage = None, f"damaged ({exc})"
         if current is None and last is None:  # a new state directory
+            if isinstance(model, CompliantModel):
+                x0 = model.carried(x0)  # a rigid commissioning's parameters
             doc = plain_document(model, x0, "initial parameters")
             version = first_in_force(self.params, self.store, doc, "initial", self.clock)
             return model, x0.copy(), version
@@ -211,11 +215,20 @@ class Service:
             self._recovered = (version, cal_id if isinstance(cal_id, int) else None)
         return model, x, version
 
+    def current_params(self) -> tuple[int, SystemModel, F64] | None:
+        """(version, model, x) in force (params.current()), as the service identifies them: a
+        rigid version (a rigid commissioning) carried into a compliant [service] model."""
+        current = self.params.current()
+        if current is None:
+            return None
+        version, model, x = current
+        return (version, *carry(self.service_model, model, x))
+
     def _rebuild_current(self, version: int, damage: str) -> tuple[int, SystemModel, F64]:
         path = self.params.current_path
         try:
             self.params.rollback(version)
-            current = self.params.current()
+            current = self.current_params()
         except (InputError, OSError, ValueError, KeyError, TypeError) as exc:
             raise InputError(
                 f"{damage}, and history version {version} (in force by the database) cannot"
@@ -905,8 +918,11 @@ class Service:
         return flagged and self.new_since_recal >= r.holdout_size
 
     def _maybe_recalibrate(self) -> None:
-        if self.sequential is not None:
-            if self.pending_calibration is None and self.sequential.due(self._visited_views):
+        if self.sequential is not None:  # "calibrate now" proposes the filter's state at once
+            forced = self.force_recal and self.sequential.can_propose()
+            due = forced or self.sequential.due(self._visited_views)
+            if self.pending_calibration is None and due:
+                self.force_recal = False
                 self.recal_done(self.sequential.candidate(self.model, self.x))
             return
         if self.recalibrator.busy or self.pending_calibration is not None or not self._recal_due():
@@ -1106,7 +1122,7 @@ class Service:
         the new parameters' residuals); the drift alarm and onset are cleared when the
         calibration was trained on measurements after the onset only. The database learns it
         in one transaction (the calibration's decision, the applied row, the decision state)."""
-        current = self.params.current()
+        current = self.current_params()
         assert current is not None
         self.version, self.model, self.x = current
         t = self.clock.time()

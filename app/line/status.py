@@ -9,7 +9,6 @@ from typing import Any
 from app.line.host import LineHost
 from app.line.states import suspect_json, utc_text
 from app.line.store import StorageError
-from calib.model import ALL_NAMES
 
 SUSPECTS_IN_STATUS = 5  # the status reply's last suspect intervals
 
@@ -153,7 +152,7 @@ def _pending_status(svc: LineHost) -> dict[str, Any] | None:
     cal = None if cal_id is None else svc.store.calibration(cal_id)
     if cal is None:
         return None
-    current = dict(zip(ALL_NAMES, (float(v) for v in svc.x), strict=True))
+    current = dict(zip(svc.model.names, (float(v) for v in svc.x), strict=True))
     params = (cal.get("document") or {}).get("parameters", [])
     return {
         "id": cal_id,

@@ -35,6 +35,7 @@ from app.line.step_fit import (
 )
 from calib.attribution import NONE, SEVERAL, Attribution, point_shift_mm, step_groups
 from calib.candidates import IDEAL_STANDOFF_MM
+from calib.compliance import carry
 
 #: the change point is looked for from the CUSUM's estimate less half the schedule (the
 #: estimate can be late as well as early) up to the measurement that signalled
@@ -473,7 +474,8 @@ class StepHandler:
         if version is None:
             return None
         try:
-            return from_json(svc.params.version_path(version))[1]
+            model, x = from_json(svc.params.version_path(version))
+            return carry(svc.service_model, model, x)[1]
         except (OSError, ValueError, KeyError, InputError):
             return None
 

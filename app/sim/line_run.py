@@ -41,7 +41,9 @@ from app.line.store import Store
 from app.sim.cell import make_cell, simulated_sets, true_sensor_model
 from app.sim.truth import EndToEndTruth
 from calib import candidates
+from calib.compliance import CompliantModel, carry
 from calib.identify import identify
+from calib.model import SystemModel
 from fakes.cell import SimulatedCell
 from fakes.clock import VirtualClock
 from fakes.line import SimLine, SimLineSetup
@@ -236,7 +238,12 @@ class SimulatedLineRun:
         self.pace = pace
         self.settings = service_settings(cfg, self.state_dir)
         self.geometric, self.plan = geometric, plan
-        self.model = cfg.identification_model()
+        # the model the service identifies and the true error is computed in: [service] model,
+        # or the commissioning's compliant one under a rigid [service] model (the service keeps
+        # a compliant version's compliance: calib.compliance.carry)
+        commissioned = cfg.identification_model()
+        compliant = isinstance(commissioned, CompliantModel)
+        self.model = commissioned if compliant else cfg.service_model()
         if not geometric and sensor_model is None:
             sensor_model = true_sensor_model(self.cell.sensor)
         self.sensor_model = None if geometric else sensor_model
@@ -244,8 +251,9 @@ class SimulatedLineRun:
         self.truth = EndToEndTruth(self.cell.sensor, self.sensor_model, commands)
         # the cold cell's calibration, measured as the line measures (a commissioned state
         # directory's first version replaces it once the service has read it)
-        self.x_commissioning = commissioning(
-            cfg, seed, EndToEndTruth(self.cell.sensor, self.sensor_model, commands)
+        self.x_commissioning = self._carried(
+            cfg.identification_model(),
+            commissioning(cfg, seed, EndToEndTruth(self.cell.sensor, self.sensor_model, commands)),
         )
         self.summary = SimRunSummary()
         self._versions: dict[int, F64] = {}
@@ -465,10 +473,15 @@ class SimulatedLineRun:
         return record
 
     def _x_of(self, version: int) -> F64:
-        """The parameters of history version `version` (read once)."""
+        """The parameters of history version `version` (read once), in the run's model."""
         if version not in self._versions:
-            self._versions[version] = from_json(self.service.params.version_path(version))[1]
+            model, x = from_json(self.service.params.version_path(version))
+            self._versions[version] = self._carried(model, x)
         return self._versions[version]
+
+    def _carried(self, model: SystemModel, x: F64) -> F64:
+        """x of `model` in the run's model (a rigid version in a compliant service's)."""
+        return carry(self.model, model, x)[1]
 
     def close(self) -> None:
         if self.thread is not None and self.thread.is_alive():

@@ -43,7 +43,7 @@ class ShiftSettings:
     scale: float | None = None
     slots_per_window: int | None = None
     estimator: str | None = None  # "batch" | "sequential"; None: the cell's [service] estimator
-    model: str | None = None  # "rigid" | "compliant"; None: the cell's [calibration] model
+    model: str | None = None  # "rigid" | "compliant"; None: the cell's [service] model
     schedule: str | None = None  # "cycle" | "adaptive" (sequential); None: the cell's
     recovered_ratio: float = 1.2  # "back": error with the service <= this x its pre-knock level
     pre_knock_windows: int = 10  # windows before the knock whose median sets the pre-knock level
@@ -256,12 +256,9 @@ def shift_config(cfg: CellConfig, s: ShiftSettings) -> CellConfig:
         service = dataclasses.replace(service, estimator=s.estimator)
     if s.schedule is not None:
         service = dataclasses.replace(service, schedule=s.schedule)
-    calibration = cfg.calibration
-    if s.model is not None:
-        calibration = dataclasses.replace(calibration, model=s.model)
-    return dataclasses.replace(
-        cfg, simline=simline, line=line, service=service, calibration=calibration
-    )
+    if s.model is not None:  # the commissioning keeps the cell's [calibration] model
+        service = dataclasses.replace(service, model=s.model)
+    return dataclasses.replace(cfg, simline=simline, line=line, service=service)
 
 
 def n_windows(cfg: CellConfig, s: ShiftSettings) -> int:

@@ -136,7 +136,10 @@ def test_target_coordinate_1e300(simdir: Path, tmp_path: Path, cli: Cli) -> None
         ("[robot]\nmodel = 3\n", "cell.toml:2: [robot] model: expected a string"),
         ('[robot]\nmodel = "kuka"\n', "[robot] model: expected one of fanuc-m710ic50"),
         ("[calibration]\nloss = 1\n", "[calibration] loss: expected a string"),
-        ('[service]\nschedule = "adaptive"\n', "[service] schedule: adaptive scheduling needs"),
+        (
+            '[service]\nschedule = "adaptive"\nestimator = "batch"\n',
+            "[service] schedule: adaptive scheduling needs",
+        ),
         ("[planning]\nswarm_sise = 3\n", "unknown key (did you mean 'swarm_size'?)"),
         ("[servce]\n", "cell.toml:1: [servce]: unknown section (did you mean 'service'?)"),
         ("[sensor]\nstandoff_mm = -1.0\n", "[sensor] standoff_mm: must be > 0"),

@@ -69,3 +69,27 @@ def test_every_service_key_arrives_in_the_service_settings(tmp_path: Path) -> No
         svc["max_base_change_deg"] * 3.14159265 / 180
     )
     assert isinstance(s, ServiceSettings)
+
+
+@pytest.mark.parametrize(
+    ("text", "offline", "in_line"),
+    [
+        ("", "rigid", "compliant"),  # the defaults (the service's: the knock campaign, issue 28)
+        ('[calibration]\nmodel = "rigid"\n', "rigid", "rigid"),  # a file from before the key
+        ('[calibration]\nmodel = "compliant"\n', "compliant", "compliant"),
+        ('[service]\nmodel = "rigid"\n', "rigid", "rigid"),
+        ('[calibration]\nmodel = "compliant"\n[service]\nmodel = "rigid"\n', "compliant", "rigid"),
+        ('[calibration]\nmodel = "rigid"\n[service]\nmodel = "compliant"\n', "rigid", "compliant"),
+    ],
+)
+def test_the_service_model_is_its_own_key_and_an_older_file_keeps_its_model(
+    tmp_path: Path, text: str, offline: str, in_line: str
+) -> None:
+    """[service] model is what the service identifies, [calibration] model what identify, the
+    plan and the commissioning fit; a cell file that sets only [calibration] model (every file
+    written before [service] model existed) keeps its service on that model."""
+    path = tmp_path / "cell.toml"
+    path.write_text(text)
+    cfg = load_cell(path)
+    assert cfg.service.model == in_line and cfg.service_model().kind == in_line
+    assert cfg.calibration.model == offline and cfg.identification_model().kind == offline

@@ -162,11 +162,14 @@ def make_line(
     x_initial: F64 | None = None,
     sensor: Callable[[SimulatedCell], SphereSensor] | None = None,
     robot_class: type[FakeRobot] = FakeRobot,
+    model: SystemModel | None = None,
     **cell_overrides: Any,
 ) -> Line:
+    """A service on fakes; its model rigid unless given ([service] model: compliant by default
+    in a cell file), and its estimator the batch one unless `recalib` says otherwise."""
     cfg = load_cell(None)
     cell = make_cell(cfg, seed, **cell_overrides)
-    model = cfg.model()
+    model = model or cfg.model()
     clock = VirtualClock(pace=1.0 / SCALE)  # watched live (the socket, restarts): paced x50
     cycle = cycle or ClampCycle(period_s=12.0, window_s=8.0, beat_s=0.5, time_scale=SCALE)
     robot = robot_class(cell, time_scale=SCALE, clock=clock).open()
@@ -176,7 +179,7 @@ def make_line(
     settings = ServiceSettings(
         state_dir=state_dir,
         line=line or line_settings(window_s=cycle.window_s),
-        recalib=recalib or RecalibSettings(),
+        recalib=recalib or RecalibSettings(estimator="batch"),
     )
 
     def sweep(target: str, sweep_s: float = 1.2) -> F64:

@@ -18,9 +18,9 @@ from app.formats.params import plain_document
 from app.line.params_store import ParamsStore
 from app.line.states import State
 from app.line.store import Store
-from app.sim.cell import validation_set
+from app.sim.cell import make_cell, validation_set
 from fakes.devices import ClampCycle
-from tests.line.helpers import SCALE, Line, line_settings, make_line
+from tests.line.helpers import SCALE, Line, calibrated_x, line_settings, make_line
 
 LONG = ClampCycle(period_s=40.0, window_s=32.0, beat_s=0.5, time_scale=SCALE)
 
@@ -190,7 +190,7 @@ def test_approve_mode_waits_for_the_operator_and_rollback_restores(
         tmp_path,
         cycle=LONG,
         line=line_settings(window_s=32.0, slots_per_window=8),
-        recalib=RecalibSettings(mode="approve"),
+        recalib=RecalibSettings(mode="approve", estimator="batch"),
     )
     lines.append(ln)
     ln.start()
@@ -262,3 +262,40 @@ def test_recalibrating_on_the_measurements_in_force_waits_for_a_new_one(
     started = ln.wait(lambda e: e["event"] == "recalibration_started", 60.0)
     assert started["last_id"] > skipped["last_id"]  # on a set with the new measurement
     assert ln.service.version == version
+
+
+def test_a_rigid_commissioning_is_carried_into_the_compliant_service_model(
+    tmp_path: Path, lines: list[Line]
+) -> None:
+    """[service] model = "compliant" (the default) on a rigid commissioning's parameters: the
+    service starts with them carried into the compliant model (rigid part kept, compliance and
+    expansion nominal), and its own calibrations are compliant, with identified compliance. A
+    state directory whose version in force is rigid is carried the same way at start."""
+    cfg = load_cell(None)
+    compliant = cfg.service_model()
+    assert cfg.service.model == "compliant" and cfg.calibration.model == "rigid"
+    x_rigid = calibrated_x(make_cell(cfg, 3))
+    ln = make_line(
+        tmp_path / "new", cycle=LONG, line=line_settings(window_s=32.0, slots_per_window=8),
+        model=compliant, x_initial=x_rigid,
+    )  # fmt: skip
+    lines.append(ln)
+    n_rigid = len(x_rigid)
+    assert ln.service.model.kind == "compliant"
+    np.testing.assert_array_equal(ln.service.x[:n_rigid], x_rigid)
+    np.testing.assert_array_equal(ln.service.x[n_rigid:], compliant.nominal_x()[n_rigid:])
+    ln.start()
+    applied = ln.wait(lambda e: e["event"] == "parameters_applied", 60.0)
+    ln.stop()
+    version, model, x = ParamsStore(tmp_path / "new").current()  # type: ignore[misc]
+    assert version == applied["version"] == 2 and model.kind == "compliant"
+    assert not np.allclose(x[n_rigid:], compliant.nominal_x()[n_rigid:])  # identified
+
+    rigid_dir = tmp_path / "rigid"
+    first = make_line(rigid_dir, x_initial=x_rigid)  # a rigid service: version 1 is rigid
+    first.close()
+    assert ParamsStore(rigid_dir).current()[1].kind == "rigid"  # type: ignore[index]
+    again = make_line(rigid_dir, model=compliant)
+    lines.append(again)
+    assert again.service.model.kind == "compliant" and again.service.version == 1
+    np.testing.assert_array_equal(again.service.x[:n_rigid], x_rigid)

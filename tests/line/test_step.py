@@ -112,7 +112,7 @@ def test_a_knock_is_attributed_corrected_at_once_and_its_suspect_interval_record
 
 @pytest.mark.slow
 def test_in_approve_mode_the_correction_waits_and_the_interval_stays_open(tmp_path: Path) -> None:
-    ln, _, _ = knock_line(tmp_path, RecalibSettings(mode="approve"))
+    ln, _, _ = knock_line(tmp_path, RecalibSettings(mode="approve", estimator="batch"))
     try:
         ln.start()
         ln.windows(6, timeout_s=20.0)

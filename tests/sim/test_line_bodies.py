@@ -29,9 +29,11 @@ def test_rvis_state_suspects_names_exactly_the_bodies_clamped_inside_the_interva
     cfg: CellConfig, tmp_path: Path, capsys: pytest.CaptureFixture[str], fmt: str, first: Any
 ) -> None:
     # long windows of 8 slots: the change charts watch after 3 windows, a knock is corrected
-    # within 2 windows of its flag; no warm-up (its drift is not the knock)
+    # within 2 windows of its flag; no warm-up (its drift is not the knock); the batch
+    # estimator, whose interval spans several bodies (the sequential one closed it after one)
     knocked = dataclasses.replace(
         cfg,
+        service=dataclasses.replace(cfg.service, estimator="batch"),
         line=dataclasses.replace(cfg.line, slots_per_window=8, plc_body_id=fmt),
         simline=dataclasses.replace(
             cfg.simline, warmup_k=0.0, period_s=40.0, window_s=32.0, knock_at_s=KNOCK_AT_S
