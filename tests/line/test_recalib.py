@@ -157,17 +157,17 @@ def test_a_killed_service_leaves_no_recalibration_worker_nor_forkserver_behind()
     stayed for it: one of each per killed service (issue 31: a leak per suite run)."""
     root = Path(__file__).resolve().parents[2]
     env = os.environ | {"PYTHONPATH": str(root)}
-    child = subprocess.Popen(
+    with subprocess.Popen(
         [sys.executable, "-c", _POOL_CHILD], cwd=root, env=env, stdout=subprocess.PIPE, text=True
-    )
-    try:
-        assert child.stdout is not None
-        pid, *workers = map(int, child.stdout.readline().split())
-        servers = _children_of(pid) - {child.pid}  # the forkserver, the resource tracker
-        assert workers and all(_alive(w) for w in workers)
-    finally:
-        child.kill()
-        child.wait(30)
+    ) as child:
+        try:
+            assert child.stdout is not None
+            pid, *workers = map(int, child.stdout.readline().split())
+            servers = _children_of(pid)  # the forkserver, the resource tracker
+            assert workers and all(_alive(w) for w in workers) and servers
+        finally:
+            child.kill()
+            child.wait(30)
     left = {*workers, *servers}
     deadline = time.monotonic() + 30.0
     while (alive := {p for p in left if _alive(p)}) and time.monotonic() < deadline:
