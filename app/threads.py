@@ -18,3 +18,23 @@ def limit_blas_threads(n: int = 1) -> None:
     is imported to take effect."""
     for name in BLAS_VARIABLES:
         os.environ.setdefault(name, str(n))
+
+
+def exit_with_parent() -> None:
+    """In a pool worker started by spawn or forkserver (its initializer): end this process when
+    the process that started the pool ends, however it ends. A pool worker whose parent is
+    killed (SIGKILL, the OOM killer) waits on its call queue for ever, and the forkserver that
+    forked it stays as long as it lives: each killed service left one of each behind."""
+    import multiprocessing
+    import multiprocessing.connection
+    import threading
+
+    parent = multiprocessing.parent_process()
+    if parent is None or parent.sentinel is None:
+        return
+
+    def watch() -> None:
+        multiprocessing.connection.wait([parent.sentinel])
+        os._exit(0)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()

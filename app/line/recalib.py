@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 
 from app.config.line import RecalibSettings
 from app.formats.params import to_json
+from app.threads import exit_with_parent
 from calib.errors import CalibError
 from calib.gate_limits import Gates
 from calib.gates import check_identification
@@ -157,10 +158,12 @@ STOP_SIGNALS = {signal.SIGTERM, signal.SIGINT}
 
 def _ignore_stop_signals() -> None:
     """In the worker: SIGTERM and SIGINT are the service's to handle (see `stop_signals_held`);
-    the service ends the worker itself (`Recalibrator.close`)."""
+    the service ends the worker itself (`Recalibrator.close`), and a service that dies takes it
+    along (`exit_with_parent`)."""
     for sig in STOP_SIGNALS:
         signal.signal(sig, signal.SIG_IGN)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
+    exit_with_parent()
 
 
 @contextmanager

@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 from app.config import CellConfig
 from app.errors import InputError
+from app.threads import exit_with_parent
 from app.workspace import workspace_points
 from calib import candidates
 from calib.identify import Measurements
@@ -177,6 +178,7 @@ _WORKER: dict[str, object] = {}
 
 
 def _init_worker(sensor: TrueSensor, sensor_model: SensorModel, mode: str) -> None:
+    exit_with_parent()
     cv2.setNumThreads(1)
     _ = sensor.pixel_rays
     _WORKER.update(sensor=sensor, model=sensor_model, mode=mode)

@@ -4,7 +4,12 @@ rejected with their reasons; the identification runs in a worker process."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -110,3 +115,61 @@ def test_identification_runs_in_a_worker_process() -> None:
         rec.close()
     assert out is not None and out.passed
     assert out.rms_mm == pytest.approx(identify(load_cell(None).model(), train).rms_mm, rel=1e-6)
+
+
+_POOL_CHILD = """
+import multiprocessing, os, sys, time
+from app.line.recalib import Recalibrator, _ready
+r = Recalibrator()
+r.prestart()
+r._executor.submit(_ready).result(60)
+workers = [p.pid for p in multiprocessing.active_children()]
+print(" ".join(map(str, [os.getpid(), *workers])), flush=True)
+time.sleep(600)  # sleep-ok: the process waits to be killed
+"""
+
+
+def _children_of(pid: int) -> set[int]:
+    """Every live process whose parent is `pid` (from /proc)."""
+    out = set()
+    for status in Path("/proc").glob("[0-9]*/status"):
+        try:
+            text = status.read_text()
+        except OSError:
+            continue
+        if f"\nPPid:\t{pid}\n" in text:
+            out.add(int(status.parent.name))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/status").read_text().split("\nState:\t", 1)[1][0]
+    except (OSError, IndexError):
+        return False
+    return state != "Z"
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads /proc")
+def test_a_killed_service_leaves_no_recalibration_worker_nor_forkserver_behind() -> None:
+    """kill -9 of the service: its recalibration worker (forked by the forkserver) and the
+    forkserver end too. Before, the worker waited on its call queue for ever and the forkserver
+    stayed for it: one of each per killed service (issue 31: a leak per suite run)."""
+    root = Path(__file__).resolve().parents[2]
+    env = os.environ | {"PYTHONPATH": str(root)}
+    with subprocess.Popen(
+        [sys.executable, "-c", _POOL_CHILD], cwd=root, env=env, stdout=subprocess.PIPE, text=True
+    ) as child:
+        try:
+            assert child.stdout is not None
+            pid, *workers = map(int, child.stdout.readline().split())
+            servers = _children_of(pid)  # the forkserver, the resource tracker
+            assert workers and all(_alive(w) for w in workers) and servers
+        finally:
+            child.kill()
+            child.wait(30)
+    left = {*workers, *servers}
+    deadline = time.monotonic() + 30.0
+    while (alive := {p for p in left if _alive(p)}) and time.monotonic() < deadline:
+        time.sleep(0.1)  # sleep-ok: polling /proc for processes to end, with a deadline
+    assert not alive, f"left behind: {alive}"
