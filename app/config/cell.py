@@ -179,7 +179,7 @@ class PlanningSection(Section):
     fov_offsets: str = opt("spread", choices=("spread", "centre"))
     swarm_size: int = opt(50, lo=2, hi=10000)
     iterations: int = opt(30, lo=1, hi=10000)
-    patience: int = opt(5, lo=0, hi=10000)
+    patience: int = opt(3, lo=0, hi=10000)  # docs/results/plan-speed.md: 3 met <= 10 s
     stall_tolerance: float = opt(1e-3, lo=0, hi=1)
     clearance_above_sphere_mm: float = opt(30.0, lo=0, hi=1e4)
     floor_z_mm: float = opt(-565.0, lo=-1e5, hi=1e5)
