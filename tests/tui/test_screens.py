@@ -9,6 +9,7 @@ import asyncio
 import html
 import os
 import re
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -30,7 +31,11 @@ def screen_lines(svg: str) -> list[str]:
     return [lines.get(k, "").rstrip() for k in range(max(lines, default=-1) + 1)]
 
 
-async def screenshot(pane: str, size: tuple[int, int]) -> str:
+async def screenshot(
+    pane: str, size: tuple[int, int], settled: Callable[[str], bool] | None = None
+) -> str:
+    """The pane's SVG screenshot once the screen has settled: `settled(svg)` is true (waited
+    for up to 10 s, then the last one), or without it once two screenshots agree."""
     app = FrozenTui()
     async with app.run_test(size=size) as pilot:
         await pilot.press(str(PANES.index(pane) + 1))
@@ -40,16 +45,17 @@ async def screenshot(pane: str, size: tuple[int, int]) -> str:
                 break
             await pilot.pause(0.01)
         assert not app.refreshing, "the screen did not settle"
-        # the widgets it changed are laid out and painted: until two screenshots agree (a table
-        # sizes its columns to its rows a frame after they land; on a loaded machine 3 pauses
-        # caught the header before it: CI saw the measurements pane's narrow header once)
+        # the widgets it changed are laid out and painted (a table sizes its columns to its
+        # rows a frame after they land): two screenshots that agree can still be the header
+        # before its rows on a loaded machine (CI saw the measurements and the log panes'
+        # narrow header), so a snapshot test waits for the screen it expects, with a deadline
         shot = ""
-        for _ in range(100):
-            await pilot.pause(0.02)
+        for _ in range(200):
+            await pilot.pause(0.05)
             await pilot.wait_for_scheduled_animations()
             again = app.export_screenshot(title=f"rvis tui: {pane}")
-            if again == shot:
-                break
+            if settled(again) if settled is not None else again == shot:
+                return again
             shot = again
         return shot
 
@@ -57,12 +63,16 @@ async def screenshot(pane: str, size: tuple[int, int]) -> str:
 @pytest.mark.parametrize("size", SIZES, ids=lambda s: f"{s[0]}x{s[1]}")
 @pytest.mark.parametrize("pane", PANES)
 def test_screen_matches_snapshot(pane: str, size: tuple[int, int]) -> None:
-    svg = asyncio.run(screenshot(pane, size))
-    lines = screen_lines(svg)
-    assert len(lines) == size[1]
     name = f"{pane}_{size[0]}x{size[1]}"
     golden = SNAPSHOTS / f"{name}.txt"
-    if os.environ.get("RVIS_UPDATE_SNAPSHOTS"):
+    update = bool(os.environ.get("RVIS_UPDATE_SNAPSHOTS"))
+    expected = None if update else golden.read_text().split("\n")[:-1]
+    svg = asyncio.run(
+        screenshot(pane, size, None if update else lambda svg: screen_lines(svg) == expected)
+    )
+    lines = screen_lines(svg)
+    assert len(lines) == size[1]
+    if update:
         golden.write_text("\n".join(lines) + "\n")
         (DOCS / f"{name}.svg").write_text(svg)
     assert lines == golden.read_text().split("\n")[:-1]
