@@ -252,7 +252,7 @@ class SimulatedLineRun:
         # the cold cell's calibration, measured as the line measures (a commissioned state
         # directory's first version replaces it once the service has read it)
         self.x_commissioning = self._carried(
-            cfg.identification_model(),
+            commissioned,
             commissioning(cfg, seed, EndToEndTruth(self.cell.sensor, self.sensor_model, commands)),
         )
         self.summary = SimRunSummary()

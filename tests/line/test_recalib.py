@@ -5,6 +5,7 @@ rejected with their reasons; the identification runs in a worker process."""
 from __future__ import annotations
 
 import os
+import select
 import subprocess
 import sys
 import time
@@ -150,6 +151,31 @@ def _alive(pid: int) -> bool:
     return state != "Z"
 
 
+def _still_running_after(pids: set[int], timeout_s: float) -> set[int]:
+    """The processes of `pids` that have not ended within timeout_s (waited on with a pidfd
+    each: readable once the process has ended, reaped or not)."""
+    fds: dict[int, int] = {}
+    for pid in pids:
+        try:
+            fds[os.pidfd_open(pid)] = pid
+        except ProcessLookupError:
+            continue
+    poller = select.poll()
+    for fd in fds:
+        poller.register(fd, select.POLLIN)
+    left = dict(fds)
+    try:
+        deadline = time.monotonic() + timeout_s
+        while left and (wait_s := deadline - time.monotonic()) > 0:
+            for fd, _ in poller.poll(wait_s * 1000.0):
+                poller.unregister(fd)
+                left.pop(fd)
+    finally:
+        for fd in fds:
+            os.close(fd)
+    return set(left.values())
+
+
 @pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads /proc")
 def test_a_killed_service_leaves_no_recalibration_worker_nor_forkserver_behind() -> None:
     """kill -9 of the service: its recalibration worker (forked by the forkserver) and the
@@ -168,8 +194,5 @@ def test_a_killed_service_leaves_no_recalibration_worker_nor_forkserver_behind()
         finally:
             child.kill()
             child.wait(30)
-    left = {*workers, *servers}
-    deadline = time.monotonic() + 30.0
-    while (alive := {p for p in left if _alive(p)}) and time.monotonic() < deadline:
-        time.sleep(0.1)  # sleep-ok: polling /proc for processes to end, with a deadline
-    assert not alive, f"left behind: {alive}"
+    left = _still_running_after({*workers, *servers}, 30.0)
+    assert not left, f"left behind: {left}"
