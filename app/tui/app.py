@@ -356,6 +356,7 @@ class RvisTui(App[None]):
     # -- actions -----------------------------------------------------------------------------
     def action_show(self, pane: str) -> None:
         self.query_one(TabbedContent).active = pane
+        self.refresh_all()  # its history now, not only when the tab's activation message comes
         if pane == "alarms":  # up/down select an alarm at once: its text whole under the table
             self.query_one("#alarms-table", DataTable).focus()
 
