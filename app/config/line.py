@@ -105,6 +105,10 @@ class RecalibSettings(Section):
     holdout_size: int = opt(4, lo=1, hi=1000)
     every_n: int = opt(24, lo=1, hi=100000)  # new measurements between recalibrations
     max_nfev: int = opt(200, lo=10, hi=10000)
+    # the plant's limit for the U95 of a point measured now (app/line/accuracy.py): a window
+    # whose U95 is above it is in a suspect interval. Default 0.15 mm: VDA 5's 2U/T <= 30 % for
+    # a body tolerance T of +-0.5 mm; a plant sets it from its own tolerance
+    accuracy_limit_mm: float = opt(0.15, gt=0, hi=100)
     # the model the service identifies: "compliant" (J2/J3 gravity deflection and the thermal
     # term, with [calibration]'s payload and thermal settings) or "rigid" (the paper's). A
     # version in force of a rigid model (a rigid commissioning) is carried into the compliant

@@ -10,8 +10,11 @@ next (possibly already knocked) measurements. A residual the fit was trained on 
 new one at the same configuration: for a least-squares fit of n parameters to m equations the
 expected squared residual is sigma^2 (m - n), a new measurement's prediction error at the same
 points sigma^2 (m + n); the service scales the training residuals by sqrt((m + n) / (m - n))
-(`prediction_inflation`). Without a seed (the commissioning parameters) a chart learns mu and
-sigma from its first `baseline_n` samples.
+(`prediction_inflation`). Without a seed (the commissioning parameters of a new cell, a reset)
+a chart learns mu and sigma from its first `baseline_n` samples, and is self-starting meanwhile
+(Hawkins 1987: from the third sample each one is judged against those before it,
+`self_start_score` of the norms' 2/3 power, and a CUSUM of the scores signals), so a knock in
+the first schedule cycle is flagged as a step, never learned into the baseline.
 
 **Change** charts watch d = |c_t - c_prev| [mm]: how far the measured centre (sensor frame) moved
 since the previous visit of the same schedule slot (the same joint configuration, the same
@@ -111,6 +114,8 @@ class Chart:
     onset_ref: int = -1  # first sample after the CUSUM was last zero
     ready: bool = False  # mu and sigma known
     recent: list[float] = field(default_factory=list)  # the last in-control samples
+    ss: float = 0.0  # the self-starting CUSUM while learning [standard normal scores]
+    jumped: bool = False  # a sample since it was last zero stood out on its own
 
     def seed(self, samples: list[float], sigma_floor_mm: float = 0.0) -> None:
         """Take mu and sigma (at least `sigma_floor_mm`) from these samples (at least 2) at
@@ -126,14 +131,12 @@ class Chart:
     def restart(self) -> None:
         """Keep the baseline, restart the statistics."""
         self.z, self.s_hi, self.t, self.drifting = self.mu, 0.0, 0, False
+        self.ss, self.jumped = 0.0, False
 
     def update(self, family: str, stream: str, e_mm: float, ref: int) -> DriftSignal | None:
         s = self.settings
         if not self.ready:
-            self.baseline.append(e_mm)
-            if len(self.baseline) >= s.baseline_n:
-                self.seed(self.baseline)
-            return None
+            return self._learn(family, stream, e_mm, ref)
         self.t += 1
         lam = s.ewma_lambda
         self.z = lam * e_mm + (1.0 - lam) * self.z
@@ -154,6 +157,43 @@ class Chart:
         self.recent = [*self.recent, e_mm][-s.baseline_n :]
         return None
 
+    def _learn(self, family: str, stream: str, e_mm: float, ref: int) -> DriftSignal | None:
+        """While the baseline is learned, the self-starting CUSUM (Hawkins 1987): from the
+        `SELF_START_N`-th sample on each new sample is judged against the ones before it
+        (`self_start_score`) and the scores feed an upper CUSUM (slack k, decision h, as the
+        learned chart's), so a step is a step from the first samples and a signalling sample
+        never enters the baseline. When the baseline is complete the chart watches with it."""
+        s = self.settings
+        if self.drifting:
+            return None
+        if len(self.baseline) >= SELF_START_N - 1:
+            prior = np.asarray(self.baseline, float)
+            mean = float(np.mean(prior))
+            sd = max(float(np.std(prior, ddof=1)), s.min_sigma_mm)
+            # the sigma floor carried into the transformed scale (d(e^p) = p e^(p-1) de)
+            floor = NORM_POWER * max(mean, s.min_sigma_mm) ** (NORM_POWER - 1) * s.min_sigma_mm
+            score = self_start_score(e_mm**NORM_POWER, prior**NORM_POWER, floor)
+            # the change point: the first sample after the CUSUM was last zero, or the first
+            # one since that stood out on its own (the CUSUM of a warm-up's noise is rarely
+            # zero, and a knock's first sample is far out)
+            if self.ss == 0.0 or (score > ONSET_SCORE and not self.jumped):
+                self.onset_ref, self.jumped = ref, score > ONSET_SCORE
+            self.ss = max(0.0, self.ss + score - s.cusum_k)
+            if self.ss == 0.0:
+                self.jumped = False
+            if self.ss > s.cusum_h:
+                self.drifting = True
+                onset = self.onset_ref
+                return DriftSignal(
+                    family, stream, "cusum", self.ss * sd, s.cusum_h * sd, mean, sd, onset
+                )
+            if score > ONSET_SCORE:
+                return None  # far out on its own: not in the baseline (a knock's first sample)
+        self.baseline.append(e_mm)
+        if len(self.baseline) >= s.baseline_n:
+            self.seed(self.baseline)
+        return None
+
     def relearn(self) -> None:
         """Learn the baseline again from the last in-control samples (when there are
         `baseline_n` of them), else keep it; restart the statistics either way."""
@@ -167,8 +207,13 @@ class Chart:
         return {k: getattr(self, k) for k in _CHART_FIELDS}
 
     def load_json(self, doc: dict[str, Any]) -> None:
+        older = {
+            "recent": [],
+            "ss": 0.0,
+            "jumped": False,
+        }  # a state saved by an older version lacks these
         for k in _CHART_FIELDS:
-            setattr(self, k, doc.get(k, []) if k == "recent" else doc[k])  # older: no recent
+            setattr(self, k, doc.get(k, older[k]) if k in older else doc[k])
 
     def state(self) -> dict[str, float | bool]:
         return {
@@ -178,6 +223,39 @@ class Chart:
             "cusum_mm": self.s_hi,
             "drifting": self.drifting,
         }
+
+
+#: the self-starting chart judges a sample against at least this many before it, less one
+SELF_START_N = 3
+#: the self-starting scores are of norm^(2/3): the norm of a 3-D normal error is skewed (its
+#: square chi-square with 3 degrees of freedom), its 2/3 power nearly normal (Wilson-Hilferty);
+#: measured on in-control norms over 24 samples: 1.7 % false signals against 3.0 % on the raw
+#: norm, a 5-sigma step flagged one sample later (3 instead of 2, median)
+NORM_POWER = 2.0 / 3.0
+#: a self-starting score above this (one-sided p about 0.001) marks a change point on its own
+ONSET_SCORE = 3.0
+#: a score's magnitude is capped (a sample far out signals at once; the cap keeps one
+#: outlier's weight finite in the CUSUM's memory)
+SCORE_CAP = 8.0
+
+
+def self_start_score(e_mm: float, prior: ArrayLike, min_sigma_mm: float = 0.0) -> float:
+    """The sample `e_mm` standardised by the n samples before it (Hawkins 1987, Quesenberry's
+    Q statistic): t = (e - mean) / (s sqrt(1 + 1/n)) is Student t with n - 1 degrees of freedom
+    when all n + 1 come from one normal distribution; its probability turned into a standard
+    normal score (capped at +-SCORE_CAP). s is at least `min_sigma_mm` (a noise-free start)."""
+    from scipy.stats import norm
+    from scipy.stats import t as t_dist
+
+    x = np.asarray(prior, float)
+    n = len(x)
+    if n < 2:
+        raise ValueError("a self-starting score needs at least 2 samples before it")
+    sd = max(float(np.std(x, ddof=1)), min_sigma_mm)
+    t = (e_mm - float(np.mean(x))) / (sd * np.sqrt(1.0 + 1.0 / n))
+    # the upper tail's probability, well resolved where the chart decides
+    z = float(-norm.ppf(t_dist.sf(t, n - 1))) if t > 0 else float(norm.ppf(t_dist.cdf(t, n - 1)))
+    return float(np.clip(z, -SCORE_CAP, SCORE_CAP))
 
 
 _CHART_FIELDS = (
@@ -191,6 +269,8 @@ _CHART_FIELDS = (
     "onset_ref",
     "ready",
     "recent",
+    "ss",
+    "jumped",
 )
 
 

@@ -12,6 +12,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from app.line.accuracy import Accuracy
 from app.line.cycle import WindowWatch
 from app.line.drift import DriftMonitor
 from app.line.events import EventBus
@@ -72,6 +73,7 @@ class LineHost(Protocol):
     drift_due: bool
     change_from_id: int
     step: Step | None
+    accuracy: Accuracy | None
 
     # faults
     storage_failed: bool

@@ -54,6 +54,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from app.errors import InputError
 from app.formats.params import plain_document
+from app.line.accuracy import ACCURACY_GROUP, Accuracy, evidence, statement
 from app.line.cycle import Cycle, WindowWatch
 from app.line.drift import DriftMonitor, prediction_inflation, residual_mm
 from app.line.events import EventBus
@@ -67,11 +68,11 @@ from app.line.schedule import Schedule, Slot
 from app.line.sensor_watch import SensorWatch
 from app.line.settings import ServiceSettings
 from app.line.statedir import StateDir
-from app.line.states import FAULT_CODES, State, utc_text
+from app.line.states import FAULT_CODES, State, suspect_json, utc_text
 from app.line.station import Station
 from app.line.status import device_of, status_reply
 from app.line.step import Step, StepStatus, step_alarm_text
-from app.line.step_fit import StepCorrection, step_slot
+from app.line.step_fit import MIN_STEP_REFS, StepCorrection, step_slot
 from app.line.step_handler import StepHandler
 from app.line.store import StorageError, Store
 from app.line.sweeps import SweepArchive
@@ -157,6 +158,11 @@ class Service:
         self.visit_ids: dict[int, int] = {}  # slot -> the measurement id of its last visit
         self.change_from_id = 0  # a change from a visit before this id spans a known step
         self.step: Step | None = None  # a flagged step: attribution, correction (app.line.step)
+        # what the cell states about its accuracy (app.line.accuracy): the version in force's
+        # seed residuals, the statement after the last window, an open accuracy interval
+        self.u_seed: list[float] = []
+        self.accuracy: Accuracy | None = None
+        self.accuracy_suspect_id: int | None = None
         self.new_since_recal = 0
         self.force_recal = False
         self._skipped: tuple[int, int] | None = None  # the set a recalibration was skipped on
@@ -261,6 +267,9 @@ class Service:
             "step": None if self.step is None else self.step.to_json(),
             "drift": self.drift.to_json(),
             "sequential_step": None if self.sequential is None else self.sequential.step_json(),
+            "u_seed": self.u_seed,
+            "accuracy_suspect_id": self.accuracy_suspect_id,
+            "accuracy": None if self.accuracy is None else self.accuracy.to_json(),
         }
 
     def save_state(self) -> None:
@@ -288,6 +297,15 @@ class Service:
         self.drift.load_json(doc["drift"])
         if self.sequential is not None:
             self.sequential.load_step_json(doc.get("sequential_step"))
+        # a state saved before the accuracy statement: the seed of the version in force
+        seed = doc.get("u_seed")
+        self.u_seed = [float(e) for e in seed] if seed is not None else self._version_seed()
+        self.accuracy_suspect_id = doc.get("accuracy_suspect_id")
+        acc = doc.get("accuracy")
+        if acc is not None:
+            self.accuracy = Accuracy(
+                acc["u95_mm"], int(acc["n"]), str(acc["basis"]), float(acc["limit_mm"])
+            )
 
     def stop(self) -> None:
         """Ask `run()` to return after the current window (safe from a signal handler)."""
@@ -519,14 +537,61 @@ class Service:
         self.counters["windows"] = n
         self.counters["overruns"] += report.overrun
         self.counters["withdrawn"] += bool(report.withdrawn)
+        self._state_accuracy(t_open)
         self.save_state()
+        acc = self.accuracy
         self.bus.emit(
-            "window", {**report.to_json(), "t_open": t_open, "params_version": self.version}
+            "window",
+            {
+                **report.to_json(),
+                "t_open": t_open,
+                "params_version": self.version,
+                "u95_mm": None if acc is None else acc.u95_mm,
+                "vouched": acc is not None and acc.vouched,
+            },
         )
         self.set_state(State.PAUSED if self.paused else State.IDLE)
         self._between_windows()
         if self.after_window is not None:
             self.after_window()
+
+    def _state_accuracy(self, t_open: float) -> None:
+        """After a window: the U95 of a point measured now from the evidence (app.line.accuracy),
+        stated for the window's bodies; a window the cell cannot vouch for within the limit
+        opens an accuracy suspect interval (from when it opened), the first one vouched for
+        again closes it."""
+        n_max = len(self.schedule)
+        rows = self.store.measurements(last=4 * n_max)
+        norms, basis = evidence(rows, self.version, self.drift_onset_id, self.u_seed, n_max)
+        acc = statement(norms, basis, self.settings.recalib.accuracy_limit_mm)
+        self.accuracy = acc
+        with self.store.batch():
+            self.store.state_window_u95(acc.u95_mm)
+            open_id = self.accuracy_suspect_id
+            if not acc.vouched and open_id is None:
+                last = self.store.measurements(before_id=None, last=1)
+                self.accuracy_suspect_id = sid = self.store.open_suspect(
+                    {
+                        "t_start": t_open,
+                        "onset_id": int(last[0]["id"]) if last else 0,
+                        "params_version": self.version,
+                        "text": f"the cell cannot vouch for its accuracy: {acc.text()}",
+                    }
+                )
+                self.store.update_suspect(sid, group_name=ACCURACY_GROUP)
+                opened = self.store.suspect(sid)
+            elif acc.vouched and open_id is not None:
+                self.store.update_suspect(
+                    open_id,
+                    t_end=t_open,
+                    end_reason=f"vouched for again: {acc.text()}",
+                    end_version=self.version,
+                )
+                self.accuracy_suspect_id, opened = None, self.store.suspect(open_id)
+            else:
+                opened = None
+        if opened is not None:
+            self.bus.emit("suspect_interval", suspect_json(opened))
 
     def _unshelve(self) -> None:
         for alarm_id in self.store.unshelve_expired(self.clock.time()):
@@ -681,8 +746,8 @@ class Service:
         scheduling, the most informative for the sequential estimator; else the next (also
         while a corrected step's post-step measurements are gathered: the whole schedule)."""
         if self._measuring_for_step() and self.step is not None:
-            if self.step.status == StepStatus.CORRECTED:
-                return slots[0]
+            if self.step.status in (StepStatus.CORRECTED, StepStatus.SEVERAL):
+                return slots[0]  # the full recalibration's set: the whole schedule
             if self.step.status == StepStatus.FOLLOWING and self.sequential is not None:
                 # the filter's candidate waits for its predicted uncertainty at every view of
                 # the schedule: the slot that lowers it most (measured: the step's own slots
@@ -691,6 +756,10 @@ class Service:
             onset = self.step.onset_id
             after = self.store.measurements(since_id=onset - 1)
             before = self.store.measurements(before_id=onset, last=len(self.schedule))
+            if len(after) >= len(self.schedule) > len(before):
+                # a new cell (fewer references than slots): a schedule's worth measured for
+                # the attribution and no decision yet, the full recalibration's set next
+                return slots[0]
             recent = [int(r["slot"]) for r in reversed(before)]
             lead = [g for g in step_groups(self.model) if g.name == self.step.choice]
             groups = lead if lead and lead[0].name not in (NONE, SEVERAL) else None
@@ -825,7 +894,9 @@ class Service:
                 continue
             if self.drift_onset_id is None:
                 self.drift_onset_id = sig.onset_ref
-                attribute = sig.family == "change" or len(self.visit_ids) >= len(self.schedule)
+                # attributed on pairs with the slots' visits before it: in a new cell's first
+                # schedule cycle on the slots visited so far (the windows measure them again)
+                attribute = sig.family == "change" or len(self.visit_ids) >= MIN_STEP_REFS
                 self.step_handler.open_step(sig.onset_ref, row_id, attribute=attribute)
             what = "residual" if sig.family == "residual" else "change since the last visit"
             text = f"step of {where} ({what}, {stat}) since measurement {self.drift_onset_id}"
@@ -867,11 +938,22 @@ class Service:
             for k, r in enumerate(rows)
         ]
 
+    def _version_seed(self) -> list[float]:
+        """The seed residuals of the version in force (its calibration's rolling set)."""
+        applied = self.store.applied()
+        cal_id = applied[-1]["calibration_id"] if applied else None
+        cal = self.store.calibration(cal_id)
+        if _kind(None if cal is None else cal["document"]) != "batch":
+            return []
+        return [e for _, e in self._drift_seed(cal)]
+
     def _restore_drift(self) -> None:
         """After a restart: the residual charts from the stored measurements, the last visits."""
         applied = self.store.applied()
         cal_id = applied[-1]["calibration_id"] if applied else None
-        self.drift.reset(self._drift_seed(self.store.calibration(cal_id)))
+        seed = self._drift_seed(self.store.calibration(cal_id))
+        self.drift.reset(seed)
+        self.u_seed = [e for _, e in seed]
         for r in self.store.measurements(last=2 * len(self.schedule)):
             if 0 <= r["slot"] < len(self.schedule):
                 q = np.asarray(r["q_deg"], float)
@@ -1138,8 +1220,11 @@ class Service:
                 # factor: keep the baselines (measured: reseeding gave 21 low alarms in 4 h);
                 # a step correction restores the residuals of before the step
                 self.drift.restart()
+                self.u_seed = []
             else:
-                self.drift.reset(self._drift_seed(cal))
+                seed = self._drift_seed(cal)
+                self.drift.reset(seed)
+                self.u_seed = [e for _, e in seed]
             if self.sequential is not None and kind != "sequential":
                 self.sequential.restart(self.model, self.x, self.params.current_document())
             onset, self.drift_due = self.drift_onset_id, False

@@ -26,6 +26,8 @@ def status_reply(svc: LineHost) -> dict[str, Any]:
             "counters": dict(svc.counters),
             "alarms": [alarm_status(a) for a in svc.unstored_alarms],
             "step": step_text(svc),
+            # the U95 of a point measured now, vouched for or not (app.line.accuracy)
+            "accuracy": None if svc.accuracy is None else svc.accuracy.to_json(),
             "storage_error": str(exc),
         }
 
@@ -92,6 +94,8 @@ def _status(svc: LineHost) -> dict[str, Any]:
         "drift": svc.drift.state(),
         "drift_change": svc.drift.change_state(),
         "step": step_text(svc),
+        # the U95 of a point measured now, vouched for or not (app.line.accuracy)
+        "accuracy": None if svc.accuracy is None else svc.accuracy.to_json(),
         "devices": _device_status(svc),
         "device_retry": svc.device_retry,
         "pending": _pending_status(svc),

@@ -56,6 +56,10 @@ from calib.identify import residuals
 from calib.model import SystemModel
 
 F64 = NDArray[np.float64]
+#: measurements before a flagged step that its attribution needs as references (a knock in a
+#: new cell's first schedule cycle is attributed on the slots measured before it: the windows
+#: measure them again, `step_slot`)
+MIN_STEP_REFS = 3
 #: E|d| of a 3-D normal difference d with per-coordinate sigma: sigma sqrt(8 / pi)
 _MEAN_NORM_3D = float(np.sqrt(8.0 / np.pi))
 RECENT_FIRST = 2  # slots measured just before the change point revisited first

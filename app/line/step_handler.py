@@ -24,6 +24,7 @@ from app.line.host import LineHost
 from app.line.states import suspect_json
 from app.line.step import Step, StepStatus, recovery_test, step_alarm_text
 from app.line.step_fit import (
+    MIN_STEP_REFS,
     StepCorrection,
     correct_step,
     locate_step,
@@ -207,7 +208,15 @@ class StepHandler:
         `locate`: look for the change point (else the one located before stands)."""
         svc = self.svc
         r = svc.settings.recalib
-        lo = max(1, step.onset_id - len(svc.schedule) // LOOK_BACK_DIVISOR)
+        back = len(svc.schedule) // LOOK_BACK_DIVISOR
+        lo = max(1, step.onset_id - back)
+        prior = [int(q["id"]) for q in svc.store.measurements(before_id=step.onset_id)]
+        if len(prior) < 2 * back:
+            # a new cell's first schedule cycle: most slots were measured once, before the
+            # step; a quarter of them looked back (the self-starting chart's change point is
+            # close), the others the references (at least MIN_STEP_REFS)
+            keep = max(min(MIN_STEP_REFS, len(prior)), len(prior) - len(prior) // 4)
+            lo = prior[keep - 1] + 1 if keep else step.onset_id
         rows = svc.store.measurements(since_id=lo - 1)
         before = svc.store.measurements(before_id=lo, last=2 * len(svc.schedule))
         wide = paired(rows, before)  # references before any candidate change point
@@ -330,7 +339,9 @@ class StepHandler:
             return {}
         # a change from before it spans it; the measurements after the step are from it on
         step.start_id = svc.change_from_id = svc.drift_onset_id = start_id
-        before = svc.store.measurements(before_id=start_id, last=1)
+        # the interval from the earlier of it and the chart's change point: the located start
+        # is a pair's, and the measurements just after a knock may have none (a new cell)
+        before = svc.store.measurements(before_id=min(start_id, step.onset_id), last=1)
         if not before:
             return {}
         step.last_good_id, step.t_start = int(before[0]["id"]), float(before[0]["t"])

@@ -104,6 +104,9 @@ MIGRATIONS: tuple[tuple[str, ...], ...] = (
         "CREATE TABLE windows (id INTEGER PRIMARY KEY, t REAL NOT NULL, body_id)",
         "CREATE INDEX windows_t ON windows (t)",
     ),
+    # 5 -> 6: the U95 the cell stated for each window's bodies (app.line.accuracy; NULL: none
+    # stated, an older rvis or no evidence)
+    ("ALTER TABLE windows ADD COLUMN u95_mm REAL",),
 )
 SCHEMA_VERSION = len(MIGRATIONS)
 SUSPECTS_SCHEMA = 4  # the version that has suspect_intervals
@@ -688,6 +691,14 @@ class Store:
     def add_window(self, t: float, body_id: int | str | None) -> int:
         """A clamp window that opened at `t` with the body the PLC clamped in it (None: none)."""
         return self._insert("INSERT INTO windows (t, body_id) VALUES (?, ?)", (t, body_id))
+
+    def state_window_u95(self, u95_mm: float | None) -> None:
+        """The U95 [mm] stated for the bodies of the last window recorded (app.line.accuracy)."""
+        with self._tx() as db:
+            db.execute(
+                "UPDATE windows SET u95_mm = ? WHERE id = (SELECT MAX(id) FROM windows)",
+                (u95_mm,),
+            )
 
     def windows(self) -> list[dict[str, Any]]:
         """Every clamp window recorded, in time order (t, body_id)."""

@@ -66,6 +66,10 @@ class WindowRecord:
     rmse_commissioning_mm: float
     version: int
     t_open_h: float = float("nan")  # when the window opened (the version was in force then)
+    # the U95 [mm] the service stated for the window's bodies (None: none stated), and whether
+    # they are in a suspect interval (known once the run ended: app.sim.shift.mark_suspect)
+    u95_mm: float | None = None
+    suspect: bool = False
 
 
 @dataclass
@@ -467,6 +471,7 @@ class SimulatedLineRun:
             rmse_mm=self.true_rmse_mm(self._x_of(version), t_s),
             rmse_commissioning_mm=self.true_rmse_mm(self.x_commissioning, t_s),
             version=version,
+            u95_mm=event.get("u95_mm"),
         )
         if "t_open" in event:
             record.t_open_h = (event["t_open"] - epoch) / 3600.0

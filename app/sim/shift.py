@@ -24,6 +24,7 @@ import numpy as np
 
 from app.config import CellConfig
 from app.formats.files import dumps_json
+from app.line.accuracy import ACCURACY_GROUP
 from app.sim.line_run import SimRunSummary, SimulatedLineRun, WindowRecord
 from fakes.truth import KNOCK_KINDS, Knock
 
@@ -177,6 +178,7 @@ class ShiftResult:
     knock_window: int | None = None  # the first window opened after the knock
     flagged_after: int | None = None  # windows from the knock to the first drift alarm
     pre_knock_rmse_mm: float = math.nan
+    accuracy_limit_mm: float = math.nan  # [service] accuracy_limit_mm of the run
     recovered_after: int | None = None  # windows from the knock until back within the ratio
     real_s: float = 0.0
     # suspect intervals (sim s from the line's start) and how they cover the windows whose true
@@ -211,6 +213,7 @@ class ShiftResult:
             real_s=float(doc["real_s"]),
             suspects=list(doc.get("suspects", [])),
             baseline_mm=doc.get("baseline_mm"),
+            accuracy_limit_mm=float(doc.get("accuracy_limit_mm", math.nan)),
         )
         result.attribution = attributed_group(result.suspects)
         evaluate(result)
@@ -225,6 +228,7 @@ class ShiftResult:
             "knock_window": self.knock_window,
             "flagged_after_windows": self.flagged_after,
             "pre_knock_rmse_mm": self.pre_knock_rmse_mm,
+            "accuracy_limit_mm": self.accuracy_limit_mm,
             "recovered_after_windows": self.recovered_after,
             "drift_alarm_windows": self.drift_alarm_windows,
             "step_alarm_windows": self.step_alarm_windows,
@@ -306,6 +310,7 @@ def run_shift(
         start_epoch=SHIFT_START_EPOCH,
     ) as run:
         result = ShiftResult(s, seed, s.scale, run.summary, window_s=cfg.simline.window_s)
+        result.accuracy_limit_mm = cfg.service.accuracy_limit_mm
         run.run_windows(n_windows(cfg, s), on_window=on_window, on_event=_EventLog(result))
         epoch = run.clock.start_epoch
         result.suspects = [
@@ -326,7 +331,8 @@ def _opened_s(r: WindowRecord, window_s: float) -> float:
 def attributed_group(suspects: list[dict[str, Any]]) -> str | None:
     """What the service found moved: the group of its last suspect interval (a confirmed
     step; None when no step was confirmed)."""
-    return str(suspects[-1]["group_name"]) if suspects else None
+    steps = [s for s in suspects if s.get("group_name") != ACCURACY_GROUP]
+    return str(steps[-1]["group_name"]) if steps else None
 
 
 def _minus(t: float | None, epoch: float) -> float | None:
@@ -336,6 +342,7 @@ def _minus(t: float | None, epoch: float) -> float | None:
 def evaluate(result: ShiftResult) -> None:
     """Knock window, windows to the drift alarm, pre-knock level and windows to recovery."""
     s, recs = result.settings, result.records
+    mark_suspect(result)
     after = [r.window for r in recs if r.t_h * 3600.0 - result.window_s >= s.knock_at_h * 3600.0]
     if not after:
         return
@@ -350,6 +357,21 @@ def evaluate(result: ShiftResult) -> None:
     back = [r.window for r in recs if r.window >= k and r.rmse_mm <= limit]
     result.recovered_after = back[0] - k + 1 if back else None
     result.suspect_score = score_suspects(result, limit)
+
+
+def mark_suspect(result: ShiftResult) -> None:
+    """Each window's `suspect`: it opened inside a suspect interval (a step's, or one the cell
+    could not vouch for its U95 within the limit in), or its stated U95 is above the limit or
+    none was stated."""
+    limit = result.accuracy_limit_mm
+    for r in result.records:
+        t = _opened_s(r, result.window_s)
+        inside = any(
+            s["t_start_s"] <= t and (s["t_end_s"] is None or t < s["t_end_s"])
+            for s in result.suspects
+        )
+        unvouched = r.u95_mm is None or (math.isfinite(limit) and r.u95_mm > limit)
+        r.suspect = inside or unvouched
 
 
 def score_suspects(result: ShiftResult, limit_mm: float) -> SuspectScore:

@@ -69,7 +69,7 @@ def test_a_version_1_database_gains_the_temperature_column_and_keeps_its_rows(
     db.commit()
     db.close()
     store = Store(tmp_path / "rvis.db")  # an older service's state directory
-    assert store.version() == SCHEMA_VERSION == 5
+    assert store.version() == SCHEMA_VERSION == 6
     (old,) = store.measurements()
     assert old["c_sensor_mm"] == [1, 2, 3] and old["temp_c"] is None
     store.add_measurement({**_row(1), "temp_c": 23.45})
@@ -264,7 +264,7 @@ def test_a_version_4_database_gains_the_windows_and_keeps_its_suspect_intervals(
     assert old.windows() == []
     old.close()
     store = Store(tmp_path / "rvis.db")
-    assert store.version() == SCHEMA_VERSION == 5
+    assert store.version() == SCHEMA_VERSION == 6
     (row,) = store.suspects()
     assert (row["t_end"], row["text"], row["bodies"]) == (160.0, "sensor mount moved", [])
     store.add_window(120.0, 100001)

@@ -1,0 +1,92 @@
+"""What the cell states about its own accuracy after each window: the expanded uncertainty U95
+(calib.uncertainty) of a point measured now, from the in-line check standard, and whether the
+cell can vouch for it within the plant's limit (`[service] accuracy_limit_mm`).
+
+The evidence is the residuals of the sphere measurements taken with the parameters in force (not
+trained on them: held out), the last `n_max` of them (a schedule cycle: every configuration);
+while fewer were measured, the version's own seed tops them up (the training residuals of its
+calibration scaled to prediction errors, as the drift charts are seeded: app.line.drift). A
+flagged step changes the evidence: only the measurements from its change point on count (the
+seed and the measurements before it describe a cell that is no longer there), so U95 grows at
+once with the first measurement after a knock, and comes down with the measurements of the
+correction in force. A window whose U95 is above the limit (or unknown: no evidence yet) is
+one the cell cannot vouch for: it opens (or keeps open) an accuracy suspect interval, closed by
+the first window vouched for again.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from calib.uncertainty import u95_mm
+
+#: the `group_name` of an accuracy suspect interval (a step's names the group that moved)
+ACCURACY_GROUP = "accuracy"
+
+
+@dataclass(frozen=True)
+class Accuracy:
+    """The statement after a window: `u95_mm` (None: no evidence), from `n` residuals (`basis`:
+    "held-out", "held-out+seed", "seed", "after step" or "none"), against `limit_mm`."""
+
+    u95_mm: float | None
+    n: int
+    basis: str
+    limit_mm: float
+
+    @property
+    def vouched(self) -> bool:
+        """The cell vouches for U95 within the limit."""
+        return self.u95_mm is not None and self.u95_mm <= self.limit_mm
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "u95_mm": self.u95_mm,
+            "n": self.n,
+            "basis": self.basis,
+            "limit_mm": self.limit_mm,
+            "vouched": self.vouched,
+        }
+
+    def text(self) -> str:
+        if self.u95_mm is None:
+            return f"U95 unknown (no evidence yet) > limit {self.limit_mm:.3f} mm"
+        rel = "<=" if self.vouched else ">"
+        return (
+            f"U95 {self.u95_mm:.3f} mm ({self.basis}, {self.n} residuals) {rel} limit"
+            f" {self.limit_mm:.3f} mm"
+        )
+
+
+def evidence(
+    rows: Sequence[Mapping[str, Any]],
+    version: int,
+    onset_id: int | None,
+    seed_mm: Sequence[float],
+    n_max: int,
+) -> tuple[list[float], str]:
+    """(residual norms [mm], basis) that speak for the parameters `version` now (module
+    docstring): the good measurements `rows` (id order) taken with it, from `onset_id` on when
+    a step is flagged, the last `n_max`; topped up with `seed_mm` without a step."""
+    held = [
+        float(r["residual_mm"])
+        for r in rows
+        if r.get("residual_mm") is not None
+        and int(r["params_version"]) == version
+        and (onset_id is None or int(r["id"]) >= onset_id)
+    ][-n_max:]
+    if onset_id is not None:
+        return held, "after step" if held else "none"
+    top = list(seed_mm)[-(n_max - len(held)) :] if len(held) < n_max else []
+    if not held:
+        return top, "seed" if top else "none"
+    return top + held, "held-out+seed" if top else "held-out"
+
+
+def statement(norms_mm: Sequence[float], basis: str, limit_mm: float) -> Accuracy:
+    """The Accuracy of these residual norms."""
+    u = u95_mm(norms_mm)
+    return Accuracy(None if math.isnan(u) else u, len(norms_mm), basis, limit_mm)

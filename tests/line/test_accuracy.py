@@ -1,0 +1,43 @@
+"""What the service counts as evidence for its U95: the measurements taken with the version in
+force (held out), topped up by the version's seed without a step, only those from a flagged
+step's change point on with one; and whether the cell vouches for the limit."""
+
+from __future__ import annotations
+
+from app.line.accuracy import evidence, statement
+
+
+def _rows(residuals: list[float], version: int, first_id: int = 1) -> list[dict[str, object]]:
+    return [
+        {"id": first_id + k, "residual_mm": e, "params_version": version}
+        for k, e in enumerate(residuals)
+    ]
+
+
+def test_held_out_measurements_of_the_version_in_force_topped_up_by_its_seed() -> None:
+    rows = _rows([0.5, 0.5], 1) + _rows([0.03, 0.04], 2, first_id=3)
+    norms, basis = evidence(rows, 2, None, [0.02] * 10, n_max=5)
+    assert norms == [0.02, 0.02, 0.02, 0.03, 0.04] and basis == "held-out+seed"
+    norms, basis = evidence(rows, 2, None, [], n_max=5)
+    assert norms == [0.03, 0.04] and basis == "held-out"
+
+
+def test_a_flagged_step_counts_only_the_measurements_after_it() -> None:
+    rows = _rows([0.03, 0.04, 0.9, 1.1], 1)
+    norms, basis = evidence(rows, 1, 3, [0.02] * 10, n_max=24)
+    assert norms == [0.9, 1.1] and basis == "after step"
+    acc = statement(norms, basis, 0.15)
+    assert acc.u95_mm is not None and acc.u95_mm > 1.0 and not acc.vouched
+
+
+def test_no_evidence_is_not_vouched_for() -> None:
+    norms, basis = evidence([], 1, None, [], n_max=24)
+    acc = statement(norms, basis, 0.15)
+    assert (acc.u95_mm, acc.basis, acc.vouched) == (None, "none", False)
+    assert "unknown" in acc.text()
+
+
+def test_a_cycle_of_good_evidence_is_vouched_for() -> None:
+    acc = statement([0.03] * 24, "held-out", 0.15)
+    # norms of 0.03 mm: sigma 0.017 mm per coordinate, U95 about 1.6 x 0.03 plus the bound
+    assert acc.u95_mm is not None and 0.048 < acc.u95_mm < 0.07 and acc.vouched
