@@ -121,17 +121,36 @@ class CompliantModel(SystemModel):
             x[INDEX[name]] = value
         return x
 
-    def carried(self, x: F64) -> F64:
-        """A full vector of this model from one of a rigid model (37 entries): the rigid part
-        kept, the compliance and expansion terms at their nominal values (where a compliant
-        identification starts); a vector of this model is returned as it is."""
+    def carried(self, x: F64, temp_c: float | None = None) -> F64:
+        """A full vector of this model from one of a rigid model (37 entries) that predicts
+        the points the rigid one predicts, at `temp_c` [degC], the cell temperature the rigid
+        version was calibrated at (default: reference_temp_c, a version that does not say);
+        at another temperature T it adds the growth of T - temp_c only. A vector of this
+        model is returned as it is.
+
+        The rigid lengths are the arm's at temp_c: they are referred to reference_temp_c
+        (divided by s(temp_c), the base moved down by its J2 height's growth), with the
+        configured expansion coefficient; the points are linear in the lengths, so the
+        carried vector at temp_c is the rigid one (to rounding) in `fk` and `points_part`
+        alike. Every compliance term is 0, the payload's too: the rigid fit absorbed what
+        its chain could of the gravity deflection at its configurations, and no deflection
+        is the one choice that predicts the rigid points at every configuration (configured
+        payload terms would count the payload twice). An identification that starts here
+        identifies the arm terms; the payload terms, not identified, stay 0 (the wrist-flange
+        lever is ~0.2 m: a 6 kg sensor's deflection moves a point 2 um at most)."""
         x = np.asarray(x, dtype=float)
         if x.shape == (len(self.names),):
             return x.copy()
         n_rigid = len(self.names) - len(EXTRA_NAMES)
         if x.shape != (n_rigid,):
             raise ValueError(f"expected {n_rigid} or {len(self.names)} parameters, got {x.shape}")
-        return np.concatenate([x, self.nominal_x()[n_rigid:]])
+        out = np.concatenate([x, np.zeros(len(EXTRA_NAMES))])
+        out[INDEX["expansion_per_k"]] = self.settings.expansion_per_k
+        ds = 0.0 if temp_c is None else float(self.scale_of(out, temp_c))
+        cols = [INDEX[n] for n in LENGTH_NAMES]
+        out[cols] = x[cols] / (1.0 + ds)
+        out[0:3] = x[0:3] - self.T_part_base(out)[:3, 2] * self.base_height_mm * ds
+        return out
 
     def default_active(self, temp_c: F64 | None = None) -> tuple[str, ...]:
         """The paper's 30, the arm compliance and, when the temperatures span enough and the
@@ -300,13 +319,16 @@ def temp_span_k(temp_c: ArrayLike | None) -> float:
     return float(t.max() - t.min()) if t.size else 0.0
 
 
-def carry(target: SystemModel, model: SystemModel, x: F64) -> tuple[SystemModel, F64]:
+def carry(
+    target: SystemModel, model: SystemModel, x: F64, temp_c: float | None = None
+) -> tuple[SystemModel, F64]:
     """(model, x) of parameters of `model` as a service that identifies `target` uses them: a
-    rigid model's carried into a compliant target (CompliantModel.carried); otherwise as they
+    rigid model's carried into a compliant target (CompliantModel.carried: the same points at
+    `temp_c`, the version's calibration temperature, None when unknown); otherwise as they
     are (a compliant version keeps its compliance under a rigid target: nothing is thrown
     away)."""
     if isinstance(target, CompliantModel) and not isinstance(model, CompliantModel):
-        return target, target.carried(x)
+        return target, target.carried(x, temp_c)
     return model, x
 
 

@@ -97,6 +97,9 @@ class IdentificationResult:
     status: int
     message: str
     nfev: int
+    #: the mean cell temperature of the measurements [degC] (None without temperatures): the
+    #: temperature whose arm lengths a rigid identification's lengths are
+    temp_c: float | None = None
 
     def value(self, name: str) -> float:
         return float(self.x[INDEX[name]])
@@ -201,6 +204,7 @@ def _result(
         status=int(getattr(sol, "status", 0)),
         message=str(getattr(sol, "message", "")),
         nfev=int(getattr(sol, "nfev", 0)),
+        temp_c=None if data.temp_c is None else float(np.mean(data.temp_c)),
     )
 
 

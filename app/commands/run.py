@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
         return run_sim(args)
     if args.geometric or args.windows or args.seed is not None:
         raise InputError("--geometric, --seed and --windows need --sim")
-    from app.formats.params import from_json
+    from app.formats.params import carried_from_json
     from app.line.launch import hold_state
     from app.line.settings import from_cell
     from app.line.statedir import StateDir
@@ -83,7 +83,8 @@ def run(args: argparse.Namespace) -> int:
     plan = Path(args.plan) if args.plan else StateDir(settings.state_dir).plan
     if not plan.is_file():
         raise InputError("no plan file (write one with `rvis plan --out ...`)", file=plan)
-    x0 = from_json(args.params)[1] if args.params else None
+    # a rigid file carried into a compliant [service] model at its calibration temperature
+    x0 = carried_from_json(cfg.service_model(), args.params)[1] if args.params else None
     sensor_model = _sensor_model(args, settings.state_dir)
     with hold_state(settings.state_dir, settings.ops.operators_group) as state:
         try:

@@ -1,18 +1,21 @@
 """Parameters JSON (DESIGN.md section 5): the model, nominal and identified values of every
-parameter with names, units and standard uncertainties, residual statistics, rank, condition."""
+parameter with names, units and standard uncertainties, residual statistics, rank, condition,
+and `calibration_temp_c`: the mean cell temperature of the measurements it was identified from
+[degC] (null or absent when unknown: files written before it, measurements without a
+temperature), at which a rigid version's lengths are the arm's (`carried_from_json`)."""
 
 from __future__ import annotations
 
 from dataclasses import asdict, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
 from app.errors import InputError
 from app.formats.files import read_json
-from calib.compliance import CompliantModel, CompliantSettings, select_model
+from calib.compliance import CompliantModel, CompliantSettings, carry, select_model
 from calib.gates import GateReport
 from calib.identify import IdentificationResult
 from calib.model import ALL_NAMES, INDEX, PAPER_30, SystemModel, group_of, unit_of
@@ -58,12 +61,14 @@ def parameters_json(
 
 def plain_document(model: SystemModel, x: F64, source: str) -> dict[str, Any]:
     """A parameters document for values that come from no identification here (the nominal
-    model, a commissioning file imported at first start); readable by `from_json`."""
+    model, a commissioning file imported at first start); readable by `from_json`; its
+    calibration temperature unknown."""
     return {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
         "model": model_json(model),
         "parameters": parameters_json(model, x),
+        "calibration_temp_c": None,
         "success": True,
         "message": source,
         "provenance": {"source": source},
@@ -85,6 +90,7 @@ def to_json(
         "format_version": FORMAT_VERSION,
         "model": model_json(model),
         "parameters": parameters_json(model, result.x, std),
+        "calibration_temp_c": result.temp_c,
         "residuals": {
             "n_measurements": int(result.residuals_mm.shape[0]),
             "rms_mm": result.rms_mm,
@@ -148,10 +154,34 @@ def _model(data: dict[str, Any], path: Path) -> SystemModel:
     return _with_kind(model, m, path)
 
 
+class ParamsFile(NamedTuple):
+    """A parameters file's model, full parameter vector and calibration temperature [degC]
+    (None when the file does not say)."""
+
+    model: SystemModel
+    x: F64
+    calibration_temp_c: float | None
+
+
 def from_json(path: str | Path, *, allow_failed: bool = False) -> tuple[SystemModel, F64]:
-    """(model, full parameter vector) from a parameters JSON file, validated: format and
-    version, the model, every parameter of the paper's 30 exactly once with a finite value and
-    uncertainty, and `success` true (a failed identification is refused unless
+    """(model, full parameter vector) from a parameters JSON file (`read_params`)."""
+    model, x, _ = read_params(path, allow_failed=allow_failed)
+    return model, x
+
+
+def carried_from_json(target: SystemModel, path: str | Path) -> tuple[SystemModel, F64]:
+    """(model, x) of a parameters file as a service that identifies `target` uses them
+    (calib.compliance.carry): a rigid version carried into a compliant target predicts its
+    points at its calibration temperature (the target's reference temperature when the file
+    does not say)."""
+    model, x, temp_c = read_params(path)
+    return carry(target, model, x, temp_c)
+
+
+def read_params(path: str | Path, *, allow_failed: bool = False) -> ParamsFile:
+    """A parameters JSON file, validated: format and version, the model, every parameter of
+    the paper's 30 exactly once with a finite value and uncertainty, a finite calibration
+    temperature or none, and `success` true (a failed identification is refused unless
     `allow_failed`)."""
     path = Path(path)
     data = read_json(path)
@@ -192,7 +222,10 @@ def from_json(path: str | Path, *, allow_failed: bool = False) -> tuple[SystemMo
     missing = [n for n in PAPER_30 if n not in seen]
     if missing:
         raise InputError(f"missing parameters: {', '.join(missing)}", file=path, field="parameters")
-    return model, x
+    temp_c = data.get("calibration_temp_c")
+    if temp_c is not None:
+        temp_c = _finite(temp_c, path, "calibration_temp_c")
+    return ParamsFile(model, x, temp_c)
 
 
 def _kind_fields(model: SystemModel) -> dict[str, Any]:
@@ -256,4 +289,4 @@ def _compliant_settings(m: dict[str, Any], path: Path) -> CompliantSettings:
         raise InputError(str(exc), file=path, field="model.compliant") from exc
 
 
-__all__ = ["ALL_NAMES", "from_json", "to_json"]
+__all__ = ["ALL_NAMES", "carried_from_json", "from_json", "read_params", "to_json"]

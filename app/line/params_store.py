@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 
 from app.errors import InputError
 from app.formats.files import dumps_json, replace_atomically
-from app.formats.params import from_json
+from app.formats.params import carried_from_json, from_json
 from app.line.statedir import StateDir
 from calib.model import SystemModel
 
@@ -85,11 +85,15 @@ class ParamsStore:
     def current_version(self) -> int | None:
         return self.state.current_version()
 
-    def current(self) -> tuple[int, SystemModel, F64] | None:
-        """(version, model, parameter vector) in force, or None before the first apply."""
+    def current(self, target: SystemModel | None = None) -> tuple[int, SystemModel, F64] | None:
+        """(version, model, parameter vector) in force, or None before the first apply; with
+        `target`, as a service that identifies `target` uses them (a rigid version carried
+        at its calibration temperature: `carried_from_json`)."""
         version = self.current_version()
         if version is None:
             return None
+        if target is not None:
+            return version, *carried_from_json(target, self.current_path)
         model, x = from_json(self.current_path)
         return version, model, x
 

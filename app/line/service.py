@@ -77,7 +77,7 @@ from app.line.step_handler import StepHandler
 from app.line.store import StorageError, Store
 from app.line.sweeps import SweepArchive
 from calib.attribution import NONE, SEVERAL, step_groups
-from calib.compliance import CompliantModel, carry
+from calib.compliance import CompliantModel
 from calib.model import SystemModel
 from drivers.clock import Clock, RealClock
 from drivers.errors import DeviceError
@@ -207,7 +207,9 @@ class Service:
             current, damage = None, f"damaged ({exc})"
         if current is None and last is None:  # a new state directory
             if isinstance(model, CompliantModel):
-                x0 = model.carried(x0)  # a rigid commissioning's parameters
+                # a rigid commissioning's vector, its temperature unknown here (the reference
+                # temperature's; `rvis run --params` carries a file at its own)
+                x0 = model.carried(x0)
             doc = plain_document(model, x0, "initial parameters")
             version = first_in_force(self.params, self.store, doc, "initial", self.clock)
             return model, x0.copy(), version
@@ -223,12 +225,9 @@ class Service:
 
     def current_params(self) -> tuple[int, SystemModel, F64] | None:
         """(version, model, x) in force (params.current()), as the service identifies them: a
-        rigid version (a rigid commissioning) carried into a compliant [service] model."""
-        current = self.params.current()
-        if current is None:
-            return None
-        version, model, x = current
-        return (version, *carry(self.service_model, model, x))
+        rigid version (a rigid commissioning) carried into a compliant [service] model at its
+        calibration temperature (calib.compliance.carry)."""
+        return self.params.current(self.service_model)
 
     def _rebuild_current(self, version: int, damage: str) -> tuple[int, SystemModel, F64]:
         path = self.params.current_path

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from app.errors import InputError
-from app.formats.params import from_json
+from app.formats.params import carried_from_json
 from app.line.host import LineHost
 from app.line.states import suspect_json
 from app.line.step import Step, StepStatus, recovery_test, step_alarm_text
@@ -36,7 +36,6 @@ from app.line.step_fit import (
 )
 from calib.attribution import NONE, SEVERAL, Attribution, point_shift_mm, step_groups
 from calib.candidates import IDEAL_STANDOFF_MM
-from calib.compliance import carry
 
 #: the change point is looked for from the CUSUM's estimate less half the schedule (the
 #: estimate can be late as well as early) up to the measurement that signalled
@@ -485,8 +484,7 @@ class StepHandler:
         if version is None:
             return None
         try:
-            model, x = from_json(svc.params.version_path(version))
-            return carry(svc.service_model, model, x)[1]
+            return carried_from_json(svc.service_model, svc.params.version_path(version))[1]
         except (OSError, ValueError, KeyError, InputError):
             return None
 

@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.config import CellConfig
-from app.formats.params import from_json
+from app.formats.params import carried_from_json
 from app.line.measure import GeometricSensor, SphereSensor, SweepSensor
 from app.line.recalib import Recalibrator
 from app.line.schedule import Schedule
@@ -42,8 +42,7 @@ from app.sim.cell import make_cell, simulated_sets, true_sensor_model
 from app.sim.truth import EndToEndTruth
 from calib import candidates
 from calib.compliance import CompliantModel, carry
-from calib.identify import identify
-from calib.model import SystemModel
+from calib.identify import IdentificationResult, identify
 from fakes.cell import SimulatedCell
 from fakes.clock import VirtualClock
 from fakes.line import SimLine, SimLineSetup
@@ -163,8 +162,10 @@ def service_settings(cfg: CellConfig, state_dir: Path) -> ServiceSettings:
     return replace(s, line=line)
 
 
-def commissioning(cfg: CellConfig, seed: int, truth: EndToEndTruth | None = None) -> F64:
-    """Parameters of an offline calibration of the cold cell (4 spheres x 6 random views) with
+def commissioning(
+    cfg: CellConfig, seed: int, truth: EndToEndTruth | None = None
+) -> IdentificationResult:
+    """The offline calibration of the cold cell (4 spheres x 6 random views) with
     the cell's model ([calibration] model; the cold cell's temperature with every view). With
     `truth`, each view is measured through its sensor model (the centre it reports plus the
     sensor noise; views its vision checks reject left out), as the line will measure."""
@@ -177,7 +178,7 @@ def commissioning(cfg: CellConfig, seed: int, truth: EndToEndTruth | None = None
         data = data.subset(np.flatnonzero(ok))
     if data.temp_c is None:
         data = dataclasses.replace(data, temp_c=np.full(len(data), sim.cell.temp_c))
-    return identify(cfg.identification_model(), data).x
+    return identify(cfg.identification_model(), data)
 
 
 def random_schedule(cfg: CellConfig, cell: SimulatedCell, seed: int, n_each: int) -> dict[str, F64]:
@@ -255,10 +256,10 @@ class SimulatedLineRun:
         self.truth = EndToEndTruth(self.cell.sensor, self.sensor_model, commands)
         # the cold cell's calibration, measured as the line measures (a commissioned state
         # directory's first version replaces it once the service has read it)
-        self.x_commissioning = self._carried(
-            commissioned,
-            commissioning(cfg, seed, EndToEndTruth(self.cell.sensor, self.sensor_model, commands)),
+        done = commissioning(
+            cfg, seed, EndToEndTruth(self.cell.sensor, self.sensor_model, commands)
         )
+        self.x_commissioning = carry(self.model, commissioned, done.x, done.temp_c)[1]
         self.summary = SimRunSummary()
         self._versions: dict[int, F64] = {}
         self._stack = contextlib.ExitStack()
@@ -480,13 +481,9 @@ class SimulatedLineRun:
     def _x_of(self, version: int) -> F64:
         """The parameters of history version `version` (read once), in the run's model."""
         if version not in self._versions:
-            model, x = from_json(self.service.params.version_path(version))
-            self._versions[version] = self._carried(model, x)
+            path = self.service.params.version_path(version)
+            self._versions[version] = carried_from_json(self.model, path)[1]
         return self._versions[version]
-
-    def _carried(self, model: SystemModel, x: F64) -> F64:
-        """x of `model` in the run's model (a rigid version in a compliant service's)."""
-        return carry(self.model, model, x)[1]
 
     def close(self) -> None:
         if self.thread is not None and self.thread.is_alive():

@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -15,7 +16,7 @@ from app.config import CellConfig
 from app.errors import InputError
 from app.formats.csvfiles import load_dataset
 from app.formats.files import write_json, write_measurements, write_targets
-from app.formats.params import from_json, to_json
+from app.formats.params import carried_from_json, from_json, to_json
 from app.sim.accuracy import measure_views, plan_views
 from app.sim.cell import make_cell
 from calib.compliance import CompliantModel, CompliantSettings
@@ -58,6 +59,46 @@ def test_a_params_file_without_a_model_kind_is_rigid(cfg: CellConfig, tmp_path: 
     write_json(tmp_path / "bad.json", doc)
     with pytest.raises(InputError, match=r"parameters\[37\].*unknown parameter 'c2_upper'"):
         from_json(tmp_path / "bad.json")
+
+
+def test_a_rigid_params_file_is_carried_at_its_calibration_temperature(
+    cfg: CellConfig, warm: Measurements, tmp_path: Path
+) -> None:
+    """A rigid identification's file records the mean temperature of its measurements; carried
+    into the compliant model it maps its views' sphere centres where the rigid version does at
+    that temperature (1 um). A file written before the field, or one whose measurements had no
+    temperature, is carried at the reference temperature; a non-number is refused."""
+    rigid = cfg.model()
+    compliant = CompliantModel.of(rigid, CompliantSettings(payload_kg=4.0, reference_temp_c=21.0))
+    result = identify(rigid, warm)
+    doc = to_json(rigid, result)
+    assert warm.temp_c is not None
+    assert doc["calibration_temp_c"] == pytest.approx(float(np.mean(warm.temp_c)), abs=1e-12)
+    t_cal = float(doc["calibration_temp_c"])
+    assert abs(t_cal - 21.0) > 2.0  # far enough from the reference to tell them apart
+    q, c = warm.q_deg, warm.c_sensor_mm
+    p_rigid = rigid.points_part(result.x, q, c)
+
+    def error_mm(path: Path, temp_c: float) -> float:
+        model, x = carried_from_json(compliant, path)
+        assert model is compliant
+        p = model.points_part(x, q, c, temp_c=np.full(len(q), temp_c))
+        return float(np.linalg.norm(p - p_rigid, axis=1).max())
+
+    write_json(tmp_path / "p.json", doc)
+    assert error_mm(tmp_path / "p.json", t_cal) < 1e-3
+    for old in (
+        {k: v for k, v in doc.items() if k != "calibration_temp_c"},
+        {**doc, "calibration_temp_c": None},
+    ):
+        write_json(tmp_path / "old.json", old)
+        assert error_mm(tmp_path / "old.json", 21.0) < 1e-3
+        assert error_mm(tmp_path / "old.json", t_cal) > 0.05
+    write_json(tmp_path / "bad.json", {**doc, "calibration_temp_c": "25"})
+    with pytest.raises(InputError, match=r"field 'calibration_temp_c': '25' is not a finite"):
+        from_json(tmp_path / "bad.json")
+    no_temp = identify(rigid, dataclasses.replace(warm, temp_c=None))
+    assert to_json(rigid, no_temp)["calibration_temp_c"] is None
 
 
 def warm_rigid(cfg: CellConfig) -> Measurements:

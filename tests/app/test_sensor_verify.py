@@ -29,7 +29,7 @@ def commissioned(tmp_path_factory: pytest.TempPathFactory) -> Path:
     force (a calibration of the simulated cell) and the sensor calibration (the true one)."""
     state = tmp_path_factory.mktemp("verify") / "state"
     cfg = load_cell(None)
-    x = commissioning(cfg, 0)
+    x = commissioning(cfg, 0).x
     ParamsStore(state).apply(plain_document(cfg.identification_model(), x, "commissioning"))
     save_sensor_model(true_sensor_model(make_cell(cfg, seed=0).sensor), StateDir(state).sensor)
     return state

@@ -1,6 +1,7 @@
 """The compliance- and temperature-aware model: against the independent simulated robot,
 its Jacobian, recovery of known compliance and expansion from noisy data, the rigid model
-unchanged with the terms off, the redundancy check."""
+unchanged with the terms off, the redundancy check, and a rigid version carried into it
+predicting the rigid version's points."""
 
 from __future__ import annotations
 
@@ -15,8 +16,10 @@ from app.sim.cell import make_cell
 from app.workspace import workspace_points
 from calib import robot
 from calib.compliance import (
+    LENGTH_NAMES,
     CompliantModel,
     CompliantSettings,
+    carry,
     select_model,
 )
 from calib.errors import NotIdentifiable
@@ -175,3 +178,85 @@ def test_select_model() -> None:
         select_model("elastic", base)
     with pytest.raises(ValueError, match="payload_kg"):
         CompliantSettings(payload_kg=-1.0)
+
+
+#: how close a carried rigid version's points are to the rigid version's [mm]: 1 um (the
+#: carry is exact to rounding, ~2e-12 mm; the growth about a calibration temperature away from
+#: the reference differs from the growth about the reference by s(T_cal) - 1 relative, ~1e-5 mm)
+CARRY_TOL_MM = 1e-3
+
+
+@cache
+def rigid_version() -> tuple[SystemModel, np.ndarray, float]:
+    """(rigid model, a version identified on the warm cell's views, their mean temperature)."""
+    rigid = load_cell(None).model()
+    result = identify(rigid, warm_data(7, 4, 8, 0.0).measured)
+    assert result.temp_c is not None and 20.0 < result.temp_c < 30.0
+    return rigid, result.x, result.temp_c
+
+
+def workspace_views(n: int = 400) -> tuple[np.ndarray, np.ndarray]:
+    """n configurations over the joint ranges and a sphere centre seen from each (sensor frame,
+    about the standoff)."""
+    rng = np.random.default_rng(38)
+    return random_q(rng, n), rng.normal([0.0, 0.0, 130.0], 10.0, (n, 3))
+
+
+@pytest.mark.parametrize("settings", [CompliantSettings(), PAYLOAD], ids=["default", "payload"])
+@pytest.mark.parametrize("calibrated_at", ["warm", "reference", "cold"])
+def test_a_carried_rigid_version_predicts_its_points_at_its_calibration_temperature(
+    settings: CompliantSettings, calibrated_at: str
+) -> None:
+    """The rigid version's lengths are the arm's at its calibration temperature; carried into
+    the compliant model (configured payload or not) at that temperature it maps the sphere
+    centres the sensor measures at any configuration of the workspace, and at the views it
+    was identified from, to the points the rigid version does."""
+    rigid, x_rigid, warm_c = rigid_version()
+    t_cal = {"warm": warm_c, "reference": settings.reference_temp_c, "cold": 12.0}[calibrated_at]
+    compliant = CompliantModel.of(rigid, settings)
+    q, c = workspace_views()
+    m = warm_data(7, 4, 8, 0.0).measured
+    q, c = np.vstack([q, m.q_deg]), np.vstack([c, m.c_sensor_mm])
+    model, x = carry(compliant, rigid, x_rigid, t_cal)
+    assert model is compliant
+    p_rigid = rigid.points_part(x_rigid, q, c)
+    p_carried = model.points_part(x, q, c, temp_c=np.full(len(q), t_cal))
+    assert np.linalg.norm(p_carried - p_rigid, axis=1).max() < CARRY_TOL_MM
+    p_exact = apply_all(model.fk(x, q, temp_c=t_cal), c)  # the exact growth, one temperature
+    assert np.linalg.norm(p_exact - p_rigid, axis=1).max() < CARRY_TOL_MM
+
+
+def apply_all(T: np.ndarray, c: np.ndarray) -> np.ndarray:
+    return np.einsum("nij,nj->ni", T[:, :3, :3], c) + T[:, :3, 3]
+
+
+@pytest.mark.parametrize("temp_c", [35.0, 15.0])
+def test_a_carried_rigid_version_grows_by_the_temperature_difference_only(temp_c: float) -> None:
+    """At another temperature T the carried version predicts the rigid version's arm grown by
+    the expansion of T - T_cal: every arm length and the J2 height, not of T - T_ref."""
+    rigid, x_rigid, t_cal = rigid_version()
+    compliant = CompliantModel.of(rigid, PAYLOAD)
+    q, c = workspace_views()
+    x = compliant.carried(x_rigid, t_cal)
+    p_carried = compliant.points_part(x, q, c, temp_c=np.full(len(q), temp_c))
+    grown = PAYLOAD.expansion_per_k * (temp_c - t_cal)
+    x_grown = x_rigid.copy()
+    cols = [INDEX[n] for n in LENGTH_NAMES]
+    x_grown[cols] *= 1.0 + grown
+    x_grown[0:3] += rigid.T_part_base(x_rigid)[:3, 2] * robot.BASE_LINK_TO_WORLD_Z_MM * grown
+    p_grown = rigid.points_part(x_grown, q, c)
+    assert np.linalg.norm(p_carried - p_grown, axis=1).max() < CARRY_TOL_MM
+    moved = np.linalg.norm(p_carried - rigid.points_part(x_rigid, q, c), axis=1).max()
+    assert moved > 0.05  # the growth is there, ~10 K of it
+
+
+def test_a_compliant_version_is_not_carried() -> None:
+    rigid, x_rigid, _ = rigid_version()
+    compliant = CompliantModel.of(rigid, PAYLOAD)
+    x = compliant.carried(x_rigid, 25.0)
+    np.testing.assert_array_equal(carry(compliant, compliant, x, 30.0)[1], x)
+    np.testing.assert_array_equal(compliant.carried(x, 30.0), x)
+    model, y = carry(rigid, compliant, x, 30.0)
+    assert model is compliant and y is x  # a rigid target keeps a compliant version's compliance
+    with pytest.raises(ValueError, match="expected 37 or 43 parameters"):
+        compliant.carried(x_rigid[:30])

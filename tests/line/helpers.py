@@ -28,7 +28,7 @@ from app.line.settings import ServiceSettings
 from app.line.station import Station
 from app.sim.cell import make_cell, validation_set
 from app.sim.line_run import random_schedule
-from calib.identify import Measurements, identify
+from calib.identify import IdentificationResult, Measurements, identify
 from calib.model import SystemModel
 from drivers.plc import decode_inputs, decode_outputs, encode_inputs
 from fakes.cell import SimulatedCell
@@ -207,7 +207,15 @@ KNOCK_SEED = 3  # the knocked line's cell and plan
 
 def calibrated_x(cell: SimulatedCell) -> F64:
     """Parameters identified from the plan's 24 views of the cell (as a past service did)."""
+    return calibration(cell).x
+
+
+def calibration(cell: SimulatedCell, temp_c: float | None = None) -> IdentificationResult:
+    """The rigid identification on the plan's 24 views of the cell; with `temp_c`, the cell
+    at that temperature and every view recorded with it (as a PLC that provides it does)."""
     cfg = load_cell(None)
+    if temp_c is not None:
+        cell.temp_c = temp_c
     qs, cs, ps, ids = [], [], [], []
     for tid, q_all in plan_for(KNOCK_SEED).items():
         for q in q_all:
@@ -216,8 +224,9 @@ def calibrated_x(cell: SimulatedCell) -> F64:
             cs.append(cell.measure_point(q, p))
             ps.append(p)
             ids.append(tid)
-    data = Measurements(np.array(qs), np.array(cs), np.array(ps), tuple(ids))
-    return identify(cfg.model(), data).x
+    temps = None if temp_c is None else np.full(len(ids), temp_c)
+    data = Measurements(np.array(qs), np.array(cs), np.array(ps), tuple(ids), temps)
+    return identify(cfg.model(), data)
 
 
 def knock_line(

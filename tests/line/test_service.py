@@ -14,13 +14,22 @@ import pytest
 
 from app.config import load_cell
 from app.config.line import RecalibSettings
-from app.formats.params import plain_document
-from app.line.params_store import ParamsStore
+from app.formats.params import plain_document, to_json
+from app.line.params_store import ParamsStore, first_in_force
 from app.line.states import State
 from app.line.store import Store
 from app.sim.cell import make_cell, validation_set
+from calib.robot import JointLimits
+from drivers.clock import RealClock
 from fakes.devices import ClampCycle
-from tests.line.helpers import SCALE, Line, calibrated_x, line_settings, make_line
+from tests.line.helpers import (
+    SCALE,
+    Line,
+    calibrated_x,
+    calibration,
+    line_settings,
+    make_line,
+)
 
 LONG = ClampCycle(period_s=40.0, window_s=32.0, beat_s=0.5, time_scale=SCALE)
 
@@ -264,13 +273,34 @@ def test_recalibrating_on_the_measurements_in_force_waits_for_a_new_one(
     assert ln.service.version == version
 
 
+def carry_error_mm(line: Line, x_rigid: np.ndarray, temp_c: float) -> float:
+    """The largest distance [mm] between the points the service's parameters in force and the
+    rigid version `x_rigid` map sphere centres to (the schedule's configurations and 200 over
+    the joint ranges, a centre about the standoff from each), the service's at `temp_c`."""
+    rng = np.random.default_rng(38)
+    lim = JointLimits()
+    q_slots = np.array([s.q_deg for s in line.service.schedule.slots])
+    q = np.vstack([q_slots, rng.uniform(lim.lower_deg, lim.upper_deg, (200, 6))])
+    c = rng.normal([0.0, 0.0, 130.0], 10.0, (len(q), 3))
+    svc = line.service
+    p = svc.model.points_part(svc.x, q, c, temp_c=np.full(len(q), temp_c))
+    p_rigid = load_cell(None).model().points_part(x_rigid, q, c)
+    return float(np.linalg.norm(p - p_rigid, axis=1).max())
+
+
+#: a carried version's points against the rigid version's [mm] (calib: exact to rounding)
+CARRY_TOL_MM = 1e-3
+
+
 def test_a_rigid_commissioning_is_carried_into_the_compliant_service_model(
     tmp_path: Path, lines: list[Line]
 ) -> None:
     """[service] model = "compliant" (the default) on a rigid commissioning's parameters: the
-    service starts with them carried into the compliant model (rigid part kept, compliance and
-    expansion nominal), and its own calibrations are compliant, with identified compliance. A
-    state directory whose version in force is rigid is carried the same way at start."""
+    service starts with them carried into the compliant model, predicting the rigid version's
+    points (a vector alone does not say its temperature: at the reference temperature), and
+    its own calibrations are compliant, with identified compliance. A state directory whose
+    version in force is a rigid commissioning at 25.5 degC (its parameters file says so) is
+    carried at start to predict that version's points at 25.5 degC."""
     cfg = load_cell(None)
     compliant = cfg.service_model()
     assert cfg.service.model == "compliant" and cfg.calibration.model == "rigid"
@@ -280,22 +310,25 @@ def test_a_rigid_commissioning_is_carried_into_the_compliant_service_model(
         model=compliant, x_initial=x_rigid,
     )  # fmt: skip
     lines.append(ln)
-    n_rigid = len(x_rigid)
     assert ln.service.model.kind == "compliant"
-    np.testing.assert_array_equal(ln.service.x[:n_rigid], x_rigid)
-    np.testing.assert_array_equal(ln.service.x[n_rigid:], compliant.nominal_x()[n_rigid:])
+    assert carry_error_mm(ln, x_rigid, cfg.calibration.reference_temp_c) < CARRY_TOL_MM
     ln.start()
     applied = ln.wait(lambda e: e["event"] == "parameters_applied", 60.0)
     ln.stop()
     version, model, x = ParamsStore(tmp_path / "new").current()  # type: ignore[misc]
+    n_rigid = len(x_rigid)
     assert version == applied["version"] == 2 and model.kind == "compliant"
     assert not np.allclose(x[n_rigid:], compliant.nominal_x()[n_rigid:])  # identified
 
-    rigid_dir = tmp_path / "rigid"
-    first = make_line(rigid_dir, x_initial=x_rigid)  # a rigid service: version 1 is rigid
-    first.close()
+    rigid_dir = tmp_path / "rigid"  # as `rvis commission` leaves it: its calibration in force
+    warm = calibration(make_cell(cfg, 3), temp_c=25.5)
+    store = Store(rigid_dir / "rvis.db")
+    first_in_force(
+        ParamsStore(rigid_dir), store, to_json(cfg.model(), warm), "commissioning", RealClock()
+    )
+    store.close()
     assert ParamsStore(rigid_dir).current()[1].kind == "rigid"  # type: ignore[index]
     again = make_line(rigid_dir, model=compliant)
     lines.append(again)
     assert again.service.model.kind == "compliant" and again.service.version == 1
-    np.testing.assert_array_equal(again.service.x[:n_rigid], x_rigid)
+    assert carry_error_mm(again, warm.x, 25.5) < CARRY_TOL_MM
