@@ -21,6 +21,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from app.line.drift import prediction_inflation
 from calib.uncertainty import u95_mm
 
 #: the `group_name` of an accuracy suspect interval (a step's names the group that moved)
@@ -90,3 +91,16 @@ def statement(norms_mm: Sequence[float], basis: str, limit_mm: float) -> Accurac
     """The Accuracy of these residual norms."""
     u = u95_mm(norms_mm)
     return Accuracy(None if math.isnan(u) else u, len(norms_mm), basis, limit_mm)
+
+
+def document_seed(doc: Mapping[str, Any] | None) -> list[float]:
+    """The seed of a parameters version that no calibration of this service made (a
+    commissioning's, imported at the first start): its identification's `residuals` (n
+    measurements, the RMS of their norms) scaled to prediction errors, as n norms of that size
+    (the upper bound depends on their sum of squares and number only); none without them."""
+    res = (doc or {}).get("residuals") or {}
+    n, rms = res.get("n_measurements"), res.get("rms_mm")
+    p = (doc or {}).get("n_parameters") or len((doc or {}).get("active") or ())
+    if not isinstance(n, int) or not isinstance(rms, (int, float)) or not rms > 0 or 3 * n <= p:
+        return []
+    return [float(rms) * prediction_inflation(3 * n, int(p))] * n

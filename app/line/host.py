@@ -74,6 +74,7 @@ class LineHost(Protocol):
     change_from_id: int
     step: Step | None
     accuracy: Accuracy | None
+    accuracy_suspect_id: int | None
 
     # faults
     storage_failed: bool

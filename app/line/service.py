@@ -54,7 +54,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from app.errors import InputError
 from app.formats.params import plain_document
-from app.line.accuracy import ACCURACY_GROUP, Accuracy, evidence, statement
+from app.line.accuracy import ACCURACY_GROUP, Accuracy, document_seed, evidence, statement
 from app.line.cycle import Cycle, WindowWatch
 from app.line.drift import DriftMonitor, prediction_inflation, residual_mm
 from app.line.events import EventBus
@@ -105,8 +105,12 @@ class Service:
         clock: Clock | None = None,
         settings: ServiceSettings | None = None,
         recalibrator: Recalibrator | None = None,
+        initial_residuals: Mapping[str, Any] | None = None,
     ) -> None:
+        """`initial_residuals`: the identification residuals of `x_initial` (n_measurements,
+        rms_mm, n_parameters), written into a new directory's first version (its U95 seed)."""
         self.settings = s = settings or ServiceSettings()
+        self._initial_residuals = initial_residuals
         self.clock = clock or RealClock()
         self.station, self.schedule = station, schedule
         self.spheres = {k: np.asarray(v, dtype=np.float64) for k, v in spheres_part_mm.items()}
@@ -211,6 +215,11 @@ class Service:
                 # temperature's; `rvis run --params` carries a file at its own)
                 x0 = model.carried(x0)
             doc = plain_document(model, x0, "initial parameters")
+            if self._initial_residuals is not None:
+                doc |= {
+                    "residuals": dict(self._initial_residuals),
+                    "n_parameters": self._initial_residuals.get("n_parameters"),
+                }
             version = first_in_force(self.params, self.store, doc, "initial", self.clock)
             return model, x0.copy(), version
         if current is None:
@@ -567,12 +576,16 @@ class Service:
         with self.store.batch():
             self.store.state_window_u95(acc.u95_mm)
             open_id = self.accuracy_suspect_id
-            if not acc.vouched and open_id is None:
-                last = self.store.measurements(before_id=None, last=1)
+            if not acc.vouched and open_id is None and not self._suspect_open():
+                # (a step's open interval speaks for these windows already)
+                # from the last measurement before this window (the last one vouched for) on
+                first = self.store.measurements(status="ok", since_id=0, last=1)
+                good = [r for r in self.store.measurements(last=n_max) if r["t"] < t_open]
                 self.accuracy_suspect_id = sid = self.store.open_suspect(
                     {
-                        "t_start": t_open,
-                        "onset_id": int(last[0]["id"]) if last else 0,
+                        "t_start": float(good[-1]["t"]) if good else t_open,
+                        "last_good_id": int(good[-1]["id"]) if good else None,
+                        "onset_id": int(good[-1]["id"]) + 1 if good else 1 if first else 0,
                         "params_version": self.version,
                         "text": f"the cell cannot vouch for its accuracy: {acc.text()}",
                     }
@@ -942,7 +955,9 @@ class Service:
         applied = self.store.applied()
         cal_id = applied[-1]["calibration_id"] if applied else None
         cal = self.store.calibration(cal_id)
-        if _kind(None if cal is None else cal["document"]) != "batch":
+        if cal is None:
+            return document_seed(self.params.current_document())
+        if _kind(cal["document"]) != "batch":
             return []
         return [e for _, e in self._drift_seed(cal)]
 
@@ -952,7 +967,7 @@ class Service:
         cal_id = applied[-1]["calibration_id"] if applied else None
         seed = self._drift_seed(self.store.calibration(cal_id))
         self.drift.reset(seed)
-        self.u_seed = [e for _, e in seed]
+        self.u_seed = [e for _, e in seed] or document_seed(self.params.current_document())
         for r in self.store.measurements(last=2 * len(self.schedule)):
             if 0 <= r["slot"] < len(self.schedule):
                 q = np.asarray(r["q_deg"], float)
@@ -1223,7 +1238,8 @@ class Service:
             else:
                 seed = self._drift_seed(cal)
                 self.drift.reset(seed)
-                self.u_seed = [e for _, e in seed]
+                doc = self.params.current_document()
+                self.u_seed = [e for _, e in seed] if cal is not None else document_seed(doc)
             if self.sequential is not None and kind != "sequential":
                 self.sequential.restart(self.model, self.x, self.params.current_document())
             onset, self.drift_due = self.drift_onset_id, False

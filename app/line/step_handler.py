@@ -92,17 +92,25 @@ class StepHandler:
             self._open_suspect(svc.step)
 
     def _open_suspect(self, step: Step) -> None:
-        """The step's suspect interval, from its last trustworthy measurement on."""
+        """The step's suspect interval, from its last trustworthy measurement on. An accuracy
+        interval open (the U95 jumped with the knock's first measurements, before the step was
+        confirmed) becomes the step's: one interval for one event, starting at the step."""
         svc = self.svc
-        step.suspect_id = svc.store.open_suspect(
-            {
-                "t_start": step.t_start,
-                "last_good_id": step.last_good_id,
-                "onset_id": step.onset_id,
-                "params_version": svc.version,
-                "text": step.text,
-            }
-        )
+        fields = {
+            "t_start": step.t_start,
+            "last_good_id": step.last_good_id,
+            "onset_id": step.onset_id,
+            "params_version": svc.version,
+            "text": step.text,
+        }
+        adopted = svc.accuracy_suspect_id
+        if adopted is not None:
+            row = svc.store.suspect(adopted)
+            start = fields["t_start"] if row is None else min(fields["t_start"], row["t_start"])
+            svc.store.update_suspect(adopted, **{**fields, "t_start": start, "group_name": None})
+            svc.accuracy_suspect_id, step.suspect_id = None, adopted
+        else:
+            step.suspect_id = svc.store.open_suspect(fields)
         svc.bus.emit("suspect_interval", suspect_json(svc.store.suspect(step.suspect_id) or {}))
 
     def _confirm_step(self, step: Step, a: Attribution) -> None:

@@ -657,6 +657,8 @@ class Store:
             "end_reason",
             "end_version",
             "calibration_id",
+            "onset_id",
+            "params_version",
         }
     )
 

@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from app.config import CellConfig
 from app.formats.params import carried_from_json
-from app.line.measure import GeometricSensor, SphereSensor, SweepSensor
+from app.line.measure import GeometricSensor, Rejected, SphereSensor, SweepSensor
 from app.line.recalib import Recalibrator
 from app.line.schedule import Schedule
 from app.line.service import Service
@@ -43,7 +43,7 @@ from app.sim.truth import EndToEndTruth
 from calib import candidates
 from calib.compliance import CompliantModel, carry
 from calib.identify import IdentificationResult, identify
-from fakes.cell import SimulatedCell
+from fakes.cell import NotVisible, SimulatedCell
 from fakes.clock import VirtualClock
 from fakes.line import SimLine, SimLineSetup
 from fakes.truth import Knock, Warmup
@@ -260,6 +260,11 @@ class SimulatedLineRun:
             cfg, seed, EndToEndTruth(self.cell.sensor, self.sensor_model, commands)
         )
         self.x_commissioning = carry(self.model, commissioned, done.x, done.temp_c)[1]
+        self.commissioning_residuals = {
+            "n_measurements": int(done.residuals_mm.shape[0]),
+            "rms_mm": done.rms_mm,
+            "n_parameters": len(done.active),
+        }
         self.summary = SimRunSummary()
         self._versions: dict[int, F64] = {}
         self._stack = contextlib.ExitStack()
@@ -300,7 +305,16 @@ class SimulatedLineRun:
         sensor: SphereSensor
         if self.geometric:
             sweep_s = self.settings.sweep.duration_s
-            sensor = GeometricSensor(lambda t: line.geometric_centre(t, sweep_s), sweep_s)
+
+            def centre(target: str) -> Any:
+                """The geometric centre; out of the sensor's view (a knocked sensor) it is a
+                rejected measurement, as the rendered path's vision checks reject it."""
+                try:
+                    return line.geometric_centre(target, sweep_s)
+                except NotVisible as exc:
+                    raise Rejected(f"NotVisible: {exc}") from exc
+
+            sensor = GeometricSensor(centre, sweep_s)
         else:
             assert station.camera is not None and station.galvo is not None
             assert self.sensor_model is not None
@@ -326,6 +340,7 @@ class SimulatedLineRun:
             clock=self.clock,
             settings=self.settings,
             recalibrator=recalibrator,
+            initial_residuals=self.commissioning_residuals,
         )
         self.service.after_window = self._hold
         # a restarted state directory's service counts its windows on: hold by this run's
