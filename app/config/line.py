@@ -149,10 +149,17 @@ class RecalibSettings(Section):
     # the size no longer decides it (kept so that existing cell files stay valid)
     step_refine_mm: float = opt(0.03, lo=0, hi=10)
     # after a correction the suspect interval stays open (and the windows measure for the step)
-    # until the held-out residuals measured with it are not higher than before the step, by a
-    # one-sided F test at this confidence on at least recovery_min_measurements of them
+    # until the held-out residuals measured with it are shown back (an equivalence test,
+    # app/line/step.py recovery_test): the upper confidence bound of their RMS at most
+    # max((1 + recovery_margin) x, + recovery_tolerance_mm) the RMS before the step, the step's
+    # repeated looks together at recovery_confidence, each on at least
+    # recovery_min_measurements of them. 0.02 mm: what one window of residuals cannot resolve
+    # under the line's noise (docs/results/shift-knocks/configurations.md), and the fast
+    # correction's own predicted uncertainty (step_max_std_mm)
     recovery_confidence: float = opt(0.95, gt=0, hi=0.999)
     recovery_min_measurements: int = opt(6, lo=1, hi=1000)
+    recovery_margin: float = opt(0.25, gt=0, hi=10)  # relative: RMS within 1.25x
+    recovery_tolerance_mm: float = opt(0.02, lo=0, hi=10)  # absolute: RMS within + 0.02 mm
 
     def cross_checks(self) -> Iterator[tuple[str, str]]:
         if self.schedule == "adaptive" and self.estimator != "sequential":

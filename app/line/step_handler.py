@@ -20,6 +20,8 @@ import numpy as np
 
 from app.errors import InputError
 from app.formats.params import carried_from_json
+from app.line.accuracy import document_seed
+from app.line.drift import OVERALL
 from app.line.host import LineHost
 from app.line.states import suspect_json
 from app.line.step import Step, StepStatus, recovery_test, step_alarm_text
@@ -41,6 +43,9 @@ from calib.candidates import IDEAL_STANDOFF_MM
 #: estimate can be late as well as early) up to the measurement that signalled
 LOOK_BACK_DIVISOR = 2
 REFINE_TRIES = 2  # refinements refused before the interval closes at the first correction
+#: a step's interval closed because the cell vouches for its U95 within the plant's limit with
+#: the correction in force (not shown back at its level before the step: information only)
+VOUCHED = "vouched"
 
 
 class StepHandler:
@@ -86,6 +91,7 @@ class StepHandler:
             text=text,
             flag_id=flag_id,
             change_from_before=svc.change_from_id,
+            reference_mm=self._reference_level(),
         )
         svc.change_from_id = onset_id
         if not attribute:
@@ -390,7 +396,7 @@ class StepHandler:
                 step.suspect_id, size_mm=self._correction_size(int(row["params_version"]))
             )
         step.recover_version, step.recover_t, step.recover_kind = version, t, kind
-        step.recover_n = 0
+        step.recover_n, step.recover_verdict, step.recover_look_n = 0, "", 0
         step.recover_cal_id = None if cal is None else int(cal["id"])
         last = svc.store.measurements(last=1)
         step.recover_from_id = int(last[0]["id"]) if last else 0
@@ -413,13 +419,32 @@ class StepHandler:
         rows = svc.store.measurements(status="ok", before_id=first, last=len(svc.schedule))
         return [float(q["residual_mm"]) for q in rows if q["residual_mm"] is not None]
 
+    def _reference_level(self) -> float | None:
+        """The level [mm] the recovery test compares with when no measurement before the step
+        is at hand (`Step.reference_mm`, taken at the flag): the overall residual chart's, when
+        it has its baseline (RMS of its residuals: sqrt(mu^2 + sigma^2); seeded, the
+        calibration's residuals scaled to prediction errors, app.line.drift), else the
+        calibration in force's training RMS scaled the same way (its document), else None."""
+        svc = self.svc
+        chart = svc.drift.residual.charts.get(OVERALL)
+        if chart is not None and chart.ready and chart.mu > 0:
+            return float(np.hypot(chart.mu, chart.sigma))
+        seed = document_seed(svc.params.current_document())  # n norms of one size
+        return seed[0] if seed else None
+
     def check_recovery(self) -> bool:
-        """Between windows while recovering: the recovery test (app.line.step.recovery_test)
-        on the measurements taken with the correction under test in force. Back: the suspect
-        interval ends where that correction went in force. Higher: it stays open and the
-        windows go on measuring for the full recalibration on post-step measurements; after
-        two full recalibrations since the step the cell has a new level and it closes. While
-        the first correction is refined, only "back" closes it. True when it closed."""
+        """Between windows while recovering: the recovery test (app.line.step.recovery_test:
+        an equivalence test, every look of the step sharing `recovery_confidence`) on the
+        measurements taken with the correction under test in force, against the schedule cycle
+        before the step (none: the step's `reference_mm`). Back: the suspect interval ends
+        where that correction went in force. Not shown back, but the cell vouches for its U95
+        within `accuracy_limit_mm` on the measurements after the step (app.line.accuracy): it
+        ends there too ("vouched"; the relative test is information). Else it stays open and
+        the windows go on measuring for the full recalibration on post-step measurements;
+        after two full recalibrations since the step not shown back (higher, or undetermined
+        on at least `recovery_min_measurements`) the cell has a new level and it closes saying
+        so. While the first correction is refined, only "back" closes it. True when it
+        closed."""
         svc = self.svc
         step, r = svc.step, svc.settings.recalib
         testing = (StepStatus.RECOVERING, StepStatus.REFINING)
@@ -436,24 +461,47 @@ class StepHandler:
         test = recovery_test(
             self._level_rows(step),
             [float(q["residual_mm"]) for q in rows],
-            r.recovery_confidence,
-            r.recovery_min_measurements,
+            confidence=r.recovery_confidence,
+            min_after=r.recovery_min_measurements,
+            margin=r.recovery_margin,
+            tolerance_mm=r.recovery_tolerance_mm,
+            looks=step.recover_looks,
+            last_look_n=step.recover_look_n,
+            reference_mm=step.reference_mm,
         )
-        step.recovery = test.text
+        if test.look:
+            step.recover_looks, step.recover_look_n = test.look, test.n_after
+        step.recovery, step.recover_verdict = test.text, test.verdict
         svc.bus.emit(
             "recovery",
             {"onset_id": step.onset_id, "version": step.recover_version, **test.to_json()},
         )
         settled = (
-            test.verdict == "higher"
+            test.verdict != "back"
+            and test.n_after >= r.recovery_min_measurements
             and step.full_recals >= 2
             and step.status == StepStatus.RECOVERING
         )
-        if test.verdict != "back" and not settled:
+        # the plant's criterion: the cell vouches for its U95 (app.line.accuracy) with the
+        # correction in force, on the measurements after the step, within accuracy_limit_mm
+        acc = svc.accuracy
+        vouched = (
+            acc is not None
+            and acc.vouched
+            and acc.basis == "after step"
+            and svc.version == step.recover_version
+        )
+        if test.verdict != "back" and not settled and not vouched:
             svc.save_state()
             return False
+        if test.verdict == "back":
+            reason = step.recover_kind or "step"
+        else:
+            reason = VOUCHED if vouched else "new level"
+            if vouched and acc is not None:
+                step.recovery = f"{step.recovery}; {acc.text()}"
         with svc.store.batch():
-            closed = self._close(step, "new level" if settled else step.recover_kind or "step")
+            closed = self._close(step, reason)
             svc.store.clear_alarms(svc.clock.time(), "drift_step")
             if step.recover_kind != "step":  # a full calibration after the step: it is over
                 svc.drift_onset_id, svc.step = None, None

@@ -16,7 +16,7 @@ import pytest
 from app.config.line import RecalibSettings
 from app.formats.params import from_json
 from app.line.schedule import Slot
-from app.line.step import Step, StepStatus, recovery_test
+from app.line.step import Step, StepStatus, look_level, recovery_test
 from app.line.step_fit import paired, step_sigma_mm, step_slot
 from fakes.truth import Knock
 from tests.line.helpers import knock_line, true_rms
@@ -38,6 +38,30 @@ def _until_closed(ln: Any, timeout_s: float) -> tuple[dict[str, Any], list[dict[
         return bool(e["event"] == "suspect_interval" and e["state"] == "closed")
 
     return ln.wait(closing, timeout_s), tests
+
+
+def _closed_on(closed: dict[str, Any], tests: list[dict[str, Any]]) -> None:
+    """The interval closed on the last recovery test: shown back (its upper bound within the
+    tolerated level) at a correction; not shown back, but the cell vouches for its U95 within
+    the plant's limit with the correction in force (the statement in the interval's text); or,
+    not shown back after two full recalibrations, at a new level; no earlier test said
+    "back"."""
+    last = tests[-1]
+    assert closed["end_version"] == last["version"] and last["text"] in closed["text"]
+    assert all(t["verdict"] != "back" for t in tests[:-1]), tests
+    if closed["end_reason"] == "vouched":
+        assert last["verdict"] != "back"
+        statement = closed["text"].rsplit("; ", 1)[-1]
+        assert statement.startswith("U95 ") and "(after step," in statement, statement
+        u95, limit = float(statement.split()[1]), float(statement.split()[-2])
+        assert "<= limit" in statement and u95 <= limit, statement
+        return
+    assert last["n_after"] >= RecalibSettings().recovery_min_measurements
+    if last["verdict"] == "back":
+        assert last["look"] >= 1 and last["upper_mm"] <= last["tolerated_mm"], last
+        assert closed["end_reason"] in ("step", "batch", "sequential")
+    else:
+        assert closed["end_reason"] == "new level", (closed, last)
 
 
 @pytest.mark.slow
@@ -94,14 +118,8 @@ def test_a_knock_is_attributed_corrected_at_once_and_its_suspect_interval_record
         assert closed["id"] == opened["id"] and closed["group"] == GROUP_OF[kind]
         assert closed["end_version"] == back["version"] >= applied["version"]
         assert closed["t_end"] == applied_t[back["version"]]
-        assert 0.1 < closed["size_mm"] < 3.0 and back["text"] in closed["text"]
-        assert back["n_after"] >= RecalibSettings().recovery_min_measurements
-        if back["verdict"] == "back":
-            assert back["ratio_f"] <= back["limit_f"], back
-            assert closed["end_reason"] in ("step", "batch")
-        else:  # the residuals stayed higher after two full recalibrations: a new level
-            assert back["verdict"] == "higher" and closed["end_reason"] == "new level"
-            assert sum(e["verdict"] == "higher" for e in tests) >= 2
+        assert 0.1 < closed["size_mm"] < 3.0
+        _closed_on(closed, tests)
         assert status["suspect_intervals"][-1]["id"] == closed["id"]
         assert status["suspect_intervals"][-1]["state"] == "closed"
         # the alarm names what moved
@@ -146,9 +164,8 @@ def test_in_approve_mode_the_correction_waits_and_the_interval_stays_open(tmp_pa
             elif e["state"] == "closed":
                 break
         ln.stop()
-        assert tests and tests[-1]["verdict"] in ("back", "higher"), tests
-        assert e["end_version"] == tests[-1]["version"] == versions[-1]
-        assert all(t["verdict"] != "back" for t in tests[:-1])
+        assert tests and e["end_version"] == tests[-1]["version"] == versions[-1]
+        _closed_on(e, tests)
     finally:
         ln.close()
 
@@ -289,9 +306,9 @@ def test_the_sequential_estimator_follows_the_attributed_group_without_waiting(
         ln.stop()
         # the sensor group's uncertainty grew, a joint's did not (only the group was widened)
         assert widened["x_FS"] > 0.05 and widened["a2"] < 0.05
-        assert closed["id"] == opened["id"] and closed["end_reason"] == "sequential"
+        assert closed["id"] == opened["id"] and closed["end_reason"] in ("sequential", "vouched")
         assert windows <= 2  # a full schedule cycle of post-step updates would take 3+
-        assert tests[-1]["verdict"] == "back" and closed["end_version"] == tests[-1]["version"]
+        _closed_on(closed, tests)
         assert windows_closed <= 6
         assert after <= 1.5 * before + 0.01, (before, after)
         assert closed["last_good_id"] < attributed["onset_id"]  # the interval covers the step
@@ -329,24 +346,93 @@ def test_a_flag_that_the_attribution_explains_by_nothing_is_dropped_as_drift(
         ln.close()
 
 
-def test_the_recovery_test_says_higher_back_or_too_few_at_its_confidence() -> None:
-    # norms of 3-D normal residuals, sigma 0.03 per coordinate before the step
+def _test(
+    before: Any, after: Any, looks: int = 0, reference: float | None = None, last_n: int = 0
+) -> Any:
+    """The recovery test with the service's defaults (95 %, 6, 1.25x, 0.02 mm)."""
+    r = RecalibSettings()
+    return recovery_test(
+        before,
+        after,
+        confidence=r.recovery_confidence,
+        min_after=r.recovery_min_measurements,
+        margin=r.recovery_margin,
+        tolerance_mm=r.recovery_tolerance_mm,
+        looks=looks,
+        last_look_n=last_n,
+        reference_mm=reference,
+    )
+
+
+def test_the_recovery_test_says_back_only_on_positive_evidence() -> None:
+    level = 0.05  # residual norms of one RMS before and after, or after at twice the variance
+    # equal levels on enough measurements: the upper bound is within 1.25x (here 1.4x: the
+    # 0.02 mm tolerance rules at this level), back
+    same = _test([level] * 24, [level] * 24)
+    assert same.verdict == "back" and same.look == 1 and same.level == pytest.approx(0.025)
+    assert same.tolerated_mm == pytest.approx(0.07)
+    assert level < same.upper_mm <= same.tolerated_mm
+    assert "back (upper bound" in same.text and "look 1" in same.text
+    # the same on 6 after: the level after is not known well enough to say back, nor higher
+    few = _test([level] * 24, [level] * 6)
+    assert few.verdict == "undetermined" and few.upper_mm > few.tolerated_mm
+    assert "not shown back" in few.text
+    # twice the variance on 6 after (the old F test's "not shown higher" half the time): not
+    # back, and not shown higher either; on 24 it is shown higher
+    doubled = _test([level] * 24, [level * np.sqrt(2.0)] * 6)
+    assert doubled.verdict == "undetermined" and doubled.look == 1
+    assert doubled.lower_mm < doubled.tolerated_mm < doubled.upper_mm
+    higher = _test([level] * 24, [2 * level] * 24)
+    assert higher.verdict == "higher" and higher.lower_mm > higher.tolerated_mm
+    assert "higher than the 0.0700 mm tolerated" in higher.text
+    # fewer than recovery_min_measurements: no look (nothing spent), though higher can show
+    short = _test([level] * 24, [level] * 5)
+    assert short.verdict == "undetermined" and short.look == 0 and "too few" in short.text
+    assert _test([level] * 24, [0.3] * 3).verdict == "higher"
+
+
+def test_the_recovery_tests_looks_share_one_confidence() -> None:
+    # look k at alpha / (k (k + 1)): the levels add up to less than alpha, however many
+    alpha = 1 - RecalibSettings().recovery_confidence
+    assert sum(look_level(alpha, k) for k in range(1, 1000)) < alpha
+    # evidence enough at the first look is not enough at the 30th
+    assert _test([0.05] * 24, [0.05] * 24, looks=0).verdict == "back"
+    late = _test([0.05] * 24, [0.05] * 24, looks=29)
+    assert late.verdict == "undetermined" and late.look == 30
+    assert late.level == pytest.approx(alpha / (30 * 31))
+    # a look at twice as many measurements as the correction's last one: none at 8 after 6
+    assert _test([0.05] * 24, [0.05] * 8, looks=1, last_n=6).look == 0
+    assert _test([0.05] * 24, [0.05] * 12, looks=1, last_n=6).look == 2
+    # the rate of a false "back" over 36 windows of one residual each (looks at 6, 12, 24) at
+    # the tolerated limit (RMS 1.4x), 6 before the step: within the 5 % (the old test: about
+    # 3 in 4, bench/recovery_test.py)
     rng = np.random.default_rng(3)
+    sigma = 0.05 / np.sqrt(3.0)  # per coordinate: RMS of the norms 0.05 mm
+    backs = 0
+    for _ in range(300):
+        before = np.linalg.norm(rng.normal(0.0, sigma, (6, 3)), axis=1)
+        after = np.linalg.norm(rng.normal(0.0, 1.4 * sigma, (24, 3)), axis=1)
+        looks = [
+            _test(before, after[:n], looks=k, last_n=n // 2) for k, n in enumerate((6, 12, 24))
+        ]
+        assert [t.look for t in looks] == [1, 2, 3]
+        backs += any(t.verdict == "back" for t in looks)
+    assert backs / 300 <= 0.05
 
-    def norms(sigma: float, n: int) -> Any:
-        return np.linalg.norm(rng.normal(0.0, sigma, (n, 3)), axis=1)
 
-    before = norms(0.03, 24)
-    assert recovery_test(before, norms(0.03, 12), 0.95, 6).verdict == "back"
-    higher = recovery_test(before, norms(0.06, 12), 0.95, 6)
-    assert higher.verdict == "higher" and higher.ratio_f > higher.limit_f > 1.0
-    assert "higher at 95% confidence" in higher.text
-    # too few to say it is back, but already enough to say it is higher
-    assert recovery_test(before, norms(0.03, 3), 0.95, 6).verdict == "undetermined"
-    assert recovery_test(before, norms(0.2, 3), 0.95, 6).verdict == "higher"
-    # the false-alarm rate is the stated one: 1 - confidence
-    same = [recovery_test(norms(0.03, 24), norms(0.03, 8), 0.95, 6).verdict for _ in range(400)]
-    assert 0.02 < same.count("higher") / 400 < 0.09
+def test_with_no_measurement_before_the_step_the_reference_decides() -> None:
+    # a knock in a new cell's first windows: no level before it, the reference instead (taken
+    # as known: a chi-square bound on the mean square after)
+    back = _test([], [0.05] * 24, reference=0.05)
+    assert back.verdict == "back" and back.n_before == 0 and back.rms_before_mm == 0.05
+    assert "reference 0.0500 mm (none measured before it)" in back.text
+    assert _test([], [0.1] * 24, reference=0.05).verdict == "higher"
+    # no reference either: nothing to compare with, said so
+    none = _test([], [0.05] * 24)
+    assert none.verdict == "undetermined" and none.look == 0
+    assert "no level before the step" in none.text
+    # measurements before the step rule over the reference
+    assert _test([0.05] * 24, [0.05] * 24, reference=0.01).verdict == "back"
 
 
 def test_a_step_moves_only_along_its_transitions_and_survives_a_restart_as_an_enum() -> None:
@@ -362,4 +448,9 @@ def test_a_step_moves_only_along_its_transitions_and_survives_a_restart_as_an_en
     assert not Step(10, None, 0.0, 9, status=StepStatus.NONE).measuring
     # a decision state saved before the recovery fields existed still loads
     old = {k: v for k, v in step.to_json().items() if not k.startswith("recover")}
-    assert Step.from_json({**old, "first_end_t": 1.0}) is not None
+    old.pop("reference_mm")
+    older = Step.from_json({**old, "first_end_t": 1.0})
+    assert older is not None and older.recover_looks == 0 and older.reference_mm is None
+    step.recover_looks, step.reference_mm = 3, 0.05
+    again = Step.from_json(json.loads(json.dumps(step.to_json())))
+    assert again is not None and (again.recover_looks, again.reference_mm) == (3, 0.05)

@@ -41,5 +41,12 @@ def test_a_knock_in_the_warm_up_is_attributed_corrected_and_its_interval_covers_
     assert score.extra <= max(2, len(score.covered) // 2)
     # and the interval closed on the evidence, at a correction trained after the step
     closed = [s for s in r.suspects if s["t_end"] is not None]
-    assert closed and closed[-1]["end_reason"] in ("step", "batch", "sequential")
+    # (back at the level before the step, or vouched for: its U95 within the plant's limit)
+    assert closed and closed[-1]["end_reason"] in ("step", "batch", "sequential", "vouched")
     assert "held-out RMS" in closed[-1]["text"]
+    if closed[-1]["end_reason"] == "vouched":
+        assert "<= limit" in closed[-1]["text"]
+    # what the cell vouched for is true: every window after the close within the limit
+    end_h = closed[-1]["t_end_s"] / 3600.0
+    after_close = [x for x in r.records if x.t_open_h >= end_h]
+    assert after_close and all(x.rmse_mm <= r.accuracy_limit_mm for x in after_close)
