@@ -195,7 +195,7 @@ def test_suspect_intervals_open_update_close_and_list_by_time(tmp_path: Path) ->
     assert [r["id"] for r in store.suspects(since_t=150.0)] == [first, second]
     assert [r["id"] for r in store.suspects(last=1)] == [second]
     with pytest.raises(ValueError, match="unknown"):
-        store.update_suspect(first, onset_id=1)
+        store.update_suspect(first, bodies=[1])
     store.close()
 
 
@@ -269,4 +269,23 @@ def test_a_version_4_database_gains_the_windows_and_keeps_its_suspect_intervals(
     assert (row["t_end"], row["text"], row["bodies"]) == (160.0, "sensor mount moved", [])
     store.add_window(120.0, 100001)
     assert store.suspects()[0]["bodies"] == [100001]
+    store.close()
+
+
+def test_a_version_5_database_gains_the_windows_u95_and_keeps_its_windows(tmp_path: Path) -> None:
+    """Migration 5 -> 6: the U95 stated for each window's bodies (app.line.accuracy); the
+    windows recorded before it have none."""
+    db = sqlite3.connect(tmp_path / "rvis.db")
+    for step in MIGRATIONS[:5]:
+        for sql in step:
+            db.execute(sql)
+    db.execute("INSERT INTO windows (t, body_id) VALUES (1.0, 7)")
+    db.execute("PRAGMA user_version = 5")
+    db.commit()
+    db.close()
+    store = Store(tmp_path / "rvis.db")
+    assert store.version() == SCHEMA_VERSION == 6
+    store.add_window(2.0, 8)
+    store.state_window_u95(0.093)
+    assert [(w["body_id"], w["u95_mm"]) for w in store.windows()] == [(7, None), (8, 0.093)]
     store.close()
