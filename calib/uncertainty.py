@@ -51,3 +51,25 @@ def u95_mm(norms_mm: Sequence[float], extra_sigma_mm: float = 0.0) -> float:
     if math.isnan(s):
         return math.nan
     return norm_quantile() * math.hypot(s, extra_sigma_mm)
+
+
+def shown_worse(
+    candidate_mm: Sequence[float], current_mm: Sequence[float], confidence: float = CONFIDENCE
+) -> bool:
+    """The candidate's error norms on the same held-out points (paired with `current_mm`) are
+    shown larger at `confidence`: a one-sided paired t test of the squared norms'
+    differences. A few held-out points rarely show a difference of a few micrometres; deciding
+    between two versions on their RMS alone decides on noise."""
+    from scipy.stats import t as t_dist
+
+    n = len(candidate_mm)
+    if n != len(current_mm):
+        raise ValueError("the candidate's and the current norms must be paired")
+    if n < 2:
+        return False
+    d = [float(a) ** 2 - float(b) ** 2 for a, b in zip(candidate_mm, current_mm, strict=True)]
+    mean = math.fsum(d) / n
+    sd = math.sqrt(math.fsum((x - mean) ** 2 for x in d) / (n - 1))
+    if sd == 0.0:
+        return mean > 0.0
+    return mean / (sd / math.sqrt(n)) > float(t_dist.ppf(confidence, n - 1))

@@ -110,6 +110,9 @@ def status_lines(status: dict[str, Any]) -> list[str]:
         temp = status["cell_temp_c"]
         lines.append(f"cell temperature    {'unknown' if temp is None else f'{temp:.1f} degC'}")
     lines += _device_lines(status.get("devices"))
+    from app.line.states import accuracy_text
+
+    lines.append(f"accuracy            {accuracy_text(status)}")
     lines += _drift_lines(status.get("drift"))
     lines.append(f"measurements        {m.get('ok', 0)} ok, {m.get('rejected', 0)} rejected")
     counters = status.get("counters")

@@ -36,6 +36,7 @@ from calib.gate_limits import Gates
 from calib.gates import check_identification
 from calib.identify import IdentificationResult, Measurements, identify, residuals
 from calib.model import SystemModel
+from calib.uncertainty import shown_worse
 from calib.validation import rmse
 from drivers.clock import Clock
 
@@ -90,13 +91,13 @@ def select_rolling(
 ) -> tuple[list[Mapping[str, Any]], list[Mapping[str, Any]]] | None:
     """(training rows, held-out rows) from good measurement rows in id order, or None when the
     rolling set is not complete (too few, or a sphere or a schedule slot missing)."""
-    if len(rows) < s.rolling_size + s.holdout_size:
+    if len(rows) < s.rolling_n + s.holdout_size:
         return None
     holdout = list(rows[len(rows) - s.holdout_size :])
-    train = list(rows[len(rows) - s.holdout_size - s.rolling_size : len(rows) - s.holdout_size])
+    train = list(rows[len(rows) - s.holdout_size - s.rolling_n : len(rows) - s.holdout_size])
     if {r["target"] for r in train} < set(targets):
         return None
-    if len({r["slot"] for r in train}) < min(n_slots, s.rolling_size):
+    if len({r["slot"] for r in train}) < min(n_slots, s.rolling_n):
         return None
     return train, holdout
 
@@ -109,12 +110,16 @@ def check_candidate(result: IdentificationResult, job: RecalJob) -> tuple[list[s
     """The gates of a candidate: (failures, candidate held-out RMS, current held-out RMS)."""
     report = check_identification(result, job.x_current, job.gates)
     failures = list(report.failures)
-    cand = rms_mm(job.model, result.x, job.holdout)
-    cur = rms_mm(job.model, job.x_current, job.holdout)
+    r_cand = residuals(job.model, result.x, job.holdout)
+    r_cur = residuals(job.model, job.x_current, job.holdout)
+    cand, cur = rmse(r_cand), rmse(r_cur)
+    e_cand, e_cur = np.linalg.norm(r_cand, axis=1), np.linalg.norm(r_cur, axis=1)
     ratio = job.gates.max_holdout_ratio
-    if ratio is not None and not cand <= ratio * cur:
+    # decided on the evidence: worse only when the held-out points show it (a paired test)
+    if ratio is not None and not cand <= ratio * cur and shown_worse(e_cand, e_cur):
         failures.append(
-            f"held-out RMS {cand:.4f} mm not better than the parameters in force ({cur:.4f} mm)"
+            f"held-out RMS {cand:.4f} mm shown worse than the parameters in force"
+            f" ({cur:.4f} mm; paired test at 95 % on {len(e_cand)} held-out measurements)"
         )
     return failures, cand, cur
 

@@ -1064,7 +1064,7 @@ class Service:
         since = 0 if self.drift_onset_id is None else self.drift_onset_id - 1
         r = self.settings.recalib
         rows = self.store.measurements(
-            status="ok", since_id=since, last=r.rolling_size + r.holdout_size
+            status="ok", since_id=since, last=r.rolling_n + r.holdout_size
         )
         n_slots = len(self.schedule)
         if self.step is not None and self.step.status in (
@@ -1113,9 +1113,9 @@ class Service:
             if self.drift_onset_id is not None:
                 return (
                     f"it waits for the measurements after the step (from #{self.drift_onset_id}"
-                    f"; {r.rolling_size + r.holdout_size} needed, every sphere)"
+                    f"; {r.rolling_n + r.holdout_size} needed, every sphere)"
                 )
-            return f"it waits for a complete rolling set ({r.rolling_size + r.holdout_size})"
+            return f"it waits for a complete rolling set ({r.rolling_n + r.holdout_size})"
         if self.trained_on(chosen):
             return (
                 f"the parameters in force (version {self.version}) were trained on the"

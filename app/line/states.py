@@ -85,3 +85,16 @@ def bodies_text(bodies: Sequence[Any]) -> str:
     if len(bodies) == 1:
         return f"1: {bodies[0]}"
     return f"{len(bodies)}: {bodies[0]} .. {bodies[-1]}"
+
+
+def accuracy_text(status: dict[str, Any]) -> str:
+    """The U95 the cell states for a point measured now, against its limit, in words."""
+    acc = status.get("accuracy")
+    if not acc:
+        return "not stated yet (no window measured)"
+    u95, limit = acc.get("u95_mm"), acc.get("limit_mm")
+    if u95 is None:
+        return f"U95 unknown (no evidence yet): cannot vouch for {limit:.3f} mm"
+    word = "vouched for" if acc.get("vouched") else "CANNOT VOUCH"
+    n, basis = acc.get("n"), acc.get("basis")
+    return f"U95 {u95:.3f} mm ({n} residuals, {basis}), limit {limit:.3f} mm: {word}"

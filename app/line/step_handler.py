@@ -352,9 +352,13 @@ class StepHandler:
             return {}
         # a change from before it spans it; the measurements after the step are from it on
         step.start_id = svc.change_from_id = svc.drift_onset_id = start_id
-        # the interval from the earlier of it and the chart's change point: the located start
-        # is a pair's, and the measurements just after a knock may have none (a new cell)
-        before = svc.store.measurements(before_id=min(start_id, step.onset_id), last=1)
+        # a new cell (fewer measurements before the step than slots): the interval from the
+        # earlier of it and the chart's change point, as the located start is a pair's and the
+        # measurements just after the knock may have none (a self-starting chart's change point
+        # is close; a learned CUSUM's can be far early, so a watched cell keeps the located one)
+        new_cell = len(svc.store.measurements(before_id=step.onset_id, last=len(svc.schedule)))
+        first = min(start_id, step.onset_id) if new_cell < len(svc.schedule) else start_id
+        before = svc.store.measurements(before_id=first, last=1)
         if not before:
             return {}
         step.last_good_id, step.t_start = int(before[0]["id"]), float(before[0]["t"])

@@ -18,7 +18,7 @@ from typing import Any
 
 from rich.text import Text
 
-from app.line.states import bodies_text
+from app.line.states import accuracy_text, bodies_text
 
 PRIORITY_CLASS = {
     "urgent": "alarm-high",
@@ -115,6 +115,7 @@ def overview_text(status: dict[str, Any] | None) -> str:
                 f"Service   {UNKNOWN} (no reply from the service)",
                 f"Line      running {UNKNOWN}, PLC heartbeat {UNKNOWN}, window {UNKNOWN}",
                 f"Cell      {UNKNOWN}",
+                f"Accuracy  {UNKNOWN}",
                 f"Devices   {UNKNOWN}",
                 "Counters  -",
                 "Knock     -",
@@ -138,6 +139,7 @@ def overview_text(status: dict[str, Any] | None) -> str:
             f"Service   {s.get('state', UNKNOWN)}   step: {s.get('step') or '-'}",
             f"Line      running {running}, PLC heartbeat {heartbeat}, {window_text(s)}",
             f"Cell      {cell}",
+            f"Accuracy  {accuracy_text(s) if 'accuracy' in s else UNKNOWN}",
             f"Devices   {device_text}",
             "Counters  " + (", ".join(f"{k} {v}" for k, v in counts.items()) or "-"),
             "Knock     " + knock_text(s),

@@ -27,8 +27,16 @@ def _other_value(section: type[Section], f: dataclasses.Field[Any]) -> Any:
         return next((c for c in choices if c != default), None)
     if isinstance(default, int | float):
         hi = meta.get("hi")
-        value = default + 1 if isinstance(default, int) else default * 0.5 or 0.5
-        return value if hi is None or value <= hi else None
+        # the first that the section accepts (rolling_size: 0 by the model, else at least 10)
+        tries = (default + 1, default + 10) if isinstance(default, int) else (default * 0.5 or 0.5,)
+        for value in tries:
+            if hi is not None and value > hi:
+                continue
+            try:
+                section(**{f.name: value})
+            except ValueError:
+                continue
+            return value
     return None
 
 

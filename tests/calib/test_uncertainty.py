@@ -44,3 +44,19 @@ def test_a_term_the_evidence_lacks_adds_in_quadrature() -> None:
     e = [0.03, 0.05, 0.04, 0.02]
     s = sigma_upper_mm(e)
     assert u95_mm(e, 0.02) == pytest.approx(norm_quantile() * math.hypot(s, 0.02))
+
+
+def test_a_candidate_is_shown_worse_only_when_the_held_out_points_show_it() -> None:
+    """Four held-out points: a candidate a few micrometres worse on each is not shown worse
+    when the points disagree, and is when every point is clearly worse; never by RMS alone."""
+    from calib.uncertainty import shown_worse
+
+    current = [0.030, 0.045, 0.020, 0.050]
+    assert not shown_worse([0.035, 0.040, 0.026, 0.052], current)  # RMS worse, not shown
+    assert shown_worse([0.060, 0.075, 0.050, 0.080], current)
+    assert not shown_worse([0.010, 0.020, 0.015, 0.030], current)  # better
+    # the false "worse" rate on candidates as good as the current: about 5 %
+    rng = np.random.default_rng(3)
+    e = np.linalg.norm(rng.normal(0.0, 0.03, (4000, 2, 4, 3)), axis=3)
+    rate = float(np.mean([shown_worse(list(a), list(b)) for a, b in e]))
+    assert 0.02 <= rate <= 0.08, rate

@@ -73,7 +73,7 @@ def run_line(state_dir: Path, windows: int, executor: type[Executor] = InlineExe
         seed=SEED,
         cycle=cycle,
         line=line_settings(window_s=32.0, slots_per_window=8),
-        recalib=RecalibSettings(every_n=8, estimator="batch"),
+        recalib=RecalibSettings(every_n=8, estimator="batch", rolling_size=24),
         sensor=keyed_sensor(state_dir),
         sensor_noise_mm=0.0,
     )

@@ -23,6 +23,7 @@ def test_measurements_carry_the_plc_temperature_and_the_compliant_model_uses_it(
         cfg,
         calibration=dataclasses.replace(cfg.calibration, model="compliant"),
         line=dataclasses.replace(cfg.line, slots_per_window=2),
+        service=dataclasses.replace(cfg.service, rolling_size=24),
     )
     with SimulatedLineRun(fast, tmp_path / "state", seed=5, geometric=True) as run:
         assert isinstance(run.service.model, CompliantModel)

@@ -58,6 +58,13 @@ STATUS: dict[str, Any] = {
         }
     ],
     "cell_temp_c": 27.91,
+    "accuracy": {
+        "u95_mm": 0.0934,
+        "n": 24,
+        "basis": "held-out",
+        "limit_mm": 0.15,
+        "vouched": True,
+    },
     "counters": {"windows": 412, "overruns": 0, "withdrawn": 3},
     "flagged_step": None,
     "suspect_intervals": [

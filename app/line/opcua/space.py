@@ -165,6 +165,30 @@ VARIABLES = (
         eu_range=(-40.0, 80.0),
     ),
     Var(
+        "AccuracyU95Mm",
+        ("accuracy", "u95_mm"),
+        ua.VariantType.Double,
+        "the expanded uncertainty U95 (k for 95 %) of a point measured now, from the in-line"
+        " check standard (BadNoValue: no evidence yet; app/line/accuracy.py)",
+        unit="mm",
+        eu_range=(0.0, 100.0),
+    ),
+    Var(
+        "AccuracyLimitMm",
+        ("accuracy", "limit_mm"),
+        ua.VariantType.Double,
+        "the plant's limit for U95 ([service] accuracy_limit_mm)",
+        unit="mm",
+        eu_range=(0.0, 100.0),
+    ),
+    Var(
+        "AccuracyVouched",
+        ("accuracy", "vouched"),
+        ua.VariantType.Boolean,
+        "the cell vouches for U95 within the limit (false: the bodies measured now are in a"
+        " suspect interval)",
+    ),
+    Var(
         "ActiveAlarms",
         ("alarms",),
         ua.VariantType.UInt32,
