@@ -21,6 +21,7 @@ import numpy as np
 from app.commission.checks import Check, StepResult, holds
 from app.commission.context import Context
 from app.commission.files import PARAMS_FILE, PLAN_FILE, SENSOR_FILE, STRIPE_FILE
+from app.commission.workspace import accuracy_limit_of
 from app.config import CellConfig, load_cell
 from app.config.devices import CameraSection
 from app.config.write import dumps_cell
@@ -56,6 +57,9 @@ def _commissioned_cell(ctx: Context) -> CellConfig:
     chose one, its exposure."""
     cell = ctx.cell()
     service = dataclasses.replace(cell.service, state_dir=str(ctx.state.root.resolve()))
+    tolerance = ctx.cfg.commission.tolerance_mm
+    if tolerance > 0:  # the plant's tolerance sets the limit of the U95 the service vouches for
+        service = dataclasses.replace(service, accuracy_limit_mm=accuracy_limit_of(tolerance))
     cell = dataclasses.replace(cell, service=service)
     stripe = ctx.path(STRIPE_FILE)
     if stripe.exists():

@@ -29,7 +29,17 @@ from app.formats.params import from_json
 from app.workspace import workspace_points
 from calib import candidates
 from calib.identify import Measurements
+from calib.uncertainty import u95_mm
 from calib.validation import rmse
+
+#: VDA 5's usual limit of a measurement process's capability ratio 2U/T
+VDA5_MAX_RATIO = 0.30
+
+
+def accuracy_limit_of(tolerance_mm: float) -> float:
+    """The U95 limit [mm] a tolerance T puts on the cell: 2U/T <= VDA5_MAX_RATIO."""
+    return VDA5_MAX_RATIO / 2.0 * tolerance_mm
+
 
 F64 = NDArray[np.float64]
 
@@ -112,7 +122,20 @@ def workspace_validation(ctx: Context) -> StepResult:
         "p95_mm": float(np.percentile(d, 95)),
         "rmse_95_interval_mm": [lo, hi],
     }
+    # the commissioned cell's U95 for a point measured now: the upper 95 % bound from these N
+    # end-to-end errors (tracker against rvis: sensor, calibration and robot together, as a
+    # body's point is measured; calib.uncertainty), and VDA 5's 2U/T against the plant's
+    # tolerance when it is given
+    u95 = u95_mm(list(d))
+    r.results["u95_mm"] = u95
+    if c.tolerance_mm > 0:
+        r.results["tolerance_mm"] = c.tolerance_mm
+        r.results["vda5_ratio"] = 2.0 * u95 / c.tolerance_mm
+        r.results["accuracy_limit_mm"] = accuracy_limit_of(c.tolerance_mm)
     if ctx.truth is not None:  # the simulated line: the end-to-end truth at its 100 positions
         r.results["true_rmse_mm"] = ctx.truth.true_rmse_mm(model, x, ctx.sensor_model())
     r.checks.append(at_most("workspace RMSE", rmse(e), c.max_workspace_rmse_mm, "mm"))
+    if c.tolerance_mm > 0:
+        ratio = 2.0 * u95 / c.tolerance_mm
+        r.checks.append(at_most("VDA 5 capability 2 U95 / T", ratio, VDA5_MAX_RATIO))
     return r

@@ -107,6 +107,10 @@ class CommissionSection(Section):
     workspace_positions: int = opt(20, lo=3, hi=1000)
     validation_target: str = opt("VAL")
     max_workspace_rmse_mm: float = opt(0.2, gt=0, hi=100)
+    # the plant's tolerance T of the body features measured (0: not given): the report states
+    # VDA 5's capability ratio 2 U95 / T of the commissioned cell (at most 30 %), and the state
+    # directory's [service] accuracy_limit_mm becomes 0.15 T (U95 at 30 % of T)
+    tolerance_mm: float = opt(0.0, lo=0, hi=1000)
     seed: int = opt(0, lo=0, hi=2**32 - 1)
 
 

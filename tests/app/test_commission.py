@@ -30,6 +30,7 @@ pytestmark = GIGE_CAMERA
 ROOT = Path(__file__).resolve().parents[2]
 CELL = "[planning]\ngrid_step_deg = 15.0\n"
 STRICT = "[commission]\nmax_validation_rmse_mm = 0.001\n"
+TOLERANCE = "[commission]\ntolerance_mm = 1.0\n"  # a body tolerance of +-0.5 mm
 
 
 def _commission(cell: Path, state: Path) -> list[str]:
@@ -105,7 +106,7 @@ def test_commissioning_resumes_after_a_kill_and_leaves_a_cell_ready_to_run(
     steps = {s["name"]: s for s in report["steps"]}
     assert steps["devices"]["started_utc"] == first["devices"]["started_utc"]  # not run again
 
-    cell.write_text(CELL)
+    cell.write_text(CELL + TOLERANCE)
     assert main(_commission(cell, state)) == 0
     out = capsys.readouterr().out
     assert "step 6/10 calibration: passed earlier" in out and "step 10/10 ready: passed" in out
@@ -126,6 +127,13 @@ def test_commissioning_resumes_after_a_kill_and_leaves_a_cell_ready_to_run(
     assert 0.8 < ws["rmse_mm"] / ws["true_rmse_mm"] < 1.4  # + the tracker's and sensor's noise
     lo, hi = ws["rmse_95_interval_mm"]
     assert lo < ws["rmse_mm"] < hi and ws["mean_mm"] <= ws["rmse_mm"] <= ws["max_mm"]
+    # the commissioned cell's U95 of a point (from the 20 end-to-end errors): above the true
+    # RMS at the truth's 100 positions, not grossly (1.6x for many errors, more for 20), and
+    # VDA 5's ratio against the tolerance, whose limit the state directory's service takes
+    assert ws["true_rmse_mm"] < ws["u95_mm"] < 3.0 * ws["true_rmse_mm"]
+    assert ws["vda5_ratio"] == pytest.approx(2.0 * ws["u95_mm"] / 1.0)
+    assert ws["accuracy_limit_mm"] == pytest.approx(0.15)
+    assert "| VDA 5 capability 2 U95 / T |" in (paths.commission / "commission.md").read_text()
     assert "not applicable" in steps["acceptance"]["results"]  # no images on this path
     assert steps["calibration"]["results"]["measurements"] == 24
     # the simulated PLC writes the cell temperature, and the commissioning cell says so: each
@@ -141,6 +149,7 @@ def test_commissioning_resumes_after_a_kill_and_leaves_a_cell_ready_to_run(
     cfg = load_cell(paths.cell)
     assert set(cfg.spheres_part_mm) == {"P1", "P2", "P3", "P4"} and cfg.spheres.frame == "part"
     assert cfg.line.plc_temperature  # the simulated line's PLC provides it
+    assert cfg.service.accuracy_limit_mm == pytest.approx(0.15)  # from the tolerance
     version, _, x = ParamsStore(state).current()  # type: ignore[misc]
     assert version == 1 and paths.plan.is_file() and paths.sensor.is_file()
     np.testing.assert_array_equal(x, from_json(paths.commission / "params.json")[1])
