@@ -75,6 +75,8 @@ def one(kind: str, at_h: float, seed: int, hours: float) -> dict[str, Any]:
         "suspect": len(suspect),
         "suspect_within": sum(x.rmse_mm <= limit for x in suspect),
         "mean_mm": statistics.fmean(x.rmse_mm for x in recs),
+        # per validation point: the share of (window, point) within the window's stated U95
+        "coverage_points": statistics.fmean(x.within_u95 or 0.0 for x in recs),
     }
 
 
@@ -118,6 +120,8 @@ def main() -> None:
     print(f"  worst shift {min(r['coverage'] for r in rows):.1%}")
     print(f"  windows vouched for: {statistics.fmean(r['coverage_vouched'] for r in rows):.1%}")
     ratio = statistics.median(r["ratio_steady"] for r in rows)
+    pts = statistics.fmean(r["coverage_points"] for r in rows)
+    print(f"coverage per validation point (|true error| <= U95 of its window): {pts:.1%}")
     print(f"median U95 / true RMS in steady windows (median over shifts): {ratio:.2f}")
     bad_s = sum(r["bad_suspect"] for r in rows)
     within = sum(r["suspect_within"] for r in rows)

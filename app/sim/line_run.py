@@ -43,6 +43,7 @@ from app.sim.truth import EndToEndTruth
 from calib import candidates
 from calib.compliance import CompliantModel, carry
 from calib.identify import IdentificationResult, identify
+from calib.validation import rmse
 from fakes.cell import NotVisible, SimulatedCell
 from fakes.clock import VirtualClock
 from fakes.line import SimLine, SimLineSetup
@@ -69,6 +70,7 @@ class WindowRecord:
     # they are in a suspect interval (known once the run ended: app.sim.shift.mark_suspect)
     u95_mm: float | None = None
     suspect: bool = False
+    within_u95: float | None = None  # the share of validation points whose true error <= U95
 
 
 @dataclass
@@ -194,17 +196,25 @@ def random_schedule(cfg: CellConfig, cell: SimulatedCell, seed: int, n_each: int
     return out
 
 
-def true_rmse_mm(
+def true_errors_mm(
     line: SimLine, truth: EndToEndTruth, model: Any, x: F64, t_s: float | None = None
-) -> float:
-    """The end-to-end true error [mm, RMS] of `model` with parameters x at the line's validation
-    positions at sim time t_s (default now; the cell's temperature as the PLC reads it): each
-    position's sphere observed by the true sensor, measured through the sensor model in use
-    (`truth`), mapped with x."""
+) -> F64:
+    """The end-to-end true errors (m, 3) [mm] of `model` with parameters x at the line's
+    validation positions at sim time t_s (default now; the cell's temperature as the PLC reads
+    it): each position's sphere observed by the true sensor, measured through the sensor model
+    in use (`truth`), mapped with x."""
     v = line.truth.validation
     c = line.truth.validation_centres_sensor_mm(t_s)
     temp = np.full(len(v.q_deg), line.truth.temp_c(t_s))
-    return truth.rmse_mm(model, x, v.q_deg, c, v.p_part_mm, temp)
+    return truth.errors_mm(model, x, v.q_deg, c, v.p_part_mm, temp)
+
+
+def true_rmse_mm(
+    line: SimLine, truth: EndToEndTruth, model: Any, x: F64, t_s: float | None = None
+) -> float:
+    """RMS [mm] of `true_errors_mm` (NaN when no view is accepted)."""
+    e = true_errors_mm(line, truth, model, x, t_s)
+    return rmse(e) if len(e) else float("nan")
 
 
 class SimulatedLineRun:
@@ -480,14 +490,18 @@ class SimulatedLineRun:
         if version is None:
             version = self.service.version
         t_s = float(event["t"]) - epoch
+        e = true_errors_mm(self.line, self.truth, self.model, self._x_of(version), t_s)
+        u95 = event.get("u95_mm")
+        norms = np.linalg.norm(e, axis=1)
         record = WindowRecord(
             window=self.summary.windows,
             t_h=t_s / 3600.0,
             temp_c=truth.temp_c(t_s),
-            rmse_mm=self.true_rmse_mm(self._x_of(version), t_s),
+            rmse_mm=rmse(e) if len(e) else float("nan"),
             rmse_commissioning_mm=self.true_rmse_mm(self.x_commissioning, t_s),
             version=version,
-            u95_mm=event.get("u95_mm"),
+            u95_mm=u95,
+            within_u95=None if u95 is None or not len(e) else float(np.mean(norms <= u95)),
         )
         if "t_open" in event:
             record.t_open_h = (event["t_open"] - epoch) / 3600.0
