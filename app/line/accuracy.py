@@ -26,6 +26,8 @@ from calib.uncertainty import u95_mm
 
 #: the `group_name` of an accuracy suspect interval (a step's names the group that moved)
 ACCURACY_GROUP = "accuracy"
+#: the end_reason of an interval closed because the cell vouches for its U95 within the limit
+VOUCHED = "vouched"
 
 
 @dataclass(frozen=True)

@@ -55,7 +55,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from app.errors import InputError
 from app.formats.params import plain_document
-from app.line.accuracy import ACCURACY_GROUP, Accuracy, document_seed, evidence, statement
+from app.line.accuracy import (
+    ACCURACY_GROUP,
+    VOUCHED,
+    Accuracy,
+    document_seed,
+    evidence,
+    statement,
+)
 from app.line.cycle import Cycle, WindowWatch
 from app.line.drift import DriftMonitor, prediction_inflation, residual_mm
 from app.line.events import EventBus
@@ -594,11 +601,13 @@ class Service:
                 self.store.update_suspect(sid, group_name=ACCURACY_GROUP)
                 opened = self.store.suspect(sid)
             elif acc.vouched and open_id is not None:
+                row = self.store.suspect(open_id) or {}
                 self.store.update_suspect(
                     open_id,
                     t_end=t_open,
-                    end_reason=f"vouched for again: {acc.text()}",
+                    end_reason=VOUCHED,
                     end_version=self.version,
+                    text=f"{row.get('text', '')}; vouched for again: {acc.text()}",
                 )
                 self.accuracy_suspect_id, opened = None, self.store.suspect(open_id)
             else:

@@ -20,7 +20,7 @@ import numpy as np
 
 from app.errors import InputError
 from app.formats.params import carried_from_json
-from app.line.accuracy import document_seed
+from app.line.accuracy import VOUCHED, document_seed
 from app.line.drift import OVERALL
 from app.line.host import LineHost
 from app.line.states import suspect_json
@@ -43,9 +43,6 @@ from calib.candidates import IDEAL_STANDOFF_MM
 #: estimate can be late as well as early) up to the measurement that signalled
 LOOK_BACK_DIVISOR = 2
 REFINE_TRIES = 2  # refinements refused before the interval closes at the first correction
-#: a step's interval closed because the cell vouches for its U95 within the plant's limit with
-#: the correction in force (not shown back at its level before the step: information only)
-VOUCHED = "vouched"
 
 
 class StepHandler:

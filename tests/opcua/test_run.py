@@ -31,10 +31,20 @@ def _start(tmp_path: Path) -> tuple[ServiceProcess, str]:
 
 
 async def _read(url: str) -> tuple[str, int]:
+    """ServiceState, and Windows once it counts the first window (the log says the window
+    was used a moment before the OPC UA process has its status: a subscription waits for
+    the value, with a deadline, instead of racing it)."""
     async with Client(url) as client:
         m = await machine_node(client)
         state = await (await child(client, m, "ServiceState")).read_value()
-        windows = await (await child(client, m, "Windows")).read_value()
+        catcher = Catcher()
+        sub = await client.create_subscription(20, catcher)
+        await sub.subscribe_data_change(await child(client, m, "Windows"))
+        windows = 0
+        async with asyncio.timeout(30.0):
+            while windows < 1:
+                _, _, val, _ = await catcher.changes.get()
+                windows = int(val or 0)
         return state, windows
 
 
