@@ -76,7 +76,9 @@ def test_screen_matches_snapshot(pane: str, size: tuple[int, int]) -> None:
     if update:
         golden.write_text("\n".join(lines) + "\n")
         (DOCS / f"{name}.svg").write_text(svg)
-    assert lines == golden.read_text().split("\n")[:-1]
+    want = golden.read_text().split("\n")[:-1]
+    # the whole screen on a mismatch (an intermittent narrow, empty table: diagnosable)
+    assert lines == want, "\n".join(["got:", *lines, "expected:", *want])
 
 
 def test_alarm_shows_its_priority_as_text_and_colour() -> None:
