@@ -36,7 +36,7 @@ from scipy.stats import chi2
 from scipy.stats import f as f_dist
 
 from app.config.line import RecalibSettings
-from app.line.step import look_level, recovery_test
+from app.line.step import look_level, recovery_under
 
 LEVEL_MM = 0.06  # RMS of the held-out residual norms before the step
 RATIOS = (1.0, 1.25, 4 / 3, 1.5, 2.0, 3.0)  # true RMS after / before
@@ -103,13 +103,10 @@ def _check(
     for i in range(min(CHECK, before.shape[0])):
         got, looks, last_n = 0, 0, 0
         for w in range(1, WINDOWS + 1):
-            test = recovery_test(
+            test = recovery_under(
+                r,
                 before[i],
                 after[i, : w * per],
-                confidence=r.recovery_confidence,
-                min_after=r.recovery_min_measurements,
-                margin=r.recovery_margin,
-                tolerance_mm=r.recovery_tolerance_mm,
                 looks=looks,
                 last_look_n=last_n,
                 reference_mm=None if before.shape[1] else LEVEL_MM,

@@ -23,6 +23,8 @@ from typing import Any
 
 import numpy as np
 
+from app.config.line import RecalibSettings
+
 
 class StepStatus(StrEnum):
     """Where a flagged step is in its life (the `Step` docstring says what each means)."""
@@ -294,4 +296,27 @@ def recovery_test(
         verdict = "undetermined"
     return Recovery(
         verdict, rms_a, n_a, level_mm, n_b, tolerated, upper, lower, look, level, confidence
+    )
+
+
+def recovery_under(
+    settings: RecalibSettings,
+    before_mm: Sequence[float],
+    after_mm: Sequence[float],
+    *,
+    looks: int = 0,
+    last_look_n: int = 0,
+    reference_mm: float | None = None,
+) -> Recovery:
+    """`recovery_test` with the confidence, minimum, margin and tolerance of `[service]`."""
+    return recovery_test(
+        before_mm,
+        after_mm,
+        confidence=settings.recovery_confidence,
+        min_after=settings.recovery_min_measurements,
+        margin=settings.recovery_margin,
+        tolerance_mm=settings.recovery_tolerance_mm,
+        looks=looks,
+        last_look_n=last_look_n,
+        reference_mm=reference_mm,
     )

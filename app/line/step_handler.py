@@ -24,7 +24,7 @@ from app.line.accuracy import VOUCHED, document_seed
 from app.line.drift import OVERALL
 from app.line.host import LineHost
 from app.line.states import suspect_json
-from app.line.step import Step, StepStatus, recovery_test, step_alarm_text
+from app.line.step import Step, StepStatus, recovery_under, step_alarm_text
 from app.line.step_fit import (
     MIN_STEP_REFS,
     StepCorrection,
@@ -459,13 +459,10 @@ class StepHandler:
         if len(rows) == step.recover_n:
             return False  # nothing new measured
         step.recover_n = len(rows)
-        test = recovery_test(
+        test = recovery_under(
+            r,
             self._level_rows(step),
             [float(q["residual_mm"]) for q in rows],
-            confidence=r.recovery_confidence,
-            min_after=r.recovery_min_measurements,
-            margin=r.recovery_margin,
-            tolerance_mm=r.recovery_tolerance_mm,
             looks=step.recover_looks,
             last_look_n=step.recover_look_n,
             reference_mm=step.reference_mm,

@@ -16,7 +16,7 @@ import pytest
 from app.config.line import RecalibSettings
 from app.formats.params import from_json
 from app.line.schedule import Slot
-from app.line.step import Step, StepStatus, look_level, recovery_test
+from app.line.step import Step, StepStatus, look_level, recovery_under
 from app.line.step_fit import paired, step_sigma_mm, step_slot
 from fakes.truth import Knock
 from tests.line.helpers import knock_line, true_rms
@@ -350,17 +350,8 @@ def _test(
     before: Any, after: Any, looks: int = 0, reference: float | None = None, last_n: int = 0
 ) -> Any:
     """The recovery test with the service's defaults (95 %, 6, 1.25x, 0.02 mm)."""
-    r = RecalibSettings()
-    return recovery_test(
-        before,
-        after,
-        confidence=r.recovery_confidence,
-        min_after=r.recovery_min_measurements,
-        margin=r.recovery_margin,
-        tolerance_mm=r.recovery_tolerance_mm,
-        looks=looks,
-        last_look_n=last_n,
-        reference_mm=reference,
+    return recovery_under(
+        RecalibSettings(), before, after, looks=looks, last_look_n=last_n, reference_mm=reference
     )
 
 
