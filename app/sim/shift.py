@@ -470,6 +470,7 @@ def summary_lines(result: ShiftResult) -> list[str]:
         f"back within {s.recovered_ratio:g}x of the pre-knock error"
         f" ({result.pre_knock_rmse_mm:.4f} mm) after {_windows_text(result.recovered_after, 3)}",
         _suspects_text(result),
+        accuracy_text(result),
         _alarms_text(result),
         f"overruns: {sm.overruns} (target 0); windows {sm.windows}, measurements {sm.measurements}"
         f" ({sm.rejected} rejected), calibrations applied {sm.calibrations_applied}, rejected"
@@ -479,6 +480,25 @@ def summary_lines(result: ShiftResult) -> list[str]:
         if result.records
         else "no window ran",
     ]
+
+
+def accuracy_text(result: ShiftResult) -> str:
+    """What the service stated about its accuracy against the truth: the windows whose true
+    RMS is within the stated U95, the median U95, the suspect windows and those above the
+    limit."""
+    recs = result.records
+    stated = [r.u95_mm for r in recs if r.u95_mm is not None]
+    if not recs or not stated:
+        return "stated accuracy: no U95 stated"
+    covered = sum(r.u95_mm is not None and r.rmse_mm <= r.u95_mm for r in recs)
+    limit = result.accuracy_limit_mm
+    above = [r for r in recs if r.rmse_mm > limit]
+    return (
+        f"stated accuracy: U95 median {float(np.median(stated)):.4f} mm (limit {limit:g} mm);"
+        f" true RMS within the stated U95 in {covered} of {len(recs)} windows (target >= 95 %);"
+        f" {sum(r.suspect for r in recs)} windows suspect, {sum(r.suspect for r in above)} of"
+        f" the {len(above)} above the limit (target >= 98 %)"
+    )
 
 
 def _suspects_text(result: ShiftResult) -> str:
