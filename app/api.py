@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from app.formats.files import MAX_ANGLE_DEG, MAX_COORD_MM
-from app.formats.params import from_json
+from app.formats.params import covariance_of, from_json
 from calib import compensate, urdf
 from calib.model import SystemModel
 from calib.transforms import apply
@@ -58,6 +58,8 @@ class Calibration:
     model: SystemModel
     x: F64
     source: str = ""
+    # (active parameter names, their covariance) of the identification, when known
+    covariance: tuple[list[str], F64] | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.model, SystemModel):
@@ -74,7 +76,7 @@ class Calibration:
         """Read a parameters JSON (from `rvis identify`); InputError naming the file if it is
         not one or is of another model."""
         model, x = load_parameters(path)
-        return cls(model, x, str(path))
+        return cls(model, x, str(path), covariance_of(path))
 
     @classmethod
     def nominal(cls, model: SystemModel) -> Calibration:
@@ -110,6 +112,35 @@ class Calibration:
         if single:
             return apply(T[0], p)
         return apply(T, p) if p.ndim == 2 else apply(T[:, None], p)
+
+    def u95_mm(
+        self, q_deg: ArrayLike, p_sensor_mm: ArrayLike, statement_u95_mm: float = 0.0
+    ) -> F64:
+        """The task-specific U95 [mm] of each point `to_part` maps (shapes as there; the result
+        has the points' shape less the last axis): the identification's covariance propagated
+        to that point's pose (J cov J^T, its largest eigenvalue as the per-coordinate variance:
+        never understated), combined in quadrature with `statement_u95_mm`, the U95 the cell
+        states for a point measured now (`rvis status` accuracy.u95_mm: the terms the
+        covariance does not see, sensor, robot repeatability, temperature), both at 95 %
+        (calib.uncertainty). Without a covariance (a nominal calibration) only the statement."""
+        from calib.uncertainty import norm_quantile
+
+        q = _joints("q_deg", q_deg)
+        p = _numbers("p_sensor_mm", p_sensor_mm)
+        self.to_part(q_deg, p_sensor_mm)  # the same checks of the shapes and values
+        if not (np.isfinite(statement_u95_mm) and statement_u95_mm >= 0):
+            raise ValueError(f"statement_u95_mm: expected a number >= 0, got {statement_u95_mm}")
+        shape = p.shape[:-1]
+        pts = p.reshape(-1, 3)
+        qs = np.repeat(q.reshape(-1, 6), len(pts) // len(q.reshape(-1, 6)), axis=0)
+        k = norm_quantile()
+        var: F64 = np.zeros(len(pts))
+        if self.covariance is not None:
+            names, cov = self.covariance
+            J = self.model.point_jacobian(self.x, qs, pts, names)  # (n, 3, k)
+            var = np.asarray(np.linalg.eigvalsh(J @ cov @ np.swapaxes(J, 1, 2))[:, -1], float)
+        out: F64 = k * np.sqrt(np.clip(var, 0.0, None) + (statement_u95_mm / k) ** 2)
+        return out.reshape(shape)
 
     def compensate_joints(
         self, q_deg: ArrayLike, settings: compensate.CompensationSettings | None = None

@@ -290,3 +290,27 @@ def _compliant_settings(m: dict[str, Any], path: Path) -> CompliantSettings:
 
 
 __all__ = ["ALL_NAMES", "carried_from_json", "from_json", "read_params", "to_json"]
+
+
+def covariance_of(path: str | Path) -> tuple[list[str], F64] | None:
+    """(active parameter names, their covariance) of a parameters file, from its standard
+    uncertainties and correlation matrix (None when it has none: a nominal or carried
+    document); InputError naming the file and field when they do not agree."""
+    path = Path(path)
+    data = read_json(path)
+    active, corr = data.get("active"), data.get("correlation")
+    if not active or corr is None:
+        return None
+    std_of = {str(p.get("name")): p.get("std") for p in data.get("parameters") or []}
+    try:
+        std = np.array([float(std_of[str(n)]) for n in active])
+        c = np.asarray(corr, dtype=float)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"std of an active parameter: {exc}", file=path, field="active") from exc
+    if c.shape != (len(active), len(active)) or not np.all(np.isfinite(c)):
+        raise InputError(
+            f"correlation: expected a finite {len(active)} x {len(active)} matrix, got {c.shape}",
+            file=path,
+            field="correlation",
+        )
+    return [str(n) for n in active], c * np.outer(std, std)

@@ -131,3 +131,36 @@ def test_load_refuses_other_models_and_other_files(calibrated: Calibrated, tmp_p
 def write(path: Path, text: str) -> Path:
     path.write_text(text)
     return path
+
+
+def test_u95_per_point_propagates_the_identifications_covariance(calibrated: Calibrated) -> None:
+    """Task-specific U95: the identification's covariance at each point's pose. Drawn
+    parameters from that covariance move >= 95 % of the points by less than their U95, and the
+    U95 is not grossly above what they do (the largest eigenvalue: <= 1.4x the 95th
+    percentile); a statement the cell makes combines in quadrature; the shapes of `to_part`."""
+    cal = Calibration.load(calibrated.params)
+    assert cal.covariance is not None
+    names, cov = cal.covariance
+    q = calibrated.views_deg[:6]
+    p = np.random.default_rng(1).normal(0.0, 8.0, (6, 4, 3)) + np.array([0.0, 0.0, 130.0])
+    u = cal.u95_mm(q, p)
+    assert u.shape == (6, 4) and np.all(u > 0)
+    # Monte Carlo: parameters drawn from the covariance, the points they map
+    idx = [cal.model.names.index(n) for n in names]
+    rng = np.random.default_rng(2)
+    draws = rng.multivariate_normal(np.zeros(len(names)), cov, size=400)
+    base = cal.to_part(q, p)
+    moved = []
+    for d in draws:
+        x = cal.x.copy()
+        x[idx] += d
+        moved.append(np.linalg.norm(Calibration(cal.model, x).to_part(q, p) - base, axis=-1))
+    m = np.array(moved)  # (400, 6, 4)
+    assert np.mean(m <= u) >= 0.95
+    assert np.all(u <= 1.4 * np.percentile(m, 95, axis=0) + 1e-4)
+    # the cell's statement in quadrature; a nominal calibration states only that
+    assert np.allclose(cal.u95_mm(q, p, 0.1), np.hypot(u, 0.1))
+    nominal = Calibration.nominal(cal.model)
+    assert np.allclose(nominal.u95_mm(q[0], p[0], 0.08), 0.08)
+    with pytest.raises(ValueError, match="statement_u95_mm"):
+        cal.u95_mm(q, p, -1.0)
