@@ -12,6 +12,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, ClassVar
 
+from rich.cells import cell_len
 from rich.text import Text
 from textual import work
 from textual.app import App, ComposeResult
@@ -332,6 +333,14 @@ class RvisTui(App[None]):
         cursor = table.cursor_row
         table.clear()
         table.add_rows(rows)
+        # the columns' widths for these rows at once: the table measures new rows when it is
+        # next idle, which in a full test suite left a pane (shown meanwhile) with its header's
+        # widths and every cell cut (seen for the calibrations, measurements and log panes)
+        for column, cells in zip(table.ordered_columns, zip(*rows, strict=False), strict=False):
+            if column.auto_width:
+                width = max(c.cell_len if isinstance(c, Text) else cell_len(str(c)) for c in cells)
+                column.content_width = max(column.content_width, width)
+        table.refresh(layout=True)
         if rows:
             table.move_cursor(row=min(cursor, len(rows) - 1))
 
