@@ -584,21 +584,21 @@ class Service:
         with self.store.batch():
             self.store.state_window_u95(acc.u95_mm)
             open_id = self.accuracy_suspect_id
+            # (a step's open interval speaks for these windows already)
             if not acc.vouched and open_id is None and not self._suspect_open():
-                # (a step's open interval speaks for these windows already)
                 # from the last measurement before this window (the last one vouched for) on
-                first = self.store.measurements(status="ok", since_id=0, last=1)
-                good = [r for r in self.store.measurements(last=n_max) if r["t"] < t_open]
+                before = [r for r in rows if r["t"] < t_open]
+                first_id = int(before[-1]["id"]) + 1 if before else self.store.last_measurement_id()
                 self.accuracy_suspect_id = sid = self.store.open_suspect(
                     {
-                        "t_start": float(good[-1]["t"]) if good else t_open,
-                        "last_good_id": int(good[-1]["id"]) if good else None,
-                        "onset_id": int(good[-1]["id"]) + 1 if good else 1 if first else 0,
+                        "t_start": float(before[-1]["t"]) if before else t_open,
+                        "last_good_id": int(before[-1]["id"]) if before else None,
+                        "onset_id": first_id,
                         "params_version": self.version,
+                        "group_name": ACCURACY_GROUP,
                         "text": f"the cell cannot vouch for its accuracy: {acc.text()}",
                     }
                 )
-                self.store.update_suspect(sid, group_name=ACCURACY_GROUP)
                 opened = self.store.suspect(sid)
             elif acc.vouched and open_id is not None:
                 row = self.store.suspect(open_id) or {}
@@ -960,24 +960,31 @@ class Service:
             for k, r in enumerate(rows)
         ]
 
-    def _version_seed(self) -> list[float]:
-        """The seed residuals of the version in force (its calibration's rolling set)."""
+    def _applied_calibration(self) -> dict[str, Any] | None:
+        """The calibration of the version in force (None: none of this service's)."""
         applied = self.store.applied()
-        cal_id = applied[-1]["calibration_id"] if applied else None
-        cal = self.store.calibration(cal_id)
+        return self.store.calibration(applied[-1]["calibration_id"] if applied else None)
+
+    def _u_seed(self, cal: dict[str, Any] | None, seed: Sequence[tuple[str, float]]) -> list[float]:
+        """The U95 seed of the version in force (app.line.accuracy): its batch calibration's
+        rolling set scaled to prediction errors (`seed`, the drift charts' own), none for a
+        sequential or step one (their residuals are optimistic by an unknown factor), the
+        identification residuals its document carries when no calibration here made it."""
         if cal is None:
             return document_seed(self.params.current_document())
-        if _kind(cal["document"]) != "batch":
-            return []
-        return [e for _, e in self._drift_seed(cal)]
+        return [e for _, e in seed] if _kind(cal["document"]) == "batch" else []
+
+    def _version_seed(self) -> list[float]:
+        """The U95 seed of the version in force (`_u_seed`)."""
+        cal = self._applied_calibration()
+        return self._u_seed(cal, self._drift_seed(cal) if cal is not None else ())
 
     def _restore_drift(self) -> None:
         """After a restart: the residual charts from the stored measurements, the last visits."""
-        applied = self.store.applied()
-        cal_id = applied[-1]["calibration_id"] if applied else None
-        seed = self._drift_seed(self.store.calibration(cal_id))
+        cal = self._applied_calibration()
+        seed = self._drift_seed(cal)
         self.drift.reset(seed)
-        self.u_seed = [e for _, e in seed] or document_seed(self.params.current_document())
+        self.u_seed = self._u_seed(cal, seed)
         for r in self.store.measurements(last=2 * len(self.schedule)):
             if 0 <= r["slot"] < len(self.schedule):
                 q = np.asarray(r["q_deg"], float)
@@ -1253,8 +1260,7 @@ class Service:
             else:
                 seed = self._drift_seed(cal)
                 self.drift.reset(seed)
-                doc = self.params.current_document()
-                self.u_seed = [e for _, e in seed] if cal is not None else document_seed(doc)
+                self.u_seed = self._u_seed(cal, seed)
             if self.sequential is not None and kind != "sequential":
                 self.sequential.restart(self.model, self.x, self.params.current_document())
             onset, self.drift_due = self.drift_onset_id, False

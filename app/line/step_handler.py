@@ -220,8 +220,8 @@ class StepHandler:
         r = svc.settings.recalib
         back = len(svc.schedule) // LOOK_BACK_DIVISOR
         lo = max(1, step.onset_id - back)
-        prior = [int(q["id"]) for q in svc.store.measurements(before_id=step.onset_id)]
-        if len(prior) < 2 * back:
+        prior = self._ids_before(step.onset_id)
+        if len(prior) < len(svc.schedule):
             # a new cell's first schedule cycle: most slots were measured once, before the
             # step; a quarter of them looked back (the self-starting chart's change point is
             # close), the others the references (at least MIN_STEP_REFS)
@@ -247,6 +247,12 @@ class StepHandler:
             before + [q for q in rows if int(q["id"]) < start_id],
         )
         return wide, start_id, pairs, sigma
+
+    def _ids_before(self, onset_id: int) -> list[int]:
+        """The ids of the good measurements before `onset_id`, a schedule cycle's at most
+        (fewer: a new cell's first cycle)."""
+        rows = self.svc.store.measurements(before_id=onset_id, last=len(self.svc.schedule))
+        return [int(q["id"]) for q in rows]
 
     def _refine_step(self, step: Step) -> None:
         """The first correction is in force; once a window more was measured, its group is
@@ -353,8 +359,8 @@ class StepHandler:
         # earlier of it and the chart's change point, as the located start is a pair's and the
         # measurements just after the knock may have none (a self-starting chart's change point
         # is close; a learned CUSUM's can be far early, so a watched cell keeps the located one)
-        new_cell = len(svc.store.measurements(before_id=step.onset_id, last=len(svc.schedule)))
-        first = min(start_id, step.onset_id) if new_cell < len(svc.schedule) else start_id
+        new_cell = len(self._ids_before(step.onset_id)) < len(svc.schedule)
+        first = min(start_id, step.onset_id) if new_cell else start_id
         before = svc.store.measurements(before_id=first, last=1)
         if not before:
             return {}

@@ -632,16 +632,18 @@ class Store:
 
     # -- suspect intervals ----------------------------------------------------------------------
     def open_suspect(self, row: dict[str, Any]) -> int:
-        """A new open interval: t_start, last_good_id, onset_id, params_version, size_mm, text."""
+        """A new open interval: t_start, last_good_id, onset_id, params_version, size_mm,
+        group_name, text."""
         return self._insert(
             "INSERT INTO suspect_intervals (t_start, last_good_id, onset_id, params_version,"
-            " size_mm, text) VALUES (?, ?, ?, ?, ?, ?)",
+            " size_mm, group_name, text) VALUES (?, ?, ?, ?, ?, ?, ?)",
             (
                 row["t_start"],
                 row.get("last_good_id"),
                 row["onset_id"],
                 row.get("params_version"),
                 row.get("size_mm"),
+                row.get("group_name"),
                 row.get("text", ""),
             ),
         )

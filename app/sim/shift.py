@@ -470,7 +470,7 @@ def summary_lines(result: ShiftResult) -> list[str]:
         f"back within {s.recovered_ratio:g}x of the pre-knock error"
         f" ({result.pre_knock_rmse_mm:.4f} mm) after {_windows_text(result.recovered_after, 3)}",
         _suspects_text(result),
-        accuracy_text(result),
+        stated_accuracy_text(result),
         _alarms_text(result),
         f"overruns: {sm.overruns} (target 0); windows {sm.windows}, measurements {sm.measurements}"
         f" ({sm.rejected} rejected), calibrations applied {sm.calibrations_applied}, rejected"
@@ -482,7 +482,7 @@ def summary_lines(result: ShiftResult) -> list[str]:
     ]
 
 
-def accuracy_text(result: ShiftResult) -> str:
+def stated_accuracy_text(result: ShiftResult) -> str:
     """What the service stated about its accuracy against the truth: the windows whose true
     RMS is within the stated U95, the median U95, the suspect windows and those above the
     limit."""
