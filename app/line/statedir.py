@@ -10,7 +10,8 @@ permissions, the one-service lock and the free space under it (DESIGN.md section
         sensor.toml              the sensor calibration `rvis run` reads when --sensor
                                  is not given (written by `rvis commission`)
         params/current.json      the applied version (derived: rebuilt from the history)
-        params/history/NNNN.json every version ever applied
+        params/history/NNNN.json every version ever applied (at least four digits: 0007.json,
+                                 10000.json; read back by the same rule, ordered by number)
         sweeps/NNNNNNNN.npz      raw sweeps kept for audit ([service] raw_sweeps_keep)
         opcua/server-cert.der    the OPC UA server's certificate (created on first start with
         opcua/server-key.pem     a security policy; the key 0600)
@@ -79,14 +80,19 @@ MANIFEST_NAME = "backup.json"
 
 
 def version_name(version: int) -> str:
-    """The name of a parameters version's history file: 0007.json."""
+    """The name of a parameters version's history file: 0007.json, 10000.json (at least four
+    digits, as many as the version has)."""
     return f"{version:04d}.json"
 
 
 def version_of(name: str) -> int | None:
-    """The version a history file's name stands for (None: not a version file)."""
+    """The version a history file's name stands for, by the rule `version_name` writes (None:
+    not a version file; "7.json" and "00007.json" are not, "10000.json" is)."""
     stem, dot, ext = name.partition(".")
-    return int(stem) if dot and ext == "json" and len(stem) == 4 and stem.isdigit() else None
+    if not (dot and ext == "json" and stem.isascii() and stem.isdigit()):
+        return None
+    version = int(stem)
+    return version if version >= 1 and version_name(version) == name else None
 
 
 #: The state directory when neither the cell file nor `--state-dir` names one ([service]
@@ -151,7 +157,8 @@ class StateDir:
         return self.history / version_name(version)
 
     def versions(self) -> list[int]:
-        """The versions in the history, ascending (reads the folder only)."""
+        """The versions in the history, in ascending number (9999 before 10000; reads the
+        folder only)."""
         if not self.history.is_dir():
             return []
         found = (version_of(p.name) for p in self.history.iterdir() if p.is_file())
