@@ -15,7 +15,6 @@ import sqlite3
 import stat
 import subprocess
 import tempfile
-import traceback
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -28,6 +27,7 @@ from app.line.launch import hold_state
 from app.line.statedir import StateDir, group_fix_command, group_strays, prepare
 from app.tui.history import HistoryReader
 from tests.app.test_state_backup import commissioned  # noqa: F401  (a fixture)
+from tests.peers import as_user
 
 OPERATOR_UID = 54323  # no passwd entry needed
 
@@ -104,34 +104,18 @@ def test_the_service_gives_the_directory_its_group_at_start(
 
 
 def as_operator(gid: int, state: StateDir) -> dict[str, Any]:
-    """What an operator (another uid, in the group only) reads: `rvis state check`'s findings
-    and the TUI's history of applied versions."""
-    r, w = os.pipe()
-    pid = os.fork()
-    if pid == 0:  # the child
-        code = 1
+    """What an operator (another uid, in the group only) reads: `rvis state check`'s
+    problems and the TUI's history of applied versions."""
+
+    def read() -> dict[str, Any]:
+        seen: dict[str, Any] = {"problems": check(state, 0.0)["problems"]}
         try:
-            os.close(r)
-            os.setgroups([gid])
-            os.setgid(gid)
-            os.setuid(OPERATOR_UID)
-            seen: dict[str, Any] = {"problems": check(state, 0.0)["problems"]}
-            try:
-                seen["applied"] = len(HistoryReader(state.db).applied())
-            except sqlite3.Error as exc:
-                seen["applied"] = str(exc)
-            os.write(w, json.dumps(seen).encode())
-            code = 0
-        except BaseException:
-            os.write(w, json.dumps({"error": traceback.format_exc()}).encode())
-        finally:
-            os._exit(code)
-    os.close(w)
-    with os.fdopen(r, "rb") as pipe:
-        data = pipe.read()
-    os.waitpid(pid, 0)
-    out: dict[str, Any] = json.loads(data)
-    return out
+            seen["applied"] = len(HistoryReader(state.db).applied())
+        except sqlite3.Error as exc:
+            seen["applied"] = str(exc)
+        return seen
+
+    return as_user(OPERATOR_UID, [gid], read)
 
 
 @pytest.mark.skipif(os.geteuid() != 0, reason="reads as another user: needs root")

@@ -7,11 +7,8 @@ the test's thread on a service that is not started: no window, no wait."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
-
-import pytest
 
 from app.commands.status import status_lines
 from app.config.line import RecalibSettings
@@ -25,14 +22,6 @@ from tests.line.helpers import Line, make_line
 ROLES = Roles("rvis-engineers", engineers_gid=4242, service_uid=998)
 OPERATOR: dict[str, Any] = {"uid": 12345, "groups": (100,)}
 ENGINEER: dict[str, Any] = {"uid": 12346, "groups": (100, 4242)}
-
-
-@pytest.fixture()
-def lines() -> Iterator[list[Line]]:
-    made: list[Line] = []
-    yield made
-    for ln in made:
-        ln.close()
 
 
 def two_versions(tmp_path: Path, lines: list[Line], **kw: Any) -> Line:

@@ -21,6 +21,7 @@ import pytest
 
 from app.line.roles import NEEDS
 from tests.ops.conftest import CELL, ServiceProcess, count
+from tests.peers import as_user
 
 pytestmark = pytest.mark.skipif(
     os.geteuid() != 0 or shutil.which("groupadd") is None, reason="creates groups: needs root"
@@ -53,32 +54,16 @@ def base() -> Iterator[Path]:
 
 def as_peer(sock: Path, uid: int, gids: list[int], cmd: str, **args: Any) -> dict[str, Any]:
     """One request from a child process running as `uid` in `gids` (the first its primary)."""
-    r, w = os.pipe()
-    pid = os.fork()
-    if pid == 0:  # the child: only os, socket and json from here on
-        code = 1
-        try:
-            os.close(r)
-            os.setgroups(gids)
-            os.setgid(gids[0])
-            os.setuid(uid)
-            with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
-                s.settimeout(60)
-                s.connect(str(sock))
-                s.sendall(json.dumps({"id": 1, "cmd": cmd, "args": args}).encode() + b"\n")
-                reply = s.makefile("rb").readline()
-            os.write(w, reply)
-            code = 0
-        except BaseException as exc:
-            os.write(w, json.dumps({"child_error": repr(exc)}).encode())
-        finally:
-            os._exit(code)
-    os.close(w)
-    with os.fdopen(r, "rb") as pipe:
-        data = pipe.read()
-    os.waitpid(pid, 0)
-    out: dict[str, Any] = json.loads(data)
-    return out
+
+    def request() -> dict[str, Any]:
+        with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
+            s.settimeout(60)
+            s.connect(str(sock))
+            s.sendall(json.dumps({"id": 1, "cmd": cmd, "args": args}).encode() + b"\n")
+            reply: dict[str, Any] = json.loads(s.makefile("rb").readline())
+        return reply
+
+    return as_user(uid, gids, request)
 
 
 @pytest.mark.slow  # started first on a worker (tests/conftest.py)
