@@ -57,7 +57,7 @@ def check(state_dir: Path, acked: int) -> dict[str, object]:
     params = ParamsStore(state_dir)
     current = json.loads(params.current_path.read_text(encoding="utf-8"))
     v = current["history_version"]
-    same = current == json.loads((params.history / f"{v:04d}.json").read_text(encoding="utf-8"))
+    same = current == json.loads(params.version_path(v).read_text(encoding="utf-8"))
     from_json(params.current_path)  # readable as a parameters file
     return {
         "integrity": ok_db,

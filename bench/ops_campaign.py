@@ -31,6 +31,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from app.line.statedir import version_name
 from tests.ops.conftest import ServiceProcess, count, rvis
 
 # the service's defaults (rolling set 24, a recalibration every 24 measurements), one window
@@ -59,7 +60,7 @@ def inspect(state: Path, announced: set[int]) -> dict[str, Any]:
             torn.append(str(f))
     try:
         current = json.loads((state / "params" / "current.json").read_text(encoding="utf-8"))
-        if docs.get(f"{current['history_version']:04d}.json") != current:
+        if docs.get(version_name(current["history_version"])) != current:
             torn.append("current.json is no history version")
     except (OSError, ValueError, KeyError) as exc:
         torn.append(f"current.json: {exc}")

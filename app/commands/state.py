@@ -14,7 +14,9 @@ can carry (docs/operations.md).
   PLC gives them, `[line] plc_body_id`), for the inspection software to re-measure or flag.
 - `check`: read-only findings about a state directory (integrity, schema, parameters against the
   history and the database, the files the commissioning wrote, permissions, free space, the
-  lock holder, the sizes); exit 1 when something is wrong.
+  lock holder, the sizes); exit 1 when something is wrong. With an operators' group (`--cell`'s
+  `[service] operators_group`, else the group of a setgid directory, as the service leaves it)
+  files that do not follow it are a problem, with the one line that fixes them.
 """
 
 from __future__ import annotations
@@ -77,7 +79,8 @@ def run(args: argparse.Namespace) -> int:
         restore(Path(args.backup), state)
         print(f"restored {args.backup} into {state.root}")
         return 0
-    findings = check(state, _min_free_mb(args))
+    min_free_mb, group = _service_settings(args)
+    findings = check(state, min_free_mb, group)
     if args.json:
         print(json.dumps(findings, indent=2))
     else:
@@ -85,15 +88,17 @@ def run(args: argparse.Namespace) -> int:
     return 0 if not findings["problems"] else 1
 
 
-def _min_free_mb(args: argparse.Namespace) -> float:
-    """The cell file's [service] min_free_mb; without `--cell` its default (no file loaded)."""
+def _service_settings(args: argparse.Namespace) -> tuple[float, str | None]:
+    """The cell file's [service] min_free_mb and operators_group; without `--cell` the
+    default and None (no file loaded: the directory's own group is checked)."""
     if args.cell is None:
         from app.line.statedir import MIN_FREE_MB
 
-        return MIN_FREE_MB
+        return MIN_FREE_MB, None
     from app.config import load_cell
 
-    return float(load_cell(args.cell).service.min_free_mb)
+    service = load_cell(args.cell).service
+    return float(service.min_free_mb), str(service.operators_group)
 
 
 # -- backup and restore ---------------------------------------------------------------------
@@ -222,8 +227,10 @@ def restore(backup_dir: Path, state: Any) -> list[str]:
 
 
 # -- check ------------------------------------------------------------------------------------
-def check(state: Any, min_free_mb: float) -> dict[str, Any]:
-    """Read-only findings about the state directory `state` (a StateDir)."""
+def check(state: Any, min_free_mb: float, group: str | None = None) -> dict[str, Any]:
+    """Read-only findings about the state directory `state` (a StateDir); `group`: the
+    operators' group its files should follow ("" none; None: the directory's own when it is
+    setgid, as the service makes it with one)."""
     from app.line.statedir import disk_usage_mb, holder_pid
 
     if not state.root.is_dir():
@@ -236,6 +243,7 @@ def check(state: Any, min_free_mb: float) -> dict[str, Any]:
     out["parameters"] = _check_parameters(state, out["database"], problems)
     out["commissioned"] = _check_commissioned(state, out["database"], problems)
     out["permissions"] = _check_permissions(state, problems)
+    out["group"] = _check_group(state, group, problems)
     out["free_mb"] = round(state.free_mb(), 1)
     if out["free_mb"] < min_free_mb:
         problems.append(f"{out['free_mb']:.0f} MB free, below min_free_mb = {min_free_mb:.0f}")
@@ -244,7 +252,7 @@ def check(state: Any, min_free_mb: float) -> dict[str, Any]:
 
 
 def _check_database(state: Any, problems: list[str]) -> dict[str, Any]:
-    from app.line.store import SCHEMA_VERSION, Store
+    from app.line.store import SCHEMA_VERSION, StorageError, Store
 
     if not state.db.is_file():
         problems.append(f"{state.db}: missing")
@@ -257,7 +265,7 @@ def _check_database(state: Any, problems: list[str]) -> dict[str, Any]:
             out["tables_bytes"] = store.table_bytes()
         finally:
             store.close()
-    except InputError as exc:  # DatabaseDamaged: not a database
+    except (InputError, StorageError) as exc:  # not a database; not this user's to read
         problems.append(str(exc))
         return out
     if out["integrity"] != ["ok"]:
@@ -268,7 +276,11 @@ def _check_database(state: Any, problems: list[str]) -> dict[str, Any]:
 
 
 def _check_parameters(state: Any, db: dict[str, Any], problems: list[str]) -> dict[str, Any]:
-    out: dict[str, Any] = {"history_versions": len(state.versions())}
+    try:
+        out: dict[str, Any] = {"history_versions": len(state.versions())}
+    except OSError as exc:  # an operator where the group is not followed yet
+        problems.append(f"{state.history}: unreadable ({exc.strerror or exc})")
+        out = {"history_versions": "?"}
     try:
         current = json.loads(state.current.read_text(encoding="utf-8"))
         version = int(current["history_version"])
@@ -327,6 +339,50 @@ def _check_permissions(state: Any, problems: list[str]) -> dict[str, str]:
     return out
 
 
+def _check_group(state: Any, group: str | None, problems: list[str]) -> dict[str, Any] | None:
+    """Whether what the directory holds follows the operators' group (a directory
+    commissioned before `[service] operators_group` was set does not: operators' TUI history
+    and `rvis state` fail), and the one line that fixes it."""
+    import grp
+
+    from app.line.statedir import group_fix_command, group_strays
+
+    if group is None:  # the group the service gave the directory, if any
+        st = state.root.stat()
+        if not st.st_mode & stat.S_ISGID:
+            return None
+        group = _group_name(st.st_gid)
+    if not group:
+        return None
+    try:
+        gid = grp.getgrnam(group).gr_gid
+    except KeyError:
+        gid = int(group) if group.isdigit() else -1
+    if gid < 0:
+        problems.append(f"[service] operators_group: no such group {group!r}")
+        return {"name": group, "strays": None}
+    strays = group_strays(state, gid)
+    if strays:
+        first = strays[0]
+        st = first.lstat()
+        owner = f"group {_group_name(st.st_gid)}, mode {stat.S_IMODE(st.st_mode):04o}"
+        problems.append(
+            f"{len(strays)} entries do not follow the operators' group {group} (e.g. {first}:"
+            f" {owner}), operators cannot read them; fix: restart the service (it sets group"
+            f" and modes at start), or as root: {group_fix_command(state, group)}"
+        )
+    return {"name": group, "strays": len(strays)}
+
+
+def _group_name(gid: int) -> str:
+    import grp
+
+    try:
+        return grp.getgrgid(gid).gr_name
+    except KeyError:
+        return str(gid)
+
+
 def _report(f: dict[str, Any]) -> str:
     db, params = f["database"], f["parameters"]
     pid = f["service_pid"]
@@ -351,6 +407,13 @@ def _report(f: dict[str, Any]) -> str:
         f"commissioned     {made_by}",
         f"permissions      {', '.join(f'{k} {v}' for k, v in f['permissions'].items())}",
     ]
+    group = f.get("group")
+    if group is not None:
+        strays = group["strays"]
+        follows = "every entry follows it" if strays == 0 else f"{strays} entries do not follow it"
+        lines.append(
+            f"operators group  {group['name']}: {'unknown' if strays is None else follows}"
+        )
     sizes = db.get("tables_bytes", {})
     if sizes:
         top = sorted(sizes.items(), key=lambda kv: -kv[1])

@@ -106,6 +106,10 @@ def status_lines(status: dict[str, Any]) -> list[str]:
         f"parameters version  {status.get('params_version')}",
         f"pending calibration {status.get('pending_calibration') or '-'}",
     ]
+    if "mode" in status:  # the running service's
+        from app.line.states import hold_text
+
+        lines.append(f"applies             {hold_text(status.get('auto_hold'), status['mode'])}")
     if "cell_temp_c" in status:
         temp = status["cell_temp_c"]
         lines.append(f"cell temperature    {'unknown' if temp is None else f'{temp:.1f} degC'}")

@@ -68,6 +68,7 @@ class LineHost(Protocol):
     paused: bool
     counters: dict[str, int]
     pending_calibration: int | None
+    auto_hold: dict[str, Any] | None  # a rollback in auto mode holds automatic applies
     force_recal: bool
     drift_onset_id: int | None
     drift_due: bool
@@ -103,6 +104,8 @@ class LineHost(Protocol):
     def note_device_error(self, exc: BaseException) -> str | None: ...
 
     def recal_wait(self) -> str: ...
+
+    def applies_automatically(self) -> bool: ...
 
     def recal_done(self, out: RecalOutcome | SequentialCandidate | StepCorrection) -> None: ...
 

@@ -6,7 +6,9 @@
 
 `hold_state` comes first, before any device is opened: the state directory private to the
 service (app.line.statedir.prepare), its exclusive lock (a second service exits 2 naming the
-holder's pid), and a quick check of the database (a damaged one exits 2, untouched).
+holder's pid), with `[service] operators_group` what it holds given that group and its modes
+(a directory commissioned before the group was set: app.line.statedir.follow_group), and a
+quick check of the database (a damaged one exits 2, untouched).
 `serve` runs the control socket (and the OPC UA server, app.line.opcua) and the service loop
 in the calling (main) thread until SIGTERM or SIGINT, then stops safely: the running window
 finishes (the robot comes home), the background identification is shut down and the database
@@ -36,7 +38,7 @@ from app.line.measure import SphereSensor
 from app.line.schedule import Schedule
 from app.line.service import Service
 from app.line.settings import ServiceSettings
-from app.line.statedir import ServiceLock, StateDir, prepare
+from app.line.statedir import ServiceLock, StateDir, follow_group, prepare
 from app.line.station import Station
 from app.line.store import Store
 from drivers.clock import Clock
@@ -51,9 +53,27 @@ def hold_state(state_dir: str | Path, group: str = "") -> Iterator[StateDir]:
     paths = StateDir(state_dir)
     prepare(paths, group)
     with ServiceLock(paths):
+        changed, failed = follow_group(paths, group)
+        if changed or failed:
+            _group_followed(paths, group, changed, failed)
         if paths.db.exists():
             Store(paths.db).close()  # DatabaseDamaged (exit 2) before any device opens
         yield paths
+
+
+def _group_followed(paths: StateDir, group: str, changed: int, failed: list[Path]) -> None:
+    """The start's line about files given the operators' group (and those it could not)."""
+    log = logging.getLogger("rvis.line")
+    if changed:
+        log.info("%d entries of %s given the group %s", changed, paths.root, group)
+    if failed:
+        log.warning(
+            "%d entries of %s keep another group or mode (e.g. %s): not this user's to change;"
+            " `rvis state check` says how to fix them",
+            len(failed),
+            paths.root,
+            failed[0],
+        )
 
 
 def build_service(

@@ -4,11 +4,18 @@ a collaborator of app.line.service.Service that sees it as app.line.host.LineHos
 `status` and `subscribe` are answered at once from any thread; every other command is queued
 and executed by the service loop between windows (`run_commands`; so a reply can wait for the
 end of a running window), and written to the audit log (`actions` table) with the peer's uid,
-its arguments, and whether it succeeded. A command the peer's role does not allow
-(app/line/roles.py) is refused with the role it needs, and audited the same way.
+its arguments, and whether it succeeded. The commands are app/line/roles.py's table (`NEEDS`),
+one handler `_cmd_<name>` each: a command the table does not name is unknown, one the peer's
+role does not allow is refused with the role it needs, and audited the same way.
 
     pause | resume | reset | recalibrate | approve [calibration] | reject [calibration]
     rollback version | ack alarm | shelve alarm reason [minutes]
+
+A rollback to the version in force is refused (nothing would change but the history). A
+rollback in auto mode holds automatic applies (`svc.auto_hold`, in the decision state): a
+calibration that passes its gates waits as in approve mode, until an engineer approves one or
+resumes (`LIFTS_HOLD`; an operator's resume only resumes measuring); the reply and the status
+say so.
 """
 
 from __future__ import annotations
@@ -19,24 +26,13 @@ from queue import Empty, Queue
 from typing import Any
 
 from app.line.host import LineHost
-from app.line.roles import NEEDS
-from app.line.states import FAULT_CODES, State
+from app.line.roles import ENGINEER, LIFTS_HOLD, NEEDS
+from app.line.states import FAULT_CODES, HOLD_LIFT, State, utc_text
 from app.line.step import StepStatus
 from app.line.store import StorageError
 from drivers.errors import DeviceError
 
-MUTATING = (
-    "pause",
-    "resume",
-    "reset",
-    "recalibrate",
-    "approve",
-    "reject",
-    "rollback",
-    "ack",
-    "shelve",
-)
-COMMANDS = ("status", "subscribe", *MUTATING)
+Reply = dict[str, Any]
 
 
 class CommandError(Exception):
@@ -55,8 +51,9 @@ class Operator:
 
     def __init__(self, svc: LineHost) -> None:
         self.svc = svc
-        self._commands: Queue[tuple[str, dict[str, Any], int | None, str, Future[dict[str, Any]]]]
+        self._commands: Queue[tuple[str, dict[str, Any], int | None, str, str, Future[Reply]]]
         self._commands = Queue()
+        self.role = ENGINEER  # the role of the peer whose command runs now (`_run_command`)
 
     def request(
         self,
@@ -70,13 +67,14 @@ class Operator:
         loop like any other's."""
         future: Future[dict[str, Any]] = Future()
         args = dict(args or {})
-        if cmd not in COMMANDS or cmd == "subscribe":
+        if cmd not in NEEDS or cmd == "subscribe":  # subscribe: the socket streams events
             future.set_result({"ok": False, "error": f"unknown command {cmd!r}"})
         elif cmd == "status":
             future.set_result({"ok": True, **self.svc.status()})
         else:
+            role = self.svc.roles.role(uid, groups)
             refusal = self.svc.roles.refusal(cmd, uid, groups)
-            self._commands.put((cmd, args, uid, refusal, future))
+            self._commands.put((cmd, args, uid, role, refusal, future))
             self.svc.wake.set()
         return future
 
@@ -93,28 +91,29 @@ class Operator:
         """Execute the queued commands (in the service loop, between windows)."""
         while True:
             try:
-                cmd, args, uid, refusal, future = self._commands.get_nowait()
+                cmd, args, uid, role, refusal, future = self._commands.get_nowait()
             except Empty:
                 return
             reply: dict[str, Any] = {"ok": False, "error": "internal error"}
             try:
-                reply = self._run_command(cmd, args, uid, refusal)
+                reply = self._run_command(cmd, args, uid, refusal, role)
             finally:
                 future.set_result(reply)
 
     def _run_command(
-        self, cmd: str, args: dict[str, Any], uid: int | None, refusal: str = ""
+        self, cmd: str, args: dict[str, Any], uid: int | None, refusal: str, role: str
     ) -> dict[str, Any]:
         """One command and its audit row (a storage failure fails the command, not the loop);
         a refused one is only audited."""
         svc = self.svc
         handler: Callable[[dict[str, Any], int | None], dict[str, Any]]
-        handler = getattr(self, f"_cmd_{cmd}")
         reply: dict[str, Any]
         try:
             if refusal:
-                reply = {"ok": False, "error": refusal, "role": NEEDS[cmd]}
+                reply = {"ok": False, "error": refusal, "role": NEEDS.get(cmd, "")}
             else:
+                handler = getattr(self, f"_cmd_{cmd}")
+                self.role = role
                 reply = {"ok": True, **handler(args, uid)}
         except CommandError as exc:
             reply = {"ok": False, "error": str(exc)}
@@ -139,12 +138,24 @@ class Operator:
         return {"message": "paused", "state": svc.state.value}
 
     def _cmd_resume(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
+        """Measure again; an engineer's resume also lifts the hold of a rollback (when no
+        calibration waits for a decision: that one is approved or rejected first)."""
         svc = self.svc
+        hold, note = svc.auto_hold, ""
+        if hold is not None:
+            pending = svc.pending_calibration
+            if self.role != LIFTS_HOLD:
+                note = f"; {HOLD_LIFT} (uid {uid} is an {self.role})"
+            elif pending is not None:
+                note = f"; automatic applies stay held: approve or reject calibration {pending}"
+            else:
+                svc.auto_hold = None
+                note = "; automatic applies go on (the hold of the rollback lifted)"
         svc.paused = False
         svc.save_state()
         if svc.state == State.PAUSED:
             svc.set_state(State.IDLE)
-        return {"message": "resumed", "state": svc.state.value}
+        return {"message": f"resumed{note}", "state": svc.state.value, "held": bool(svc.auto_hold)}
 
     def _cmd_reset(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
         svc = self.svc
@@ -214,8 +225,17 @@ class Operator:
     def _cmd_approve(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
         svc = self.svc
         cal_id = self._pending_id(args)
-        version = svc.apply_calibration(cal_id, uid, "approved")
-        return {"message": f"calibration {cal_id} applied as version {version}", "version": version}
+        held, svc.auto_hold = svc.auto_hold, None  # approved: automatic applies go on
+        try:
+            version = svc.apply_calibration(cal_id, uid, "approved")
+        except Exception:
+            svc.auto_hold = held
+            raise
+        note = "; automatic applies go on (the hold of the rollback lifted)" if held else ""
+        return {
+            "message": f"calibration {cal_id} applied as version {version}{note}",
+            "version": version,
+        }
 
     def _cmd_reject(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
         svc = self.svc
@@ -230,11 +250,23 @@ class Operator:
     def _cmd_rollback(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
         svc = self.svc
         version = _int(args, "version")
+        if version == svc.version:
+            raise CommandError(
+                f"parameters version {version} is in force already: nothing to roll back"
+            )
         if version not in svc.params.versions():
             raise CommandError(f"no parameters version {version}")
         svc.params.rollback(version)
+        if svc.settings.recalib.mode == "auto":  # saved with the apply (in_force)
+            t = utc_text(svc.clock.time())
+            svc.auto_hold = {"version": version, "uid": uid, "since_utc": t}
         svc.in_force(version, None, "rollback", uid)
-        return {"message": f"parameters version {version} in force", "version": version}
+        note = f"; {HOLD_LIFT}" if svc.auto_hold is not None else ""
+        return {
+            "message": f"parameters version {version} in force{note}",
+            "version": version,
+            "held": svc.auto_hold is not None,
+        }
 
     def _cmd_ack(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
         svc = self.svc

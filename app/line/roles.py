@@ -14,6 +14,11 @@ SO_PEERGROUPS: its supplementary groups), never from what the request says:
 
 An in-process caller (no socket: the OPC UA server's acknowledgement, tests) passes no
 credentials and acts as the service itself. Light: no numerics, usable by `rvis status`.
+
+`NEEDS` is the one list of the socket's commands: the control server, the service's command
+queue (app/line/operator.py: a handler `_cmd_<name>` per entry) and `rvis ctl` reach nothing
+else. Deny by default: a command missing from it is refused to everyone, engineers and the
+service itself included.
 """
 
 from __future__ import annotations
@@ -28,11 +33,14 @@ from dataclasses import dataclass
 
 from app.errors import InputError
 
-OPERATOR, ENGINEER = "operator", "engineer"
-#: the role each command of the socket needs (status and subscribe: anyone who can connect)
+ANYONE, OPERATOR, ENGINEER = "anyone", "operator", "engineer"
+#: every command of the socket and the role it needs (anyone: whoever can connect at all);
+#: a command not here is refused to everyone
 NEEDS = {
+    "status": ANYONE,
+    "subscribe": ANYONE,
     "pause": OPERATOR,
-    "resume": OPERATOR,
+    "resume": OPERATOR,  # lifting the hold on automatic applies after a rollback: LIFTS_HOLD
     "ack": OPERATOR,
     "recalibrate": OPERATOR,  # its result passes the gates, and in `approve` mode an engineer
     "reset": ENGINEER,
@@ -41,6 +49,9 @@ NEEDS = {
     "rollback": ENGINEER,
     "shelve": ENGINEER,
 }
+#: the role whose `resume` also lets automatic applies go on after a rollback in auto mode
+#: (an operator's resume only resumes measuring; an engineer's `approve` lifts it too)
+LIFTS_HOLD = ENGINEER
 _SO_PEERGROUPS = getattr(socket, "SO_PEERGROUPS", 59)  # Linux >= 4.13
 _MAX_GROUPS = 256  # Python's getsockopt reads at most 1024 bytes; more: the group database
 
@@ -111,8 +122,11 @@ class Roles:
         return ENGINEER if self.engineers_gid in groups else OPERATOR
 
     def refusal(self, cmd: str, uid: int | None, groups: tuple[int, ...] | None = None) -> str:
-        """Why the peer may not run `cmd` ("" when it may)."""
+        """Why the peer may not run `cmd` ("" when it may); deny by default: a command
+        missing from `NEEDS` is refused whoever asks."""
         needs = NEEDS.get(cmd)
+        if needs is None:
+            return f"{cmd} is refused to every role: it is not in the socket's table of commands"
         if needs != ENGINEER or self.role(uid, groups) == ENGINEER:
             return ""
         return (
@@ -121,4 +135,14 @@ class Roles:
         )
 
 
-__all__ = ["ENGINEER", "NEEDS", "OPERATOR", "Peer", "Roles", "peer_credentials", "user_groups"]
+__all__ = [
+    "ANYONE",
+    "ENGINEER",
+    "LIFTS_HOLD",
+    "NEEDS",
+    "OPERATOR",
+    "Peer",
+    "Roles",
+    "peer_credentials",
+    "user_groups",
+]

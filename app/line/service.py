@@ -164,6 +164,9 @@ class Service:
         self.paused = False
         self.counters = {"windows": 0, "overruns": 0, "withdrawn": 0}
         self.pending_calibration: int | None = None
+        # a rollback in auto mode: automatic applies held until an engineer's resume or
+        # approve ({"version", "uid", "since_utc"}; None: not held)
+        self.auto_hold: dict[str, Any] | None = None
         self.drift_onset_id: int | None = None  # first measurement after a flagged step
         self.drift_due = False  # the residual charts signalled: recalibrate soon
         self.last_visit: dict[int, tuple[F64, F64]] = {}  # slot -> (q_deg, c_sensor_mm)
@@ -269,6 +272,7 @@ class Service:
             "params_version": self.version,
             "last_measurement_id": self.store.last_measurement_id(),
             "paused": self.paused,
+            "auto_hold": self.auto_hold,
             "force_recal": self.force_recal,
             "new_since_recal": self.new_since_recal,
             "drift_onset_id": self.drift_onset_id,
@@ -298,6 +302,7 @@ class Service:
             self._restore_drift()
             return
         self.paused = bool(doc["paused"])
+        self.auto_hold = doc.get("auto_hold")  # a state saved before the hold: not held
         self.force_recal = bool(doc["force_recal"])
         self.new_since_recal = int(doc["new_since_recal"])
         self.drift_onset_id, self.drift_due = doc["drift_onset_id"], bool(doc["drift_due"])
@@ -393,7 +398,7 @@ class Service:
         for code, message, priority in self._start_alarms:
             self.alarm(code, message, priority)
         self.pending_calibration = self.store.pending_calibration()
-        if self.pending_calibration is not None and self.settings.recalib.mode == "auto":
+        if self.pending_calibration is not None and self.applies_automatically():
             self.apply_calibration(self.pending_calibration, None, "auto")  # killed before
         self._resubmit()
         self._check_space()
@@ -1198,10 +1203,15 @@ class Service:
         )
         if not out.passed:
             return
-        if self.settings.recalib.mode == "auto":
+        if self.applies_automatically():
             self.apply_calibration(cal_id, None, "auto")
         else:
             self.pending_calibration = cal_id
+
+    def applies_automatically(self) -> bool:
+        """A calibration that passes its gates is applied at once: auto mode, and no hold
+        after a rollback (`auto_hold`); otherwise it waits for an engineer's approve."""
+        return self.settings.recalib.mode == "auto" and self.auto_hold is None
 
     def _add_calibration(
         self, out: RecalOutcome | SequentialCandidate | StepCorrection, status: str

@@ -10,7 +10,8 @@ permissions, the one-service lock and the free space under it (DESIGN.md section
         sensor.toml              the sensor calibration `rvis run` reads when --sensor
                                  is not given (written by `rvis commission`)
         params/current.json      the applied version (derived: rebuilt from the history)
-        params/history/NNNN.json every version ever applied
+        params/history/NNNN.json every version ever applied (at least four digits: 0007.json,
+                                 10000.json; read back by the same rule, ordered by number)
         sweeps/NNNNNNNN.npz      raw sweeps kept for audit ([service] raw_sweeps_keep)
         opcua/server-cert.der    the OPC UA server's certificate (created on first start with
         opcua/server-key.pem     a security policy; the key 0600)
@@ -33,7 +34,7 @@ identity (not the lock, the socket, raw sweeps, wire traces or rejected certific
 
 Read-only clients (`rvis status`, `rvis ctl`, `rvis tui`, `rvis state check`) only name paths:
 nothing here creates, cleans or changes a file unless the caller is the service (`prepare()`,
-`ServiceLock`) or a writer of the parameters (app/line/params_store.py).
+`follow_group()`, `ServiceLock`) or a writer of the parameters (app/line/params_store.py).
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ import fcntl
 import grp
 import json
 import os
+import shlex
 import stat
 from dataclasses import dataclass
 from pathlib import Path
@@ -79,14 +81,19 @@ MANIFEST_NAME = "backup.json"
 
 
 def version_name(version: int) -> str:
-    """The name of a parameters version's history file: 0007.json."""
+    """The name of a parameters version's history file: 0007.json, 10000.json (at least four
+    digits, as many as the version has)."""
     return f"{version:04d}.json"
 
 
 def version_of(name: str) -> int | None:
-    """The version a history file's name stands for (None: not a version file)."""
+    """The version a history file's name stands for, by the rule `version_name` writes (None:
+    not a version file; "7.json" and "00007.json" are not, "10000.json" is)."""
     stem, dot, ext = name.partition(".")
-    return int(stem) if dot and ext == "json" and len(stem) == 4 and stem.isdigit() else None
+    if not (dot and ext == "json" and stem.isascii() and stem.isdigit()):
+        return None
+    version = int(stem)
+    return version if version >= 1 and version_name(version) == name else None
 
 
 #: The state directory when neither the cell file nor `--state-dir` names one ([service]
@@ -151,7 +158,8 @@ class StateDir:
         return self.history / version_name(version)
 
     def versions(self) -> list[int]:
-        """The versions in the history, ascending (reads the folder only)."""
+        """The versions in the history, in ascending number (9999 before 10000; reads the
+        folder only)."""
         if not self.history.is_dir():
             return []
         found = (version_of(p.name) for p in self.history.iterdir() if p.is_file())
@@ -283,6 +291,67 @@ def prepare(state: StateDir, group: str = "") -> None:
                 os.chmod(path, mode_now & ~0o007)
 
 
+def group_strays(state: StateDir, gid: int) -> list[Path]:
+    """What under the directory does not follow the operators' group `gid` as the service
+    would have made it with that group: another group, or a folder not 2770 (setgid), a file
+    without the group's read and write, or anything open to others; the private files (0600
+    whatever the group) and symbolic links excepted. A folder that cannot be read is a stray
+    itself (what is inside it is not seen). Reads only."""
+    private = set(state.private)
+    strays: list[Path] = []
+    for top, folders, files in os.walk(state.root, onerror=lambda _exc: None):
+        for path in [Path(top)] + [Path(top, f) for f in sorted(files)]:
+            with contextlib.suppress(OSError):
+                st = path.lstat()
+                skip = path in private or stat.S_ISLNK(st.st_mode)
+                if not skip and (
+                    st.st_gid != gid or _group_mode(st.st_mode) != st.st_mode & 0o7777
+                ):
+                    strays.append(path)
+        folders.sort()
+    return strays
+
+
+def _group_mode(mode: int) -> int:
+    """The mode an entry has under an operators' group: a folder 2770, a file with the
+    group's read and write (0660), nothing for others."""
+    bits = stat.S_IMODE(mode)
+    wanted = bits | (0o2070 if stat.S_ISDIR(mode) else 0o060)
+    return wanted & ~0o007
+
+
+def follow_group(state: StateDir, group: str) -> tuple[int, list[Path]]:
+    """Give what a directory commissioned (or run) before `[service] operators_group` was set
+    the group and its modes (`group_strays`), so operators' TUI history and `rvis state`
+    commands work: done by the service at start holding the lock, on what its user may change
+    (all of it as root). Returns (how many entries changed, the ones it could not change)."""
+    if not group:
+        return 0, []
+    gid = _gid(group)
+    failed: list[Path] = []
+    strays = group_strays(state, gid)
+    for path in strays:
+        try:
+            st = path.lstat()
+            if st.st_gid != gid:
+                os.chown(path, -1, gid, follow_symlinks=False)
+            os.chmod(path, _group_mode(st.st_mode))
+        except OSError:
+            failed.append(path)
+    return len(strays) - len(failed), failed
+
+
+def group_fix_command(state: StateDir, group: str) -> str:
+    """The one shell line that does what `follow_group` does, for a person (`rvis state
+    check`): group and modes, setgid folders; the private files and links left as they are."""
+    root = shlex.quote(str(state.root))
+    keep = " ".join(f"! -path {shlex.quote(str(p))}" for p in state.private)
+    return (
+        f"chgrp -R {shlex.quote(group)} {root} && find {root} ! -type l {keep} -exec chmod"
+        f" g+rwX,o-rwx {{}} + && find {root} -type d -exec chmod g+s {{}} +"
+    )
+
+
 def _gid(group: str) -> int:
     try:
         return grp.getgrnam(group).gr_gid
@@ -377,6 +446,9 @@ __all__ = [
     "ServiceLock",
     "StateDir",
     "disk_usage_mb",
+    "follow_group",
+    "group_fix_command",
+    "group_strays",
     "holder_pid",
     "prepare",
     "version_name",

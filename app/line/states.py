@@ -98,3 +98,18 @@ def accuracy_text(status: dict[str, Any]) -> str:
     word = "vouched for" if acc.get("vouched") else "CANNOT VOUCH"
     n, basis = acc.get("n"), acc.get("basis")
     return f"U95 {u95:.3f} mm ({n} residuals, {basis}), limit {limit:.3f} mm: {word}"
+
+
+#: what lifts the hold on automatic applies after a rollback in auto mode (app.line.operator)
+HOLD_LIFT = "automatic applies wait for an engineer's resume or approve (rvis ctl resume)"
+
+
+def hold_text(hold: Mapping[str, Any] | None, mode: str) -> str:
+    """How calibrations that pass their gates are applied now, in words (the status reply's
+    `mode` and `auto_hold`)."""
+    if hold is None:
+        return "auto (applied at once)" if mode == "auto" else f"{mode} (an engineer approves)"
+    return (
+        f"auto, HELD since {hold['since_utc']} by the rollback to version {hold['version']}:"
+        f" {HOLD_LIFT}"
+    )

@@ -77,6 +77,7 @@ def _status(svc: LineHost) -> dict[str, Any]:
         "pending_calibration": svc.pending_calibration,
         "recalibrating": svc.recalibrator.busy,
         "mode": svc.settings.recalib.mode,
+        "auto_hold": svc.auto_hold,  # a rollback in auto mode: applies wait for an engineer
         "counters": dict(svc.counters),
         "measurements": svc.store.counts(),
         "schedule": {"position": svc.store.schedule_position()[0], "slots": len(svc.schedule)},

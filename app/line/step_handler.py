@@ -409,7 +409,7 @@ class StepHandler:
         step.recover_from_id = int(last[0]["id"]) if last else 0
         if kind != "step":
             step.full_recals += 1
-        refines = r.step_refine_mm > 0 and r.mode == "auto" and svc.sequential is None
+        refines = r.step_refine_mm > 0 and svc.applies_automatically() and svc.sequential is None
         busy = (StepStatus.REFINING, StepStatus.RECOVERING)
         if kind == "step" and step.status not in busy and refines:
             step.n_corrected = step.n_used

@@ -6,11 +6,9 @@ a restart that resumes the schedule. Waits are on events and conditions, never s
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from app.config import load_cell
 from app.config.line import RecalibSettings
@@ -32,14 +30,6 @@ from tests.line.helpers import (
 )
 
 LONG = ClampCycle(period_s=40.0, window_s=32.0, beat_s=0.5, time_scale=SCALE)
-
-
-@pytest.fixture()
-def lines() -> Iterator[list[Line]]:
-    made: list[Line] = []
-    yield made
-    for ln in made:
-        ln.close()
 
 
 def test_windows_are_measured_stored_and_done_only_after_the_commit(
