@@ -29,7 +29,7 @@ def test_rvis_state_suspects_names_exactly_the_bodies_clamped_inside_the_interva
     cfg: CellConfig, tmp_path: Path, capsys: pytest.CaptureFixture[str], fmt: str, first: Any
 ) -> None:
     # long windows of 8 slots: the change charts watch after 3 windows, a knock is corrected
-    # within 2 windows of its flag; no warm-up (its drift is not the knock); the batch
+    # within 4 windows of its flag; no warm-up (its drift is not the knock); the batch
     # estimator, whose interval spans several bodies (the sequential one closed it after one)
     knocked = dataclasses.replace(
         cfg,
@@ -53,9 +53,10 @@ def test_rvis_state_suspects_names_exactly_the_bodies_clamped_inside_the_interva
 
     assert main(["state", "suspects", "--json", "--state-dir", str(state)]) == 0
     (interval,) = json.loads(capsys.readouterr().out)
-    # closed at the correction: back at its level before the step, or vouched for (U95 within
-    # the limit on the measurements after it)
-    assert interval["state"] == "closed" and interval["end_reason"] in ("step", "vouched")
+    # closed at the correction: back at its level before the step (the step group's fast
+    # correction or the full recalibration, whichever is in force when the recovery test passes),
+    # or vouched for (U95 within the limit on the measurements after it)
+    assert interval["state"] == "closed" and interval["end_reason"] in ("step", "batch", "vouched")
     t_start, t_end = interval["t_start"] - epoch, interval["t_end"] - epoch
     assert t_start < KNOCK_AT_S < t_end
     inside = [body for opens, body in clamped.values() if t_start <= opens <= t_end]
