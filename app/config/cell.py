@@ -63,6 +63,9 @@ class RobotSection(Section):
     model: str = opt("fanuc-m710ic50", choices=ROBOT_MODELS)
     joint_lower_deg: Vec = opt(list(datasheet.JOINT_LOWER_DEG), lo=-720, hi=720, n=6)
     joint_upper_deg: Vec = opt(list(datasheet.JOINT_UPPER_DEG), lo=-720, hi=720, n=6)
+    # the data sheet's ISO 9283 pose repeatability RP: the uncertainty of a reference that the
+    # robot's own motion provides (the sensor acceptance's SD)
+    repeatability_mm: float = opt(datasheet.POSE_REPEATABILITY_MM, lo=0, hi=10)
 
 
 @dataclass(frozen=True)
