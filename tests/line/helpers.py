@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from app.config import load_cell
 from app.config.line import LineSettings, RecalibSettings
-from app.line.measure import GeometricSensor, SphereSensor
+from app.line.measure import GeometricSensor, Rejected, SphereSensor
 from app.line.schedule import Schedule
 from app.line.service import Service
 from app.line.settings import ServiceSettings
@@ -31,7 +31,7 @@ from app.sim.line_run import random_schedule
 from calib.identify import IdentificationResult, Measurements, identify
 from calib.model import SystemModel
 from drivers.plc import decode_inputs, decode_outputs, encode_inputs
-from fakes.cell import SimulatedCell
+from fakes.cell import NotVisible, SimulatedCell
 from fakes.clock import VirtualClock
 from fakes.devices import ClampCycle, FakePlc, FakeRobot
 
@@ -163,10 +163,12 @@ def make_line(
     sensor: Callable[[SimulatedCell], SphereSensor] | None = None,
     robot_class: type[FakeRobot] = FakeRobot,
     model: SystemModel | None = None,
+    plan: dict[str, F64] | None = None,
     **cell_overrides: Any,
 ) -> Line:
     """A service on fakes; its model rigid unless given ([service] model: compliant by default
-    in a cell file), and its estimator the batch one unless `recalib` says otherwise."""
+    in a cell file), and its estimator the batch one unless `recalib` says otherwise; its
+    schedule `plan` (default `plan_for(seed)`)."""
     cfg = load_cell(None)
     cell = make_cell(cfg, seed, **cell_overrides)
     model = model or cfg.model()
@@ -183,11 +185,16 @@ def make_line(
     )
 
     def sweep(target: str, sweep_s: float = 1.2) -> F64:
-        clock.elapse(sweep_s)  # the sweep's time, as the simulated line's geometric path
-        return cell.measure_target(target)
+        """The sweep's time, as the simulated line's geometric path; a sphere out of the view
+        a rejected measurement, as there (app.sim.line_run)."""
+        clock.elapse(sweep_s)
+        try:
+            return cell.measure_target(target)
+        except NotVisible as exc:
+            raise Rejected(f"NotVisible: {exc}") from exc
 
     sphere_sensor = GeometricSensor(sweep, duration_s=1.2) if sensor is None else sensor(cell)
-    schedule = Schedule(plan_for(seed), settings.line)
+    schedule = Schedule(plan_for(seed) if plan is None else plan, settings.line)
     x0 = model.nominal_x() if x_initial is None else x_initial
     service = Service(
         Station(robot=robot, plc=plc),
