@@ -15,3 +15,8 @@ JOINT_SPEED_DEG_S = (175.0, 175.0, 175.0, 250.0, 250.0, 355.0)
 #: The service's home position [deg], controller angles: the sensor looking down, clear of the
 #: car body; every window starts and ends there.
 HOME_DEG = (0.0, 0.0, 0.0, 0.0, -90.0, 0.0)
+
+#: Pose repeatability RP [mm] per ISO 9283, FANUC's data sheet of the M-710iC series
+#: ("Repeatability +-0.07 mm"); the simulated world's true robot repeats by the same figure
+#: (fakes/truth.py `M710IC50_RP_MM`, which may not import this package).
+POSE_REPEATABILITY_MM = 0.07

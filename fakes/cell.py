@@ -8,6 +8,18 @@ model. Two ways to measure a sphere:
   true sensor (`fakes.render_sensor.TrueSensor`) records from the true pose; app/ measures the
   frames with vision/ (this module never imports vision/).
 
+Both see the sphere from where the true robot *stands*, not where it was commanded: every stop
+of the robot is off by a new pose error, its repeatability (`fakes.truth.Repeatability`, the
+data sheet's ISO 9283 RP, `SimSettings.repeatability_mm`; 0: a perfectly repeating robot). A
+measurement at explicit joints (`measure_point`, `sweep_job`) is a move there and a stop of its
+own; the device fakes' World path (`set_joints_deg`, then `measure_target` or the camera's
+`render_frame`) stops when the joints stop changing: one error for every frame of the sweep at
+that stop, a new one after the next move, even back to the same joints (`attained_deg`). A
+stop's error is seeded by the cell's seed, its joints (to 0.1 deg, as a frame's noise below) and
+how many stops at those joints came before, so it does not depend on the moves elsewhere (a
+resumed commissioning step stops as an uninterrupted one does). The truth's validation
+measurements are stops too (`centres_from_stops`).
+
 `render_frame` is the camera hook of the device fakes' World protocol: the frame the camera sees
 at the current joints and the current galvo command. Its image noise is seeded by the frame
 itself (the cell's seed, the joints, the mirror command, exposure and gain, and how many times
@@ -38,7 +50,7 @@ from fakes.render import (
 )
 from fakes.render_noise import NoiseSettings, dark_frame
 from fakes.render_sensor import TrueSensor, default_true_sensor
-from fakes.truth import Knock, TrueRobot, Warmup, _rot, homogeneous
+from fakes.truth import M710IC50_RP_MM, Knock, Repeatability, TrueRobot, Warmup, _rot, homogeneous
 
 F64 = NDArray[np.float64]
 
@@ -96,11 +108,25 @@ class CellSpec:
 
 @dataclass(frozen=True)
 class SimSettings:
-    """Seeded error and noise settings of the simulated cell."""
+    """Seeded error and noise settings of the simulated cell.
+
+    repeatability_mm: the robot's pose repeatability, ISO 9283 RP [mm] (default the FANUC
+    M-710iC/50 data sheet's +-0.07 mm; `fakes.truth.Repeatability` derives each stop's joint
+    errors from it); 0 for a perfectly repeating robot, where a test needs an exact world.
+
+    sensor_noise_mm: the geometric sensor's own noise, Gaussian per axis of the sensor frame
+    [mm]. 5 um: a laser-line probe repeats a sphere centre to a few um (REFERENCE.md), the
+    rendered path's vision to 1-2 um. Before the robot had its repeatability this was 20 um, a
+    stand-in for sensor and robot together; the robot now brings 22 um RMS per axis at the
+    sphere itself (15-34 um by view: 14-22 um at the flange, more at the standoff point through
+    the flange's turn), and 20 um more from the sensor would count the robot twice (30 um per
+    axis). With 5 um the geometric centre's non-repeatable error is 23 um per axis: the old
+    stand-in's size, now with the robot's shape (a pose error, not isotropic noise)."""
 
     seed: int = 0
     tracker_noise_mm: float = 0.01
-    sensor_noise_mm: float = 0.02
+    sensor_noise_mm: float = 0.005
+    repeatability_mm: float = M710IC50_RP_MM
     compliance: bool = True
     thermal: bool = True
     temp_c: float = 20.0
@@ -172,6 +198,7 @@ class SimulatedCell:
             robot = replace(robot, expansion_per_k=0.0)
         self.robot = robot
         s = self.settings
+        self.repeatability = Repeatability(s.repeatability_mm)
         self.T_part_world = spec.T_part_base @ _small_pose(rng, s.base_error_mm, s.base_error_rad)
         self._T_mount = spec.T_flange_sensor @ _small_pose(rng, s.mount_error_mm, s.mount_error_rad)
         self._ambient_c = s.temp_c
@@ -185,6 +212,10 @@ class SimulatedCell:
         self._spheres = {k: np.asarray(v, dtype=float) for k, v in spec.spheres_part_mm.items()}
         self._q_deg = np.array([0.0, 0.0, 0.0, 0.0, -90.0, 0.0])
         self._lock = threading.Lock()  # device fakes call from their own threads
+        self._stop_lock = threading.Lock()
+        self._stops_seen: dict[int, int] = {}  # a stop's joints key -> stops there before
+        self._moved = True  # the World path's joints changed since its stop was drawn
+        self._stop_error_deg = np.zeros(6)  # the World path's current stop's error
         self._render_lock = threading.Lock()
         self._sweeps = 0  # sweeps handed out: the index in each sweep's noise seed
         self._frames_seen: dict[int, int] = {}  # a frame's key -> times rendered (_frame_rng)
@@ -290,23 +321,37 @@ class SimulatedCell:
         c = self.centre_in_sensor(np.atleast_2d(q_deg)[:1], p_part_mm)[0]
         return bool(self.spec.volume.contains(c)[0])
 
-    def _visible_centre(self, q_deg: ArrayLike, p_part_mm: ArrayLike) -> F64:
-        c = self.centre_in_sensor(np.atleast_2d(q_deg)[:1], p_part_mm)[0]
+    def _visible_centre(
+        self, q_deg: ArrayLike, p_part_mm: ArrayLike, error_deg: F64 | None = None
+    ) -> F64:
+        """The true centre (3,) in S of the sphere at p_part_mm seen from a stop at q_deg
+        (commanded) whose error is error_deg (default: a new stop there). Whether it is seen
+        is the commanded pose's (`sees`): the measuring volume is a planning figure, and the
+        stop's tens of um do not take a sphere out of it."""
+        q = np.atleast_2d(np.asarray(q_deg, dtype=float))[:1]
+        c = self.centre_in_sensor(q, p_part_mm)[0]
         if not self.spec.volume.contains(c)[0]:
             raise NotVisible(f"sphere centre at {np.round(c, 1)} mm in the sensor frame")
-        return c
+        if error_deg is None:
+            error_deg = self.new_stop_deg(q[0])
+        out: F64 = self.centre_in_sensor(q + error_deg, p_part_mm)[0]
+        return out
 
     def measure_point(self, q_deg: ArrayLike, p_part_mm: ArrayLike) -> F64:
-        """One geometric sensor measurement (3,) [mm] of a sphere at p_part_mm from q_deg;
-        raises NotVisible outside the measuring volume."""
-        c = self._visible_centre(q_deg, p_part_mm)
-        out: F64 = c + self._noise.normal(0.0, self.settings.sensor_noise_mm, 3)
+        """One geometric sensor measurement (3,) [mm] of a sphere at p_part_mm from q_deg: a
+        move there (a new stop, module docstring), the true centre from where the robot stands
+        plus the sensor's noise; raises NotVisible outside the measuring volume."""
+        return self._sensed(self._visible_centre(q_deg, p_part_mm))
+
+    def _sensed(self, c_sensor_mm: F64) -> F64:
+        out: F64 = c_sensor_mm + self._noise.normal(0.0, self.settings.sensor_noise_mm, 3)
         return out
 
     def sweep_job(self, q_deg: ArrayLike, p_part_mm: ArrayLike) -> SweepJob:
-        """The sweep the sensor records of the sphere at p_part_mm from q_deg (to render);
-        raises NotVisible outside the measuring volume. Each call is a new sweep with its own
-        noise seed (cell seed, sweep index), so results do not depend on where it is rendered."""
+        """The sweep the sensor records of the sphere at p_part_mm from q_deg (to render): a
+        move there (a new stop), the true centre from where the robot stands; raises
+        NotVisible outside the measuring volume. Each call is a new sweep with its own noise
+        seed (cell seed, sweep index), so results do not depend on where it is rendered."""
         c = self._visible_centre(q_deg, p_part_mm)
         with self._render_lock:
             k = self._sweeps
@@ -323,6 +368,49 @@ class SimulatedCell:
         Raises NotVisible outside the measuring volume."""
         return self.sweep_job(q_deg, p_part_mm).render(self.sensor, stripe_truth=stripe_truth)
 
+    # -- the robot's repeatability --------------------------------------------------------
+    def new_stop_deg(self, q_deg: ArrayLike) -> F64:
+        """The error (6,) [controller deg] of a new stop of the robot at q_deg: the attained
+        joints are q_deg plus it (module docstring: seeded by the cell's seed, the joints' key
+        and the stops there before; zero when repeatability_mm is 0)."""
+        if self.repeatability.rp_mm == 0.0:
+            return np.zeros(6)
+        key = _joints_key(np.asarray(q_deg, dtype=float).reshape(6))
+        with self._stop_lock:
+            n = self._stops_seen.get(key, 0)
+            self._stops_seen[key] = n + 1
+        draw = [self.noise_draw] if self.noise_draw else []
+        rng = np.random.default_rng([self.settings.seed, 9, key, n, *draw])
+        return self.repeatability.draw_deg(rng)[0]
+
+    def attained_deg(self) -> F64:
+        """Where the true robot stands now (6,) [controller deg] on the World path: the
+        commanded joints plus the error of the stop there, drawn when first asked after the
+        joints changed (a move; the frames of a sweep share it)."""
+        q, error = self._stop_now()
+        out: F64 = q + error
+        return out
+
+    def _stop_now(self) -> tuple[F64, F64]:
+        """The commanded joints now and their stop's error [deg] (`attained_deg`)."""
+        with self._lock:
+            q, moved, self._moved = self._q_deg.copy(), self._moved, False
+            if moved:
+                self._stop_error_deg = self.new_stop_deg(q)
+            return q, self._stop_error_deg.copy()
+
+    def centres_from_stops(
+        self, q_deg: ArrayLike, p_part_mm: ArrayLike, t_s: float | None = None
+    ) -> F64:
+        """True centres (n, 3) in S of spheres at p_part_mm (n, 3), each seen from a stop of its
+        own at q_deg (n, 6) at sim time t_s (default: now): measurements that are each a move,
+        as the truth's validation positions are. The stops are seeded by the cell's seed and
+        the time (to 1 ms): the same time, the same stops, whatever was asked before."""
+        t = self._at(t_s)
+        q = np.atleast_2d(np.asarray(q_deg, dtype=float))
+        rng = np.random.default_rng([self.settings.seed, 10, round(abs(t) * 1000.0)])
+        return self.centre_in_sensor(q + self.repeatability.draw_deg(rng, len(q)), p_part_mm, t)
+
     def track_point(self, p_part_mm: ArrayLike) -> F64:
         """Laser-tracker measurement (3,) [mm] of a point in the part frame."""
         p = np.asarray(p_part_mm, dtype=float)
@@ -333,6 +421,7 @@ class SimulatedCell:
     def set_joints_deg(self, q_deg: ArrayLike) -> None:
         q = np.asarray(q_deg, dtype=float).reshape(6).copy()
         with self._lock:
+            self._moved = self._moved or not np.array_equal(q, self._q_deg)
             self._q_deg = q
 
     def joints_deg(self) -> F64:
@@ -356,8 +445,11 @@ class SimulatedCell:
             self._spheres = {k: v for k, v in self._spheres.items() if k != target_id}
 
     def measure_target(self, target_id: str) -> F64:
-        """Sensor measurement of a named sphere from the current joints."""
-        return self.measure_point(self.joints_deg(), self._spheres[target_id])
+        """Geometric sensor measurement of a named sphere from where the robot stands now
+        (`attained_deg`: the stop at the current joints, the same for every call until the
+        next move)."""
+        q, error = self._stop_now()
+        return self._sensed(self._visible_centre(q, self._spheres[target_id], error))
 
     def render_frame(
         self, width: int, height: int, exposure_us: float, gain_db: float, galvo_v: float | None
@@ -452,7 +544,7 @@ class SimulatedCell:
                 np.round([command_v * 1e6, exposure_us * 100.0, gain_db * 1e3]),
             ]
         ).astype(np.int64)
-        digest = int.from_bytes(hashlib.blake2b(key.tobytes(), digest_size=8).digest(), "little")
+        digest = _digest(key)
         last, n = self._last_frame
         if digest != last:
             n = self._frames_seen.get(digest, 0)
@@ -472,7 +564,7 @@ class SimulatedCell:
     def _sphere_in_view(self) -> F64 | None:
         """True centre in the sensor frame [mm] of the nearest sphere wholly in front of the
         sensor (the spheres stand metres apart: at most one is ever in the field of view)."""
-        q = self.joints_deg()
+        q = self.attained_deg()
         spheres = self._spheres  # replaced whole when a sphere is placed: one snapshot
         if not spheres:
             return None
@@ -485,3 +577,12 @@ class SimulatedCell:
         dist = np.where(front, np.linalg.norm(c, axis=1), np.inf)
         out: F64 = c[int(np.argmin(dist))]
         return out
+
+
+def _digest(key: NDArray[np.int64]) -> int:
+    return int.from_bytes(hashlib.blake2b(key.tobytes(), digest_size=8).digest(), "little")
+
+
+def _joints_key(q_deg: F64) -> int:
+    """A stop's key: its controller joints to 0.1 deg (the frames' grid, `_frame_rng`)."""
+    return _digest(np.round(q_deg * 10.0).astype(np.int64))

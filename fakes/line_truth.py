@@ -4,7 +4,8 @@
 service's decisions): the true sensor pose at any sim time, and 100 fixed validation positions.
 fakes/ imports no calib/, so the true *validation error* of some parameters is computed by the
 app: for each position, the model's part-frame point of the true sensor-frame centre
-(`validation_centres_sensor_mm(t)`) minus the true position (`validation.p_part_mm`).
+(`validation_centres_sensor_mm(t)`, seen from where the robot stands after its move there: its
+repeatability included) minus the true position (`validation.p_part_mm`).
 
 The validation positions are drawn without any inverse kinematics: a seeded random configuration
 in the robot's working range, and a point inside the sensor's measuring volume seen from it at
@@ -104,9 +105,8 @@ class LineTruth:
 
     def validation_centres_sensor_mm(self, t_s: float | None = None) -> F64:
         """True centres (n, 3) in the sensor frame of the validation positions at t_s: what a
-        perfect sensor would measure from each position's configuration."""
+        perfect sensor would measure from each position's configuration, each a move of the
+        robot there (`SimulatedCell.centres_from_stops`: the robot's repeatability is part of
+        a validation measurement's error; the same t_s, the same stops)."""
         v = self.validation
-        T = self.T_part_sensor(v.q_deg, t_s)
-        d = v.p_part_mm - T[:, :3, 3]
-        out: F64 = np.einsum("nji,nj->ni", T[:, :3, :3], d)
-        return out
+        return self.cell.centres_from_stops(v.q_deg, v.p_part_mm, t_s)

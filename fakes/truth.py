@@ -8,6 +8,7 @@ vectors with the cell temperature. An error in calib's model cannot hide behind 
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -144,6 +145,86 @@ class TrueRobot:
             )
             dq[:, col] = k * tau
         return dq
+
+
+# -- the robot's repeatability ----------------------------------------------------------------
+#: FANUC M-710iC/50 pose repeatability RP [mm], from FANUC's data sheet (M-710iC series,
+#: "Repeatability +-0.07 mm", measured per ISO 9283).
+M710IC50_RP_MM = 0.07
+#: ISO 9283's RP = mean + 3 std of the distance l of the attained positions from their
+#: barycentre. For an isotropic Gaussian error of sigma per axis, l / sigma follows the chi
+#: distribution with 3 degrees of freedom: mean 2 sqrt(2 / pi), std sqrt(3 - 8 / pi), so
+#: RP = 3.616 sigma.
+RP_PER_SIGMA = 2.0 * np.sqrt(2.0 / np.pi) + 3.0 * np.sqrt(3.0 - 8.0 / np.pi)
+#: The pose at which the data sheet's RP is taken to hold, controller angles [deg]: the middle of
+#: the arm's working range (J2 = J3 = 0, the sensor looking down, the flange 1.17 m out and
+#: 0.87 m up), where ISO 9283 puts its test cube.
+RP_REFERENCE_DEG = (0.0, 0.0, 0.0, 0.0, -90.0, 0.0)
+
+
+@dataclass(frozen=True)
+class Repeatability:
+    """The robot's non-repeatable pose error: where the arm stands after a move differs from
+    where the controller put it, by a new random error at every stop (backlash, friction and
+    the servo's settling act at the joints; the encoders report the commanded angles).
+
+    Modelled at the joints: each physical joint angle (the URDF's, J3 not coupled to J2) is off
+    by an independent Gaussian error of `joint_sigma_rad`, the same for every joint, drawn anew
+    at every stop and the same for every frame of the sweep at that stop. The sigma comes from
+    the data sheet's figure `rp_mm` (ISO 9283 RP, default M710IC50_RP_MM): at RP_REFERENCE_DEG
+    the flange's attained positions have the data sheet's RP (`_rad_per_mm_at_reference`):
+    sigma_q = 1.55e-5 rad (3.2 arcsec), the flange's error 14, 18 and 22 um RMS along x, y, z
+    there (RP / RP_PER_SIGMA = 19.4 um, were it isotropic).
+
+    Modelled at the joints rather than as a flange pose error, the error keeps the arm's
+    kinematics: it grows with reach, and it turns the flange too (about 4e-5 rad RMS). The
+    sensor sees the sphere 130 mm in front of it, about 300 mm from the flange, so the centre
+    it measures moves with the flange's position error and with that turn: 15-34 um RMS per
+    axis at the default cell's spheres (RP 0.08-0.11 mm there), 22 um per axis at the
+    validation positions, a little more than the flange's. rp_mm = 0: a perfectly repeating
+    robot."""
+
+    rp_mm: float = M710IC50_RP_MM
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.rp_mm) and self.rp_mm >= 0):
+            raise ValueError("repeatability rp_mm must be >= 0")
+
+    @property
+    def joint_sigma_rad(self) -> float:
+        """The standard deviation [rad] of each physical joint's error at a stop."""
+        return self.rp_mm * _rad_per_mm_at_reference()
+
+    def draw_deg(self, rng: np.random.Generator, n: int = 1) -> F64:
+        """The errors (n, 6) of n stops as controller-angle offsets [deg] (J3's includes J2's
+        coupling: a physical J2 error alone leaves the URDF's J3 angle in place)."""
+        return controller_offsets_deg(rng.normal(0.0, self.joint_sigma_rad, (n, 6)))
+
+
+def controller_offsets_deg(du_rad: ArrayLike) -> F64:
+    """Controller-angle offsets (..., 6) [deg] of physical (URDF) joint offsets [rad]:
+    the URDF's q3 = J3 + J2, so J3's offset is du3 - du2."""
+    du = np.asarray(du_rad, dtype=float)
+    out: F64 = np.degrees(du)
+    out[..., 2] = np.degrees(du[..., 2] - du[..., 1])
+    return out
+
+
+@functools.cache
+def _rad_per_mm_at_reference() -> float:
+    """The joint sigma [rad] per mm of RP: 1 / RP of the flange's positions at RP_REFERENCE_DEG
+    for unit joint errors, through the nominal chain's position Jacobian J (3, 6) with respect
+    to the physical joint angles (central differences; the errors are small, so linear), RP
+    evaluated as ISO 9283 does on 100 000 seeded stops."""
+    robot = TrueRobot()
+    q = np.asarray(RP_REFERENCE_DEG, dtype=float)
+    h = 1e-6
+    du = controller_offsets_deg(np.vstack([h * np.eye(6), -h * np.eye(6)]))
+    p = robot.T_world_tool0(q + du)[:, :3, 3]
+    J = (p[:6] - p[6:]).T / (2 * h)
+    e = np.random.default_rng(9283).normal(0.0, 1.0, (100_000, 6)) @ J.T
+    distance = np.linalg.norm(e - e.mean(axis=0), axis=1)
+    return float(1.0 / (distance.mean() + 3.0 * distance.std()))
 
 
 # -- the cell's truth over time ---------------------------------------------------------------

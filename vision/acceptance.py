@@ -13,7 +13,10 @@ volume (the sensor keeps its orientation, so its frames at two positions are par
 reference is the sphere's displacement in the sensor frame that the robot's motion implies,
 from the poses `T_ref_sensor` (the calibrated kinematic model's forward kinematics, in any fixed
 frame). Over the volume's few centimetres the robot's relative error is a few micrometres on a
-calibrated model, far below a sensor's scale error (0.1 % of 25 mm is 25 um).
+calibrated model, far below a sensor's scale error (0.1 % of 25 mm is 25 um); its
+non-repeatable error is not (tens of micrometres per stop), so the caller states the robot's
+share of SD (`AcceptanceLimits.sd_robot_mm`, ISO 14253-1: the limit widened by the reference's
+uncertainty).
 
 Each figure's largest magnitude is compared with its limit.
 """
@@ -30,11 +33,17 @@ F64 = NDArray[np.float64]
 
 @dataclass(frozen=True)
 class AcceptanceLimits:
-    """Largest magnitudes allowed [mm] for PF, PS and SD."""
+    """Largest magnitudes allowed [mm] for PF, PS and SD; sd_robot_mm: the expanded
+    uncertainty of SD's reference (the robot's motion), added to sd_mm."""
 
     pf_mm: float
     ps_mm: float
     sd_mm: float
+    sd_robot_mm: float = 0.0
+
+    def of(self, figure: str) -> float:
+        """The largest magnitude allowed [mm] for "PF", "PS" or "SD"."""
+        return {"PF": self.pf_mm, "PS": self.ps_mm, "SD": self.sd_mm + self.sd_robot_mm}[figure]
 
 
 @dataclass(frozen=True, eq=False)
@@ -57,9 +66,9 @@ class Acceptance:
 
     @property
     def passed_each(self) -> dict[str, bool]:
-        f, lim = self.figures, self.limits
-        limit = {"PF": lim.pf_mm, "PS": lim.ps_mm, "SD": lim.sd_mm}
-        return {k: bool(np.isfinite(v) and abs(v) <= limit[k]) for k, v in f.items()}
+        return {
+            k: bool(np.isfinite(v) and abs(v) <= self.limits.of(k)) for k, v in self.figures.items()
+        }
 
     @property
     def passed(self) -> bool:
@@ -68,9 +77,14 @@ class Acceptance:
     @property
     def message(self) -> str:
         f, ok = self.figures, self.passed_each
-        lim = {"PF": self.limits.pf_mm, "PS": self.limits.ps_mm, "SD": self.limits.sd_mm}
         return "; ".join(
-            f"{k} {1000 * f[k]:+.1f} um {'within' if ok[k] else 'beyond'} +-{1000 * lim[k]:.1f} um"
+            f"{k} {1000 * f[k]:+.1f} um {'within' if ok[k] else 'beyond'} "
+            f"+-{1000 * self.limits.of(k):.1f} um"
+            + (
+                f" (robot's share {1000 * self.limits.sd_robot_mm:.1f} um)"
+                if k == "SD" and self.limits.sd_robot_mm
+                else ""
+            )
             for k in ("PF", "PS", "SD")
         )
 

@@ -7,6 +7,17 @@ centre, left, right, top, bottom, near, far and two opposite corners (9; the gui
 7-10). The views are solved on the calibrated kinematic model (the first calibration's), which
 is also the reference of the robot's motion for SD. The step runs in `rvis commission` after the
 first calibration and alone as `rvis sensor verify`.
+
+SD's reference is the robot's motion, so it carries the robot's non-repeatable pose error: at a
+FANUC M-710iC/50's RP of 0.07 mm the sphere's centre moves by about 20 um per axis from stop to
+stop, and the largest of the 36 pairs' SD reaches 60-90 um on a perfect sensor, several times
+`[sensor] max_sd_mm`. The guideline wants a reference whose uncertainty is small against the
+limit; this one is not, so SD is judged as ISO 14253-1 judges a limit checked with an uncertain
+reference (non-conformance proven): |SD| beyond max_sd_mm plus `sd_robot_mm`, the 95 % quantile
+of the largest |SD| that the robot's repeatability alone gives at the views measured
+(`robot_spacing_mm`: Monte Carlo over the stops, `[robot] repeatability_mm`). The report states
+both; a scale error of the sensor smaller than that share is left to PS, which no robot motion
+enters.
 """
 
 from __future__ import annotations
@@ -25,7 +36,9 @@ from app.line.measure import GeometricSensor
 from calib import candidates
 from calib.ik_refine import sensor_target, solve_on_model
 from calib.model import SystemModel
-from vision.acceptance import AcceptanceLimits, acceptance
+from calib.repeatability import joint_sigma_rad, stop_errors_deg
+from calib.transforms import inverse
+from vision.acceptance import AcceptanceLimits, acceptance, spacing_errors
 from vision.sensor_model import SensorModel
 
 F64 = NDArray[np.float64]
@@ -75,6 +88,34 @@ def views(
     return np.array(out)
 
 
+def robot_spacing_mm(
+    model: SystemModel,
+    x: F64,
+    q_deg: F64,
+    p_part_mm: F64,
+    rp_mm: float,
+    *,
+    coverage: float = 0.95,
+    draws: int = 2000,
+) -> float:
+    """The `coverage` quantile [mm] of the largest |SD| over the pairs of views q_deg (n, 6)
+    that a perfect sensor measures on a robot of pose repeatability rp_mm (module docstring):
+    each draw stops the robot at every view off by its joint errors, the sphere at p_part_mm
+    (3,) seen from there, the spacing judged against the commanded poses as the step judges it.
+    Seeded: the same views, the same figure."""
+    sigma = joint_sigma_rad(model, x, rp_mm)
+    if sigma == 0 or len(q_deg) < 2:
+        return 0.0
+    n = len(q_deg)
+    rng = np.random.default_rng([n, 2634])
+    q = np.asarray(q_deg, dtype=float)[None] + stop_errors_deg(rng, sigma, (draws, n))
+    T_stood = inverse(model.fk(x, q.reshape(-1, 6))).reshape(draws, n, 4, 4)
+    c = np.einsum("dnij,j->dni", T_stood[..., :3, :3], p_part_mm) + T_stood[..., :3, 3]
+    T_ref = model.fk(x, q_deg)
+    worst = [np.max(np.abs(spacing_errors(c[d], T_ref)[1])) for d in range(draws)]
+    return float(np.quantile(worst, coverage))
+
+
 def acceptance_step(ctx: Context) -> StepResult:
     """The commissioning's step: with the first calibration and the sensor step's model."""
     return verify(ctx, from_json(ctx.path(PARAMS_FILE))[1], ctx.sensor_model())
@@ -104,8 +145,13 @@ def verify(ctx: Context, x_full: F64, sensor_model: SensorModel) -> StepResult:
         r.results["rejected"] = taken.rejected
         return r
     s = cell.sensor
-    limits = AcceptanceLimits(s.max_pf_mm, s.max_ps_mm, s.max_sd_mm)
-    T = model.fk(x, np.array(taken.q_deg))
+    q_taken = np.array(taken.q_deg)
+    # to the micrometre: the share is a 95 % quantile, its digits beyond that are noise
+    sd_robot = round(
+        robot_spacing_mm(model, x, q_taken, np.asarray(p), cell.robot.repeatability_mm), 3
+    )
+    limits = AcceptanceLimits(s.max_pf_mm, s.max_ps_mm, s.max_sd_mm, sd_robot)
+    T = model.fk(x, q_taken)
     quality = taken.quality
     acc = acceptance(
         np.array([q["form_mm"] for q in quality]),
@@ -128,11 +174,14 @@ def verify(ctx: Context, x_full: F64, sensor_model: SensorModel) -> StepResult:
         "ps_mm": f["PS"],
         "sd_mm": f["SD"],
         "sd_pairs": len(acc.sd_mm),
+        "sd_robot_mm": sd_robot,
+        "robot_repeatability_mm": cell.robot.repeatability_mm,
         "message": acc.message,
     }
     r.checks += [
         at_most("probing error form PF", abs(f["PF"]), s.max_pf_mm, "mm"),
         at_most("probing error size |PS|", abs(f["PS"]), s.max_ps_mm, "mm"),
-        at_most("sphere-spacing error |SD|", abs(f["SD"]), s.max_sd_mm, "mm"),
+        # the limit widened by the robot's share (module docstring; results: sd_robot_mm)
+        at_most("sphere-spacing error |SD|", abs(f["SD"]), limits.of("SD"), "mm"),
     ]
     return r

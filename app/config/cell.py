@@ -63,6 +63,9 @@ class RobotSection(Section):
     model: str = opt("fanuc-m710ic50", choices=ROBOT_MODELS)
     joint_lower_deg: Vec = opt(list(datasheet.JOINT_LOWER_DEG), lo=-720, hi=720, n=6)
     joint_upper_deg: Vec = opt(list(datasheet.JOINT_UPPER_DEG), lo=-720, hi=720, n=6)
+    # the data sheet's ISO 9283 pose repeatability RP: the uncertainty of a reference that the
+    # robot's own motion provides (the sensor acceptance's SD)
+    repeatability_mm: float = opt(datasheet.POSE_REPEATABILITY_MM, lo=0, hi=10)
 
 
 @dataclass(frozen=True)
@@ -111,7 +114,10 @@ class SimulationSection(Section):
     name = "simulation"
     seed: int = opt(0, lo=0, hi=2**32 - 1)
     tracker_noise_mm: float = opt(0.01, lo=0, hi=10)
-    sensor_noise_mm: float = opt(0.02, lo=0, hi=10)
+    # the defaults of these two are fakes.cell.SimSettings' (its docstring says why; a test
+    # pins them equal): the geometric sensor's own noise, the robot's ISO 9283 RP (0: exact)
+    sensor_noise_mm: float = opt(0.005, lo=0, hi=10)
+    repeatability_mm: float = opt(0.07, lo=0, hi=10)
     compliance: bool = opt(True)
     thermal: bool = opt(True)
     temp_c: float = opt(20.0, lo=-40, hi=80)

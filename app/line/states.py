@@ -42,6 +42,7 @@ ALARM_CODES: dict[str, str] = {
     "drift": "process",
     "drift_step": "process",
     "sensor": "process",
+    "view_lost": "process",  # a schedule's view rejected again and again: skipped, re-plan
 }
 
 

@@ -403,6 +403,20 @@ class Store:
             sql, args = sql + " LIMIT ?", (*args, last)
         return [_measurement_row(r) for r in self._rows(sql, args)[::-1]]
 
+    def rejected_in_a_row(self, n: int, window_rows: int = 2000) -> dict[int, int]:
+        """slot -> how many times it was rejected since its last good measurement, for the slots
+        rejected at least n times so, among the last `window_rows` measurements."""
+        rows = self._rows(
+            "SELECT slot, COUNT(*) AS n FROM measurements AS m"
+            " WHERE status = 'rejected'"
+            " AND id > (SELECT COALESCE(MAX(id), 0) FROM measurements) - ?"
+            " AND id > (SELECT COALESCE(MAX(o.id), 0) FROM measurements AS o"
+            " WHERE o.slot = m.slot AND o.status = 'ok')"
+            " GROUP BY slot HAVING COUNT(*) >= ?",
+            (window_rows, n),
+        )
+        return {int(r["slot"]): int(r["n"]) for r in rows}
+
     def measurements_by_id(self, ids: Sequence[int]) -> list[dict[str, Any]]:
         """The rows of these ids in id order (any status)."""
         marks = ",".join("?" * len(ids))

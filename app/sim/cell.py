@@ -9,6 +9,11 @@ How a sphere centre is measured is a strategy passed to `collect`:
   pose (fakes.render), and vision.measure turns the frames into a centre with the sensor model,
   in this process or in a pool of worker processes. A sweep that the vision quality checks
   reject is skipped and counted (`DataSet.rejected`), never used.
+
+Either way each view is a move of the true robot, which stands off by its repeatability
+(fakes.cell); a DataSet's `truth_c_sensor_mm` is the centre from the commanded pose (what a
+perfect sensor on a perfectly repeating robot measures), so the robot's stop error counts as
+measurement noise, as it does on the line.
 """
 
 from __future__ import annotations
@@ -67,6 +72,7 @@ def make_cell(
         seed=int(sim["seed"] if seed is None else seed),
         tracker_noise_mm=float(sim["tracker_noise_mm"]),
         sensor_noise_mm=float(sim["sensor_noise_mm"]),
+        repeatability_mm=float(sim["repeatability_mm"]),
         compliance=bool(sim["compliance"]),
         thermal=bool(sim["thermal"]),
         temp_c=float(sim["temp_c"]),
@@ -416,7 +422,8 @@ def _concat(sets: list[DataSet]) -> DataSet:
 
 def measurement_report(measurement: Measurement, sets: Mapping[str, DataSet]) -> dict[str, object]:
     """What the demo reports about its measurements: the path, the centre error against the
-    cell's truth (RMS of the 3D distance and per axis, um) and the rejected views per data set,
+    cell's truth (the centre from the commanded pose: the robot's repeatability and the sensor's
+    error; RMS of the 3D distance and per axis, um) and the rejected views per data set,
     and for the rendered path the sweeps and their times (per sweep: render, measure in the
     worker; wall time of all sweeps)."""
     out: dict[str, object] = {"path": measurement.name}

@@ -290,10 +290,11 @@ def measurement_lines(info: dict[str, Any]) -> list[str]:
     how = (
         "rendered sweeps measured by the vision pipeline"
         if info["path"] == "rendered"
-        else "geometric (true centre plus Gaussian noise)"
+        else "geometric (the true centre where the robot stands plus Gaussian noise)"
     )
     lines = [
-        f"Measurements: {how}; centre error vs truth RMS {cal['centre_error_rms_um']:.1f} um "
+        f"Measurements: {how}; centre error vs truth (the robot's repeatability and the "
+        f"sensor's) RMS {cal['centre_error_rms_um']:.1f} um "
         f"(calibration), {val['centre_error_rms_um']:.1f} um (validation); rejected views "
         f"{cal['rejected']} (calibration), {val['rejected']} (validation)."
     ]

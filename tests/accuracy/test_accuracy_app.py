@@ -142,7 +142,9 @@ def test_experiment_paper_with_the_compliant_model(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     fast = ["--iterations", "1", "--swarm", "4", "--grid-step", "30", "--search-step", "30"]
-    argv = ["experiment", "paper", "--seeds", "1", "--validation", "20", "--no-criteria"]
+    # 100 validation positions: each is a move of the robot, whose repeatability (0.037 mm RMS
+    # there) makes the RMSE of 20 too noisy to order two models 5-20 % apart
+    argv = ["experiment", "paper", "--seeds", "1", "--validation", "100", "--no-criteria"]
     assert main([*argv, "--compliant", "--workers", "1", "--out", str(tmp_path), *fast]) == 0
     text = capsys.readouterr().out
     assert "Random vs planned, rigid and compliant model" in text

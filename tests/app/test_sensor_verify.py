@@ -1,7 +1,9 @@
 """`rvis sensor verify` on a commissioned state directory of the simulated line: the sensor
 calibration in use measured at 9 positions across the measuring volume through rendered sweeps;
-a calibration whose scale is 0.1 % off fails its acceptance (exit 3, PS and SD named), and a
-directory with nothing commissioned is a one-line input error."""
+a calibration whose scale is 0.1 % off fails its acceptance (exit 3, PS named: SD's reference is
+the robot's motion, whose repeatability, RP 0.07 mm, widens SD's limit by about 0.1 mm, more than
+the scale error's 0.03 mm), and a directory with nothing commissioned is a one-line input
+error."""
 
 from __future__ import annotations
 
@@ -46,8 +48,14 @@ def test_a_sensor_with_a_scale_error_fails_its_acceptance(
     assert main([*argv, "--sensor", str(tmp_path / "scaled.toml")]) == 3
     doc = json.loads(capsys.readouterr().out)
     failed = {c["name"] for c in doc["checks"] if not c["ok"]}
-    assert failed == {"probing error size |PS|", "sphere-spacing error |SD|"}
+    assert failed == {"probing error size |PS|"}
     assert doc["results"]["ps_mm"] < -0.015  # the sphere measured smaller
+    # SD stated with the robot's share of it, the limit widened by that share
+    results = doc["results"]
+    assert results["robot_repeatability_mm"] == 0.07
+    assert 0.05 < results["sd_robot_mm"] < 0.2
+    (sd,) = (c for c in doc["checks"] if c["name"] == "sphere-spacing error |SD|")
+    assert sd["limit"] == f"<= {0.015 + results['sd_robot_mm']:g} mm"
     assert (StateDir(commissioned).root / "verify" / "acceptance.csv").is_file()
 
 

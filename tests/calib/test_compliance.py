@@ -25,6 +25,7 @@ from calib.compliance import (
 from calib.errors import NotIdentifiable
 from calib.identify import Measurements, identify, residuals
 from calib.model import EXTRA_NAMES, INDEX, PAPER_30, SystemModel, unit_of
+from fakes.cell import SimSettings
 from fakes.truth import LINK_MASS_KG, TrueRobot
 
 F = np.float64
@@ -113,9 +114,16 @@ def test_rigid_model_is_unchanged_when_the_terms_are_off(cfg: CellConfig) -> Non
 @cache
 def warm_data(seed: int, n_points: int, n_each: int, noise: float) -> WarmData:
     """Views of the 4 spheres (or of n_points spread over the workspace) at 15..35 degC, with
-    `noise` times the cell's sensor and tracker noise."""
+    `noise` times the cell's robot repeatability, sensor and tracker noise."""
     cfg = load_cell(None)
-    cell = make_cell(cfg, seed=seed, sensor_noise_mm=0.02 * noise, tracker_noise_mm=0.01 * noise)
+    s = SimSettings()
+    cell = make_cell(
+        cfg,
+        seed=seed,
+        sensor_noise_mm=s.sensor_noise_mm * noise,
+        tracker_noise_mm=s.tracker_noise_mm * noise,
+        repeatability_mm=s.repeatability_mm * noise,
+    )
     rng = np.random.default_rng([seed, 5])
     points = cfg.spheres_part_mm if n_points == 4 else workspace_points(cfg, n_points, rng)
     views = plan_views((cell,), cfg.model(), points, n_each, (15.0, 35.0), rng)
@@ -134,8 +142,8 @@ def test_recovers_compliance_and_expansion_exactly_without_noise(cfg: CellConfig
 @pytest.mark.parametrize(
     ("n_points", "n_each", "noise", "rel"),
     [
-        # the cell's noise (20 um sensor, 10 um tracker), 4 spheres: the arm compliance is
-        # weakly determined one by one (std 20-50 %), the expansion well
+        # the cell's noise (the robot's RP 0.07 mm, 5 um sensor, 10 um tracker), 4 spheres: the
+        # arm compliance is weakly determined one by one (std 20-50 %), the expansion well
         (4, 40, 1.0, {"c2_upper": 0.8, "c2_fore": 1.5, "c3_fore": 1.5, "expansion_per_k": 0.05}),
         # a quarter of that noise, 12 positions over the workspace
         (12, 10, 0.25, {"c2_upper": 0.2, "c2_fore": 0.5, "c3_fore": 0.4, "expansion_per_k": 0.02}),

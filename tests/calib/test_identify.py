@@ -18,7 +18,13 @@ from tests.conftest import simulated
 @pytest.mark.parametrize("seed", [11, 12])
 def test_noise_free_rigid_cell_is_represented_exactly(cfg: CellConfig, seed: int) -> None:
     cal, val = simulated(
-        seed, 40, compliance=False, thermal=False, sensor_noise_mm=0.0, tracker_noise_mm=0.0
+        seed,
+        40,
+        compliance=False,
+        thermal=False,
+        sensor_noise_mm=0.0,
+        tracker_noise_mm=0.0,
+        repeatability_mm=0.0,  # a robot that repeats exactly: the noise-free cell
     )
     model = cfg.model()
     result = identify(model, cal.measurements)

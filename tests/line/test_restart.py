@@ -76,6 +76,9 @@ def run_line(state_dir: Path, windows: int, executor: type[Executor] = InlineExe
         recalib=RecalibSettings(every_n=8, estimator="batch", rolling_size=24),
         sensor=keyed_sensor(state_dir),
         sensor_noise_mm=0.0,
+        # the keyed noise stands in for every non-repeatable error: a new cell per restart
+        # would start the robot's stops (seeded per joints and visit) afresh
+        repeatability_mm=0.0,
     )
     ln.service.recalibrator = Recalibrator(executor)
     try:

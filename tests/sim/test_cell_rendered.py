@@ -5,7 +5,9 @@ truth. Also the camera hook of the device fakes (`SimulatedCell.render_frame`).
 What is asserted and why: with the default sensor model (the simulated sensor's design, which the
 true sensor matches) the vision pipeline's centre error is about 1 um per axis (issue 4: bias
 <= 2 um, scatter <= 5 um per axis over the field of view); one measurement is asserted within
-10 um of the truth (3D), the geometric noise of the cell (20 um per axis) would fail that.
+10 um of the truth (3D). The cell's robot repeats exactly here (`repeatability_mm=0`): its stop
+error (about 25 um per axis at a sphere, tests/sim/test_repeatability.py) would fail that, and
+it is the vision that is checked against the truth, not the robot.
 """
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ def sensor() -> TrueSensor:
 
 @pytest.fixture()
 def cell(cfg: CellConfig, sensor: TrueSensor) -> SimulatedCell:
-    return make_cell(cfg, seed=7, sensor=sensor)
+    return make_cell(cfg, seed=7, sensor=sensor, repeatability_mm=0.0)
 
 
 def views_of(

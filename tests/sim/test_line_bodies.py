@@ -29,11 +29,13 @@ def test_rvis_state_suspects_names_exactly_the_bodies_clamped_inside_the_interva
     cfg: CellConfig, tmp_path: Path, capsys: pytest.CaptureFixture[str], fmt: str, first: Any
 ) -> None:
     # long windows of 8 slots: the change charts watch after 3 windows, a knock is corrected
-    # within 2 windows of its flag; no warm-up (its drift is not the knock); the batch
-    # estimator, whose interval spans several bodies (the sequential one closed it after one)
+    # within 4 windows of its flag; no warm-up (its drift is not the knock); the batch
+    # estimator, whose interval spans several bodies (the sequential one closed it after one);
+    # the plant's accuracy limit well above the commissioned cell's U95 (0.14-0.15 mm with the
+    # robot's repeatability, at the default limit), so that the knock's is the only interval
     knocked = dataclasses.replace(
         cfg,
-        service=dataclasses.replace(cfg.service, estimator="batch"),
+        service=dataclasses.replace(cfg.service, estimator="batch", accuracy_limit_mm=0.3),
         line=dataclasses.replace(cfg.line, slots_per_window=8, plc_body_id=fmt),
         simline=dataclasses.replace(
             cfg.simline, warmup_k=0.0, period_s=40.0, window_s=32.0, knock_at_s=KNOCK_AT_S
@@ -53,9 +55,10 @@ def test_rvis_state_suspects_names_exactly_the_bodies_clamped_inside_the_interva
 
     assert main(["state", "suspects", "--json", "--state-dir", str(state)]) == 0
     (interval,) = json.loads(capsys.readouterr().out)
-    # closed at the correction: back at its level before the step, or vouched for (U95 within
-    # the limit on the measurements after it)
-    assert interval["state"] == "closed" and interval["end_reason"] in ("step", "vouched")
+    # closed at the correction: back at its level before the step (the step group's fast
+    # correction or the full recalibration, whichever is in force when the recovery test passes),
+    # or vouched for (U95 within the limit on the measurements after it)
+    assert interval["state"] == "closed" and interval["end_reason"] in ("step", "batch", "vouched")
     t_start, t_end = interval["t_start"] - epoch, interval["t_end"] - epoch
     assert t_start < KNOCK_AT_S < t_end
     inside = [body for opens, body in clamped.values() if t_start <= opens <= t_end]

@@ -40,7 +40,8 @@ def test_the_camera_reuses_the_scene_only_while_the_sphere_stands_still(
     first = line_cell._scene
     line_cell.render_frame_v(1296, 966, 10_000.0, 0.0, 0.3)
     assert line_cell._scene is first and first is not None
-    truth = line_cell.centre_in_sensor(q, cfg.spheres_part_mm["P1"])[0]
+    # where the robot stands: the commanded joints plus this stop's repeatability error
+    truth = line_cell.centre_in_sensor(line_cell.attained_deg(), cfg.spheres_part_mm["P1"])[0]
     np.testing.assert_allclose(first.c_sensor_mm, truth, atol=1e-4)
     line_cell.set_joints_deg(q + np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.01]))  # J6: 0.01 deg
     line_cell.render_frame_v(1296, 966, 10_000.0, 0.0, 0.0)
