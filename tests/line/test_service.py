@@ -94,8 +94,10 @@ def test_a_withdrawn_window_aborts_and_brings_the_robot_home(
     assert report["withdrawn"] == "window withdrawn" and report["measured"] == 0
     assert not report["overrun"]
     ln.plc.withdraw_on_motion = False
-    (after,) = ln.windows(1)
-    assert after["measured"] == 1  # the service carries on
+    # the service carries on: the first window not withdrawn measures (on a loaded machine the
+    # paced line can open, and withdraw, the next window before the flag above is read)
+    after = next(w for w in ln.windows(3) if not w["withdrawn"])
+    assert after["measured"] == 1
     assert ln.service.state in (State.IDLE, State.MEASURING)
     ln.stop()
     flags = [(o.busy, o.done, o.fault) for o in ln.plc.history]
