@@ -31,6 +31,7 @@ fake are released by `close()` (also when `start()` fails half-way).
 
 from __future__ import annotations
 
+import math
 import threading
 from contextlib import ExitStack
 from dataclasses import dataclass, field
@@ -65,7 +66,10 @@ class SimLineSetup:
     period_s: float = 60.0  # clamp cycle: one window a minute ...
     window_s: float = 20.0  # ... open for its last window_s
     beat_s: float = 0.5  # PLC heartbeat period
-    first_body: int = 100001  # the number of the body clamped in the first period
+    first_body: int = 100001  # the number of the body clamped in the world's first period
+    # the world's time at sim time 0: a line that continues an earlier run's world (warm,
+    # knocked, its body count on) starts this far into it
+    world_s: float = 0.0
     body_format: str = "u32"  # how the PLC writes it: "u32" (the number) or "serial8"
     warmup: Warmup | None = field(default_factory=Warmup)
     knock: Knock | None = None
@@ -90,6 +94,8 @@ class SimLineSetup:
             raise ValueError("n_validation must be >= 1")
         if self.body_format not in ("u32", "serial8") or not 0 < self.first_body < 2**32:
             raise ValueError("body_format must be u32 or serial8, first_body 1..2**32-1")
+        if not self.world_s >= 0:
+            raise ValueError("world_s must be >= 0")
 
     @property
     def cycle(self) -> ClampCycle:
@@ -97,7 +103,7 @@ class SimLineSetup:
             period_s=self.period_s,
             window_s=self.window_s,
             beat_s=self.beat_s,
-            first_body=self.first_body,
+            first_body=self.first_body + math.ceil(self.world_s / self.period_s),  # periods begun
         )
 
 
@@ -174,7 +180,7 @@ class SimLine:
         if self._started:
             raise RuntimeError("the simulated line is already started")
         s = self.settings
-        self.cell.set_timeline(self.clock, warmup=s.warmup, knock=s.knock)
+        self.cell.set_timeline(self.clock, warmup=s.warmup, knock=s.knock, world_s=s.world_s)
         try:
             for peer in (self.plc, self.controller, self.dac, self.tracker, self.camera):
                 if peer is not None:

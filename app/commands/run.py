@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from app.commands import add_command
-from app.commands.args import int_at_least
+from app.commands.args import int_at_least, sim_seed
 from app.errors import InputError
 
 
@@ -190,7 +190,12 @@ def run_sim(args: argparse.Namespace) -> int:
     cfg = _cell(args)
     state_dir = Path(args.state_dir or cfg.service.state_dir)
     plan = Path(args.plan) if args.plan else _existing(StateDir(state_dir).plan)
-    seed = cfg.simulation.seed if args.seed is None else args.seed
+    # the cell file `_cell` read from the state directory (a commissioned one), if it did
+    commissioned = None
+    if args.cell is None and args.state_dir:
+        commissioned = _existing(StateDir(state_dir).cell)
+    seed = sim_seed(args.seed, cfg, commissioned)
+    geometric = bool(args.geometric or cfg.simulation.geometric)  # as commissioned, or told
     if plan is not None and not plan.is_file():
         raise InputError("plan file not found", file=plan)
     batch = args.windows is not None
@@ -210,9 +215,9 @@ def run_sim(args: argparse.Namespace) -> int:
                 cfg,
                 state_dir,
                 seed=seed,
-                geometric=args.geometric,
+                geometric=geometric,
                 plan=plan,
-                sensor_model=None if args.geometric else _sensor_model(args, state_dir),
+                sensor_model=None if geometric else _sensor_model(args, state_dir),
                 # a person watches a run without --windows: paced; a counted run as fast as it can
                 pace=None if batch else cfg.simline.scale,
             ) as sim,
@@ -221,7 +226,7 @@ def run_sim(args: argparse.Namespace) -> int:
                 if not args.json:
                     print(
                         f"rvis run --sim: seed {seed}, "
-                        f"{'geometric' if args.geometric else 'rendered'} measurements, "
+                        f"{'geometric' if geometric else 'rendered'} measurements, "
                         f"{time_text(sim.pace)}, socket {StateDir(state_dir).socket}",
                         file=sys.stderr,
                         flush=True,

@@ -122,20 +122,28 @@ def simline_settings(
     )
 
 
-def continued_epoch(state_dir: Path, start_epoch: float | None = None) -> float:
-    """The Unix time a simulated line's clock starts at: `start_epoch` (default now), or just
-    after the last time the state directory's database records when that is later (a run
-    before ran ahead)."""
+def continued_epoch(state_dir: Path, start_epoch: float | None = None) -> tuple[float, float]:
+    """(the Unix time a simulated line's clock starts at, the world's time then [s]).
+
+    The clock starts at `start_epoch` (default now), or just after the last time the state
+    directory's database records when that is later (a run before ran ahead). The world
+    continues where the last run left it: its time is the span from the first simulated
+    line's start on this directory (its first `started` event) to the end of its history (the
+    world stands while no line runs), 0 on a new directory."""
     now = time.time() if start_epoch is None else start_epoch
     db = StateDir(state_dir).db
     if not db.is_file():
-        return now
+        return now, 0.0
     store = Store.read_only(db)
     try:
         last = store.last_time()
+        started = store.events("started")
     finally:
         store.close()
-    return now if last is None else max(now, last + 1.0)
+    if last is None:
+        return now, 0.0
+    world_s = last + 1.0 - float(started[0]["t"]) if started else 0.0
+    return max(now, last + 1.0), max(world_s, 0.0)
 
 
 def with_simulated_plc(cfg: CellConfig) -> CellConfig:
@@ -247,8 +255,9 @@ class SimulatedLineRun:
         # the service's clock never goes back: on a state directory with a history, the
         # simulated line's time starts where that history ends (else its records would
         # interleave with an earlier run's, which ran ahead of the wall clock)
-        epoch = continued_epoch(self.state_dir, start_epoch)
+        epoch, world_s = continued_epoch(self.state_dir, start_epoch)
         setup = simline_settings(cfg, geometric=geometric, pace=pace, start_epoch=epoch)
+        setup = dataclasses.replace(setup, world_s=world_s)  # warm, knocked, counted as left
         self.line = SimLine(self.cell, setup)
         self.pace = pace
         self.settings = service_settings(cfg, self.state_dir)
