@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from typing import Self
@@ -43,7 +44,7 @@ from numpy.typing import ArrayLike, NDArray
 from fakes.cell import SimulatedCell
 from fakes.clock import ScaledClock, VirtualClock
 from fakes.devices import ClampCycle
-from fakes.gv_camera import GvCamera
+from fakes.gv_camera import ADDRESS_WAIT_S, GvCamera
 from fakes.line_faults import GALVO_ERROR_CODE, Fault, FaultScheduler, LinePlc, window_bounds_s
 from fakes.line_truth import LineTruth, validation_positions
 from fakes.rmi_controller import RmiController
@@ -75,6 +76,10 @@ class SimLineSetup:
     knock: Knock | None = None
     camera: bool = True  # start the GigE fake (False: geometric runs, no rendering)
     camera_address: str = "127.0.0.1"
+    # how long the camera waits for its address when another simulation's holds it (None: as
+    # long as it takes: a user's command), and who is told at once that it waits
+    camera_wait_s: float | None = ADDRESS_WAIT_S
+    camera_on_wait: Callable[[str], None] | None = None
     n_validation: int = 100
     camera_readout_s: float = 0.033  # virtual clock: a frame's read-out after its exposure
     galvo_settle_s: float = 0.002  # virtual clock: the mirror settling after a command
@@ -168,6 +173,8 @@ class SimLine:
                 sensor_wh=sensor_wh,
                 clock=self.virtual,
                 readout_s=s.camera_readout_s,
+                wait_s=s.camera_wait_s,
+                on_wait=s.camera_on_wait,
             )
         rng = np.random.default_rng([seed, 8])
         self.truth = LineTruth(cell, validation_positions(cell, self.settings.n_validation, rng))

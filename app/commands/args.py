@@ -57,3 +57,10 @@ def sim_seed(seed: int | None, cfg: Any, commissioned: Path | None) -> int:
             field="simulation.seed",
         )
     return seed
+
+
+def say_waiting(line: str) -> None:
+    """A simulation that must wait for another's device says so on stderr, at once."""
+    import sys
+
+    print(f"rvis: {line} (Ctrl-C to stop)", file=sys.stderr, flush=True)

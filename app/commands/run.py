@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from app.commands import add_command
-from app.commands.args import int_at_least, sim_seed
+from app.commands.args import int_at_least, say_waiting, sim_seed
 from app.errors import InputError
 
 
@@ -220,6 +220,7 @@ def run_sim(args: argparse.Namespace) -> int:
                 sensor_model=None if geometric else _sensor_model(args, state_dir),
                 # a person watches a run without --windows: paced; a counted run as fast as it can
                 pace=None if batch else cfg.simline.scale,
+                waiting=say_waiting,
             ) as sim,
         ):
             with serving(sim.service):

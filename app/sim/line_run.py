@@ -244,11 +244,13 @@ class SimulatedLineRun:
         sensor_model: SensorModel | None = None,
         pace: float | None = None,
         start_epoch: float | None = None,
+        waiting: Callable[[str], None] | None = None,
     ) -> None:
         """sensor_model: the sensor calibration the rendered line measures with (default: the
         true sensor's, a perfect calibration); unused on the geometric path. pace: sim seconds
         per real second (None: as fast as the CPU); start_epoch: the Unix time of sim time 0
-        (None: now, to the whole second)."""
+        (None: now, to the whole second); waiting: told in one line, at once, when the rendered
+        line's camera must wait for another simulation's (as long as that one runs)."""
         cfg = with_simulated_plc(cfg)
         self.cfg, self.state_dir, self.seed = cfg, Path(state_dir), seed
         self.cell = make_cell(cfg, seed=seed)
@@ -258,6 +260,8 @@ class SimulatedLineRun:
         epoch, world_s = continued_epoch(self.state_dir, start_epoch)
         setup = simline_settings(cfg, geometric=geometric, pace=pace, start_epoch=epoch)
         setup = dataclasses.replace(setup, world_s=world_s)  # warm, knocked, counted as left
+        if waiting is not None:
+            setup = dataclasses.replace(setup, camera_wait_s=None, camera_on_wait=waiting)
         self.line = SimLine(self.cell, setup)
         self.pace = pace
         self.settings = service_settings(cfg, self.state_dir)
