@@ -385,6 +385,6 @@ class DriftMonitor:
         """The residual charts (the status reply's `drift`)."""
         return self.residual.state()
 
-    def change_state(self) -> dict[str, dict[str, float | bool]]:
+    def change_state(self) -> dict[str, dict[str, float | bool | None]]:
         """The change charts (the status reply's `drift_change`)."""
         return self.change.state()
