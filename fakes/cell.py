@@ -203,6 +203,7 @@ class SimulatedCell:
         self._T_mount = spec.T_flange_sensor @ _small_pose(rng, s.mount_error_mm, s.mount_error_rad)
         self._ambient_c = s.temp_c
         self._clock: Clock | None = None
+        self._world_s = 0.0  # the world's time at the clock's 0 (`set_timeline`)
         self.warmup: Warmup | None = None
         self.knock: Knock | None = None
         self._T_knock = np.eye(4)  # sensor knock: T_sensorBefore_sensorAfter
@@ -237,12 +238,20 @@ class SimulatedCell:
 
     # -- truth over time -------------------------------------------------------------------
     def set_timeline(
-        self, clock: Clock, *, warmup: Warmup | None = None, knock: Knock | None = None
+        self,
+        clock: Clock,
+        *,
+        warmup: Warmup | None = None,
+        knock: Knock | None = None,
+        world_s: float = 0.0,
     ) -> None:
         """Let the truth follow `clock`: the temperature warms up from the ambient `temp_c`,
         and at the knock its group moves (the sensor mount, the spheres' frame or the J2
-        zero; its direction drawn from the cell's seed)."""
+        zero; its direction drawn from the cell's seed). world_s: the world's time at the
+        clock's 0 (a line that continues an earlier run's world: warm and knocked as it left
+        it)."""
         self._clock, self.warmup, self.knock = clock, warmup, knock
+        self._world_s = float(world_s)
         rng = np.random.default_rng([self.settings.seed, 5])
         self._T_knock = np.eye(4)
         self._T_part_knocked, self._robot_knocked = self.T_part_world, self.robot
@@ -258,19 +267,24 @@ class SimulatedCell:
             offsets = self.robot.zero_offset_rad + knock.zero_slip_rad(rng)
             self._robot_knocked = replace(self.robot, zero_offset_rad=offsets)
 
-    def _knocked(self, t_s: float | None) -> bool:
-        return self.knock is not None and self._at(t_s) >= self.knock.at_s
+    def _knocked(self, t_world_s: float) -> bool:
+        return self.knock is not None and t_world_s >= self.knock.at_s
 
     def now_s(self) -> float:
         """The cell's sim time [s] (0 without a timeline)."""
         return 0.0 if self._clock is None else self._clock.monotonic()
 
     def _at(self, t_s: float | None) -> float:
-        return self.now_s() if t_s is None else float(t_s)
+        """The world's time [s] at sim time t_s (default: now): the warm-up and the knock run on
+        it; `world_s` ahead of the clock when a line continues an earlier run's world."""
+        return (self.now_s() if t_s is None else float(t_s)) + self._world_s
 
     def temp_at(self, t_s: float | None = None) -> float:
         """The cell temperature [deg C] at sim time t_s (default: now)."""
-        warm = 0.0 if self.warmup is None else self.warmup.delta_k(self._at(t_s))
+        return self._temp(self._at(t_s))
+
+    def _temp(self, t_world_s: float) -> float:
+        warm = 0.0 if self.warmup is None else self.warmup.delta_k(t_world_s)
         return self._ambient_c + warm
 
     @property
@@ -284,7 +298,10 @@ class SimulatedCell:
 
     def mount_at(self, t_s: float | None = None) -> F64:
         """The true sensor mount T_tool0_sensor (4, 4) at sim time t_s (default: now)."""
-        if self._knocked(t_s):
+        return self._mount(self._at(t_s))
+
+    def _mount(self, t_world_s: float) -> F64:
+        if self._knocked(t_world_s):
             knocked: F64 = self._T_mount @ self._T_knock
             return knocked
         return self._T_mount.copy()
@@ -301,8 +318,8 @@ class SimulatedCell:
         knocked = self._knocked(t)
         robot = self._robot_knocked if knocked else self.robot
         T_pw = self._T_part_knocked if knocked else self.T_part_world
-        T_wt = robot.T_world_tool0(q_deg, self.temp_at(t))
-        out: F64 = T_pw @ T_wt @ self.mount_at(t)
+        T_wt = robot.T_world_tool0(q_deg, self._temp(t))
+        out: F64 = T_pw @ T_wt @ self._mount(t)
         return out
 
     def centre_in_sensor(
@@ -409,7 +426,8 @@ class SimulatedCell:
         t = self._at(t_s)
         q = np.atleast_2d(np.asarray(q_deg, dtype=float))
         rng = np.random.default_rng([self.settings.seed, 10, round(abs(t) * 1000.0)])
-        return self.centre_in_sensor(q + self.repeatability.draw_deg(rng, len(q)), p_part_mm, t)
+        stops = q + self.repeatability.draw_deg(rng, len(q))
+        return self.centre_in_sensor(stops, p_part_mm, t - self._world_s)
 
     def track_point(self, p_part_mm: ArrayLike) -> F64:
         """Laser-tracker measurement (3,) [mm] of a point in the part frame."""

@@ -37,6 +37,7 @@ import fcntl
 import os
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Self
 
@@ -98,23 +99,36 @@ class _AddressLock:
 
     def __init__(self, address: str) -> None:
         name = f"rvis-gv-fake-{_network_namespace()}-{address}.lock"
+        self.address = address
         self.path = Path(tempfile.gettempdir()) / name
         self._fd: int | None = None
 
-    def acquire(self, timeout_s: float) -> None:
+    def acquire(
+        self, timeout_s: float | None, on_wait: Callable[[str], None] | None = None
+    ) -> None:
+        """Take the lock, waiting up to timeout_s (None: as long as it takes); when it must
+        wait, `on_wait` gets one line naming the address and the holder, at once."""
         fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
-        deadline = time.monotonic() + timeout_s
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        said = False
         while True:
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
                 break
             except BlockingIOError:
-                if time.monotonic() > deadline:
-                    holder = os.pread(fd, 16, 0).decode(errors="replace").strip()
+                holder = os.pread(fd, 16, 0).decode(errors="replace").strip() or "?"
+                if deadline is not None and time.monotonic() > deadline:
                     os.close(fd)
                     raise RuntimeError(
                         f"{self.path}: another fake GigE camera (pid {holder}) holds the address"
                     ) from None
+                if not said and on_wait is not None:
+                    said = True
+                    on_wait(
+                        f"waiting for the simulated GigE camera's address {self.address}"
+                        f" (GVCP port 3956, one camera per address), in use by another"
+                        f" simulation (pid {holder}): this one goes on when that one ends"
+                    )
                 time.sleep(0.05)  # another process's test is using the camera: wait its turn
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
@@ -146,8 +160,13 @@ class GvCamera:
         sensor_wh: tuple[int, int] | None = None,
         clock: VirtualClock | None = None,
         readout_s: float = 0.0,
+        wait_s: float | None = ADDRESS_WAIT_S,
+        on_wait: Callable[[str], None] | None = None,
     ) -> None:
+        """wait_s: how long `start` waits for the address when another fake holds it (None:
+        as long as it takes); on_wait: told at once, in one line, when it must wait."""
         self.world, self.address, self.serial = world, address, serial
+        self.wait_s, self.on_wait = wait_s, on_wait
         self.clock, self.readout_s = clock, float(readout_s)
         self.sensor_wh = sensor_wh
         self.camera_id = address
@@ -163,7 +182,7 @@ class GvCamera:
 
     def start(self) -> Self:
         aravis, self._lib = _aravis()
-        self._lock.acquire(ADDRESS_WAIT_S)
+        self._lock.acquire(self.wait_s, self.on_wait)
         self._gv = aravis.GvFakeCamera.new(self.address, self.serial)
         if not self._gv.is_running():
             self._gv = None

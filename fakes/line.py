@@ -31,7 +31,9 @@ fake are released by `close()` (also when `start()` fails half-way).
 
 from __future__ import annotations
 
+import math
 import threading
+from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from typing import Self
@@ -42,7 +44,7 @@ from numpy.typing import ArrayLike, NDArray
 from fakes.cell import SimulatedCell
 from fakes.clock import ScaledClock, VirtualClock
 from fakes.devices import ClampCycle
-from fakes.gv_camera import GvCamera
+from fakes.gv_camera import ADDRESS_WAIT_S, GvCamera
 from fakes.line_faults import GALVO_ERROR_CODE, Fault, FaultScheduler, LinePlc, window_bounds_s
 from fakes.line_truth import LineTruth, validation_positions
 from fakes.rmi_controller import RmiController
@@ -65,12 +67,19 @@ class SimLineSetup:
     period_s: float = 60.0  # clamp cycle: one window a minute ...
     window_s: float = 20.0  # ... open for its last window_s
     beat_s: float = 0.5  # PLC heartbeat period
-    first_body: int = 100001  # the number of the body clamped in the first period
+    first_body: int = 100001  # the number of the body clamped in the world's first period
+    # the world's time at sim time 0: a line that continues an earlier run's world (warm,
+    # knocked, its body count on) starts this far into it
+    world_s: float = 0.0
     body_format: str = "u32"  # how the PLC writes it: "u32" (the number) or "serial8"
     warmup: Warmup | None = field(default_factory=Warmup)
     knock: Knock | None = None
     camera: bool = True  # start the GigE fake (False: geometric runs, no rendering)
     camera_address: str = "127.0.0.1"
+    # how long the camera waits for its address when another simulation's holds it (None: as
+    # long as it takes: a user's command), and who is told at once that it waits
+    camera_wait_s: float | None = ADDRESS_WAIT_S
+    camera_on_wait: Callable[[str], None] | None = None
     n_validation: int = 100
     camera_readout_s: float = 0.033  # virtual clock: a frame's read-out after its exposure
     galvo_settle_s: float = 0.002  # virtual clock: the mirror settling after a command
@@ -90,6 +99,8 @@ class SimLineSetup:
             raise ValueError("n_validation must be >= 1")
         if self.body_format not in ("u32", "serial8") or not 0 < self.first_body < 2**32:
             raise ValueError("body_format must be u32 or serial8, first_body 1..2**32-1")
+        if not self.world_s >= 0:
+            raise ValueError("world_s must be >= 0")
 
     @property
     def cycle(self) -> ClampCycle:
@@ -97,7 +108,7 @@ class SimLineSetup:
             period_s=self.period_s,
             window_s=self.window_s,
             beat_s=self.beat_s,
-            first_body=self.first_body,
+            first_body=self.first_body + math.ceil(self.world_s / self.period_s),  # periods begun
         )
 
 
@@ -162,6 +173,8 @@ class SimLine:
                 sensor_wh=sensor_wh,
                 clock=self.virtual,
                 readout_s=s.camera_readout_s,
+                wait_s=s.camera_wait_s,
+                on_wait=s.camera_on_wait,
             )
         rng = np.random.default_rng([seed, 8])
         self.truth = LineTruth(cell, validation_positions(cell, self.settings.n_validation, rng))
@@ -174,7 +187,7 @@ class SimLine:
         if self._started:
             raise RuntimeError("the simulated line is already started")
         s = self.settings
-        self.cell.set_timeline(self.clock, warmup=s.warmup, knock=s.knock)
+        self.cell.set_timeline(self.clock, warmup=s.warmup, knock=s.knock, world_s=s.world_s)
         try:
             for peer in (self.plc, self.controller, self.dac, self.tracker, self.camera):
                 if peer is not None:

@@ -6,6 +6,10 @@ from __future__ import annotations
 import argparse
 import math
 from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from app.errors import InputError
 
 
 def int_at_least(lo: int) -> Callable[[str], int]:
@@ -36,3 +40,27 @@ def float_in(lo: float, hi: float, *, open_lo: bool = True) -> Callable[[str], f
         return value
 
     return parse
+
+
+def sim_seed(seed: int | None, cfg: Any, commissioned: Path | None) -> int:
+    """The simulated cell's seed: `--seed`, else the cell file's `[simulation] seed`. On a
+    commissioned state directory (its cell file `commissioned`, which records the seed the
+    simulated commissioning ran on) another seed is another cell: refused, one line."""
+    own = int(cfg.simulation.seed)
+    if seed is None or seed == own:
+        return own
+    if commissioned is not None:
+        raise InputError(
+            f"this directory was commissioned on the simulated cell of seed {own}; --seed {seed}"
+            " is another cell (leave --seed out, or commission another directory)",
+            file=commissioned,
+            field="simulation.seed",
+        )
+    return seed
+
+
+def say_waiting(line: str) -> None:
+    """A simulation that must wait for another's device says so on stderr, at once."""
+    import sys
+
+    print(f"rvis: {line} (Ctrl-C to stop)", file=sys.stderr, flush=True)

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from app.commands import add_command
-from app.commands.args import int_at_least
+from app.commands.args import int_at_least, say_waiting
 from app.errors import InputError
 
 
@@ -95,7 +95,9 @@ def _context(
         from app.sim.commission import SimCommissioning
         from app.sim.line_run import with_simulated_plc
 
-        sim = stack.enter_context(SimCommissioning(cfg, seed, geometric=args.geometric))
+        sim = stack.enter_context(
+            SimCommissioning(cfg, seed, geometric=args.geometric, waiting=say_waiting)
+        )
         urls = sim.urls
         cfg = with_simulated_plc(cfg)
     guard = replace(cell_guard(cfg), max_speed_pct=float(cfg.commission.speed_pct))

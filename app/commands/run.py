@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from app.commands import add_command
-from app.commands.args import int_at_least
+from app.commands.args import int_at_least, say_waiting, sim_seed
 from app.errors import InputError
 
 
@@ -67,6 +67,15 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from app.config.check import in_cell_file
+
+    try:
+        return _run(args)
+    except InputError as exc:  # a setting found wrong once used (a group): where it is set
+        raise in_cell_file(exc, _cell_path(args)) from None
+
+
+def _run(args: argparse.Namespace) -> int:
     if args.sim:
         return run_sim(args)
     if args.geometric or args.windows or args.seed is not None:
@@ -82,7 +91,11 @@ def run(args: argparse.Namespace) -> int:
     settings = from_cell(cfg, args.state_dir)
     plan = Path(args.plan) if args.plan else StateDir(settings.state_dir).plan
     if not plan.is_file():
-        raise InputError("no plan file (write one with `rvis plan --out ...`)", file=plan)
+        raise InputError(
+            "no plan file: commission the cell into this state directory (`rvis commission"
+            " --state-dir DIR`), or give a plan from `rvis plan --out FILE` with --plan",
+            file=plan,
+        )
     # a rigid file carried into a compliant [service] model at its calibration temperature
     x0 = carried_from_json(cfg.service_model(), args.params)[1] if args.params else None
     sensor_model = _sensor_model(args, settings.state_dir)
@@ -112,13 +125,19 @@ def _cell(args: argparse.Namespace) -> Any:
     """--cell, else STATE_DIR/cell.toml when --state-dir names a directory that has one (the
     cell file `rvis commission` wrote there), else the embedded cell."""
     from app.config import load_cell
+
+    return load_cell(_cell_path(args))
+
+
+def _cell_path(args: argparse.Namespace) -> Path | None:
+    """The cell file `_cell` reads (None: the embedded cell)."""
     from app.line.statedir import StateDir
 
     if args.cell is None and args.state_dir:
         commissioned = _existing(StateDir(args.state_dir).cell)
         if commissioned is not None:
-            return load_cell(commissioned)
-    return load_cell(args.cell)
+            return commissioned
+    return None if args.cell is None else Path(args.cell)
 
 
 def _existing(path: Path) -> Path | None:
@@ -190,7 +209,12 @@ def run_sim(args: argparse.Namespace) -> int:
     cfg = _cell(args)
     state_dir = Path(args.state_dir or cfg.service.state_dir)
     plan = Path(args.plan) if args.plan else _existing(StateDir(state_dir).plan)
-    seed = cfg.simulation.seed if args.seed is None else args.seed
+    # the cell file `_cell` read from the state directory (a commissioned one), if it did
+    commissioned = None
+    if args.cell is None and args.state_dir:
+        commissioned = _existing(StateDir(state_dir).cell)
+    seed = sim_seed(args.seed, cfg, commissioned)
+    geometric = bool(args.geometric or cfg.simulation.geometric)  # as commissioned, or told
     if plan is not None and not plan.is_file():
         raise InputError("plan file not found", file=plan)
     batch = args.windows is not None
@@ -210,18 +234,19 @@ def run_sim(args: argparse.Namespace) -> int:
                 cfg,
                 state_dir,
                 seed=seed,
-                geometric=args.geometric,
+                geometric=geometric,
                 plan=plan,
-                sensor_model=None if args.geometric else _sensor_model(args, state_dir),
+                sensor_model=None if geometric else _sensor_model(args, state_dir),
                 # a person watches a run without --windows: paced; a counted run as fast as it can
                 pace=None if batch else cfg.simline.scale,
+                waiting=say_waiting,
             ) as sim,
         ):
             with serving(sim.service):
                 if not args.json:
                     print(
                         f"rvis run --sim: seed {seed}, "
-                        f"{'geometric' if args.geometric else 'rendered'} measurements, "
+                        f"{'geometric' if geometric else 'rendered'} measurements, "
                         f"{time_text(sim.pace)}, socket {StateDir(state_dir).socket}",
                         file=sys.stderr,
                         flush=True,

@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.commands import add_command
-from app.commands.args import float_in
+from app.commands.args import float_in, sim_seed
 from app.config.tomlfile import read_toml
 from app.errors import InputError, QualityError
 from app.formats.files import check_output, write_text
@@ -173,7 +173,7 @@ def run_verify(args: argparse.Namespace) -> int:
             raise InputError(f"no {what}: commission the cell first (rvis commission)", file=path)
     sensor_model, x = load_sensor_model(sensor_path), from_json(params_path)[1]
     say = _printer(sys.stderr if args.json else sys.stdout)
-    seed = cfg.simulation.seed if args.seed is None else args.seed
+    seed = sim_seed(args.seed, cfg, None if args.cell else cell_path)
     opts = argparse.Namespace(
         sim=args.sim, geometric=False, sensor=None, sensor_data=None, targets=None
     )

@@ -41,11 +41,14 @@ def state_dir_of(args: argparse.Namespace) -> Path:
 
 def offline_status(state_dir: Path) -> dict[str, Any]:
     """What the files say when the service is not running (read-only)."""
-    from app.line.statedir import StateDir
+    from app.line.statedir import StateDir, holder_pid
     from app.line.states import suspect_json
     from app.line.store import Store
 
     state = StateDir(state_dir)
+    pid = holder_pid(state)
+    if pid is not None:  # the lock is held, the socket not up yet: a service starting
+        return {"state": "starting", "pid": pid, "socket": False}
     if not state.db.is_file():
         raise InputError("no service state here (no rvis.db)", file=state_dir)
     store = Store.read_only(state.db)
@@ -73,6 +76,8 @@ def fetch_status(state_dir: Path) -> dict[str, Any]:
     from app.line.control import ControlClient
     from app.line.statedir import StateDir
 
+    if Path(state_dir).exists() and not Path(state_dir).is_dir():
+        raise InputError("not a state directory (a file)", file=state_dir)
     try:
         with ControlClient(StateDir(state_dir).socket, timeout_s=10.0) as client:
             reply = client.request("status")
@@ -96,6 +101,11 @@ def run(args: argparse.Namespace) -> int:
 
 def status_lines(status: dict[str, Any]) -> list[str]:
     """The status in words, one fact a line (what `--json` has, compactly)."""
+    if status.get("socket") is False:  # the lock held, the control socket not up yet
+        return [
+            f"state               starting (pid {status.get('pid')}): the service holds the"
+            " state directory and is getting ready; ask again in a moment"
+        ]
     m = status.get("measurements", {})
     paused = status.get("paused") and status["state"] != "paused"  # a pause still to come
     state = f"{status['state']}" + (" (paused)" if paused else "")
@@ -151,6 +161,8 @@ def _drift_lines(drift: dict[str, Any] | None) -> list[str]:
         return []
 
     def mm(chart: dict[str, Any]) -> str:
+        if chart.get("learning"):
+            return "learning"  # no baseline yet: the self-starting chart watches
         value = chart.get("ewma_mm")
         return f"{value:.3f}" if isinstance(value, int | float) and value == value else "-"
 

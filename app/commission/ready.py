@@ -53,14 +53,19 @@ def ready(ctx: Context) -> StepResult:
 
 
 def _commissioned_cell(ctx: Context) -> CellConfig:
-    """The cell with the measured spheres, this state directory and, when the stripe step
-    chose one, its exposure."""
+    """The cell with the measured spheres, this state directory, on the simulated line its
+    seed and measuring path, and, when the stripe step chose one, its exposure."""
     cell = ctx.cell()
     service = dataclasses.replace(cell.service, state_dir=str(ctx.state.root.resolve()))
     tolerance = ctx.cfg.commission.tolerance_mm
     if tolerance > 0:  # the plant's tolerance sets the limit of the U95 the service vouches for
         service = dataclasses.replace(service, accuracy_limit_mm=accuracy_limit_of(tolerance))
     cell = dataclasses.replace(cell, service=service)
+    if ctx.truth is not None:  # the simulated cell: its seed and path, for `run --sim` later
+        simulation = dataclasses.replace(
+            cell.simulation, seed=ctx.truth.seed, geometric=ctx.truth.geometric
+        )
+        cell = dataclasses.replace(cell, simulation=simulation)
     stripe = ctx.path(STRIPE_FILE)
     if stripe.exists():
         exposure = float(read_json(stripe)["chosen"]["exposure_us"])

@@ -113,6 +113,9 @@ class SpheresSection(Section):
 class SimulationSection(Section):
     name = "simulation"
     seed: int = opt(0, lo=0, hi=2**32 - 1)
+    # how a simulated commissioning measured (`rvis commission --sim --geometric`): `rvis run
+    # --sim` on its directory measures the same way unless told
+    geometric: bool = opt(False)
     tracker_noise_mm: float = opt(0.01, lo=0, hi=10)
     # the defaults of these two are fakes.cell.SimSettings' (its docstring says why; a test
     # pins them equal): the geometric sensor's own noise, the robot's ISO 9283 RP (0: exact)

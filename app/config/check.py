@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
+from pathlib import Path
 from typing import Any, get_type_hints
 
 from app.config.section import SectionProblem, range_problem
@@ -105,3 +106,24 @@ class SectionReader:
 def _hint(word: str, known: tuple[str, ...]) -> str:
     close = difflib.get_close_matches(word, known, n=1, cutoff=0.6)
     return f" (did you mean '{close[0]}'?)" if close else ""
+
+
+def in_cell_file(exc: InputError, path: str | Path | None) -> InputError:
+    """A problem found with a cell file's setting after it was read (a group that does not
+    exist on this machine, `[service] engineers_group`) located in the file: its path and the
+    setting's line; `exc` itself when it names a file already or is not a setting's."""
+    import re
+
+    from app.config.tomlfile import key_lines
+
+    m = re.fullmatch(r"\[(\w+)\] (\w+)", exc.field or "")
+    if exc.file is not None or m is None or path is None:
+        return exc
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except OSError:
+        return exc
+    line = key_lines(text).get((m.group(1), m.group(2)))
+    if line is None:
+        return exc
+    return InputError(f"[{m.group(1)}] {m.group(2)}: {exc.reason}", file=path, line=line)

@@ -205,7 +205,12 @@ class WindowReport:
     note: str = ""
 
     def to_json(self) -> dict[str, object]:
-        return dict(self.__dict__)
+        """The `window` event's fields: `withdrawn` a boolean (as the counters count it), its
+        reason apart (`withdrawn_reason`, null when the window was not withdrawn)."""
+        out: dict[str, object] = dict(self.__dict__)
+        out["withdrawn"] = bool(self.withdrawn)
+        out["withdrawn_reason"] = self.withdrawn or None
+        return out
 
 
 class Cycle:

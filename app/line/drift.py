@@ -215,11 +215,12 @@ class Chart:
         for k in _CHART_FIELDS:
             setattr(self, k, doc.get(k, older[k]) if k in older else doc[k])
 
-    def state(self) -> dict[str, float | bool]:
+    def state(self) -> dict[str, float | bool | None]:
         return {
             "mu_mm": self.mu,
             "sigma_mm": self.sigma,
-            "ewma_mm": self.z,
+            "ewma_mm": self.z if self.ready else None,  # None while it learns its baseline
+            "learning": not self.ready,
             "cusum_mm": self.s_hi,
             "drifting": self.drifting,
         }
@@ -294,7 +295,7 @@ class ChartFamily:
     def drifting(self) -> bool:
         return any(c.drifting for c in self.charts.values())
 
-    def state(self) -> dict[str, dict[str, float | bool]]:
+    def state(self) -> dict[str, dict[str, float | bool | None]]:
         return {k: c.state() for k, c in list(self.charts.items())}  # read by other threads
 
     def to_json(self) -> dict[str, dict[str, Any]]:
@@ -380,10 +381,10 @@ class DriftMonitor:
         self.residual.load_json(doc["residual"])
         self.change.load_json(doc["change"])
 
-    def state(self) -> dict[str, dict[str, float | bool]]:
+    def state(self) -> dict[str, dict[str, float | bool | None]]:
         """The residual charts (the status reply's `drift`)."""
         return self.residual.state()
 
-    def change_state(self) -> dict[str, dict[str, float | bool]]:
+    def change_state(self) -> dict[str, dict[str, float | bool | None]]:
         """The change charts (the status reply's `drift_change`)."""
         return self.change.state()

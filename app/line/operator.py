@@ -217,9 +217,12 @@ class Operator:
 
     def _pending_id(self, args: dict[str, Any]) -> int:
         svc = self.svc
-        cal_id = _int(args, "calibration") if "calibration" in args else svc.pending_calibration
-        if cal_id is None or cal_id != svc.pending_calibration:
-            raise CommandError(f"calibration {cal_id} is not pending")
+        pending = svc.pending_calibration
+        if pending is None:
+            raise CommandError("no calibration is pending: nothing to approve or reject")
+        cal_id = _int(args, "calibration") if "calibration" in args else pending
+        if cal_id != pending:
+            raise CommandError(f"calibration {cal_id} is not pending (calibration {pending} is)")
         return cal_id
 
     def _cmd_approve(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:

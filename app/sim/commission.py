@@ -10,6 +10,7 @@ report (the true error of a calibration at the line's validation positions; neve
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import replace
 from pathlib import Path
@@ -36,7 +37,16 @@ F64 = NDArray[np.float64]
 class SimCommissioning:
     """`with SimCommissioning(cfg, seed, geometric=True) as sim: sim.urls ...`"""
 
-    def __init__(self, cfg: CellConfig, seed: int, *, geometric: bool) -> None:
+    def __init__(
+        self,
+        cfg: CellConfig,
+        seed: int,
+        *,
+        geometric: bool,
+        waiting: Callable[[str], None] | None = None,
+    ) -> None:
+        """waiting: told in one line, at once, when the simulated camera must wait for another
+        simulation's (which it then does for as long as that one runs)."""
         self.cfg, self.seed, self.geometric = cfg, seed, geometric
         self.cell = make_cell(cfg, seed=seed)
         # the line of `rvis run --sim`, steady, with its camera either way; on a scaled wall
@@ -46,6 +56,8 @@ class SimCommissioning:
         settings = replace(
             line, warmup=None, knock=None, camera=True, clock="scaled", scale=cfg.simline.scale
         )
+        if waiting is not None:
+            settings = replace(settings, camera_wait_s=None, camera_on_wait=waiting)
         self.line = SimLine(self.cell, settings)
         self._stack = ExitStack()
         self.station: Any = None

@@ -122,20 +122,28 @@ def simline_settings(
     )
 
 
-def continued_epoch(state_dir: Path, start_epoch: float | None = None) -> float:
-    """The Unix time a simulated line's clock starts at: `start_epoch` (default now), or just
-    after the last time the state directory's database records when that is later (a run
-    before ran ahead)."""
+def continued_epoch(state_dir: Path, start_epoch: float | None = None) -> tuple[float, float]:
+    """(the Unix time a simulated line's clock starts at, the world's time then [s]).
+
+    The clock starts at `start_epoch` (default now), or just after the last time the state
+    directory's database records when that is later (a run before ran ahead). The world
+    continues where the last run left it: its time is the span from the first simulated
+    line's start on this directory (its first `started` event) to the end of its history (the
+    world stands while no line runs), 0 on a new directory."""
     now = time.time() if start_epoch is None else start_epoch
     db = StateDir(state_dir).db
     if not db.is_file():
-        return now
+        return now, 0.0
     store = Store.read_only(db)
     try:
         last = store.last_time()
+        started = store.events("started")
     finally:
         store.close()
-    return now if last is None else max(now, last + 1.0)
+    if last is None:
+        return now, 0.0
+    world_s = last + 1.0 - float(started[0]["t"]) if started else 0.0
+    return max(now, last + 1.0), max(world_s, 0.0)
 
 
 def with_simulated_plc(cfg: CellConfig) -> CellConfig:
@@ -236,19 +244,24 @@ class SimulatedLineRun:
         sensor_model: SensorModel | None = None,
         pace: float | None = None,
         start_epoch: float | None = None,
+        waiting: Callable[[str], None] | None = None,
     ) -> None:
         """sensor_model: the sensor calibration the rendered line measures with (default: the
         true sensor's, a perfect calibration); unused on the geometric path. pace: sim seconds
         per real second (None: as fast as the CPU); start_epoch: the Unix time of sim time 0
-        (None: now, to the whole second)."""
+        (None: now, to the whole second); waiting: told in one line, at once, when the rendered
+        line's camera must wait for another simulation's (as long as that one runs)."""
         cfg = with_simulated_plc(cfg)
         self.cfg, self.state_dir, self.seed = cfg, Path(state_dir), seed
         self.cell = make_cell(cfg, seed=seed)
         # the service's clock never goes back: on a state directory with a history, the
         # simulated line's time starts where that history ends (else its records would
         # interleave with an earlier run's, which ran ahead of the wall clock)
-        epoch = continued_epoch(self.state_dir, start_epoch)
+        epoch, world_s = continued_epoch(self.state_dir, start_epoch)
         setup = simline_settings(cfg, geometric=geometric, pace=pace, start_epoch=epoch)
+        setup = dataclasses.replace(setup, world_s=world_s)  # warm, knocked, counted as left
+        if waiting is not None:
+            setup = dataclasses.replace(setup, camera_wait_s=None, camera_on_wait=waiting)
         self.line = SimLine(self.cell, setup)
         self.pace = pace
         self.settings = service_settings(cfg, self.state_dir)

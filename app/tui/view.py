@@ -304,7 +304,7 @@ def event_text(kind: Any, detail: Any) -> str:
             f"window {g('window')}: slots {g('slots')}, measured {g('measured')},"
             f" rejected {g('rejected')}"
             + (" OVERRUN" if g("overrun") else "")
-            + (f", withdrawn ({g('withdrawn')})" if g("withdrawn") else "")
+            + (f", withdrawn ({g('withdrawn_reason')})" if g("withdrawn") else "")
             + (f", {g('note')}" if g("note") else "")
         ),
         "measurement": lambda: (

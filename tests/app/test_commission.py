@@ -33,9 +33,12 @@ STRICT = "[commission]\nmax_validation_rmse_mm = 0.001\n"
 TOLERANCE = "[commission]\ntolerance_mm = 1.0\n"  # a body tolerance of +-0.5 mm
 
 
+SEED = 9  # not the cell file's [simulation] seed (0): the directory must keep it
+
+
 def _commission(cell: Path, state: Path) -> list[str]:
-    return ["commission", "--sim", "--geometric", "--yes", "--cell", str(cell),
-            "--state-dir", str(state)]  # fmt: skip
+    return ["commission", "--sim", "--geometric", "--seed", str(SEED), "--yes", "--cell",
+            str(cell), "--state-dir", str(state)]  # fmt: skip
 
 
 def kill_at(argv: list[str], marker: str, timeout_s: float = 600.0) -> list[str]:
@@ -150,6 +153,8 @@ def test_commissioning_resumes_after_a_kill_and_leaves_a_cell_ready_to_run(
     assert set(cfg.spheres_part_mm) == {"P1", "P2", "P3", "P4"} and cfg.spheres.frame == "part"
     assert cfg.line.plc_temperature  # the simulated line's PLC provides it
     assert cfg.service.accuracy_limit_mm == pytest.approx(0.15)  # from the tolerance
+    # the simulated cell it was commissioned on, and how it was measured (issue 40 item 3)
+    assert cfg.simulation.seed == SEED and cfg.simulation.geometric
     version, _, x = ParamsStore(state).current()  # type: ignore[misc]
     assert version == 1 and paths.plan.is_file() and paths.sensor.is_file()
     np.testing.assert_array_equal(x, from_json(paths.commission / "params.json")[1])
@@ -168,6 +173,14 @@ def test_commissioning_resumes_after_a_kill_and_leaves_a_cell_ready_to_run(
     summary = json.loads(capsys.readouterr().out)
     assert summary["measurements"] == 2 and summary["true_rmse_start_mm"] < 0.1
     assert ParamsStore(state).current_version() == 1  # it started from the commissioning
+    # the directory alone runs its own cell, measured as commissioned (no --seed, --geometric);
+    # another seed is another cell: one line, exit 2
+    alone = ["run", "--sim", "--windows", "1", "--json", "--state-dir", str(state)]
+    assert main(alone) == 0
+    assert json.loads(capsys.readouterr().out)["true_rmse_start_mm"] < 0.1
+    assert main([*alone, "--seed", "3"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "cell.toml" in err and "seed 9" in err and len(err.splitlines()) == 1
 
 
 def test_the_engineer_stops_it_and_a_journal_of_another_set_up_is_refused(

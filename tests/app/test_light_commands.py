@@ -118,6 +118,27 @@ def test_status_without_a_service_reads_the_database_only(state: StateDir) -> No
     assert run.heavy() == set()
 
 
+def test_status_while_a_service_starts_and_on_a_file(state: StateDir, tmp_path: Path) -> None:
+    """Issue 40: while a service holds the directory's lock and its socket is not up yet (the
+    simulated line computes its world for ~20 s) status said "not running"; on a file it
+    exited 1."""
+    from app.line.statedir import ServiceLock
+
+    with ServiceLock(state):
+        run = rvis("status", "--state-dir", str(state.root))
+        assert run.code == 0, run.err
+        assert run.out.startswith(f"state               starting (pid {os.getpid()})")
+        doc = json.loads(rvis("status", "--json", "--state-dir", str(state.root)).out)
+        assert doc == {"state": "starting", "pid": os.getpid(), "socket": False}
+    assert "not running" in rvis("status", "--state-dir", str(state.root)).out
+    a_file = tmp_path / "a-file"
+    a_file.write_text("")
+    run = rvis("status", "--state-dir", str(a_file))
+    assert run.code == 2 and run.err == [
+        f"rvis status: error: {a_file}: not a state directory (a file)"
+    ]
+
+
 def test_status_in_the_default_state_directory_loads_no_cell_file(state: StateDir) -> None:
     run = rvis("status", cwd=state.root.parent)  # ./rvis-state, the default
     assert run.code == 0, run.err
@@ -161,6 +182,7 @@ def test_plain_status_says_the_step_temperature_devices_and_drift(
             "*": {**chart, "ewma_mm": 0.0131, "drifting": False},
             "P2": {**chart, "ewma_mm": 0.0412, "drifting": True},
             "P1": {**chart, "ewma_mm": None, "drifting": False},
+            "P3": {**chart, "ewma_mm": None, "learning": True, "drifting": False},
         },
         "measurements": {"ok": 12, "rejected": 1},
         "alarms": [],
@@ -173,7 +195,7 @@ def test_plain_status_says_the_step_temperature_devices_and_drift(
     assert "devices             robot ok, plc no heartbeat" in lines
     assert "  plc: last error PlcTimeout: no answer (2026-11-25T06:00:00Z)" in lines
     assert (
-        "drift               EWMA of the residual, mm: all 0.013, P1 -, P2 0.041;"
+        "drift               EWMA of the residual, mm: all 0.013, P1 -, P2 0.041, P3 learning;"
         " drifting: P2" in lines
     )
     service.status = {**service.status, "cell_temp_c": None}

@@ -77,9 +77,22 @@ def test_run_without_a_plan_names_the_file(
 ) -> None:
     code, _, err = _cli(capsys, ["run", "--state-dir", str(tmp_path)])
     assert code == 2
-    assert (
-        err.strip() == f"rvis run: error: {tmp_path / 'plan.json'}: no plan file (write one "
-        "with `rvis plan --out ...`)"
+    # an empty state directory is one to commission (issue 40: it was told to run `rvis plan`)
+    assert err.strip().startswith(f"rvis run: error: {tmp_path / 'plan.json'}: no plan file")
+    assert "rvis commission --state-dir" in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_group_that_does_not_exist_is_named_in_the_cell_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 40: a wrong `[service] engineers_group` had no file and line."""
+    cell = tmp_path / "cell.toml"
+    cell.write_text('[simline]\nwarmup_k = 0.0\n\n[service]\nengineers_group = "no-such-grp"\n')
+    argv = ["run", "--sim", "--geometric", "--windows", "1", "--cell", str(cell)]
+    code, _, err = _cli(capsys, [*argv, "--state-dir", str(tmp_path / "state")])
+    assert code == 2
+    assert err.strip() == (
+        f"rvis run: error: {cell}:5: [service] engineers_group: no such group 'no-such-grp'"
     )
 
 

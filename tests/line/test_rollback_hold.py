@@ -137,3 +137,17 @@ def test_a_rollback_in_approve_mode_changes_nothing_else(tmp_path: Path, lines: 
         "held": False,
     }
     assert ln.service.status()["auto_hold"] is None
+
+
+def test_approve_or_reject_with_nothing_pending_says_so(tmp_path: Path, lines: list[Line]) -> None:
+    """Issue 40's words: `ctl approve` with nothing pending said "calibration None"."""
+    ln = two_versions(tmp_path, lines, recalib=RecalibSettings(mode="approve", estimator="batch"))
+    for cmd in ("approve", "reject"):
+        reply = command(ln, cmd, **ENGINEER)
+        assert not reply["ok"], reply
+        assert "no calibration is pending" in str(reply) and "None" not in str(reply)
+    candidate(ln)
+    pending = ln.service.pending_calibration
+    assert pending is not None
+    reply = command(ln, "reject", {"calibration": pending + 5}, **ENGINEER)
+    assert not reply["ok"] and f"calibration {pending} is" in str(reply)

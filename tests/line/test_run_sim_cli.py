@@ -74,3 +74,28 @@ def test_a_restarted_simulated_line_continues_the_services_clock(
         started = db.execute("SELECT t FROM events WHERE kind = 'started' ORDER BY id").fetchall()
     assert len(started) == 2 and started[1][0] > first_last
     assert times == sorted(times)  # never back in time
+
+
+def test_a_restarted_simulated_line_continues_its_world(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Run again on the same state directory, the simulated line continues the world the last
+    run left (issue 40 item 3): the cell as warm as it was (not cold at its ambient again, which
+    the service would flag as a step of the cell's), and the PLC's body count goes on (no body
+    id given twice)."""
+    state = tmp_path / "state"
+    state.mkdir()
+    (state / "cell.toml").write_text("[simline]\nwarmup_k = 8.0\nwarmup_tau_s = 300.0\n")
+    run = ["run", "--sim", "--geometric", "--windows", "4", "--json", "--state-dir", str(state)]
+    assert main(run) == 0
+    first = [r["temp_c"] for r in json.loads(capsys.readouterr().out)["timeline"]]
+    with sqlite3.connect(state / "rvis.db") as db:
+        bodies_1 = [r[0] for r in db.execute("SELECT body_id FROM windows ORDER BY id")]
+    assert main(run) == 0
+    second = [r["temp_c"] for r in json.loads(capsys.readouterr().out)["timeline"]]
+    with sqlite3.connect(state / "rvis.db") as db:
+        bodies = [r[0] for r in db.execute("SELECT body_id FROM windows ORDER BY id")]
+    assert first[-1] > first[0] + 1.0  # it warmed up (4 windows of 60 s, tau 300 s)
+    assert second[0] >= first[-1] and second[-1] > second[0]  # warm as left, warming on
+    assert len(bodies) == 2 * len(bodies_1) == 8
+    assert len(set(bodies)) == len(bodies) and bodies == sorted(bodies)

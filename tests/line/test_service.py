@@ -91,7 +91,8 @@ def test_a_withdrawn_window_aborts_and_brings_the_robot_home(
     lines.append(ln)
     ln.plc.withdraw_on_motion = True
     (report,) = ln.start().windows(1)
-    assert report["withdrawn"] == "window withdrawn" and report["measured"] == 0
+    assert report["withdrawn"] is True and report["withdrawn_reason"] == "window withdrawn"
+    assert report["measured"] == 0
     assert not report["overrun"]
     ln.plc.withdraw_on_motion = False
     # the service carries on: the first window not withdrawn measures (on a loaded machine the
