@@ -168,7 +168,8 @@ def test_rvis_run_on_a_port_in_use_exits_2_with_one_line(tmp_path: Path) -> None
     lines = out.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in out.stderr, out.stderr
     said = f"cannot listen at {url}: port {port} is in use by another program"
-    assert lines[0] == f"rvis run: error: field '[opcua] endpoint': {said}"
+    # named where it is set: the cell file's line (app.config.check.in_cell_file)
+    assert lines[0] == f"rvis run: error: {cell}:6: [opcua] endpoint: {said}"
 
 
 def test_backup_and_restore_keep_the_cells_opcua_identity(
