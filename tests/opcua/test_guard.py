@@ -7,29 +7,18 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
-import logging
 import os
 import signal
 import socket
 import struct
-import threading
 import time
-from collections.abc import Iterator
 
-import pytest
 from asyncua import Client, ua
 
 from app.line.opcua.server import OpcUaServer
 from app.sim.line_run import SimulatedLineRun
-from tests.opcua.conftest import Servers, child, free_port, machine_node
-
-
-def hello_message(url: str, size_claimed: int | None = None) -> bytes:
-    """A Hello; with `size_claimed`, its header claims that size (the rest never comes)."""
-    endpoint = url.encode()
-    body = struct.pack("<IIIIIi", 0, 65535, 65535, 0, 0, len(endpoint)) + endpoint
-    size = 8 + len(body) if size_claimed is None else size_claimed
-    return struct.pack("<3scI", b"HEL", b"F", size) + body
+from tests.opcua.conftest import Records, Servers, child, free_port, machine_node
+from tests.opcua.peers import error_code, hello_message
 
 
 def exchange(
@@ -62,40 +51,6 @@ def exchange(
         except OSError:
             pass  # a reset after the ERR
     return answer, time.monotonic() - t0
-
-
-def error_code(answer: bytes) -> int:
-    assert answer[:4] == b"ERRF", answer[:16]
-    code: int = struct.unpack_from("<I", answer, 8)[0]
-    return code
-
-
-class Records(logging.Handler):
-    """The OPC UA log records of this process (the server process's are logged here)."""
-
-    def __init__(self) -> None:
-        super().__init__(logging.DEBUG)
-        self.records: list[logging.LogRecord] = []
-        self.refused = threading.Event()
-
-    def emit(self, record: logging.LogRecord) -> None:
-        self.records.append(record)
-        if "refused" in record.getMessage():
-            self.refused.set()
-
-
-@pytest.fixture
-def records() -> Iterator[Records]:
-    handler = Records()
-    logger = logging.getLogger("rvis.line.opcua")
-    old = logger.level
-    logger.setLevel(logging.DEBUG)
-    logger.addHandler(handler)
-    try:
-        yield handler
-    finally:
-        logger.removeHandler(handler)
-        logger.setLevel(old)
 
 
 def test_oversized_and_malformed_messages_get_err_and_are_closed(
