@@ -21,6 +21,7 @@ import pytest
 from asyncua import Client, Node, ua
 
 from app.config import load_cell
+from app.config.line import OpcUaSettings
 from app.line.launch import hold_state, serving
 from app.line.opcua.server import OpcUaServer
 from app.line.opcua.space import NS_MACHINERY, NS_RVIS
@@ -45,6 +46,14 @@ def free_port() -> int:
         s.bind(("127.0.0.1", 0))
         port: int = s.getsockname()[1]
         return port
+
+
+def own_server(run: SimulatedLineRun, **changes: Any) -> tuple[str, OpcUaSettings]:
+    """A loopback endpoint on a free port and the run's [opcua] settings for a server there
+    (enabled; `changes` on top)."""
+    url = f"opc.tcp://127.0.0.1:{free_port()}/rvis"
+    opcua = replace(run.service.settings.opcua, enabled=True, endpoint=url, **changes)
+    return url, opcua
 
 
 @pytest.fixture(scope="package")

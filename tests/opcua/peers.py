@@ -19,7 +19,9 @@ from pathlib import Path
 from asyncua import Client, ua
 from asyncua.common.connection import SecureConnection, TransportLimits
 from asyncua.crypto import security_policies
+from asyncua.crypto.cert_gen import setup_self_signed_certificate
 from asyncua.ua.ua_binary import struct_to_binary
+from cryptography.x509.oid import ExtendedKeyUsageOID
 
 from app.line.opcua.space import NS_MACHINERY, NS_RVIS
 
@@ -137,6 +139,16 @@ class Holder:
             for key in list(selector.get_map().values()):
                 with contextlib.suppress(OSError):
                     key.fileobj.close()  # type: ignore[union-attr]
+
+
+async def client_certificate(folder: Path, name: str) -> tuple[Path, Path]:
+    """A client's self-signed application certificate and key in `folder` (NAME.der,
+    NAME.pem; its application URI urn:test:NAME, as `read_state` names it)."""
+    cert, key = folder / f"{name}.der", folder / f"{name}.pem"
+    await setup_self_signed_certificate(
+        key, cert, f"urn:test:{name}", "localhost", [ExtendedKeyUsageOID.CLIENT_AUTH], {}
+    )
+    return cert, key
 
 
 async def read_state(

@@ -8,7 +8,6 @@ line per peer per 10 s."""
 from __future__ import annotations
 
 import asyncio
-import dataclasses
 import logging
 import math
 import re
@@ -21,16 +20,15 @@ from pathlib import Path
 
 import pytest
 from asyncua import ua
-from asyncua.crypto.cert_gen import setup_self_signed_certificate
-from cryptography.x509.oid import ExtendedKeyUsageOID
 
 from app.line.opcua import guard
 from app.line.opcua.server import OpcUaServer
 from app.line.statedir import StateDir
 from app.sim.line_run import SimulatedLineRun
-from tests.opcua.conftest import Records, free_port
+from tests.opcua.conftest import Records, own_server
 from tests.opcua.peers import (
     Holder,
+    client_certificate,
     error_code,
     hello_message,
     open_none_channel_message,
@@ -47,8 +45,7 @@ OTHER_HOSTS = tuple(f"127.0.0.{i}" for i in range(2, 7))  # 5 x 16 = 80: the ser
 @pytest.fixture(scope="module")
 def own_url(line: SimulatedLineRun) -> Iterator[str]:
     """An OPC UA server of this module's own (the package's servers are left in peace)."""
-    url = f"opc.tcp://127.0.0.1:{free_port()}/rvis"
-    settings = dataclasses.replace(line.service.settings.opcua, enabled=True, endpoint=url)
+    url, settings = own_server(line)
     with OpcUaServer(line.service, settings):
         yield url
 
@@ -123,23 +120,12 @@ def test_asyncua_records_of_a_peer_are_counted_and_rate_limited(records: Records
     assert quiet.filter(mine)
 
 
-async def _client_cert(folder: Path, name: str) -> tuple[Path, Path]:
-    cert, key = folder / f"{name}.der", folder / f"{name}.pem"
-    await setup_self_signed_certificate(
-        key, cert, f"urn:test:{name}", "localhost", [ExtendedKeyUsageOID.CLIENT_AUTH], {}
-    )
-    return cert, key
-
-
 def test_the_secure_only_endpoint_opens_no_unencrypted_channel(
     line: SimulatedLineRun, tmp_path: Path
 ) -> None:
-    url = f"opc.tcp://127.0.0.1:{free_port()}/rvis"
-    settings = dataclasses.replace(
-        line.service.settings.opcua, enabled=True, endpoint=url, security_policy="Basic256Sha256"
-    )
+    url, settings = own_server(line, security_policy="Basic256Sha256")
     paths = StateDir(line.service.settings.state_dir)
-    cert, key = asyncio.run(_client_cert(tmp_path, "historian"))
+    cert, key = asyncio.run(client_certificate(tmp_path, "historian"))
     paths.opcua_trusted.mkdir(parents=True, exist_ok=True)
     shutil.copy(cert, paths.opcua_trusted / cert.name)
     secured = {"cert": cert, "key": key, "server_cert": paths.opcua_cert}

@@ -17,17 +17,19 @@ and one log line, then closes the connection:
 So a connection holds at most one chunk (64 KiB by default) here and RECEIVE_BUFFER_BYTES in
 the kernel, and the messages it assembles are bounded by `limits()`.
 
-The connections (`Admission`): at most MAX_PER_PEER from one peer address and MAX_CONNECTIONS
-in all. A connection that would pass either cap takes the place of the least advanced one
-without an activated session (of that peer, or of the whole server: no Hello yet < Hello <
-secure channel < session not activated; the peer with the most connections, then the oldest,
-first), which gets Bad_TcpServerTooBusy; it is refused only when every one has an activated
-session. So a peer that holds sockets and reopens each one the server closes keeps evicting its
-own idle sockets, never a client that is further on. A connection must send its Hello within
-HELLO_S, have its secure channel open within CHANNEL_S and its session activated within
-ACTIVATION_S of its accept (Bad_Timeout). A server that offers only a signing-and-encrypting
-policy refuses an OpenSecureChannel with SecurityPolicy None (Bad_SecurityPolicyRejected), so
-it never opens an unencrypted channel (asyncua 2.1.0 falls back to its None policy).
+The connections (`admit`): at most MAX_PER_PEER from one peer address and MAX_CONNECTIONS in
+all. A connection that would pass either cap takes the place of the least advanced one without
+an activated session (of that peer, or of the whole server: no Hello yet < Hello < secure
+channel < session not activated, a connection in its first HELLO_GRACE_S counted as one whose
+Hello came; then the peer with the most connections, then the oldest), which gets
+Bad_TcpServerTooBusy (after a hold: `evict`); the new one is refused only when every one has an
+activated session. So a peer that holds sockets and reopens each one the server closes keeps
+evicting its own idle sockets, never a client that is further on. A connection must send its
+Hello within HELLO_S, have its secure channel open within CHANNEL_S and its session activated
+within ACTIVATION_S of its accept (Bad_Timeout). A server that offers only a signing-and-
+encrypting policy refuses an OpenSecureChannel with SecurityPolicy None
+(Bad_SecurityPolicyRejected), so it never opens an unencrypted channel (asyncua 2.1.0 falls
+back to its None policy).
 
 Every refusal is counted (`REFUSALS.counts`) and logged at most once per LOG_EVERY_S per peer
 host (with the number refused meanwhile), asyncua's own records of a peer's connection too
@@ -66,6 +68,7 @@ RECEIVE_BUFFER_BYTES = 2 * 65536  # two chunks in flight (the kernel's, per conn
 MAX_CONNECTIONS = 64  # a cell's clients: SCADA, MES, a historian, engineering tools
 MAX_PER_PEER = 16  # from one address (every client on the cell's computer is one: 127.0.0.1)
 HELLO_S = 2.0  # a connection that sent no Hello is closed this long after its accept
+HELLO_GRACE_S = 0.5  # ... and is evicted as one without a Hello only after this
 CHANNEL_S = 5.0  # ... without an open secure channel (an RSA handshake takes milliseconds)
 ACTIVATION_S = 10.0  # ... without an activated session
 MAX_HELD = 4 * MAX_CONNECTIONS  # evicted connections held open (unread) for HOLD_S
@@ -210,6 +213,14 @@ class GuardedProtocol(binary_server_asyncio.OPCUAProtocol):
             return CHANNEL
         return ACTIVE if session.is_activated() else SESSION
 
+    def rank(self, now: float) -> int:
+        """`progress()` as eviction sees it: in its first HELLO_GRACE_S a connection counts as
+        one whose Hello came (it may be on its way: a client's Hello follows its connect at
+        once, but the server reads it only after the accepts queued before it)."""
+        progress = self.progress()
+        young = now - self.accepted_at < HELLO_GRACE_S
+        return HELLO if progress == CONNECTED and young else progress
+
     def _check(self, stage: int) -> None:
         """Closed when it did not get as far as DEADLINES[stage] asks by then."""
         after_s, needed, what = DEADLINES[stage]
@@ -348,7 +359,8 @@ def admit(clients: Sequence[GuardedProtocol], host: str) -> str:
     if not idle:
         return f"{why}, each with an activated session"
     per_host = Counter(c.host for c in clients)
-    min(idle, key=lambda c: (c.progress(), -per_host[c.host], c.accepted_at)).evict(why)
+    now = time.monotonic()
+    min(idle, key=lambda c: (c.rank(now), -per_host[c.host], c.accepted_at)).evict(why)
     return ""
 
 
