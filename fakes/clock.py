@@ -12,10 +12,14 @@ reads it, or registers a callback with ``call_at`` that runs at its sim time in 
 that makes time pass then (the window watch, the fault scheduler). One thread passes time at a
 time, and that is enforced: a thread that would make time pass while another one is doing so
 gets ``ConcurrentMover`` (a callback that makes time pass from within the passing, in the same
-thread, is fine). No lock is held while a paced clock waits for the wall clock. So the outcome
-of a run depends on the seed and the settings alone, not on how fast the machine computed. With
-``pace=`` (sim s per real s) each passing also waits for the wall clock, for a person who
-watches; what happens is the same, only later (a machine too slow for the pace lags behind).
+thread, is fine). No lock is held while a paced clock waits for the wall clock. The rendered
+line is the exception (``strict=False``): its fake camera charges each frame from Aravis's
+thread while the service drives the DAC, whose server thread charges the mirror's settling, so
+there a second mover waits for its turn (the order of two turns then depends on the threads).
+So the outcome of a (geometric) run depends on the seed and the settings alone, not on how fast
+the machine computed. With ``pace=`` (sim s per real s) each passing also waits for the wall
+clock, for a person who watches; what happens is the same, only later (a machine too slow for
+the pace lags behind).
 
 ``ScaledClock(scale)`` runs ``scale`` sim seconds per real second (60: one sim minute per real
 second) from sim time 0 at construction (or at ``start()``, with ``started=False``: it stands at
@@ -76,15 +80,22 @@ class VirtualClock:
 
     start_epoch: the Unix time [s] that sim time 0 stands for (default: now, to the whole
     second, so that sim epoch times less the epoch are the same numbers in every run);
-    pace: sim seconds per real second while time passes (None: as fast as the CPU)."""
+    pace: sim seconds per real second while time passes (None: as fast as the CPU);
+    strict: a thread that would make time pass while another one does gets ConcurrentMover
+    (False: it waits for its turn, holding no lock meanwhile: for a line whose peers charge
+    durations from threads of their own at the same time, the rendered line's camera and
+    DAC)."""
 
-    def __init__(self, start_epoch: float | None = None, *, pace: float | None = None) -> None:
+    def __init__(
+        self, start_epoch: float | None = None, *, pace: float | None = None, strict: bool = True
+    ) -> None:
         if pace is not None and not (pace > 0 and pace < math.inf):
             raise ValueError(f"clock pace must be a positive number, got {pace!r}")
         self.start_epoch = float(int(time.time())) if start_epoch is None else float(start_epoch)
         self.pace = None if pace is None else float(pace)
         self._now = 0.0
-        self._owner_lock = threading.Lock()  # guards the two below (held for no wait)
+        self.strict = strict
+        self._turn = threading.Condition()  # guards the two below (held for no wait)
         self._owner: threading.Thread | None = None  # the thread passing time now
         self._depth = 0  # its passings, one inside another (a callback that passes time)
         self._timers_lock = threading.Lock()
@@ -113,24 +124,27 @@ class VirtualClock:
 
     @contextlib.contextmanager
     def _moving(self) -> Iterator[None]:
-        """This thread passes time (again, when it already does); ConcurrentMover when another
-        thread does."""
+        """This thread passes time (again, when it already does); when another thread does,
+        ConcurrentMover (strict) or a wait for its turn (no lock held while waiting)."""
         me = threading.current_thread()
-        with self._owner_lock:
-            if self._owner is not None and self._owner is not me:
+        with self._turn:
+            if self._owner is not None and self._owner is not me and self.strict:
                 raise ConcurrentMover(
                     f"thread {me.name!r} cannot make time pass: thread {self._owner.name!r} is "
                     "making it pass (one thread at a time)"
                 )
+            while self._owner is not None and self._owner is not me:
+                self._turn.wait()
             self._owner = me
             self._depth += 1
         try:
             yield
         finally:
-            with self._owner_lock:
+            with self._turn:
                 self._depth -= 1
                 if self._depth == 0:
                     self._owner = None
+                    self._turn.notify_all()
 
     # -- callbacks at a sim time --------------------------------------------------------------
     def call_at(self, t: float, fn: Callable[[], None]) -> _Timer:

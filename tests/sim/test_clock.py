@@ -221,3 +221,33 @@ def test_a_paced_wait_holds_no_lock() -> None:
     stop.set()  # ...unless stopped
     first.join(10)
     assert not first.is_alive() and clock.monotonic() < 60.0
+
+
+def test_a_clock_that_is_not_strict_makes_a_second_mover_wait_its_turn() -> None:
+    """strict=False (the rendered line's peers): the second mover waits, holding nothing, and
+    passes its time once the first is done."""
+    clock = VirtualClock(strict=False)
+    inside, release = threading.Event(), threading.Event()
+
+    def hold() -> None:  # the first mover's callback at sim time 1.0
+        inside.set()
+        assert release.wait(10)
+
+    clock.call_at(1.0, hold)
+    first = threading.Thread(target=clock.elapse, args=(2.0,), name="first")
+    first.start()
+    assert inside.wait(10)
+    done = threading.Event()
+
+    def second_mover() -> None:
+        clock.elapse(0.5)
+        done.set()
+
+    second = threading.Thread(target=second_mover, name="second")
+    second.start()
+    assert clock.monotonic() == 1.0 and not done.is_set()  # the first holds the turn
+    release.set()
+    assert done.wait(10)
+    first.join(10)
+    second.join(10)
+    assert clock.monotonic() == 2.5 and clock.passed_s == 2.5
