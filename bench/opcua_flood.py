@@ -110,10 +110,11 @@ def peer(url: str, seconds: float, index: int) -> dict[str, Any]:
 class Service:
     """`rvis run --sim --geometric` from `root` with OPC UA on `url`; its log lines."""
 
-    def __init__(self, root: Path, tmp: Path, url: str) -> None:
+    def __init__(self, root: Path, tmp: Path, url: str, opcua: str = "") -> None:
+        """opcua: more lines of the [opcua] section (a security policy, ...)."""
         cell = tmp / "cell.toml"
         cell.write_text(
-            f'[opcua]\nenabled = true\nendpoint = "{url}"\nmachine_name = "flood-cell"\n',
+            f'[opcua]\nenabled = true\nendpoint = "{url}"\nmachine_name = "flood-cell"\n{opcua}',
             encoding="utf-8",
         )
         self.state = tmp / "state"
@@ -248,7 +249,11 @@ class Phase:
         self.child_cpu0 = self.child_cpu1 = 0.0
         self.t0 = self.t1 = 0.0
 
-    def run(self, seconds: float, during: Callable[[], None] | None = None) -> None:
+    def run(
+        self, seconds: float, during: Callable[[], None] | None = None, commands: bool = True
+    ) -> None:
+        """Sample for `seconds`, `during()` called at the start; `rvis status` run as a command
+        every second unless not `commands` (a Python start-up each: CPU of its own)."""
         svc = self.svc
         pid = svc.proc.pid
         kids = svc.children()
@@ -259,12 +264,13 @@ class Phase:
             during()
         stop = threading.Event()
 
-        def commands() -> None:
+        def run_commands() -> None:
             while not stop.wait(1.0):
                 self.command.append(svc.status_command_s())
 
-        worker = threading.Thread(target=commands, daemon=True)
-        worker.start()
+        worker = threading.Thread(target=run_commands, daemon=True)
+        if commands:
+            worker.start()
         deadline = self.t0 + seconds
         next_rss = self.t0
         while (now := time.monotonic()) < deadline:
@@ -275,7 +281,8 @@ class Phase:
                 next_rss += 0.5
             stop.wait(0.2)
         stop.set()
-        worker.join(60)
+        if commands:
+            worker.join(60)
         self.cpu1, self.t1 = cpu_s(pid), time.monotonic()
         self.child_cpu1 = sum(cpu_s(k) for k in kids)
         self.counters1 = svc.status_rtt()[1]["counters"]
@@ -289,9 +296,11 @@ class Phase:
             "windows": d.get("windows"),
             "overruns": d.get("overruns"),
             "withdrawn": d.get("withdrawn"),
-            "service CPU [% of a core]": round(100 * (self.cpu1 - self.cpu0) / (self.t1 - self.t0)),
+            "service CPU [% of a core]": round(
+                100 * (self.cpu1 - self.cpu0) / (self.t1 - self.t0), 1
+            ),
             "server process CPU [%]": round(
-                100 * (self.child_cpu1 - self.child_cpu0) / (self.t1 - self.t0)
+                100 * (self.child_cpu1 - self.child_cpu0) / (self.t1 - self.t0), 1
             ),
             "service RSS start/max/end [MB]": (
                 f"{self.rss[0]:.0f} / {max(self.rss):.0f} / {self.rss[-1]:.0f}"

@@ -9,10 +9,17 @@ service's own waits (``sleep``, ``wait``: its loop is the one actor that drives 
 durations the peers charge for what they simulate (``elapse``: a robot motion at its speeds, a
 camera exposure and read-out, the DAC's settling, a geometric sweep). Every other thread only
 reads it, or registers a callback with ``call_at`` that runs at its sim time in the thread
-that makes time pass then (the window watch, the fault scheduler). So the outcome of a run
-depends on the seed and the settings alone, not on how fast the machine computed. With
-``pace=`` (sim s per real s) each passing also waits for the wall clock, for a person who
-watches; what happens is the same, only later (a machine too slow for the pace lags behind).
+that makes time pass then (the window watch, the fault scheduler). One thread passes time at a
+time, and that is enforced: a thread that would make time pass while another one is doing so
+gets ``ConcurrentMover`` (a callback that makes time pass from within the passing, in the same
+thread, is fine). No lock is held while a paced clock waits for the wall clock. The rendered
+line is the exception (``strict=False``): its fake camera charges each frame from Aravis's
+thread while the service drives the DAC, whose server thread charges the mirror's settling, so
+there a second mover waits for its turn (the order of two turns then depends on the threads).
+So the outcome of a (geometric) run depends on the seed and the settings alone, not on how fast
+the machine computed. With ``pace=`` (sim s per real s) each passing also waits for the wall
+clock, for a person who watches; what happens is the same, only later (a machine too slow for
+the pace lags behind).
 
 ``ScaledClock(scale)`` runs ``scale`` sim seconds per real second (60: one sim minute per real
 second) from sim time 0 at construction (or at ``start()``, with ``started=False``: it stands at
@@ -23,17 +30,26 @@ machine computes (peers driven by hand in tests and benches). Both clocks carry 
 
 from __future__ import annotations
 
+import contextlib
 import heapq
 import itertools
 import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 from drivers.clock import Clock, RealClock, SimClock, TimerClock
 
-__all__ = ["Clock", "RealClock", "ScaledClock", "SimClock", "TimerClock", "VirtualClock"]
+__all__ = [
+    "Clock",
+    "ConcurrentMover",
+    "RealClock",
+    "ScaledClock",
+    "SimClock",
+    "TimerClock",
+    "VirtualClock",
+]
 
 #: Longest real wait [s] of ``ScaledClock.wait`` between looks at the clock, so that a waiter
 #: notices ``advance()``; the event itself still wakes it at once.
@@ -42,6 +58,10 @@ _WAIT_CHUNK_REAL_S = 0.1
 #: A paced VirtualClock that falls more than this behind the wall clock [real s] (a machine too
 #: slow for the pace) starts pacing again from where it is instead of catching up in a burst.
 _MAX_LAG_REAL_S = 0.5
+
+
+class ConcurrentMover(RuntimeError):
+    """A second thread tried to make a VirtualClock's time pass while another one does."""
 
 
 @dataclass(order=True)
@@ -60,15 +80,24 @@ class VirtualClock:
 
     start_epoch: the Unix time [s] that sim time 0 stands for (default: now, to the whole
     second, so that sim epoch times less the epoch are the same numbers in every run);
-    pace: sim seconds per real second while time passes (None: as fast as the CPU)."""
+    pace: sim seconds per real second while time passes (None: as fast as the CPU);
+    strict: a thread that would make time pass while another one does gets ConcurrentMover
+    (False: it waits for its turn, holding no lock meanwhile: for a line whose peers charge
+    durations from threads of their own at the same time, the rendered line's camera and
+    DAC)."""
 
-    def __init__(self, start_epoch: float | None = None, *, pace: float | None = None) -> None:
+    def __init__(
+        self, start_epoch: float | None = None, *, pace: float | None = None, strict: bool = True
+    ) -> None:
         if pace is not None and not (pace > 0 and pace < math.inf):
             raise ValueError(f"clock pace must be a positive number, got {pace!r}")
         self.start_epoch = float(int(time.time())) if start_epoch is None else float(start_epoch)
         self.pace = None if pace is None else float(pace)
         self._now = 0.0
-        self._mover = threading.RLock()  # one passing of time at a time
+        self.strict = strict
+        self._turn = threading.Condition()  # guards the two below (held for no wait)
+        self._owner: threading.Thread | None = None  # the thread passing time now
+        self._depth = 0  # its passings, one inside another (a callback that passes time)
         self._timers_lock = threading.Lock()
         self._timers: list[_Timer] = []
         self._seq = itertools.count()
@@ -83,7 +112,7 @@ class VirtualClock:
     def start(self) -> None:
         """Start pacing from now (a paced clock; idempotent). Time itself stands until
         something makes it pass."""
-        with self._mover:
+        with self._moving():
             if self._anchor is None:
                 self._anchor = (time.monotonic(), self._now)
 
@@ -92,6 +121,30 @@ class VirtualClock:
 
     def time(self) -> float:
         return self.start_epoch + self._now
+
+    @contextlib.contextmanager
+    def _moving(self) -> Iterator[None]:
+        """This thread passes time (again, when it already does); when another thread does,
+        ConcurrentMover (strict) or a wait for its turn (no lock held while waiting)."""
+        me = threading.current_thread()
+        with self._turn:
+            if self._owner is not None and self._owner is not me and self.strict:
+                raise ConcurrentMover(
+                    f"thread {me.name!r} cannot make time pass: thread {self._owner.name!r} is "
+                    "making it pass (one thread at a time)"
+                )
+            while self._owner is not None and self._owner is not me:
+                self._turn.wait()
+            self._owner = me
+            self._depth += 1
+        try:
+            yield
+        finally:
+            with self._turn:
+                self._depth -= 1
+                if self._depth == 0:
+                    self._owner = None
+                    self._turn.notify_all()
 
     # -- callbacks at a sim time --------------------------------------------------------------
     def call_at(self, t: float, fn: Callable[[], None]) -> _Timer:
@@ -118,10 +171,11 @@ class VirtualClock:
         the way at their times; paced, also wait for the wall clock. Stops early when `stop`
         is set (looked at before each callback, and at once while pacing). Returns the sim
         seconds that passed."""
-        with self._mover:
+        with self._moving():
             t0 = self._now
             self._pass(t0 + max(float(seconds), 0.0), stop, paced=True)
-            self.passed_s += self._now - t0
+            if self._depth == 1:  # a passing inside this one is part of it
+                self.passed_s += self._now - t0
             return self._now - t0
 
     def advance(self, seconds: float) -> None:
@@ -129,7 +183,7 @@ class VirtualClock:
         the callbacks due on the way; paced, without waiting for the wall clock."""
         if seconds < 0:
             raise ValueError("a monotonic clock cannot go back")
-        with self._mover:
+        with self._moving():
             self._pass(self._now + seconds, None, paced=False)
             if self._anchor is not None:
                 self._anchor = (time.monotonic(), self._now)

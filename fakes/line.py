@@ -151,7 +151,10 @@ class SimLine:
             assert s.scale is not None
             self.clock = ScaledClock(s.scale, s.start_epoch, started=False)
         else:
-            self.clock = self.virtual = VirtualClock(s.start_epoch, pace=s.scale)
+            # the rendered line's camera (Aravis's thread) and DAC (its server thread) charge
+            # their durations while the service passes time: there movers take turns
+            strict = not self.settings.camera
+            self.clock = self.virtual = VirtualClock(s.start_epoch, pace=s.scale, strict=strict)
         self._stack = ExitStack()
         self.dac = ScpiDac(clock=self.virtual, settle_s=s.galvo_settle_s)
         self.world = _LineWorld(cell, self.dac)

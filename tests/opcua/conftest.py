@@ -6,9 +6,11 @@ leaves the service running normally. Tests wait on notifications with timeouts, 
 from __future__ import annotations
 
 import asyncio
+import logging
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
@@ -19,6 +21,7 @@ import pytest
 from asyncua import Client, Node, ua
 
 from app.config import load_cell
+from app.config.line import OpcUaSettings
 from app.line.launch import hold_state, serving
 from app.line.opcua.server import OpcUaServer
 from app.line.opcua.space import NS_MACHINERY, NS_RVIS
@@ -43,6 +46,14 @@ def free_port() -> int:
         s.bind(("127.0.0.1", 0))
         port: int = s.getsockname()[1]
         return port
+
+
+def own_server(run: SimulatedLineRun, **changes: Any) -> tuple[str, OpcUaSettings]:
+    """A loopback endpoint on a free port and the run's [opcua] settings for a server there
+    (enabled; `changes` on top)."""
+    url = f"opc.tcp://127.0.0.1:{free_port()}/rvis"
+    opcua = replace(run.service.settings.opcua, enabled=True, endpoint=url, **changes)
+    return url, opcua
 
 
 @pytest.fixture(scope="package")
@@ -138,3 +149,31 @@ def rvis(run: SimulatedLineRun, *args: str) -> str:
     )
     assert out.returncode == 0, out.stderr
     return out.stdout
+
+
+class Records(logging.Handler):
+    """The OPC UA log records of this process (the server process's are logged here)."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.DEBUG)
+        self.records: list[logging.LogRecord] = []
+        self.refused = threading.Event()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.append(record)
+        if "refused" in record.getMessage():
+            self.refused.set()
+
+
+@pytest.fixture
+def records() -> Iterator[Records]:
+    handler = Records()
+    logger = logging.getLogger("rvis.line.opcua")
+    old = logger.level
+    logger.setLevel(logging.DEBUG)
+    logger.addHandler(handler)
+    try:
+        yield handler
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(old)

@@ -7,29 +7,24 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
-import logging
 import os
 import signal
 import socket
 import struct
+import subprocess
+import sys
 import threading
 import time
-from collections.abc import Iterator
 
 import pytest
 from asyncua import Client, ua
 
-from app.line.opcua.server import OpcUaServer
+from app.errors import InputError
+from app.line.opcua import server as server_module
+from app.line.opcua.server import OpcUaServer, _close_pipes
 from app.sim.line_run import SimulatedLineRun
-from tests.opcua.conftest import Servers, child, free_port, machine_node
-
-
-def hello_message(url: str, size_claimed: int | None = None) -> bytes:
-    """A Hello; with `size_claimed`, its header claims that size (the rest never comes)."""
-    endpoint = url.encode()
-    body = struct.pack("<IIIIIi", 0, 65535, 65535, 0, 0, len(endpoint)) + endpoint
-    size = 8 + len(body) if size_claimed is None else size_claimed
-    return struct.pack("<3scI", b"HEL", b"F", size) + body
+from tests.opcua.conftest import Records, Servers, child, free_port, machine_node
+from tests.opcua.peers import error_code, hello_message
 
 
 def exchange(
@@ -62,40 +57,6 @@ def exchange(
         except OSError:
             pass  # a reset after the ERR
     return answer, time.monotonic() - t0
-
-
-def error_code(answer: bytes) -> int:
-    assert answer[:4] == b"ERRF", answer[:16]
-    code: int = struct.unpack_from("<I", answer, 8)[0]
-    return code
-
-
-class Records(logging.Handler):
-    """The OPC UA log records of this process (the server process's are logged here)."""
-
-    def __init__(self) -> None:
-        super().__init__(logging.DEBUG)
-        self.records: list[logging.LogRecord] = []
-        self.refused = threading.Event()
-
-    def emit(self, record: logging.LogRecord) -> None:
-        self.records.append(record)
-        if "refused" in record.getMessage():
-            self.refused.set()
-
-
-@pytest.fixture
-def records() -> Iterator[Records]:
-    handler = Records()
-    logger = logging.getLogger("rvis.line.opcua")
-    old = logger.level
-    logger.setLevel(logging.DEBUG)
-    logger.addHandler(handler)
-    try:
-        yield handler
-    finally:
-        logger.removeHandler(handler)
-        logger.setLevel(old)
 
 
 def test_oversized_and_malformed_messages_get_err_and_are_closed(
@@ -153,3 +114,36 @@ def test_the_server_process_is_restarted_when_it_dies(line: SimulatedLineRun) ->
         state, windows = asyncio.run(read())
     assert state == line.service.status()["state"] or state in ("idle", "measuring")
     assert windows >= 1 and line.service.state.value != "fault"
+
+
+def test_a_start_that_times_out_leaves_no_second_reader(
+    line: SimulatedLineRun, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A (re)start whose server process does not listen in time: the process is killed and
+    the start's reader of its pipe has ended when the error comes, so the watcher that reads
+    the pipe next (and restarts it) is its only reader."""
+    url = f"opc.tcp://127.0.0.1:{free_port()}/rvis"
+    settings = dataclasses.replace(line.service.settings.opcua, enabled=True, endpoint=url)
+    server = OpcUaServer(line.service, settings)  # not started: its start is driven here
+
+    def mute() -> None:  # a server process that never says it listens
+        server._proc = subprocess.Popen(
+            [sys.executable, "-c", "import sys; sys.stdin.buffer.read()"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+        )
+
+    monkeypatch.setattr(server, "_spawn", mute)
+    monkeypatch.setattr(server_module, "START_TIMEOUT_S", 0.5)
+    try:
+        server._spawn()
+        with pytest.raises(InputError, match=r"not listening after 0\.5 s"):
+            server._await_start()
+        assert server._proc is not None and server._proc.poll() is not None  # killed
+        readers = [t for t in threading.enumerate() if t.name == "rvis-opcua-start"]
+        assert not readers
+    finally:
+        line.service.bus.unsubscribe(server._events)
+        if server._proc is not None:
+            server._kill()
+            _close_pipes(server._proc)

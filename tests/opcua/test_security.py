@@ -17,15 +17,14 @@ from pathlib import Path
 import pytest
 from asyncua import Client, ua
 from asyncua.crypto import security_policies
-from asyncua.crypto.cert_gen import setup_self_signed_certificate
-from cryptography.x509.oid import ExtendedKeyUsageOID
 
 from app.errors import InputError
 from app.line.opcua.endpoint import cannot_listen, endpoint_problem
 from app.line.opcua.server import OpcUaServer
 from app.line.statedir import StateDir
 from app.sim.line_run import SimulatedLineRun
-from tests.opcua.conftest import ROOT, child, free_port, machine_node
+from tests.opcua.conftest import ROOT, child, machine_node, own_server
+from tests.opcua.peers import client_certificate
 
 
 @pytest.mark.parametrize(
@@ -66,14 +65,6 @@ def test_rvis_run_refuses_an_open_endpoint_without_security(tmp_path: Path) -> N
     assert not (tmp_path / "state").exists()  # refused before anything started
 
 
-async def _client_cert(folder: Path, name: str) -> tuple[Path, Path]:
-    cert, key = folder / f"{name}.der", folder / f"{name}.pem"
-    await setup_self_signed_certificate(
-        key, cert, f"urn:test:{name}", "localhost", [ExtendedKeyUsageOID.CLIENT_AUTH], {}
-    )
-    return cert, key
-
-
 async def _read_state(url: str, cert: Path | None, key: Path | None, server: Path) -> str:
     client = Client(url)
     client.application_uri = f"urn:test:{cert.stem}" if cert else client.application_uri
@@ -94,12 +85,9 @@ async def _read_state(url: str, cert: Path | None, key: Path | None, server: Pat
 def test_a_secure_server_trusts_only_the_certificates_in_its_folder(
     line: SimulatedLineRun, tmp_path: Path
 ) -> None:
-    url = f"opc.tcp://127.0.0.1:{free_port()}/rvis"
-    settings = dataclasses.replace(
-        line.service.settings.opcua, enabled=True, endpoint=url, security_policy="Basic256Sha256"
-    )
+    url, settings = own_server(line, security_policy="Basic256Sha256")
     paths = StateDir(line.service.settings.state_dir)
-    cert, key = asyncio.run(_client_cert(tmp_path, "scada"))
+    cert, key = asyncio.run(client_certificate(tmp_path, "scada"))
     with OpcUaServer(line.service, settings):
         assert paths.opcua_cert.is_file()
         assert stat.S_IMODE(paths.opcua_key.stat().st_mode) == 0o600
@@ -107,7 +95,8 @@ def test_a_secure_server_trusts_only_the_certificates_in_its_folder(
             asyncio.run(_read_state(url, cert, key, paths.opcua_cert))
         rejected = list(paths.opcua_rejected.glob("*.der"))
         assert [p.read_bytes() for p in rejected] == [cert.read_bytes()]
-        with pytest.raises(ua.UaError, match="No matching endpoints"):  # nothing unencrypted
+        # nothing unencrypted: not even a None channel to ask for the endpoints
+        with pytest.raises(ua.uaerrors.BadSecurityPolicyRejected):
             asyncio.run(_read_state(url, None, None, paths.opcua_cert))
         rejected[0].rename(paths.opcua_trusted / rejected[0].name)  # an administrator trusts it
         state = asyncio.run(_read_state(url, cert, key, paths.opcua_cert))
@@ -183,7 +172,7 @@ def test_backup_and_restore_keep_the_cells_opcua_identity(
 
     paths = StateDir(line.service.settings.state_dir)
     server_certificate(paths, application_uri(line.service.settings.opcua), "127.0.0.1")
-    cert, _key = asyncio.run(_client_cert(tmp_path, "historian"))
+    cert, _key = asyncio.run(client_certificate(tmp_path, "historian"))
     (paths.opcua_trusted / "historian.der").write_bytes(cert.read_bytes())
     manifest = backup(paths, tmp_path / "backup")
     carried = {paths.root / f for f in manifest["files"]}

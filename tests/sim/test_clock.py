@@ -11,7 +11,15 @@ import time
 
 import pytest
 
-from fakes.clock import Clock, RealClock, ScaledClock, SimClock, TimerClock, VirtualClock
+from fakes.clock import (
+    Clock,
+    ConcurrentMover,
+    RealClock,
+    ScaledClock,
+    SimClock,
+    TimerClock,
+    VirtualClock,
+)
 
 
 def test_the_clocks_satisfy_the_protocol() -> None:
@@ -155,3 +163,91 @@ def test_bad_scale_is_refused() -> None:
     for scale in (0.0, -1.0, float("inf"), float("nan")):
         with pytest.raises(ValueError):
             ScaledClock(scale)
+
+
+def test_one_thread_passes_time_at_a_time() -> None:
+    """A second mover from another thread raises at once, whichever way it would make time
+    pass; a callback that makes time pass from within the passing (the same thread) is fine."""
+    clock = VirtualClock()
+    inside, release = threading.Event(), threading.Event()
+
+    def callback() -> None:  # runs in the mover's thread, at sim time 1.0
+        inside.set()
+        assert release.wait(10)
+        assert clock.elapse(0.5) == 0.5  # re-entry from the same thread
+
+    clock.call_at(1.0, callback)
+    first = threading.Thread(target=clock.elapse, args=(2.0,), name="first")
+    first.start()
+    assert inside.wait(10)
+    second_moves = (
+        lambda: clock.elapse(1.0),
+        lambda: clock.sleep(1.0),  # sleep-ok: a second mover's wait, refused
+        lambda: clock.wait(threading.Event(), 1.0),
+        lambda: clock.advance(1.0),
+    )
+    for move in second_moves:
+        with pytest.raises(ConcurrentMover, match="'first'"):
+            move()
+    release.set()
+    first.join(10)
+    assert not first.is_alive()
+    assert clock.monotonic() == 2.0 and clock.passed_s == 2.0  # the inner 0.5 s within the 2 s
+    assert clock.elapse(1.0) == 1.0  # the first is done: another thread may move now
+
+
+def test_a_paced_wait_holds_no_lock() -> None:
+    """While a paced clock waits for the wall clock, the other threads read it, register
+    callbacks and are refused as movers at once (none waits for the paced mover)."""
+    clock = VirtualClock(pace=1.0)  # 1 sim s per real s: the mover waits 60 real s...
+    stop, begun = threading.Event(), threading.Event()
+    clock.call_at(0.0, begun.set)  # run by the mover as its passing begins
+    first = threading.Thread(target=clock.elapse, args=(60.0, stop), name="paced")
+    first.start()
+    refused = threading.Event()
+
+    def second() -> None:
+        clock.call_at(100.0, lambda: None)
+        assert clock.monotonic() < 60.0
+        try:
+            clock.elapse(1.0)
+        except ConcurrentMover:
+            refused.set()
+
+    other = threading.Thread(target=second, name="second")
+    assert begun.wait(10)
+    other.start()
+    assert refused.wait(10)  # ...and the second is refused long before
+    stop.set()  # ...unless stopped
+    first.join(10)
+    assert not first.is_alive() and clock.monotonic() < 60.0
+
+
+def test_a_clock_that_is_not_strict_makes_a_second_mover_wait_its_turn() -> None:
+    """strict=False (the rendered line's peers): the second mover waits, holding nothing, and
+    passes its time once the first is done."""
+    clock = VirtualClock(strict=False)
+    inside, release = threading.Event(), threading.Event()
+
+    def hold() -> None:  # the first mover's callback at sim time 1.0
+        inside.set()
+        assert release.wait(10)
+
+    clock.call_at(1.0, hold)
+    first = threading.Thread(target=clock.elapse, args=(2.0,), name="first")
+    first.start()
+    assert inside.wait(10)
+    done = threading.Event()
+
+    def second_mover() -> None:
+        clock.elapse(0.5)
+        done.set()
+
+    second = threading.Thread(target=second_mover, name="second")
+    second.start()
+    assert clock.monotonic() == 1.0 and not done.is_set()  # the first holds the turn
+    release.set()
+    assert done.wait(10)
+    first.join(10)
+    second.join(10)
+    assert clock.monotonic() == 2.5 and clock.passed_s == 2.5

@@ -14,6 +14,7 @@ from textual.widgets import Static
 from app.sim.line_run import SimulatedLineRun
 from app.tui.app import RvisTui
 from app.tui.modals import ConfirmScreen
+from fakes.clock import VirtualClock
 
 
 async def until(pilot: Pilot[None], cond: Callable[[], bool], timeout_s: float = 15.0) -> None:
@@ -51,6 +52,9 @@ async def confirm(pilot: Pilot[None], key: str) -> None:
 
 def text_of(app: RvisTui, selector: str) -> str:
     return str(app.query_one(selector, Static).render())
+
+
+SKIP_TIMEOUT_S = 30.0  # [real s] for the service's next wait to make the jump
 
 
 class IdleSkipper:
@@ -91,7 +95,25 @@ class IdleSkipper:
                     done.set()
 
     def _skip(self) -> bool:
-        """Jump to lead_s before the next window, if the service is idle (True if it was)."""
+        """Jump to lead_s before the next window, if the service is idle (True if it was). The
+        jump of a VirtualClock is made by the thread that makes the line's time pass (a callback
+        due now, run at the service's next wait): one thread passes time at a time."""
+        clock = self.run.line.clock
+        if not isinstance(clock, VirtualClock):  # a ScaledClock's jump wakes its sleepers
+            return self._jump()
+        done = threading.Event()
+        jumped: list[bool] = []
+
+        def jump() -> None:
+            try:
+                jumped.append(self._jump())
+            finally:
+                done.set()
+
+        clock.call_at(clock.monotonic(), jump)
+        return done.wait(SKIP_TIMEOUT_S) and jumped == [True]
+
+    def _jump(self) -> bool:
         line = self.run.line
         now_s, period_s = line.clock.monotonic(), line.settings.period_s
         k = int(now_s // period_s)

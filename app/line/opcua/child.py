@@ -246,8 +246,12 @@ def main() -> int:
         os.nice(NICE)
     out = Out(sys.stdout.buffer)
     sys.stdout = sys.stderr  # a stray print must not break the channel
+    from app.line.opcua.guard import QuietAsyncua
+
+    handler = ToService(out)
+    handler.addFilter(QuietAsyncua())  # a peer's connections cannot flood the service's log
     root = logging.getLogger()
-    root.handlers[:] = [ToService(out)]
+    root.handlers[:] = [handler]
     root.setLevel(logging.INFO)
     logging.getLogger("asyncua").setLevel(logging.WARNING)
     # the NodeSets' import warns of a DI structure it cannot classify, harmlessly, each start

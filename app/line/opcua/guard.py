@@ -15,10 +15,26 @@ and one log line, then closes the connection:
 - a message asyncua cannot decode or process (Bad_DecodingError), instead of its traceback.
 
 So a connection holds at most one chunk (64 KiB by default) here and RECEIVE_BUFFER_BYTES in
-the kernel, the messages it assembles are bounded by `limits()`, and the connections by
-MAX_CONNECTIONS. Refusals are logged at most once
-per LOG_EVERY_S per peer host (with the number refused meanwhile), so a flood cannot flood the
-log. `install(server)` puts the guard in front of an asyncua Server before its start.
+the kernel, and the messages it assembles are bounded by `limits()`.
+
+The connections (`admit`): at most MAX_PER_PEER from one peer address and MAX_CONNECTIONS in
+all. A connection that would pass either cap takes the place of the least advanced one without
+an activated session (of that peer, or of the whole server: no Hello yet < Hello < secure
+channel < session not activated, a connection in its first HELLO_GRACE_S counted as one whose
+Hello came; then the peer with the most connections, then the oldest), which gets
+Bad_TcpServerTooBusy (after a hold: `evict`); the new one is refused only when every one has an
+activated session. So a peer that holds sockets and reopens each one the server closes keeps
+evicting its own idle sockets, never a client that is further on. A connection must send its
+Hello within HELLO_S, have its secure channel open within CHANNEL_S and its session activated
+within ACTIVATION_S of its accept (Bad_Timeout). A server that offers only a signing-and-
+encrypting policy refuses an OpenSecureChannel with SecurityPolicy None
+(Bad_SecurityPolicyRejected), so it never opens an unencrypted channel (asyncua 2.1.0 falls
+back to its None policy).
+
+Every refusal is counted (`REFUSALS.counts`) and logged at most once per LOG_EVERY_S per peer
+host (with the number refused meanwhile), asyncua's own records of a peer's connection too
+(`QuietAsyncua`, on the server process's log handler), so a flood cannot flood the log.
+`install(server)` puts the guard in front of an asyncua Server before its start.
 """
 
 from __future__ import annotations
@@ -26,17 +42,21 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+import random
 import socket
 import struct
 import time
+from collections import Counter
+from collections.abc import Sequence
 from typing import Any
 
 from asyncua import Server, ua
 from asyncua.common.connection import TransportLimits
 from asyncua.common.utils import Buffer
+from asyncua.crypto.security_policies import SecurityPolicyNone
 from asyncua.server import binary_server_asyncio
 from asyncua.server import server as server_module
-from asyncua.ua.ua_binary import header_from_binary, uatcp_to_binary
+from asyncua.ua.ua_binary import header_from_binary, struct_from_binary, uatcp_to_binary
 
 log = logging.getLogger("rvis.line.opcua")
 
@@ -46,8 +66,19 @@ CHUNK_BYTES = 65535  # the receive and send buffers (asyncua's default)
 MAX_MESSAGE_BYTES = 4 * 1024 * 1024  # a request of rvis's clients is a few kB
 RECEIVE_BUFFER_BYTES = 2 * 65536  # two chunks in flight (the kernel's, per connection)
 MAX_CONNECTIONS = 64  # a cell's clients: SCADA, MES, a historian, engineering tools
-ACTIVATION_S = 10.0  # a connection without an activated session is closed after this
+MAX_PER_PEER = 16  # from one address (every client on the cell's computer is one: 127.0.0.1)
+HELLO_S = 2.0  # a connection that sent no Hello is closed this long after its accept
+HELLO_GRACE_S = 0.5  # ... and is evicted as one without a Hello only after this
+CHANNEL_S = 5.0  # ... without an open secure channel (an RSA handshake takes milliseconds)
+ACTIVATION_S = 10.0  # ... without an activated session
+MAX_HELD = 4 * MAX_CONNECTIONS  # evicted connections held open (unread) for HOLD_S
+HOLD_S = (1.0, 3.0)  # [s] the range an evicted connection's hold is drawn from
+_HOLD = random.Random(39)  # seeded: the same draws in every run
 LOG_EVERY_S = 10.0
+# how far a connection got (the least advanced is evicted first)
+CONNECTED, HELLO, CHANNEL, SESSION, ACTIVE = range(5)
+DEADLINES = ((HELLO_S, HELLO, "no Hello"), (CHANNEL_S, CHANNEL, "no secure channel"),
+             (ACTIVATION_S, ACTIVE, "no activated session"))  # fmt: skip
 SECURE = (b"OPN", b"MSG", b"CLO")
 CHUNK_TYPES = (b"F", b"C", b"A")
 MIN_SECURE_BYTES = 12  # header and SecureChannelId
@@ -63,26 +94,72 @@ def limits() -> TransportLimits:
     )
 
 
-class RefusalLog:
-    """One log line per peer host per LOG_EVERY_S (with how many were refused meanwhile)."""
+class Throttle:
+    """At most one line per key per LOG_EVERY_S: `due(key)` is None while it is quiet, else the
+    number of lines held back since the last one."""
 
     def __init__(self) -> None:
         self._last: dict[str, tuple[float, int]] = {}
 
-    def note(self, host: str, text: str) -> None:
+    def due(self, key: str) -> int | None:
         now = time.monotonic()
-        last, quiet = self._last.get(host, (-math.inf, 0))
+        last, quiet = self._last.get(key, (-math.inf, 0))
         if now - last < LOG_EVERY_S:
-            self._last[host] = (last, quiet + 1)
+            self._last[key] = (last, quiet + 1)
+            return None
+        self._last[key] = (now, 0)
+        if len(self._last) > 1024:  # many keys: forget the quiet ones
+            self._last = {k: v for k, v in self._last.items() if now - v[0] < LOG_EVERY_S}
+        return quiet
+
+
+class RefusalLog:
+    """Every refusal counted by its status (`counts`); one log line per peer host per
+    LOG_EVERY_S (with how many were refused meanwhile)."""
+
+    def __init__(self) -> None:
+        self._throttle = Throttle()
+        self.counts: Counter[str] = Counter()
+
+    def note(self, host: str, text: str, kind: str = "refused") -> None:
+        self.counts[kind] += 1
+        quiet = self._throttle.due(host)
+        if quiet is None:
             return
         more = f" ({quiet} more refused from {host} in the last {LOG_EVERY_S:g} s)" if quiet else ""
         log.warning("OPC UA connection from %s refused: %s%s", host, text, more)
-        self._last[host] = (now, 0)
-        if len(self._last) > 1024:  # many hosts: forget the quiet ones
-            self._last = {h: v for h, v in self._last.items() if now - v[0] < LOG_EVERY_S}
 
 
 REFUSALS = RefusalLog()
+HELD: set[GuardedProtocol] = set()  # evicted, not read, closed after HOLD_S
+
+
+class QuietAsyncua(logging.Filter):
+    """asyncua's records in the server process, rate-limited like the guard's: one about a
+    peer's connection (its first argument the peer's address, as in "Refusing connection from
+    %s: at max_connections=%s") goes to REFUSALS; any other at most once per message per
+    LOG_EVERY_S, with the number held back."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._throttle = Throttle()
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if not record.name.startswith("asyncua"):
+            return True
+        args = record.args if isinstance(record.args, tuple) else ()
+        if args and isinstance(args[0], tuple):
+            REFUSALS.note(_host(args[0]), f"asyncua: {record.getMessage()}", "asyncua")
+            return False
+        quiet = self._throttle.due(f"{record.name}:{record.msg}")
+        if quiet is None:
+            return False
+        if quiet:
+            record.msg = (
+                f"{record.getMessage()} ({quiet} more like it in the last {LOG_EVERY_S:g} s)"
+            )
+            record.args = None
+        return True
 
 
 def error_message(code: int, reason: str) -> bytes:
@@ -100,6 +177,85 @@ class GuardedProtocol(binary_server_asyncio.OPCUAProtocol):
         self._pending = bytearray()
         self._hello = False
         self._refused = False
+        self.host = ""
+        self.accepted_at = time.monotonic()
+        self._deadline: asyncio.TimerHandle | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.host = _host(transport.get_extra_info("peername"))
+        clients = [c for c in self.clients if isinstance(c, GuardedProtocol)]
+        full = admit(clients, self.host)
+        if full:
+            self._refused = True
+            REFUSALS.note(self.host, f"BadTcpServerTooBusy: {full}", "too busy")
+            assert isinstance(transport, asyncio.WriteTransport)
+            transport.write(error_message(ua.StatusCodes.BadTcpServerTooBusy, full[:200]))
+            transport.close()
+            return
+        super().connection_made(transport)
+        self._deadline = asyncio.get_running_loop().call_later(HELLO_S, self._check, 0)
+
+    def connection_lost(self, ex: BaseException | None) -> None:
+        if self._deadline is not None:
+            self._deadline.cancel()
+        HELD.discard(self)
+        super().connection_lost(ex)
+
+    def progress(self) -> int:
+        """How far this connection got: CONNECTED, HELLO, CHANNEL, SESSION or ACTIVE."""
+        processor = self.processor
+        if not self._hello or processor is None:
+            return CONNECTED
+        if not processor._connection.is_open():
+            return HELLO
+        session = processor.session
+        if session is None:
+            return CHANNEL
+        return ACTIVE if session.is_activated() else SESSION
+
+    def rank(self, now: float) -> int:
+        """`progress()` as eviction sees it: in its first HELLO_GRACE_S a connection counts as
+        one whose Hello came (it may be on its way: a client's Hello follows its connect at
+        once, but the server reads it only after the accepts queued before it)."""
+        progress = self.progress()
+        young = now - self.accepted_at < HELLO_GRACE_S
+        return HELLO if progress == CONNECTED and young else progress
+
+    def _check(self, stage: int) -> None:
+        """Closed when it did not get as far as DEADLINES[stage] asks by then."""
+        after_s, needed, what = DEADLINES[stage]
+        if self._refused or self.transport is None:
+            return
+        if self.progress() < needed:
+            self.refuse(ua.StatusCodes.BadTimeout, f"{what} within {after_s:g} s", "deadline")
+        elif stage + 1 < len(DEADLINES):
+            wait_s = DEADLINES[stage + 1][0] - after_s
+            self._deadline = asyncio.get_running_loop().call_later(wait_s, self._check, stage + 1)
+
+    def evict(self, why: str) -> None:
+        """Its slot given to a new connection at once. The socket itself is held, unread, for
+        HOLD_S (drawn at random, so that the evicted do not come back all at once; MAX_HELD such
+        at most, beyond closed at once), and only then gets ERR and is closed: a peer that
+        reopens every connection the server closes cannot make the evictions run in a loop."""
+        if self in self.clients:
+            self.clients.remove(self)
+        if len(HELD) >= MAX_HELD or self.transport is None:
+            self.refuse(ua.StatusCodes.BadTcpServerTooBusy, f"evicted: {why}", "evicted")
+            return
+        REFUSALS.note(self.host, f"BadTcpServerTooBusy: evicted: {why}", "evicted")
+        self._refused = True
+        self._pending.clear()
+        self.transport.pause_reading()
+        HELD.add(self)
+        if self._deadline is not None:
+            self._deadline.cancel()
+        self._deadline = asyncio.get_running_loop().call_later(
+            _HOLD.uniform(*HOLD_S), self._release
+        )
+
+    def _release(self) -> None:
+        HELD.discard(self)
+        self._close(ua.StatusCodes.BadTcpServerTooBusy, "evicted for a new connection")
 
     def data_received(self, data: bytes) -> None:
         if self._refused or self.transport is None:
@@ -147,11 +303,14 @@ class GuardedProtocol(binary_server_asyncio.OPCUAProtocol):
         negotiated = getattr(processor, "_limits", None) if processor is not None else None
         return int(getattr(negotiated, "max_recv_buffer", CHUNK_BYTES) or CHUNK_BYTES)
 
-    def refuse(self, code: int, text: str) -> None:
+    def refuse(self, code: int, text: str, kind: str = "message") -> None:
         """ERR with `code`, one (rate-limited) log line, and the connection closed."""
+        REFUSALS.note(_host(self.peer_name), f"{ua.StatusCode(code).name}: {text}", kind)
+        self._close(code, text)
+
+    def _close(self, code: int, text: str) -> None:
         self._refused = True
         self._pending.clear()
-        REFUSALS.note(_host(self.peer_name), f"{ua.StatusCode(code).name}: {text}")
         if self.transport is not None:
             self.transport.write(error_message(code, text[:200]))
             self.transport.close()
@@ -159,11 +318,50 @@ class GuardedProtocol(binary_server_asyncio.OPCUAProtocol):
     async def _process_one_msg(self, header: Any, buf: Buffer) -> bool:
         if self._refused:
             return False
+        if header.MessageType == ua.MessageType.SecureOpen and self._unsecured_open(header, buf):
+            self.refuse(
+                ua.StatusCodes.BadSecurityPolicyRejected,
+                "an OpenSecureChannel with SecurityPolicy None on a secure-only endpoint",
+                "policy",
+            )
+            return False
         try:
             return bool(await super()._process_one_msg(header, buf))
         except Exception as exc:  # undecodable or out of sequence: never a traceback
             self.refuse(ua.StatusCodes.BadDecodingError, f"{type(exc).__name__}: {exc}")
             return False
+
+    def _unsecured_open(self, header: Any, buf: Buffer) -> bool:
+        """Whether this OpenSecureChannel asks for SecurityPolicy None (a new channel) when
+        the server does not offer it."""
+        if self.processor is None or self.processor._connection.is_open():
+            return False
+        if any(p.matches(SecurityPolicyNone.URI) for p in self.policies):
+            return False
+        algorithm = struct_from_binary(ua.AsymmetricAlgorithmHeader, buf.copy(header.body_size))
+        return bool(algorithm.SecurityPolicyURI == SecurityPolicyNone.URI)
+
+
+def admit(clients: Sequence[GuardedProtocol], host: str) -> str:
+    """Room for a new connection from `host` among `clients` ("": admitted, the least advanced
+    connection without an activated session evicted when a cap is reached; else why not)."""
+    mine = [c for c in clients if c.host == host]
+    if len(mine) >= MAX_PER_PEER:
+        pool, why = mine, f"{host} holds {len(mine)} connections (at most {MAX_PER_PEER} a peer)"
+    elif len(clients) >= MAX_CONNECTIONS:
+        pool, why = (
+            list(clients),
+            f"the server holds {len(clients)} connections (at most {MAX_CONNECTIONS})",
+        )
+    else:
+        return ""
+    idle = [c for c in pool if c.progress() < ACTIVE]
+    if not idle:
+        return f"{why}, each with an activated session"
+    per_host = Counter(c.host for c in clients)
+    now = time.monotonic()
+    min(idle, key=lambda c: (c.rank(now), -per_host[c.host], c.accepted_at)).evict(why)
+    return ""
 
 
 def _host(peer: Any) -> str:
@@ -195,6 +393,6 @@ def install(server: Server) -> None:
     its BinaryServer inside `start()` by the name in its server module: that name is pointed at
     the guarded one (this process serves nothing else)."""
     server.limits = limits()
-    server.iserver.max_connections = MAX_CONNECTIONS
-    server.iserver.max_pending_activation_seconds = ACTIVATION_S
+    server.iserver.max_connections = MAX_CONNECTIONS  # never reached: `admit` makes room
+    server.iserver.max_pending_activation_seconds = 0  # the guard's DEADLINES instead
     server_module.BinaryServer = GuardedBinaryServer

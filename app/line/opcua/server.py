@@ -194,7 +194,8 @@ class OpcUaServer:
 
     def _await_start(self) -> None:
         """Until the child listens (its log lines logged meanwhile); InputError when it
-        cannot."""
+        cannot. When it does not listen in time it is killed and the reader of its pipe has
+        ended before this returns: the watcher is then the pipe's only reader again."""
         deadline = time.monotonic() + START_TIMEOUT_S
         assert self._proc is not None and self._proc.stdout is not None
         stream = self._proc.stdout
@@ -207,10 +208,13 @@ class OpcUaServer:
                     result.put(msg)
                     return
 
-        threading.Thread(target=read, name="rvis-opcua-start", daemon=True).start()
+        reader = threading.Thread(target=read, name="rvis-opcua-start", daemon=True)
+        reader.start()
         try:
             msg = result.get(timeout=max(0.0, deadline - time.monotonic()))
         except queue.Empty:
+            self._kill()  # its pipe ends: the reader returns
+            reader.join(STOP_TIMEOUT_S)
             why = f"not listening after {START_TIMEOUT_S:g} s"
             raise InputError(cannot_listen(self.settings.endpoint, why), field=FIELD) from None
         if msg is None:
