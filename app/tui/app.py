@@ -106,8 +106,9 @@ class RvisTui(App[None]):
             with TabPane("4 Alarms", id="alarms"), Vertical():
                 yield DataTable(id="alarms-table", cursor_type="row")
                 yield Static("no alarm selected", id="alarm-detail")  # the selected one whole
-            with TabPane("5 Devices", id="devices"):
+            with TabPane("5 Devices", id="devices"), Vertical():
                 yield DataTable(id="devices-table", cursor_type="row")
+                yield Static("", id="device-errors")  # each device's last error, whole
             with TabPane("6 Log", id="log"), Vertical():
                 yield FilterInput(
                     placeholder="/ filter events by text; Enter applies, Esc leaves",
@@ -133,7 +134,7 @@ class RvisTui(App[None]):
                 "alarm",
                 "shelved",
             ),
-            "devices-table": ("device", "URL", "state", "last error (UTC)", "error"),
+            "devices-table": ("device", "state", "URL"),
             "log-table": ("time (UTC)", "event", "what happened"),
             "suspects-table": ("id", "from (UTC)", "to (UTC)", "size mm", "bodies", "what"),
         }
@@ -244,6 +245,7 @@ class RvisTui(App[None]):
         banner.set_classes(f"shown {cls}" if text else "")
         self.query_one("#overview-text", Static).update(Text(view.overview_text(self.status)))
         self._fill("devices-table", view.device_rows(self.status))
+        self.query_one("#device-errors", Static).update(Text(view.device_errors(self.status)))
         self._show_pending()
 
     def _show_pending(self) -> None:
