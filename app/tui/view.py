@@ -356,6 +356,10 @@ def event_text(kind: Any, detail: Any) -> str:
             f"identification on {g('n')} measurements ({g('first_id')}..{g('last_id')})"
         ),
         "state": lambda: f"{g('from')} -> {g('to')}",
+        "device_retry": lambda: (
+            f"try {g('attempts')}: "
+            + "; ".join(f"{k} unreachable ({v})" for k, v in dict(g("unreachable") or {}).items())
+        ),
         "operator": lambda: f"{g('cmd')} by uid {g('uid')}: {'ok' if g('ok') else 'refused'}",
         "step_attribution": lambda: (
             f"{g('text')}" + (" -> corrected" if g("passed") else "") + _failures(g("failures"))

@@ -90,3 +90,9 @@ def test_a_plc_that_answers_states_the_line() -> None:
     status = {**STATUS, "window": window}
     assert "running NO, PLC heartbeat LOST, window closed" in view.overview_text(status)
     assert view.line_unknown(status) is None
+
+
+def test_a_device_retry_reads_as_a_line_in_the_log() -> None:
+    detail = {"attempts": 2, "unreachable": {"plc": "DeviceConnectionError: x: cannot connect"}}
+    text = view.event_text("device_retry", detail)
+    assert text == "try 2: plc unreachable (DeviceConnectionError: x: cannot connect)"
