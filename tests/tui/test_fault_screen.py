@@ -8,7 +8,12 @@ import asyncio
 
 import pytest
 
+from app.config.line import LineSettings
+from app.line.cycle import WindowWatch
 from app.tui import view
+from drivers.errors import DeviceTimeout
+from fakes.clock import VirtualClock
+from fakes.devices import FakePlc
 from tests.tui.frozen import FAULT_HISTORY, FAULT_STATUS, NOW, STATUS, FrozenTui
 from tests.tui.test_screens import screen_lines, screenshot
 
@@ -96,3 +101,34 @@ def test_a_device_retry_reads_as_a_line_in_the_log() -> None:
     detail = {"attempts": 2, "unreachable": {"plc": "DeviceConnectionError: x: cannot connect"}}
     text = view.event_text("device_retry", detail)
     assert text == "try 2: plc unreachable (DeviceConnectionError: x: cannot connect)"
+
+
+class FlakyPlc(FakePlc):
+    """A PLC whose link can fail (`dead`)."""
+
+    dead = False
+
+    def _read_input_words(self) -> tuple[int, int]:
+        if self.dead:
+            raise DeviceTimeout("no reply in 0.2 s")
+        return super()._read_input_words()
+
+
+def test_the_window_watch_says_whether_the_plc_answered_its_last_exchange() -> None:
+    """What the status reply's window.plc_answered reports (app/line/status.py): False before
+    the first exchange and after one that failed, though the last inputs read are kept."""
+    plc = FlakyPlc(clock=VirtualClock()).open()
+    try:
+        watch = WindowWatch(plc, VirtualClock(), LineSettings())
+        assert not watch.answered and watch.inputs is None
+        watch.poll()
+        assert watch.answered and watch.inputs is not None
+        plc.dead = True
+        with pytest.raises(DeviceTimeout):
+            watch.poll()
+        assert not watch.answered and watch.inputs is not None  # stale: not the line now
+        plc.dead = False
+        watch.poll()
+        assert watch.answered
+    finally:
+        plc.close()

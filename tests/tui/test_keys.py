@@ -118,6 +118,8 @@ def test_a_filter_takes_digits_and_q_and_escape_leaves_it() -> None:
             await pilot.press("q", "1", "6")
             await until(pilot, lambda: box.value == "q16")
             assert app.is_running and app.pane == "log"
+            footer = {k: b.binding.description for k, b in app.screen.active_bindings.items()}
+            assert footer.get("escape") == "Leave filter" and "q" not in footer  # what it shows
             await pilot.press("escape")
             await until(pilot, lambda: focus_of(app) == "log-table")
             assert box.value == "q16"  # left as typed: it filters the log
