@@ -1,5 +1,5 @@
-"""The keys of the operator's terminal (docs/tui.md, "Keys"): which key does what, and from
-which focus.
+"""The keys of the operator's terminal (the keys' table in docs/tui.md): which key does what,
+and from which focus.
 
 The screen keys (1-6 switch panes, q quits) are priority bindings: they act whatever widget has
 the focus (a table, the tabs, a scrolled pane), except while the cursor is in a filter box,
