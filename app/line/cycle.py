@@ -65,10 +65,18 @@ class WindowWatch:
         self._seen_closed = False
         self.opened_t: float | None = None  # clock time of the window's rising edge
         self.used_t: float | None = None  # rising edge of the last window measured in
+        #: the last exchange with the PLC was answered (False before the first and after one
+        #: that failed: `inputs` are then the last ones read, not the line's now)
+        self.answered = False
 
     def poll(self) -> PlcInputs:
         """One exchange with the PLC (sends our heartbeat too)."""
-        inputs = self.plc.poll()
+        try:
+            inputs = self.plc.poll()
+        except DeviceError:
+            self.answered = False
+            raise
+        self.answered = True
         now = self.clock.monotonic()
         was_open = self.inputs is not None and self.inputs.window_open
         if inputs.window_open and not was_open and self.line.plc_body_id != "none":

@@ -180,7 +180,8 @@ def _pending_status(svc: LineHost) -> dict[str, Any] | None:
 
 
 def _window_status(svc: LineHost) -> dict[str, Any]:
-    """The line as the TUI shows it: window open and the time left, line, heartbeat."""
+    """The line as the TUI shows it: window open and the time left, line, heartbeat, and
+    whether the PLC answered the last exchange (if not, the others are not the line's now)."""
     w = svc.watch
     i = w.inputs
     is_open = bool(i is not None and i.window_open)
@@ -189,4 +190,5 @@ def _window_status(svc: LineHost) -> dict[str, Any]:
         "remaining_s": w.remaining_s() if is_open and w.opened_t is not None else None,
         "line_running": bool(i is not None and i.line_running),
         "heartbeat_alive": w.alive,
+        "plc_answered": w.answered,
     }

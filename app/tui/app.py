@@ -16,13 +16,13 @@ from rich.cells import cell_len
 from rich.text import Text
 from textual import work
 from textual.app import App, ComposeResult
-from textual.binding import Binding, BindingType
+from textual.binding import BindingType
 from textual.containers import Horizontal, Vertical, VerticalScroll
 from textual.dom import NoScreen
+from textual.screen import ModalScreen
 from textual.widgets import (
     DataTable,
     Footer,
-    Input,
     Label,
     Sparkline,
     Static,
@@ -32,13 +32,13 @@ from textual.widgets import (
 from textual.worker import Worker
 
 from app.line.statedir import StateDir
-from app.tui import view
+from app.tui import keys, view
 from app.tui.client import Event, ServiceClient, ServiceUnavailable
 from app.tui.history import HistoryReader
+from app.tui.keys import PANE_FILTER, PANE_FOCUS, PANES, FilterInput
 from app.tui.look import CSS, ISA101
 from app.tui.modals import ConfirmScreen, ShelveScreen
 
-PANES = ("overview", "measurements", "calibrations", "alarms", "devices", "log")
 #: what each pane shows from the database (only the visible pane's history is read and drawn)
 PANE_HISTORY = {
     "overview": ("recent", "suspects"),
@@ -60,19 +60,7 @@ class RvisTui(App[None]):
 
     CSS = CSS
     TITLE = "rvis"
-    BINDINGS: ClassVar[list[BindingType]] = [
-        *(Binding(str(k + 1), f"show('{p}')", p.title(), show=False) for k, p in enumerate(PANES)),
-        # the footer shows them in this order; at 80 columns all of them fit (short words)
-        Binding("q", "quit", "Quit"),
-        Binding("p", "pause_resume", "Pause"),
-        Binding("r", "reset", "Reset"),
-        Binding("c", "recalibrate", "Recal"),
-        Binding("a", "approve", "Approve"),
-        Binding("x", "reject", "Reject"),
-        Binding("b", "rollback", "Rollback"),
-        Binding("k", "ack", "Ack"),
-        Binding("s", "shelve", "Shelve"),
-    ]
+    BINDINGS: ClassVar[list[BindingType]] = keys.BINDINGS  # app.tui.keys: from which focus
 
     def __init__(self, state_dir: str | Path) -> None:
         super().__init__()
@@ -104,7 +92,10 @@ class RvisTui(App[None]):
                 yield DataTable(id="suspects-table", cursor_type="row")
                 yield Static("no suspect interval selected", id="suspect-detail")  # its bodies
             with TabPane("2 Measurements", id="measurements"), Vertical():
-                yield Input(placeholder="filter by sphere (e.g. P2), Enter", id="sphere-filter")
+                yield FilterInput(
+                    placeholder="/ filter by sphere (e.g. P2); Enter applies, Esc leaves",
+                    id="sphere-filter",
+                )
                 yield DataTable(id="measurements-table", cursor_type="row")
             with TabPane("3 Calibrations", id="calibrations"), Vertical():
                 yield Static("no calibration pending", id="pending-title")
@@ -115,10 +106,14 @@ class RvisTui(App[None]):
             with TabPane("4 Alarms", id="alarms"), Vertical():
                 yield DataTable(id="alarms-table", cursor_type="row")
                 yield Static("no alarm selected", id="alarm-detail")  # the selected one whole
-            with TabPane("5 Devices", id="devices"):
+            with TabPane("5 Devices", id="devices"), Vertical():
                 yield DataTable(id="devices-table", cursor_type="row")
+                yield Static("", id="device-errors")  # each device's last error, whole
             with TabPane("6 Log", id="log"), Vertical():
-                yield Input(placeholder="filter events, Enter", id="log-filter")
+                yield FilterInput(
+                    placeholder="/ filter events by text; Enter applies, Esc leaves",
+                    id="log-filter",
+                )
                 yield DataTable(id="log-table", cursor_type="row")
         yield Footer(compact=True, show_command_palette=False)
 
@@ -139,7 +134,7 @@ class RvisTui(App[None]):
                 "alarm",
                 "shelved",
             ),
-            "devices-table": ("device", "URL", "state", "last error (UTC)", "error"),
+            "devices-table": ("device", "state", "URL"),
             "log-table": ("time (UTC)", "event", "what happened"),
             "suspects-table": ("id", "from (UTC)", "to (UTC)", "size mm", "bodies", "what"),
         }
@@ -196,6 +191,7 @@ class RvisTui(App[None]):
         # was hidden can keep the hidden layout's column widths (the snapshot tests caught a
         # narrow header over an empty log table in about one full suite in three)
         self._shown.clear()
+        self.refresh_bindings()  # "/" acts on the panes that have a filter box
         self.refresh_all()
 
     async def _refresh_once(self) -> None:
@@ -210,8 +206,8 @@ class RvisTui(App[None]):
         else:
             self.status = None
         self._show_status()
-        sphere = self.query_one("#sphere-filter", Input).value.strip() or None
-        text = self.query_one("#log-filter", Input).value.strip()
+        sphere = self.query_one("#sphere-filter", FilterInput).value.strip() or None
+        text = self.query_one("#log-filter", FilterInput).value.strip()
         wanted = PANE_HISTORY[self.pane]
         hist = await asyncio.to_thread(self._read_history, wanted, sphere, text)
         self._show_history(hist)
@@ -249,6 +245,7 @@ class RvisTui(App[None]):
         banner.set_classes(f"shown {cls}" if text else "")
         self.query_one("#overview-text", Static).update(Text(view.overview_text(self.status)))
         self._fill("devices-table", view.device_rows(self.status))
+        self.query_one("#device-errors", Static).update(Text(view.device_errors(self.status)))
         self._show_pending()
 
     def _show_pending(self) -> None:
@@ -367,14 +364,36 @@ class RvisTui(App[None]):
                 )
 
     # -- actions -----------------------------------------------------------------------------
-    def action_show(self, pane: str) -> None:
-        self.query_one(TabbedContent).active = pane
-        self.refresh_all()  # its history now, not only when the tab's activation message comes
-        if pane == "alarms":  # up/down select an alarm at once: its text whole under the table
-            self.query_one("#alarms-table", DataTable).focus()
+    def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
+        """While a dialog asks, the screen keys do nothing (its own keys answer); "/" only on
+        a pane with a filter box."""
+        if action in keys.SCREEN_ACTIONS and isinstance(self.screen, ModalScreen):
+            return False
+        if action == "filter":
+            return self.pane in PANE_FILTER
+        return True
 
-    def on_input_submitted(self) -> None:
+    def action_show(self, pane: str) -> None:
+        # the focus off the pane first: a focused widget that is hidden hands the focus to a
+        # sibling in its pane, and the tabs then show that pane again (the screen keys did
+        # nothing after Tab in Calibrations and Log)
+        self.screen.set_focus(None)
+        self.query_one(TabbedContent).active = pane
+        # its table: up/down select a row at once (an alarm's text whole under the table)
+        self.query_one(f"#{PANE_FOCUS[pane]}", DataTable).focus()
+        self.refresh_all()  # its history now, not only when the tab's activation message comes
+
+    def action_filter(self) -> None:
+        self.query_one(f"#{PANE_FILTER[self.pane]}", FilterInput).focus()
+
+    def on_input_submitted(self, event: FilterInput.Submitted) -> None:
         self.refresh_all()
+        if isinstance(event.input, FilterInput):  # applied: back to the table
+            self.query_one(f"#{PANE_FOCUS[self.pane]}", DataTable).focus()
+
+    def on_filter_input_left(self, event: FilterInput.Left) -> None:
+        self.refresh_all()  # what is in the box filters the table (at every refresh)
+        self.query_one(f"#{PANE_FOCUS[self.pane]}", DataTable).focus()
 
     def action_pause_resume(self) -> None:
         if (self.status or {}).get("paused"):

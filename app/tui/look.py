@@ -23,9 +23,9 @@ ISA101 = Theme(
 
 CSS = """
 Screen { background: #3a3a3a; color: #d7d7d7; }
-#status { height: 1; background: #4e4e4e; color: #ffffff; padding: 0 1; }
+#status { height: auto; background: #4e4e4e; color: #ffffff; padding: 0 1; }
 #status.disconnected { background: #5f005f; color: #ffffff; text-style: bold; }
-#banner { height: 1; padding: 0 1; display: none; }
+#banner { height: auto; padding: 0 1; display: none; }
 #banner.shown { display: block; }
 .alarm-high { background: #d70000; color: #ffffff; text-style: bold; }
 .alarm-medium { background: #ffaf00; color: #000000; text-style: bold; }
@@ -37,6 +37,8 @@ TabbedContent { height: 1fr; }
 .drift-row Label { width: 22; }
 .drift-row Sparkline { width: 1fr; }
 #pending { height: auto; max-height: 50%; }
+#devices-table { height: auto; max-height: 50%; }
+#device-errors { height: auto; border-top: solid #8a8a8a; padding: 0 1; }
 #alarm-detail { height: auto; max-height: 6; border-top: solid #8a8a8a; padding: 0 1; }
 #suspect-detail { height: auto; max-height: 4; padding: 0 1; }
 .dialog { width: 70; height: auto; border: solid #8a8a8a; background: #4e4e4e; padding: 1; }

@@ -5,8 +5,10 @@ Textual widgets only place them. Abnormal values carry a style class; normal one
 
 Without a status reply (no service, or the connection lost) nothing the reply would say is
 stated: the values read "unknown" or "-", never a default that looks like a fact (a line "not
-running", a heartbeat "lost", "all 0 devices OK"). Times are the service's clock throughout:
-the history's times are its, and ages are counted on its `now_utc`.
+running", a heartbeat "lost", "all 0 devices OK"). Likewise the line's facts (running, the PLC
+heartbeat, the window) while the service has no answer from its PLC (`line_unknown`). Times
+are the service's clock throughout: the history's times are its, and ages are counted on its
+`now_utc`.
 """
 
 from __future__ import annotations
@@ -70,11 +72,25 @@ def num(value: Any, fmt: str = ".3f", unit: str = "") -> str:
 UNKNOWN = "unknown"
 
 
+def line_unknown(status: dict[str, Any] | None) -> str | None:
+    """Why the line's facts (running, heartbeat, window) are unknown although the service
+    answered, or None when they are known: its PLC not opened (unreachable since the start, or
+    closed), or its last exchange with the PLC unanswered (the reply's values are then the
+    last ones read, or defaults)."""
+    plc = ((status or {}).get("devices") or {}).get("plc") or {}
+    if plc.get("state") in ("unreachable", "closed"):
+        return f"PLC {plc['state']}"
+    win = (status or {}).get("window") or {}
+    if win.get("plc_answered") is False:
+        return "no answer from the PLC"
+    return None
+
+
 def window_text(status: dict[str, Any] | None) -> str:
     """The clamp window, the same words on the status line and the Overview: "window OPEN
-    12 s left", "window closed", "window unknown" (no reply, or none in it)."""
+    12 s left", "window closed", "window unknown" (no reply, none in it, or no PLC)."""
     win = (status or {}).get("window")
-    if not isinstance(win, dict) or "open" not in win:
+    if not isinstance(win, dict) or "open" not in win or line_unknown(status):
         return f"window {UNKNOWN}"
     if not win.get("open"):
         return "window closed"
@@ -123,8 +139,9 @@ def overview_text(status: dict[str, Any] | None) -> str:
         )
     s = status
     win, counts = s.get("window") or {}, s.get("counters") or {}
-    heartbeat = _yes_no(win.get("heartbeat_alive"), "alive", "LOST")
-    running = _yes_no(win.get("line_running"), "yes", "NO")
+    no_plc = line_unknown(s)
+    heartbeat = UNKNOWN if no_plc else _yes_no(win.get("heartbeat_alive"), "alive", "LOST")
+    running = UNKNOWN if no_plc else _yes_no(win.get("line_running"), "yes", "NO")
     temp = s.get("cell_temp_c")
     cell = (
         UNKNOWN
@@ -132,12 +149,13 @@ def overview_text(status: dict[str, Any] | None) -> str:
         else ("no cell temperature" if temp is None else num(temp, ".2f", " degC"))
     )
     devices = device_rows(status)
-    bad = [f"{d[0]} {d[2]}" for d in devices if d[2] not in ("OK", "OPEN")]
+    bad = [f"{d[0]} {d[1]}" for d in devices if d[1] not in ("OK", "OPEN")]
     device_text = ", ".join(bad) or (f"all {len(devices)} OK" if devices else UNKNOWN)
     return "\n".join(
         (
             f"Service   {s.get('state', UNKNOWN)}   step: {s.get('step') or '-'}",
-            f"Line      running {running}, PLC heartbeat {heartbeat}, {window_text(s)}",
+            f"Line      running {running}, PLC heartbeat {heartbeat}, {window_text(s)}"
+            + (f" ({no_plc})" if no_plc else ""),
             f"Cell      {cell}",
             f"Accuracy  {accuracy_text(s) if 'accuracy' in s else UNKNOWN}",
             f"Devices   {device_text}",
@@ -186,20 +204,29 @@ def banner(status: dict[str, Any] | None) -> tuple[str, str]:
     return text, PRIORITY_CLASS.get(prio, "alarm-low")
 
 
-def device_rows(status: dict[str, Any] | None) -> list[tuple[str, str, str, str, str]]:
-    """(family, URL, state, time of its last error, last error) per device: the last error the
-    service saw from that device, also after the fault was reset."""
+def device_rows(status: dict[str, Any] | None) -> list[tuple[str, str, str]]:
+    """(family, state, URL) per device; its last error is in `device_errors` (whole)."""
     devices = (status or {}).get("devices") or {}
     return [
-        (
-            family,
-            str(d.get("url", "")),
-            str(d.get("state", "?")).upper(),
-            time_text(d.get("last_error_utc")),
-            str(d.get("last_error") or ""),
-        )
+        (family, str(d.get("state", "?")).upper(), str(d.get("url", "")))
         for family, d in devices.items()
     ]
+
+
+def device_errors(status: dict[str, Any] | None) -> str:
+    """The last error the service saw from each device, with its time, whole (wrapped to the
+    screen, never cut: at 80 columns a table column would cut it); kept after a reset."""
+    if status is None or "devices" not in status:
+        return f"devices' last errors {UNKNOWN}"
+    failed = {f: d for f, d in (status.get("devices") or {}).items() if d.get("last_error")}
+    width = max(map(len, failed), default=0)
+    lines = [
+        f"{family:<{width}}  {time_text(d.get('last_error_utc')) or '-'}  {d['last_error']}"
+        for family, d in failed.items()
+    ]
+    if not lines:
+        return "no device error seen"
+    return "\n".join(["Last error of each device (kept after a reset):", *lines])
 
 
 def time_text(utc: Any) -> str:
@@ -329,6 +356,10 @@ def event_text(kind: Any, detail: Any) -> str:
             f"identification on {g('n')} measurements ({g('first_id')}..{g('last_id')})"
         ),
         "state": lambda: f"{g('from')} -> {g('to')}",
+        "device_retry": lambda: (
+            f"try {g('attempts')}: "
+            + "; ".join(f"{k} unreachable ({v})" for k, v in dict(g("unreachable") or {}).items())
+        ),
         "operator": lambda: f"{g('cmd')} by uid {g('uid')}: {'ok' if g('ok') else 'refused'}",
         "step_attribution": lambda: (
             f"{g('text')}" + (" -> corrected" if g("passed") else "") + _failures(g("failures"))

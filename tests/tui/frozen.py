@@ -1,6 +1,7 @@
 """A RvisTui with frozen data (no service, no database, a fixed clock): what the screenshot
 tests and docs/tui/*.svg show. The status and history are shaped exactly as the service's
-`status` reply and app.tui.history return them."""
+`status` reply and app.tui.history return them. FAULT_STATUS: the same line in a fault, its
+PLC unreachable since the start (the service's words for it, app/line/service.py)."""
 
 from __future__ import annotations
 
@@ -17,7 +18,13 @@ STATUS: dict[str, Any] = {
     "ok": True,
     "state": "idle",
     "step": "waiting for a window",
-    "window": {"open": False, "remaining_s": None, "line_running": True, "heartbeat_alive": True},
+    "window": {
+        "open": False,
+        "remaining_s": None,
+        "line_running": True,
+        "heartbeat_alive": True,
+        "plc_answered": True,
+    },
     "calibration": {
         "version": 3,
         "pending": 4,
@@ -203,13 +210,65 @@ HISTORY: dict[str, list[dict[str, Any]]] = {
 }
 
 
-class FrozenTui(RvisTui):
-    """The terminal showing STATUS and HISTORY at NOW, attached to nothing."""
+PLC_UNREACHABLE = (
+    "plc (plc+modbus://10.0.0.5:502) unreachable: DeviceConnectionError: 10.0.0.5:502: cannot"
+    " connect; the service tries again after 1, 2, 5, 10 s, then every 30 s, and leaves FAULT"
+    " by itself once every device answers"
+)
+UNREACHABLE_ALARM: dict[str, Any] = {
+    "id": 8,
+    "code": "device_unreachable",
+    "priority": "urgent",
+    "state": "raised",
+    "message": PLC_UNREACHABLE,
+    "text": PLC_UNREACHABLE,
+    "raised_utc": "2026-11-23T09:29:10+00:00",
+}
+FAULT_STATUS: dict[str, Any] = {
+    **STATUS,
+    "state": "fault",
+    "step": "waiting for plc (unreachable): next try 2026-11-23T09:30:10+00:00",
+    "plc": None,  # never read since the start
+    "window": {
+        "open": False,
+        "remaining_s": None,
+        "line_running": False,
+        "heartbeat_alive": False,
+        "plc_answered": False,
+    },
+    "devices": {
+        **STATUS["devices"],
+        "plc": {
+            "url": "plc+modbus://10.0.0.5:502",
+            "state": "unreachable",
+            "last_error": "DeviceConnectionError: 10.0.0.5:502: cannot connect",
+            "last_error_utc": "2026-11-23T09:29:40+00:00",
+        },
+    },
+    "device_retry": {"attempts": 3, "next_utc": "2026-11-23T09:30:10+00:00", "wait_s": 10.0},
+    "alarms": [UNREACHABLE_ALARM, *STATUS["alarms"]],
+}
+FAULT_HISTORY: dict[str, list[dict[str, Any]]] = {
+    **HISTORY,
+    "alarms": [
+        {**UNREACHABLE_ALARM, "t_acked": None, "acked_uid": None, "shelved_until_utc": ""},
+        *HISTORY["alarms"],
+    ],
+}
 
-    def __init__(self) -> None:
+
+class FrozenTui(RvisTui):
+    """The terminal showing STATUS and HISTORY (or others) at NOW, attached to nothing."""
+
+    def __init__(
+        self,
+        status: dict[str, Any] = STATUS,
+        history: dict[str, list[dict[str, Any]]] = HISTORY,
+    ) -> None:
         super().__init__(Path("/nonexistent/rvis-frozen"))
         self.now = lambda: NOW
-        self.status = STATUS
+        self.status = status
+        self.frozen_history = history
         self.connection = (True, "connected")
 
     def attach(self) -> None:
@@ -218,7 +277,7 @@ class FrozenTui(RvisTui):
     def _read_history(
         self, wanted: Sequence[str], sphere: str | None, text: str
     ) -> dict[str, list[dict[str, Any]]]:
-        return {key: HISTORY[key] for key in wanted}
+        return {key: self.frozen_history[key] for key in wanted}
 
     async def _refresh_once(self) -> None:
         hist = self._read_history(PANE_HISTORY[self.pane], None, "")

@@ -104,22 +104,29 @@ def test_fault_raises_an_alarm_the_operator_acknowledges_and_resets(
 async def _devices_show_the_fault_then_reset(
     pilot: Pilot[None], app: RvisTui, service: SimulatedLineRun, alarm: dict[str, Any]
 ) -> None:
-    """The Devices pane: the robot in FAULT with the error and its time, the others OK; after
-    a reset the robot is OK again and its last error is still shown."""
+    """The Devices pane: the robot in FAULT with the error (whole, under the table) and its
+    time, the others OK; after a reset the robot is OK again and its last error still shown."""
     await press(pilot, "5")
     table: DataTable[Any] = app.query_one("#devices-table", DataTable)
     rows = lambda: {str(r[0]): r for r in map(table.get_row_at, range(table.row_count))}  # noqa: E731
-    await until(pilot, lambda: rows().get("robot", ("",) * 5)[2] == "FAULT", WAIT_S)
-    robot = rows()["robot"]
-    assert robot[4] == alarm["message"]
-    at = datetime.fromisoformat(robot[3]).replace(tzinfo=UTC).timestamp()
+    await until(pilot, lambda: rows().get("robot", ("",) * 3)[1] == "FAULT", WAIT_S)
+    errors = {line.split("  ")[0].strip(): line for line in _error_lines(app)}
+    assert set(errors) == {"robot"}  # the only device that failed
+    when, message = errors["robot"].split("  ", 1)[1].split("  ", 1)
+    assert message == alarm["message"]
+    at = datetime.fromisoformat(when).replace(tzinfo=UTC).timestamp()
     assert abs(at - alarm["t_raised"]) < 5.0  # sim seconds: the same moment
     others = [r for family, r in rows().items() if family != "robot"]
-    assert others and all(r[2] == "OK" and r[4] == "" for r in others)
+    assert others and all(r[1] == "OK" for r in others)
     await confirm(pilot, "r")
-    await until(pilot, lambda: rows()["robot"][2] == "OK", WAIT_S)
-    assert rows()["robot"][4] == alarm["message"]
+    await until(pilot, lambda: rows()["robot"][1] == "OK", WAIT_S)
+    assert _error_lines(app) == list(errors.values())  # kept after the reset
     assert _alarms(service, "device_fault")[0]["state"] == "cleared"
+
+
+def _error_lines(app: RvisTui) -> list[str]:
+    """The lines of the devices' last errors under their table (app.tui.view.device_errors)."""
+    return text_of(app, "#device-errors").splitlines()[1:]
 
 
 def _row_of(table: DataTable[Any], alarm_id: int) -> int | None:

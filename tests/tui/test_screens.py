@@ -1,5 +1,6 @@
-"""Screenshots of every pane at 80x24 and 120x40 with frozen data (tests/tui/frozen.py): the
-text of each rendered line must equal the stored snapshot (tests/tui/snapshots/). After an
+"""Screenshots of every pane at 80x24 and 120x40 with frozen data (tests/tui/frozen.py), and of
+the Overview, Alarms and Devices in a fault (`fault_*`): the text of each rendered line must
+equal the stored snapshot (tests/tui/snapshots/). After an
 intended change of the screens, regenerate the snapshots and docs/tui/*.svg with
 `RVIS_UPDATE_SNAPSHOTS=1 pytest tests/tui/test_screens.py` and review the diff."""
 
@@ -15,11 +16,12 @@ from pathlib import Path
 import pytest
 
 from app.tui.app import PANES
-from tests.tui.frozen import FrozenTui
+from tests.tui.frozen import FAULT_HISTORY, FAULT_STATUS, FrozenTui
 
 SNAPSHOTS = Path(__file__).parent / "snapshots"
 DOCS = Path(__file__).parents[2] / "docs" / "tui"
 SIZES = ((80, 24), (120, 40))
+FAULT_PANES = ("overview", "alarms", "devices")
 _TEXT = re.compile(r'<text [^>]*clip-path="url\(#[\w-]+-line-(\d+)\)"[^>]*>(.*?)</text>')
 
 
@@ -32,11 +34,15 @@ def screen_lines(svg: str) -> list[str]:
 
 
 async def screenshot(
-    pane: str, size: tuple[int, int], settled: Callable[[str], bool] | None = None
+    pane: str,
+    size: tuple[int, int],
+    settled: Callable[[str], bool] | None = None,
+    app: FrozenTui | None = None,
 ) -> str:
     """The pane's SVG screenshot once the screen has settled: `settled(svg)` is true (waited
-    for up to 30 s, then the last one), or without it once two screenshots agree."""
-    app = FrozenTui()
+    for up to 30 s, then the last one), or without it once two screenshots agree. `app`: the
+    frozen terminal to show (by default FrozenTui())."""
+    app = app or FrozenTui()
     async with app.run_test(size=size) as pilot:
         await pilot.press(str(PANES.index(pane) + 1))
         await pilot.pause()  # the tab switch asks for a refresh (the pane's history)
@@ -64,12 +70,23 @@ async def screenshot(
 @pytest.mark.parametrize("size", SIZES, ids=lambda s: f"{s[0]}x{s[1]}")
 @pytest.mark.parametrize("pane", PANES)
 def test_screen_matches_snapshot(pane: str, size: tuple[int, int]) -> None:
-    name = f"{pane}_{size[0]}x{size[1]}"
+    matches_snapshot(f"{pane}_{size[0]}x{size[1]}", pane, size, FrozenTui())
+
+
+@pytest.mark.parametrize("size", SIZES, ids=lambda s: f"{s[0]}x{s[1]}")
+@pytest.mark.parametrize("pane", FAULT_PANES)
+def test_fault_screen_matches_snapshot(pane: str, size: tuple[int, int]) -> None:
+    """The line in a fault, its PLC unreachable (tests/tui/frozen.py FAULT_STATUS)."""
+    app = FrozenTui(FAULT_STATUS, FAULT_HISTORY)
+    matches_snapshot(f"fault_{pane}_{size[0]}x{size[1]}", pane, size, app)
+
+
+def matches_snapshot(name: str, pane: str, size: tuple[int, int], app: FrozenTui) -> None:
     golden = SNAPSHOTS / f"{name}.txt"
     update = bool(os.environ.get("RVIS_UPDATE_SNAPSHOTS"))
     expected = None if update else golden.read_text().split("\n")[:-1]
     svg = asyncio.run(
-        screenshot(pane, size, None if update else lambda svg: screen_lines(svg) == expected)
+        screenshot(pane, size, None if update else lambda svg: screen_lines(svg) == expected, app)
     )
     lines = screen_lines(svg)
     assert len(lines) == size[1]

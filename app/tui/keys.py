@@ -1,0 +1,68 @@
+"""The keys of the operator's terminal (the keys' table in docs/tui.md): which key does what,
+and from which focus.
+
+The screen keys (1-6 switch panes, q quits) are priority bindings: they act whatever widget has
+the focus (a table, the tabs, a scrolled pane), except while the cursor is in a filter box,
+where letters and digits are typed (a sphere filter needs "P2"); there Escape leaves the box
+(Enter applies the filter and leaves it too) and the keys act again. Ctrl+Q quits from anywhere.
+While a dialog asks, only its own keys answer (app.tui.app.RvisTui.check_action)."""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+from textual.binding import Binding, BindingType
+from textual.message import Message
+from textual.widgets import Input
+
+PANES = ("overview", "measurements", "calibrations", "alarms", "devices", "log")
+#: the widget a pane's key gives the focus to: its table (up/down select a row at once; the
+#: filter box is reached with / or Tab)
+PANE_FOCUS = {
+    "overview": "suspects-table",
+    "measurements": "measurements-table",
+    "calibrations": "versions-table",
+    "alarms": "alarms-table",
+    "devices": "devices-table",
+    "log": "log-table",
+}
+#: the panes with a filter box, and its id
+PANE_FILTER = {"measurements": "sphere-filter", "log": "log-filter"}
+#: the actions that the screen keys run (never while a dialog asks)
+SCREEN_ACTIONS = ("show", "quit")
+
+BINDINGS: list[BindingType] = [
+    *(
+        Binding(str(k + 1), f"show('{p}')", p.title(), show=False, priority=True)
+        for k, p in enumerate(PANES)
+    ),
+    # the footer shows them in this order; at 80 columns all of them fit (short words)
+    Binding("q", "quit", "Quit", priority=True),
+    Binding("p", "pause_resume", "Pause"),
+    Binding("r", "reset", "Reset"),
+    Binding("c", "recalibrate", "Recal"),
+    Binding("a", "approve", "Approve"),
+    Binding("x", "reject", "Reject"),
+    Binding("b", "rollback", "Rollback"),
+    Binding("k", "ack", "Ack"),
+    Binding("s", "shelve", "Shelve"),
+    # not in the footer (no room at 80 columns): the filter box's placeholder says it
+    Binding("slash", "filter", "Filter", show=False),
+]
+
+
+class FilterInput(Input):
+    """A pane's filter box: what is typed filters the pane's table; Enter applies it now,
+    Escape or Enter give the focus back to the table (the screen keys act again)."""
+
+    BINDINGS: ClassVar[list[BindingType]] = [Binding("escape", "leave", "Leave filter")]
+
+    class Left(Message):
+        """The operator left the filter box with Escape (the app focuses the table)."""
+
+        def __init__(self, box: FilterInput) -> None:
+            super().__init__()
+            self.box = box
+
+    def action_leave(self) -> None:
+        self.post_message(self.Left(self))
