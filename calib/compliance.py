@@ -38,6 +38,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from calib import robot
+from calib.compliance_settings import CompliantSettings
 from calib.model import (
     ALL_NAMES,
     COMPLIANCE_NAMES,
@@ -56,36 +57,6 @@ MODEL_KINDS = ("rigid", "compliant")
 ARM_COMPLIANCE: tuple[str, ...] = ("c2_upper", "c2_fore", "c3_fore")
 LENGTH_NAMES: tuple[str, ...] = tuple(n for n in ALL_NAMES if n[0] in "ad" and n[1:].isdigit())
 COMPLIANT_NAMES: tuple[str, ...] = ALL_NAMES + EXTRA_NAMES
-
-
-@dataclass(frozen=True)
-class CompliantSettings:
-    """Settings of the compliant model (cell file section `[calibration]`, see the README).
-
-    payload_kg: sensor, cables and bracket at the flange, seeds the payload coefficients;
-    nominal_compliance_rad_per_nm: a typical joint compliance, used only with the payload;
-    expansion_per_k: the arm's linear expansion coefficient (configured value, the start of
-    the identification); identify_expansion: identify it when the measurements span at least
-    min_temp_span_k; reference_temp_c: the temperature the geometry refers to."""
-
-    payload_kg: float = 0.0
-    nominal_compliance_rad_per_nm: float = 5e-8
-    expansion_per_k: float = 11.5e-6
-    identify_expansion: bool = True
-    min_temp_span_k: float = 3.0
-    reference_temp_c: float = 20.0
-
-    def __post_init__(self) -> None:
-        checks = {
-            "payload_kg": 0.0 <= self.payload_kg <= 500.0,
-            "nominal_compliance_rad_per_nm": 0.0 <= self.nominal_compliance_rad_per_nm < 1e-5,
-            "expansion_per_k": 0.0 <= self.expansion_per_k < 1e-4,
-            "min_temp_span_k": self.min_temp_span_k > 0.0,
-            "reference_temp_c": -40.0 <= self.reference_temp_c <= 80.0,
-        }
-        bad = [k for k, ok in checks.items() if not ok]
-        if bad:
-            raise ValueError(f"compliant model settings out of range: {', '.join(bad)}")
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 F64 = NDArray[np.float64]
 
@@ -109,6 +109,16 @@ def spacing_errors(c_sensor_mm: F64, T_ref_sensor: F64) -> tuple[NDArray[np.intp
     return np.column_stack([a, b]).astype(np.intp), measured - reference
 
 
+def probing_size_mm(radius_free_mm: ArrayLike, certified_radius_mm: ArrayLike) -> F64:
+    """PS [mm]: the free fit's diameter minus the certified one, 2 (r_free - r_certified); the
+    acceptance's and the in-line sensor watch's (app/line/sensor_watch.py) one formula."""
+    ps: F64 = 2.0 * (
+        np.asarray(radius_free_mm, dtype=np.float64)
+        - np.asarray(certified_radius_mm, dtype=np.float64)
+    )
+    return ps
+
+
 def acceptance(
     form_mm: F64,
     radius_free_mm: F64,
@@ -120,5 +130,5 @@ def acceptance(
     """PF, PS and SD of a sphere measured at n positions: its fits' form ranges and free radii
     (n,) [mm], the certified radius, the centres (n, 3) and sensor poses (n, 4, 4)."""
     pairs, sd = spacing_errors(c_sensor_mm, T_ref_sensor)
-    ps = 2.0 * (np.asarray(radius_free_mm, dtype=np.float64) - certified_radius_mm)
+    ps = probing_size_mm(radius_free_mm, certified_radius_mm)
     return Acceptance(np.asarray(form_mm, dtype=np.float64), ps, sd, pairs, limits)

@@ -24,8 +24,13 @@ def _unit(unit: str) -> str:
     return f" {unit}" if unit else ""
 
 
-def at_most(name: str, value: float, limit: float, unit: str = "") -> Check:
-    return Check(name, float(value), f"<= {limit:g}{_unit(unit)}", bool(value <= limit), unit)
+def at_most(
+    name: str, value: float, limit: float, unit: str = "", *, ok: bool | None = None
+) -> Check:
+    """value <= limit; `ok`: the verdict where another module decides it (the acceptance's
+    figures, vision.acceptance), the limit then only shown."""
+    passed = bool(value <= limit) if ok is None else bool(ok)
+    return Check(name, float(value), f"<= {limit:g}{_unit(unit)}", passed, unit)
 
 
 def at_least(name: str, value: float, limit: float, unit: str = "") -> Check:

@@ -29,6 +29,8 @@ from app.config.line import (
 from app.config.section import Section, opt
 from app.errors import InputError
 from calib import datasheet
+from calib.compliance_settings import RANGES as _R
+from calib.compliance_settings import CompliantSettings
 from calib.gate_limits import OFFLINE, Gates
 
 if TYPE_CHECKING:  # the sections load no numerics: a command that reads only its settings
@@ -127,6 +129,7 @@ class SimulationSection(Section):
 
 
 _OFF = OFFLINE
+_CS_DEFAULT = CompliantSettings()
 
 
 def _deg(rad: float | None) -> float:
@@ -155,12 +158,23 @@ class CalibrationSection(Section):
 
     name = "calibration"
     model: str = opt("rigid", choices=("rigid", "compliant"))
-    payload_kg: float = opt(0.0, lo=0, hi=500)
-    nominal_compliance_rad_per_nm: float = opt(5e-8, lo=0, hi=1e-5)
-    expansion_per_k: float = opt(11.5e-6, lo=0, hi=1e-4)
-    identify_expansion: bool = opt(True)
-    min_temp_span_k: float = opt(3.0, gt=0, hi=100)
-    reference_temp_c: float = opt(20.0, lo=-40, hi=80)
+    # the compliant model's settings: defaults and ranges are calib.compliance_settings'
+    payload_kg: float = opt(_CS_DEFAULT.payload_kg, lo=_R["payload_kg"][0], hi=_R["payload_kg"][1])
+    nominal_compliance_rad_per_nm: float = opt(
+        _CS_DEFAULT.nominal_compliance_rad_per_nm,
+        lo=_R["nominal_compliance_rad_per_nm"][0],
+        hi=_R["nominal_compliance_rad_per_nm"][1],
+    )
+    expansion_per_k: float = opt(
+        _CS_DEFAULT.expansion_per_k, lo=_R["expansion_per_k"][0], hi=_R["expansion_per_k"][1]
+    )
+    identify_expansion: bool = opt(_CS_DEFAULT.identify_expansion)
+    min_temp_span_k: float = opt(
+        _CS_DEFAULT.min_temp_span_k, gt=_R["min_temp_span_k"][0], hi=_R["min_temp_span_k"][1]
+    )
+    reference_temp_c: float = opt(
+        _CS_DEFAULT.reference_temp_c, lo=_R["reference_temp_c"][0], hi=_R["reference_temp_c"][1]
+    )
     configs_per_sphere: int = opt(6, lo=1, hi=1000)
     loss: str = opt("linear", choices=LOSSES)
     max_rms_mm: float = opt(_OFF.max_rms_mm, gt=0, hi=100)

@@ -25,6 +25,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from vision.acceptance import probing_size_mm
+
 #: The floor of PS's in-control sigma [mm]: a noise-free (geometric or replayed) baseline must
 #: not make every micrometre a shift.
 MIN_SIGMA_MM = 0.002
@@ -53,10 +55,11 @@ class SensorWatch:
     @staticmethod
     def ps_of(quality: dict[str, Any]) -> float | None:
         """PS [mm] of a measurement's quality figures (None without a free fit)."""
-        dev = quality.get("radius_dev_mm")
+        dev = quality.get("radius_dev_mm")  # r_free - r_certified (vision.spherefit)
         if dev is None or "radius_free_mm" not in quality:
             return None
-        return 2.0 * float(dev)
+        free = float(quality["radius_free_mm"])
+        return float(probing_size_mm(free, free - float(dev)))
 
     def update(self, ps_mm: float) -> str | None:
         """Chart one PS [mm]; the alarm's text when this value makes a signal, else None."""
