@@ -25,8 +25,9 @@ the wall clock x `scale` (peers driven by hand, nobody making time pass).
 
 `geometric_centre(target_id)` is the shortcut of long runs (`--geometric`): the true centre in the
 true sensor frame at the robot's current joints plus the cell's sensor noise, no rendering.
-Faults: `inject`, `clear`, `schedule` (fakes.line_faults). Every thread, socket, pty and the GigE
-fake are released by `close()` (also when `start()` fails half-way).
+Faults: `inject`, `clear`, `schedule` (fakes.line_faults); a device switched off and on again
+at the same URL: `stop_device`, `start_device` (`rvis devices sim`). Every thread, socket, pty
+and the GigE fake are released by `close()` (also when `start()` fails half-way).
 """
 
 from __future__ import annotations
@@ -274,7 +275,12 @@ class SimLine:
 
     def _server(self, family: str) -> LinePlc | RmiController | TrackerService:
         """The TCP peer of a network device."""
-        return {"plc": self.plc, "robot": self.controller, "tracker": self.tracker}[family]
+        servers: dict[str, LinePlc | RmiController | TrackerService] = {
+            "plc": self.plc,
+            "robot": self.controller,
+            "tracker": self.tracker,
+        }
+        return servers[family]
 
     def _check_family(self, family: str) -> None:
         if not self._started:
