@@ -50,7 +50,10 @@ class Row:
 def register(sub: Any) -> None:
     parser = add_command(sub, "devices")
     parser.add_argument(
-        "--json", action="store_true", help="print JSON (check: the table; trace: one per line)"
+        "--json",
+        action="store_true",
+        help="print JSON (check: the table; trace: one per line; sim: the devices once up;"
+        " ctl: the reply)",
     )
     actions = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     check = actions.add_parser("check", help="connect to each device and print a status table")
@@ -77,16 +80,27 @@ def register(sub: Any) -> None:
     sim = actions.add_parser(
         "sim", help="the simulated line's devices as their own process, with a cell file"
     )
-    sim.add_argument("--dir", type=Path, default=Path(SIM_DIR), help=f"folder (default {SIM_DIR})")
+    sim.add_argument(
+        "--dir",
+        type=Path,
+        default=Path(SIM_DIR),
+        help=f"folder of the cell file, plan, sensor file, control socket (default {SIM_DIR})",
+    )
     sim.add_argument("--cell", type=Path, help="the cell to simulate (default: the embedded cell)")
     sim.add_argument("--seed", type=int_at_least(0), help="seed (default [simulation] seed)")
     sim.add_argument(
         "--scale", type=float, default=1.0, help="sim seconds per real second (default 1)"
     )
-    sim.add_argument("--camera-address", default="127.0.0.1", help="the GigE fake's address")
+    sim.add_argument(
+        "--camera-address",
+        default="127.0.0.1",
+        help="the GigE fake camera's address, one of this machine's (default 127.0.0.1)",
+    )
     sim.set_defaults(func=run_sim)
     ctl = actions.add_parser("ctl", help="stop, start or break a simulated device while it runs")
-    ctl.add_argument("--dir", type=Path, default=Path(SIM_DIR), help=f"folder (default {SIM_DIR})")
+    ctl.add_argument(
+        "--dir", type=Path, default=Path(SIM_DIR), help=f"the devices' folder (default {SIM_DIR})"
+    )
     ctl.add_argument("words", nargs="+", metavar="COMMAND", help=CTL_HELP)
     ctl.set_defaults(func=run_ctl)
 
