@@ -169,6 +169,7 @@ class LineDevices:
         self.progress = progress
         self.broken: set[str] = set()  # devices with a lasting break
         self.line: SimLine | None = None
+        self.started_unix = 0.0
         self.quit = threading.Event()  # set by the `quit` command
         self._lock = threading.Lock()  # one command at a time
         self._server: _ControlServer | None = None
@@ -192,6 +193,8 @@ class LineDevices:
         self.folder.root.mkdir(parents=True, exist_ok=True)
         self._stop_stale_socket()
         line = self._start_line()
+        # the wall clock's Unix time of the line's sim time 0 (its clock runs x scale from it)
+        self.started_unix = time.time() - line.clock.monotonic() / self.scale
         cfg = devices_cell(self.cfg, line.urls, self.seed, self.scale)
         self._write_files(cfg, line)
         self._serve()
@@ -329,7 +332,9 @@ class LineDevices:
         return f"{family} fixed"
 
     def status(self) -> dict[str, Any]:
-        """Each device's URL and state (up, stopped, broken), the folder's files, the seed."""
+        """Each device's URL and state (up, stopped, broken), the folder's files, the seed, the
+        devices' clock (sim time now; the Unix time its sim time 0 was: the clamp window k opens
+        (k + 1) period_s - window_s sim seconds after it)."""
         line = self.line
         assert line is not None
         devices = {}
@@ -349,6 +354,7 @@ class LineDevices:
             "seed": self.seed,
             "scale": self.scale,
             "sim_time_s": round(line.clock.monotonic(), 3),
+            "started_unix": self.started_unix,
             "pid": os.getpid(),
         }
 
