@@ -248,7 +248,7 @@ def run_sim(args: argparse.Namespace) -> int:
         if args.json:
             print(json.dumps(status), flush=True)
         else:
-            _print_devices(status)
+            _print_devices(status, _state_dir_of(args.cell) or args.dir)
         stop = threading.Event()
         with _stopped_by_signals(stop):
             while not (stop.is_set() or devices.quit.is_set()):
@@ -273,13 +273,25 @@ def _stopped_by_signals(stop: Any) -> Iterator[None]:
             signal.signal(s, handler)
 
 
-def _print_devices(status: dict[str, Any]) -> None:
+def _state_dir_of(cell: Path | None) -> Path | None:
+    """The state directory whose commissioned cell file `cell` is (its plan beside it), if
+    any: the service runs on it."""
+    from app.line.statedir import StateDir
+
+    if cell is None:
+        return None
+    state = StateDir(cell.parent)
+    same = state.cell.resolve() == cell.resolve()
+    return cell.parent if same and state.plan.is_file() else None
+
+
+def _print_devices(status: dict[str, Any], state_dir: Path) -> None:
     folder = Path(status["cell"]).parent
     for family, d in status["devices"].items():
         print(f"{family:<8} {d['url']}")
     print(f"cell     {status['cell']} (seed {status['seed']}, plan and sensor beside it)")
     print(f"control  rvis devices ctl --dir {folder} stop|start|break|fix DEVICE | status | quit")
-    print(f"service  rvis run --cell {status['cell']} --state-dir {folder}", flush=True)
+    print(f"service  rvis run --cell {status['cell']} --state-dir {state_dir}", flush=True)
 
 
 def run_ctl(args: argparse.Namespace) -> int:
