@@ -23,7 +23,7 @@ from typing import Any
 import pytest
 
 from tests.groups import GIGE_CAMERA
-from tests.ops.conftest import ROOT, RVIS, ServiceProcess, rvis, status
+from tests.ops.conftest import ROOT, RVIS, ServiceProcess, _plant_signals, rvis, status
 
 pytestmark = GIGE_CAMERA
 
@@ -53,6 +53,7 @@ class DevicesProcess:
             stderr=subprocess.PIPE,
             cwd=ROOT,
             start_new_session=True,
+            preexec_fn=_plant_signals,  # Ctrl-C reaches it as a terminal's would
             text=True,
         )
         self._lines: queue.Queue[str] = queue.Queue()
@@ -83,7 +84,11 @@ class DevicesProcess:
         """Ctrl-C (idempotent): the exit status and what it wrote on stderr."""
         if self.proc.poll() is None:
             os.killpg(self.proc.pid, signal.SIGINT)
-        code = self.proc.wait(60)
+        try:
+            code = self.proc.wait(60)
+        except subprocess.TimeoutExpired:
+            os.killpg(self.proc.pid, signal.SIGKILL)  # a test failed while it was starting
+            code = self.proc.wait(60)
         if self.stderr is None:
             assert self.proc.stderr is not None and self.proc.stdout is not None
             self.stderr = self.proc.stderr.read()
