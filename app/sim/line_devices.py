@@ -131,12 +131,20 @@ def devices_cell(cfg: CellConfig, urls: dict[str, str], seed: int, scale: float)
 
 def check_folder(folder: DevicesDir) -> None:
     """Refuse a folder whose cell file is not one this module wrote (a commissioned state
-    directory: its cell file is the record of the cell), or a path that is not a folder."""
+    directory: its cell file is the record of the cell), a folder with a plan or sensor file
+    but none of its cell files, or a path that is not a folder."""
     if folder.root.exists() and not folder.root.is_dir():
         raise InputError("not a folder", file=folder.root)
     try:
         first = folder.cell.read_text(encoding="utf-8").splitlines()[:1]
     except FileNotFoundError:
+        for other in (folder.plan, folder.sensor):
+            if other.exists():  # written by someone else: `rvis commission`, a person
+                raise InputError(
+                    "a folder with a plan or sensor file and no cell file of `rvis devices"
+                    " sim`: give the devices another --dir",
+                    file=other,
+                ) from None
         return
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"cannot read: {exc}", file=folder.cell) from exc

@@ -42,11 +42,16 @@ def test_the_cell_file_names_the_devices_the_window_in_wall_seconds_and_the_seed
     check_folder(DevicesDir(tmp_path))  # its own cell file: written again at the next start
 
 
-def test_a_folder_with_another_cell_file_is_refused(tmp_path: Path) -> None:
+def test_a_folder_with_another_cell_plan_or_sensor_file_is_refused(tmp_path: Path) -> None:
     (tmp_path / "cell.toml").write_text("[simline]\nscale = 2.0\n", encoding="utf-8")
     with pytest.raises(InputError, match="not written by `rvis devices sim`") as info:
         check_folder(DevicesDir(tmp_path))
     assert info.value.file == str(tmp_path / "cell.toml")
+    (tmp_path / "cell.toml").unlink()
+    (tmp_path / "sensor.toml").write_text("", encoding="utf-8")  # a sensor calibration
+    with pytest.raises(InputError, match="no cell file of `rvis devices sim`") as info:
+        check_folder(DevicesDir(tmp_path))
+    assert info.value.file == str(tmp_path / "sensor.toml")
 
 
 def test_the_command_refuses_a_commissioned_folder_in_one_line(
