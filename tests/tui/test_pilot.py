@@ -111,14 +111,14 @@ async def _devices_show_the_fault_then_reset(
     rows = lambda: {str(r[0]): r for r in map(table.get_row_at, range(table.row_count))}  # noqa: E731
     await until(pilot, lambda: rows().get("robot", ("",) * 5)[2] == "FAULT", WAIT_S)
     robot = rows()["robot"]
-    assert robot[4] == alarm["message"]
+    assert alarm["message"] == f"robot ({service.line.urls['robot']}): {robot[4]}"  # named
     at = datetime.fromisoformat(robot[3]).replace(tzinfo=UTC).timestamp()
     assert abs(at - alarm["t_raised"]) < 5.0  # sim seconds: the same moment
     others = [r for family, r in rows().items() if family != "robot"]
     assert others and all(r[2] == "OK" and r[4] == "" for r in others)
     await confirm(pilot, "r")
     await until(pilot, lambda: rows()["robot"][2] == "OK", WAIT_S)
-    assert rows()["robot"][4] == alarm["message"]
+    assert rows()["robot"][4] == robot[4]
     assert _alarms(service, "device_fault")[0]["state"] == "cleared"
 
 
