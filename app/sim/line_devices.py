@@ -177,7 +177,7 @@ class LineDevices:
         self.progress = progress
         self.broken: set[str] = set()  # devices with a lasting break
         self.line: SimLine | None = None
-        self.started_unix = 0.0
+        self.started_unix_s = 0.0
         self.quit = threading.Event()  # set by the `quit` command
         self._lock = threading.Lock()  # one command at a time
         self._server: _ControlServer | None = None
@@ -202,7 +202,7 @@ class LineDevices:
         self._stop_stale_socket()
         line = self._start_line()
         # the wall clock's Unix time of the line's sim time 0 (its clock runs x scale from it)
-        self.started_unix = time.time() - line.clock.monotonic() / self.scale
+        self.started_unix_s = time.time() - line.clock.monotonic() / self.scale
         cfg = devices_cell(self.cfg, line.urls, self.seed, self.scale)
         self._write_files(cfg, line)
         self._serve()
@@ -362,7 +362,7 @@ class LineDevices:
             "seed": self.seed,
             "scale": self.scale,
             "sim_time_s": round(line.clock.monotonic(), 3),
-            "started_unix": self.started_unix,
+            "started_unix_s": self.started_unix_s,
             "pid": os.getpid(),
         }
 

@@ -153,7 +153,7 @@ def test_the_service_on_the_devices_process_faults_on_the_plc_and_measures_again
         )
         measured = service.wait_log(lambda r: r.get("event") == "measurement", 4 * PERIOD_S)
         # the PLC's windows (the devices' clock) opened between the two (the service's clock)
-        epoch = up["started_unix"]
+        epoch = up["started_unix_s"]
         assert _windows_opened(reset["t"] - epoch, measured["t"] - epoch) <= 2
         doc = status(devices.folder)
         assert doc["state"] in ("idle", "measuring")
