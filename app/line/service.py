@@ -753,8 +753,11 @@ class Service:
                 self.log.info("retention: documents of %d rejected calibrations dropped", n)
 
     def _fault(self, exc: BaseException) -> None:
-        self.fault_family = self.note_device_error(exc)
-        self._enter_fault("device_fault", f"{type(exc).__name__}: {exc}")
+        """FAULT on a device's error; the alarm names the device and its URL when the error
+        is one device's (`plc (plc+modbus://...): DeviceConnectionError: ...`)."""
+        family = self.fault_family = self.note_device_error(exc)
+        where = "" if family is None else f"{family} ({self.station.urls.get(family, '')}): "
+        self._enter_fault("device_fault", f"{where}{type(exc).__name__}: {exc}")
 
     def _enter_fault(self, code: str, message: str) -> None:
         """FAULT: stop the robot, set the PLC fault bit, raise the alarm (each best effort)."""
