@@ -23,7 +23,7 @@ const NAMES = [
 ];
 const FIELDS = [
   "EventId", "ConditionId", "ConditionName", "Severity", "Message", "ActiveState.Id",
-  "AckedState.Id", "Retain", "Time",
+  "AckedState.Id", "Retain", "Time", "Comment",
 ];
 
 const out = (r) => process.stdout.write(JSON.stringify(r) + "\n");

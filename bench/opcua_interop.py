@@ -9,8 +9,9 @@ reads Identification and MachineryItemState through them (issue 29), resolves th
 browse path, reads them, subscribes to Windows and to AlarmConditionType events; this script
 runs the service on the simulated line (x300, geometric) with the OPC UA server (allow_ack),
 pauses it and compares what node-opcua read with the service's status reply, plays a controller
-alarm, lets node-opcua acknowledge it (the audit row is checked), resets, and prints one line
-per check. Exit status 1 if any failed.
+alarm, lets node-opcua acknowledge it (the audit row is checked, the comment comes back in the
+event's Comment), resets, plays an alarm blip (raised and cleared in one transaction: two
+events, issue 39) and prints one line per check. Exit status 1 if any failed.
 """
 
 from __future__ import annotations
@@ -250,8 +251,9 @@ def scenario(line: SimulatedLineRun, node: Node) -> list[tuple[str, bool, str]]:
             ack["status"] == "Good"
             and acked["ActiveState.Id"]
             and audit["cmd"] == "ack"
-            and audit["args"].get("via") == "opcua",
-            f"{ack['status']}; audit {audit['cmd']} {audit['args']}",
+            and audit["args"].get("via") == "opcua"
+            and acked["Comment"] == audit["args"].get("comment"),
+            f"{ack['status']}; audit {audit['cmd']} {audit['args']}; Comment {acked['Comment']!r}",
         )
     )
     svc.request("reset").result(30)
@@ -261,7 +263,27 @@ def scenario(line: SimulatedLineRun, node: Node) -> list[tuple[str, bool, str]]:
         )
     )
     checks.append(("reset -> inactive event, Retain false", cleared["Retain"] is False, ""))
-    return checks
+    return [*checks, blip(svc, node)]
+
+
+def blip(svc: Any, node: Node) -> tuple[str, bool, str]:
+    """An alarm raised and cleared in one transaction (no status reply between them): two
+    events, raised then cleared (issue 39 item 2)."""
+    code = "params_rebuilt"  # raised only at a start: the running line leaves it alone
+    before = node.mark()
+    t0 = time.monotonic()
+    with svc.store.batch():
+        svc.alarm(code, "a blip", "medium")
+        svc.clear_alarms(code)
+    blip_ms = 1000.0 * (time.monotonic() - t0)
+    first = node.wait(lambda r: r["k"] == "event" and r["ConditionName"] == code, since=before)
+    second = node.wait(lambda r: r["k"] == "event" and r["ConditionName"] == code)
+    states = [first["ActiveState.Id"], second["ActiveState.Id"]]
+    return (
+        f"alarm blip of {blip_ms:.0f} ms -> raise and clear events",
+        states == [True, False],
+        f"ActiveState.Id {states}, Time {first['Time']} / {second['Time']}",
+    )
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -138,6 +138,12 @@ def status_lines(status: dict[str, Any]) -> list[str]:
     alarms = status.get("alarms", [])
     lines.append(f"alarms              {len(alarms) or 'none'}")
     lines += [f"  #{a['id']} {a['priority']:<7} {a['state']:<8} {a['message']}" for a in alarms]
+    opcua = status.get("opcua")
+    if opcua is not None:  # the running service's OPC UA server
+        lost = opcua.get("events_dropped", 0)
+        lines.append(
+            f"OPC UA              {lost or 'no'} alarm events lost on the way to the server"
+        )
     lines += _suspect_lines(status)
     return lines
 

@@ -42,12 +42,14 @@ class JsonLineFormatter(logging.Formatter):
 class Subscription(queue.Queue[dict[str, Any]]):
     """One subscriber's bounded queue. `drop_when_full`: a subscriber that falls `maxsize`
     events behind is dropped (`dropped` says why; no more events are queued); otherwise it
-    loses its oldest events."""
+    loses its oldest events (`lost` counts them). `name`: what the bus's `lost(name)` sums."""
 
-    def __init__(self, maxsize: int, drop_when_full: bool) -> None:
+    def __init__(self, maxsize: int, drop_when_full: bool, name: str = "") -> None:
         super().__init__(maxsize)
         self.drop_when_full = drop_when_full
         self.dropped: str | None = None
+        self.name = name
+        self.lost = 0
 
     def offer(self, message: dict[str, Any]) -> None:
         if self.dropped is not None:
@@ -62,6 +64,7 @@ class Subscription(queue.Queue[dict[str, Any]]):
                     return
                 with contextlib.suppress(queue.Empty):
                     self.get_nowait()
+                    self.lost += 1
 
 
 class EventBus:
@@ -74,23 +77,43 @@ class EventBus:
         self.store, self.clock, self.max_queue = store, clock, max_queue
         self._subs: list[Subscription] = []
         self._lock = threading.Lock()
+        self._lost: dict[str, int] = {}  # name -> events lost by its unsubscribed queues
 
     def subscribe(self, *, drop_when_full: bool = False, every: bool = False) -> Subscription:
         """A subscriber's queue; `every`: unbounded, for a consumer in the same process that
         must see every event (the simulated line's run, whose service can run ahead of it in
         virtual time)."""
-        q = Subscription(0 if every else self.max_queue, drop_when_full)
+        return self.attach(Subscription(0 if every else self.max_queue, drop_when_full))
+
+    def attach(self, q: Subscription) -> Subscription:
+        """Subscribe with a queue of the subscriber's own (a Subscription subclass with its
+        own policy when full, e.g. app.line.opcua.feed.FeedQueue)."""
         with self._lock:
             self._subs.append(q)
+            if q.name:
+                self._lost.setdefault(q.name, 0)
         return q
 
     def unsubscribe(self, q: queue.Queue[dict[str, Any]]) -> None:
         with self._lock:
             if q in self._subs:
                 self._subs.remove(q)
+                if isinstance(q, Subscription) and q.name:
+                    self._lost[q.name] += q.lost
 
-    def emit(self, kind: str, data: dict[str, Any], *, level: int = logging.INFO) -> None:
-        t = self.clock.time()
+    def lost(self, name: str) -> int | None:
+        """The events lost by the queues subscribed as `name`, now and before (None: no such
+        queue ever subscribed)."""
+        with self._lock:
+            if name not in self._lost:
+                return None
+            return self._lost[name] + sum(q.lost for q in self._subs if q.name == name)
+
+    def emit(
+        self, kind: str, data: dict[str, Any], *, level: int = logging.INFO, t: float | None = None
+    ) -> None:
+        """One event at `t` (the service's clock; default: now)."""
+        t = self.clock.time() if t is None else t
         try:
             self.store.add_event(t, kind, data)
         except StorageError:

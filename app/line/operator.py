@@ -28,6 +28,7 @@ from typing import Any
 from app.line.host import LineHost
 from app.line.roles import ENGINEER, LIFTS_HOLD, NEEDS
 from app.line.states import FAULT_CODES, HOLD_LIFT, State, utc_text
+from app.line.status import alarm_event
 from app.line.step import StepStatus
 from app.line.store import StorageError
 from drivers.errors import DeviceError
@@ -176,7 +177,7 @@ class Operator:
             raise CommandError(f"reset failed: {type(exc).__name__}: {exc}") from exc
         t = svc.clock.time()
         for code in FAULT_CODES:
-            svc.store.clear_alarms(t, code)
+            svc.clear_alarms(code, t)
         svc.set_state(State.PAUSED if svc.paused else State.IDLE)
         home = svc.measurer.at_home()
         note = "" if home else "; the robot comes home in the next window"
@@ -274,8 +275,14 @@ class Operator:
     def _cmd_ack(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
         svc = self.svc
         alarm_id = _int(args, "alarm")
-        if not svc.store.ack_alarm(alarm_id, svc.clock.time(), uid):
+        t = svc.clock.time()
+        if not svc.store.ack_alarm(alarm_id, t, uid):
             raise CommandError(f"no unacknowledged alarm {alarm_id}")
+        row = svc.store.alarm(alarm_id)
+        if row is not None:  # the comment and who: OPC UA's Comment and ClientUserId
+            who = str(args.get("user", "")) or ("" if uid is None else f"uid {uid}")
+            more = {"comment": str(args.get("comment", "")), "user": who}
+            svc.bus.emit("alarm_acked", alarm_event(row, str(row["state"]), **more), t=t)
         return {"message": f"alarm {alarm_id} acknowledged"}
 
     def _cmd_shelve(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
@@ -287,7 +294,12 @@ class Operator:
         minutes = args.get("minutes", 60)
         if isinstance(minutes, bool) or not isinstance(minutes, int | float) or minutes <= 0:
             raise CommandError("'minutes' must be a positive number")
-        until = svc.clock.time() + 60.0 * float(minutes)
+        t = svc.clock.time()
+        until = t + 60.0 * float(minutes)
         if not svc.store.shelve_alarm(alarm_id, until, reason):
             raise CommandError(f"no active alarm {alarm_id}")
+        row = svc.store.alarm(alarm_id)
+        if row is not None:
+            data = alarm_event(row, "shelved", reason=reason, until_utc=utc_text(until))
+            svc.bus.emit("alarm_shelved", data, t=t)
         return {"message": f"alarm {alarm_id} shelved for {minutes:g} min"}

@@ -78,7 +78,7 @@ from app.line.settings import ServiceSettings
 from app.line.statedir import StateDir
 from app.line.states import FAULT_CODES, State, suspect_json, utc_text
 from app.line.station import Station
-from app.line.status import device_of, status_reply
+from app.line.status import alarm_event, device_of, status_reply
 from app.line.step import Step, StepStatus, step_alarm_text
 from app.line.step_fit import MIN_STEP_REFS, StepCorrection, step_slot
 from app.line.step_handler import StepHandler
@@ -435,7 +435,7 @@ class Service:
             self._clear_unreachable(bool(stale), None)
             return True
         if stale:
-            self.store.clear_alarms(self.clock.time(), "device_unreachable")
+            self.clear_alarms("device_unreachable")
         errors = dict(self.station.unreachable)
         for exc in errors.values():
             self.note_device_error(exc)
@@ -486,8 +486,7 @@ class Service:
         self.device_retry = None
         if not raised:
             return
-        self.store.clear_alarms(self.clock.time(), "device_unreachable")
-        self.bus.emit("alarm_cleared", {"code": "device_unreachable"})
+        self.clear_alarms("device_unreachable")
         self.fault_family = None
         with contextlib.suppress(DeviceError):
             self.station.plc.set_signals(busy=False, done=False, fault=False)
@@ -627,16 +626,18 @@ class Service:
             self.bus.emit("suspect_interval", suspect_json(opened))
 
     def _unshelve(self) -> None:
-        for alarm_id in self.store.unshelve_expired(self.clock.time()):
-            self.bus.emit("alarm_unshelved", {"id": alarm_id}, level=logging.WARNING)
+        t = self.clock.time()
+        for alarm_id in self.store.unshelve_expired(t):
+            row = self.store.alarm(alarm_id)
+            data = {"id": alarm_id} if row is None else alarm_event(row, "raised")
+            self.bus.emit("alarm_unshelved", data, level=logging.WARNING, t=t)
 
     def _watch_heartbeat(self) -> None:
         alarms = self.store.active_alarms(code="plc_heartbeat")
         if self.watch.lost and not alarms:
             self.alarm("plc_heartbeat", "PLC heartbeat lost: no window is used until it returns")
         elif self.watch.alive and alarms:
-            self.store.clear_alarms(self.clock.time(), "plc_heartbeat")
-            self.bus.emit("alarm_cleared", {"code": "plc_heartbeat"})
+            self.clear_alarms("plc_heartbeat")
 
     def _watch_temperature(self) -> None:
         """A `temperature` alarm while the PLC should provide the cell temperature and does
@@ -655,8 +656,7 @@ class Service:
                 "medium",
             )
         elif not why and active:
-            self.store.clear_alarms(self.clock.time(), "temperature")
-            self.bus.emit("alarm_cleared", {"code": "temperature"})
+            self.clear_alarms("temperature")
         self._temperature_bad = bool(why)
 
     def _store_clamped(self) -> None:
@@ -671,16 +671,35 @@ class Service:
     # -- faults and alarms -------------------------------------------------------------------------
     def alarm(self, code: str, message: str, priority: str = "high") -> int:
         """Raise an alarm (stored; kept in memory while the storage fails); its id."""
+        t = self.clock.time()
         try:
-            alarm_id = self.store.raise_alarm(self.clock.time(), code, message, priority)
+            alarm_id = self.store.raise_alarm(t, code, message, priority)
         except StorageError:
             alarm_id = self._unstored_alarm(code, message, priority)
         self.bus.emit(
             "alarm",
-            {"id": alarm_id, "code": code, "message": message, "priority": priority},
+            {
+                "id": alarm_id,
+                "code": code,
+                "message": message,
+                "priority": priority,
+                "state": "raised",
+            },
             level=logging.WARNING,
+            t=t,
         )
         return alarm_id
+
+    def clear_alarms(self, code: str, t: float | None = None) -> int:
+        """Clear the active alarms of `code` (stored), each an `alarm_cleared` event with its
+        id (OPC UA: that occurrence of the condition ends); how many."""
+        t = self.clock.time() if t is None else t
+        live = self.store.active_alarms(code=code)
+        if live:
+            self.store.clear_alarms(t, code)
+        for a in live:
+            self.bus.emit("alarm_cleared", alarm_event(a, "cleared"), t=t)
+        return len(live)
 
     def _unstored_alarm(self, code: str, message: str, priority: str) -> int:
         for a in self.unstored_alarms:
@@ -728,8 +747,7 @@ class Service:
                 "medium",
             )
         elif free >= floor and active:
-            self.store.clear_alarms(self.clock.time(), "low_disk")
-            self.bus.emit("alarm_cleared", {"code": "low_disk"})
+            self.clear_alarms("low_disk")
 
     def _retain(self) -> None:
         """At most once an hour: events older than [service] events_keep_days are deleted (in
@@ -1316,14 +1334,14 @@ class Service:
             if self.sequential is not None and kind != "sequential":
                 self.sequential.restart(self.model, self.x, self.params.current_document())
             onset, self.drift_due = self.drift_onset_id, False
-            self.store.clear_alarms(t, "drift")
+            self.clear_alarms("drift", t)
             first_id = None if cal is None else int(cal["first_id"] or 0)
             after_step = first_id is not None and onset is not None and first_id >= onset
             recovering = after_step and self._suspect_open()
             if recovering:  # the interval closes when the residuals say the cell is back
                 self.step_handler.corrected(t, version, cal, kind)
             elif onset is None or after_step:
-                self.store.clear_alarms(t, "drift_step")
+                self.clear_alarms("drift_step", t)
                 if kind != "step":  # a full calibration trained after the step: it is over
                     self.drift_onset_id, self.step = None, None
             self.save_state()

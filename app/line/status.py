@@ -7,6 +7,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from app.line.host import LineHost
+from app.line.opcua import FEED_NAME
 from app.line.states import suspect_json, utc_text
 from app.line.store import StorageError
 
@@ -29,6 +30,7 @@ def status_reply(svc: LineHost) -> dict[str, Any]:
             # the U95 of a point measured now, vouched for or not (app.line.accuracy)
             "accuracy": None if svc.accuracy is None else svc.accuracy.to_json(),
             "storage_error": str(exc),
+            **_opcua_status(svc),
         }
 
 
@@ -38,6 +40,13 @@ def alarm_status(a: dict[str, Any]) -> dict[str, Any]:
     out["text"] = a["message"]
     out["raised_utc"] = utc_text(a["t_raised"])
     return out
+
+
+def alarm_event(a: dict[str, Any], state: str, **more: Any) -> dict[str, Any]:
+    """An alarm's change as the event bus carries it (`alarm`, `alarm_acked`, `alarm_shelved`,
+    `alarm_unshelved`, `alarm_cleared`): the alarm's fields with its state after the change,
+    so that a consumer (the OPC UA server) applies each change in order without a query."""
+    return {**alarm_status(a), "state": state, **more}
 
 
 def step_text(svc: LineHost) -> str:
@@ -105,7 +114,15 @@ def _status(svc: LineHost) -> dict[str, Any]:
         "suspect_intervals": [
             suspect_json(r) for r in svc.store.suspects(last=SUSPECTS_IN_STATUS)
         ],  # the last ones, oldest first; the open one has no end yet
+        **_opcua_status(svc),
     }
+
+
+def _opcua_status(svc: LineHost) -> dict[str, Any]:
+    """`opcua`: the alarm events the OPC UA server's feed lost (app.line.opcua.feed), when
+    one feeds; else nothing."""
+    lost = svc.bus.lost(FEED_NAME)
+    return {} if lost is None else {"opcua": {"events_dropped": lost}}
 
 
 def _device_status(svc: LineHost) -> dict[str, dict[str, Any]]:

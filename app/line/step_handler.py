@@ -122,7 +122,7 @@ class StepHandler:
         svc = self.svc
         step.move(StepStatus.ATTRIBUTING)
         self._open_suspect(step)
-        svc.store.clear_alarms(svc.clock.time(), "drift")
+        svc.clear_alarms("drift")
         signal = step.signal or f"step since measurement {step.start_id or step.onset_id}"
         step.signal = signal
         svc.alarm("drift_step", step_alarm_text(signal, a.text()), "high")
@@ -506,7 +506,7 @@ class StepHandler:
                 step.recovery = f"{step.recovery}; {acc.text()}"
         with svc.store.batch():
             closed = self._close(step, reason)
-            svc.store.clear_alarms(svc.clock.time(), "drift_step")
+            svc.clear_alarms("drift_step")
             if step.recover_kind != "step":  # a full calibration after the step: it is over
                 svc.drift_onset_id, svc.step = None, None
             svc.save_state()

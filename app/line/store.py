@@ -579,6 +579,11 @@ class Store:
     def alarms(self) -> list[dict[str, Any]]:
         return self._rows("SELECT * FROM alarms ORDER BY id")
 
+    def alarm(self, alarm_id: int) -> dict[str, Any] | None:
+        """One alarm by id (None: no such row)."""
+        rows = self._rows("SELECT * FROM alarms WHERE id = ?", (alarm_id,))
+        return rows[0] if rows else None
+
     def add_event(self, t: float, kind: str, data: dict[str, Any]) -> int:
         return self._insert(
             "INSERT INTO events (t, kind, data) VALUES (?, ?, ?)", (t, kind, _dumps(data))

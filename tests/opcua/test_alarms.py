@@ -2,7 +2,9 @@
 event whose Time is the alarm's on the service's clock (the time it was raised, not when the
 event was sent), with the priority's severity; acknowledging is refused unless
 `[opcua] allow_ack`, and when allowed is the service's audited `ack`; shelving and `rvis ctl
-reset` (clearing) follow, and ConditionRefresh replays what is active."""
+reset` (clearing) follow, and ConditionRefresh replays what is active. Alarm changes travel
+as events, in order: an alarm raised and cleared between two status replies is two OPC UA
+events (issue 39 item 2)."""
 
 from __future__ import annotations
 
@@ -106,6 +108,9 @@ def test_a_device_fault_as_alarm_events_from_raise_to_clear(
             await acknowledge(op, condition_op, raised_op.EventId, "seen from SCADA")
             _, acked = await handler.event(_is("device_fault", AckedState__Id=True))
             assert _field(acked, ACTIVE) is True and acked.Retain
+            assert acked.Comment.Text == "seen from SCADA" and acked.ClientUserId == "anonymous"
+            comment = await (await condition.get_child("0:Comment")).read_value()
+            assert comment.Text == "seen from SCADA"  # the condition's variable too
             last = line.service.store.actions()[-1]
             assert last["cmd"] == "ack" and last["ok"]
             assert last["args"]["alarm"] == alarm["id"] and last["args"]["via"] == "opcua"
@@ -155,11 +160,43 @@ def test_condition_refresh_replays_the_active_alarms(
     assert event.Severity == 900 and "DeviceConnectionError" in event.Message.Text
 
 
+def test_an_alarm_raised_and_cleared_between_two_publishes_is_two_events(
+    line: SimulatedLineRun, servers: Servers
+) -> None:
+    """An alarm blip (raised and cleared well within 50 ms, inside one transaction: no status
+    reply can be taken between them, and faster than the subscription's publishing interval)
+    reaches a subscriber of the Server object as two events of its condition, active then
+    inactive, each with the time of its change on the service's clock."""
+    svc = line.service
+    code = "params_rebuilt"  # raised only at a start: the running line leaves it alone
+    assert code not in {a["code"] for a in svc.status()["alarms"]}
+
+    async def scenario() -> list[Any]:
+        async with Client(servers.read_only) as client:
+            handler = Catcher()
+            sub = await client.create_subscription(500, handler)
+            await sub.subscribe_events(client.nodes.server, ua.ObjectIds.AlarmConditionType)
+            with svc.store.batch():
+                alarm_id = svc.alarm(code, "a blip", "medium")
+                svc.clear_alarms(code)
+            raised = (await handler.event(_is(code), 10))[1]
+            cleared = (await handler.event(_is(code), 10))[1]
+            assert (_field(raised, ACTIVE), _field(cleared, ACTIVE)) == (True, False)
+            row = _alarm(line, alarm_id)
+            assert raised.Time == clock_utc(row["t_raised"]) and raised.Severity == 500
+            assert cleared.Time == clock_utc(row["t_cleared"]) and not cleared.Retain
+            assert raised.NodeId == cleared.NodeId and raised.EventId != cleared.EventId
+            return [raised, cleared]
+
+    asyncio.run(scenario())
+
+
 def test_every_alarm_condition_is_there_from_the_start(
     line: SimulatedLineRun, servers: Servers
 ) -> None:
     """Alarms/ holds one AlarmConditionType condition per code of ALARM_CODES (raised or not),
-    each subscribable: the codes not active read ActiveState Inactive, Retain false."""
+    each subscribable: the codes not active read ActiveState Inactive, Retain false; every one
+    has a Severity and a Message (never raised: the lowest severity, not Null)."""
     active = {a["code"] for a in line.service.status()["alarms"]}
 
     async def check() -> dict[str, tuple[bool, bool, Any]]:
@@ -174,6 +211,10 @@ def test_every_alarm_condition_is_there_from_the_start(
                 retain = await node.get_child("0:Retain")
                 out[name] = (await state.read_value(), await retain.read_value(), typedef)
                 items.append(state)
+                severity = await (await node.get_child("0:Severity")).read_value()
+                assert isinstance(severity, int) and 1 <= severity <= 1000, (name, severity)
+                message = await (await node.get_child("0:Message")).read_value()
+                assert isinstance(message, ua.LocalizedText), (name, message)
             sub = await client.create_subscription(50, Catcher())
             handles = await sub.subscribe_data_change(items)
             assert all(isinstance(h, int) for h in handles)  # each monitored item created

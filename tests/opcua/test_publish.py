@@ -157,7 +157,10 @@ def test_identification_as_opc_40001(servers: Servers) -> None:
             ident = await m.get_child(f"{ns_di}:Identification")
             values = {}
             for prop in await ident.get_properties():
-                values[(await prop.read_browse_name()).Name] = await prop.read_value()
+                dv = await prop.read_data_value()
+                name = (await prop.read_browse_name()).Name
+                assert dv.SourceTimestamp is not None, name  # the service's clock at the start
+                values[name] = dv.Value.Value
             rms = await child(client, m, "CalibrationRmsMm")
             unit = await rms.get_child("0:EngineeringUnits")
             values["unit"] = (await unit.read_value()).DisplayName.Text

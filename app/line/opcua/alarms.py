@@ -3,14 +3,16 @@ list shows them.
 
 One condition per alarm code (`Alarms/<code>` under the machine, an AlarmConditionType
 instance referenced by HasCondition), every code of app.line.states.ALARM_CODES from the start
-(inactive, so that a client can browse and subscribe to all of them): the service keeps at most
-one active alarm per code, and each of its alarm rows is one occurrence of that condition.
-`sync(alarms)` compares the status reply's alarms with the occurrences it published and
-triggers an event for every change, from the machine and from the Server object, with the
-condition's variables written to match:
+(inactive, Severity IDLE_SEVERITY, so that a client can browse and subscribe to all of them):
+the service keeps at most one active alarm per code, and each of its alarm rows is one
+occurrence of that condition. `apply(change)` takes each alarm change of the service's events,
+in order; `sync(alarms)` compares a status reply's alarms with the occurrences published (at
+the start, and to repair alarm events lost on the way). Either triggers an event for every
+change, from the machine and from the Server object, with the condition's variables written
+to match:
 
     raised              ActiveState Active, AckedState Unacknowledged, Retain true
-    acked               AckedState Acknowledged
+    acked               AckedState Acknowledged, Comment and ClientUserId the acknowledge's
     shelved / unshelved ShelvingState TimedShelved / Unshelved (SuppressedOrShelved)
     cleared             ActiveState Inactive, Retain false (the service needs no ack after)
 
@@ -40,6 +42,8 @@ from app.line.states import ALARM_CODES
 log = logging.getLogger("rvis.line.opcua")
 
 SEVERITY = {"urgent": 900, "high": 700, "medium": 500, "low": 300}
+IDLE_SEVERITY = 1  # a condition never raised since the start (Part 5's range is 1..1000)
+IDLE_MESSAGE = "not raised since the OPC UA server started"
 SHELVING_IDS = {
     "Unshelved": ua.ObjectIds.ShelvedStateMachineType_Unshelved,
     "TimedShelved": ua.ObjectIds.ShelvedStateMachineType_TimedShelved,
@@ -57,6 +61,12 @@ class Occurrence:
     state: str  # raised | acked | shelved
     acked: bool = False
     event_ids: set[bytes] = field(default_factory=set)
+    comment: str = ""  # the acknowledge's
+    user: str = ""  # who acknowledged
+
+    def move(self, state: str) -> None:
+        self.acked = state == "acked" or (state == "shelved" and self.acked)
+        self.state = state
 
 
 def condition_fields(
@@ -83,6 +93,8 @@ def condition_fields(
         "ShelvingState/CurrentState": (ua.LocalizedText(shelving), text),
         "ShelvingState/CurrentState/Id": (ua.NodeId(SHELVING_IDS[shelving]), ua.VariantType.NodeId),
         "SuppressedOrShelved": (shelving != "Unshelved", ua.VariantType.Boolean),
+        "Comment": (ua.LocalizedText(occ.comment), text),
+        "ClientUserId": (occ.user, ua.VariantType.String),
     }
 
 
@@ -112,10 +124,9 @@ class Conditions:
         self.server.link_method(method, self._acknowledge)
         for code in ALARM_CODES:
             node = await self._condition(code)
-            idle = {"code": code, "priority": "", "message": ""}
+            idle = {"code": code, "priority": "", "message": IDLE_MESSAGE}
             fields = condition_fields(idle, Occurrence(0, "cleared"), False)
-            fields.pop("Severity")  # no occurrence yet: the type's default
-            fields.pop("Message")
+            fields["Severity"] = (IDLE_SEVERITY, ua.VariantType.UInt16)
             await self._write(code, node, fields)
 
     async def _condition(self, code: str) -> Node:
@@ -135,27 +146,62 @@ class Conditions:
         return node
 
     async def sync(self, alarms: list[Mapping[str, Any]], t: datetime) -> int:
-        """Publish what changed since the last call (`alarms`: the status reply's, one per
-        code); the number of events triggered."""
+        """Publish what differs from `alarms` (a status reply's, one per code); the number of
+        events triggered."""
         events = 0
         seen = {str(a["code"]): a for a in alarms}
-        for code, (occ, last) in list(self._now.items()):
+        for code, (occ, _) in list(self._now.items()):
             if code not in seen or int(seen[code]["id"]) != occ.alarm_id:
-                await self._event(code, last, occ, False, t)  # cleared (or replaced)
-                del self._now[code]
-                events += 1
-        for code, alarm in seen.items():
-            published = self._now.get(code)
-            state = str(alarm["state"])
-            if published is not None and published[0].state == state:
-                continue
-            occ = published[0] if published else Occurrence(int(alarm["id"]), state)
-            occ.acked = state == "acked" or (state == "shelved" and occ.acked)
-            occ.state = state
-            self._now[code] = (occ, dict(alarm))
-            await self._event(code, alarm, occ, True, t)
-            events += 1
+                events += await self._clear(code, occ.alarm_id, t)  # cleared (or replaced)
+        for alarm in seen.values():
+            events += await self._set(alarm, str(alarm["state"]), t)
         return events
+
+    async def apply(self, change: Mapping[str, Any], t: datetime) -> int:
+        """One alarm change of the service's events (`change`: id, code, `state` after it,
+        priority, message, comment and user of an acknowledge, `change` the event), at `t`;
+        the number of events triggered (0: nothing new for a client, e.g. a raise of the
+        occurrence published already, or a change of an occurrence cleared already)."""
+        code, alarm_id, state = str(change["code"]), int(change["id"]), str(change["state"])
+        published = self._now.get(code)
+        if state == "cleared":
+            return await self._clear(code, alarm_id, t)
+        if published is None and change.get("change") not in (None, "alarm"):
+            return 0  # a change of an occurrence this server has not seen raised: the status
+        events = 0
+        if published is not None and published[0].alarm_id != alarm_id:
+            events += await self._clear(code, published[0].alarm_id, t)  # replaced
+        elif published is not None and change.get("change") == "alarm":
+            return 0  # raised again while active: the service keeps the one alarm
+        return events + await self._set(change, state, t)
+
+    async def _set(self, alarm: Mapping[str, Any], state: str, t: datetime) -> int:
+        """The occurrence `alarm` of its code in `state` (published when new or changed)."""
+        code, alarm_id = str(alarm["code"]), int(alarm["id"])
+        published = self._now.get(code)
+        if published is not None and published[0].alarm_id == alarm_id:
+            occ, last = published
+            if occ.state == state and "comment" not in alarm:
+                return 0
+        else:
+            occ, last = Occurrence(alarm_id, state), {}
+        occ.move(state)
+        if "comment" in alarm:  # an acknowledge's: Part 9's Comment and ClientUserId
+            occ.comment, occ.user = str(alarm["comment"]), str(alarm.get("user", ""))
+        merged = {**last, **{k: v for k, v in alarm.items() if v is not None}}
+        self._now[code] = (occ, merged)
+        await self._event(code, merged, occ, True, t)
+        return 1
+
+    async def _clear(self, code: str, alarm_id: int, t: datetime) -> int:
+        """The occurrence `alarm_id` of `code` cleared (nothing when it is not published)."""
+        published = self._now.get(code)
+        if published is None or published[0].alarm_id != alarm_id:
+            return 0
+        occ, last = published
+        await self._event(code, last, occ, False, t)
+        del self._now[code]
+        return 1
 
     async def _event(
         self, code: str, alarm: Mapping[str, Any], occ: Occurrence, active: bool, t: datetime

@@ -4,7 +4,12 @@ app.line.opcua.server.OpcUaServer in the service's process; nothing else runs it
 It talks to the service only through its standard input and output, one JSON object per line:
 
     in   {"config": {...}}                      first: the settings, state directory, spheres
-         {"status": <status reply>, "t": T}     the service's status after an event (time T)
+         {"alarm": {...}, "t": T}                one alarm change (id, code, state after it,
+                                                priority, message, comment, user; `change`:
+                                                the event), in the order the service made them
+         {"status": <status reply>, "t": T, "alarms_current": B}   the service's status after
+                                                events (time T); B: its alarms reflect no change
+                                                not sent yet (the conditions are set from them)
          {"reply": N, "error": null | "..."}    the service's answer to acknowledge N
          {"stop": true}                         publish what is queued, flush, exit (also EOF)
     out  {"ready": true} | {"error": "...", "field": ...}   once, after the start
@@ -129,6 +134,7 @@ class Child:
         self.spheres: list[str] = list(config["spheres"])
         self.revision = str(config["software_revision"])
         self.app_uri = str(config["application_uri"])
+        self.t = float(config.get("t", 0.0))  # the service's clock at the start
         self.out, self.inbox = out, inbox
         self.space: AddressSpace | None = None
         self.conditions: Conditions | None = None
@@ -155,6 +161,8 @@ class Child:
                 first = await self._next()
                 if "status" in first:
                     await self._apply(first)
+                elif "alarm" in first:
+                    await self._change(first)
                 elif "reply" in first:
                     self._replied(first)
             await flush(server, FLUSH_TIMEOUT_S)
@@ -181,7 +189,7 @@ class Child:
 
         from app.line.opcua import guard, security
         from app.line.opcua.alarms import Conditions
-        from app.line.opcua.space import AddressSpace
+        from app.line.opcua.space import AddressSpace, clock_utc
 
         s = self.settings
         server = Server(user_manager=security.user_manager(s, self.paths))
@@ -192,7 +200,7 @@ class Child:
         await server.set_application_uri(self.app_uri)
         await security.secure(server, s, self.paths, self.app_uri)
         self.space = AddressSpace(server, s)
-        machine = await self.space.build(sorted(self.spheres), self.revision)
+        machine = await self.space.build(sorted(self.spheres), self.revision, clock_utc(self.t))
         ack = self._acknowledge if s.allow_ack else None
         self.conditions = Conditions(server, self.space.ns, machine, ack)
         await self.conditions.setup()
@@ -214,9 +222,20 @@ class Child:
         when: datetime = clock_utc(float(msg.get("t", 0.0)))
         try:
             await self.space.apply(status, when)
-            await self.conditions.sync(list(status.get("alarms", [])), when)
+            if msg.get("alarms_current", True):  # else its alarms may be ahead of the events
+                await self.conditions.sync(list(status.get("alarms", [])), when)
         except Exception as exc:  # a status this version cannot read: the next one may
             log.warning("OPC UA update skipped: %s: %s", type(exc).__name__, exc)
+
+    async def _change(self, msg: dict[str, Any]) -> None:
+        """One alarm change into its condition (an OPC UA event)."""
+        from app.line.opcua.space import clock_utc
+
+        assert self.conditions is not None
+        try:
+            await self.conditions.apply(msg["alarm"], clock_utc(float(msg.get("t", 0.0))))
+        except Exception as exc:  # a change this version cannot read
+            log.warning("OPC UA alarm event skipped: %s: %s", type(exc).__name__, exc)
 
     async def _acknowledge(self, alarm_id: int, who: str, comment: str) -> str | None:
         """The service's audited `ack` (asked over the channel; its reply awaited)."""

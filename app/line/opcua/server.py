@@ -6,12 +6,13 @@
 The server (asyncua, its clients, the alarm conditions) runs in a child process
 (app.line.opcua.child), so that nothing a network peer sends can take the service's CPU or
 memory. In the service's process, two threads, neither of which the service ever waits for:
-- `rvis-opcua-feed`: blocks on a subscription to the service's event bus; after an event (and
-  the others queued behind it) it takes one status reply, exactly what `rvis status` answers,
-  and writes it to the child, which writes the variables that changed (timestamped with the
-  service's clock: the event's time) and triggers the alarm events. While the child is busy,
-  the pipe fills and this thread waits; the events queue up in the subscription (bounded; the
-  oldest dropped first: the next status reply carries their effect).
+- `rvis-opcua-feed`: blocks on its queue of the service's events (app.line.opcua.feed); after
+  an event (and the others queued behind it) it writes every alarm change among them, in
+  order, to the child, which applies each to its condition (one OPC UA event each), then one
+  status reply, exactly what `rvis status` answers, from which the child writes the variables
+  that changed (timestamped with the service's clock: the event's time). While the child is
+  busy, the pipe fills and this thread waits; the events queue up (bounded: the other events
+  merged, the oldest alarm event dropped and counted only when alarm events fill it).
 - `rvis-opcua-watch`: reads the child's lines (its log records, logged here; its acknowledge
   requests, the service's `ack` command, only with `[opcua] allow_ack`: the child has no other
   way back) and restarts the child when it dies (after RESTART_S, doubling up to
@@ -41,6 +42,7 @@ from typing import IO, TYPE_CHECKING, Any
 from app.config.line import OpcUaSettings
 from app.errors import InputError
 from app.line.opcua.endpoint import FIELD, cannot_listen, endpoint_problem
+from app.line.opcua.feed import STATE_OF, TICK, FeedQueue, is_alarm
 
 if TYPE_CHECKING:
     from app.line.service import Service
@@ -53,7 +55,8 @@ RESTART_S = 1.0
 RESTART_MAX_S = 30.0
 HEALTHY_S = 60.0  # a child that ran this long restarts after RESTART_S again
 MAX_LINE = 64 * 1024  # a line from the child (longer: ignored)
-_STOP = {"event": "__opcua_stop__"}
+_STOP = {"event": "__opcua_stop__", "control": True}
+ALARM_FIELDS = ("id", "code", "state", "priority", "message", "comment", "user")
 _ROOT = Path(__file__).resolve().parents[3]  # where `app` is: the child runs the same code
 
 
@@ -93,7 +96,8 @@ class OpcUaServer:
         self._stopping = threading.Event()
         self.restarts = 0
         self.restarted = threading.Event()  # set at every restart (tests wait on it)
-        self._events = service.bus.subscribe()
+        self._events = FeedQueue(service.bus.max_queue)
+        service.bus.attach(self._events)
         self._feed = threading.Thread(target=self._feed_loop, name="rvis-opcua-feed", daemon=True)
         self._watch = threading.Thread(
             target=self._watch_loop, name="rvis-opcua-watch", daemon=True
@@ -132,7 +136,7 @@ class OpcUaServer:
         """Stop the server; when the service has stopped, its `stopped` state (and
         MachineryItemState NotAvailable) is published and sent to the subscribers first."""
         self.service.bus.unsubscribe(self._events)
-        self._events.offer(_STOP)  # never blocks: a full queue loses its oldest event
+        self._events.offer(_STOP)  # never blocks, never dropped
         if self._feed.is_alive():
             self._feed.join(10.0)
         if self._feed.is_alive():  # blocked on a child that reads nothing: it goes
@@ -185,6 +189,7 @@ class OpcUaServer:
             "spheres": sorted(self.service.spheres),
             "software_revision": software_revision(),
             "application_uri": application_uri(self.settings),
+            "t": self.service.clock.time(),  # Identification's SourceTimestamp
         }
         self._send({"config": config})
         if not self._last_status:
@@ -337,29 +342,35 @@ class OpcUaServer:
     # -- the feed's thread -------------------------------------------------------------------
     def _feed_loop(self) -> None:
         while True:
-            batch = [self._events.get()]
-            with contextlib.suppress(queue.Empty):
-                while True:
-                    batch.append(self._events.get_nowait())
+            batch, offered = self._events.take()
             events = [e for e in batch if e is not _STOP]
+            for e in events:  # each alarm change, in order, before the status after them
+                if is_alarm(e):
+                    alarm = {k: e[k] for k in ALARM_FIELDS if k in e}
+                    alarm.setdefault("state", STATE_OF[e["event"]])
+                    alarm["change"] = e["event"]
+                    self._send({"alarm": alarm, "t": float(e.get("t", 0.0))})
             if events:  # `stopped` too when it came with the end (the service ended first)
-                stopped = any(e["event"] == "stopped" for e in events)
-                self._publish(max(float(e.get("t", 0.0)) for e in events), stopped)
+                stopped = any(e["event"] == TICK and e["stopped"] for e in events)
+                self._publish(max(float(e.get("t", 0.0)) for e in events), stopped, offered)
             if len(events) < len(batch):
                 return
 
-    def _publish(self, t: float, stopped: bool = False) -> None:
+    def _publish(self, t: float, stopped: bool = False, offered: int | None = None) -> None:
         """The service's status now, to the server process; a failure is logged, never the
         service's. Once the service has stopped (its database closing) the last status is
-        published as `stopped`."""
+        published as `stopped`. `offered`: the feed's count of events up to the batch just
+        sent; the status's alarms are current (the server process sets its conditions from
+        them, which repairs lost alarm events) only when no event came meanwhile."""
         try:
             if stopped:
                 status = {**self._last_status, "state": "stopped", "step": "stopped"}
                 self._stopped_published = True
             else:
                 status = self.service.status()
+            current = offered is not None and offered == self._events.offered
             self._last_status, self._last_t = status, t
-            self._send({"status": status, "t": t})
+            self._send({"status": status, "t": t, "alarms_current": current})
         except Exception as exc:  # the service stopping (database closed)
             ending = self.service.state.value in ("stopped", "fault")
             log.log(

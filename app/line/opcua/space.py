@@ -308,7 +308,9 @@ class AddressSpace:
         self._state_now: str | None = None  # the MachineryItemState published
         self.ns = self.ns_di = self.ns_machinery = 0
 
-    async def build(self, spheres: list[str], software_revision: str) -> Node:
+    async def build(self, spheres: list[str], software_revision: str, t: datetime) -> Node:
+        """The nodes; `t`: Identification's SourceTimestamp (the service's clock at the
+        start)."""
         s = self.server
         await load_nodesets(s)
         self.ns_di = await s.get_namespace_index(NS_DI)
@@ -328,7 +330,7 @@ class AddressSpace:
             cell_type.nodeid,
             ua.ObjectIds.Organizes,
         )
-        ident = await self._identification(machine, software_revision)
+        ident = await self._identification(machine, software_revision, t)
         state = await self._item_state(machine)
         blocks = await self._add(
             machine,
@@ -378,7 +380,7 @@ class AddressSpace:
         await machine.add_reference(node.nodeid, ua.ObjectIds.HasAddIn)
         return node
 
-    async def _identification(self, machine: Node, software_revision: str) -> Node:
+    async def _identification(self, machine: Node, software_revision: str, t: datetime) -> Node:
         """Identification: a MachineIdentificationType (its mandatory Manufacturer,
         SerialNumber, ProductInstanceUri), with the optional Model and SoftwareRevision."""
         s, name = self.settings, self.settings.machine_name
@@ -409,7 +411,7 @@ class AddressSpace:
                     else None,
                 )
             await self.server.write_attribute_value(
-                node.nodeid, stamped(ua.DataValue(ua.Variant(value, vtype)))
+                node.nodeid, stamped(ua.DataValue(ua.Variant(value, vtype), SourceTimestamp=t))
             )
         return ident
 
