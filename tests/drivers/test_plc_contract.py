@@ -124,10 +124,8 @@ def test_reads_the_inputs_and_sees_the_heartbeat(rig: PlcRig) -> None:
 
 def _beats(peer: Any) -> int:
     """The beats of the simulated PLC's cycle since it started (its heartbeat, not wrapped)."""
-    if isinstance(peer, FakePlc):
-        elapsed = peer._elapsed()
-    else:
-        elapsed = peer.clock.monotonic() - peer.t0
+    fake = isinstance(peer, FakePlc)
+    elapsed = peer._elapsed() if fake else peer.clock.monotonic() - peer.t0
     return int(elapsed / peer.cycle.time_scale / peer.cycle.beat_s)
 
 
