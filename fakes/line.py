@@ -25,8 +25,9 @@ the wall clock x `scale` (peers driven by hand, nobody making time pass).
 
 `geometric_centre(target_id)` is the shortcut of long runs (`--geometric`): the true centre in the
 true sensor frame at the robot's current joints plus the cell's sensor noise, no rendering.
-Faults: `inject`, `clear`, `schedule` (fakes.line_faults). Every thread, socket, pty and the GigE
-fake are released by `close()` (also when `start()` fails half-way).
+Faults: `inject`, `clear`, `schedule` (fakes.line_faults); a device switched off and on again
+at the same URL: `stop_device`, `start_device` (`rvis devices sim`). Every thread, socket, pty
+and the GigE fake are released by `close()` (also when `start()` fails half-way).
 """
 
 from __future__ import annotations
@@ -53,6 +54,9 @@ from fakes.tracker_service import TrackerService
 from fakes.truth import Knock, Warmup
 
 F64 = NDArray[np.float64]
+
+#: The line's devices, by the family names of the cell file's [devices] table.
+DEVICES = ("robot", "camera", "galvo", "tracker", "plc")
 
 
 @dataclass(frozen=True)
@@ -83,6 +87,9 @@ class SimLineSetup:
     n_validation: int = 100
     camera_readout_s: float = 0.033  # virtual clock: a frame's read-out after its exposure
     galvo_settle_s: float = 0.002  # virtual clock: the mirror settling after a command
+    # the DAC's stable name (a symlink re-pointed when it comes back, as udev's
+    # /dev/serial/by-id/...): the galvo's URL names it; None: the pty itself
+    galvo_link: str | None = None
 
     def __post_init__(self) -> None:
         if not (0 < self.window_s < self.period_s and self.beat_s > 0):
@@ -156,7 +163,7 @@ class SimLine:
             strict = not self.settings.camera
             self.clock = self.virtual = VirtualClock(s.start_epoch, pace=s.scale, strict=strict)
         self._stack = ExitStack()
-        self.dac = ScpiDac(clock=self.virtual, settle_s=s.galvo_settle_s)
+        self.dac = ScpiDac(clock=self.virtual, settle_s=s.galvo_settle_s, link=s.galvo_link)
         self.world = _LineWorld(cell, self.dac)
         seed = cell.settings.seed
         self.plc = LinePlc(self.settings.cycle, self.clock)
@@ -184,6 +191,7 @@ class SimLine:
         self.plc.temperature = self.truth.temp_c  # the PLC's cell temperature word
         self.faults = FaultScheduler(self.clock, self.inject)
         self._started = False
+        self.stopped: set[str] = set()  # the devices switched off (`stop_device`)
 
     # -- life cycle -------------------------------------------------------------------------
     def start(self) -> Self:
@@ -232,6 +240,69 @@ class SimLine:
         if self.camera is not None:
             urls["camera"] = f"aravis://{self.camera.camera_id}"
         return urls
+
+    # -- switching a device off and on ----------------------------------------------------------
+    def families(self) -> list[str]:
+        """The devices of this line (the camera only when it has one)."""
+        return [f for f in DEVICES if f != "camera" or self.camera is not None]
+
+    def stop_device(self, family: str) -> None:
+        """Switch one device off, as its power or cable going: its port closes (the robot
+        controller, the tracker, the PLC: connection refused; the galvo's pty vanishes; the
+        camera no longer answers on its address). Its URL stays the same (`start_device`)."""
+        self._check_family(family)
+        if family in self.stopped:
+            return
+        if family == "galvo":
+            self.dac.unplug()
+        elif family == "camera":
+            assert self.camera is not None
+            self.camera.close()
+        else:
+            server = self._server(family)
+            server._want_port = server.port  # when it comes back, on the same port
+            server.close()
+        self.stopped.add(family)
+
+    def start_device(self, family: str) -> None:
+        """Switch a device off by `stop_device` on again, at the same URL, as after a power
+        cycle: the robot controller without its alarms, the PLC with its heartbeat running and
+        its window back (its clamp cycle follows the line's clock as before), the camera
+        streaming."""
+        self._check_family(family)
+        if family not in self.stopped:
+            return
+        if family == "galvo":
+            self.dac.replug()
+        elif family == "camera":
+            assert self.camera is not None
+            self.camera.start()
+        elif family == "robot":
+            # a controller starts afresh (its motion worker was shut down with it)
+            port = self.controller.port
+            self.controller = RmiController(self.world, clock=self.clock, port=port)
+            self._stack.enter_context(self.controller)
+        else:
+            if family == "plc":
+                self.plc.heartbeat_frozen = False
+                self.plc.restore_window()
+            self._server(family).start()
+        self.stopped.discard(family)
+
+    def _server(self, family: str) -> LinePlc | RmiController | TrackerService:
+        """The TCP peer of a network device."""
+        servers: dict[str, LinePlc | RmiController | TrackerService] = {
+            "plc": self.plc,
+            "robot": self.controller,
+            "tracker": self.tracker,
+        }
+        return servers[family]
+
+    def _check_family(self, family: str) -> None:
+        if not self._started:
+            raise RuntimeError("the simulated line is not started")
+        if family not in self.families():
+            raise ValueError(f"no device {family!r} on this line (one of {self.families()})")
 
     # -- measuring without images -----------------------------------------------------------
     def geometric_centre(self, target_id: str, sweep_s: float = 0.0) -> F64:

@@ -27,7 +27,7 @@ COMMANDS: dict[str, str] = {
     "experiment": "experiments on the simulated cell (the paper's, accuracy, compensation, shift)",
     "compensate": "compensated joint targets for the controller (CSV or .ls)",
     "export": "export the identified calibration (URDF)",
-    "devices": "check the configured devices",
+    "devices": "check the configured devices; run the simulated line's",
     "sensor": "laser-line sensor: calibrate, measure",
     "commission": "guided, resumable commissioning of a cell",
     "run": "the unattended in-line service",

@@ -3,6 +3,14 @@ and print a status table. `rvis devices trace FILE [--rotated] [--device FAMILY]
 print a wire trace (drivers/trace.py; the state directory's `trace/wire.jsonl`) readably, the
 polls that changed nothing folded (app/formats/wiretrace.py) unless --all.
 
+`rvis devices sim [--dir DIR] [--cell cell.toml] [--seed N] [--scale X] [--camera-address A]`:
+the simulated line's devices (robot controller, galvo, camera, tracker, PLC) as their own
+process on free ports of 127.0.0.1, until Ctrl-C, SIGTERM or `quit` (exit 0, as `rvis run`);
+it writes DIR/cell.toml naming them, DIR/plan.json and DIR/sensor.toml (app/sim/line_devices.py),
+so that the unchanged service runs on them as at a plant: `rvis run --cell DIR/cell.toml
+--state-dir DIR`. `rvis devices ctl [--dir DIR] stop|start|break|fix DEVICE | status | quit`:
+switch a device off and on, make it misbehave, while both run (docs/simulated-line.md).
+
 Without ``--cell`` it checks every backend against the fakes out of the box: the protocol peers
 (RMI controller, Modbus TP mailbox, tracker side-car, line PLC, SCPI DAC on a pty, Aravis GigE
 fake camera) are started on 127.0.0.1 with ephemeral ports, plus the in-process ``fake://``
@@ -15,12 +23,14 @@ from __future__ import annotations
 
 import argparse
 import json
-from contextlib import ExitStack
+from collections.abc import Iterator
+from contextlib import ExitStack, contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 from app.commands import add_command
+from app.commands.args import int_at_least
 from app.devicecheck import describe_and_probe
 from app.errors import InputError
 from drivers import DeviceConfigError, DeviceError, create_device
@@ -40,7 +50,10 @@ class Row:
 def register(sub: Any) -> None:
     parser = add_command(sub, "devices")
     parser.add_argument(
-        "--json", action="store_true", help="print JSON (check: the table; trace: one per line)"
+        "--json",
+        action="store_true",
+        help="print JSON (check: the table; trace: one per line; sim: the devices once up;"
+        " ctl: the reply)",
     )
     actions = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     check = actions.add_parser("check", help="connect to each device and print a status table")
@@ -64,6 +77,37 @@ def register(sub: Any) -> None:
         help="print every record (default: polls that changed nothing folded into one line)",
     )
     trace.set_defaults(func=run_trace)
+    sim = actions.add_parser(
+        "sim", help="the simulated line's devices as their own process, with a cell file"
+    )
+    sim.add_argument(
+        "--dir",
+        type=Path,
+        default=Path(SIM_DIR),
+        help=f"folder of the cell file, plan, sensor file, control socket (default {SIM_DIR})",
+    )
+    sim.add_argument("--cell", type=Path, help="the cell to simulate (default: the embedded cell)")
+    sim.add_argument("--seed", type=int_at_least(0), help="seed (default [simulation] seed)")
+    sim.add_argument(
+        "--scale", type=float, default=1.0, help="sim seconds per real second (default 1)"
+    )
+    sim.add_argument(
+        "--camera-address",
+        default="127.0.0.1",
+        help="the GigE fake camera's address, one of this machine's (default 127.0.0.1)",
+    )
+    sim.set_defaults(func=run_sim)
+    ctl = actions.add_parser("ctl", help="stop, start or break a simulated device while it runs")
+    ctl.add_argument(
+        "--dir", type=Path, default=Path(SIM_DIR), help=f"the devices' folder (default {SIM_DIR})"
+    )
+    ctl.add_argument("words", nargs="+", metavar="COMMAND", help=CTL_HELP)
+    ctl.set_defaults(func=run_ctl)
+
+
+#: the folder of `rvis devices sim` when --dir is not given
+SIM_DIR = "rvis-simline"
+CTL_HELP = "stop DEVICE | start DEVICE | break DEVICE | fix DEVICE | status | quit"
 
 
 def run_check(args: argparse.Namespace) -> int:
@@ -173,3 +217,97 @@ def run_trace(args: argparse.Namespace) -> int:
     for line in lines:
         print(line)
     return 0
+
+
+def run_sim(args: argparse.Namespace) -> int:
+    """Until Ctrl-C, SIGTERM or `quit`: exit 0 (as `rvis run`); a Ctrl-C while the devices
+    start is an interruption (130)."""
+    import sys
+    import threading
+
+    from app.config import load_cell
+    from app.sim.line_devices import LineDevices
+
+    if args.cell is not None and not args.cell.is_file():
+        raise InputError("file not found", file=args.cell)
+    cfg = load_cell(args.cell)
+    seed = cfg.simulation.seed if args.seed is None else args.seed
+
+    def say(text: str) -> None:
+        print(f"rvis devices sim: {text}", file=sys.stderr, flush=True)
+
+    with LineDevices(
+        cfg,
+        args.dir,
+        seed=seed,
+        scale=args.scale,
+        camera_address=args.camera_address,
+        progress=say,
+    ) as devices:
+        status = devices.status()
+        if args.json:
+            print(json.dumps(status), flush=True)
+        else:
+            _print_devices(status, _state_dir_of(args.cell) or args.dir)
+        stop = threading.Event()
+        with _stopped_by_signals(stop):
+            while not (stop.is_set() or devices.quit.is_set()):
+                stop.wait(0.5)  # the main thread stays where a signal handler can run
+        say("stopping the devices")
+    return 0
+
+
+@contextmanager
+def _stopped_by_signals(stop: Any) -> Iterator[None]:
+    """SIGTERM and SIGINT set `stop` meanwhile (the handlers before are put back after)."""
+    import signal
+
+    def on_signal(signum: int, frame: object) -> None:
+        stop.set()
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+
+
+def _state_dir_of(cell: Path | None) -> Path | None:
+    """The state directory whose commissioned cell file `cell` is (its plan beside it), if
+    any: the service runs on it."""
+    from app.line.statedir import StateDir
+
+    if cell is None:
+        return None
+    state = StateDir(cell.parent)
+    same = state.cell.resolve() == cell.resolve()
+    return cell.parent if same and state.plan.is_file() else None
+
+
+def _print_devices(status: dict[str, Any], state_dir: Path) -> None:
+    folder = Path(status["cell"]).parent
+    for family, d in status["devices"].items():
+        print(f"{family:<8} {d['url']}")
+    print(f"cell     {status['cell']} (seed {status['seed']}, plan and sensor beside it)")
+    print(f"control  rvis devices ctl --dir {folder} stop|start|break|fix DEVICE | status | quit")
+    print(f"service  rvis run --cell {status['cell']} --state-dir {state_dir}", flush=True)
+
+
+def run_ctl(args: argparse.Namespace) -> int:
+    from app.sim.line_devices import send
+
+    reply = send(args.dir, " ".join(args.words))
+    if args.json:
+        print(json.dumps(reply))
+    elif not reply.get("ok"):
+        import sys
+
+        print(f"rvis devices: error: {reply.get('error')}", file=sys.stderr)
+    else:
+        if reply.get("message"):
+            print(reply["message"])
+        if args.words[0] == "status":
+            for family, d in reply["devices"].items():
+                print(f"{family:<8} {d['state']:<8} {d['url']}")
+    return 0 if reply.get("ok") else 1

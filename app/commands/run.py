@@ -16,6 +16,9 @@ run). With --windows it runs as fast as the CPU, stops after N windows and print
 validation positions); without, paced at [simline] scale for a person who watches, it runs
 until SIGTERM or Ctrl-C.
 
+`fake://` devices in the cell file are refused with one line pointing to `rvis devices sim`
+(the simulated line's devices as their own process, with a cell file naming them).
+
 A device that cannot be reached at start (its URL right, nothing answering) does not end the
 command: the service starts in FAULT with a `device_unreachable` alarm naming it, answers
 `rvis status`, and retries with back-off (app/line/service.py); a wrong cell file or URL is
@@ -96,6 +99,7 @@ def _run(args: argparse.Namespace) -> int:
             " --state-dir DIR`), or give a plan from `rvis plan --out FILE` with --plan",
             file=plan,
         )
+    _refuse_fakes(cfg)
     # a rigid file carried into a compliant [service] model at its calibration temperature
     x0 = carried_from_json(cfg.service_model(), args.params)[1] if args.params else None
     sensor_model = _sensor_model(args, settings.state_dir)
@@ -138,6 +142,20 @@ def _cell_path(args: argparse.Namespace) -> Path | None:
         if commissioned is not None:
             return commissioned
     return None if args.cell is None else Path(args.cell)
+
+
+def _refuse_fakes(cfg: Any) -> None:
+    """`fake://` devices live inside one process with their simulated cell (`rvis run --sim`):
+    the service of a cell file reaches the simulated line's devices over their protocols, as
+    `rvis devices sim` serves them."""
+    fakes = [f for f, url in cfg.devices.urls().items() if url.startswith("fake://")]
+    if fakes:
+        raise InputError(
+            f"fake:// ({', '.join(fakes)}) runs only inside `rvis run --sim`: start the simulated"
+            " line's devices with `rvis devices sim` and run on the cell file it writes",
+            file=cfg.source,
+            field=f"devices.{fakes[0]}",
+        )
 
 
 def _existing(path: Path) -> Path | None:

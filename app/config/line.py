@@ -275,7 +275,9 @@ class SimLineSection(Section):
     an identification's modelled cost), so a seed and these settings give one outcome. `scale`
     paces it at that many sim seconds per real second for a person who watches (`rvis tui
     --sim`, `rvis run --sim` without --windows, `--scale`); otherwise it runs as fast as the
-    CPU."""
+    CPU. `rvis devices sim` runs the same line's devices as their own process on the wall
+    clock (its own `--scale`, default 1; `scale`, `poll_s`, `identification_s`,
+    `camera_readout_s` and `galvo_settle_s` are the virtual clock's and unused there)."""
 
     name = "simline"
     scale: float = opt(60.0, gt=0, hi=10000)

@@ -118,7 +118,9 @@ class Service:
         initial_residuals: Mapping[str, Any] | None = None,
     ) -> None:
         """`initial_residuals`: the identification residuals of `x_initial` (n_measurements,
-        rms_mm, n_parameters), written into a new directory's first version (its U95 seed)."""
+        rms_mm, n_parameters) and, when its commissioning validated it across the workspace,
+        `validation_errors_mm` (the norms), written into a new directory's first version (its
+        U95 seed, app.line.accuracy.document_seed)."""
         self.settings = s = settings or ServiceSettings()
         self._initial_residuals = initial_residuals
         self.clock = clock or RealClock()
@@ -230,10 +232,11 @@ class Service:
                 x0 = model.carried(x0)
             doc = plain_document(model, x0, "initial parameters")
             if self._initial_residuals is not None:
-                doc |= {
-                    "residuals": dict(self._initial_residuals),
-                    "n_parameters": self._initial_residuals.get("n_parameters"),
-                }
+                given = dict(self._initial_residuals)
+                validation = given.pop("validation_errors_mm", None)
+                doc |= {"residuals": given, "n_parameters": given.get("n_parameters")}
+                if validation:  # the commissioning's workspace validation (app.line.accuracy)
+                    doc["validation"] = {"errors_mm": [float(e) for e in validation]}
             version = first_in_force(self.params, self.store, doc, "initial", self.clock)
             return model, x0.copy(), version
         if current is None:
@@ -757,8 +760,11 @@ class Service:
                 self.log.info("retention: documents of %d rejected calibrations dropped", n)
 
     def _fault(self, exc: BaseException) -> None:
-        self.fault_family = self.note_device_error(exc)
-        self._enter_fault(AlarmCode.DEVICE_FAULT, f"{type(exc).__name__}: {exc}")
+        """FAULT on a device's error; the alarm names the device and its URL when the error
+        is one device's (`plc (plc+modbus://...): DeviceConnectionError: ...`)."""
+        family = self.fault_family = self.note_device_error(exc)
+        where = "" if family is None else f"{family} ({self.station.urls.get(family, '')}): "
+        self._enter_fault(AlarmCode.DEVICE_FAULT, f"{where}{type(exc).__name__}: {exc}")
 
     def _enter_fault(self, code: str, message: str) -> None:
         """FAULT: stop the robot, set the PLC fault bit, raise the alarm (each best effort)."""

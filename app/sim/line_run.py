@@ -71,6 +71,7 @@ class WindowRecord:
     u95_mm: float | None = None
     suspect: bool = False
     within_u95: float | None = None  # the share of validation points whose true error <= U95
+    p95_mm: float = float("nan")  # the 95th percentile of the validation points' true errors
 
 
 @dataclass
@@ -191,6 +192,29 @@ def commissioning(
     return identify(cfg.identification_model(), data)
 
 
+def workspace_validation_mm(
+    cfg: CellConfig, seed: int, model: Any, x: F64, truth: EndToEndTruth | None = None
+) -> F64:
+    """The errors' norms (n,) [mm] the commissioning's workspace validation measures for
+    parameters x of `model`: the cold cell's validation sphere at `[commission]
+    workspace_positions` random positions no calibration view used, each tracked (with the
+    tracker's noise) and measured from one view (a stop of the robot, the sensor's noise; with
+    `truth`, through its sensor model as the line measures), mapped with x (app/commission/
+    workspace.py measures the same on the devices)."""
+    n = cfg.commission.workspace_positions
+    sim = simulated_sets(cfg, seed, n_validation=n)
+    data = sim.validation.measurements
+    if truth is not None and not truth.kinematic_only:
+        c_true = sim.validation.truth_c_sensor_mm
+        c_seen, ok = truth.centres(c_true)
+        data = dataclasses.replace(data, c_sensor_mm=data.c_sensor_mm + (c_seen - c_true))
+        data = data.subset(np.flatnonzero(ok))
+    temp = np.full(len(data), sim.cell.temp_c) if data.temp_c is None else data.temp_c
+    p = model.points_part(x, data.q_deg, data.c_sensor_mm, temp_c=temp)
+    out: F64 = np.linalg.norm(p - data.p_part_mm, axis=1)
+    return out
+
+
 def random_schedule(cfg: CellConfig, cell: SimulatedCell, seed: int, n_each: int) -> dict[str, F64]:
     """n_each random views per sphere that the nominal model plans and the cell sees (the
     schedule when no plan file is given)."""
@@ -287,6 +311,10 @@ class SimulatedLineRun:
             "n_measurements": int(done.residuals_mm.shape[0]),
             "rms_mm": done.rms_mm,
             "n_parameters": len(done.active),
+            # what the commissioning's workspace step would have measured (app.line.accuracy)
+            "validation_errors_mm": workspace_validation_mm(
+                cfg, seed, commissioned, done.x, self.truth
+            ).tolist(),
         }
         self.summary = SimRunSummary()
         self._versions: dict[int, F64] = {}
@@ -515,6 +543,7 @@ class SimulatedLineRun:
             version=version,
             u95_mm=u95,
             within_u95=None if u95 is None or not len(e) else float(np.mean(norms <= u95)),
+            p95_mm=float(np.percentile(norms, 95)) if len(e) else float("nan"),
         )
         if "t_open" in event:
             record.t_open_h = (event["t_open"] - epoch) / 3600.0

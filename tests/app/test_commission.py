@@ -155,6 +155,10 @@ def test_commissioning_resumes_after_a_kill_and_leaves_a_cell_ready_to_run(
     assert cfg.service.accuracy_limit_mm == pytest.approx(0.15)  # from the tolerance
     # the simulated cell it was commissioned on, and how it was measured (issue 40 item 3)
     assert cfg.simulation.seed == SEED and cfg.simulation.geometric
+    # the first version carries its workspace validation: the service's first U95 rests on it
+    validation = ParamsStore(state).current_document()["validation"]  # type: ignore[index]
+    assert len(validation["errors_mm"]) == ws["measured"]
+    assert max(validation["errors_mm"]) == pytest.approx(ws["max_mm"], abs=1e-6)  # the CSV's digits
     version, _, x = ParamsStore(state).current()  # type: ignore[misc]
     assert version == 1 and paths.plan.is_file() and paths.sensor.is_file()
     np.testing.assert_array_equal(x, from_json(paths.commission / "params.json")[1])

@@ -120,12 +120,13 @@ def test_sigterm_finishes_the_window_brings_the_robot_home_and_closes(tmp_path: 
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
 
 
-def test_run_on_fake_urls_without_a_simulated_world_is_refused(
+def test_run_on_fake_urls_is_refused_pointing_to_the_simulated_line_s_devices(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     plan = tmp_path / "plan.json"
     plan.write_text("{}", encoding="utf-8")
     code, _, err = _cli(capsys, ["run", "--state-dir", str(tmp_path), "--plan", str(plan)])
     assert code == 2
-    assert err.startswith("rvis run: error: <embedded default>: field 'devices': ")
-    assert "needs a world" in err and len(err.strip().splitlines()) == 1
+    assert err.startswith("rvis run: error: <embedded default>: field 'devices.robot': ")
+    assert "fake:// (robot, camera, galvo, tracker, plc)" in err
+    assert "`rvis devices sim`" in err and len(err.strip().splitlines()) == 1

@@ -9,13 +9,16 @@ import os
 import threading
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from app.config import CellConfig
+from app.devicecheck import describe_and_probe
 from drivers import registry
 from drivers.camera import CameraSettings
+from drivers.errors import DeviceError
 from drivers.galvo import Galvo
 from fakes.cell import SimulatedCell
 from fakes.line import SimLine, SimLineSetup
@@ -125,6 +128,41 @@ def test_the_geometric_shortcut_is_the_true_centre_plus_noise_and_follows_the_kn
     assert np.linalg.norm(before - truth_before) < tol_mm
     assert np.linalg.norm(after - truth_after) < tol_mm
     assert np.linalg.norm(truth_after - truth_before) > 0.2  # the knock, seen by the sensor
+
+
+def test_a_device_switched_off_is_gone_from_its_url_and_back_there_once_switched_on(
+    line_cell: SimulatedCell, tmp_path: Path
+) -> None:
+    """`stop_device` closes a device's port (the galvo's pty: its stable link is left
+    dangling); `start_device` brings it back at the same URL, the drivers reconnecting."""
+    setup = SimLineSetup(camera=False, galvo_link=str(tmp_path / "galvo"))
+    with SimLine(line_cell, setup) as sim:
+        urls = dict(sim.urls)
+        assert urls["galvo"] == f"scpi+serial://{tmp_path / 'galvo'}"
+        opens = {
+            "plc": registry.open_plc,
+            "robot": registry.open_robot,
+            "tracker": registry.open_tracker,
+            "galvo": registry.open_galvo,
+        }
+        for family, open_device in opens.items():
+            sim.stop_device(family)
+            assert sim.stopped == {family}
+            with pytest.raises(DeviceError):
+                open_device(urls[family], timeout_s=1.0).close()
+            sim.start_device(family)
+            assert not sim.stopped and sim.urls[family] == urls[family]
+            with open_device(urls[family], timeout_s=5.0) as device:
+                assert describe_and_probe(device)
+        sim.inject("plc_heartbeat_loss")
+        sim.stop_device("plc")
+        sim.start_device("plc")  # a PLC switched on again beats
+        with registry.open_plc(urls["plc"], poll_s=0.002) as plc:
+            beat = plc.poll().heartbeat
+            sim.clock.advance(sim.settings.beat_s)
+            assert plc.poll().heartbeat != beat
+        with pytest.raises(ValueError, match="no device 'camera'"):
+            sim.stop_device("camera")
 
 
 @GIGE_CAMERA

@@ -113,7 +113,7 @@ async def _devices_show_the_fault_then_reset(
     errors = {line.split("  ")[0].strip(): line for line in _error_lines(app)}
     assert set(errors) == {"robot"}  # the only device that failed
     when, message = errors["robot"].split("  ", 1)[1].split("  ", 1)
-    assert message == alarm["message"]
+    assert alarm["message"] == f"robot ({service.line.urls['robot']}): {message}"  # named
     at = datetime.fromisoformat(when).replace(tzinfo=UTC).timestamp()
     assert abs(at - alarm["t_raised"]) < 5.0  # sim seconds: the same moment
     others = [r for family, r in rows().items() if family != "robot"]
