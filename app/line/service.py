@@ -76,7 +76,7 @@ from app.line.schedule import Schedule, Slot
 from app.line.sensor_watch import SensorWatch
 from app.line.settings import ServiceSettings
 from app.line.statedir import StateDir
-from app.line.states import FAULT_CODES, State, suspect_json, utc_text
+from app.line.states import FAULT_CODES, AlarmCode, State, suspect_json, utc_text
 from app.line.station import Station
 from app.line.status import alarm_event, device_of, status_reply
 from app.line.step import Step, StepStatus, step_alarm_text
@@ -268,7 +268,11 @@ class Service:
             ) from exc
         assert current is not None
         self._start_alarms.append(
-            ("params_rebuilt", f"{path} was {damage}: rebuilt from history {version}", "high")
+            (
+                AlarmCode.PARAMS_REBUILT,
+                f"{path} was {damage}: rebuilt from history {version}",
+                "high",
+            )
         )
         return current
 
@@ -394,7 +398,8 @@ class Service:
         )
         with contextlib.suppress(Exception):
             self._enter_fault(
-                "internal_error", f"internal error ({text}): the service stops to be restarted"
+                AlarmCode.INTERNAL_ERROR,
+                f"internal error ({text}): the service stops to be restarted",
             )
 
     def _start(self) -> None:
@@ -422,7 +427,7 @@ class Service:
             return
         if not home:
             q = np.round(self.station.robot.joints_deg(), 3).tolist()
-            self._enter_fault("robot_not_home", f"robot not at home at start (J = {q} deg)")
+            self._enter_fault(AlarmCode.ROBOT_NOT_HOME, f"robot not at home at start (J = {q} deg)")
             return
         self.set_state(State.PAUSED if self.paused else State.IDLE)
 
@@ -430,17 +435,17 @@ class Service:
         """Every device open (module docstring): at once, or after retries with back-off in
         FAULT with a `device_unreachable` alarm, the operator's commands answered meanwhile;
         False when stopped first."""
-        stale = self.store.active_alarms(code="device_unreachable")  # from a killed process
+        stale = self.store.active_alarms(code=AlarmCode.DEVICE_UNREACHABLE)  # from a killed process
         if not self.station.unreachable:
             self._clear_unreachable(bool(stale), None)
             return True
         if stale:
-            self.clear_alarms("device_unreachable")
+            self.clear_alarms(AlarmCode.DEVICE_UNREACHABLE)
         errors = dict(self.station.unreachable)
         for exc in errors.values():
             self.note_device_error(exc)
         self.fault_family = next(iter(errors))
-        self._enter_fault("device_unreachable", self._unreachable_text(errors))
+        self._enter_fault(AlarmCode.DEVICE_UNREACHABLE, self._unreachable_text(errors))
         attempts = 0
         while True:
             wait_s = DEVICE_RETRY_S[min(attempts, len(DEVICE_RETRY_S) - 1)]
@@ -486,7 +491,7 @@ class Service:
         self.device_retry = None
         if not raised:
             return
-        self.clear_alarms("device_unreachable")
+        self.clear_alarms(AlarmCode.DEVICE_UNREACHABLE)
         self.fault_family = None
         with contextlib.suppress(DeviceError):
             self.station.plc.set_signals(busy=False, done=False, fault=False)
@@ -633,11 +638,13 @@ class Service:
             self.bus.emit("alarm_unshelved", data, level=logging.WARNING, t=t)
 
     def _watch_heartbeat(self) -> None:
-        alarms = self.store.active_alarms(code="plc_heartbeat")
+        alarms = self.store.active_alarms(code=AlarmCode.PLC_HEARTBEAT)
         if self.watch.lost and not alarms:
-            self.alarm("plc_heartbeat", "PLC heartbeat lost: no window is used until it returns")
+            self.alarm(
+                AlarmCode.PLC_HEARTBEAT, "PLC heartbeat lost: no window is used until it returns"
+            )
         elif self.watch.alive and alarms:
-            self.clear_alarms("plc_heartbeat")
+            self.clear_alarms(AlarmCode.PLC_HEARTBEAT)
 
     def _watch_temperature(self) -> None:
         """A `temperature` alarm while the PLC should provide the cell temperature and does
@@ -647,16 +654,16 @@ class Service:
         why = self.watch.temperature()[1]
         if bool(why) == self._temperature_bad:
             return  # nothing changed since the last poll: no query
-        active = self.store.active_alarms(code="temperature")
+        active = self.store.active_alarms(code=AlarmCode.TEMPERATURE)
         if why and not active:
             self.alarm(
-                "temperature",
+                AlarmCode.TEMPERATURE,
                 f"{why}: no cell temperature; measurements are stored without one and the"
                 " thermal term is left out until a plausible value returns",
                 "medium",
             )
         elif not why and active:
-            self.clear_alarms("temperature")
+            self.clear_alarms(AlarmCode.TEMPERATURE)
         self._temperature_bad = bool(why)
 
     def _store_clamped(self) -> None:
@@ -726,7 +733,7 @@ class Service:
         free = self.paths.free_mb()
         self.log.error("state storage failed: %s", exc, extra={"event": "state_storage"})
         self._enter_fault(
-            "state_storage",
+            AlarmCode.STATE_STORAGE,
             f"state storage failed ({exc}; {free:.0f} MB free under {self.paths.root}): the"
             " measurement was not acknowledged; free space or repair, then reset",
         )
@@ -738,16 +745,16 @@ class Service:
             return
         self._space_check_t = now
         free, floor = self.paths.free_mb(), self.settings.ops.min_free_mb
-        active = self.store.active_alarms(code="low_disk")
+        active = self.store.active_alarms(code=AlarmCode.LOW_DISK)
         if free < floor and not active:
             self.alarm(
-                "low_disk",
+                AlarmCode.LOW_DISK,
                 f"{free:.0f} MB free under {self.paths.root} (below [service] min_free_mb ="
                 f" {floor:g}): free space before the state storage fills",
                 "medium",
             )
         elif free >= floor and active:
-            self.clear_alarms("low_disk")
+            self.clear_alarms(AlarmCode.LOW_DISK)
 
     def _retain(self) -> None:
         """At most once an hour: events older than [service] events_keep_days are deleted (in
@@ -775,7 +782,7 @@ class Service:
         is one device's (`plc (plc+modbus://...): DeviceConnectionError: ...`)."""
         family = self.fault_family = self.note_device_error(exc)
         where = "" if family is None else f"{family} ({self.station.urls.get(family, '')}): "
-        self._enter_fault("device_fault", f"{where}{type(exc).__name__}: {exc}")
+        self._enter_fault(AlarmCode.DEVICE_FAULT, f"{where}{type(exc).__name__}: {exc}")
 
     def _enter_fault(self, code: str, message: str) -> None:
         """FAULT: stop the robot, set the PLC fault bit, raise the alarm (each best effort)."""
@@ -848,7 +855,7 @@ class Service:
             self._views_lost |= set(new)
             names = ", ".join(f"{i} ({self.schedule.slots[i].target})" for i in new)
             self.alarm(
-                "view_lost",
+                AlarmCode.VIEW_LOST,
                 f"schedule slot {names} rejected {VIEW_LOST_TRIES} times in a row: left out of"
                 " the windows; the sphere is no longer where the plan saw it (a knock, a moved"
                 " sphere): re-plan with `rvis plan` and restart, or commission again",
@@ -940,7 +947,7 @@ class Service:
         changed, not the robot (the `sensor` alarm)."""
         ps = SensorWatch.ps_of(quality)
         if ps is not None and (text := self.sensor_watch.update(ps)):
-            self.alarm("sensor", text, "high")
+            self.alarm(AlarmCode.SENSOR, text, "high")
 
     def _change_mm(self, slot: Slot, c_sensor_mm: F64, row_id: int) -> float | None:
         """How far the centre moved since this slot's previous visit (same configuration);
@@ -970,7 +977,7 @@ class Service:
             if sig.family == "residual" and self.drift.change_watching:
                 self.drift_due = True
                 self.alarm(
-                    "drift",
+                    AlarmCode.DRIFT,
                     f"drift of {where} (residual, {stat}): recalibration brought forward",
                     "low",
                 )
@@ -986,9 +993,9 @@ class Service:
             if self.step is not None:
                 self.step.signal = self.step.signal or text
                 if self.step.status == StepStatus.PROBATION:
-                    self.alarm("drift", f"{text}: attributing it (a step or drift?)", "low")
+                    self.alarm(AlarmCode.DRIFT, f"{text}: attributing it (a step or drift?)", "low")
                     continue
-            self.alarm("drift_step", step_alarm_text(text), "high")
+            self.alarm(AlarmCode.DRIFT_STEP, step_alarm_text(text), "high")
 
     def _drift_seed(self, cal: dict[str, Any] | None) -> list[tuple[str, float]]:
         """Residuals of the parameters in force on recent good measurements: the rolling set of
@@ -1334,14 +1341,14 @@ class Service:
             if self.sequential is not None and kind != "sequential":
                 self.sequential.restart(self.model, self.x, self.params.current_document())
             onset, self.drift_due = self.drift_onset_id, False
-            self.clear_alarms("drift", t)
+            self.clear_alarms(AlarmCode.DRIFT, t)
             first_id = None if cal is None else int(cal["first_id"] or 0)
             after_step = first_id is not None and onset is not None and first_id >= onset
             recovering = after_step and self._suspect_open()
             if recovering:  # the interval closes when the residuals say the cell is back
                 self.step_handler.corrected(t, version, cal, kind)
             elif onset is None or after_step:
-                self.clear_alarms("drift_step", t)
+                self.clear_alarms(AlarmCode.DRIFT_STEP, t)
                 if kind != "step":  # a full calibration trained after the step: it is over
                     self.drift_onset_id, self.step = None, None
             self.save_state()

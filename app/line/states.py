@@ -22,28 +22,49 @@ class State(StrEnum):
     STOPPED = "stopped"
 
 
-#: alarms that hold the cell in FAULT until a reset
-FAULT_CODES = ("device_fault", "robot_not_home", "internal_error", "state_storage")
+class AlarmCode(StrEnum):
+    """Every alarm code the service can raise, with its condition class (`kind`): "process"
+    (the measured cell: the robot's accuracy, the sensor) or "system" (devices, storage,
+    software). The one list of codes: the service raises, clears and looks up alarms by these
+    members, never by a bare string (tests/line/test_alarm_codes.py scans app/ for that)."""
 
-#: every alarm code the service can raise, and its condition class: "process" (the measured
-#: cell: the robot's accuracy, the sensor) or "system" (devices, storage, software). The one
-#: list of codes: OPC UA makes one condition of each from the start (app.line.opcua.alarms);
+    kind: str
+
+    def __new__(cls, code: str, kind: str) -> AlarmCode:
+        member = str.__new__(cls, code)
+        member._value_ = code
+        member.kind = kind
+        return member
+
+    DEVICE_FAULT = "device_fault", "system"
+    #: at start; retried, cleared when it answers (not reset)
+    DEVICE_UNREACHABLE = "device_unreachable", "system"
+    ROBOT_NOT_HOME = "robot_not_home", "system"
+    INTERNAL_ERROR = "internal_error", "system"
+    STATE_STORAGE = "state_storage", "system"
+    PARAMS_REBUILT = "params_rebuilt", "system"
+    PLC_HEARTBEAT = "plc_heartbeat", "system"
+    TEMPERATURE = "temperature", "system"
+    LOW_DISK = "low_disk", "system"
+    DRIFT = "drift", "process"
+    DRIFT_STEP = "drift_step", "process"
+    SENSOR = "sensor", "process"
+    #: a schedule's view rejected again and again: skipped, re-plan
+    VIEW_LOST = "view_lost", "process"
+
+
+#: alarms that hold the cell in FAULT until a reset
+FAULT_CODES = (
+    AlarmCode.DEVICE_FAULT,
+    AlarmCode.ROBOT_NOT_HOME,
+    AlarmCode.INTERNAL_ERROR,
+    AlarmCode.STATE_STORAGE,
+)
+
+#: every alarm code the service can raise -> its condition class (AlarmCode, read as a
+#: mapping): OPC UA makes one condition of each from the start (app.line.opcua.alarms);
 #: tests/line/test_alarm_codes.py checks the service raises no other.
-ALARM_CODES: dict[str, str] = {
-    "device_fault": "system",
-    "device_unreachable": "system",  # at start; retried, cleared when it answers (not reset)
-    "robot_not_home": "system",
-    "internal_error": "system",
-    "state_storage": "system",
-    "params_rebuilt": "system",
-    "plc_heartbeat": "system",
-    "temperature": "system",
-    "low_disk": "system",
-    "drift": "process",
-    "drift_step": "process",
-    "sensor": "process",
-    "view_lost": "process",  # a schedule's view rejected again and again: skipped, re-plan
-}
+ALARM_CODES: dict[str, str] = {code.value: code.kind for code in AlarmCode}
 
 
 def utc_text(t: float) -> str:

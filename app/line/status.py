@@ -8,7 +8,7 @@ from typing import Any
 
 from app.line.host import LineHost
 from app.line.opcua import FEED_NAME
-from app.line.states import suspect_json, utc_text
+from app.line.states import AlarmCode, suspect_json, utc_text
 from app.line.store import StorageError
 
 SUSPECTS_IN_STATUS = 5  # the status reply's last suspect intervals
@@ -130,7 +130,7 @@ def _device_status(svc: LineHost) -> dict[str, dict[str, Any]]:
     since the start, retried; closed; fault: the device of the fault in force, or every device
     when that one is unknown; the PLC without heartbeat; ok), and the last error the service saw
     from it with its time (kept after a reset)."""
-    faulted = bool(svc.store.active_alarms(code="device_fault"))
+    faulted = bool(svc.store.active_alarms(code=AlarmCode.DEVICE_FAULT))
     out = {}
     for family, device in svc.station.devices().items():
         state = "ok"

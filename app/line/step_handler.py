@@ -23,7 +23,7 @@ from app.formats.params import carried_from_json
 from app.line.accuracy import VOUCHED, document_seed
 from app.line.drift import OVERALL
 from app.line.host import LineHost
-from app.line.states import suspect_json
+from app.line.states import AlarmCode, suspect_json
 from app.line.step import Step, StepStatus, recovery_under, step_alarm_text
 from app.line.step_fit import (
     MIN_STEP_REFS,
@@ -122,10 +122,10 @@ class StepHandler:
         svc = self.svc
         step.move(StepStatus.ATTRIBUTING)
         self._open_suspect(step)
-        svc.clear_alarms("drift")
+        svc.clear_alarms(AlarmCode.DRIFT)
         signal = step.signal or f"step since measurement {step.start_id or step.onset_id}"
         step.signal = signal
-        svc.alarm("drift_step", step_alarm_text(signal, a.text()), "high")
+        svc.alarm(AlarmCode.DRIFT_STEP, step_alarm_text(signal, a.text()), "high")
 
     def _drop_step(self, step: Step) -> None:
         """The attribution found no step on probation: it was drift (the recalibration is
@@ -192,7 +192,7 @@ class StepHandler:
                 fields["size_mm"] = size
             assert step.suspect_id is not None
             svc.store.update_suspect(step.suspect_id, **fields)
-            for alarm in svc.store.active_alarms(code="drift_step"):
+            for alarm in svc.store.active_alarms(code=AlarmCode.DRIFT_STEP):
                 text = step_alarm_text(step.signal, a.text())
                 svc.store.update_alarm_message(int(alarm["id"]), text)
             closed = None
@@ -506,7 +506,7 @@ class StepHandler:
                 step.recovery = f"{step.recovery}; {acc.text()}"
         with svc.store.batch():
             closed = self._close(step, reason)
-            svc.clear_alarms("drift_step")
+            svc.clear_alarms(AlarmCode.DRIFT_STEP)
             if step.recover_kind != "step":  # a full calibration after the step: it is over
                 svc.drift_onset_id, svc.step = None, None
             svc.save_state()

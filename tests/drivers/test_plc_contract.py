@@ -106,29 +106,54 @@ def test_reads_the_inputs_and_sees_the_heartbeat(rig: PlcRig) -> None:
     assert plc.heartbeat_alive()
     inputs = plc.poll()
     assert 0 <= inputs.heartbeat <= 0xFFFF
-    assert inputs.temp_c is None or -40.0 <= inputs.temp_c <= 100.0
     assert plc.describe()
+    if rig.peer is None:  # a real PLC: its own values, within what the words can say
+        assert inputs.temp_c is None or -40.0 <= inputs.temp_c <= 100.0
+        return
+    # the simulated PLC's values are known: its line runs; fake:// sends no temperature word,
+    # the peer's PLC program never writes it (0x0000: 0 degC); the heartbeat is the cycle's
+    # beat count since the PLC started (read between two bounds of the elapsed time)
+    assert inputs.line_running
+    assert inputs.temp_c == (None if isinstance(rig.peer, FakePlc) else 0.0)
+    lo = _beats(rig.peer)
+    beat = plc.poll().heartbeat
+    hi = _beats(rig.peer)
+    # (the peer's register scan may lag a beat; the 16-bit word wraps)
+    assert (beat - (lo - 2)) % 0x10000 <= hi - lo + 2, (lo, beat, hi)
+
+
+def _beats(peer: Any) -> int:
+    """The beats of the simulated PLC's cycle since it started (its heartbeat, not wrapped)."""
+    fake = isinstance(peer, FakePlc)
+    elapsed = peer._elapsed() if fake else peer.clock.monotonic() - peer.t0
+    return int(elapsed / peer.cycle.time_scale / peer.cycle.beat_s)
 
 
 def test_read_only_never_writes(rig: PlcRig) -> None:
-    """A read-only connection to the same PLC (fake://: a read-only PLC of its own) polls,
-    refuses to write, and leaves the app's words as they were (no reset, no heartbeat)."""
-    if rig.peer is None:
-        url, options = real_url("plc"), REAL_OPTS
-    elif isinstance(rig.peer, FakePlc):
-        url, options = "fake://", OPTS | {"cycle": CYCLE}
-    else:
-        url, options = f"plc+modbus://127.0.0.1:{rig.peer.port}", OPTS
+    """A read-only connection to the same PLC polls, refuses to write, and leaves the app's
+    words as they were (no reset, no heartbeat). fake:// is a PLC of its own: it holds the
+    words a writing connection left (busy, heartbeat 41) before the read-only one opens."""
+    rig.plc.poll()  # a heartbeat written: the words are not the reset's
     before = rig.plc.read_outputs()
-    with open_plc(url, read_only=True, **options) as ro:
+    if rig.peer is not None:  # what a reset would write is told apart
+        assert before != PlcOutputs()
+    if rig.peer is None:
+        ro = open_plc(real_url("plc"), read_only=True, **REAL_OPTS)
+    elif isinstance(rig.peer, FakePlc):
+        ro = FakePlc(CYCLE, read_only=True, **OPTS)
+        before = ro.received = PlcOutputs(busy=True, done=False, fault=False, heartbeat=41)
+    else:
+        ro = open_plc(f"plc+modbus://127.0.0.1:{rig.peer.port}", read_only=True, **OPTS)
+    with ro:
         held = ro.read_outputs()
-        assert held == before or isinstance(rig.peer, FakePlc)
+        assert held == before
         ro.poll()
         ro.poll()
         with pytest.raises(DeviceConfigError, match="read-only"):
             ro.set_signals(busy=True, done=False, fault=False)
         assert ro.read_outputs() == held
-    assert rig.plc.read_outputs() == before
+    if not isinstance(rig.peer, FakePlc):
+        assert rig.plc.read_outputs() == before
 
 
 def test_waits_for_the_window_and_signals_busy_then_done(rig: PlcRig) -> None:

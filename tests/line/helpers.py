@@ -271,8 +271,9 @@ def knock_line(
     return ln, x_good, val
 
 
-def true_rms(ln: Line, val: Any, x: F64) -> float:
-    """True RMS error [mm] at the validation positions with parameters x (the cell's truth)."""
+def true_errors_mm(ln: Line, val: Any, x: F64) -> F64:
+    """True Euclidean errors [mm] at the validation positions with parameters x (the cell's
+    truth, noise-free)."""
     q = val.measurements.q_deg
     c = np.array(
         [
@@ -281,4 +282,9 @@ def true_rms(ln: Line, val: Any, x: F64) -> float:
         ]
     )
     e = ln.model.points_part(x, q, c) - val.truth_p_part_mm
-    return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
+    return np.asarray(np.linalg.norm(e, axis=1), dtype=np.float64)
+
+
+def true_rms(ln: Line, val: Any, x: F64) -> float:
+    """True RMS error [mm] at the validation positions with parameters x (the cell's truth)."""
+    return float(np.sqrt(np.mean(true_errors_mm(ln, val, x) ** 2)))

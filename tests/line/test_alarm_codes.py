@@ -1,53 +1,119 @@
-"""The one list of alarm codes (app.line.states.ALARM_CODES) holds every code the service can
-raise: read from the source, every `alarm(...)`, `raise_alarm(...)` and `_enter_fault(...)`
-with a literal code, and every literal `(code, message, priority)` queued for the start."""
+"""The one list of alarm codes (app.line.states.AlarmCode, ALARM_CODES its mapping to condition
+classes) holds every code the service can raise, and the service names them by its members,
+never by a bare string: read from the source, every `alarm(...)`, `raise_alarm(...)` and
+`_enter_fault(...)`, every `clear_alarms(...)` and `active_alarms(...)`, every `(code, message,
+priority)` queued for the start and every `alarm_cleared` event's code."""
 
 from __future__ import annotations
 
 import ast
 from pathlib import Path
 
-from app.line.states import ALARM_CODES, FAULT_CODES
+import pytest
+
+from app.line.states import ALARM_CODES, FAULT_CODES, AlarmCode
 
 APP = Path(__file__).resolve().parents[2] / "app"
-RAISERS = {"alarm": 0, "_enter_fault": 0, "raise_alarm": 1}  # name -> index of the code
+#: the calls that take an alarm code -> the index of the code among their positional arguments
+#: (None: any of them, the others are never strings: clear_alarms(t, code) of the store or
+#: (code, t) of the service); `code=` by keyword too
+TAKERS: dict[str, int | None] = {
+    "alarm": 0,
+    "_enter_fault": 0,
+    "raise_alarm": 1,
+    "clear_alarms": None,
+    "active_alarms": None,
+}
 
 
-def raised_codes() -> dict[str, list[str]]:
-    """code -> where it is raised (file:line), for every literal code in app/."""
-    found: dict[str, list[str]] = {}
-    for path in sorted(APP.rglob("*.py")):
-        tree = ast.parse(path.read_text(encoding="utf-8"))
-        for node in ast.walk(tree):
-            if not isinstance(node, ast.Call) or not isinstance(node.func, ast.Attribute):
-                continue
-            name = node.func.attr
-            arg: ast.expr | None = None
-            if name in RAISERS and len(node.args) > RAISERS[name]:
-                arg = node.args[RAISERS[name]]
-            elif name == "append" and node.args and isinstance(node.args[0], ast.Tuple):
-                target = ast.unparse(node.func.value)
-                if target.endswith("_start_alarms") and node.args[0].elts:
-                    arg = node.args[0].elts[0]
+def _code_args(node: ast.Call) -> list[ast.expr]:
+    """The arguments of `node` that are alarm codes (none when it takes no code)."""
+    if not isinstance(node.func, ast.Attribute):
+        return []
+    name, args = node.func.attr, node.args
+    if name in TAKERS:
+        k = TAKERS[name]
+        found = list(args) if k is None else args[k : k + 1]
+        return found + [kw.value for kw in node.keywords if kw.arg == "code"]
+    queue = ast.unparse(node.func.value)
+    if name == "append" and args and isinstance(first := args[0], ast.Tuple) and first.elts:
+        return [first.elts[0]] if queue.endswith("_start_alarms") else []
+    if name == "emit" and len(args) > 1 and isinstance(args[1], ast.Dict):
+        event = args[0]
+        if isinstance(event, ast.Constant) and str(event.value).startswith("alarm"):
+            return [v for k, v in zip(args[1].keys, args[1].values, strict=True)
+                    if isinstance(k, ast.Constant) and k.value == "code"]  # fmt: skip
+    return []
+
+
+def scan(source: str, where: str) -> tuple[dict[str, list[str]], list[str]]:
+    """(code -> where it is named as an AlarmCode member, the bare string codes with where)."""
+    named: dict[str, list[str]] = {}
+    bare: list[str] = []
+    for node in ast.walk(ast.parse(source)):
+        if not isinstance(node, ast.Call):
+            continue
+        for arg in _code_args(node):
+            at = f"{where}:{arg.lineno}"
             if isinstance(arg, ast.Constant) and isinstance(arg.value, str):
-                where = f"{path.relative_to(APP.parent)}:{node.lineno}"
-                found.setdefault(arg.value, []).append(where)
-    return found
+                bare.append(f"{at} {arg.value!r}")
+            elif (
+                isinstance(arg, ast.Attribute)
+                and isinstance(arg.value, ast.Name)
+                and arg.value.id == "AlarmCode"
+            ):
+                named.setdefault(AlarmCode[arg.attr].value, []).append(at)
+    return named, bare
 
 
-def test_every_raised_code_is_in_the_one_list() -> None:
-    found = raised_codes()
-    unknown = {code: where for code, where in found.items() if code not in ALARM_CODES}
-    assert not unknown, f"add these codes to app.line.states.ALARM_CODES: {unknown}"
-    # the scan sees the service's raisers (a scan that finds nothing proves nothing)
+def app_codes() -> tuple[dict[str, list[str]], list[str]]:
+    """scan() over every module of app/."""
+    named: dict[str, list[str]] = {}
+    bare: list[str] = []
+    for path in sorted(APP.rglob("*.py")):
+        n, b = scan(path.read_text(encoding="utf-8"), str(path.relative_to(APP.parent)))
+        bare += b
+        for code, where in n.items():
+            named.setdefault(code, []).extend(where)
+    return named, bare
+
+
+def test_no_alarm_code_is_a_bare_string() -> None:
+    named, bare = app_codes()
+    assert not bare, f"name these alarm codes by app.line.states.AlarmCode: {bare}"
+    # the scan sees the service's raisers, clears and look-ups (a scan that finds nothing
+    # proves nothing): among them every kind of call
     assert {"sensor", "drift_step", "plc_heartbeat", "params_rebuilt", "internal_error"} <= set(
-        found
+        named
     )
+    calls = {w for where in named.values() for w in where}
+    assert len(calls) >= 30, sorted(calls)
 
 
-def test_the_list_is_the_raised_codes_and_the_fault_codes() -> None:
+@pytest.mark.parametrize(
+    "source",
+    [
+        'self.alarm("drift", "text", "low")',
+        'svc.store.clear_alarms(t, "drift")',
+        'self.clear_alarms("drift", t)',
+        'self.store.active_alarms(code="drift")',
+        'self.store.raise_alarm(t, "drift", "text", "low")',
+        'self._enter_fault("drift", "text")',
+        'self._start_alarms.append(("drift", "text", "high"))',
+        'self.bus.emit("alarm_cleared", {"code": "drift"})',
+    ],
+)
+def test_the_scan_finds_a_bare_code_in_each_kind_of_call(source: str) -> None:
+    named, bare = scan(source, "x.py")
+    assert bare == ["x.py:1 'drift'"] and named == {}
+    named, bare = scan(source.replace('"drift"', "AlarmCode.DRIFT", 1), "x.py")
+    assert bare == [] and named == {"drift": ["x.py:1"]}
+
+
+def test_the_list_is_the_named_codes_and_the_fault_codes() -> None:
     """No code listed that nothing raises (the fault codes may come through `_enter_fault`
     with a variable code); every class is a known one."""
     assert set(FAULT_CODES) <= set(ALARM_CODES)
-    assert set(ALARM_CODES) == set(raised_codes()) | set(FAULT_CODES)
+    assert set(ALARM_CODES) == set(app_codes()[0]) | set(FAULT_CODES)
     assert set(ALARM_CODES.values()) == {"process", "system"}
+    assert AlarmCode.SENSOR == "sensor" and ALARM_CODES["sensor"] == "process"

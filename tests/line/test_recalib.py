@@ -80,7 +80,12 @@ def test_a_jump_beyond_the_change_bounds_is_rejected() -> None:
     x_far[INDEX["dtheta2"]] += np.radians(3.0)  # the bound is 1 deg
     out = run_recalibration(_job(train, holdout, x_far))
     assert not out.passed
-    assert any("changed by" in f or "parameters beyond" in f for f in out.failures)
+    # the candidate (the same identification) differs from the one in force by -3 deg in
+    # dtheta2 alone: that parameter, by that much, is the only failure
+    (failure,) = out.failures
+    name, _, _, by, unit, *_ = failure.split()
+    assert (name, unit) == ("dtheta2", "deg") and failure.endswith("(limit 1 deg)"), failure
+    assert float(by) == pytest.approx(-3.0, abs=1e-3), failure
 
 
 def test_select_rolling_needs_every_sphere_and_slot() -> None:

@@ -94,26 +94,42 @@ def test_oversized_and_malformed_messages_get_err_and_are_closed(
 
 
 def test_the_server_process_is_restarted_when_it_dies(line: SimulatedLineRun) -> None:
+    """The new server process publishes the service as it is: paused (nothing changes it
+    meanwhile, so the truth is known), with the windows it has used."""
     url = f"opc.tcp://127.0.0.1:{free_port()}/rvis"
     settings = dataclasses.replace(line.service.settings.opcua, enabled=True, endpoint=url)
+
+    async def read() -> tuple[str, int]:
+        async with Client(url) as client:
+            m = await machine_node(client)
+            state = await (await child(client, m, "ServiceState")).read_value()
+            windows = await (await child(client, m, "Windows")).read_value()
+            return state, windows
+
+    events = line.service.bus.subscribe()
+    try:  # a window used before the pause: the count published is not a fresh server's 0
+        if line.service.status()["counters"]["windows"] < 1:
+            while events.get(timeout=30)["event"] != "window":
+                pass
+    finally:
+        line.service.bus.unsubscribe(events)
     with OpcUaServer(line.service, settings) as server:
         first = server.pid
         assert first is not None and first != os.getpid()
-        os.kill(first, signal.SIGKILL)
-        assert server.restarted.wait(60)  # the watcher saw it die and started another
-        assert server.wait_ready(60)
-        assert server.pid not in (first, None) and server.restarts == 1
-
-        async def read() -> tuple[str, int]:
-            async with Client(url) as client:
-                m = await machine_node(client)
-                state = await (await child(client, m, "ServiceState")).read_value()
-                windows = await (await child(client, m, "Windows")).read_value()
-                return state, windows
-
-        state, windows = asyncio.run(read())
-    assert state == line.service.status()["state"] or state in ("idle", "measuring")
-    assert windows >= 1 and line.service.state.value != "fault"
+        paused = line.service.request("pause").result(30)
+        try:
+            assert paused["ok"] and paused["state"] == "paused", paused
+            truth = line.service.status()
+            os.kill(first, signal.SIGKILL)
+            assert server.restarted.wait(60)  # the watcher saw it die and started another
+            assert server.wait_ready(60)
+            assert server.pid not in (first, None) and server.restarts == 1
+            state, windows = asyncio.run(read())
+        finally:
+            assert line.service.request("resume").result(30)["ok"]
+    assert truth["state"] == "paused" and truth["counters"]["windows"] >= 1
+    assert (state, windows) == ("paused", truth["counters"]["windows"])
+    assert line.service.state.value != "fault"
 
 
 def test_a_start_that_times_out_leaves_no_second_reader(

@@ -137,12 +137,13 @@ def test_kill_9_at_random_points_keeps_every_row_and_the_recalibration_progress(
     rng = np.random.default_rng(19)
     stored = 0
     left: list[Path] = []  # temporary files of a write the kill cut short
+    decided: dict = {}
     for k in range(5):
         svc = ServiceProcess(state, cell)
         svc.wait_ready()
         assert left == [] or not [f for f in left if f.exists()]  # the start removed them
         if k == 4:  # as a calibration is decided: killed around its apply
-            svc.wait_log(lambda r: r.get("event") == "calibration", 60.0)
+            decided = svc.wait_log(lambda r: r.get("event") == "calibration", 60.0)["data"]
         else:
             svc.wait_windows(int(rng.integers(5, 9)))
             svc.wait_log(lambda r: r.get("event") in ("measurement", "state", "window"), 10.0)
@@ -164,7 +165,6 @@ def test_kill_9_at_random_points_keeps_every_row_and_the_recalibration_progress(
             planted.write_text("{")  # half a document: what a kill inside a write leaves
             left.append(planted)
     assert stored >= 24
-    assert count(state / "rvis.db", "SELECT COUNT(*) FROM calibrations") >= 1
     svc = ServiceProcess(state, cell)  # and it still runs, the apply completed
     try:
         svc.wait_ready()
@@ -173,6 +173,15 @@ def test_kill_9_at_random_points_keeps_every_row_and_the_recalibration_progress(
     finally:
         code = svc.stop()
     assert code == 0, svc.errors()
+    # the calibration announced before the last kill: stored, and decided as auto mode decides
+    # it (one that passed its gates applied once, at once or at the restart; a rejected one
+    # never)
+    db, cal_id = state / "rvis.db", int(decided["id"])
+    passed = decided["status"] == "pending"
+    status_now = "applied" if passed else "rejected"
+    row = f"SELECT COUNT(*) FROM calibrations WHERE id = {cal_id} AND status = '{status_now}'"
+    assert count(db, row) == 1, decided
+    assert count(db, f"SELECT COUNT(*) FROM applied WHERE calibration_id = {cal_id}") == passed
     doc = json.loads((state / "params" / "current.json").read_text())
     assert count(state / "rvis.db", "SELECT MAX(version) FROM applied") == doc["history_version"]
 

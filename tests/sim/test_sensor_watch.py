@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from app.config import CellConfig
 from app.line.measure import SweepSensor
@@ -83,11 +84,38 @@ def test_the_chart_signals_a_shift_within_the_limits_once() -> None:
     assert len(signals) == 1 and "shifted from its baseline" in signals[0]
 
 
+def _same_chart(a: SensorWatch, b: SensorWatch) -> bool:
+    """Whether two watches chart alike: the same values seen, EWMA, signal, baseline, CUSUM."""
+    state = lambda w: (w.ewma_mm, w.mean_mm, w.sigma_mm, w.s_hi, w.s_lo, *w.baseline)  # noqa: E731
+    same_state = state(a) == pytest.approx(state(b), rel=1e-9, abs=1e-12, nan_ok=True)
+    return bool(same_state and (a.n, a.ewma_signalled) == (b.n, b.ewma_signalled))
+
+
 def test_the_chart_is_rebuilt_at_a_restart_without_signalling_again() -> None:
-    bad = [{"radius_free_mm": 14.99, "radius_dev_mm": -0.01}] * 10  # PS -20 um
-    watch = SensorWatch(limit_mm=0.015)
-    assert any(watch.update(SensorWatch.ps_of(q) or 0.0) for q in bad)
-    again = SensorWatch(limit_mm=0.015)
-    again.replay(bad)
-    assert again.update(-0.02) is None  # raised before the restart, not twice
+    """A restart replays the stored measurements: the rebuilt chart is the one that never
+    stopped (the truth: a watch fed every value), so it neither signals again what it
+    signalled before the restart nor misses a shift that the values after it make."""
+    ps = lambda mm: {"radius_free_mm": 15.0 + mm / 2, "radius_dev_mm": mm / 2}  # noqa: E731
+    assert SensorWatch.ps_of(ps(-0.02)) == pytest.approx(-0.02)
     assert SensorWatch.ps_of({"path": "geometric"}) is None
+    # beyond the limit (PS -20 um): signalled once before the restart, not again after it
+    bad = [ps(-0.02)] * 10
+    never_stopped = SensorWatch(limit_mm=0.015)
+    assert sum(bool(never_stopped.update(-0.02)) for _ in bad) == 1
+    again = SensorWatch(limit_mm=0.015)
+    again.replay([*bad, {"path": "geometric"}])
+    assert _same_chart(again, never_stopped)
+    assert [again.update(-0.02) for _ in range(6)] == [None] * 6
+    # within the limit: a baseline learned before the restart, the shift after it signalled
+    # at the same value as by the watch that never stopped
+    rng = np.random.default_rng(4)
+    quiet = [float(v) for v in rng.normal(0.001, 0.002, 20)]
+    shifted = [float(v) for v in rng.normal(0.009, 0.002, 10)]
+    never_stopped = SensorWatch(limit_mm=0.015, baseline_n=16)
+    assert not any(never_stopped.update(v) for v in quiet)
+    again = SensorWatch(limit_mm=0.015, baseline_n=16)
+    again.replay([ps(v) for v in quiet])
+    assert _same_chart(again, never_stopped)
+    expected = [never_stopped.update(v) for v in shifted]
+    assert sum(bool(s) for s in expected) == 1  # the shift is signalled, once
+    assert [again.update(v) for v in shifted] == expected

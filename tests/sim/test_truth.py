@@ -9,6 +9,7 @@ from app.config import CellConfig
 from app.config.line import SweepSettings
 from app.sim.cell import scaled_sensor_model, true_sensor_model
 from app.sim.truth import EndToEndTruth, observe
+from calib.model import INDEX
 from fakes.render import render_sphere_sweep
 from fakes.render_sensor import default_true_sensor
 from vision.measure import measure_sphere_from_sweep
@@ -71,17 +72,52 @@ def test_the_cached_correction_follows_a_moved_centre() -> None:
 
 def test_the_geometric_path_is_the_kinematic_error(cfg: CellConfig) -> None:
     """Without a sensor model the measured centre is the true one: the error is the parameters'
-    alone, the formula the perfect-sensor figure always used."""
+    alone. Known: parameters whose part->base x is 0.3 mm off report every point 0.3 mm off
+    in the part frame's x; true points moved by a known offset show it with the opposite sign."""
     model = cfg.model()
     x = model.nominal_x()
     rng = np.random.default_rng(2)
     q = rng.uniform(-30, 30, (5, 6))
     c = rng.uniform(-5, 5, (5, 3)) + np.array([0.0, 0.0, 130.0])
-    p_true = model.points_part(x, q, c) + rng.normal(0, 0.1, (5, 3))
+    offset = rng.normal(0, 0.1, (5, 3))
+    p_true = model.points_part(x, q, c) + offset
     truth = EndToEndTruth(TRUE, None, tuple(COMMANDS_V))
     assert truth.kinematic_only
-    e = truth.errors_mm(model, x, q, c, p_true)
-    assert np.allclose(e, model.points_part(x, q, c) - p_true)
+    x_off = x.copy()
+    x_off[INDEX["x_PB"]] += 0.3
+    e = truth.errors_mm(model, x_off, q, c, p_true)
+    np.testing.assert_allclose(e, np.array([0.3, 0.0, 0.0]) - offset, atol=1e-9)
+    assert truth.rmse_mm(model, x, q, c, p_true) == pytest.approx(
+        np.sqrt(np.mean(np.sum(offset**2, axis=1)))
+    )
+
+
+def test_through_a_sensor_model_the_error_is_the_rendered_measurements(cfg: CellConfig) -> None:
+    """With the true parameters the part-frame error of a view is the sensor model's alone: as
+    long as the rendered measurement's error of the centre (the renderer knows the true sphere;
+    the parameters map it with a rigid motion), tens of micrometres here; a view out of the field
+    of view is left out."""
+    model = cfg.model()
+    x = model.nominal_x()
+    sensor_model = scaled_model(1.001, 2.0)
+    c_true = np.array([*CENTRES_MM, np.array([0.0, 30.0, 130.0])])
+    q = np.array([[0.0, 10.0, -10.0, 0.0, -80.0, 0.0], [20.0, 0.0, 5.0, 30.0, -60.0, 10.0]] * 2)
+    q = q[: len(c_true)]
+    p_true = model.points_part(x, q, c_true)
+    truth = EndToEndTruth(TRUE, sensor_model, tuple(COMMANDS_V))
+    e = truth.errors_mm(model, x, q, c_true, p_true)
+    assert e.shape == (2, 3) and list(truth.rejected()) == [2]
+    rng = np.random.default_rng(5)
+    for k, c in enumerate(CENTRES_MM):
+        rendered = [
+            measure_sphere_from_sweep(
+                *render_sphere_sweep(c, 15.0, TRUE, rng, commands_v=COMMANDS_V)[:2], sensor_model
+            ).c_sensor_mm
+            for _ in range(3)
+        ]
+        seen_mm = float(np.linalg.norm(np.mean(rendered, axis=0) - c))
+        assert seen_mm > 0.05  # the sensor model's error is visible
+        assert abs(float(np.linalg.norm(e[k])) - seen_mm) < 4e-3
 
 
 def test_a_view_the_vision_rejects_is_left_out_and_named() -> None:
