@@ -38,11 +38,11 @@ from app.line.statedir import StateDir
 from app.line.states import State
 from app.line.station import Station, cell_guard
 from app.line.store import Store
-from app.sim.cell import make_cell, simulated_sets, true_sensor_model
+from app.sim.cell import DataSet, make_cell, simulated_sets, true_sensor_model
 from app.sim.truth import EndToEndTruth
 from calib import candidates
 from calib.compliance import CompliantModel, carry
-from calib.identify import IdentificationResult, identify
+from calib.identify import IdentificationResult, Measurements, identify
 from calib.validation import rmse
 from fakes.cell import NotVisible, SimulatedCell
 from fakes.clock import VirtualClock
@@ -173,6 +173,19 @@ def service_settings(cfg: CellConfig, state_dir: Path) -> ServiceSettings:
     return replace(s, line=line)
 
 
+def as_the_line_measures(data_set: DataSet, truth: EndToEndTruth | None) -> Measurements:
+    """A simulated data set's measurements as the line measures them: with `truth`, each view
+    through its sensor model (the centre it reports plus the sensor noise; views its vision
+    checks reject left out); without, the geometric path's."""
+    data = data_set.measurements
+    if truth is None or truth.kinematic_only:
+        return data
+    c_true = data_set.truth_c_sensor_mm
+    c_seen, ok = truth.centres(c_true)
+    data = dataclasses.replace(data, c_sensor_mm=data.c_sensor_mm + (c_seen - c_true))
+    return data.subset(np.flatnonzero(ok))
+
+
 def commissioning(
     cfg: CellConfig, seed: int, truth: EndToEndTruth | None = None
 ) -> IdentificationResult:
@@ -181,12 +194,7 @@ def commissioning(
     `truth`, each view is measured through its sensor model (the centre it reports plus the
     sensor noise; views its vision checks reject left out), as the line will measure."""
     sim = simulated_sets(cfg, seed, n_validation=1)
-    data = sim.calibration.measurements
-    if truth is not None and not truth.kinematic_only:
-        c_true = sim.calibration.truth_c_sensor_mm
-        c_seen, ok = truth.centres(c_true)
-        data = dataclasses.replace(data, c_sensor_mm=data.c_sensor_mm + (c_seen - c_true))
-        data = data.subset(np.flatnonzero(ok))
+    data = as_the_line_measures(sim.calibration, truth)
     if data.temp_c is None:
         data = dataclasses.replace(data, temp_c=np.full(len(data), sim.cell.temp_c))
     return identify(cfg.identification_model(), data)
@@ -203,12 +211,7 @@ def workspace_validation_mm(
     workspace.py measures the same on the devices)."""
     n = cfg.commission.workspace_positions
     sim = simulated_sets(cfg, seed, n_validation=n)
-    data = sim.validation.measurements
-    if truth is not None and not truth.kinematic_only:
-        c_true = sim.validation.truth_c_sensor_mm
-        c_seen, ok = truth.centres(c_true)
-        data = dataclasses.replace(data, c_sensor_mm=data.c_sensor_mm + (c_seen - c_true))
-        data = data.subset(np.flatnonzero(ok))
+    data = as_the_line_measures(sim.validation, truth)
     temp = np.full(len(data), sim.cell.temp_c) if data.temp_c is None else data.temp_c
     p = model.points_part(x, data.q_deg, data.c_sensor_mm, temp_c=temp)
     out: F64 = np.linalg.norm(p - data.p_part_mm, axis=1)

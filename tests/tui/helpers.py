@@ -124,3 +124,13 @@ class IdleSkipper:
             return False
         line.clock.advance(opens_s - self.lead_s - now_s)
         return True
+
+
+def poll_screen(check: Callable[[], bool], timeout_s: float) -> bool:
+    """check() until true or timeout_s (tmux offers no event on screen content: poll it)."""
+    tick, deadline = threading.Event(), time.monotonic() + timeout_s
+    while not check():
+        if time.monotonic() > deadline:
+            return False
+        tick.wait(0.1)
+    return True

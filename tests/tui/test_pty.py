@@ -9,25 +9,14 @@ import shutil
 import socket
 import subprocess
 import sys
-import threading
-import time
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
+from tests.tui.helpers import poll_screen
+
 TMUX = shutil.which("tmux")
 RVIS = Path(sys.executable).with_name("rvis")
-
-
-def _poll(check: Callable[[], bool], timeout_s: float) -> bool:
-    """check() until true or timeout_s (tmux offers no event on screen content: poll it)."""
-    tick, deadline = threading.Event(), time.monotonic() + timeout_s
-    while not check():
-        if time.monotonic() > deadline:
-            return False
-        tick.wait(0.1)
-    return True
 
 
 def _listening(path: Path) -> bool:
@@ -57,7 +46,7 @@ def test_tui_sim_in_a_terminal_shows_the_service_and_quits(tmp_path: Path) -> No
             first = screen().split("\n", 1)[0].strip()
             return first.split(" ", 1)[0] in ("idle", "measuring", "paused", "starting")
 
-        assert _poll(attached, 30.0), screen()
+        assert poll_screen(attached, 30.0), screen()
         assert "Overview" in screen()
         assert (tmp_path / "rvis.sock").exists()
         subprocess.run([*tmux, "send-keys", "-t", "t", "q"], check=True)
@@ -68,7 +57,7 @@ def test_tui_sim_in_a_terminal_shows_the_service_and_quits(tmp_path: Path) -> No
                 != 0
             )
 
-        assert _poll(ended, 30.0), screen()
+        assert poll_screen(ended, 30.0), screen()
         assert not _listening(tmp_path / "rvis.sock")  # the simulated service stopped with it
     finally:
         subprocess.run([*tmux, "kill-server"], capture_output=True)

@@ -19,7 +19,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 
@@ -31,6 +31,7 @@ from app.sim.cell import make_cell
 from app.sim.line_run import simline_settings
 from fakes.line import SimLine
 from tests.groups import GIGE_CAMERA
+from tests.tui.helpers import poll_screen
 
 TMUX = shutil.which("tmux")
 RVIS = [sys.executable, "-m", "app"]
@@ -56,16 +57,6 @@ HEADER = re.compile(
     r"fault \(waiting for plc \(unreachable\): next try \S+\) \| window unknown \|"
     r" (no calibration|cal v\d+ .+ old, .+)"
 )
-
-
-def _poll(check: Callable[[], bool], timeout_s: float) -> bool:
-    """check() until true or timeout_s (tmux offers no event on screen content: poll it)."""
-    tick, deadline = threading.Event(), time.monotonic() + timeout_s
-    while not check():
-        if time.monotonic() > deadline:
-            return False
-        tick.wait(0.1)
-    return True
 
 
 def _free_port() -> int:
@@ -173,11 +164,11 @@ def tui_walk(tmp_path: Path, state: Path, size: tuple[int, int]) -> dict[str, st
     cmd = f"env -u COLUMNS -u LINES {' '.join(RVIS)} tui --state-dir {state}"
     tmux = Tmux(tmp_path, cmd, size)
     try:
-        assert _poll(lambda: tmux.screen().lstrip().startswith("fault"), 60.0), tmux.screen()
-        assert _poll(lambda: "ALARM URGENT" in tmux.screen(), 30.0), tmux.screen()
+        assert poll_screen(lambda: tmux.screen().lstrip().startswith("fault"), 60.0), tmux.screen()
+        assert poll_screen(lambda: "ALARM URGENT" in tmux.screen(), 30.0), tmux.screen()
         screens = walk(tmux, size, Path(captures) if captures else None)
         tmux.keys("3", "Tab", "Tab", "q")
-        assert _poll(tmux.ended, 30.0), tmux.screen()
+        assert poll_screen(tmux.ended, 30.0), tmux.screen()
         return screens
     finally:
         tmux.kill()
