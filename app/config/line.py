@@ -149,7 +149,9 @@ class RecalibSettings(Section):
     # the correction's predicted uncertainty over the measuring volume at the schedule's
     # configurations (per coordinate; 0.02: added in 3-D to a pre-knock error of 0.05-0.07 mm it
     # stays within 1.2x of it; 0.015 waited 2 windows longer for a sensor knock, shift campaign)
-    step_max_std_mm: float = opt(0.02, gt=0, hi=10)
+    # 0.035: on the robot that repeats as its data sheet says (RP 0.07 mm) a sensor correction in
+    # a new cell's first cycle stayed above 0.02 until the attribution gave up (README)
+    step_max_std_mm: float = opt(0.035, gt=0, hi=10)
     # a flag is a step (not drift) when the attribution decides for a group and the change it
     # sees, noise removed, is at least this large (RMS at the measured spheres)
     step_min_mm: float = opt(0.05, lo=0, hi=100)
