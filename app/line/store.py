@@ -405,17 +405,22 @@ class Store:
 
     def rejected_in_a_row(self, n: int, window_rows: int = 2000) -> dict[int, int]:
         """slot -> how many times it was rejected since its last good measurement, for the slots
-        rejected at least n times so, among the last `window_rows` measurements."""
+        rejected at least n times so, among the last `window_rows` measurements (newest first,
+        each slot counted until its first good one: bounded, whatever the table's size)."""
         rows = self._rows(
-            "SELECT slot, COUNT(*) AS n FROM measurements AS m"
-            " WHERE status = 'rejected'"
-            " AND id > (SELECT COALESCE(MAX(id), 0) FROM measurements) - ?"
-            " AND id > (SELECT COALESCE(MAX(o.id), 0) FROM measurements AS o"
-            " WHERE o.slot = m.slot AND o.status = 'ok')"
-            " GROUP BY slot HAVING COUNT(*) >= ?",
-            (window_rows, n),
+            "SELECT slot, status FROM measurements ORDER BY id DESC LIMIT ?", (window_rows,)
         )
-        return {int(r["slot"]): int(r["n"]) for r in rows}
+        streak: dict[int, int] = {}
+        done: set[int] = set()
+        for r in rows:
+            slot = int(r["slot"])
+            if slot in done:
+                continue
+            if r["status"] == "rejected":
+                streak[slot] = streak.get(slot, 0) + 1
+            else:
+                done.add(slot)
+        return {slot: k for slot, k in streak.items() if k >= n}
 
     def measurements_by_id(self, ids: Sequence[int]) -> list[dict[str, Any]]:
         """The rows of these ids in id order (any status)."""
