@@ -4,8 +4,8 @@ motion provides (the sensor acceptance's sphere-spacing error SD, app/commission
 
 ISO 9283's RP is mean + 3 std of the distance l of the attained positions from their barycentre.
 For an isotropic Gaussian error of sigma per axis, l / sigma follows the chi distribution with 3
-degrees of freedom (mean 2 sqrt(2 / pi), std sqrt(3 - 8 / pi)), so RP = 3.616 sigma
-(`RP_PER_SIGMA`). The non-repeatable error is modelled at the joints: every physical joint angle
+degrees of freedom (mean 2 sqrt(2 / pi), std sqrt(3 - 8 / pi)), so RP = 3.616 sigma. The
+non-repeatable error is modelled at the joints: every physical joint angle
 (J3 not coupled to J2) off by an independent Gaussian error of one sigma, drawn anew at every
 stop, the sigma chosen so that the flange's attained positions at the cell's home (the middle of
 the working range, where ISO 9283 puts its test cube) have the data sheet's RP. The simulated
@@ -23,8 +23,6 @@ from calib import datasheet, robot
 from calib.model import SystemModel
 
 F64 = NDArray[np.float64]
-
-RP_PER_SIGMA = 2.0 * math.sqrt(2.0 / math.pi) + 3.0 * math.sqrt(3.0 - 8.0 / math.pi)
 
 
 def controller_offsets_deg(dtheta_rad: ArrayLike) -> F64:

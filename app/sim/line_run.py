@@ -189,33 +189,36 @@ def as_the_line_measures(data_set: DataSet, truth: EndToEndTruth | None) -> Meas
 def commissioning(
     cfg: CellConfig, seed: int, truth: EndToEndTruth | None = None
 ) -> IdentificationResult:
-    """The offline calibration of the cold cell (4 spheres x 6 random views) with
-    the cell's model ([calibration] model; the cold cell's temperature with every view). With
-    `truth`, each view is measured through its sensor model (the centre it reports plus the
-    sensor noise; views its vision checks reject left out), as the line will measure."""
-    sim = simulated_sets(cfg, seed, n_validation=1)
-    data = as_the_line_measures(sim.calibration, truth)
-    if data.temp_c is None:
-        data = dataclasses.replace(data, temp_c=np.full(len(data), sim.cell.temp_c))
-    return identify(cfg.identification_model(), data)
+    """The offline calibration of the cold cell (`commissioned`)."""
+    return commissioned(cfg, seed, truth)[0]
 
 
-def workspace_validation_mm(
-    cfg: CellConfig, seed: int, model: Any, x: F64, truth: EndToEndTruth | None = None
-) -> F64:
-    """The errors' norms (n,) [mm] the commissioning's workspace validation measures for
-    parameters x of `model`: the cold cell's validation sphere at `[commission]
+def commissioned(
+    cfg: CellConfig, seed: int, truth: EndToEndTruth | None = None
+) -> tuple[IdentificationResult, F64]:
+    """The offline calibration of the cold cell (4 spheres x 6 random views) with the cell's
+    model ([calibration] model; the cold cell's temperature with every view), and the errors'
+    norms (n,) [mm] its workspace validation measures: the validation sphere at `[commission]
     workspace_positions` random positions no calibration view used, each tracked (with the
-    tracker's noise) and measured from one view (a stop of the robot, the sensor's noise; with
-    `truth`, through its sensor model as the line measures), mapped with x (app/commission/
-    workspace.py measures the same on the devices)."""
-    n = cfg.commission.workspace_positions
-    sim = simulated_sets(cfg, seed, n_validation=n)
-    data = as_the_line_measures(sim.validation, truth)
-    temp = np.full(len(data), sim.cell.temp_c) if data.temp_c is None else data.temp_c
-    p = model.points_part(x, data.q_deg, data.c_sensor_mm, temp_c=temp)
-    out: F64 = np.linalg.norm(p - data.p_part_mm, axis=1)
-    return out
+    tracker's noise) and measured from one view (app/commission/workspace.py measures the same
+    on the devices). With `truth`, each view is measured through its sensor model (the centre
+    it reports plus the sensor noise; views its vision checks reject left out), as the line
+    will measure. One simulation of the cell for both."""
+    sim = simulated_sets(cfg, seed, n_validation=cfg.commission.workspace_positions)
+    model = cfg.identification_model()
+    data = _cold(as_the_line_measures(sim.calibration, truth), sim.cell.temp_c)
+    result = identify(model, data)
+    val = _cold(as_the_line_measures(sim.validation, truth), sim.cell.temp_c)
+    p = model.points_part(result.x, val.q_deg, val.c_sensor_mm, temp_c=val.temp_c)
+    norms: F64 = np.linalg.norm(p - val.p_part_mm, axis=1)
+    return result, norms
+
+
+def _cold(data: Measurements, temp_c: float) -> Measurements:
+    """`data` with the cold cell's temperature at every view that carries none."""
+    if data.temp_c is not None:
+        return data
+    return dataclasses.replace(data, temp_c=np.full(len(data), temp_c))
 
 
 def random_schedule(cfg: CellConfig, cell: SimulatedCell, seed: int, n_each: int) -> dict[str, F64]:
@@ -296,9 +299,9 @@ class SimulatedLineRun:
         # the model the service identifies and the true error is computed in: [service] model,
         # or the commissioning's compliant one under a rigid [service] model (the service keeps
         # a compliant version's compliance: calib.compliance.carry)
-        commissioned = cfg.identification_model()
-        compliant = isinstance(commissioned, CompliantModel)
-        self.model = commissioned if compliant else cfg.service_model()
+        commission_model = cfg.identification_model()
+        compliant = isinstance(commission_model, CompliantModel)
+        self.model = commission_model if compliant else cfg.service_model()
         if not geometric and sensor_model is None:
             sensor_model = true_sensor_model(self.cell.sensor)
         self.sensor_model = None if geometric else sensor_model
@@ -306,18 +309,16 @@ class SimulatedLineRun:
         self.truth = EndToEndTruth(self.cell.sensor, self.sensor_model, commands)
         # the cold cell's calibration, measured as the line measures (a commissioned state
         # directory's first version replaces it once the service has read it)
-        done = commissioning(
+        done, validation_mm = commissioned(
             cfg, seed, EndToEndTruth(self.cell.sensor, self.sensor_model, commands)
         )
-        self.x_commissioning = carry(self.model, commissioned, done.x, done.temp_c)[1]
+        self.x_commissioning = carry(self.model, commission_model, done.x, done.temp_c)[1]
         self.commissioning_residuals = {
             "n_measurements": int(done.residuals_mm.shape[0]),
             "rms_mm": done.rms_mm,
             "n_parameters": len(done.active),
             # what the commissioning's workspace step would have measured (app.line.accuracy)
-            "validation_errors_mm": workspace_validation_mm(
-                cfg, seed, commissioned, done.x, self.truth
-            ).tolist(),
+            "validation_errors_mm": validation_mm.tolist(),
         }
         self.summary = SimRunSummary()
         self._versions: dict[int, F64] = {}
