@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import socket
 import subprocess
 import sys
 import threading
@@ -26,6 +25,7 @@ from app.line.launch import hold_state, serving
 from app.line.opcua.server import OpcUaServer
 from app.line.opcua.space import NS_MACHINERY, NS_RVIS
 from app.sim.line_run import SimulatedLineRun
+from tests.ports import free_port
 
 # 60 s clamp cycles paced at x300 (the clients watch it live): a window every 0.2 s; no warm-up:
 # the cell temperature is constant
@@ -39,13 +39,6 @@ serial_number = "SN-0007"
 product_instance_uri = "urn:plant-a:body-shop:cell-7"
 """
 MACHINE = "cell-7"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
 
 
 def own_server(run: SimulatedLineRun, **changes: Any) -> tuple[str, OpcUaSettings]:

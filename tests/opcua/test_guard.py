@@ -23,8 +23,9 @@ from app.errors import InputError
 from app.line.opcua import server as server_module
 from app.line.opcua.server import OpcUaServer, _close_pipes
 from app.sim.line_run import SimulatedLineRun
-from tests.opcua.conftest import Records, Servers, child, free_port, machine_node
+from tests.opcua.conftest import Records, Servers, child, machine_node
 from tests.opcua.peers import error_code, hello_message
+from tests.ports import free_port
 
 
 def exchange(

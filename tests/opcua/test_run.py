@@ -15,8 +15,9 @@ import pytest
 from asyncua import Client
 
 from app.line.opcua.space import NS_MACHINERY
-from tests.opcua.conftest import CELL, Catcher, child, free_port, machine_node
+from tests.opcua.conftest import CELL, Catcher, child, machine_node
 from tests.ops.conftest import ServiceProcess
+from tests.ports import free_port
 
 
 def _start(tmp_path: Path) -> tuple[ServiceProcess, str]:

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import socket
 import time
 from collections.abc import Iterator
 from dataclasses import replace
@@ -28,6 +27,7 @@ from app.sim.line_run import simline_settings
 from fakes.line import SimLine
 from fakes.line_faults import LinePlc
 from tests.ops.conftest import RVIS, ServiceProcess, rvis
+from tests.ports import free_port
 
 SCALE = 2.0  # sim seconds per wall second of the peers
 PERIOD_S, WINDOW_S = 12.0, 8.0  # the clamp cycle, sim seconds: a window of 4 s every 6 s
@@ -41,13 +41,6 @@ n_frames = 12
 window_s = {WINDOW_S / SCALE}
 margin_s = 0.2
 """
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
 
 
 @contextlib.contextmanager
@@ -66,7 +59,7 @@ def _peers(tmp_path: Path, *, camera: bool) -> Iterator[tuple[SimLine, Path, int
         period_s=PERIOD_S,
         window_s=WINDOW_S,
     )
-    plc_port = _free_port()
+    plc_port = free_port()
     with SimLine(make_cell(cfg, seed=cfg.simulation.seed), setup) as sim:
         urls = {"camera": "aravis://127.0.0.3", **sim.urls}
         urls["plc"] = f"plc+modbus://127.0.0.1:{plc_port}"

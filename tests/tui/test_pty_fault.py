@@ -14,7 +14,6 @@ import contextlib
 import os
 import re
 import shutil
-import socket
 import subprocess
 import sys
 import threading
@@ -31,6 +30,7 @@ from app.sim.cell import make_cell
 from app.sim.line_run import simline_settings
 from fakes.line import SimLine
 from tests.groups import GIGE_CAMERA
+from tests.ports import free_port
 from tests.tui.helpers import poll_screen
 
 TMUX = shutil.which("tmux")
@@ -59,13 +59,6 @@ HEADER = re.compile(
 )
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
-
-
 @contextlib.contextmanager
 def _service_without_plc(tmp_path: Path) -> Iterator[tuple[Path, str]]:
     """`rvis run --cell` on the simulated line's peers, the PLC's port closed: (its state
@@ -75,7 +68,7 @@ def _service_without_plc(tmp_path: Path) -> Iterator[tuple[Path, str]]:
     cfg = load_cell(base)
     setup = replace(simline_settings(cfg, geometric=False), warmup=None, clock="scaled", scale=2.0)
     with SimLine(make_cell(cfg, seed=cfg.simulation.seed), setup) as sim:
-        urls = {**sim.urls, "plc": f"plc+modbus://127.0.0.1:{_free_port()}"}
+        urls = {**sim.urls, "plc": f"plc+modbus://127.0.0.1:{free_port()}"}
         devices = "\n".join(f'{k} = "{v}"' for k, v in urls.items())
         cell = tmp_path / "cell.toml"
         cell.write_text(f"{CELL}\n[devices]\n{devices}\n", encoding="utf-8")
