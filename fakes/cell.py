@@ -49,8 +49,17 @@ from fakes.render import (
     sphere_scene,
 )
 from fakes.render_noise import NoiseSettings, dark_frame
-from fakes.render_sensor import TrueSensor, default_true_sensor
-from fakes.truth import M710IC50_RP_MM, Knock, Repeatability, TrueRobot, Warmup, _rot, homogeneous
+from fakes.render_sensor import TrueSensor, default_true_sensor, replaced_sensor
+from fakes.truth import (
+    M710IC50_RP_MM,
+    Knock,
+    Maintenance,
+    Repeatability,
+    TrueRobot,
+    Warmup,
+    _rot,
+    homogeneous,
+)
 
 F64 = NDArray[np.float64]
 
@@ -209,6 +218,12 @@ class SimulatedCell:
         self._T_knock = np.eye(4)  # sensor knock: T_sensorBefore_sensorAfter
         self._T_part_knocked = self.T_part_world  # fixture knock: the part frame after it
         self._robot_knocked = robot  # joint knock: the robot after it
+        self.maintenance: Maintenance | None = None  # a change beyond a knock (set_timeline)
+        self._T_swap = np.eye(4)  # a sensor replaced: T_sensorOld_sensorNew
+        self._zero_change_rad = np.zeros(6)  # a motor or encoder replaced: the URDF offsets
+        self._robots: dict[tuple[bool, bool], TrueRobot] = {}  # (knocked, serviced) -> robot
+        self._spheres_serviced: dict[str, F64] = {}  # a fixture renewed: the spheres after it
+        self._sensor_serviced: TrueSensor | None = None  # a sensor replaced: the new one
         self._noise = np.random.default_rng([s.seed, 1])
         self._spheres = {k: np.asarray(v, dtype=float) for k, v in spec.spheres_part_mm.items()}
         self._q_deg = np.array([0.0, 0.0, 0.0, 0.0, -90.0, 0.0])
@@ -230,11 +245,18 @@ class SimulatedCell:
 
     @property
     def sensor(self) -> TrueSensor:
-        """The true sensor (camera + galvo laser); its pixel rays take ~1 s on first use."""
+        """The true sensor now (camera + galvo laser; after a sensor's replacement the new
+        one); its pixel rays take ~1 s on first use."""
         with self._render_lock:
             if self._sensor is None:
                 self._sensor = default_true_sensor()
-            return self._sensor
+            m = self.maintenance
+            if m is None or m.kind != "sensor" or not self._serviced(self._at(None)):
+                return self._sensor
+            if self._sensor_serviced is None:
+                rng = np.random.default_rng([self.settings.seed, 6, 1])
+                self._sensor_serviced = replaced_sensor(self._sensor, rng)
+            return self._sensor_serviced
 
     # -- truth over time -------------------------------------------------------------------
     def set_timeline(
@@ -244,14 +266,18 @@ class SimulatedCell:
         warmup: Warmup | None = None,
         knock: Knock | None = None,
         world_s: float = 0.0,
+        maintenance: Maintenance | None = None,
     ) -> None:
         """Let the truth follow `clock`: the temperature warms up from the ambient `temp_c`,
         and at the knock its group moves (the sensor mount, the spheres' frame or the J2
         zero; its direction drawn from the cell's seed). world_s: the world's time at the
         clock's 0 (a line that continues an earlier run's world: warm and knocked as it left
-        it)."""
+        it). maintenance: a change beyond a knock at its time (`Maintenance`: a sensor replaced,
+        an axis's zero moved, the spheres moved in the part frame; drawn from the cell's
+        seed)."""
         self._clock, self.warmup, self.knock = clock, warmup, knock
         self._world_s = float(world_s)
+        self._service(maintenance)
         rng = np.random.default_rng([self.settings.seed, 5])
         self._T_knock = np.eye(4)
         self._T_part_knocked, self._robot_knocked = self.T_part_world, self.robot
@@ -267,8 +293,38 @@ class SimulatedCell:
             offsets = self.robot.zero_offset_rad + knock.zero_slip_rad(rng)
             self._robot_knocked = replace(self.robot, zero_offset_rad=offsets)
 
+    def _service(self, maintenance: Maintenance | None) -> None:
+        """Draw the maintenance event's change (seeded by the cell's seed alone)."""
+        self.maintenance = maintenance
+        self._T_swap, self._zero_change_rad = np.eye(4), np.zeros(6)
+        self._spheres_serviced, self._sensor_serviced, self._robots = {}, None, {}
+        if maintenance is None:
+            return
+        rng = np.random.default_rng([self.settings.seed, 6])
+        if maintenance.kind == "sensor":
+            self._T_swap = maintenance.pose_change(rng)
+        elif maintenance.kind == "axis":
+            self._zero_change_rad = maintenance.zero_change_rad(rng)
+        else:
+            self._spheres_serviced = maintenance.spheres_moved(rng, dict(self._spheres))
+
     def _knocked(self, t_world_s: float) -> bool:
         return self.knock is not None and t_world_s >= self.knock.at_s
+
+    def _serviced(self, t_world_s: float) -> bool:
+        return self.maintenance is not None and t_world_s >= self.maintenance.at_s
+
+    def _robot_at(self, t_world_s: float) -> TrueRobot:
+        """The true robot at world time t: knocked, its axis serviced, or as built."""
+        key = (self._knocked(t_world_s), self._serviced(t_world_s))
+        robot = self._robots.get(key)
+        if robot is None:
+            robot = self._robot_knocked if key[0] else self.robot
+            if key[1] and np.any(self._zero_change_rad):
+                offsets = robot.zero_offset_rad + self._zero_change_rad
+                robot = replace(robot, zero_offset_rad=offsets)
+            self._robots[key] = robot
+        return robot
 
     def now_s(self) -> float:
         """The cell's sim time [s] (0 without a timeline)."""
@@ -301,10 +357,12 @@ class SimulatedCell:
         return self._mount(self._at(t_s))
 
     def _mount(self, t_world_s: float) -> F64:
+        out: F64 = self._T_mount.copy()
         if self._knocked(t_world_s):
-            knocked: F64 = self._T_mount @ self._T_knock
-            return knocked
-        return self._T_mount.copy()
+            out = out @ self._T_knock
+        if self._serviced(t_world_s):
+            out = out @ self._T_swap
+        return out
 
     @property
     def T_tool0_sensor(self) -> F64:
@@ -315,10 +373,8 @@ class SimulatedCell:
         """True sensor poses (N, 4, 4) in the part frame for controller angles (N, 6) at sim
         time t_s (default: now)."""
         t = self._at(t_s)
-        knocked = self._knocked(t)
-        robot = self._robot_knocked if knocked else self.robot
-        T_pw = self._T_part_knocked if knocked else self.T_part_world
-        T_wt = robot.T_world_tool0(q_deg, self._temp(t))
+        T_pw = self._T_part_knocked if self._knocked(t) else self.T_part_world
+        T_wt = self._robot_at(t).T_world_tool0(q_deg, self._temp(t))
         out: F64 = T_pw @ T_wt @ self._mount(t)
         return out
 
@@ -450,7 +506,14 @@ class SimulatedCell:
         return sorted(self._spheres)
 
     def target_true_mm(self, target_id: str) -> F64:
-        return self._spheres[target_id].copy()
+        """Where the sphere stands now in the part frame (after a fixture's renewal, its
+        new place)."""
+        return self._sphere_now(target_id).copy()
+
+    def _sphere_now(self, target_id: str) -> F64:
+        if target_id in self._spheres_serviced and self._serviced(self._at(None)):
+            return self._spheres_serviced[target_id]
+        return self._spheres[target_id]
 
     def place_sphere(self, target_id: str, p_part_mm: ArrayLike) -> None:
         """Put a sphere (a new one, or move one) at p_part_mm: the validation sphere on its
@@ -467,7 +530,7 @@ class SimulatedCell:
         (`attained_deg`: the stop at the current joints, the same for every call until the
         next move)."""
         q, error = self._stop_now()
-        return self._sensed(self._visible_centre(q, self._spheres[target_id], error))
+        return self._sensed(self._visible_centre(q, self._sphere_now(target_id), error))
 
     def render_frame(
         self, width: int, height: int, exposure_us: float, gain_db: float, galvo_v: float | None

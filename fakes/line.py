@@ -51,7 +51,7 @@ from fakes.line_truth import LineTruth, validation_positions
 from fakes.rmi_controller import RmiController
 from fakes.scpi_dac import ScpiDac
 from fakes.tracker_service import TrackerService
-from fakes.truth import Knock, Warmup
+from fakes.truth import Knock, Maintenance, Warmup
 
 F64 = NDArray[np.float64]
 
@@ -78,6 +78,7 @@ class SimLineSetup:
     body_format: str = "u32"  # how the PLC writes it: "u32" (the number) or "serial8"
     warmup: Warmup | None = field(default_factory=Warmup)
     knock: Knock | None = None
+    maintenance: Maintenance | None = None  # a change beyond a knock (fakes.truth)
     camera: bool = True  # start the GigE fake (False: geometric runs, no rendering)
     camera_address: str = "127.0.0.1"
     # how long the camera waits for its address when another simulation's holds it (None: as
@@ -198,7 +199,13 @@ class SimLine:
         if self._started:
             raise RuntimeError("the simulated line is already started")
         s = self.settings
-        self.cell.set_timeline(self.clock, warmup=s.warmup, knock=s.knock, world_s=s.world_s)
+        self.cell.set_timeline(
+            self.clock,
+            warmup=s.warmup,
+            knock=s.knock,
+            world_s=s.world_s,
+            maintenance=s.maintenance,
+        )
         try:
             for peer in (self.plc, self.controller, self.dac, self.tracker, self.camera):
                 if peer is not None:

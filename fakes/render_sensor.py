@@ -122,3 +122,27 @@ class TrueSensor:
 def default_true_sensor() -> TrueSensor:
     """The simulated sensor as built (matches vision.sensor_model.default_sensor_model)."""
     return TrueSensor()
+
+
+def replaced_sensor(sensor: TrueSensor, rng: np.random.Generator) -> TrueSensor:
+    """Another sensor of the same type (a sensor replaced, fakes.truth.Maintenance): its own
+    lens and assembly within the type's tolerances: focal lengths +-0.5 %, principal point
+    +-8 px, distortion +-10 %, the mirror's axis 0.5 mm and 0.2 deg off, its angle's zero
+    0.1 deg off. The calibration of the sensor it replaces is wrong for it."""
+    from dataclasses import replace
+
+    f = 1.0 + rng.uniform(-0.005, 0.005, 2)
+    axis = _unit(sensor.axis_dir + rng.normal(0.0, math.radians(0.2) / math.sqrt(3.0), 3))
+    poly = sensor.angle_poly_rad.copy()
+    poly[0] += math.radians(rng.uniform(-0.1, 0.1))
+    return replace(
+        sensor,
+        fx_px=sensor.fx_px * float(f[0]),
+        fy_px=sensor.fy_px * float(f[1]),
+        cx_px=sensor.cx_px + float(rng.uniform(-8.0, 8.0)),
+        cy_px=sensor.cy_px + float(rng.uniform(-8.0, 8.0)),
+        dist=sensor.dist * (1.0 + rng.uniform(-0.1, 0.1, 5)),
+        axis_point_mm=sensor.axis_point_mm + rng.normal(0.0, 0.5 / math.sqrt(3.0), 3),
+        axis_dir=axis,
+        angle_poly_rad=poly,
+    )

@@ -309,3 +309,88 @@ def _unit_vector(rng: np.random.Generator) -> F64:
     v = rng.normal(0.0, 1.0, 3)
     out: F64 = v / np.linalg.norm(v)
     return out
+
+
+# -- maintenance: changes beyond a knock (issue 41) ---------------------------------------------
+MAINTENANCE_KINDS = ("sensor", "axis", "fixture")
+#: the sizes a maintenance event draws when none is given: (shift [mm] low, high), (tilt or
+#: zero [deg] low, high). A sensor of the same type on a new mount, a motor or encoder replaced
+#: (the robot maker's remastering leaves the zero within a degree), a sphere fixture renewed.
+MAINTENANCE_SIZES = {
+    "sensor": ((2.0, 4.0), (0.1, 0.4)),
+    "axis": ((0.0, 0.0), (0.2, 1.0)),
+    "fixture": ((1.5, 3.0), (0.02, 0.08)),
+}
+
+
+@dataclass(frozen=True)
+class Maintenance:
+    """A maintenance event at world time ``at_s`` that changes the true cell beyond a knock:
+
+    - ``sensor``: the sensor replaced by another of its type: a new mount pose on the flange
+      (``shift_mm``, ``tilt_deg`` about the sensor's origin) and its own camera and laser
+      (`replaced_sensor`: focal lengths, principal point, distortion, mirror axis and angle
+      within the type's tolerances);
+    - ``axis``: the motor or encoder of controller axis ``axis`` (1..6) replaced: its zero moves
+      by ``tilt_deg`` (sign drawn), the gear unchanged (J2's zero moves the URDF's J3 with it);
+    - ``fixture``: the sphere fixture renewed: the spheres move in the part frame (the body's
+      frame, which the validation points keep), all of them by a rigid move of ``shift_mm`` and
+      ``tilt_deg`` about their centroid, or, with ``sphere``, that one sphere replaced and
+      standing ``shift_mm`` away from where it stood.
+
+    Sizes left None are drawn from the seed within `MAINTENANCE_SIZES`; directions and signs
+    from the seed passed to the methods (the same seed, the same event in every process)."""
+
+    at_s: float
+    kind: str
+    axis: int = 2
+    sphere: str = ""
+    shift_mm: float | None = None
+    tilt_deg: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.kind not in MAINTENANCE_KINDS:
+            raise ValueError(f"maintenance kind must be one of {', '.join(MAINTENANCE_KINDS)}")
+        if not 1 <= self.axis <= 6:
+            raise ValueError("maintenance axis must be 1..6")
+
+    def sizes(self, rng: np.random.Generator) -> tuple[float, float]:
+        """(shift [mm], tilt or zero change [deg]) of the event, drawn where not given."""
+        (m_lo, m_hi), (d_lo, d_hi) = MAINTENANCE_SIZES[self.kind]
+        mm, deg = rng.uniform(m_lo, m_hi), rng.uniform(d_lo, d_hi)
+        return (
+            float(mm if self.shift_mm is None else self.shift_mm),
+            float(deg if self.tilt_deg is None else self.tilt_deg),
+        )
+
+    def pose_change(self, rng: np.random.Generator) -> F64:
+        """The sensor's new mount relative to the old (4, 4), T_sensorOld_sensorNew (the
+        ``sensor`` kind), or the spheres' rigid move about the origin (``fixture``)."""
+        mm, deg = self.sizes(rng)
+        return Knock(0.0, mm, deg).T_mount_knocked(rng)
+
+    def zero_change_rad(self, rng: np.random.Generator) -> F64:
+        """The ``axis`` kind: the URDF joint offsets' change (6,) [rad] of a controller zero
+        moved by the event's size on its axis."""
+        _, deg = self.sizes(rng)
+        d = np.radians(deg) * (1.0 if rng.random() < 0.5 else -1.0)
+        dq = np.zeros(6)
+        dq[self.axis - 1] = d
+        du = dq.copy()
+        du[2] = dq[2] + dq[1]  # the URDF's q3 = J3 + J2
+        return du
+
+    def spheres_moved(
+        self, rng: np.random.Generator, spheres_part_mm: dict[str, F64]
+    ) -> dict[str, F64]:
+        """The ``fixture`` kind: where each sphere stands after the renewal (part frame)."""
+        out = {k: np.asarray(v, dtype=float).copy() for k, v in spheres_part_mm.items()}
+        if self.sphere:
+            if self.sphere not in out:
+                raise ValueError(f"no sphere {self.sphere!r} in the cell")
+            mm, _ = self.sizes(rng)
+            out[self.sphere] = out[self.sphere] + mm * _unit_vector(rng)
+            return out
+        c = np.mean(list(out.values()), axis=0)
+        M = homogeneous(np.eye(3), c) @ self.pose_change(rng) @ homogeneous(np.eye(3), -c)
+        return {k: M[:3, :3] @ v + M[:3, 3] for k, v in out.items()}

@@ -270,7 +270,8 @@ class SimLineSection(Section):
     """The simulated line of `rvis run --sim` (fakes/line.py): its time, clamp cycle, the
     cell's warm-up and a knock (knock_at_s < 0: none) of the sensor mount (knock_kind sensor:
     knock_mm shift and knock_deg tilt), of the spheres' frame (fixture: the same about the
-    spheres' centroid) or of the J2 encoder zero (joint: a slip of knock_deg).
+    spheres' centroid) or of the J2 encoder zero (joint: a slip of knock_deg), and a
+    maintenance event beyond a knock (maintenance_at_s < 0: none; issue 41).
 
     Time on the simulated line is virtual: it passes by the simulated durations of what
     happens (motions, exposures and read-outs, the DAC's settling, the service's own waits,
@@ -304,6 +305,16 @@ class SimLineSection(Section):
     knock_mm: float = opt(0.3, lo=0, hi=100)
     knock_deg: float = opt(0.05, lo=0, hi=90)
     knock_kind: str = opt("sensor", choices=("sensor", "fixture", "joint"))
+    # a maintenance event at world time maintenance_at_s (< 0: none), beyond a knock
+    # (fakes.truth.Maintenance): a sensor replaced, the motor or encoder of maintenance_axis
+    # replaced, the sphere fixture renewed (maintenance_sphere: only that sphere replaced);
+    # maintenance_mm and maintenance_deg its size (0: drawn from the seed within the kind's)
+    maintenance_at_s: float = opt(-1.0, lo=-1, hi=1e7)
+    maintenance_kind: str = opt("sensor", choices=("sensor", "axis", "fixture"))
+    maintenance_axis: int = opt(2, lo=1, hi=6)
+    maintenance_sphere: str = opt("")
+    maintenance_mm: float = opt(0.0, lo=0, hi=100)
+    maintenance_deg: float = opt(0.0, lo=0, hi=10)
     n_validation: int = opt(100, lo=1, hi=10000)
 
     def cross_checks(self) -> Iterator[tuple[str, str]]:

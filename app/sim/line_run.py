@@ -47,7 +47,7 @@ from calib.validation import rmse
 from fakes.cell import NotVisible, SimulatedCell
 from fakes.clock import VirtualClock
 from fakes.line import SimLine, SimLineSetup
-from fakes.truth import Knock, Warmup
+from fakes.truth import Knock, Maintenance, Warmup
 from vision.sensor_model import SensorModel
 
 F64 = NDArray[np.float64]
@@ -108,6 +108,7 @@ def simline_settings(
     if s.knock_at_s >= 0:
         knock = Knock(s.knock_at_s, s.knock_mm, s.knock_deg, s.knock_kind)
     return SimLineSetup(
+        maintenance=maintenance_of(cfg),
         scale=pace,
         start_epoch=start_epoch,
         period_s=s.period_s,
@@ -120,6 +121,21 @@ def simline_settings(
         camera_readout_s=s.camera_readout_s,
         galvo_settle_s=s.galvo_settle_s,
         body_format="serial8" if cfg.line.plc_body_id == "serial8" else "u32",
+    )
+
+
+def maintenance_of(cfg: CellConfig) -> Maintenance | None:
+    """The cell file's maintenance event of the simulated world ([simline] maintenance_*)."""
+    s = cfg.simline
+    if s.maintenance_at_s < 0:
+        return None
+    return Maintenance(
+        s.maintenance_at_s,
+        s.maintenance_kind,
+        axis=s.maintenance_axis,
+        sphere=s.maintenance_sphere,
+        shift_mm=s.maintenance_mm or None,
+        tilt_deg=s.maintenance_deg or None,
     )
 
 
