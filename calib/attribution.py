@@ -52,6 +52,13 @@ class StepGroup:
     params: tuple[str, ...]
 
 
+#: the J2 motor or encoder replaced: a zero moved on the controller's J2 moves, through the
+#: J2/J3 coupling, the forearm's angle to the upper arm with it (theta2 and theta3,
+#: calib/robot.py). Beyond a knock only (`maintenance_groups`): among the knocks' groups its
+#: spare parameter would let noise pick it over J2's zero alone.
+J2_ENCODER = StepGroup("J2-encoder", "J2 encoder zero (J3 coupled)", ("dtheta2", "dtheta3"))
+
+
 def step_groups(model: SystemModel) -> tuple[StepGroup, ...]:
     """The candidates of a model: nothing moved ("none": the parameters in force explain the
     measurements), sensor mount, sphere fixture / part frame, each identified joint zero
@@ -65,6 +72,15 @@ def step_groups(model: SystemModel) -> tuple[StepGroup, ...]:
         *(StepGroup(f"J{n[-1]}", f"J{n[-1]} zero", (n,)) for n in joints),
         StepGroup(SEVERAL, "several groups", tuple(active)),
     )
+
+
+def maintenance_groups(model: SystemModel) -> tuple[StepGroup, ...]:
+    """The candidates of a change beyond a knock: the knocks' (`step_groups`) and J2's
+    encoder zero where the model identifies theta2 and theta3."""
+    groups = step_groups(model)
+    if not set(J2_ENCODER.params) <= set(model.default_active()):
+        return groups
+    return (*groups[:-1], J2_ENCODER, groups[-1])
 
 
 @dataclass(frozen=True)
@@ -113,6 +129,10 @@ class GroupFit:
             return f"{self.translation_mm:.2f} mm / {self.rotation_deg:.3f} deg{at}"
         if len(self.group.params) == 1:
             return f"{self.rotation_deg:.4f} deg{at}"
+        if 0 < len(self.group.params) <= 2 and all(unit_of(n) == "rad" for n in self.group.params):
+            pairs = zip(self.group.params, self.step, strict=True)
+            each = ", ".join(f"{n} {np.degrees(v):+.4f} deg" for n, v in pairs)
+            return f"{each}{at}"
         return f"{len(self.group.params)} parameters{at}"
 
     def to_json(self) -> dict[str, object]:
@@ -150,7 +170,14 @@ class Attribution:
 
     @property
     def runner_up(self) -> GroupFit | None:
-        rest = [f for f in self.fits if f.determined and f.group.name != self.choice]
+        c = self.chosen
+        rest = [
+            f
+            for f in self.fits
+            if f.determined
+            and f.group.name != self.choice
+            and (c is None or self.choice == SEVERAL or _rival(f, c))
+        ]
         return rest[0] if rest else None
 
     def text(self) -> str:
@@ -213,6 +240,17 @@ def attribute(
     return _choose(tuple(fits), n, float(np.median(sigma)))
 
 
+def _rival(f: GroupFit, best: GroupFit) -> bool:
+    """Whether fit f competes with the best one for the margin: another group, and not one
+    that holds the best one's parameters and more (J2's encoder zero, theta2 and theta3, over
+    J2's zero alone: the same explanation with a parameter to spare, which the BIC's penalty
+    alone sets apart); the full set ("several") always competes."""
+    if f is best:
+        return False
+    wider = f.group.name != SEVERAL and set(best.group.params) < set(f.group.params)
+    return not wider
+
+
 def _choose(fits: tuple[GroupFit, ...], n: int, sigma: float) -> Attribution:
     singles = [f for f in fits if f.determined and f.group.name != SEVERAL]
     several = next((f for f in fits if f.group.name == SEVERAL and f.determined), None)
@@ -222,7 +260,7 @@ def _choose(fits: tuple[GroupFit, ...], n: int, sigma: float) -> Attribution:
     if (several is not None and several.bic < best.bic) or not best.consistent:
         margin = best.bic - several.bic if several is not None else np.inf
         return Attribution(fits, SEVERAL, several, float(margin), n, sigma)
-    others = [f.bic for f in fits if f.determined and f is not best]
+    others = [f.bic for f in fits if f.determined and _rival(f, best)]
     margin = min(others) - best.bic if others else np.inf
     return Attribution(fits, best.group.name, best, float(margin), n, sigma)
 

@@ -308,6 +308,35 @@ class SimulatedCell:
         else:
             self._spheres_serviced = maintenance.spheres_moved(rng, dict(self._spheres))
 
+    def maintenance_truth(self) -> dict[str, object]:
+        """What the maintenance event changed, as the truth knows it (for reports and tests):
+        the sensor mount's shift [mm] and tilt [deg] and how far it moves a sphere at the
+        standoff [mm], each controller axis's zero change [deg],
+        each sphere's move [mm]; empty without an event."""
+        m = self.maintenance
+        if m is None:
+            return {}
+        R, t = self._T_swap[:3, :3], self._T_swap[:3, 3]
+        tilt = float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
+        du = self._zero_change_rad
+        dq = du.copy()
+        dq[2] = du[2] - du[1]  # the controller's J3 of the URDF's q3 = J3 + J2
+        moved = {
+            k: float(np.linalg.norm(v - self._spheres[k]))
+            for k, v in self._spheres_serviced.items()
+        }
+        v = self.spec.volume
+        c = np.array([0.0, 0.0, 0.5 * (v.z_min_mm + v.z_max_mm)])  # a sphere at the standoff
+        return {
+            "kind": m.kind,
+            "at_s": m.at_s,
+            "mount_shift_mm": float(np.linalg.norm(t)),
+            "mount_at_standoff_mm": float(np.linalg.norm(R @ c + t - c)),
+            "mount_tilt_deg": tilt,
+            "zero_change_deg": np.degrees(dq).tolist(),
+            "spheres_moved_mm": moved,
+        }
+
     def _knocked(self, t_world_s: float) -> bool:
         return self.knock is not None and t_world_s >= self.knock.at_s
 

@@ -305,4 +305,5 @@ def _summary_text(s: Any) -> str:
         f"{s.calibrations_applied}, rejected {s.calibrations_rejected}; alarms "
         f"{len(s.alarms)}{': ' + '; '.join(s.alarms[:5]) if s.alarms else ''}; true RMSE "
         f"{s.true_rmse_start_mm:.4f} mm at the start, {s.true_rmse_final_mm:.4f} mm at the end"
+        + (f"; held for maintenance: {s.maintenance}" if s.maintenance else "")
     )

@@ -155,6 +155,11 @@ class RecalibSettings(Section):
     # a flag is a step (not drift) when the attribution decides for a group and the change it
     # sees, noise removed, is at least this large (RMS at the measured spheres)
     step_min_mm: float = opt(0.05, lo=0, hi=100)
+    # a step seen larger than this at the measured spheres is beyond a knock (a sensor
+    # replaced, an axis remastered, a fixture renewed): the cell holds in FAULT with the
+    # `maintenance` alarm and asks for the procedure that fits (app/line/beyond_knock.py);
+    # knocks the fast correction is for move the spheres by up to about 1 mm
+    maintenance_step_mm: float = opt(1.5, gt=0, hi=1000)
     # after the first correction one more window refines it (auto mode, batch estimator; 0:
     # none). Any value > 0 turns it on: since the recovery test judges where the interval ends,
     # the size no longer decides it (kept so that existing cell files stay valid)

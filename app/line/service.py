@@ -63,7 +63,8 @@ from app.line.accuracy import (
     evidence,
     statement,
 )
-from app.line.cycle import Cycle, WindowWatch
+from app.line.beyond_knock import BLIND_WINDOWS, blind_text
+from app.line.cycle import Cycle, WindowReport, WindowWatch
 from app.line.drift import DriftMonitor, prediction_inflation, residual_mm
 from app.line.events import EventBus
 from app.line.inline_seq import InlineSequential, SequentialCandidate
@@ -174,6 +175,7 @@ class Service:
         self.drift_onset_id: int | None = None  # first measurement after a flagged step
         self.drift_due = False  # the residual charts signalled: recalibrate soon
         self._views_lost: set[int] = set()  # slots left out by `_seen`, alarmed
+        self._blind: list[tuple[int, int]] = []  # windows seeing no sphere: (first id, rejected)
         self.last_visit: dict[int, tuple[F64, F64]] = {}  # slot -> (q_deg, c_sensor_mm)
         self.visit_ids: dict[int, int] = {}  # slot -> the measurement id of its last visit
         self.change_from_id = 0  # a change from a visit before this id spans a known step
@@ -560,12 +562,14 @@ class Service:
         self.set_state(State.MEASURING)
         n = self.counters["windows"] + 1
         t_open = self.clock.time()  # within a poll of the window's rising edge
+        first_id = self.store.last_measurement_id() + 1  # the window's first measurement
         try:
             report = self.cycle.run_window(n)
         except DeviceError as exc:
             self._fault(exc)
             return
         self.counters["windows"] = n
+        self._watch_blind(report, first_id)
         self.counters["overruns"] += report.overrun
         self.counters["withdrawn"] += bool(report.withdrawn)
         self._state_accuracy(t_open)
@@ -585,6 +589,35 @@ class Service:
         self._between_windows()
         if self.after_window is not None:
             self.after_window()
+
+    def _watch_blind(self, report: WindowReport, first_id: int) -> None:
+        """Windows in a row whose every view was rejected: at BLIND_WINDOWS, a change far
+        beyond a knock (app.line.beyond_knock): the step's suspect interval from the first
+        of them, the cell held for maintenance."""
+        if report.measured or not report.rejected:
+            if report.measured:
+                self._blind = []
+            return
+        self._blind.append((first_id, report.rejected))
+        if len(self._blind) < BLIND_WINDOWS or self.state == State.FAULT:
+            return
+        onset_id = self._blind[0][0]
+        step = self.step
+        if step is None or (step.status != StepStatus.PROBATION and not self._suspect_open()):
+            self.step = None  # a step over (or none): this change is a new one
+            self.step_handler.open_step(onset_id, onset_id, attribute=False)
+        elif step.suspect_id is None:  # on probation: its interval opens now
+            self.step_handler.open_suspect(step)
+        step = self.step
+        assert step is not None
+        step.move(StepStatus.MAINTENANCE)
+        self.save_state()
+        self.maintenance_needed(blind_text(len(self._blind), sum(n for _, n in self._blind)))
+
+    def maintenance_needed(self, message: str) -> None:
+        """A change beyond a knock (app.line.beyond_knock): FAULT with the `maintenance`
+        alarm until a maintenance procedure hands the cell back (or an engineer resets it)."""
+        self._enter_fault(AlarmCode.MAINTENANCE, message)
 
     def _state_accuracy(self, t_open: float) -> None:
         """After a window: the U95 of a point measured now from the evidence (app.line.accuracy),

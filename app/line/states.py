@@ -51,6 +51,8 @@ class AlarmCode(StrEnum):
     SENSOR = "sensor", "process"
     #: a schedule's view rejected again and again: skipped, re-plan
     VIEW_LOST = "view_lost", "process"
+    #: a change beyond a knock: held in FAULT until `rvis maintain` hands the cell back
+    MAINTENANCE = "maintenance", "process"
 
 
 #: alarms that hold the cell in FAULT until a reset
@@ -59,6 +61,7 @@ FAULT_CODES = (
     AlarmCode.ROBOT_NOT_HOME,
     AlarmCode.INTERNAL_ERROR,
     AlarmCode.STATE_STORAGE,
+    AlarmCode.MAINTENANCE,
 )
 
 #: every alarm code the service can raise -> its condition class (AlarmCode, read as a

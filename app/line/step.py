@@ -38,6 +38,7 @@ class StepStatus(StrEnum):
     CORRECTED = "corrected"
     SEVERAL = "several"
     NONE = "none"
+    MAINTENANCE = "maintenance"
 
 
 _S = StepStatus
@@ -45,15 +46,18 @@ _S = StepStatus
 #: cannot be attributed; it leaves the service's decision state after a full recalibration
 #: trained after it (or dropped as drift from probation)
 TRANSITIONS: dict[StepStatus, frozenset[StepStatus]] = {
-    _S.PROBATION: frozenset({_S.ATTRIBUTING}),
-    _S.ATTRIBUTING: frozenset({_S.PROPOSED, _S.FOLLOWING, _S.SEVERAL, _S.NONE, _S.RECOVERING}),
-    _S.PROPOSED: frozenset({_S.ATTRIBUTING, _S.REFINING, _S.RECOVERING}),
-    _S.REFINING: frozenset({_S.RECOVERING, _S.CORRECTED}),
-    _S.FOLLOWING: frozenset({_S.FOLLOWING, _S.SEVERAL, _S.NONE, _S.RECOVERING}),
-    _S.RECOVERING: frozenset({_S.RECOVERING, _S.CORRECTED}),
-    _S.CORRECTED: frozenset({_S.RECOVERING}),
-    _S.SEVERAL: frozenset({_S.SEVERAL, _S.RECOVERING, _S.FOLLOWING}),
+    _S.PROBATION: frozenset({_S.ATTRIBUTING, _S.MAINTENANCE}),
+    _S.ATTRIBUTING: frozenset(
+        {_S.PROPOSED, _S.FOLLOWING, _S.SEVERAL, _S.NONE, _S.RECOVERING, _S.MAINTENANCE}
+    ),
+    _S.PROPOSED: frozenset({_S.ATTRIBUTING, _S.REFINING, _S.RECOVERING, _S.MAINTENANCE}),
+    _S.REFINING: frozenset({_S.RECOVERING, _S.CORRECTED, _S.MAINTENANCE}),
+    _S.FOLLOWING: frozenset({_S.FOLLOWING, _S.SEVERAL, _S.NONE, _S.RECOVERING, _S.MAINTENANCE}),
+    _S.RECOVERING: frozenset({_S.RECOVERING, _S.CORRECTED, _S.MAINTENANCE}),
+    _S.CORRECTED: frozenset({_S.RECOVERING, _S.MAINTENANCE}),
+    _S.SEVERAL: frozenset({_S.SEVERAL, _S.RECOVERING, _S.FOLLOWING, _S.MAINTENANCE}),
     _S.NONE: frozenset({_S.NONE}),
+    _S.MAINTENANCE: frozenset({_S.MAINTENANCE}),  # ends with the maintenance's hand-over
 }
 #: the statuses in which the windows measure for the step (more slots, chosen for it): until
 #: the full recalibration on post-step measurements is in force (corrected: the interval has
@@ -71,7 +75,9 @@ class Step:
     correction applied, one more window of measurements refines it), following (sequential
     estimator: the suspected group's covariance widened, its candidate awaited), corrected
     (applied; the full recalibration on post-step measurements follows), several (no single
-    group: waiting for the full recalibration), none (no step found)."""
+    group: waiting for the full recalibration), none (no step found), maintenance (beyond a
+    knock: the cell holds in FAULT until a maintenance procedure hands it back,
+    app/line/beyond_knock.py)."""
 
     onset_id: int
     suspect_id: int | None  # None while on probation

@@ -21,6 +21,7 @@ import numpy as np
 from app.errors import InputError
 from app.formats.params import carried_from_json
 from app.line.accuracy import VOUCHED, document_seed
+from app.line.beyond_knock import BLIND_WINDOWS, beyond, step_text
 from app.line.drift import OVERALL
 from app.line.host import LineHost
 from app.line.states import AlarmCode, suspect_json
@@ -36,7 +37,14 @@ from app.line.step_fit import (
     visible_step_mm,
     volume_views,
 )
-from calib.attribution import NONE, SEVERAL, Attribution, point_shift_mm, step_groups
+from calib.attribution import (
+    NONE,
+    SEVERAL,
+    Attribution,
+    maintenance_groups,
+    point_shift_mm,
+    step_groups,
+)
 from calib.candidates import IDEAL_STANDOFF_MM
 
 #: the change point is looked for from the CUSUM's estimate less half the schedule (the
@@ -92,9 +100,9 @@ class StepHandler:
         )
         svc.change_from_id = onset_id
         if not attribute:
-            self._open_suspect(svc.step)
+            self.open_suspect(svc.step)
 
-    def _open_suspect(self, step: Step) -> None:
+    def open_suspect(self, step: Step) -> None:
         """The step's suspect interval, from its last trustworthy measurement on. An accuracy
         interval open (the U95 jumped with the knock's first measurements, before the step was
         confirmed) becomes the step's: one interval for one event, starting at the step."""
@@ -121,7 +129,7 @@ class StepHandler:
         measurement before where it was located) and the high alarm names what moved."""
         svc = self.svc
         step.move(StepStatus.ATTRIBUTING)
-        self._open_suspect(step)
+        self.open_suspect(step)
         svc.clear_alarms(AlarmCode.DRIFT)
         signal = step.signal or f"step since measurement {step.start_id or step.onset_id}"
         step.signal = signal
@@ -169,6 +177,21 @@ class StepHandler:
         a, corr = correct_step(
             svc.model, svc.x, pairs, svc.spheres, sigma, views, r, svc.settings.gates
         )
+        if a.choice == SEVERAL and visible_step_mm(a) > r.maintenance_step_mm:
+            # beyond a knock, no knock's group: maybe a maintenance's (J2's encoder zero)
+            wide, _ = correct_step(
+                svc.model,
+                svc.x,
+                pairs,
+                svc.spheres,
+                sigma,
+                views,
+                r,
+                svc.settings.gates,
+                groups=maintenance_groups(svc.model),
+            )
+            if wide.choice != SEVERAL:
+                a, corr = wide, None  # no correction beyond a knock
         step.n_used, step.choice, step.text = n_all, a.choice, a.text()
         settled = len(pairs) >= len(svc.schedule) // 2  # no single group after that many
         data = self._attribution_event(step, len(pairs), a, corr, views)
@@ -177,8 +200,8 @@ class StepHandler:
         with svc.store.batch():
             fields: dict[str, Any] = {"group_name": a.choice, "text": a.text()}
             fields |= self._step_start(step, start_id)
+            seen = visible_step_mm(a)
             if step.status == StepStatus.PROBATION:
-                seen = visible_step_mm(a)
                 data["visible_mm"] = seen
                 confirmed = a.choice != NONE and decisive and seen >= r.step_min_mm
                 if not confirmed:
@@ -195,20 +218,35 @@ class StepHandler:
             for alarm in svc.store.active_alarms(code=AlarmCode.DRIFT_STEP):
                 text = step_alarm_text(step.signal, a.text())
                 svc.store.update_alarm_message(int(alarm["id"]), text)
-            closed = None
-            if a.choice in (SEVERAL, NONE) and settled:
+            closed, maintenance = None, beyond(a, seen, r.maintenance_step_mm)
+            # beyond a knock: said once what moved is known (one group chosen decisively),
+            # or when no more measurements will tell (settled, or the step's third window)
+            maintenance &= (a.choice != SEVERAL and decisive) or settled or self._late(step)
+            if maintenance:  # no correction: the cell holds for the procedure that fits
+                step.move(StepStatus.MAINTENANCE)
+            elif a.choice in (SEVERAL, NONE) and settled:
                 step.move(a.choice)
                 if a.choice == NONE:
                     closed = self.close_none(svc.clock.time())
             self._widen_sequential(a, step)
             svc.save_state()
         svc.bus.emit("step_attribution", data, level=logging.WARNING)
+        if maintenance:
+            svc.maintenance_needed(step_text(a, seen, r.maintenance_step_mm))
+            return
         if closed is not None:
             svc.bus.emit("suspect_interval", closed)
         if svc.sequential is None and corr is not None and corr.passed:
             step.move(StepStatus.PROPOSED)
             step.base_version = svc.version
             svc.recal_done(corr)
+
+    def _late(self, step: Step) -> bool:
+        """The step's measurements span BLIND_WINDOWS windows: no longer waited on."""
+        rows = self.svc.store.measurements_by_id([step.onset_id])
+        return bool(rows) and self.svc.counters["windows"] - int(rows[0]["window"]) + 1 >= (
+            BLIND_WINDOWS
+        )
 
     def _step_pairs(
         self, step: Step, *, locate: bool

@@ -35,7 +35,7 @@ from app.line.schedule import Schedule
 from app.line.service import Service
 from app.line.settings import ServiceSettings, from_cell
 from app.line.statedir import StateDir
-from app.line.states import State
+from app.line.states import AlarmCode, State
 from app.line.station import Station, cell_guard
 from app.line.store import Store
 from app.sim.cell import DataSet, make_cell, simulated_sets, true_sensor_model
@@ -86,6 +86,8 @@ class SimRunSummary:
     alarms: list[str] = field(default_factory=list)
     true_rmse_start_mm: float = float("nan")
     true_rmse_final_mm: float = float("nan")
+    # the `maintenance` alarm's text when the service holds the cell for a procedure
+    maintenance: str | None = None
     records: list[WindowRecord] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
@@ -137,6 +139,15 @@ def maintenance_of(cfg: CellConfig) -> Maintenance | None:
         shift_mm=s.maintenance_mm or None,
         tilt_deg=s.maintenance_deg or None,
     )
+
+
+class _Held(Exception):
+    """The service holds the cell for maintenance: no window will come."""
+
+
+def _held_for_maintenance(event: dict[str, Any]) -> bool:
+    """The service raised the `maintenance` alarm: the cell holds until a procedure."""
+    return event["event"] == "alarm" and event.get("code") == AlarmCode.MAINTENANCE
 
 
 def continued_epoch(state_dir: Path, start_epoch: float | None = None) -> tuple[float, float]:
@@ -337,6 +348,7 @@ class SimulatedLineRun:
             "validation_errors_mm": validation_mm.tolist(),
         }
         self.summary = SimRunSummary()
+        self.held_for_maintenance = False  # the service raised `maintenance`: it holds
         self._versions: dict[int, F64] = {}
         self._stack = contextlib.ExitStack()
         self.thread: threading.Thread | None = None
@@ -498,8 +510,9 @@ class SimulatedLineRun:
         on_event: Callable[[dict[str, Any]], None] | None = None,
     ) -> SimRunSummary:
         """Run the service until n windows have passed (counted from the start) and hold it
-        there; the summary of the run. `on_event` sees every event of the service after it is
-        counted."""
+        there, or until it holds the cell for maintenance (nothing in this process can end
+        that: `rvis maintain`); the summary of the run. `on_event` sees every event of the
+        service after it is counted."""
         with self._gate:
             self._hold_at = n
             self._gate.notify_all()
@@ -509,18 +522,39 @@ class SimulatedLineRun:
         silence_s = (
             10.0 if self.pace is None else 10.0 + 5.0 * self.cfg.simline.period_s / self.pace
         )
-        done = lambda e: s.windows >= n or e["event"] == "stopped"  # noqa: E731
+
+        def done(event: dict[str, Any]) -> bool:
+            return s.windows >= n or event["event"] == "stopped" or _held_for_maintenance(event)
+
+        def quiet() -> bool:
+            """Silent on purpose; held for maintenance since its start (a restart): done."""
+            if self._quiet_by_itself() and self.service.store.active_alarms(
+                code=AlarmCode.MAINTENANCE
+            ):
+                self.held_for_maintenance = True
+                raise _Held
+            return self._quiet_by_itself()
+
         if s.windows < n:
-            for event in self.events_until(done, silence_s, self._quiet_by_itself):
-                self._count(event)
-                if on_event is not None:
-                    on_event(event)
-                if event["event"] == "window":
-                    record = self._record(event)
-                    s.records.append(record)
-                    if on_window is not None:
-                        on_window(record)
-        self._held_or_gone(silence_s)
+            with contextlib.suppress(_Held):
+                for event in self.events_until(done, silence_s, quiet):
+                    self._count(event)
+                    self.held_for_maintenance |= _held_for_maintenance(event)
+                    if on_event is not None:
+                        on_event(event)
+                    if event["event"] == "window":
+                        record = self._record(event)
+                        s.records.append(record)
+                        if on_window is not None:
+                            on_window(record)
+        if self.held_for_maintenance:  # no window comes: the service stops here
+            held = self.service.store.active_alarms(code=AlarmCode.MAINTENANCE)
+            s.maintenance = str(held[-1]["message"]) if held else None
+            self.service.stop()
+            with self._gate:
+                self._gate.wait_for(lambda: self._loop_ended, timeout=silence_s)
+        else:
+            self._held_or_gone(silence_s)
         s.true_rmse_final_mm = self.true_rmse_mm(self.service.x)
         return s
 

@@ -1,0 +1,101 @@
+"""A change beyond a knock's bounds (issue 41): when the service stops correcting and asks for
+maintenance, and what it says.
+
+A knock (a sensor mount nudged by tenths of a millimetre, a fixture bumped, an encoder zero
+slipping by hundredths of a degree) moves the measured spheres by up to about a millimetre:
+the service attributes it and corrects it in-line (app/line/step_handler.py). A maintenance
+event moves them further: a sensor replaced (a new mount pose of millimetres, its own camera
+and laser), a motor or encoder replaced (a zero off by up to a degree: centimetres at the
+spheres), a sphere fixture renewed (spheres millimetres from where they stood). The plan's
+views then no longer see every sphere (the measuring volume's depth is +-5 mm), a fast
+correction from a handful of measurements of the views still seen is not what a plant should
+measure bodies with, and the new sensor's own calibration is not something the spheres can
+give. So:
+
+- a step attributed and seen larger than `[service] maintenance_step_mm` at the measured
+  spheres (noise removed, `visible_step_mm`), or
+- `BLIND_WINDOWS` windows in a row in which every view was rejected (no sphere seen where the
+  parameters put it: too far for any attribution)
+
+hold the cell in FAULT with the `maintenance` alarm (a fault code: the PLC's fault bit is set,
+bodies are not measured with this cell), the step's suspect interval open from its last
+trustworthy measurement, no correction applied, and the text says what moved, how much, and
+which procedure fits (`rvis maintain ...`, app/maintain/). The procedure's hand-over clears
+the alarm and closes the interval at its new version.
+"""
+
+from __future__ import annotations
+
+from calib.attribution import NONE, SEVERAL, Attribution
+
+#: windows in a row with every view rejected that mean the spheres are out of the sensor's
+#: reach from every view the plan has (a change beyond a knock)
+BLIND_WINDOWS = 3
+
+#: the procedure that fits a group the attribution chose (app/maintain/, `rvis maintain`)
+_PROCEDURE = {
+    "sensor": "rvis maintain sensor",
+    "fixture": "rvis maintain fixture",
+}
+_EVENT = {
+    "sensor": "a sensor replaced or re-mounted",
+    "fixture": "the sphere fixture renewed or the part frame moved",
+}
+
+
+def _axis(group: str) -> str:
+    """The axis of a joint group ("J3", "J2-encoder" -> "3", "2"; "" otherwise)."""
+    head = group.split("-")[0]
+    return head[1:] if head.startswith("J") and head[1:].isdigit() else ""
+
+
+def procedure_of(group: str) -> str:
+    """The `rvis maintain` command for an attributed group ("J3" -> axis 3)."""
+    if _axis(group):
+        return f"rvis maintain axis {_axis(group)}"
+    return _PROCEDURE.get(group, "")
+
+
+def event_of(group: str) -> str:
+    if _axis(group):
+        return f"the motor or encoder of axis {_axis(group)} replaced (its zero moved)"
+    return _EVENT.get(group, "")
+
+
+def beyond(a: Attribution, visible_mm: float, bound_mm: float) -> bool:
+    """Whether an attributed step is beyond a knock: seen larger than the bound (whatever
+    group moved, or several)."""
+    return a.choice != NONE and visible_mm > bound_mm
+
+
+def step_text(a: Attribution, visible_mm: float, bound_mm: float) -> str:
+    """The `maintenance` alarm's text for a step beyond a knock."""
+    head = (
+        f"a change of {visible_mm:.2f} mm at the measured spheres, beyond a knock's"
+        f" {bound_mm:g} mm: {a.text()}"
+    )
+    fit = a.chosen
+    if a.choice == SEVERAL or fit is None:
+        return (
+            f"{head}; not one group: more than one thing changed; bodies are not measured"
+            " with this cell: commission again (`rvis commission --restart`), or run the"
+            " maintenance procedure of what was done to the cell (`rvis maintain sensor|axis N"
+            "|fixture`)"
+        )
+    group = fit.group.name
+    return (
+        f"{head}; likely {event_of(group)} ({fit.group.label} {fit.size_text()}); bodies are"
+        f" not measured with this cell: run `{procedure_of(group)}`"
+    )
+
+
+def blind_text(windows: int, rejected: int) -> str:
+    """The `maintenance` alarm's text when no view sees its sphere any more."""
+    return (
+        f"no sphere seen in {windows} windows in a row ({rejected} views rejected): the"
+        " spheres are more than the measuring volume from where the parameters put them, a"
+        " change far beyond a knock (an axis's motor or encoder replaced, a sensor replaced,"
+        " the fixture moved); bodies are not measured with this cell: run the maintenance"
+        " procedure of what was done (`rvis maintain axis N`, `rvis maintain sensor`, `rvis"
+        " maintain fixture`), or commission again"
+    )
