@@ -179,7 +179,7 @@ class StepHandler:
         )
         if a.choice == SEVERAL and visible_step_mm(a) > r.maintenance_step_mm:
             # beyond a knock, no knock's group: maybe a maintenance's (J2's encoder zero)
-            wide, _ = correct_step(
+            named, _ = correct_step(
                 svc.model,
                 svc.x,
                 pairs,
@@ -190,8 +190,8 @@ class StepHandler:
                 svc.settings.gates,
                 groups=maintenance_groups(svc.model),
             )
-            if wide.choice != SEVERAL:
-                a, corr = wide, None  # no correction beyond a knock
+            if named.choice != SEVERAL:
+                a, corr = named, None  # no correction beyond a knock
         step.n_used, step.choice, step.text = n_all, a.choice, a.text()
         settled = len(pairs) >= len(svc.schedule) // 2  # no single group after that many
         data = self._attribution_event(step, len(pairs), a, corr, views)

@@ -74,7 +74,9 @@ def test_a_change_beyond_a_knock_holds_the_cell_for_its_procedure(
     if kind == "sensor":
         assert "sensor mount moved" in text and "rvis maintain sensor" in text, text
         # the shift and the tilt are confounded at views near the standoff; their effect is not
-        mm = float(re.search(r"\(([0-9.]+) mm at the measured spheres\)", text).group(1))
+        found = re.search(r"\(([0-9.]+) mm at the measured spheres\)", text)
+        assert found is not None, text
+        mm = float(found.group(1))
         assert mm == pytest.approx(truth["mount_at_standoff_mm"], rel=0.2), (mm, truth)
     elif kind == "fixture":
         assert "part frame moved" in text and "rvis maintain fixture" in text, text
