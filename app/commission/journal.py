@@ -16,12 +16,11 @@ from pathlib import Path
 from typing import Any
 
 from app.commission.checks import Check
-from app.commission.table import NAMES
+from app.commission.table import COMMISSIONING, Procedure
 from app.errors import InputError
 from app.formats.files import read_json, write_json
 from app.line.statedir import JOURNAL_NAME
 
-FORMAT = "rvis-commission/1"
 PASSED, FAILED, STARTED = "passed", "failed", "started"
 INTERRUPTED = "interrupted"  # an earlier run found `started`
 
@@ -54,18 +53,22 @@ class StepRecord:
 
 
 class Journal:
-    """`Journal(folder, setup)`: the journal of the commissioning in `folder`, created or
-    continued; a journal started with another set-up is refused (InputError: `--restart`)."""
+    """`Journal(folder, setup)`: the journal of the commissioning (or another `procedure`) in
+    `folder`, created or continued; a journal started with another set-up is refused
+    (InputError: `--restart`)."""
 
-    def __init__(self, folder: Path, setup: dict[str, Any]) -> None:
-        self.folder, self.setup = folder, setup
+    def __init__(
+        self, folder: Path, setup: dict[str, Any], procedure: Procedure = COMMISSIONING
+    ) -> None:
+        self.folder, self.setup, self.procedure = folder, setup, procedure
+        fmt = procedure.journal_format
         self.path = folder / JOURNAL_NAME
         self.steps: dict[str, StepRecord] = {}
         self._before: dict[str, StepRecord | None] = {}  # the records of the steps running
         if self.path.exists():
             doc = read_json(self.path)
-            if doc.get("format") != FORMAT:
-                raise InputError(f"not an {FORMAT} journal", file=self.path, field="format")
+            if doc.get("format") != fmt:
+                raise InputError(f"not an {fmt} journal", file=self.path, field="format")
             if doc.get("setup") != setup:
                 raise InputError(
                     f"this commissioning was started with {doc.get('setup')}, not {setup}: run "
@@ -83,7 +86,7 @@ class Journal:
 
     def next_step(self) -> str | None:
         """The first step not passed yet (None: all passed)."""
-        return next((s for s in NAMES if not self.passed(s)), None)
+        return next((s for s in self.procedure.names if not self.passed(s)), None)
 
     def start(self, name: str, started_utc: str) -> None:
         """Journal that step `name` starts now (its earlier runs kept)."""
@@ -114,5 +117,6 @@ class Journal:
 
     def _write(self) -> None:
         self.folder.mkdir(parents=True, exist_ok=True)
-        ordered = [self.steps[s].to_json() for s in NAMES if s in self.steps]
-        write_json(self.path, {"format": FORMAT, "setup": self.setup, "steps": ordered})
+        ordered = [self.steps[s].to_json() for s in self.procedure.names if s in self.steps]
+        fmt = self.procedure.journal_format
+        write_json(self.path, {"format": fmt, "setup": self.setup, "steps": ordered})

@@ -15,9 +15,7 @@ from typing import Any
 
 from app.commission.checks import Check
 from app.commission.journal import INTERRUPTED, STARTED, Journal, StepRecord
-from app.commission.table import NAMES, TITLES
 from app.formats.files import dumps_json, write_text
-from app.line.statedir import REPORT_JSON_NAME, REPORT_MD_NAME
 
 
 def format_value(c: Check) -> str:
@@ -107,21 +105,23 @@ def _runs(rec: StepRecord) -> str:
 
 
 def markdown(journal: Journal) -> str:
-    done = [s for s in NAMES if journal.passed(s)]
+    proc = journal.procedure
+    names, titles = proc.names, proc.titles
+    done = [s for s in names if journal.passed(s)]
     nxt = journal.next_step()
     setup = ", ".join(f"{k} {v}" for k, v in journal.setup.items())
     lines = [
-        "# Commissioning report",
+        f"# {proc.title}",
         "",
         f"Set-up: {setup}.",
         "",
-        f"**{len(done)} of {len(NAMES)} steps passed**"
-        + ("; the cell is ready for `rvis run`." if nxt is None else f"; next: `{nxt}`."),
+        f"**{len(done)} of {len(names)} steps passed**"
+        + (f"; {proc.done}." if nxt is None else f"; next: `{nxt}`."),
         "",
         "| # | step | status | checks passed | seconds | runs |",
         "|---|------|--------|---------------|---------|------|",
     ]
-    for i, name in enumerate(NAMES, start=1):
+    for i, name in enumerate(names, start=1):
         rec = journal.steps.get(name)
         if rec is None:
             lines.append(f"| {i} | {name} | not run | | | |")
@@ -131,11 +131,11 @@ def markdown(journal: Journal) -> str:
             f"| {i} | {name} | {status_of(rec)} | {ok}/{len(rec.checks)} | {rec.seconds:.1f} |"
             f" {len(rec.earlier) + 1} |"
         )
-    for i, name in enumerate(NAMES, start=1):
+    for i, name in enumerate(names, start=1):
         rec = journal.steps.get(name)
         if rec is None:
             continue
-        lines += ["", f"## {i}. {TITLES[name]} ({name}): {status_of(rec)}", ""]
+        lines += ["", f"## {i}. {titles[name]} ({name}): {status_of(rec)}", ""]
         if rec.status == STARTED:
             lines.append(f"Started {rec.started_utc}; interrupted (no outcome): it runs again.")
         else:
@@ -155,16 +155,18 @@ def markdown(journal: Journal) -> str:
 
 
 def to_json(journal: Journal) -> dict[str, Any]:
+    names = journal.procedure.names
     return {
         "setup": journal.setup,
         "complete": journal.next_step() is None,
         "next_step": journal.next_step(),
-        "steps": [journal.steps[s].to_json() for s in NAMES if s in journal.steps],
+        "steps": [journal.steps[s].to_json() for s in names if s in journal.steps],
     }
 
 
 def write_report(journal: Journal) -> tuple[Path, Path]:
-    md, js = journal.folder / REPORT_MD_NAME, journal.folder / REPORT_JSON_NAME
+    proc = journal.procedure
+    md, js = journal.folder / proc.report_md, journal.folder / proc.report_json
     write_text(md, markdown(journal))
     write_text(js, dumps_json(to_json(journal), indent=2) + "\n")
     return md, js

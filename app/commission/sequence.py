@@ -10,7 +10,6 @@ from app.commission.checks import StepResult, holds
 from app.commission.context import Context, Declined
 from app.commission.journal import FAILED, PASSED, Journal, StepRecord
 from app.commission.report import format_value, write_report
-from app.commission.table import STEPS
 from drivers.errors import DeviceError
 
 
@@ -18,8 +17,9 @@ def run_sequence(ctx: Context, journal: Journal) -> str | None:
     """Run the steps from the first one not passed; the name of the step that failed its
     checks (None: every step passed). Context.Declined propagates (nothing recorded for the
     step the engineer stopped)."""
-    n = len(STEPS)
-    for i, step in enumerate(STEPS, start=1):
+    steps = journal.procedure.steps
+    n = len(steps)
+    for i, step in enumerate(steps, start=1):
         name = step.name
         if journal.passed(name):
             ctx.say(f"step {i}/{n} {name}: passed earlier")

@@ -1,6 +1,8 @@
 """The commissioning's steps, in the order they run: each one's name (the journal's key, the
 command's `next:`), its title (the prompts and the report) and the function that runs it. The
-one list: the journal, the sequence and the report read it from here.
+one list: the journal, the sequence and the report read it from here. A `Procedure` names such
+a list with its report's title and files: the commissioning's here, the maintenance
+procedures' in app/maintain/table.py, run by the same journal, sequence and report.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from dataclasses import dataclass
 from app.commission import acceptance, measuring, ready, steps, stripe, workspace
 from app.commission.checks import StepResult
 from app.commission.context import Context
+from app.line.statedir import REPORT_JSON_NAME, REPORT_MD_NAME
 
 
 @dataclass(frozen=True)
@@ -46,5 +49,34 @@ STEPS = (
     ),
     CommissionStep("ready", "State directory ready for `rvis run`", ready.ready),
 )
-NAMES = tuple(s.name for s in STEPS)
-TITLES = {s.name: s.title for s in STEPS}
+
+
+@dataclass(frozen=True)
+class Procedure:
+    """A guided procedure: its steps in order, its report's title and file names, what the
+    report says once every step passed, and its journal's format."""
+
+    steps: tuple[CommissionStep, ...]
+    title: str
+    report_md: str
+    report_json: str
+    done: str
+    journal_format: str
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(s.name for s in self.steps)
+
+    @property
+    def titles(self) -> dict[str, str]:
+        return {s.name: s.title for s in self.steps}
+
+
+COMMISSIONING = Procedure(
+    STEPS,
+    "Commissioning report",
+    REPORT_MD_NAME,
+    REPORT_JSON_NAME,
+    "the cell is ready for `rvis run`",
+    "rvis-commission/1",
+)

@@ -122,3 +122,18 @@ def first_in_force(
     if not store.applied():
         store.add_applied(clock.time(), version, None, source, None)
     return version
+
+
+#: the applied row's source of a version a maintenance procedure put in force (app/maintain/):
+#: the service's first start after it begins afresh on it (Service._after_maintenance)
+MAINTENANCE_SOURCE = "maintenance"
+
+
+def hand_over(params: ParamsStore, store: Store, doc: dict[str, Any], t: float) -> int:
+    """A maintenance procedure's version in force: `doc` written as the next version and made
+    current, and recorded as applied at time t with `MAINTENANCE_SOURCE` in one transaction;
+    a run killed between the two finds current.json ahead of the database, as after a kill
+    in the service's own apply (completed at the service's start). Returns the version."""
+    version = params.apply(doc)
+    store.add_applied(t, version, None, MAINTENANCE_SOURCE, None)
+    return version

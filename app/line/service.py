@@ -70,7 +70,7 @@ from app.line.events import EventBus
 from app.line.inline_seq import InlineSequential, SequentialCandidate
 from app.line.measure import Reading, SphereMeasurer, SphereSensor
 from app.line.operator import Operator
-from app.line.params_store import ParamsStore, first_in_force
+from app.line.params_store import MAINTENANCE_SOURCE, ParamsStore, first_in_force
 from app.line.recalib import Recalibrator, RecalJob, RecalOutcome, as_measurements, select_rolling
 from app.line.roles import Roles
 from app.line.schedule import Schedule, Slot
@@ -175,6 +175,7 @@ class Service:
         self.drift_onset_id: int | None = None  # first measurement after a flagged step
         self.drift_due = False  # the residual charts signalled: recalibrate soon
         self._views_lost: set[int] = set()  # slots left out by `_seen`, alarmed
+        self.views_since_id = 0  # the views' rejections counted after this measurement
         self._blind: list[tuple[int, int]] = []  # windows seeing no sphere: (first id, rejected)
         self.last_visit: dict[int, tuple[F64, F64]] = {}  # slot -> (q_deg, c_sensor_mm)
         self.visit_ids: dict[int, int] = {}  # slot -> the measurement id of its last visit
@@ -302,6 +303,7 @@ class Service:
             "u_seed": self.u_seed,
             "accuracy_suspect_id": self.accuracy_suspect_id,
             "accuracy": None if self.accuracy is None else self.accuracy.to_json(),
+            "views_since_id": self.views_since_id,
         }
 
     def save_state(self) -> None:
@@ -339,6 +341,37 @@ class Service:
             self.accuracy = Accuracy(
                 acc["u95_mm"], int(acc["n"]), str(acc["basis"]), float(acc["limit_mm"])
             )
+        self.views_since_id = int(doc.get("views_since_id", 0))
+        if doc["params_version"] != self.version and self._handed_over():
+            self._after_maintenance()
+
+    def _handed_over(self) -> bool:
+        """The version in force was applied by a maintenance procedure (app/maintain/) while
+        the service stood."""
+        applied = self.store.applied()
+        last = applied[-1] if applied else None
+        return (
+            last is not None
+            and last["version"] == self.version
+            and (last["source"] == MAINTENANCE_SOURCE)
+        )
+
+    def _after_maintenance(self) -> None:
+        """The first start after a maintenance procedure handed the cell back (a new sensor,
+        an axis's zero, the spheres' places, the plan's views re-aimed): the measurements
+        before it say nothing of the cell now. The step is over (its interval was closed by the
+        hand-over), the views start afresh (no last visit to compare with, none lost), the
+        drift charts self-start, the U95 is seeded by the procedure's workspace validation."""
+        self.step, self.drift_onset_id, self.drift_due = None, None, False
+        self.last_visit, self.visit_ids = {}, {}
+        last_id = self.store.last_measurement_id()
+        self.change_from_id = self.views_since_id = last_id
+        self.drift.reset([])
+        self.u_seed = self._version_seed()
+        self.accuracy, self.accuracy_suspect_id = None, None
+        self.recal_ids, self.new_since_recal = None, 0
+        self.log.info("started after maintenance: version %d in force", self.version)
+        self.save_state()
 
     def stop(self) -> None:
         """Ask `run()` to return after the current window (safe from a signal handler)."""
@@ -898,7 +931,7 @@ class Service:
 
     def _lost_views(self) -> set[int]:
         """The schedule's slots rejected VIEW_LOST_TRIES times in a row (`_seen`)."""
-        return set(self.store.rejected_in_a_row(VIEW_LOST_TRIES))
+        return set(self.store.rejected_in_a_row(VIEW_LOST_TRIES, since_id=self.views_since_id))
 
     def _slots_wanted(self) -> int:
         """Slots this window may measure: more while a step is attributed (as many as fit)."""

@@ -23,6 +23,8 @@ permissions, the one-service lock and the free space under it (DESIGN.md section
                                  results, the report (commission.md, commission.json)
         commission.<time>/       an earlier commissioning kept by `rvis commission --restart`
         verify/                  `rvis sensor verify`: its results
+        maintenance/NNNN-<event>/ `rvis maintain`: one procedure's journal, results, report
+                                 (maintenance.md, maintenance.json), the files it handed over
         rvis-sim.log             `rvis tui --sim`: the simulated service's log
 
 This module is the one place that spells these names (tests/test_layers.py holds every other
@@ -75,6 +77,9 @@ JOURNAL_NAME = "journal.json"  # in commission/: the commissioning's journal
 REPORT_MD_NAME = "commission.md"  # in commission/: its report
 REPORT_JSON_NAME = "commission.json"
 VERIFY_DIR = "verify"
+MAINTENANCE_DIR = "maintenance"  # `rvis maintain`: a folder per procedure
+MAINTENANCE_REPORT_MD = "maintenance.md"  # in each procedure's folder: its report
+MAINTENANCE_REPORT_JSON = "maintenance.json"
 #: the manifest `rvis state backup` writes beside the copy (a backup is laid out as a state
 #: directory plus this file)
 MANIFEST_NAME = "backup.json"
@@ -217,6 +222,15 @@ class StateDir:
         return self.root / VERIFY_DIR
 
     @property
+    def maintenance(self) -> Path:
+        """`maintenance/`: a folder per `rvis maintain` procedure (`maintenance_folder`)."""
+        return self.root / MAINTENANCE_DIR
+
+    def maintenance_folder(self, number: int, event: str) -> Path:
+        """`maintenance/NNNN-<event>/` (event: "sensor", "axis3", "fixture")."""
+        return self.maintenance / f"{number:04d}-{event}"
+
+    @property
     def sim_log(self) -> Path:
         return self.root / SIM_LOG_NAME
 
@@ -235,7 +249,7 @@ class StateDir:
         """The files, besides the database, that a backup copies and a restore puts back, in
         that order (the history first: a copy holds every version its database names); the
         ones that exist. Private ones (the OPC UA key) are in `private`."""
-        tree = [self.commission, self.verify]
+        tree = [self.commission, self.verify, self.maintenance]
         files = [
             *(self.version_file(v) for v in self.versions()),
             self.current,

@@ -107,10 +107,21 @@ MIGRATIONS: tuple[tuple[str, ...], ...] = (
     # 5 -> 6: the U95 the cell stated for each window's bodies (app.line.accuracy; NULL: none
     # stated, an older rvis or no evidence)
     ("ALTER TABLE windows ADD COLUMN u95_mm REAL",),
+    # 6 -> 7: maintenance procedures (app/maintain/): what was done to the cell (event, axis),
+    # when, by whom, in which folder, the versions and figures before and after
+    (
+        """CREATE TABLE maintenance (
+            id INTEGER PRIMARY KEY, t_start REAL NOT NULL, t_end REAL,
+            event TEXT NOT NULL, axis INTEGER, who TEXT NOT NULL, folder TEXT NOT NULL,
+            status TEXT NOT NULL CHECK (status IN ('running', 'done')),
+            version_before INTEGER, version_after INTEGER,
+            before TEXT NOT NULL DEFAULT '{}', after TEXT NOT NULL DEFAULT '{}')""",
+    ),
 )
 SCHEMA_VERSION = len(MIGRATIONS)
 SUSPECTS_SCHEMA = 4  # the version that has suspect_intervals
 WINDOWS_SCHEMA = 5  # the version that has windows (the bodies)
+MAINTENANCE_SCHEMA = 7  # the version that has maintenance
 # SQLite primary result codes: BUSY, LOCKED, NOMEM, READONLY, IOERR, FULL, CANTOPEN, PROTOCOL
 _STORAGE_CODES = frozenset({5, 6, 7, 8, 10, 13, 14, 15})
 _DAMAGED_CODES = frozenset({11, 26})  # CORRUPT, NOTADB
@@ -403,12 +414,16 @@ class Store:
             sql, args = sql + " LIMIT ?", (*args, last)
         return [_measurement_row(r) for r in self._rows(sql, args)[::-1]]
 
-    def rejected_in_a_row(self, n: int, window_rows: int = 2000) -> dict[int, int]:
+    def rejected_in_a_row(
+        self, n: int, window_rows: int = 2000, since_id: int = 0
+    ) -> dict[int, int]:
         """slot -> how many times it was rejected since its last good measurement, for the slots
-        rejected at least n times so, among the last `window_rows` measurements (newest first,
-        each slot counted until its first good one: bounded, whatever the table's size)."""
+        rejected at least n times so, among the last `window_rows` measurements after
+        `since_id` (newest first, each slot counted until its first good one: bounded,
+        whatever the table's size)."""
         rows = self._rows(
-            "SELECT slot, status FROM measurements ORDER BY id DESC LIMIT ?", (window_rows,)
+            "SELECT slot, status FROM measurements WHERE id > ? ORDER BY id DESC LIMIT ?",
+            (since_id, window_rows),
         )
         streak: dict[int, int] = {}
         done: set[int] = set()
@@ -733,6 +748,45 @@ class Store:
         if self.version() < WINDOWS_SCHEMA:
             return []
         return self._rows("SELECT * FROM windows ORDER BY t, id")
+
+    # -- maintenance procedures (app/maintain/) ---------------------------------------------------
+    def start_maintenance(self, row: dict[str, Any]) -> int:
+        """A procedure begins: t_start, event, axis, who, folder, version_before, before."""
+        return self._insert(
+            "INSERT INTO maintenance (t_start, event, axis, who, folder, status, version_before,"
+            " before) VALUES (?, ?, ?, ?, ?, 'running', ?, ?)",
+            (
+                row["t_start"],
+                row["event"],
+                row.get("axis"),
+                row["who"],
+                row["folder"],
+                row.get("version_before"),
+                _dumps(row.get("before", {})),
+            ),
+        )
+
+    def finish_maintenance(
+        self, maintenance_id: int, t_end: float, version_after: int, after: dict[str, Any]
+    ) -> None:
+        """The procedure handed the cell back with version_after and its figures."""
+        with self._tx() as db:
+            db.execute(
+                "UPDATE maintenance SET t_end = ?, status = 'done', version_after = ?, after = ?"
+                " WHERE id = ?",
+                (t_end, version_after, _dumps(after), maintenance_id),
+            )
+
+    def maintenance(self, last: int | None = None) -> list[dict[str, Any]]:
+        """The maintenance records in time order (the `last` n when given); none in a
+        database of an older rvis."""
+        if self.version() < MAINTENANCE_SCHEMA:
+            return []
+        sql = "SELECT * FROM maintenance ORDER BY id DESC"
+        rows = self._rows(sql + (" LIMIT ?" if last is not None else ""), (last,) if last else ())
+        for r in rows:
+            r["before"], r["after"] = json.loads(r["before"]), json.loads(r["after"])
+        return rows[::-1]
 
     # -- the service's decision state ---------------------------------------------------------
     def save_state(self, t: float, doc: dict[str, Any]) -> None:
