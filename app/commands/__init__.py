@@ -30,6 +30,7 @@ COMMANDS: dict[str, str] = {
     "devices": "check the configured devices; run the simulated line's",
     "sensor": "laser-line sensor: calibrate, measure",
     "commission": "guided, resumable commissioning of a cell",
+    "maintain": "guided procedure after maintenance: a sensor, an axis, a fixture",
     "run": "the unattended in-line service",
     "status": "state of the in-line service",
     "ctl": "send a command to the in-line service",

@@ -24,6 +24,7 @@ from app.config.cell import SpheresSection
 from app.config.line import LineSettings, SweepSettings
 from app.formats.files import read_targets
 from app.line.measure import SphereSensor
+from app.line.schedule import motion_time_s
 from app.line.settings import from_cell
 from app.line.statedir import StateDir
 from app.line.station import Station
@@ -75,6 +76,9 @@ class Context:
     placement: SpherePlacement | None = None  # the simulated line's hands
     out_dir: Path | None = None  # where results go (default: the commissioning's folder)
     clock: Clock = field(default_factory=RealClock)  # the time the first version is applied at
+    # the robot's time so far [s]: its motions (as the line's motion model estimates them at
+    # the commissioning's speed) and the sweeps it stood still for
+    robot_s: float = 0.0
 
     @property
     def folder(self) -> Path:
@@ -103,7 +107,9 @@ class Context:
         q = np.asarray(q_deg, dtype=float)
         angles = ", ".join(f"{v:.2f}" for v in q)
         self.ask(f"move the robot to {what} (J1..J6 {angles} deg) at {self.line.speed_pct:g} %?")
+        start = self.station.robot.joints_deg()
         self.station.robot.move_joints(q, speed_pct=self.line.speed_pct)
+        self.robot_s += motion_time_s(start, q, self.line)
 
     def place(self, target_id: str, p_part_mm: F64, where: str) -> None:
         """The engineer places the validation sphere (tracker target `target_id`) near

@@ -25,3 +25,7 @@ ACCEPTANCE_FILE = "acceptance.csv"  # acceptance: PF, PS per position
 VALIDATION_MEASUREMENTS_FILE = "validation_measurements.csv"  # validation
 VALIDATION_ERRORS_FILE = "validation_errors.csv"  # validation
 WORKSPACE_ERRORS_FILE = "workspace_errors.csv"  # workspace
+# `rvis maintain` (app/maintain/) in its procedure's folder, besides the names above
+PARAMS_BEFORE_FILE = "params-before.json"  # prepare: the version in force before
+TARGETS_BEFORE_FILE = "targets-before.csv"  # prepare: the spheres' places before
+MAINTENANCE_MEASUREMENTS_FILE = "maintenance_measurements.csv"  # the re-aimed views' measurements

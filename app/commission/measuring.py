@@ -88,6 +88,7 @@ def measure_views(
     ctx.home()
     for k, (target, q) in enumerate(views, start=1):
         ctx.move(q, f"{what} view {k}/{len(views)} (sphere {target})")
+        ctx.robot_s += ctx.sweep.duration_s  # the robot stands still for the sweep
         try:
             reading = sensor.measure(target)
         except Rejected as exc:

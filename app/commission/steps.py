@@ -39,6 +39,14 @@ NEEDED = ("robot", "plc", "camera", "galvo")
 def devices(ctx: Context) -> StepResult:
     """Every device answers; the robot stands at home without an alarm; the PLC is alive;
     the state directory holds no calibration yet."""
+    r = device_checks(ctx)
+    fresh = not ctx.state.current.exists() and not ctx.state.db.exists()
+    r.checks.append(holds("state directory without a calibration", fresh, str(ctx.state.root)))
+    return r
+
+
+def device_checks(ctx: Context) -> StepResult:
+    """Every device answers; the robot stands at home without an alarm; the PLC is alive."""
     r = StepResult()
     opened = ctx.station.devices()
     for family in NEEDED:
@@ -56,8 +64,6 @@ def devices(ctx: Context) -> StepResult:
     status = ctx.station.robot.status()
     r.checks.append(holds("robot without alarm", not status.fault, status.detail or "none"))
     r.checks.append(holds("PLC heartbeat alive", _plc_alive(ctx)))
-    fresh = not ctx.state.current.exists() and not ctx.state.db.exists()
-    r.checks.append(holds("state directory without a calibration", fresh, str(ctx.state.root)))
     return r
 
 

@@ -44,18 +44,24 @@ class SimCommissioning:
         *,
         geometric: bool,
         waiting: Callable[[str], None] | None = None,
+        world_s: float | None = None,
     ) -> None:
         """waiting: told in one line, at once, when the simulated camera must wait for another
-        simulation's (which it then does for as long as that one runs)."""
+        simulation's (which it then does for as long as that one runs). world_s: the world's
+        time when a maintenance procedure runs on a commissioned cell (`rvis maintain --sim`):
+        the world as the line left it (warm, knocked, its maintenance event happened: the
+        cell file's [simline]); None: a commissioning's steady, cold cell."""
         self.cfg, self.seed, self.geometric = cfg, seed, geometric
         self.cell = make_cell(cfg, seed=seed)
         # the line of `rvis run --sim`, steady, with its camera either way; on a scaled wall
         # clock (the commissioning steps wait for the PLC in real time: nothing of theirs makes
         # virtual time pass)
         line = simline_settings(cfg, geometric=True)
-        settings = replace(
-            line, warmup=None, knock=None, camera=True, clock="scaled", scale=cfg.simline.scale
-        )
+        settings = replace(line, camera=True, clock="scaled", scale=cfg.simline.scale)
+        if world_s is None:
+            settings = replace(settings, warmup=None, knock=None, maintenance=None)
+        else:
+            settings = replace(settings, world_s=world_s)
         if waiting is not None:
             settings = replace(settings, camera_wait_s=None, camera_on_wait=waiting)
         self.line = SimLine(self.cell, settings)

@@ -1,0 +1,221 @@
+"""`rvis maintain sensor|axis N|fixture [--state-dir DIR] [--yes] [--restart] [--sensor FILE |
+--sensor-data DIR] [--targets FILE] [--json]`, `... --sim [--seed N]`: the guided, resumable
+procedure after maintenance on a commissioned cell (app/maintain/, docs/maintenance.md).
+
+Like `rvis commission`, each step and every motion waits for the engineer's yes (`--yes` for
+a scripted run), the results and the report go to STATE_DIR/maintenance/NNNN-<event>/, and run
+again it continues at the first step not passed. The service must be stopped (the state
+directory's lock). Exit 0 when the cell is handed back to `rvis run`, 3 when a step failed its
+checks, 1 when the engineer stopped it, 2 on bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import getpass
+import sys
+from contextlib import ExitStack
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from app.commands import add_command
+from app.commands.args import int_at_least, say_waiting, sim_seed
+from app.errors import InputError
+
+
+def register(sub: Any) -> None:
+    p = add_command(sub, "maintain")
+    p.add_argument("event", choices=("sensor", "axis", "fixture"), help="what was done")
+    p.add_argument("axis", nargs="?", type=int_at_least(1), help="axis: its number (1-6)")
+    p.add_argument("--state-dir", type=Path, help="state directory (default: [service])")
+    p.add_argument("--cell", type=Path, help="cell file (default: the state directory's)")
+    p.add_argument("--yes", action="store_true", help="confirm every step and motion")
+    p.add_argument("--restart", action="store_true", help="begin this procedure again")
+    source = p.add_mutually_exclusive_group()
+    source.add_argument("--sensor", type=Path, help="sensor: its calibration made elsewhere")
+    source.add_argument("--sensor-data", type=Path, help="sensor: targets recorded earlier")
+    p.add_argument("--targets", type=Path, help="fixture: the tracker's export of the spheres")
+    p.add_argument("--sim", action="store_true", help="on the simulated line (no hardware)")
+    p.add_argument("--seed", type=int_at_least(0), help="--sim: the commissioned seed")
+    p.add_argument("--json", action="store_true", help="print the report as JSON at the end")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from app.commands.commission import _confirmation, _finish, _printer
+    from app.config import load_cell
+    from app.line.launch import hold_state
+    from app.line.statedir import StateDir
+
+    axis = _axis(args)
+    for path in (args.sensor, args.targets):
+        if path is not None and not path.is_file():
+            raise InputError("file not found", file=path)
+    if args.sensor_data is not None and not args.sensor_data.is_dir():
+        raise InputError("folder not found", file=args.sensor_data)
+    if args.seed is not None and not args.sim:
+        raise InputError("--seed needs --sim")
+    state_dir = args.state_dir or Path(load_cell(args.cell).service.state_dir)
+    paths = StateDir(state_dir)
+    if not paths.cell.is_file():
+        raise InputError(
+            "not a commissioned state directory (no cell.toml): run `rvis commission` first",
+            file=state_dir,
+        )
+    cfg = load_cell(args.cell or paths.cell)
+    say = _printer(sys.stderr if args.json else sys.stdout)
+    confirm = _confirmation(args.yes, say)
+    event = f"axis{axis}" if axis else args.event
+    setup: dict[str, Any] = {"event": args.event, "axis": axis, "simulated": args.sim}
+    if args.sim:
+        setup["seed"] = sim_seed(args.seed, cfg, paths.cell)
+    with hold_state(state_dir, str(cfg.service.operators_group)) as state, ExitStack() as stack:
+        from app.commission.journal import Journal
+        from app.maintain.table import procedure
+
+        folder, record = _folder(state, event, args, axis, say)
+        journal = Journal(folder, setup, procedure(args.event, axis))
+        if journal.next_step() is None:
+            say(f"handed back already: {folder}")
+            return _finish(journal, args.json, 0)
+        ctx = _context(args, cfg, state, setup, axis, record, folder, confirm, say, stack)
+        return _run(ctx, journal, args.json, say)
+
+
+def _axis(args: argparse.Namespace) -> int | None:
+    if args.event == "axis":
+        if args.axis is None or not 1 <= args.axis <= 6:
+            raise InputError("rvis maintain axis needs the axis's number, 1..6", field="axis")
+        return int(args.axis)
+    if args.axis is not None:
+        raise InputError(f"rvis maintain {args.event} takes no axis number", field="axis")
+    return None
+
+
+def _folder(state: Any, event: str, args: argparse.Namespace, axis: int | None, say: Any) -> Any:
+    """The procedure's folder and its maintenance record: the one of this event still
+    running (continued), else a new one (`--restart`: a new one in any case)."""
+    from app.line.params_store import ParamsStore
+    from app.line.store import Store
+
+    store = Store(state.db)
+    try:
+        records = store.maintenance()
+        running = [r for r in records if r["status"] == "running" and r["event"] == args.event]
+        running = [r for r in running if r["axis"] == axis]
+        if running and not args.restart:
+            return state.root / running[-1]["folder"], int(running[-1]["id"])
+        folder = state.maintenance_folder(len(records) + 1, event)
+        version = ParamsStore(state.root).current_version()
+        record = store.start_maintenance(
+            {
+                "t_start": datetime.now(UTC).timestamp(),
+                "event": args.event,
+                "axis": axis,
+                "who": getpass.getuser(),
+                "folder": str(folder.relative_to(state.root)),
+                "version_before": version,
+                "before": _before(state),
+            }
+        )
+        say(f"maintenance record {record}: {folder}")
+        return folder, record
+    finally:
+        store.close()
+
+
+def _before(state: Any) -> dict[str, Any]:
+    """The figures before: the version in force and its workspace validation's RMS."""
+    from app.line.params_store import ParamsStore
+
+    doc = ParamsStore(state.root).current_document() or {}
+    errors = (doc.get("validation") or {}).get("errors_mm") or []
+    rms = (sum(e * e for e in errors) / len(errors)) ** 0.5 if errors else None
+    return {"version": doc.get("history_version"), "validation_rmse_mm": rms}
+
+
+def _context(
+    args: argparse.Namespace,
+    cfg: Any,
+    state: Any,
+    setup: dict[str, Any],
+    axis: int | None,
+    record: int,
+    folder: Path,
+    confirm: Any,
+    say: Any,
+    stack: ExitStack,
+) -> Any:
+    from dataclasses import replace
+
+    from app.commands.commission import _real_sensor
+    from app.commission.capture import CameraCapture
+    from app.line.station import Station, cell_guard
+    from app.maintain.steps import MaintenanceContext
+    from drivers.errors import DeviceConfigError, DeviceError
+
+    sim = None
+    urls = cfg.devices.urls()
+    if args.sim:
+        from app.sim.commission import SimCommissioning
+        from app.sim.line_run import continued_epoch, with_simulated_plc
+
+        _, world_s = continued_epoch(state.root)
+        geometric = bool(cfg.simulation.geometric)
+        sim = stack.enter_context(
+            SimCommissioning(
+                cfg, setup["seed"], geometric=geometric, waiting=say_waiting, world_s=world_s
+            )
+        )
+        urls = sim.urls
+        cfg = with_simulated_plc(cfg)
+    guard = replace(cell_guard(cfg), max_speed_pct=float(cfg.commission.speed_pct))
+    options = {"camera": {"settings": cfg.camera.settings()}, "plc": {"read_only": True}}
+    try:
+        station = Station.open(urls, guard=guard, options=options)
+    except DeviceConfigError as exc:
+        raise InputError(str(exc), file=cfg.source, field="devices") from exc
+    except DeviceError as exc:
+        from app.errors import RvisError
+
+        raise RvisError(f"cannot open the devices: {type(exc).__name__}: {exc}") from exc
+    stack.callback(station.close)
+    if sim is not None:
+        sim.station = station
+    return MaintenanceContext(
+        cfg=cfg,
+        state=state,
+        station=station,
+        confirm=confirm,
+        say=say,
+        sphere_sensor=sim.sphere_sensor if sim else _real_sensor(cfg, station),
+        capture=sim if sim else CameraCapture(),
+        sensor_file=args.sensor,
+        sensor_data=args.sensor_data,
+        targets_file=args.targets,
+        truth=sim,
+        placement=sim,
+        out_dir=folder,
+        event=args.event,
+        axis=axis,
+        record_id=record,
+    )
+
+
+def _run(ctx: Any, journal: Any, as_json: bool, say: Any) -> int:
+    from app.commands.commission import _finish
+    from app.commission.context import Declined
+    from app.commission.sequence import run_sequence
+
+    try:
+        failed = run_sequence(ctx, journal)
+    except Declined as exc:
+        say(f"stopped: not confirmed: {exc}; run `rvis maintain` again to continue")
+        return _finish(journal, as_json, 1)
+    if failed is not None:
+        say(f"step {failed} failed its checks: fix the cause and run `rvis maintain` again")
+        return _finish(journal, as_json, 3)
+    run = journal.steps["handover"].results.get("run", "rvis run")
+    say(f"handed back: {ctx.state.root} is ready for `{run}`")
+    return _finish(journal, as_json, 0)

@@ -1,0 +1,490 @@
+"""The maintenance procedures' own steps (app/maintain/__init__.py): what the state directory
+holds now, the axis's zero found, the plan's views re-aimed and the changed group identified
+on the spheres, and the hand-over to `rvis run`. The steps they share with the commissioning
+(the devices' answers, the sensor calibration, the tracker's spheres, the acceptance, the
+workspace validation) are the commissioning's, run in the procedure's folder on the files
+`prepare` puts there (the same names: app/commission/files.py)."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from app.commission.checks import StepResult, at_least, at_most, count_at_least, holds
+from app.commission.context import Context
+from app.commission.files import (
+    MAINTENANCE_MEASUREMENTS_FILE,
+    PARAMS_BEFORE_FILE,
+    PARAMS_FILE,
+    PLAN_FILE,
+    SENSOR_FILE,
+    TARGETS_BEFORE_FILE,
+    TARGETS_FILE,
+    WORKSPACE_ERRORS_FILE,
+)
+from app.commission.measuring import Taken, measure_views
+from app.commission.steps import device_checks
+from app.config.write import dumps_cell
+from app.formats.files import (
+    ERROR_COLUMNS,
+    csv_rows,
+    read_json,
+    read_targets,
+    write_bytes,
+    write_json,
+    write_targets,
+    write_text,
+)
+from app.formats.params import from_json, to_json
+from app.line.measure import Rejected
+from app.line.params_store import MAINTENANCE_SOURCE, ParamsStore, hand_over
+from app.line.states import AlarmCode
+from app.line.store import Store
+from app.maintain.aim import reaim, zero_moved, zero_of
+from app.meta import provenance
+from app.planning import read_plan
+from calib.attribution import NONE, StepGroup, attribute
+from calib.errors import InsufficientData, NotIdentifiable
+from calib.gates import check_identification
+from calib.identify import identify
+from calib.model import BASE_NAMES, SENSOR_NAMES
+from calib.validation import rmse
+
+F64 = NDArray[np.float64]
+
+#: the search for an axis's zero where no sphere is seen: steps [deg] up to the limit
+ZERO_STEP_DEG = 0.2
+ZERO_LIMIT_DEG = 1.4
+
+
+@dataclass
+class MaintenanceContext(Context):
+    """The commissioning's Context with what the procedure is for: the event ("sensor",
+    "axis", "fixture"), the axis (1..6 for "axis") and the database's maintenance record."""
+
+    event: str = ""
+    axis: int | None = None
+    record_id: int | None = None
+
+
+def _m(ctx: Context) -> MaintenanceContext:
+    assert isinstance(ctx, MaintenanceContext)
+    return ctx
+
+
+# -- devices and what the state directory holds ----------------------------------------------
+def devices(ctx: Context) -> StepResult:
+    """Every device answers, the robot at home without an alarm, the PLC alive, and the state
+    directory commissioned (a version in force)."""
+    r = device_checks(ctx)
+    current = ParamsStore(ctx.state.root).current_version()
+    r.checks.append(
+        holds("a commissioned state directory", current is not None, str(ctx.state.root))
+    )
+    return r
+
+
+def prepare(ctx: Context) -> StepResult:
+    """The version in force, the plan, the sensor calibration and the spheres' places copied
+    into the procedure's folder (the steps after work on them there; the state directory is
+    changed only by the hand-over)."""
+    state, r = ctx.state, StepResult()
+    params = ParamsStore(state.root)
+    version, doc = params.current_version(), params.current_document()
+    if version is None or doc is None:
+        r.checks.append(holds("a version in force", False, str(params.current_path)))
+        return r
+    write_json(ctx.path(PARAMS_BEFORE_FILE), doc)
+    write_json(ctx.path(PARAMS_FILE), doc)
+    write_bytes(ctx.path(PLAN_FILE), state.plan.read_bytes())
+    write_bytes(ctx.path(SENSOR_FILE), state.sensor.read_bytes())
+    spheres = dict(ctx.cfg.spheres_part_mm)
+    write_targets(ctx.path(TARGETS_BEFORE_FILE), spheres)
+    write_targets(ctx.path(TARGETS_FILE), spheres)
+    errors = (doc.get("validation") or {}).get("errors_mm") or []
+    r.results = {"version": version, "spheres": len(spheres)}
+    if errors:
+        r.results["validation_rmse_mm"] = float(np.sqrt(np.mean(np.square(errors))))
+    r.files += [PARAMS_BEFORE_FILE, PARAMS_FILE, PLAN_FILE, SENSOR_FILE, TARGETS_BEFORE_FILE]
+    r.checks.append(holds("a version in force", True, f"version {version}"))
+    return r
+
+
+# -- the views, re-aimed ------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Views:
+    """The plan's views: sphere of each, planned configuration (K, 6), planned centre (K, 3)."""
+
+    targets: tuple[str, ...]
+    q_deg: F64
+    c_mm: F64
+
+    @staticmethod
+    def of_plan(ctx: Context) -> Views:
+        _, qs, cs = read_plan(ctx.path(PLAN_FILE))
+        targets = tuple(t for t, q in qs.items() for _ in range(len(q)))
+        return Views(targets, np.vstack(list(qs.values())), np.vstack(list(cs.values())))
+
+
+def _rigid(ctx: Context, x: F64) -> tuple[Any, F64]:
+    """The rigid chain the plan was made on, and x's share of it."""
+    model = ctx.cell().model()
+    return model, np.asarray(x, dtype=float)[: len(model.nominal_x())]
+
+
+def _aimed(ctx: Context, views: Views, x_now: F64) -> tuple[F64, np.ndarray]:
+    """The views re-aimed on x_now at the spheres' places now (TARGETS_FILE)."""
+    _, x_plan = from_json(ctx.path(PARAMS_BEFORE_FILE))
+    model, xp = _rigid(ctx, x_plan)
+    _, xn = _rigid(ctx, x_now)
+    p_now = ctx.spheres_part_mm()
+    p = np.array([p_now[t] for t in views.targets])
+    return reaim(model, xp, xn, views.q_deg, views.c_mm, p)
+
+
+# -- axis N: the zero -----------------------------------------------------------------------------
+def zero(ctx: Context) -> StepResult:
+    """The axis's zero, found from one view of the plan: measured as it is; where its sphere is
+    not seen, the view re-aimed on the zero moved by +-0.2, +-0.4, ... deg until it is; the
+    zero then solved from that measurement (the rest held). Writes the parameters with it."""
+    m = _m(ctx)
+    assert m.axis is not None
+    model, x_before = from_json(ctx.path(PARAMS_BEFORE_FILE))
+    views = Views.of_plan(ctx)
+    sensor = ctx.sphere_sensor(ctx.sensor_model())
+    r = StepResult()
+    tried: list[float] = []
+    first = 0
+    ctx.home()
+    for delta in _search_deltas():
+        x_try = zero_moved(x_before, m.axis, delta)
+        q, ok = _aimed(ctx, Views(*_pick(views, [first])), x_try)
+        if not ok[0]:
+            continue
+        tried.append(delta)
+        ctx.move(q[0], f"the zero's search: {delta:+.1f} deg on J{m.axis}")
+        try:
+            reading = sensor.measure(views.targets[first])
+        except Rejected:
+            ctx.say(f"    {delta:+.1f} deg: no sphere seen")
+            continue
+        finally:
+            ctx.home()
+        found = _solve_zero(ctx, model, x_try, q[0], reading.c_sensor_mm, views.targets[first])
+        x_found = zero_moved(x_try, m.axis, found)
+        doc = read_json(ctx.path(PARAMS_BEFORE_FILE))
+        write_json(ctx.path(PARAMS_FILE), _with_x(doc, model, x_found, "zero search"))
+        change = zero_of(x_found, x_before, m.axis)
+        r.results = {"zero_change_deg": change, "tried_deg": tried}
+        r.files.append(PARAMS_FILE)
+        r.checks.append(
+            holds(f"a sphere seen with J{m.axis}'s zero found", True, f"{change:+.3f} deg")
+        )
+        r.checks.append(at_most(f"J{m.axis} zero change", abs(change), ZERO_LIMIT_DEG + 0.1, "deg"))
+        return r
+    r.results = {"tried_deg": tried}
+    r.checks.append(
+        holds(f"a sphere seen within +-{ZERO_LIMIT_DEG:g} deg of J{m.axis}'s zero", False)
+    )
+    return r
+
+
+def _search_deltas() -> list[float]:
+    """0, then +-ZERO_STEP_DEG, +-2 ZERO_STEP_DEG, ... to ZERO_LIMIT_DEG."""
+    n = round(ZERO_LIMIT_DEG / ZERO_STEP_DEG)
+    out = [0.0]
+    for k in range(1, n + 1):
+        out += [k * ZERO_STEP_DEG, -k * ZERO_STEP_DEG]
+    return out
+
+
+def _solve_zero(ctx: Context, model: Any, x: F64, q_deg: F64, c_mm: F64, target: str) -> float:
+    """The zero change [deg] on top of x that puts one measured centre on its sphere (least
+    squares in one unknown, by Gauss-Newton on a numerical derivative)."""
+    axis = _m(ctx).axis
+    assert axis is not None
+    p = ctx.spheres_part_mm()[target]
+
+    def err(d: float) -> F64:
+        point = model.points_part(zero_moved(x, axis, d), q_deg[None], c_mm[None])[0]
+        out: F64 = point - p
+        return out
+
+    d = 0.0
+    for _ in range(8):
+        e, h = err(d), 1e-4
+        g = (err(d + h) - e) / h
+        step = -float(g @ e) / float(g @ g)
+        d += step
+        if abs(step) < 1e-7:
+            break
+    return d
+
+
+def _with_x(doc: dict[str, Any], model: Any, x: F64, what: str) -> dict[str, Any]:
+    """The document `doc` with the parameter vector x (its names' values replaced)."""
+    from app.formats.params import plain_document
+
+    out = plain_document(model, x, f"rvis maintain ({what})")
+    return {**doc, "parameters": out["parameters"], "source": out["source"]}
+
+
+# -- the changed group, identified ---------------------------------------------------------
+def reidentify(ctx: Context) -> StepResult:
+    """The plan's views re-aimed on the parameters so far at the spheres' places now, measured
+    from home and back, and the changed group identified with the rest held at the version in
+    force: the sensor's 6 (sensor), the axis's zero (axis; J2's moves theta3 with it; J1's and
+    J6's are the part frame's and the sensor's), the part frame (fixture) only if the
+    measurements show it moved (BIC against nothing moved). Checked: views seen, residual RMS,
+    condition, the change against the offline gates. Writes the parameters and the plan."""
+    m = _m(ctx)
+    cell = ctx.cell()
+    model, x_start = from_json(ctx.path(PARAMS_FILE))
+    _, x_before = from_json(ctx.path(PARAMS_BEFORE_FILE))
+    views = Views.of_plan(ctx)
+    q, ok = _aimed(ctx, views, x_start)
+    r = StepResult()
+    r.checks.append(count_at_least("views re-aimed", int(ok.sum()), len(ok), len(ok)))
+    sensor = ctx.sphere_sensor(ctx.sensor_model())
+    todo = [k for k in range(len(ok)) if ok[k]]
+    taken = Taken()
+    seen_at: list[int] = []
+    x_new, result, group = x_start, None, _group(m, model)
+    for attempt in range(2):  # a second look at the views not seen, re-aimed on the fit
+        got = measure_views(ctx, [(views.targets[k], q[k]) for k in todo], sensor, "maintenance")
+        seen_at += [k for k in todo if any(np.array_equal(q[k], v) for v in got.q_deg)]
+        _extend(taken, got)
+        data = taken.data(ctx.spheres_part_mm())
+        try:
+            if m.event == "fixture":
+                group = _fixture_moved(model, x_start, data, cell)
+            if group.params:
+                result = identify(model, data, active=group.params, x0=x_start, align=False)
+                x_new = result.x
+        except (InsufficientData, NotIdentifiable) as exc:
+            r.checks.append(holds("identification", False, str(exc)))
+            return r
+        if not got.rejected or attempt == 1:
+            break
+        missed = [k for k in todo if k not in seen_at]
+        q2, ok2 = _aimed(ctx, Views(*(_pick(views, missed))), x_new)
+        for j, k in enumerate(missed):
+            q[k], ok[k] = q2[j], ok2[j]
+        todo = [k for k in missed if ok[k]]
+    taken.write(ctx.path(MAINTENANCE_MEASUREMENTS_FILE))
+    r.files.append(MAINTENANCE_MEASUREMENTS_FILE)
+    limit = cell.commission.max_rejected_fraction
+    seen, n_views = len(taken.targets), int(ok.sum())
+    r.checks.append(count_at_least("views seen", seen, n_views, n_views * (1 - limit)))
+    e = model.points_part(x_new, data.q_deg, data.c_sensor_mm, temp_c=data.temp_c)
+    residual = rmse(e - data.p_part_mm)
+    doc = read_json(ctx.path(PARAMS_BEFORE_FILE))
+    if result is not None:
+        report = check_identification(result, x_before, cell.calibration.gates())
+        doc = to_json(model, result, report, provenance())
+        condition = result.observability.condition
+        r.checks.append(at_most("condition", condition, cell.calibration.max_condition))
+        r.checks.append(holds("quality gates", report.passed, report.reason or "passed"))
+        r.results["identified"] = list(group.params)
+        r.results["std"] = [float(v) for v in result.std]
+    else:
+        r.results["identified"] = []
+    write_json(ctx.path(PARAMS_FILE), doc)
+    r.files.append(PARAMS_FILE)
+    r.checks.append(at_most("residual RMS", residual, cell.calibration.max_rms_mm, "mm"))
+    r.results |= {
+        "group": group.name,
+        "measurements": seen,
+        "rejected": taken.rejected,
+        "robot_s": ctx.robot_s,
+        "rms_mm": residual,
+        **_change(m, x_new, x_before),
+    }
+    _write_plan(ctx, views, q, ok)
+    r.files.append(PLAN_FILE)
+    if ctx.truth is not None:
+        r.results["true_rmse_mm"] = ctx.truth.true_rmse_mm(model, x_new, ctx.sensor_model())
+    return r
+
+
+def _pick(views: Views, ks: list[int]) -> tuple[tuple[str, ...], F64, F64]:
+    return tuple(views.targets[k] for k in ks), views.q_deg[ks], views.c_mm[ks]
+
+
+def _extend(taken: Taken, more: Taken) -> None:
+    """The measurements of `more` added to `taken` (each view's once: its last)."""
+    for f in dataclasses.fields(Taken):
+        getattr(taken, f.name).extend(getattr(more, f.name))
+
+
+def _group(m: MaintenanceContext, model: Any) -> StepGroup:
+    """The group an event changes (module docstring)."""
+    if m.event == "sensor":
+        return StepGroup("sensor", "sensor mount", SENSOR_NAMES)
+    if m.event == "fixture":
+        return StepGroup("fixture", "part frame", BASE_NAMES)
+    assert m.axis is not None
+    if m.axis == 1:
+        return StepGroup("J1", "J1 zero (the part frame's turn about the base)", BASE_NAMES)
+    if m.axis == 6:
+        return StepGroup("J6", "J6 zero (the sensor's turn about the flange)", SENSOR_NAMES)
+    names = ("dtheta2", "dtheta3") if m.axis == 2 else (f"dtheta{m.axis}",)
+    active = set(model.default_active())
+    return StepGroup(f"J{m.axis}", f"J{m.axis} zero", tuple(n for n in names if n in active))
+
+
+def _fixture_moved(model: Any, x: F64, data: Any, cell: Any) -> StepGroup:
+    """The part frame's group when the measurements at the spheres' new places show it moved
+    (BIC, calib.attribution), else nothing (the spheres moved alone: the kinematics hold)."""
+    sigma = float(cell.service.seq_measurement_std_mm)
+    groups = (StepGroup(NONE, "nothing", ()), StepGroup("fixture", "part frame", BASE_NAMES))
+    a = attribute(model, x, data, sigma_mm=sigma, groups=groups)
+    return groups[1] if a.choice == "fixture" else groups[0]
+
+
+def _change(m: MaintenanceContext, x: F64, x_before: F64) -> dict[str, float]:
+    """What the procedure changed, in its own terms."""
+    if m.event == "axis" and m.axis is not None:
+        return {"zero_change_deg": zero_of(x, x_before, m.axis)}
+    names = SENSOR_NAMES if m.event == "sensor" else BASE_NAMES
+    from calib.model import INDEX
+
+    d = np.array([x[INDEX[n]] - x_before[INDEX[n]] for n in names])
+    return {
+        "translation_mm": float(np.linalg.norm(d[:3])),
+        "rotation_deg": float(np.degrees(np.linalg.norm(d[3:]))),
+    }
+
+
+def _write_plan(ctx: Context, views: Views, q: F64, ok: np.ndarray) -> None:
+    """The plan with its views re-aimed (a view that could not be kept its old one) and the
+    spheres' places now."""
+    doc = read_json(ctx.path(PLAN_FILE))
+    positions = ctx.spheres_part_mm()
+    k = 0
+    for sphere in doc["spheres"]:
+        sphere["position_part_mm"] = [float(v) for v in positions[sphere["name"]]]
+        for conf in sphere["configurations"]:
+            if ok[k]:
+                conf["q_deg"] = [float(v) for v in q[k]]
+            k += 1
+    doc["maintenance"] = {"re_aimed": int(ok.sum()), "views": len(ok)}
+    write_json(ctx.path(PLAN_FILE), doc)
+
+
+# -- the hand-over --------------------------------------------------------------------------
+def handover(ctx: Context) -> StepResult:
+    """The procedure's parameters as the next version (source maintenance, with its workspace
+    validation), the re-aimed plan, the sensor calibration and the spheres' places into the
+    state directory; the service's maintenance alarm cleared, its open suspect intervals
+    closed at the hand-over, the maintenance record completed. Run again after a kill, it finds
+    its own version in force and completes the rest."""
+    m, state, r = _m(ctx), ctx.state, StepResult()
+    doc = read_json(ctx.path(PARAMS_FILE))
+    errors = _workspace_errors_mm(ctx)
+    folder = str(ctx.folder.relative_to(state.root))
+    doc = {
+        **doc,
+        "source": MAINTENANCE_SOURCE,
+        "reason": _reason(m),
+        "maintenance": {"event": m.event, "axis": m.axis, "folder": folder},
+    }
+    if errors:
+        doc["validation"] = {"errors_mm": errors, "what": "maintenance workspace step"}
+    write_bytes(state.plan, ctx.path(PLAN_FILE).read_bytes())
+    write_bytes(state.sensor, ctx.path(SENSOR_FILE).read_bytes())
+    cell = ctx.cell()
+    write_text(state.cell, dumps_cell(cell, f"written by rvis maintain {_reason(m)}"))
+    params = ParamsStore(state.root)
+    store = Store(state.db)
+    try:
+        t = ctx.clock.time()
+        current = params.current_document() or {}
+        ours = (current.get("maintenance") or {}).get("folder") == folder
+        version = params.current_version() if ours else None
+        if version is None or not any(a["version"] == version for a in store.applied()):
+            version = hand_over(params, store, doc, t) if not ours else version
+            if ours and version is not None:
+                store.add_applied(t, version, None, MAINTENANCE_SOURCE, None)
+        assert version is not None
+        closed = _close_suspects(store, t, version)
+        codes = (AlarmCode.MAINTENANCE, AlarmCode.DRIFT_STEP, AlarmCode.DRIFT, AlarmCode.VIEW_LOST)
+        for code in codes:
+            store.clear_alarms(t, code)
+        after = {"validation_rmse_mm": _rms(errors), "version": version}
+        if m.record_id is not None:
+            store.finish_maintenance(m.record_id, t, version, after)
+        what = {"event": m.event, "axis": m.axis, "version": version, "folder": folder}
+        store.add_event(t, "maintenance", what)
+        applied = [a["version"] for a in store.applied()]
+    finally:
+        store.close()
+    r.results = {"version": version, "suspect_intervals_closed": closed, **after}
+    r.results["run"] = "rvis run" if ctx.truth is None else _sim_run(ctx)
+    r.checks += [
+        holds(
+            "params/current.json is the procedure's version", params.current_version() == version
+        ),
+        holds("rvis.db records it applied", applied[-1] == version, f"versions {applied}"),
+        holds(
+            "cell.toml, plan.json, sensor.toml written",
+            all(p.is_file() for p in (state.cell, state.plan, state.sensor)),
+        ),
+    ]
+    return r
+
+
+def _reason(m: MaintenanceContext) -> str:
+    what = {"sensor": "sensor replaced", "fixture": "sphere fixture renewed"}
+    return f"maintenance: {what.get(m.event, f'axis {m.axis} motor or encoder replaced')}"
+
+
+def _sim_run(ctx: Context) -> str:
+    truth = ctx.truth
+    geometric = " --geometric" if truth.geometric else ""
+    return f"rvis run --sim{geometric} --seed {truth.seed} --state-dir {ctx.state.root}"
+
+
+def _close_suspects(store: Store, t: float, version: int) -> int:
+    """Close every open suspect interval at the hand-over: the bodies measured in it were
+    measured with the parameters of before the change."""
+    n = 0
+    for row in store.suspects():
+        if row["t_end"] is None:
+            store.update_suspect(
+                int(row["id"]), t_end=t, end_reason="maintenance", end_version=version
+            )
+            n += 1
+    return n
+
+
+def _workspace_errors_mm(ctx: Context) -> list[float]:
+    path = ctx.path(WORKSPACE_ERRORS_FILE)
+    if not path.is_file():
+        return []
+    return [float(row["e_mm"]) for _, row in csv_rows(path, ERROR_COLUMNS)]
+
+
+def _rms(errors: list[float]) -> float | None:
+    return float(np.sqrt(np.mean(np.square(errors)))) if errors else None
+
+
+# -- the fixture's spheres --------------------------------------------------------------------
+def spheres_moved(ctx: Context) -> StepResult:
+    """The commissioning's spheres step (the tracker measures them again, TARGETS_FILE), and
+    how far each moved from where the cell file had it."""
+    from app.commission.steps import spheres
+
+    r = spheres(ctx)
+    if not ctx.path(TARGETS_FILE).is_file():
+        return r
+    before = read_targets(ctx.path(TARGETS_BEFORE_FILE))
+    now = read_targets(ctx.path(TARGETS_FILE))
+    moved = {t: float(np.linalg.norm(now[t] - before[t])) for t in now if t in before}
+    r.results["moved_mm"] = moved
+    r.checks.append(at_least("spheres measured again", len(moved), len(before)))
+    return r
