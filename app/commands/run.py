@@ -21,7 +21,7 @@ until SIGTERM or Ctrl-C.
 
 A device that cannot be reached at start (its URL right, nothing answering) does not end the
 command: the service starts in FAULT with a `device_unreachable` alarm naming it, answers
-`rvis status`, and retries with back-off (app/line/service.py); a wrong cell file or URL is
+`rvis status`, and retries with back-off (app/line/startup.py); a wrong cell file or URL is
 still exit 2 at once.
 
 stdout carries JSON lines only, in every mode (docs/operations.md, "What the service prints"):

@@ -1,19 +1,24 @@
 """What the service's collaborators use of it: `LineHost`, the service as the operator's
-commands (app.line.operator), the step handling (app.line.step_handler) and the status reply
-(app.line.status) see it. `app.line.service.Service` is the one implementation; the
-collaborators import this protocol, not the service, so no import runs back to it."""
+commands (app.line.operator), the step handling (app.line.step_handler), the status reply
+(app.line.status), the start (app.line.startup), the loop (app.line.window_loop), the slot
+choice (app.line.slot_choice), the measurements' record (app.line.recording), the
+recalibration decisions (app.line.decisions), the versions put in force (app.line.versions)
+and the alarms and faults (app.line.faults) see it. `app.line.service.Service` is the one
+implementation; the collaborators import this protocol, not the service, so no import runs back
+to it."""
 
 from __future__ import annotations
 
 import logging
 import threading
+from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from app.line.accuracy import Accuracy
-from app.line.cycle import WindowWatch
+from app.line.cycle import Cycle, WindowWatch
 from app.line.drift import DriftMonitor
 from app.line.events import EventBus
 from app.line.inline_seq import InlineSequential, SequentialCandidate
@@ -22,6 +27,7 @@ from app.line.params_store import ParamsStore
 from app.line.recalib import Recalibrator, RecalOutcome
 from app.line.roles import Roles
 from app.line.schedule import Schedule
+from app.line.sensor_watch import SensorWatch
 from app.line.settings import ServiceSettings
 from app.line.statedir import StateDir
 from app.line.states import State
@@ -29,6 +35,7 @@ from app.line.station import Station
 from app.line.step import Step
 from app.line.step_fit import StepCorrection
 from app.line.store import StorageError, Store
+from app.line.sweeps import SweepArchive
 from calib.model import SystemModel
 from drivers.clock import Clock
 
@@ -54,8 +61,12 @@ class LineHost(Protocol):
     sequential: InlineSequential | None
     watch: WindowWatch
     measurer: SphereMeasurer
+    cycle: Cycle
+    sensor_watch: SensorWatch
+    sweeps: SweepArchive
     log: logging.Logger
     wake: threading.Event  # set: the loop looks at its queue now
+    after_window: Callable[[], None] | None  # called in the loop's thread after each window
 
     # the parameters in force
     model: SystemModel
@@ -70,10 +81,16 @@ class LineHost(Protocol):
     pending_calibration: int | None
     auto_hold: dict[str, Any] | None  # a rollback in auto mode holds automatic applies
     force_recal: bool
+    new_since_recal: int
+    recal_ids: dict[str, list[int]] | None  # the calibration in flight
     drift_onset_id: int | None
     drift_due: bool
+    last_visit: dict[int, tuple[F64, F64]]  # slot -> (q_deg, c_sensor_mm)
+    visit_ids: dict[int, int]  # slot -> the measurement id of its last visit
     change_from_id: int
+    views_since_id: int  # the views' rejections counted after this measurement
     step: Step | None
+    u_seed: list[float]
     accuracy: Accuracy | None
     accuracy_suspect_id: int | None
 
@@ -88,6 +105,12 @@ class LineHost(Protocol):
     def cell_temp_c(self) -> float | None: ...
 
     def status(self) -> dict[str, Any]: ...
+
+    def stopping(self) -> bool: ...
+
+    def reraise_crash(self) -> None: ...
+
+    def current_params(self) -> tuple[int, SystemModel, F64] | None: ...
 
     def snapshot(self) -> dict[str, Any]: ...
 
@@ -106,6 +129,10 @@ class LineHost(Protocol):
     def note_device_error(self, exc: BaseException) -> str | None: ...
 
     def maintenance_needed(self, message: str) -> None: ...
+
+    def rolling_set(
+        self,
+    ) -> tuple[list[Mapping[str, Any]], list[Mapping[str, Any]]] | None: ...
 
     def recal_wait(self) -> str: ...
 

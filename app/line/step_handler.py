@@ -2,12 +2,12 @@
 `StepHandler`, a collaborator of app.line.service.Service that sees it as app.line.host.LineHost
 (as app.line.operator's commands do).
 
-The flag opens a suspect interval and a `Step` (app.line.step); after every window the step is
-attributed (calib.attribution through app.line.step.correct_step, at the change point located
-by `locate_step`) and, batch estimator, its group's fast correction applied or proposed when its
-gates pass; the sequential estimator widens the attributed group's covariance instead. A
-correction trained after the change point in force (Service.in_force -> `corrected`), the interval
-closes when the held-out residuals measured with it are back (`check_recovery`).
+The flag (app.line.recording) opens a suspect interval and a `Step` (app.line.step); after every
+window the step is attributed (calib.attribution through app.line.step.correct_step, at the
+change point located by `locate_step`) and, batch estimator, its group's fast correction applied
+or proposed when its gates pass; the sequential estimator widens the attributed group's
+covariance instead. A correction trained after the change point in force (Versions.in_force ->
+`corrected`), the interval closes when the held-out residuals with it are back (`check_recovery`).
 """
 
 from __future__ import annotations

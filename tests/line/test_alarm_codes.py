@@ -1,7 +1,7 @@
 """The one list of alarm codes (app.line.states.AlarmCode, ALARM_CODES its mapping to condition
 classes) holds every code the service can raise, and the service names them by its members,
 never by a bare string: read from the source, every `alarm(...)`, `raise_alarm(...)` and
-`_enter_fault(...)`, every `clear_alarms(...)` and `active_alarms(...)`, every `(code, message,
+`enter_fault(...)`, every `clear_alarms(...)` and `active_alarms(...)`, every `(code, message,
 priority)` queued for the start and every `alarm_cleared` event's code."""
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ APP = Path(__file__).resolve().parents[2] / "app"
 #: (code, t) of the service); `code=` by keyword too
 TAKERS: dict[str, int | None] = {
     "alarm": 0,
-    "_enter_fault": 0,
+    "enter_fault": 0,
     "raise_alarm": 1,
     "clear_alarms": None,
     "active_alarms": None,
@@ -37,7 +37,7 @@ def _code_args(node: ast.Call) -> list[ast.expr]:
         return found + [kw.value for kw in node.keywords if kw.arg == "code"]
     queue = ast.unparse(node.func.value)
     if name == "append" and args and isinstance(first := args[0], ast.Tuple) and first.elts:
-        return [first.elts[0]] if queue.endswith("_start_alarms") else []
+        return [first.elts[0]] if queue.endswith("start_alarms") else []
     if name == "emit" and len(args) > 1 and isinstance(args[1], ast.Dict):
         event = args[0]
         if isinstance(event, ast.Constant) and str(event.value).startswith("alarm"):
@@ -98,8 +98,8 @@ def test_no_alarm_code_is_a_bare_string() -> None:
         'self.clear_alarms("drift", t)',
         'self.store.active_alarms(code="drift")',
         'self.store.raise_alarm(t, "drift", "text", "low")',
-        'self._enter_fault("drift", "text")',
-        'self._start_alarms.append(("drift", "text", "high"))',
+        'self.faults.enter_fault("drift", "text")',
+        'start_alarms.append(("drift", "text", "high"))',
         'self.bus.emit("alarm_cleared", {"code": "drift"})',
     ],
 )
@@ -111,7 +111,7 @@ def test_the_scan_finds_a_bare_code_in_each_kind_of_call(source: str) -> None:
 
 
 def test_the_list_is_the_named_codes_and_the_fault_codes() -> None:
-    """No code listed that nothing raises (the fault codes may come through `_enter_fault`
+    """No code listed that nothing raises (the fault codes may come through `enter_fault`
     with a variable code); every class is a known one."""
     assert set(FAULT_CODES) <= set(ALARM_CODES)
     assert set(ALARM_CODES) == set(app_codes()[0]) | set(FAULT_CODES)

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from app.line.service import DEVICE_RETRY_S
+from app.line.startup import DEVICE_RETRY_S
 from app.line.states import ALARM_CODES, FAULT_CODES
 from drivers.errors import DeviceConnectionError
 from tests.line.helpers import Line, make_line

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from app.config.line import RecalibSettings
-from app.line.service import VIEW_LOST_TRIES
+from app.line.slot_choice import VIEW_LOST_TRIES
 from fakes.devices import ClampCycle
 from tests.line.helpers import ISOTROPIC_NOISE, SCALE, Line, line_settings, make_line, plan_for
 

@@ -1,7 +1,7 @@
 """A RvisTui with frozen data (no service, no database, a fixed clock): what the screenshot
 tests and docs/tui/*.svg show. The status and history are shaped exactly as the service's
 `status` reply and app.tui.history return them. FAULT_STATUS: the same line in a fault, its
-PLC unreachable since the start (the service's words for it, app/line/service.py)."""
+PLC unreachable since the start (the service's words for it, app/line/startup.py)."""
 
 from __future__ import annotations
 

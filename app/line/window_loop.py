@@ -1,0 +1,244 @@
+"""The service loop's passes: `WindowLoop`, a collaborator of app.line.service.Service that
+sees it as app.line.host.LineHost (as app.line.operator's commands do).
+
+One pass (`step`): the operator's queued commands, the PLC polled (its heartbeat, the cell
+temperature and the windows it opened watched), shelved alarms past their time unshelved; then
+a window when a fresh one opens and the cell is IDLE (app.line.cycle.Cycle measures it; the
+cell states its accuracy after it), else what comes between windows: the background
+recalibration collected, a flagged step attributed, a recalibration started when due
+(app.line.decisions), the free space looked at and old events pruned; then it waits a poll. A
+device's error is a FAULT, a storage failure the `state_storage` FAULT (app.line.faults).
+"""
+
+from __future__ import annotations
+
+import logging
+
+from app.line.accuracy import ACCURACY_GROUP, VOUCHED, evidence, statement
+from app.line.decisions import Decisions
+from app.line.faults import Faults
+from app.line.host import LineHost
+from app.line.operator import Operator
+from app.line.states import AlarmCode, State, suspect_json
+from app.line.status import alarm_event
+from app.line.step_handler import StepHandler
+from app.line.store import StorageError
+from app.line.versions import suspect_open
+from drivers.errors import DeviceError
+
+RETENTION_S = 3600.0  # how often events past [service] events_keep_days are deleted
+
+
+class WindowLoop:
+    """The loop's passes on the service `svc`, with its collaborators: the operator's
+    commands, the faults, a flagged step's handling and the recalibration decisions."""
+
+    def __init__(
+        self,
+        svc: LineHost,
+        operator: Operator,
+        faults: Faults,
+        steps: StepHandler,
+        decisions: Decisions,
+    ) -> None:
+        self.svc = svc
+        self.operator, self.faults, self.steps, self.decisions = operator, faults, steps, decisions
+        self._retention_t = -float("inf")
+        self._temperature_bad: bool | None = None  # known after the first poll
+
+    def step(self) -> None:
+        """One pass of the loop (a storage failure: FAULT, then a poll's wait)."""
+        svc = self.svc
+        svc.reraise_crash()
+        try:
+            self._step_once()
+        except StorageError as exc:
+            svc.storage_fault(exc)
+            self._pause_poll()
+
+    def _pause_poll(self) -> None:
+        svc = self.svc
+        svc.clock.wait(svc.wake, svc.settings.line.poll_s)
+        svc.wake.clear()
+
+    def _step_once(self) -> None:
+        svc = self.svc
+        self.operator.run_commands()
+        try:
+            svc.watch.poll()
+        except DeviceError as exc:
+            if svc.state != State.FAULT:
+                self.faults.device_fault(exc)
+            self._pause_poll()
+            return
+        self._watch_heartbeat()
+        self._watch_temperature()
+        self._store_clamped()
+        self._unshelve()
+        if svc.state == State.IDLE and not svc.paused and svc.watch.fresh_window():
+            self._window()
+            return
+        self._between_windows()
+        self._pause_poll()
+
+    def _window(self) -> None:
+        svc = self.svc
+        svc.set_state(State.MEASURING)
+        n = svc.counters["windows"] + 1
+        t_open = svc.clock.time()  # within a poll of the window's rising edge
+        try:
+            report = svc.cycle.run_window(n)
+        except DeviceError as exc:
+            self.faults.device_fault(exc)
+            return
+        svc.counters["windows"] = n
+        svc.counters["overruns"] += report.overrun
+        svc.counters["withdrawn"] += bool(report.withdrawn)
+        self._state_accuracy(t_open)
+        svc.save_state()
+        acc = svc.accuracy
+        svc.bus.emit(
+            "window",
+            {
+                **report.to_json(),
+                "t_open": t_open,
+                "params_version": svc.version,
+                "u95_mm": None if acc is None else acc.u95_mm,
+                "vouched": acc is not None and acc.vouched,
+            },
+        )
+        svc.set_state(State.PAUSED if svc.paused else State.IDLE)
+        self._between_windows()
+        if svc.after_window is not None:
+            svc.after_window()
+
+    def _state_accuracy(self, t_open: float) -> None:
+        """After a window: the U95 of a point measured now from the evidence (app.line.accuracy),
+        stated for the window's bodies; a window the cell cannot vouch for within the limit
+        opens an accuracy suspect interval (from when it opened), the first one vouched for
+        again closes it."""
+        svc = self.svc
+        n_max = len(svc.schedule)
+        rows = svc.store.measurements(last=4 * n_max)
+        norms, basis = evidence(rows, svc.version, svc.drift_onset_id, svc.u_seed, n_max)
+        acc = statement(norms, basis, svc.settings.recalib.accuracy_limit_mm)
+        svc.accuracy = acc
+        with svc.store.batch():
+            svc.store.state_window_u95(acc.u95_mm)
+            open_id = svc.accuracy_suspect_id
+            # (a step's open interval speaks for these windows already)
+            if not acc.vouched and open_id is None and not suspect_open(svc):
+                # from the last measurement before this window (the last one vouched for) on
+                before = [r for r in rows if r["t"] < t_open]
+                first_id = int(before[-1]["id"]) + 1 if before else svc.store.last_measurement_id()
+                svc.accuracy_suspect_id = sid = svc.store.open_suspect(
+                    {
+                        "t_start": float(before[-1]["t"]) if before else t_open,
+                        "last_good_id": int(before[-1]["id"]) if before else None,
+                        "onset_id": first_id,
+                        "params_version": svc.version,
+                        "group_name": ACCURACY_GROUP,
+                        "text": f"the cell cannot vouch for its accuracy: {acc.text()}",
+                    }
+                )
+                opened = svc.store.suspect(sid)
+            elif acc.vouched and open_id is not None:
+                row = svc.store.suspect(open_id) or {}
+                svc.store.update_suspect(
+                    open_id,
+                    t_end=t_open,
+                    end_reason=VOUCHED,
+                    end_version=svc.version,
+                    text=f"{row.get('text', '')}; vouched for again: {acc.text()}",
+                )
+                svc.accuracy_suspect_id, opened = None, svc.store.suspect(open_id)
+            else:
+                opened = None
+        if opened is not None:
+            svc.bus.emit("suspect_interval", suspect_json(opened))
+
+    def _unshelve(self) -> None:
+        svc = self.svc
+        t = svc.clock.time()
+        for alarm_id in svc.store.unshelve_expired(t):
+            row = svc.store.alarm(alarm_id)
+            data = {"id": alarm_id} if row is None else alarm_event(row, "raised")
+            svc.bus.emit("alarm_unshelved", data, level=logging.WARNING, t=t)
+
+    def _watch_heartbeat(self) -> None:
+        svc = self.svc
+        alarms = svc.store.active_alarms(code=AlarmCode.PLC_HEARTBEAT)
+        if svc.watch.lost and not alarms:
+            svc.alarm(
+                AlarmCode.PLC_HEARTBEAT, "PLC heartbeat lost: no window is used until it returns"
+            )
+        elif svc.watch.alive and alarms:
+            svc.clear_alarms(AlarmCode.PLC_HEARTBEAT)
+
+    def _watch_temperature(self) -> None:
+        """A `temperature` alarm while the PLC should provide the cell temperature and does
+        not (raised once, cleared when a plausible value returns, or when the cell file no
+        longer reads the word); meanwhile measurements are stored without one and the compliant
+        model leaves its thermal term out. The database is asked only when that changes."""
+        svc = self.svc
+        why = svc.watch.temperature()[1]
+        if bool(why) == self._temperature_bad:
+            return  # nothing changed since the last poll: no query
+        active = svc.store.active_alarms(code=AlarmCode.TEMPERATURE)
+        if why and not active:
+            svc.alarm(
+                AlarmCode.TEMPERATURE,
+                f"{why}: no cell temperature; measurements are stored without one and the"
+                " thermal term is left out until a plausible value returns",
+                "medium",
+            )
+        elif not why and active:
+            svc.clear_alarms(AlarmCode.TEMPERATURE)
+        self._temperature_bad = bool(why)
+
+    def _store_clamped(self) -> None:
+        """The windows the PLC opened since the last poll, each with the body clamped in it
+        ([line] plc_body_id; WindowWatch): one row each, taken from the queue once stored (a
+        storage failure keeps them until a reset finds it writing again)."""
+        svc = self.svc
+        clamped = svc.watch.clamped
+        while clamped and not svc.storage_failed:
+            svc.store.add_window(*clamped[0])
+            clamped.popleft()
+
+    def _between_windows(self) -> None:
+        svc = self.svc
+        try:
+            outcome = svc.recalibrator.poll()
+        except Exception as exc:  # the worker failed: not again after the restart
+            self.decisions.worker_failed(exc)
+            raise
+        if outcome is not None:
+            self.decisions.recal_done(outcome)
+        if svc.state in (State.IDLE, State.PAUSED):
+            self.steps.attribute_step()
+            self.decisions.maybe_recalibrate()
+        self.faults.check_space()
+        self._retain()
+
+    def _retain(self) -> None:
+        """At most once an hour: events older than [service] events_keep_days are deleted (in
+        short transactions), and the documents of calibrations rejected more than
+        rejected_keep_days ago dropped; the record (measurements, calibrations with their
+        figures, applied versions, alarms, the operators' audit) is kept."""
+        svc = self.svc
+        now = svc.clock.monotonic()
+        if now - self._retention_t < RETENTION_S:
+            return
+        self._retention_t = now
+        s, t = svc.settings.ops, svc.clock.time()
+        if s.events_keep_days > 0:
+            n = svc.store.prune_events(t - s.events_keep_days * 86400.0)
+            if n:
+                svc.log.info(
+                    "retention: %d events older than %g days deleted", n, s.events_keep_days
+                )
+        if s.rejected_keep_days > 0:
+            n = svc.store.prune_rejected_documents(t - s.rejected_keep_days * 86400.0)
+            if n:
+                svc.log.info("retention: documents of %d rejected calibrations dropped", n)
