@@ -3,8 +3,10 @@
 A calibrated sphere is measured at several positions across the measuring volume (the guideline
 asks for about 7-10: near, far, left, right, top, bottom, centre, corners). From each sweep:
 
-- PF, probing error form: the range of the radial residuals of the points from the free-radius
-  fit (over the fit's inliers, `FitQuality.form_mm`);
+- PF, probing error form: the range of the radial distances of all the sweep's points from the
+  least-squares sphere with free radius, at most 0.3 % of the points left out as outliers
+  (vision.spherefit.form_error, every fit's `FitQuality.form_mm`; the centre is the robust fit's,
+  another fact); a range, never negative;
 - PS, probing error size: the free-fit diameter minus the certified diameter.
 
 Between positions, SD, sphere-spacing error: the distance between two measured centres minus the
