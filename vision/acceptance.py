@@ -3,8 +3,10 @@
 A calibrated sphere is measured at several positions across the measuring volume (the guideline
 asks for about 7-10: near, far, left, right, top, bottom, centre, corners). From each sweep:
 
-- PF, probing error form: the range of the radial residuals of the points from the free-radius
-  fit (over the fit's inliers, `FitQuality.form_mm`);
+- PF, probing error form: the range of the radial distances of all the sweep's points from the
+  least-squares sphere with free radius, at most 0.3 % of the points left out as outliers
+  (vision.spherefit.form_error, every fit's `FitQuality.form_mm`; the centre is the robust fit's,
+  another fact); a range, never negative;
 - PS, probing error size: the free-fit diameter minus the certified diameter.
 
 Between positions, SD, sphere-spacing error: the distance between two measured centres minus the
@@ -18,7 +20,9 @@ non-repeatable error is not (tens of micrometres per stop), so the caller states
 share of SD (`AcceptanceLimits.sd_robot_mm`, ISO 14253-1: the limit widened by the reference's
 uncertainty).
 
-Each figure's largest magnitude is compared with its limit.
+Each figure's largest magnitude is compared with its limit: PF the largest of the positions'
+ranges, PS the largest |PS| of the positions, SD the largest |SD| of the pairs (36 for 9
+positions); `Acceptance.worst` names the position or pair.
 """
 
 from __future__ import annotations
@@ -57,12 +61,23 @@ class Acceptance:
     pairs: NDArray[np.intp]
     limits: AcceptanceLimits
 
+    def of(self, figure: str) -> F64:
+        """PF or PS per position, SD per pair [mm]."""
+        return {"PF": self.pf_mm, "PS": self.ps_mm, "SD": self.sd_mm}[figure]
+
+    def worst(self, figure: str) -> int:
+        """The position ("PF", "PS") or the pair ("SD", a row of `pairs`) of the largest
+        magnitude, by its index (-1: none measured)."""
+        a = self.of(figure)
+        return int(np.argmax(np.abs(a))) if a.size else -1
+
     @property
     def figures(self) -> dict[str, float]:
-        def worst(a: F64) -> float:
-            return float(a[np.argmax(np.abs(a))]) if a.size else float("nan")
-
-        return {"PF": worst(self.pf_mm), "PS": worst(self.ps_mm), "SD": worst(self.sd_mm)}
+        """Each figure's value at its worst position or pair [mm] (signed; nan: none)."""
+        return {
+            k: float(self.of(k)[i]) if (i := self.worst(k)) >= 0 else float("nan")
+            for k in ("PF", "PS", "SD")
+        }
 
     @property
     def passed_each(self) -> dict[str, bool]:
@@ -76,16 +91,27 @@ class Acceptance:
 
     @property
     def message(self) -> str:
-        f, ok = self.figures, self.passed_each
-        return "; ".join(
-            f"{k} {1000 * f[k]:+.1f} um {'within' if ok[k] else 'beyond'} "
-            f"+-{1000 * self.limits.of(k):.1f} um"
+        """ "PF 98.7 um, the largest of 9 positions' ranges, within 150.0 um; PS ...": each
+        figure, what it is the largest of, and its limit (PF a range: no sign)."""
+        f, ok, lim = self.figures, self.passed_each, self.limits
+        n, m = len(self.pf_mm), len(self.sd_mm)
+        what = {
+            "PF": f"PF {1000 * f['PF']:.1f} um, the largest of {n} positions' ranges",
+            "PS": f"PS {1000 * f['PS']:+.1f} um, the largest |PS| of {n} positions",
+            "SD": f"SD {1000 * f['SD']:+.1f} um, the largest |SD| of {m} pairs",
+        }
+        limit = {
+            "PF": f"{1000 * lim.pf_mm:.1f} um",
+            "PS": f"+-{1000 * lim.ps_mm:.1f} um",
+            "SD": f"+-{1000 * lim.of('SD'):.1f} um"
             + (
-                f" (robot's share {1000 * self.limits.sd_robot_mm:.1f} um)"
-                if k == "SD" and self.limits.sd_robot_mm
+                f" ({1000 * lim.sd_mm:.1f} + the robot's share {1000 * lim.sd_robot_mm:.1f})"
+                if lim.sd_robot_mm
                 else ""
-            )
-            for k in ("PF", "PS", "SD")
+            ),
+        }
+        return "; ".join(
+            f"{what[k]}, {'within' if ok[k] else 'beyond'} {limit[k]}" for k in ("PF", "PS", "SD")
         )
 
 
@@ -127,8 +153,9 @@ def acceptance(
     T_ref_sensor: F64,
     limits: AcceptanceLimits,
 ) -> Acceptance:
-    """PF, PS and SD of a sphere measured at n positions: its fits' form ranges and free radii
-    (n,) [mm], the certified radius, the centres (n, 3) and sensor poses (n, 4, 4)."""
+    """PF, PS and SD of a sphere measured at n positions: its fits' form ranges (PF, n,) and
+    free radii (n,) [mm], the certified radius, the centres (n, 3) and sensor poses
+    (n, 4, 4)."""
     pairs, sd = spacing_errors(c_sensor_mm, T_ref_sensor)
     ps = probing_size_mm(radius_free_mm, certified_radius_mm)
     return Acceptance(np.asarray(form_mm, dtype=np.float64), ps, sd, pairs, limits)

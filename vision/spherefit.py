@@ -8,6 +8,11 @@ where scipy.optimize.least_squares would spend most of its time in per-call over
 Quality: number of points and inliers, RMS residual of the inliers, the cap's angular coverage,
 the free radius and its deviation from the certified radius. `fit_sphere` raises
 SphereFitRejected (carrying the quality) when a threshold fails: a bad fit never returns a centre.
+
+Two facts, two fits: the centre is the robust fit's (a ghost-stripe point must not move it);
+the probing error form PF (`form_error`) is VDI/VDE 2634-2's, the range of the radial distances
+of all the points from the plain least-squares sphere with free radius, of which the guideline
+lets at most 0.3 % of the points be left out as outliers (`FORM_MAX_OUTLIER_SHARE`).
 """
 
 from __future__ import annotations
@@ -21,6 +26,9 @@ from numpy.typing import NDArray
 from vision.errors import SphereFitRejected, TooFewPoints
 
 F64 = NDArray[np.float64]
+
+#: the largest share of a sweep's points VDI/VDE 2634-2 lets PF leave out as outliers
+FORM_MAX_OUTLIER_SHARE = 0.003
 
 
 @dataclass(frozen=True)
@@ -40,8 +48,9 @@ class FitQuality:
     """n_points, n_inliers; rms_mm of inlier residuals; coverage_deg: 95th percentile of the
     angle between the point normals and the cap's mean normal; radius_free_mm; radius_dev_mm =
     free - certified (0 without a certified radius); centre_shift_mm between free and certified
-    fits; iterations of the geometric fit; form_mm: the range (max - min) of the free fit's
-    radial residuals over its inliers, VDI/VDE 2634-2's probing error form PF."""
+    fits; iterations of the geometric fit; form_mm: VDI/VDE 2634-2's probing error form PF,
+    the range (max - min) of the radial distances from the least-squares sphere with free
+    radius (`form_error`); form_outliers: the points PF left out (at most 0.3 %)."""
 
     n_points: int
     n_inliers: int
@@ -52,6 +61,7 @@ class FitQuality:
     centre_shift_mm: float
     iterations: int
     form_mm: float = 0.0
+    form_outliers: int = 0
 
 
 @dataclass(frozen=True, eq=False)
@@ -124,12 +134,13 @@ def fit_sphere_geometric(
     radius_mm: float,
     *,
     fixed_radius: bool,
+    robust: bool = True,
     max_iter: int = 30,
     tol_mm: float = 1e-7,
 ) -> tuple[F64, float, F64, F64, int]:
     """Robust geometric fit minimising sum rho(|X - c| - R) by IRLS (see `_weights`), until
     a step moves the centre and radius by less than `tol_mm` (0.1 nm: far below any sensor's
-    resolution).
+    resolution); `robust=False`: plain least squares (every point weighs 1, Gauss-Newton).
 
     Returns centre, radius, final residuals shape=(n,), the weighted normal matrix inverse
     (centre block first) times the residual variance, and the number of iterations.
@@ -146,10 +157,10 @@ def fit_sphere_geometric(
         np.subtract(Xt, c[:, None], out=D)
         d = np.sqrt(np.einsum("ij,ij->j", D, D))
         r = d - R
-        if it == 1 or it % 3 == 0:
+        if robust and (it == 1 or it % 3 == 0):
             scale = _robust_scale(r)
         np.divide(D, d, out=A[:3])
-        Aw = A * _weights(r, scale, cauchy=it > 4)
+        Aw = A * _weights(r, scale, cauchy=it > 4) if robust else A
         step = np.linalg.solve(Aw @ A.T, Aw @ r)
         c += step[:3]
         if not fixed_radius:
@@ -158,7 +169,7 @@ def fit_sphere_geometric(
             break
     np.subtract(Xt, c[:, None], out=D)
     r = np.sqrt(np.einsum("ij,ij->j", D, D)) - R
-    w = _weights(r, scale, cauchy=True)
+    w = _weights(r, scale, cauchy=True) if robust else np.ones_like(r)
     sigma2 = float((w * r * r).sum() / max(w.sum() - n_col, 1.0))
     cov = np.asarray(np.linalg.inv((A * w) @ A.T) * sigma2, dtype=np.float64)
     return c, R, r, cov, it
@@ -195,7 +206,7 @@ def fit_sphere(
         raise TooFewPoints(len(X), th.min_points)
     c0, r0 = fit_sphere_pratt(X)
     c_free, r_free, res, cov, iters = fit_sphere_geometric(X, c0, r0, fixed_radius=False)
-    form_mm = _form_range(res)
+    form_mm, form_outliers = form_error(X, c_free, r_free)
     c, radius, cov_c = c_free, r_free, cov[:3, :3]
     shift, dev = 0.0, 0.0
     if certified_radius_mm is not None:
@@ -217,16 +228,45 @@ def fit_sphere(
         centre_shift_mm=shift,
         iterations=iters,
         form_mm=form_mm,
+        form_outliers=form_outliers,
     )
     _check(quality, th)
     cov_c = cov_c * _correlation_inflation(res)
     return SphereFit(centre_mm=c, radius_mm=radius, cov_mm2=cov_c, quality=quality)
 
 
-def _form_range(res: F64) -> float:
-    """Range of the residuals within 4 robust sigmas of their median (the fit's inliers)."""
-    inl = res[np.abs(res - _median(res)) < 4.0 * _robust_scale(res)]
-    return float(inl.max() - inl.min()) if inl.size else float("inf")
+def form_error(
+    X: F64,
+    centre0_mm: F64,
+    radius0_mm: float,
+    max_outlier_share: float = FORM_MAX_OUTLIER_SHARE,
+    passes: int = 3,
+) -> tuple[float, int]:
+    """VDI/VDE 2634-2's probing error form PF [mm] of the points X shape=(n, 3) [mm]: the range
+    of their radial distances from the least-squares sphere with free radius. At most
+    floor(max_outlier_share n) points, those farthest from the sphere, are left out as outliers
+    and the sphere fitted again without them, until the points left out stay the same (at most
+    `passes` fits). centre0_mm, radius0_mm: where the fit starts (the robust fit's).
+    Returns PF and the number of points left out."""
+    n = len(X)
+    k = int(np.floor(max_outlier_share * n))
+    keep = np.ones(n, dtype=bool)
+    c, R = np.asarray(centre0_mm, dtype=np.float64), float(radius0_mm)
+    for _ in range(passes):
+        c, R, _, _, _ = fit_sphere_geometric(X[keep], c, R, fixed_radius=False, robust=False)
+        r = np.sqrt(np.einsum("ij,ij->i", X - c, X - c)) - R
+        if k == 0:
+            break
+        nearest = np.ones(n, dtype=bool)
+        nearest[np.argpartition(np.abs(r), n - k)[n - k :]] = False
+        if np.array_equal(nearest, keep):
+            break
+        keep = nearest
+    else:  # the last pass chose other points: the sphere of those
+        c, R, _, _, _ = fit_sphere_geometric(X[keep], c, R, fixed_radius=False, robust=False)
+        r = np.sqrt(np.einsum("ij,ij->i", X - c, X - c)) - R
+    kept = r[keep]
+    return float(kept.max() - kept.min()), n - int(keep.sum())
 
 
 def _check(q: FitQuality, th: FitThresholds) -> None:

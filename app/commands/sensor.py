@@ -153,7 +153,7 @@ def run_verify(args: argparse.Namespace) -> int:
     from app.commands.commission import _confirmation, _context, _printer
     from app.commission.acceptance import verify
     from app.commission.checks import StepResult
-    from app.commission.report import format_value
+    from app.commission.report import check_line
     from app.config import load_cell
     from app.formats.params import from_json
     from app.line.launch import hold_state
@@ -194,7 +194,7 @@ def run_verify(args: argparse.Namespace) -> int:
         print(json.dumps(doc, indent=2))
     else:
         for c in result.checks:
-            print(f"{'ok  ' if c.ok else 'FAIL'} {c.name}: {format_value(c)} ({c.limit})")
+            print(check_line(c))
         for why in result.results.get("rejected", []):
             print(f"rejected: {why}")
         where = f"; per position: {ctx.out_dir / result.files[0]}" if result.files else ""

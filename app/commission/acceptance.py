@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from app.commission.checks import StepResult, at_most, count_at_least, holds
+from app.commission.checks import MM, Check, StepResult, count_at_least, holds
 from app.commission.context import Context
 from app.commission.files import ACCEPTANCE_FILE, PARAMS_FILE
 from app.commission.measuring import measure_views
@@ -38,7 +38,7 @@ from calib.ik_refine import sensor_target, solve_on_model
 from calib.model import SystemModel
 from calib.repeatability import joint_sigma_rad, stop_errors_deg
 from calib.transforms import inverse
-from vision.acceptance import AcceptanceLimits, acceptance, spacing_errors
+from vision.acceptance import Acceptance, AcceptanceLimits, acceptance, spacing_errors
 from vision.sensor_model import SensorModel
 
 F64 = NDArray[np.float64]
@@ -58,7 +58,8 @@ POSITIONS = (
 )
 
 
-#: the checks of the figures, as the report and the journal name them
+#: the checks of the figures, as the report and the journal name them (`figure_checks` adds
+#: what each is the largest of, and where)
 CHECK_NAMES = {
     "PF": "probing error form PF",
     "PS": "probing error size |PS|",
@@ -124,6 +125,29 @@ def robot_spacing_mm(
     return float(np.quantile(worst, coverage))
 
 
+def figure_checks(acc: Acceptance, names: list[str]) -> list[Check]:
+    """PF, |PS| and |SD| against their limits, in mm to 0.1 um, each named with what it is the
+    largest of and where: "probing error form PF, the largest of 9 positions' ranges (far)",
+    "sphere-spacing error |SD|, the largest of 36 pairs (left - far)"; SD's limit written with
+    the robot's share in it. The verdicts are vision.acceptance's (one decision)."""
+    f, ok, lim = acc.figures, acc.passed_each, acc.limits
+    n, m = len(acc.pf_mm), len(acc.sd_mm)
+    where = {k: acc.worst(k) for k in ("PF", "PS", "SD")}
+    a, b = acc.pairs[where["SD"]] if where["SD"] >= 0 else (-1, -1)
+    of = {
+        "PF": f"the largest of {n} positions' ranges ({names[where['PF']]})",
+        "PS": f"the largest of {n} positions ({names[where['PS']]})",
+        "SD": f"the largest of {m} pairs ({names[a]} - {names[b]})",
+    }
+    limit = {k: f"<= {lim.of(k):{MM}} mm" for k in ("PF", "PS", "SD")}
+    if lim.sd_robot_mm:
+        limit["SD"] += f" ({lim.sd_mm:{MM}} + the robot's share {lim.sd_robot_mm:{MM}})"
+    return [
+        Check(f"{CHECK_NAMES[k]}, {of[k]}", abs(f[k]), limit[k], ok[k], "mm", MM)
+        for k in ("PF", "PS", "SD")
+    ]
+
+
 def acceptance_step(ctx: Context) -> StepResult:
     """The commissioning's step: with the first calibration and the sensor step's model."""
     return verify(ctx, from_json(ctx.path(PARAMS_FILE))[1], ctx.sensor_model())
@@ -169,11 +193,24 @@ def verify(ctx: Context, x_full: F64, sensor_model: SensorModel) -> StepResult:
         T,
         limits,
     )
-    rows = [
-        [name, *map(float, c_planned[i]), float(acc.pf_mm[i]), float(acc.ps_mm[i])]
-        for i, (name, _) in enumerate(POSITIONS)
+    names = [name for name, _ in POSITIONS]
+    per_position = [
+        {
+            "position": names[i],
+            **dict(zip(ERROR_COLUMNS[1:4], map(float, c_planned[i]), strict=True)),
+            "points": int(quality[i].get("n_points", 0)),
+            "pf_mm": float(acc.pf_mm[i]),
+            "pf_left_out": int(quality[i].get("form_outliers", 0)),
+            "ps_mm": float(acc.ps_mm[i]),
+        }
+        for i in range(n)
     ]
-    write_csv(ctx.path(ACCEPTANCE_FILE), ["position", *ERROR_COLUMNS[1:4], "pf_mm", "ps_mm"], rows)
+    pairs = [
+        {"pair": f"{names[a]} - {names[b]}", "sd_mm": float(sd)}
+        for (a, b), sd in zip(acc.pairs, acc.sd_mm, strict=True)
+    ]
+    columns = list(per_position[0])
+    write_csv(ctx.path(ACCEPTANCE_FILE), columns, [list(p.values()) for p in per_position])
     r.files.append(ACCEPTANCE_FILE)
     f = acc.figures
     r.results = {
@@ -185,11 +222,8 @@ def verify(ctx: Context, x_full: F64, sensor_model: SensorModel) -> StepResult:
         "sd_robot_mm": sd_robot,
         "robot_repeatability_mm": cell.robot.repeatability_mm,
         "message": acc.message,
+        "positions": per_position,
+        "pairs": pairs,
     }
-    # the verdicts are vision.acceptance's (one decision); SD's limit widened by the robot's
-    # share (module docstring; results: sd_robot_mm)
-    ok = acc.passed_each
-    r.checks += [
-        at_most(CHECK_NAMES[k], abs(f[k]), limits.of(k), "mm", ok=ok[k]) for k in CHECK_NAMES
-    ]
+    r.checks += figure_checks(acc, names)
     return r

@@ -11,13 +11,26 @@ from typing import Any
 @dataclass(frozen=True)
 class Check:
     """One checked figure: its value, the limit it is held to (as text: "<= 0.1") and whether
-    it passed; `unit` for the report."""
+    it passed; `unit` and `fmt` (the value's format, "" for 4 significant digits) for the
+    report. A figure stated without a limit (`stated`) has the limit "" and counts as no
+    check."""
 
     name: str
     value: float | int | str | bool
     limit: str
     ok: bool
     unit: str = ""
+    fmt: str = ""
+
+    @property
+    def checked(self) -> bool:
+        return self.limit != ""
+
+
+#: figures in millimetres to a tenth of a micrometre, value and limit alike
+MM = ".4f"
+#: a ratio and its limit, and the two figures it is of, to 4 decimals
+RATIO = ".4f"
 
 
 def _unit(unit: str) -> str:
@@ -25,16 +38,55 @@ def _unit(unit: str) -> str:
 
 
 def at_most(
-    name: str, value: float, limit: float, unit: str = "", *, ok: bool | None = None
+    name: str,
+    value: float,
+    limit: float,
+    unit: str = "",
+    *,
+    ok: bool | None = None,
+    fmt: str = "",
 ) -> Check:
     """value <= limit; `ok`: the verdict where another module decides it (the acceptance's
-    figures, vision.acceptance), the limit then only shown."""
+    figures, vision.acceptance), the limit then only shown; `fmt`: value and limit written
+    at that precision (else the limit as set, the value to 4 significant digits)."""
     passed = bool(value <= limit) if ok is None else bool(ok)
-    return Check(name, float(value), f"<= {limit:g}{_unit(unit)}", passed, unit)
+    return Check(name, float(value), f"<= {limit:{fmt or 'g'}}{_unit(unit)}", passed, unit, fmt)
 
 
-def at_least(name: str, value: float, limit: float, unit: str = "") -> Check:
-    return Check(name, float(value), f">= {limit:g}{_unit(unit)}", bool(value >= limit), unit)
+def at_least(name: str, value: float, limit: float, unit: str = "", *, fmt: str = "") -> Check:
+    passed = bool(value >= limit)
+    return Check(name, float(value), f">= {limit:{fmt or 'g'}}{_unit(unit)}", passed, unit, fmt)
+
+
+def stated(name: str, value: float, unit: str = "", fmt: str = "") -> Check:
+    """A figure the report states with the checks (its unit and precision) but holds to no
+    limit (the workspace error's mean, largest, 95th percentile)."""
+    return Check(name, float(value), "", True, unit, fmt)
+
+
+def ratio_at_least(
+    name: str, numerator: float, denominator: float, limit: float = 1.0, unit: str = ""
+) -> Check:
+    """numerator / denominator >= limit, stated as the ratio: its value and limit, and in the
+    name the two figures it is of, all to 4 decimals ("O1, planned / random (0.1233 /
+    0.1010)": 1.2210, ">= 1.0000")."""
+    return _ratio(name, numerator, denominator, limit, unit, lower=True)
+
+
+def ratio_at_most(
+    name: str, numerator: float, denominator: float, limit: float = 1.0, unit: str = ""
+) -> Check:
+    """numerator / denominator <= limit, stated as `ratio_at_least` states it."""
+    return _ratio(name, numerator, denominator, limit, unit, lower=False)
+
+
+def _ratio(name: str, num: float, den: float, limit: float, unit: str, *, lower: bool) -> Check:
+    """The ratio against its limit, a lower bound (`lower`) or an upper one."""
+    value = num / den if den else math.inf
+    of = f"{num:{RATIO}}{_unit(unit)} / {den:{RATIO}}{_unit(unit)}"
+    op = ">=" if lower else "<="
+    ok = value >= limit if lower else value <= limit
+    return Check(f"{name} ({of})", float(value), f"{op} {limit:{RATIO}}", bool(ok), "", RATIO)
 
 
 def within(name: str, value: float, lo: float, hi: float, unit: str = "") -> Check:

@@ -17,6 +17,7 @@ from app.commission.checks import (
     at_most,
     count_at_least,
     holds,
+    ratio_at_most,
     share_at_most,
 )
 from app.commission.context import Context
@@ -202,6 +203,6 @@ def validation(ctx: Context) -> StepResult:
             len(views) * (1 - cell.commission.max_rejected_fraction),
         ),
         at_most("validation RMSE", error_mm, cell.commission.max_validation_rmse_mm, "mm"),
-        at_most("RMSE, calibrated over nominal", error_mm, nominal_mm, "mm"),
+        ratio_at_most("validation RMSE, calibrated / nominal", error_mm, nominal_mm, unit="mm"),
     ]
     return r

@@ -3,26 +3,59 @@ rewritten from the journal after every step: what was set up, each step's checks
 limits (with their units; shares in per cent with their counts), its figures and files, how
 many times it ran and why it ran again (an earlier run interrupted or failed), and what is left.
 
-Figures are written whole, nested ones as sub-lists or tables. The simulated line's truth
+Figures are written whole, nested ones as sub-lists or tables; figures in millimetres (named
+`..._mm`) to a tenth of a micrometre, as the checks state them. The simulated line's truth
 (results named `truth` or `true_...`: what no real cell can know) is marked "simulation only".
 """
 
 from __future__ import annotations
 
 import json
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
-from app.commission.checks import Check
+from app.commission.checks import MM, Check
 from app.commission.journal import INTERRUPTED, STARTED, Journal, StepRecord
 from app.formats.files import dumps_json, write_text
 
 
 def format_value(c: Check) -> str:
-    """A check's value with its unit, numbers to 4 significant digits."""
+    """A check's value with its unit, numbers as the check says (`Check.fmt`; else to 4
+    significant digits)."""
+    unit = f" {c.unit}" if c.unit else ""
     if isinstance(c.value, float):
-        return f"{c.value:.4g}{' ' + c.unit if c.unit else ''}"
-    return f"{c.value}{' ' + c.unit if c.unit and not isinstance(c.value, bool) else ''}"
+        return f"{c.value:{c.fmt or '.4g'}}{unit}"
+    return f"{c.value}{unit if not isinstance(c.value, bool) else ''}"
+
+
+def limit_of(c: Check) -> str:
+    """A check's limit as the report writes it ("-": a figure stated, not checked)."""
+    return c.limit if c.checked else "-"
+
+
+def check_line(c: Check) -> str:
+    """A check as the console prints it: "ok   name: value (limit)", "FAIL ...", or the
+    figure alone when it is stated, not checked."""
+    if not c.checked:
+        return f"     {c.name}: {format_value(c)}"
+    return f"{'ok  ' if c.ok else 'FAIL'} {c.name}: {format_value(c)} ({c.limit})"
+
+
+def verdict(c: Check) -> str:
+    if not c.checked:
+        return "-"
+    return "yes" if c.ok else "**NO**"
+
+
+def cell(text: str) -> str:
+    """Text in a Markdown table's cell: its "|" escaped ("|PS|" is no column)."""
+    return text.replace("|", "\\|")
+
+
+def check_row(c: Check) -> str:
+    """A check as a row of the report's checks table."""
+    return f"| {cell(c.name)} | {cell(format_value(c))} | {cell(limit_of(c))} | {verdict(c)} |"
 
 
 SIMULATION_ONLY = "simulation only: the simulated cell's truth, unknown on a real cell"
@@ -33,13 +66,14 @@ def simulation_only(key: str) -> bool:
     return key == "truth" or key.startswith("true_")
 
 
-def _scalar(value: Any) -> str:
+def _scalar(value: Any, key: str = "") -> str:
+    """A figure on one line; named `key`: millimetres (`..._mm`) to 0.1 um."""
     if value is None:
         return "-"
     if isinstance(value, float):
-        return f"{value:.6g}"
+        return f"{value:{MM}}" if key.endswith("_mm") else f"{value:.6g}"
     if isinstance(value, list | tuple) and all(not isinstance(v, dict | list) for v in value):
-        return ", ".join(_scalar(v) for v in value)
+        return ", ".join(_scalar(v, key) for v in value)
     if isinstance(value, dict | list | tuple):
         return json.dumps(value, default=str)
     return str(value)
@@ -60,8 +94,8 @@ def _table(rows: list[tuple[str, dict[str, Any]]], first: str) -> list[str]:
     head = ([first] if first else []) + keys
     out = ["", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for name, fields in rows:
-        cells = ([name] if first else []) + [_scalar(fields.get(k)) for k in keys]
-        out.append("| " + " | ".join(cells) + " |")
+        cells = ([name] if first else []) + [_scalar(fields.get(k), k) for k in keys]
+        out.append("| " + " | ".join(map(cell, cells)) + " |")
     return [*out, ""]
 
 
@@ -72,10 +106,10 @@ def _results(results: dict[str, Any]) -> list[str]:
     for key, value in results.items():
         label = f"{key} ({SIMULATION_ONLY})" if simulation_only(key) else key
         if _is_scalar(value):
-            lines.append(f"- {label}: {_scalar(value)}")
+            lines.append(f"- {label}: {_scalar(value, key)}")
         elif isinstance(value, dict) and all(_is_scalar(v) for v in value.values()):
             lines.append(f"- {label}:")
-            lines += [f"  - {k}: {_scalar(v)}" for k, v in value.items()]
+            lines += [f"  - {k}: {_scalar(v, k)}" for k, v in value.items()]
         elif isinstance(value, dict) and all(isinstance(v, dict) for v in value.values()):
             lines.append(f"- {label}:")
             lines += _table([(str(k), v) for k, v in value.items()], "name")
@@ -104,6 +138,20 @@ def _runs(rec: StepRecord) -> str:
     return f"Run {len(rec.earlier) + 1} times: {', '.join(parts)}, then {status_of(rec)}."
 
 
+def _again(journal: Journal) -> str:
+    """ "Run again: calibration (after 1 interrupted run), sensor (after 1 failed run)." ("":
+    every step ran once)."""
+    parts = []
+    for name in journal.procedure.names:
+        rec = journal.steps.get(name)
+        if rec is None or not rec.earlier:
+            continue
+        counts = Counter(e["status"] for e in rec.earlier)
+        runs = ", ".join(f"{n} {status} run{'s' if n > 1 else ''}" for status, n in counts.items())
+        parts.append(f"{name} (after {runs})")
+    return f"Run again: {', '.join(parts)}." if parts else ""
+
+
 def markdown(journal: Journal) -> str:
     proc = journal.procedure
     names, titles = proc.names, proc.titles
@@ -118,6 +166,7 @@ def markdown(journal: Journal) -> str:
         f"**{len(done)} of {len(names)} steps passed**"
         + (f"; {proc.done}." if nxt is None else f"; next: `{nxt}`."),
         "",
+        *([again, ""] if (again := _again(journal)) else []),
         "| # | step | status | checks passed | seconds | runs |",
         "|---|------|--------|---------------|---------|------|",
     ]
@@ -126,9 +175,10 @@ def markdown(journal: Journal) -> str:
         if rec is None:
             lines.append(f"| {i} | {name} | not run | | | |")
             continue
-        ok = sum(c.ok for c in rec.checks)
+        checked = [c for c in rec.checks if c.checked]
+        ok = sum(c.ok for c in checked)
         lines.append(
-            f"| {i} | {name} | {status_of(rec)} | {ok}/{len(rec.checks)} | {rec.seconds:.1f} |"
+            f"| {i} | {name} | {status_of(rec)} | {ok}/{len(checked)} | {rec.seconds:.1f} |"
             f" {len(rec.earlier) + 1} |"
         )
     for i, name in enumerate(names, start=1):
@@ -143,10 +193,7 @@ def markdown(journal: Journal) -> str:
         if rec.earlier:
             lines.append(_runs(rec))
         lines += ["", "| check | value | limit | ok |", "|---|---|---|---|"]
-        lines += [
-            f"| {c.name} | {format_value(c)} | {c.limit} | {'yes' if c.ok else '**NO**'} |"
-            for c in rec.checks
-        ]
+        lines += [check_row(c) for c in rec.checks]
         if rec.results:
             lines += ["", *_results(rec.results)]
         if rec.files:

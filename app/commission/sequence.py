@@ -9,7 +9,7 @@ from datetime import UTC, datetime
 from app.commission.checks import StepResult, holds
 from app.commission.context import Context, Declined
 from app.commission.journal import FAILED, PASSED, Journal, StepRecord
-from app.commission.report import format_value, write_report
+from app.commission.report import check_line, write_report
 from drivers.errors import DeviceError
 
 
@@ -53,8 +53,7 @@ def run_sequence(ctx: Context, journal: Journal) -> str | None:
         journal.finish(record)
         write_report(journal)
         for c in result.checks:
-            mark = "ok  " if c.ok else "FAIL"
-            ctx.say(f"    {mark} {c.name}: {format_value(c)} ({c.limit})")
+            ctx.say(f"    {check_line(c)}")
         ctx.say(f"step {i}/{n} {name}: {status} in {seconds:.1f} s")
         if status == FAILED:
             return name

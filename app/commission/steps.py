@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.commission.checks import Check, StepResult, at_least, at_most, holds
+from app.commission.checks import Check, StepResult, at_least, at_most, holds, ratio_at_least
 from app.commission.context import Context
 from app.commission.files import (
     PLAN_FILE,
@@ -150,8 +150,11 @@ def spheres(ctx: Context) -> StepResult:
     r.results["spheres"] = {}
     for t, m in found.items():
         offset = float(np.linalg.norm(m.point_mm - ctx.cfg.spheres_part_mm[t]))
+        x_mm, y_mm, z_mm = map(float, m.point_mm)
         r.results["spheres"][t] = {
-            "x_mm": m.point_mm.tolist(),
+            "x_mm": x_mm,
+            "y_mm": y_mm,
+            "z_mm": z_mm,
             "rms_mm": m.rms_mm,
             "offset_mm": offset,
         }
@@ -203,7 +206,8 @@ def plan(ctx: Context) -> StepResult:
     }
     r.checks.append(at_least("rank", obs.rank, len(result.settings.active)))
     r.checks.append(at_most("condition", obs.condition, cell.calibration.max_condition))
-    r.checks.append(at_least("O1, planned over random", obs.indices["O1"], rnd.indices["O1"]))
+    o1 = obs.indices["O1"], rnd.indices["O1"]
+    r.checks.append(ratio_at_least("O1, planned / random", *o1))
     counts = {sp.name: len(sp.q_deg) for sp in result.spheres}
     short = [k for k, v in counts.items() if v < n]
     r.checks.append(holds(f"{n} configurations per sphere", not short, ", ".join(short)))

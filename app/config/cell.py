@@ -98,7 +98,11 @@ class SensorSection(Section):
     sphere_radius_mm: float = opt(15.0, gt=0, hi=500)
     # the acceptance test (VDI/VDE 2634-2, vision/acceptance.py): the largest magnitudes of the
     # probing errors form PF and size PS and of the sphere-spacing error SD [mm]; the in-line
-    # chart of PS (app/line/sensor_watch.py) raises the `sensor` alarm beyond max_ps_mm
+    # chart of PS (app/line/sensor_watch.py) raises the `sensor` alarm beyond max_ps_mm. PF, the
+    # guideline's range over ~1e4 points (0.3 % left out), is 7-9.5 times the per-point noise
+    # sigma: 0.15 mm holds a sensor of up to 16-20 um per point (the simulated one 11-16 um,
+    # its PF 0.10-0.115 mm), not one at the speckle floor's upper end (docs/results/
+    # pf-guideline.md)
     max_pf_mm: float = opt(0.15, gt=0, hi=10)
     max_ps_mm: float = opt(0.025, gt=0, hi=10)
     max_sd_mm: float = opt(0.015, gt=0, hi=10)

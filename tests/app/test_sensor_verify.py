@@ -47,15 +47,26 @@ def test_a_sensor_with_a_scale_error_fails_its_acceptance(
     argv = ["sensor", "verify", "--sim", "--yes", "--state-dir", str(commissioned), "--json"]
     assert main([*argv, "--sensor", str(tmp_path / "scaled.toml")]) == 3
     doc = json.loads(capsys.readouterr().out)
-    failed = {c["name"] for c in doc["checks"] if not c["ok"]}
-    assert failed == {"probing error size |PS|"}
+    failed = [c["name"] for c in doc["checks"] if not c["ok"]]
+    assert len(failed) == 1 and failed[0].startswith("probing error size |PS|, the largest of 9")
     assert doc["results"]["ps_mm"] < -0.015  # the sphere measured smaller
     # SD stated with the robot's share of it, the limit widened by that share
     results = doc["results"]
     assert results["robot_repeatability_mm"] == 0.07
     assert 0.05 < results["sd_robot_mm"] < 0.2
-    (sd,) = (c for c in doc["checks"] if c["name"] == "sphere-spacing error |SD|")
-    assert sd["limit"] == f"<= {0.015 + results['sd_robot_mm']:g} mm"
+    (sd,) = (c for c in doc["checks"] if c["name"].startswith("sphere-spacing error |SD|"))
+    share = results["sd_robot_mm"]
+    assert sd["limit"] == f"<= {0.015 + share:.4f} mm (0.0150 + the robot's share {share:.4f})"
+    # the worst pair named, every pair's SD and every position's PF and PS in the results; PF
+    # leaves out at most VDI/VDE 2634-2's 0.3 % of a sweep's points
+    (a, b) = max(results["pairs"], key=lambda p: abs(p["sd_mm"]))["pair"].split(" - ")
+    assert (
+        sd["name"].endswith(f"the largest of 36 pairs ({a} - {b})") and len(results["pairs"]) == 36
+    )
+    positions = results["positions"]
+    assert [p["position"] for p in positions][:3] == ["centre", "left", "right"]
+    assert all(0 < p["pf_left_out"] <= 0.003 * p["points"] for p in positions)
+    assert max(p["pf_mm"] for p in positions) == results["pf_mm"]
     assert (StateDir(commissioned).root / "verify" / "acceptance.csv").is_file()
 
 

@@ -82,3 +82,24 @@ def test_spacing_errors_of_exact_centres_are_zero_and_see_a_scale() -> None:
     np.testing.assert_allclose(sd_scaled, 0.001 * d, atol=1e-6)
     with pytest.raises(ValueError, match="3 centres but 5 poses"):
         spacing_errors(c[:3], T)
+
+
+def test_the_figures_are_the_worst_position_or_pair_and_say_so() -> None:
+    """PF is the largest of the positions' ranges (written without a sign, its limit without
+    "+-"), PS the largest |PS| and SD the largest |SD| of the pairs; `worst` finds them."""
+    pairs = np.column_stack(np.triu_indices(4, k=1)).astype(np.intp)
+    acc = Acceptance(
+        np.array([0.08, 0.11, 0.09, 0.1]),
+        np.array([0.004, -0.012, 0.01, 0.0]),
+        np.array([0.002, -0.003, 0.001, 0.009, -0.004, 0.0]),
+        pairs,
+        AcceptanceLimits(0.15, 0.025, 0.015),
+    )
+    assert [acc.worst(k) for k in ("PF", "PS", "SD")] == [1, 1, 3]
+    assert tuple(acc.pairs[acc.worst("SD")]) == (1, 2)
+    assert acc.figures == {"PF": 0.11, "PS": -0.012, "SD": 0.009}
+    assert acc.message == (
+        "PF 110.0 um, the largest of 4 positions' ranges, within 150.0 um; "
+        "PS -12.0 um, the largest |PS| of 4 positions, within +-25.0 um; "
+        "SD +9.0 um, the largest |SD| of 6 pairs, within +-15.0 um"
+    )

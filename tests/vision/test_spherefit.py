@@ -1,12 +1,20 @@
-"""Sphere fit: algebraic start, robust geometric refinement, quality thresholds."""
+"""Sphere fit: algebraic start, robust geometric refinement, quality thresholds; the probing
+error form PF as VDI/VDE 2634-2 computes it (least squares, at most 0.3 % of points left out)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+import scipy.optimize
 
 from vision.errors import SphereFitRejected, TooFewPoints
-from vision.spherefit import fit_sphere, fit_sphere_geometric, fit_sphere_pratt
+from vision.spherefit import (
+    FORM_MAX_OUTLIER_SHARE,
+    fit_sphere,
+    fit_sphere_geometric,
+    fit_sphere_pratt,
+    form_error,
+)
 
 C_TRUE = np.array([1.0, -2.0, 130.0])
 
@@ -95,3 +103,49 @@ def test_stopping_at_a_tenth_of_a_nanometre_changes_nothing_measurable(
     full = fit_sphere_geometric(X, c0, 15.0, fixed_radius=fixed_radius, tol_mm=1e-12, max_iter=200)
     assert np.max(np.abs(fast[0] - full[0])) < 1e-5 and abs(fast[1] - full[1]) < 1e-5
     assert fast[4] < full[4]
+
+
+def _with_ghosts(rng: np.random.Generator, share: float, offset_mm: float) -> np.ndarray:
+    """A cap with 20 um noise whose `share` of points (chosen at random) stand offset_mm
+    outside the sphere (a ghost stripe's points)."""
+    X = _cap(rng, 50.0, noise_mm=0.02)
+    ghost = rng.permutation(len(X))[: round(share * len(X))]
+    X[ghost] += offset_mm * (X[ghost] - C_TRUE) / 15.0
+    return X
+
+
+def test_pf_counts_every_point_beyond_the_guidelines_0_3_percent(
+    rng: np.random.Generator,
+) -> None:
+    """1 % of the points 0.3 mm off: the guideline leaves out 0.3 % (12 of 4000), so PF sees
+    the rest of them; the robust fit's centre still ignores them (a different fact)."""
+    X = _with_ghosts(rng, 0.01, 0.3)
+    fit = fit_sphere(X, 15.0)
+    assert fit.quality.form_outliers == int(FORM_MAX_OUTLIER_SHARE * len(X)) == 12
+    assert fit.quality.form_mm > 0.3  # the ghosts counted: not the noise's range (~0.15)
+    assert np.linalg.norm(fit.centre_mm - C_TRUE) < 0.005
+
+
+def test_pf_leaves_out_fewer_outliers_than_the_guideline_allows(
+    rng: np.random.Generator,
+) -> None:
+    """0.2 % of the points 1 mm off are all left out: PF is the noise's range."""
+    X = _with_ghosts(rng, 0.002, 1.0)
+    pf, left_out = form_error(X, C_TRUE, 15.0)
+    assert left_out == 12 and 0.1 < pf < 0.2
+
+
+def test_pf_is_the_range_from_the_plain_least_squares_sphere(rng: np.random.Generator) -> None:
+    """With no point left out, PF is the range of the residuals from the least-squares sphere
+    with free radius (scipy's, linear loss), not from the robust fit's sphere."""
+    X = _with_ghosts(rng, 0.05, 0.3)
+
+    def radial(p: np.ndarray) -> np.ndarray:
+        return np.asarray(np.linalg.norm(X - p[:3], axis=1) - p[3])
+
+    ls = scipy.optimize.least_squares(radial, [*C_TRUE, 15.0], xtol=1e-12, ftol=1e-12)
+    pf, left_out = form_error(X, C_TRUE, 15.0, max_outlier_share=0.0)
+    r = radial(ls.x)
+    assert left_out == 0 and pf == pytest.approx(float(r.max() - r.min()), abs=1e-6)
+    robust = fit_sphere(X, 15.0)
+    assert np.linalg.norm(robust.centre_mm - ls.x[:3]) > 0.002  # the two spheres differ
