@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from calib import ik
+from calib.ik_refine import refine
 from calib.model import SystemModel
 from calib.transforms import apply, inverse, pose
 
@@ -85,7 +86,8 @@ def random_configurations(
     max_tries: int = 200,
 ) -> ViewSample:
     """n random reachable configurations that see the sphere: random downward view, roll and
-    offset in the field of view, one IK branch picked at random. Fewer when unreachable."""
+    offset in the field of view, one IK branch picked at random, refined on the model x
+    (`calib.ik_refine`). Fewer when unreachable."""
     qs: list[F64] = []
     cs: list[F64] = []
     for _ in range(max_tries):
@@ -96,12 +98,19 @@ def random_configurations(
         R = look_rotations(views, rng.uniform(-np.pi, np.pi, k))
         c = rng.uniform(-1.0, 1.0, (k, 3)) * np.asarray(max_offset_mm)
         c[:, 2] += IDEAL_STANDOFF_MM
-        sols = ik.solve(flange_poses(model, x, p_part_mm, R, c), model.limits)
+        F = flange_poses(model, x, p_part_mm, R, c)
+        sols = ik.solve(F, model.limits)
         for i in rng.permutation(k):
             options = sols.for_pose(int(i))
             if len(options) and len(qs) < n:
-                qs.append(options[rng.integers(len(options))])
-                cs.append(c[i])
+                q = options[rng.integers(len(options))]
+                # the closed form is the nominal robot's: refined on x (its joint zeros, its
+                # links), or a cell with a zero a degree off sees the sphere centimetres away
+                target = model.T_part_base(x) @ F[i] @ model.T_flange_sensor(x)
+                fit = refine(model, x, target, q[None], max_iter=10)
+                if fit.converged[0]:
+                    qs.append(fit.q_deg[0])
+                    cs.append(c[i])
     return ViewSample(np.array(qs).reshape(-1, 6), np.array(cs).reshape(-1, 3))
 
 

@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
         from app.commission.journal import Journal
         from app.maintain.table import procedure
 
-        folder, record = _folder(state, event, args, axis, say)
+        folder, record = _folder(state, event, args, axis, say, _now(args.sim, state))
         journal = Journal(folder, setup, procedure(args.event, axis))
         if journal.next_step() is None:
             say(f"handed back already: {folder}")
@@ -93,7 +93,18 @@ def _axis(args: argparse.Namespace) -> int | None:
     return None
 
 
-def _folder(state: Any, event: str, args: argparse.Namespace, axis: int | None, say: Any) -> Any:
+def _now(sim: bool, state: Any) -> float:
+    """The time now: the wall clock's, or the simulated line's continued past its history."""
+    if not sim:
+        return datetime.now(UTC).timestamp()
+    from app.sim.line_run import continued_epoch
+
+    return continued_epoch(state.root)[0]
+
+
+def _folder(
+    state: Any, event: str, args: argparse.Namespace, axis: int | None, say: Any, t: float
+) -> Any:
     """The procedure's folder and its maintenance record: the one of this event still
     running (continued), else a new one (`--restart`: a new one in any case)."""
     from app.line.params_store import ParamsStore
@@ -110,7 +121,7 @@ def _folder(state: Any, event: str, args: argparse.Namespace, axis: int | None, 
         version = ParamsStore(state.root).current_version()
         record = store.start_maintenance(
             {
-                "t_start": datetime.now(UTC).timestamp(),
+                "t_start": t,
                 "event": args.event,
                 "axis": axis,
                 "who": getpass.getuser(),
@@ -153,6 +164,7 @@ def _context(
     from app.commission.capture import CameraCapture
     from app.line.station import Station, cell_guard
     from app.maintain.steps import MaintenanceContext
+    from drivers.clock import RealClock
     from drivers.errors import DeviceConfigError, DeviceError
 
     sim = None
@@ -161,11 +173,16 @@ def _context(
         from app.sim.commission import SimCommissioning
         from app.sim.line_run import continued_epoch, with_simulated_plc
 
-        _, world_s = continued_epoch(state.root)
+        epoch, world_s = continued_epoch(state.root)
         geometric = bool(cfg.simulation.geometric)
         sim = stack.enter_context(
             SimCommissioning(
-                cfg, setup["seed"], geometric=geometric, waiting=say_waiting, world_s=world_s
+                cfg,
+                setup["seed"],
+                geometric=geometric,
+                waiting=say_waiting,
+                world_s=world_s,
+                start_epoch=epoch,
             )
         )
         urls = sim.urls
@@ -197,6 +214,7 @@ def _context(
         truth=sim,
         placement=sim,
         out_dir=folder,
+        clock=sim.line.clock if sim is not None else RealClock(),
         event=args.event,
         axis=axis,
         record_id=record,

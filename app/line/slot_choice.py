@@ -84,7 +84,7 @@ class SlotChoice:
         step's windows (measured: 404 rejected of 430 in a shift, the step never decided). The
         first time a view is left out a `view_lost` alarm names it and what fixes it."""
         svc = self.svc
-        lost = lost_views(svc.store)
+        lost = lost_views(svc.store, svc.views_since_id)
         if not lost:
             return slots
         new = sorted(set(lost) - self._views_lost)
@@ -117,6 +117,7 @@ class SlotChoice:
         return step.status != StepStatus.CORRECTED or self.svc.rolling_set() is None
 
 
-def lost_views(store: Store) -> set[int]:
-    """The schedule's slots rejected VIEW_LOST_TRIES times in a row (`SlotChoice._seen`)."""
-    return set(store.rejected_in_a_row(VIEW_LOST_TRIES))
+def lost_views(store: Store, since_id: int = 0) -> set[int]:
+    """The schedule's slots rejected VIEW_LOST_TRIES times in a row after measurement
+    `since_id` (`SlotChoice._seen`)."""
+    return set(store.rejected_in_a_row(VIEW_LOST_TRIES, since_id=since_id))

@@ -15,12 +15,15 @@ from __future__ import annotations
 import logging
 
 from app.line.accuracy import ACCURACY_GROUP, VOUCHED, evidence, statement
+from app.line.beyond_knock import BLIND_WINDOWS, blind_text
+from app.line.cycle import WindowReport
 from app.line.decisions import Decisions
 from app.line.faults import Faults
 from app.line.host import LineHost
 from app.line.operator import Operator
 from app.line.states import AlarmCode, State, suspect_json
 from app.line.status import alarm_event
+from app.line.step import StepStatus
 from app.line.step_handler import StepHandler
 from app.line.store import StorageError
 from app.line.versions import suspect_open
@@ -45,6 +48,7 @@ class WindowLoop:
         self.operator, self.faults, self.steps, self.decisions = operator, faults, steps, decisions
         self._retention_t = -float("inf")
         self._temperature_bad: bool | None = None  # known after the first poll
+        self._blind: list[tuple[int, int]] = []  # windows seeing no sphere: (first id, rejected)
 
     def step(self) -> None:
         """One pass of the loop (a storage failure: FAULT, then a poll's wait)."""
@@ -86,12 +90,14 @@ class WindowLoop:
         svc.set_state(State.MEASURING)
         n = svc.counters["windows"] + 1
         t_open = svc.clock.time()  # within a poll of the window's rising edge
+        first_id = svc.store.last_measurement_id() + 1  # the window's first measurement
         try:
             report = svc.cycle.run_window(n)
         except DeviceError as exc:
             self.faults.device_fault(exc)
             return
         svc.counters["windows"] = n
+        self._watch_blind(report, first_id)
         svc.counters["overruns"] += report.overrun
         svc.counters["withdrawn"] += bool(report.withdrawn)
         self._state_accuracy(t_open)
@@ -111,6 +117,31 @@ class WindowLoop:
         self._between_windows()
         if svc.after_window is not None:
             svc.after_window()
+
+    def _watch_blind(self, report: WindowReport, first_id: int) -> None:
+        """Windows in a row whose every view was rejected: at BLIND_WINDOWS, a change far
+        beyond a knock (app.line.beyond_knock): the step's suspect interval from the first
+        of them, the cell held for maintenance."""
+        svc = self.svc
+        if report.measured or not report.rejected:
+            if report.measured:
+                self._blind = []
+            return
+        self._blind.append((first_id, report.rejected))
+        if len(self._blind) < BLIND_WINDOWS or svc.state == State.FAULT:
+            return
+        onset_id = self._blind[0][0]
+        step = svc.step
+        if step is None or (step.status != StepStatus.PROBATION and not suspect_open(svc)):
+            svc.step = None  # a step over (or none): this change is a new one
+            self.steps.open_step(onset_id, onset_id, attribute=False)
+        elif step.suspect_id is None:  # on probation: its interval opens now
+            self.steps.open_suspect(step)
+        step = svc.step
+        assert step is not None
+        step.move(StepStatus.MAINTENANCE)
+        svc.save_state()
+        svc.maintenance_needed(blind_text(len(self._blind), sum(n for _, n in self._blind)))
 
     def _state_accuracy(self, t_open: float) -> None:
         """After a window: the U95 of a point measured now from the evidence (app.line.accuracy),

@@ -226,11 +226,11 @@ def _solve_zero(ctx: Context, model: Any, x: F64, q_deg: F64, c_mm: F64, target:
 
 
 def _with_x(doc: dict[str, Any], model: Any, x: F64, what: str) -> dict[str, Any]:
-    """The document `doc` with the parameter vector x (its names' values replaced)."""
+    """A parameters document of x (the version in force's `doc` with x in place)."""
     from app.formats.params import plain_document
 
     out = plain_document(model, x, f"rvis maintain ({what})")
-    return {**doc, "parameters": out["parameters"], "source": out["source"]}
+    return {**out, "calibration_temp_c": doc.get("calibration_temp_c")}
 
 
 # -- the changed group, identified ---------------------------------------------------------
@@ -248,7 +248,9 @@ def reidentify(ctx: Context) -> StepResult:
     views = Views.of_plan(ctx)
     q, ok = _aimed(ctx, views, x_start)
     r = StepResult()
-    r.checks.append(count_at_least("views re-aimed", int(ok.sum()), len(ok), len(ok)))
+    limit = cell.commission.max_rejected_fraction
+    n_all = len(ok)
+    r.checks.append(count_at_least("views re-aimed", int(ok.sum()), n_all, n_all * (1 - limit)))
     sensor = ctx.sphere_sensor(ctx.sensor_model())
     todo = [k for k in range(len(ok)) if ok[k]]
     taken = Taken()
@@ -277,7 +279,6 @@ def reidentify(ctx: Context) -> StepResult:
         todo = [k for k in missed if ok[k]]
     taken.write(ctx.path(MAINTENANCE_MEASUREMENTS_FILE))
     r.files.append(MAINTENANCE_MEASUREMENTS_FILE)
-    limit = cell.commission.max_rejected_fraction
     seen, n_views = len(taken.targets), int(ok.sum())
     r.checks.append(count_at_least("views seen", seen, n_views, n_views * (1 - limit)))
     e = model.points_part(x_new, data.q_deg, data.c_sensor_mm, temp_c=data.temp_c)

@@ -23,9 +23,9 @@ from app.commission.context import Context
 from app.config import CellConfig
 from app.config.line import SweepSettings
 from app.formats.sweeps import write_image, write_sweep
-from app.line.measure import GeometricSensor, SphereSensor, SweepSensor
+from app.line.measure import SphereSensor, SweepSensor
 from app.sim.cell import make_cell
-from app.sim.line_run import simline_settings, true_rmse_mm
+from app.sim.line_run import geometric_sensor, simline_settings, true_rmse_mm
 from app.sim.truth import EndToEndTruth
 from fakes.line import SimLine
 from fakes.render_targets import render_calibration_set
@@ -45,12 +45,15 @@ class SimCommissioning:
         geometric: bool,
         waiting: Callable[[str], None] | None = None,
         world_s: float | None = None,
+        start_epoch: float | None = None,
     ) -> None:
         """waiting: told in one line, at once, when the simulated camera must wait for another
         simulation's (which it then does for as long as that one runs). world_s: the world's
         time when a maintenance procedure runs on a commissioned cell (`rvis maintain --sim`):
         the world as the line left it (warm, knocked, its maintenance event happened: the
-        cell file's [simline]); None: a commissioning's steady, cold cell."""
+        cell file's [simline]); None: a commissioning's steady, cold cell. start_epoch: the
+        Unix time its clock starts at (default now; a procedure on a directory whose simulated
+        line ran ahead of the wall clock continues after it: `continued_epoch`)."""
         self.cfg, self.seed, self.geometric = cfg, seed, geometric
         self.cell = make_cell(cfg, seed=seed)
         # the line of `rvis run --sim`, steady, with its camera either way; on a scaled wall
@@ -61,7 +64,7 @@ class SimCommissioning:
         if world_s is None:
             settings = replace(settings, warmup=None, knock=None, maintenance=None)
         else:
-            settings = replace(settings, world_s=world_s)
+            settings = replace(settings, world_s=world_s, start_epoch=start_epoch)
         if waiting is not None:
             settings = replace(settings, camera_wait_s=None, camera_on_wait=waiting)
         self.line = SimLine(self.cell, settings)
@@ -85,7 +88,7 @@ class SimCommissioning:
     def sphere_sensor(self, model: SensorModel) -> SphereSensor:
         """The geometric sensor of fast runs, or the real sweep through camera and galvo."""
         if self.geometric:
-            return GeometricSensor(self.line.geometric_centre)
+            return geometric_sensor(self.line)
         assert self.station is not None and self.station.camera is not None
         return SweepSensor(self.station.camera, self.station.galvo, model, self._sweep())
 

@@ -141,6 +141,20 @@ def maintenance_of(cfg: CellConfig) -> Maintenance | None:
     )
 
 
+def geometric_sensor(line: SimLine, sweep_s: float = 0.0) -> GeometricSensor:
+    """The simulated line's geometric sensor: the true centre plus the sensor's noise; out of
+    the sensor's view (a knocked sensor, a moved sphere) a rejected measurement, as the
+    rendered path's vision checks reject it."""
+
+    def centre(target: str) -> Any:
+        try:
+            return line.geometric_centre(target, sweep_s)
+        except NotVisible as exc:
+            raise Rejected(f"NotVisible: {exc}") from exc
+
+    return GeometricSensor(centre, sweep_s)
+
+
 class _Held(Exception):
     """The service holds the cell for maintenance: no window will come."""
 
@@ -387,17 +401,7 @@ class SimulatedLineRun:
         self._stack.callback(station.close)
         sensor: SphereSensor
         if self.geometric:
-            sweep_s = self.settings.sweep.duration_s
-
-            def centre(target: str) -> Any:
-                """The geometric centre; out of the sensor's view (a knocked sensor) it is a
-                rejected measurement, as the rendered path's vision checks reject it."""
-                try:
-                    return line.geometric_centre(target, sweep_s)
-                except NotVisible as exc:
-                    raise Rejected(f"NotVisible: {exc}") from exc
-
-            sensor = GeometricSensor(centre, sweep_s)
+            sensor = geometric_sensor(line, self.settings.sweep.duration_s)
         else:
             assert station.camera is not None and station.galvo is not None
             assert self.sensor_model is not None
