@@ -34,6 +34,7 @@ EXPERIMENTS: dict[str, str] = {
     "accuracy": "the rigid vs the compliance-aware model against the noise floor",
     "compensation": "nominal vs compensated pose error of the true robot",
     "shift": "a compressed shift of the in-line service with warm-up and a knock",
+    "maintenance": "a maintenance event (sensor, axis, fixture) and its procedure, end to end",
 }
 
 
@@ -63,6 +64,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--views-per-sphere", type=int, default=10, help="random calibration views per sphere (10)"
     )
     _shift_options(parsers["shift"])
+    _maintenance_options(parsers["maintenance"])
     for e in parsers.values():
         e.set_defaults(func=run)
 
@@ -138,6 +140,43 @@ def _knock_hours(args: argparse.Namespace) -> list[tuple[float, float]]:
     return out
 
 
+def _maintenance_options(g: argparse.ArgumentParser) -> None:
+    g.add_argument("--event", choices=("sensor", "axis", "fixture"), required=True)
+    g.add_argument("--axis", type=int_at_least(1), default=3, help="--event axis: which (3)")
+    g.add_argument("--seed", type=int_at_least(0), default=0, help="the cell's seed (0)")
+    g.add_argument("--at-h", type=float, default=1.5, help="the event's hour of world time (1.5)")
+    g.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")
+    g.add_argument("--out", required=True, help="output folder (a new one)")
+
+
+def run_maintenance_experiment(args: argparse.Namespace) -> int:
+    """`rvis experiment maintenance` (app/sim/maintenance.py): DIR/maintenance.json."""
+    from app.formats.jsontext import dumps_json
+    from app.sim.maintenance import MaintenanceRun, run_maintenance, write_rows
+
+    if args.axis > 6:
+        raise InputError("the axis is 1..6", field="--axis")
+    if not (math.isfinite(args.at_h) and args.at_h > 0):
+        raise InputError("the event's hour must be > 0", field="--at-h")
+    out = Path(args.out)
+    if out.exists() and any(out.iterdir()):
+        raise InputError("the output folder is not empty", file=out)
+    out.mkdir(parents=True, exist_ok=True)
+    cfg = load_cell(args.cell)
+    run = MaintenanceRun(args.event, args.seed, axis=args.axis, at_s=3600.0 * args.at_h)
+    row = run_maintenance(cfg, out, run)
+    path = write_rows(out, [row])
+    keys = (
+        "event", "event_window", "detected_after_windows", "suspect_from_window",
+        "bodies_after_event_suspect", "procedure_passed", "procedure_robot_s",
+        "commissioning_robot_s", "validation_before_mm", "validation_after_mm",
+        "truth_before_mm", "truth_unchanged_mm", "truth_after_mm",
+    )  # fmt: skip
+    print(dumps_json({k: row[k] for k in keys}, indent=2))
+    print(f"written {path}")
+    return 0
+
+
 def _shift_options(g: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--hours",
@@ -208,6 +247,8 @@ def run(args: argparse.Namespace) -> int:
         return run_shift_experiment(args)
     if args.name == "paper-compare":
         return run_paper_compare(args.runs)
+    if args.name == "maintenance":
+        return run_maintenance_experiment(args)
     cfg = load_cell(args.cell)
     out = Path(args.out or f"runs/experiment-{time.strftime('%Y%m%d-%H%M%S')}")
     if args.name == "accuracy":

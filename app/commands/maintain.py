@@ -12,7 +12,6 @@ checks, 1 when the engineer stopped it, 2 on bad input.
 from __future__ import annotations
 
 import argparse
-import getpass
 import sys
 from contextlib import ExitStack
 from datetime import UTC, datetime
@@ -66,15 +65,16 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_cell(args.cell or paths.cell)
     say = _printer(sys.stderr if args.json else sys.stdout)
     confirm = _confirmation(args.yes, say)
-    event = f"axis{axis}" if axis else args.event
     setup: dict[str, Any] = {"event": args.event, "axis": axis, "simulated": args.sim}
     if args.sim:
         setup["seed"] = sim_seed(args.seed, cfg, paths.cell)
     with hold_state(state_dir, str(cfg.service.operators_group)) as state, ExitStack() as stack:
         from app.commission.journal import Journal
+        from app.maintain.record import open_record
         from app.maintain.table import procedure
 
-        folder, record = _folder(state, event, args, axis, say, _now(args.sim, state))
+        t = _now(args.sim, state)
+        folder, record = open_record(state, args.event, axis, restart=args.restart, t=t, say=say)
         journal = Journal(folder, setup, procedure(args.event, axis))
         if journal.next_step() is None:
             say(f"handed back already: {folder}")
@@ -100,50 +100,6 @@ def _now(sim: bool, state: Any) -> float:
     from app.sim.line_run import continued_epoch
 
     return continued_epoch(state.root)[0]
-
-
-def _folder(
-    state: Any, event: str, args: argparse.Namespace, axis: int | None, say: Any, t: float
-) -> Any:
-    """The procedure's folder and its maintenance record: the one of this event still
-    running (continued), else a new one (`--restart`: a new one in any case)."""
-    from app.line.params_store import ParamsStore
-    from app.line.store import Store
-
-    store = Store(state.db)
-    try:
-        records = store.maintenance()
-        running = [r for r in records if r["status"] == "running" and r["event"] == args.event]
-        running = [r for r in running if r["axis"] == axis]
-        if running and not args.restart:
-            return state.root / running[-1]["folder"], int(running[-1]["id"])
-        folder = state.maintenance_folder(len(records) + 1, event)
-        version = ParamsStore(state.root).current_version()
-        record = store.start_maintenance(
-            {
-                "t_start": t,
-                "event": args.event,
-                "axis": axis,
-                "who": getpass.getuser(),
-                "folder": str(folder.relative_to(state.root)),
-                "version_before": version,
-                "before": _before(state),
-            }
-        )
-        say(f"maintenance record {record}: {folder}")
-        return folder, record
-    finally:
-        store.close()
-
-
-def _before(state: Any) -> dict[str, Any]:
-    """The figures before: the version in force and its workspace validation's RMS."""
-    from app.line.params_store import ParamsStore
-
-    doc = ParamsStore(state.root).current_document() or {}
-    errors = (doc.get("validation") or {}).get("errors_mm") or []
-    rms = (sum(e * e for e in errors) / len(errors)) ** 0.5 if errors else None
-    return {"version": doc.get("history_version"), "validation_rmse_mm": rms}
 
 
 def _context(

@@ -80,11 +80,18 @@ class Taken:
 
 
 def measure_views(
-    ctx: Context, views: list[tuple[str, F64]], sensor: SphereSensor, what: str
+    ctx: Context,
+    views: list[tuple[str, F64]],
+    sensor: SphereSensor,
+    what: str,
+    *,
+    via_home: bool = True,
 ) -> Taken:
-    """Each (sphere, q_deg) from home and back home; the PLC's cell temperature with each (when
-    the cell file says the PLC provides it, and plausible: app.line.cycle.cell_temperature).
-    A robot left away from home (a commissioning killed mid-step) goes home first."""
+    """Each (sphere, q_deg) from home and back home (`via_home`; else from view to view, home
+    at the end: the line stopped for maintenance has no clamping cycle to clear); the PLC's
+    cell temperature with each (when the cell file says the PLC provides it, and plausible:
+    app.line.cycle.cell_temperature). A robot left away from home (a commissioning killed
+    mid-step) goes home first."""
     taken = Taken()
     ctx.home()
     for k, (target, q) in enumerate(views, start=1):
@@ -105,7 +112,9 @@ def measure_views(
                 taken.notes.append(why)
                 ctx.say(f"    no cell temperature: {why}")
             taken.temp_c.append(temp_c)
-        ctx.home()
+        if via_home:
+            ctx.home()
+    ctx.home()
     return taken
 
 

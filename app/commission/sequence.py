@@ -31,7 +31,7 @@ def run_sequence(ctx: Context, journal: Journal) -> str | None:
         if ctx.truth is not None:  # the simulated line: its camera's noise draw (app/sim)
             failed = sum(e["status"] == FAILED for e in journal.steps[name].earlier)
             ctx.truth.step_started(name, failed)
-        t0 = time.monotonic()
+        t0, robot0 = time.monotonic(), ctx.robot_s
         try:
             result = step.run(ctx)
         except DeviceError as exc:  # a device failed mid-step: recorded, the step runs again
@@ -40,6 +40,8 @@ def run_sequence(ctx: Context, journal: Journal) -> str | None:
             journal.abandon(name)
             raise
         seconds = time.monotonic() - t0
+        if ctx.robot_s > robot0:  # the robot's time in the step (its motions and sweeps)
+            result.results["robot_s"] = round(ctx.robot_s - robot0, 3)
         status = PASSED if result.passed else FAILED
         record = StepRecord(
             name,

@@ -13,6 +13,8 @@ calibration's own spheres again and is labelled as such.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -57,10 +59,13 @@ def rms_interval(d_mm: F64, rng: np.random.Generator, n_boot: int = 2000) -> tup
     return float(lo), float(hi)
 
 
-def workspace_validation(ctx: Context) -> StepResult:
-    """Place, track and measure the validation sphere at each workspace position."""
+def workspace_validation(ctx: Context, positions: int | None = None) -> StepResult:
+    """Place, track and measure the validation sphere at each workspace position (`[commission]
+    workspace_positions`, or `positions`)."""
     cell = ctx.cell()
     c = cell.commission
+    if positions is not None:
+        c = dataclasses.replace(c, workspace_positions=positions)
     model, x = from_json(ctx.path(PARAMS_FILE))
     rigid = cell.model()
     x_rigid = x[: len(rigid.nominal_x())]

@@ -105,6 +105,11 @@ class CommissionSection(Section):
     # workspace positions, each measured by the tracker (target `validation_target`) and by
     # rvis from a view the calibration did not use; its RMS error held to max_workspace_rmse_mm
     workspace_positions: int = opt(20, lo=3, hi=1000)
+    # `rvis maintain` (app/maintain/): the same validation at fewer positions (its RMS known
+    # to about +-20 % at 95 % from 10: the robot time of a procedure a third of a
+    # commissioning's), and the plan's views per sphere the changed group is identified on
+    maintenance_positions: int = opt(10, lo=3, hi=1000)
+    maintenance_views_per_sphere: int = opt(3, lo=1, hi=100)
     validation_target: str = opt("VAL")
     max_workspace_rmse_mm: float = opt(0.2, gt=0, hi=100)
     # the plant's tolerance T of the body features measured (0: not given): the report states

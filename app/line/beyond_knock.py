@@ -14,8 +14,8 @@ give. So:
 
 - a step attributed and seen larger than `[service] maintenance_step_mm` at the measured
   spheres (noise removed, `visible_step_mm`), or
-- `BLIND_WINDOWS` windows in a row in which every view was rejected (no sphere seen where the
-  parameters put it: too far for any attribution)
+- `BLIND_WINDOWS` windows in a row in which no view saw its sphere where the parameters put
+  it (each rejected, or off by more than the bound: too far, or too few, for an attribution)
 
 hold the cell in FAULT with the `maintenance` alarm (a fault code: the PLC's fault bit is set,
 bodies are not measured with this cell), the step's suspect interval open from its last
@@ -92,7 +92,8 @@ def step_text(a: Attribution, visible_mm: float, bound_mm: float) -> str:
 def blind_text(windows: int, rejected: int) -> str:
     """The `maintenance` alarm's text when no view sees its sphere any more."""
     return (
-        f"no sphere seen in {windows} windows in a row ({rejected} views rejected): the"
+        f"no sphere seen where the parameters put it in {windows} windows in a row ({rejected}"
+        " views rejected or off by more than a knock): the"
         " spheres are more than the measuring volume from where the parameters put them, a"
         " change far beyond a knock (an axis's motor or encoder replaced, a sensor replaced,"
         " the fixture moved); bodies are not measured with this cell: run the maintenance"

@@ -76,6 +76,7 @@ class Decisions:
         if svc.recalibrator.busy or svc.pending_calibration is not None or not self._recal_due():
             return
         since = 0 if svc.drift_onset_id is None else svc.drift_onset_id - 1
+        since = max(since, svc.maintained_from_id - 1)  # none of the cell before a maintenance
         attempt = (self._good_rows, since)
         if attempt == self._incomplete:
             return  # no good measurement since the rolling set was found incomplete
@@ -119,6 +120,7 @@ class Decisions:
         after the step's change point when one is flagged (None: not complete yet)."""
         svc = self.svc
         since = 0 if svc.drift_onset_id is None else svc.drift_onset_id - 1
+        since = max(since, svc.maintained_from_id - 1)  # none of the cell before a maintenance
         r = svc.settings.recalib
         if svc.step is not None and svc.step.status == StepStatus.SEVERAL:
             # no single group to correct: the cell waits for this calibration, on a schedule
@@ -130,7 +132,7 @@ class Decisions:
         )
         # the views left out (app.line.slot_choice) are not waited for: a set without them is
         # complete
-        lost = lost_views(svc.store)
+        lost = lost_views(svc.store, svc.maintained_from_id - 1)
         slots = [x for x in svc.schedule.slots if x.index not in lost] or svc.schedule.slots
         n_slots = len(slots)
         if svc.step is not None and svc.step.status in (

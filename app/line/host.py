@@ -88,7 +88,7 @@ class LineHost(Protocol):
     last_visit: dict[int, tuple[F64, F64]]  # slot -> (q_deg, c_sensor_mm)
     visit_ids: dict[int, int]  # slot -> the measurement id of its last visit
     change_from_id: int
-    views_since_id: int  # the views' rejections counted after this measurement
+    maintained_from_id: int  # the first measurement after a maintenance's hand-over (0: none)
     step: Step | None
     u_seed: list[float]
     accuracy: Accuracy | None

@@ -171,7 +171,9 @@ class Service:
         self.u_seed: list[float] = []
         self.accuracy: Accuracy | None = None
         self.accuracy_suspect_id: int | None = None
-        self.views_since_id = 0  # the views' rejections counted after this measurement
+        # the measurements before this id were of the cell before a maintenance procedure: its
+        # rolling sets and its views' rejections count from here (0: none)
+        self.maintained_from_id = 0
         self.new_since_recal = 0
         self.force_recal = False
         self.recal_ids: dict[str, list[int]] | None = None  # the calibration in flight
@@ -244,7 +246,7 @@ class Service:
             "u_seed": self.u_seed,
             "accuracy_suspect_id": self.accuracy_suspect_id,
             "accuracy": None if self.accuracy is None else self.accuracy.to_json(),
-            "views_since_id": self.views_since_id,
+            "maintained_from_id": self.maintained_from_id,
         }
 
     def save_state(self) -> None:
@@ -282,7 +284,7 @@ class Service:
             self.accuracy = Accuracy(
                 acc["u95_mm"], int(acc["n"]), str(acc["basis"]), float(acc["limit_mm"])
             )
-        self.views_since_id = int(doc.get("views_since_id", 0))
+        self.maintained_from_id = int(doc.get("maintained_from_id", 0))
         if doc["params_version"] != self.version and self._handed_over():
             self._after_maintenance()
 
@@ -306,7 +308,7 @@ class Service:
         self.step, self.drift_onset_id, self.drift_due = None, None, False
         self.last_visit, self.visit_ids = {}, {}
         last_id = self.store.last_measurement_id()
-        self.change_from_id = self.views_since_id = last_id
+        self.change_from_id = self.maintained_from_id = last_id + 1
         self.drift.reset([])
         self.u_seed = self.versions.version_seed()
         self.accuracy, self.accuracy_suspect_id = None, None

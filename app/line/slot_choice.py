@@ -84,7 +84,7 @@ class SlotChoice:
         step's windows (measured: 404 rejected of 430 in a shift, the step never decided). The
         first time a view is left out a `view_lost` alarm names it and what fixes it."""
         svc = self.svc
-        lost = lost_views(svc.store, svc.views_since_id)
+        lost = lost_views(svc.store, svc.maintained_from_id - 1)
         if not lost:
             return slots
         new = sorted(set(lost) - self._views_lost)

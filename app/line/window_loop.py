@@ -16,7 +16,6 @@ import logging
 
 from app.line.accuracy import ACCURACY_GROUP, VOUCHED, evidence, statement
 from app.line.beyond_knock import BLIND_WINDOWS, blind_text
-from app.line.cycle import WindowReport
 from app.line.decisions import Decisions
 from app.line.faults import Faults
 from app.line.host import LineHost
@@ -97,7 +96,7 @@ class WindowLoop:
             self.faults.device_fault(exc)
             return
         svc.counters["windows"] = n
-        self._watch_blind(report, first_id)
+        self._watch_blind(first_id)
         svc.counters["overruns"] += report.overrun
         svc.counters["withdrawn"] += bool(report.withdrawn)
         self._state_accuracy(t_open)
@@ -118,16 +117,22 @@ class WindowLoop:
         if svc.after_window is not None:
             svc.after_window()
 
-    def _watch_blind(self, report: WindowReport, first_id: int) -> None:
-        """Windows in a row whose every view was rejected: at BLIND_WINDOWS, a change far
-        beyond a knock (app.line.beyond_knock): the step's suspect interval from the first
-        of them, the cell held for maintenance."""
+    def _watch_blind(self, first_id: int) -> None:
+        """Windows in a row in which no view saw its sphere where the parameters put it (each
+        rejected, or off by more than `[service] maintenance_step_mm`): at BLIND_WINDOWS, a
+        change far beyond a knock (app.line.beyond_knock): the step's suspect interval from
+        the first of them, the cell held for maintenance."""
         svc = self.svc
-        if report.measured or not report.rejected:
-            if report.measured:
-                self._blind = []
+        ids = list(range(first_id, svc.store.last_measurement_id() + 1))
+        rows = svc.store.measurements_by_id(ids) if ids else []  # the window's, any status
+        if not rows:
+            return  # a window without a measurement says nothing
+        bound = svc.settings.recalib.maintenance_step_mm
+        far = [r for r in rows if r["status"] != "ok" or abs(r["residual_mm"] or 0.0) > bound]
+        if len(far) < len(rows):
+            self._blind = []
             return
-        self._blind.append((first_id, report.rejected))
+        self._blind.append((first_id, len(far)))
         if len(self._blind) < BLIND_WINDOWS or svc.state == State.FAULT:
             return
         onset_id = self._blind[0][0]

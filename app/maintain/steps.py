@@ -167,13 +167,13 @@ def zero(ctx: Context) -> StepResult:
             continue
         tried.append(delta)
         ctx.move(q[0], f"the zero's search: {delta:+.1f} deg on J{m.axis}")
+        ctx.robot_s += ctx.sweep.duration_s
         try:
             reading = sensor.measure(views.targets[first])
         except Rejected:
             ctx.say(f"    {delta:+.1f} deg: no sphere seen")
             continue
-        finally:
-            ctx.home()
+        ctx.home()
         found = _solve_zero(ctx, model, x_try, q[0], reading.c_sensor_mm, views.targets[first])
         x_found = zero_moved(x_try, m.axis, found)
         doc = read_json(ctx.path(PARAMS_BEFORE_FILE))
@@ -186,6 +186,7 @@ def zero(ctx: Context) -> StepResult:
         )
         r.checks.append(at_most(f"J{m.axis} zero change", abs(change), ZERO_LIMIT_DEG + 0.1, "deg"))
         return r
+    ctx.home()
     r.results = {"tried_deg": tried}
     r.checks.append(
         holds(f"a sphere seen within +-{ZERO_LIMIT_DEG:g} deg of J{m.axis}'s zero", False)
@@ -252,12 +253,13 @@ def reidentify(ctx: Context) -> StepResult:
     n_all = len(ok)
     r.checks.append(count_at_least("views re-aimed", int(ok.sum()), n_all, n_all * (1 - limit)))
     sensor = ctx.sphere_sensor(ctx.sensor_model())
-    todo = [k for k in range(len(ok)) if ok[k]]
+    todo = [k for k in _subset(views, cell.commission.maintenance_views_per_sphere) if ok[k]]
     taken = Taken()
     seen_at: list[int] = []
     x_new, result, group = x_start, None, _group(m, model)
     for attempt in range(2):  # a second look at the views not seen, re-aimed on the fit
-        got = measure_views(ctx, [(views.targets[k], q[k]) for k in todo], sensor, "maintenance")
+        chosen = [(views.targets[k], q[k]) for k in todo]
+        got = measure_views(ctx, chosen, sensor, "maintenance", via_home=False)
         seen_at += [k for k in todo if any(np.array_equal(q[k], v) for v in got.q_deg)]
         _extend(taken, got)
         data = taken.data(ctx.spheres_part_mm())
@@ -279,7 +281,10 @@ def reidentify(ctx: Context) -> StepResult:
         todo = [k for k in missed if ok[k]]
     taken.write(ctx.path(MAINTENANCE_MEASUREMENTS_FILE))
     r.files.append(MAINTENANCE_MEASUREMENTS_FILE)
-    seen, n_views = len(taken.targets), int(ok.sum())
+    seen, n_views = (
+        len(taken.targets),
+        len(_subset(views, cell.commission.maintenance_views_per_sphere)),
+    )
     r.checks.append(count_at_least("views seen", seen, n_views, n_views * (1 - limit)))
     e = model.points_part(x_new, data.q_deg, data.c_sensor_mm, temp_c=data.temp_c)
     residual = rmse(e - data.p_part_mm)
@@ -301,7 +306,6 @@ def reidentify(ctx: Context) -> StepResult:
         "group": group.name,
         "measurements": seen,
         "rejected": taken.rejected,
-        "robot_s": ctx.robot_s,
         "rms_mm": residual,
         **_change(m, x_new, x_before),
     }
@@ -310,6 +314,25 @@ def reidentify(ctx: Context) -> StepResult:
     if ctx.truth is not None:
         r.results["true_rmse_mm"] = ctx.truth.true_rmse_mm(model, x_new, ctx.sensor_model())
     return r
+
+
+def _subset(views: Views, per_sphere: int) -> list[int]:
+    """The views measured: `per_sphere` of each sphere's, spread over its plan (the changed
+    group has a few parameters; the plan keeps all of them, re-aimed)."""
+    out: list[int] = []
+    for t in dict.fromkeys(views.targets):
+        ks = [k for k, name in enumerate(views.targets) if name == t]
+        pick = np.unique(np.linspace(0, len(ks) - 1, min(per_sphere, len(ks))).round())
+        out += [ks[int(i)] for i in pick]
+    return out
+
+
+def workspace(ctx: Context) -> StepResult:
+    """The paper's workspace validation (the commissioning's step) at `[commission]
+    maintenance_positions` positions."""
+    from app.commission.workspace import workspace_validation
+
+    return workspace_validation(ctx, ctx.cell().commission.maintenance_positions)
 
 
 def _pick(views: Views, ks: list[int]) -> tuple[tuple[str, ...], F64, F64]:

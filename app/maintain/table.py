@@ -4,7 +4,7 @@ event, run by the commissioning's journal, sequence and report (app/commission/t
 
 from __future__ import annotations
 
-from app.commission import acceptance, steps, workspace
+from app.commission import acceptance, steps
 from app.commission.table import CommissionStep, Procedure
 from app.line.statedir import MAINTENANCE_REPORT_JSON, MAINTENANCE_REPORT_MD
 from app.maintain import steps as m
@@ -16,7 +16,7 @@ _PREPARE = CommissionStep("prepare", "The version in force, plan, sensor and sph
 _WORKSPACE = CommissionStep(
     "workspace",
     "Validation at workspace positions against the tracker (the paper's)",
-    workspace.workspace_validation,
+    m.workspace,
 )
 _HANDOVER = CommissionStep("handover", "Handed back to `rvis run`", m.handover)
 

@@ -1,0 +1,368 @@
+"""`rvis experiment maintenance --event sensor|axis|fixture [--axis N] [--seed N] --out DIR`:
+a maintenance event and its procedure on the simulated line, end to end, as a plant lives it
+(issue 41). On the geometric path:
+
+1. the cell commissioned (`rvis commission --sim`'s steps, in DIR/state; its robot time);
+2. the in-line service runs on it (warm-up on) until the event happens at `at_s` of world time
+   and the service holds the cell for maintenance (or `max_windows` pass);
+3. the procedure (`rvis maintain`'s steps) on the same state directory, the world as the line
+   left it, the event happened;
+4. the service runs again on the directory for `after_windows` windows.
+
+`DIR/maintenance.json` holds one row per run: the event, its seed, the window it happened in,
+how many windows the service took to hold the cell (`detected_after_windows`), the first
+window of the suspect interval it opened, the robot time of the procedure and of the whole
+commissioning of the same cell, the workspace validation RMS before the event (the version in
+force's: the commissioning's) and after the procedure, the end-to-end truth (the median true
+RMS at the line's validation positions) over the windows before the event and after the
+procedure, whether every body clamped from the event until the hand-over is in a suspect
+interval, and whether the history was kept (versions, measurements, suspect intervals).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import statistics
+from contextlib import ExitStack
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, cast
+
+from app.commission.context import Context
+from app.commission.journal import Journal
+from app.commission.sequence import run_sequence
+from app.config import CellConfig, load_cell
+from app.config.write import dumps_cell
+from app.errors import RvisError
+from app.formats.files import read_json, write_json, write_text
+from app.line.launch import hold_state
+from app.line.statedir import StateDir
+from app.line.store import Store
+from app.maintain.record import open_record
+from app.maintain.steps import MaintenanceContext
+from app.maintain.table import procedure
+from app.sim.commission import SimCommissioning
+from app.sim.line_run import SimulatedLineRun, WindowRecord, continued_epoch
+from drivers.clock import RealClock
+from fakes.line import SimLine
+
+
+@dataclass(frozen=True)
+class MaintenanceRun:
+    """One experiment: the event (kind, axis), the seed, when it happens [s of world time]
+    (1.5 h: the cell warm, its in-line calibrations in force), how long the line runs after
+    the procedure [windows] (a rolling set after the hand-over is 78 of them)."""
+
+    event: str
+    seed: int
+    axis: int = 3
+    at_s: float = 5400.0
+    after_windows: int = 100
+    # the line runs at most until this many windows after the event's (held sooner)
+    held_within: int = 20
+    before_windows: int = 10  # the truth before the event: the median over these windows
+
+    def __post_init__(self) -> None:
+        if self.event not in ("sensor", "axis", "fixture"):
+            raise ValueError("event must be sensor, axis or fixture")
+        if not 1 <= self.axis <= 6:
+            raise ValueError("axis must be 1..6")
+
+
+def run_maintenance(cfg: CellConfig, out: Path, run: MaintenanceRun) -> dict[str, Any]:
+    """The experiment (module docstring) in folder `out`; its row."""
+    state = StateDir(out / "state")
+    say = _quiet
+    commissioning_robot_s = _commission(cfg, state, run.seed)
+    cell = _with_event(load_cell(state.cell), run)
+    write_text(state.cell, dumps_cell(cell, "rvis experiment maintenance: the event"))
+    periods = math.ceil(run.at_s / cell.simline.period_s)
+    before = _line(cell, state, run, periods + run.held_within)
+    k = _event_window(before.records, run.at_s)
+    held_at = len(before.records)
+    suspects = _suspects(state)
+    n_measurements = _count_measurements(state)
+    version_before = _last_version(state)
+    m_robot_s, m_folder = _maintain(cell, state, run, say)
+    report = read_json(m_folder / "maintenance.json")
+    steps = {s["name"]: s for s in report["steps"]}
+    x_before = _version_x(cell, state, version_before)
+    after, twin = _line_after(load_cell(state.cell), state, run, x_before)
+    versions = [int(a["version"]) for a in _applied(state)]
+    kept = _suspects(state)
+    rows = before.records
+    commission_doc = read_json(state.commission / "commission.json")
+    ws_before = _step(commission_doc, "workspace").get("rmse_mm")
+    pre = [r.rmse_mm for r in rows if k - run.before_windows <= r.window < k]
+    return {
+        "event": run.event,
+        "axis": run.axis if run.event == "axis" else None,
+        "seed": run.seed,
+        "at_s": run.at_s,
+        "event_window": k,
+        "held": bool(before.maintenance),
+        "detected_after_windows": held_at - k + 1 if before.maintenance else None,
+        "maintenance_alarm": before.maintenance,
+        "suspect_from_window": _suspect_window(state, suspects, rows),
+        "bodies_after_event_suspect": _bodies_covered(state, suspects, rows, k),
+        "procedure_passed": report.get("complete", False),
+        "procedure_robot_s": m_robot_s,
+        "commissioning_robot_s": commissioning_robot_s,
+        "validation_before_mm": ws_before,
+        "validation_after_mm": _step(report, "workspace").get("rmse_mm"),
+        "truth_before_mm": statistics.median(pre) if pre else None,
+        "truth_after_mm": statistics.median([r.rmse_mm for r in after.records])
+        if after.records
+        else None,
+        "truth_after_first_mm": after.records[0].rmse_mm if after.records else None,
+        # the version before the event in the world without it, at the same times: what the
+        # cell would measure had nothing happened (the world warms on meanwhile)
+        "truth_unchanged_mm": statistics.median(twin) if twin else None,
+        "version_before": version_before,
+        "after_windows_measured": len(after.records),
+        "truth_after_by_window_mm": [round(r.rmse_mm, 4) for r in after.records],
+        "versions_after_by_window": [r.version for r in after.records],
+        "truth_before_by_window_mm": [round(r.rmse_mm, 4) for r in rows[max(0, k - 15) :]],
+        "after_held": bool(after.maintenance),
+        "changed": steps.get("reidentify", steps.get("handeye", {})).get("results", {}),
+        "versions": versions,
+        "measurements_kept": _count_measurements(state) >= n_measurements,
+        "suspect_intervals_kept": len(kept) >= len(suspects),
+        "truth": _truth(cell, run),
+    }
+
+
+def _quiet(line: str) -> None:
+    """The experiment's steps say nothing (their reports hold it all)."""
+
+
+def _commission(cfg: CellConfig, state: StateDir, seed: int) -> float:
+    """The cell commissioned on the simulated line (every step of `rvis commission --sim
+    --geometric`); the robot's time it took [s]."""
+    with ExitStack() as stack:
+        held = stack.enter_context(hold_state(state.root, str(cfg.service.operators_group)))
+        sim = stack.enter_context(SimCommissioning(cfg, seed, geometric=True))
+        cfg_plc, station = sim.open_station(cfg)
+        ctx = Context(
+            cfg=cfg_plc,
+            state=held,
+            station=station,
+            confirm=lambda _: True,
+            say=_quiet,
+            sphere_sensor=sim.sphere_sensor,
+            capture=sim,
+            truth=sim,
+            placement=sim,
+        )
+        journal = Journal(held.commission, {"simulated": True, "seed": seed, "geometric": True})
+        failed = run_sequence(ctx, journal)
+        if failed is not None:
+            raise RvisError(
+                f"the simulated cell of seed {seed} did not pass its commissioning (step"
+                f" {failed}: {held.commission_report}): another seed"
+            )
+        return ctx.robot_s
+
+
+def _with_event(cfg: CellConfig, run: MaintenanceRun) -> CellConfig:
+    simline = dataclasses.replace(
+        cfg.simline,
+        maintenance_at_s=run.at_s,
+        maintenance_kind=run.event,
+        maintenance_axis=run.axis,
+    )
+    return dataclasses.replace(cfg, simline=simline)
+
+
+def _line(cfg: CellConfig, state: StateDir, run: MaintenanceRun, windows: int) -> Any:
+    """The service on the state directory for `windows` windows (or until it holds the cell
+    for maintenance); the run's summary."""
+    with (
+        hold_state(state.root, str(cfg.service.operators_group)),
+        SimulatedLineRun(cfg, state.root, seed=run.seed, geometric=True, plan=state.plan) as sim,
+    ):
+        return sim.run_windows(windows)
+
+
+def _line_after(
+    cfg: CellConfig, state: StateDir, run: MaintenanceRun, x_before: Any
+) -> tuple[Any, list[float]]:
+    """The service after the procedure for `after_windows` windows, and at each window the
+    true error the version before the event would have in the world without the event (a
+    twin of the cell: same seed, clock, warm-up; no maintenance event)."""
+    from app.sim.cell import make_cell
+    from app.sim.line_run import true_rmse_mm
+    from fakes.line_truth import LineTruth
+
+    twin_rms: list[float] = []
+    with (
+        hold_state(state.root, str(cfg.service.operators_group)),
+        SimulatedLineRun(cfg, state.root, seed=run.seed, geometric=True, plan=state.plan) as sim,
+    ):
+        twin = make_cell(cfg, seed=run.seed)
+        s = sim.line.settings
+        twin.set_timeline(sim.clock, warmup=s.warmup, knock=s.knock, world_s=s.world_s)
+        twin_line = _Twin(LineTruth(twin, sim.line.truth.validation))
+
+        def at(record: WindowRecord) -> None:
+            t_s = record.t_h * 3600.0
+            line = cast(SimLine, twin_line)  # true_rmse_mm reads only its truth
+            twin_rms.append(true_rmse_mm(line, sim.truth, sim.model, x_before, t_s))
+
+        return sim.run_windows(run.after_windows, on_window=at), twin_rms
+
+
+@dataclass
+class _Twin:
+    """A line's truth without its line: what `true_rmse_mm` reads."""
+
+    truth: Any
+
+
+def _last_version(state: StateDir) -> int:
+    applied = _applied(state)
+    return int(applied[-1]["version"])
+
+
+def _version_x(cfg: CellConfig, state: StateDir, version: int) -> Any:
+    """A version's parameters as the service's model uses them."""
+    from app.formats.params import carried_from_json
+
+    return carried_from_json(cfg.service_model(), state.version_file(version))[1]
+
+
+def _maintain(
+    cfg: CellConfig, state: StateDir, run: MaintenanceRun, say: Any
+) -> tuple[float, Path]:
+    """The procedure of the event on the directory (`rvis maintain`'s steps), the world as the
+    line left it; (its robot time [s], its folder)."""
+    axis = run.axis if run.event == "axis" else None
+    with ExitStack() as stack:
+        held = stack.enter_context(hold_state(state.root, str(cfg.service.operators_group)))
+        epoch, world_s = continued_epoch(state.root)
+        sim = stack.enter_context(
+            SimCommissioning(cfg, run.seed, geometric=True, world_s=world_s, start_epoch=epoch)
+        )
+        folder, record = open_record(held, run.event, axis, restart=False, t=epoch, say=say)
+        cfg_plc, station = sim.open_station(cfg)
+        ctx = MaintenanceContext(
+            cfg=cfg_plc,
+            state=held,
+            station=station,
+            confirm=lambda _: True,
+            say=say,
+            sphere_sensor=sim.sphere_sensor,
+            capture=sim,
+            truth=sim,
+            placement=sim,
+            out_dir=folder,
+            clock=sim.line.clock if sim.line.clock is not None else RealClock(),
+            event=run.event,
+            axis=axis,
+            record_id=record,
+        )
+        setup = {"event": run.event, "axis": axis, "simulated": True, "seed": run.seed}
+        journal = Journal(folder, setup, procedure(run.event, axis))
+        run_sequence(ctx, journal)
+        from app.commission.report import write_report
+
+        write_report(journal)
+        return ctx.robot_s, folder
+
+
+def _event_window(records: list[WindowRecord], at_s: float) -> int:
+    """The first window that opened at or after the event (world time = the first run's)."""
+    return next((r.window for r in records if r.t_open_h * 3600.0 >= at_s), len(records) + 1)
+
+
+def _suspects(state: StateDir) -> list[dict[str, Any]]:
+    store = Store.read_only(state.db)
+    try:
+        return store.suspects()
+    finally:
+        store.close()
+
+
+def _applied(state: StateDir) -> list[dict[str, Any]]:
+    store = Store.read_only(state.db)
+    try:
+        return store.applied()
+    finally:
+        store.close()
+
+
+def _count_measurements(state: StateDir) -> int:
+    store = Store.read_only(state.db)
+    try:
+        return store.last_measurement_id()
+    finally:
+        store.close()
+
+
+def _epoch(state: StateDir, records: list[WindowRecord]) -> float:
+    """The Unix time of the first run's sim time 0 (its first window's opening, back)."""
+    store = Store.read_only(state.db)
+    try:
+        windows = store.windows()
+    finally:
+        store.close()
+    return float(windows[0]["t"]) - records[0].t_open_h * 3600.0 if windows else 0.0
+
+
+def _suspect_window(
+    state: StateDir, suspects: list[dict[str, Any]], records: list[WindowRecord]
+) -> int | None:
+    """The first window that opened inside the interval the service opened last."""
+    if not suspects or not records:
+        return None
+    epoch, t0 = _epoch(state, records), float(suspects[-1]["t_start"])
+    return next((r.window for r in records if epoch + r.t_open_h * 3600.0 >= t0), None)
+
+
+def _bodies_covered(
+    state: StateDir, suspects: list[dict[str, Any]], records: list[WindowRecord], k: int
+) -> bool:
+    """Every clamp window from the event's on (to the line's stop) opened inside a suspect
+    interval."""
+    store = Store.read_only(state.db)
+    try:
+        windows = store.windows()
+    finally:
+        store.close()
+    if not records or not windows:
+        return False
+    epoch = _epoch(state, records)
+    t_event = epoch + records[k - 1].t_open_h * 3600.0 if k <= len(records) else float("inf")
+    last_t = epoch + records[-1].t_open_h * 3600.0 + 1.0
+    after = [w for w in windows if t_event <= w["t"] <= last_t]
+
+    def inside(t: float) -> bool:
+        return any(s["t_start"] <= t and (s["t_end"] is None or t <= s["t_end"]) for s in suspects)
+
+    return bool(after) and all(inside(float(w["t"])) for w in after)
+
+
+def _step(doc: dict[str, Any], name: str) -> dict[str, Any]:
+    for s in doc.get("steps", []):
+        if s["name"] == name:
+            out: dict[str, Any] = s.get("results", {})
+            return out
+    return {}
+
+
+def _truth(cfg: CellConfig, run: MaintenanceRun) -> dict[str, Any]:
+    """What the event changed, as the simulated cell knows it."""
+    from app.sim.cell import make_cell
+    from app.sim.line_run import maintenance_of
+    from fakes.clock import VirtualClock
+
+    cell = make_cell(cfg, seed=run.seed)
+    cell.set_timeline(VirtualClock(), maintenance=maintenance_of(cfg))
+    return cell.maintenance_truth()
+
+
+def write_rows(out: Path, rows: list[dict[str, Any]]) -> Path:
+    path = out / "maintenance.json"
+    write_json(path, {"rows": rows})
+    return path
