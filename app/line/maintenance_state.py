@@ -108,11 +108,15 @@ def maintenance_json(
     alarms: Sequence[Mapping[str, Any]], records: Sequence[Mapping[str, Any]], root: Path | None
 ) -> dict[str, Any]:
     """The status reply's `maintenance`: `needed` (the `maintenance` alarm in force, else
-    None), `running` (the newest record still running, with its progress), `last_done` (the
-    newest record done) and `records` (the last RECORDS_IN_STATUS, oldest first)."""
+    None), `running` (the newest record still running and not superseded by a later one
+    done, with its progress), `last_done` (the newest record done) and `records` (the last
+    RECORDS_IN_STATUS, oldest first). `records`: in time order (Store.maintenance)."""
     active = [a for a in alarms if a.get("code") == AlarmCode.MAINTENANCE]
-    running = [r for r in records if r.get("status") == "running"]
     done = [r for r in records if r.get("status") == "done"]
+    # a record left running before a later one handed the cell back (begun again with
+    # `--restart`) is superseded: the cell is not in maintenance for it
+    after = done[-1]["id"] if done else -1
+    running = [r for r in records if r.get("status") == "running" and r["id"] > after]
     return {
         "needed": need_of(active[-1]) if active else None,
         "running": record_json(running[-1], root) if running else None,
@@ -122,15 +126,17 @@ def maintenance_json(
 
 
 def operation_mode(status: Mapping[str, Any]) -> str:
-    """OPC 40001-1's MachineryOperationMode of a status reply: Maintenance while the
-    `maintenance` alarm is in force or a procedure is recorded running; Processing while the
-    service runs (measuring, waiting, paused or held on another fault: the mode is what the
-    cell is set up for, MachineryItemState says what it does); None while it starts or
-    stops."""
+    """OPC 40001-1's MachineryOperationMode of a status reply (what the cell is set up for;
+    MachineryItemState says what it does): Maintenance while the `maintenance` alarm is in
+    force, or while a procedure is recorded running and the service does not measure (paused,
+    in another fault, starting or stopped); Processing while the service waits for or measures
+    in a window (an engineer reset the cell without finishing the procedure), is paused or in
+    another fault; None while it starts or stops."""
     m = status.get("maintenance") or {}
-    if m.get("needed") or m.get("running"):
+    state = status.get("state")
+    if m.get("needed") or (m.get("running") and state not in ("idle", "measuring")):
         return MODE_MAINTENANCE
-    if status.get("state") in ("idle", "measuring", "paused", "fault"):
+    if state in ("idle", "measuring", "paused", "fault"):
         return MODE_PROCESSING
     return MODE_NONE
 

@@ -5,7 +5,7 @@ they name; the Machinery operation mode of a status reply."""
 from __future__ import annotations
 
 from app.line.beyond_knock import blind_text
-from app.line.maintenance_state import need_of, needed_text, operation_mode
+from app.line.maintenance_state import maintenance_json, need_of, needed_text, operation_mode
 
 
 def test_the_blind_alarm_names_every_procedure() -> None:
@@ -28,7 +28,21 @@ def test_the_operation_mode_of_a_status_reply() -> None:
     running = {"needed": None, "running": {"event": "sensor"}}
     assert operation_mode({"state": "fault", "maintenance": need}) == "Maintenance"
     assert operation_mode({"state": "stopped", "maintenance": need}) == "Maintenance"
-    assert operation_mode({"state": "idle", "maintenance": running}) == "Maintenance"
+    assert operation_mode({"state": "paused", "maintenance": running}) == "Maintenance"
+    assert operation_mode({"state": "idle", "maintenance": running}) == "Processing"
     assert operation_mode({"state": "fault", "maintenance": {"needed": None}}) == "Processing"
     assert operation_mode({"state": "paused"}) == "Processing"
     assert operation_mode({"state": "starting"}) == "None"
+
+
+def test_a_record_left_running_before_a_later_hand_over_is_not_in_maintenance() -> None:
+    """A procedure begun again with `--restart` leaves its first record running: once the
+    second handed the cell back, the cell is not in maintenance."""
+    row = {"event": "axis", "axis": 3, "who": "ben", "t_start": 1.8e9, "folder": "f"}
+    first = {**row, "id": 1, "status": "running"}
+    second = {**row, "id": 2, "status": "done", "t_end": 1.8e9 + 60.0, "version_after": 2}
+    m = maintenance_json([], [first, second], None)
+    assert m["running"] is None and m["last_done"]["id"] == 2
+    third = {**row, "id": 3, "status": "running"}
+    m = maintenance_json([], [first, second, third], None)
+    assert m["running"]["id"] == 3 and "progress" not in m["running"]  # no folder read
