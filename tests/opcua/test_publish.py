@@ -420,5 +420,11 @@ def test_a_cell_held_for_maintenance_reads_out_of_service_in_maintenance_mode(
                 while (await state.read_value()).Text not in ("NotExecuting", "Executing"):
                     await handler.changes.get()
 
-    asyncio.run(check())
+    try:
+        asyncio.run(check())
+    finally:  # the package's line left running normally, whatever failed
+        if line.service.state.value == "fault":
+            line.service.request("reset").result(30)
+        if line.service.paused:
+            line.service.request("resume").result(30)
     assert line.service.state.value != "fault"
