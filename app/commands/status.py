@@ -41,22 +41,21 @@ def state_dir_of(args: argparse.Namespace) -> Path:
 
 def offline_status(state_dir: Path) -> dict[str, Any]:
     """What the files say when the service is not running (read-only)."""
+    from app.line.maintenance_state import RECORDS_IN_STATUS, maintenance_json
     from app.line.statedir import StateDir, holder_pid
     from app.line.states import suspect_json
     from app.line.store import Store
 
     state = StateDir(state_dir)
     pid = holder_pid(state)
-    if pid is not None:  # the lock is held, the socket not up yet: a service starting
-        return {"state": "starting", "pid": pid, "socket": False}
+    if pid is not None:  # the lock is held, the socket not up yet: a service starting, or
+        return _held(state, pid)  # `rvis maintain` (its record running)
     if not state.db.is_file():
         raise InputError("no service state here (no rvis.db)", file=state_dir)
     store = Store.read_only(state.db)
     try:
-        alarms = [
-            {k: a[k] for k in ("id", "code", "priority", "message", "state")}
-            for a in store.active_alarms()
-        ]
+        active = store.active_alarms()
+        alarms = [{k: a[k] for k in ("id", "code", "priority", "message", "state")} for a in active]
         pending = [c["id"] for c in store.calibrations("pending")]
         out = {
             "state": "not running",
@@ -66,10 +65,38 @@ def offline_status(state_dir: Path) -> dict[str, Any]:
             "schedule": {"position": store.schedule_position()[0]},
             "alarms": alarms,
             "suspect_intervals": [suspect_json(r) for r in store.suspects(last=5)],
+            "maintenance": maintenance_json(
+                active, store.maintenance(last=RECORDS_IN_STATUS), state.root
+            ),
         }
     finally:
         store.close()
     return out
+
+
+def _held(state: Any, pid: int) -> dict[str, Any]:
+    """The state directory held, no control socket: a service starting, or `rvis maintain`
+    running (a maintenance record `running`: state `maintenance`, with the procedure's
+    progress)."""
+    from app.line.maintenance_state import RECORDS_IN_STATUS, maintenance_json
+    from app.line.store import Store
+
+    starting = {"state": "starting", "pid": pid, "socket": False}
+    if not state.db.is_file():
+        return starting
+    try:
+        store = Store.read_only(state.db)
+        try:
+            m = maintenance_json(
+                store.active_alarms(), store.maintenance(last=RECORDS_IN_STATUS), state.root
+            )
+        finally:
+            store.close()
+    except RvisError:  # being written or migrated this instant: say what the lock says
+        return starting
+    return (
+        starting if m["running"] is None else {**starting, "state": "maintenance", "maintenance": m}
+    )
 
 
 def fetch_status(state_dir: Path) -> dict[str, Any]:
@@ -101,6 +128,14 @@ def run(args: argparse.Namespace) -> int:
 
 def status_lines(status: dict[str, Any]) -> list[str]:
     """The status in words, one fact a line (what `--json` has, compactly)."""
+    from app.line.maintenance_state import maintenance_lines
+
+    if status.get("state") == "maintenance":  # `rvis maintain` holds the state directory
+        return [
+            f"state               maintenance: `rvis maintain` (pid {status.get('pid')}) holds"
+            " the state directory; `rvis run` once it has handed the cell back",
+            *maintenance_lines(status.get("maintenance")),
+        ]
     if status.get("socket") is False:  # the lock held, the control socket not up yet
         return [
             f"state               starting (pid {status.get('pid')}): the service holds the"
@@ -123,6 +158,7 @@ def status_lines(status: dict[str, Any]) -> list[str]:
     if "cell_temp_c" in status:
         temp = status["cell_temp_c"]
         lines.append(f"cell temperature    {'unknown' if temp is None else f'{temp:.1f} degC'}")
+    lines += maintenance_lines(status.get("maintenance"))
     lines += _device_lines(status.get("devices"))
     from app.line.states import accuracy_text
 

@@ -7,6 +7,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from app.line.host import LineHost
+from app.line.maintenance_state import RECORDS_IN_STATUS, maintenance_json, procedures_text
 from app.line.opcua import FEED_NAME
 from app.line.states import AlarmCode, suspect_json, utc_text
 from app.line.store import StorageError
@@ -49,8 +50,12 @@ def alarm_event(a: dict[str, Any], state: str, **more: Any) -> dict[str, Any]:
     return {**alarm_status(a), "state": state, **more}
 
 
-def step_text(svc: LineHost) -> str:
-    """What the service is doing, in a few words (the TUI's status line)."""
+def step_text(svc: LineHost, maintenance: Mapping[str, Any] | None = None) -> str:
+    """What the service is doing, in a few words (the TUI's status line); `maintenance`: the
+    reply's (app.line.maintenance_state), whose `maintenance` alarm holds the cell."""
+    need = (maintenance or {}).get("needed")
+    if need and svc.state.name == "FAULT":
+        return f"held for maintenance: {procedures_text(need)}"
     if svc.recalibrator.busy:
         return "recalibrating"
     if svc.station.unreachable and svc.device_retry is not None:
@@ -79,6 +84,10 @@ def device_of(exc: BaseException, devices: Mapping[str, object]) -> str | None:
 
 def _status(svc: LineHost) -> dict[str, Any]:
     w = svc.watch
+    alarms = svc.store.active_alarms() + svc.unstored_alarms
+    maintenance = maintenance_json(
+        alarms, svc.store.maintenance(last=RECORDS_IN_STATUS), svc.paths.root
+    )
     return {
         "state": svc.state.value,
         "paused": svc.paused,
@@ -99,13 +108,15 @@ def _status(svc: LineHost) -> dict[str, Any]:
         },
         "window": _window_status(svc),
         "calibration": _calibration_status(svc),
-        "alarms": [alarm_status(a) for a in svc.store.active_alarms() + svc.unstored_alarms],
+        "alarms": [alarm_status(a) for a in alarms],
         "cell_temp_c": svc.cell_temp_c,
         "drift": svc.drift.state(),
         "drift_change": svc.drift.change_state(),
-        "step": step_text(svc),
+        "step": step_text(svc, maintenance),
         # the U95 of a point measured now, vouched for or not (app.line.accuracy)
         "accuracy": None if svc.accuracy is None else svc.accuracy.to_json(),
+        # the `maintenance` alarm in force, a procedure running, the last done
+        "maintenance": maintenance,
         "devices": _device_status(svc),
         "device_retry": svc.device_retry,
         "pending": _pending_status(svc),

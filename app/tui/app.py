@@ -43,7 +43,7 @@ from app.tui.modals import ConfirmScreen, ShelveScreen
 PANE_HISTORY = {
     "overview": ("recent", "suspects"),
     "measurements": ("measurements",),
-    "calibrations": ("calibrations", "applied"),
+    "calibrations": ("calibrations", "applied", "maintenance"),
     "alarms": ("alarms",),
     "devices": (),
     "log": ("events",),
@@ -103,6 +103,8 @@ class RvisTui(App[None]):
                 yield DataTable(id="calibrations-table", cursor_type="row")
                 yield Label("Parameter versions (b: roll back to the selected one):")
                 yield DataTable(id="versions-table", cursor_type="row")
+                yield Label("Maintenance (rvis maintain: what was done to the cell):")
+                yield DataTable(id="maintenance-table", cursor_type="row")
             with TabPane("4 Alarms", id="alarms"), Vertical():
                 yield DataTable(id="alarms-table", cursor_type="row")
                 yield Static("no alarm selected", id="alarm-detail")  # the selected one whole
@@ -125,6 +127,15 @@ class RvisTui(App[None]):
             "pending": ("parameter", "unit", "current", "pending", "change", "std", "|chg|/std"),
             "calibrations-table": ("cal", "time (UTC)", "status", "version", "RMS mm", "gates"),
             "versions-table": ("version", "in force since (UTC)", "source", "cal"),
+            "maintenance-table": (
+                "id",
+                "event",
+                "from (UTC)",
+                "to (UTC)",
+                "by",
+                "version",
+                "validation mm",
+            ),
             "alarms-table": (
                 "id",
                 "prio",
@@ -229,6 +240,7 @@ class RvisTui(App[None]):
             "alarms": self.history.alarms,
             "events": lambda: self.history.events(300, text),
             "suspects": self.history.suspects,
+            "maintenance": self.history.maintenance,
         }
         return {key: readers[key]() for key in wanted}
 
@@ -282,6 +294,8 @@ class RvisTui(App[None]):
             self._fill("calibrations-table", view.calibration_rows(hist["calibrations"]))
         if "applied" in hist:
             self._fill("versions-table", view.version_rows(hist["applied"]))
+        if "maintenance" in hist:
+            self._fill("maintenance-table", view.maintenance_rows(hist["maintenance"]))
         if "alarms" in hist:
             alarms = hist["alarms"] or list((self.status or {}).get("alarms") or [])
             self._alarms = sorted(alarms, key=lambda a: a.get("id", 0), reverse=True)

@@ -6,6 +6,7 @@ come back as the screens name things (`utc`, `sphere`, `text`), whatever the tab
 
 from __future__ import annotations
 
+import json
 import sqlite3
 from datetime import UTC, datetime
 from pathlib import Path
@@ -18,6 +19,14 @@ def _utc(t: Any) -> str:
     if not isinstance(t, int | float):
         return ""
     return datetime.fromtimestamp(float(t), UTC).isoformat(timespec="seconds")
+
+
+def _doc(text: Any) -> dict[str, Any]:
+    try:
+        doc = json.loads(text or "{}")
+    except ValueError:
+        return {}
+    return doc if isinstance(doc, dict) else {}
 
 
 class HistoryReader:
@@ -96,6 +105,22 @@ class HistoryReader:
                 "start_utc": _utc(r["t_start"]),
                 "end_utc": _utc(r["t_end"]),
                 "group": r["group_name"],
+            }
+            for r in rows
+        ]
+
+    def maintenance(self, limit: int = 50) -> list[dict[str, Any]]:
+        """The maintenance procedures (`rvis maintain`, app/maintain/), newest first: running
+        or done, with their versions and figures before and after (none in an older
+        database: no such table)."""
+        rows = self._query("SELECT * FROM maintenance ORDER BY id DESC LIMIT ?", (limit,))
+        return [
+            {
+                **r,
+                "start_utc": _utc(r["t_start"]),
+                "end_utc": _utc(r["t_end"]),
+                "before": _doc(r.get("before")),
+                "after": _doc(r.get("after")),
             }
             for r in rows
         ]

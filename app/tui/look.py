@@ -41,6 +41,7 @@ TabbedContent { height: 1fr; }
 #device-errors { height: auto; border-top: solid #8a8a8a; padding: 0 1; }
 #alarm-detail { height: auto; max-height: 6; border-top: solid #8a8a8a; padding: 0 1; }
 #suspect-detail { height: auto; max-height: 4; padding: 0 1; }
+#maintenance-table { height: auto; max-height: 4; }
 .dialog { width: 70; height: auto; border: solid #8a8a8a; background: #4e4e4e; padding: 1; }
 ModalScreen { align: center middle; }
 .buttons { height: auto; }

@@ -20,6 +20,7 @@ from typing import Any
 
 from rich.text import Text
 
+from app.line.maintenance_state import needed_text, running_text
 from app.line.states import accuracy_text, bodies_text
 
 PRIORITY_CLASS = {
@@ -153,7 +154,8 @@ def overview_text(status: dict[str, Any] | None) -> str:
     device_text = ", ".join(bad) or (f"all {len(devices)} OK" if devices else UNKNOWN)
     return "\n".join(
         (
-            f"Service   {s.get('state', UNKNOWN)}   step: {s.get('step') or '-'}",
+            service_text(s),
+            *maintenance_text(s),
             f"Line      running {running}, PLC heartbeat {heartbeat}, {window_text(s)}"
             + (f" ({no_plc})" if no_plc else ""),
             f"Cell      {cell}",
@@ -163,6 +165,43 @@ def overview_text(status: dict[str, Any] | None) -> str:
             "Knock     " + knock_text(s),
         )
     )
+
+
+def service_text(status: dict[str, Any]) -> str:
+    """The Overview's service line: its state and step; held for maintenance (the `maintenance`
+    alarm in force), what moved and the procedure that fits instead of a bare FAULT."""
+    need = (status.get("maintenance") or {}).get("needed")
+    if need:
+        return f"Service   MAINTENANCE NEEDED ({status.get('state', UNKNOWN)}): {needed_text(need)}"
+    return f"Service   {status.get('state', UNKNOWN)}   step: {status.get('step') or '-'}"
+
+
+def maintenance_text(status: dict[str, Any]) -> tuple[str, ...]:
+    """The Overview's line of a maintenance procedure recorded running (none otherwise)."""
+    running = (status.get("maintenance") or {}).get("running")
+    return (f"Maint.    IN MAINTENANCE: {running_text(running)}",) if running else ()
+
+
+def maintenance_rows(rows: list[dict[str, Any]]) -> list[tuple[str, ...]]:
+    """(id, event (`axis 3`), from, to, by, versions, the workspace validation's RMS before
+    and after) per maintenance procedure, as app.tui.history gives them; a procedure not
+    handed back yet reads RUNNING."""
+
+    def rms(doc: Any) -> str:
+        return num((doc or {}).get("validation_rmse_mm"), ".3f")
+
+    return [
+        (
+            str(r.get("id")),
+            " ".join(str(v) for v in (r.get("event"), r.get("axis")) if v is not None),
+            time_text(r.get("start_utc")),
+            time_text(r.get("end_utc")) or str(r.get("status") or "").upper(),
+            str(r.get("who") or ""),
+            f"{r.get('version_before') or '-'} -> {r.get('version_after') or '-'}",
+            f"{rms(r.get('before'))} -> {rms(r.get('after'))}",
+        )
+        for r in rows
+    ]
 
 
 def knock_text(status: dict[str, Any]) -> str:

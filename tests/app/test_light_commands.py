@@ -228,3 +228,113 @@ def test_state_check_and_suspects_read_the_database_only(state: StateDir) -> Non
     run = rvis("state", "suspects", "--state-dir", str(state.root))
     assert run.code == 0 and "bodies (2: 100007 .. 100008): 100007, 100008" in run.out
     assert run.heavy() == set()
+
+
+#: the `maintenance` alarm's text the service raised for axis 3's zero moved (seed 6, the
+#: simulated line's `maintenance_kind = "axis"`; app.line.beyond_knock.step_text)
+AXIS3_TEXT = (
+    "a change of 9.91 mm at the measured spheres, beyond a knock's 1.5 mm: J3 zero moved 0.4935"
+    " deg (9.91 mm at the measured spheres), 3 measurements; next sphere fixture / part frame"
+    " by BIC 12818; likely the motor or encoder of axis 3 replaced (its zero moved) (J3 zero"
+    " 0.4935 deg (9.91 mm at the measured spheres)); bodies are not measured with this cell:"
+    " run `rvis maintain axis 3`"
+)
+
+
+def _maintenance(state: StateDir, *, alarm: bool, running: bool) -> None:
+    """A done fixture procedure (version 1 -> 2); the `maintenance` alarm for axis 3; axis 3's
+    procedure stopped after two steps, its third started (journal.json as app/commission's)."""
+    store = Store(state.db)
+    done = store.start_maintenance(
+        {
+            "t_start": 1.7e9,
+            "event": "fixture",
+            "who": "anna",
+            "folder": "maintenance/0001-fixture",
+            "version_before": 1,
+            "before": {"version": 1, "validation_rmse_mm": 0.061},
+        }
+    )
+    store.finish_maintenance(done, 1.7e9 + 1800.0, 2, {"version": 2, "validation_rmse_mm": 0.064})
+    if alarm:
+        store.raise_alarm(1.8e9 + 200.0, "maintenance", AXIS3_TEXT, "urgent")
+    if running:
+        store.start_maintenance(
+            {
+                "t_start": 1.8e9 + 300.0,
+                "event": "axis",
+                "axis": 3,
+                "who": "ben",
+                "folder": "maintenance/0002-axis3",
+                "version_before": 3,
+            }
+        )
+        folder = state.root / "maintenance" / "0002-axis3"
+        folder.mkdir(parents=True)
+        step = {"started_utc": "2027-01-15T08:05:00+00:00", "seconds": 1.0, "checks": []}
+        steps = [
+            {**step, "name": "devices", "status": "passed", "results": {}, "files": []},
+            {**step, "name": "prepare", "status": "passed", "results": {}, "files": []},
+            {**step, "name": "zero", "status": "started", "results": {}, "files": []},
+        ]
+        doc = {"format": "rvis-maintain/1", "setup": {"event": "axis"}, "steps": steps}
+        (folder / "journal.json").write_text(json.dumps(doc))
+    store.close()
+
+
+def test_status_says_the_cell_needs_maintenance_and_which(state: StateDir) -> None:
+    """Issue 41: a cell held for maintenance says so (what moved, the procedure that fits), not
+    only a FAULT among the alarms; the last procedure done, with its versions."""
+    _maintenance(state, alarm=True, running=False)
+    run = rvis("status", "--state-dir", str(state.root))
+    assert run.code == 0, run.err
+    lines = run.out.splitlines()
+    assert (
+        "maintenance needed  likely the motor or encoder of axis 3 replaced (its zero moved) (J3"
+        " zero 0.4935 deg (9.91 mm at the measured spheres)); run `rvis maintain axis 3`" in lines
+    )
+    assert (
+        "last maintenance    fixture done 2023-11-14T22:43:20+00:00, by anna, version 1 -> 2"
+        " (workspace validation RMS 0.061 -> 0.064 mm)" in lines
+    )
+    assert not any(line.startswith("in maintenance") for line in lines)
+    assert run.heavy() == set()
+    m = json.loads(rvis("status", "--json", "--state-dir", str(state.root)).out)["maintenance"]
+    assert m["needed"]["procedures"] == ["rvis maintain axis 3"]
+    assert m["needed"]["text"] == AXIS3_TEXT and m["needed"]["alarm_id"] == 1
+    assert m["running"] is None
+    assert (m["last_done"]["event"], m["last_done"]["version_after"]) == ("fixture", 2)
+    assert [r["status"] for r in m["records"]] == ["done"]
+
+
+def test_status_while_a_procedure_runs_says_its_step(state: StateDir) -> None:
+    """`rvis maintain` holds the state directory: status says "maintenance" (not "starting"),
+    who runs which procedure since when, and how far its journal got; stopped half-way (the
+    lock free), the same from the database."""
+    from app.line.statedir import ServiceLock
+
+    _maintenance(state, alarm=True, running=True)
+    progress = (
+        "in maintenance      axis (axis 3) since 2027-01-15T08:05:00+00:00, by ben, 2 steps"
+        " passed, next: zero (started), folder maintenance/0002-axis3"
+    )
+    with ServiceLock(state):
+        run = rvis("status", "--state-dir", str(state.root))
+        assert run.code == 0, run.err
+        lines = run.out.splitlines()
+        assert lines[0].startswith(
+            f"state               maintenance: `rvis maintain` (pid {os.getpid()})"
+        )
+        assert progress in lines and run.heavy() == set()
+        doc = json.loads(rvis("status", "--json", "--state-dir", str(state.root)).out)
+        assert (doc["state"], doc["pid"]) == ("maintenance", os.getpid())
+        running = doc["maintenance"]["running"]
+        assert (running["event"], running["axis"], running["who"]) == ("axis", 3, "ben")
+        assert running["progress"] == {
+            "steps_passed": 2,
+            "passed": ["devices", "prepare"],
+            "next_step": "zero",
+            "next_status": "started",
+        }
+    lines = rvis("status", "--state-dir", str(state.root)).out.splitlines()
+    assert lines[0] == "state               not running" and progress in lines

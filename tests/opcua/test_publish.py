@@ -286,6 +286,10 @@ MACHINERY_IDS = {
     5005: "NotAvailable",
     5006: "Executing",
     5007: "NotExecuting",
+    5024: "None",
+    5025: "Maintenance",
+    5026: "Processing",
+    5027: "Setup",
 }
 DI_IDS = {15054: "ISupportInfoType", 15035: "IVendorNameplateType", 1005: "FunctionalGroupType"}
 
@@ -321,10 +325,11 @@ def test_the_machine_found_by_the_official_types(line: SimulatedLineRun, servers
                 by_type = {r.TypeDefinition: client.get_node(r.NodeId) for r in add_ins}
                 ident = by_type.get(ua.NodeId(1012, ns_m))
                 state = by_type.get(ua.NodeId(1002, ns_m))
-                if ident is not None and state is not None:
-                    found.append((machine, ident, state))
+                mode = by_type.get(ua.NodeId(1008, ns_m))
+                if ident is not None and state is not None and mode is not None:
+                    found.append((machine, ident, state, mode))
             assert len(found) == 1, found
-            machine, ident, state = found[0]
+            machine, ident, state, mode = found[0]
             out["machine"] = (await machine.read_browse_name()).Name
             for prop in ("Manufacturer", "SerialNumber", "ProductInstanceUri", "Model"):
                 out[prop] = await (await ident.get_child(f"{ns_di}:{prop}")).read_value()
@@ -333,11 +338,15 @@ def test_the_machine_found_by_the_official_types(line: SimulatedLineRun, servers
             out["state"] = (await current.read_value()).Text
             out["state_node"] = (await client.get_node(state_id).read_browse_name()).Name
             out["state_id"] = state_id
+            current = await mode.get_child("0:CurrentState")
+            out["mode"] = (await current.read_value()).Text
+            out["mode_id"] = await (await current.get_child("0:Id")).read_value()
             blocks = await machine.get_child(f"{ns_m}:MachineryBuildingBlocks")
             in_blocks = await blocks.get_references(
                 refs=ua.ObjectIds.HasAddIn, direction=ua.BrowseDirection.Forward
             )
-            out["blocks"] = {r.NodeId for r in in_blocks} == {ident.nodeid, state.nodeid}
+            add_ins = {ident.nodeid, state.nodeid, mode.nodeid}
+            out["blocks"] = {r.NodeId for r in in_blocks} == add_ins
             out["ns_m"] = ns_m
         return out
 
@@ -349,3 +358,73 @@ def test_the_machine_found_by_the_official_types(line: SimulatedLineRun, servers
     assert got["state"] == got["state_node"]  # CurrentState/Id is the official state object
     assert got["state_id"].NamespaceIndex == got["ns_m"]
     assert got["state_id"].Identifier in (5004, 5006, 5007)  # the line runs or is paused
+    # MachineryOperationMode: the cell set up for its work (no maintenance in force)
+    assert (got["mode"], got["mode_id"]) == ("Processing", ua.NodeId(5026, got["ns_m"]))
+
+
+#: the `maintenance` alarm's text for axis 3's zero moved (app.line.beyond_knock.step_text)
+AXIS3_TEXT = (
+    "a change of 9.91 mm at the measured spheres, beyond a knock's 1.5 mm: J3 zero moved 0.4935"
+    " deg (9.91 mm at the measured spheres), 3 measurements; likely the motor or encoder of"
+    " axis 3 replaced (its zero moved) (J3 zero 0.4935 deg (9.91 mm at the measured spheres));"
+    " bodies are not measured with this cell: run `rvis maintain axis 3`"
+)
+
+
+def test_a_cell_held_for_maintenance_reads_out_of_service_in_maintenance_mode(
+    line: SimulatedLineRun, servers: Servers
+) -> None:
+    """Issue 41: the service holds the cell for maintenance (a change beyond a knock): a
+    client reads MachineryItemState OutOfService, MachineryOperationMode Maintenance (both the
+    NodeSet's state objects) and the Step naming the procedure; the engineer's reset (or the
+    procedure's hand-over) puts the mode back to Processing."""
+
+    def ask(cmd: str) -> None:
+        reply = line.service.request(cmd).result(30)
+        assert reply["ok"], reply
+
+    async def check() -> None:
+        async with Client(servers.read_only) as client:
+            ns_m = await client.get_namespace_index(NS_MACHINERY)
+            m = await machine_node(client)
+            state = await m.get_child([f"{ns_m}:MachineryItemState", "0:CurrentState"])
+            mode = await m.get_child([f"{ns_m}:MachineryOperationMode", "0:CurrentState"])
+            step = await child(client, m, "Step")
+            handler = Catcher()
+            sub = await client.create_subscription(20, handler)
+            await sub.subscribe_data_change([state, mode, step])
+
+            async def until(node: Any, text: str) -> None:
+                async with asyncio.timeout(20):
+                    while (await node.read_value()).Text != text:
+                        await handler.changes.get()
+
+            await asyncio.to_thread(ask, "pause")  # no motion while the test holds the cell
+            await until(state, "OutOfService")
+            assert (await mode.read_value()).Text == "Processing"
+            # what the service's step handling does for a change beyond a knock
+            await asyncio.to_thread(line.service.maintenance_needed, AXIS3_TEXT)
+            await until(mode, "Maintenance")
+            assert (await state.read_value()).Text == "OutOfService"
+            mode_id = await (await mode.get_child("0:Id")).read_value()
+            assert mode_id == ua.NodeId(5025, ns_m)  # the NodeSet's Maintenance
+            state_id = await (await state.get_child("0:Id")).read_value()
+            assert state_id == ua.NodeId(5004, ns_m)  # OutOfService
+            assert await step.read_value() == "held for maintenance: run `rvis maintain axis 3`"
+            need = line.service.status()["maintenance"]["needed"]  # what `rvis status` shows
+            assert need["procedures"] == ["rvis maintain axis 3"] and need["text"] == AXIS3_TEXT
+            await asyncio.to_thread(ask, "reset")
+            await until(mode, "Processing")
+            await asyncio.to_thread(ask, "resume")
+            async with asyncio.timeout(20):
+                while (await state.read_value()).Text not in ("NotExecuting", "Executing"):
+                    await handler.changes.get()
+
+    try:
+        asyncio.run(check())
+    finally:  # the package's line left running normally, whatever failed
+        if line.service.state.value == "fault":
+            line.service.request("reset").result(30)
+        if line.service.paused:
+            line.service.request("resume").result(30)
+    assert line.service.state.value != "fault"

@@ -137,8 +137,31 @@ HISTORY: dict[str, list[dict[str, Any]]] = {
     ],
     "applied": [
         {"version": 3, "utc": "2026-11-23T06:18:00", "source": "approved", "calibration_id": 3},
-        {"version": 2, "utc": "2026-11-22T22:40:00", "source": "auto", "calibration_id": 1},
+        {
+            "version": 2,
+            "utc": "2026-11-22T22:40:00",
+            "source": "maintenance",
+            "calibration_id": None,
+        },
         {"version": 1, "utc": "2026-11-22T08:00:00", "source": "initial", "calibration_id": None},
+    ],
+    "maintenance": [  # as app.tui.history reads them (newest first)
+        {
+            "id": 1,
+            "t_start": 1795384800.0,
+            "t_end": 1795387200.0,
+            "start_utc": "2026-11-22T22:00:00+00:00",
+            "end_utc": "2026-11-22T22:40:00+00:00",
+            "event": "axis",
+            "axis": 3,
+            "who": "anna",
+            "folder": "maintenance/0001-axis3",
+            "status": "done",
+            "version_before": 1,
+            "version_after": 2,
+            "before": {"version": 1, "validation_rmse_mm": 0.061},
+            "after": {"version": 2, "validation_rmse_mm": 0.064},
+        },
     ],
     "alarms": [  # as app.tui.history reads them (every column of the alarms table)
         {**STATUS["alarms"][0], "t_acked": None, "acked_uid": None, "shelved_until_utc": ""},

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 from datetime import UTC, datetime
+from pathlib import Path
 
 from app.tui import view
 
@@ -93,3 +94,79 @@ def test_the_overview_names_the_knock_and_lists_the_suspect_intervals() -> None:
     )
     assert "no bodies known" in view.suspect_detail(interval)
     assert view.suspect_detail(None) == "no suspect interval selected"
+
+
+def test_the_overview_says_maintenance_needed_and_the_history_lists_the_procedures(
+    tmp_path: Path,
+) -> None:
+    """Issue 41: held for maintenance, the Overview's service line says so, what moved and the
+    procedure that fits, not a bare FAULT; a procedure recorded running has its own line; the
+    history lists the maintenance records (app.tui.history, read-only) as rows."""
+    from app.line.maintenance_state import maintenance_json
+    from app.line.store import Store
+    from app.tui.history import HistoryReader
+
+    store = Store(tmp_path / "rvis.db")
+    done = store.start_maintenance(
+        {
+            "t_start": 1.8e9,
+            "event": "sensor",
+            "who": "anna",
+            "folder": "maintenance/0001-sensor",
+            "version_before": 3,
+            "before": {"version": 3, "validation_rmse_mm": 0.058},
+        }
+    )
+    store.finish_maintenance(done, 1.8e9 + 2400.0, 4, {"version": 4, "validation_rmse_mm": 0.061})
+    store.raise_alarm(1.8e9 + 9000.0, "maintenance", AXIS3_TEXT, "urgent")
+    store.start_maintenance(
+        {
+            "t_start": 1.8e9 + 9600.0,
+            "event": "axis",
+            "axis": 3,
+            "who": "ben",
+            "folder": "maintenance/0002-axis3",
+            "version_before": 4,
+        }
+    )
+    status = {
+        "state": "fault",
+        "step": "held for maintenance: run `rvis maintain axis 3`",
+        # the status reply's, as app.line.status makes it
+        "maintenance": maintenance_json(store.active_alarms(), store.maintenance(), tmp_path),
+    }
+    store.close()
+    lines = view.overview_text(status).splitlines()
+    assert lines[0] == (
+        "Service   MAINTENANCE NEEDED (fault): likely the motor or encoder of axis 3 replaced (its"
+        " zero moved) (J3 zero 0.4935 deg); run `rvis maintain axis 3`"
+    )
+    assert lines[1] == (
+        "Maint.    IN MAINTENANCE: axis (axis 3) since 2027-01-15T10:40:00+00:00, by ben, 0"
+        " steps passed, none run yet, folder maintenance/0002-axis3"
+    )
+    assert not view.overview_text({**status, "maintenance": None}).startswith(
+        "Service   MAINTENANCE"
+    )
+    rows = view.maintenance_rows(HistoryReader(tmp_path / "rvis.db").maintenance())
+    assert rows == [
+        ("2", "axis 3", "2027-01-15 10:40:00", "RUNNING", "ben", "4 -> -", "- -> -"),
+        (
+            "1",
+            "sensor",
+            "2027-01-15 08:00:00",
+            "2027-01-15 08:40:00",
+            "anna",
+            "3 -> 4",
+            "0.058 -> 0.061",
+        ),
+    ]
+    assert HistoryReader(tmp_path / "none.db").maintenance() == []
+
+
+#: a `maintenance` alarm's text (app.line.beyond_knock.step_text's form)
+AXIS3_TEXT = (
+    "a change of 9.91 mm at the measured spheres, beyond a knock's 1.5 mm: J3 zero moved 0.4935"
+    " deg, 3 measurements; likely the motor or encoder of axis 3 replaced (its zero moved) (J3"
+    " zero 0.4935 deg); bodies are not measured with this cell: run `rvis maintain axis 3`"
+)

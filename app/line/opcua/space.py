@@ -4,19 +4,23 @@ rvis's own variables, and how a status reply of the service becomes their values
     Objects/Machines (Machinery, i=1001)            from the official Machinery NodeSet
         <machine_name> (rvis)                        RvisCellType, an event notifier
             Identification (DI)                      MachineIdentificationType (HasAddIn)
-            MachineryBuildingBlocks (Machinery)      HasAddIn Identification, MachineryItemState
+            MachineryBuildingBlocks (Machinery)      HasAddIn Identification, MachineryItemState,
+                                                     MachineryOperationMode
             MachineryItemState (Machinery)           MachineryItemState_StateMachineType (HasAddIn)
+            MachineryOperationMode (Machinery)       MachineryOperationModeStateMachineType
+                                                     (HasAddIn)
             ServiceState, Step, CalibrationVersion, ... (rvis)   VARIABLES below
             Spheres/<id>/DriftEwmaMm, Drifting (rvis)
             Alarms/<code> (rvis)                     AlarmConditionType (app.line.opcua.alarms)
 
 The OPC Foundation's DI and Machinery NodeSets (NODESETS, shipped as they are in `nodesets/`)
 are imported first, so the types, the Machines folder and the states the MachineryItemState's
-CurrentState/Id points to are the official nodes. asyncua's `instantiate` links an instance
-with HasComponent: the AddIns are re-linked with HasAddIn. Every variable is read-only; a value
-the service does not have (no fit RMS for initial parameters, no temperature sensor, a chart not
-yet started) reads as BadNoValue, a value the status reply left out (the state storage failing)
-keeps its last value as UncertainLastUsableValue.
+and MachineryOperationMode's CurrentState/Id point to are the official nodes. asyncua's
+`instantiate` links an instance with HasComponent: the AddIns are re-linked with HasAddIn.
+Every variable is read-only; a value the service does not have (no fit RMS for initial
+parameters, no temperature sensor, a chart not yet started) reads as BadNoValue, a value the
+status reply left out (the state storage failing) keeps its last value as
+UncertainLastUsableValue.
 """
 
 from __future__ import annotations
@@ -32,6 +36,8 @@ from typing import TYPE_CHECKING, Any
 
 from asyncua import Node, Server, ua
 from asyncua.common.instantiate_util import instantiate
+
+from app.line.maintenance_state import MODE_NONE, operation_mode
 
 if TYPE_CHECKING:
     from app.config.line import OpcUaSettings  # (the server process does not import it)
@@ -58,7 +64,16 @@ ITEM_STATE_IDS = {
     "Executing": 5006,
     "NotExecuting": 5007,
 }
-#: the service's state -> MachineryItemState (40001-1: NotExecuting = ready, waiting for work)
+OPERATION_MODE_TYPE = 1008  # MachineryOperationModeStateMachineType
+OPERATION_MODE_IDS = {
+    "None": 5024,
+    "Maintenance": 5025,
+    "Processing": 5026,
+    "Setup": 5027,
+}
+#: the service's state -> MachineryItemState (40001-1: NotExecuting = ready, waiting for work);
+#: held for maintenance (the `maintenance` alarm, a FAULT) it is OutOfService and the
+#: MachineryOperationMode Maintenance (app.line.maintenance_state.operation_mode)
 ITEM_STATE_OF = {
     "starting": "NotAvailable",
     "idle": "NotExecuting",
@@ -304,8 +319,10 @@ class AddressSpace:
         self.machine: Node | None = None
         self._vars: dict[str, tuple[Var, Node]] = {}  # node path -> variable and its node
         self._last: dict[str, ua.DataValue] = {}
-        self._state: tuple[Node, Node] | None = None  # CurrentState and its Id
-        self._state_now: str | None = None  # the MachineryItemState published
+        #: per state machine ("item": MachineryItemState, "mode": MachineryOperationMode): its
+        #: CurrentState, its Id, the ids of the type's states, and the state published
+        self._machines: dict[str, tuple[Node, Node, dict[str, int]]] = {}
+        self._now: dict[str, str] = {}
         self.ns = self.ns_di = self.ns_machinery = 0
 
     async def build(self, spheres: list[str], software_revision: str, t: datetime) -> Node:
@@ -331,14 +348,24 @@ class AddressSpace:
             ua.ObjectIds.Organizes,
         )
         ident = await self._identification(machine, software_revision, t)
-        state = await self._item_state(machine)
+        state = await self._state_machine(
+            machine, "item", ITEM_STATE_TYPE, "MachineryItemState", ITEM_STATE_IDS, "NotAvailable"
+        )
+        mode = await self._state_machine(
+            machine,
+            "mode",
+            OPERATION_MODE_TYPE,
+            "MachineryOperationMode",
+            OPERATION_MODE_IDS,
+            MODE_NONE,
+        )
         blocks = await self._add(
             machine,
             self._id(name, "MachineryBuildingBlocks"),
             ua.QualifiedName("MachineryBuildingBlocks", self.ns_machinery),
             ua.ObjectIds.FolderType,
         )
-        for node in (ident, state):
+        for node in (ident, state, mode):
             await blocks.add_reference(node.nodeid, ua.ObjectIds.HasAddIn)
         for var in VARIABLES:
             await self._variable(machine, (name,), var)
@@ -415,20 +442,24 @@ class AddressSpace:
             )
         return ident
 
-    async def _item_state(self, machine: Node) -> Node:
-        """MachineryItemState: a MachineryItemState_StateMachineType; CurrentState and its Id
-        point to the type's state objects (ITEM_STATE_IDS)."""
-        obj = await self._add_in(
-            machine, ITEM_STATE_TYPE, ua.QualifiedName("MachineryItemState", self.ns_machinery)
-        )
+    async def _state_machine(
+        self,
+        machine: Node,
+        key: str,
+        type_id: int,
+        browse: str,
+        ids: dict[str, int],
+        initial: str,
+    ) -> Node:
+        """A state machine of Machinery's type `type_id` (MachineryItemState_StateMachineType,
+        MachineryOperationModeStateMachineType), an AddIn; CurrentState and its Id point to the
+        type's state objects (`ids`)."""
+        obj = await self._add_in(machine, type_id, ua.QualifiedName(browse, self.ns_machinery))
         current = await obj.get_child("0:CurrentState")
         state_id = await current.get_child("0:Id")
-        self._state = (current, state_id)
-        await self._write_state("NotAvailable", None)
+        self._machines[key] = (current, state_id, ids)
+        await self._write_state(key, initial, None)
         return obj
-
-    def _state_id(self, state: str) -> ua.NodeId:
-        return ua.NodeId(ITEM_STATE_IDS[state], self.ns_machinery)
 
     async def _variable(self, parent: Node, where: tuple[str, ...], var: Var) -> None:
         typedef = ua.ObjectIds.AnalogItemType if var.unit else ua.ObjectIds.BaseDataVariableType
@@ -509,28 +540,34 @@ class AddressSpace:
             await self.server.write_attribute_value(node.nodeid, stamped(dv))
             self._last[key] = dv
             written += 1
-        return written + await self._apply_state(status.get("state"), t)
+        return written + await self._apply_state(status, t)
 
-    async def _apply_state(self, state: Any, t: datetime) -> int:
-        item = ITEM_STATE_OF.get(str(state))
-        if item is None or self._state is None or self._state_now == item:
-            return 0
-        await self._write_state(item, t)
-        return 1
+    async def _apply_state(self, status: Mapping[str, Any], t: datetime) -> int:
+        """MachineryItemState from the service's state, MachineryOperationMode from the reply
+        (app.line.maintenance_state.operation_mode); the number written."""
+        written = 0
+        wanted = {"item": ITEM_STATE_OF.get(str(status.get("state"))), "mode": None}
+        if "maintenance" in status or status.get("state") in ("starting", "stopped"):
+            wanted["mode"] = operation_mode(status)  # (a reply without it: the last kept)
+        for key, value in wanted.items():
+            if value is None or key not in self._machines or self._now.get(key) == value:
+                continue
+            await self._write_state(key, value, t)
+            written += 1
+        return written
 
-    async def _write_state(self, item: str, t: datetime | None) -> None:
+    async def _write_state(self, key: str, value: str, t: datetime | None) -> None:
         """CurrentState (the state's name) and its Id (the type's state object)."""
-        assert self._state is not None
-        current, state_id = self._state
-        text = ua.Variant(ua.LocalizedText(item), ua.VariantType.LocalizedText)
+        current, state_id, ids = self._machines[key]
+        text = ua.Variant(ua.LocalizedText(value), ua.VariantType.LocalizedText)
         await self.server.write_attribute_value(
             current.nodeid, stamped(ua.DataValue(text, SourceTimestamp=t))
         )
-        node_id = ua.Variant(self._state_id(item), ua.VariantType.NodeId)
+        node_id = ua.Variant(ua.NodeId(ids[value], self.ns_machinery), ua.VariantType.NodeId)
         await self.server.write_attribute_value(
             state_id.nodeid, stamped(ua.DataValue(node_id, SourceTimestamp=t))
         )
-        self._state_now = item
+        self._now[key] = value
 
 
 CELL_TYPE_TEXT = (

@@ -1,0 +1,48 @@
+"""A cell in maintenance as the world sees it (app.line.maintenance_state): the `maintenance`
+alarm's texts the service writes (app.line.beyond_knock) read as what moved and the procedures
+they name; the Machinery operation mode of a status reply."""
+
+from __future__ import annotations
+
+from app.line.beyond_knock import blind_text
+from app.line.maintenance_state import maintenance_json, need_of, needed_text, operation_mode
+
+
+def test_the_blind_alarm_names_every_procedure() -> None:
+    text = blind_text(3, 9)
+    need = need_of({"id": 7, "code": "maintenance", "message": text, "t_raised": 1.8e9})
+    assert need["procedures"] == [
+        "rvis maintain axis N",
+        "rvis maintain sensor",
+        "rvis maintain fixture",
+    ]
+    assert need["what"].startswith("no sphere seen in 3 windows in a row (9 views rejected)")
+    assert need["raised_utc"] == "2027-01-15T08:00:00+00:00" and need["text"] == text
+    assert needed_text(need).endswith(
+        "; run `rvis maintain axis N` or `rvis maintain sensor` or `rvis maintain fixture`"
+    )
+
+
+def test_the_operation_mode_of_a_status_reply() -> None:
+    need = {"needed": {"procedures": ["rvis maintain sensor"]}, "running": None}
+    running = {"needed": None, "running": {"event": "sensor"}}
+    assert operation_mode({"state": "fault", "maintenance": need}) == "Maintenance"
+    assert operation_mode({"state": "stopped", "maintenance": need}) == "Maintenance"
+    assert operation_mode({"state": "paused", "maintenance": running}) == "Maintenance"
+    assert operation_mode({"state": "idle", "maintenance": running}) == "Processing"
+    assert operation_mode({"state": "fault", "maintenance": {"needed": None}}) == "Processing"
+    assert operation_mode({"state": "paused"}) == "Processing"
+    assert operation_mode({"state": "starting"}) == "None"
+
+
+def test_a_record_left_running_before_a_later_hand_over_is_not_in_maintenance() -> None:
+    """A procedure begun again with `--restart` leaves its first record running: once the
+    second handed the cell back, the cell is not in maintenance."""
+    row = {"event": "axis", "axis": 3, "who": "ben", "t_start": 1.8e9, "folder": "f"}
+    first = {**row, "id": 1, "status": "running"}
+    second = {**row, "id": 2, "status": "done", "t_end": 1.8e9 + 60.0, "version_after": 2}
+    m = maintenance_json([], [first, second], None)
+    assert m["running"] is None and m["last_done"]["id"] == 2
+    third = {**row, "id": 3, "status": "running"}
+    m = maintenance_json([], [first, second, third], None)
+    assert m["running"]["id"] == 3 and "progress" not in m["running"]  # no folder read
