@@ -37,7 +37,7 @@ from app.config.write import dumps_cell
 from app.errors import RvisError
 from app.formats.files import read_json, write_json, write_text
 from app.line.launch import hold_state
-from app.line.statedir import StateDir
+from app.line.statedir import MAINTENANCE_REPORT_JSON, StateDir
 from app.line.store import Store
 from app.maintain.record import open_record
 from app.maintain.steps import MaintenanceContext
@@ -85,14 +85,14 @@ def run_maintenance(cfg: CellConfig, out: Path, run: MaintenanceRun) -> dict[str
     n_measurements = _count_measurements(state)
     version_before = _last_version(state)
     m_robot_s, m_folder = _maintain(cell, state, run, say)
-    report = read_json(m_folder / "maintenance.json")
+    report = read_json(m_folder / MAINTENANCE_REPORT_JSON)
     steps = {s["name"]: s for s in report["steps"]}
     x_before = _version_x(cell, state, version_before)
     after, twin = _line_after(load_cell(state.cell), state, run, x_before)
     versions = [int(a["version"]) for a in _applied(state)]
     kept = _suspects(state)
     rows = before.records
-    commission_doc = read_json(state.commission / "commission.json")
+    commission_doc = read_json(state.commission_report.with_suffix(".json"))
     ws_before = _step(commission_doc, "workspace").get("rmse_mm")
     pre = [r.rmse_mm for r in rows if k - run.before_windows <= r.window < k]
     return {
@@ -363,6 +363,6 @@ def _truth(cfg: CellConfig, run: MaintenanceRun) -> dict[str, Any]:
 
 
 def write_rows(out: Path, rows: list[dict[str, Any]]) -> Path:
-    path = out / "maintenance.json"
+    path = out / MAINTENANCE_REPORT_JSON  # the experiment's rows: the name
     write_json(path, {"rows": rows})
     return path
