@@ -127,7 +127,7 @@ def _context(
     urls = cfg.devices.urls()
     if args.sim:
         from app.sim.commission import SimCommissioning
-        from app.sim.line_run import continued_epoch, with_simulated_plc
+        from app.sim.line_run import continued_epoch, with_simulated_plc, world_of
 
         epoch, world_s = continued_epoch(state.root)
         geometric = bool(cfg.simulation.geometric)
@@ -139,6 +139,7 @@ def _context(
                 waiting=say_waiting,
                 world_s=world_s,
                 start_epoch=epoch,
+                world=world_of(cfg, state.root),
             )
         )
         urls = sim.urls

@@ -253,7 +253,10 @@ def reidentify(ctx: Context) -> StepResult:
     n_all = len(ok)
     r.checks.append(count_at_least("views re-aimed", int(ok.sum()), n_all, n_all * (1 - limit)))
     sensor = ctx.sphere_sensor(ctx.sensor_model())
-    todo = [k for k in _subset(views, cell.commission.maintenance_views_per_sphere) if ok[k]]
+    per_sphere = cell.commission.maintenance_views_per_sphere
+    rigid, xr = _rigid(ctx, x_start)
+    subset = _subset(views, per_sphere, rigid, xr, _group(m, model).params)
+    todo = [k for k in subset if ok[k]]
     taken = Taken()
     seen_at: list[int] = []
     x_new, result, group = x_start, None, _group(m, model)
@@ -281,10 +284,7 @@ def reidentify(ctx: Context) -> StepResult:
         todo = [k for k in missed if ok[k]]
     taken.write(ctx.path(MAINTENANCE_MEASUREMENTS_FILE))
     r.files.append(MAINTENANCE_MEASUREMENTS_FILE)
-    seen, n_views = (
-        len(taken.targets),
-        len(_subset(views, cell.commission.maintenance_views_per_sphere)),
-    )
+    seen, n_views = len(taken.targets), len(subset)
     r.checks.append(count_at_least("views seen", seen, n_views, n_views * (1 - limit)))
     e = model.points_part(x_new, data.q_deg, data.c_sensor_mm, temp_c=data.temp_c)
     residual = rmse(e - data.p_part_mm)
@@ -316,15 +316,32 @@ def reidentify(ctx: Context) -> StepResult:
     return r
 
 
-def _subset(views: Views, per_sphere: int) -> list[int]:
-    """The views measured: `per_sphere` of each sphere's, spread over its plan (the changed
-    group has a few parameters; the plan keeps all of them, re-aimed)."""
-    out: list[int] = []
-    for t in dict.fromkeys(views.targets):
-        ks = [k for k, name in enumerate(views.targets) if name == t]
-        pick = np.unique(np.linspace(0, len(ks) - 1, min(per_sphere, len(ks))).round())
-        out += [ks[int(i)] for i in pick]
-    return out
+def _subset(
+    views: Views, per_sphere: int, model: Any, x: F64, params: tuple[str, ...]
+) -> list[int]:
+    """The views measured: `per_sphere` times the spheres of the plan's, chosen greedily for
+    the changed group (the largest log-determinant of its information, each view's sphere
+    taken in turn so that every sphere is seen; calib.information's D criterion). The plan
+    keeps all of them, re-aimed."""
+    n_spheres = len(dict.fromkeys(views.targets))
+    n = min(per_sphere * n_spheres, len(views.targets))
+    if not params:
+        params = BASE_NAMES  # nothing to identify: the part frame's information, a spread
+    J = model.point_jacobian(x, views.q_deg, views.c_mm, params)  # (K, 3, k)
+    k = J.shape[2]
+    info = np.eye(k) * 1e-9
+    chosen: list[int] = []
+    for _ in range(n):
+        best, best_gain = -1, -np.inf
+        for i in range(len(views.targets)):
+            if i in chosen:
+                continue
+            gain = float(np.linalg.slogdet(info + J[i].T @ J[i])[1])
+            if gain > best_gain:
+                best, best_gain = i, gain
+        chosen.append(best)
+        info = info + J[best].T @ J[best]
+    return sorted(chosen)
 
 
 def workspace(ctx: Context) -> StepResult:

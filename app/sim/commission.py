@@ -46,6 +46,7 @@ class SimCommissioning:
         waiting: Callable[[str], None] | None = None,
         world_s: float | None = None,
         start_epoch: float | None = None,
+        world: CellConfig | None = None,
     ) -> None:
         """waiting: told in one line, at once, when the simulated camera must wait for another
         simulation's (which it then does for as long as that one runs). world_s: the world's
@@ -53,9 +54,11 @@ class SimCommissioning:
         the world as the line left it (warm, knocked, its maintenance event happened: the
         cell file's [simline]); None: a commissioning's steady, cold cell. start_epoch: the
         Unix time its clock starts at (default now; a procedure on a directory whose simulated
-        line ran ahead of the wall clock continues after it: `continued_epoch`)."""
+        line ran ahead of the wall clock continues after it: `continued_epoch`). world: the
+        cell file the simulated world is built from (default cfg; a commissioned directory's
+        is `line_run.world_of`'s)."""
         self.cfg, self.seed, self.geometric = cfg, seed, geometric
-        self.cell = make_cell(cfg, seed=seed)
+        self.cell = make_cell(world or cfg, seed=seed)
         # the line of `rvis run --sim`, steady, with its camera either way; on a scaled wall
         # clock (the commissioning steps wait for the PLC in real time: nothing of theirs makes
         # virtual time pass)

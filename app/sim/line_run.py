@@ -27,7 +27,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from app.commission.files import TARGETS_FILE
 from app.config import CellConfig
+from app.formats.files import read_targets
 from app.formats.params import carried_from_json
 from app.line.measure import GeometricSensor, Rejected, SphereSensor, SweepSensor
 from app.line.recalib import Recalibrator
@@ -124,6 +126,18 @@ def simline_settings(
         galvo_settle_s=s.galvo_settle_s,
         body_format="serial8" if cfg.line.plc_body_id == "serial8" else "u32",
     )
+
+
+def world_of(cfg: CellConfig, state_dir: str | Path) -> CellConfig:
+    """The cell file with the simulated world's own sphere places: a commissioned directory's
+    are what its commissioning's tracker measured (`commission/targets.csv`, the world's to
+    its noise), which a maintenance's hand-over never changes; the cell file's own are the
+    service's belief (after a fixture's renewal, the spheres' new places: the world must not
+    move them a second time)."""
+    path = StateDir(state_dir).commission / TARGETS_FILE
+    if not path.is_file():
+        return cfg
+    return dataclasses.replace(cfg, spheres_part_mm=read_targets(path))
 
 
 def maintenance_of(cfg: CellConfig) -> Maintenance | None:
@@ -324,7 +338,7 @@ class SimulatedLineRun:
         line's camera must wait for another simulation's (as long as that one runs)."""
         cfg = with_simulated_plc(cfg)
         self.cfg, self.state_dir, self.seed = cfg, Path(state_dir), seed
-        self.cell = make_cell(cfg, seed=seed)
+        self.cell = make_cell(world_of(cfg, state_dir), seed=seed)
         # the service's clock never goes back: on a state directory with a history, the
         # simulated line's time starts where that history ends (else its records would
         # interleave with an earlier run's, which ran ahead of the wall clock)

@@ -43,7 +43,7 @@ from app.maintain.record import open_record
 from app.maintain.steps import MaintenanceContext
 from app.maintain.table import procedure
 from app.sim.commission import SimCommissioning
-from app.sim.line_run import SimulatedLineRun, WindowRecord, continued_epoch
+from app.sim.line_run import SimulatedLineRun, WindowRecord, continued_epoch, world_of
 from drivers.clock import RealClock
 from fakes.line import SimLine
 
@@ -200,7 +200,7 @@ def _line_after(
         hold_state(state.root, str(cfg.service.operators_group)),
         SimulatedLineRun(cfg, state.root, seed=run.seed, geometric=True, plan=state.plan) as sim,
     ):
-        twin = make_cell(cfg, seed=run.seed)
+        twin = make_cell(world_of(cfg, state.root), seed=run.seed)
         s = sim.line.settings
         twin.set_timeline(sim.clock, warmup=s.warmup, knock=s.knock, world_s=s.world_s)
         twin_line = _Twin(LineTruth(twin, sim.line.truth.validation))
@@ -242,7 +242,14 @@ def _maintain(
         held = stack.enter_context(hold_state(state.root, str(cfg.service.operators_group)))
         epoch, world_s = continued_epoch(state.root)
         sim = stack.enter_context(
-            SimCommissioning(cfg, run.seed, geometric=True, world_s=world_s, start_epoch=epoch)
+            SimCommissioning(
+                cfg,
+                run.seed,
+                geometric=True,
+                world_s=world_s,
+                start_epoch=epoch,
+                world=world_of(cfg, state.root),
+            )
         )
         folder, record = open_record(held, run.event, axis, restart=False, t=epoch, say=say)
         cfg_plc, station = sim.open_station(cfg)
@@ -357,7 +364,7 @@ def _truth(cfg: CellConfig, run: MaintenanceRun) -> dict[str, Any]:
     from app.sim.line_run import maintenance_of
     from fakes.clock import VirtualClock
 
-    cell = make_cell(cfg, seed=run.seed)
+    cell = make_cell(cfg, seed=run.seed)  # the cell file as commissioned: the world's spheres
     cell.set_timeline(VirtualClock(), maintenance=maintenance_of(cfg))
     return cell.maintenance_truth()
 

@@ -1,0 +1,172 @@
+"""`rvis maintain` on the simulated line, as a plant lives it (issue 41): a commissioned cell,
+the service holding it for maintenance after the event, the procedure on the same state
+directory (through the command line, in this process), and the service measuring again. Checked
+against the simulated cell's truth; seeds and event times not tuned on."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from app.commands.cli import main
+from app.config import load_cell
+from app.config.write import dumps_cell
+from app.formats.files import read_json, write_text
+from app.formats.params import from_json
+from app.line.statedir import MAINTENANCE_REPORT_JSON, StateDir
+from app.line.states import AlarmCode
+from app.line.store import Store
+from app.sim.line_run import SimulatedLineRun
+from app.sim.maintenance import _commission
+from tests.groups import GIGE_CAMERA
+
+SEED = 17
+AT_S = 780.0  # the event in the 14th clamp period
+
+
+@pytest.fixture(scope="module")
+def commissioned(tmp_path_factory: pytest.TempPathFactory) -> StateDir:
+    """A cell commissioned once on the simulated line (every step, geometric path)."""
+    state = StateDir(tmp_path_factory.mktemp("commissioned") / "state")
+    _commission(load_cell(None), state, SEED)
+    return state
+
+
+def _with_event(src: StateDir, dst: Path, kind: str, axis: int = 3) -> StateDir:
+    shutil.copytree(src.root, dst)
+    state = StateDir(dst)
+    cfg = load_cell(state.cell)
+    simline = dataclasses.replace(
+        cfg.simline, maintenance_at_s=AT_S, maintenance_kind=kind, maintenance_axis=axis
+    )
+    service = dataclasses.replace(cfg.service, state_dir=str(dst.resolve()))
+    cfg = dataclasses.replace(cfg, simline=simline, service=service)
+    write_text(state.cell, dumps_cell(cfg, "test: a maintenance event"))
+    return state
+
+
+def _line(state: StateDir, windows: int) -> Any:
+    cfg = load_cell(state.cell)
+    with SimulatedLineRun(cfg, state.root, seed=SEED, geometric=True, plan=state.plan) as sim:
+        return sim.run_windows(windows)
+
+
+def _store(state: StateDir) -> Store:
+    return Store.read_only(state.db)
+
+
+@GIGE_CAMERA
+@pytest.mark.parametrize(("kind", "axis"), [("axis", 2), ("sensor", 3), ("fixture", 3)])
+def test_a_procedure_hands_the_cell_back_with_its_history(
+    commissioned: StateDir, tmp_path: Path, kind: str, axis: int, capsys: Any
+) -> None:
+    state = _with_event(commissioned, tmp_path / "state", kind, axis)
+    before = _line(state, 30)
+    assert before.maintenance, "the service did not hold the cell"
+    truth_before = [r.rmse_mm for r in before.records if r.t_open_h * 3600.0 < AT_S]
+    store = _store(state)
+    try:
+        measurements_before = store.last_measurement_id()
+        assert store.active_alarms(code=AlarmCode.MAINTENANCE)
+    finally:
+        store.close()
+    args = ["maintain", kind, *([str(axis)] if kind == "axis" else [])]
+    code = main([*args, "--sim", "--state-dir", str(state.root), "--yes", "--json"])
+    out = capsys.readouterr().out
+    report = json.loads(out[out.index("{") :])
+    assert code == 0, report
+    assert report["complete"]
+    folder = state.maintenance / sorted(p.name for p in state.maintenance.iterdir())[0]
+    assert (folder / MAINTENANCE_REPORT_JSON).is_file()
+    steps = {s["name"]: s for s in report["steps"]}
+    version = steps["handover"]["results"]["version"]
+    # the history kept, the new version in force from the maintenance, the alarm cleared, the
+    # suspect interval closed at the hand-over, the record complete
+    store = _store(state)
+    try:
+        applied = store.applied()
+        assert applied[-1]["version"] == version and applied[-1]["source"] == "maintenance"
+        assert [a["version"] for a in applied] == list(range(1, version + 1))
+        assert store.last_measurement_id() == measurements_before
+        assert not store.active_alarms(code=AlarmCode.MAINTENANCE)
+        suspects = store.suspects()
+        assert suspects and all(s["t_end"] is not None for s in suspects)
+        assert suspects[-1]["end_reason"] == "maintenance"
+        (record,) = store.maintenance()
+        assert record["status"] == "done" and record["version_after"] == version
+    finally:
+        store.close()
+    # what the procedure found, against the truth
+    truth = _line_truth(state, kind)
+    if kind == "axis":
+        found = steps["reidentify"]["results"]["zero_change_deg"]
+        assert found == pytest.approx(truth["zero_change_deg"][axis - 1], abs=0.005)
+    # the service measures again on the same directory, not held, at its level before
+    after = _line(state, 12)
+    assert not after.maintenance and len(after.records) == 12
+    assert after.rejected == 0
+    median_after = sorted(r.rmse_mm for r in after.records)[6]
+    assert median_after < 1.5 * max(truth_before[-5:]), (truth_before[-5:], median_after)
+
+
+def _line_truth(state: StateDir, kind: str) -> dict[str, Any]:
+    from app.sim.cell import make_cell
+    from app.sim.line_run import maintenance_of
+    from fakes.clock import VirtualClock
+
+    cfg = load_cell(state.cell)
+    cell = make_cell(cfg, seed=SEED)
+    cell.set_timeline(VirtualClock(), maintenance=maintenance_of(cfg))
+    return cell.maintenance_truth()
+
+
+@GIGE_CAMERA
+def test_a_procedure_stopped_half_way_continues_where_it_stopped(
+    commissioned: StateDir, tmp_path: Path, capsys: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The engineer declines the workspace step: exit 1, the steps before passed and kept;
+    run again, it continues there with the same record and folder."""
+    state = _with_event(commissioned, tmp_path / "state", "axis", 3)
+    assert _line(state, 30).maintenance
+    import app.commands.commission as commission
+
+    def decline_workspace(yes: bool, say: Any) -> Any:
+        return lambda question: "workspace" not in question
+
+    monkeypatch.setattr(commission, "_confirmation", decline_workspace)
+    base = ["maintain", "axis", "3", "--sim", "--state-dir", str(state.root)]
+    assert main(base) == 1
+    monkeypatch.undo()
+    capsys.readouterr()
+    (folder,) = list(state.maintenance.iterdir())
+    journal = read_json(folder / "journal.json")
+    assert [s["name"] for s in journal["steps"] if s["status"] == "passed"] == [
+        "devices",
+        "prepare",
+        "zero",
+        "reidentify",
+    ]
+    assert main([*base, "--yes"]) == 0
+    assert list(state.maintenance.iterdir()) == [folder]
+    store = _store(state)
+    try:
+        (record,) = store.maintenance()
+        assert record["status"] == "done"
+    finally:
+        store.close()
+    _, x = from_json(state.current)
+    assert x.shape[0] > 0
+
+
+def test_maintain_refuses_what_it_cannot_do(tmp_path: Path, capsys: Any) -> None:
+    assert main(["maintain", "axis", "--state-dir", str(tmp_path)]) == 2
+    assert "axis's number" in capsys.readouterr().err
+    assert main(["maintain", "sensor", "2", "--state-dir", str(tmp_path)]) == 2
+    assert main(["maintain", "fixture", "--state-dir", str(tmp_path / "none")]) == 2
+    err = capsys.readouterr().err
+    assert "rvis commission" in err and err.count("\n") == 2  # one line each
