@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import sys
 from contextlib import ExitStack
-from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -86,8 +85,6 @@ def _context(
 ) -> Any:
     from app.commission.capture import CameraCapture
     from app.commission.context import Context
-    from app.line.station import Station, cell_guard
-    from drivers.errors import DeviceConfigError, DeviceError
 
     sim = None
     urls = cfg.devices.urls()
@@ -100,18 +97,8 @@ def _context(
         )
         urls = sim.urls
         cfg = with_simulated_plc(cfg)
-    guard = replace(cell_guard(cfg), max_speed_pct=float(cfg.commission.speed_pct))
-    options = {"camera": {"settings": cfg.camera.settings()}, "plc": {"read_only": True}}
     trace = cfg.devices.wire_trace(state.wire_trace, every_device=True if sim else None)
-    try:
-        station = Station.open(urls, guard=guard, options=options, trace=trace)
-    except DeviceConfigError as exc:
-        raise InputError(str(exc), file=cfg.source, field="devices") from exc
-    except DeviceError as exc:
-        from app.errors import RvisError
-
-        raise RvisError(f"cannot open the devices: {type(exc).__name__}: {exc}") from exc
-    stack.callback(station.close)
+    station = open_devices(cfg, urls, trace, stack)
     if sim is not None:
         sim.station = station
     return Context(
@@ -128,6 +115,23 @@ def _context(
         truth=sim,
         placement=sim,
     )
+
+
+def open_devices(cfg: Any, urls: dict[str, str], trace: Any, stack: ExitStack) -> Any:
+    """The devices of a guided procedure (app.commission.context.open_station), closed with
+    `stack`; a configuration error is bad input (exit 2), an unreachable device one line."""
+    from app.commission.context import open_station
+    from app.errors import RvisError
+    from drivers.errors import DeviceConfigError, DeviceError
+
+    try:
+        station = open_station(cfg, urls, trace)
+    except DeviceConfigError as exc:
+        raise InputError(str(exc), file=cfg.source, field="devices") from exc
+    except DeviceError as exc:
+        raise RvisError(f"cannot open the devices: {type(exc).__name__}: {exc}") from exc
+    stack.callback(station.close)
+    return station
 
 
 def _real_sensor(cfg: Any, station: Any) -> Any:

@@ -114,14 +114,11 @@ def _context(
     say: Any,
     stack: ExitStack,
 ) -> Any:
-    from dataclasses import replace
 
-    from app.commands.commission import _real_sensor
+    from app.commands.commission import _real_sensor, open_devices
     from app.commission.capture import CameraCapture
-    from app.line.station import Station, cell_guard
     from app.maintain.steps import MaintenanceContext
     from drivers.clock import RealClock
-    from drivers.errors import DeviceConfigError, DeviceError
 
     sim = None
     urls = cfg.devices.urls()
@@ -144,17 +141,7 @@ def _context(
         )
         urls = sim.urls
         cfg = with_simulated_plc(cfg)
-    guard = replace(cell_guard(cfg), max_speed_pct=float(cfg.commission.speed_pct))
-    options = {"camera": {"settings": cfg.camera.settings()}, "plc": {"read_only": True}}
-    try:
-        station = Station.open(urls, guard=guard, options=options)
-    except DeviceConfigError as exc:
-        raise InputError(str(exc), file=cfg.source, field="devices") from exc
-    except DeviceError as exc:
-        from app.errors import RvisError
-
-        raise RvisError(f"cannot open the devices: {type(exc).__name__}: {exc}") from exc
-    stack.callback(station.close)
+    station = open_devices(cfg, urls, None, stack)
     if sim is not None:
         sim.station = station
     return MaintenanceContext(

@@ -27,7 +27,7 @@ from app.line.measure import SphereSensor
 from app.line.schedule import motion_time_s
 from app.line.settings import from_cell
 from app.line.statedir import StateDir
-from app.line.station import Station
+from app.line.station import Station, cell_guard
 from drivers.clock import Clock, RealClock
 from vision.sensor_model import SensorModel
 
@@ -151,3 +151,12 @@ class Context:
             frame="part", positions_mm={k: tuple(map(float, v)) for k, v in spheres.items()}
         )
         return dataclasses.replace(self.cfg, spheres=section, spheres_part_mm=spheres)
+
+
+def open_station(cfg: CellConfig, urls: dict[str, str], trace: Any = None) -> Station:
+    """The cell's devices opened for a guided procedure: the robot's guard at `[commission]
+    speed_pct`, the camera at the cell file's settings, the PLC read-only (the line's PLC
+    program keeps its outputs)."""
+    guard = dataclasses.replace(cell_guard(cfg), max_speed_pct=float(cfg.commission.speed_pct))
+    options = {"camera": {"settings": cfg.camera.settings()}, "plc": {"read_only": True}}
+    return Station.open(urls, guard=guard, options=options, trace=trace)

@@ -89,16 +89,14 @@ class SimCommissioning:
         return self.line.urls
 
     def open_station(self, cfg: CellConfig, trace: Any = None) -> tuple[CellConfig, Any]:
-        """The simulated line's devices opened through the real drivers as a commissioning
-        opens them (at `[commission] speed_pct`, the PLC read-only), and the cell file with the
-        line's PLC settings; the station closes with this object."""
-        from app.line.station import Station, cell_guard
+        """The simulated line's devices opened through the real drivers as a guided procedure
+        opens them (app.commission.context.open_station), and the cell file with the line's
+        PLC settings; the station closes with this object."""
+        from app.commission.context import open_station
         from app.sim.line_run import with_simulated_plc
 
         cfg = with_simulated_plc(cfg)
-        guard = replace(cell_guard(cfg), max_speed_pct=float(cfg.commission.speed_pct))
-        options = {"camera": {"settings": cfg.camera.settings()}, "plc": {"read_only": True}}
-        station = Station.open(self.urls, guard=guard, options=options, trace=trace)
+        station = open_station(cfg, self.urls, trace)
         self._stack.callback(station.close)
         self.station = station
         return cfg, station
