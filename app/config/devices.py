@@ -103,8 +103,11 @@ class CommissionSection(Section):
     max_validation_rmse_mm: float = opt(0.2, gt=0, hi=100)
     # the paper's validation (section 4, eq. 19): a sphere on a tracker nest at this many
     # workspace positions, each measured by the tracker (target `validation_target`) and by
-    # rvis from a view the calibration did not use; its RMS error held to max_workspace_rmse_mm
-    workspace_positions: int = opt(20, lo=3, hi=1000)
+    # rvis from a view the calibration did not use; its RMS error held to max_workspace_rmse_mm.
+    # Its errors are the in-line service's evidence for a new cell's U95 until the line's own
+    # replace them (app.line.accuracy): 50 bound sigma within 1.11x (20: 1.18x), and the U95
+    # from them is not an unlucky draw of a few positions (docs/results/accuracy-first-window.md)
+    workspace_positions: int = opt(50, lo=3, hi=1000)
     validation_target: str = opt("VAL")
     max_workspace_rmse_mm: float = opt(0.2, gt=0, hi=100)
     # the plant's tolerance T of the body features measured (0: not given): the report states

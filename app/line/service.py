@@ -1037,10 +1037,13 @@ class Service:
         """The U95 seed of the version in force (app.line.accuracy): its batch calibration's
         rolling set scaled to prediction errors (`seed`, the drift charts' own), none for a
         sequential or step one (their residuals are optimistic by an unknown factor), the
-        identification residuals its document carries when no calibration here made it."""
+        identification residuals its document carries when no calibration here made it
+        (its workspace validation counts whole: app.line.accuracy.seed_count; a rolling set
+        only its last schedule cycle)."""
         if cal is None:
             return document_seed(self.params.current_document())
-        return [e for _, e in seed] if _kind(cal["document"]) == "batch" else []
+        batch = _kind(cal["document"]) == "batch"
+        return [e for _, e in seed][-len(self.schedule) :] if batch else []
 
     def _version_seed(self) -> list[float]:
         """The U95 seed of the version in force (`_u_seed`)."""

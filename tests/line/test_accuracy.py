@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.line.accuracy import document_seed, evidence, statement
+from app.line.accuracy import document_seed, evidence, seed_count, statement
 
 
 def _rows(residuals: list[float], version: int, first_id: int = 1) -> list[dict[str, object]]:
@@ -19,10 +19,23 @@ def _rows(residuals: list[float], version: int, first_id: int = 1) -> list[dict[
 
 def test_held_out_measurements_of_the_version_in_force_topped_up_by_its_seed() -> None:
     rows = _rows([0.5, 0.5], 1) + _rows([0.03, 0.04], 2, first_id=3)
-    norms, basis = evidence(rows, 2, None, [0.02] * 10, n_max=5)
+    norms, basis = evidence(rows, 2, None, [0.02] * 4, n_max=5)
     assert norms == [0.02, 0.02, 0.02, 0.03, 0.04] and basis == "held-out+seed"
     norms, basis = evidence(rows, 2, None, [], n_max=5)
     assert norms == [0.03, 0.04] and basis == "held-out"
+
+
+def test_a_validation_longer_than_a_cycle_counts_whole_then_in_proportion() -> None:
+    """A seed of at most a cycle tops the held-out norms up to a cycle (as before); a longer
+    one (a workspace validation at 50 positions) counts whole beside the first held-out norm
+    and is displaced in proportion as the held-out norms fill the cycle."""
+    assert [seed_count(20, h, 24) for h in (0, 1, 5, 23)] == [24, 23, 19, 1]
+    assert [seed_count(50, h, 24) for h in (0, 1, 12, 23)] == [50, 48, 25, 3]
+    seed = [0.06] * 30 + [0.05] * 20
+    norms, basis = evidence(_rows([0.04], 1), 1, None, seed, n_max=24)
+    assert norms == [*seed[-48:], 0.04] and basis == "held-out+seed"
+    norms, _ = evidence(_rows([0.04] * 24, 1), 1, None, seed, n_max=24)
+    assert norms == [0.04] * 24
 
 
 def test_a_flagged_step_counts_only_the_measurements_after_it() -> None:
