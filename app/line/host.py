@@ -76,6 +76,7 @@ class LineHost(Protocol):
     step: Step | None
     accuracy: Accuracy | None
     accuracy_suspect_id: int | None
+    u_seed: list[float]  # the U95 seed of the version in force (app.line.accuracy)
 
     # faults
     storage_failed: bool

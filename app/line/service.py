@@ -62,6 +62,7 @@ from app.line.accuracy import (
     document_seed,
     evidence,
     statement,
+    with_prediction,
 )
 from app.line.cycle import Cycle, WindowWatch
 from app.line.drift import DriftMonitor, prediction_inflation, residual_mm
@@ -595,6 +596,9 @@ class Service:
         rows = self.store.measurements(last=4 * n_max)
         norms, basis = evidence(rows, self.version, self.drift_onset_id, self.u_seed, n_max)
         acc = statement(norms, basis, self.settings.recalib.accuracy_limit_mm)
+        step = self.step  # a fast correction's predicted uncertainty, for its version
+        if step is not None and step.predicted_version == self.version:
+            acc = with_prediction(acc, norms, step.predicted_sigma_mm, n_max)
         self.accuracy = acc
         with self.store.batch():
             self.store.state_window_u95(acc.u95_mm)

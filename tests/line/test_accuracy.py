@@ -7,7 +7,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.line.accuracy import document_seed, evidence, seed_count, statement
+from app.line.accuracy import (
+    PREDICTED,
+    document_seed,
+    evidence,
+    seed_count,
+    statement,
+    with_prediction,
+)
+from calib.uncertainty import norm_quantile, shown_larger
 
 
 def _rows(residuals: list[float], version: int, first_id: int = 1) -> list[dict[str, object]]:
@@ -72,3 +80,30 @@ def test_a_commissioned_version_is_seeded_by_its_workspace_validation() -> None:
     assert document_seed({**doc, "validation": {"errors_mm": errors}}) == errors
     assert document_seed({**doc, "validation": {"errors_mm": []}}) == scaled
     assert document_seed(None) == []
+
+
+def test_a_fast_correction_states_its_predicted_uncertainty_until_contradicted() -> None:
+    """After a fast correction the cell states the correction's predicted sigma (the level
+    before the step and the correction's own, in quadrature) while the few residuals after it
+    do not show it larger and do not bound it lower themselves; a cycle of them, a
+    contradiction or no prediction: the residuals' own bound."""
+    sigma = 0.045  # per coordinate: U95 0.126 mm
+    few = statement([0.07] * 6, "after step", 0.15)  # 6 norms: their bound alone 0.18 mm
+    assert few.u95_mm is not None and few.u95_mm > 0.15
+    acc = with_prediction(few, [0.07] * 6, sigma, n_max=24)
+    assert acc.basis == PREDICTED and acc.u95_mm == pytest.approx(norm_quantile() * sigma)
+    assert acc.vouched and acc.n == 6
+    # residuals that show the sigma larger: the prediction does not stand
+    big = statement([0.15] * 6, "after step", 0.15)
+    assert shown_larger([0.15] * 6, sigma) and with_prediction(big, [0.15] * 6, sigma, 24) == big
+    # a cycle of residuals, none, no prediction, or not after a step: as stated
+    full = statement([0.07] * 24, "after step", 0.15)
+    assert with_prediction(full, [0.07] * 24, sigma, 24) == full
+    none = statement([], "none", 0.15)
+    assert with_prediction(none, [], sigma, 24) == none
+    assert with_prediction(few, [0.07] * 6, None, 24) == few
+    seeded = statement([0.07] * 6, "held-out+seed", 0.15)
+    assert with_prediction(seeded, [0.07] * 6, sigma, 24) == seeded
+    # residuals that bound it lower themselves: theirs
+    small = statement([0.01] * 12, "after step", 0.15)
+    assert with_prediction(small, [0.01] * 12, sigma, 24) == small
