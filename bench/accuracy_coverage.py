@@ -15,14 +15,26 @@ window's stated U95 with the end-to-end true RMS error of the validation points 
 - the knock: windows to the flag (and any flag before it), attribution, windows until the true
   error is within the limit again and vouched for.
 
-    python bench/accuracy_coverage.py [--seeds 21,22] [--hours-at 0.1,0.2,0.35] [--hours 1.5]
+- where the suspect windows within the limit come from: a new cell's windows before the knock
+  (stated from its commissioning's evidence), the knock's window and the two after it, the
+  windows after; and how many of them have a true RMS above what an honest statement can vouch
+  for (an honest U95 of a point is about 1.62x the RMS of a 3-D Gaussian error, 1.86x from one
+  schedule cycle's residuals, 24: a window of RMS above limit / 1.86 cannot be vouched for);
+- the same share for statements that knew each window's truth (clairvoyant): suspect exactly
+  when the window's points' 95th percentile is above the limit, or when 1.62x (1.86x) its true
+  RMS is: what the target can be on these shifts' true errors.
 
-Prints a table per kind and hour and the totals; `--json FILE` keeps the rows.
+    python bench/accuracy_coverage.py [--seeds 21,22] [--hours-at 0.1,0.2,0.35] [--hours 1.5]
+        [--workspace-positions N]
+
+Prints a table per kind and hour and the totals; `--json FILE` keeps the rows (with each
+shift's timeline: window, parameters version, true RMS, points' p95, stated U95, suspect).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import statistics
 import sys
@@ -35,12 +47,22 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from app.config import load_cell
 from app.sim.shift import ShiftSettings, run_shift
+from calib.uncertainty import u95_mm
 
 GROUP = {"sensor": "sensor", "fixture": "fixture", "joint": "J2"}
+#: U95 / RMS of an honest statement: the norm's 95th percentile of a 3-D Gaussian error
+#: (2.80 sigma = 1.62 RMS), and the bound from one schedule cycle's residuals (24) that happen
+#: to be as large as the truth
+PERFECT = u95_mm([1.0] * 100_000)
+ONE_CYCLE = u95_mm([1.0] * 24)
 
 
-def one(kind: str, at_h: float, seed: int, hours: float) -> dict[str, Any]:
+def one(kind: str, at_h: float, seed: int, hours: float, positions: int | None) -> dict[str, Any]:
     cfg = load_cell(None)
+    if positions is not None:
+        cfg = dataclasses.replace(
+            cfg, commission=dataclasses.replace(cfg.commission, workspace_positions=positions)
+        )
     with tempfile.TemporaryDirectory() as tmp:
         r = run_shift(cfg, Path(tmp) / "state", ShiftSettings(hours, at_h, kind), seed=seed)
     recs, k, limit = r.records, r.knock_window or 0, r.accuracy_limit_mm
@@ -81,8 +103,21 @@ def one(kind: str, at_h: float, seed: int, hours: float) -> dict[str, Any]:
         "bad_points_suspect": sum(x.suspect for x in recs if x.p95_mm > limit),
         "suspect_within_points": sum(x.p95_mm <= limit for x in suspect),
         "mean_mm": statistics.fmean(x.rmse_mm for x in recs),
+        "limit_mm": limit,
         # per validation point: the share of (window, point) within the window's stated U95
         "coverage_points": statistics.fmean(x.within_u95 or 0.0 for x in recs),
+        # per window: [window, parameters version, true RMS, points' p95, stated U95, suspect]
+        "timeline": [
+            [
+                x.window,
+                x.version,
+                round(x.rmse_mm, 5),
+                round(x.p95_mm, 5),
+                None if x.u95_mm is None else round(x.u95_mm, 5),
+                x.suspect,
+            ]
+            for x in recs
+        ],
     }
 
 
@@ -92,6 +127,9 @@ def main() -> None:
     ap.add_argument("--hours-at", default="0.1,0.2,0.35")
     ap.add_argument("--hours", type=float, default=1.5)
     ap.add_argument("--kinds", default="sensor,fixture,joint")
+    ap.add_argument(
+        "--workspace-positions", type=int, help="[commission] workspace_positions (the cell's)"
+    )
     ap.add_argument("--json", type=Path)
     a = ap.parse_args()
     seeds = [int(s) for s in a.seeds.split(",")]
@@ -106,7 +144,7 @@ def main() -> None:
     for kind in a.kinds.split(","):
         for at_h in hours_at:
             for seed in seeds:
-                r = one(kind, at_h, seed, a.hours)
+                r = one(kind, at_h, seed, a.hours, a.workspace_positions)
                 rows.append(r)
                 print(
                     f"| {kind} | {at_h:g} | {seed} | {r['flagged_after']} |"
@@ -148,8 +186,47 @@ def main() -> None:
         f" back within the limit within 6 windows:"
         f" {sum(r['back_after'] is not None and r['back_after'] <= 6 for r in rows)}/{len(rows)}"
     )
+    print(suspect_within_text(rows, limit=rows[0]["limit_mm"]))
     if a.json:
         a.json.write_text(json.dumps(rows, indent=1))
+
+
+def suspect_within_text(rows: list[dict[str, Any]], limit: float) -> str:
+    """Where the suspect windows within the limit come from, and what the share would be for
+    clairvoyant statements (module docstring)."""
+    phases = {"before the knock": 0, "the knock and 2 after": 0, "later": 0}
+    unvouchable = within = suspect = 0
+    names = ("by the points' p95", f"{PERFECT:.2f}x RMS", f"{ONE_CYCLE:.2f}x RMS")
+    seers = {name: [0, 0] for name in names}
+    for r in rows:
+        k = r["knock_window"]
+        for w, _v, rms, p95, _u, sus in r["timeline"]:
+            above = rms > limit
+            for name, flag in zip(
+                names, (p95 > limit, PERFECT * rms > limit, ONE_CYCLE * rms > limit), strict=True
+            ):
+                if flag or above:
+                    seers[name][0] += 1
+                    seers[name][1] += not above
+            if not sus:
+                continue
+            suspect += 1
+            if above:
+                continue
+            within += 1
+            unvouchable += ONE_CYCLE * rms > limit
+            phase = (
+                "before the knock" if w < k else "the knock and 2 after" if w < k + 3 else "later"
+            )
+            phases[phase] += 1
+    parts = ", ".join(f"{n} {name}" for name, n in phases.items())
+    seen = "; ".join(f"{name} {n}/{m}" for name, (m, n) in seers.items())
+    return (
+        f"suspect windows within the limit: {within}/{suspect}: {parts}; {unvouchable} of them"
+        f" with a true RMS above limit / {ONE_CYCLE:.2f} = {limit / ONE_CYCLE:.4f} mm\n"
+        f"clairvoyant statements (suspect exactly when the window's points' p95, or a multiple of"
+        f" its true RMS, is above the limit), suspect windows within the limit: {seen}"
+    )
 
 
 if __name__ == "__main__":

@@ -53,6 +53,21 @@ def u95_mm(norms_mm: Sequence[float], extra_sigma_mm: float = 0.0) -> float:
     return norm_quantile() * math.hypot(s, extra_sigma_mm)
 
 
+def shown_larger(
+    norms_mm: Sequence[float], sigma_mm: float, confidence: float = CONFIDENCE
+) -> bool:
+    """The norms of n 3-D errors show a per-coordinate standard deviation larger than
+    `sigma_mm` at `confidence` (sum(e^2) / sigma^2 above chi2.ppf(confidence, 3n)): a stated
+    sigma the evidence contradicts. None measured: not shown."""
+    from scipy.stats import chi2
+
+    n = len(norms_mm)
+    if n == 0:
+        return False
+    ss = math.fsum(float(e) ** 2 for e in norms_mm)
+    return ss / sigma_mm**2 > float(chi2.ppf(confidence, 3 * n))
+
+
 def shown_worse(
     candidate_mm: Sequence[float], current_mm: Sequence[float], confidence: float = CONFIDENCE
 ) -> bool:

@@ -103,7 +103,10 @@ class CommissionSection(Section):
     max_validation_rmse_mm: float = opt(0.2, gt=0, hi=100)
     # the paper's validation (section 4, eq. 19): a sphere on a tracker nest at this many
     # workspace positions, each measured by the tracker (target `validation_target`) and by
-    # rvis from a view the calibration did not use; its RMS error held to max_workspace_rmse_mm
+    # rvis from a view the calibration did not use; its RMS error held to max_workspace_rmse_mm.
+    # Its errors are the in-line service's evidence for a new cell's U95 until the line's own
+    # replace them (app.line.accuracy `seed_count`): 50 positions bound sigma within 1.11x, 20
+    # within 1.18x (docs/results/accuracy-first-window.md weighs the 30 more tracker positions)
     workspace_positions: int = opt(20, lo=3, hi=1000)
     # `rvis maintain` (app/maintain/): the same validation at fewer positions (its RMS known
     # to about +-20 % at 95 % from 10: the robot time of a procedure a third of a

@@ -9,9 +9,11 @@ calibration scaled to prediction errors, as the drift charts are seeded: app.lin
 flagged step changes the evidence: only the measurements from its change point on count (the
 seed and the measurements before it describe a cell that is no longer there), so U95 grows at
 once with the first measurement after a knock, and comes down with the measurements of the
-correction in force. A window whose U95 is above the limit (or unknown: no evidence yet) is
-one the cell cannot vouch for: it opens (or keeps open) an accuracy suspect interval, closed by
-the first window vouched for again.
+correction in force; while they are fewer than a cycle, a fast correction's predicted
+uncertainty (the level before the step and the correction's covariance) stands for it as long
+as they do not contradict it (`with_prediction`). A window whose U95 is above the limit (or
+unknown: no evidence yet) is one the cell cannot vouch for: it opens (or keeps open) an
+accuracy suspect interval, closed by the first window vouched for again.
 """
 
 from __future__ import annotations
@@ -22,18 +24,23 @@ from dataclasses import dataclass
 from typing import Any
 
 from app.line.drift import prediction_inflation
-from calib.uncertainty import u95_mm
+from calib.uncertainty import norm_quantile, shown_larger, u95_mm
 
 #: the `group_name` of an accuracy suspect interval (a step's names the group that moved)
 ACCURACY_GROUP = "accuracy"
 #: the end_reason of an interval closed because the cell vouches for its U95 within the limit
 VOUCHED = "vouched"
+#: the basis of a statement after a step: the measurements after it, or a fast correction's
+#: predicted uncertainty that they do not contradict
+AFTER_STEP = "after step"
+PREDICTED = "predicted"
 
 
 @dataclass(frozen=True)
 class Accuracy:
     """The statement after a window: `u95_mm` (None: no evidence), from `n` residuals (`basis`:
-    "held-out", "held-out+seed", "seed", "after step" or "none"), against `limit_mm`."""
+    "held-out", "held-out+seed", "seed", "after step", "predicted" or "none"), against
+    `limit_mm`."""
 
     u95_mm: float | None
     n: int
@@ -73,7 +80,8 @@ def evidence(
 ) -> tuple[list[float], str]:
     """(residual norms [mm], basis) that speak for the parameters `version` now (module
     docstring): the good measurements `rows` (id order) taken with it, from `onset_id` on when
-    a step is flagged, the last `n_max`; topped up with `seed_mm` without a step."""
+    a step is flagged, the last `n_max`; topped up with `seed_mm` without a step (`seed_count`
+    of them, the newest)."""
     held = [
         float(r["residual_mm"])
         for r in rows
@@ -82,17 +90,50 @@ def evidence(
         and (onset_id is None or int(r["id"]) >= onset_id)
     ][-n_max:]
     if onset_id is not None:
-        return held, "after step" if held else "none"
-    top = list(seed_mm)[-(n_max - len(held)) :] if len(held) < n_max else []
+        return held, AFTER_STEP if held else "none"
+    top = list(seed_mm)[-seed_count(len(seed_mm), len(held), n_max) :] if len(held) < n_max else []
     if not held:
         return top, "seed" if top else "none"
     return top + held, "held-out+seed" if top else "held-out"
+
+
+def seed_count(n_seed: int, n_held: int, n_max: int) -> int:
+    """How many of a seed of `n_seed` norms top up `n_held` held-out ones (< n_max): the seed
+    speaks for the version as a schedule cycle would, and the held-out residuals displace it
+    in proportion as they fill the cycle; a seed of at most `n_max` norms tops the held-out up
+    to `n_max` (its newest), a longer one (a commissioning's workspace validation at more
+    positions than a cycle has slots) counts whole at first, the share of it the cycle has
+    not filled yet after (a validation of 50 positions: 48 of them beside 1 held-out norm, 25
+    beside 12)."""
+    return max(n_max - n_held, math.ceil(n_seed * (n_max - n_held) / n_max))
 
 
 def statement(norms_mm: Sequence[float], basis: str, limit_mm: float) -> Accuracy:
     """The Accuracy of these residual norms."""
     u = u95_mm(norms_mm)
     return Accuracy(None if math.isnan(u) else u, len(norms_mm), basis, limit_mm)
+
+
+def with_prediction(
+    acc: Accuracy, norms_mm: Sequence[float], sigma_mm: float | None, n_max: int
+) -> Accuracy:
+    """After a fast correction of a step: its predicted uncertainty instead of the post-step
+    residuals' bound while they are few. `sigma_mm`: the correction's predicted sigma per
+    coordinate (the upper bound of the cell's level before the step, the evidence of a cycle
+    then, combined in quadrature with the correction's own predicted std over the measuring
+    volume: GUM's combination of the two independent terms), None without one; `norms_mm`:
+    the residuals measured with it in force after the step (`acc`'s evidence). The prediction
+    stands while they are at least one and fewer than a cycle (`n_max`), do not show a larger
+    sigma (calib.uncertainty.shown_larger, 95 %) and do not bound it lower themselves; else
+    `acc`. Basis "predicted"."""
+    if sigma_mm is None or acc.basis != AFTER_STEP or not 0 < len(norms_mm) < n_max:
+        return acc
+    if shown_larger(norms_mm, sigma_mm):
+        return acc
+    u = norm_quantile() * sigma_mm
+    if acc.u95_mm is not None and acc.u95_mm <= u:
+        return acc
+    return Accuracy(u, len(norms_mm), PREDICTED, acc.limit_mm)
 
 
 def document_seed(doc: Mapping[str, Any] | None) -> list[float]:

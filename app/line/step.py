@@ -113,6 +113,13 @@ class Step:
     # cell's first windows): the drift chart's or the calibration's, at the flag [mm]
     reference_mm: float | None = None
     change_from_before: int = 0  # the service's change_from_id before the flag (a drop restores)
+    # a fast correction's predicted uncertainty (app.line.accuracy.with_prediction): the upper
+    # bound of sigma [mm per coordinate] of the cell before the step (taken when the first
+    # correction is proposed) and, with the correction in force, that combined with the
+    # correction's own predicted std, for that version
+    level_sigma_mm: float | None = None
+    predicted_sigma_mm: float | None = None
+    predicted_version: int | None = None
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)

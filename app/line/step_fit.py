@@ -264,7 +264,12 @@ def correct_step(
         )
     failures += change_failures(fit.group.params, fit.x, x_force, gates)
     doc = plain_document(model, fit.x, f"rvis run (step correction: {a.text()})")
-    doc["estimator"] = {"kind": "step", "group": fit.group.name, "attribution": a.to_json()}
+    doc["estimator"] = {
+        "kind": "step",
+        "group": fit.group.name,
+        "attribution": a.to_json(),
+        "predicted_std_mm": float(std) if np.isfinite(std) else None,  # per coordinate
+    }
     doc["success"] = not failures
     fitted = ref[fit_rows] - residuals(model, fit.x, data.subset(fit_rows))
     correction = StepCorrection(

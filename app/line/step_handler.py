@@ -13,6 +13,7 @@ covariance instead. A correction trained after the change point in force (Versio
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -20,7 +21,7 @@ import numpy as np
 
 from app.errors import InputError
 from app.formats.params import carried_from_json
-from app.line.accuracy import VOUCHED, document_seed
+from app.line.accuracy import AFTER_STEP, PREDICTED, VOUCHED, document_seed, evidence
 from app.line.beyond_knock import BLIND_WINDOWS, beyond, step_text
 from app.line.drift import OVERALL
 from app.line.host import LineHost
@@ -46,6 +47,7 @@ from calib.attribution import (
     step_groups,
 )
 from calib.candidates import IDEAL_STANDOFF_MM
+from calib.uncertainty import sigma_upper_mm
 
 #: the change point is looked for from the CUSUM's estimate less half the schedule (the
 #: estimate can be late as well as early) up to the measurement that signalled
@@ -239,6 +241,7 @@ class StepHandler:
         if svc.sequential is None and corr is not None and corr.passed:
             step.move(StepStatus.PROPOSED)
             step.base_version = svc.version
+            step.level_sigma_mm = self._level_sigma(step)
             svc.recal_done(corr)
 
     def _late(self, step: Step) -> bool:
@@ -247,6 +250,20 @@ class StepHandler:
         return bool(rows) and self.svc.counters["windows"] - int(rows[0]["window"]) + 1 >= (
             BLIND_WINDOWS
         )
+
+    def _level_sigma(self, step: Step) -> float | None:
+        """The upper bound of sigma [mm per coordinate] of the cell before the step: the
+        evidence (app.line.accuracy.evidence: the version in force's held-out residuals
+        topped up by its seed) of the schedule cycle before the step."""
+        svc = self.svc
+        n_max = len(svc.schedule)
+        # before the earlier of the flag's change point and the located start (a new cell's
+        # start may be located after measurements the knock already moved)
+        first = min(step.onset_id, step.start_id or step.onset_id)
+        rows = svc.store.measurements(before_id=first, last=4 * n_max)
+        norms, _ = evidence(rows, svc.version, None, svc.u_seed, n_max)
+        s = sigma_upper_mm(norms)
+        return None if math.isnan(s) else s
 
     def _step_pairs(
         self, step: Step, *, locate: bool
@@ -442,6 +459,12 @@ class StepHandler:
             )
         step.recover_version, step.recover_t, step.recover_kind = version, t, kind
         step.recover_n, step.recover_verdict, step.recover_look_n = 0, "", 0
+        # a fast correction's predicted uncertainty (app.line.accuracy.with_prediction)
+        est = ((cal or {}).get("document") or {}).get("estimator") or {}
+        std = est.get("predicted_std_mm") if kind == "step" else None
+        level = step.level_sigma_mm
+        predicted = None if std is None or level is None else math.hypot(level, float(std))
+        step.predicted_sigma_mm, step.predicted_version = predicted, version
         step.recover_cal_id = None if cal is None else int(cal["id"])
         last = svc.store.measurements(last=1)
         step.recover_from_id = int(last[0]["id"]) if last else 0
@@ -530,7 +553,10 @@ class StepHandler:
         vouched = (
             acc is not None
             and acc.vouched
-            and acc.basis == "after step"
+            and (
+                acc.basis == AFTER_STEP
+                or (acc.basis == PREDICTED and test.n_after >= r.recovery_min_measurements)
+            )
             and svc.version == step.recover_version
         )
         if test.verdict != "back" and not settled and not vouched:

@@ -137,10 +137,13 @@ class Versions:
         """The U95 seed of the version in force (app.line.accuracy): its batch calibration's
         rolling set scaled to prediction errors (`seed`, the drift charts' own), none for a
         sequential or step one (their residuals are optimistic by an unknown factor), the
-        identification residuals its document carries when no calibration here made it."""
+        identification residuals its document carries when no calibration here made it
+        (its workspace validation counts whole: app.line.accuracy.seed_count; a rolling set
+        only its last schedule cycle)."""
         if cal is None:
             return document_seed(self.svc.params.current_document())
-        return [e for _, e in seed] if _kind(cal["document"]) == "batch" else []
+        batch = _kind(cal["document"]) == "batch"
+        return [e for _, e in seed][-len(self.svc.schedule) :] if batch else []
 
     def version_seed(self) -> list[float]:
         """The U95 seed of the version in force (`u_seed`)."""

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import logging
 
-from app.line.accuracy import ACCURACY_GROUP, VOUCHED, evidence, statement
+from app.line.accuracy import ACCURACY_GROUP, VOUCHED, evidence, statement, with_prediction
 from app.line.beyond_knock import BLIND_WINDOWS, blind_text
 from app.line.decisions import Decisions
 from app.line.faults import Faults
@@ -158,6 +158,9 @@ class WindowLoop:
         rows = svc.store.measurements(last=4 * n_max)
         norms, basis = evidence(rows, svc.version, svc.drift_onset_id, svc.u_seed, n_max)
         acc = statement(norms, basis, svc.settings.recalib.accuracy_limit_mm)
+        step = svc.step  # a fast correction's predicted uncertainty, for its version
+        if step is not None and step.predicted_version == svc.version:
+            acc = with_prediction(acc, norms, step.predicted_sigma_mm, n_max)
         svc.accuracy = acc
         with svc.store.batch():
             svc.store.state_window_u95(acc.u95_mm)
