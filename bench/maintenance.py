@@ -81,6 +81,11 @@ def main() -> None:
             if isinstance(r, str):
                 print(f"{event:8} {seed:>4} skipped: {r}", flush=True)
                 continue
+            if r["truth_after_mm"] is None or not r["procedure_passed"]:
+                r["verdicts"] = {"procedure": False}
+                rows.append(r)
+                print(f"{event:8} {seed:>4} MISSED: the procedure did not hand back", flush=True)
+                continue
             v = verdicts(r)
             r["verdicts"] = v
             rows.append(r)
@@ -99,9 +104,10 @@ def main() -> None:
                 flush=True,
             )
     print()
-    keys = list(verdicts(rows[0]).keys()) if rows else []
+    keys = ["procedure", "held<=3", "bodies", "truth<=1.15x", "val 0.8-1.25", "robot<=1/3"]
+    keys += ["measuring", "history"]
     for k in keys:
-        n = sum(r["verdicts"][k] for r in rows)
+        n = sum(bool(r["verdicts"].get(k, k == "procedure")) for r in rows)
         print(f"{k:14} {n}/{len(rows)}")
     print(f"{len(rows)} runs in {time.monotonic() - t0:.0f} s")
     if a.json:

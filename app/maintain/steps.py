@@ -8,6 +8,7 @@ workspace validation) are the commissioning's, run in the procedure's folder on 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -253,10 +254,10 @@ def reidentify(ctx: Context) -> StepResult:
     n_all = len(ok)
     r.checks.append(count_at_least("views re-aimed", int(ok.sum()), n_all, n_all * (1 - limit)))
     sensor = ctx.sphere_sensor(ctx.sensor_model())
-    per_sphere = cell.commission.maintenance_views_per_sphere
     rigid, xr = _rigid(ctx, x_start)
-    subset = _subset(views, per_sphere, rigid, xr, _group(m, model).params)
-    todo = [k for k in subset if ok[k]]
+    params = _group(m, model).params
+    n_views = cell.commission.maintenance_views_per_sphere * len(dict.fromkeys(views.targets))
+    todo = _subset(views, n_views, rigid, xr, params, among=[k for k in range(len(ok)) if ok[k]])
     taken = Taken()
     seen_at: list[int] = []
     x_new, result, group = x_start, None, _group(m, model)
@@ -277,14 +278,16 @@ def reidentify(ctx: Context) -> StepResult:
             return r
         if not got.rejected or attempt == 1:
             break
-        missed = [k for k in todo if k not in seen_at]
-        q2, ok2 = _aimed(ctx, Views(*(_pick(views, missed))), x_new)
-        for j, k in enumerate(missed):
-            q[k], ok[k] = q2[j], ok2[j]
-        todo = [k for k in missed if ok[k]]
+        # every view re-aimed on the fit, and as many as were missed chosen again among
+        # those not seen yet (the missed ones included)
+        missed = len([k for k in todo if k not in seen_at])
+        q, ok = _aimed(ctx, views, x_new)
+        _, xr = _rigid(ctx, x_new)
+        pool = [k for k in range(len(ok)) if ok[k] and k not in seen_at]
+        todo = _subset(views, missed, rigid, xr, params, seen=seen_at, among=pool)
     taken.write(ctx.path(MAINTENANCE_MEASUREMENTS_FILE))
     r.files.append(MAINTENANCE_MEASUREMENTS_FILE)
-    seen, n_views = len(taken.targets), len(subset)
+    seen = len(taken.targets)
     r.checks.append(count_at_least("views seen", seen, n_views, n_views * (1 - limit)))
     e = model.points_part(x_new, data.q_deg, data.c_sensor_mm, temp_c=data.temp_c)
     residual = rmse(e - data.p_part_mm)
@@ -317,28 +320,28 @@ def reidentify(ctx: Context) -> StepResult:
 
 
 def _subset(
-    views: Views, per_sphere: int, model: Any, x: F64, params: tuple[str, ...]
+    views: Views,
+    n: int,
+    model: Any,
+    x: F64,
+    params: tuple[str, ...],
+    *,
+    seen: Sequence[int] = (),
+    among: Sequence[int] | None = None,
 ) -> list[int]:
-    """The views measured: `per_sphere` times the spheres of the plan's, chosen greedily for
-    the changed group (the largest log-determinant of its information, each view's sphere
-    taken in turn so that every sphere is seen; calib.information's D criterion). The plan
-    keeps all of them, re-aimed."""
-    n_spheres = len(dict.fromkeys(views.targets))
-    n = min(per_sphere * n_spheres, len(views.targets))
+    """n views to measure, chosen greedily for the changed group (each adds the most
+    log-determinant to the group's information, with the views `seen` already counted:
+    DETMAX's D criterion on the plan's views), from `among` (default all). The plan keeps all
+    of them, re-aimed."""
     if not params:
         params = BASE_NAMES  # nothing to identify: the part frame's information, a spread
     J = model.point_jacobian(x, views.q_deg, views.c_mm, params)  # (K, 3, k)
-    k = J.shape[2]
-    info = np.eye(k) * 1e-9
+    info = np.eye(J.shape[2]) * 1e-9 + sum((J[i].T @ J[i] for i in seen), np.zeros((1, 1)))
+    pool = [i for i in (range(len(views.targets)) if among is None else among) if i not in seen]
     chosen: list[int] = []
-    for _ in range(n):
-        best, best_gain = -1, -np.inf
-        for i in range(len(views.targets)):
-            if i in chosen:
-                continue
-            gain = float(np.linalg.slogdet(info + J[i].T @ J[i])[1])
-            if gain > best_gain:
-                best, best_gain = i, gain
+    for _ in range(min(n, len(pool))):
+        gains = [float(np.linalg.slogdet(info + J[i].T @ J[i])[1]) for i in pool]
+        best = pool.pop(int(np.argmax(gains)))
         chosen.append(best)
         info = info + J[best].T @ J[best]
     return sorted(chosen)
