@@ -86,14 +86,17 @@ def measure_views(
     what: str,
     *,
     via_home: bool = True,
+    end_home: bool = True,
 ) -> Taken:
     """Each (sphere, q_deg) from home and back home (`via_home`; else from view to view, home
     at the end: the line stopped for maintenance has no clamping cycle to clear); the PLC's
     cell temperature with each (when the cell file says the PLC provides it, and plausible:
-    app.line.cycle.cell_temperature). A robot left away from home (a commissioning killed
-    mid-step) goes home first."""
+    app.line.cycle.cell_temperature). With `via_home` a robot left away from home (a
+    commissioning killed mid-step) goes home first; `end_home` False leaves it at the last view (a caller that
+    measures more views next and goes home itself)."""
     taken = Taken()
-    ctx.home()
+    if via_home:
+        ctx.home()
     for k, (target, q) in enumerate(views, start=1):
         ctx.move(q, f"{what} view {k}/{len(views)} (sphere {target})")
         ctx.robot_s += ctx.sweep.duration_s  # the robot stands still for the sweep
@@ -114,7 +117,8 @@ def measure_views(
             taken.temp_c.append(temp_c)
         if via_home:
             ctx.home()
-    ctx.home()
+    if end_home:
+        ctx.home()
     return taken
 
 

@@ -256,14 +256,21 @@ def reidentify(ctx: Context) -> StepResult:
     sensor = ctx.sphere_sensor(ctx.sensor_model())
     rigid, xr = _rigid(ctx, x_start)
     params = _group(m, model).params
-    n_views = cell.commission.maintenance_views_per_sphere * len(dict.fromkeys(views.targets))
-    todo = _subset(views, n_views, rigid, xr, params, among=[k for k in range(len(ok)) if ok[k]])
+    # a zero (one or two parameters) is settled by two views of each sphere; a 6-DoF group
+    # (sensor, part frame) gets `[commission] maintenance_views_per_sphere`
+    per_sphere = cell.commission.maintenance_views_per_sphere if len(params) > 2 else 2
+    todo: list[int] = []
+    for sphere in dict.fromkeys(views.targets):  # each sphere's few, its views close together
+        mine = [k for k in range(len(ok)) if ok[k] and views.targets[k] == sphere]
+        todo += _subset(views, per_sphere, rigid, xr, params, seen=todo, among=mine)
+    todo = sorted(todo)
+    n_views = len(todo)
     taken = Taken()
     seen_at: list[int] = []
     x_new, result, group = x_start, None, _group(m, model)
     for attempt in range(2):  # a second look at the views not seen, re-aimed on the fit
         chosen = [(views.targets[k], q[k]) for k in todo]
-        got = measure_views(ctx, chosen, sensor, "maintenance", via_home=False)
+        got = measure_views(ctx, chosen, sensor, "maintenance", via_home=False, end_home=False)
         seen_at += [k for k in todo if any(np.array_equal(q[k], v) for v in got.q_deg)]
         _extend(taken, got)
         data = taken.data(ctx.spheres_part_mm())
@@ -285,6 +292,7 @@ def reidentify(ctx: Context) -> StepResult:
         _, xr = _rigid(ctx, x_new)
         pool = [k for k in range(len(ok)) if ok[k] and k not in seen_at]
         todo = _subset(views, missed, rigid, xr, params, seen=seen_at, among=pool)
+    ctx.home()
     taken.write(ctx.path(MAINTENANCE_MEASUREMENTS_FILE))
     r.files.append(MAINTENANCE_MEASUREMENTS_FILE)
     seen = len(taken.targets)
