@@ -92,8 +92,8 @@ def measure_views(
     at the end: the line stopped for maintenance has no clamping cycle to clear); the PLC's
     cell temperature with each (when the cell file says the PLC provides it, and plausible:
     app.line.cycle.cell_temperature). With `via_home` a robot left away from home (a
-    commissioning killed mid-step) goes home first; `end_home` False leaves it at the last view (a caller that
-    measures more views next and goes home itself)."""
+    commissioning killed mid-step) goes home first; `end_home` False leaves it at the last
+    view (a caller that measures more views next and goes home itself)."""
     taken = Taken()
     if via_home:
         ctx.home()
