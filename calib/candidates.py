@@ -74,6 +74,11 @@ class ViewSample:
     c_planned_mm: F64
 
 
+#: a random view's closed-form configuration is refined on the model where it misses the view
+#: by more than this [mm]: within, the sphere is well inside the measuring volume's +-5 mm
+REFINE_ABOVE_MM = 2.0
+
+
 def random_configurations(
     model: SystemModel,
     x: F64,
@@ -104,13 +109,18 @@ def random_configurations(
             options = sols.for_pose(int(i))
             if len(options) and len(qs) < n:
                 q = options[rng.integers(len(options))]
-                # the closed form is the nominal robot's: refined on x (its joint zeros, its
-                # links), or a cell with a zero a degree off sees the sphere centimetres away
+                # the closed form is the nominal robot's: where it misses the view on x by more
+                # than REFINE_ABOVE_MM (a cell with a zero a degree off sees the sphere
+                # centimetres away) it is refined on x; within, it is kept as it is
                 target = model.T_part_base(x) @ F[i] @ model.T_flange_sensor(x)
-                fit = refine(model, x, target, q[None], max_iter=10)
-                if fit.converged[0]:
-                    qs.append(fit.q_deg[0])
-                    cs.append(c[i])
+                miss = np.linalg.norm(model.fk(x, q[None])[0, :3, 3] - target[:3, 3])
+                if miss > REFINE_ABOVE_MM:
+                    fit = refine(model, x, target, q[None], max_iter=10)
+                    if not fit.converged[0]:
+                        continue
+                    q = fit.q_deg[0]
+                qs.append(q)
+                cs.append(c[i])
     return ViewSample(np.array(qs).reshape(-1, 6), np.array(cs).reshape(-1, 3))
 
 

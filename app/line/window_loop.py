@@ -119,16 +119,26 @@ class WindowLoop:
 
     def _watch_blind(self, first_id: int) -> None:
         """Windows in a row in which no view saw its sphere where the parameters put it (each
-        rejected, or off by more than `[service] maintenance_step_mm`): at BLIND_WINDOWS, a
-        change far beyond a knock (app.line.beyond_knock): the step's suspect interval from
-        the first of them, the cell held for maintenance."""
+        rejected, or off by more than `[service] maintenance_step_mm`, where its last good
+        visit was within it): at BLIND_WINDOWS, a change far beyond a knock
+        (app.line.beyond_knock): the step's suspect interval from the first of them, the cell
+        held for maintenance."""
         svc = self.svc
         ids = list(range(first_id, svc.store.last_measurement_id() + 1))
         rows = svc.store.measurements_by_id(ids) if ids else []  # the window's, any status
         if not rows:
             return  # a window without a measurement says nothing
         bound = svc.settings.recalib.maintenance_step_mm
-        far = [r for r in rows if r["status"] != "ok" or abs(r["residual_mm"] or 0.0) > bound]
+        # the slots' last good measurements before the window: a view counts as blind when it
+        # saw its sphere within the bound before (a change, not a cell never calibrated)
+        before = svc.store.measurements(before_id=first_id, last=4 * len(svc.schedule))
+        was = {int(r["slot"]): abs(r["residual_mm"] or 0.0) <= bound for r in before}
+        far = [
+            r
+            for r in rows
+            if was.get(int(r["slot"]), False)
+            and (r["status"] != "ok" or abs(r["residual_mm"] or 0.0) > bound)
+        ]
         if len(far) < len(rows):
             self._blind = []
             return

@@ -16,7 +16,9 @@ def test_the_blind_alarm_names_every_procedure() -> None:
         "rvis maintain sensor",
         "rvis maintain fixture",
     ]
-    assert need["what"].startswith("no sphere seen in 3 windows in a row (9 views rejected)")
+    assert need["what"].startswith(
+        "no sphere seen where the parameters put it in 3 windows in a row (9 views rejected"
+    )
     assert need["raised_utc"] == "2027-01-15T08:00:00+00:00" and need["text"] == text
     assert needed_text(need).endswith(
         "; run `rvis maintain axis N` or `rvis maintain sensor` or `rvis maintain fixture`"
