@@ -83,7 +83,6 @@ def _context(
     say: Any,
     stack: ExitStack,
 ) -> Any:
-    from app.commission.capture import CameraCapture
     from app.commission.context import Context
 
     sim = None
@@ -107,13 +106,10 @@ def _context(
         station=station,
         confirm=confirm,
         say=say,
-        sphere_sensor=sim.sphere_sensor if sim else _real_sensor(cfg, station),
-        capture=sim if sim else CameraCapture(),
         sensor_file=args.sensor,
         sensor_data=args.sensor_data,
         targets_file=args.targets,
-        truth=sim,
-        placement=sim,
+        **(sim.context_fields() if sim else real_fields(cfg, station)),
     )
 
 
@@ -132,6 +128,14 @@ def open_devices(cfg: Any, urls: dict[str, str], trace: Any, stack: ExitStack) -
         raise RvisError(f"cannot open the devices: {type(exc).__name__}: {exc}") from exc
     stack.callback(station.close)
     return station
+
+
+def real_fields(cfg: Any, station: Any) -> dict[str, Any]:
+    """What a guided procedure's Context takes on a real cell: the sweep through camera and
+    galvo, targets captured by the camera (the engineer places the spheres; no truth)."""
+    from app.commission.capture import CameraCapture
+
+    return {"sphere_sensor": _real_sensor(cfg, station), "capture": CameraCapture()}
 
 
 def _real_sensor(cfg: Any, station: Any) -> Any:

@@ -115,8 +115,7 @@ def _context(
     stack: ExitStack,
 ) -> Any:
 
-    from app.commands.commission import _real_sensor, open_devices
-    from app.commission.capture import CameraCapture
+    from app.commands.commission import open_devices, real_fields
     from app.maintain.steps import MaintenanceContext
     from drivers.clock import RealClock
 
@@ -150,13 +149,10 @@ def _context(
         station=station,
         confirm=confirm,
         say=say,
-        sphere_sensor=sim.sphere_sensor if sim else _real_sensor(cfg, station),
-        capture=sim if sim else CameraCapture(),
         sensor_file=args.sensor,
         sensor_data=args.sensor_data,
         targets_file=args.targets,
-        truth=sim,
-        placement=sim,
+        **(sim.context_fields() if sim else real_fields(cfg, station)),
         out_dir=folder,
         clock=sim.line.clock if sim is not None else RealClock(),
         event=args.event,

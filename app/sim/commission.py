@@ -101,6 +101,17 @@ class SimCommissioning:
         self.station = station
         return cfg, station
 
+    def context_fields(self) -> dict[str, Any]:
+        """What a guided procedure's Context takes from the simulated line: how a sphere is
+        measured, how targets are captured, where the validation sphere is placed, and the
+        truth for the report."""
+        return {
+            "sphere_sensor": self.sphere_sensor,
+            "capture": self,
+            "truth": self,
+            "placement": self,
+        }
+
     def sphere_sensor(self, model: SensorModel) -> SphereSensor:
         """The geometric sensor of fast runs, or the real sweep through camera and galvo."""
         if self.geometric:

@@ -150,10 +150,7 @@ def _commission(cfg: CellConfig, state: StateDir, seed: int) -> float:
             station=station,
             confirm=lambda _: True,
             say=_quiet,
-            sphere_sensor=sim.sphere_sensor,
-            capture=sim,
-            truth=sim,
-            placement=sim,
+            **sim.context_fields(),
         )
         journal = Journal(held.commission, {"simulated": True, "seed": seed, "geometric": True})
         failed = run_sequence(ctx, journal)
@@ -259,10 +256,7 @@ def _maintain(
             station=station,
             confirm=lambda _: True,
             say=say,
-            sphere_sensor=sim.sphere_sensor,
-            capture=sim,
-            truth=sim,
-            placement=sim,
+            **sim.context_fields(),
             out_dir=folder,
             clock=sim.line.clock if sim.line.clock is not None else RealClock(),
             event=run.event,
