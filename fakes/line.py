@@ -80,6 +80,9 @@ class SimLineSetup:
     knock: Knock | None = None
     maintenance: Maintenance | None = None  # a change beyond a knock (fakes.truth)
     camera: bool = True  # start the GigE fake (False: geometric runs, no rendering)
+    # its frames take the line's time (False: a geometric procedure's camera, which is only
+    # probed: a probe re-triggered under a loaded machine would move the world on by a frame)
+    camera_timed: bool = True
     camera_address: str = "127.0.0.1"
     # how long the camera waits for its address when another simulation's holds it (None: as
     # long as it takes: a user's command), and who is told at once that it waits
@@ -182,7 +185,7 @@ class SimLine:
                 self.world,
                 address=s.camera_address,
                 sensor_wh=sensor_wh,
-                clock=self.virtual,
+                clock=self.virtual if s.camera_timed else None,
                 readout_s=s.camera_readout_s,
                 wait_s=s.camera_wait_s,
                 on_wait=s.camera_on_wait,

@@ -117,7 +117,6 @@ def _context(
 
     from app.commands.commission import open_devices, real_fields
     from app.maintain.steps import MaintenanceContext
-    from drivers.clock import RealClock
 
     sim = None
     urls = cfg.devices.urls()
@@ -154,7 +153,6 @@ def _context(
         targets_file=args.targets,
         **(sim.context_fields() if sim else real_fields(cfg, station)),
         out_dir=folder,
-        clock=sim.line.clock if sim is not None else RealClock(),
         event=args.event,
         axis=axis,
         record_id=record,

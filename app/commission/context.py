@@ -75,7 +75,7 @@ class Context:
     truth: Any = None  # the simulated line (reports figures against its truth; never checked)
     placement: SpherePlacement | None = None  # the simulated line's hands
     out_dir: Path | None = None  # where results go (default: the commissioning's folder)
-    clock: Clock = field(default_factory=RealClock)  # the time the first version is applied at
+    clock: Clock = field(default_factory=RealClock)  # the cell's time: versions, records, waits
     # the robot's time so far [s]: its motions (as the line's motion model estimates them at
     # the commissioning's speed) and the sweeps it stood still for
     robot_s: float = 0.0

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import itertools
 import shutil
-import time
 from pathlib import Path
 
 import numpy as np
@@ -69,13 +68,13 @@ def device_checks(ctx: Context) -> StepResult:
 
 def _plc_alive(ctx: Context) -> bool:
     """The PLC's heartbeat changes within its timeout (the PLC is opened read-only)."""
-    plc = ctx.station.plc
+    plc, clock = ctx.station.plc, ctx.clock
     first = plc.poll().heartbeat
-    deadline = time.monotonic() + plc.heartbeat_timeout_s
+    deadline = clock.monotonic() + plc.heartbeat_timeout_s
     while plc.poll().heartbeat == first:
-        if time.monotonic() > deadline:
+        if clock.monotonic() > deadline:
             return False
-        time.sleep(plc.poll_s)
+        clock.sleep(plc.poll_s)
     return True
 
 

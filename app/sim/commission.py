@@ -59,11 +59,14 @@ class SimCommissioning:
         is `line_run.world_of`'s)."""
         self.cfg, self.seed, self.geometric = cfg, seed, geometric
         self.cell = make_cell(world or cfg, seed=seed)
-        # the line of `rvis run --sim`, steady, with its camera either way; on a scaled wall
-        # clock (the commissioning steps wait for the PLC in real time: nothing of theirs makes
-        # virtual time pass)
+        # the line of `rvis run --sim`, steady, with its camera either way, in virtual time as
+        # fast as the CPU: the robot's motions, the sweeps and the procedure's waits
+        # (Context.clock) make it pass, so what the world does meanwhile (a warm cell cooling,
+        # a procedure's thermal state) is the same on a loaded machine as on an idle one
         line = simline_settings(cfg, geometric=True)
-        settings = replace(line, camera=True, clock="scaled", scale=cfg.simline.scale)
+        settings = replace(
+            line, camera=True, camera_timed=not geometric, clock="virtual", scale=None
+        )
         if world_s is None:
             settings = replace(settings, warmup=None, knock=None, maintenance=None)
         else:
@@ -104,18 +107,19 @@ class SimCommissioning:
     def context_fields(self) -> dict[str, Any]:
         """What a guided procedure's Context takes from the simulated line: how a sphere is
         measured, how targets are captured, where the validation sphere is placed, and the
-        truth for the report."""
+        truth for the report, and the line's clock (the procedure's time and its waits)."""
         return {
             "sphere_sensor": self.sphere_sensor,
             "capture": self,
             "truth": self,
             "placement": self,
+            "clock": self.line.clock,
         }
 
     def sphere_sensor(self, model: SensorModel) -> SphereSensor:
         """The geometric sensor of fast runs, or the real sweep through camera and galvo."""
-        if self.geometric:
-            return geometric_sensor(self.line)
+        if self.geometric:  # the sweep's time passes as the rendered one's frames do
+            return geometric_sensor(self.line, self._sweep().duration_s)
         assert self.station is not None and self.station.camera is not None
         return SweepSensor(self.station.camera, self.station.galvo, model, self._sweep())
 

@@ -44,7 +44,6 @@ from app.maintain.steps import MaintenanceContext
 from app.maintain.table import procedure
 from app.sim.commission import SimCommissioning
 from app.sim.line_run import SimulatedLineRun, WindowRecord, continued_epoch, world_of
-from drivers.clock import RealClock
 from fakes.line import SimLine
 
 
@@ -258,7 +257,6 @@ def _maintain(
             say=say,
             **sim.context_fields(),
             out_dir=folder,
-            clock=sim.line.clock if sim.line.clock is not None else RealClock(),
             event=run.event,
             axis=axis,
             record_id=record,
