@@ -18,7 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 from calib import ik
 from calib.ik_refine import refine
 from calib.model import SystemModel
-from calib.transforms import apply, inverse, pose
+from calib.transforms import apply, inverse, pose, rotvec_to_matrix
 
 F64 = NDArray[np.float64]
 
@@ -108,20 +108,72 @@ def random_configurations(
         for i in rng.permutation(k):
             options = sols.for_pose(int(i))
             if len(options) and len(qs) < n:
-                q = options[rng.integers(len(options))]
-                # the closed form is the nominal robot's: where it misses the view on x by more
-                # than REFINE_ABOVE_MM (a cell with a zero a degree off sees the sphere
-                # centimetres away) it is refined on x; within, it is kept as it is
-                target = model.T_part_base(x) @ F[i] @ model.T_flange_sensor(x)
-                miss = np.linalg.norm(model.fk(x, q[None])[0, :3, 3] - target[:3, 3])
-                if miss > REFINE_ABOVE_MM:
-                    fit = refine(model, x, target, q[None], max_iter=10)
-                    if not fit.converged[0]:
-                        continue
-                    q = fit.q_deg[0]
-                qs.append(q)
-                cs.append(c[i])
+                q = _on_model(model, x, F[i], options[rng.integers(len(options))])
+                if q is not None:
+                    qs.append(q)
+                    cs.append(c[i])
     return ViewSample(np.array(qs).reshape(-1, 6), np.array(cs).reshape(-1, 3))
+
+
+def _on_model(model: SystemModel, x: F64, T_base_flange: F64, q_deg: F64) -> F64 | None:
+    """The closed form's configuration q_deg of a flange pose, on the model x: the closed form
+    is the nominal robot's; where it misses the view on x by more than REFINE_ABOVE_MM (a cell
+    with a zero a degree off sees the sphere centimetres away) it is refined on x (None: the
+    refinement did not converge); within, it is kept as it is."""
+    target = model.T_part_base(x) @ T_base_flange @ model.T_flange_sensor(x)
+    miss = np.linalg.norm(model.fk(x, q_deg[None])[0, :3, 3] - target[:3, 3])
+    if miss <= REFINE_ABOVE_MM:
+        return q_deg
+    fit = refine(model, x, target, q_deg[None], max_iter=10)
+    return fit.q_deg[0] if fit.converged[0] else None
+
+
+def neighbour_configurations(
+    model: SystemModel,
+    x: F64,
+    p_part_mm: ArrayLike,
+    q_deg: ArrayLike,
+    c_sensor_mm: ArrayLike,
+    n: int,
+    rng: np.random.Generator,
+    *,
+    tilt_deg: tuple[float, float] = (8.0, 20.0),
+    max_tilt_deg: float = 75.0,
+    max_joint_deg: float = 30.0,
+    max_tries: int = 50,
+) -> ViewSample:
+    """n more views of the sphere at p_part_mm near the view q_deg (which sees it at
+    c_sensor_mm): the sensor turned about the sphere's centre by tilt_deg (a random axis across
+    the view direction, a random roll up to the same angle), the sphere where it was in the
+    field of view, on the inverse kinematics branch nearest q_deg, no joint more than
+    max_joint_deg from it (near a wrist singularity a small turn of the sensor is a half turn
+    of J4 and J6). Each is a new stop of the robot a short motion away (a validation sphere
+    measured from several views while it stays put). Fewer when unreachable or when the view
+    would look up or tilt past max_tilt_deg."""
+    q0 = np.asarray(q_deg, dtype=float)
+    c = np.asarray(c_sensor_mm, dtype=float)
+    T_base_part = inverse(model.T_part_base(x))
+    R0 = (T_base_part @ model.fk(x, q0[None])[0])[:3, :3]
+    qs: list[F64] = []
+    cos_max = np.cos(np.radians(max_tilt_deg))
+    for _ in range(max_tries):
+        if len(qs) >= n:
+            break
+        a = np.cross(R0[:, 2], rng.normal(size=3))
+        a *= np.radians(rng.uniform(*tilt_deg)) / np.linalg.norm(a)
+        roll = np.radians(rng.uniform(-tilt_deg[1], tilt_deg[1]))
+        R = rotvec_to_matrix(a) @ R0 @ rotvec_to_matrix(np.array([0.0, 0.0, roll]))
+        if R[2, 2] > -cos_max:
+            continue
+        F = flange_poses(model, x, p_part_mm, R[None], c)
+        options = ik.solve(F, model.limits).for_pose(0)
+        if not len(options):
+            continue
+        nearest = options[int(np.argmin(np.max(np.abs(options - q0), axis=1)))]
+        q = _on_model(model, x, F[0], nearest)
+        if q is not None and np.max(np.abs(q - q0)) <= max_joint_deg:
+            qs.append(q)
+    return ViewSample(np.array(qs).reshape(-1, 6), np.tile(c, (len(qs), 1)))
 
 
 # -- the candidate set of one sphere (paper section 4.2, step 2) ------------------------------

@@ -170,7 +170,8 @@ def run_maintenance_experiment(args: argparse.Namespace) -> int:
         "event", "event_window", "detected_after_windows", "suspect_from_window",
         "bodies_after_event_suspect", "procedure_passed", "procedure_robot_s",
         "commissioning_robot_s", "validation_before_mm", "validation_after_mm",
-        "truth_before_mm", "truth_unchanged_mm", "truth_after_mm",
+        "truth_before_mm", "truth_unchanged_mm", "truth_after_mm", "truth_line_after_mm",
+        "truth_line_unchanged_mm",
     )  # fmt: skip
     print(dumps_json({k: row[k] for k in keys}, indent=2))
     print(f"written {path}")

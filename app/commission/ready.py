@@ -27,11 +27,11 @@ from app.commission.files import (
     STRIPE_FILE,
     WORKSPACE_ERRORS_FILE,
 )
-from app.commission.workspace import accuracy_limit_of
+from app.commission.workspace import accuracy_limit_of, workspace_evidence_mm
 from app.config import CellConfig, load_cell
 from app.config.devices import CameraSection
 from app.config.write import dumps_cell
-from app.formats.files import ERROR_COLUMNS, csv_rows, read_json, write_bytes, write_text
+from app.formats.files import read_json, write_bytes, write_text
 from app.formats.params import from_json
 from app.line.params_store import ParamsStore, first_in_force
 from app.line.schedule import Schedule
@@ -93,22 +93,13 @@ def _apply_once(ctx: Context) -> int:
             if version != 1 or x.shape != x_ours.shape or not np.allclose(x, x_ours):
                 raise RuntimeError(f"{ctx.state.current} holds another calibration")
         doc = {**doc, "source": "commissioning"}
-        errors = _workspace_errors_mm(ctx)
+        errors = workspace_evidence_mm(ctx.path(WORKSPACE_ERRORS_FILE))
         if errors:  # the version's prediction error across the workspace: the service's U95
             doc["validation"] = {"errors_mm": errors, "what": "commissioning workspace step"}
         written = None if current is None else current[0]
         return first_in_force(params, store, doc, "commissioning", ctx.clock, written)
     finally:
         store.close()
-
-
-def _workspace_errors_mm(ctx: Context) -> list[float]:
-    """The workspace step's error norms (its `e_mm` column), none when it did not run (a
-    commissioning without a tracker)."""
-    path = ctx.path(WORKSPACE_ERRORS_FILE)
-    if not path.is_file():
-        return []
-    return [float(row["e_mm"]) for _, row in csv_rows(path, ERROR_COLUMNS)]
 
 
 def _read_back(ctx: Context, cell: CellConfig) -> list[Check]:

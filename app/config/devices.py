@@ -108,10 +108,14 @@ class CommissionSection(Section):
     # replace them (app.line.accuracy `seed_count`): 50 positions bound sigma within 1.11x, 20
     # within 1.18x (docs/results/accuracy-first-window.md weighs the 30 more tracker positions)
     workspace_positions: int = opt(20, lo=3, hi=1000)
-    # `rvis maintain` (app/maintain/): the same validation at fewer positions (its RMS known
-    # to about +-20 % at 95 % from 10: the robot time of a procedure a third of a
-    # commissioning's), and the plan's views per sphere the changed group is identified on
-    maintenance_positions: int = opt(10, lo=3, hi=1000)
+    # `rvis maintain` (app/maintain/): the same validation at fewer positions, each measured
+    # from maintenance_workspace_views views (the first from home, the others a short motion
+    # away: each view a stop of its own, with its own share of the robot's repeatability);
+    # 8 x 3 errors know the RMS to about +-15 % at 95 % where 10 positions from one view each
+    # knew it to +-25 %, at about the same robot time (a procedure a third of a
+    # commissioning's); and the plan's views per sphere the changed group is identified on
+    maintenance_positions: int = opt(8, lo=3, hi=1000)
+    maintenance_workspace_views: int = opt(3, lo=1, hi=20)
     maintenance_views_per_sphere: int = opt(3, lo=1, hi=100)
     validation_target: str = opt("VAL")
     max_workspace_rmse_mm: float = opt(0.2, gt=0, hi=100)

@@ -29,10 +29,9 @@ from app.commission.files import (
 )
 from app.commission.measuring import Taken, measure_views
 from app.commission.steps import device_checks
+from app.commission.workspace import workspace_evidence_mm
 from app.config.write import dumps_cell
 from app.formats.files import (
-    ERROR_COLUMNS,
-    csv_rows,
     read_json,
     read_targets,
     write_bytes,
@@ -365,10 +364,11 @@ def _subset(
 
 def workspace(ctx: Context) -> StepResult:
     """The paper's workspace validation (the commissioning's step) at `[commission]
-    maintenance_positions` positions."""
+    maintenance_positions` positions, `maintenance_workspace_views` views each."""
     from app.commission.workspace import workspace_validation
 
-    return workspace_validation(ctx, ctx.cell().commission.maintenance_positions)
+    c = ctx.cell().commission
+    return workspace_validation(ctx, c.maintenance_positions, c.maintenance_workspace_views)
 
 
 def _pick(views: Views, ks: list[int]) -> tuple[tuple[str, ...], F64, F64]:
@@ -445,7 +445,7 @@ def handover(ctx: Context) -> StepResult:
     its own version in force and completes the rest."""
     m, state, r = _m(ctx), ctx.state, StepResult()
     doc = read_json(ctx.path(PARAMS_FILE))
-    errors = _workspace_errors_mm(ctx)
+    errors = workspace_evidence_mm(ctx.path(WORKSPACE_ERRORS_FILE))
     folder = str(ctx.folder.relative_to(state.root))
     doc = {
         **doc,
@@ -520,13 +520,6 @@ def _close_suspects(store: Store, t: float, version: int) -> int:
             )
             n += 1
     return n
-
-
-def _workspace_errors_mm(ctx: Context) -> list[float]:
-    path = ctx.path(WORKSPACE_ERRORS_FILE)
-    if not path.is_file():
-        return []
-    return [float(row["e_mm"]) for _, row in csv_rows(path, ERROR_COLUMNS)]
 
 
 def _rms(errors: list[float]) -> float | None:

@@ -94,6 +94,11 @@ def run_maintenance(cfg: CellConfig, out: Path, run: MaintenanceRun) -> dict[str
     commission_doc = read_json(state.commission_report.with_suffix(".json"))
     ws_before = _step(commission_doc, "workspace").get("rmse_mm")
     pre = [r.rmse_mm for r in rows if k - run.before_windows <= r.window < k]
+    # the procedure's result: the windows measured with the version it handed over (until the
+    # service's first own recalibration after it), and the version before the event in the
+    # world without it at the same windows; the service's whole run after it apart
+    handed = int(steps.get("handover", {}).get("results", {}).get("version", -1))
+    own = [i for i, r in enumerate(after.records) if r.version == handed]
     return {
         "event": run.event,
         "axis": run.axis if run.event == "axis" else None,
@@ -111,13 +116,17 @@ def run_maintenance(cfg: CellConfig, out: Path, run: MaintenanceRun) -> dict[str
         "validation_before_mm": ws_before,
         "validation_after_mm": _step(report, "workspace").get("rmse_mm"),
         "truth_before_mm": statistics.median(pre) if pre else None,
-        "truth_after_mm": statistics.median([r.rmse_mm for r in after.records])
-        if after.records
-        else None,
+        "truth_after_mm": _median([after.records[i].rmse_mm for i in own]),
+        "truth_after_windows": len(own),
+        "truth_at_validation_mm": _step(report, "workspace").get("true_rmse_mm"),
         "truth_after_first_mm": after.records[0].rmse_mm if after.records else None,
         # the version before the event in the world without it, at the same times: what the
         # cell would measure had nothing happened (the world warms on meanwhile)
-        "truth_unchanged_mm": statistics.median(twin) if twin else None,
+        "truth_unchanged_mm": _median([twin[i] for i in own]),
+        # the line after the hand-over, the service's own recalibrations included, against
+        # the version before the event held in the world without it
+        "truth_line_after_mm": _median([r.rmse_mm for r in after.records]),
+        "truth_line_unchanged_mm": _median(twin),
         "version_before": version_before,
         "after_windows_measured": len(after.records),
         "truth_after_by_window_mm": [round(r.rmse_mm, 4) for r in after.records],
@@ -340,6 +349,10 @@ def _bodies_covered(
         return any(s["t_start"] <= t and (s["t_end"] is None or t <= s["t_end"]) for s in suspects)
 
     return bool(after) and all(inside(float(w["t"])) for w in after)
+
+
+def _median(values: list[float]) -> float | None:
+    return statistics.median(values) if values else None
 
 
 def _step(doc: dict[str, Any], name: str) -> dict[str, Any]:
