@@ -117,6 +117,19 @@ MIGRATIONS: tuple[tuple[str, ...], ...] = (
             version_before INTEGER, version_after INTEGER,
             before TEXT NOT NULL DEFAULT '{}', after TEXT NOT NULL DEFAULT '{}')""",
     ),
+    # 7 -> 8: a procedure begun again (`rvis maintain --restart`) ends its earlier record
+    # 'abandoned' (SQLite changes a CHECK only by rebuilding the table)
+    (
+        "ALTER TABLE maintenance RENAME TO maintenance_7",
+        """CREATE TABLE maintenance (
+            id INTEGER PRIMARY KEY, t_start REAL NOT NULL, t_end REAL,
+            event TEXT NOT NULL, axis INTEGER, who TEXT NOT NULL, folder TEXT NOT NULL,
+            status TEXT NOT NULL CHECK (status IN ('running', 'done', 'abandoned')),
+            version_before INTEGER, version_after INTEGER,
+            before TEXT NOT NULL DEFAULT '{}', after TEXT NOT NULL DEFAULT '{}')""",
+        "INSERT INTO maintenance SELECT * FROM maintenance_7",
+        "DROP TABLE maintenance_7",
+    ),
 )
 SCHEMA_VERSION = len(MIGRATIONS)
 SUSPECTS_SCHEMA = 4  # the version that has suspect_intervals
@@ -775,6 +788,15 @@ class Store:
                 "UPDATE maintenance SET t_end = ?, status = 'done', version_after = ?, after = ?"
                 " WHERE id = ?",
                 (t_end, version_after, _dumps(after), maintenance_id),
+            )
+
+    def abandon_maintenance(self, maintenance_id: int, t_end: float, reason: str) -> None:
+        """A running procedure given up (begun again): no version handed over."""
+        with self._tx() as db:
+            db.execute(
+                "UPDATE maintenance SET t_end = ?, status = 'abandoned', after = ?"
+                " WHERE id = ? AND status = 'running'",
+                (t_end, _dumps({"reason": reason}), maintenance_id),
             )
 
     def maintenance(self, last: int | None = None) -> list[dict[str, Any]]:

@@ -23,7 +23,8 @@ def open_record(
     say: Callable[[str], None],
 ) -> tuple[Path, int]:
     """(the procedure's folder, its maintenance record's id): a running one of this event
-    and axis continued, unless `restart`; else a new record begun at time t."""
+    and axis continued, unless `restart` (then it ends 'abandoned' at time t); else a new
+    record begun at time t."""
     store = Store(state.db)
     try:
         records = store.maintenance()
@@ -34,6 +35,9 @@ def open_record(
         ]
         if running and not restart:
             return state.root / running[-1]["folder"], int(running[-1]["id"])
+        for r in running:
+            store.abandon_maintenance(int(r["id"]), t, "begun again (rvis maintain --restart)")
+            say(f"maintenance record {r['id']} abandoned: begun again")
         folder = state.maintenance_folder(len(records) + 1, f"axis{axis}" if axis else event)
         params = ParamsStore(state.root)
         record = store.start_maintenance(

@@ -42,6 +42,7 @@ from app.formats.files import (
 from app.formats.params import from_json, to_json
 from app.line.measure import Rejected
 from app.line.params_store import MAINTENANCE_SOURCE, ParamsStore, hand_over
+from app.line.schedule import shortest_route
 from app.line.states import AlarmCode
 from app.line.store import Store
 from app.maintain.aim import reaim, zero_moved, zero_of
@@ -276,7 +277,10 @@ def reidentify(ctx: Context) -> StepResult:
     seen_at: list[int] = []
     x_new, result, group = x_start, None, _group(m, model)
     for attempt in range(2):  # a second look at the views not seen, re-aimed on the fit
-        chosen = [(views.targets[k], q[k]) for k in todo]
+        # in the order of least motion (the plan's order crosses the workspace)
+        at = ctx.station.robot.joints_deg()
+        order = shortest_route([q[k] for k in todo], at, ctx.line)
+        chosen = [(views.targets[todo[j]], q[todo[j]]) for j in order]
         got = measure_views(ctx, chosen, sensor, "maintenance", via_home=False, end_home=False)
         seen_at += [k for k in todo if any(np.array_equal(q[k], v) for v in got.q_deg)]
         _extend(taken, got)

@@ -3,13 +3,14 @@ time, and the slot choice that fits the remaining window."""
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Sequence
 
 import numpy as np
 import pytest
 
 from app.config.line import LineSettings
-from app.line.schedule import Schedule, Slot, motion_time_s
+from app.line.schedule import Schedule, Slot, motion_time_s, shortest_route
 from drivers.safety import SafetyGuard
 
 HOME = np.array([0.0, 0.0, 0.0, 0.0, -90.0, 0.0])
@@ -69,3 +70,26 @@ def test_next_fitting_takes_the_first_slot_that_fits_from_the_position() -> None
     assert s.next_fitting(0, HOME, 2.6, sensor_s, last) is s.slots[2]
     assert s.next_fitting(0, HOME, 2.4, sensor_s, last) is None
     assert seen == [[1, 2, 0], [2]]
+
+
+def _tour_s(
+    order: Sequence[int], qs: list[np.ndarray], home: np.ndarray, line: LineSettings
+) -> float:
+    stops = [home, *(qs[j] for j in order), home]
+    return sum(motion_time_s(a, b, line) for a, b in itertools.pairwise(stops))
+
+
+def test_shortest_route_visits_each_view_once_and_is_never_longer_than_the_given_order() -> None:
+    line = LineSettings()
+    home = np.asarray(line.home_deg, dtype=float)
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 5, 12):
+        qs = [home + rng.uniform(-60.0, 60.0, 6) for _ in range(n)]
+        order = shortest_route(qs, home, line)
+        assert sorted(order) == list(range(n))
+        assert _tour_s(order, qs, home, line) <= _tour_s(range(n), qs, home, line) + 1e-9
+    # views strung along J1 in a shuffled order: visited out and back along the string
+    along = [home + np.array([20.0 * k, 0, 0, 0, 0, 0]) for k in (3, 1, 4, 2, 5)]
+    order = shortest_route(along, home, line)
+    j1 = [along[j][0] - home[0] for j in order]
+    assert j1 in ([20.0, 40.0, 60.0, 80.0, 100.0], [100.0, 80.0, 60.0, 40.0, 20.0])

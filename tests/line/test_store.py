@@ -69,7 +69,7 @@ def test_a_version_1_database_gains_the_temperature_column_and_keeps_its_rows(
     db.commit()
     db.close()
     store = Store(tmp_path / "rvis.db")  # an older service's state directory
-    assert store.version() == SCHEMA_VERSION == 7
+    assert store.version() == SCHEMA_VERSION == 8
     (old,) = store.measurements()
     assert old["c_sensor_mm"] == [1, 2, 3] and old["temp_c"] is None
     store.add_measurement({**_row(1), "temp_c": 23.45})
@@ -264,7 +264,7 @@ def test_a_version_4_database_gains_the_windows_and_keeps_its_suspect_intervals(
     assert old.windows() == []
     old.close()
     store = Store(tmp_path / "rvis.db")
-    assert store.version() == SCHEMA_VERSION == 7
+    assert store.version() == SCHEMA_VERSION == 8
     (row,) = store.suspects()
     assert (row["t_end"], row["text"], row["bodies"]) == (160.0, "sensor mount moved", [])
     store.add_window(120.0, 100001)
@@ -284,8 +284,40 @@ def test_a_version_5_database_gains_the_windows_u95_and_keeps_its_windows(tmp_pa
     db.commit()
     db.close()
     store = Store(tmp_path / "rvis.db")
-    assert store.version() == SCHEMA_VERSION == 7
+    assert store.version() == SCHEMA_VERSION == 8
     store.add_window(2.0, 8)
     store.state_window_u95(0.093)
     assert [(w["body_id"], w["u95_mm"]) for w in store.windows()] == [(7, None), (8, 0.093)]
+    store.close()
+
+
+def test_a_version_7_database_keeps_its_maintenance_records_and_may_abandon_one(
+    tmp_path: Path,
+) -> None:
+    """Schema 8 rebuilds the maintenance table for the 'abandoned' status (`rvis maintain
+    --restart`); the records of a version 7 database are kept as they were."""
+    db = sqlite3.connect(tmp_path / "rvis.db")
+    for k in range(7):
+        for sql in MIGRATIONS[k]:
+            db.execute(sql)
+    db.execute(
+        "INSERT INTO maintenance (t_start, event, axis, who, folder, status, version_before)"
+        " VALUES (5.0, 'axis', 3, 'eng', 'maintenance/0001-axis3', 'running', 4)"
+    )
+    db.execute("PRAGMA user_version = 7")
+    db.commit()
+    db.close()
+    store = Store(tmp_path / "rvis.db")
+    assert store.version() == SCHEMA_VERSION
+    (row,) = store.maintenance()
+    assert (row["event"], row["axis"], row["status"], row["version_before"]) == (
+        "axis",
+        3,
+        "running",
+        4,
+    )
+    store.abandon_maintenance(int(row["id"]), 9.0, "begun again")
+    (row,) = store.maintenance()
+    assert row["status"] == "abandoned" and row["t_end"] == 9.0
+    assert row["after"] == {"reason": "begun again"}
     store.close()
