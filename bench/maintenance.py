@@ -18,6 +18,8 @@ the procedures were not tuned on, and the issue's must-show per event:
     .venv/bin/python bench/maintenance.py [--seeds 21,22,23,24] [--events sensor,axis,fixture]
         [--axis 3] [--at-h 1.5] [--json FILE]
 
+`--events fixture:P2`: the fixture event with only sphere P2 replaced.
+
 Prints a row per run and the totals; a seed whose simulated cell fails its commissioning is
 another cell's story: said and skipped.
 """
@@ -40,11 +42,12 @@ from app.sim.maintenance import MaintenanceRun, run_maintenance
 
 
 def one(event: str, seed: int, axis: int, at_h: float) -> dict[str, Any] | str:
+    """One run; event "fixture:P2": only sphere P2 replaced."""
+    kind, _, sphere = event.partition(":")
+    run = MaintenanceRun(kind, seed, axis, 3600.0 * at_h, sphere=sphere)
     with tempfile.TemporaryDirectory() as tmp:
         try:
-            return run_maintenance(
-                load_cell(None), Path(tmp), MaintenanceRun(event, seed, axis, 3600.0 * at_h)
-            )
+            return run_maintenance(load_cell(None), Path(tmp), run)
         except RvisError as exc:
             return str(exc)
 
@@ -74,7 +77,7 @@ def main() -> None:
     a = p.parse_args()
     rows: list[dict[str, Any]] = []
     head = (
-        f"{'event':8} {'seed':>4} {'held':>4} {'proc/comm s':>13} {'val/truth':>9} "
+        f"{'event':10} {'seed':>4} {'held':>4} {'proc/comm s':>13} {'val/truth':>9} "
         f"{'truth mm: before unch. after':>29} {'after/unch':>10} {'line/unch':>9} verdicts"
     )
     print(head)
@@ -83,12 +86,12 @@ def main() -> None:
         for seed in (int(s) for s in a.seeds.split(",")):
             r = one(event, seed, a.axis, a.at_h)
             if isinstance(r, str):
-                print(f"{event:8} {seed:>4} skipped: {r}", flush=True)
+                print(f"{event:10} {seed:>4} skipped: {r}", flush=True)
                 continue
             if r["truth_after_mm"] is None or not r["procedure_passed"]:
                 r["verdicts"] = {"procedure": False}
                 rows.append(r)
-                print(f"{event:8} {seed:>4} MISSED: the procedure did not hand back", flush=True)
+                print(f"{event:10} {seed:>4} MISSED: the procedure did not hand back", flush=True)
                 continue
             v = verdicts(r)
             r["verdicts"] = v
@@ -104,7 +107,7 @@ def main() -> None:
             failed = [k for k, ok in v.items() if not ok]
             said = "all" if not failed else "MISSED " + ", ".join(failed)
             print(
-                f"{event:8} {seed:>4} {r['detected_after_windows'] or '-':>4} {robot:>13}"
+                f"{event:10} {seed:>4} {r['detected_after_windows'] or '-':>4} {robot:>13}"
                 f" {val:9.2f} {truth:>29} {ratio:10.3f} {line:9.3f} {said}",
                 flush=True,
             )

@@ -143,6 +143,9 @@ def _knock_hours(args: argparse.Namespace) -> list[tuple[float, float]]:
 def _maintenance_options(g: argparse.ArgumentParser) -> None:
     g.add_argument("--event", choices=("sensor", "axis", "fixture"), required=True)
     g.add_argument("--axis", type=int_at_least(1), default=3, help="--event axis: which (3)")
+    g.add_argument(
+        "--sphere", default="", help="--event fixture: only this sphere replaced (default: all)"
+    )
     g.add_argument("--seed", type=int_at_least(0), default=0, help="the cell's seed (0)")
     g.add_argument("--at-h", type=float, default=1.5, help="the event's hour of world time (1.5)")
     g.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")
@@ -163,7 +166,12 @@ def run_maintenance_experiment(args: argparse.Namespace) -> int:
         raise InputError("the output folder is not empty", file=out)
     out.mkdir(parents=True, exist_ok=True)
     cfg = load_cell(args.cell)
-    run = MaintenanceRun(args.event, args.seed, axis=args.axis, at_s=3600.0 * args.at_h)
+    if args.sphere and (args.event != "fixture" or args.sphere not in cfg.spheres_part_mm):
+        known = ", ".join(cfg.spheres_part_mm)
+        raise InputError(f"--sphere is one of the cell's spheres ({known}), for --event fixture")
+    run = MaintenanceRun(
+        args.event, args.seed, axis=args.axis, at_s=3600.0 * args.at_h, sphere=args.sphere
+    )
     row = run_maintenance(cfg, out, run)
     path = write_rows(out, [row])
     keys = (

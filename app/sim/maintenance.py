@@ -57,6 +57,7 @@ class MaintenanceRun:
     seed: int
     axis: int = 3
     at_s: float = 5400.0
+    sphere: str = ""  # fixture: only this sphere replaced ("": the fixture, all of them)
     after_windows: int = 100
     # the line runs at most until this many windows after the event's (held sooner)
     held_within: int = 20
@@ -102,6 +103,7 @@ def run_maintenance(cfg: CellConfig, out: Path, run: MaintenanceRun) -> dict[str
     return {
         "event": run.event,
         "axis": run.axis if run.event == "axis" else None,
+        "sphere": run.sphere or None,
         "seed": run.seed,
         "at_s": run.at_s,
         "event_window": k,
@@ -176,6 +178,7 @@ def _with_event(cfg: CellConfig, run: MaintenanceRun) -> CellConfig:
         maintenance_at_s=run.at_s,
         maintenance_kind=run.event,
         maintenance_axis=run.axis,
+        maintenance_sphere=run.sphere,
     )
     return dataclasses.replace(cfg, simline=simline)
 
