@@ -57,8 +57,10 @@ PERFECT = u95_mm([1.0] * 100_000)
 ONE_CYCLE = u95_mm([1.0] * 24)
 
 
-def one(kind: str, at_h: float, seed: int, hours: float, positions: int | None) -> dict[str, Any]:
-    cfg = load_cell(None)
+def one(
+    kind: str, at_h: float, seed: int, hours: float, positions: int | None, cell: str | None = None
+) -> dict[str, Any]:
+    cfg = load_cell(cell)
     if positions is not None:
         cfg = dataclasses.replace(
             cfg, commission=dataclasses.replace(cfg.commission, workspace_positions=positions)
@@ -130,6 +132,7 @@ def main() -> None:
     ap.add_argument(
         "--workspace-positions", type=int, help="[commission] workspace_positions (the cell's)"
     )
+    ap.add_argument("--cell", help="a cell file (default: the embedded cell)")
     ap.add_argument("--json", type=Path)
     a = ap.parse_args()
     seeds = [int(s) for s in a.seeds.split(",")]
@@ -144,7 +147,7 @@ def main() -> None:
     for kind in a.kinds.split(","):
         for at_h in hours_at:
             for seed in seeds:
-                r = one(kind, at_h, seed, a.hours, a.workspace_positions)
+                r = one(kind, at_h, seed, a.hours, a.workspace_positions, a.cell)
                 rows.append(r)
                 print(
                     f"| {kind} | {at_h:g} | {seed} | {r['flagged_after']} |"

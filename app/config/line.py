@@ -152,6 +152,10 @@ class RecalibSettings(Section):
     # 0.035: on the robot that repeats as its data sheet says (RP 0.07 mm) a sensor correction in
     # a new cell's first cycle stayed above 0.02 until the attribution gave up (README)
     step_max_std_mm: float = opt(0.035, gt=0, hi=10)
+    # ... or at most this fraction of the step it corrects (3-D, the step's RMS at the measured
+    # spheres, noise removed): a correction that removes most of a large step is applied while
+    # it is not yet fine, and refined as more measurements come (0: the absolute bound alone)
+    step_std_fraction: float = opt(0.0, lo=0, hi=1)
     # a flag is a step (not drift) when the attribution decides for a group and the change it
     # sees, noise removed, is at least this large (RMS at the measured spheres)
     step_min_mm: float = opt(0.05, lo=0, hi=100)

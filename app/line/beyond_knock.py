@@ -13,7 +13,10 @@ measure bodies with, and the new sensor's own calibration is not something the s
 give. So:
 
 - a step attributed and seen larger than `[service] maintenance_step_mm` at the measured
-  spheres (noise removed, `visible_step_mm`), or
+  spheres (noise removed, `visible_step_mm`),
+- one sphere seen moved by more than the bound on its own since the flag (`sphere_alone`:
+  each of its residuals above the bound, the other spheres' within a third of it: a sphere
+  replaced, which no kinematic group explains; said at once, without waiting for pairs), or
 - `BLIND_WINDOWS` windows in a row in which no view saw its sphere where the parameters put
   it (each rejected, or off by more than the bound: too far, or too few, for an attribution)
 
@@ -86,6 +89,29 @@ def step_text(a: Attribution, visible_mm: float, bound_mm: float) -> str:
     return (
         f"{head}; likely {event_of(group)} ({fit.group.label} {fit.size_text()}); bodies are"
         f" not measured with this cell: run `{procedure_of(group)}`"
+    )
+
+
+def sphere_alone(residuals_mm: dict[str, list[float]], bound_mm: float) -> str | None:
+    """The sphere that moved beyond a knock's bound on its own, from the residuals [mm] of each
+    sphere's measurements since the flag (with the parameters in force): every one of its own
+    above the bound, every other sphere's within a third of it (and some measured); or None."""
+    moved = [t for t, v in residuals_mm.items() if v and min(v) > bound_mm]
+    others = [e for t, v in residuals_mm.items() if t not in moved for e in v]
+    if len(moved) != 1 or not others or max(others) >= bound_mm / 3.0:
+        return None
+    return moved[0]
+
+
+def sphere_text(name: str, residuals_mm: dict[str, list[float]], bound_mm: float) -> str:
+    """The `maintenance` alarm's text when one sphere moved alone."""
+    own = residuals_mm[name]
+    others = max(e for t, v in residuals_mm.items() if t != name for e in v)
+    return (
+        f"sphere {name} moved {sum(own) / len(own):.2f} mm on its own ({len(own)} measurements;"
+        f" the other spheres within {others:.2f} mm), beyond a knock's {bound_mm:g} mm: likely"
+        " the sphere replaced or its stand moved; bodies are not measured with this cell: run"
+        " `rvis maintain fixture`"
     )
 
 

@@ -115,6 +115,17 @@ class Decisions:
         q = np.array([q for q, _ in visits]).reshape(-1, 6)
         return q, np.array([c for _, c in visits]).reshape(-1, 3)
 
+    def _undecided(self) -> bool:
+        """A step still attributed after a schedule's worth of measurements since its change
+        point (its group's correction never passed its gates: a new cell's few references):
+        the full recalibration on them decides, as for several groups (no dead end)."""
+        svc = self.svc
+        step = svc.step
+        if step is None or step.status != StepStatus.ATTRIBUTING:
+            return False
+        after = svc.store.measurements(status="ok", since_id=step.onset_id - 1)
+        return len(after) >= len(svc.schedule)
+
     def rolling_set(self) -> tuple[Rows, Rows] | None:
         """The (training, held-out) measurements a recalibration would use now: the last ones,
         after the step's change point when one is flagged (None: not complete yet)."""
@@ -122,10 +133,12 @@ class Decisions:
         since = 0 if svc.drift_onset_id is None else svc.drift_onset_id - 1
         since = max(since, svc.maintained_from_id - 1)  # none of the cell before a maintenance
         r = svc.settings.recalib
-        if svc.step is not None and svc.step.status == StepStatus.SEVERAL:
-            # no single group to correct: the cell waits for this calibration, on a schedule
-            # cycle of post-step measurements (the model's larger set follows; measured: 72 for
-            # the compliant model left such a new cell 35-56 windows off, 24 12-28)
+        several = svc.step is not None and svc.step.status == StepStatus.SEVERAL
+        if several or self._undecided():
+            # no single group to correct (or none decided on a schedule's worth): the cell
+            # waits for this calibration, on a schedule cycle of post-step measurements (the
+            # model's larger set follows; measured: 72 for the compliant model left such a new
+            # cell 35-56 windows off, 24 12-28)
             r = dataclasses.replace(r, rolling_size=min(r.rolling_n, len(svc.schedule)))
         rows = svc.store.measurements(
             status="ok", since_id=since, last=r.rolling_n + r.holdout_size

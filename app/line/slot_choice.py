@@ -46,7 +46,7 @@ class SlotChoice:
         slots = self._seen(slots)
         if self._measuring_for_step() and svc.step is not None:
             if svc.step.status in (StepStatus.CORRECTED, StepStatus.SEVERAL):
-                return slots[0]  # the full recalibration's set: the whole schedule
+                return self._least_recent(slots)  # the full recalibration's set: every slot
             if svc.step.status == StepStatus.FOLLOWING and svc.sequential is not None:
                 # the filter's candidate waits for its predicted uncertainty at every view of
                 # the schedule: the slot that lowers it most (measured: the step's own slots
@@ -58,7 +58,7 @@ class SlotChoice:
             if len(after) >= len(svc.schedule) > len(before):
                 # a new cell (fewer references than slots): a schedule's worth measured for
                 # the attribution and no decision yet, the full recalibration's set next
-                return slots[0]
+                return self._least_recent(slots)
             recent = [int(r["slot"]) for r in reversed(before)]
             lead = [g for g in step_groups(svc.model) if g.name == svc.step.choice]
             groups = lead if lead and lead[0].name not in (NONE, SEVERAL) else None
@@ -75,6 +75,21 @@ class SlotChoice:
         if svc.sequential is not None and svc.settings.recalib.schedule == "adaptive":
             return svc.sequential.most_informative(svc.model, slots, svc.last_visit)
         return slots[0]
+
+    def _least_recent(self, slots: Sequence[Slot]) -> Slot:
+        """Of the slots that fit, the one measured least recently since the step's change
+        point (never first; in the plan's order from the position among equals). Taking the
+        next in the plan's order would not do while a window measures several slots: a slot
+        that fits only a window's start (a long motion) is passed over at every window's end
+        and never reached, and the full recalibration's set, every slot, never completes
+        (measured: a new cell's sensor knock left 12 of 24 slots unmeasured for an hour)."""
+        svc = self.svc
+        step = svc.step
+        since = 0 if step is None else step.onset_id - 1
+        last: dict[int, int] = {}
+        for row in svc.store.measurements(status="ok", since_id=since):
+            last[int(row["slot"])] = int(row["id"])
+        return min(slots, key=lambda s: last.get(s.index, -1))
 
     def _seen(self, slots: Sequence[Slot]) -> Sequence[Slot]:
         """The slots not rejected VIEW_LOST_TRIES times in a row since their last good

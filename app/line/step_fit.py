@@ -82,6 +82,7 @@ class StepCorrection:
     last_id: int
 
 
+SQRT3 = float(np.sqrt(3.0))  # a 3-D RMS over one coordinate's
 MIN_SIGMA_PAIRS = 8  # consecutive visits of a slot before the step that set sigma
 
 
@@ -251,8 +252,11 @@ def correct_step(
     if not fit.consistent:
         failures.append(f"chi2 {fit.chi2:.1f} too large for {fit.dof} degrees of freedom")
     std = predicted_std_mm(model, fit, views[0], views[1])
-    if not std <= settings.step_max_std_mm:
-        failures.append(f"predicted uncertainty {std:.4f} mm > {settings.step_max_std_mm:g} mm")
+    # bounded absolutely, or, for a step large beside it, by the step: a correction that
+    # removes most of a large step is taken while it is not yet fine (refined as more come)
+    bound = max(settings.step_max_std_mm, settings.step_std_fraction * visible_step_mm(a) / SQRT3)
+    if not std <= bound:
+        failures.append(f"predicted uncertainty {std:.4f} mm > {bound:.4g} mm")
     newest = data.subset([len(rows) - 1])
     cand = float(np.linalg.norm(residuals(model, fit.x, newest)[0] - ref[-1]))
     cur = float(np.linalg.norm(residuals(model, x_force, newest)[0] - ref[-1]))

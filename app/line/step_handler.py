@@ -22,7 +22,7 @@ import numpy as np
 from app.errors import InputError
 from app.formats.params import carried_from_json
 from app.line.accuracy import AFTER_STEP, PREDICTED, VOUCHED, document_seed, evidence
-from app.line.beyond_knock import BLIND_WINDOWS, beyond, step_text
+from app.line.beyond_knock import BLIND_WINDOWS, beyond, sphere_alone, sphere_text, step_text
 from app.line.drift import OVERALL
 from app.line.host import LineHost
 from app.line.states import AlarmCode, suspect_json
@@ -53,6 +53,9 @@ from calib.uncertainty import sigma_upper_mm
 #: estimate can be late as well as early) up to the measurement that signalled
 LOOK_BACK_DIVISOR = 2
 REFINE_TRIES = 2  # refinements refused before the interval closes at the first correction
+#: measurements of the other spheres since the flag that show one sphere moved alone (that they
+#: did not move with it)
+MIN_OTHER_MEASUREMENTS = 2
 
 
 class StepHandler:
@@ -126,7 +129,37 @@ class StepHandler:
             step.suspect_id = svc.store.open_suspect(fields)
         svc.bus.emit("suspect_interval", suspect_json(svc.store.suspect(step.suspect_id) or {}))
 
-    def _confirm_step(self, step: Step, a: Attribution) -> None:
+    def _sphere_alone(self, step: Step) -> str | None:
+        """The `maintenance` alarm's text when one sphere moved beyond a knock on its own
+        since the step's change point (app.line.beyond_knock.sphere_alone, on the residuals of
+        the measurements since, MIN_OTHER_MEASUREMENTS of the other spheres at least)."""
+        svc = self.svc
+        bound = svc.settings.recalib.maintenance_step_mm
+        by: dict[str, list[float]] = {}
+        for row in svc.store.measurements(status="ok", since_id=step.onset_id - 1):
+            if row["residual_mm"] is not None:
+                by.setdefault(str(row["target"]), []).append(float(row["residual_mm"]))
+        name = sphere_alone(by, bound)
+        if name is None or sum(len(v) for t, v in by.items() if t != name) < MIN_OTHER_MEASUREMENTS:
+            return None
+        return sphere_text(name, by, bound)
+
+    def _hold_sphere_alone(self, step: Step, text: str) -> None:
+        """One sphere moved beyond a knock on its own: no kinematic group explains it and no
+        correction is applied; the step's interval says so and the cell holds for the
+        fixture's procedure."""
+        svc = self.svc
+        with svc.store.batch():
+            if step.status == StepStatus.PROBATION:
+                self._confirm_step(step, text)
+            step.choice, step.text = "fixture", text
+            assert step.suspect_id is not None
+            svc.store.update_suspect(step.suspect_id, group_name="fixture", text=text)
+            step.move(StepStatus.MAINTENANCE)
+            svc.save_state()
+        svc.maintenance_needed(text)
+
+    def _confirm_step(self, step: Step, text: str) -> None:
         """The attribution found a step: its suspect interval opens (from the last trustworthy
         measurement before where it was located) and the high alarm names what moved."""
         svc = self.svc
@@ -135,7 +168,7 @@ class StepHandler:
         svc.clear_alarms(AlarmCode.DRIFT)
         signal = step.signal or f"step since measurement {step.start_id or step.onset_id}"
         step.signal = signal
-        svc.alarm(AlarmCode.DRIFT_STEP, step_alarm_text(signal, a.text()), "high")
+        svc.alarm(AlarmCode.DRIFT_STEP, step_alarm_text(signal, text), "high")
 
     def _drop_step(self, step: Step) -> None:
         """The attribution found no step on probation: it was drift (the recalibration is
@@ -166,6 +199,10 @@ class StepHandler:
             self.check_recovery()
             return
         if step.status not in (StepStatus.ATTRIBUTING, StepStatus.PROBATION):
+            return
+        alone = self._sphere_alone(step)
+        if alone is not None:
+            self._hold_sphere_alone(step, alone)
             return
         got = self._step_pairs(step, locate=True)
         if got is None:
@@ -212,7 +249,7 @@ class StepHandler:
                     svc.save_state()  # else the next window measures for it again
                     svc.bus.emit("step_attribution", data, level=logging.WARNING)
                     return
-                self._confirm_step(step, a)
+                self._confirm_step(step, a.text())
             if size is not None:
                 fields["size_mm"] = size
             assert step.suspect_id is not None
