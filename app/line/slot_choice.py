@@ -57,8 +57,12 @@ class SlotChoice:
             before = svc.store.measurements(before_id=onset, last=len(svc.schedule))
             if len(after) >= len(svc.schedule) > len(before):
                 # a new cell (fewer references than slots): a schedule's worth measured for
-                # the attribution and no decision yet, the full recalibration's set next
-                return self._least_recent(slots)
+                # the attribution and no decision yet, the full recalibration's set next (in
+                # the plan's order: its revisits make pairs too); a second one and still none,
+                # every slot in turn, so that the set completes (no dead end)
+                if len(after) >= 2 * len(svc.schedule):
+                    return self._least_recent(slots)
+                return slots[0]
             recent = [int(r["slot"]) for r in reversed(before)]
             lead = [g for g in step_groups(svc.model) if g.name == svc.step.choice]
             groups = lead if lead and lead[0].name not in (NONE, SEVERAL) else None
@@ -77,19 +81,15 @@ class SlotChoice:
         return slots[0]
 
     def _least_recent(self, slots: Sequence[Slot]) -> Slot:
-        """Of the slots that fit, the one measured least recently since the step's change
-        point (never first; in the plan's order from the position among equals). Taking the
-        next in the plan's order would not do while a window measures several slots: a slot
-        that fits only a window's start (a long motion) is passed over at every window's end
-        and never reached, and the full recalibration's set, every slot, never completes
-        (measured: a new cell's sensor knock left 12 of 24 slots unmeasured for an hour)."""
-        svc = self.svc
-        step = svc.step
-        since = 0 if step is None else step.onset_id - 1
-        last: dict[int, int] = {}
-        for row in svc.store.measurements(status="ok", since_id=since):
-            last[int(row["slot"])] = int(row["id"])
-        return min(slots, key=lambda s: last.get(s.index, -1))
+        """Of the slots that fit, the one visited least recently (never first; in the plan's
+        order from the position among equals): the schedule in turn, every slot reached.
+        Taking the next in the plan's order would not do while a window measures several
+        slots: a slot that fits only a window's start (a long motion) is passed over at every
+        window's end and never reached, and the full recalibration's set, every slot, never
+        completes (measured: a new cell's sensor knock left 12 of 24 slots unmeasured for an
+        hour). A slot measured before the step comes round again too, and makes a pair."""
+        ids = self.svc.visit_ids
+        return min(slots, key=lambda s: ids.get(s.index, -1))
 
     def _seen(self, slots: Sequence[Slot]) -> Sequence[Slot]:
         """The slots not rejected VIEW_LOST_TRIES times in a row since their last good

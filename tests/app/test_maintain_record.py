@@ -18,7 +18,7 @@ def test_a_restart_abandons_the_running_record_and_begins_a_new_one(tmp_path: Pa
     first, a = open_record(state, "axis", 3, restart=False, t=10.0, say=said.append)
     again, b = open_record(state, "axis", 3, restart=False, t=20.0, say=said.append)
     assert (again, b) == (first, a)  # continued
-    other, c = open_record(state, "sensor", None, restart=False, t=25.0, say=said.append)
+    _other, c = open_record(state, "sensor", None, restart=False, t=25.0, say=said.append)
     assert c != a  # another event's procedure is its own
     new, d = open_record(state, "axis", 3, restart=True, t=30.0, say=said.append)
     assert d not in (a, c) and new != first
