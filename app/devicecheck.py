@@ -8,6 +8,7 @@ from collections.abc import Callable
 from typing import Any
 
 from drivers.base import Device
+from drivers.errors import DeviceTimeout
 
 
 def describe_and_probe(device: Device) -> str:
@@ -21,9 +22,17 @@ def _probe_robot(robot: Any) -> str:
 
 
 def _probe_camera(camera: Any) -> str:
-    frame = camera.grab()
+    """A frame (the driver re-triggers once); a second grab when that one was lost too (a
+    GigE link that drops a frame now and then answers, one that drops four in a row does
+    not)."""
+    lost = ""
+    try:
+        frame = camera.grab()
+    except DeviceTimeout as exc:
+        lost = f" (after {exc})"
+        frame = camera.grab()
     h, w = frame.image.shape
-    return f"frame {frame.frame_id} {w}x{h} {frame.image.dtype}"
+    return f"frame {frame.frame_id} {w}x{h} {frame.image.dtype}{lost}"
 
 
 def _probe_galvo(galvo: Any) -> str:

@@ -48,6 +48,7 @@ from app.line.store import Store
 from app.maintain.aim import reaim, zero_moved, zero_of
 from app.meta import provenance
 from app.planning import read_plan
+from calib import candidates
 from calib.attribution import NONE, StepGroup, attribute
 from calib.errors import InsufficientData, NotIdentifiable
 from calib.gates import check_identification
@@ -281,6 +282,8 @@ def reidentify(ctx: Context) -> StepResult:
         at = ctx.station.robot.joints_deg()
         order = shortest_route([q[k] for k in todo], at, ctx.line)
         chosen = [(views.targets[todo[j]], q[todo[j]]) for j in order]
+        if attempt == 0 and m.event == "sensor":
+            chosen = _with_fov_views(ctx, chosen, views, [todo[j] for j in order], rigid, xr)
         got = measure_views(ctx, chosen, sensor, "maintenance", via_home=False, end_home=False)
         seen_at += [k for k in todo if any(np.array_equal(q[k], v) for v in got.q_deg)]
         _extend(taken, got)
@@ -336,6 +339,40 @@ def reidentify(ctx: Context) -> StepResult:
     if ctx.truth is not None:
         r.results["true_rmse_mm"] = ctx.truth.true_rmse_mm(model, x_new, ctx.sensor_model())
     return r
+
+
+#: where a sensor's extra views put the sphere in the field of view, from where its plan's
+#: view put it [mm]: off-axis, so that the mount's tilt and shift are told apart (at one place
+#: in the field of view a tilt of the sensor and a shift of it move the sphere alike)
+FOV_STEPS_MM = ((9.0, 6.0, 2.0), (-9.0, -6.0, -2.0), (9.0, -6.0, -2.0), (-9.0, 6.0, 2.0))
+
+
+def _with_fov_views(
+    ctx: Context,
+    chosen: list[tuple[str, F64]],
+    views: Views,
+    index: list[int],
+    rigid: Any,
+    xr: F64,
+) -> list[tuple[str, F64]]:
+    """The sensor's views with `[commission] maintenance_fov_views` more, dealt to them in
+    turn, each right after its view and a short motion away from it, seeing the same sphere
+    elsewhere in the field of view (`FOV_STEPS_MM` in turn; `calib.candidates.
+    neighbour_configurations`, the sensor turned 3-10 deg): a few seconds of robot time each,
+    where another plan view costs a crossing of the workspace."""
+    n = ctx.cell().commission.maintenance_fov_views
+    rng = np.random.default_rng([ctx.cell().commission.seed, 53])
+    spheres = ctx.spheres_part_mm()
+    extra: list[list[tuple[str, F64]]] = [[] for _ in chosen]
+    for i in range(n if chosen else 0):
+        j = i % len(chosen)
+        target, q = chosen[j]
+        c = views.c_mm[index[j]] + np.asarray(FOV_STEPS_MM[(i // len(chosen) + j) % 4])
+        near = candidates.neighbour_configurations(
+            rigid, xr, spheres[target], q, c, 1, rng, tilt_deg=(3.0, 10.0)
+        )
+        extra[j] += [(target, qn) for qn in near.q_deg]
+    return [v for j, view in enumerate(chosen) for v in (view, *extra[j])]
 
 
 def _subset(
