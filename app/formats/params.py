@@ -297,7 +297,12 @@ def covariance_of(path: str | Path) -> tuple[list[str], F64] | None:
     uncertainties and correlation matrix (None when it has none: a nominal or carried
     document); InputError naming the file and field when they do not agree."""
     path = Path(path)
-    data = read_json(path)
+    return document_covariance(read_json(path), path)
+
+
+def document_covariance(data: dict[str, Any], path: str | Path) -> tuple[list[str], F64] | None:
+    """`covariance_of` of a parameters document read already (`path` names it in errors)."""
+    path = Path(path)
     active, corr = data.get("active"), data.get("correlation")
     if not active or corr is None:
         return None
@@ -314,3 +319,32 @@ def covariance_of(path: str | Path) -> tuple[list[str], F64] | None:
             field="correlation",
         )
     return [str(n) for n in active], c * np.outer(std, std)
+
+
+def with_held_covariance(doc: dict[str, Any], before: dict[str, Any], path: str | Path) -> None:
+    """A document identified on a group with the rest held at `before` (a maintenance
+    procedure's): its covariance widened to every parameter `before` has one for, the held
+    ones' block taken from `before`, the group's own from `doc`, none between them (the
+    group's estimate is conditional on the held values: their uncertainty is not propagated
+    into it). In place; nothing when either has no covariance."""
+    new, old = document_covariance(doc, path), document_covariance(before, path)
+    if new is None or old is None:
+        return
+    names_n, cov_n = new
+    names_o, cov_o = old
+    held = [n for n in names_o if n not in names_n]
+    names = held + names_n
+    k = len(held)
+    cov = np.zeros((len(names), len(names)))
+    io = [names_o.index(n) for n in held]
+    cov[:k, :k] = cov_o[np.ix_(io, io)]
+    cov[k:, k:] = cov_n
+    std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    scale = np.where(std > 0, std, 1.0)
+    doc["active"] = names
+    doc["correlation"] = (cov / np.outer(scale, scale)).round(6).tolist()
+    std_of = dict(zip(names, std.tolist(), strict=True))
+    for p in doc.get("parameters") or []:
+        if str(p.get("name")) in std_of:
+            p["std"] = float(std_of[str(p["name"])])
+            p["identified"] = True

@@ -39,7 +39,7 @@ from app.formats.files import (
     write_targets,
     write_text,
 )
-from app.formats.params import from_json, to_json
+from app.formats.params import from_json, to_json, with_held_covariance
 from app.line.measure import Rejected
 from app.line.params_store import MAINTENANCE_SOURCE, ParamsStore, hand_over
 from app.line.schedule import shortest_route
@@ -317,6 +317,9 @@ def reidentify(ctx: Context) -> StepResult:
     if result is not None:
         report = check_identification(result, x_before, cell.calibration.gates())
         doc = to_json(model, result, report, provenance())
+        # the parameters held keep their uncertainty from the version before (the per-point
+        # U95 of `app.api.Calibration` counts them, not the changed group's alone)
+        with_held_covariance(doc, read_json(ctx.path(PARAMS_BEFORE_FILE)), PARAMS_BEFORE_FILE)
         condition = result.observability.condition
         r.checks.append(at_most("condition", condition, cell.calibration.max_condition))
         r.checks.append(holds("quality gates", report.passed, report.reason or "passed"))

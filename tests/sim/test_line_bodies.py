@@ -35,10 +35,15 @@ def test_rvis_state_suspects_names_exactly_the_bodies_clamped_inside_the_interva
     # robot's repeatability, at the default limit), so that the knock's is the only interval
     knocked = dataclasses.replace(
         cfg,
-        # the step gate of before (0.02 mm): the fast correction waits a window more, so that
-        # the interval spans several bodies (at the default 0.035 it closes after one)
+        # the step gate of before (0.02 mm, not widened by the step's size): the fast
+        # correction waits a window more, so that the interval spans several bodies (at the
+        # default 0.035 it closes after one)
         service=dataclasses.replace(
-            cfg.service, estimator="batch", accuracy_limit_mm=0.3, step_max_std_mm=0.02
+            cfg.service,
+            estimator="batch",
+            accuracy_limit_mm=0.3,
+            step_max_std_mm=0.02,
+            step_std_fraction=0.0,
         ),
         line=dataclasses.replace(cfg.line, slots_per_window=8, plc_body_id=fmt),
         simline=dataclasses.replace(

@@ -101,6 +101,13 @@ def test_a_procedure_hands_the_cell_back_with_its_history(
         assert record["status"] == "done" and record["version_after"] == version
     finally:
         store.close()
+    # the version's covariance keeps the held parameters' from the version before (the
+    # per-point U95 of app.api counts them), the changed group's its own
+    from app.formats.params import covariance_of
+
+    before_cov, after_cov = (covariance_of(state.version_file(v)) for v in (version - 1, version))
+    if before_cov is not None:
+        assert after_cov is not None and set(before_cov[0]) <= set(after_cov[0])
     # what the procedure found, against the truth
     truth = _line_truth(state, kind)
     if kind == "axis":

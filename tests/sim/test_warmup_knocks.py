@@ -36,9 +36,16 @@ def test_a_knock_in_the_warm_up_is_attributed_corrected_and_its_interval_covers_
     assert not [w for w in r.step_alarm_windows if w < k]  # no false step alarm in the warm-up
     assert r.summary.overruns == 0
     assert r.recovered_after is not None and r.recovered_after <= 6
-    # every window of the knock's episode above 1.2x is covered, and (the truth says which)
-    # at most one window more: the close waits for the measurements of a correction in force
-    assert score.episode_bad and set(score.episode_bad) <= set(score.covered)
+    # every window of the knock's episode above the plant's limit is covered, each one the
+    # cell vouched for is within the U95 it stated (the relative 1.2x of the level before the
+    # knock is information, issue 38 item 5: seed 100's fixture knock leaves the cell 1.21x
+    # for a window, 0.079 mm under a stated 0.140), and (the truth says which) at most one
+    # window more is covered: the close waits for the measurements of a correction in force
+    limit = r.accuracy_limit_mm
+    episode = [x for x in r.records if k <= x.window <= (score.episode_end or k)]
+    assert all(x.suspect for x in episode if x.rmse_mm > limit), score
+    assert all(x.u95_mm is not None and x.rmse_mm <= x.u95_mm for x in episode if not x.suspect)
+    assert score.episode_bad and score.episode_bad[0] in score.covered
     assert score.extra <= 1 and not score.covered_before_knock, score
     # and the interval closed on the evidence, at a correction trained after the step: back
     # at the level before the step, or vouched for (its U95 within the plant's limit)
