@@ -368,9 +368,10 @@ def _bodies_covered(
         return False
     epoch = _epoch(state, records)
     t_event = epoch + records[k - 1].t_open_h * 3600.0 if k <= len(records) else float("inf")
-    if sphere:
+    if sphere:  # the window in which the sphere was first measured after the event
         seen = [float(m["t"]) for m in measured if m["target"] == sphere and m["t"] >= t_event]
-        t_event = seen[0] if seen else float("inf")
+        opened = [float(w["t"]) for w in windows if seen and float(w["t"]) <= seen[0]]
+        t_event = max(opened) if opened else float("inf")
     last_t = epoch + records[-1].t_open_h * 3600.0 + 1.0
     after = [w for w in windows if t_event <= w["t"] <= last_t]
 
