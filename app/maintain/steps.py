@@ -261,7 +261,8 @@ def reidentify(ctx: Context) -> StepResult:
     # own (short moves); a 6-DoF group (sensor, part frame) by `[commission]
     # maintenance_views_per_sphere` times the spheres, chosen among all (its tilt and shift
     # are told apart by views far apart: measured, chosen per sphere the sensor's truth after
-    # was 1.05-1.18x the unchanged cell's, among all 1.00-1.11x)
+    # was 1.05-1.18x the unchanged cell's, among all 1.00-1.11x), a sensor's with views that
+    # see the sphere elsewhere in the field of view (`_with_fov_views`)
     spheres = list(dict.fromkeys(views.targets))
     seen_ok = [k for k in range(len(ok)) if ok[k]]
     todo: list[int] = []
