@@ -161,14 +161,17 @@ def run_maintenance_experiment(args: argparse.Namespace) -> int:
         raise InputError("the axis is 1..6", field="--axis")
     if not (math.isfinite(args.at_h) and args.at_h > 0):
         raise InputError("the event's hour must be > 0", field="--at-h")
+    cfg = load_cell(args.cell)
+    if args.sphere and (args.event != "fixture" or args.sphere not in cfg.spheres_part_mm):
+        known = ", ".join(cfg.spheres_part_mm)
+        raise InputError(
+            f"one of the cell's spheres ({known}), with --event fixture",
+            field="--sphere",
+        )
     out = Path(args.out)
     if out.exists() and any(out.iterdir()):
         raise InputError("the output folder is not empty", file=out)
     out.mkdir(parents=True, exist_ok=True)
-    cfg = load_cell(args.cell)
-    if args.sphere and (args.event != "fixture" or args.sphere not in cfg.spheres_part_mm):
-        known = ", ".join(cfg.spheres_part_mm)
-        raise InputError(f"--sphere is one of the cell's spheres ({known}), for --event fixture")
     run = MaintenanceRun(
         args.event, args.seed, axis=args.axis, at_s=3600.0 * args.at_h, sphere=args.sphere
     )

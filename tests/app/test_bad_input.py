@@ -262,3 +262,14 @@ def test_cli_startup_and_pipes(tmp_path: Path) -> None:
     proc.wait(timeout=30)
     proc.stderr.close()
     assert "Traceback" not in err and "BrokenPipe" not in err
+
+
+def test_experiment_maintenance_refuses_a_sphere_it_cannot_replace(
+    tmp_path: Path, cli: Cli
+) -> None:
+    for event, sphere in (("axis", "P2"), ("fixture", "P9")):
+        out = tmp_path / f"{event}-{sphere}"
+        args = ["experiment", "maintenance", "--event", event, "--sphere", sphere]
+        code, _, err = cli([*args, "--out", str(out)])
+        assert code == 2 and "--sphere" in one_line(err) and "P1, P2, P3, P4" in err
+        assert not out.exists()  # nothing made for a refused run
