@@ -92,13 +92,19 @@ def step_text(a: Attribution, visible_mm: float, bound_mm: float) -> str:
     )
 
 
+#: measurements of the other spheres since the flag that show one sphere moved alone (that
+#: they did not move with it)
+MIN_OTHER_MEASUREMENTS = 2
+
+
 def sphere_alone(residuals_mm: dict[str, list[float]], bound_mm: float) -> str | None:
     """The sphere that moved beyond a knock's bound on its own, from the residuals [mm] of each
     sphere's measurements since the flag (with the parameters in force): every one of its own
-    above the bound, every other sphere's within a third of it (and some measured); or None."""
+    above the bound, every other sphere's within a third of it (MIN_OTHER_MEASUREMENTS of them
+    at least); or None."""
     moved = [t for t, v in residuals_mm.items() if v and min(v) > bound_mm]
     others = [e for t, v in residuals_mm.items() if t not in moved for e in v]
-    if len(moved) != 1 or not others or max(others) >= bound_mm / 3.0:
+    if len(moved) != 1 or len(others) < MIN_OTHER_MEASUREMENTS or max(others) >= bound_mm / 3:
         return None
     return moved[0]
 

@@ -123,8 +123,8 @@ class Decisions:
         step = svc.step
         if step is None or step.status != StepStatus.ATTRIBUTING:
             return False
-        after = svc.store.measurements(status="ok", since_id=step.onset_id - 1)
-        return len(after) >= len(svc.schedule)
+        n = len(svc.schedule)
+        return len(svc.store.measurements(status="ok", since_id=step.onset_id - 1, last=n)) >= n
 
     def rolling_set(self) -> tuple[Rows, Rows] | None:
         """The (training, held-out) measurements a recalibration would use now: the last ones,

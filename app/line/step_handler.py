@@ -53,9 +53,6 @@ from calib.uncertainty import sigma_upper_mm
 #: estimate can be late as well as early) up to the measurement that signalled
 LOOK_BACK_DIVISOR = 2
 REFINE_TRIES = 2  # refinements refused before the interval closes at the first correction
-#: measurements of the other spheres since the flag that show one sphere moved alone (that they
-#: did not move with it)
-MIN_OTHER_MEASUREMENTS = 2
 
 
 class StepHandler:
@@ -132,7 +129,7 @@ class StepHandler:
     def _sphere_alone(self, step: Step) -> str | None:
         """The `maintenance` alarm's text when one sphere moved beyond a knock on its own
         since the step's change point (app.line.beyond_knock.sphere_alone, on the residuals of
-        the measurements since, MIN_OTHER_MEASUREMENTS of the other spheres at least)."""
+        the measurements since)."""
         svc = self.svc
         bound = svc.settings.recalib.maintenance_step_mm
         by: dict[str, list[float]] = {}
@@ -140,9 +137,7 @@ class StepHandler:
             if row["residual_mm"] is not None:
                 by.setdefault(str(row["target"]), []).append(float(row["residual_mm"]))
         name = sphere_alone(by, bound)
-        if name is None or sum(len(v) for t, v in by.items() if t != name) < MIN_OTHER_MEASUREMENTS:
-            return None
-        return sphere_text(name, by, bound)
+        return None if name is None else sphere_text(name, by, bound)
 
     def _hold_sphere_alone(self, step: Step, text: str) -> None:
         """One sphere moved beyond a knock on its own: no kinematic group explains it and no

@@ -320,7 +320,8 @@ def reidentify(ctx: Context) -> StepResult:
         doc = to_json(model, result, report, provenance())
         # the parameters held keep their uncertainty from the version before (the per-point
         # U95 of `app.api.Calibration` counts them, not the changed group's alone)
-        with_held_covariance(doc, read_json(ctx.path(PARAMS_BEFORE_FILE)), PARAMS_BEFORE_FILE)
+        before = ctx.path(PARAMS_BEFORE_FILE)
+        with_held_covariance(doc, read_json(before), before)
         condition = result.observability.condition
         r.checks.append(at_most("condition", condition, cell.calibration.max_condition))
         r.checks.append(holds("quality gates", report.passed, report.reason or "passed"))
@@ -371,7 +372,8 @@ def _with_fov_views(
     for i in range(n if chosen else 0):
         j = i % len(chosen)
         target, q = chosen[j]
-        c = views.c_mm[index[j]] + np.asarray(FOV_STEPS_MM[(i // len(chosen) + j) % 4])
+        step = FOV_STEPS_MM[(i // len(chosen) + j) % len(FOV_STEPS_MM)]
+        c = views.c_mm[index[j]] + np.asarray(step)
         near = candidates.neighbour_configurations(
             rigid, xr, spheres[target], q, c, 1, rng, tilt_deg=(3.0, 10.0)
         )

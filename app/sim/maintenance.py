@@ -157,15 +157,7 @@ def _commission(cfg: CellConfig, state: StateDir, seed: int) -> float:
     with ExitStack() as stack:
         held = stack.enter_context(hold_state(state.root, str(cfg.service.operators_group)))
         sim = stack.enter_context(SimCommissioning(cfg, seed, geometric=True))
-        cfg_plc, station = sim.open_station(cfg)
-        ctx = Context(
-            cfg=cfg_plc,
-            state=held,
-            station=station,
-            confirm=lambda _: True,
-            say=_quiet,
-            **sim.context_fields(),
-        )
+        ctx = Context(**_scripted(sim, cfg, held, _quiet))
         journal = Journal(held.commission, {"simulated": True, "seed": seed, "geometric": True})
         failed = _run_steps(ctx, journal)
         if failed is not None:
@@ -174,6 +166,14 @@ def _commission(cfg: CellConfig, state: StateDir, seed: int) -> float:
                 f" {failed}: {held.commission_report}): another seed"
             )
         return ctx.robot_s
+
+
+def _scripted(sim: SimCommissioning, cfg: CellConfig, held: StateDir, say: Any) -> dict[str, Any]:
+    """A guided procedure's Context fields on the simulated line, every question answered yes
+    (the experiment's procedures: the station opened through the real drivers)."""
+    cfg_plc, station = sim.open_station(cfg)
+    fields = {"cfg": cfg_plc, "state": held, "station": station, "confirm": lambda _: True}
+    return fields | {"say": say, **sim.context_fields()}
 
 
 def _run_steps(ctx: Any, journal: Journal) -> str | None:
@@ -276,14 +276,8 @@ def _maintain(
             )
         )
         folder, record = open_record(held, run.event, axis, restart=False, t=epoch, say=say)
-        cfg_plc, station = sim.open_station(cfg)
         ctx = MaintenanceContext(
-            cfg=cfg_plc,
-            state=held,
-            station=station,
-            confirm=lambda _: True,
-            say=say,
-            **sim.context_fields(),
+            **_scripted(sim, cfg, held, say),
             out_dir=folder,
             event=run.event,
             axis=axis,
