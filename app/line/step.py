@@ -134,6 +134,13 @@ class Step:
         return step
 
     @property
+    def first_after_id(self) -> int:
+        """The first measurement the step may have moved: the earlier of the flag's change
+        point and the located start (a new cell's start may be located after measurements the
+        knock already moved). The cell's level before the step is read before it."""
+        return min(self.onset_id, self.start_id or self.onset_id)
+
+    @property
     def measuring(self) -> bool:
         """The schedule serves the attribution (more slots per window, chosen for it)."""
         return self.status in MEASURING

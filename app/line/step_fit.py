@@ -139,14 +139,22 @@ def paired(
 ) -> list[tuple[Mapping[str, Any], Mapping[str, Any]]]:
     """(row after the change point, the last row of the same slot and configuration before it)
     for every row after it that has one, in id order."""
+    return [(r, ref) for r, ref in with_references(after, before) if ref is not None]
+
+
+def with_references(
+    after: Sequence[Mapping[str, Any]], before: Sequence[Mapping[str, Any]]
+) -> list[tuple[Mapping[str, Any], Mapping[str, Any] | None]]:
+    """(row after the change point, its reference: the last row of the same slot and
+    configuration before it, or None) for every row after it, in id order."""
     last: dict[int, Mapping[str, Any]] = {}
     for r in before:
         last[int(r["slot"])] = r
-    out = []
+    out: list[tuple[Mapping[str, Any], Mapping[str, Any] | None]] = []
     for r in after:
         ref = last.get(int(r["slot"]))
-        if ref is not None and np.allclose(ref["q_deg"], r["q_deg"], atol=1e-6):
-            out.append((r, ref))
+        same = ref is not None and np.allclose(ref["q_deg"], r["q_deg"], atol=1e-6)
+        out.append((r, ref if same else None))
     return out
 
 
@@ -206,7 +214,7 @@ def locate_step(
 def correct_step(
     model: SystemModel,
     x_current: F64,
-    pairs: Sequence[tuple[Mapping[str, Any], Mapping[str, Any]]],
+    pairs: Sequence[tuple[Mapping[str, Any], Mapping[str, Any] | None]],
     spheres: Mapping[str, F64],
     sigma_mm: float,
     views: tuple[F64, F64],
@@ -216,6 +224,7 @@ def correct_step(
     groups: Sequence[StepGroup] | None = None,
     refine: bool = False,
     x_in_force: F64 | None = None,
+    absolute_sigma_mm: float | None = None,
 ) -> tuple[Attribution, StepCorrection | None]:
     """Attribute the step on all pairs but the newest and gate the chosen group's correction
     (module docstring). `views`: configurations (N, 6) with points (N, 3) in the sensor frame
@@ -225,17 +234,26 @@ def correct_step(
     as the pairs' differences restore the state before the step relative to them;
     `x_in_force`: the first correction, which the held-out check and the change bounds are
     against): no BIC margin is asked for, and the held-out measurement need only be
-    predicted within the noise (chi-square, 3 dof, p = 0.99) when not better."""
+    predicted within the noise (chi-square, 3 dof, p = 0.99) when not better. A row with no
+    reference (None: its slot was not measured before the step, a new cell's) is fitted on its
+    residual itself, with `absolute_sigma_mm` (the cell's level before the step: its
+    calibration error there is unknown) for sigma."""
     x_force = x_current if x_in_force is None else x_in_force
     rows = [p[0] for p in pairs]
-    ref = reference_mm(model, x_current, [p[1] for p in pairs], spheres)
+    have = [k for k, p in enumerate(pairs) if p[1] is not None]
+    refs = [p[1] for p in pairs if p[1] is not None]
+    ref = np.zeros((len(rows), 3))
+    if have:
+        ref[have] = reference_mm(model, x_current, refs, spheres)
+    sigma = np.full(len(rows), sigma_mm if absolute_sigma_mm is None else absolute_sigma_mm)
+    sigma[have] = sigma_mm
     data = as_measurements(rows, spheres)
     fit_rows = np.arange(len(rows) - 1)
     a = attribute(
         model,
         x_current,
         data.subset(fit_rows),
-        sigma_mm=sigma_mm,
+        sigma_mm=sigma[fit_rows],
         reference_mm=ref[fit_rows],
         groups=groups,
     )
@@ -260,7 +278,7 @@ def correct_step(
     newest = data.subset([len(rows) - 1])
     cand = float(np.linalg.norm(residuals(model, fit.x, newest)[0] - ref[-1]))
     cur = float(np.linalg.norm(residuals(model, x_force, newest)[0] - ref[-1]))
-    noise = HELD_OUT_NOISE * sigma_mm if refine else 0.0
+    noise = HELD_OUT_NOISE * float(sigma[-1]) if refine else 0.0
     ratio = 1.0 if gates.max_holdout_ratio is None else gates.max_holdout_ratio
     if not cand <= max(ratio * cur, noise):
         failures.append(

@@ -37,6 +37,7 @@ from app.line.step_fit import (
     step_sigma_mm,
     visible_step_mm,
     volume_views,
+    with_references,
 )
 from calib.attribution import (
     NONE,
@@ -202,15 +203,17 @@ class StepHandler:
         got = self._step_pairs(step, locate=True)
         if got is None:
             return
-        wide, start_id, pairs, sigma = got
+        n_all, start_id, after, sigma = got
+        pairs = [p for p in after if p[1] is not None]
         views = self.volume_views()
-        n_all = len(wide)
         if len(pairs) < r.step_min_measurements:
             step.n_used = n_all
             return
         a, corr = correct_step(
             svc.model, svc.x, pairs, svc.spheres, sigma, views, r, svc.settings.gates
         )
+        if corr is not None and not corr.passed and a.margin >= r.step_min_margin:
+            a, corr = self._with_unreferenced(step, a, corr, after, sigma, views)
         if a.choice == SEVERAL and visible_step_mm(a) > r.maintenance_step_mm:
             # beyond a knock, no knock's group: maybe a maintenance's (J2's encoder zero)
             named, _ = correct_step(
@@ -283,26 +286,59 @@ class StepHandler:
             BLIND_WINDOWS
         )
 
+    def _with_unreferenced(
+        self,
+        step: Step,
+        a: Attribution,
+        corr: StepCorrection,
+        after: list[Any],
+        sigma: float,
+        views: tuple[Any, Any],
+    ) -> tuple[Attribution, StepCorrection]:
+        """A group chosen decisively on the pairs, whose correction failed its gates: the
+        group fitted again on every measurement since the step, those without a reference (a
+        new cell's slots not measured before it) on their own residuals, with the cell's
+        level before the step for sigma (`step_fit.correct_step`). Taken when its gates pass
+        (measured: a new cell's sensor knock waited 4 windows for its slots' second visits);
+        else the pairs' attribution and correction as they were."""
+        svc = self.svc
+        level = self._level_sigma(step)
+        if level is None or len(after) == corr.n_measurements + 1 or a.chosen is None:
+            return a, corr
+        groups = [g for g in step_groups(svc.model) if g.name in (NONE, a.choice)]
+        a_all, corr_all = correct_step(
+            svc.model,
+            svc.x,
+            after,
+            svc.spheres,
+            sigma,
+            views,
+            svc.settings.recalib,
+            svc.settings.gates,
+            groups=groups,
+            absolute_sigma_mm=max(level, sigma),
+        )
+        if corr_all is None or not corr_all.passed:
+            return a, corr
+        return a_all, corr_all
+
     def _level_sigma(self, step: Step) -> float | None:
         """The upper bound of sigma [mm per coordinate] of the cell before the step: the
         evidence (app.line.accuracy.evidence: the version in force's held-out residuals
         topped up by its seed) of the schedule cycle before the step."""
         svc = self.svc
         n_max = len(svc.schedule)
-        # before the earlier of the flag's change point and the located start (a new cell's
-        # start may be located after measurements the knock already moved)
-        first = min(step.onset_id, step.start_id or step.onset_id)
-        rows = svc.store.measurements(before_id=first, last=4 * n_max)
+        rows = svc.store.measurements(before_id=step.first_after_id, last=4 * n_max)
         norms, _ = evidence(rows, svc.version, None, svc.u_seed, n_max)
         s = sigma_upper_mm(norms)
         return None if math.isnan(s) else s
 
-    def _step_pairs(
-        self, step: Step, *, locate: bool
-    ) -> tuple[list[Any], int, list[Any], float] | None:
-        """(pairs from before any candidate change point, the located start, the pairs from
-        it on with the freshest references, sigma), or None when nothing new was measured.
-        `locate`: look for the change point (else the one located before stands)."""
+    def _step_pairs(self, step: Step, *, locate: bool) -> tuple[int, int, list[Any], float] | None:
+        """(the measurements since before any candidate change point, their count: `n_used`;
+        the located start; every measurement from it on with its freshest reference, None for
+        one whose slot has none; sigma), or None when nothing new was measured or too few
+        have references. `locate`: look for the change point (else the one located before
+        stands)."""
         svc = self.svc
         r = svc.settings.recalib
         back = len(svc.schedule) // LOOK_BACK_DIVISOR
@@ -317,7 +353,7 @@ class StepHandler:
         rows = svc.store.measurements(since_id=lo - 1)
         before = svc.store.measurements(before_id=lo, last=2 * len(svc.schedule))
         wide = paired(rows, before)  # references before any candidate change point
-        if len(wide) < r.step_min_measurements or len(wide) == step.n_used:
+        if len(wide) < r.step_min_measurements or len(rows) == step.n_used:
             return None
         chart = svc.drift.change.charts.get("*")
         mu = chart.mu if chart is not None and chart.ready else None
@@ -329,11 +365,9 @@ class StepHandler:
         else:
             start_id = step.start_id
         # the pairs after it, with the freshest references (rows between lo and it included)
-        pairs = paired(
-            [q for q in rows if int(q["id"]) >= start_id],
-            before + [q for q in rows if int(q["id"]) < start_id],
-        )
-        return wide, start_id, pairs, sigma
+        after = [q for q in rows if int(q["id"]) >= start_id]
+        refs = before + [q for q in rows if int(q["id"]) < start_id]
+        return len(rows), start_id, with_references(after, refs), sigma
 
     def _ids_before(self, onset_id: int) -> list[int]:
         """The ids of the good measurements before `onset_id`, a schedule cycle's at most
@@ -345,15 +379,20 @@ class StepHandler:
         """The first correction is in force; once a window more was measured, its group is
         fitted again (from the parameters now in force) and applied when its gates pass (then
         tested for recovery, `corrected`). After two refusals, or when nothing is left to
-        refine, the first correction is tested for recovery."""
+        refine, the first correction is tested for recovery. The measurements of slots not
+        measured before the step (a new cell's) count too, on their own residuals with the
+        cell's level before the step for sigma (`step_fit.correct_step`): its few references
+        alone would leave a poor first correction as it is (measured: 3 pairs left a sensor
+        knock at 0.20 mm for 13 windows)."""
         svc = self.svc
         r = svc.settings.recalib
+        level = step.level_sigma_mm
         got = self._step_pairs(step, locate=False)
         one_window = max(svc.settings.line.step_slots_per_window - 1, 1)
-        if got is None or len(got[0]) < step.n_corrected + one_window:
+        if got is None or got[0] < step.n_corrected + one_window:
             return
-        wide, _, pairs, sigma = got
-        step.n_used = len(wide)
+        step.n_used, _, after, sigma = got
+        pairs = after if level is not None else [p for p in after if p[1] is not None]
         groups = [g for g in step_groups(svc.model) if g.name in (NONE, step.choice)]
         views = self.volume_views()
         x_base = self._version_x(step.base_version)
@@ -372,6 +411,7 @@ class StepHandler:
             groups=groups,
             refine=True,
             x_in_force=svc.x,
+            absolute_sigma_mm=None if level is None else max(level, sigma),
         )
         data = self._attribution_event(step, len(pairs), a, corr, views, refine=True)
         size = data["size_mm"]
@@ -515,8 +555,9 @@ class StepHandler:
         """The in-control level: the residuals [mm] (held out: each measured with parameters
         trained before it) of a schedule cycle of good measurements before the step's start."""
         svc = self.svc
-        first = step.start_id or step.onset_id
-        rows = svc.store.measurements(status="ok", before_id=first, last=len(svc.schedule))
+        rows = svc.store.measurements(
+            status="ok", before_id=step.first_after_id, last=len(svc.schedule)
+        )
         return [float(q["residual_mm"]) for q in rows if q["residual_mm"] is not None]
 
     def _reference_level(self) -> float | None:
