@@ -61,9 +61,18 @@ TRANSITIONS: dict[StepStatus, frozenset[StepStatus]] = {
 }
 #: the statuses in which the windows measure for the step (more slots, chosen for it): until
 #: the full recalibration on post-step measurements is in force (corrected: the interval has
-#: closed on a fast correction, the post-step measurements are still gathered for it)
+#: closed on a fast correction; several: no single group, the cell waits for that
+#: calibration; in both the post-step measurements are still gathered for it)
 MEASURING = frozenset(
-    {_S.PROBATION, _S.ATTRIBUTING, _S.FOLLOWING, _S.REFINING, _S.RECOVERING, _S.CORRECTED}
+    {
+        _S.PROBATION,
+        _S.ATTRIBUTING,
+        _S.FOLLOWING,
+        _S.REFINING,
+        _S.RECOVERING,
+        _S.CORRECTED,
+        _S.SEVERAL,
+    }
 )
 
 
