@@ -364,10 +364,22 @@ class StepHandler:
             start_id = int(wide[i][0]["id"])
         else:
             start_id = step.start_id
-        # the pairs after it, with the freshest references (rows between lo and it included)
-        after = [q for q in rows if int(q["id"]) >= start_id]
-        refs = before + [q for q in rows if int(q["id"]) < start_id]
+        # the rows after it, with the freshest references (rows between lo and it included)
+        first = self._moved_from(step, start_id)
+        after = [q for q in rows if int(q["id"]) >= first]
+        refs = before + [q for q in rows if int(q["id"]) < first]
         return len(rows), start_id, with_references(after, refs), sigma
+
+    def _moved_from(self, step: Step, start_id: int) -> int:
+        """The first measurement a step located at `start_id` may have moved: in a new cell
+        (fewer measurements before the step than slots) the earlier of it and the chart's
+        change point, as the located start is a pair's and the measurements just after the
+        knock may have none (a self-starting chart's change point is close; a learned CUSUM's
+        can be far early, so a watched cell keeps the located one). Measured: a new cell's
+        start located 3 measurements after its knock made one of them a reference, the pair
+        showed no step, and the sensor knock stayed "several" for 27 windows."""
+        new_cell = len(self._ids_before(step.onset_id)) < len(self.svc.schedule)
+        return min(start_id, step.onset_id) if new_cell else start_id
 
     def _ids_before(self, onset_id: int) -> list[int]:
         """The ids of the good measurements before `onset_id`, a schedule cycle's at most
@@ -480,14 +492,11 @@ class StepHandler:
         svc = self.svc
         if start_id == step.start_id:
             return {}
-        # a change from before it spans it; the measurements after the step are from it on
-        step.start_id = svc.change_from_id = svc.drift_onset_id = start_id
-        # a new cell (fewer measurements before the step than slots): the interval from the
-        # earlier of it and the chart's change point, as the located start is a pair's and the
-        # measurements just after the knock may have none (a self-starting chart's change point
-        # is close; a learned CUSUM's can be far early, so a watched cell keeps the located one)
-        new_cell = len(self._ids_before(step.onset_id)) < len(svc.schedule)
-        first = min(start_id, step.onset_id) if new_cell else start_id
+        # a change from before it spans it; the measurements after the step (the post-step
+        # calibration's, the accuracy's evidence) and the interval are from the first
+        # measurement it may have moved on
+        first = self._moved_from(step, start_id)
+        step.start_id, svc.change_from_id, svc.drift_onset_id = start_id, first, first
         before = svc.store.measurements(before_id=first, last=1)
         if not before:
             return {}
