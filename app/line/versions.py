@@ -23,7 +23,8 @@ from app.line.accuracy import document_seed
 from app.line.drift import prediction_inflation, residual_mm
 from app.line.host import LineHost
 from app.line.states import AlarmCode
-from app.line.step_handler import StepHandler
+from app.line.step import StepStatus
+from app.line.step_handler import StepHandler, suspect_open
 from app.line.store import StorageError
 
 
@@ -89,6 +90,10 @@ class Versions:
                 svc.clear_alarms(AlarmCode.DRIFT_STEP, t)
                 if kind != "step":  # a full calibration trained after the step: it is over
                     svc.drift_onset_id, svc.step = None, None
+                elif svc.step is not None and svc.step.status == StepStatus.PROPOSED:
+                    # its interval closed before (the cell vouched for its accuracy): the
+                    # correction is in force, the full recalibration follows
+                    svc.step.move(StepStatus.CORRECTED)
             svc.save_state()
         svc.bus.emit(
             "parameters_applied",
@@ -162,14 +167,6 @@ class Versions:
                 q = np.asarray(r["q_deg"], float)
                 svc.last_visit[int(r["slot"])] = (q, np.asarray(r["c_sensor_mm"], float))
                 svc.visit_ids[int(r["slot"])] = int(r["id"])
-
-
-def suspect_open(svc: LineHost) -> bool:
-    """A step's suspect interval is open."""
-    if svc.step is None or svc.step.suspect_id is None:
-        return False
-    row = svc.store.suspect(svc.step.suspect_id)
-    return row is not None and row["t_end"] is None
 
 
 def _kind(document: Mapping[str, Any] | None) -> str:

@@ -23,9 +23,8 @@ from app.line.operator import Operator
 from app.line.states import AlarmCode, State, suspect_json
 from app.line.status import alarm_event
 from app.line.step import StepStatus
-from app.line.step_handler import StepHandler
+from app.line.step_handler import StepHandler, suspect_open
 from app.line.store import StorageError
-from app.line.versions import suspect_open
 from drivers.errors import DeviceError
 
 RETENTION_S = 3600.0  # how often events past [service] events_keep_days are deleted
