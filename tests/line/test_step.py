@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -15,9 +16,12 @@ import pytest
 
 from app.config.line import RecalibSettings
 from app.formats.params import from_json
+from app.line.accuracy import AFTER_STEP, Accuracy
 from app.line.schedule import Slot
 from app.line.step import Step, StepStatus, look_level, recovery_under
 from app.line.step_fit import paired, step_sigma_mm, step_slot
+from app.line.step_handler import StepHandler
+from app.line.store import Store
 from fakes.truth import Knock
 from tests.line.helpers import knock_line, true_errors_mm, true_rms
 
@@ -460,3 +464,46 @@ def test_a_step_moves_only_along_its_transitions_and_survives_a_restart_as_an_en
     step.recover_looks, step.reference_mm = 3, 0.05
     again = Step.from_json(json.loads(json.dumps(step.to_json())))
     assert again is not None and (again.recover_looks, again.reference_mm) == (3, 0.05)
+
+
+def test_an_interval_with_no_correction_ends_when_the_cell_vouches(tmp_path: Path) -> None:
+    """A step no correction is in force for (several groups, waiting for the full
+    recalibration): its interval ends once the cell vouches for its U95 within the limit on
+    enough residuals measured after the step, never on fewer, on a U95 above the limit, or on
+    evidence from before the step; the step itself goes on, and "nothing found" later does
+    not move the end it has."""
+    store = Store(tmp_path / "rvis.db")
+    sid = store.open_suspect(
+        {"t_start": 10.0, "onset_id": 5, "params_version": 1, "text": "several groups moved"}
+    )
+    events: list[tuple[str, dict[str, Any]]] = []
+    step = Step(onset_id=5, suspect_id=sid, t_start=10.0, last_good_id=4)
+    step.move(StepStatus.SEVERAL)
+    svc = SimpleNamespace(
+        store=store,
+        settings=SimpleNamespace(recalib=RecalibSettings()),
+        step=step,
+        version=1,
+        clock=SimpleNamespace(time=lambda: 99.0),
+        bus=SimpleNamespace(emit=lambda kind, data, **_: events.append((kind, data))),
+        clear_alarms=lambda *_: None,
+        save_state=lambda: None,
+    )
+    handler = StepHandler(svc)
+    n_min = RecalibSettings().recovery_min_measurements
+    for acc in (
+        Accuracy(0.12, n_min - 1, AFTER_STEP, 0.15),  # too few after the step
+        Accuracy(0.16, 3 * n_min, AFTER_STEP, 0.15),  # above the limit
+        Accuracy(0.12, 3 * n_min, "held-out", 0.15),  # not the evidence after the step
+    ):
+        svc.accuracy = acc
+        handler.check_vouched(step)
+        assert store.suspect(sid)["t_end"] is None, acc  # type: ignore[index]
+    svc.accuracy = Accuracy(0.12, n_min, AFTER_STEP, 0.15)
+    handler.check_vouched(step)
+    row = store.suspect(sid)
+    assert row is not None and row["t_end"] == 99.0 and row["end_reason"] == "vouched"
+    assert "U95 0.120 mm (after step" in row["text"]
+    assert [k for k, _ in events] == ["suspect_interval"] and step.status == StepStatus.SEVERAL
+    assert handler.close_none(120.0) is None and store.suspect(sid)["t_end"] == 99.0  # type: ignore[index]
+    store.close()
