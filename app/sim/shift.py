@@ -215,7 +215,7 @@ class ShiftResult:
             baseline_mm=doc.get("baseline_mm"),
             accuracy_limit_mm=float(doc.get("accuracy_limit_mm", math.nan)),
         )
-        result.attribution = attributed_group(result.suspects)
+        result.attribution = attributed_group(result.suspects, 3600.0 * result.settings.knock_at_h)
         evaluate(result)
         return result
 
@@ -317,7 +317,7 @@ def run_shift(
             {**r, "t_start_s": r["t_start"] - epoch, "t_end_s": _minus(r["t_end"], epoch)}
             for r in run.service.store.suspects()
         ]
-        result.attribution = attributed_group(result.suspects)
+        result.attribution = attributed_group(result.suspects, 3600.0 * s.knock_at_h)
     result.real_s = time.perf_counter() - t0
     evaluate(result)
     return result
@@ -328,11 +328,18 @@ def _opened_s(r: WindowRecord, window_s: float) -> float:
     return r.t_open_h * 3600.0 if math.isfinite(r.t_open_h) else r.t_h * 3600.0 - window_s
 
 
-def attributed_group(suspects: list[dict[str, Any]]) -> str | None:
-    """What the service found moved: the group of its last suspect interval (a confirmed
-    step; None when no step was confirmed)."""
-    steps = [s for s in suspects if s.get("group_name") != ACCURACY_GROUP]
-    return str(steps[-1]["group_name"]) if steps else None
+def attributed_group(suspects: list[dict[str, Any]], knock_s: float) -> str | None:
+    """What the service found moved for the knock at `knock_s` [s into the shift]: the group
+    of the first step interval (a confirmed step) not over before it; None when no step was
+    confirmed. (Before: the last interval's, which named a drift the charts flagged later in
+    the warm-up, "several", for a knock corrected right.)"""
+    steps = [
+        s
+        for s in suspects
+        if s.get("group_name") != ACCURACY_GROUP
+        and (s.get("t_end_s") is None or s["t_end_s"] >= knock_s)
+    ]
+    return str(steps[0]["group_name"]) if steps else None
 
 
 def _minus(t: float | None, epoch: float) -> float | None:
