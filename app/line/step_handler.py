@@ -245,8 +245,11 @@ class StepHandler:
         size = data["size_mm"]
         decisive = a.margin >= r.step_min_margin
         with svc.store.batch():
-            fields: dict[str, Any] = {"group_name": a.choice, "text": a.text()}
-            fields |= self._step_start(step, start_id)
+            fields: dict[str, Any] = {"group_name": a.choice}
+            start = self._step_start(step, start_id)
+            if step.status == StepStatus.PROBATION or suspect_open(svc):
+                # (an interval the cell vouched for keeps its span and its words)
+                fields |= start | {"text": a.text()}
             seen = visible_step_mm(a)
             if step.status == StepStatus.PROBATION:
                 data["visible_mm"] = seen
