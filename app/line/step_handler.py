@@ -684,20 +684,27 @@ class StepHandler:
         measured after the step (app.line.accuracy, basis "after step"): a suspect interval is
         the time the cell cannot vouch (measured: 106 of the 221 windows suspect within the
         limit on seeds 25-28 had a U95 within it, a drift the charts flagged in the warm-up).
-        The step goes on (its attribution, its full recalibration); the cell no longer
-        vouching opens an accuracy interval."""
+        Its bodies, measured since the step with the parameters in force, stay suspect in the
+        windows whose U95 was above the limit when stated (`Store.vouched_since`: none, the
+        interval ends where it began). The step goes on (its attribution, its full
+        recalibration); the cell no longer vouching opens an accuracy interval."""
         svc = self.svc
         acc, r = svc.accuracy, svc.settings.recalib
         if acc is None or not acc.vouched or acc.basis != AFTER_STEP:
             return
         if acc.n < r.recovery_min_measurements or not suspect_open(svc):
             return
+        # the bodies measured since the step with the same parameters: suspect only in the
+        # windows the cell could not vouch for when they were stated
+        t_end = svc.store.vouched_since(step.t_start, acc.limit_mm)
+        if t_end is None:
+            return
         assert step.suspect_id is not None
         text = f"{step.text or step.signal}; the cell vouches for its accuracy: {acc.text()}"
         with svc.store.batch():
             svc.store.update_suspect(
                 step.suspect_id,
-                t_end=svc.clock.time(),
+                t_end=t_end,
                 end_reason=VOUCHED,
                 end_version=svc.version,
                 text=text,

@@ -756,6 +756,24 @@ class Store:
                 (u95_mm,),
             )
 
+    def vouched_since(self, t_from: float, limit_mm: float) -> float | None:
+        """The open time of the first window at or after `t_from` from which on every window's
+        stated U95 is within `limit_mm` (`t_from` itself when all are; None when the last
+        one's is not, or no window was recorded)."""
+        with self._lock, self._typed_errors():
+            last = self._db.execute("SELECT MAX(t) FROM windows").fetchone()[0]
+            worse = self._db.execute(
+                "SELECT MAX(t) FROM windows WHERE t >= ? AND (u95_mm IS NULL OR u95_mm > ?)",
+                (t_from, limit_mm),
+            ).fetchone()[0]
+            if last is None or worse == last:
+                return None
+            if worse is None:
+                return t_from
+            return float(
+                self._db.execute("SELECT MIN(t) FROM windows WHERE t > ?", (worse,)).fetchone()[0]
+            )
+
     def windows(self) -> list[dict[str, Any]]:
         """Every clamp window recorded, in time order (t, body_id)."""
         if self.version() < WINDOWS_SCHEMA:

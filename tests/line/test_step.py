@@ -470,9 +470,13 @@ def test_an_interval_with_no_correction_ends_when_the_cell_vouches(tmp_path: Pat
     """A step no correction is in force for (several groups, waiting for the full
     recalibration): its interval ends once the cell vouches for its U95 within the limit on
     enough residuals measured after the step, never on fewer, on a U95 above the limit, or on
-    evidence from before the step; the step itself goes on, and "nothing found" later does
-    not move the end it has."""
+    evidence from before the step. Its bodies stay suspect in the windows whose U95 was above
+    the limit when stated, the rest are not; the step itself goes on, and "nothing found"
+    later does not move the end it has."""
     store = Store(tmp_path / "rvis.db")
+    for t, u95 in ((5.0, 0.2), (12.0, 0.14), (20.0, 0.2), (30.0, 0.12), (40.0, 0.13)):
+        store.add_window(t, None)
+        store.state_window_u95(u95)
     sid = store.open_suspect(
         {"t_start": 10.0, "onset_id": 5, "params_version": 1, "text": "several groups moved"}
     )
@@ -501,9 +505,13 @@ def test_an_interval_with_no_correction_ends_when_the_cell_vouches(tmp_path: Pat
         assert store.suspect(sid)["t_end"] is None, acc  # type: ignore[index]
     svc.accuracy = Accuracy(0.12, n_min, AFTER_STEP, 0.15)
     handler.check_vouched(step)
-    row = store.suspect(sid)
-    assert row is not None and row["t_end"] == 99.0 and row["end_reason"] == "vouched"
+    row = store.suspect(sid)  # the window at 20 s was not vouched for, those from 30 s on were
+    assert row is not None and row["t_end"] == 30.0 and row["end_reason"] == "vouched"
     assert "U95 0.120 mm (after step" in row["text"]
     assert [k for k, _ in events] == ["suspect_interval"] and step.status == StepStatus.SEVERAL
-    assert handler.close_none(120.0) is None and store.suspect(sid)["t_end"] == 99.0  # type: ignore[index]
+    assert handler.close_none(120.0) is None and store.suspect(sid)["t_end"] == 30.0  # type: ignore[index]
+    assert store.vouched_since(25.0, 0.15) == 25.0  # every window since vouched: none suspect
+    store.add_window(50.0, None)
+    store.state_window_u95(0.3)
+    assert store.vouched_since(10.0, 0.15) is None  # the last window not vouched for
     store.close()
