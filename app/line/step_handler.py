@@ -70,6 +70,7 @@ class StepHandler:
 
     def __init__(self, svc: LineHost) -> None:
         self.svc = svc
+        self._vouch_done: int | None = None  # the interval check_vouched has settled
 
     def open_step(self, onset_id: int, flag_id: int, *, attribute: bool) -> None:
         """A step was flagged at measurement `onset_id` (inside the transaction of the
@@ -692,7 +693,10 @@ class StepHandler:
         acc, r = svc.accuracy, svc.settings.recalib
         if acc is None or not acc.vouched or acc.basis != AFTER_STEP:
             return
-        if acc.n < r.recovery_min_measurements or not suspect_open(svc):
+        if acc.n < r.recovery_min_measurements or step.suspect_id == self._vouch_done:
+            return  # (asked between windows, every pass: the store once per interval)
+        if not suspect_open(svc):
+            self._vouch_done = step.suspect_id
             return
         # the bodies measured since the step with the same parameters: suspect only in the
         # windows the cell could not vouch for when they were stated
@@ -711,6 +715,7 @@ class StepHandler:
             )
             svc.clear_alarms(AlarmCode.DRIFT_STEP)
             svc.save_state()
+        self._vouch_done = step.suspect_id
         svc.bus.emit("suspect_interval", suspect_json(svc.store.suspect(step.suspect_id) or {}))
 
     def _close(self, step: Step, reason: str) -> dict[str, Any] | None:
