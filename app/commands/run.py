@@ -239,7 +239,10 @@ def run_sim(args: argparse.Namespace) -> int:
     lines = logging.getLogger(SIM_LOGGER)  # the simulation's own JSON lines on stdout
 
     def progress(r: WindowRecord) -> None:
-        lines.info("sim_window", extra={"event": "sim_window", "data": finite_json(r.__dict__)})
+        # (whether its bodies are suspect is known once the run ended, as an interval may reach
+        # back: the service's suspect_interval events say it as it happens)
+        data = {k: v for k, v in r.__dict__.items() if k != "suspect"}
+        lines.info("sim_window", extra={"event": "sim_window", "data": finite_json(data)})
 
     group = str(cfg.service.operators_group)
     handler: logging.Handler | None = None

@@ -44,6 +44,7 @@ def test_a_batch_run_prints_json_lines_only(tmp_path: Path) -> None:
     windows = [r["data"] for r in lines if r.get("event") == "sim_window"]
     assert [w["window"] for w in windows] == [1, 2]
     assert all(w["rmse_mm"] > 0 and w["version"] >= 1 for w in windows)
+    assert all("u95_mm" in w and "suspect" not in w for w in windows)  # (known at the end only)
     (summary,) = [r["data"] for r in lines if r.get("event") == "sim_summary"]
     assert summary["windows"] == 2 and lines[-1]["event"] == "sim_summary"
     started, said = done.stderr.splitlines()  # for a person: the start and the summary
