@@ -382,20 +382,27 @@ class StepHandler:
             start_id = int(wide[i][0]["id"])
         else:
             start_id = step.start_id
-        # the rows after it, with the freshest references (rows between lo and it included)
-        first = self._moved_from(step, start_id)
-        after = [q for q in rows if int(q["id"]) >= first]
-        refs = before + [q for q in rows if int(q["id"]) < first]
+        # the rows after it, with the freshest references: the rows between lo and it, but not
+        # those after the chart's change point with no pair (a new cell's start is located at
+        # its first pair: the knock may have moved them; measured: one of them made a
+        # reference, its pair showed no step, and a sensor knock stayed "several" 27 windows)
+        after = [q for q in rows if int(q["id"]) >= start_id]
+        judged = {int(p[0]["id"]) for p in wide}
+        refs = before + [
+            q
+            for q in rows
+            if int(q["id"]) < start_id and (int(q["id"]) < step.onset_id or int(q["id"]) in judged)
+        ]
         return len(rows), start_id, with_references(after, refs), sigma
 
     def _moved_from(self, step: Step, start_id: int) -> int:
-        """The first measurement a step located at `start_id` may have moved: in a new cell
+        """Where the suspect interval of a step located at `start_id` starts: in a new cell
         (fewer measurements before the step than slots) the earlier of it and the chart's
         change point, as the located start is a pair's and the measurements just after the
         knock may have none (a self-starting chart's change point is close; a learned CUSUM's
-        can be far early, so a watched cell keeps the located one). Measured: a new cell's
-        start located 3 measurements after its knock made one of them a reference, the pair
-        showed no step, and the sensor knock stayed "several" for 27 windows."""
+        can be far early, so a watched cell keeps the located one). The rows the step is
+        fitted on and the post-step calibration's start at the located one (a change point 8
+        measurements early mixed them into a correction that left 0.19 mm)."""
         new_cell = len(self._ids_before(step.onset_id)) < len(self.svc.schedule)
         return min(start_id, step.onset_id) if new_cell else start_id
 
@@ -510,12 +517,9 @@ class StepHandler:
         svc = self.svc
         if start_id == step.start_id:
             return {}
-        # a change from before it spans it; the measurements after the step (the post-step
-        # calibration's, the accuracy's evidence) and the interval are from the first
-        # measurement it may have moved on
-        first = self._moved_from(step, start_id)
-        step.start_id, svc.change_from_id, svc.drift_onset_id = start_id, first, first
-        before = svc.store.measurements(before_id=first, last=1)
+        # a change from before it spans it; the measurements after the step are from it on
+        step.start_id = svc.change_from_id = svc.drift_onset_id = start_id
+        before = svc.store.measurements(before_id=self._moved_from(step, start_id), last=1)
         if not before:
             return {}
         step.last_good_id, step.t_start = int(before[0]["id"]), float(before[0]["t"])
