@@ -83,9 +83,10 @@ def test_a_new_cells_first_correction_is_refined_on_every_slot(
     at 0.20 mm; the fixture's, 11 windows at 0.08 mm, U95 0.15-0.20 mm). The recovery test
     reads the cell's level before the knock from measurements before it (before: seed 23's
     fixture from a located start after 3 knocked measurements, 0.54 mm: a false "back"). The
-    rows after the knock count from the first measurement it may have moved (before: seed 25's
-    start was located 3 measurements late, one of them became a reference, its pair showed no
-    step, and the sensor knock stayed "several" and 0.33 mm off for 27 windows)."""
+    rows between the chart's change point and the located start that have no pair are no
+    references (before: seed 25's start was located 3 measurements late, one of them became a
+    reference, its pair showed no step, and the sensor knock stayed "several" and 0.33 mm off
+    for 27 windows)."""
     settings = ShiftSettings(hours=0.4, knock_at_h=0.1, knock=kind)
     result = run_shift(cfg, tmp_path / "state", settings, seed=seed)
     recs, k = result.records, result.knock_window
