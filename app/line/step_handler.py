@@ -70,7 +70,7 @@ class StepHandler:
 
     def __init__(self, svc: LineHost) -> None:
         self.svc = svc
-        self._vouch_done: int | None = None  # the interval check_vouched has settled
+        self._seen_window: int | None = None  # the window a waiting step was last looked at
 
     def open_step(self, onset_id: int, flag_id: int, *, attribute: bool) -> None:
         """A step was flagged at measurement `onset_id` (inside the transaction of the
@@ -203,7 +203,12 @@ class StepHandler:
         if step.status == StepStatus.RECOVERING:
             self.check_recovery()
             return
-        if step.status in (StepStatus.ATTRIBUTING, StepStatus.SEVERAL):
+        waiting = (StepStatus.PROBATION, StepStatus.ATTRIBUTING, StepStatus.SEVERAL)
+        window = svc.counters["windows"]
+        if step.status not in waiting or window == self._seen_window:
+            return  # (this runs between windows, every pass: once a window is enough)
+        self._seen_window = window
+        if step.status != StepStatus.PROBATION:
             self.check_vouched(step)
         if step.status not in (StepStatus.ATTRIBUTING, StepStatus.PROBATION):
             return
@@ -395,7 +400,7 @@ class StepHandler:
         ]
         return len(rows), start_id, with_references(after, refs), sigma
 
-    def _moved_from(self, step: Step, start_id: int) -> int:
+    def _interval_from(self, step: Step, start_id: int) -> int:
         """Where the suspect interval of a step located at `start_id` starts: in a new cell
         (fewer measurements before the step than slots) the earlier of it and the chart's
         change point, as the located start is a pair's and the measurements just after the
@@ -519,7 +524,7 @@ class StepHandler:
             return {}
         # a change from before it spans it; the measurements after the step are from it on
         step.start_id = svc.change_from_id = svc.drift_onset_id = start_id
-        before = svc.store.measurements(before_id=self._moved_from(step, start_id), last=1)
+        before = svc.store.measurements(before_id=self._interval_from(step, start_id), last=1)
         if not before:
             return {}
         step.last_good_id, step.t_start = int(before[0]["id"]), float(before[0]["t"])
@@ -697,10 +702,7 @@ class StepHandler:
         acc, r = svc.accuracy, svc.settings.recalib
         if acc is None or not acc.vouched or acc.basis != AFTER_STEP:
             return
-        if acc.n < r.recovery_min_measurements or step.suspect_id == self._vouch_done:
-            return  # (asked between windows, every pass: the store once per interval)
-        if not suspect_open(svc):
-            self._vouch_done = step.suspect_id
+        if acc.n < r.recovery_min_measurements or not suspect_open(svc):
             return
         # the bodies measured since the step with the same parameters: suspect only in the
         # windows the cell could not vouch for when they were stated
@@ -719,7 +721,6 @@ class StepHandler:
             )
             svc.clear_alarms(AlarmCode.DRIFT_STEP)
             svc.save_state()
-        self._vouch_done = step.suspect_id
         svc.bus.emit("suspect_interval", suspect_json(svc.store.suspect(step.suspect_id) or {}))
 
     def _close(self, step: Step, reason: str) -> dict[str, Any] | None:
