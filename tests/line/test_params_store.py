@@ -112,7 +112,7 @@ class _Stopped:
     def time(self) -> float:
         return self.t
 
-    def sleep(self, seconds: float) -> None:
+    def sleep(self, seconds: float) -> None:  # sleep-ok: a fake clock, time advances
         self.t += seconds
 
     def wait(self, event: object, seconds: float) -> bool:
