@@ -20,3 +20,8 @@ HOME_DEG = (0.0, 0.0, 0.0, 0.0, -90.0, 0.0)
 #: ("Repeatability +-0.07 mm"); the simulated world's true robot repeats by the same figure
 #: (fakes/truth.py `M710IC50_RP_MM`, which may not import this package).
 POSE_REPEATABILITY_MM = 0.07
+
+#: Reach [mm] of the M-710iC/50 (FANUC's data sheet: 2050 mm, J1 axis to the wrist centre):
+#: a body feature whose nominal lies further from the base frame's origin is outside the
+#: workspace.
+REACH_MM = 2050.0

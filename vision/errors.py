@@ -5,7 +5,8 @@
     ├── NoStripe                  no laser stripe found in any frame (blank, saturated, ...)
     ├── TooFewPoints              a stripe, but too few valid 3D points to fit a sphere
     ├── SphereFitRejected         the sphere fit failed a quality threshold (carries the quality)
-    └── CalibrationFailed         chessboards or target sweeps insufficient to calibrate the sensor
+    ├── CalibrationFailed         chessboards or target sweeps insufficient to calibrate the sensor
+    └── FeatureRefused            a body feature's sweep gives no value (a typed reason)
 
 Callers re-measure on NoStripe / TooFewPoints / SphereFitRejected and never use the centre;
 the application layer turns these into one-line messages.
@@ -53,3 +54,17 @@ class SphereFitRejected(VisionError):
 
 class CalibrationFailed(VisionError):
     """The calibration images or sweeps do not determine the sensor model."""
+
+
+class FeatureRefused(VisionError):
+    """A body feature could not be measured from its sweep; `reason` is one of REASONS (what
+    failed), `detail` says by how much. Never a value: the caller stores "not measured"."""
+
+    REASONS = ("no_points", "plane", "edge_points", "edge_coverage", "fit", "size")
+
+    def __init__(self, reason: str, detail: str) -> None:
+        if reason not in self.REASONS:
+            raise ValueError(f"reason: expected one of {self.REASONS}, got {reason!r}")
+        self.reason = reason
+        self.detail = detail
+        super().__init__(f"{reason}: {detail}")

@@ -29,12 +29,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, cast
 
-from app.commission.context import Context
 from app.commission.journal import Journal
-from app.commission.sequence import run_sequence
 from app.config import CellConfig, load_cell
 from app.config.write import dumps_cell
-from app.errors import RvisError
 from app.formats.files import read_json, write_json, write_text
 from app.line.launch import hold_state
 from app.line.statedir import MAINTENANCE_REPORT_JSON, StateDir
@@ -43,12 +40,9 @@ from app.maintain.record import open_record
 from app.maintain.steps import MaintenanceContext
 from app.maintain.table import procedure
 from app.sim.commission import SimCommissioning
+from app.sim.commissioned import commission_simulated, quiet, run_steps, scripted_fields
 from app.sim.line_run import SimulatedLineRun, WindowRecord, continued_epoch, world_of
 from fakes.line import SimLine
-
-#: runs again of a commissioning whose devices step failed (a simulated camera's frame lost
-#: under load is not the seed's cell failing)
-DEVICE_RETRIES = 2
 
 
 @dataclass(frozen=True)
@@ -77,8 +71,8 @@ class MaintenanceRun:
 def run_maintenance(cfg: CellConfig, out: Path, run: MaintenanceRun) -> dict[str, Any]:
     """The experiment (module docstring) in folder `out`; its row."""
     state = StateDir(out / "state")
-    say = _quiet
-    commissioning_robot_s = _commission(cfg, state, run.seed)
+    say = quiet
+    commissioning_robot_s = commission_simulated(cfg, state, run.seed)
     cell = _with_event(load_cell(state.cell), run)
     write_text(state.cell, dumps_cell(cell, "rvis experiment maintenance: the event"))
     periods = math.ceil(run.at_s / cell.simline.period_s)
@@ -145,47 +139,6 @@ def run_maintenance(cfg: CellConfig, out: Path, run: MaintenanceRun) -> dict[str
         "suspect_intervals_kept": len(kept) >= len(suspects),
         "truth": _truth(cell, run),
     }
-
-
-def _quiet(line: str) -> None:
-    """The experiment's steps say nothing (their reports hold it all)."""
-
-
-def _commission(cfg: CellConfig, state: StateDir, seed: int) -> float:
-    """The cell commissioned on the simulated line (every step of `rvis commission --sim
-    --geometric`); the robot's time it took [s]."""
-    with ExitStack() as stack:
-        held = stack.enter_context(hold_state(state.root, str(cfg.service.operators_group)))
-        sim = stack.enter_context(SimCommissioning(cfg, seed, geometric=True))
-        ctx = Context(**_scripted(sim, cfg, held, _quiet))
-        journal = Journal(held.commission, {"simulated": True, "seed": seed, "geometric": True})
-        failed = _run_steps(ctx, journal)
-        if failed is not None:
-            raise RvisError(
-                f"the simulated cell of seed {seed} did not pass its commissioning (step"
-                f" {failed}: {held.commission_report}): another seed"
-            )
-        return ctx.robot_s
-
-
-def _scripted(sim: SimCommissioning, cfg: CellConfig, held: StateDir, say: Any) -> dict[str, Any]:
-    """A guided procedure's Context fields on the simulated line, every question answered yes
-    (the experiment's procedures: the station opened through the real drivers)."""
-    cfg_plc, station = sim.open_station(cfg)
-    fields = {"cfg": cfg_plc, "state": held, "station": station, "confirm": lambda _: True}
-    return fields | {"say": say, **sim.context_fields()}
-
-
-def _run_steps(ctx: Any, journal: Journal) -> str | None:
-    """A procedure's steps (`run_sequence`), run again from a failed devices step up to
-    DEVICE_RETRIES times, as the engineer would (the journal continues there): a simulated
-    camera's frame lost on a loaded loopback is not the seed's cell failing."""
-    failed = run_sequence(ctx, journal)
-    for _ in range(DEVICE_RETRIES):
-        if failed != "devices":
-            break
-        failed = run_sequence(ctx, journal)
-    return failed
 
 
 def _with_event(cfg: CellConfig, run: MaintenanceRun) -> CellConfig:
@@ -277,7 +230,7 @@ def _maintain(
         )
         folder, record = open_record(held, run.event, axis, restart=False, t=epoch, say=say)
         ctx = MaintenanceContext(
-            **_scripted(sim, cfg, held, say),
+            **scripted_fields(sim, cfg, held, say),
             out_dir=folder,
             event=run.event,
             axis=axis,
@@ -285,7 +238,7 @@ def _maintain(
         )
         setup = {"event": run.event, "axis": axis, "simulated": True, "seed": run.seed}
         journal = Journal(folder, setup, procedure(run.event, axis))
-        _run_steps(ctx, journal)
+        run_steps(ctx, journal)
         from app.commission.report import write_report
 
         write_report(journal)

@@ -22,7 +22,8 @@ from app.line.statedir import MAINTENANCE_REPORT_JSON, StateDir
 from app.line.states import AlarmCode
 from app.line.store import Store
 from app.sim.line_run import SimulatedLineRun
-from app.sim.maintenance import MaintenanceRun, _commission, _line_after, _version_x
+from app.sim.commissioned import commission_simulated
+from app.sim.maintenance import MaintenanceRun, _line_after, _version_x
 from tests.groups import GIGE_CAMERA
 
 SEED = 17
@@ -33,7 +34,7 @@ AT_S = 780.0  # the event in the 14th clamp period
 def commissioned(tmp_path_factory: pytest.TempPathFactory) -> StateDir:
     """A cell commissioned once on the simulated line (every step, geometric path)."""
     state = StateDir(tmp_path_factory.mktemp("commissioned") / "state")
-    _commission(load_cell(None), state, SEED)
+    commission_simulated(load_cell(None), state, SEED)
     return state
 
 

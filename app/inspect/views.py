@@ -1,0 +1,219 @@
+"""A view per feature on the calibrated model, the galvo sweep across it, and a route through
+the views (`rvis inspect plan`).
+
+A view looks at the feature along its normal (the sensor's z axis = -normal, tilted up to
+`max_tilt_deg` off it when the straight view is not reachable), with the feature's centre at the
+working distance on the sensor's axis: the sheet is inside the depth of field, the laser meets it
+at the sensor's triangulation angle (30 degrees, the incidence the sensor is built for). A slot's
+long axis lies along the sweep (the sensor's x), so the stripes cut across its width and its
+length fits the 37 mm of the field of view. The joints come from the closed-form inverse
+kinematics refined on the calibrated model (calib.ik_refine); every branch within the joint
+limits is a candidate and the route takes the one nearest the previous view. A feature with no
+view is named, never dropped (`InspectionPlan.unreachable`).
+
+The sweep: the mirror commands that put the stripe, on the sheet at the working distance, at
+evenly spaced positions across the feature's width plus a margin (the sensor model's laser
+planes, vision.sensor_model), `frames` of them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from app.config import CellConfig
+from app.config.line import LineSettings
+from app.inspect.plan import Feature, FeaturePlan
+from app.line.schedule import motion_time_s, shortest_route
+from calib import ik
+from calib.candidates import flange_poses, look_rotations
+from calib.ik_refine import refine
+from calib.model import SystemModel
+from calib.transforms import inverse
+from vision.sensor_model import SensorModel
+
+F64 = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ViewSettings:
+    """working_distance_mm: the sheet's distance along the sensor's axis; max_tilt_deg: how far
+    the view may tilt off the feature's normal; margin_mm: the sweep's reach beyond the
+    feature's outline (the sheet's plane needs points around it); frames per sweep;
+    frame_s per frame (galvo, exposure, transfer); surface_span_mm: a surface point's sweep;
+    fov_margin_mm: the feature's outline stays this far inside the field of view."""
+
+    working_distance_mm: float = 120.0
+    max_tilt_deg: float = 30.0
+    margin_mm: float = 3.0
+    frames: int = 40
+    frame_s: float = 0.025
+    surface_span_mm: float = 10.0
+    fov_margin_mm: float = 2.0
+
+
+@dataclass(frozen=True)
+class FeatureView:
+    """A feature's view: q_deg (6,) [controller deg], the feature's centre c_sensor_mm (3,)
+    where the calibrated model puts it, the sweep's commands_v (n,) [V], tilt_deg off the
+    normal, and the motion time to it from the previous view [s]."""
+
+    feature: str
+    q_deg: F64
+    c_sensor_mm: F64
+    commands_v: F64
+    tilt_deg: float
+    motion_s: float = 0.0
+    sweep_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class InspectionPlan:
+    """Views in route order, the features without a view (id -> reason), and the robot time
+    of the route from home and back [s]."""
+
+    views: tuple[FeatureView, ...]
+    unreachable: dict[str, str] = field(default_factory=dict)
+    route_s: float = 0.0
+
+    def view(self, feature_id: str) -> FeatureView:
+        for v in self.views:
+            if v.feature == feature_id:
+                return v
+        raise KeyError(feature_id)
+
+
+def plan_views(
+    cfg: CellConfig,
+    model: SystemModel,
+    x: F64,
+    plan: FeaturePlan,
+    sensor: SensorModel,
+    settings: ViewSettings | None = None,
+) -> InspectionPlan:
+    """A view for each feature of `plan` on the calibrated model (model, x) and the route
+    through them from the cell's home (module docstring)."""
+    s = settings or ViewSettings()
+    line: LineSettings = cfg.line
+    home = np.asarray(line.home_deg, dtype=float)
+    options: dict[str, list[tuple[F64, F64, float]]] = {}
+    unreachable: dict[str, str] = {}
+    for f in plan.features:
+        found = _options(cfg, model, x, f, s)
+        if found:
+            options[f.id] = found
+        else:
+            unreachable[f.id] = (
+                f"no reachable view within {s.max_tilt_deg:g} deg of its normal at"
+                f" {s.working_distance_mm:g} mm"
+            )
+    ids = list(options)
+    first = [min(options[i], key=lambda o: motion_time_s(home, o[0], line)) for i in ids]
+    order = shortest_route([o[0] for o in first], home, line)
+    views: list[FeatureView] = []
+    prev = home
+    for k in order:
+        fid = ids[k]
+        q, c, tilt = min(options[fid], key=lambda o: motion_time_s(prev, o[0], line))
+        f = plan.feature(fid)
+        cmds = sweep_commands(sensor, f, c, s)
+        views.append(
+            FeatureView(fid, q, c, cmds, tilt, motion_time_s(prev, q, line), len(cmds) * s.frame_s)
+        )
+        prev = q
+    total = sum(v.motion_s + v.sweep_s for v in views)
+    total += motion_time_s(prev, home, line)
+    return InspectionPlan(tuple(views), unreachable, total)
+
+
+def _options(
+    cfg: CellConfig, model: SystemModel, x: F64, f: Feature, s: ViewSettings
+) -> list[tuple[F64, F64, float]]:
+    """(q_deg, c_sensor_mm, tilt_deg) of every reachable view of f, the least tilt first."""
+    R_base_part = inverse(model.T_part_base(x))[:3, :3]
+    n_base = R_base_part @ f.normal
+    a_base = R_base_part @ (f.axis if f.type == "slot" else np.zeros(3))
+    c = np.array([0.0, 0.0, s.working_distance_mm])
+    for tilt in np.arange(0.0, s.max_tilt_deg + 1e-9, 5.0):
+        R = _rotations(n_base, a_base, float(tilt))
+        F = flange_poses(model, x, f.position_mm, R, c)
+        sols = ik.solve(F, model.limits)
+        found = []
+        for i in range(len(F)):
+            q0 = sols.for_pose(i)
+            if not len(q0):
+                continue
+            target = model.T_part_base(x) @ F[i] @ model.T_flange_sensor(x)
+            fit = refine(model, x, target, q0, max_iter=10)
+            for q in fit.q_deg[fit.converged]:
+                T = model.fk(x, q[None])[0]
+                c_s = T[:3, :3].T @ (f.position_mm - T[:3, 3])
+                found.append((q, c_s, float(tilt)))
+        if found:
+            return found
+    return []
+
+
+def _rotations(n_base: F64, axis_base: F64, tilt_deg: float) -> F64:
+    """Sensor orientations (K, 3, 3) looking along -n tilted by tilt_deg in 8 directions
+    (one at 0), each at 24 rolls; a slot's: x along its axis (two rolls)."""
+    view = -n_base / np.linalg.norm(n_base)
+    dirs = [view]
+    if tilt_deg > 0:
+        e1 = np.cross(view, [0.0, 0.0, 1.0] if abs(view[2]) < 0.9 else [1.0, 0.0, 0.0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(view, e1)
+        t = np.radians(tilt_deg)
+        dirs = [
+            np.cos(t) * view + np.sin(t) * (np.cos(b) * e1 + np.sin(b) * e2)
+            for b in np.radians(np.arange(0, 360, 45))
+        ]
+    out = []
+    for d in dirs:
+        if d[2] > 1e-9:  # the sensor never looks upward
+            continue
+        if np.linalg.norm(axis_base) > 0:
+            x = axis_base - (axis_base @ d) * d
+            x /= np.linalg.norm(x)
+            for sign in (1.0, -1.0):
+                out.append(np.column_stack([sign * x, np.cross(d, sign * x), d]))
+        else:
+            out.extend(look_rotations(np.tile(d, (24, 1)), np.radians(np.arange(0, 360, 15))))
+    return np.array(out).reshape(-1, 3, 3)
+
+
+def sweep_commands(sensor: SensorModel, f: Feature, c_sensor_mm: F64, s: ViewSettings) -> F64:
+    """Mirror commands [V] putting the stripe evenly across the feature at its depth: over its
+    extent along the sensor's x plus margin_mm each side (a surface point: surface_span_mm)."""
+    if f.type == "surface":
+        half = 0.5 * s.surface_span_mm
+        n = max(s.frames // 4, 6)
+    else:
+        half = 0.5 * max(f.size_mm) + s.margin_mm
+        n = s.frames
+    xs = c_sensor_mm[0] + np.linspace(-half, half, n)
+    grid = np.linspace(-6.0, 6.0, 1201)
+    normals, offsets = sensor.laser.planes(grid)
+    z = float(c_sensor_mm[2])
+    x_at = (offsets - normals[:, 1] * c_sensor_mm[1] - normals[:, 2] * z) / normals[:, 0]
+    order = np.argsort(x_at)
+    out: F64 = np.interp(xs, x_at[order], grid[order])
+    return out
+
+
+def route_table(plan: InspectionPlan) -> list[dict[str, object]]:
+    """The views as rows for a report (JSON-ready)."""
+    return [
+        {
+            "feature": v.feature,
+            "q_deg": [round(float(a), 3) for a in v.q_deg],
+            "c_sensor_mm": [round(float(a), 3) for a in v.c_sensor_mm],
+            "tilt_deg": v.tilt_deg,
+            "frames": len(v.commands_v),
+            "motion_s": round(v.motion_s, 3),
+            "sweep_s": round(v.sweep_s, 3),
+        }
+        for v in plan.views
+    ]
