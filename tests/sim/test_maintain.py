@@ -21,8 +21,8 @@ from app.formats.params import from_json
 from app.line.statedir import MAINTENANCE_REPORT_JSON, StateDir
 from app.line.states import AlarmCode
 from app.line.store import Store
-from app.sim.line_run import SimulatedLineRun
 from app.sim.commissioned import commission_simulated
+from app.sim.line_run import SimulatedLineRun
 from app.sim.maintenance import MaintenanceRun, _line_after, _version_x
 from tests.groups import GIGE_CAMERA
 
