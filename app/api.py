@@ -22,6 +22,7 @@ starts with the argument's name, never a NaN result or a misleading "no solution
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,6 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 from app.formats.files import MAX_ANGLE_DEG, MAX_COORD_MM
 from app.formats.params import covariance_of, from_json
 from calib import compensate, urdf
+from calib.compliance import CompliantModel
 from calib.model import SystemModel
 from calib.transforms import apply
 from calib.wpr import pose_from_xyzwpr, xyzwpr_from_pose
@@ -85,9 +87,16 @@ class Calibration:
             raise TypeError(f"model: expected a SystemModel, got {type(model).__name__}")
         return cls(model, model.nominal_x(), "<nominal>")
 
-    def sensor_pose(self, q_deg: ArrayLike) -> F64:
-        """T_part_sensor (N, 4, 4) [mm] at controller angles (N, 6) or (6,) [deg]."""
-        return self.model.fk(self.x, _joints("q_deg", q_deg))
+    def sensor_pose(self, q_deg: ArrayLike, temp_c: float | None = None) -> F64:
+        """T_part_sensor (N, 4, 4) [mm] at controller angles (N, 6) or (6,) [deg]; temp_c: the
+        cell's temperature [degC], for a compliance- and temperature-aware model's thermal
+        growth (None: the model's reference temperature; a rigid model has no thermal term)."""
+        q = _joints("q_deg", q_deg)
+        if temp_c is None or not isinstance(self.model, CompliantModel):
+            return self.model.fk(self.x, q)
+        if not (math.isfinite(temp_c) and -40.0 <= temp_c <= 100.0):
+            raise ValueError(f"temp_c = {temp_c!r}: expected a temperature within -40..100 degC")
+        return self.model.fk(self.x, q, temp_c=float(temp_c))
 
     def to_part(self, q_deg: ArrayLike, p_sensor_mm: ArrayLike) -> F64:
         """Sensor points in the part frame [mm]. q_deg (N, 6) with points (N, 3) (one point per

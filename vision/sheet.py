@@ -131,7 +131,10 @@ def edge_points(
         idx = np.flatnonzero(on)
         if len(idx) < 4:
             continue
-        steps = np.linalg.norm(np.diff(prof[idx], axis=0), axis=1)
+        # the step in the sheet's plane: the noise along the camera's ray (mostly along the
+        # normal) would lengthen it, and the half step would then overshoot the edge
+        diffs = np.diff(prof[idx], axis=0)
+        steps = np.linalg.norm(diffs - np.outer(diffs @ plane.normal, plane.normal), axis=1)
         step = float(np.median(steps))
         along = prof[idx[-1]] - prof[idx[0]]
         along -= (along @ plane.normal) * plane.normal

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 from app.commands import add_command
 from app.commands.args import int_at_least
 from app.commands.compensate import run_compensation_experiment
+from app.commands.gauge import STUDIES, add_options, run_study
 from app.config import CellConfig, load_cell
 from app.errors import InputError
 from app.planning import add_plan_options, plan_overrides
@@ -35,6 +36,7 @@ EXPERIMENTS: dict[str, str] = {
     "compensation": "nominal vs compensated pose error of the true robot",
     "shift": "a compressed shift of the in-line service with warm-up and a knock",
     "maintenance": "a maintenance event (sensor, axis, fixture) and its procedure, end to end",
+    **STUDIES,
 }
 
 
@@ -65,6 +67,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     _shift_options(parsers["shift"])
     _maintenance_options(parsers["maintenance"])
+    for name in STUDIES:
+        add_options(parsers[name], name)
     for e in parsers.values():
         e.set_defaults(func=run)
 
@@ -261,6 +265,8 @@ def run(args: argparse.Namespace) -> int:
         return run_paper_compare(args.runs)
     if args.name == "maintenance":
         return run_maintenance_experiment(args)
+    if args.name in STUDIES:
+        return run_study(args)
     cfg = load_cell(args.cell)
     out = Path(args.out or f"runs/experiment-{time.strftime('%Y%m%d-%H%M%S')}")
     if args.name == "accuracy":

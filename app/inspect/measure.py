@@ -39,12 +39,13 @@ class FeatureSensor(Protocol):
 
 @dataclass(frozen=True)
 class RawFeature:
-    """What a feature's value is computed from: the view's joints q_deg (6,) and the sweep's
-    profiles in the sensor frame."""
+    """What a feature's value is computed from: the view's joints q_deg (6,), the sweep's
+    profiles in the sensor frame and the cell's temperature [degC] (None: not known)."""
 
     feature: str
     q_deg: F64
     profiles: tuple[F64, ...]
+    temp_c: float | None = None
 
 
 @dataclass(frozen=True)
@@ -73,7 +74,7 @@ def evaluate(
     profiles = [p for p in raw.profiles if len(p)]
     if not profiles:
         return not_measured(feature, "no_points: the sweep gave no stripe point")
-    T = cal.sensor_pose(raw.q_deg)[0]
+    T = cal.sensor_pose(raw.q_deg, raw.temp_c)[0]
     in_part = [p @ T[:3, :3].T + T[:3, 3] for p in profiles]
     try:
         fit = measure_feature(
@@ -109,12 +110,13 @@ def measure_body(
     views: InspectionPlan,
     sensor: FeatureSensor,
     statement_u95_mm: float,
+    temp_c: float | None = None,
 ) -> BodyResult:
-    """Every feature of `plan` on the clamped body, along the route; a feature without a view
-    is "not measured" (no view)."""
+    """Every feature of `plan` on the clamped body, along the route, the cell at temp_c
+    [degC] (None: not known); a feature without a view is "not measured" (no view)."""
     raw: dict[str, RawFeature] = {}
     for v in views.views:
-        raw[v.feature] = RawFeature(v.feature, v.q_deg, tuple(sensor.profiles(v)))
+        raw[v.feature] = RawFeature(v.feature, v.q_deg, tuple(sensor.profiles(v)), temp_c)
     return evaluate_body(body, cal, plan, list(raw.values()), statement_u95_mm, views.unreachable)
 
 

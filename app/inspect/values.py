@@ -12,8 +12,9 @@ two-sided 95 % factor of one coordinate (1.96):
   U95 / 2.80 (calib.uncertainty.norm_quantile): the robot's repeatability, the sensor, the
   model's residual error at the point.
 A size (D, W, L) is a distance within one view: the pose's error moves both edges alike, so
-its U95 is k sqrt(sd_fit^2 + 2 u_edge^2), u_edge the type-B uncertainty of one edge's placement
-(half a stripe sample, uniform: `EDGE_U_MM`).
+its U95 is k sqrt(sd_fit^2 + 2 u_edge^2): the fit's own sd holds the edge points' random
+placement within a stripe sample; u_edge is the type-B uncertainty of what stays systematic on
+every edge point of one side (`EDGE_U_MM`).
 
 Decision (ISO 14253-1): conformance proven when the value lies inside the tolerance shrunk by
 U on each side, nonconformance proven when it lies outside the tolerance widened by U, else
@@ -35,9 +36,11 @@ from vision.features import FeatureFit
 F64 = NDArray[np.float64]
 #: the one-coordinate two-sided 95 % coverage factor
 K95 = 1.959964
-#: type-B standard uncertainty of one edge point's placement along the stripe [mm]: half the
-#: stripe's sample step (0.036 mm at the working distance) as a uniform distribution's
-EDGE_U_MM = 0.018 / math.sqrt(3.0)
+#: type-B standard uncertainty [mm] of what stays systematic in the edge points' placement: an
+#: edge is put half a sample step past the last point on the sheet (vision.sheet), the step
+#: measured in the sheet's plane; what that leaves is bounded by a tenth of the step (0.036 mm
+#: at the working distance), as a uniform distribution's
+EDGE_U_MM = 0.0036 / math.sqrt(3.0)
 DECISIONS = ("conforming", "nonconforming", "undecided", "not measured")
 
 

@@ -5,8 +5,11 @@ A view looks at the feature along its normal (the sensor's z axis = -normal, til
 `max_tilt_deg` off it when the straight view is not reachable), with the feature's centre at the
 working distance on the sensor's axis: the sheet is inside the depth of field, the laser meets it
 at the sensor's triangulation angle (30 degrees, the incidence the sensor is built for). A slot's
-long axis lies along the sweep (the sensor's x), so the stripes cut across its width and its
-length fits the 37 mm of the field of view. The joints come from the closed-form inverse
+long axis lies along the sweep (the sensor's x) turned by SLOT_ROLL_DEG, so the stripes cut
+across its width and its length fits the 37 mm of the field of view; the turn makes the stripes
+meet its long edges at every phase of the camera's rows (a long edge parallel to the sweep is
+met at the same row phase by every stripe: its sub-sample placement error would be one error
+for the whole side, up to half a row's step on the width, instead of averaging out). The joints come from the closed-form inverse
 kinematics refined on the calibrated model (calib.ik_refine); every branch within the joint
 limits is a candidate and the route takes the one nearest the previous view. A feature with no
 view is named, never dropped (`InspectionPlan.unreachable`).
@@ -35,6 +38,8 @@ from calib.transforms import inverse
 from vision.sensor_model import SensorModel
 
 F64 = NDArray[np.float64]
+#: a slot's long axis turned this far off the sweep direction [deg] (module docstring)
+SLOT_ROLL_DEG = 15.0
 
 
 @dataclass(frozen=True)
@@ -158,7 +163,8 @@ def _options(
 
 def _rotations(n_base: F64, axis_base: F64, tilt_deg: float) -> F64:
     """Sensor orientations (K, 3, 3) looking along -n tilted by tilt_deg in 8 directions
-    (one at 0), each at 24 rolls; a slot's: x along its axis (two rolls)."""
+    (one at 0), each at 24 rolls; a slot's: x along its axis turned by +-SLOT_ROLL_DEG, either
+    way round (four rolls)."""
     view = -n_base / np.linalg.norm(n_base)
     dirs = [view]
     if tilt_deg > 0:
@@ -175,10 +181,12 @@ def _rotations(n_base: F64, axis_base: F64, tilt_deg: float) -> F64:
         if d[2] > 1e-9:  # the sensor never looks upward
             continue
         if np.linalg.norm(axis_base) > 0:
-            x = axis_base - (axis_base @ d) * d
-            x /= np.linalg.norm(x)
-            for sign in (1.0, -1.0):
-                out.append(np.column_stack([sign * x, np.cross(d, sign * x), d]))
+            a = axis_base - (axis_base @ d) * d
+            a /= np.linalg.norm(a)
+            for roll in np.radians([SLOT_ROLL_DEG, -SLOT_ROLL_DEG]):
+                for sign in (1.0, -1.0):
+                    x = sign * (np.cos(roll) * a + np.sin(roll) * np.cross(d, a))
+                    out.append(np.column_stack([x, np.cross(d, x), d]))
         else:
             out.extend(look_rotations(np.tile(d, (24, 1)), np.radians(np.arange(0, 360, 15))))
     return np.array(out).reshape(-1, 3, 3)

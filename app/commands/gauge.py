@@ -1,0 +1,79 @@
+"""`rvis experiment gauge` and `rvis experiment correlation`: the body's gauge studies on the
+simulated line (app/sim/inspection.py), writing DIR/gauge.json or DIR/correlation.json."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from app.commands.args import int_at_least
+from app.config import load_cell
+from app.errors import InputError
+
+#: the in-line service's windows before the bodies: two hours of the simulated line, past its
+#: first in-line recalibrations of the compliant model
+LINE_WINDOWS = 120
+STUDIES = {
+    "gauge": "type-1 study of the body's characteristics on one master body (Cg, Cgk)",
+    "correlation": "the body's values in-line against the simulated CMM, no offsets",
+}
+
+
+def add_options(p: argparse.ArgumentParser, name: str) -> None:
+    p.add_argument("--seed", type=int_at_least(0), default=0, help="the cell's seed (0)")
+    if name == "gauge":
+        p.add_argument(
+            "--repeats", type=int_at_least(2), default=50, help="measurements of the master (50)"
+        )
+    else:
+        p.add_argument("--bodies", type=int_at_least(2), default=50, help="bodies measured (50)")
+    p.add_argument(
+        "--geometric",
+        action="store_true",
+        help="the geometric sensor path (the rendered path of the body is not built yet)",
+    )
+    p.add_argument(
+        "--line-windows",
+        type=int_at_least(0),
+        default=LINE_WINDOWS,
+        help="windows the in-line service runs on the commissioned cell before the bodies are"
+        f" measured ({LINE_WINDOWS}: about 2 h of the line; 0: the commissioning's parameters)",
+    )
+    p.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")
+    p.add_argument("--out", required=True, help="output folder (a new one; state/ holds the cell)")
+
+
+def run_study(args: argparse.Namespace) -> int:
+    from app.formats.files import write_json
+    from app.formats.jsontext import dumps_json
+    from app.sim.inspection import inspection_cell, run_correlation, run_gauge
+
+    if not args.geometric:
+        raise InputError(
+            "the body's rendered path is not built yet: run with --geometric", field="--geometric"
+        )
+    cfg = load_cell(args.cell)
+    out = Path(args.out)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise InputError("the output folder is not empty", file=out)
+    out.mkdir(parents=True, exist_ok=True)
+
+    def progress(text: str) -> None:
+        print(f"  {text}", file=sys.stderr, flush=True)
+
+    print(
+        f"rvis experiment {args.name}: seed {args.seed}, the cell commissioned and run for"
+        f" {args.line_windows} windows",
+        file=sys.stderr,
+    )
+    with inspection_cell(cfg, args.seed, out, args.line_windows) as cell:
+        if args.name == "gauge":
+            doc = run_gauge(cell, args.repeats, progress)
+        else:
+            doc = run_correlation(cell, args.bodies, progress)
+    path = out / f"{args.name}.json"
+    write_json(path, doc)
+    print(dumps_json(doc["summary"], indent=2))
+    print(f"written {path}")
+    return 0

@@ -1,0 +1,318 @@
+"""The body's gauge studies on the simulated line, as plants accept an in-line gauge
+(`rvis experiment gauge`, `rvis experiment correlation`; REFERENCE.md "Gauge studies").
+
+Both start from a commissioned cell: the simulated cell of the seed commissioned by `rvis
+commission --sim --geometric`'s script into OUT/state, the part type's feature plan written
+there; by default the in-line service then runs the simulated line for a while (its warm-up, its
+in-line recalibrations: the cell as it runs in production), and the bodies are measured in that
+world with the parameters in force and the U95 the service states (`inspection_cell`). A view
+per feature is planned on those parameters. Nothing is offset: the values are the cell's as it
+would report them.
+
+- type-1 study (`run_gauge`): one master body clamped once and measured `repeats` times (each a
+  new stop of the robot at every view, new sensor noise); per characteristic the bias against
+  the master's truth, the repeatability s, Cg = 0.2 T / (6 s), Cgk = (0.1 T - |bias|) / (3 s), T
+  the tolerance's width.
+- correlation (`run_correlation`): `bodies` bodies of the seeded build process, each clamped
+  and measured once, against their truth (the simulated CMM): per characteristic the mean and
+  sd of in-line - truth, the share of values whose |in-line - truth| is within their U95, the
+  median U95, RMS difference and R^2; and the decisions against the truth.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from app.api import Calibration
+from app.config import CellConfig, load_cell
+from app.errors import RvisError
+from app.formats.files import read_json, write_text
+from app.inspect.measure import BodyResult, measure_body
+from app.inspect.plan import FILE_NAME, Characteristic, FeaturePlan, features_toml, load_features
+from app.inspect.views import InspectionPlan, plan_views
+from app.line.launch import hold_state
+from app.line.statedir import StateDir
+from app.sim.bodies import SimulatedBodies, true_value
+from app.sim.cell import make_cell
+from app.sim.commissioned import commission_simulated
+from app.sim.line_run import SimulatedLineRun, world_of
+from app.sim.part import default_part
+from fakes.body import BuildProcess, ClampSettings
+from fakes.cell import SimulatedCell
+from vision.sensor_model import load_sensor_model
+
+Progress = Callable[[str], None]
+
+
+@dataclass
+class InspectionCell:
+    """A commissioned simulated cell ready to measure bodies: the parameters in force, the
+    cell's statement for a point measured now, the world's temperature (None: the reference)."""
+
+    seed: int
+    state: StateDir
+    cfg: CellConfig
+    cal: Calibration
+    plan: FeaturePlan
+    views: InspectionPlan
+    statement_u95_mm: float
+    bodies: SimulatedBodies
+    temp_c: float | None = None
+    line: dict[str, Any] = field(default_factory=dict)
+
+    def measure(self, k: int, clamp: bool = True) -> BodyResult:
+        """Body k clamped (unless it stays clamped) and measured along the route."""
+        if clamp or self.bodies.body is None or self.bodies.body.index != k:
+            self.bodies.clamp(k)
+        return measure_body(
+            str(k),
+            self.cal,
+            self.plan,
+            self.views,
+            self.bodies,
+            self.statement_u95_mm,
+            self.temp_c,
+        )
+
+
+@contextmanager
+def inspection_cell(
+    cfg: CellConfig,
+    seed: int,
+    out: Path,
+    line_windows: int = 0,
+    process: BuildProcess | None = None,
+) -> Iterator[InspectionCell]:
+    """The seed's simulated cell commissioned in out/state (a new folder), its part type's
+    plan and views (module docstring). line_windows > 0: the in-line service first runs that
+    many windows of the simulated line (its warm-up, its in-line recalibrations), and the
+    bodies are measured in that world, then, with the parameters in force and the U95 the
+    service stated for its last window; 0: the commissioning's parameters and workspace U95 in
+    the cold, still cell the commissioning measured."""
+    state = StateDir(out / "state")
+    commission_simulated(cfg, state, seed)
+    cfg_c = load_cell(state.cell)
+    write_text(state.root / FILE_NAME, features_toml(default_part(cfg_c)))
+    plan = load_features(state.root / FILE_NAME, cfg_c.T_part_base)
+    process = process or BuildProcess(seed=seed)
+
+    def ready(world: SimulatedCell, statement: float, temp: float | None) -> InspectionCell:
+        cal = Calibration.load(state.current)
+        views = plan_views(cfg_c, cal.model, cal.x, plan, load_sensor_model(state.sensor))
+        bodies = SimulatedBodies(world, plan, process, ClampSettings())
+        return InspectionCell(seed, state, cfg_c, cal, plan, views, statement, bodies, temp)
+
+    if line_windows == 0:
+        doc = read_json(state.commission_report.with_suffix(".json"))
+        yield ready(make_cell(world_of(cfg_c, state.root), seed=seed), _workspace_u95(doc), None)
+        return
+    with (
+        hold_state(state.root, str(cfg_c.service.operators_group)),
+        SimulatedLineRun(cfg_c, state.root, seed=seed, geometric=True, plan=state.plan) as sim,
+    ):
+        summary = sim.run_windows(line_windows)
+        stated = [r.u95_mm for r in summary.records if r.u95_mm is not None]
+        if not stated:
+            raise RvisError(f"the service stated no U95 in {line_windows} windows")
+        cell = ready(sim.cell, stated[-1], sim.cell.temp_c)
+        last = summary.records[-1]
+        cell.line = {
+            "windows": summary.windows,
+            "version": last.version,
+            "true_rmse_mm": last.rmse_mm,
+            "temp_c": last.temp_c,
+            "alarms": summary.alarms,
+        }
+        yield cell
+
+
+def _workspace_u95(doc: dict[str, Any]) -> float:
+    for s in doc.get("steps", []):
+        if s.get("name") == "workspace":
+            return float(s["results"]["u95_mm"])
+    raise RvisError("the commissioning report has no workspace validation")
+
+
+def run_gauge(
+    cell: InspectionCell, repeats: int, progress: Progress | None = None
+) -> dict[str, Any]:
+    """The type-1 study (module docstring) on body 0, clamped once."""
+    master = cell.bodies.clamp(0)
+    by_key: dict[str, list[float]] = {}
+    for r in range(repeats):
+        result = cell.measure(0, clamp=False)
+        for v in result.values:
+            if v.measured_mm is not None:
+                by_key.setdefault(v.characteristic.key, []).append(v.measured_mm)
+        if progress and (r + 1) % 10 == 0:
+            progress(f"repeat {r + 1}/{repeats}")
+    rows = []
+    for c in cell.plan.characteristics():
+        vals = by_key.get(c.key, [])
+        truth = true_value(master, c, cell.plan)
+        row = _head(c) | {"n": len(vals), "true_mm": truth}
+        if len(vals) >= 2:
+            s = statistics.stdev(vals)
+            bias = statistics.fmean(vals) - truth
+            width = c.tol_mm[1] - c.tol_mm[0]
+            row |= {
+                "bias_mm": bias,
+                "s_mm": s,
+                "cg": 0.2 * width / (6 * s) if s > 0 else math.inf,
+                "cgk": (0.1 * width - abs(bias)) / (3 * s) if s > 0 else math.inf,
+            }
+        rows.append(row)
+    return {
+        "seed": cell.seed,
+        "repeats": repeats,
+        "statement_u95_mm": cell.statement_u95_mm,
+        "route_s": cell.views.route_s,
+        "line": cell.line,
+        "characteristics": rows,
+        "summary": _gauge_summary(rows),
+    }
+
+
+def _head(c: Characteristic) -> dict[str, Any]:
+    return {
+        "feature": c.feature,
+        "characteristic": c.name,
+        "kind": c.kind,
+        "tolerance_mm": list(c.tol_mm),
+    }
+
+
+def _gauge_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    pos = [r for r in rows if r["kind"] == "position" and "cg" in r]
+    size = [r for r in rows if r["kind"] == "size" and "cg" in r]
+    return {
+        "position": len(pos),
+        "position_cg_at_least_1_33": sum(r["cg"] >= 1.33 for r in pos),
+        "position_cgk_at_least_1_33": sum(r["cgk"] >= 1.33 for r in pos),
+        "size": len(size),
+        "size_cg_at_least_1_33": sum(r["cg"] >= 1.33 for r in size),
+        "size_cgk_at_least_1_33": sum(r["cgk"] >= 1.33 for r in size),
+        "min_cg": min((r["cg"] for r in pos), default=None),
+        "median_s_mm": statistics.median(r["s_mm"] for r in pos) if pos else None,
+    }
+
+
+def run_correlation(
+    cell: InspectionCell, n_bodies: int, progress: Progress | None = None
+) -> dict[str, Any]:
+    """In-line against the simulated CMM over bodies 1..n_bodies (module docstring)."""
+    pairs: dict[str, list[tuple[float, float, float, str]]] = {}
+    not_measured: dict[str, int] = {}
+    for k in range(1, n_bodies + 1):
+        result = cell.measure(k)
+        body = cell.bodies.body
+        assert body is not None
+        for v in result.values:
+            c = v.characteristic
+            if v.measured_mm is None or v.u95_mm is None:
+                not_measured[c.key] = not_measured.get(c.key, 0) + 1
+                continue
+            truth = true_value(body, c, cell.plan)
+            pairs.setdefault(c.key, []).append((v.measured_mm, truth, v.u95_mm, v.decision))
+        if progress and k % 10 == 0:
+            progress(f"body {k}/{n_bodies}")
+    rows = [_correlation_row(c, pairs.get(c.key, [])) for c in cell.plan.characteristics()]
+    return {
+        "seed": cell.seed,
+        "bodies": n_bodies,
+        "statement_u95_mm": cell.statement_u95_mm,
+        "route_s": cell.views.route_s,
+        "line": cell.line,
+        "characteristics": rows,
+        "decisions": _decisions(cell.plan, pairs),
+        "not_measured": not_measured,
+        "summary": _correlation_summary(rows, pairs),
+    }
+
+
+def _correlation_row(
+    c: Characteristic, pairs: list[tuple[float, float, float, str]]
+) -> dict[str, Any]:
+    row = _head(c) | {"n": len(pairs)}
+    if len(pairs) < 2:
+        return row
+    m, t, u = (np.array([p[i] for p in pairs]) for i in range(3))
+    d = m - t
+    r2 = float(np.corrcoef(m, t)[0, 1] ** 2) if np.std(t) > 0 and np.std(m) > 0 else None
+    return row | {
+        "mean_diff_mm": float(d.mean()),
+        "sd_diff_mm": float(d.std(ddof=1)),
+        "coverage": float(np.mean(np.abs(d) <= u)),
+        "u95_median_mm": float(np.median(u)),
+        "rms_diff_mm": float(np.sqrt(np.mean(d**2))),
+        "r2": r2,
+    }
+
+
+def _decisions(
+    plan: FeaturePlan, pairs: dict[str, list[tuple[float, float, float, str]]]
+) -> dict[str, int]:
+    """nok_true: values truly outside their tolerance by more than twice their U95; nok_found:
+    of those, decided nonconforming; ok_true: truly inside by more than their U95; nok_false:
+    of those, decided nonconforming."""
+    out = {"nok_true": 0, "nok_found": 0, "ok_true": 0, "nok_false": 0}
+    for c in plan.characteristics():
+        lo, hi = c.limits_mm
+        for _, truth, u, decision in pairs.get(c.key, []):
+            outside = max(lo - truth, truth - hi)
+            if outside > 2 * u:
+                out["nok_true"] += 1
+                out["nok_found"] += decision == "nonconforming"
+            elif -outside > u:
+                out["ok_true"] += 1
+                out["nok_false"] += decision == "nonconforming"
+    return out
+
+
+def _correlation_summary(
+    rows: list[dict[str, Any]], pairs: dict[str, list[tuple[float, float, float, str]]]
+) -> dict[str, Any]:
+    pos = [r for r in rows if r["kind"] == "position" and "mean_diff_mm" in r]
+    every = [p for ps in pairs.values() for p in ps]
+    d = np.array([p[0] - p[1] for p in every])
+    u = np.array([p[2] for p in every])
+    return {
+        "values": len(every),
+        "position": len(pos),
+        "position_mean_within_0_05": sum(abs(r["mean_diff_mm"]) <= 0.05 for r in pos),
+        "position_mean_within_0_10": sum(abs(r["mean_diff_mm"]) <= 0.10 for r in pos),
+        "max_abs_mean_diff_mm": max((abs(r["mean_diff_mm"]) for r in pos), default=None),
+        "max_sd_diff_mm": max((r["sd_diff_mm"] for r in rows if "sd_diff_mm" in r), default=None),
+        "coverage": float(np.mean(np.abs(d) <= u)) if len(d) else None,
+        "u95_median_over_rms": _ratio(d, u),
+        "by_kind": {kind: _by_kind(rows, pairs, kind) for kind in ("position", "size")},
+    }
+
+
+def _ratio(d: np.ndarray, u: np.ndarray) -> float | None:
+    rms = float(np.sqrt(np.mean(d**2))) if len(d) else 0.0
+    return float(np.median(u)) / rms if rms > 0 else None
+
+
+def _by_kind(
+    rows: list[dict[str, Any]], pairs: dict[str, list[tuple[float, float, float, str]]], kind: str
+) -> dict[str, Any]:
+    keys = {f"{r['feature']}.{r['characteristic']}" for r in rows if r["kind"] == kind}
+    every = [p for k in keys for p in pairs.get(k, [])]
+    d = np.array([p[0] - p[1] for p in every])
+    u = np.array([p[2] for p in every])
+    return {
+        "values": len(every),
+        "coverage": float(np.mean(np.abs(d) <= u)) if len(d) else None,
+        "rms_diff_mm": float(np.sqrt(np.mean(d**2))) if len(d) else None,
+        "u95_median_mm": float(np.median(u)) if len(u) else None,
+        "u95_median_over_rms": _ratio(d, u),
+    }
