@@ -9,10 +9,16 @@ long axis lies along the sweep (the sensor's x) turned by SLOT_ROLL_DEG, so the 
 across its width and its length fits the 37 mm of the field of view; the turn makes the stripes
 meet its long edges at every phase of the camera's rows (a long edge parallel to the sweep is
 met at the same row phase by every stripe: its sub-sample placement error would be one error
-for the whole side, up to half a row's step on the width, instead of averaging out). The joints come from the closed-form inverse
-kinematics refined on the calibrated model (calib.ik_refine); every branch within the joint
-limits is a candidate and the route takes the one nearest the previous view. A feature with no
-view is named, never dropped (`InspectionPlan.unreachable`).
+for the whole side, up to half a row's step on the width, instead of averaging out).
+
+The joints come from the closed-form inverse kinematics refined on the calibrated model
+(calib.ik_refine); every branch within the joint limits, every roll and tilts up to
+`prefer_tilt_deg` are candidates. The robot does not repeat
+every configuration alike: a joint's error moves the feature by its lever, so the candidates are
+ranked by the standard deviation the robot's repeatability (the data sheet's RP as joint errors,
+calib.repeatability) gives the feature's position along its worst axis, those within
+`repeat_slack` of the best are kept, and the route takes the one nearest the previous view. A
+feature with no view is named, never dropped (`InspectionPlan.unreachable`).
 
 The sweep: the mirror commands that put the stripe, on the sheet at the working distance, at
 evenly spaced positions across the feature's width plus a margin (the sensor model's laser
@@ -34,6 +40,7 @@ from calib import ik
 from calib.candidates import flange_poses, look_rotations
 from calib.ik_refine import refine
 from calib.model import SystemModel
+from calib.repeatability import controller_offsets_deg, joint_sigma_rad
 from calib.transforms import inverse
 from vision.sensor_model import SensorModel
 
@@ -45,13 +52,17 @@ SLOT_ROLL_DEG = 15.0
 @dataclass(frozen=True)
 class ViewSettings:
     """working_distance_mm: the sheet's distance along the sensor's axis; max_tilt_deg: how far
-    the view may tilt off the feature's normal; margin_mm: the sweep's reach beyond the
-    feature's outline (the sheet's plane needs points around it); frames per sweep;
+    the view may tilt off the feature's normal (prefer_tilt_deg: the tilts every candidate is
+    drawn from while one is reachable there); repeat_slack: candidates whose repeatability is
+    within this share of the best one's are kept (module docstring); margin_mm: the sweep's
+    reach beyond the feature's outline (the sheet's plane needs points around it); frames per sweep;
     frame_s per frame (galvo, exposure, transfer); surface_span_mm: a surface point's sweep;
     fov_margin_mm: the feature's outline stays this far inside the field of view."""
 
     working_distance_mm: float = 120.0
     max_tilt_deg: float = 30.0
+    prefer_tilt_deg: float = 10.0
+    repeat_slack: float = 0.05
     margin_mm: float = 3.0
     frames: int = 40
     frame_s: float = 0.025
@@ -63,7 +74,8 @@ class ViewSettings:
 class FeatureView:
     """A feature's view: q_deg (6,) [controller deg], the feature's centre c_sensor_mm (3,)
     where the calibrated model puts it, the sweep's commands_v (n,) [V], tilt_deg off the
-    normal, and the motion time to it from the previous view [s]."""
+    normal, the motion time to it from the previous view and the sweep's time [s], and the
+    standard deviation [mm] the robot's repeatability gives the feature on its worst axis."""
 
     feature: str
     q_deg: F64
@@ -72,6 +84,7 @@ class FeatureView:
     tilt_deg: float
     motion_s: float = 0.0
     sweep_s: float = 0.0
+    repeat_sd_mm: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -103,10 +116,11 @@ def plan_views(
     s = settings or ViewSettings()
     line: LineSettings = cfg.line
     home = np.asarray(line.home_deg, dtype=float)
-    options: dict[str, list[tuple[F64, F64, float]]] = {}
+    options: dict[str, list[tuple[F64, F64, float, float]]] = {}
     unreachable: dict[str, str] = {}
+    sigma_rad = joint_sigma_rad(model, x, float(cfg.robot.repeatability_mm))
     for f in plan.features:
-        found = _options(cfg, model, x, f, s)
+        found = _options(cfg, model, x, f, s, sigma_rad)
         if found:
             options[f.id] = found
         else:
@@ -121,12 +135,11 @@ def plan_views(
     prev = home
     for k in order:
         fid = ids[k]
-        q, c, tilt = min(options[fid], key=lambda o: motion_time_s(prev, o[0], line))
+        q, c, tilt, sd = min(options[fid], key=lambda o: motion_time_s(prev, o[0], line))
         f = plan.feature(fid)
         cmds = sweep_commands(sensor, f, c, s)
-        views.append(
-            FeatureView(fid, q, c, cmds, tilt, motion_time_s(prev, q, line), len(cmds) * s.frame_s)
-        )
+        motion = motion_time_s(prev, q, line)
+        views.append(FeatureView(fid, q, c, cmds, tilt, motion, len(cmds) * s.frame_s, sd))
         prev = q
     total = sum(v.motion_s + v.sweep_s for v in views)
     total += motion_time_s(prev, home, line)
@@ -134,31 +147,55 @@ def plan_views(
 
 
 def _options(
-    cfg: CellConfig, model: SystemModel, x: F64, f: Feature, s: ViewSettings
-) -> list[tuple[F64, F64, float]]:
-    """(q_deg, c_sensor_mm, tilt_deg) of every reachable view of f, the least tilt first."""
+    cfg: CellConfig, model: SystemModel, x: F64, f: Feature, s: ViewSettings, sigma_rad: float
+) -> list[tuple[F64, F64, float, float]]:
+    """(q_deg, c_sensor_mm, tilt_deg, repeat_sd_mm) of the reachable views of f that the robot
+    repeats best (module docstring): the closed form's solutions at tilts up to
+    prefer_tilt_deg (else the least tilt up to max_tilt_deg with one) ranked on the model, the
+    best refined on it."""
     R_base_part = inverse(model.T_part_base(x))[:3, :3]
     n_base = R_base_part @ f.normal
     a_base = R_base_part @ (f.axis if f.type == "slot" else np.zeros(3))
     c = np.array([0.0, 0.0, s.working_distance_mm])
+    poses: list[F64] = []
+    tilts: list[F64] = []
+    sols = None
     for tilt in np.arange(0.0, s.max_tilt_deg + 1e-9, 5.0):
         R = _rotations(n_base, a_base, float(tilt))
-        F = flange_poses(model, x, f.position_mm, R, c)
-        sols = ik.solve(F, model.limits)
-        found = []
-        for i in range(len(F)):
-            q0 = sols.for_pose(i)
-            if not len(q0):
-                continue
-            target = model.T_part_base(x) @ F[i] @ model.T_flange_sensor(x)
-            fit = refine(model, x, target, q0, max_iter=10)
-            for q in fit.q_deg[fit.converged]:
-                T = model.fk(x, q[None])[0]
-                c_s = T[:3, :3].T @ (f.position_mm - T[:3, 3])
-                found.append((q, c_s, float(tilt)))
-        if found:
-            return found
-    return []
+        poses.append(flange_poses(model, x, f.position_mm, R, c))
+        tilts.append(np.full(len(R), float(tilt)))
+        sols = ik.solve(np.concatenate(poses), model.limits)
+        if tilt >= s.prefer_tilt_deg and len(sols.q_deg):
+            break
+    if sols is None or not len(sols.q_deg):
+        return []
+    F, tilt_of = np.concatenate(poses), np.concatenate(tilts)
+    sd = repeat_sd_mm(model, x, sols.q_deg, c, sigma_rad)
+    keep = np.flatnonzero(sd <= sd.min() * (1 + s.repeat_slack) + 1e-12)
+    idx = sols.pose_index[keep]
+    target = model.T_part_base(x) @ F[idx] @ model.T_flange_sensor(x)
+    fit = refine(model, x, target, sols.q_deg[keep], max_iter=10)
+    out = []
+    for j in np.flatnonzero(fit.converged):
+        q = fit.q_deg[j]
+        T = model.fk(x, q[None])[0]
+        c_s = T[:3, :3].T @ (f.position_mm - T[:3, 3])
+        out.append((q, c_s, float(tilt_of[idx[j]]), float(sd[keep[j]])))
+    return out
+
+
+def repeat_sd_mm(model: SystemModel, x: F64, q_deg: F64, c_sensor_mm: F64, sigma_rad: float) -> F64:
+    """The standard deviation [mm] (K,) of the point c_sensor_mm (3,) seen from each of q_deg
+    (K, 6) on its worst axis of the part frame, from independent errors of sigma_rad at
+    every physical joint (central differences on the model)."""
+    h = 1e-6
+    q = np.atleast_2d(q_deg)
+    dq = controller_offsets_deg(np.vstack([h * np.eye(6), -h * np.eye(6)]))
+    T = model.fk(x, (q[:, None, :] + dq[None]).reshape(-1, 6)).reshape(len(q), 12, 4, 4)
+    p = np.einsum("knij,j->kni", T[..., :3, :3], c_sensor_mm) + T[..., :3, 3]
+    J = (p[:, :6] - p[:, 6:]) / (2 * h)  # (K, 6 joints, 3 axes)
+    out: F64 = sigma_rad * np.sqrt(np.max(np.sum(J**2, axis=1), axis=1))
+    return out
 
 
 def _rotations(n_base: F64, axis_base: F64, tilt_deg: float) -> F64:
@@ -222,6 +259,7 @@ def route_table(plan: InspectionPlan) -> list[dict[str, object]]:
             "frames": len(v.commands_v),
             "motion_s": round(v.motion_s, 3),
             "sweep_s": round(v.sweep_s, 3),
+            "repeat_sd_mm": round(v.repeat_sd_mm, 4),
         }
         for v in plan.views
     ]
