@@ -78,6 +78,28 @@ class FeatureFit:
     fit_rms_mm: float
 
 
+@dataclass(frozen=True)
+class FeaturePoints:
+    """What a feature's fit uses, taken from its sweep's profiles (`extract_points`): sheet_mm
+    (n, 3) points of the sheet on its plane, at most SHEET_SAMPLE taken evenly (a plane from
+    a few hundred points is as good as from tens of thousands: the sensor's noise is averaged
+    to a micrometre either way); edges_mm (m, 3) the edge points (none for a surface point).
+    Small enough to store with the body (a few kilobytes), and the whole input of the fit: a
+    feature is computed again from them with other parameters (`transformed`, `fit_feature`)."""
+
+    sheet_mm: F64
+    edges_mm: F64
+
+    def transformed(self, T: F64) -> FeaturePoints:
+        """The points mapped by the pose T (4, 4) (from the sensor frame to the part frame)."""
+        R, t = T[:3, :3], T[:3, 3]
+        return FeaturePoints(self.sheet_mm @ R.T + t, self.edges_mm @ R.T + t)
+
+
+#: the most sheet points a FeaturePoints keeps
+SHEET_SAMPLE = 600
+
+
 def measure_feature(
     kind: str,
     profiles: Sequence[F64],
@@ -90,27 +112,70 @@ def measure_feature(
     """Measure a feature of `kind` (KINDS) from its sweep's profiles (each (n_i, 3), ordered
     along the stripe), near its nominal centre nominal_mm (3,) with nominal normal (3,) and
     nominal size (hole: diameter; slot: width, length; surface: none) and a slot's nominal
-    long axis (3,). Raises FeatureRefused (typed reason) or ValueError for a wrong kind."""
+    long axis (3,): `fit_feature` of `extract_points`. Raises FeatureRefused (typed reason) or
+    ValueError for a wrong kind."""
+    points = extract_points(kind, profiles, nominal_mm, normal, size_mm, settings)
+    return fit_feature(kind, points, nominal_mm, normal, size_mm, axis, settings)
+
+
+def extract_points(
+    kind: str,
+    profiles: Sequence[F64],
+    nominal_mm: F64,
+    normal: F64,
+    size_mm: Sequence[float],
+    settings: FeatureSettings | None = None,
+) -> FeaturePoints:
+    """The sheet's points and the edge points of a feature from its profiles (arguments as
+    `measure_feature`'s, in the profiles' frame). Raises FeatureRefused (no_points, plane,
+    edge_points) or ValueError for a wrong kind."""
     s = settings or FeatureSettings()
+    if kind not in KINDS:
+        raise ValueError(f"kind: expected one of {KINDS}, got {kind!r}")
     nominal_mm, normal = np.asarray(nominal_mm, float), _unit(np.asarray(normal, float))
     profs = [np.asarray(p, float).reshape(-1, 3) for p in profiles]
     if sum(len(p) for p in profs) == 0:
         raise FeatureRefused("no_points", "the sweep gave no stripe point")
     if kind == "surface":
-        return _surface_point(np.concatenate(profs), nominal_mm, normal, s)
-    if kind not in ("hole", "slot"):
-        raise ValueError(f"kind: expected one of {KINDS}, got {kind!r}")
+        pts = np.concatenate(profs)
+        local = pts[_radial(pts, nominal_mm, normal) <= s.surface_radius_mm]
+        plane = fit_plane(local, normal, _surface_sheet(s))
+        on = local[np.abs(plane.distance_mm(local)) <= _surface_sheet(s).plane_tol_mm]
+        return FeaturePoints(_sample(on), np.zeros((0, 3)))
     reach = 0.5 * max(size_mm) + s.search_margin_mm
-    near = [
-        p[np.linalg.norm(_off_normal(p - nominal_mm, normal), axis=1) <= reach + 8.0] for p in profs
-    ]
-    plane = fit_plane(np.concatenate(near), normal, s.sheet)
+    near = [p[_radial(p, nominal_mm, normal) <= reach + 8.0] for p in profs]
+    every = np.concatenate(near)
+    plane = fit_plane(every, normal, s.sheet)
     edges = edge_points(near, plane, s.sheet)
-    edges = edges[np.linalg.norm(_off_normal(edges - nominal_mm, normal), axis=1) <= reach]
+    edges = edges[_radial(edges, nominal_mm, normal) <= reach]
     if len(edges) < s.min_edge_points:
         raise FeatureRefused(
             "edge_points", f"{len(edges)} edge points, at least {s.min_edge_points}"
         )
+    on = every[np.abs(plane.distance_mm(every)) <= s.sheet.plane_tol_mm]
+    return FeaturePoints(_sample(on), edges)
+
+
+def fit_feature(
+    kind: str,
+    points: FeaturePoints,
+    nominal_mm: F64,
+    normal: F64,
+    size_mm: Sequence[float],
+    axis: F64 | None = None,
+    settings: FeatureSettings | None = None,
+) -> FeatureFit:
+    """The feature fitted to its points (arguments as `measure_feature`'s, in the points'
+    frame). Raises FeatureRefused (plane, edge_coverage, fit, size)."""
+    s = settings or FeatureSettings()
+    nominal_mm, normal = np.asarray(nominal_mm, float), _unit(np.asarray(normal, float))
+    if kind == "surface":
+        return _surface_point(points.sheet_mm, nominal_mm, normal, s)
+    sample = SheetSettings(
+        s.sheet.plane_tol_mm, s.sheet.max_plane_rms_mm, min(s.sheet.min_plane_points, 50)
+    )
+    plane = fit_plane(points.sheet_mm, normal, sample)
+    edges = points.edges_mm
     uv = plane.to_2d(edges, nominal_mm)
     size: tuple[float, ...]
     sd_size: tuple[float, ...]
@@ -175,34 +240,40 @@ def _check_fit(
         )
 
 
-def _surface_point(points: F64, nominal: F64, normal: F64, s: FeatureSettings) -> FeatureFit:
-    near = points[
-        np.linalg.norm(_off_normal(points - nominal, normal), axis=1) <= s.surface_radius_mm
-    ]
-    sheet = SheetSettings(
+def _surface_sheet(s: FeatureSettings) -> SheetSettings:
+    """A surface point's plane: a patch may curve gently, so its points are taken within a
+    wider band of the plane."""
+    return SheetSettings(
         plane_tol_mm=s.sheet.plane_tol_mm * 3,
         max_plane_rms_mm=s.sheet.max_plane_rms_mm,
         min_plane_points=s.min_surface_points,
     )
-    plane = fit_plane(near, normal, sheet)
+
+
+def _surface_point(points: F64, nominal: F64, normal: F64, s: FeatureSettings) -> FeatureFit:
+    plane = fit_plane(points, normal, _surface_sheet(s))
     cos = float(plane.normal @ normal)
     t = float((plane.point_mm - nominal) @ plane.normal) / cos
     var = plane.rms_mm**2 / plane.n_inliers / cos**2
     cov = var * np.outer(normal, normal)
     return FeatureFit(
-        "surface",
-        nominal + t * normal,
-        plane.normal,
-        (),
-        np.zeros(3),
-        t,
-        cov,
-        (),
-        0,
-        1.0,
-        plane.rms_mm,
-        plane.rms_mm,
-    )
+        "surface", nominal + t * normal, plane.normal, (), np.zeros(3), t, cov, (), 0, 1.0,
+        plane.rms_mm, plane.rms_mm,
+    )  # fmt: skip
+
+
+def _sample(points: F64) -> F64:
+    """At most SHEET_SAMPLE of the points, taken evenly (deterministic)."""
+    if len(points) <= SHEET_SAMPLE:
+        return points
+    out: F64 = points[np.linspace(0, len(points) - 1, SHEET_SAMPLE).astype(int)]
+    return out
+
+
+def _radial(points: F64, nominal: F64, normal: F64) -> F64:
+    """Distances (n,) of points from the line through nominal along normal."""
+    out: F64 = np.linalg.norm(_off_normal(points - nominal, normal), axis=1)
+    return out
 
 
 def _fit_circle(uv: F64) -> tuple[F64, F64, float]:

@@ -24,7 +24,7 @@ COMMANDS: dict[str, str] = {
     "validate": "errors of a parameter set at validation positions",
     "observability": "rank, condition and O1..O5 of measurements",
     "plan": "plan sphere positions (PSO) and measurement configurations (DETMAX)",
-    "experiment": "experiments on the simulated cell (the paper's, accuracy, compensation, shift)",
+    "experiment": "experiments on the simulated cell (paper, accuracy, shift, gauge studies, ...)",
     "compensate": "compensated joint targets for the controller (CSV or .ls)",
     "export": "export the identified calibration (URDF)",
     "devices": "check the configured devices; run the simulated line's",
@@ -36,6 +36,7 @@ COMMANDS: dict[str, str] = {
     "ctl": "send a command to the in-line service",
     "tui": "the operator's terminal of a running service",
     "state": "back up, restore, check the state directory; list suspect intervals",
+    "inspect": "the body: a view per feature of the part type and a route",
 }
 
 

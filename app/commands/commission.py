@@ -66,6 +66,10 @@ def run(args: argparse.Namespace) -> int:
             say(f"the earlier commissioning is kept in {kept}")
         from app.commission.journal import Journal
 
+        if args.sim:
+            from app.sim.part import ensure_features
+
+            ensure_features(state.root, cfg)
         journal = Journal(state.commission, setup)
         if journal.next_step() is None:
             say(f"commissioned already: {state.commission_report}")

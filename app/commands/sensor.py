@@ -88,7 +88,7 @@ def register(subparsers: Any) -> None:
     ver.set_defaults(func=run_verify)
 
 
-def _load_model(path: Path | None) -> SensorModel:
+def load_model(path: Path | None) -> SensorModel:
     if path is None:
         return default_sensor_model()
     doc, _ = read_toml(path)
@@ -111,7 +111,7 @@ def _check_size(frames: list[NDArray[np.generic]], model: SensorModel, where: Pa
 
 def run_measure(args: argparse.Namespace) -> int:
     """Measure one sphere; prints the centre in the sensor frame [mm]."""
-    model = _load_model(args.sensor)
+    model = load_model(args.sensor)
     frames, commands = read_sweep(args.sweep_dir)
     _check_size(frames, model, args.sweep_dir)
     radius = args.radius_mm if args.radius_mm > 0 else None

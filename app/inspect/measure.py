@@ -2,10 +2,14 @@
 raw data (the joints and the sensor's points), and the same computation again from stored raw
 data with other parameters (re-evaluation after a step found later is corrected).
 
-`evaluate` is the one computation: the sweep's profiles (sensor frame) mapped to the part frame
-with the parameters in force at the view's joints, the feature fitted there (vision.features),
-its values with their U95 and decisions (app.inspect.values). A feature the vision refuses gives
-"not measured" with the typed reason; the body's other values stand.
+Two stages. At the cell (`extract`): the sweep's profiles give the feature's points in the
+sensor frame (vision.features.extract_points: the sheet's points and the edge points, a few
+kilobytes), looked for around the nominal as the parameters in force put it in the sensor
+frame; these points, the view's joints and the cell's temperature are the raw data stored with
+the body. Then, now or again later (`evaluate`): the points mapped to the part frame with a
+calibration at the view's joints, the feature fitted there, its values with their U95 and
+decisions (app.inspect.values). A feature the vision refuses gives "not measured" with the
+typed reason; the body's other values stand.
 
 `FeatureSensor` is what the cell does at a view: move the robot there and sweep the galvo; on
 the simulated line the geometric path (app.sim.bodies), on a real cell the camera and galvo.
@@ -25,7 +29,7 @@ from app.inspect.plan import Feature, FeaturePlan
 from app.inspect.values import Value, feature_values, not_measured
 from app.inspect.views import FeatureView, InspectionPlan
 from vision.errors import FeatureRefused
-from vision.features import FeatureSettings, measure_feature
+from vision.features import FeaturePoints, FeatureSettings, extract_points, fit_feature
 
 F64 = NDArray[np.float64]
 
@@ -39,13 +43,15 @@ class FeatureSensor(Protocol):
 
 @dataclass(frozen=True)
 class RawFeature:
-    """What a feature's value is computed from: the view's joints q_deg (6,), the sweep's
-    profiles in the sensor frame and the cell's temperature [degC] (None: not known)."""
+    """What a feature's values are computed from: the view's joints q_deg (6,), the cell's
+    temperature [degC] (None: not known) and the feature's points in the sensor frame, or why
+    the sweep gave none (`refused`: a FeatureRefused's text)."""
 
     feature: str
     q_deg: F64
-    profiles: tuple[F64, ...]
-    temp_c: float | None = None
+    temp_c: float | None
+    points: FeaturePoints | None
+    refused: str = ""
 
 
 @dataclass(frozen=True)
@@ -62,6 +68,28 @@ class BodyResult:
         return all(v.decision in ("conforming", "undecided") for v in self.values)
 
 
+def extract(
+    cal: Calibration,
+    feature: Feature,
+    q_deg: F64,
+    profiles: Sequence[F64],
+    temp_c: float | None = None,
+    settings: FeatureSettings | None = None,
+) -> RawFeature:
+    """The raw data of one feature from its sweep's profiles (sensor frame) at q_deg: its
+    points, found around the nominal as `cal` puts it in the sensor frame."""
+    T = cal.sensor_pose(q_deg, temp_c)[0]
+    R, t = T[:3, :3], T[:3, 3]
+    nominal_s, normal_s = R.T @ (feature.position_mm - t), R.T @ feature.normal
+    try:
+        points = extract_points(
+            feature.type, profiles, nominal_s, normal_s, feature.size_mm, settings
+        )
+    except FeatureRefused as exc:
+        return RawFeature(feature.id, q_deg, temp_c, None, str(exc))
+    return RawFeature(feature.id, q_deg, temp_c, points)
+
+
 def evaluate(
     cal: Calibration,
     feature: Feature,
@@ -71,25 +99,19 @@ def evaluate(
 ) -> list[Value]:
     """The values of one feature from its raw data with the calibration `cal` (module
     docstring)."""
-    profiles = [p for p in raw.profiles if len(p)]
-    if not profiles:
-        return not_measured(feature, "no_points: the sweep gave no stripe point")
+    if raw.points is None:
+        return not_measured(feature, raw.refused)
     T = cal.sensor_pose(raw.q_deg, raw.temp_c)[0]
-    in_part = [p @ T[:3, :3].T + T[:3, 3] for p in profiles]
     try:
-        fit = measure_feature(
-            feature.type,
-            in_part,
-            feature.position_mm,
-            feature.normal,
-            feature.size_mm,
-            feature.axis if feature.type == "slot" else None,
-            settings,
-        )
+        fit = fit_feature(
+            feature.type, raw.points.transformed(T), feature.position_mm, feature.normal,
+            feature.size_mm, feature.axis if feature.type == "slot" else None, settings,
+        )  # fmt: skip
     except FeatureRefused as exc:
         return not_measured(feature, str(exc))
     c_sensor = T[:3, :3].T @ (fit.centre_mm - T[:3, 3])
-    return feature_values(feature, fit, calibration_cov(cal, raw.q_deg, c_sensor), statement_u95_mm)
+    cov = calibration_cov(cal, raw.q_deg, c_sensor)
+    return feature_values(feature, fit, cov, statement_u95_mm)
 
 
 def calibration_cov(cal: Calibration, q_deg: F64, c_sensor_mm: F64) -> F64:
@@ -116,7 +138,8 @@ def measure_body(
     [degC] (None: not known); a feature without a view is "not measured" (no view)."""
     raw: dict[str, RawFeature] = {}
     for v in views.views:
-        raw[v.feature] = RawFeature(v.feature, v.q_deg, tuple(sensor.profiles(v)), temp_c)
+        f = plan.feature(v.feature)
+        raw[v.feature] = extract(cal, f, v.q_deg, sensor.profiles(v), temp_c)
     return evaluate_body(body, cal, plan, list(raw.values()), statement_u95_mm, views.unreachable)
 
 

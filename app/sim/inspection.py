@@ -34,9 +34,9 @@ import numpy as np
 from app.api import Calibration
 from app.config import CellConfig, load_cell
 from app.errors import RvisError
-from app.formats.files import read_json, write_text
+from app.formats.files import read_json
 from app.inspect.measure import BodyResult, measure_body
-from app.inspect.plan import FILE_NAME, Characteristic, FeaturePlan, features_toml, load_features
+from app.inspect.plan import Characteristic, FeaturePlan, load_features
 from app.inspect.views import InspectionPlan, plan_views
 from app.line.launch import hold_state
 from app.line.statedir import StateDir
@@ -44,7 +44,7 @@ from app.sim.bodies import SimulatedBodies, true_value
 from app.sim.cell import make_cell
 from app.sim.commissioned import commission_simulated
 from app.sim.line_run import SimulatedLineRun, world_of
-from app.sim.part import default_part
+from app.sim.part import ensure_features
 from fakes.body import BuildProcess, ClampSettings
 from fakes.cell import SimulatedCell
 from vision.sensor_model import load_sensor_model
@@ -100,8 +100,7 @@ def inspection_cell(
     state = StateDir(out / "state")
     commission_simulated(cfg, state, seed)
     cfg_c = load_cell(state.cell)
-    write_text(state.root / FILE_NAME, features_toml(default_part(cfg_c)))
-    plan = load_features(state.root / FILE_NAME, cfg_c.T_part_base)
+    plan = load_features(ensure_features(state.root, cfg_c), cfg_c.T_part_base)
     process = process or BuildProcess(seed=seed)
 
     def ready(world: SimulatedCell, statement: float, temp: float | None) -> InspectionCell:

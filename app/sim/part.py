@@ -14,11 +14,14 @@ NominalFeature: fakes/ never reads the plan's file).
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 from numpy.typing import NDArray
 
 from app.config import CellConfig
-from app.inspect.plan import Feature, FeaturePlan
+from app.formats.files import write_text
+from app.inspect.plan import FILE_NAME, Feature, FeaturePlan, features_toml
 from fakes.body import NominalFeature
 
 F64 = NDArray[np.float64]
@@ -89,3 +92,13 @@ def nominal_features(plan: FeaturePlan) -> list[NominalFeature]:
         NominalFeature(f.id, f.type, f.position_mm, f.normal, f.axis, f.size_mm, f.thickness_mm)
         for f in plan.features
     ]
+
+
+def ensure_features(state_root: Path, cfg: CellConfig) -> Path:
+    """The state directory's feature plan: the simulated part type's written there when it has
+    none (`rvis commission --sim`, `rvis run --sim`: the simulated line measures its bodies as a
+    plant's cell would); a plan already there is kept."""
+    path = state_root / FILE_NAME
+    if not path.is_file():
+        write_text(path, features_toml(default_part(cfg)))
+    return path
