@@ -35,6 +35,8 @@ from pathlib import Path
 from typing import Any
 
 from app.errors import InputError, RvisError
+from app.line.body_store import BodyRecords
+from app.line.schema import MIGRATIONS
 
 
 class StorageError(RvisError):
@@ -45,92 +47,6 @@ class DatabaseDamaged(InputError):
     """The database is not an SQLite database or fails its integrity check (exit code 2)."""
 
 
-MIGRATIONS: tuple[tuple[str, ...], ...] = (
-    (
-        """CREATE TABLE measurements (
-            id INTEGER PRIMARY KEY, t REAL NOT NULL, window INTEGER NOT NULL,
-            slot INTEGER NOT NULL, target TEXT NOT NULL, q_deg TEXT NOT NULL,
-            c_sensor_mm TEXT, status TEXT NOT NULL CHECK (status IN ('ok', 'rejected')),
-            reason TEXT NOT NULL DEFAULT '', quality TEXT NOT NULL DEFAULT '{}',
-            params_version INTEGER, residual_mm REAL)""",
-        "CREATE INDEX measurements_status ON measurements (status, id)",
-        """CREATE TABLE calibrations (
-            id INTEGER PRIMARY KEY, t REAL NOT NULL,
-            status TEXT NOT NULL CHECK (status IN ('pending', 'applied', 'rejected')),
-            n_measurements INTEGER NOT NULL, first_id INTEGER, last_id INTEGER,
-            rms_mm REAL, holdout_rms_mm REAL, current_holdout_rms_mm REAL,
-            gates TEXT NOT NULL, reason TEXT NOT NULL, document TEXT,
-            version INTEGER, decided_t REAL, decided_uid INTEGER)""",
-        """CREATE TABLE applied (
-            id INTEGER PRIMARY KEY, t REAL NOT NULL, version INTEGER NOT NULL,
-            calibration_id INTEGER, source TEXT NOT NULL, uid INTEGER)""",
-        """CREATE TABLE alarms (
-            id INTEGER PRIMARY KEY, code TEXT NOT NULL, priority TEXT NOT NULL,
-            message TEXT NOT NULL, state TEXT NOT NULL
-                CHECK (state IN ('raised', 'acked', 'cleared', 'shelved')),
-            t_raised REAL NOT NULL, t_acked REAL, acked_uid INTEGER, t_cleared REAL,
-            shelved_until REAL, shelve_reason TEXT)""",
-        """CREATE TABLE events (
-            id INTEGER PRIMARY KEY, t REAL NOT NULL, kind TEXT NOT NULL, data TEXT NOT NULL)""",
-        """CREATE TABLE actions (
-            id INTEGER PRIMARY KEY, t REAL NOT NULL, uid INTEGER, cmd TEXT NOT NULL,
-            args TEXT NOT NULL, ok INTEGER NOT NULL, detail TEXT NOT NULL)""",
-        """CREATE TABLE schedule (
-            id INTEGER PRIMARY KEY CHECK (id = 1), position INTEGER NOT NULL,
-            window INTEGER NOT NULL)""",
-        "INSERT INTO schedule (id, position, window) VALUES (1, 0, 0)",
-    ),
-    # 1 -> 2: the cell temperature [degC] when the sphere was measured (NULL: no sensor)
-    ("ALTER TABLE measurements ADD COLUMN temp_c REAL",),
-    # 2 -> 3: the service's decision state (app.line.service: snapshot / restore)
-    (
-        """CREATE TABLE service_state (
-            id INTEGER PRIMARY KEY CHECK (id = 1), t REAL NOT NULL, doc TEXT NOT NULL)""",
-    ),
-    # 3 -> 4: suspect intervals (app.line.step): from the last trustworthy measurement before
-    # a step to the apply of its correction the calibration in force was wrong
-    (
-        """CREATE TABLE suspect_intervals (
-            id INTEGER PRIMARY KEY, t_start REAL NOT NULL, t_end REAL,
-            last_good_id INTEGER, onset_id INTEGER NOT NULL, params_version INTEGER,
-            size_mm REAL, group_name TEXT, text TEXT NOT NULL DEFAULT '',
-            end_reason TEXT, end_version INTEGER, calibration_id INTEGER)""",
-        "CREATE INDEX suspect_intervals_t ON suspect_intervals (t_start)",
-    ),
-    # 4 -> 5: the clamp windows with the body the PLC clamped in each (app.line.cycle
-    # WindowWatch; NULL: the PLC said no body). body_id has no type: an integer body number
-    # stays an integer, a serial text
-    (
-        "CREATE TABLE windows (id INTEGER PRIMARY KEY, t REAL NOT NULL, body_id)",
-        "CREATE INDEX windows_t ON windows (t)",
-    ),
-    # 5 -> 6: the U95 the cell stated for each window's bodies (app.line.accuracy; NULL: none
-    # stated, an older rvis or no evidence)
-    ("ALTER TABLE windows ADD COLUMN u95_mm REAL",),
-    # 6 -> 7: maintenance procedures (app/maintain/): what was done to the cell (event, axis),
-    # when, by whom, in which folder, the versions and figures before and after
-    (
-        """CREATE TABLE maintenance (
-            id INTEGER PRIMARY KEY, t_start REAL NOT NULL, t_end REAL,
-            event TEXT NOT NULL, axis INTEGER, who TEXT NOT NULL, folder TEXT NOT NULL,
-            status TEXT NOT NULL CHECK (status IN ('running', 'done')),
-            version_before INTEGER, version_after INTEGER,
-            before TEXT NOT NULL DEFAULT '{}', after TEXT NOT NULL DEFAULT '{}')""",
-    ),
-    # 7 -> 8: a procedure begun again (`rvis maintain --restart`) ends its earlier record
-    # 'abandoned' (SQLite changes a CHECK only by rebuilding the table)
-    (
-        "ALTER TABLE maintenance RENAME TO maintenance_7",
-        """CREATE TABLE maintenance (
-            id INTEGER PRIMARY KEY, t_start REAL NOT NULL, t_end REAL,
-            event TEXT NOT NULL, axis INTEGER, who TEXT NOT NULL, folder TEXT NOT NULL,
-            status TEXT NOT NULL CHECK (status IN ('running', 'done', 'abandoned')),
-            version_before INTEGER, version_after INTEGER,
-            before TEXT NOT NULL DEFAULT '{}', after TEXT NOT NULL DEFAULT '{}')""",
-        "INSERT INTO maintenance SELECT * FROM maintenance_7",
-        "DROP TABLE maintenance_7",
-    ),
-)
 SCHEMA_VERSION = len(MIGRATIONS)
 SUSPECTS_SCHEMA = 4  # the version that has suspect_intervals
 WINDOWS_SCHEMA = 5  # the version that has windows (the bodies)
@@ -213,7 +129,7 @@ def suspect_rows(
     return list(out.values())
 
 
-class Store:
+class Store(BodyRecords):
     """`Store(path)` opens (creating and migrating) the database; thread-safe; close() it."""
 
     def __init__(self, path: str | Path, *, read_only: bool = False) -> None:

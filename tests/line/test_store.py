@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from app.line.states import suspect_json
@@ -69,7 +70,7 @@ def test_a_version_1_database_gains_the_temperature_column_and_keeps_its_rows(
     db.commit()
     db.close()
     store = Store(tmp_path / "rvis.db")  # an older service's state directory
-    assert store.version() == SCHEMA_VERSION == 8
+    assert store.version() == SCHEMA_VERSION == 9
     (old,) = store.measurements()
     assert old["c_sensor_mm"] == [1, 2, 3] and old["temp_c"] is None
     store.add_measurement({**_row(1), "temp_c": 23.45})
@@ -264,7 +265,7 @@ def test_a_version_4_database_gains_the_windows_and_keeps_its_suspect_intervals(
     assert old.windows() == []
     old.close()
     store = Store(tmp_path / "rvis.db")
-    assert store.version() == SCHEMA_VERSION == 8
+    assert store.version() == SCHEMA_VERSION == 9
     (row,) = store.suspects()
     assert (row["t_end"], row["text"], row["bodies"]) == (160.0, "sensor mount moved", [])
     store.add_window(120.0, 100001)
@@ -284,7 +285,7 @@ def test_a_version_5_database_gains_the_windows_u95_and_keeps_its_windows(tmp_pa
     db.commit()
     db.close()
     store = Store(tmp_path / "rvis.db")
-    assert store.version() == SCHEMA_VERSION == 8
+    assert store.version() == SCHEMA_VERSION == 9
     store.add_window(2.0, 8)
     store.state_window_u95(0.093)
     assert [(w["body_id"], w["u95_mm"]) for w in store.windows()] == [(7, None), (8, 0.093)]
@@ -320,4 +321,55 @@ def test_a_version_7_database_keeps_its_maintenance_records_and_may_abandon_one(
     (row,) = store.maintenance()
     assert row["status"] == "abandoned" and row["t_end"] == 9.0
     assert row["after"] == {"reason": "begun again"}
+    store.close()
+
+
+def test_a_body_is_stored_with_its_raw_data_and_evaluated_again_beside(tmp_path: Path) -> None:
+    """Migration 8 -> 9: bodies, their values by evaluation and their raw points; a version 8
+    database keeps its rows. A second evaluation is added beside the first, never over it."""
+    db = sqlite3.connect(tmp_path / "rvis.db")
+    for step in MIGRATIONS[:8]:
+        for sql in step:
+            db.execute(sql)
+    db.execute("INSERT INTO windows (t, body_id) VALUES (1.0, 7)")
+    db.execute("PRAGMA user_version = 8")
+    db.commit()
+    db.close()
+    store = Store(tmp_path / "rvis.db")
+    assert store.version() == SCHEMA_VERSION == 9 and len(store.windows()) == 1
+    value = {
+        "feature": "H01", "characteristic": "X", "kind": "position", "nominal_mm": 10.0,
+        "lower_mm": 9.5, "upper_mm": 10.5, "measured_mm": 10.02, "u95_mm": 0.06,
+        "decision": "conforming", "reason": "",
+    }  # fmt: skip
+    first = {"t": 5.0, "params_version": 3, "statement_u95_mm": 0.08, "reason": "measured",
+             "ok": 1, "n_nok": 0, "n_undecided": 0, "n_not_measured": 0}  # fmt: skip
+    sheet = np.arange(12, dtype=float).reshape(4, 3) + 0.125
+    raw = [
+        {"feature": "H01", "q_deg": np.arange(6.0), "temp_c": 21.5, "sheet": sheet,
+         "edges": sheet[:2], "refused": ""},
+        {"feature": "H02", "q_deg": np.ones(6), "temp_c": None, "sheet": None, "edges": None,
+         "refused": "plane: 3 points on the sheet"},
+    ]  # fmt: skip
+    row = store.add_body(
+        {"t": 5.0, "body_id": 100012, "part": "P", "window": 2}, first, [value], raw
+    )
+    again = {**first, "t": 9.0, "params_version": 4, "reason": "step corrected", "suspect_id": 1,
+             "decisions_changed": 1, "ok": 0, "n_nok": 1}  # fmt: skip
+    assert store.add_evaluation(row, again, [{**value, "measured_mm": 10.7,
+                                                "decision": "nonconforming"}]) == 1  # fmt: skip
+    (b,) = store.bodies(body_id="100012")
+    assert (b["evaluation"], b["ok"], b["params_version"], b["reason"]) == (
+        1,
+        0,
+        4,
+        "step corrected",
+    )
+    assert store.body_values(row)[0]["measured_mm"] == 10.7
+    assert store.body_values(row, 0)[0]["measured_mm"] == 10.02
+    assert [e["evaluation"] for e in store.body_evaluations(row)] == [0, 1]
+    h01, h02 = store.body_raw(row)
+    assert np.array_equal(h01["sheet"], sheet) and np.array_equal(h01["q_deg"], np.arange(6.0))
+    assert h02["sheet"] is None and h02["refused"].startswith("plane")
+    assert store.bodies(since_t=6.0) == []
     store.close()

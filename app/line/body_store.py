@@ -1,0 +1,182 @@
+"""The bodies in the state database (schema: app.line.schema, migration 9): a part of the store
+(app.line.store.Store inherits it), the only code that writes their SQL.
+
+A body is stored in one transaction with its raw data and its first evaluation (0): the values
+as measured. An evaluation computed again later (a step found after the body was measured and
+corrected) is added beside the earlier ones with its reason; a body's newest evaluation is the
+one its results show, the earlier ones stay.
+
+Rows are plain dicts of JSON-ready values; the raw points are little-endian float32 (x, y, z)
+rows, as numpy reads them back (`points_of`).
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+from collections.abc import Iterator, Sequence
+from contextlib import AbstractContextManager
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+F64 = NDArray[np.float64]
+VALUE_FIELDS = (
+    "feature", "characteristic", "kind", "nominal_mm", "lower_mm", "upper_mm", "measured_mm",
+    "u95_mm", "decision", "reason",
+)  # fmt: skip
+EVALUATION_FIELDS = (
+    "t", "params_version", "statement_u95_mm", "reason", "suspect_id", "ok", "n_nok",
+    "n_undecided", "n_not_measured", "decisions_changed",
+)  # fmt: skip
+
+
+def points_blob(points: F64 | None) -> bytes | None:
+    return None if points is None else np.asarray(points, dtype="<f4").reshape(-1, 3).tobytes()
+
+
+def points_of(blob: bytes | None) -> F64 | None:
+    if blob is None:
+        return None
+    out: F64 = np.frombuffer(blob, dtype="<f4").reshape(-1, 3).astype(np.float64)
+    return out
+
+
+class BodyRecords:
+    """The store's body tables (mixed into app.line.store.Store, which supplies the
+    connection's transaction and queries)."""
+
+    def _tx(self) -> AbstractContextManager[sqlite3.Connection]:
+        raise NotImplementedError
+
+    def _rows(self, sql: str, args: Sequence[Any] = ()) -> list[dict[str, Any]]:
+        raise NotImplementedError
+
+    def add_body(
+        self,
+        body: dict[str, Any],
+        evaluation: dict[str, Any],
+        values: Sequence[dict[str, Any]],
+        raw: Sequence[dict[str, Any]],
+    ) -> int:
+        """Store a measured body (t, body_id, part, window, temp_c), its first evaluation
+        (EVALUATION_FIELDS), its values (VALUE_FIELDS) and raw data per feature (feature,
+        q_deg, temp_c, sheet, edges (n, 3) or None, refused) in one transaction; its row id."""
+        with self._tx() as db:
+            cur = db.execute(
+                "INSERT INTO bodies (t, body_id, part, window, temp_c, evaluation)"
+                " VALUES (?, ?, ?, ?, ?, 0)",
+                (
+                    body["t"],
+                    body.get("body_id"),
+                    body["part"],
+                    body.get("window"),
+                    body.get("temp_c"),
+                ),
+            )
+            row = int(cur.lastrowid or 0)
+            self._write_evaluation(db, row, 0, evaluation, values)
+            db.executemany(
+                "INSERT INTO body_raw (body, feature, q_deg, temp_c, sheet, edges, refused)"
+                " VALUES (?, ?, ?, ?, ?, ?, ?)",
+                [
+                    (
+                        row, r["feature"], json.dumps([float(a) for a in r["q_deg"]]),
+                        r.get("temp_c"), points_blob(r.get("sheet")), points_blob(r.get("edges")),
+                        r.get("refused", ""),
+                    )
+                    for r in raw
+                ],
+            )  # fmt: skip
+        return row
+
+    def add_evaluation(
+        self, body_row: int, evaluation: dict[str, Any], values: Sequence[dict[str, Any]]
+    ) -> int:
+        """A body's values computed again: the next evaluation number, beside the others."""
+        with self._tx() as db:
+            n = int(
+                db.execute("SELECT evaluation FROM bodies WHERE id = ?", (body_row,)).fetchone()[0]
+            )
+            self._write_evaluation(db, body_row, n + 1, evaluation, values)
+            db.execute("UPDATE bodies SET evaluation = ? WHERE id = ?", (n + 1, body_row))
+        return n + 1
+
+    @staticmethod
+    def _write_evaluation(
+        db: sqlite3.Connection,
+        row: int,
+        n: int,
+        evaluation: dict[str, Any],
+        values: Sequence[dict[str, Any]],
+    ) -> None:
+        db.execute(
+            f"INSERT INTO body_evaluations (body, evaluation, {', '.join(EVALUATION_FIELDS)})"
+            f" VALUES (?, ?, {', '.join('?' * len(EVALUATION_FIELDS))})",
+            (row, n, *(evaluation.get(k) for k in EVALUATION_FIELDS)),
+        )
+        db.executemany(
+            f"INSERT INTO body_values (body, evaluation, {', '.join(VALUE_FIELDS)})"
+            f" VALUES (?, ?, {', '.join('?' * len(VALUE_FIELDS))})",
+            [(row, n, *(v.get(k) for k in VALUE_FIELDS)) for v in values],
+        )
+
+    def bodies(
+        self, since_t: float | None = None, until_t: float | None = None, body_id: Any = None
+    ) -> list[dict[str, Any]]:
+        """Bodies (oldest first) with their newest evaluation's summary, measured within
+        [since_t, until_t] and/or with the body id given."""
+        where, args = ["e.evaluation = b.evaluation"], []
+        if since_t is not None:
+            where.append("b.t >= ?")
+            args.append(since_t)
+        if until_t is not None:
+            where.append("b.t <= ?")
+            args.append(until_t)
+        if body_id is not None:
+            where.append("CAST(b.body_id AS TEXT) = CAST(? AS TEXT)")
+            args.append(body_id)
+        return self._rows(
+            "SELECT b.id, b.t, b.body_id, b.part, b.window, b.temp_c, b.evaluation,"
+            " e.params_version, e.statement_u95_mm, e.reason, e.ok, e.n_nok, e.n_undecided,"
+            " e.n_not_measured, e.decisions_changed, e.suspect_id"
+            " FROM bodies b JOIN body_evaluations e ON e.body = b.id"
+            f" WHERE {' AND '.join(where)} ORDER BY b.id",
+            args,
+        )
+
+    def body_values(self, body_row: int, evaluation: int | None = None) -> list[dict[str, Any]]:
+        """A body's values of one evaluation (default: its newest), in plan order."""
+        if evaluation is None:
+            rows = self._rows("SELECT evaluation FROM bodies WHERE id = ?", (body_row,))
+            if not rows:
+                return []
+            evaluation = int(rows[0]["evaluation"])
+        return self._rows(
+            f"SELECT {', '.join(VALUE_FIELDS)} FROM body_values"
+            " WHERE body = ? AND evaluation = ? ORDER BY rowid",
+            (body_row, evaluation),
+        )
+
+    def body_evaluations(self, body_row: int) -> list[dict[str, Any]]:
+        return self._rows(
+            "SELECT * FROM body_evaluations WHERE body = ? ORDER BY evaluation", (body_row,)
+        )
+
+    def body_raw(self, body_row: int) -> Iterator[dict[str, Any]]:
+        """A body's raw data per feature: feature, q_deg (6,), temp_c, sheet and edges (n, 3)
+        or None, refused."""
+        for r in self._rows(
+            "SELECT feature, q_deg, temp_c, sheet, edges, refused FROM body_raw"
+            " WHERE body = ? ORDER BY rowid",
+            (body_row,),
+        ):
+            yield {
+                "feature": r["feature"],
+                "q_deg": np.array(json.loads(r["q_deg"]), dtype=float),
+                "temp_c": r["temp_c"],
+                "sheet": points_of(r["sheet"]),
+                "edges": points_of(r["edges"]),
+                "refused": r["refused"],
+            }
