@@ -9,6 +9,7 @@ import sqlite3
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -345,7 +346,7 @@ def test_a_body_is_stored_with_its_raw_data_and_evaluated_again_beside(tmp_path:
     first = {"t": 5.0, "params_version": 3, "statement_u95_mm": 0.08, "reason": "measured",
              "ok": 1, "n_nok": 0, "n_undecided": 0, "n_not_measured": 0}  # fmt: skip
     sheet = np.arange(12, dtype=float).reshape(4, 3) + 0.125
-    raw = [
+    raw: list[dict[str, Any]] = [
         {"feature": "H01", "q_deg": np.arange(6.0), "temp_c": 21.5, "sheet": sheet,
          "edges": sheet[:2], "refused": ""},
         {"feature": "H02", "q_deg": np.ones(6), "temp_c": None, "sheet": None, "edges": None,
