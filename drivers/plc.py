@@ -5,7 +5,9 @@ Signals, as two 16-bit words each way (the register map of every backend; README
 real hardware"):
 
     PLC -> app   status word   bit 0 window_open (the clamps leave the robot a window to measure),
-                               bit 1 line_running (the line is in automatic)
+                               bit 1 line_running (the line is in automatic),
+                               bit 2 body_ready (a body is clamped and the robot may measure
+                               its features; the body id words hold it)
                  heartbeat     a counter the PLC increments (at least every second)
                  cell temp     optional third word: the cell's air temperature in 0.01 degC,
                                signed 16 bit; 0x8000 = no sensor (a backend may omit the word)
@@ -17,7 +19,10 @@ real hardware"):
                                body). Read once at each window's rising edge (`read_body_id`)
     app -> PLC   status word   bit 0 busy (the robot is out of home / measuring), bit 1 done (the
                                measurement finished and the robot is home), bit 2 fault (the app
-                               has a fault; the PLC must not wait for done)
+                               has a fault; the PLC must not wait for done), bit 3 body_done
+                               (the body's features are measured and stored, the robot home),
+                               bit 4 body_nok (with body_done: a characteristic proven out of
+                               tolerance or not measured), both held until body_ready falls
                  heartbeat     a counter the app increments on every poll
 
 The whole handshake is here: decoding and encoding the words, the heartbeat counter and the
@@ -46,8 +51,8 @@ from dataclasses import dataclass, replace
 from drivers.base import Device
 from drivers.errors import DeviceConfigError, DeviceTimeout
 
-WINDOW_OPEN, LINE_RUNNING = 0x1, 0x2  # PLC status word bits
-BUSY, DONE, FAULT = 0x1, 0x2, 0x4  # app status word bits
+WINDOW_OPEN, LINE_RUNNING, BODY_READY = 0x1, 0x2, 0x4  # PLC status word bits
+BUSY, DONE, FAULT, BODY_DONE, BODY_NOK = 0x1, 0x2, 0x4, 0x8, 0x10  # app status word bits
 NO_TEMPERATURE = 0x8000  # the cell temperature word when the PLC has no sensor
 #: the body id's formats and their word counts (module docstring)
 BODY_ID_WORDS = {"u32": 2, "serial8": 4}
@@ -60,6 +65,7 @@ class PlcInputs:
     line_running: bool
     heartbeat: int
     temp_c: float | None = None  # the cell's air temperature [degC], None without a sensor
+    body_ready: bool = False  # a body is clamped for its features to be measured
 
 
 @dataclass(frozen=True)
@@ -68,6 +74,8 @@ class PlcOutputs:
     done: bool = False
     fault: bool = False
     heartbeat: int = 0
+    body_done: bool = False
+    body_nok: bool = False
 
 
 def decode_temp(word: int) -> float | None:
@@ -127,16 +135,19 @@ def decode_inputs(words: Sequence[int]) -> PlcInputs:
         line_running=bool(status & LINE_RUNNING),
         heartbeat=int(beat) & 0xFFFF,
         temp_c=decode_temp(words[2]) if len(words) > 2 else None,
+        body_ready=bool(status & BODY_READY),
     )
 
 
 def encode_inputs(inputs: PlcInputs) -> tuple[int, int]:
     bits = (WINDOW_OPEN if inputs.window_open else 0) | (LINE_RUNNING if inputs.line_running else 0)
+    bits |= BODY_READY if inputs.body_ready else 0
     return bits, inputs.heartbeat & 0xFFFF
 
 
 def encode_outputs(out: PlcOutputs) -> tuple[int, int]:
     bits = (BUSY if out.busy else 0) | (DONE if out.done else 0) | (FAULT if out.fault else 0)
+    bits |= (BODY_DONE if out.body_done else 0) | (BODY_NOK if out.body_nok else 0)
     return bits, out.heartbeat & 0xFFFF
 
 
@@ -147,6 +158,8 @@ def decode_outputs(words: tuple[int, int]) -> PlcOutputs:
         done=bool(bits & DONE),
         fault=bool(bits & FAULT),
         heartbeat=int(beat) & 0xFFFF,
+        body_done=bool(bits & BODY_DONE),
+        body_nok=bool(bits & BODY_NOK),
     )
 
 
@@ -225,6 +238,10 @@ class Plc(Device):
 
     def set_signals(self, *, busy: bool, done: bool, fault: bool) -> None:
         self._send(replace(self._out, busy=busy, done=done, fault=fault))
+
+    def set_body_signals(self, *, done: bool, nok: bool = False) -> None:
+        """The body's result bits (held until body_ready falls: the caller clears them)."""
+        self._send(replace(self._out, body_done=done, body_nok=nok and done))
 
     @contextmanager
     def window(self, timeout_s: float) -> Iterator[PlcInputs]:

@@ -314,6 +314,10 @@ def body_id_of(number: int, fmt: str) -> int | str:
     return f"B{number % 10**7:07d}" if fmt == "serial8" else number
 
 
+#: the body's phase opens this far into a clamp period [s]
+BODY_START_S = 1.0
+
+
 @dataclass(frozen=True)
 class ClampCycle:
     """The line's clamp cycle: every ``period_s`` the window is open for ``window_s`` (at the
@@ -328,17 +332,25 @@ class ClampCycle:
     time_scale: float = 1.0
     line_running: bool = True
     first_body: int = 100001
+    # the body's own phase: body_ready from BODY_START_S into the period for body_s (0: a
+    # PLC program without the bit), before the window
+    body_s: float = 0.0
 
     def __post_init__(self) -> None:
         if not (0 < self.window_s < self.period_s and self.beat_s > 0 and self.time_scale > 0):
             raise DeviceConfigError("clamp cycle needs 0 < window_s < period_s, beat_s > 0")
+        if not 0 <= self.body_s <= self.period_s - self.window_s - 2 * BODY_START_S:
+            raise DeviceConfigError("the body's phase must end before the window opens")
 
     def inputs(self, elapsed_s: float, heartbeat_frozen: bool = False) -> PlcInputs:
         t = elapsed_s / self.time_scale
         phase = t % self.period_s
         window = self.line_running and phase >= self.period_s - self.window_s
+        body = self.line_running and BODY_START_S <= phase < BODY_START_S + self.body_s
         beat = 0 if heartbeat_frozen else int(t / self.beat_s) & 0xFFFF
-        return PlcInputs(window_open=window, line_running=self.line_running, heartbeat=beat)
+        return PlcInputs(
+            window_open=window, line_running=self.line_running, heartbeat=beat, body_ready=body
+        )
 
     def body(self, elapsed_s: float) -> int:
         """The number of the body clamped at `elapsed_s` (the body of the period it falls in)."""
@@ -347,6 +359,10 @@ class ClampCycle:
     def window_body(self, k: int) -> int:
         """The number of the body clamped in period k, whose window is the k-th (from 0)."""
         return self.first_body + k
+
+
+def signals_of(out: PlcOutputs) -> tuple[bool, ...]:
+    return out.busy, out.done, out.fault, out.body_done, out.body_nok
 
 
 class FakePlc(Plc):
@@ -395,7 +411,7 @@ class FakePlc(Plc):
 
     def _write_output_words(self, words: tuple[int, int]) -> None:
         outputs, old = decode_outputs(words), self.received
-        if (outputs.busy, outputs.done, outputs.fault) != (old.busy, old.done, old.fault):
+        if signals_of(outputs) != signals_of(old):
             self.history.append(outputs)
         self.received = outputs
 

@@ -70,6 +70,7 @@ class SimLineSetup:
     start_epoch: float | None = None  # Unix time of sim time 0 (None: now, whole seconds)
     period_s: float = 60.0  # clamp cycle: one window a minute ...
     window_s: float = 20.0  # ... open for its last window_s
+    body_s: float = 0.0  # the body's phase before it (body_ready; 0: a PLC without the bit)
     beat_s: float = 0.5  # PLC heartbeat period
     first_body: int = 100001  # the number of the body clamped in the world's first period
     # the world's time at sim time 0: a line that continues an earlier run's world (warm,
@@ -118,6 +119,7 @@ class SimLineSetup:
         return ClampCycle(
             period_s=self.period_s,
             window_s=self.window_s,
+            body_s=self.body_s,
             beat_s=self.beat_s,
             first_body=self.first_body + math.ceil(self.world_s / self.period_s),  # periods begun
         )
@@ -328,6 +330,16 @@ class SimLine:
     def window_bounds_s(self, k: int) -> tuple[float, float]:
         """Sim times at which clamp window k opens and closes (the PLC's own schedule)."""
         return window_bounds_s(self.settings.cycle, k)
+
+    def body_number_now(self) -> int:
+        """The number of the body clamped now (the PLC's cycle at the clock's time)."""
+        return self.settings.cycle.body(self.clock.monotonic() - self.plc.t0)
+
+    def elapse(self, duration_s: float) -> None:
+        """What the line does for duration_s takes that long on a VirtualClock (no device
+        charges it on the geometric path)."""
+        if self.virtual is not None:
+            self.virtual.elapse(duration_s)
 
     def window_body(self, k: int) -> int | str:
         """The id of the body the PLC clamps in period k, whose window is clamp window k (as

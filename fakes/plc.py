@@ -28,7 +28,7 @@ from drivers.plc_modbus import (
     REGISTER_COUNT,
 )
 from fakes._modbus_server import RegisterServer
-from fakes.devices import ClampCycle, body_id_of
+from fakes.devices import ClampCycle, body_id_of, signals_of
 
 
 class PlcServer(RegisterServer):
@@ -60,11 +60,7 @@ class PlcServer(RegisterServer):
         a = self.base + APP_STATUS
         if a in written or a + 1 in written:
             out = decode_outputs((written.get(a, regs[a]), written.get(a + 1, regs[a + 1])))
-            changed = (out.busy, out.done, out.fault) != (
-                self.received.busy,
-                self.received.done,
-                self.received.fault,
-            )
+            changed = signals_of(out) != signals_of(self.received)
             if changed:
                 self.history.append(out)
             self.received = out

@@ -88,7 +88,7 @@ def run_plan(args: argparse.Namespace) -> int:
             file=sys.stderr,
             flush=True,
         )
-    route = plan_views(cfg, cal.model, cal.x, plan, sensor)
+    route = plan_views(cfg.line, cfg.robot.repeatability_mm, cal.model, cal.x, plan, sensor)
     doc = {
         "part": plan.part,
         "features": len(plan.features),

@@ -38,6 +38,10 @@ class LineSettings(Section):
     home_deg: Vec = opt(list(datasheet.HOME_DEG), lo=-720, hi=720, n=6)
     home_tol_deg: float = opt(0.05, gt=0, hi=5)
     window_s: float = opt(8.0, gt=0, hi=3600)  # a clamp window (the PLC sends only the bit)
+    # how long the PLC leaves a clamped body for its features once it raises body_ready (the
+    # PLC sends only the bit): the body's route is cut where the next feature would not be
+    # measured and the robot home by then (its features "not measured", the reason said)
+    body_window_s: float = opt(38.0, gt=0, hi=3600)
     margin_s: float = opt(0.5, lo=0, hi=60)  # kept free at the end of every window
     slots_per_window: int = opt(1, lo=1, hi=100)
     # after a step is flagged and until it is corrected: up to this many slots in a window
@@ -299,6 +303,9 @@ class SimLineSection(Section):
     scale: float = opt(60.0, gt=0, hi=10000)
     period_s: float = opt(60.0, gt=0, hi=86400)
     window_s: float = opt(20.0, gt=0, hi=86400)
+    # the simulated PLC's body phase: body_ready raised 1 s into each period for body_s (0:
+    # off), before the window; the service gets it as its [line] body_window_s
+    body_s: float = opt(36.0, lo=0, hi=86400)
     beat_s: float = opt(0.5, gt=0, hi=60)
     # the service's PLC poll on the simulated line (in place of [line] poll_s): every poll is a
     # real exchange over loopback, so this sets how fast an unpaced run goes; a window's rising
@@ -333,3 +340,8 @@ class SimLineSection(Section):
     def cross_checks(self) -> Iterator[tuple[str, str]]:
         if self.window_s >= self.period_s:
             yield "window_s", "the clamp window must be shorter than period_s"
+        elif self.body_s > self.period_s - self.window_s - 2.0:
+            yield (
+                "body_s",
+                "the body's phase must end 1 s before the window (period_s - window_s - 2)",
+            )

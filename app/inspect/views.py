@@ -32,7 +32,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from app.config import CellConfig
 from app.config.line import LineSettings
 from app.inspect.plan import Feature, FeaturePlan
 from app.line.schedule import motion_time_s, shortest_route
@@ -104,7 +103,8 @@ class InspectionPlan:
 
 
 def plan_views(
-    cfg: CellConfig,
+    line: LineSettings,
+    repeatability_mm: float,
     model: SystemModel,
     x: F64,
     plan: FeaturePlan,
@@ -112,15 +112,15 @@ def plan_views(
     settings: ViewSettings | None = None,
 ) -> InspectionPlan:
     """A view for each feature of `plan` on the calibrated model (model, x) and the route
-    through them from the cell's home (module docstring)."""
+    through them from the cell's home (`line`: its home and motion-time model), the robot's
+    pose repeatability RP [mm] ranking the candidates (module docstring)."""
     s = settings or ViewSettings()
-    line: LineSettings = cfg.line
     home = np.asarray(line.home_deg, dtype=float)
     options: dict[str, list[tuple[F64, F64, float, float]]] = {}
     unreachable: dict[str, str] = {}
-    sigma_rad = joint_sigma_rad(model, x, float(cfg.robot.repeatability_mm))
+    sigma_rad = joint_sigma_rad(model, x, float(repeatability_mm))
     for f in plan.features:
-        found = _options(cfg, model, x, f, s, sigma_rad)
+        found = _options(model, x, f, s, sigma_rad)
         if found:
             options[f.id] = found
         else:
@@ -147,7 +147,7 @@ def plan_views(
 
 
 def _options(
-    cfg: CellConfig, model: SystemModel, x: F64, f: Feature, s: ViewSettings, sigma_rad: float
+    model: SystemModel, x: F64, f: Feature, s: ViewSettings, sigma_rad: float
 ) -> list[tuple[F64, F64, float, float]]:
     """(q_deg, c_sensor_mm, tilt_deg, repeat_sd_mm) of the reachable views of f that the robot
     repeats best (module docstring): the closed form's solutions at tilts up to

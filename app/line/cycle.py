@@ -65,6 +65,11 @@ class WindowWatch:
         self._seen_closed = False
         self.opened_t: float | None = None  # clock time of the window's rising edge
         self.used_t: float | None = None  # rising edge of the last window measured in
+        # the body's bit (body_ready): its rising edge, the last one measured, the body id
+        self._body_seen_low = False
+        self.body_opened_t: float | None = None
+        self.body_used_t: float | None = None
+        self.body_id: BodyId | None = None
         #: the last exchange with the PLC was answered (False before the first and after one
         #: that failed: `inputs` are then the last ones read, not the line's now)
         self.answered = False
@@ -82,6 +87,7 @@ class WindowWatch:
         if inputs.window_open and not was_open and self.line.plc_body_id != "none":
             body = self.plc.read_body_id(self.line.plc_body_id)
             self.clamped.append((self.clock.time(), body))
+        self._watch_body(inputs, now)
         if inputs.heartbeat != self._beat:
             self._changed = self._beat is not None  # the first value read is not a beat
             self._beat, self._beat_t = inputs.heartbeat, now
@@ -91,6 +97,33 @@ class WindowWatch:
             self.opened_t = now  # a window seen from its start: its remaining time is known
         self.inputs = inputs
         return inputs
+
+    def _watch_body(self, inputs: PlcInputs, now: float) -> None:
+        """The body_ready bit's rising edge (seen from its start: the body's time is known),
+        with the body id read then."""
+        was = self.inputs is not None and self.inputs.body_ready
+        if not inputs.body_ready:
+            self._body_seen_low, self.body_opened_t = True, None
+        elif not was and self._body_seen_low:
+            self.body_opened_t = now
+            fmt = self.line.plc_body_id
+            self.body_id = self.plc.read_body_id(fmt) if fmt != "none" else None
+
+    def fresh_body(self) -> bool:
+        """A body ready (line running, heartbeat alive), seen from its rising edge, and not
+        measured yet."""
+        i = self.inputs
+        ready = i is not None and i.body_ready and i.line_running and self.alive
+        return ready and self.body_opened_t is not None and self.body_opened_t != self.body_used_t
+
+    def body_ready(self) -> bool:
+        """The body is still there for the robot (the withdrawal's test while measuring it)."""
+        i = self.inputs
+        return i is not None and i.body_ready and i.line_running and self.alive
+
+    def body_end_t(self) -> float:
+        """The clock's monotonic time the body's window ends ([line] body_window_s)."""
+        return (self.body_opened_t or 0.0) + self.line.body_window_s
 
     @property
     def lost(self) -> bool:
@@ -128,8 +161,16 @@ class Withdrawal:
     a TimerClock (virtual time, which the robot's motion makes pass) from callbacks at the poll
     times instead, so that it looks at the PLC at the same sim times in every run."""
 
-    def __init__(self, watch: WindowWatch, abort: Callable[[], None]) -> None:
+    def __init__(
+        self,
+        watch: WindowWatch,
+        abort: Callable[[], None],
+        ready: Callable[[], bool] | None = None,
+    ) -> None:
+        """ready: whether the robot may go on (default: the window is there, `watch.ready`;
+        a body's measurement: `watch.body_ready`)."""
         self.watch, self._abort = watch, abort
+        self._ready = ready or watch.ready
         self.withdrawn = False
         self.why = ""
         self.error: BaseException | None = None
@@ -179,7 +220,7 @@ class Withdrawal:
             w.poll()
         except DeviceError as exc:  # the PLC link itself failed: stop the robot too
             self.error = exc
-        if self.error is None and w.ready():
+        if self.error is None and self._ready():
             return False
         self.why = self._reason()
         self.withdrawn = True
@@ -197,7 +238,7 @@ class Withdrawal:
             return "PLC heartbeat lost"
         if i is not None and not i.line_running:
             return "line stopped"
-        return "window withdrawn"
+        return "window withdrawn" if self._ready == w.ready else "body withdrawn"
 
 
 @dataclass

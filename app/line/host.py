@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.line.accuracy import Accuracy
+from app.line.body_cycle import BodyCycle
 from app.line.cycle import Cycle, WindowWatch
 from app.line.drift import DriftMonitor
 from app.line.events import EventBus
@@ -62,6 +63,7 @@ class LineHost(Protocol):
     watch: WindowWatch
     measurer: SphereMeasurer
     cycle: Cycle
+    body_cycle: BodyCycle | None  # the bodies' features (None: no feature plan)
     sensor_watch: SensorWatch
     sweeps: SweepArchive
     log: logging.Logger

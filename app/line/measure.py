@@ -163,3 +163,38 @@ class SphereMeasurer:
             raise
         self.go_home()
         return reading
+
+
+class SweepFeatureSensor:
+    """A body feature's sweep on a real sensor (app.inspect.measure.FeatureSensor): one grab at
+    each of the view's mirror commands, the stripe of each frame extracted and triangulated
+    into one profile (sensor frame, in the camera's row order); the galvo parked at 0 V after.
+    The robot is already at the view."""
+
+    def __init__(
+        self,
+        camera: Camera,
+        galvo: Galvo,
+        sensor_model: SensorModel,
+        *,
+        grab_timeout_s: float = 1.0,
+        mode: str = "fast",
+    ) -> None:
+        self.camera, self.galvo, self.sensor_model = camera, galvo, sensor_model
+        self.grab_timeout_s, self.mode = grab_timeout_s, mode
+
+    def profiles(self, view: Any) -> list[F64]:
+        from vision.stripe import extract_sweep
+        from vision.triangulate import triangulate_sweep
+
+        commands = np.asarray(view.commands_v, dtype=float)
+        frames = []
+        try:
+            for v in commands:
+                set_galvo_volts(self.galvo, float(v))
+                frames.append(self.camera.grab(self.grab_timeout_s).image)
+        finally:
+            set_galvo_volts(self.galvo, 0.0)
+        stripes = extract_sweep(frames, self.mode)
+        points, frame_of = triangulate_sweep(stripes, commands, self.sensor_model)
+        return [points[frame_of == k] for k in range(len(commands))]

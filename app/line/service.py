@@ -60,6 +60,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from app.line.accuracy import Accuracy
+from app.line.body_cycle import BodyCycle, BodySetup
 from app.line.cycle import Cycle, WindowWatch
 from app.line.decisions import Decisions, Rows
 from app.line.drift import DriftMonitor
@@ -111,11 +112,13 @@ class Service:
         settings: ServiceSettings | None = None,
         recalibrator: Recalibrator | None = None,
         initial_residuals: Mapping[str, Any] | None = None,
+        bodies: BodySetup | None = None,
     ) -> None:
         """`initial_residuals`: the identification residuals of `x_initial` (n_measurements,
         rms_mm, n_parameters) and, when its commissioning validated it across the workspace,
         `validation_errors_mm` (the norms), written into a new directory's first version (its
-        U95 seed, app.line.accuracy.document_seed)."""
+        U95 seed, app.line.accuracy.document_seed). `bodies`: the part type's plan and the
+        feature sensor (app.line.body_cycle.body_setup; None: the cell measures no body)."""
         self.settings = s = settings or ServiceSettings()
         self.clock = clock or RealClock()
         self.station, self.schedule = station, schedule
@@ -153,6 +156,12 @@ class Service:
             self.sequential.restart(self.model, self.x, self.params.current_document())
         self.watch = WindowWatch(station.plc, self.clock, s.line)
         self.measurer = SphereMeasurer(station.robot, sensor, s.line)
+        # the bodies' features in the cycle (app.line.body_cycle): with a feature plan
+        self.body_cycle = (
+            None
+            if bodies is None
+            else BodyCycle(bodies, self.watch, self.measurer, self.store, s.repeatability_mm)
+        )
         self.state = State.STARTING
         self.paused = False
         self.counters = {"windows": 0, "overruns": 0, "withdrawn": 0}

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from app.config.cell import SensorSection, gates_of
+from app.config.cell import RobotSection, SensorSection, gates_of
 from app.config.line import (
     DriftSettings,
     LineSettings,
@@ -43,6 +43,9 @@ class ServiceSettings:
     measuring_volume_mm: tuple[float, float, float, float] = (130.0, 18.5, 13.5, 5.0)
     # the sensor's acceptance limit on PS ([sensor] max_ps_mm), charted in-line
     max_ps_mm: float = SensorSection.max_ps_mm
+    # the robot's ISO 9283 pose repeatability RP ([robot] repeatability_mm), by which a
+    # body's views are chosen (app.inspect.views)
+    repeatability_mm: float = RobotSection.repeatability_mm
 
 
 def from_cell(cfg: Any, state_dir: str | Path | None = None) -> ServiceSettings:
@@ -67,4 +70,5 @@ def from_cell(cfg: Any, state_dir: str | Path | None = None) -> ServiceSettings:
             float(cfg.sensor.half_depth_mm),
         ),
         max_ps_mm=float(cfg.sensor.max_ps_mm),
+        repeatability_mm=float(cfg.robot.repeatability_mm),
     )

@@ -100,6 +100,9 @@ def suspect_json(row: Mapping[str, Any]) -> dict[str, Any]:
         "end_version": row.get("end_version"),
         "calibration_id": row.get("calibration_id"),
         "bodies": list(row.get("bodies") or ()),
+        # its bodies computed again with the correction: how many, decisions changed (None: not)
+        "reevaluated": row.get("reevaluated"),
+        "decisions_changed": row.get("decisions_changed"),
     }
 
 

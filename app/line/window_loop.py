@@ -16,6 +16,7 @@ import logging
 
 from app.line.accuracy import ACCURACY_GROUP, VOUCHED, evidence, statement, with_prediction
 from app.line.beyond_knock import BLIND_WINDOWS, blind_text
+from app.line.body_cycle import BodyCycle
 from app.line.decisions import Decisions
 from app.line.faults import Faults
 from app.line.host import LineHost
@@ -77,6 +78,11 @@ class WindowLoop:
         self._watch_temperature()
         self._store_clamped()
         self._unshelve()
+        if svc.body_cycle is not None:
+            svc.body_cycle.clear_result()
+            if svc.state == State.IDLE and not svc.paused and svc.watch.fresh_body():
+                self._body(svc.body_cycle)
+                return
         if svc.state == State.IDLE and not svc.paused and svc.watch.fresh_window():
             self._window()
             return
@@ -113,8 +119,44 @@ class WindowLoop:
         )
         svc.set_state(State.PAUSED if svc.paused else State.IDLE)
         self._between_windows()
+        self._reevaluate()
         if svc.after_window is not None:
             svc.after_window()
+
+    def _body(self, body: BodyCycle) -> None:
+        """A clamped body's features (app.line.body_cycle), with the parameters in force and
+        the cell's statement for a point measured now (the last window's, else the version's
+        own seed)."""
+        svc = self.svc
+        svc.set_state(State.MEASURING)
+        cal = body.calibration(svc.version, svc.params.version_path(svc.version))
+        try:
+            report = body.run_body(
+                svc.counters["windows"], svc.version, cal, self.statement_u95_mm(),
+                svc.cell_temp_c,
+            )  # fmt: skip
+        except DeviceError as exc:
+            self.faults.device_fault(exc)
+            return
+        svc.bus.emit("body", {**report.to_json(), "params_version": svc.version})
+        svc.set_state(State.PAUSED if svc.paused else State.IDLE)
+
+    def statement_u95_mm(self) -> float | None:
+        """The U95 the cell states for a point measured now (None: none)."""
+        svc = self.svc
+        if svc.accuracy is not None and svc.accuracy.u95_mm is not None:
+            return svc.accuracy.u95_mm
+        seed = statement(svc.u_seed, "seed", svc.settings.recalib.accuracy_limit_mm)
+        return seed.u95_mm
+
+    def _reevaluate(self) -> None:
+        """Bodies of suspect intervals corrected since they were measured, computed again."""
+        svc = self.svc
+        if svc.body_cycle is None:
+            return
+        done = svc.body_cycle.reevaluate_pending(svc.params.version_path, self.statement_u95_mm())
+        for interval in done:
+            svc.bus.emit("reevaluated", interval)
 
     def _watch_blind(self, first_id: int) -> None:
         """Windows in a row in which no view saw its sphere where the parameters put it (each

@@ -30,6 +30,7 @@ from fakes.body import (
     feature_profiles,
 )
 from fakes.cell import SimulatedCell
+from fakes.line import SimLine
 
 F64 = NDArray[np.float64]
 
@@ -66,11 +67,15 @@ class SimulatedBodies:
 
     def profiles(self, view: FeatureView) -> list[F64]:
         """FeatureSensor: the profiles (sensor frame) of the clamped body's feature at `view`."""
+        q = np.asarray(view.q_deg, dtype=float)
+        return self.profiles_from(view, q + self.cell.new_stop_deg(q))
+
+    def profiles_from(self, view: FeatureView, q_attained_deg: F64) -> list[F64]:
+        """The profiles of the clamped body's feature at `view` with the true robot standing
+        at q_attained_deg (the world's time now)."""
         if self.body is None:
             raise RuntimeError("no body clamped")
-        q = np.asarray(view.q_deg, dtype=float)
-        stop = self.cell.new_stop_deg(q)
-        T_part_sensor = self.cell.T_part_sensor((q + stop)[None])[0]
+        T_part_sensor = self.cell.T_part_sensor(np.asarray(q_attained_deg, float)[None])[0]
         planes = self.cell.sensor.laser_planes(view.commands_v)
         self._sweeps += 1
         rng = np.random.default_rng([self.process.seed, 23, self.body.index, self._sweeps])
@@ -91,3 +96,19 @@ def true_value(body: TrueBody, c: Characteristic, plan: FeaturePlan) -> float:
     # where the nominal normal through the nominal point meets the true sheet
     cos = float(f.normal @ nominal.normal)
     return float((f.position_mm - nominal.position_mm) @ f.normal) / cos
+
+
+class LineFeatureSensor:
+    """The simulated line's geometric feature sensor (app.inspect.measure.FeatureSensor): the
+    body the line's PLC holds now clamped in the world, seen from where the true robot stands
+    (the controller's move put it there), the sweep's time passed on the line's clock."""
+
+    def __init__(self, line: SimLine, bodies: SimulatedBodies) -> None:
+        self.line, self.bodies = line, bodies
+
+    def profiles(self, view: FeatureView) -> list[F64]:
+        self.line.elapse(view.sweep_s)
+        k = self.line.body_number_now() - self.line.settings.first_body
+        if self.bodies.body is None or self.bodies.body.index != k:
+            self.bodies.clamp(k)
+        return self.bodies.profiles_from(view, self.line.cell.attained_deg())

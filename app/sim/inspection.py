@@ -105,7 +105,14 @@ def inspection_cell(
 
     def ready(world: SimulatedCell, statement: float, temp: float | None) -> InspectionCell:
         cal = Calibration.load(state.current)
-        views = plan_views(cfg_c, cal.model, cal.x, plan, load_sensor_model(state.sensor))
+        views = plan_views(
+            cfg_c.line,
+            cfg_c.robot.repeatability_mm,
+            cal.model,
+            cal.x,
+            plan,
+            load_sensor_model(state.sensor),
+        )
         bodies = SimulatedBodies(world, plan, process, ClampSettings())
         return InspectionCell(seed, state, cfg_c, cal, plan, views, statement, bodies, temp)
 

@@ -31,6 +31,7 @@ from app.commission.files import TARGETS_FILE
 from app.config import CellConfig
 from app.formats.files import read_targets
 from app.formats.params import carried_from_json
+from app.line.body_cycle import BodySetup
 from app.line.measure import GeometricSensor, Rejected, SphereSensor, SweepSensor
 from app.line.recalib import Recalibrator
 from app.line.schedule import Schedule
@@ -117,6 +118,7 @@ def simline_settings(
         start_epoch=start_epoch,
         period_s=s.period_s,
         window_s=s.window_s,
+        body_s=s.body_s,
         beat_s=s.beat_s,
         warmup=Warmup(s.warmup_k, s.warmup_tau_s, s.warmup_start_s) if s.warmup_k else None,
         knock=knock,
@@ -206,9 +208,12 @@ def with_simulated_plc(cfg: CellConfig) -> CellConfig:
     """The cell as the simulated line's devices are: its PLC writes the cell temperature in
     word 2 (`[line] plc_temperature` on, whatever the cell file says) and counts bodies, the
     body number in words 3-4 (`[line] plc_body_id` "u32" unless the cell file says "serial8":
-    then the simulated PLC writes serials)."""
+    then the simulated PLC writes serials), and leaves each body [simline] body_s for its
+    features (`[line] body_window_s`)."""
     body = "u32" if cfg.line.plc_body_id == "none" else cfg.line.plc_body_id
     line = dataclasses.replace(cfg.line, plc_temperature=True, plc_body_id=body)
+    if cfg.simline.body_s > 0:  # the body's phase as the simulated PLC runs it
+        line = dataclasses.replace(line, body_window_s=cfg.simline.body_s)
     return dataclasses.replace(cfg, line=line)
 
 
@@ -429,6 +434,7 @@ class SimulatedLineRun:
             schedule = Schedule(
                 random_schedule(self.cfg, self.cell, self.seed, n_each), self.settings.line
             )
+        bodies = self._bodies(line) if self.geometric else None
         recalibrator = Recalibrator(cost_s=self.cfg.simline.identification_s, clock=self.clock)
         recalibrator.prestart()
         self.service = Service(
@@ -442,6 +448,7 @@ class SimulatedLineRun:
             settings=self.settings,
             recalibrator=recalibrator,
             initial_residuals=self.commissioning_residuals,
+            bodies=bodies,
         )
         self.service.after_window = self._hold
         # a restarted state directory's service counts its windows on: hold by this run's
@@ -450,6 +457,22 @@ class SimulatedLineRun:
         if self.service.params.version_path(1).is_file():
             self.x_commissioning = self._x_of(1)
         self.summary.true_rmse_start_mm = self.true_rmse_mm(self.service.x)
+
+    def _bodies(self, line: SimLine) -> BodySetup | None:
+        """The bodies the line clamps measured as the state directory's feature plan says (the
+        geometric path; none without a plan), built by the seed's process (app.sim.bodies)."""
+        from app.line.body_cycle import feature_plan
+        from app.sim.bodies import LineFeatureSensor, SimulatedBodies
+        from fakes.body import BuildProcess, ClampSettings
+        from vision.sensor_model import default_sensor_model, load_sensor_model
+
+        paths = StateDir(self.state_dir)
+        plan = feature_plan(paths.root, self.cfg.T_part_base)
+        if plan is None:
+            return None
+        bodies = SimulatedBodies(self.cell, plan, BuildProcess(seed=self.seed), ClampSettings())
+        model = load_sensor_model(paths.sensor) if paths.sensor.is_file() else None
+        return BodySetup(plan, LineFeatureSensor(line, bodies), model or default_sensor_model())
 
     def true_rmse_mm(self, x: F64, t_s: float | None = None) -> float:
         """The end-to-end true error [mm, RMS] of parameters x at the validation positions at
