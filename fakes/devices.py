@@ -339,7 +339,8 @@ class ClampCycle:
     def __post_init__(self) -> None:
         if not (0 < self.window_s < self.period_s and self.beat_s > 0 and self.time_scale > 0):
             raise DeviceConfigError("clamp cycle needs 0 < window_s < period_s, beat_s > 0")
-        if not 0 <= self.body_s <= self.period_s - self.window_s - 2 * BODY_START_S:
+        free = self.period_s - self.window_s - 2 * BODY_START_S
+        if self.body_s < 0 or (self.body_s > 0 and self.body_s > free):
             raise DeviceConfigError("the body's phase must end before the window opens")
 
     def inputs(self, elapsed_s: float, heartbeat_frozen: bool = False) -> PlcInputs:

@@ -303,9 +303,10 @@ class SimLineSection(Section):
     scale: float = opt(60.0, gt=0, hi=10000)
     period_s: float = opt(60.0, gt=0, hi=86400)
     window_s: float = opt(20.0, gt=0, hi=86400)
-    # the simulated PLC's body phase: body_ready raised 1 s into each period for body_s (0:
-    # off), before the window; the service gets it as its [line] body_window_s
-    body_s: float = opt(36.0, lo=0, hi=86400)
+    # the simulated PLC's body phase: body_ready raised 1 s into each period for body_s,
+    # ending 1 s before the window (-1: all that time, period_s - window_s - 2; 0: off); the
+    # service gets it as its [line] body_window_s
+    body_s: float = opt(-1.0, lo=-1, hi=86400)
     beat_s: float = opt(0.5, gt=0, hi=60)
     # the service's PLC poll on the simulated line (in place of [line] poll_s): every poll is a
     # real exchange over loopback, so this sets how fast an unpaced run goes; a window's rising
@@ -345,3 +346,10 @@ class SimLineSection(Section):
                 "body_s",
                 "the body's phase must end 1 s before the window (period_s - window_s - 2)",
             )
+
+    @property
+    def body_phase_s(self) -> float:
+        """The body phase's length [s] (body_s, -1 resolved; 0: none)."""
+        if self.body_s >= 0:
+            return self.body_s
+        return max(self.period_s - self.window_s - 2.0, 0.0)

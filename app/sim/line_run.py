@@ -118,7 +118,7 @@ def simline_settings(
         start_epoch=start_epoch,
         period_s=s.period_s,
         window_s=s.window_s,
-        body_s=s.body_s,
+        body_s=s.body_phase_s,
         beat_s=s.beat_s,
         warmup=Warmup(s.warmup_k, s.warmup_tau_s, s.warmup_start_s) if s.warmup_k else None,
         knock=knock,
@@ -212,8 +212,8 @@ def with_simulated_plc(cfg: CellConfig) -> CellConfig:
     features (`[line] body_window_s`)."""
     body = "u32" if cfg.line.plc_body_id == "none" else cfg.line.plc_body_id
     line = dataclasses.replace(cfg.line, plc_temperature=True, plc_body_id=body)
-    if cfg.simline.body_s > 0:  # the body's phase as the simulated PLC runs it
-        line = dataclasses.replace(line, body_window_s=cfg.simline.body_s)
+    if cfg.simline.body_phase_s > 0:  # the body's phase as the simulated PLC runs it
+        line = dataclasses.replace(line, body_window_s=cfg.simline.body_phase_s)
     return dataclasses.replace(cfg, line=line)
 
 
