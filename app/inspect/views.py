@@ -27,6 +27,7 @@ planes, vision.sensor_model), `frames` of them.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -39,11 +40,13 @@ from calib import ik
 from calib.candidates import flange_poses, look_rotations
 from calib.ik_refine import refine
 from calib.model import SystemModel
-from calib.repeatability import controller_offsets_deg, joint_sigma_rad
+from calib.repeatability import joint_sigma_rad
 from calib.transforms import inverse
 from vision.sensor_model import SensorModel
 
 F64 = NDArray[np.float64]
+#: the physical joints' offsets: a stop's joint errors enter the model as these do
+JOINT_OFFSETS = tuple(f"dtheta{i}" for i in range(1, 7))
 #: a slot's long axis turned this far off the sweep direction [deg] (module docstring)
 SLOT_ROLL_DEG = 15.0
 
@@ -53,20 +56,20 @@ class ViewSettings:
     """working_distance_mm: the sheet's distance along the sensor's axis; max_tilt_deg: how far
     the view may tilt off the feature's normal (prefer_tilt_deg: the tilts every candidate is
     drawn from while one is reachable there); repeat_slack: candidates whose repeatability is
-    within this share of the best one's are kept (module docstring); margin_mm: the sweep's
-    reach beyond the feature's outline (the sheet's plane needs points around it); frames per sweep;
-    frame_s per frame (galvo, exposure, transfer); surface_span_mm: a surface point's sweep;
-    fov_margin_mm: the feature's outline stays this far inside the field of view."""
+    within this share of the best one's are kept, at most max_candidates (module docstring);
+    margin_mm: the sweep's reach beyond the feature's outline (the sheet's plane needs points
+    around it); frames per sweep; frame_s per frame (galvo, exposure, transfer);
+    surface_span_mm: a surface point's sweep."""
 
     working_distance_mm: float = 120.0
     max_tilt_deg: float = 30.0
     prefer_tilt_deg: float = 10.0
     repeat_slack: float = 0.05
+    max_candidates: int = 48
     margin_mm: float = 3.0
     frames: int = 40
     frame_s: float = 0.025
     surface_span_mm: float = 10.0
-    fov_margin_mm: float = 2.0
 
 
 @dataclass(frozen=True)
@@ -84,6 +87,7 @@ class FeatureView:
     motion_s: float = 0.0
     sweep_s: float = 0.0
     repeat_sd_mm: float = 0.0
+    T_part_sensor: F64 = field(default_factory=lambda: np.eye(4))  # the pose it plans
 
 
 @dataclass(frozen=True)
@@ -139,11 +143,30 @@ def plan_views(
         f = plan.feature(fid)
         cmds = sweep_commands(sensor, f, c, s)
         motion = motion_time_s(prev, q, line)
-        views.append(FeatureView(fid, q, c, cmds, tilt, motion, len(cmds) * s.frame_s, sd))
+        T = model.fk(x, q[None])[0]
+        views.append(FeatureView(fid, q, c, cmds, tilt, motion, len(cmds) * s.frame_s, sd, T))
         prev = q
     total = sum(v.motion_s + v.sweep_s for v in views)
     total += motion_time_s(prev, home, line)
     return InspectionPlan(tuple(views), unreachable, total)
+
+
+def reaimed(route: InspectionPlan, model: SystemModel, x: F64) -> InspectionPlan | None:
+    """The route's views on other parameters (another version in force): each view's joints
+    refined on (model, x) to the sensor pose it planned, the route and its sweeps kept (a
+    version moves a view by tenths of a millimetre: the same branch, the same sweep). None
+    when a view does not converge there (plan again)."""
+    if not route.views:
+        return route
+    T = np.array([v.T_part_sensor for v in route.views])
+    q0 = np.array([v.q_deg for v in route.views])
+    fit = refine(model, x, T, q0, max_iter=10)
+    if not np.all(fit.converged):
+        return None
+    views = tuple(
+        dataclasses.replace(v, q_deg=q) for v, q in zip(route.views, fit.q_deg, strict=True)
+    )
+    return dataclasses.replace(route, views=views)
 
 
 def _options(
@@ -171,30 +194,27 @@ def _options(
         return []
     F, tilt_of = np.concatenate(poses), np.concatenate(tilts)
     sd = repeat_sd_mm(model, x, sols.q_deg, c, sigma_rad)
-    keep = np.flatnonzero(sd <= sd.min() * (1 + s.repeat_slack) + 1e-12)
+    order = np.argsort(sd, kind="stable")[: s.max_candidates]
+    keep = order[sd[order] <= sd[order[0]] * (1 + s.repeat_slack) + 1e-12]
     idx = sols.pose_index[keep]
     target = model.T_part_base(x) @ F[idx] @ model.T_flange_sensor(x)
     fit = refine(model, x, target, sols.q_deg[keep], max_iter=10)
-    out = []
-    for j in np.flatnonzero(fit.converged):
-        q = fit.q_deg[j]
-        T = model.fk(x, q[None])[0]
-        c_s = T[:3, :3].T @ (f.position_mm - T[:3, 3])
-        out.append((q, c_s, float(tilt_of[idx[j]]), float(sd[keep[j]])))
-    return out
+    ok = np.flatnonzero(fit.converged)
+    T = model.fk(x, fit.q_deg[ok])
+    c_s = np.einsum("kji,kj->ki", T[:, :3, :3], f.position_mm - T[:, :3, 3])
+    return [
+        (fit.q_deg[j], c_s[n], float(tilt_of[idx[j]]), float(sd[keep[j]])) for n, j in enumerate(ok)
+    ]
 
 
 def repeat_sd_mm(model: SystemModel, x: F64, q_deg: F64, c_sensor_mm: F64, sigma_rad: float) -> F64:
     """The standard deviation [mm] (K,) of the point c_sensor_mm (3,) seen from each of q_deg
     (K, 6) on its worst axis of the part frame, from independent errors of sigma_rad at
-    every physical joint (central differences on the model)."""
-    h = 1e-6
+    every physical joint: the model's Jacobian of the point by the joints' offsets."""
     q = np.atleast_2d(q_deg)
-    dq = controller_offsets_deg(np.vstack([h * np.eye(6), -h * np.eye(6)]))
-    T = model.fk(x, (q[:, None, :] + dq[None]).reshape(-1, 6)).reshape(len(q), 12, 4, 4)
-    p = np.einsum("knij,j->kni", T[..., :3, :3], c_sensor_mm) + T[..., :3, 3]
-    J = (p[:, :6] - p[:, 6:]) / (2 * h)  # (K, 6 joints, 3 axes)
-    out: F64 = sigma_rad * np.sqrt(np.max(np.sum(J**2, axis=1), axis=1))
+    c = np.broadcast_to(c_sensor_mm, (len(q), 3))
+    J = model.point_jacobian(x, q, c, JOINT_OFFSETS)  # (K, 3 axes, 6 joints)
+    out: F64 = sigma_rad * np.sqrt(np.max(np.sum(J**2, axis=2), axis=1))
     return out
 
 

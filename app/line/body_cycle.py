@@ -16,7 +16,10 @@ parameters in force and planned again when another version goes in force
 Re-evaluation (`reevaluate_pending`): a suspect interval that closed with another version in
 force (a step found after its bodies were measured, and corrected) has its bodies computed again
 from their raw data with that version: a new evaluation beside the earlier one, and the interval
-says how many bodies and how many decisions changed.
+says how many bodies and how many decisions changed. Only the bodies measured after the step's
+first moved measurement: one measured between the last trustworthy measurement and it may
+precede the step, and the correction would move it wrongly; it stays as measured, suspect, and
+the interval counts it (`not_reevaluated`: measure it again).
 """
 
 from __future__ import annotations
@@ -33,7 +36,7 @@ from app.api import Calibration
 from app.inspect.measure import BodyResult, FeatureSensor, RawFeature, evaluate_body, extract
 from app.inspect.plan import FILE_NAME, FeaturePlan, load_features
 from app.inspect.values import Value
-from app.inspect.views import InspectionPlan, plan_views
+from app.inspect.views import InspectionPlan, plan_views, reaimed
 from app.line.cycle import WindowWatch, Withdrawal
 from app.line.measure import SphereMeasurer
 from app.line.schedule import motion_time_s
@@ -156,12 +159,17 @@ class BodyCycle:
         return self._cals[version]
 
     def views(self, version: int, cal: Calibration) -> InspectionPlan:
-        if self._views is None or self._views[0] != version:
+        """The route on the parameters in force: planned once, then re-aimed on each new
+        version (app.inspect.views.reaimed), planned again when a view does not converge."""
+        if self._views is not None and self._views[0] == version:
+            return self._views[1]
+        route = None if self._views is None else reaimed(self._views[1], cal.model, cal.x)
+        if route is None:
             route = plan_views(
                 self.line, self.repeatability_mm, cal.model, cal.x, self.plan, self.sensor_model
             )
-            self._views = (version, route)
-        return self._views[1]
+        self._views = (version, route)
+        return route
 
     def run_body(
         self,
@@ -267,19 +275,35 @@ class BodyCycle:
             if interval.get("t_end") is None or version is None or interval.get("reevaluated"):
                 continue
             bodies = self.store.bodies(interval["t_start"], interval["t_end"])
-            todo = [b for b in bodies if b["params_version"] != version]
-            if not todo:
+            bodies = [b for b in bodies if b["params_version"] != version]
+            if not bodies:
                 continue
+            t_moved = self._first_moved_t(interval)
+            todo = [b for b in bodies if b["t"] >= t_moved]
             cal = self.calibration(int(version), params_path(int(version)))
             changed = sum(
                 self._reevaluate(b, cal, int(version), statement_u95_mm, int(interval["id"]))
                 for b in todo
             )
+            left = len(bodies) - len(todo)
             self.store.update_suspect(
-                int(interval["id"]), reevaluated=len(todo), decisions_changed=changed
+                int(interval["id"]),
+                reevaluated=len(todo),
+                decisions_changed=changed,
+                not_reevaluated=left,
             )
-            done.append({"id": interval["id"], "bodies": len(todo), "decisions_changed": changed})
+            done.append(
+                {"id": interval["id"], "bodies": len(todo), "decisions_changed": changed,
+                 "not_reevaluated": left}
+            )  # fmt: skip
         return done
+
+    def _first_moved_t(self, interval: dict[str, Any]) -> float:
+        """When the step's first moved measurement was taken: the bodies measured since were
+        measured with the cell as it was after the step (the correction is theirs); those
+        between the interval's start and it may precede the step and are left as measured."""
+        rows = self.store.measurements_by_id([int(interval["onset_id"])])
+        return float(rows[0]["t"]) if rows else math.inf
 
     def _reevaluate(
         self,

@@ -94,10 +94,12 @@ MIGRATIONS: tuple[tuple[str, ...], ...] = (
     # earlier ones, never over them), each evaluation's reason, and each feature's raw data
     # (the view's joints, the cell temperature, the feature's points in the sensor frame as
     # little-endian float32 x, y, z rows); a suspect interval's bodies computed again with the
-    # correction: how many, and how many decisions changed
+    # correction: how many, how many decisions changed, and how many could not be (measured
+    # before its first moved measurement: they may precede the step)
     (
         "ALTER TABLE suspect_intervals ADD COLUMN reevaluated INTEGER",
         "ALTER TABLE suspect_intervals ADD COLUMN decisions_changed INTEGER",
+        "ALTER TABLE suspect_intervals ADD COLUMN not_reevaluated INTEGER",
         """CREATE TABLE bodies (
             id INTEGER PRIMARY KEY, t REAL NOT NULL, body_id, part TEXT NOT NULL,
             window INTEGER, temp_c REAL, evaluation INTEGER NOT NULL DEFAULT 0)""",

@@ -100,9 +100,12 @@ def suspect_json(row: Mapping[str, Any]) -> dict[str, Any]:
         "end_version": row.get("end_version"),
         "calibration_id": row.get("calibration_id"),
         "bodies": list(row.get("bodies") or ()),
-        # its bodies computed again with the correction: how many, decisions changed (None: not)
+        # its bodies computed again with the correction: how many, the decisions that changed,
+        # and those it could not correct (measured before the step's first moved measurement:
+        # they may precede it, measure them again); None: not (yet) computed again
         "reevaluated": row.get("reevaluated"),
         "decisions_changed": row.get("decisions_changed"),
+        "not_reevaluated": row.get("not_reevaluated"),
     }
 
 

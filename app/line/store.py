@@ -631,14 +631,15 @@ class Store(BodyRecords):
             "params_version",
             "reevaluated",
             "decisions_changed",
+            "not_reevaluated",
         }
     )
 
     def update_suspect(self, suspect_id: int, **fields: Any) -> None:
         """Set some of: t_start and last_good_id (the step located more precisely), size_mm,
         group_name, text, t_end, end_reason, end_version, calibration_id (closing it: t_end
-        and end_reason); reevaluated and decisions_changed (its bodies computed again with
-        the correction)."""
+        and end_reason); reevaluated, decisions_changed and not_reevaluated (its bodies
+        computed again with the correction)."""
         unknown = set(fields) - self._SUSPECT_FIELDS
         if unknown:
             raise ValueError(f"unknown suspect interval fields {sorted(unknown)}")

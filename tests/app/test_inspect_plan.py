@@ -92,7 +92,7 @@ def test_a_bad_field_is_named_with_its_line_and_feature(
 ) -> None:
     if "{p2}" in old:  # the second feature moved out of reach, the first where it was
         head, tail = good(cfg).split('[[feature]]\nid = "P01"')
-        text = head + "[[feature]]\nid = \"P01\"" + tail.replace(tail.split("\n")[2], new)
+        text = head + '[[feature]]\nid = "P01"' + tail.replace(tail.split("\n")[2], new)
     else:
         text = good(cfg).replace(old, new, 1)
     assert text != good(cfg)
