@@ -44,7 +44,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from fakes.cell import SimulatedCell
 from fakes.clock import ScaledClock, VirtualClock
-from fakes.devices import ClampCycle
+from fakes.devices import BODY_START_S, ClampCycle
 from fakes.gv_camera import ADDRESS_WAIT_S, GvCamera
 from fakes.line_faults import GALVO_ERROR_CODE, Fault, FaultScheduler, LinePlc, window_bounds_s
 from fakes.line_truth import LineTruth, validation_positions
@@ -70,7 +70,9 @@ class SimLineSetup:
     start_epoch: float | None = None  # Unix time of sim time 0 (None: now, whole seconds)
     period_s: float = 60.0  # clamp cycle: one window a minute ...
     window_s: float = 20.0  # ... open for its last window_s
-    body_s: float = 0.0  # the body's phase before it (body_ready; 0: a PLC without the bit)
+    # the body's phase before it (body_ready), at most what the period leaves before the window
+    # (a setup whose period was shortened keeps what fits); 0: a PLC without the bit
+    body_s: float = 0.0
     beat_s: float = 0.5  # PLC heartbeat period
     first_body: int = 100001  # the number of the body clamped in the world's first period
     # the world's time at sim time 0: a line that continues an earlier run's world (warm,
@@ -119,7 +121,7 @@ class SimLineSetup:
         return ClampCycle(
             period_s=self.period_s,
             window_s=self.window_s,
-            body_s=self.body_s,
+            body_s=min(self.body_s, max(self.period_s - self.window_s - 2 * BODY_START_S, 0.0)),
             beat_s=self.beat_s,
             first_body=self.first_body + math.ceil(self.world_s / self.period_s),  # periods begun
         )

@@ -16,12 +16,13 @@ import json
 import sqlite3
 from collections.abc import Iterator, Sequence
 from contextlib import AbstractContextManager
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
-from numpy.typing import NDArray
+if TYPE_CHECKING:  # numpy loads when a body's points are read or written, not with the store
+    import numpy as np
+    from numpy.typing import NDArray
 
-F64 = NDArray[np.float64]
+    F64 = NDArray[np.float64]
 VALUE_FIELDS = (
     "feature", "characteristic", "kind", "nominal_mm", "lower_mm", "upper_mm", "measured_mm",
     "u95_mm", "decision", "reason",
@@ -32,11 +33,22 @@ EVALUATION_FIELDS = (
 )  # fmt: skip
 
 
+def _joints(text: str) -> F64:
+    import numpy as np
+
+    out: F64 = np.array(json.loads(text), dtype=float)
+    return out
+
+
 def points_blob(points: F64 | None) -> bytes | None:
+    import numpy as np
+
     return None if points is None else np.asarray(points, dtype="<f4").reshape(-1, 3).tobytes()
 
 
 def points_of(blob: bytes | None) -> F64 | None:
+    import numpy as np
+
     if blob is None:
         return None
     out: F64 = np.frombuffer(blob, dtype="<f4").reshape(-1, 3).astype(np.float64)
@@ -174,7 +186,7 @@ class BodyRecords:
         ):
             yield {
                 "feature": r["feature"],
-                "q_deg": np.array(json.loads(r["q_deg"]), dtype=float),
+                "q_deg": _joints(r["q_deg"]),
                 "temp_c": r["temp_c"],
                 "sheet": points_of(r["sheet"]),
                 "edges": points_of(r["edges"]),
