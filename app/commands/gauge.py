@@ -4,6 +4,7 @@ simulated line (app/sim/inspection.py), writing DIR/gauge.json or DIR/correlatio
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -28,6 +29,15 @@ def add_options(p: argparse.ArgumentParser, name: str) -> None:
         )
     else:
         p.add_argument("--bodies", type=int_at_least(2), default=50, help="bodies measured (50)")
+        p.add_argument(
+            "--knock",
+            choices=("sensor", "fixture", "joint"),
+            help="knock the cell (the service finds and corrects it; its bodies are computed"
+            " again)",
+        )
+        p.add_argument(
+            "--knock-at-h", type=float, default=2.5, help="the knock's hour of the line (2.5)"
+        )
     p.add_argument(
         "--geometric",
         action="store_true",
@@ -47,12 +57,15 @@ def add_options(p: argparse.ArgumentParser, name: str) -> None:
 def run_study(args: argparse.Namespace) -> int:
     from app.formats.files import write_json
     from app.formats.jsontext import dumps_json
-    from app.sim.inspection import inspection_cell, run_correlation, run_gauge
+    from app.sim.inspection import LineStudy, inspection_cell, run_correlation, run_gauge
 
     if not args.geometric:
         raise InputError(
             "the body's rendered path is not built yet: run with --geometric", field="--geometric"
         )
+    knock_h = getattr(args, "knock_at_h", 1.0)
+    if not (math.isfinite(knock_h) and knock_h > 0):
+        raise InputError("the knock's hour must be > 0", field="--knock-at-h")
     cfg = load_cell(args.cell)
     out = Path(args.out)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
@@ -67,11 +80,12 @@ def run_study(args: argparse.Namespace) -> int:
         f" {args.line_windows} windows",
         file=sys.stderr,
     )
-    with inspection_cell(cfg, args.seed, out, args.line_windows) as cell:
-        if args.name == "gauge":
+    if args.name == "gauge":
+        with inspection_cell(cfg, args.seed, out, args.line_windows) as cell:
             doc = run_gauge(cell, args.repeats, progress)
-        else:
-            doc = run_correlation(cell, args.bodies, progress)
+    else:
+        study = LineStudy(args.bodies, args.line_windows, args.knock, args.knock_at_h)
+        doc = run_correlation(cfg, args.seed, out, study, progress)
     path = out / f"{args.name}.json"
     write_json(path, doc)
     print(dumps_json(doc["summary"], indent=2))

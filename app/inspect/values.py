@@ -2,15 +2,19 @@
 per ISO 14253-1.
 
 The U95 of a value along a direction e of the part frame (a position X, Y, Z: the axis; a
-surface point's N: the nominal normal) is k sqrt(e' (C_cal + C_fit) e + sigma_cell^2), k the
-two-sided 95 % factor of one coordinate (1.96):
-- C_cal (3, 3): the identification's covariance propagated to the feature's centre at its view
-  (J P J', as `rvis.Calibration.u95_mm` propagates it);
-- C_fit (3, 3): the feature fit's own covariance (vision.features);
+surface point's N: the nominal normal) is k sqrt(max(sigma_cell^2, e' C_cal e) + e' C_fit e), k
+the two-sided 95 % factor of one coordinate (1.96):
 - sigma_cell: the cell's statement for a point measured now (a U95 of the 3-D error's norm, the
   in-line check standard's or the commissioning's workspace validation's), per coordinate:
-  U95 / 2.80 (calib.uncertainty.norm_quantile): the robot's repeatability, the sensor, the
-  model's residual error at the point.
+  U95 / 2.80 (calib.uncertainty.norm_quantile). It is measured on points whose truth is known,
+  so it holds every error a point measured now has: the parameters' at the point, the robot's
+  repeatability at the stop, the sphere's sensing, what the model leaves out;
+- C_cal (3, 3): the identification's covariance propagated to the feature's centre at its view
+  (J P J', as `rvis.Calibration.u95_mm` propagates it): the parameters' part alone, but at this
+  pose. Added to sigma_cell it would count the parameters twice; the larger of the two stands,
+  so a pose where the parameters are less certain than on average is never understated;
+- C_fit (3, 3): the feature fit's own covariance (vision.features): the feature's sensing,
+  which the sphere's does not contain.
 A size (D, W, L) is a distance within one view: the pose's error moves both edges alike, so
 its U95 is k sqrt(sd_fit^2 + 2 u_edge^2): the fit's own sd holds the edge points' random
 placement within a stripe sample; u_edge is the type-B uncertainty of what stays systematic on
@@ -40,7 +44,7 @@ K95 = 1.959964
 #: edge is put half a sample step past the last point on the sheet (vision.sheet), the step
 #: measured in the sheet's plane; what that leaves is bounded by a tenth of the step (0.036 mm
 #: at the working distance), as a uniform distribution's
-EDGE_U_MM = 0.0036 / math.sqrt(3.0)
+EDGE_U_MM = 0.0036 / math.sqrt(3.0)  # 0.002 mm
 DECISIONS = ("conforming", "nonconforming", "undecided", "not measured")
 
 
@@ -109,7 +113,7 @@ def feature_values(
             else:
                 e = np.eye(3)["XYZ".index(c.name)]
                 measured = float(fit.centre_mm["XYZ".index(c.name)])
-            var = float(e @ (cov_cal_mm2 + fit.cov_centre_mm2) @ e) + sigma2
+            var = max(sigma2, float(e @ cov_cal_mm2 @ e)) + float(e @ fit.cov_centre_mm2 @ e)
             u95 = K95 * math.sqrt(var)
         dev = measured - c.nominal_mm
         out.append(Value(c, measured, dev, u95, decide(dev, c.tol_mm, u95)))

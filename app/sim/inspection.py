@@ -21,6 +21,7 @@ would report them.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import statistics
 from collections.abc import Callable, Iterator
@@ -40,12 +41,13 @@ from app.inspect.plan import Characteristic, FeaturePlan, load_features
 from app.inspect.views import InspectionPlan, plan_views
 from app.line.launch import hold_state
 from app.line.statedir import StateDir
+from app.line.store import Store
 from app.sim.bodies import SimulatedBodies, true_value
 from app.sim.cell import make_cell
 from app.sim.commissioned import commission_simulated
 from app.sim.line_run import SimulatedLineRun, world_of
-from app.sim.part import ensure_features
-from fakes.body import BuildProcess, ClampSettings
+from app.sim.part import ensure_features, nominal_features
+from fakes.body import BodyShop, BuildProcess, ClampSettings
 from fakes.cell import SimulatedCell
 from vision.sensor_model import load_sensor_model
 
@@ -211,37 +213,136 @@ def _gauge_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
+@dataclass(frozen=True)
+class LineStudy:
+    """The correlation's line: bodies counted after `line_windows` windows (the warm-up and
+    the first in-line recalibrations), and a knock of `knock_kind` at `knock_at_h` hours of
+    the line's time (None: none)."""
+
+    bodies: int = 50
+    line_windows: int = 120
+    knock_kind: str | None = None
+    knock_at_h: float = 1.0
+
+
 def run_correlation(
-    cell: InspectionCell, n_bodies: int, progress: Progress | None = None
+    cfg: CellConfig, seed: int, out: Path, study: LineStudy, progress: Progress | None = None
 ) -> dict[str, Any]:
-    """In-line against the simulated CMM over bodies 1..n_bodies (module docstring)."""
-    pairs: dict[str, list[tuple[float, float, float, str]]] = {}
-    not_measured: dict[str, int] = {}
-    for k in range(1, n_bodies + 1):
-        result = cell.measure(k)
-        body = cell.bodies.body
-        assert body is not None
-        for v in result.values:
-            c = v.characteristic
-            if v.measured_mm is None or v.u95_mm is None:
-                not_measured[c.key] = not_measured.get(c.key, 0) + 1
-                continue
-            truth = true_value(body, c, cell.plan)
-            pairs.setdefault(c.key, []).append((v.measured_mm, truth, v.u95_mm, v.decision))
-        if progress and k % 10 == 0:
-            progress(f"body {k}/{n_bodies}")
-    rows = [_correlation_row(c, pairs.get(c.key, [])) for c in cell.plan.characteristics()]
-    return {
-        "seed": cell.seed,
-        "bodies": n_bodies,
-        "statement_u95_mm": cell.statement_u95_mm,
-        "route_s": cell.views.route_s,
-        "line": cell.line,
+    """In-line against the simulated CMM (module docstring): the cell commissioned into
+    out/state with the part type, the in-line service run on the simulated line measuring a
+    body in every clamp period (app.line.body_cycle), and the values it stored (each body's
+    newest evaluation: as measured, or computed again after a corrected knock) against the
+    bodies' truth."""
+    state = StateDir(out / "state")
+    commission_simulated(cfg, state, seed)
+    cfg_c = load_cell(state.cell)
+    plan = load_features(ensure_features(state.root, cfg_c), cfg_c.T_part_base)
+    if study.knock_kind is not None:
+        simline = dataclasses.replace(
+            cfg_c.simline, knock_at_s=3600.0 * study.knock_at_h, knock_kind=study.knock_kind
+        )
+        cfg_c = dataclasses.replace(cfg_c, simline=simline)
+    windows = study.line_windows + study.bodies
+    with (
+        hold_state(state.root, str(cfg_c.service.operators_group)),
+        SimulatedLineRun(cfg_c, state.root, seed=seed, geometric=True, plan=state.plan) as run,
+    ):
+
+        def told(record: Any) -> None:
+            if progress and record.window % 20 == 0:
+                progress(f"window {record.window}/{windows}")
+
+        summary = run.run_windows(windows, on_window=told)
+        first_body = run.line.settings.first_body
+    shop = BodyShop(nominal_features(plan), BuildProcess(seed=seed))
+    store = Store.read_only(state.db)
+    try:
+        measured = [b for b in store.bodies() if b["window"] >= study.line_windows]
+        measured = measured[: study.bodies]
+        pairs, not_measured = _pairs(store, plan, shop, measured, first_body)
+        reevaluated = _reevaluated(store, plan, shop, first_body) if study.knock_kind else None
+        suspects = store.suspects()
+        counted = {b["body_id"] for b in measured}
+        robot_s = [
+            float(e["data"]["robot_s"])
+            for e in store.events("body")
+            if e["data"].get("body_id") in counted and not e["data"].get("withdrawn")
+        ]
+    finally:
+        store.close()
+    rows = [_correlation_row(c, pairs.get(c.key, [])) for c in plan.characteristics()]
+    doc: dict[str, Any] = {
+        "seed": seed,
+        "bodies": len(measured),
+        "line": {
+            "windows": summary.windows, "alarms": summary.alarms,
+            "versions": sorted({b["params_version"] for b in measured}),
+            "knock": None if study.knock_kind is None
+            else {"kind": study.knock_kind, "at_h": study.knock_at_h},
+            "suspect_intervals": len(suspects),
+            # the robot's time a body took in the simulation (out of home and back)
+            "robot_s_per_body": statistics.median(robot_s) if robot_s else None,
+            "robot_s_per_feature": statistics.median(robot_s) / len(plan.features)
+            if robot_s else None,
+        },
         "characteristics": rows,
-        "decisions": _decisions(cell.plan, pairs),
+        "decisions": _decisions(plan, pairs),
         "not_measured": not_measured,
         "summary": _correlation_summary(rows, pairs),
+    }  # fmt: skip
+    if reevaluated is not None:
+        doc["reevaluated"] = reevaluated
+    return doc
+
+
+Pair = tuple[float, float, float, str]
+
+
+def _pairs(
+    store: Store, plan: FeaturePlan, shop: BodyShop, bodies: list[dict[str, Any]], first: int
+) -> tuple[dict[str, list[Pair]], dict[str, int]]:
+    """(measured, truth, U95, decision) per characteristic key over the bodies' newest values,
+    and how often each was not measured."""
+    pairs: dict[str, list[Pair]] = {}
+    not_measured: dict[str, int] = {}
+    for b in bodies:
+        truth = shop.body(int(b["body_id"]) - first)
+        for v, c in zip(store.body_values(int(b["id"])), plan.characteristics(), strict=True):
+            if v["measured_mm"] is None or v["u95_mm"] is None:
+                not_measured[c.key] = not_measured.get(c.key, 0) + 1
+                continue
+            t = true_value(truth, c, plan)
+            pairs.setdefault(c.key, []).append((v["measured_mm"], t, v["u95_mm"], v["decision"]))
+    return pairs, not_measured
+
+
+def _reevaluated(store: Store, plan: FeaturePlan, shop: BodyShop, first: int) -> dict[str, Any]:
+    """The bodies computed again after a corrected step: how many values, and their RMS
+    difference to the truth as measured and as computed again (position characteristics)."""
+    before: list[float] = []
+    after: list[float] = []
+    bodies = [b for b in store.bodies() if b["evaluation"] > 0]
+    for b in bodies:
+        truth = shop.body(int(b["body_id"]) - first)
+        for k, out in ((0, before), (int(b["evaluation"]), after)):
+            for v, c in zip(
+                store.body_values(int(b["id"]), k), plan.characteristics(), strict=True
+            ):
+                if c.kind == "position" and v["measured_mm"] is not None:
+                    out.append(v["measured_mm"] - true_value(truth, c, plan))
+    intervals = [s for s in store.suspects() if s.get("reevaluated") is not None]
+    return {
+        "bodies": len(bodies),
+        "values": len(after),
+        "not_reevaluated_bodies": sum(int(s.get("not_reevaluated") or 0) for s in intervals),
+        "decisions_changed": sum(int(s.get("decisions_changed") or 0) for s in intervals),
+        "rms_diff_before_mm": _rms(before),
+        "rms_diff_after_mm": _rms(after),
     }
+
+
+def _rms(values: list[float]) -> float | None:
+    return float(np.sqrt(np.mean(np.square(values)))) if values else None
 
 
 def _correlation_row(
