@@ -41,7 +41,7 @@ def add_options(p: argparse.ArgumentParser, name: str) -> None:
     p.add_argument(
         "--geometric",
         action="store_true",
-        help="the geometric sensor path (the rendered path of the body is not built yet)",
+        help="the geometric sensor path (default: rendered, spheres and bodies: slow, a small run)",
     )
     p.add_argument(
         "--line-windows",
@@ -59,10 +59,6 @@ def run_study(args: argparse.Namespace) -> int:
     from app.formats.jsontext import dumps_json
     from app.sim.inspection import LineStudy, inspection_cell, run_correlation, run_gauge
 
-    if not args.geometric:
-        raise InputError(
-            "the body's rendered path is not built yet: run with --geometric", field="--geometric"
-        )
     knock_h = getattr(args, "knock_at_h", 1.0)
     if not (math.isfinite(knock_h) and knock_h > 0):
         raise InputError("the knock's hour must be > 0", field="--knock-at-h")
@@ -77,14 +73,16 @@ def run_study(args: argparse.Namespace) -> int:
 
     print(
         f"rvis experiment {args.name}: seed {args.seed}, the cell commissioned and run for"
-        f" {args.line_windows} windows",
+        f" {args.line_windows} windows, {'geometric' if args.geometric else 'rendered'} path",
         file=sys.stderr,
     )
     if args.name == "gauge":
-        with inspection_cell(cfg, args.seed, out, args.line_windows) as cell:
+        with inspection_cell(cfg, args.seed, out, args.line_windows, None, args.geometric) as cell:
             doc = run_gauge(cell, args.repeats, progress)
     else:
-        study = LineStudy(args.bodies, args.line_windows, args.knock, args.knock_at_h)
+        study = LineStudy(
+            args.bodies, args.line_windows, args.knock, args.knock_at_h, args.geometric
+        )
         doc = run_correlation(cfg, args.seed, out, study, progress)
     path = out / f"{args.name}.json"
     write_json(path, doc)

@@ -1,12 +1,20 @@
-"""The simulated line's bodies and the geometric feature sensor: fakes.body's bodies clamped in
-the simulated cell, seen from where the true robot stands, and their true values (what a CMM
+"""The simulated line's bodies and its feature sensor: fakes.body's bodies clamped in the
+simulated cell, seen from where the true robot stands, and their true values (what a CMM
 reports) per characteristic of the feature plan.
 
 `SimulatedBodies.clamp(k)` clamps body k (the fixture's repeatability, seeded by the body and
 how often it was clamped); `profiles(view)` moves the true robot to the view (a new stop, off
-by its repeatability: fakes.cell) and returns the stripe profiles of the true sensor's laser
-planes at the view's mirror commands, with the sensor's noise; `true_value` gives the truth
-of a characteristic of body k in the body's own frame.
+by its repeatability: fakes.cell) and returns the stripe profiles of the sweep at the view's
+mirror commands, in the sensor frame; `true_value` gives the truth of a characteristic of body
+k in the body's own frame. Two paths:
+
+- geometric (`vision_model` None): the true sensor's laser planes cut the true sheet, sampled
+  where the camera's rows see them, with the sensor's noise (fakes.body.feature_profiles);
+- rendered: the true sensor records the sweep over the true sheet, its opening and its
+  thickness (fakes.render_sheet), and the vision pipeline turns the frames into profiles with
+  the calibrated sensor model (`vision_model`: stripe extraction, triangulation), as the real
+  sensor's SweepFeatureSensor does. The frames are rendered in this process: the simulated
+  line's GigE camera renders spheres only, so a body's sweep does not pass through it.
 """
 
 from __future__ import annotations
@@ -31,6 +39,10 @@ from fakes.body import (
 )
 from fakes.cell import SimulatedCell
 from fakes.line import SimLine
+from fakes.render_sheet import render_feature_sweep
+from vision.sensor_model import SensorModel
+from vision.stripe import extract_sweep
+from vision.triangulate import triangulate_sweep
 
 F64 = NDArray[np.float64]
 
@@ -43,6 +55,7 @@ class SimulatedBodies:
     plan: FeaturePlan
     process: BuildProcess
     clamping: ClampSettings
+    vision_model: SensorModel | None = None  # the rendered path's sensor model (None: geometric)
 
     def __post_init__(self) -> None:
         self.shop = BodyShop(nominal_features(self.plan), self.process)
@@ -76,11 +89,32 @@ class SimulatedBodies:
         if self.body is None:
             raise RuntimeError("no body clamped")
         T_part_sensor = self.cell.T_part_sensor(np.asarray(q_attained_deg, float)[None])[0]
-        planes = self.cell.sensor.laser_planes(view.commands_v)
         self._sweeps += 1
         rng = np.random.default_rng([self.process.seed, 23, self.body.index, self._sweeps])
         feature = self.body.features[view.feature]
+        if self.vision_model is not None:
+            return self._rendered(view, feature, T_part_sensor, rng)
+        planes = self.cell.sensor.laser_planes(view.commands_v)
         return feature_profiles(feature, self.T_part_body, T_part_sensor, planes, self.sensor, rng)
+
+    def _rendered(
+        self, view: FeatureView, f: TrueFeature, T_part_sensor: F64, rng: np.random.Generator
+    ) -> list[F64]:
+        T_body_feature = np.eye(4)
+        T_body_feature[:3, :3] = np.column_stack([f.axis, np.cross(f.normal, f.axis), f.normal])
+        T_body_feature[:3, 3] = f.position_mm
+        T_camera_feature = np.linalg.inv(T_part_sensor) @ self.T_part_body @ T_body_feature
+        nominal = self.plan.feature(f.id)
+        commands = np.asarray(view.commands_v, dtype=float)
+        frames = render_feature_sweep(
+            T_camera_feature, f.kind, f.size_mm, nominal.thickness_mm, self.cell.sensor, rng,
+            commands,
+        )  # fmt: skip
+        assert self.vision_model is not None
+        points, frame_of = triangulate_sweep(
+            extract_sweep(frames, "fast"), commands, self.vision_model
+        )
+        return [points[frame_of == k] for k in range(len(commands))]
 
 
 def true_value(body: TrueBody, c: Characteristic, plan: FeaturePlan) -> float:

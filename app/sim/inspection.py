@@ -85,6 +85,36 @@ class InspectionCell:
         )
 
 
+def _commissioned(
+    cfg: CellConfig, seed: int, out: Path
+) -> tuple[StateDir, CellConfig, FeaturePlan]:
+    """The seed's simulated cell commissioned in out/state (a new folder) with the simulated
+    part type's feature plan there."""
+    state = StateDir(out / "state")
+    commission_simulated(cfg, state, seed)
+    cfg_c = load_cell(state.cell)
+    return state, cfg_c, load_features(ensure_features(state.root, cfg_c), cfg_c.T_part_base)
+
+
+@contextmanager
+def line_of(
+    cfg: CellConfig, state: StateDir, seed: int, geometric: bool, *, bodies: bool
+) -> Iterator[SimulatedLineRun]:
+    """The in-line service on the state directory's simulated line (continuing its world), on
+    the geometric or the rendered path (the rendered one measures with the commissioned sensor
+    model), measuring the clamped bodies or not (the PLC without the body phase)."""
+    if not bodies:
+        cfg = dataclasses.replace(cfg, simline=dataclasses.replace(cfg.simline, body_s=0.0))
+    model = None if geometric else load_sensor_model(state.sensor)
+    with (
+        hold_state(state.root, str(cfg.service.operators_group)),
+        SimulatedLineRun(
+            cfg, state.root, seed=seed, geometric=geometric, plan=state.plan, sensor_model=model
+        ) as run,
+    ):
+        yield run
+
+
 @contextmanager
 def inspection_cell(
     cfg: CellConfig,
@@ -92,40 +122,32 @@ def inspection_cell(
     out: Path,
     line_windows: int = 0,
     process: BuildProcess | None = None,
+    geometric: bool = True,
 ) -> Iterator[InspectionCell]:
     """The seed's simulated cell commissioned in out/state (a new folder), its part type's
     plan and views (module docstring). line_windows > 0: the in-line service first runs that
-    many windows of the simulated line (its warm-up, its in-line recalibrations), and the
-    bodies are measured in that world, then, with the parameters in force and the U95 the
+    many windows of the simulated line (its warm-up, its in-line recalibrations; no body), and
+    the bodies are measured in that world, then, with the parameters in force and the U95 the
     service stated for its last window; 0: the commissioning's parameters and workspace U95 in
-    the cold, still cell the commissioning measured."""
-    state = StateDir(out / "state")
-    commission_simulated(cfg, state, seed)
-    cfg_c = load_cell(state.cell)
-    plan = load_features(ensure_features(state.root, cfg_c), cfg_c.T_part_base)
+    the cold, still cell the commissioning measured. geometric False: the rendered path, the
+    line's spheres and the bodies' sweeps alike, through the commissioned sensor model."""
+    state, cfg_c, plan = _commissioned(cfg, seed, out)
     process = process or BuildProcess(seed=seed)
+    sensor_model = load_sensor_model(state.sensor)
+    vision = None if geometric else sensor_model
 
     def ready(world: SimulatedCell, statement: float, temp: float | None) -> InspectionCell:
         cal = Calibration.load(state.current)
-        views = plan_views(
-            cfg_c.line,
-            cfg_c.robot.repeatability_mm,
-            cal.model,
-            cal.x,
-            plan,
-            load_sensor_model(state.sensor),
-        )
-        bodies = SimulatedBodies(world, plan, process, ClampSettings())
+        line, rp = cfg_c.line, cfg_c.robot.repeatability_mm
+        views = plan_views(line, rp, cal.model, cal.x, plan, sensor_model)
+        bodies = SimulatedBodies(world, plan, process, ClampSettings(), vision)
         return InspectionCell(seed, state, cfg_c, cal, plan, views, statement, bodies, temp)
 
     if line_windows == 0:
         doc = read_json(state.commission_report.with_suffix(".json"))
         yield ready(make_cell(world_of(cfg_c, state.root), seed=seed), _workspace_u95(doc), None)
         return
-    with (
-        hold_state(state.root, str(cfg_c.service.operators_group)),
-        SimulatedLineRun(cfg_c, state.root, seed=seed, geometric=True, plan=state.plan) as sim,
-    ):
+    with line_of(cfg_c, state, seed, geometric, bodies=False) as sim:
         summary = sim.run_windows(line_windows)
         stated = [r.u95_mm for r in summary.records if r.u95_mm is not None]
         if not stated:
@@ -215,14 +237,16 @@ def _gauge_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 @dataclass(frozen=True)
 class LineStudy:
-    """The correlation's line: bodies counted after `line_windows` windows (the warm-up and
-    the first in-line recalibrations), and a knock of `knock_kind` at `knock_at_h` hours of
-    the line's time (None: none)."""
+    """The correlation's line: `line_windows` windows with no body (the warm-up and the first
+    in-line recalibrations), then a body in each of the next `bodies` clamp periods; a knock
+    of `knock_kind` at `knock_at_h` hours of the line's time (None: none); the geometric or the
+    rendered path."""
 
     bodies: int = 50
     line_windows: int = 120
     knock_kind: str | None = None
     knock_at_h: float = 1.0
+    geometric: bool = True
 
 
 def run_correlation(
@@ -233,32 +257,29 @@ def run_correlation(
     body in every clamp period (app.line.body_cycle), and the values it stored (each body's
     newest evaluation: as measured, or computed again after a corrected knock) against the
     bodies' truth."""
-    state = StateDir(out / "state")
-    commission_simulated(cfg, state, seed)
-    cfg_c = load_cell(state.cell)
-    plan = load_features(ensure_features(state.root, cfg_c), cfg_c.T_part_base)
+    state, cfg_c, plan = _commissioned(cfg, seed, out)
     if study.knock_kind is not None:
         simline = dataclasses.replace(
             cfg_c.simline, knock_at_s=3600.0 * study.knock_at_h, knock_kind=study.knock_kind
         )
         cfg_c = dataclasses.replace(cfg_c, simline=simline)
-    windows = study.line_windows + study.bodies
-    with (
-        hold_state(state.root, str(cfg_c.service.operators_group)),
-        SimulatedLineRun(cfg_c, state.root, seed=seed, geometric=True, plan=state.plan) as run,
-    ):
 
-        def told(record: Any) -> None:
-            if progress and record.window % 20 == 0:
-                progress(f"window {record.window}/{windows}")
+    def told(record: Any) -> None:
+        if progress and record.window % 20 == 0:
+            progress(f"window {record.window}")
 
-        summary = run.run_windows(windows, on_window=told)
+    alarms: list[str] = []
+    if study.line_windows:  # the warm-up and the first recalibrations, no body measured
+        with line_of(cfg_c, state, seed, study.geometric, bodies=False) as run:
+            alarms += run.run_windows(study.line_windows, on_window=told).alarms
+    with line_of(cfg_c, state, seed, study.geometric, bodies=True) as run:
+        summary = run.run_windows(study.bodies, on_window=told)
         first_body = run.line.settings.first_body
+    alarms += summary.alarms
     shop = BodyShop(nominal_features(plan), BuildProcess(seed=seed))
     store = Store.read_only(state.db)
     try:
-        measured = [b for b in store.bodies() if b["window"] >= study.line_windows]
-        measured = measured[: study.bodies]
+        measured = store.bodies()[: study.bodies]
         pairs, not_measured = _pairs(store, plan, shop, measured, first_body)
         reevaluated = _reevaluated(store, plan, shop, first_body) if study.knock_kind else None
         suspects = store.suspects()
@@ -275,7 +296,8 @@ def run_correlation(
         "seed": seed,
         "bodies": len(measured),
         "line": {
-            "windows": summary.windows, "alarms": summary.alarms,
+            "windows": study.line_windows + summary.windows, "alarms": alarms,
+            "path": "geometric" if study.geometric else "rendered",
             "versions": sorted({b["params_version"] for b in measured}),
             "knock": None if study.knock_kind is None
             else {"kind": study.knock_kind, "at_h": study.knock_at_h},

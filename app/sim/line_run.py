@@ -434,7 +434,7 @@ class SimulatedLineRun:
             schedule = Schedule(
                 random_schedule(self.cfg, self.cell, self.seed, n_each), self.settings.line
             )
-        bodies = self._bodies(line) if self.geometric else None
+        bodies = self._bodies(line)
         recalibrator = Recalibrator(cost_s=self.cfg.simline.identification_s, clock=self.clock)
         recalibrator.prestart()
         self.service = Service(
@@ -459,8 +459,9 @@ class SimulatedLineRun:
         self.summary.true_rmse_start_mm = self.true_rmse_mm(self.service.x)
 
     def _bodies(self, line: SimLine) -> BodySetup | None:
-        """The bodies the line clamps measured as the state directory's feature plan says (the
-        geometric path; none without a plan), built by the seed's process (app.sim.bodies)."""
+        """The bodies the line clamps measured as the state directory's feature plan says (none
+        without a plan), built by the seed's process, on the line's path (app.sim.bodies: the
+        rendered one through the sensor model the line measures with)."""
         from app.line.body_cycle import feature_plan
         from app.sim.bodies import LineFeatureSensor, SimulatedBodies
         from fakes.body import BuildProcess, ClampSettings
@@ -470,7 +471,8 @@ class SimulatedLineRun:
         plan = feature_plan(paths.root, self.cfg.T_part_base)
         if plan is None:
             return None
-        bodies = SimulatedBodies(self.cell, plan, BuildProcess(seed=self.seed), ClampSettings())
+        process, clamping = BuildProcess(seed=self.seed), ClampSettings()
+        bodies = SimulatedBodies(self.cell, plan, process, clamping, self.sensor_model)
         model = load_sensor_model(paths.sensor) if paths.sensor.is_file() else None
         return BodySetup(plan, LineFeatureSensor(line, bodies), model or default_sensor_model())
 

@@ -70,11 +70,7 @@ def test_bad_options_are_one_line(
     assert len(err) == 1 and words in err[0] and "Traceback" not in err[0]
 
 
-def test_the_rendered_path_is_said_not_to_be_built(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    assert main(["experiment", "gauge", "--out", str(tmp_path / "x")]) == 2
-    assert "--geometric" in capsys.readouterr().err
+def test_a_folder_with_files_is_refused(tmp_path: Path) -> None:
     full = tmp_path / "full"
     full.mkdir()
     (full / "a").write_text("")
