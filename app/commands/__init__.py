@@ -37,6 +37,7 @@ COMMANDS: dict[str, str] = {
     "tui": "the operator's terminal of a running service",
     "state": "back up, restore, check the state directory; list suspect intervals",
     "inspect": "the body: a view per feature of the part type and a route",
+    "results": "the bodies' results: list, one body's values, export as JSON or CSV",
 }
 
 

@@ -74,7 +74,7 @@ def test_a_rendered_feature_is_measured_where_it_was_rendered(
 def test_the_wall_is_seen_through_the_opening_and_nothing_behind_it(
     true_sensor: TrueSensor,
 ) -> None:
-    flat, X, N = feature_surface(_pose(12.0), "hole", (12.0,), THICKNESS_MM, true_sensor)
+    flat, X, _ = feature_surface(_pose(12.0), "hole", (12.0,), THICKNESS_MM, true_sensor)
     T = _pose(12.0)
     Xf = (X - T[:3, 3]) @ T[:3, :3]
     r = np.hypot(Xf[:, 0], Xf[:, 1])

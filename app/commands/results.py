@@ -1,0 +1,138 @@
+"""`rvis results list|show BODY|export`: the bodies' results from the state database, read-only
+(the service may run). What each value is and how sure (its U95), its decision, whether it is
+suspect; `export` writes them as JSON (a record per body) or CSV (a row per value), to stdout or
+atomically into a folder.
+
+    rvis results list [--since T] [--json]
+    rvis results show BODY [--json]
+    rvis results export [--since T] [--body ID] --format csv|json [--out DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+from app.commands import add_command
+from app.commands.state import parse_since, state_dir_of
+from app.errors import InputError
+
+
+def register(sub: Any) -> None:
+    p = add_command(sub, "results")
+    p.add_argument("--cell", help="cell configuration TOML (for [service] state_dir)")
+    p.add_argument("--state-dir", help="state directory (default: [service] state_dir)")
+    verbs = p.add_subparsers(dest="verb", metavar="VERB", parser_class=type(p))
+    verbs.required = True
+    since = "bodies measured at or after this UTC time (2026-11-25T06:00:00) or age (8h, 2d)"
+    ls = verbs.add_parser("list", help="the bodies measured, a line each")
+    ls.add_argument("--since", help=since)
+    ls.add_argument("--json", action="store_true", help="print the records as JSON")
+    show = verbs.add_parser("show", help="one body's values, their U95 and decisions")
+    show.add_argument("body", help="the body's id (as the PLC gave it)")
+    show.add_argument("--json", action="store_true", help="print the record as JSON")
+    ex = verbs.add_parser("export", help="the values as JSON or CSV")
+    ex.add_argument("--since", help=since)
+    ex.add_argument("--body", help="one body's id")
+    ex.add_argument("--format", choices=("csv", "json"), required=True)
+    ex.add_argument(
+        "--out", type=Path, help="folder to write results.<format> into (default: stdout)"
+    )
+    p.set_defaults(func=run)
+
+
+def _records(args: argparse.Namespace) -> list[dict[str, Any]]:
+    from app.inspect.results import records
+    from app.line.statedir import StateDir
+    from app.line.store import Store
+
+    state = StateDir(state_dir_of(args))
+    if not state.db.is_file():
+        raise InputError("no service state here (no rvis.db)", file=state.root)
+    now = time.time()
+    since = None if getattr(args, "since", None) is None else parse_since(args.since, now)
+    body = getattr(args, "body", None)
+    store = Store.read_only(state.db)
+    try:
+        return records(store, since, body, now)
+    finally:
+        store.close()
+
+
+def run(args: argparse.Namespace) -> int:
+    recs = _records(args)
+    if args.verb == "list":
+        print(json.dumps(recs, indent=1) if args.json else _list_text(recs))
+        return 0
+    if args.verb == "show":
+        if not recs:
+            raise InputError(f"no body {args.body!r} measured here", field="BODY")
+        print(json.dumps(recs[-1], indent=1) if args.json else _show_text(recs[-1]))
+        return 0
+    return _export(recs, args.format, args.out)
+
+
+def _export(recs: list[dict[str, Any]], fmt: str, out: Path | None) -> int:
+    from app.formats.files import write_text
+    from app.inspect.results import csv_text
+
+    text = csv_text(recs) if fmt == "csv" else json.dumps(recs, indent=1) + "\n"
+    if out is None:
+        print(text, end="")
+        return 0
+    if out.exists() and not out.is_dir():
+        raise InputError("not a folder", file=out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"results.{fmt}"
+    write_text(path, text)
+    print(f"written {path}: {len(recs)} bodies")
+    return 0
+
+
+def _list_text(recs: list[dict[str, Any]]) -> str:
+    if not recs:
+        return "no body measured"
+    lines = [f"{'body':<12} {'time (UTC)':<25} {'result':<6} nok und  nm version  note"]
+    for r in recs:
+        note = []
+        if r["reevaluated"]:
+            note.append(f"computed again (evaluation {r['evaluation']})")
+        if r["suspect_interval"] is not None:
+            note.append(f"suspect (interval {r['suspect_interval']})")
+        lines.append(
+            f"{r['body']!s:<12} {r['time_utc']:<25} {'OK' if r['ok'] else 'NOK':<6}"
+            f" {r['n_nok']:>3} {r['n_undecided']:>3} {r['n_not_measured']:>3}"
+            f" {r['params_version']!s:>7}  {'; '.join(note)}"
+        )
+    return "\n".join(lines)
+
+
+def _show_text(r: dict[str, Any]) -> str:
+    head = (
+        f"body {r['body']} ({r['part']}), measured {r['time_utc']} with parameters version"
+        f" {r['params_version']}: {'OK' if r['ok'] else 'NOK'}; the cell stated U95"
+        f" {r['statement_u95_mm']:.3f} mm for a point measured then"
+        if r["statement_u95_mm"] is not None
+        else f"body {r['body']} ({r['part']}), measured {r['time_utc']}: no statement"
+    )
+    if r["suspect_interval"] is not None:
+        head += f"; SUSPECT: measured inside suspect interval {r['suspect_interval']}"
+    if r["reevaluated"]:
+        head += f"; computed again after a correction (evaluation {r['evaluation']})"
+    lines = [head, f"{'characteristic':<10} {'nominal':>10} {'measured':>10} {'dev':>8}"
+             f" {'U95':>7}  decision"]  # fmt: skip
+    for v in r["values"]:
+        key = f"{v['feature']}.{v['characteristic']}"
+        if v["measured_mm"] is None:
+            lines.append(f"{key:<10} {v['nominal_mm']:>10.3f} {'-':>10} {'-':>8} {'-':>7}"
+                         f"  not measured: {v['reason']}")  # fmt: skip
+            continue
+        dev = v["measured_mm"] - v["nominal_mm"]
+        lines.append(
+            f"{key:<10} {v['nominal_mm']:>10.3f} {v['measured_mm']:>10.3f} {dev:>+8.3f}"
+            f" {v['u95_mm']:>7.3f}  {v['decision']}"
+        )
+    return "\n".join(lines)

@@ -1,0 +1,82 @@
+"""The bodies' results as a plant reads them: one record per body from the state database (its
+newest evaluation), and the same values as CSV rows. Light: SQLite and the standard library.
+
+A value is `suspect` when its body was measured inside a suspect interval (from the interval's
+start to its end, or to now while it is open) and its values are not the ones computed again with
+that interval's correction: measure the body again, or leave the value out of the SPC.
+
+    records(store, since_t=None, body_id=None) -> [{"body", "time_utc", ...,"values": [...]}]
+    csv_text(records) -> the values as CSV, a row each
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Sequence
+from typing import Any
+
+from app.line.states import utc_text
+from app.line.store import Store
+
+VALUE_KEYS = (
+    "feature", "characteristic", "nominal_mm", "measured_mm", "lower_mm", "upper_mm", "u95_mm",
+    "decision", "suspect",
+)  # fmt: skip
+CSV_HEADER = (
+    "body", "time_utc", "evaluation", "params_version", "feature", "characteristic",
+    "nominal_mm", "measured_mm", "lower_mm", "upper_mm", "u95_mm", "decision", "suspect",
+    "reason",
+)  # fmt: skip
+
+
+def suspect_of(
+    body: dict[str, Any], intervals: Sequence[dict[str, Any]], now_t: float
+) -> int | None:
+    """The id of the suspect interval the body's values stand in (None: none): measured inside
+    it and not computed again with its correction."""
+    for s in intervals:
+        end = s["t_end"] if s["t_end"] is not None else now_t
+        if s["t_start"] <= body["t"] <= end and body.get("suspect_id") != s["id"]:
+            return int(s["id"])
+    return None
+
+
+def records(
+    store: Store, since_t: float | None = None, body_id: Any = None, now_t: float = float("inf")
+) -> list[dict[str, Any]]:
+    """One record per body measured since `since_t` (or the body `body_id`), oldest first."""
+    intervals = store.suspects()
+    out = []
+    for b in store.bodies(since_t=since_t, body_id=body_id):
+        suspect = suspect_of(b, intervals, now_t)
+        values = []
+        for v in store.body_values(int(b["id"])):
+            row = {k: v[k] for k in VALUE_KEYS if k in v}
+            row["suspect"] = suspect is not None and v["measured_mm"] is not None
+            row["reason"] = v["reason"]
+            values.append(row)
+        out.append(
+            {
+                "body": b["body_id"], "time_utc": utc_text(float(b["t"])), "part": b["part"],
+                "evaluation": b["evaluation"], "params_version": b["params_version"],
+                "statement_u95_mm": b["statement_u95_mm"], "ok": bool(b["ok"]),
+                "n_nok": b["n_nok"], "n_undecided": b["n_undecided"],
+                "n_not_measured": b["n_not_measured"], "suspect_interval": suspect,
+                "reevaluated": b["evaluation"] > 0, "values": values,
+            }
+        )  # fmt: skip
+    return out
+
+
+def csv_text(recs: Sequence[dict[str, Any]]) -> str:
+    """The records' values as CSV (CSV_HEADER; empty cells for a value not measured)."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(CSV_HEADER)
+    for r in recs:
+        for v in r["values"]:
+            head = {k: r[k] for k in ("body", "time_utc", "evaluation", "params_version")}
+            row = {**v, **head}
+            w.writerow(["" if row.get(k) is None else row.get(k) for k in CSV_HEADER])
+    return buf.getvalue()
