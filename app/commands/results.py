@@ -1,17 +1,19 @@
 """`rvis results list|show BODY|export`: the bodies' results from the state database, read-only
 (the service may run). What each value is and how sure (its U95), its decision, whether it is
-suspect; `export` writes them as JSON (a record per body) or CSV (a row per value), to stdout or
-atomically into a folder.
+suspect; `export` writes them as AQDEF (`.dfq`, app/formats/aqdef.py: the station from the cell
+file's `[results]`, the part's description from the feature plan), JSON (a record per body) or
+CSV (a row per value), to stdout or atomically into a folder.
 
     rvis results list [--since T] [--json]
     rvis results show BODY [--json]
-    rvis results export [--since T] [--body ID] --format csv|json [--out DIR]
+    rvis results export [--since T] [--body ID] --format dfq|csv|json [--out DIR]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -37,7 +39,7 @@ def register(sub: Any) -> None:
     ex = verbs.add_parser("export", help="the values as JSON or CSV")
     ex.add_argument("--since", help=since)
     ex.add_argument("--body", help="one body's id")
-    ex.add_argument("--format", choices=("csv", "json"), required=True)
+    ex.add_argument("--format", choices=("dfq", "csv", "json"), required=True)
     ex.add_argument(
         "--out", type=Path, help="folder to write results.<format> into (default: stdout)"
     )
@@ -72,16 +74,40 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"no body {args.body!r} measured here", field="BODY")
         print(json.dumps(recs[-1], indent=1) if args.json else _show_text(recs[-1]))
         return 0
-    return _export(recs, args.format, args.out)
+    return _export(args, recs, args.format, args.out)
 
 
-def _export(recs: list[dict[str, Any]], fmt: str, out: Path | None) -> int:
+def _dfq(args: argparse.Namespace, recs: list[dict[str, Any]]) -> str:
+    """The records as one AQDEF file: the station from the cell file, the description from
+    the feature plan of the state directory."""
+    from app.config import load_cell
+    from app.config.tomlfile import read_toml
+    from app.formats.aqdef import dfq_text
+    from app.inspect.plan import FILE_NAME
+    from app.line.statedir import StateDir
+
+    if not recs:
+        raise InputError("no body to export (an AQDEF file holds at least one)", field="--since")
+    state = StateDir(state_dir_of(args))
+    cell = args.cell or (str(state.cell) if state.cell.is_file() else None)
+    r = load_cell(cell).results
+    plan = state.root / FILE_NAME
+    description = str(read_toml(plan)[0].get("description", "")) if plan.is_file() else ""
+    return dfq_text(recs[0]["part"], description, recs, (r.station, r.station_description))
+
+
+def _export(
+    args: argparse.Namespace, recs: list[dict[str, Any]], fmt: str, out: Path | None
+) -> int:
     from app.formats.files import write_text
     from app.inspect.results import csv_text
 
-    text = csv_text(recs) if fmt == "csv" else json.dumps(recs, indent=1) + "\n"
+    if fmt == "dfq":
+        text = _dfq(args, recs)
+    else:
+        text = csv_text(recs) if fmt == "csv" else json.dumps(recs, indent=1) + "\n"
     if out is None:
-        print(text, end="")
+        sys.stdout.write(text)
         return 0
     if out.exists() and not out.is_dir():
         raise InputError("not a folder", file=out)

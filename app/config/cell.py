@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from app.config.devices import CameraSection, CommissionSection, DevicesSection
+from app.config.devices import CameraSection, CommissionSection, DevicesSection, ResultsSection
 from app.config.line import (
     DriftSettings,
     LineSettings,
@@ -238,6 +238,7 @@ SECTIONS: tuple[type[Section], ...] = (
     OpcUaSettings,
     CameraSection,
     CommissionSection,
+    ResultsSection,
 )
 BY_NAME = {s.name: s for s in SECTIONS}
 
@@ -275,6 +276,7 @@ class CellConfig:
     opcua: OpcUaSettings
     camera: CameraSection
     commission: CommissionSection
+    results: ResultsSection
     source: str = "<embedded default>"
 
     @property

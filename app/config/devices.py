@@ -150,3 +150,13 @@ def url_problem(family: str, url: str) -> str:
         known = ", ".join(f"{k}://" for k in BACKENDS[family])
         return f"no {family} backend for {scheme}:// (known: {known})"
     return ""
+
+
+@dataclass(frozen=True)
+class ResultsSection(Section):
+    """The bodies' results as the plant's SPC system reads them (AQDEF, docs/inspection.md):
+    the station written as the machine's number and description (K1081, K1082)."""
+
+    name = "results"
+    station: str = opt("rvis")
+    station_description: str = opt("rvis in-line inspection cell")

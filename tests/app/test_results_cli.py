@@ -8,6 +8,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +23,8 @@ VALUE = {
     "lower_mm": 9.5, "upper_mm": 10.5, "measured_mm": 10.02, "u95_mm": 0.06,
     "decision": "conforming", "reason": "",
 }  # fmt: skip
+#: 2026-11-29T06:00:00Z: a day above 12, which no reader can take for a month
+T0 = datetime(2026, 11, 29, 6, 0, tzinfo=UTC).timestamp()
 NOT_MEASURED = {**VALUE, "characteristic": "D", "kind": "size", "nominal_mm": 8.0,
                 "lower_mm": 7.8, "upper_mm": 8.2, "measured_mm": None, "u95_mm": None,
                 "decision": "not measured", "reason": "edge_points: 3 edge points"}  # fmt: skip
@@ -39,17 +42,17 @@ def state(tmp_path: Path) -> StateDir:
     paths = StateDir(tmp_path / "state")
     paths.root.mkdir()
     store = Store(paths.db)
-    for k, t in enumerate((100.0, 200.0, 300.0)):
+    for k, t in enumerate((T0 + 100.0, T0 + 200.0, T0 + 300.0)):
         body = {"t": t, "body_id": 100011 + k, "part": "P-1", "window": k}
         raw = [{"feature": "H01", "q_deg": [0.0] * 6, "temp_c": None, "sheet": None,
                 "edges": None, "refused": ""}]  # fmt: skip
         row = store.add_body(body, _evaluation(t), [VALUE, NOT_MEASURED], raw)
     sid = store.open_suspect(
-        {"t_start": 150.0, "onset_id": 1, "params_version": 1, "text": "sensor mount moved"}
+        {"t_start": T0 + 150.0, "onset_id": 1, "params_version": 1, "text": "sensor mount moved"}
     )
-    store.update_suspect(sid, t_end=350.0, end_reason="step", end_version=2)
+    store.update_suspect(sid, t_end=T0 + 350.0, end_reason="step", end_version=2)
     store.add_evaluation(
-        row, _evaluation(400.0, params_version=2, suspect_id=sid, reason="re-evaluated"),
+        row, _evaluation(T0 + 400.0, params_version=2, suspect_id=sid, reason="re-evaluated"),
         [{**VALUE, "measured_mm": 10.001}, NOT_MEASURED],
     )  # fmt: skip
     store.close()
@@ -98,3 +101,36 @@ def test_bad_input_is_one_line(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 3 and all("Traceback" not in e for e in err)
     assert "no body '42'" in err[0] and "no rvis.db" in err[1] and "--since" in err[2]
+
+
+def test_the_dfq_reads_back_in_an_independent_reader(state: StateDir, tmp_path: Path) -> None:
+    """aqdefreader (PyPI) parses the values, limits, units and times (its own file reading
+    leaves the file open: the test reads it and hands the lines to its parser); the body ids
+    (K0014, which it does not read) from the file's lines."""
+    from aqdefreader import DfqFile
+
+    (state.root / "features.toml").write_text('part = "P-1"\ndescription = "two features"\n')
+    out = tmp_path / "out"
+    argv = ["results", "export", "--format", "dfq", "--out", str(out)]
+    assert main([*argv, "--state-dir", str(state.root)]) == 0
+    path = out / "results.dfq"
+    raw = path.read_bytes()
+    assert raw.count(b"\r\n") == raw.count(b"\n") and raw.isascii()
+    part = DfqFile(raw.decode("ascii").splitlines()).get_part(0)  # its parser, our read
+    assert part.get_data("K1001") == "P-1" and part.get_data("K1002") == "two features"
+    x, d = part.get_characteristic_by_index(1), part.get_characteristic_by_index(2)
+    assert x.get_data("K2001") == "H01.X" and d.get_data("K2001") == "H01.D"
+    assert float(x.get_data("K2101")) == 10.0 and float(x.get_data("K2110")) == 9.5
+    assert float(x.get_data("K2111")) == 10.5 and x.get_data("K2142") == "mm"
+    values = [(float(m.value), m.attribute, m.datetime.isoformat()) for m in x.get_measurements()]
+    assert values == [
+        (10.02, 0, "2026-11-29T06:01:40"),  # as measured
+        (10.02, 129, "2026-11-29T06:03:20"),  # inside the interval: shown, not calculated
+        (10.001, 0, "2026-11-29T06:05:00"),  # computed again with the correction
+    ]
+    assert [m.attribute for m in d.get_measurements()] == [255, 255, 255]  # not measured
+    ids = [line.split()[1] for line in raw.decode().splitlines() if line.startswith("K0014/1 ")]
+    assert ids == ["100011", "100012", "100013"]
+    texts = [line for line in raw.decode().splitlines() if line.startswith("K0009/1 ")]
+    assert texts[0] == "K0009/1 U95 0.060 mm; conforming"
+    assert texts[2].endswith("computed again (evaluation 1)")
