@@ -26,14 +26,17 @@ def quiet(line: str) -> None:
     """The experiment's steps say nothing (their reports hold it all)."""
 
 
-def commission_simulated(cfg: CellConfig, state: StateDir, seed: int) -> float:
+def commission_simulated(
+    cfg: CellConfig, state: StateDir, seed: int, geometric: bool = True
+) -> float:
     """The cell commissioned on the simulated line (every step of `rvis commission --sim
-    --geometric`); the robot's time it took [s]."""
+    [--geometric]`); the robot's time it took [s]."""
     with ExitStack() as stack:
         held = stack.enter_context(hold_state(state.root, str(cfg.service.operators_group)))
-        sim = stack.enter_context(SimCommissioning(cfg, seed, geometric=True))
+        sim = stack.enter_context(SimCommissioning(cfg, seed, geometric=geometric))
         ctx = Context(**scripted_fields(sim, cfg, held, quiet))
-        journal = Journal(held.commission, {"simulated": True, "seed": seed, "geometric": True})
+        setup = {"simulated": True, "seed": seed, "geometric": geometric}
+        journal = Journal(held.commission, setup)
         failed = run_steps(ctx, journal)
         if failed is not None:
             raise RvisError(

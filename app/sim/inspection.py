@@ -86,12 +86,14 @@ class InspectionCell:
 
 
 def _commissioned(
-    cfg: CellConfig, seed: int, out: Path
+    cfg: CellConfig, seed: int, out: Path, geometric: bool
 ) -> tuple[StateDir, CellConfig, FeaturePlan]:
     """The seed's simulated cell commissioned in out/state (a new folder) with the simulated
-    part type's feature plan there."""
+    part type's feature plan there, on the geometric or the rendered path (the rendered one
+    identifies the hand-eye on spheres measured through the calibrated sensor model, which the
+    bodies are measured through too)."""
     state = StateDir(out / "state")
-    commission_simulated(cfg, state, seed)
+    commission_simulated(cfg, state, seed, geometric)
     cfg_c = load_cell(state.cell)
     return state, cfg_c, load_features(ensure_features(state.root, cfg_c), cfg_c.T_part_base)
 
@@ -131,7 +133,7 @@ def inspection_cell(
     service stated for its last window; 0: the commissioning's parameters and workspace U95 in
     the cold, still cell the commissioning measured. geometric False: the rendered path, the
     line's spheres and the bodies' sweeps alike, through the commissioned sensor model."""
-    state, cfg_c, plan = _commissioned(cfg, seed, out)
+    state, cfg_c, plan = _commissioned(cfg, seed, out, geometric)
     process = process or BuildProcess(seed=seed)
     sensor_model = load_sensor_model(state.sensor)
     vision = None if geometric else sensor_model
@@ -257,7 +259,7 @@ def run_correlation(
     body in every clamp period (app.line.body_cycle), and the values it stored (each body's
     newest evaluation: as measured, or computed again after a corrected knock) against the
     bodies' truth."""
-    state, cfg_c, plan = _commissioned(cfg, seed, out)
+    state, cfg_c, plan = _commissioned(cfg, seed, out, study.geometric)
     if study.knock_kind is not None:
         simline = dataclasses.replace(
             cfg_c.simline, knock_at_s=3600.0 * study.knock_at_h, knock_kind=study.knock_kind

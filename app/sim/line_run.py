@@ -354,6 +354,7 @@ class SimulatedLineRun:
             setup = dataclasses.replace(setup, camera_wait_s=None, camera_on_wait=waiting)
         self.line = SimLine(self.cell, setup)
         self.pace = pace
+        self._body_cpu_s = 0.0  # the rendered path's bodies: set with them (`_bodies`)
         self.settings = service_settings(cfg, self.state_dir)
         self.geometric, self.plan = geometric, plan
         # the model the service identifies and the true error is computed in: [service] model,
@@ -471,6 +472,8 @@ class SimulatedLineRun:
         plan = feature_plan(paths.root, self.cfg.T_part_base)
         if plan is None:
             return None
+        # a rendered body's sweeps take the CPU seconds each, with no event between them
+        self._body_cpu_s = 0.0 if self.geometric else 5.0 * len(plan.features)
         process, clamping = BuildProcess(seed=self.seed), ClampSettings()
         bodies = SimulatedBodies(self.cell, plan, process, clamping, self.sensor_model)
         model = load_sensor_model(paths.sensor) if paths.sensor.is_file() else None
@@ -564,7 +567,7 @@ class SimulatedLineRun:
         s = self.summary
         silence_s = (
             10.0 if self.pace is None else 10.0 + 5.0 * self.cfg.simline.period_s / self.pace
-        )
+        ) + self._body_cpu_s
 
         def done(event: dict[str, Any]) -> bool:
             return s.windows >= n or event["event"] == "stopped" or _held_for_maintenance(event)
