@@ -47,7 +47,7 @@ def register(sub: Any) -> None:
 
 
 def _records(args: argparse.Namespace) -> list[dict[str, Any]]:
-    from app.inspect.results import records
+    from app.line.body_results import records
     from app.line.statedir import StateDir
     from app.line.store import Store
 
@@ -100,7 +100,7 @@ def _export(
     args: argparse.Namespace, recs: list[dict[str, Any]], fmt: str, out: Path | None
 ) -> int:
     from app.formats.files import write_text
-    from app.inspect.results import csv_text
+    from app.line.body_results import csv_text
 
     if fmt == "dfq":
         text = _dfq(args, recs)

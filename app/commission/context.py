@@ -24,10 +24,10 @@ from app.config.cell import SpheresSection
 from app.config.line import LineSettings, SweepSettings
 from app.formats.files import read_targets
 from app.line.measure import SphereSensor
-from app.line.schedule import motion_time_s
 from app.line.settings import from_cell
 from app.line.statedir import StateDir
 from app.line.station import Station, cell_guard
+from app.motion import motion_time_s
 from drivers.clock import Clock, RealClock
 from vision.sensor_model import SensorModel
 

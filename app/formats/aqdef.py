@@ -23,7 +23,7 @@ REFERENCE.md):
                  were computed again after a correction, written again as a new file
 
 `dfq_text(plan_part, characteristics, records, station)`: the file's text for the records of
-`app.inspect.results.records` (one or several bodies).
+`app.line.body_results.records` (one or several bodies).
 """
 
 from __future__ import annotations

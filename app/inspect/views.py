@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 
 from app.config.line import LineSettings
 from app.inspect.plan import Feature, FeaturePlan
-from app.line.schedule import motion_time_s, shortest_route
+from app.motion import motion_time_s, shortest_route
 from calib import ik
 from calib.candidates import flange_poses, look_rotations
 from calib.ik_refine import refine

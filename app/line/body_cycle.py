@@ -39,8 +39,8 @@ from app.inspect.values import Value
 from app.inspect.views import InspectionPlan, plan_views, reaimed
 from app.line.cycle import WindowWatch, Withdrawal
 from app.line.measure import SphereMeasurer
-from app.line.schedule import motion_time_s
 from app.line.store import Store
+from app.motion import motion_time_s
 from drivers.errors import DeviceError
 from vision.features import FeaturePoints
 from vision.sensor_model import SensorModel

@@ -42,11 +42,11 @@ from app.formats.files import (
 from app.formats.params import from_json, to_json, with_held_covariance
 from app.line.measure import Rejected
 from app.line.params_store import MAINTENANCE_SOURCE, ParamsStore, hand_over
-from app.line.schedule import shortest_route
 from app.line.states import AlarmCode
 from app.line.store import Store
 from app.maintain.aim import reaim, zero_moved, zero_of
 from app.meta import provenance
+from app.motion import shortest_route
 from app.planning import read_plan
 from calib import candidates
 from calib.attribution import NONE, StepGroup, attribute

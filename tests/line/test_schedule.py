@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from app.config.line import LineSettings
-from app.line.schedule import Schedule, Slot, motion_time_s, shortest_route
+from app.line.schedule import Schedule, Slot
+from app.motion import motion_time_s, shortest_route
 from drivers.safety import SafetyGuard
 
 HOME = np.array([0.0, 0.0, 0.0, 0.0, -90.0, 0.0])
