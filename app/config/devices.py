@@ -155,8 +155,12 @@ def url_problem(family: str, url: str) -> str:
 @dataclass(frozen=True)
 class ResultsSection(Section):
     """The bodies' results as the plant's SPC system reads them (AQDEF, docs/inspection.md):
-    the station written as the machine's number and description (K1081, K1082)."""
+    the station written as the machine's number and description (K1081, K1082), and the folder
+    the service writes each body's file into."""
 
     name = "results"
     station: str = opt("rvis")
     station_description: str = opt("rvis in-line inspection cell")
+    # the folder the plant's SPC import watches: the service writes a `.dfq` file a body there
+    # (app/line/body_export.py); "" none; a relative path is under the state directory
+    dir: str = opt("")

@@ -37,6 +37,7 @@ from app.inspect.measure import BodyResult, FeatureSensor, RawFeature, evaluate_
 from app.inspect.plan import FILE_NAME, FeaturePlan, load_features
 from app.inspect.values import Value
 from app.inspect.views import InspectionPlan, plan_views, reaimed
+from app.line.body_export import ResultsWriter
 from app.line.cycle import WindowWatch, Withdrawal
 from app.line.measure import SphereMeasurer
 from app.line.store import Store
@@ -143,10 +144,13 @@ class BodyCycle:
         measurer: SphereMeasurer,
         store: Store,
         repeatability_mm: float,
+        writer: ResultsWriter | None = None,
     ) -> None:
+        """writer: the results directory's (app.line.body_export; None: none)."""
         self.plan, self.sensor, self.sensor_model = setup.plan, setup.sensor, setup.sensor_model
         self.watch, self.measurer, self.store = watch, measurer, store
         self.repeatability_mm = repeatability_mm
+        self.writer = writer
         self.clock, self.line, self.plc = watch.clock, watch.line, watch.plc
         self._views: tuple[int, InspectionPlan] | None = None
         self._cals: dict[int, Calibration] = {}
@@ -256,6 +260,13 @@ class BodyCycle:
         return self.store.add_body(
             body, evaluation, [v.as_dict() for v in result.values], raw_rows(result.raw)
         )
+
+    def export(self) -> tuple[int, str]:
+        """The bodies' files not written yet into the results directory: (written, why the
+        next could not be); (0, "") without a directory."""
+        if self.writer is None:
+            return 0, ""
+        return self.writer.export_pending(self.store, self.clock.time())
 
     def clear_result(self) -> None:
         """The body's result bits go when the PLC took the body away (body_ready low)."""

@@ -45,28 +45,31 @@ def suspect_of(
 def records(
     store: Store, since_t: float | None = None, body_id: Any = None, now_t: float = float("inf")
 ) -> list[dict[str, Any]]:
-    """One record per body measured since `since_t` (or the body `body_id`), oldest first."""
+    """One record per body measured since `since_t` (or the body `body_id`), oldest first,
+    each its newest evaluation."""
     intervals = store.suspects()
-    out = []
-    for b in store.bodies(since_t=since_t, body_id=body_id):
-        suspect = suspect_of(b, intervals, now_t)
-        values = []
-        for v in store.body_values(int(b["id"])):
-            row = {k: v[k] for k in VALUE_KEYS if k in v}
-            row["suspect"] = suspect is not None and v["measured_mm"] is not None
-            row["reason"] = v["reason"]
-            values.append(row)
-        out.append(
-            {
-                "body": b["body_id"], "time_utc": utc_text(float(b["t"])), "part": b["part"],
-                "evaluation": b["evaluation"], "params_version": b["params_version"],
-                "statement_u95_mm": b["statement_u95_mm"], "ok": bool(b["ok"]),
-                "n_nok": b["n_nok"], "n_undecided": b["n_undecided"],
-                "n_not_measured": b["n_not_measured"], "suspect_interval": suspect,
-                "reevaluated": b["evaluation"] > 0, "values": values,
-            }
-        )  # fmt: skip
-    return out
+    return [record_of(store, b, intervals, now_t) for b in store.bodies(since_t, None, body_id)]
+
+
+def record_of(
+    store: Store, b: dict[str, Any], intervals: Sequence[dict[str, Any]], now_t: float
+) -> dict[str, Any]:
+    """The record of a body row of `Store.bodies` (its evaluation's values)."""
+    suspect = suspect_of(b, intervals, now_t)
+    values = []
+    for v in store.body_values(int(b["id"]), int(b["evaluation"])):
+        row = {k: v[k] for k in VALUE_KEYS if k in v}
+        row["suspect"] = suspect is not None and v["measured_mm"] is not None
+        row["reason"] = v["reason"]
+        values.append(row)
+    return {
+        "body": b["body_id"], "time_utc": utc_text(float(b["t"])), "part": b["part"],
+        "evaluation": b["evaluation"], "params_version": b["params_version"],
+        "statement_u95_mm": b["statement_u95_mm"], "ok": bool(b["ok"]),
+        "n_nok": b["n_nok"], "n_undecided": b["n_undecided"],
+        "n_not_measured": b["n_not_measured"], "suspect_interval": suspect,
+        "reevaluated": b["evaluation"] > 0, "values": values,
+    }  # fmt: skip
 
 
 def csv_text(recs: Sequence[dict[str, Any]]) -> str:

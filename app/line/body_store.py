@@ -135,11 +135,23 @@ class BodyRecords:
         )
 
     def bodies(
-        self, since_t: float | None = None, until_t: float | None = None, body_id: Any = None
+        self,
+        since_t: float | None = None,
+        until_t: float | None = None,
+        body_id: Any = None,
+        *,
+        row: int | None = None,
+        evaluation: int | None = None,
     ) -> list[dict[str, Any]]:
-        """Bodies (oldest first) with their newest evaluation's summary, measured within
-        [since_t, until_t] and/or with the body id given."""
-        where, args = ["e.evaluation = b.evaluation"], []
+        """Bodies (oldest first) with their newest evaluation's summary (or `evaluation`'s),
+        measured within [since_t, until_t] and/or with the body id given (or the body `row`)."""
+        where: list[str] = [
+            "e.evaluation = b.evaluation" if evaluation is None else "e.evaluation = ?"
+        ]
+        args: list[Any] = [] if evaluation is None else [evaluation]
+        if row is not None:
+            where.append("b.id = ?")
+            args.append(row)
         if since_t is not None:
             where.append("b.t >= ?")
             args.append(since_t)
@@ -150,7 +162,7 @@ class BodyRecords:
             where.append("CAST(b.body_id AS TEXT) = CAST(? AS TEXT)")
             args.append(body_id)
         return self._rows(
-            "SELECT b.id, b.t, b.body_id, b.part, b.window, b.temp_c, b.evaluation,"
+            "SELECT b.id, b.t, b.body_id, b.part, b.window, b.temp_c, e.evaluation,"
             " e.params_version, e.statement_u95_mm, e.reason, e.ok, e.n_nok, e.n_undecided,"
             " e.n_not_measured, e.decisions_changed, e.suspect_id"
             " FROM bodies b JOIN body_evaluations e ON e.body = b.id"
@@ -175,6 +187,23 @@ class BodyRecords:
         return self._rows(
             "SELECT * FROM body_evaluations WHERE body = ? ORDER BY evaluation", (body_row,)
         )
+
+    def unexported(self, limit: int = 100) -> list[tuple[int, int]]:
+        """(body row, evaluation) of the evaluations whose file is not written yet, oldest
+        first."""
+        rows = self._rows(
+            "SELECT body, evaluation FROM body_evaluations WHERE exported_t IS NULL"
+            " ORDER BY body, evaluation LIMIT ?",
+            (limit,),
+        )
+        return [(int(r["body"]), int(r["evaluation"])) for r in rows]
+
+    def mark_exported(self, body_row: int, evaluation: int, t: float) -> None:
+        with self._tx() as db:
+            db.execute(
+                "UPDATE body_evaluations SET exported_t = ? WHERE body = ? AND evaluation = ?",
+                (t, body_row, evaluation),
+            )
 
     def body_raw(self, body_row: int) -> Iterator[dict[str, Any]]:
         """A body's raw data per feature: feature, q_deg (6,), temp_c, sheet and edges (n, 3)

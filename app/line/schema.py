@@ -91,7 +91,8 @@ MIGRATIONS: tuple[tuple[str, ...], ...] = (
     ),
     # 8 -> 9: the bodies measured (app/inspect/): per body its values by evaluation (0: as
     # measured; 1, 2, ...: computed again from the raw data with other parameters, beside the
-    # earlier ones, never over them), each evaluation's reason, and each feature's raw data
+    # earlier ones, never over them), each evaluation's reason and when its file was written
+    # into the results directory (NULL: not yet), and each feature's raw data
     # (the view's joints, the cell temperature, the feature's points in the sensor frame as
     # little-endian float32 x, y, z rows); a suspect interval's bodies computed again with the
     # correction: how many, how many decisions changed, and how many could not be (measured
@@ -109,7 +110,8 @@ MIGRATIONS: tuple[tuple[str, ...], ...] = (
             params_version INTEGER, statement_u95_mm REAL, reason TEXT NOT NULL,
             suspect_id INTEGER, ok INTEGER NOT NULL, n_nok INTEGER NOT NULL,
             n_undecided INTEGER NOT NULL, n_not_measured INTEGER NOT NULL,
-            decisions_changed INTEGER, PRIMARY KEY (body, evaluation))""",
+            decisions_changed INTEGER, exported_t REAL, PRIMARY KEY (body, evaluation))""",
+        "CREATE INDEX body_evaluations_unexported ON body_evaluations (exported_t, body)",
         """CREATE TABLE body_values (
             body INTEGER NOT NULL, evaluation INTEGER NOT NULL, feature TEXT NOT NULL,
             characteristic TEXT NOT NULL, kind TEXT NOT NULL, nominal_mm REAL NOT NULL,

@@ -61,6 +61,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from app.line.accuracy import Accuracy
 from app.line.body_cycle import BodyCycle, BodySetup
+from app.line.body_export import ResultsWriter
 from app.line.cycle import Cycle, WindowWatch
 from app.line.decisions import Decisions, Rows
 from app.line.drift import DriftMonitor
@@ -157,11 +158,14 @@ class Service:
         self.watch = WindowWatch(station.plc, self.clock, s.line)
         self.measurer = SphereMeasurer(station.robot, sensor, s.line)
         # the bodies' features in the cycle (app.line.body_cycle): with a feature plan
-        self.body_cycle = (
-            None
-            if bodies is None
-            else BodyCycle(bodies, self.watch, self.measurer, self.store, s.repeatability_mm)
-        )
+        self.body_cycle = None
+        if bodies is not None:
+            writer = None
+            if s.results_dir is not None:
+                writer = ResultsWriter(s.results_dir, s.station, bodies.plan.description)
+            self.body_cycle = BodyCycle(
+                bodies, self.watch, self.measurer, self.store, s.repeatability_mm, writer
+            )
         self.state = State.STARTING
         self.paused = False
         self.counters = {"windows": 0, "overruns": 0, "withdrawn": 0}

@@ -46,6 +46,9 @@ class ServiceSettings:
     # the robot's ISO 9283 pose repeatability RP ([robot] repeatability_mm), by which a
     # body's views are chosen (app.inspect.views)
     repeatability_mm: float = RobotSection.repeatability_mm
+    # [results]: the folder each body's AQDEF file goes to (None: none), the station
+    results_dir: Path | None = None
+    station: tuple[str, str] = ("rvis", "rvis in-line inspection cell")
 
 
 def from_cell(cfg: Any, state_dir: str | Path | None = None) -> ServiceSettings:
@@ -71,4 +74,13 @@ def from_cell(cfg: Any, state_dir: str | Path | None = None) -> ServiceSettings:
         ),
         max_ps_mm=float(cfg.sensor.max_ps_mm),
         repeatability_mm=float(cfg.robot.repeatability_mm),
+        results_dir=_results_dir(cfg, state_dir),
+        station=(str(cfg.results.station), str(cfg.results.station_description)),
     )
+
+
+def _results_dir(cfg: Any, state_dir: str | Path | None) -> Path | None:
+    if not cfg.results.dir:
+        return None
+    root = Path(state_dir if state_dir is not None else cfg.service.state_dir)
+    return root / cfg.results.dir

@@ -53,6 +53,8 @@ class AlarmCode(StrEnum):
     VIEW_LOST = "view_lost", "process"
     #: a change beyond a knock: held in FAULT until `rvis maintain` hands the cell back
     MAINTENANCE = "maintenance", "process"
+    #: the results directory cannot be written: the bodies' files wait in the database
+    RESULTS_DIR = "results_dir", "system"
 
 
 #: alarms that hold the cell in FAULT until a reset

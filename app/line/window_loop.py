@@ -139,7 +139,26 @@ class WindowLoop:
             self.faults.device_fault(exc)
             return
         svc.bus.emit("body", {**report.to_json(), "params_version": svc.version})
+        self._export(body)
         svc.set_state(State.PAUSED if svc.paused else State.IDLE)
+
+    def _export(self, body: BodyCycle) -> None:
+        """The bodies' files into the results directory; while it cannot be written the
+        `results_dir` alarm stands (the files wait in the database), cleared when it can."""
+        svc = self.svc
+        written, why = body.export()
+        active = bool(svc.store.active_alarms(AlarmCode.RESULTS_DIR))
+        if why and not active:
+            svc.alarm(
+                AlarmCode.RESULTS_DIR,
+                f"results directory not writable ({why}): the bodies' files wait in the"
+                " database and are written when it is",
+                "medium",
+            )
+        elif not why and active:
+            svc.clear_alarms(AlarmCode.RESULTS_DIR)
+        if written:
+            svc.bus.emit("results_written", {"files": written})
 
     def statement_u95_mm(self) -> float | None:
         """The U95 the cell states for a point measured now (None: none)."""
@@ -157,6 +176,7 @@ class WindowLoop:
         done = svc.body_cycle.reevaluate_pending(svc.params.version_path, self.statement_u95_mm())
         for interval in done:
             svc.bus.emit("reevaluated", interval)
+        self._export(svc.body_cycle)
 
     def _watch_blind(self, first_id: int) -> None:
         """Windows in a row in which no view saw its sphere where the parameters put it (each

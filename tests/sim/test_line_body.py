@@ -19,6 +19,7 @@ from app.api import Calibration
 from app.config import load_cell
 from app.inspect.measure import evaluate_body
 from app.line.body_cycle import raw_of
+from app.line.body_export import file_name
 from app.line.launch import hold_state
 from app.line.statedir import StateDir
 from app.line.store import Store
@@ -44,6 +45,7 @@ def line_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any
     cfg = dataclasses.replace(
         cfg,
         service=dataclasses.replace(cfg.service, estimator="batch", accuracy_limit_mm=0.3),
+        results=dataclasses.replace(cfg.results, dir="results", station="7"),
         line=dataclasses.replace(cfg.line, slots_per_window=2),
         simline=dataclasses.replace(
             cfg.simline, warmup_k=0.0, period_s=PERIOD_S, window_s=WINDOW_S,
@@ -152,3 +154,22 @@ def test_a_corrected_knock_has_its_bodies_computed_again(line_run: dict[str, Any
     rms_after = float(np.sqrt(np.mean(np.square(after))))
     # the knock moved the knocked bodies' values; the correction brings them back
     assert rms_before > 0.1 and rms_after < 0.06, (rms_before, rms_after)
+
+
+def test_each_evaluation_is_a_file_in_the_results_directory(line_run: dict[str, Any]) -> None:
+    """[results] dir: one AQDEF file a body as measured, one more for each body computed again,
+    every one marked written, no temporary file left."""
+    state = line_run["state"]
+    store = Store.read_only(state.db)
+    want = {
+        file_name("SIM-BIW-01", b["body_id"], e["evaluation"])
+        for b in store.bodies()
+        for e in store.body_evaluations(b["id"])
+    }
+    assert store.unexported() == []
+    store.close()
+    folder = state.root / "results"
+    assert {p.name for p in folder.iterdir()} == want
+    assert any(name.endswith("_e1.dfq") for name in want)
+    text = (folder / sorted(want)[0]).read_bytes().decode("ascii")
+    assert text.startswith("K0100 74\r\nK1001 SIM-BIW-01\r\n") and "K1081 7\r\n" in text
