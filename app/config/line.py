@@ -337,6 +337,12 @@ class SimLineSection(Section):
     maintenance_mm: float = opt(0.0, lo=0, hi=100)
     maintenance_deg: float = opt(0.0, lo=0, hi=10)
     n_validation: int = opt(100, lo=1, hi=10000)
+    # a process shift at the body shop (a fixture or a tool change): from the world's body
+    # number shift_at_body on (counted from its first, 0), feature shift_feature's mean moves
+    # by shift_mm in its sheet's plane and along its normal ("": none)
+    shift_feature: str = opt("")
+    shift_at_body: int = opt(0, lo=0, hi=10**9)
+    shift_mm: float = opt(0.3, lo=-10, hi=10)
 
     def cross_checks(self) -> Iterator[tuple[str, str]]:
         if self.window_s >= self.period_s:

@@ -35,6 +35,7 @@ from numpy.typing import NDArray
 from app.api import Calibration
 from app.inspect.measure import BodyResult, FeatureSensor, RawFeature, evaluate_body, extract
 from app.inspect.plan import FILE_NAME, FeaturePlan, load_features
+from app.inspect.spc import IndividualsChart, Signal, attribute, grouped_texts
 from app.inspect.values import Value
 from app.inspect.views import InspectionPlan, plan_views, reaimed
 from app.line.body_export import ResultsWriter
@@ -154,6 +155,13 @@ class BodyCycle:
         self.clock, self.line, self.plc = watch.clock, watch.line, watch.plc
         self._views: tuple[int, InspectionPlan] | None = None
         self._cals: dict[int, Calibration] = {}
+        # SPC (app.inspect.spc): the charts, replayed from the stored bodies (a restart is no
+        # new baseline), and the signals waiting for the cell's next window to be attributed
+        self.charts: dict[str, IndividualsChart] = {}
+        self.signals: list[Signal] = []
+        for b in store.bodies():
+            self._chart(b["body_id"], store.body_values(int(b["id"])))
+        self.signals.clear()
 
     def calibration(self, version: int, path: Path) -> Calibration:
         if version not in self._cals:
@@ -217,6 +225,7 @@ class BodyCycle:
         statement = statement_u95_mm if statement_u95_mm is not None else math.nan
         result = evaluate_body(str(body_id), cal, self.plan, raw, _finite(statement), skipped)
         row = self._store(result, window, t_start, body_id, version, statement, temp_c)
+        self._chart(body_id, [v.as_dict() for v in result.values])
         s = summary(result.values)
         self.plc.set_signals(busy=False, done=False, fault=False)
         self.plc.set_body_signals(done=not guard.withdrawn, nok=not s["ok"])
@@ -260,6 +269,26 @@ class BodyCycle:
         return self.store.add_body(
             body, evaluation, [v.as_dict() for v in result.values], raw_rows(result.raw)
         )
+
+    def _chart(self, body_id: Any, values: list[dict[str, Any]]) -> None:
+        for v in values:
+            if v["measured_mm"] is None:
+                continue
+            key = f"{v['feature']}.{v['characteristic']}"
+            chart = self.charts.setdefault(key, IndividualsChart(key))
+            signal = chart.add(float(v["measured_mm"]), body_id)
+            if signal is not None:
+                self.signals.append(signal)
+
+    def attribute_signals(self, limit_mm: float, now_u95_mm: float | None) -> list[str]:
+        """The waiting signals' alarm texts, each with whose it is (app.inspect.spc)."""
+        intervals = self.store.suspects()
+        attributed = []
+        for sig in self.signals:
+            rows = [r for b in sig.bodies for r in self.store.bodies(body_id=b)[-1:]]
+            attributed.append((sig, attribute(rows, intervals, limit_mm, now_u95_mm)))
+        self.signals.clear()
+        return grouped_texts(attributed)
 
     def export(self) -> tuple[int, str]:
         """The bodies' files not written yet into the results directory: (written, why the

@@ -55,6 +55,8 @@ class AlarmCode(StrEnum):
     MAINTENANCE = "maintenance", "process"
     #: the results directory cannot be written: the bodies' files wait in the database
     RESULTS_DIR = "results_dir", "system"
+    #: a characteristic's individuals chart signalled: the process's or maybe the gauge's
+    SPC = "spc", "process"
 
 
 #: alarms that hold the cell in FAULT until a reset

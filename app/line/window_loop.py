@@ -29,6 +29,7 @@ from app.line.store import StorageError
 from drivers.errors import DeviceError
 
 RETENTION_S = 3600.0  # how often events past [service] events_keep_days are deleted
+SPC_QUIET_WINDOWS = 8  # windows without a chart's signal that clear the `spc` alarm
 
 
 class WindowLoop:
@@ -48,6 +49,7 @@ class WindowLoop:
         self._retention_t = -float("inf")
         self._temperature_bad: bool | None = None  # known after the first poll
         self._blind: list[tuple[int, int]] = []  # windows seeing no sphere: (first id, rejected)
+        self._spc_quiet = 0  # windows since the last SPC signal
 
     def step(self) -> None:
         """One pass of the loop (a storage failure: FAULT, then a poll's wait)."""
@@ -176,7 +178,31 @@ class WindowLoop:
         done = svc.body_cycle.reevaluate_pending(svc.params.version_path, self.statement_u95_mm())
         for interval in done:
             svc.bus.emit("reevaluated", interval)
+        self._spc(svc.body_cycle)
         self._export(svc.body_cycle)
+
+    def _spc(self, body: BodyCycle) -> None:
+        """The charts' signals since the last window, attributed now that the cell measured
+        itself (app.inspect.spc): one `spc` event each window they come, and one `spc` alarm
+        that says the newest while it stands, cleared after SPC_QUIET_WINDOWS windows without
+        a signal."""
+        svc = self.svc
+        texts = body.attribute_signals(
+            svc.settings.recalib.accuracy_limit_mm, self.statement_u95_mm()
+        )
+        active = svc.store.active_alarms(AlarmCode.SPC)
+        if texts:
+            self._spc_quiet = 0
+            svc.bus.emit("spc", {"signals": texts})
+            text = "; ".join(texts)
+            if active:
+                svc.store.update_alarm_message(int(active[0]["id"]), text)
+            else:
+                svc.alarm(AlarmCode.SPC, text, "low")
+        elif active:
+            self._spc_quiet += 1
+            if self._spc_quiet >= SPC_QUIET_WINDOWS:
+                svc.clear_alarms(AlarmCode.SPC)
 
     def _watch_blind(self, first_id: int) -> None:
         """Windows in a row in which no view saw its sphere where the parameters put it (each

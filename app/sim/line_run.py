@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 
 from app.commission.files import TARGETS_FILE
 from app.config import CellConfig
+from app.errors import InputError
 from app.formats.files import read_targets
 from app.formats.params import carried_from_json
 from app.line.body_cycle import BodySetup
@@ -474,7 +475,14 @@ class SimulatedLineRun:
             return None
         # a rendered body's sweeps take the CPU seconds each, with no event between them
         self._body_cpu_s = 0.0 if self.geometric else 5.0 * len(plan.features)
-        process, clamping = BuildProcess(seed=self.seed), ClampSettings()
+        s = self.cfg.simline
+        if s.shift_feature and s.shift_feature not in {f.id for f in plan.features}:
+            raise InputError(
+                f"[simline] shift_feature: no feature {s.shift_feature!r} in {plan.source}",
+                field="shift_feature",
+            )
+        shift = (s.shift_feature, s.shift_at_body, s.shift_mm) if s.shift_feature else None
+        process, clamping = BuildProcess(seed=self.seed, shift=shift), ClampSettings()
         bodies = SimulatedBodies(self.cell, plan, process, clamping, self.sensor_model)
         model = load_sensor_model(paths.sensor) if paths.sensor.is_file() else None
         return BodySetup(plan, LineFeatureSensor(line, bodies), model or default_sensor_model())
