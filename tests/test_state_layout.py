@@ -102,3 +102,13 @@ def test_only_the_commissioning_files_module_spells_its_files() -> None:
         for hit in constants(p, COMMISSION_NAMES)
     }
     assert where - OTHER_FOLDERS == set()
+
+
+def test_a_backup_carries_the_feature_plan(tmp_path: Path) -> None:
+    """The part type's feature plan goes with a backup and comes back with a restore: without
+    it the restored cell would measure no body."""
+    from app.line.statedir import StateDir
+
+    state = StateDir(tmp_path)
+    state.features.write_text('format = "rvis-features/1"\n')
+    assert state.features in state.carried()

@@ -41,7 +41,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _inputs(args: argparse.Namespace) -> tuple[Any, Path, Path, Path]:
     from app.config import load_cell
-    from app.inspect.plan import FILE_NAME
     from app.line.statedir import StateDir
 
     state = args.state_dir
@@ -64,9 +63,7 @@ def _inputs(args: argparse.Namespace) -> tuple[Any, Path, Path, Path]:
 
     params = pick(args.params, paths.current if paths else None, "parameters", "--params")
     sensor = pick(args.sensor, paths.sensor if paths else None, "sensor file", "--sensor")
-    features = pick(
-        args.features, paths.root / FILE_NAME if paths else None, "feature plan", "--features"
-    )
+    features = pick(args.features, paths.features if paths else None, "feature plan", "--features")
     return cfg, params, sensor, features
 
 

@@ -83,7 +83,6 @@ def _dfq(args: argparse.Namespace, recs: list[dict[str, Any]]) -> str:
     from app.config import load_cell
     from app.config.tomlfile import read_toml
     from app.formats.aqdef import dfq_text
-    from app.inspect.plan import FILE_NAME
     from app.line.statedir import StateDir
 
     if not recs:
@@ -91,7 +90,7 @@ def _dfq(args: argparse.Namespace, recs: list[dict[str, Any]]) -> str:
     state = StateDir(state_dir_of(args))
     cell = args.cell or (str(state.cell) if state.cell.is_file() else None)
     r = load_cell(cell).results
-    plan = state.root / FILE_NAME
+    plan = state.features
     description = str(read_toml(plan)[0].get("description", "")) if plan.is_file() else ""
     return dfq_text(recs[0]["part"], description, recs, (r.station, r.station_description))
 

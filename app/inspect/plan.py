@@ -42,7 +42,6 @@ from calib.datasheet import REACH_MM
 
 F64 = NDArray[np.float64]
 FORMAT = "rvis-features/1"
-FILE_NAME = "features.toml"
 TYPES = ("hole", "slot", "surface")
 #: the characteristics of each type: (name, kind, the tolerance field)
 CHARACTERISTICS: dict[str, tuple[tuple[str, str, str], ...]] = {

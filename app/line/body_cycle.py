@@ -34,13 +34,14 @@ from numpy.typing import NDArray
 
 from app.api import Calibration
 from app.inspect.measure import BodyResult, FeatureSensor, RawFeature, evaluate_body, extract
-from app.inspect.plan import FILE_NAME, FeaturePlan, load_features
+from app.inspect.plan import FeaturePlan, load_features
 from app.inspect.spc import IndividualsChart, Signal, attribute, grouped_texts
 from app.inspect.values import Value
 from app.inspect.views import InspectionPlan, plan_views, reaimed
 from app.line.body_export import ResultsWriter
 from app.line.cycle import WindowWatch, Withdrawal
 from app.line.measure import SphereMeasurer
+from app.line.statedir import StateDir
 from app.line.store import Store
 from app.motion import motion_time_s
 from drivers.errors import DeviceError
@@ -63,7 +64,7 @@ class BodySetup:
 def feature_plan(state_root: Path, T_part_base: F64) -> FeaturePlan | None:
     """The state directory's feature plan (`features.toml`: its errors are the start's, exit
     2), None without one: the cell measures no body."""
-    path = state_root / FILE_NAME
+    path = StateDir(state_root).features
     return load_features(path, T_part_base) if path.is_file() else None
 
 

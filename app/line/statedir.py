@@ -60,6 +60,7 @@ LOCK_NAME = "rvis.lock"
 PLAN_NAME = "plan.json"
 CELL_NAME = "cell.toml"
 SENSOR_NAME = "sensor.toml"
+FEATURES_NAME = "features.toml"  # the part type's feature plan (docs/inspection.md)
 SIM_LOG_NAME = "rvis-sim.log"
 PARAMS_DIR = "params"
 CURRENT_NAME = "current.json"  # in params/
@@ -235,6 +236,11 @@ class StateDir:
         return self.root / SIM_LOG_NAME
 
     @property
+    def features(self) -> Path:
+        """The part type's feature plan: with it the service measures the clamped bodies."""
+        return self.root / FEATURES_NAME
+
+    @property
     def manifest(self) -> Path:
         """`backup.json`: only in a backup (`rvis state backup`)."""
         return self.root / MANIFEST_NAME
@@ -254,6 +260,7 @@ class StateDir:
             *(self.version_file(v) for v in self.versions()),
             self.current,
             *self.commissioned,
+            self.features,
             *(p for d in tree if d.is_dir() for p in sorted(d.rglob("*"))),
             self.opcua_cert,
             self.opcua_key,

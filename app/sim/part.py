@@ -21,7 +21,8 @@ from numpy.typing import NDArray
 
 from app.config import CellConfig
 from app.formats.files import write_text
-from app.inspect.plan import FILE_NAME, Feature, FeaturePlan, features_toml
+from app.inspect.plan import Feature, FeaturePlan, features_toml
+from app.line.statedir import StateDir
 from fakes.body import NominalFeature
 
 F64 = NDArray[np.float64]
@@ -98,7 +99,7 @@ def ensure_features(state_root: Path, cfg: CellConfig) -> Path:
     """The state directory's feature plan: the simulated part type's written there when it has
     none (`rvis commission --sim`, `rvis run --sim`: the simulated line measures its bodies as a
     plant's cell would); a plan already there is kept."""
-    path = state_root / FILE_NAME
+    path = StateDir(state_root).features
     if not path.is_file():
         write_text(path, features_toml(default_part(cfg)))
     return path

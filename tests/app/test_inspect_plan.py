@@ -14,7 +14,7 @@ import pytest
 
 from app.config import CellConfig
 from app.errors import InputError
-from app.inspect.plan import FILE_NAME, features_toml, load_features
+from app.inspect.plan import features_toml, load_features
 from app.inspect.values import decide
 from app.inspect.views import plan_views
 from app.sim.part import default_part
@@ -53,7 +53,7 @@ def good(cfg: CellConfig) -> str:
 
 
 def _write(tmp_path: Path, text: str) -> Path:
-    path = tmp_path / FILE_NAME
+    path = tmp_path / "features.toml"
     path.write_text(text)
     return path
 
