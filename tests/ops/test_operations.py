@@ -364,7 +364,8 @@ def test_a_worker_killed_by_the_system_faults_the_cell_and_the_supervisor_restar
     svc.stop()
     svc = ServiceProcess(state, cell)
     try:
-        svc.wait_log(lambda r: r.get("event") == "started", 60.0)
+        # the start holds the fault from before after its `started` event: wait for that
+        svc.wait_log(lambda r: r.get("event") == "state" and r["data"]["to"] == "fault", 60.0)
         st = status(state)
         assert st["state"] == "fault"
         assert [a["code"] for a in st["alarms"] if a["priority"] == "urgent"] == ["internal_error"]
