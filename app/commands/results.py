@@ -6,6 +6,7 @@ CSV (a row per value), to stdout or atomically into a folder.
 
     rvis results list [--since T] [--json]
     rvis results show BODY [--json]
+    rvis results capability [--last 50] [--json]
     rvis results export [--since T] [--body ID] --format dfq|csv|json [--out DIR]
 """
 
@@ -19,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from app.commands import add_command
+from app.commands.args import int_at_least
 from app.commands.state import parse_since, state_dir_of
 from app.errors import InputError
 
@@ -36,6 +38,9 @@ def register(sub: Any) -> None:
     show = verbs.add_parser("show", help="one body's values, their U95 and decisions")
     show.add_argument("body", help="the body's id (as the PLC gave it)")
     show.add_argument("--json", action="store_true", help="print the record as JSON")
+    cap = verbs.add_parser("capability", help="Cp and Cpk per characteristic over the last bodies")
+    cap.add_argument("--last", type=int_at_least(2), default=50, help="bodies (50)")
+    cap.add_argument("--json", action="store_true", help="print the figures as JSON")
     ex = verbs.add_parser("export", help="the values as JSON or CSV")
     ex.add_argument("--since", help=since)
     ex.add_argument("--body", help="one body's id")
@@ -68,6 +73,12 @@ def run(args: argparse.Namespace) -> int:
     recs = _records(args)
     if args.verb == "list":
         print(json.dumps(recs, indent=1) if args.json else _list_text(recs))
+        return 0
+    if args.verb == "capability":
+        from app.line.body_results import capability
+
+        rows = capability(recs[-args.last :])
+        print(json.dumps(rows, indent=1) if args.json else _capability_text(rows, args.last))
         return 0
     if args.verb == "show":
         if not recs:
@@ -115,6 +126,21 @@ def _export(
     write_text(path, text)
     print(f"written {path}: {len(recs)} bodies")
     return 0
+
+
+def _capability_text(rows: list[dict[str, Any]], last: int) -> str:
+    if not rows:
+        return "no body measured"
+    lines = [
+        f"over the last {last} bodies (values measured and not suspect):",
+        f"{'characteristic':<14} {'n':>4} {'mean':>11} {'sd':>7} {'Cp':>6} {'Cpk':>6}",
+    ]
+    for r in rows:
+        key = f"{r['feature']}.{r['characteristic']}"
+        sd, cp, cpk = (f"{r[k]:.{d}f}" if r[k] is not None else "-"
+                       for k, d in (("sd_mm", 3), ("cp", 2), ("cpk", 2)))  # fmt: skip
+        lines.append(f"{key:<14} {r['n']:>4} {r['mean_mm']:>11.3f} {sd:>7} {cp:>6} {cpk:>6}")
+    return "\n".join(lines)
 
 
 def _list_text(recs: list[dict[str, Any]]) -> str:

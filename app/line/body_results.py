@@ -83,3 +83,31 @@ def csv_text(recs: Sequence[dict[str, Any]]) -> str:
             row = {**v, **head}
             w.writerow(["" if row.get(k) is None else row.get(k) for k in CSV_HEADER])
     return buf.getvalue()
+
+
+def capability(recs: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per characteristic over the records' values (those measured and not suspect): n, mean,
+    sd, Cp = (upper - lower) / 6 sd and Cpk = min(upper - mean, mean - lower) / 3 sd (None
+    with fewer than 2 values or no spread)."""
+    by: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for r in recs:
+        for v in r["values"]:
+            if v["measured_mm"] is not None and not v["suspect"]:
+                by.setdefault((v["feature"], v["characteristic"]), []).append(v)
+    out = []
+    for (feature, name), vs in by.items():
+        xs = [float(v["measured_mm"]) for v in vs]
+        lo, hi = float(vs[0]["lower_mm"]), float(vs[0]["upper_mm"])
+        n = len(xs)
+        mean = sum(xs) / n
+        sd = (sum((x - mean) ** 2 for x in xs) / (n - 1)) ** 0.5 if n > 1 else 0.0
+        ok = n > 1 and sd > 0
+        out.append(
+            {
+                "feature": feature, "characteristic": name, "n": n, "mean_mm": mean,
+                "sd_mm": sd if n > 1 else None, "lower_mm": lo, "upper_mm": hi,
+                "cp": (hi - lo) / (6 * sd) if ok else None,
+                "cpk": min(hi - mean, mean - lo) / (3 * sd) if ok else None,
+            }
+        )  # fmt: skip
+    return out

@@ -12,6 +12,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from app.commands.cli import main
@@ -134,3 +135,16 @@ def test_the_dfq_reads_back_in_an_independent_reader(state: StateDir, tmp_path: 
     texts = [line for line in raw.decode().splitlines() if line.startswith("K0009/1 ")]
     assert texts[0] == "K0009/1 U95 0.060 mm; conforming"
     assert texts[2].endswith("computed again (evaluation 1)")
+
+
+def test_capability_over_the_bodies_not_suspect(
+    state: StateDir, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = ["results", "capability", "--json", "--state-dir", str(state.root)]
+    assert main(argv) == 0
+    (x,) = [r for r in json.loads(capsys.readouterr().out) if r["characteristic"] == "X"]
+    # the suspect body's value is left out: 10.02 and 10.001 remain
+    assert x["n"] == 2 and x["mean_mm"] == pytest.approx(10.0105)
+    sd = float(np.std([10.02, 10.001], ddof=1))
+    assert x["cp"] == pytest.approx(1.0 / (6 * sd))
+    assert x["cpk"] == pytest.approx((10.5 - 10.0105) / (3 * sd))
