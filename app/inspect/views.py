@@ -180,19 +180,23 @@ def _options(
     n_base = R_base_part @ f.normal
     a_base = R_base_part @ (f.axis if f.type == "slot" else np.zeros(3))
     c = np.array([0.0, 0.0, s.working_distance_mm])
-    poses: list[F64] = []
-    tilts: list[F64] = []
-    sols = None
-    for tilt in np.arange(0.0, s.max_tilt_deg + 1e-9, 5.0):
-        R = _rotations(n_base, a_base, float(tilt))
-        poses.append(flange_poses(model, x, f.position_mm, R, c))
-        tilts.append(np.full(len(R), float(tilt)))
-        sols = ik.solve(np.concatenate(poses), model.limits)
-        if tilt >= s.prefer_tilt_deg and len(sols.q_deg):
+    steps = np.arange(0.0, s.max_tilt_deg + 1e-9, 5.0)
+    # the preferred tilts together, then each larger one alone until one has a solution
+    batches: list[list[float]] = [
+        [float(t) for t in steps if t <= s.prefer_tilt_deg],
+        *([float(t)] for t in steps if t > s.prefer_tilt_deg),
+    ]
+    for batch in batches:
+        Rs = [_rotations(n_base, a_base, float(t)) for t in batch]
+        F = np.concatenate([flange_poses(model, x, f.position_mm, R, c) for R in Rs])
+        tilt_of = np.concatenate(
+            [np.full(len(R), float(t)) for R, t in zip(Rs, batch, strict=True)]
+        )
+        sols = ik.solve(F, model.limits)
+        if len(sols.q_deg):
             break
-    if sols is None or not len(sols.q_deg):
+    else:
         return []
-    F, tilt_of = np.concatenate(poses), np.concatenate(tilts)
     sd = repeat_sd_mm(model, x, sols.q_deg, c, sigma_rad)
     order = np.argsort(sd, kind="stable")[: s.max_candidates]
     keep = order[sd[order] <= sd[order[0]] * (1 + s.repeat_slack) + 1e-12]
