@@ -27,6 +27,8 @@ from typing import Any
 
 BASELINE_N = 20
 QUIET_N = 8
+#: the values a chart's run rules look back over
+RECENT_N = 8
 RULES = {
     1: "a value beyond 3 sigma",
     5: "2 of 3 values beyond 2 sigma on one side",
@@ -62,7 +64,7 @@ class IndividualsChart:
     baseline: list[float] = field(default_factory=list)
     centre: float = math.nan
     sigma: float = math.nan
-    recent: deque[tuple[float, Any]] = field(default_factory=lambda: deque(maxlen=8))
+    recent: deque[tuple[float, Any]] = field(default_factory=lambda: deque(maxlen=RECENT_N))
     quiet: int = QUIET_N
 
     def add(self, value: float, body: Any) -> Signal | None:

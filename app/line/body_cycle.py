@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from app.api import Calibration
 from app.inspect.measure import BodyResult, FeatureSensor, RawFeature, evaluate_body, extract
 from app.inspect.plan import FeaturePlan, load_features
-from app.inspect.spc import IndividualsChart, Signal, attribute, grouped_texts
+from app.inspect.spc import BASELINE_N, RECENT_N, IndividualsChart, Signal, attribute, grouped_texts
 from app.inspect.values import Value
 from app.inspect.views import InspectionPlan, plan_views, reaimed
 from app.line.body_export import ResultsWriter
@@ -157,10 +157,14 @@ class BodyCycle:
         self._views: tuple[int, InspectionPlan] | None = None
         self._cals: dict[int, Calibration] = {}
         # SPC (app.inspect.spc): the charts, replayed from the stored bodies (a restart is no
-        # new baseline), and the signals waiting for the cell's next window to be attributed
+        # new baseline): the first ones, which hold every chart's baseline, and the last ones,
+        # its recent run (a year of bodies is not read at each start); and the signals waiting
+        # for the cell's next window to be attributed
         self.charts: dict[str, IndividualsChart] = {}
         self.signals: list[Signal] = []
-        for b in store.bodies():
+        stored = store.bodies()
+        head = 2 * BASELINE_N
+        for b in stored[:head] + stored[max(head, len(stored) - RECENT_N) :]:
             self._chart(b["body_id"], store.body_values(int(b["id"])))
         self.signals.clear()
 
@@ -223,9 +227,10 @@ class BodyCycle:
         if guard.withdrawn and self.measurer.robot.fault is not None:
             self.measurer.robot.reset()  # our own abort latched it
         self.measurer.go_home()
-        statement = statement_u95_mm if statement_u95_mm is not None else math.nan
-        result = evaluate_body(str(body_id), cal, self.plan, raw, _finite(statement), skipped)
-        row = self._store(result, window, t_start, body_id, version, statement, temp_c)
+        result = evaluate_body(
+            str(body_id), cal, self.plan, raw, _or_none(statement_u95_mm), skipped
+        )
+        row = self._store(result, window, t_start, body_id, version, statement_u95_mm, temp_c)
         self._chart(body_id, [v.as_dict() for v in result.values])
         s = summary(result.values)
         self.plc.set_signals(busy=False, done=False, fault=False)
@@ -256,13 +261,12 @@ class BodyCycle:
         t: float,
         body_id: Any,
         version: int,
-        statement: float,
+        statement: float | None,
         temp_c: float | None,
     ) -> int:
         s = summary(result.values)
         evaluation = {
-            "t": t, "params_version": version,
-            "statement_u95_mm": statement if math.isfinite(statement) else None,
+            "t": t, "params_version": version, "statement_u95_mm": statement,
             "reason": "measured", **s,
         }  # fmt: skip
         body = {"t": t, "body_id": body_id, "part": self.plan.part, "window": window,
@@ -283,6 +287,8 @@ class BodyCycle:
 
     def attribute_signals(self, limit_mm: float, now_u95_mm: float | None) -> list[str]:
         """The waiting signals' alarm texts, each with whose it is (app.inspect.spc)."""
+        if not self.signals:
+            return []
         intervals = self.store.suspects()
         attributed = []
         for sig in self.signals:
@@ -313,19 +319,26 @@ class BodyCycle:
         done = []
         for interval in self.store.suspects():
             version = interval.get("end_version")
-            if interval.get("t_end") is None or version is None or interval.get("reevaluated"):
-                continue
+            if interval.get("t_end") is None or version is None:
+                continue  # open: its correction is not in force yet
+            if interval.get("reevaluated") is not None:
+                continue  # handled already (0 included: none could be)
             bodies = self.store.bodies(interval["t_start"], interval["t_end"])
             bodies = [b for b in bodies if b["params_version"] != version]
-            if not bodies:
+            if not bodies:  # none measured with another version: nothing to compute again
+                self.store.update_suspect(
+                    int(interval["id"]), reevaluated=0, decisions_changed=0, not_reevaluated=0
+                )
                 continue
             t_moved = self._first_moved_t(interval)
             todo = [b for b in bodies if b["t"] >= t_moved]
-            cal = self.calibration(int(version), params_path(int(version)))
-            changed = sum(
-                self._reevaluate(b, cal, int(version), statement_u95_mm, int(interval["id"]))
-                for b in todo
-            )
+            changed = 0
+            if todo:
+                cal = self.calibration(int(version), params_path(int(version)))
+                changed = sum(
+                    self._reevaluate(b, cal, int(version), statement_u95_mm, int(interval["id"]))
+                    for b in todo
+                )
             left = len(bodies) - len(todo)
             self.store.update_suspect(
                 int(interval["id"]),
@@ -360,15 +373,16 @@ class BodyCycle:
             for v in self.store.body_values(int(body["id"]))
         }
         raw = raw_of(self.store.body_raw(int(body["id"])))
-        statement = statement_u95_mm if statement_u95_mm is not None else math.nan
-        result = evaluate_body(str(body["body_id"]), cal, self.plan, raw, _finite(statement))
+        result = evaluate_body(
+            str(body["body_id"]), cal, self.plan, raw, _or_none(statement_u95_mm)
+        )
         values = [v.as_dict() for v in result.values]
         changed = sum(
             before.get((v["feature"], v["characteristic"])) != v["decision"] for v in values
         )
         evaluation = {
             "t": self.clock.time(), "params_version": version,
-            "statement_u95_mm": statement if math.isfinite(statement) else None,
+            "statement_u95_mm": statement_u95_mm,
             "reason": f"re-evaluated with version {version}: suspect interval {suspect_id}",
             "suspect_id": suspect_id, "decisions_changed": changed, **summary(result.values),
         }  # fmt: skip
@@ -376,7 +390,7 @@ class BodyCycle:
         return changed
 
 
-def _finite(u: float) -> float:
-    """A statement to compute with: an unknown one (nan) counts as none (the calibration's
-    covariance and the fit's alone)."""
-    return u if math.isfinite(u) else 0.0
+def _or_none(u: float | None) -> float:
+    """A statement to compute with: none stated counts as 0 (the calibration's covariance and
+    the fit's alone); the evaluation stores it as none."""
+    return 0.0 if u is None or not math.isfinite(u) else u
