@@ -59,8 +59,7 @@ def run_study(args: argparse.Namespace) -> int:
     from app.formats.jsontext import dumps_json
     from app.sim.inspection import LineStudy, inspection_cell, run_correlation, run_gauge
 
-    knock_h = getattr(args, "knock_at_h", 1.0)
-    if not (math.isfinite(knock_h) and knock_h > 0):
+    if args.name == "correlation" and not (math.isfinite(args.knock_at_h) and args.knock_at_h > 0):
         raise InputError("the knock's hour must be > 0", field="--knock-at-h")
     cfg = load_cell(args.cell)
     out = Path(args.out)

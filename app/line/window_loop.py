@@ -121,7 +121,7 @@ class WindowLoop:
         )
         svc.set_state(State.PAUSED if svc.paused else State.IDLE)
         self._between_windows()
-        self._reevaluate()
+        self._bodies_after_window()
         if svc.after_window is not None:
             svc.after_window()
 
@@ -148,6 +148,8 @@ class WindowLoop:
         """The bodies' files into the results directory; while it cannot be written the
         `results_dir` alarm stands (the files wait in the database), cleared when it can."""
         svc = self.svc
+        if body.writer is None:
+            return
         written, why = body.export()
         active = bool(svc.store.active_alarms(AlarmCode.RESULTS_DIR))
         if why and not active:
@@ -170,16 +172,17 @@ class WindowLoop:
         seed = statement(svc.u_seed, "seed", svc.settings.recalib.accuracy_limit_mm)
         return seed.u95_mm
 
-    def _reevaluate(self) -> None:
-        """Bodies of suspect intervals corrected since they were measured, computed again."""
-        svc = self.svc
-        if svc.body_cycle is None:
+    def _bodies_after_window(self) -> None:
+        """Now that the cell measured itself: the bodies of suspect intervals corrected since
+        they were measured computed again, the charts' signals attributed, the files written."""
+        body = self.svc.body_cycle
+        if body is None:
             return
-        done = svc.body_cycle.reevaluate_pending(svc.params.version_path, self.statement_u95_mm())
+        done = body.reevaluate_pending(self.svc.params.version_path, self.statement_u95_mm())
         for interval in done:
-            svc.bus.emit("reevaluated", interval)
-        self._spc(svc.body_cycle)
-        self._export(svc.body_cycle)
+            self.svc.bus.emit("reevaluated", interval)
+        self._spc(body)
+        self._export(body)
 
     def _spc(self, body: BodyCycle) -> None:
         """The charts' signals since the last window, attributed now that the cell measured
