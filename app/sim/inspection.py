@@ -1,22 +1,22 @@
 """The body's gauge studies on the simulated line, as plants accept an in-line gauge
 (`rvis experiment gauge`, `rvis experiment correlation`; REFERENCE.md "Gauge studies").
 
-Both start from a commissioned cell: the simulated cell of the seed commissioned by `rvis
-commission --sim --geometric`'s script into OUT/state, the part type's feature plan written
-there; by default the in-line service then runs the simulated line for a while (its warm-up, its
-in-line recalibrations: the cell as it runs in production), and the bodies are measured in that
-world with the parameters in force and the U95 the service states (`inspection_cell`). A view
-per feature is planned on those parameters. Nothing is offset: the values are the cell's as it
-would report them.
+Both start from a cell commissioned on the simulated line by `rvis commission --sim`'s script
+into OUT/state (on the study's path, geometric or rendered), the part type's feature plan written
+there; the in-line service then runs the simulated line for a while (its warm-up, its in-line
+recalibrations: the cell as it runs in production). Nothing is offset: the values are the cell's
+as it reports them.
 
-- type-1 study (`run_gauge`): one master body clamped once and measured `repeats` times (each a
-  new stop of the robot at every view, new sensor noise); per characteristic the bias against
-  the master's truth, the repeatability s, Cg = 0.2 T / (6 s), Cgk = (0.1 T - |bias|) / (3 s), T
-  the tolerance's width.
-- correlation (`run_correlation`): `bodies` bodies of the seeded build process, each clamped
-  and measured once, against their truth (the simulated CMM): per characteristic the mean and
-  sd of in-line - truth, the share of values whose |in-line - truth| is within their U95, the
-  median U95, RMS difference and R^2; and the decisions against the truth.
+- type-1 study (`run_gauge`, on `inspection_cell`: the parameters in force and the U95 the
+  service states after those windows, a view per feature planned on them): one master body
+  clamped once and measured `repeats` times (each a new stop of the robot at every view, new
+  sensor noise); per characteristic the bias against the master's truth, the repeatability s,
+  Cg = 0.2 T / (6 s), Cgk = (0.1 T - |bias|) / (3 s), T the tolerance's width.
+- correlation (`run_correlation`): the values the service itself stored for the bodies it
+  measured in the cycle (app.line.body_cycle), one a clamp period, against their truth (the
+  simulated CMM): per characteristic the mean and sd of in-line - truth, the share of values
+  whose |in-line - truth| is within their U95, the median U95, RMS difference and R^2; and the
+  decisions against the truth.
 """
 
 from __future__ import annotations
@@ -70,12 +70,10 @@ class InspectionCell:
     temp_c: float | None = None
     line: dict[str, Any] = field(default_factory=dict)
 
-    def measure(self, k: int, clamp: bool = True) -> BodyResult:
-        """Body k clamped (unless it stays clamped) and measured along the route."""
-        if clamp or self.bodies.body is None or self.bodies.body.index != k:
-            self.bodies.clamp(k)
+    def measure(self) -> BodyResult:
+        """The body clamped now (`bodies.clamp`) measured along the route."""
         return measure_body(
-            str(k),
+            str(self.bodies.body.index if self.bodies.body else "-"),
             self.cal,
             self.plan,
             self.views,
@@ -180,7 +178,7 @@ def run_gauge(
     master = cell.bodies.clamp(0)
     by_key: dict[str, list[float]] = {}
     for r in range(repeats):
-        result = cell.measure(0, clamp=False)
+        result = cell.measure()
         for v in result.values:
             if v.measured_mm is not None:
                 by_key.setdefault(v.characteristic.key, []).append(v.measured_mm)
