@@ -106,6 +106,19 @@ class IndividualsChart:
         return None
 
 
+def suspect_of(
+    body: dict[str, Any], intervals: Sequence[dict[str, Any]], now_t: float = math.inf
+) -> int | None:
+    """The id of the suspect interval a stored body's values stand in (None: none): measured
+    inside it (an open one reaching to now_t) and not computed again with its correction
+    (`body`: t, suspect_id of its evaluation)."""
+    for s in intervals:
+        end = s["t_end"] if s["t_end"] is not None else now_t
+        if s["t_start"] <= body["t"] <= end and body.get("suspect_id") != s["id"]:
+            return int(s["id"])
+    return None
+
+
 def attribute(
     bodies: Sequence[dict[str, Any]],
     intervals: Sequence[dict[str, Any]],
@@ -117,10 +130,9 @@ def attribute(
     suspect_id), `intervals` the suspect intervals, the plant's limit, and the U95 the cell
     states now (a knock shows there before its step is confirmed)."""
     for b in bodies:
-        for s in intervals:
-            end = s["t_end"] if s["t_end"] is not None else math.inf
-            if s["t_start"] <= b["t"] <= end and b.get("suspect_id") != s["id"]:
-                return f"maybe the gauge: measured inside suspect interval {s['id']}"
+        interval = suspect_of(b, intervals)
+        if interval is not None:
+            return f"maybe the gauge: measured inside suspect interval {interval}"
     stated = [b["statement_u95_mm"] for b in bodies] + [now_u95_mm]
     if any(u is None or u > limit_mm for u in stated):
         worst = max((u for u in stated if u is not None), default=None)

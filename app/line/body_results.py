@@ -16,6 +16,7 @@ import io
 from collections.abc import Sequence
 from typing import Any
 
+from app.inspect.spc import suspect_of
 from app.line.states import utc_text
 from app.line.store import Store
 
@@ -28,18 +29,6 @@ CSV_HEADER = (
     "nominal_mm", "measured_mm", "lower_mm", "upper_mm", "u95_mm", "decision", "suspect",
     "reason",
 )  # fmt: skip
-
-
-def suspect_of(
-    body: dict[str, Any], intervals: Sequence[dict[str, Any]], now_t: float
-) -> int | None:
-    """The id of the suspect interval the body's values stand in (None: none): measured inside
-    it and not computed again with its correction."""
-    for s in intervals:
-        end = s["t_end"] if s["t_end"] is not None else now_t
-        if s["t_start"] <= body["t"] <= end and body.get("suspect_id") != s["id"]:
-            return int(s["id"])
-    return None
 
 
 def records(
