@@ -179,3 +179,20 @@ def test_rvis_inspect_plan_names_the_feature_it_cannot_reach(
     r = _run("--params", str(params), "--sensor", str(sensor), "--features", str(bad))
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and "field 'type'" in r.stderr
+
+
+def test_a_new_version_re_aims_the_route_instead_of_planning_again(cfg: CellConfig) -> None:
+    from app.inspect.views import reaimed
+
+    model = cfg.model()
+    x = model.nominal_x()
+    plan = default_part(cfg)
+    route = plan_views(cfg.line, 0.07, model, x, plan, default_sensor_model())
+    x2 = x + np.random.default_rng(3).normal(0.0, 1e-4, x.shape)  # another version, near
+    again = reaimed(route, model, x2)
+    assert again is not None
+    assert [v.feature for v in again.views] == [v.feature for v in route.views]
+    for v, old in zip(again.views, route.views, strict=True):
+        assert not np.allclose(v.q_deg, old.q_deg)  # moved to the new parameters ...
+        assert np.allclose(model.fk(x2, v.q_deg[None])[0], v.T_part_sensor, atol=1e-6)
+        assert np.array_equal(v.commands_v, old.commands_v)  # ... the same sweep
