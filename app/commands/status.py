@@ -178,7 +178,7 @@ def status_lines(status: dict[str, Any]) -> list[str]:
     if opcua is not None:  # the running service's OPC UA server
         lost = opcua.get("events_dropped", 0)
         lines.append(
-            f"OPC UA              {lost or 'no'} alarm events lost on the way to the server"
+            f"OPC UA              {lost or 'no'} alarm or body events lost on the way to the server"
         )
     lines += _suspect_lines(status)
     return lines

@@ -61,7 +61,7 @@ def test_a_full_queue_drops_the_oldest_alarm_event_counted_and_logged_once(
         assert kept and kept == list(range(11 - len(kept), 11))  # the newest, in order
         assert len(batch) <= 4 and all(m["event"] in ("alarm", TICK) for m in batch)
         assert q.lost == 10 - len(kept) and bus.lost(FEED_NAME) == q.lost
-        lines = [r for r in caplog.records if "alarm event(s) not sent" in r.getMessage()]
+        lines = [r for r in caplog.records if "alarm or body event(s) not sent" in r.getMessage()]
         assert len(lines) == 1, f"logged at most once per {LOG_EVERY_S:g} s"
         bus.unsubscribe(q)
         assert bus.lost(FEED_NAME) == 10 - len(kept)  # kept after the server stopped
@@ -75,4 +75,4 @@ def test_rvis_status_says_what_the_feed_lost(line: SimulatedLineRun, servers: Se
     assert servers.read_only
     status = json.loads(rvis(line, "status", "--json"))
     assert status["opcua"] == {"events_dropped": line.service.bus.lost(FEED_NAME)}
-    assert "alarm events lost on the way to the server" in rvis(line, "status")
+    assert "alarm or body events lost on the way to the server" in rvis(line, "status")

@@ -9,8 +9,9 @@ guard      the transport guard: oversized or malformed messages get ERR, never b
 security   the server's certificate, the trusted clients, identities and what a client may do
 space      the address space: the OPC 40001-1 machine (the official NodeSets) and rvis's variables
 alarms     the service's alarms as Alarms & Conditions (AlarmConditionType), acknowledge
-feed       in the service's process: the queue of events to the server process (alarm events
-           in order, the others merged; drops counted)
+results    the bodies' results: a BodyResultEventType event per body, the LastBody variables
+feed       in the service's process: the queue of events to the server process (alarm and body
+           events in order, the others merged; drops counted)
 """
 
 #: the name the feed's queue subscribes to the event bus with (its losses: `rvis status`)

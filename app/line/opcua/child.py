@@ -7,6 +7,9 @@ It talks to the service only through its standard input and output, one JSON obj
          {"alarm": {...}, "t": T}                one alarm change (id, code, state after it,
                                                 priority, message, comment, user; `change`:
                                                 the event), in the order the service made them
+         {"body": {...}, "t": T[, "replay": true]}   a body's result (app.line.opcua.results),
+                                                in order with the alarm changes; a replay (the
+                                                last body, to a restarted process): no event
          {"status": <status reply>, "t": T, "alarms_current": B}   the service's status after
                                                 events (time T); B: its alarms reflect no change
                                                 not sent yet (the conditions are set from them)
@@ -48,6 +51,7 @@ if TYPE_CHECKING:
 
     from app.config.line import OpcUaSettings
     from app.line.opcua.alarms import Conditions
+    from app.line.opcua.results import BodyResults
     from app.line.opcua.space import AddressSpace
 
 NICE = 5  # below the service (0): the cycle first
@@ -138,6 +142,7 @@ class Child:
         self.out, self.inbox = out, inbox
         self.space: AddressSpace | None = None
         self.conditions: Conditions | None = None
+        self.results: BodyResults | None = None
         self._acks: dict[int, asyncio.Future[str | None]] = {}
         self._ack_ids = 0
 
@@ -153,22 +158,26 @@ class Child:
             self.out.send({"error": reason, "field": FIELD})
             return 2
         try:
-            first = await self._next()
-            if "status" in first:
-                await self._apply(first)
+            msg = await self._next()  # the status (and what _next read behind it)
+            await self._handle(msg)
             self.out.send({"ready": True, "pid": os.getpid()})
-            while "stop" not in first:
-                first = await self._next()
-                if "status" in first:
-                    await self._apply(first)
-                elif "alarm" in first:
-                    await self._change(first)
-                elif "reply" in first:
-                    self._replied(first)
+            while "stop" not in msg:
+                msg = await self._next()
+                await self._handle(msg)
             await flush(server, FLUSH_TIMEOUT_S)
         finally:
             await server.stop()
         return 0
+
+    async def _handle(self, msg: dict[str, Any]) -> None:
+        if "status" in msg:
+            await self._apply(msg)
+        elif "alarm" in msg:
+            await self._change(msg)
+        elif "body" in msg:
+            await self._body(msg)
+        elif "reply" in msg:
+            self._replied(msg)
 
     async def _next(self) -> dict[str, Any]:
         """The next message; of statuses queued one after another, the last (coalesced)."""
@@ -189,6 +198,7 @@ class Child:
 
         from app.line.opcua import guard, security
         from app.line.opcua.alarms import Conditions
+        from app.line.opcua.results import BodyResults
         from app.line.opcua.space import AddressSpace, clock_utc
 
         s = self.settings
@@ -203,7 +213,9 @@ class Child:
         machine = await self.space.build(sorted(self.spheres), self.revision, clock_utc(self.t))
         ack = self._acknowledge if s.allow_ack else None
         self.conditions = Conditions(server, self.space.ns, machine, ack)
-        await self.conditions.setup()
+        await self.conditions.setup()  # (the machine an event notifier: the results' too)
+        self.results = BodyResults(server, self.space)
+        await self.results.setup(clock_utc(self.t))
         guard.install(server)
         return server
 
@@ -236,6 +248,17 @@ class Child:
             await self.conditions.apply(msg["alarm"], clock_utc(float(msg.get("t", 0.0))))
         except Exception as exc:  # a change this version cannot read
             log.warning("OPC UA alarm event skipped: %s: %s", type(exc).__name__, exc)
+
+    async def _body(self, msg: dict[str, Any]) -> None:
+        """One body's result: its event (unless a replay) and the LastBody variables."""
+        from app.line.opcua.space import clock_utc
+
+        assert self.results is not None
+        try:
+            t = clock_utc(float(msg.get("t", 0.0)))
+            await self.results.publish(msg["body"], t, replay=bool(msg.get("replay")))
+        except Exception as exc:  # a result this version cannot read
+            log.warning("OPC UA body result skipped: %s: %s", type(exc).__name__, exc)
 
     async def _acknowledge(self, alarm_id: int, who: str, comment: str) -> str | None:
         """The service's audited `ack` (asked over the channel; its reply awaited)."""

@@ -1,14 +1,16 @@
 """The queue between the service's event bus and the OPC UA server process (in the service's
 process; app.line.opcua.server's feed thread takes from it).
 
-Alarm events (ALARM_EVENTS: raised, acknowledged, shelved, unshelved, cleared) are kept each
-in order: the server process applies every one to its condition, so an alarm raised and
-cleared between two status replies is still two OPC UA events. Every other event only says
-"the status changed": one waiting behind another is merged into it (the latest time, `stopped`
-kept), since the next status reply carries both. So the queue holds at most `maxsize` entries
-(alarm events, with merged ticks between them), and only a server process that keeps up with
-none of them for that long loses alarm events: the oldest first, each counted (`lost`, in
-`rvis status` as `opcua.events_dropped`) and logged at most once per LOG_EVERY_S.
+Alarm events (ALARM_EVENTS: raised, acknowledged, shelved, unshelved, cleared) and body
+results (`body`: one OPC UA BodyResultEventType event each, app.line.opcua.results) are kept
+each in order: the server process applies every alarm change to its condition, so an alarm
+raised and cleared between two status replies is still two OPC UA events, and fires one event
+per body. Every other event only says "the status changed": one waiting behind another is
+merged into it (the latest time, `stopped` kept), since the next status reply carries both. So
+the queue holds at most `maxsize` entries (kept events, with merged ticks between them), and
+only a server process that keeps up with none of them for that long loses kept events: the
+oldest first, each counted (`lost`, in `rvis status` as `opcua.events_dropped`) and logged at
+most once per LOG_EVERY_S.
 `offer` never blocks the service.
 """
 
@@ -34,12 +36,23 @@ STATE_OF = {
     "alarm_unshelved": "raised",
     "alarm_cleared": "cleared",
 }
+BODY_EVENT = "body"
 LOG_EVERY_S = 10.0
 TICK = "__status__"  # merged other events: {"event": TICK, "t": latest, "stopped": bool}
 
 
 def is_alarm(message: dict[str, Any]) -> bool:
     return message.get("event") in ALARM_EVENTS and "id" in message and "code" in message
+
+
+def is_body(message: dict[str, Any]) -> bool:
+    """A body's result (app.line.body_cycle.BodyReport): one OPC UA event each."""
+    return message.get("event") == BODY_EVENT
+
+
+def is_kept(message: dict[str, Any]) -> bool:
+    """An event the feed keeps and sends to the server process each, in order."""
+    return is_alarm(message) or is_body(message)
 
 
 def _tick(message: dict[str, Any], before: dict[str, Any] | None) -> dict[str, Any]:
@@ -75,7 +88,7 @@ class FeedQueue(Subscription):
         lost = 0
         with self.mutex:
             self.offered += 1
-            if is_alarm(message) or message.get("control"):
+            if is_kept(message) or message.get("control"):
                 lost = self._make_room()
                 self.queue.append(message)
             elif self.queue and self.queue[-1].get("event") == TICK:
@@ -89,13 +102,13 @@ class FeedQueue(Subscription):
             self._log_lost(lost)
 
     def _make_room(self) -> int:
-        """With the mutex held: when full, the oldest alarm event dropped (the ticks around
+        """With the mutex held: when full, the oldest kept event dropped (the ticks around
         it merged); how many were dropped."""
         if self.maxsize <= 0 or len(self.queue) < self.maxsize:
             return 0
         q = self.queue
         for i, message in enumerate(q):
-            if is_alarm(message):
+            if is_kept(message):
                 del q[i]
                 self.lost += 1
                 if 0 < i < len(q) and q[i - 1].get("event") == TICK == q[i].get("event"):
@@ -110,8 +123,8 @@ class FeedQueue(Subscription):
         if now - self._logged_t < LOG_EVERY_S:
             return
         log.warning(
-            "OPC UA server process behind: %d alarm event(s) not sent to it (%d in all;"
-            " its conditions are set again from the next status reply)",
+            "OPC UA server process behind: %d alarm or body event(s) not sent to it (%d in"
+            " all; its conditions are set again from the next status reply)",
             self._unlogged,
             self.lost,
         )

@@ -7,16 +7,17 @@ The server (asyncua, its clients, the alarm conditions) runs in a child process
 (app.line.opcua.child), so that nothing a network peer sends can take the service's CPU or
 memory. In the service's process, two threads, neither of which the service ever waits for:
 - `rvis-opcua-feed`: blocks on its queue of the service's events (app.line.opcua.feed); after
-  an event (and the others queued behind it) it writes every alarm change among them, in
-  order, to the child, which applies each to its condition (one OPC UA event each), then one
-  status reply, exactly what `rvis status` answers, from which the child writes the variables
-  that changed (timestamped with the service's clock: the event's time). While the child is
-  busy, the pipe fills and this thread waits; the events queue up (bounded: the other events
-  merged, the oldest alarm event dropped and counted only when alarm events fill it).
+  an event (and the others queued behind it) it writes every alarm change and body result
+  among them, in order, to the child, which applies each alarm change to its condition and
+  fires a result event per body (one OPC UA event each), then one status reply, exactly what
+  `rvis status` answers, from which the child writes the variables that changed (timestamped
+  with the service's clock: the event's time). While the child is busy, the pipe fills and
+  this thread waits; the events queue up (bounded: the other events merged, the oldest alarm
+  or body event dropped and counted only when those fill it).
 - `rvis-opcua-watch`: reads the child's lines (its log records, logged here; its acknowledge
   requests, the service's `ack` command, only with `[opcua] allow_ack`: the child has no other
   way back) and restarts the child when it dies (after RESTART_S, doubling up to
-  RESTART_MAX_S), with the last status.
+  RESTART_MAX_S), with the last status and the last body's result (its variables).
 
 `start()` returns once the server listens (InputError when it cannot: exit 2 at `rvis run`).
 `stop()` publishes `stopped` when the service has stopped and lets the child flush it to the
@@ -42,7 +43,7 @@ from typing import IO, TYPE_CHECKING, Any
 from app.config.line import OpcUaSettings
 from app.errors import InputError
 from app.line.opcua.endpoint import FIELD, cannot_listen, endpoint_problem
-from app.line.opcua.feed import STATE_OF, TICK, FeedQueue, is_alarm
+from app.line.opcua.feed import STATE_OF, TICK, FeedQueue, is_alarm, is_body
 
 if TYPE_CHECKING:
     from app.line.service import Service
@@ -57,6 +58,11 @@ HEALTHY_S = 60.0  # a child that ran this long restarts after RESTART_S again
 MAX_LINE = 64 * 1024  # a line from the child (longer: ignored)
 _STOP = {"event": "__opcua_stop__", "control": True}
 ALARM_FIELDS = ("id", "code", "state", "priority", "message", "comment", "user")
+#: a `body` event's fields the server process publishes (app.line.opcua.results)
+BODY_FIELDS = (
+    "body_id", "ok", "n_nok", "n_undecided", "n_not_measured", "withdrawn", "worst",
+    "params_version",
+)  # fmt: skip
 _ROOT = Path(__file__).resolve().parents[3]  # where `app` is: the child runs the same code
 
 
@@ -91,6 +97,7 @@ class OpcUaServer:
         self._send_lock = threading.Lock()
         self._last_status: dict[str, Any] = {}
         self._last_t = 0.0
+        self._last_body: dict[str, Any] | None = None  # the last body's message, replayed
         self._stopped_published = False
         self._ready = threading.Event()  # a child listens
         self._stopping = threading.Event()
@@ -196,6 +203,9 @@ class OpcUaServer:
             self._last_status = self.service.status()
             self._last_t = self.service.clock.time()
         self._send({"status": self._last_status, "t": self._last_t})
+        last_body = self._last_body
+        if last_body is not None:  # a restarted server process: LastBody as it was
+            self._send({**last_body, "replay": True})
 
     def _await_start(self) -> None:
         """Until the child listens (its log lines logged meanwhile); InputError when it
@@ -344,12 +354,16 @@ class OpcUaServer:
         while True:
             batch, offered = self._events.take()
             events = [e for e in batch if e is not _STOP]
-            for e in events:  # each alarm change, in order, before the status after them
+            for e in events:  # each alarm change and body, in order, before the status
                 if is_alarm(e):
                     alarm = {k: e[k] for k in ALARM_FIELDS if k in e}
                     alarm.setdefault("state", STATE_OF[e["event"]])
                     alarm["change"] = e["event"]
                     self._send({"alarm": alarm, "t": float(e.get("t", 0.0))})
+                elif is_body(e):
+                    body = {k: e[k] for k in BODY_FIELDS if k in e}
+                    self._last_body = {"body": body, "t": float(e.get("t", 0.0))}
+                    self._send(self._last_body)
             if events:  # `stopped` too when it came with the end (the service ended first)
                 stopped = any(e["event"] == TICK and e["stopped"] for e in events)
                 self._publish(max(float(e.get("t", 0.0)) for e in events), stopped, offered)

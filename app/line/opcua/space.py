@@ -11,6 +11,8 @@ rvis's own variables, and how a status reply of the service becomes their values
                                                      (HasAddIn)
             ServiceState, Step, CalibrationVersion, ... (rvis)   VARIABLES below
             Spheres/<id>/DriftEwmaMm, Drifting (rvis)
+            LastBody/BodyId, Ok, ... (rvis)          the last body's result; each body's
+                                                     BodyResultEventType (app.line.opcua.results)
             Alarms/<code> (rvis)                     AlarmConditionType (app.line.opcua.alarms)
 
 The OPC Foundation's DI and Machinery NodeSets (NODESETS, shipped as they are in `nodesets/`)
@@ -88,6 +90,13 @@ UNECE = "http://www.opcfoundation.org/UA/units/un/cefact"
 UNITS = {"mm": ("MMT", "mm", "millimetre"), "degC": ("CEL", "°C", "degree Celsius")}
 NO_VALUE = ua.StatusCodes.BadNoValue
 LEFT_OUT = ua.StatusCodes.UncertainLastUsableValue
+
+
+def eu_information(unit: str) -> ua.EUInformation:
+    """The EngineeringUnits of a UNITS key (UNECE code as the UnitId, OPC UA Part 8)."""
+    code, shown, text = UNITS[unit]
+    unit_id = int.from_bytes(code.encode("ascii"), "big")
+    return ua.EUInformation(UNECE, unit_id, ua.LocalizedText(shown), ua.LocalizedText(text))
 
 
 def _alarm_count(alarms: Any) -> int:
@@ -462,6 +471,12 @@ class AddressSpace:
         return obj
 
     async def _variable(self, parent: Node, where: tuple[str, ...], var: Var) -> None:
+        node = await self.add_variable(parent, where, var)
+        self._vars[".".join((*where, var.name))] = (var, node)
+
+    async def add_variable(self, parent: Node, where: tuple[str, ...], var: Var) -> Node:
+        """The node of `var` under `parent` (NodeId `<where>.<name>`; AnalogItemType with its
+        EngineeringUnits and EURange when it has a unit), not fed from the status reply."""
         typedef = ua.ObjectIds.AnalogItemType if var.unit else ua.ObjectIds.BaseDataVariableType
         node = await self._add(
             parent,
@@ -473,13 +488,10 @@ class AddressSpace:
             description=var.description,
         )
         if var.unit:
-            code, shown, text = UNITS[var.unit]
-            unit_id = int.from_bytes(code.encode("ascii"), "big")
-            eu = ua.EUInformation(UNECE, unit_id, ua.LocalizedText(shown), ua.LocalizedText(text))
             await node.add_property(
                 self._id(*where, var.name, "EngineeringUnits"),
                 ua.QualifiedName("EngineeringUnits", 0),
-                ua.Variant(eu, ua.VariantType.ExtensionObject),
+                ua.Variant(eu_information(var.unit), ua.VariantType.ExtensionObject),
                 datatype=ua.NodeId(ua.ObjectIds.EUInformation),
             )
             lo, hi = var.eu_range or (0.0, 0.0)
@@ -489,7 +501,7 @@ class AddressSpace:
                 ua.Variant(ua.Range(lo, hi), ua.VariantType.ExtensionObject),
                 datatype=ua.NodeId(ua.ObjectIds.Range),
             )
-        self._vars[".".join((*where, var.name))] = (var, node)
+        return node
 
     async def _add(
         self,
