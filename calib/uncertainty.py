@@ -53,6 +53,32 @@ def u95_mm(norms_mm: Sequence[float], extra_sigma_mm: float = 0.0) -> float:
     return norm_quantile() * math.hypot(s, extra_sigma_mm)
 
 
+#: VDA 5: the expanded uncertainty at most this share of a tolerance T (2 U / T)
+VDA5_MAX_RATIO = 0.30
+#: the tolerance T [mm] a limit stands for when the plant gives none (+-0.5 mm, a body's)
+DEFAULT_TOLERANCE_MM = 1.0
+#: a healthy cell's own U95 times this is where it can no longer vouch: its uncertainty grew
+#: by half (its variance 2.25x) before a window is suspect, so that a cell stating its usual
+#: figure is not at its limit
+HEALTHY_MARGIN = 1.5
+
+
+def accuracy_limit_mm(tolerance_mm: float, own_u95_mm: float | None) -> tuple[float, str]:
+    """The U95 a cell is held to: VDA 5's 2U/T <= 30 % of the tolerance (0: +-0.5 mm), or, when
+    the cell's own U95 (its commissioning's workspace validation) is so near that, HEALTHY_MARGIN
+    times its own; with the reason in words."""
+    t = tolerance_mm if tolerance_mm > 0 else DEFAULT_TOLERANCE_MM
+    vda = VDA5_MAX_RATIO / 2.0 * t
+    if own_u95_mm is None or not math.isfinite(own_u95_mm) or HEALTHY_MARGIN * own_u95_mm <= vda:
+        return vda, f"VDA 5 (2 U95 / T <= 30 %) for a tolerance of {t:g} mm"
+    own = HEALTHY_MARGIN * own_u95_mm
+    return own, (
+        f"{HEALTHY_MARGIN:g} x the cell's own U95 {own_u95_mm:.3f} mm (VDA 5's {vda:.3f} mm for a"
+        f" tolerance of {t:g} mm would hold a healthy cell at its limit; 2 U95 / T"
+        f" {2 * own_u95_mm / t:.0%})"
+    )
+
+
 def shown_larger(
     norms_mm: Sequence[float], sigma_mm: float, confidence: float = CONFIDENCE
 ) -> bool:

@@ -223,6 +223,7 @@ class SimulatedCell:
         self._zero_change_rad = np.zeros(6)  # a motor or encoder replaced: the URDF offsets
         self._robots: dict[tuple[bool, bool], TrueRobot] = {}  # (knocked, serviced) -> robot
         self._spheres_serviced: dict[str, F64] = {}  # a fixture renewed: the spheres after it
+        self._sphere_knocked: tuple[str, F64] | None = None  # a sphere knocked alone
         self._sensor_serviced: TrueSensor | None = None  # a sensor replaced: the new one
         self._noise = np.random.default_rng([s.seed, 1])
         self._spheres = {k: np.asarray(v, dtype=float) for k, v in spec.spheres_part_mm.items()}
@@ -281,6 +282,7 @@ class SimulatedCell:
         rng = np.random.default_rng([self.settings.seed, 5])
         self._T_knock = np.eye(4)
         self._T_part_knocked, self._robot_knocked = self.T_part_world, self.robot
+        self._sphere_knocked = None
         if knock is None:
             return
         if knock.kind == "sensor":
@@ -289,6 +291,8 @@ class SimulatedCell:
             centroid = np.mean(list(self._spheres.values()), axis=0)
             moved = knock.T_fixture_moved(rng, centroid)
             self._T_part_knocked = np.linalg.inv(moved) @ self.T_part_world
+        elif knock.kind == "sphere":
+            self._sphere_knocked = knock.sphere_moved(rng, list(self._spheres))
         else:
             offsets = self.robot.zero_offset_rad + knock.zero_slip_rad(rng)
             self._robot_knocked = replace(self.robot, zero_offset_rad=offsets)
@@ -540,8 +544,12 @@ class SimulatedCell:
         return self._sphere_now(target_id).copy()
 
     def _sphere_now(self, target_id: str) -> F64:
-        if target_id in self._spheres_serviced and self._serviced(self._at(None)):
+        t = self._at(None)
+        if target_id in self._spheres_serviced and self._serviced(t):
             return self._spheres_serviced[target_id]
+        moved = self._sphere_knocked
+        if moved is not None and moved[0] == target_id and self._knocked(t):
+            return self._spheres[target_id] + moved[1]
         return self._spheres[target_id]
 
     def place_sphere(self, target_id: str, p_part_mm: ArrayLike) -> None:

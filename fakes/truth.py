@@ -248,7 +248,9 @@ class Warmup:
         return float(self.rise_k * -np.expm1(-dt / self.tau_s))
 
 
-KNOCK_KINDS = ("sensor", "fixture", "joint")
+#: "joint" is the J2 zero (as J2); Jn any axis's zero; "sphere" one sphere alone
+JOINT_KNOCKS = ("J1", "J2", "J3", "J4", "J5", "J6")
+KNOCK_KINDS = ("sensor", "fixture", "joint", *JOINT_KNOCKS, "sphere")
 
 
 @dataclass(frozen=True)
@@ -259,7 +261,10 @@ class Knock:
       [deg] about its own origin (defaults 0.3 mm, 0.05 deg);
     - ``fixture``: the four spheres' frame (and so the part frame they define) moves by
       ``shift_mm`` and turns by ``tilt_deg`` about the spheres' centroid (0.5 mm, 0.03 deg);
-    - ``joint``: the J2 encoder zero slips by ``tilt_deg`` (0.01 deg; ``shift_mm`` unused).
+    - ``joint`` (``J2``), ``J1`` .. ``J6``: that axis's encoder zero slips by ``tilt_deg``
+      (0.01 deg; ``shift_mm`` unused);
+    - ``sphere``: one sphere (drawn from the seed) moves alone by ``shift_mm`` (0.5 mm) in the
+      part frame (its stand knocked; ``tilt_deg`` unused).
 
     Directions (and the slip's sign) are drawn from the seed passed to the methods."""
 
@@ -276,7 +281,8 @@ class Knock:
     def of_kind(kind: str, at_s: float) -> Knock:
         """The issue's knock of each kind: sensor 0.3 mm / 0.05 deg, fixture 0.5 mm /
         0.03 deg, joint a J2 zero slip of 0.01 deg."""
-        sizes = {"sensor": (0.3, 0.05), "fixture": (0.5, 0.03), "joint": (0.0, 0.01)}
+        sizes = {"sensor": (0.3, 0.05), "fixture": (0.5, 0.03), "sphere": (0.5, 0.0)}
+        sizes |= {k: (0.0, 0.01) for k in ("joint", *JOINT_KNOCKS)}
         if kind not in sizes:
             raise ValueError(f"knock kind must be one of {', '.join(KNOCK_KINDS)}")
         shift_mm, tilt_deg = sizes[kind]
@@ -298,11 +304,24 @@ class Knock:
         out: F64 = homogeneous(np.eye(3), c) @ M @ homogeneous(np.eye(3), -c)
         return out
 
+    @property
+    def axis(self) -> int | None:
+        """The axis (0-5) whose zero slips; None: not a joint kind."""
+        if self.kind == "joint":
+            return 1
+        return JOINT_KNOCKS.index(self.kind) if self.kind in JOINT_KNOCKS else None
+
     def zero_slip_rad(self, rng: np.random.Generator) -> F64:
-        """The `joint` kind: the encoder zero offsets' change (6,) [rad] (J2 only)."""
+        """A joint kind: the encoder zero offsets' change (6,) [rad] (its axis only)."""
         out = np.zeros(6)
-        out[1] = np.radians(self.tilt_deg) * (1.0 if rng.random() < 0.5 else -1.0)
+        axis = 1 if self.axis is None else self.axis
+        out[axis] = np.radians(self.tilt_deg) * (1.0 if rng.random() < 0.5 else -1.0)
         return out
+
+    def sphere_moved(self, rng: np.random.Generator, targets: list[str]) -> tuple[str, F64]:
+        """The `sphere` kind: which sphere and its move (3,) [mm, part frame]."""
+        target = sorted(targets)[int(rng.integers(len(targets)))]
+        return target, self.shift_mm * _unit_vector(rng)
 
 
 def _unit_vector(rng: np.random.Generator) -> F64:

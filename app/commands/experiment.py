@@ -24,6 +24,7 @@ from app.planning import add_plan_options, plan_overrides
 from app.sim.accuracy import AccuracySettings, run_accuracy
 from app.sim.accuracy import summary_text as accuracy_text
 from app.sim.paper import run_experiment, summary_text
+from fakes.truth import KNOCK_KINDS as KNOCKS
 
 if TYPE_CHECKING:
     from app.sim.shift import ShiftResult, ShiftSettings
@@ -220,11 +221,24 @@ def _shift_options(g: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--knock",
-        choices=("sensor", "fixture", "joint", "all"),
+        choices=(*KNOCKS, "all"),
         default="sensor",
         help="what the knock moves: the sensor mount (0.3 mm, 0.05 deg; default), the"
-        " spheres' frame (0.5 mm, 0.03 deg) or the J2 zero (0.01 deg); all: each in turn"
-        " (with --seeds: a campaign, shift-knocks.md)",
+        " spheres' frame (0.5 mm, 0.03 deg), an axis's zero (J1..J6, joint = J2: 0.01 deg),"
+        " one sphere alone (sphere: 0.5 mm); all: sensor, fixture and joint in turn (with"
+        " --seeds: a campaign, shift-knocks.md)",
+    )
+    g.add_argument(
+        "--knock-at-window",
+        type=int_at_least(1),
+        metavar="N",
+        help="knock in the N-th window instead of at --knock-at-h (one shift)",
+    )
+    g.add_argument(
+        "--detector",
+        choices=("glr", "charts"),
+        help="what watches the cell for a knock (default [service] detector): the one"
+        " estimator's jump test or the drift charts and the step handler",
     )
     g.add_argument("--seed", type=int_at_least(0), default=0, help="seed of one shift (0)")
     g.add_argument(
@@ -330,9 +344,11 @@ def run_shift_experiment(args: argparse.Namespace) -> int:
         write_outputs,
     )
 
+    cfg = load_cell(args.cell)
+    if args.knock_at_window is not None:  # the N-th window opens at (N - 1) periods
+        args.knock_at_h = [(args.knock_at_window - 1) * cfg.simline.period_s / 3600.0]
     ((knock_h, hours),) = _knock_hours(args)
     settings = _shift_settings(args, knock_h, hours)
-    cfg = load_cell(args.cell)
     out = Path(args.out or f"runs/shift-{time.strftime('%Y%m%d-%H%M%S')}")
     if (out / "state").exists():
         raise InputError("the output folder already holds a shift's state", file=out / "state")
@@ -390,6 +406,7 @@ def _shift_settings(args: argparse.Namespace, knock_h: float, hours: float) -> S
             slots_per_window=args.slots_per_window,
             model=args.model,
             estimator=None if args.estimator in (None, "compare") else args.estimator,
+            detector=args.detector,
         )
     except ValueError as exc:
         raise InputError(str(exc), field="--hours/--knock-at-h/--scale") from exc
@@ -406,6 +423,7 @@ def _shift_command(args: argparse.Namespace, scale: float | None, out: Path, whe
         + (f" --slots-per-window {args.slots_per_window}" if args.slots_per_window else "")
         + (" --rendered" if args.rendered else "")
         + (f" --estimator {args.estimator}" if args.estimator else "")
+        + (f" --detector {args.detector}" if args.detector else "")
         + (f" --model {args.model}" if args.model else "")
     )
 

@@ -27,7 +27,7 @@ from app.commission.files import (
     STRIPE_FILE,
     WORKSPACE_ERRORS_FILE,
 )
-from app.commission.workspace import accuracy_limit_of, workspace_evidence_mm
+from app.commission.workspace import workspace_evidence_mm
 from app.config import CellConfig, load_cell
 from app.config.devices import CameraSection
 from app.config.write import dumps_cell
@@ -36,6 +36,7 @@ from app.formats.params import from_json
 from app.line.params_store import ParamsStore, first_in_force
 from app.line.schedule import Schedule
 from app.line.store import Store
+from calib.uncertainty import accuracy_limit_mm, u95_mm
 
 
 def ready(ctx: Context) -> StepResult:
@@ -64,8 +65,12 @@ def _commissioned_cell(ctx: Context) -> CellConfig:
     cell = ctx.cell()
     service = dataclasses.replace(cell.service, state_dir=str(ctx.state.root.resolve()))
     tolerance = ctx.cfg.commission.tolerance_mm
-    if tolerance > 0:  # the plant's tolerance sets the limit of the U95 the service vouches for
-        service = dataclasses.replace(service, accuracy_limit_mm=accuracy_limit_of(tolerance))
+    errors = workspace_evidence_mm(ctx.path(WORKSPACE_ERRORS_FILE))
+    if tolerance > 0 or errors:  # the limit of the U95 the service vouches for (VDA 5 and the
+        # cell's own U95: calib.uncertainty.accuracy_limit_mm)
+        own = u95_mm(errors) if errors else None
+        limit = accuracy_limit_mm(tolerance, own)[0]
+        service = dataclasses.replace(service, accuracy_limit_mm=limit)
     cell = dataclasses.replace(cell, service=service)
     if ctx.truth is not None:  # the simulated cell: its seed and path, for `run --sim` later
         simulation = dataclasses.replace(

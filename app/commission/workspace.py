@@ -36,16 +36,10 @@ from app.formats.params import from_json
 from app.workspace import workspace_points
 from calib import candidates
 from calib.identify import Measurements
-from calib.uncertainty import u95_mm
+from calib.uncertainty import VDA5_MAX_RATIO, accuracy_limit_mm, u95_mm
 from calib.validation import rmse
 
 #: VDA 5's usual limit of a measurement process's capability ratio 2U/T
-VDA5_MAX_RATIO = 0.30
-
-
-def accuracy_limit_of(tolerance_mm: float) -> float:
-    """The U95 limit [mm] a tolerance T puts on the cell: 2U/T <= VDA5_MAX_RATIO."""
-    return VDA5_MAX_RATIO / 2.0 * tolerance_mm
 
 
 F64 = NDArray[np.float64]
@@ -186,7 +180,8 @@ def workspace_validation(
     if c.tolerance_mm > 0:
         r.results["tolerance_mm"] = c.tolerance_mm
         r.results["vda5_ratio"] = 2.0 * u95 / c.tolerance_mm
-        r.results["accuracy_limit_mm"] = accuracy_limit_of(c.tolerance_mm)
+        limit, why = accuracy_limit_mm(c.tolerance_mm, u95)
+        r.results |= {"accuracy_limit_mm": limit, "accuracy_limit_basis": why}
     if ctx.truth is not None:  # the simulated line: the end-to-end truth at its 100 positions
         r.results["true_rmse_mm"] = ctx.truth.true_rmse_mm(model, x, ctx.sensor_model())
     # the error's figures with the check, in mm to 0.1 um; only the RMS has a limit

@@ -20,6 +20,9 @@ from app.line.statedir import DEFAULT_ROOT, MIN_FREE_MB
 from calib import datasheet
 from calib.gate_limits import INLINE
 
+#: the simulated line's knock kinds (fakes.truth.KNOCK_KINDS, which tests check against)
+SIM_KNOCK_KINDS = ("sensor", "fixture", "joint", "J1", "J2", "J3", "J4", "J5", "J6", "sphere")
+
 Vec = tuple[float, ...]
 
 
@@ -118,10 +121,12 @@ class RecalibSettings(Section):
     holdout_size: int = opt(4, lo=1, hi=1000)
     every_n: int = opt(24, lo=1, hi=100000)  # new measurements between recalibrations
     max_nfev: int = opt(200, lo=10, hi=10000)
-    # the plant's limit for the U95 of a point measured now (app/line/accuracy.py): a window
-    # whose U95 is above it is in a suspect interval. Default 0.15 mm: VDA 5's 2U/T <= 30 % for
-    # a body tolerance T of +-0.5 mm; a plant sets it from its own tolerance
-    accuracy_limit_mm: float = opt(0.15, gt=0, hi=100)
+    # the plant's limit for the U95 of a point measured now: a window whose U95 is above it is
+    # in a suspect interval. 0: by calib.uncertainty.accuracy_limit_mm, VDA 5's 2U/T <= 30 % for
+    # a body tolerance of +-0.5 mm (0.15 mm), or 1.5x the cell's own U95 from its commissioning's
+    # workspace validation when that is higher (a healthy cell is not at its limit); `rvis
+    # commission` writes it from the plant's tolerance ([commission] tolerance_mm) the same way
+    accuracy_limit_mm: float = opt(0.0, lo=0, hi=100)
     # the model the service identifies: "compliant" (J2/J3 gravity deflection and the thermal
     # term, with [calibration]'s payload and thermal settings) or "rigid" (the paper's). A
     # version in force of a rigid model (a rigid commissioning) is carried into the compliant
@@ -139,7 +144,9 @@ class RecalibSettings(Section):
     seq_drift_extra: float = opt(0.0, lo=0, hi=1)
     seq_knock_mm: float = opt(0.5, lo=0, hi=100)  # added to the std when a step is flagged
     seq_knock_rad: float = opt(1e-3, lo=0, hi=1)
-    seq_prior_mm: float = opt(0.5, gt=0, hi=100)  # prior without an identification's covariance
+    # the prior of a parameter the version in force has no covariance for (a nominal or an
+    # imported version): the sequential estimator's and the jump test's (app/line/jumps.py)
+    seq_prior_mm: float = opt(0.5, gt=0, hi=100)
     seq_prior_rad: float = opt(1e-3, gt=0, hi=1)
     seq_max_std_mm: float = opt(0.025, gt=0, hi=10)  # after a step: before a candidate
     # "cycle": the plan's configurations in turn; "adaptive" (sequential only): the most
@@ -188,6 +195,30 @@ class RecalibSettings(Section):
     recovery_min_measurements: int = opt(6, lo=1, hi=1000)
     recovery_margin: float = opt(0.25, gt=0, hi=10)  # relative: RMS within 1.25x
     recovery_tolerance_mm: float = opt(0.02, lo=0, hi=10)  # absolute: RMS within + 0.02 mm
+
+    # what watches the cell for a jump (a knock): "glr", the one estimator (app/line/jumps.py,
+    # calib/cellstate.py: a filter on the parameters with a likelihood ratio test per group
+    # that can move), or "charts", the drift charts and the step handler (app/line/drift.py,
+    # app/line/step_handler.py; kept to compare with while they are replaced)
+    detector: str = opt("glr", choices=("glr", "charts"))
+    # one coordinate of a sphere centre's own noise: the sensor's and the robot's repeatability
+    jump_sigma_mm: float = opt(0.02, gt=0, hi=10)
+    # the unmodelled term's floor without a commissioning's workspace validation (one coordinate)
+    jump_unmodelled_mm: float = opt(0.03, lo=0, hi=10)
+    # slow drift as a random walk of the parameters, per sqrt(hour)
+    jump_drift_mm_per_h: float = opt(0.02, lo=0, hi=10)
+    jump_drift_rad_per_h: float = opt(1e-5, lo=0, hi=0.1)
+    jump_window: int = opt(36, lo=4, hi=1000)  # measurements the jump test looks at
+    # the rate of a jump detected per measurement when nothing jumped (Bonferroni over the
+    # groups and onsets tested: an upper bound)
+    jump_false_alarm: float = opt(1e-4, gt=0, hi=0.1)
+    # measurements after the onset with no decisive group: a full recalibration instead
+    jump_settle: int = opt(6, lo=1, hi=1000)
+    # measurements on the corrected version without a jump that end the episode
+    jump_confirm: int = opt(2, lo=1, hi=1000)
+    # windows in a row the cell cannot vouch for its U95 within accuracy_limit_mm: the
+    # `accuracy` alarm, and a full recalibration unless a jump's episode is handling it
+    accuracy_alarm_windows: int = opt(3, lo=1, hi=100000)
 
     @property
     def rolling_n(self) -> int:
@@ -287,8 +318,9 @@ class SimLineSection(Section):
     """The simulated line of `rvis run --sim` (fakes/line.py): its time, clamp cycle, the
     cell's warm-up and a knock (knock_at_s < 0: none) of the sensor mount (knock_kind sensor:
     knock_mm shift and knock_deg tilt), of the spheres' frame (fixture: the same about the
-    spheres' centroid) or of the J2 encoder zero (joint: a slip of knock_deg), and a
-    maintenance event beyond a knock (maintenance_at_s < 0: none; issue 41).
+    spheres' centroid), of an encoder zero (J1 .. J6, joint = J2: a slip of knock_deg) or of
+    one sphere alone (sphere: a move of knock_mm), and a maintenance event beyond a knock
+    (maintenance_at_s < 0: none; issue 41).
 
     Time on the simulated line is virtual: it passes by the simulated durations of what
     happens (motions, exposures and read-outs, the DAC's settling, the service's own waits,
@@ -325,7 +357,7 @@ class SimLineSection(Section):
     knock_at_s: float = opt(-1.0, lo=-1, hi=1e7)
     knock_mm: float = opt(0.3, lo=0, hi=100)
     knock_deg: float = opt(0.05, lo=0, hi=90)
-    knock_kind: str = opt("sensor", choices=("sensor", "fixture", "joint"))
+    knock_kind: str = opt("sensor", choices=SIM_KNOCK_KINDS)
     # a maintenance event at world time maintenance_at_s (< 0: none), beyond a knock
     # (fakes.truth.Maintenance): a sensor replaced, the motor or encoder of maintenance_axis
     # replaced, the sphere fixture renewed (maintenance_sphere: only that sphere replaced);

@@ -339,6 +339,12 @@ def with_held_covariance(doc: dict[str, Any], before: dict[str, Any], path: str 
     io = [names_o.index(n) for n in held]
     cov[:k, :k] = cov_o[np.ix_(io, io)]
     cov[k:, k:] = cov_n
+    set_covariance(doc, names, cov)
+
+
+def set_covariance(doc: dict[str, Any], names: list[str], cov: F64) -> None:
+    """A document's covariance of `names` (its `active` order, correlation matrix and the
+    parameters' standard uncertainties), in place."""
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     scale = np.where(std > 0, std, 1.0)
     doc["active"] = names

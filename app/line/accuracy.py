@@ -18,13 +18,15 @@ accuracy suspect interval, closed by the first window vouched for again.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from app.config.line import RecalibSettings
 from app.line.drift import prediction_inflation
-from calib.uncertainty import norm_quantile, shown_larger, u95_mm
+from calib.uncertainty import accuracy_limit_mm, norm_quantile, shown_larger, u95_mm
 
 #: the `group_name` of an accuracy suspect interval (a step's names the group that moved)
 ACCURACY_GROUP = "accuracy"
@@ -34,6 +36,8 @@ VOUCHED = "vouched"
 #: predicted uncertainty that they do not contradict
 AFTER_STEP = "after step"
 PREDICTED = "predicted"
+#: the basis of a statement from the one estimator (app.line.jumps)
+ESTIMATOR = "estimator"
 
 
 @dataclass(frozen=True)
@@ -134,6 +138,20 @@ def with_prediction(
     if acc.u95_mm is not None and acc.u95_mm <= u:
         return acc
     return Accuracy(u, len(norms_mm), PREDICTED, acc.limit_mm)
+
+
+def limit_in_force(
+    recalib: RecalibSettings, first: Mapping[str, Any] | None
+) -> tuple[RecalibSettings, str]:
+    """The settings with the limit in force: `accuracy_limit_mm` as set, or (0) by
+    calib.uncertainty.accuracy_limit_mm from the cell's own U95, its first version's workspace
+    validation (`first`: its document), for the default tolerance; with the reason."""
+    if recalib.accuracy_limit_mm > 0:
+        return recalib, "[service] accuracy_limit_mm"
+    errors = ((first or {}).get("validation") or {}).get("errors_mm")
+    own = u95_mm([float(e) for e in errors]) if errors else None
+    limit, why = accuracy_limit_mm(0.0, own)
+    return dataclasses.replace(recalib, accuracy_limit_mm=limit), why
 
 
 def document_seed(doc: Mapping[str, Any] | None) -> list[float]:

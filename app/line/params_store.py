@@ -104,6 +104,14 @@ class ParamsStore:
         doc = json.loads(self.current_path.read_text(encoding="utf-8"))
         return doc if isinstance(doc, dict) else None
 
+    def document(self, version: int) -> dict[str, Any] | None:
+        """Version `version`'s document as written (None: none, or not readable)."""
+        try:
+            doc = json.loads(self.version_path(version).read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return None
+        return doc if isinstance(doc, dict) else None
+
 
 def first_in_force(
     params: ParamsStore,

@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 from app.line.decisions import Decisions
 from app.line.drift import residual_mm
 from app.line.host import LineHost
+from app.line.jumps import JumpWatch
 from app.line.measure import Reading
 from app.line.schedule import Slot
 from app.line.sensor_watch import SensorWatch
@@ -36,10 +37,17 @@ class Recording:
     """The visits' measurements stored and charted, on the service `svc`; a step flagged goes
     to `steps`, a good measurement counts towards the next recalibration (`decisions`)."""
 
-    def __init__(self, svc: LineHost, steps: StepHandler, decisions: Decisions) -> None:
+    def __init__(
+        self,
+        svc: LineHost,
+        steps: StepHandler,
+        decisions: Decisions,
+        jumps: JumpWatch | None = None,
+    ) -> None:
         self.svc = svc
         self.steps = steps
         self.decisions = decisions
+        self.jumps = jumps
 
     def position(self) -> int:
         """The schedule's slot the next window starts from (stored)."""
@@ -74,7 +82,10 @@ class Recording:
             if reading is not None and e is not None:
                 self.decisions.counted()
                 change = self._change_mm(slot, reading.c_sensor_mm, row_id)
-                self._drift(slot.target, e, change, row_id)
+                if self.jumps is not None:
+                    self.jumps.observe({**row, "id": row_id})
+                else:
+                    self._drift(slot.target, e, change, row_id)
                 if svc.sequential is not None:
                     svc.sequential.offer({**row, "id": row_id})
             svc.save_state()

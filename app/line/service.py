@@ -50,6 +50,7 @@ cycle (`run`, `stop`, `crash`); its collaborators see it as app.line.host.LineHo
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import threading
 from collections.abc import Callable, Mapping, Sequence
@@ -59,7 +60,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from app.line.accuracy import Accuracy
+from app.line.accuracy import Accuracy, limit_in_force
 from app.line.body_cycle import BodyCycle, BodySetup
 from app.line.body_export import ResultsWriter
 from app.line.cycle import Cycle, WindowWatch
@@ -68,6 +69,7 @@ from app.line.drift import DriftMonitor
 from app.line.events import EventBus
 from app.line.faults import Faults
 from app.line.inline_seq import InlineSequential, SequentialCandidate
+from app.line.jumps import JumpWatch
 from app.line.measure import SphereMeasurer, SphereSensor
 from app.line.operator import Operator
 from app.line.params_store import MAINTENANCE_SOURCE, ParamsStore
@@ -117,9 +119,11 @@ class Service:
     ) -> None:
         """`initial_residuals`: the identification residuals of `x_initial` (n_measurements,
         rms_mm, n_parameters) and, when its commissioning validated it across the workspace,
-        `validation_errors_mm` (the norms), written into a new directory's first version (its
-        U95 seed, app.line.accuracy.document_seed). `bodies`: the part type's plan and the
-        feature sensor (app.line.body_cycle.body_setup; None: the cell measures no body)."""
+        `validation_errors_mm` (the norms), and `covariance` ({"active", "cov"}: the
+        identification's), written into a new directory's first version (its U95 seed,
+        app.line.accuracy.document_seed; the estimator's prior, app.line.jumps). `bodies`: the
+        part type's plan and the feature sensor (app.line.body_cycle.body_setup; None: the cell
+        measures no body)."""
         self.settings = s = settings or ServiceSettings()
         self.clock = clock or RealClock()
         self.station, self.schedule = station, schedule
@@ -146,6 +150,8 @@ class Service:
             self.store.close()
             raise
         self.model, self.x, self.version = loaded.model, loaded.x, loaded.version
+        recalib, self.limit_basis = limit_in_force(s.recalib, self.params.document(1))
+        self.settings = s = dataclasses.replace(s, recalib=recalib)
         self.drift = DriftMonitor(s.drift, residual_baseline_n=len(schedule))
         d = s.drift
         self.sensor_watch = SensorWatch(s.max_ps_mm, d.ewma_lambda, d.cusum_h, d.baseline_n)
@@ -208,10 +214,12 @@ class Service:
         self.faults = Faults(self)
         self.operator = Operator(self)  # the operator's commands (app.line.operator)
         self.step_handler = StepHandler(self)  # a flagged step's handling (app.line.step_handler)
-        self.versions = Versions(self, self.step_handler)
+        # the one estimator and its jump test (app.line.jumps), or the drift charts' steps
+        self.jumps = JumpWatch(self) if s.recalib.detector == "glr" else None
+        self.versions = Versions(self, self.step_handler, self.jumps)
         self.decisions = Decisions(self, self.versions)
         self.slot_choice = SlotChoice(self, self.step_handler)
-        self.recording = Recording(self, self.step_handler, self.decisions)
+        self.recording = Recording(self, self.step_handler, self.decisions, self.jumps)
         self.cycle = Cycle(
             self.watch,
             self.measurer,
@@ -221,11 +229,15 @@ class Service:
             choose=self.slot_choice.choose,
             slots_wanted=self.slot_choice.slots_wanted,
         )
-        self.loop = WindowLoop(self, self.operator, self.faults, self.step_handler, self.decisions)
+        self.loop = WindowLoop(
+            self, self.operator, self.faults, self.step_handler, self.decisions, self.jumps
+        )
         self.startup = Startup(
             self, self.operator, self.faults, self.decisions, loaded.start_alarms
         )
         self.restore()
+        if self.jumps is not None:
+            self.jumps.restart()
         if loaded.recovered is not None:  # an apply the database does not know yet
             self.in_force(*loaded.recovered, "recovered", None)
 
@@ -260,6 +272,7 @@ class Service:
             "accuracy_suspect_id": self.accuracy_suspect_id,
             "accuracy": None if self.accuracy is None else self.accuracy.to_json(),
             "maintained_from_id": self.maintained_from_id,
+            "jumps": None if self.jumps is None else self.jumps.to_json(),
         }
 
     def save_state(self) -> None:
@@ -298,6 +311,8 @@ class Service:
                 acc["u95_mm"], int(acc["n"]), str(acc["basis"]), float(acc["limit_mm"])
             )
         self.maintained_from_id = int(doc.get("maintained_from_id", 0))
+        if self.jumps is not None:
+            self.jumps.load_json(doc.get("jumps"))
         if doc["params_version"] != self.version and self._handed_over():
             self._after_maintenance()
 

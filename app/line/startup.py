@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.errors import InputError
-from app.formats.params import plain_document
+from app.formats.params import plain_document, set_covariance
 from app.line.decisions import Decisions
 from app.line.faults import Faults, fault_stop
 from app.line.host import LineHost
@@ -86,7 +86,10 @@ def load_in_force(
         if initial_residuals is not None:
             given = dict(initial_residuals)
             validation = given.pop("validation_errors_mm", None)
+            cov = given.pop("covariance", None)
             doc |= {"residuals": given, "n_parameters": given.get("n_parameters")}
+            if cov:  # the identification's, over its active parameters
+                set_covariance(doc, list(cov["active"]), np.asarray(cov["cov"], float))
             if validation:  # the commissioning's workspace validation (app.line.accuracy)
                 doc["validation"] = {"errors_mm": [float(e) for e in validation]}
         version = first_in_force(params, store, doc, "initial", clock)

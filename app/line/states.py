@@ -57,6 +57,8 @@ class AlarmCode(StrEnum):
     RESULTS_DIR = "results_dir", "system"
     #: a characteristic's individuals chart signalled: the process's or maybe the gauge's
     SPC = "spc", "process"
+    #: windows in a row the cell could not vouch for its U95 within the plant's limit
+    ACCURACY = "accuracy", "process"
 
 
 #: alarms that hold the cell in FAULT until a reset

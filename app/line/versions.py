@@ -22,6 +22,7 @@ import numpy as np
 from app.line.accuracy import document_seed
 from app.line.drift import prediction_inflation, residual_mm
 from app.line.host import LineHost
+from app.line.jumps import JumpWatch
 from app.line.states import AlarmCode
 from app.line.step import StepStatus
 from app.line.step_handler import StepHandler, suspect_open
@@ -32,9 +33,10 @@ class Versions:
     """Calibrations applied and versions put in force, on the service `svc`; a step's
     correction in force goes to `steps` (its suspect interval closes when it is shown back)."""
 
-    def __init__(self, svc: LineHost, steps: StepHandler) -> None:
+    def __init__(self, svc: LineHost, steps: StepHandler, jumps: JumpWatch | None = None) -> None:
         self.svc = svc
         self.steps = steps
+        self.jumps = jumps
 
     def apply_calibration(self, cal_id: int, uid: int | None, source: str) -> int:
         """Write calibration `cal_id` as the next parameters version and put it in force (the
@@ -94,6 +96,8 @@ class Versions:
                     # its interval closed before (the cell vouched for its accuracy): the
                     # correction is in force, the full recalibration follows
                     svc.step.move(StepStatus.CORRECTED)
+            if self.jumps is not None:
+                self.jumps.in_force(kind)
             svc.save_state()
         svc.bus.emit(
             "parameters_applied",

@@ -14,12 +14,21 @@ from __future__ import annotations
 
 import logging
 
-from app.line.accuracy import ACCURACY_GROUP, VOUCHED, evidence, statement, with_prediction
+from app.line.accuracy import (
+    ACCURACY_GROUP,
+    ESTIMATOR,
+    VOUCHED,
+    Accuracy,
+    evidence,
+    statement,
+    with_prediction,
+)
 from app.line.beyond_knock import BLIND_WINDOWS, blind_text
 from app.line.body_cycle import BodyCycle
 from app.line.decisions import Decisions
 from app.line.faults import Faults
 from app.line.host import LineHost
+from app.line.jumps import JumpWatch
 from app.line.operator import Operator
 from app.line.states import AlarmCode, State, suspect_json
 from app.line.status import alarm_event
@@ -43,9 +52,12 @@ class WindowLoop:
         faults: Faults,
         steps: StepHandler,
         decisions: Decisions,
+        jumps: JumpWatch | None = None,
     ) -> None:
         self.svc = svc
         self.operator, self.faults, self.steps, self.decisions = operator, faults, steps, decisions
+        self.jumps = jumps
+        self._unvouched = 0  # windows in a row the cell could not vouch for its U95
         self._retention_t = -float("inf")
         self._temperature_bad: bool | None = None  # known after the first poll
         self._blind: list[tuple[int, int]] = []  # windows seeing no sphere: (first id, rejected)
@@ -257,16 +269,20 @@ class WindowLoop:
         n_max = len(svc.schedule)
         rows = svc.store.measurements(last=4 * n_max)
         norms, basis = evidence(rows, svc.version, svc.drift_onset_id, svc.u_seed, n_max)
-        acc = statement(norms, basis, svc.settings.recalib.accuracy_limit_mm)
+        limit = svc.settings.recalib.accuracy_limit_mm
+        acc = statement(norms, basis, limit)
         step = svc.step  # a fast correction's predicted uncertainty, for its version
         if step is not None and step.predicted_version == svc.version:
             acc = with_prediction(acc, norms, step.predicted_sigma_mm, n_max)
+        if self.jumps is not None:  # the estimator's statement
+            acc = Accuracy(self.jumps.statement_u95_mm(), self.jumps.n_rows(), ESTIMATOR, limit)
         svc.accuracy = acc
+        self._watch_vouched(acc)
         with svc.store.batch():
             svc.store.state_window_u95(acc.u95_mm)
             open_id = svc.accuracy_suspect_id
             # (a step's open interval speaks for these windows already)
-            if not acc.vouched and open_id is None and not suspect_open(svc):
+            if not acc.vouched and open_id is None and not self._step_open():
                 # from the last measurement before this window (the last one vouched for) on
                 before = [r for r in rows if r["t"] < t_open]
                 first_id = int(before[-1]["id"]) + 1 if before else svc.store.last_measurement_id()
@@ -295,6 +311,34 @@ class WindowLoop:
                 opened = None
         if opened is not None:
             svc.bus.emit("suspect_interval", suspect_json(opened))
+
+    def _step_open(self) -> bool:
+        """A step's (or a jump's) suspect interval is open: it speaks for the windows."""
+        return suspect_open(self.svc) or (self.jumps is not None and self.jumps.interval_open())
+
+    def _watch_vouched(self, acc: Accuracy) -> None:
+        """`[service] accuracy_alarm_windows` windows in a row the cell cannot vouch for its
+        U95 within the limit: the `accuracy` alarm, and a full recalibration unless a jump's
+        episode is handling it; cleared by the first window vouched for."""
+        svc = self.svc
+        if acc.vouched:
+            if self._unvouched:
+                svc.clear_alarms(AlarmCode.ACCURACY)
+            self._unvouched = 0
+            return
+        self._unvouched += 1
+        if self._unvouched != svc.settings.recalib.accuracy_alarm_windows:
+            return
+        handled = self.jumps is not None and self.jumps.handling()
+        action = "a jump's correction is under way" if handled else "recalibrating"
+        if not handled:
+            svc.force_recal = True
+        svc.alarm(
+            AlarmCode.ACCURACY,
+            f"the cell has not vouched for its accuracy for {self._unvouched} windows"
+            f" ({acc.text()}): {action}",
+            "high",
+        )
 
     def _unshelve(self) -> None:
         svc = self.svc
@@ -355,6 +399,8 @@ class WindowLoop:
         if outcome is not None:
             self.decisions.recal_done(outcome)
         if svc.state in (State.IDLE, State.PAUSED):
+            if self.jumps is not None:
+                self.jumps.act()
             self.steps.attribute_step()
             self.decisions.maybe_recalibrate()
         self.faults.check_space()

@@ -381,6 +381,11 @@ class SimulatedLineRun:
             "n_parameters": len(done.active),
             # what the commissioning's workspace step would have measured (app.line.accuracy)
             "validation_errors_mm": validation_mm.tolist(),
+            # the identification's covariance: the estimator's prior (app.line.jumps)
+            "covariance": {
+                "active": list(done.active),
+                "cov": (done.corr * np.outer(done.std, done.std)).tolist(),
+            },
         }
         self.summary = SimRunSummary()
         self.held_for_maintenance = False  # the service raised `maintenance`: it holds

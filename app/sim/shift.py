@@ -25,6 +25,8 @@ import numpy as np
 from app.config import CellConfig
 from app.formats.files import dumps_json
 from app.line.accuracy import ACCURACY_GROUP
+from app.line.statedir import StateDir
+from app.line.store import Store
 from app.sim.line_run import SimRunSummary, SimulatedLineRun, WindowRecord
 from fakes.truth import KNOCK_KINDS, Knock
 
@@ -46,6 +48,7 @@ class ShiftSettings:
     estimator: str | None = None  # "batch" | "sequential"; None: the cell's [service] estimator
     model: str | None = None  # "rigid" | "compliant"; None: the cell's [service] model
     schedule: str | None = None  # "cycle" | "adaptive" (sequential); None: the cell's
+    detector: str | None = None  # "glr" | "charts"; None: the cell's [service] detector
     recovered_ratio: float = 1.2  # "back": error with the service <= this x its pre-knock level
     pre_knock_windows: int = 10  # windows before the knock whose median sets the pre-knock level
     # the knock's episode ends at the last window above the ratio before this many windows in a
@@ -61,6 +64,8 @@ class ShiftSettings:
             raise ValueError("estimator must be batch or sequential")
         if self.model not in (None, "rigid", "compliant"):
             raise ValueError("model must be rigid or compliant")
+        if self.detector not in (None, "glr", "charts"):
+            raise ValueError("detector must be glr or charts")
         if self.schedule not in (None, "cycle", "adaptive"):
             raise ValueError("schedule must be cycle or adaptive")
         if self.recovered_ratio < 1 or self.pre_knock_windows < 1 or self.episode_gap_windows < 1:
@@ -260,6 +265,8 @@ def shift_config(cfg: CellConfig, s: ShiftSettings) -> CellConfig:
         service = dataclasses.replace(service, estimator=s.estimator)
     if s.schedule is not None:
         service = dataclasses.replace(service, schedule=s.schedule)
+    if s.detector is not None:
+        service = dataclasses.replace(service, detector=s.detector)
     if s.model is not None:  # the commissioning keeps the cell's [calibration] model
         service = dataclasses.replace(service, model=s.model)
     return dataclasses.replace(cfg, simline=simline, line=line, service=service)
@@ -310,14 +317,18 @@ def run_shift(
         start_epoch=SHIFT_START_EPOCH,
     ) as run:
         result = ShiftResult(s, seed, s.scale, run.summary, window_s=cfg.simline.window_s)
-        result.accuracy_limit_mm = cfg.service.accuracy_limit_mm
+        result.accuracy_limit_mm = run.service.settings.recalib.accuracy_limit_mm
         run.run_windows(n_windows(cfg, s), on_window=on_window, on_event=_EventLog(result))
         epoch = run.clock.start_epoch
+    store = Store(StateDir(state_dir).db)  # (a service held for maintenance has closed its own)
+    try:
         result.suspects = [
             {**r, "t_start_s": r["t_start"] - epoch, "t_end_s": _minus(r["t_end"], epoch)}
-            for r in run.service.store.suspects()
+            for r in store.suspects()
         ]
-        result.attribution = attributed_group(result.suspects, 3600.0 * s.knock_at_h)
+    finally:
+        store.close()
+    result.attribution = attributed_group(result.suspects, 3600.0 * s.knock_at_h)
     result.real_s = time.perf_counter() - t0
     evaluate(result)
     return result
@@ -468,10 +479,15 @@ def summary_lines(result: ShiftResult) -> list[str]:
     """The shift's must-show figures, one per line."""
     s, sm = result.settings, result.summary
     mm, deg = s.knock_size()
-    what = {"sensor": "sensor mount", "fixture": "spheres' frame", "joint": "J2 zero"}[s.knock]
-    size = f"{deg:g} deg" if s.knock == "joint" else f"{mm:g} mm / {deg:g} deg"
+    axis = "J2" if s.knock == "joint" else s.knock
+    what = {"sensor": "the sensor mount", "fixture": "the spheres' frame"}.get(
+        s.knock, "one sphere alone" if s.knock == "sphere" else f"the {axis} zero"
+    )
+    size = {"sensor": f"{mm:g} mm / {deg:g} deg", "fixture": f"{mm:g} mm / {deg:g} deg"}.get(
+        s.knock, f"{mm:g} mm" if s.knock == "sphere" else f"{deg:g} deg"
+    )
     return [
-        f"knock of the {what} ({size}) at {s.knock_at_h:g} h (window {result.knock_window}):"
+        f"knock of {what} ({size}) at {s.knock_at_h:g} h (window {result.knock_window}):"
         f" flagged by the drift alarm after {_windows_text(result.flagged_after, 3)},"
         f" attributed to: {result.attribution or 'nothing'}",
         f"back within {s.recovered_ratio:g}x of the pre-knock error"

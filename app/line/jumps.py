@@ -1,0 +1,429 @@
+"""The cell's state as one estimator on the service: `JumpWatch`, a collaborator of
+app.line.service.Service that sees it as app.line.host.LineHost (`[service] detector = "glr"`).
+
+The estimator (calib.cellstate) starts from the version in force (its covariance the prior, its
+commissioning's workspace validation the floor of the unmodelled term: a new cell is no special
+case), takes every good sphere measurement (`observe`, in the measurement's transaction) and
+tests the window for a jump. Between windows (`act`) the service does what the test says:
+
+- a jump detected: an *episode* opens: the suspect interval from the last measurement before
+  the dated onset, the high `drift_step` alarm, the rolling set from the onset on;
+- isolated to one group within a knock's bounds: its correction (the jump estimated with its
+  covariance) is gated (calib.gates change bounds) and applied as a new version; a sphere
+  alone, or a jump beyond `[service] maintenance_step_mm` at the spheres: the `maintenance`
+  hold; no decisive group after `jump_settle` measurements: a full re-identification on the
+  measurements since the onset, and the alarm says so;
+- the episode ends when `jump_confirm` measurements on the corrected version raise no jump and
+  the cell vouches for its U95 again: the interval closes (its end reason the kind of the
+  version that corrected it: "step" for the jump's correction, "batch" for a recalibration).
+
+`statement_u95_mm` is the U95 of a point measured now, with the parameters in force, at the
+window's poses: k (2.80, the 95 % quantile of a 3-D error's norm) times the per-coordinate
+sqrt((|H d|^2 + tr(H P H')) / 3 + s_u^2 + sigma^2), d and P the estimator's posterior of how far
+the parameters in force are off, and, while a jump is not corrected, its innovations.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from app.formats.params import document_covariance, plain_document, set_covariance
+from app.line.host import LineHost
+from app.line.states import AlarmCode, suspect_json
+from app.line.step_fit import StepCorrection, volume_views
+from calib.attribution import SEVERAL
+from calib.cellstate import (
+    SPHERE,
+    CellState,
+    EstimatorSettings,
+    JumpFit,
+    Observation,
+    Verdict,
+)
+from calib.gates import change_failures
+from calib.model import EXTRA_NAMES, INDEX, unit_of
+from calib.uncertainty import norm_quantile
+
+#: equations after the onset beyond the jump's degrees of freedom before it is corrected (one
+#: measurement's: the estimate is checked by data it was not determined by alone)
+REDUNDANCY = 3
+#: the calibration document's estimator kind of a jump's correction (app.line.versions)
+KIND = "step"
+
+
+class JumpWatch:
+    """The estimator and its episodes on the service `svc` (module docstring)."""
+
+    def __init__(self, svc: LineHost) -> None:
+        self.svc = svc
+        self.state: CellState | None = None
+        self.episode: dict[str, Any] | None = None  # persisted (to_json)
+        self.verdict: Verdict | None = None
+        self._floor_mm: float | None = None
+        self._moments: list[float] = []  # s_u's evidence, carried from version to version
+
+    # -- the estimator ---------------------------------------------------------------------
+    def settings(self) -> EstimatorSettings:
+        r = self.svc.settings.recalib
+        floor = self._floor() if self._floor_mm is None else self._floor_mm
+        self._floor_mm = floor
+        return EstimatorSettings(
+            sigma_mm=r.jump_sigma_mm,
+            unmodelled_mm=floor,
+            drift_mm_per_h=r.jump_drift_mm_per_h,
+            drift_rad_per_h=r.jump_drift_rad_per_h,
+            window=r.jump_window,
+            false_alarm=r.jump_false_alarm,
+        )
+
+    def _floor(self) -> float:
+        """The unmodelled term's floor, from the commissioning's workspace validation: one
+        coordinate of its errors' mean square less the measurement's own noise, which the
+        statement holds apart. For the version it validated, all of it (the statement never
+        claims better than the workspace showed: its covariance at the spheres' views does
+        not hold the error across the workspace); for a later version, what no
+        recalibration removes: less the validated version's parameter covariance at the
+        schedule's views as well. Without a validation, `[service] jump_unmodelled_mm`."""
+        svc = self.svc
+        sigma = svc.settings.recalib.jump_sigma_mm
+        current = svc.params.current_document()
+        for doc in (current, svc.params.document(1)):
+            errors = ((doc or {}).get("validation") or {}).get("errors_mm")
+            if not errors or doc is None:
+                continue
+            ms = float(np.mean(np.square(np.asarray(errors, float)))) / 3.0 - sigma**2
+            got = document_covariance(doc, svc.params.current_path)
+            if doc is not current and got is not None:
+                ms -= self._variance_at_schedule(got[0], got[1])
+            return math.sqrt(max(0.0, ms))
+        return float(svc.settings.recalib.jump_unmodelled_mm)
+
+    def _variance_at_schedule(self, names: list[str], cov: np.ndarray) -> float:
+        """One coordinate's variance [mm^2] of a sphere's centre from parameters `names` with
+        covariance `cov`, the mean over the schedule's views: trace(H cov H') / 3."""
+        svc = self.svc
+        keep = [k for k, n in enumerate(names) if n in INDEX]
+        q = np.array([s.q_deg for s in svc.schedule.slots]).reshape(-1, 6)
+        if not keep or not len(q):
+            return 0.0
+        T = svc.model.fk(svc.x, q)
+        p = np.array([svc.spheres[s.target] for s in svc.schedule.slots]).reshape(-1, 3)
+        c = np.einsum("kji,kj->ki", T[:, :3, :3], p - T[:, :3, 3])  # in the sensor frame
+        H = svc.model.point_jacobian(svc.x, q, c, [names[k] for k in keep])
+        C = cov[np.ix_(keep, keep)]
+        return float(np.mean(np.einsum("kil,lm,kim->k", H, C, H)) / 3.0)
+
+    def restart(self) -> None:
+        """The estimator from the version in force, the measurements since it is in force
+        replayed (a restarted service resumes where it stopped)."""
+        svc = self.svc
+        self._floor_mm = None  # the floor depends on the version (`_floor`)
+        if self.state is not None:
+            self._moments = self.state.moments()
+        active = svc.model.default_active()
+        P0 = self._prior(active)
+        rows = [r for r in svc.store.measurements(last=4 * svc.settings.recalib.jump_window)]
+        mine = [r for r in rows if r.get("params_version") == svc.version]
+        t0 = float(mine[0]["t"]) if mine else svc.clock.time()
+        self.state = CellState(
+            svc.model, svc.x, active, P0, list(svc.spheres), self.settings(), t0_s=t0
+        )
+        self.state.learned(self._moments)
+        self.verdict = None
+        for r in mine:
+            self.verdict = self.state.add(self._observation(r), test=r is mine[-1])
+
+    def _prior(self, active: tuple[str, ...]) -> np.ndarray:
+        """The covariance of the version in force on `active` (a parameter it has none for: the
+        prior of `[service] seq_prior_mm` and `seq_prior_rad`, the nominal's tolerances; the
+        extra terms tight)."""
+        svc = self.svc
+        r = svc.settings.recalib
+
+        def default(name: str) -> float:
+            if name in EXTRA_NAMES:
+                return 1e-12
+            return (r.seq_prior_mm if unit_of(name) == "mm" else r.seq_prior_rad) ** 2
+
+        P = np.diag([default(n) for n in active])
+        doc = svc.params.current_document()
+        got = None if doc is None else document_covariance(doc, svc.params.current_path)
+        if got is not None:
+            names, C = got
+            ia = [k for k, n in enumerate(active) if n in names]
+            ic = [names.index(active[k]) for k in ia]
+            P[np.ix_(ia, ia)] = C[np.ix_(ic, ic)]
+        return P
+
+    def _observation(self, row: dict[str, Any]) -> Observation:
+        svc = self.svc
+        temp = row.get("temp_c")
+        return Observation(
+            int(row["id"]),
+            float(row["t"]),
+            str(row["target"]),
+            svc.spheres[str(row["target"])],
+            np.asarray(row["q_deg"], float),
+            np.asarray(row["c_sensor_mm"], float),
+            None if temp is None else float(temp),
+        )
+
+    def observe(self, row: dict[str, Any]) -> None:
+        """A good measurement (its stored row with its id) into the estimator, tested."""
+        if self.state is None:
+            self.restart()
+            return
+        self.verdict = self.state.add(self._observation(row))
+
+    # -- what the service does -------------------------------------------------------------
+    def act(self) -> None:
+        """Between windows: an episode opened, corrected or closed as the verdict says."""
+        v, ep = self.verdict, self.episode
+        if v is None:
+            return
+        if v.detected and v.best is not None:
+            if ep is None or ep.get("corrected_version") is not None:
+                self._open(v)
+            self._isolate(v)
+        elif ep is not None and ep.get("corrected_version") == self.svc.version:
+            self._confirm()
+        self.verdict = None
+
+    def _open(self, v: Verdict) -> None:
+        svc, best = self.svc, v.best
+        assert best is not None
+        onset = best.onset_ref
+        before = svc.store.measurements(before_id=onset, last=1)
+        t_start = float(before[0]["t"]) if before else float(svc.clock.time())
+        ep = self.episode
+        p = "p < 1e-12" if best.p_value < 1e-12 else f"p {best.p_value:.1g}"
+        text = f"step of the cell since measurement {onset} ({p})"
+        with svc.store.batch():
+            if ep is not None and ep.get("suspect_id") is not None and _open(svc, ep):
+                sid = int(ep["suspect_id"])  # the correction did not hold: the same interval
+            else:
+                sid = svc.store.open_suspect(
+                    {
+                        "t_start": t_start,
+                        "last_good_id": int(before[0]["id"]) if before else None,
+                        "onset_id": onset,
+                        "params_version": svc.version,
+                        "text": text,
+                    }
+                )
+            self.episode = {
+                "onset_id": onset,
+                "suspect_id": sid,
+                "group": "",
+                "corrected_version": None,
+                "window": svc.counters["windows"],
+                "clean": 0,
+                "text": text,
+            }
+            svc.drift_onset_id = onset  # the rolling set from the onset on
+            svc.save_state()
+        svc.alarm(AlarmCode.DRIFT_STEP, f"{text}: finding what moved", "high")
+        svc.bus.emit("suspect_interval", suspect_json(svc.store.suspect(sid) or {}))
+
+    def _isolate(self, v: Verdict) -> None:
+        svc, ep, best = self.svc, self.episode, v.best
+        assert ep is not None and best is not None
+        r = svc.settings.recalib
+        n_after = len(svc.store.measurements(since_id=best.onset_ref - 1))
+        seen_mm = self._seen_mm(best)
+        if v.isolated == SEVERAL:
+            if n_after >= r.jump_settle and not svc.force_recal and ep["group"] != SEVERAL:
+                ep["group"] = SEVERAL
+                svc.force_recal = True
+                self._describe(ep, SEVERAL, None, "no single group explains it: full recalibration")
+            return
+        h = best.hypothesis
+        if h.target is not None or seen_mm > r.maintenance_step_mm:
+            what = h.label if h.target is not None else f"{h.label}, beyond a knock"
+            self._describe(ep, h.name, seen_mm, f"{what} {best.size_text()}")
+            svc.maintenance_needed(
+                f"{what}: {best.size_text()} ({seen_mm:.2f} mm at the spheres) since"
+                f" measurement {best.onset_ref}; the maintenance procedure that fits"
+            )
+            return
+        if 3 * len(self.state.rows[best.onset :]) - best.dof < REDUNDANCY if self.state else True:
+            return  # the estimate checked by one measurement more than it needs, first
+        q, c = volume_views(
+            np.array([s.q_deg for s in svc.schedule.slots]), svc.settings.measuring_volume_mm
+        )
+        std_mm = self.state.predicted_std_mm(best, q, c) if self.state is not None else math.inf
+        # determined well enough where the cell measures: absolutely, or beside a large jump
+        # (most of it removed now, the rest by the episode's next correction)
+        bound = max(r.step_max_std_mm, r.step_std_fraction * seen_mm / math.sqrt(3.0))
+        if not std_mm <= bound:
+            if n_after >= r.jump_settle and not svc.force_recal and ep["group"] != SEVERAL:
+                ep["group"] = SEVERAL
+                svc.force_recal = True
+                self._describe(
+                    ep, SEVERAL, seen_mm, f"{h.label}? not determined: full recalibration"
+                )
+            return
+        self._describe(ep, h.name, seen_mm, f"{h.label} {best.size_text()}")
+        if svc.pending_calibration is None and not svc.recalibrator.busy:
+            svc.recal_done(self._correction(best, n_after))
+
+    def _seen_mm(self, fit: JumpFit) -> float:
+        """The jump's RMS move of the measured centres since its onset [mm]."""
+        assert self.state is not None
+        rows = self.state.rows[fit.onset :]
+        if not rows:
+            return 0.0
+        moves = [r.G[fit.hypothesis.name] @ fit.theta for r in rows]
+        return float(np.sqrt(np.mean([m @ m for m in moves])))
+
+    def _describe(self, ep: dict[str, Any], group: str, seen_mm: float | None, what: str) -> None:
+        svc = self.svc
+        ep["group"], ep["what"] = group, what
+        fields: dict[str, Any] = {"group_name": group, "text": f"{ep['text']}: {what}"}
+        if seen_mm is not None:
+            fields["size_mm"] = seen_mm
+        with svc.store.batch():
+            svc.store.update_suspect(int(ep["suspect_id"]), **fields)
+            for alarm in svc.store.active_alarms(code=AlarmCode.DRIFT_STEP):
+                svc.store.update_alarm_message(int(alarm["id"]), f"{ep['text']}: {what}")
+            svc.save_state()
+
+    def _correction(self, fit: JumpFit, n_after: int) -> StepCorrection:
+        """The jump's group moved by its estimate, gated by the change bounds."""
+        svc, state = self.svc, self.state
+        assert state is not None
+        h = fit.hypothesis
+        x_new = state.x_ref.copy()
+        x_new[[INDEX[p] for p in h.params]] += fit.theta
+        failures = change_failures(h.params, x_new, state.x_ref, svc.settings.gates)
+        doc = plain_document(svc.model, x_new, f"rvis run (jump correction: {h.label})")
+        base = self._version_covariance()
+        if base is not None:
+            names, C = base
+            cols = [names.index(p) for p in h.params if p in names]
+            C = C.copy()
+            C[np.ix_(cols, cols)] += fit.cov[: len(cols), : len(cols)]
+            set_covariance(doc, names, C)
+        doc["estimator"] = {
+            "kind": KIND,
+            "group": h.name,
+            "onset_id": fit.onset_ref,
+            "jump": [float(t) for t in fit.theta],
+            "jump_std": [float(s) for s in fit.std],
+            "llr": fit.llr,
+        }
+        doc["success"] = not failures
+        rows = state.rows[fit.onset :]
+        before = [float(np.linalg.norm(r.v0)) for r in rows]
+        after = [float(np.linalg.norm(r.v0 - r.G[h.name] @ fit.theta)) for r in rows]
+        last = rows[-1].obs.ref if rows else fit.onset_ref
+        return StepCorrection(
+            not failures,
+            tuple(failures),
+            doc,
+            _rms(after),
+            after[-1] if after else math.nan,
+            before[-1] if before else math.nan,
+            n_after,
+            fit.onset_ref,
+            last,
+        )
+
+    def _version_covariance(self) -> tuple[list[str], np.ndarray] | None:
+        svc = self.svc
+        doc = svc.params.current_document()
+        return None if doc is None else document_covariance(doc, svc.params.current_path)
+
+    def in_force(self, kind: str) -> None:
+        """A version became current: the estimator restarts on it; a jump's correction (or a
+        full recalibration during an episode) is now the episode's corrected version."""
+        self.restart()
+        ep = self.episode
+        if ep is not None and ep.get("corrected_version") is None:
+            ep["corrected_version"] = self.svc.version
+            ep["kind"] = kind  # the interval's end reason: "step" (the jump's) or "batch"
+            ep["clean"] = 0
+
+    def _confirm(self) -> None:
+        """A measurement on the corrected version with no jump: after `jump_confirm` of them,
+        and the cell vouching, the episode is over."""
+        svc, ep = self.svc, self.episode
+        assert ep is not None
+        ep["clean"] = int(ep.get("clean", 0)) + 1
+        u95 = self.statement_u95_mm()
+        if ep["clean"] < svc.settings.recalib.jump_confirm or not (
+            u95 is not None and u95 <= svc.settings.recalib.accuracy_limit_mm
+        ):
+            svc.save_state()
+            return
+        t = svc.clock.time()
+        with svc.store.batch():
+            sid = int(ep["suspect_id"])
+            if _open(svc, ep):
+                svc.store.update_suspect(
+                    sid, t_end=t, end_reason=str(ep.get("kind", KIND)), end_version=svc.version
+                )
+            self.episode = None
+            svc.drift_onset_id = None
+            svc.clear_alarms(AlarmCode.DRIFT_STEP, t)
+            svc.save_state()
+        svc.bus.emit("suspect_interval", suspect_json(svc.store.suspect(sid) or {}))
+
+    # -- the statement ---------------------------------------------------------------------
+    def statement_u95_mm(self) -> float | None:
+        """U95 [mm] of a point measured now at the window's poses (module docstring); None
+        before any measurement of the version in force."""
+        st = self.state
+        if st is None or not st.rows:
+            return None
+        d, P = st.posterior()
+        s = st.settings
+        # the parameters in force are off by d (the estimator's posterior) with covariance P
+        var = [
+            (float((r.H @ d) @ (r.H @ d)) + float(np.trace(r.H @ P @ r.H.T))) / 3.0
+            + st.s_u_mm**2
+            + s.sigma_mm**2
+            for r in st.rows
+        ]
+        u2 = float(np.mean(var))
+        ep = self.episode
+        if ep is not None and ep.get("corrected_version") is None:
+            after = [r for r in st.rows if r.obs.ref >= int(ep["onset_id"])]
+            if after:
+                u2 += float(np.mean([(r.v0 - r.H @ d) @ (r.v0 - r.H @ d) / 3.0 for r in after]))
+        return norm_quantile() * math.sqrt(u2)
+
+    def n_rows(self) -> int:
+        """The measurements the estimator's window holds."""
+        return 0 if self.state is None else len(self.state.rows)
+
+    def interval_open(self) -> bool:
+        """An episode's suspect interval is open."""
+        ep = self.episode
+        return ep is not None and _open(self.svc, ep)
+
+    def handling(self) -> bool:
+        """An episode is open and not given up to a full recalibration."""
+        return self.episode is not None and self.episode.get("group") != SEVERAL
+
+    # -- the decision state ------------------------------------------------------------------
+    def to_json(self) -> dict[str, Any] | None:
+        return None if self.episode is None else dict(self.episode)
+
+    def load_json(self, doc: dict[str, Any] | None) -> None:
+        self.episode = None if doc is None else dict(doc)
+
+
+def _open(svc: LineHost, ep: dict[str, Any]) -> bool:
+    row = svc.store.suspect(int(ep["suspect_id"]))
+    return row is not None and row["t_end"] is None
+
+
+def _rms(values: list[float]) -> float:
+    return float(np.sqrt(np.mean(np.square(values)))) if values else math.nan
+
+
+__all__ = ["SPHERE", "JumpWatch"]

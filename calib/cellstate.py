@@ -1,0 +1,467 @@
+"""The cell's state as one estimator: the model's parameters and their covariance, updated by
+every sphere measurement, with a generalized likelihood ratio (GLR) test for jumps.
+
+State: the deviation d = x - x_ref of the active parameters from the version in force x_ref,
+with covariance P (the version's own covariance as the prior: a new cell is no special case),
+and for each configuration measured its unmodelled error u_k (3,): the model's error there,
+which a configuration measured again repeats, prior s_u^2 I per coordinate, independent of the
+rest. A measurement i (configuration k, centre c_i in the sensor frame, the sphere's known
+centre p_i in the part frame) gives the innovation
+
+    v_i = p_i - h(x_ref; q_k, c_i) - H_i d - u_k      H_i = dh/dx_active at x_ref    (3,)
+
+whose covariance over the window of the last measurements is
+
+    Sigma = H P H' + D + sigma^2 I      (H over the whole state: the parameters and u_k)
+    sigma = one coordinate of a measurement's own noise (sensor, robot repeatability)
+    D_ij  = H_i Q H_j' min(tau_i, tau_j)   the slow drift as a random walk of the parameters
+            from the window's start (Q per hour: lengths, angles, the extra terms)
+
+The measurements older than the window are folded into (d, P) by the Kalman update, so the
+window holds what a jump test still looks at and the state moves with the slow drift. With the
+unmodelled errors as states, a configuration measured again is not new evidence about the
+parameters (its repeat shows its u_k), and the change since its previous visit is what a jump
+shows. s_u is learned from each configuration's first measurement folded (the moments of its
+innovation beyond what P and sigma hold), never below the prior's `unmodelled_mm`.
+
+**Jumps** (Willsky and Jones 1976; Basseville and Nikiforov 1993, ch. 7): a hypothesis is a group
+that can move at once (calib.attribution.step_groups: the sensor mount, the fixture / part
+frame, each joint zero; and each sphere alone). A jump theta of group g at measurement k adds
+G_i theta to every innovation from k on (G_i: the group's Jacobian columns; -I for a sphere that
+moved by theta), so for each onset k
+
+    a = G' Sigma^-1 v,  F = G' Sigma^-1 G,  theta = F^+ a,  cov(theta) = F^+,  l = a' F^+ a
+
+is twice the log likelihood ratio of the jump against none, chi-square with rank(F) degrees of
+freedom when nothing jumped. **Detection**: the smallest p-value over the hypotheses and onsets
+below `false_alarm / tests` (Bonferroni over the tests made at this measurement, so the stated
+rate is an upper bound per measurement). **Isolation**: the hypotheses scored by Schwarz's
+criterion l - rank ln(m) (m equations after the onset); the best decisive when it leads the
+runner-up by `margin` and explains the window (the rest of the statistic plausible at 0.999),
+else "several". **Onset**: the argmax of the best hypothesis's l over k. **Estimate**: theta and
+its covariance, for the correction.
+
+Pure numerics: nothing here knows the service.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.stats import chi2 as chi2_dist
+
+from calib.attribution import NONE, SEVERAL, step_groups
+from calib.model import EXTRA_NAMES, INDEX, SystemModel, unit_of
+
+F64 = NDArray[np.float64]
+#: the rest of the window's statistic after the best jump must stay below this chi-square
+#: quantile for the jump to explain the window
+P_EXPLAINS = 0.999
+SPHERE = "sphere:"  # a hypothesis's name prefix: one sphere moved alone
+
+
+@dataclass(frozen=True)
+class Observation:
+    """One sphere measurement: its row `ref` (the caller's id), time `t_s`, the sphere
+    `target` and its known centre `p_part_mm` (3,), the configuration `q_deg` (6,), the
+    centre in the sensor frame `c_sensor_mm` (3,), the cell temperature `temp_c`."""
+
+    ref: int
+    t_s: float
+    target: str
+    p_part_mm: F64
+    q_deg: F64
+    c_sensor_mm: F64
+    temp_c: float | None = None
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    """What can jump at once: `params` of the model (a group), or one sphere (`target`)."""
+
+    name: str
+    label: str
+    params: tuple[str, ...] = ()
+    target: str | None = None
+
+
+def hypotheses(model: SystemModel, targets: Sequence[str]) -> tuple[Hypothesis, ...]:
+    """The model's knock groups (calib.attribution.step_groups, without "nothing" and the full
+    set) and each sphere alone."""
+    groups = [g for g in step_groups(model) if g.name not in (NONE, SEVERAL)]
+    return (
+        *(Hypothesis(g.name, g.label, g.params) for g in groups),
+        *(Hypothesis(f"{SPHERE}{t}", f"sphere {t} alone", target=t) for t in sorted(targets)),
+    )
+
+
+@dataclass(frozen=True)
+class EstimatorSettings:
+    """sigma_mm: one coordinate of a measurement's own noise (sensor, robot repeatability);
+    unmodelled_mm: the prior of s_u (one coordinate of the model's error at a configuration),
+    estimated online from the innovations when `learn_unmodelled`; drift_mm_per_h,
+    drift_rad_per_h, drift_extra_per_h: the random walk's standard deviation per sqrt(hour) of
+    lengths, angles and the extra terms; window: measurements the jump test looks at;
+    false_alarm: the rate per measurement of a detection when nothing jumped; margin: the
+    Schwarz score by which the best hypothesis must lead the runner-up (2 ln 20: strong)."""
+
+    sigma_mm: float = 0.02
+    unmodelled_mm: float = 0.03
+    learn_unmodelled: bool = True
+    drift_mm_per_h: float = 0.02
+    drift_rad_per_h: float = 1e-5
+    drift_extra_per_h: float = 0.0
+    window: int = 36
+    false_alarm: float = 1e-4
+    margin: float = 2.0 * math.log(20.0)
+
+    def __post_init__(self) -> None:
+        if not (self.sigma_mm > 0.0 and self.unmodelled_mm >= 0.0 and self.window >= 2):
+            raise ValueError("sigma_mm must be > 0, unmodelled_mm >= 0, window >= 2")
+        if not 0.0 < self.false_alarm < 1.0 or self.margin < 0.0:
+            raise ValueError("false_alarm must be in (0, 1), margin >= 0")
+
+
+@dataclass(frozen=True)
+class JumpFit:
+    """A hypothesis's best onset: `onset` (index into the window), `onset_ref` (the caller's
+    id of that measurement), the statistic `llr` (2 log LR) with `dof`, its `p_value`, the
+    Schwarz `score`, the jump `theta` and its covariance `cov` (the group's units: mm, rad)."""
+
+    hypothesis: Hypothesis
+    onset: int
+    onset_ref: int
+    llr: float
+    dof: int
+    p_value: float
+    score: float
+    theta: F64
+    cov: F64
+
+    @property
+    def std(self) -> F64:
+        return np.sqrt(np.clip(np.diag(self.cov), 0.0, None))
+
+    def size_text(self) -> str:
+        """The jump in its own terms: translation and rotation of a 6-DoF group, a joint
+        zero's offset, a sphere's move."""
+        h, th = self.hypothesis, self.theta
+        if h.target is not None:
+            return f"{float(np.linalg.norm(th)):.3f} mm"
+        mm = [k for k, n in enumerate(h.params) if unit_of(n) == "mm"]
+        rad = [k for k, n in enumerate(h.params) if unit_of(n) == "rad"]
+        if mm:
+            t_mm = float(np.linalg.norm(th[mm]))
+            r_deg = float(np.degrees(np.linalg.norm(th[rad])))
+            return f"{t_mm:.3f} mm / {r_deg:.4f} deg"
+        return ", ".join(f"{n} {np.degrees(v):+.4f} deg" for n, v in zip(h.params, th, strict=True))
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """After a measurement: `detected` (a jump at the stated false-alarm rate), `isolated`:
+    the hypothesis's name, SEVERAL (none decisive or none explains) or "" (nothing detected);
+    `best` and `runner_up` fits; `nis` the window's normalised innovation squared per degree
+    of freedom under no jump (about 1 for a consistent model); `threshold_p`."""
+
+    detected: bool
+    isolated: str
+    best: JumpFit | None
+    runner_up: JumpFit | None
+    nis: float
+    threshold_p: float
+    fits: tuple[JumpFit, ...] = ()
+
+
+@dataclass
+class _Row:
+    obs: Observation
+    v0: F64  # p - h(x_ref) (3,)
+    H: F64  # (3, L) active columns
+    G: dict[str, F64] = field(default_factory=dict)  # hypothesis -> (3, k)
+    slot: int = 0
+
+
+class CellState:
+    """The estimator (module docstring) on `model` linearised at the version in force `x_ref`
+    (full vector) with the covariance `P0` of its `active` parameters."""
+
+    def __init__(
+        self,
+        model: SystemModel,
+        x_ref: ArrayLike,
+        active: Sequence[str],
+        P0: ArrayLike,
+        targets: Sequence[str],
+        settings: EstimatorSettings | None = None,
+        t0_s: float = 0.0,
+    ) -> None:
+        self.model = model
+        self.x_ref = np.asarray(x_ref, float).copy()
+        self.active = tuple(active)
+        self.settings = settings or EstimatorSettings()
+        P = np.asarray(P0, float)
+        if P.shape != (len(self.active), len(self.active)):
+            raise ValueError(f"P0 must be {len(self.active)}x{len(self.active)}")
+        # the state: the parameters' deviation, then each configuration's unmodelled error
+        self.L = len(self.active)
+        self.P = 0.5 * (P + P.T)
+        self.d = np.zeros(self.L)
+        self.hyps = hypotheses(model, targets)
+        self._extra = tuple(sorted({p for h in self.hyps for p in h.params} - set(self.active)))
+        self.q_per_h = np.array([self._drift_sd(n) ** 2 for n in self.active])
+        self.t_s = t0_s  # the time (d, P) describe
+        self.rows: list[_Row] = []
+        self._slots: list[F64] = []
+        self.s_u_mm = self.settings.unmodelled_mm
+        self._moments: list[float] = []  # first visits' estimates of s_u^2 (no jump)
+        self._folded: set[int] = set()  # configurations with a measurement in the state
+
+    # -- the state ----------------------------------------------------------------------------
+    @property
+    def x(self) -> F64:
+        """The estimate of the full parameter vector now (the window's measurements included)."""
+        d, _ = self.posterior()
+        x = self.x_ref.copy()
+        x[[self.model_index(n) for n in self.active]] += d[: self.L]
+        return x
+
+    @staticmethod
+    def model_index(name: str) -> int:
+        return INDEX[name]
+
+    def _drift_sd(self, name: str) -> float:
+        s = self.settings
+        if name in EXTRA_NAMES:
+            return s.drift_extra_per_h
+        return s.drift_mm_per_h if unit_of(name) == "mm" else s.drift_rad_per_h
+
+    def _slot(self, q_deg: F64) -> int:
+        """The configuration's index; a new one joins the state with its unmodelled error
+        (prior s_u^2 per coordinate, independent of everything else)."""
+        for k, q in enumerate(self._slots):
+            if np.allclose(q, q_deg, atol=1e-6):
+                return k
+        self._slots.append(q_deg.copy())
+        n = len(self.d)
+        P = np.zeros((n + 3, n + 3))
+        P[:n, :n] = self.P
+        P[n:, n:] = self.s_u_mm**2 * np.eye(3)
+        self.P, self.d = P, np.r_[self.d, np.zeros(3)]
+        return len(self._slots) - 1
+
+    def _H(self, row: _Row) -> F64:
+        """The row's Jacobian on the whole state (3, L + 3 K)."""
+        H = np.zeros((3, len(self.d)))
+        H[:, : self.L] = row.H
+        k = self.L + 3 * row.slot
+        H[:, k : k + 3] = np.eye(3)
+        return H
+
+    def add(self, obs: Observation, test: bool = True) -> Verdict | None:
+        """One measurement: into the window (the oldest folded into the state beyond it), and
+        the jump test on the window (`test`; a replay tests its last one only)."""
+        row = self._row(obs)
+        self.rows.append(row)
+        while len(self.rows) > self.settings.window:
+            self._fold(self.rows.pop(0))
+        return self.test() if test else None
+
+    def _row(self, obs: Observation) -> _Row:
+        names = self.active + self._extra
+        temp = None if obs.temp_c is None else np.array([float(obs.temp_c)])
+        p, J = self.model.point_and_jacobian(
+            self.x_ref, obs.q_deg.reshape(1, 6), obs.c_sensor_mm.reshape(1, 3), names, temp
+        )
+        v0 = np.asarray(obs.p_part_mm, float) - p[0]
+        Jn = J[0]
+        col = {n: k for k, n in enumerate(names)}
+        G: dict[str, F64] = {}
+        for h in self.hyps:
+            if h.target is not None:
+                G[h.name] = -np.eye(3) if obs.target == h.target else np.zeros((3, 3))
+            else:
+                G[h.name] = Jn[:, [col[n] for n in h.params]]
+        return _Row(obs, v0, Jn[:, : len(self.active)].copy(), G, self._slot(obs.q_deg))
+
+    def _fold(self, row: _Row) -> None:
+        """The Kalman update of (d, P) by a measurement leaving the window (its noise white:
+        its configuration's unmodelled error is a state)."""
+        self._predict(row.obs.t_s)
+        if self.settings.learn_unmodelled and row.slot not in self._folded:
+            self._learn(row)
+        self._folded.add(row.slot)
+        H = self._H(row)
+        R = self.settings.sigma_mm**2 * np.eye(3)
+        S = H @ self.P @ H.T + R
+        K = np.linalg.solve(S, H @ self.P).T
+        self.d = self.d + K @ (row.v0 - H @ self.d)
+        IKH = np.eye(len(self.d)) - K @ H
+        self.P = IKH @ self.P @ IKH.T + K @ R @ K.T
+
+    def _predict(self, t_s: float) -> None:
+        dt_h = max(0.0, (t_s - self.t_s) / 3600.0)
+        if dt_h > 0.0:
+            self.P[: self.L, : self.L] += np.diag(self.q_per_h * dt_h)
+            self.t_s = t_s
+
+    # -- the window -----------------------------------------------------------------------------
+    def _window(self) -> tuple[F64, F64, F64]:
+        """The window's innovations v (3n,) against the state at its start, their covariance
+        Sigma (3n, 3n) under no jump and the stacked H (3n, L + 3K)."""
+        s = self.settings
+        n = len(self.rows)
+        H = np.concatenate([self._H(r) for r in self.rows], axis=0)
+        v = np.concatenate([r.v0 for r in self.rows]) - H @ self.d
+        tau_h = np.array([max(0.0, (r.obs.t_s - self.t_s) / 3600.0) for r in self.rows])
+        Sigma = H @ self.P @ H.T + s.sigma_mm**2 * np.eye(3 * n)
+        Hp = H[:, : self.L]
+        tmin = np.minimum.outer(tau_h, tau_h)  # (n, n)
+        Sigma += ((Hp * self.q_per_h) @ Hp.T) * np.kron(tmin, np.ones((3, 3)))
+        return v, 0.5 * (Sigma + Sigma.T), H
+
+    def posterior(self) -> tuple[F64, F64]:
+        """The parameters' (d, P) given the window's measurements too (no jump)."""
+        L = self.L
+        if not self.rows:
+            return self.d[:L], self.P[:L, :L]
+        v, Sigma, H = self._window()
+        PH = self.P[:L] @ H.T
+        K = np.linalg.solve(Sigma, PH.T).T
+        return self.d[:L] + K @ v, self.P[:L, :L] - K @ PH.T
+
+    def test(self) -> Verdict:
+        """The GLR test on the window (module docstring)."""
+        n = len(self.rows)
+        if n == 0:
+            return Verdict(False, "", None, None, math.nan, 1.0)
+        v, Sigma, _ = self._window()
+        L = np.asarray(np.linalg.cholesky(Sigma), dtype=np.float64)
+        w = _solve_lower(L, v)  # whitened innovations
+        nis = float(w @ w) / (3 * n)
+        fits: list[JumpFit] = []
+        tests = 0
+        for h in self.hyps:
+            best: JumpFit | None = None
+            for k in range(n):
+                fit = self._fit(h, k, L, w, n)
+                tests += 1
+                if fit is not None and (best is None or fit.score > best.score):
+                    best = fit
+            if best is not None:
+                fits.append(best)
+        threshold = self.settings.false_alarm / max(tests, 1)
+        return self._decide(fits, threshold, nis, float(w @ w), n)
+
+    def _fit(self, h: Hypothesis, k: int, L: F64, w: F64, n: int) -> JumpFit | None:
+        G = np.concatenate(
+            [
+                r.G[h.name] if i >= k else np.zeros_like(r.G[h.name])
+                for i, r in enumerate(self.rows)
+            ],
+            axis=0,
+        )
+        if not np.any(G):
+            return None
+        Gw = _solve_lower(L, G)
+        a = Gw.T @ w
+        F = Gw.T @ Gw
+        Fp, rank = _pinv_rank(F)
+        if rank == 0:
+            return None
+        llr = float(a @ Fp @ a)
+        m = 3 * (n - k)
+        p = float(chi2_dist.sf(llr, rank))
+        score = llr - rank * math.log(max(m, 2))
+        return JumpFit(h, k, self.rows[k].obs.ref, llr, rank, p, score, Fp @ a, Fp)
+
+    def _decide(
+        self, fits: list[JumpFit], threshold: float, nis: float, chi2_all: float, n: int
+    ) -> Verdict:
+        if not fits:
+            return Verdict(False, "", None, None, nis, threshold)
+        ranked = sorted(fits, key=lambda f: f.score, reverse=True)
+        best = ranked[0]
+        second = ranked[1] if len(ranked) > 1 else None
+        detected = min(f.p_value for f in fits) < threshold
+        if not detected:
+            return Verdict(False, "", best, second, nis, threshold, tuple(ranked))
+        rest_dof = 3 * n - best.dof
+        explains = rest_dof <= 0 or chi2_all - best.llr <= float(
+            chi2_dist.ppf(P_EXPLAINS, rest_dof)
+        )
+        decisive = second is None or best.score - second.score >= self.settings.margin
+        isolated = best.hypothesis.name if (explains and decisive) else SEVERAL
+        return Verdict(True, isolated, best, second, nis, threshold, tuple(ranked))
+
+    def moments(self) -> list[float]:
+        """The evidence about s_u^2 so far (to carry into the next version's estimator)."""
+        return list(self._moments)
+
+    def learned(self, moments: Sequence[float]) -> None:
+        """Evidence about s_u^2 from before (`moments`), taken as this estimator's own."""
+        self._moments = [float(m) for m in moments][-4 * self.settings.window :]
+        if self._moments and self.settings.learn_unmodelled:
+            est = float(np.mean(self._moments))
+            self.s_u_mm = math.sqrt(max(self.settings.unmodelled_mm**2, est))
+
+    def _learn(self, row: _Row) -> None:
+        """s_u^2 from the innovations by moments, of the measurements that leave the window
+        with no jump found in it: a squared innovation less what the state and the noise
+        account for (never below the prior's square)."""
+        s, L = self.settings, self.L
+        resid = row.v0 - row.H @ self.d[:L]
+        expect = float(np.trace(row.H @ self.P[:L, :L] @ row.H.T)) + 3 * s.sigma_mm**2
+        self._moments.append((float(resid @ resid) - expect) / 3.0)
+        self._moments = self._moments[-4 * s.window :]
+        est = float(np.mean(self._moments))
+        self.s_u_mm = math.sqrt(max(s.unmodelled_mm**2, est))
+
+    def predicted_std_mm(self, fit: JumpFit, q_deg: ArrayLike, c_sensor_mm: ArrayLike) -> float:
+        """How well the jump's estimate predicts a point at K views (configurations (K, 6),
+        points in the sensor frame (K, 3)): the RMS over them of sqrt(trace(G cov G') / 3)
+        [mm per coordinate]; a sphere's move is known where it is measured (its own)."""
+        h = fit.hypothesis
+        if h.target is not None:
+            return float(np.sqrt(np.trace(fit.cov) / 3.0))
+        q = np.atleast_2d(np.asarray(q_deg, float))
+        c = np.broadcast_to(np.asarray(c_sensor_mm, float), (len(q), 3))
+        G = self.model.point_jacobian(self.x_ref, q, c, h.params)
+        var = np.einsum("kil,lm,kim->k", G, fit.cov, G) / 3.0
+        return float(np.sqrt(np.mean(var)))
+
+    # -- after a jump ---------------------------------------------------------------------------
+    def absorb(self, fit: JumpFit) -> None:
+        """Take a jump as found: the group's parameters moved by theta from the onset (the
+        state widened by theta's covariance), a sphere's move into its own centre. The window
+        keeps the measurements from the onset on, with the jump removed from them."""
+        h = fit.hypothesis
+        keep = self.rows[fit.onset :]
+        for r in self.rows[: fit.onset]:
+            self._fold(r)
+        for r in keep:
+            r.v0 = r.v0 - r.G[h.name] @ fit.theta
+        if h.target is None:
+            cols = [self.active.index(p) for p in h.params if p in self.active]
+            idx = [self.model_index(p) for p in h.params]
+            self.x_ref[idx] += fit.theta
+            self.P[np.ix_(cols, cols)] += fit.cov[: len(cols), : len(cols)]
+        self.rows = keep
+
+
+def _solve_lower(L: F64, b: F64) -> F64:
+    from scipy.linalg import solve_triangular
+
+    return np.asarray(solve_triangular(L, b, lower=True, check_finite=False))
+
+
+def _pinv_rank(F: F64, rtol: float = 1e-9) -> tuple[F64, int]:
+    """The pseudo-inverse of a symmetric PSD matrix and its numerical rank."""
+    vals, vecs = np.linalg.eigh(0.5 * (F + F.T))
+    keep = vals > rtol * max(float(vals.max(initial=0.0)), 1e-300)
+    inv = (vecs[:, keep] / vals[keep]) @ vecs[:, keep].T
+    return inv, int(keep.sum())
