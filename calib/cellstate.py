@@ -357,6 +357,17 @@ class CellState:
         threshold = self.settings.false_alarm / max(tests, 1)
         return self._decide(fits, threshold, nis, float(w @ w), n)
 
+    def fit(self, name: str, onset: int = 0) -> JumpFit | None:
+        """Hypothesis `name` alone, fitted on the window from measurement `onset` on (a test
+        of one hypothesis named before: its p-value needs no correction for the others)."""
+        h = next((h for h in self.hyps if h.name == name), None)
+        n = len(self.rows)
+        if h is None or not 0 <= onset < n:
+            return None
+        v, Sigma, _ = self._window()
+        L = np.asarray(np.linalg.cholesky(Sigma), dtype=np.float64)
+        return self._fit(h, onset, L, _solve_lower(L, v), n)
+
     def _fit(self, h: Hypothesis, k: int, L: F64, w: F64, n: int) -> JumpFit | None:
         G = np.concatenate(
             [

@@ -214,8 +214,9 @@ class RecalibSettings(Section):
     jump_false_alarm: float = opt(1e-4, gt=0, hi=0.1)
     # measurements after the onset with no decisive group: a full recalibration instead
     jump_settle: int = opt(6, lo=1, hi=1000)
-    # measurements on the corrected version without a jump that end the episode
-    jump_confirm: int = opt(2, lo=1, hi=1000)
+    # measurements on the corrected version without a jump (and the cell vouching) that end the
+    # episode: its interval then ends when the correction came into force
+    jump_confirm: int = opt(1, lo=1, hi=1000)
     # windows in a row the cell cannot vouch for its U95 within accuracy_limit_mm: the
     # `accuracy` alarm, and a full recalibration unless a jump's episode is handling it
     accuracy_alarm_windows: int = opt(3, lo=1, hi=100000)

@@ -50,6 +50,9 @@ from calib.uncertainty import norm_quantile
 #: equations after the onset beyond the jump's degrees of freedom before it is corrected (one
 #: measurement's: the estimate is checked by data it was not determined by alone)
 REDUNDANCY = 3
+#: the p-value below which the episode's group, fitted again after its correction, is refined
+REFINE_P = 0.01
+REFINE_MAX = 2  # refinements of one episode
 #: the calibration document's estimator kind of a jump's correction (app.line.versions)
 KIND = "step"
 
@@ -251,14 +254,7 @@ class JumpWatch:
             return
         if 3 * len(self.state.rows[best.onset :]) - best.dof < REDUNDANCY if self.state else True:
             return  # the estimate checked by one measurement more than it needs, first
-        q, c = volume_views(
-            np.array([s.q_deg for s in svc.schedule.slots]), svc.settings.measuring_volume_mm
-        )
-        std_mm = self.state.predicted_std_mm(best, q, c) if self.state is not None else math.inf
-        # determined well enough where the cell measures: absolutely, or beside a large jump
-        # (most of it removed now, the rest by the episode's next correction)
-        bound = max(r.step_max_std_mm, r.step_std_fraction * seen_mm / math.sqrt(3.0))
-        if not std_mm <= bound:
+        if not self._determined(best, seen_mm):
             if n_after >= r.jump_settle and not svc.force_recal and ep["group"] != SEVERAL:
                 ep["group"] = SEVERAL
                 svc.force_recal = True
@@ -307,6 +303,9 @@ class JumpWatch:
             C = C.copy()
             C[np.ix_(cols, cols)] += fit.cov[: len(cols), : len(cols)]
             set_covariance(doc, names, C)
+        validation = (svc.params.current_document() or {}).get("validation")
+        if validation:  # the same calibration with one group moved: its workspace evidence
+            doc["validation"] = {**validation, "inherited_from_version": svc.version}
         doc["estimator"] = {
             "kind": KIND,
             "group": h.name,
@@ -344,14 +343,19 @@ class JumpWatch:
         ep = self.episode
         if ep is not None and ep.get("corrected_version") is None:
             ep["corrected_version"] = self.svc.version
+            ep["corrected_t"] = self.svc.clock.time()
             ep["kind"] = kind  # the interval's end reason: "step" (the jump's) or "batch"
             ep["clean"] = 0
 
     def _confirm(self) -> None:
-        """A measurement on the corrected version with no jump: after `jump_confirm` of them,
-        and the cell vouching, the episode is over."""
+        """A measurement on the corrected version with no jump. The episode's group, fitted
+        again on the measurements since the correction, still moved (p < REFINE_P: a test of
+        the one group named before): its refinement is applied (at most REFINE_MAX). Else after
+        `jump_confirm` of them, and the cell vouching, the episode is over."""
         svc, ep = self.svc, self.episode
         assert ep is not None
+        if self._refine(ep):
+            return
         ep["clean"] = int(ep.get("clean", 0)) + 1
         u95 = self.statement_u95_mm()
         if ep["clean"] < svc.settings.recalib.jump_confirm or not (
@@ -359,18 +363,53 @@ class JumpWatch:
         ):
             svc.save_state()
             return
+        # the parameters were wrong until the correction came into force: its confirmation
+        # dates the interval's end there (the bodies measured since were measured right)
         t = svc.clock.time()
+        t_end = float(ep.get("corrected_t", t))
         with svc.store.batch():
             sid = int(ep["suspect_id"])
             if _open(svc, ep):
                 svc.store.update_suspect(
-                    sid, t_end=t, end_reason=str(ep.get("kind", KIND)), end_version=svc.version
+                    sid, t_end=t_end, end_reason=str(ep.get("kind", KIND)), end_version=svc.version
                 )
-            self.episode = None
-            svc.drift_onset_id = None
+            self.episode = None  # (the rolling set stays after the onset until a recalibration
+            # trained there is in force: app.line.versions)
             svc.clear_alarms(AlarmCode.DRIFT_STEP, t)
             svc.save_state()
         svc.bus.emit("suspect_interval", suspect_json(svc.store.suspect(sid) or {}))
+
+    def _refine(self, ep: dict[str, Any]) -> bool:
+        """The episode's group's residual jump on the corrected version, applied when shown
+        and determined (`_confirm`); whether it was."""
+        svc, st = self.svc, self.state
+        group = str(ep.get("group", ""))
+        if st is None or not group or group == SEVERAL or group.startswith(SPHERE):
+            return False
+        if int(ep.get("refined", 0)) >= REFINE_MAX or svc.pending_calibration is not None:
+            return False
+        fit = st.fit(group)
+        if fit is None or fit.p_value >= REFINE_P or 3 * len(st.rows) - fit.dof < REDUNDANCY:
+            return False
+        if not self._determined(fit, self._seen_mm(fit)):
+            return False
+        ep["refined"] = int(ep.get("refined", 0)) + 1
+        ep["corrected_version"] = None  # the refinement's version becomes it
+        svc.recal_done(self._correction(fit, len(st.rows)))
+        return True
+
+    def _determined(self, fit: JumpFit, seen_mm: float) -> bool:
+        """The jump's estimate predicts the points in the measuring volume at the schedule's
+        configurations within `[service] step_max_std_mm`, or, beside a large jump, within
+        `step_std_fraction` of it (most of it removed now, the rest refined)."""
+        assert self.state is not None
+        r = self.svc.settings.recalib
+        q, c = volume_views(
+            np.array([s.q_deg for s in self.svc.schedule.slots]),
+            self.svc.settings.measuring_volume_mm,
+        )
+        std_mm = self.state.predicted_std_mm(fit, q, c)
+        return std_mm <= max(r.step_max_std_mm, r.step_std_fraction * seen_mm / math.sqrt(3.0))
 
     # -- the statement ---------------------------------------------------------------------
     def statement_u95_mm(self) -> float | None:
