@@ -21,11 +21,16 @@ from __future__ import annotations
 import itertools
 import math
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 BASELINE_N = 20
+#: the first bodies a chart is replayed from hold its baseline (a feature not measured in a few
+#: of them included): the service's charts at a start, the operator's view of their limits
+BASELINE_BODIES = 2 * BASELINE_N
+#: the control limits: centre +- this many sigma (rule 1)
+LIMIT_SIGMA = 3.0
 QUIET_N = 8
 #: the values a chart's run rules look back over
 RECENT_N = 8
@@ -87,6 +92,11 @@ class IndividualsChart:
         bodies = [b for _, b in list(self.recent)[-n:]]
         return Signal(self.key, rule, bodies, self.centre, self.sigma)
 
+    @property
+    def limits_mm(self) -> tuple[float, float]:
+        """The lower and upper control limits (nan before the baseline is complete)."""
+        return self.centre - LIMIT_SIGMA * self.sigma, self.centre + LIMIT_SIGMA * self.sigma
+
     def _limits(self) -> None:
         b = self.baseline
         self.centre = sum(b) / len(b)
@@ -95,7 +105,7 @@ class IndividualsChart:
 
     def _rule(self) -> int | None:
         z = [(v - self.centre) / self.sigma for v, _ in self.recent]
-        if abs(z[-1]) > 3.0:
+        if abs(z[-1]) > LIMIT_SIGMA:
             return 1
         last3 = z[-3:]
         for side in (1.0, -1.0):
@@ -104,6 +114,27 @@ class IndividualsChart:
         if len(z) == 8 and (all(x > 0 for x in z) or all(x < 0 for x in z)):
             return 4
         return None
+
+
+def chart_key(value: dict[str, Any]) -> str:
+    """The chart of a stored value (feature, characteristic): "H01.X"."""
+    return f"{value['feature']}.{value['characteristic']}"
+
+
+def add_values(
+    charts: dict[str, IndividualsChart], body: Any, values: Iterable[dict[str, Any]]
+) -> list[Signal]:
+    """A body's stored values (feature, characteristic, measured_mm) each into its chart (made
+    when it is the first), those not measured left out; the signals they raise."""
+    signals = []
+    for v in values:
+        if v["measured_mm"] is None:
+            continue
+        key = chart_key(v)
+        signal = charts.setdefault(key, IndividualsChart(key)).add(float(v["measured_mm"]), body)
+        if signal is not None:
+            signals.append(signal)
+    return signals
 
 
 def suspect_of(

@@ -35,7 +35,15 @@ from numpy.typing import NDArray
 from app.api import Calibration
 from app.inspect.measure import BodyResult, FeatureSensor, RawFeature, evaluate_body, extract
 from app.inspect.plan import FeaturePlan, load_features
-from app.inspect.spc import BASELINE_N, RECENT_N, IndividualsChart, Signal, attribute, grouped_texts
+from app.inspect.spc import (
+    BASELINE_BODIES,
+    RECENT_N,
+    IndividualsChart,
+    Signal,
+    add_values,
+    attribute,
+    grouped_texts,
+)
 from app.inspect.values import Value
 from app.inspect.views import InspectionPlan, plan_views, reaimed
 from app.line.body_export import ResultsWriter
@@ -163,7 +171,7 @@ class BodyCycle:
         self.charts: dict[str, IndividualsChart] = {}
         self.signals: list[Signal] = []
         stored = store.bodies()
-        head = 2 * BASELINE_N
+        head = BASELINE_BODIES
         for b in stored[:head] + stored[max(head, len(stored) - RECENT_N) :]:
             self._chart(b["body_id"], store.body_values(int(b["id"])))
         self.signals.clear()
@@ -276,14 +284,7 @@ class BodyCycle:
         )
 
     def _chart(self, body_id: Any, values: list[dict[str, Any]]) -> None:
-        for v in values:
-            if v["measured_mm"] is None:
-                continue
-            key = f"{v['feature']}.{v['characteristic']}"
-            chart = self.charts.setdefault(key, IndividualsChart(key))
-            signal = chart.add(float(v["measured_mm"]), body_id)
-            if signal is not None:
-                self.signals.append(signal)
+        self.signals += add_values(self.charts, body_id, values)
 
     def attribute_signals(self, limit_mm: float, now_u95_mm: float | None) -> list[str]:
         """The waiting signals' alarm texts, each with whose it is (app.inspect.spc)."""

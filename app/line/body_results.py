@@ -5,7 +5,7 @@ A value is `suspect` when its body was measured inside a suspect interval (from 
 start to its end, or to now while it is open) and its values are not the ones computed again with
 that interval's correction: measure the body again, or leave the value out of the SPC.
 
-    records(store, since_t=None, body_id=None) -> [{"body", "time_utc", ...,"values": [...]}]
+    records(store, since_t=None, body_id=None, last=None) -> [{"body", "time_utc", ..., "values"}]
     csv_text(records) -> the values as CSV, a row each
 """
 
@@ -32,12 +32,17 @@ CSV_HEADER = (
 
 
 def records(
-    store: Store, since_t: float | None = None, body_id: Any = None, now_t: float = float("inf")
+    store: Store,
+    since_t: float | None = None,
+    body_id: Any = None,
+    now_t: float = float("inf"),
+    last: int | None = None,
 ) -> list[dict[str, Any]]:
-    """One record per body measured since `since_t` (or the body `body_id`), oldest first,
-    each its newest evaluation."""
+    """One record per body measured since `since_t` (or the body `body_id`; only the `last` n
+    when given), oldest first, each its newest evaluation."""
     intervals = store.suspects()
-    return [record_of(store, b, intervals, now_t) for b in store.bodies(since_t, None, body_id)]
+    bodies = store.bodies(since_t, None, body_id, last=last)
+    return [record_of(store, b, intervals, now_t) for b in bodies]
 
 
 def record_of(

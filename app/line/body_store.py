@@ -142,9 +142,12 @@ class BodyRecords:
         *,
         row: int | None = None,
         evaluation: int | None = None,
+        first: int | None = None,
+        last: int | None = None,
     ) -> list[dict[str, Any]]:
         """Bodies (oldest first) with their newest evaluation's summary (or `evaluation`'s),
-        measured within [since_t, until_t] and/or with the body id given (or the body `row`)."""
+        measured within [since_t, until_t] and/or with the body id given (or the body `row`);
+        only the `first` or the `last` n of them when given."""
         where: list[str] = [
             "e.evaluation = b.evaluation" if evaluation is None else "e.evaluation = ?"
         ]
@@ -161,14 +164,17 @@ class BodyRecords:
         if body_id is not None:
             where.append("CAST(b.body_id AS TEXT) = CAST(? AS TEXT)")
             args.append(body_id)
-        return self._rows(
+        order, limit = ("DESC", last) if last is not None else ("", first)
+        rows = self._rows(
             "SELECT b.id, b.t, b.body_id, b.part, b.window, b.temp_c, e.evaluation,"
             " e.params_version, e.statement_u95_mm, e.reason, e.ok, e.n_nok, e.n_undecided,"
             " e.n_not_measured, e.decisions_changed, e.suspect_id"
             " FROM bodies b JOIN body_evaluations e ON e.body = b.id"
-            f" WHERE {' AND '.join(where)} ORDER BY b.id",
-            args,
+            f" WHERE {' AND '.join(where)} ORDER BY b.id {order}"
+            + ("" if limit is None else " LIMIT ?"),
+            args if limit is None else [*args, limit],
         )
+        return rows[::-1] if last is not None else rows
 
     def body_values(self, body_row: int, evaluation: int | None = None) -> list[dict[str, Any]]:
         """A body's values of one evaluation (default: its newest), in plan order."""
