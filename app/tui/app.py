@@ -1,7 +1,7 @@
-"""The operator's terminal: six panes (Overview, Measurements, Calibrations, Alarms, Devices,
-Log) over one service. Keyboard first (bindings in the footer); socket and database work run in
-workers so the screen never waits; every action that moves the robot or changes the applied
-parameters asks first and shows the service's answer."""
+"""The operator's terminal: seven panes (Overview, Measurements, Calibrations, Alarms, Devices,
+Log, Bodies) over one service. Keyboard first (bindings in the footer); socket and database
+work run in workers so the screen never waits; every action that moves the robot or changes the
+applied parameters asks first and shows the service's answer."""
 
 from __future__ import annotations
 
@@ -12,7 +12,6 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, ClassVar
 
-from rich.cells import cell_len
 from rich.text import Text
 from textual import work
 from textual.app import App, ComposeResult
@@ -33,11 +32,14 @@ from textual.worker import Worker
 
 from app.line.statedir import StateDir
 from app.tui import keys, view
+from app.tui.bodies import BodiesPane
+from app.tui.body_view import TREND_N
 from app.tui.client import Event, ServiceClient, ServiceUnavailable
 from app.tui.history import HistoryReader
 from app.tui.keys import PANE_FILTER, PANE_FOCUS, PANES, FilterInput
 from app.tui.look import CSS, ISA101
 from app.tui.modals import ConfirmScreen, ShelveScreen
+from app.tui.tables import fill
 
 #: what each pane shows from the database (only the visible pane's history is read and drawn)
 PANE_HISTORY = {
@@ -47,6 +49,7 @@ PANE_HISTORY = {
     "alarms": ("alarms",),
     "devices": (),
     "log": ("events",),
+    "bodies": ("bodies", "charts"),
 }
 #: at most this many screen refreshes a second follow the service's events (a busy service
 #: emits an event every few ms; one refresh shows them all)
@@ -117,6 +120,8 @@ class RvisTui(App[None]):
                     id="log-filter",
                 )
                 yield DataTable(id="log-table", cursor_type="row")
+            with TabPane("7 Body", id="bodies"):
+                yield BodiesPane()
         yield Footer(compact=True, show_command_palette=False)
 
     def on_mount(self) -> None:
@@ -241,6 +246,8 @@ class RvisTui(App[None]):
             "events": lambda: self.history.events(300, text),
             "suspects": self.history.suspects,
             "maintenance": self.history.maintenance,
+            "bodies": lambda: self.history.bodies(TREND_N),
+            "charts": self.history.charts,
         }
         return {key: readers[key]() for key in wanted}
 
@@ -303,6 +310,8 @@ class RvisTui(App[None]):
             self._show_alarm_detail()
         if "events" in hist:
             self._fill("log-table", view.log_rows(hist["events"]))
+        if "bodies" in hist:
+            self.query_one(BodiesPane).show(hist["bodies"], hist["charts"], self._fill)
         if "recent" in hist:
             self._show_drift(hist["recent"])
         if "suspects" in hist:
@@ -340,20 +349,7 @@ class RvisTui(App[None]):
         if list(rows) == self._shown.get(table_id):
             return
         self._shown[table_id] = list(rows)
-        table: DataTable[Any] = self.query_one(f"#{table_id}", DataTable)
-        cursor = table.cursor_row
-        table.clear()
-        table.add_rows(rows)
-        # the columns' widths for these rows at once: the table measures new rows when it is
-        # next idle, which in a full test suite left a pane (shown meanwhile) with its header's
-        # widths and every cell cut (seen for the calibrations, measurements and log panes)
-        for column, cells in zip(table.ordered_columns, zip(*rows, strict=False), strict=False):
-            if column.auto_width:
-                width = max(c.cell_len if isinstance(c, Text) else cell_len(str(c)) for c in cells)
-                column.content_width = max(column.content_width, width)
-        table.refresh(layout=True)
-        if rows:
-            table.move_cursor(row=min(cursor, len(rows) - 1))
+        fill(self.query_one(f"#{table_id}", DataTable), rows)
 
     def _show_drift(self, recent: list[dict[str, Any]]) -> None:
         by_sphere: dict[str, list[float]] = {}

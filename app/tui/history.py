@@ -8,11 +8,14 @@ from __future__ import annotations
 
 import json
 import sqlite3
+from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from app.line.store import suspect_rows
+from app.inspect.spc import BASELINE_BODIES, BASELINE_N, IndividualsChart, add_values
+from app.line.body_results import records
+from app.line.store import StorageError, Store, suspect_rows
 
 
 def _utc(t: Any) -> str:
@@ -35,6 +38,8 @@ class HistoryReader:
 
     def __init__(self, db_path: str | Path) -> None:
         self.db_path = Path(db_path)
+        #: the SPC charts of the first bodies, by their (row, evaluation): read once
+        self._charts: tuple[list[tuple[int, int]], list[dict[str, Any]]] = ([], [])
 
     def _query(self, sql: str, args: tuple[Any, ...] = ()) -> list[dict[str, Any]]:
         if not self.db_path.exists():
@@ -137,3 +142,55 @@ class HistoryReader:
                 "SELECT id, t, kind, data FROM events ORDER BY id DESC LIMIT ?", (limit,)
             )
         return [{**r, "utc": _utc(r["t"]), "detail": r["data"]} for r in rows]
+
+    def bodies(self, last: int) -> list[dict[str, Any]]:
+        """The last bodies measured, oldest first, each its newest evaluation with its values
+        and whether they are suspect (app.line.body_results.records, as `rvis results`)."""
+        return self._with_store(lambda store: records(store, last=last))
+
+    def charts(self) -> list[dict[str, Any]]:
+        """The service's SPC chart of each characteristic (app.inspect.spc): key, centre_mm,
+        sigma_mm, lcl_mm, ucl_mm (None before its baseline is complete), baseline_n; replayed
+        from the first bodies as the service replays them at its start."""
+        return self._with_store(self._read_charts)
+
+    def _read_charts(self, store: Store) -> list[dict[str, Any]]:
+        first = store.bodies(first=BASELINE_BODIES)
+        ids = [(int(b["id"]), int(b["evaluation"])) for b in first]
+        if ids == self._charts[0]:
+            return self._charts[1]
+        charts: dict[str, IndividualsChart] = {}
+        for b in first:
+            add_values(charts, b["body_id"], store.body_values(int(b["id"])))
+        out = []
+        for key, c in charts.items():
+            done = len(c.baseline) == BASELINE_N
+            lcl, ucl = c.limits_mm
+            out.append(
+                {
+                    "key": key,
+                    "centre_mm": c.centre if done else None,
+                    "sigma_mm": c.sigma if done else None,
+                    "lcl_mm": lcl if done else None,
+                    "ucl_mm": ucl if done else None,
+                    "baseline_n": len(c.baseline),
+                }
+            )
+        self._charts = (ids, out)
+        return out
+
+    def _with_store(self, read: Callable[[Store], list[dict[str, Any]]]) -> list[dict[str, Any]]:
+        """read(store) on a read-only store of the database; nothing while there is none (or
+        it has no body tables yet)."""
+        if not self.db_path.exists():
+            return []
+        try:
+            store = Store.read_only(self.db_path)
+        except (StorageError, sqlite3.Error):
+            return []
+        try:
+            return read(store)
+        except (StorageError, sqlite3.Error):
+            return []  # a database still being created or migrated: nothing to show yet
+        finally:
+            store.close()

@@ -1,7 +1,7 @@
 """The keys of the operator's terminal (the keys' table in docs/tui.md): which key does what,
 and from which focus.
 
-The screen keys (1-6 switch panes, q quits) are priority bindings: they act whatever widget has
+The screen keys (1-7 switch panes, q quits) are priority bindings: they act whatever widget has
 the focus (a table, the tabs, a scrolled pane), except while the cursor is in a filter box,
 where letters and digits are typed (a sphere filter needs "P2"); there Escape leaves the box
 (Enter applies the filter and leaves it too) and the keys act again. Ctrl+Q quits from anywhere.
@@ -15,7 +15,7 @@ from textual.binding import Binding, BindingType
 from textual.message import Message
 from textual.widgets import Input
 
-PANES = ("overview", "measurements", "calibrations", "alarms", "devices", "log")
+PANES = ("overview", "measurements", "calibrations", "alarms", "devices", "log", "bodies")
 #: the widget a pane's key gives the focus to: its table (up/down select a row at once; the
 #: filter box is reached with / or Tab)
 PANE_FOCUS = {
@@ -25,6 +25,7 @@ PANE_FOCUS = {
     "alarms": "alarms-table",
     "devices": "devices-table",
     "log": "log-table",
+    "bodies": "bodies-table",
 }
 #: the panes with a filter box, and its id
 PANE_FILTER = {"measurements": "sphere-filter", "log": "log-filter"}

@@ -42,6 +42,10 @@ TabbedContent { height: 1fr; }
 #alarm-detail { height: auto; max-height: 6; border-top: solid #8a8a8a; padding: 0 1; }
 #suspect-detail { height: auto; max-height: 4; padding: 0 1; }
 #maintenance-table { height: auto; max-height: 4; }
+#body-head { height: auto; }
+#body-trend { height: auto; }
+/* the selected characteristic reversed: seen on a row in its decision's colour too */
+#bodies-table > .datatable--cursor { text-style: bold reverse; }
 .dialog { width: 70; height: auto; border: solid #8a8a8a; background: #4e4e4e; padding: 1; }
 ModalScreen { align: center middle; }
 .buttons { height: auto; }

@@ -5,11 +5,13 @@ PLC unreachable since the start (the service's words for it, app/line/startup.py
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from app.inspect.spc import BASELINE_N, IndividualsChart, add_values
 from app.tui.app import PANE_HISTORY, RvisTui
 
 NOW = datetime(2026, 11, 23, 9, 30, tzinfo=UTC)
@@ -106,7 +108,74 @@ def _measurements() -> list[dict[str, Any]]:
     return rows
 
 
+#: the frozen part: (feature, characteristic, nominal, tolerance +-) of a few characteristics
+PART = (
+    ("H01", "X", 1500.0, 0.5), ("H01", "Y", -300.0, 0.5), ("H01", "Z", 150.0, 0.5),
+    ("H01", "D", 10.0, 0.2), ("H02", "X", 1620.0, 0.5), ("H02", "Y", -410.0, 0.5),
+    ("H02", "Z", 180.0, 0.5), ("S01", "X", 1710.5, 0.5), ("S01", "Y", -250.0, 0.5),
+    ("S01", "Z", 210.0, 0.5), ("S01", "W", 8.0, 0.2), ("S01", "L", 20.0, 0.2),
+    ("P01", "N", 0.0, 0.7),
+)  # fmt: skip
+FIRST_BODY = 100391
+
+
+def _decision(dev: float, tol: float, u95: float) -> str:
+    if abs(dev) <= tol - u95:
+        return "conforming"
+    return "nonconforming" if abs(dev) > tol + u95 else "undecided"
+
+
+def _bodies(n: int = 25) -> list[dict[str, Any]]:
+    """The last n bodies as app.line.body_results.records gives them (oldest first): H01.Z
+    shifted by 0.6 mm from the 21st on (a process shift: the last body NOK), H02.X near its
+    limit (undecided) and P01 not measured in the last body."""
+    out = []
+    for k in range(n):
+        values = []
+        for j, (feature, name, nominal, tol) in enumerate(PART):
+            size = name in "DWL"
+            dev = (0.004 if size else 0.09) * math.sin(1.7 * k + 2.3 * j) + 0.01 * (j % 3)
+            dev += 0.6 if (feature, name) == ("H01", "Z") and k >= 20 else 0.0
+            dev += 0.48 if (feature, name) == ("H02", "X") and k == n - 1 else 0.0
+            u95 = 0.01 if size else 0.06
+            values.append({
+                "feature": feature, "characteristic": name, "nominal_mm": nominal,
+                "measured_mm": nominal + dev, "lower_mm": nominal - tol,
+                "upper_mm": nominal + tol, "u95_mm": u95, "decision": _decision(dev, tol, u95),
+                "suspect": False, "reason": "",
+            })  # fmt: skip
+        if k == n - 1:
+            values[-1].update(measured_mm=None, u95_mm=None, decision="not measured",
+                              reason="plane: too few points on the sheet")  # fmt: skip
+        decisions = [v["decision"] for v in values]
+        nok, und, nm = (decisions.count(d) for d in ("nonconforming", "undecided", "not measured"))
+        out.append({
+            "body": FIRST_BODY + k, "time_utc": f"2026-11-23T09:{5 + k:02d}:10+00:00",
+            "part": "SIM-BIW-01", "evaluation": 0, "params_version": 3,
+            "statement_u95_mm": 0.085, "ok": nok == 0 and nm == 0, "n_nok": nok,
+            "n_undecided": und, "n_not_measured": nm, "suspect_interval": None,
+            "reevaluated": False, "values": values,
+        })  # fmt: skip
+    return out
+
+
+def _charts(bodies: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The SPC charts as app.tui.history.HistoryReader.charts gives them: from the first 20
+    bodies here."""
+    charts: dict[str, IndividualsChart] = {}
+    for b in bodies[:BASELINE_N]:
+        add_values(charts, b["body"], b["values"])
+    return [
+        {"key": key, "centre_mm": c.centre, "sigma_mm": c.sigma, "lcl_mm": c.limits_mm[0],
+         "ucl_mm": c.limits_mm[1], "baseline_n": len(c.baseline)}
+        for key, c in charts.items()
+    ]  # fmt: skip
+
+
+BODIES = _bodies()
 HISTORY: dict[str, list[dict[str, Any]]] = {
+    "bodies": BODIES,
+    "charts": _charts(BODIES),
     "measurements": _measurements(),
     "recent": _measurements(),
     "calibrations": [

@@ -1,4 +1,4 @@
-"""Issue 40 item 4: the screen keys from every focus. 1-6 switch panes and q quits whatever has
+"""Issue 40 item 4: the screen keys from every focus. 1-7 switch panes and q quits whatever has
 the focus (a table, the tabs, after any number of Tabs in any pane), except in a filter box,
 where they are typed; Escape leaves the box (the focus back on the pane's table), Enter applies
 the filter and leaves it too; while a dialog asks, the screen keys do nothing. The terminal
@@ -69,6 +69,28 @@ def test_the_screen_keys_switch_panes_from_every_focus() -> None:
                     await pilot.press(key_of(other))
                     await shown(pilot, app, other)
                     assert focus_of(app) == PANE_FOCUS[other], (pane, tabs, focus)
+
+    asyncio.run(scenario())
+
+
+def test_7_shows_the_bodies_from_every_pane_and_focus() -> None:
+    """Issue 49 item 3: the operator's view of the bodies is reachable by its key from every
+    screen, whatever has the focus there (a filter box left with Escape first)."""
+    assert key_of("bodies") == "7"
+
+    async def scenario() -> None:
+        app = FrozenTui()
+        async with app.run_test(size=(80, 24)) as pilot:
+            for pane in PANES:
+                for tabs, focus in enumerate(await focuses_by_tab(pilot, app, pane)):
+                    await pilot.press(key_of(pane), *["tab"] * tabs)
+                    await focused(pilot, app, focus)
+                    if focus in PANE_FILTER.values():
+                        await pilot.press("escape")
+                        await focused(pilot, app, PANE_FOCUS[pane])
+                    await pilot.press("7")
+                    await shown(pilot, app, "bodies")
+                    assert focus_of(app) == "bodies-table", (pane, tabs, focus)
 
     asyncio.run(scenario())
 
