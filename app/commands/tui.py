@@ -4,7 +4,11 @@ never stops the service.
 
 `rvis tui --sim [--rendered] [--seed N]`: first start the simulated line and its service in this
 process (geometric measurements unless --rendered, app/sim/tui_line.py), then attach; closing the
-terminal stops that simulated service. Its log lines go to STATE_DIR/rvis-sim.log."""
+terminal stops that simulated service. Its log lines go to STATE_DIR/rvis-sim.log. On the
+geometric path the line measures the simulated part type's bodies (its feature plan written to
+the state directory when it has none: the Bodies pane shows them); a rendered body's sweeps
+would hold the service for minutes a body, so --rendered measures the bodies only of a plan
+already there."""
 
 from __future__ import annotations
 
@@ -52,6 +56,10 @@ def run(args: argparse.Namespace) -> int:
 
     settings = TuiSimSettings(geometric=not args.rendered, seed=args.seed)
     state_dir.mkdir(parents=True, exist_ok=True)
+    if settings.geometric:
+        from app.sim.part import ensure_features
+
+        ensure_features(state_dir, cfg)
     # the service's log lines go to a file: on the terminal they would draw over the screen
     with open(StateDir(state_dir).sim_log, "a") as log:
         handler = json_logs(log)

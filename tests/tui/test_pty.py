@@ -1,6 +1,7 @@
 """`rvis tui --sim` in a real pseudo-terminal (tmux, on its own server socket; Textual draws on
 stderr, so it is not redirected): the rendered
-screen shows the simulated service's state, and q quits, stopping that service."""
+screen shows the simulated service's state and, on the Bodies pane, the bodies it measures, and q
+quits, stopping that service."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from app.line.statedir import StateDir
 from tests.tui.helpers import poll_screen
 
 TMUX = shutil.which("tmux")
@@ -49,6 +51,10 @@ def test_tui_sim_in_a_terminal_shows_the_service_and_quits(tmp_path: Path) -> No
         assert poll_screen(attached, 30.0), screen()
         assert "Overview" in screen()
         assert (tmp_path / "rvis.sock").exists()
+        # the simulated line measures the simulated part type's bodies: the Bodies pane (7)
+        assert StateDir(tmp_path).features.is_file()
+        subprocess.run([*tmux, "send-keys", "-t", "t", "7"], check=True)
+        assert poll_screen(lambda: "charact." in screen() and "\nBody " in screen(), 60.0), screen()
         subprocess.run([*tmux, "send-keys", "-t", "t", "q"], check=True)
 
         def ended() -> bool:
