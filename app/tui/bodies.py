@@ -52,16 +52,18 @@ class BodiesPane(Vertical):
         last = records[-1] if records else None
         self.keys = [chart_key(v) for v in body_view.ordered(last["values"] if last else [])]
         fill("bodies-table", body_view.value_rows(last))
+        table: DataTable[Any] = self.query_one("#bodies-table", DataTable)
         if self.selected in self.keys:  # the same characteristic, wherever its row is now
-            self.query_one("#bodies-table", DataTable).move_cursor(
-                row=self.keys.index(self.selected)
-            )
-        elif self.keys:
-            self.selected = self.keys[0]
+            table.move_cursor(row=self.keys.index(self.selected))
+        elif self.keys:  # none yet, or gone: the one under the cursor
+            self.selected = self.keys[min(max(table.cursor_row, 0), len(self.keys) - 1)]
         self._show_trend()
 
     def on_data_table_row_highlighted(self, event: DataTable.RowHighlighted) -> None:
-        if event.data_table.id == "bodies-table" and 0 <= event.cursor_row < len(self.keys):
+        table = event.data_table
+        if table.id != "bodies-table" or event.cursor_row != table.cursor_row:
+            return  # another table's, or stale: the cursor moved on since (`show`)
+        if 0 <= event.cursor_row < len(self.keys):
             self.selected = self.keys[event.cursor_row]
             self._show_trend()
 

@@ -204,7 +204,7 @@ def plot(
             cells[line_of(dev)][PLOT_STEP * i] = ("●", POINT_STYLE.get(decision, ""))
     out = []
     for name, row in zip(names, cells, strict=True):
-        text = Text(f"{name:>7} {'┤' if name else '│'}")
+        text = Text(f"{name[:7]:>7} {'┤' if name else '│'}")
         for char, style in row:
             text.append(char, style=style or None)
         out.append(text)

@@ -10,10 +10,12 @@ from pathlib import Path
 from typing import Any
 
 from rich.text import Text
+from textual.widgets import DataTable, Static
 
 from app.inspect.spc import BASELINE_N, IndividualsChart
 from app.line.body_results import capability
 from app.line.store import Store
+from app.tui.bodies import BodiesPane
 from app.tui.body_view import (
     COLUMNS,
     DECISION_STYLE,
@@ -159,3 +161,28 @@ def test_at_80x24_the_nok_body_its_row_and_the_trend_are_on_screen() -> None:
     for shown in ("H01.Z", "NONCONFORMING", "NOT MEASURED", "UNDECIDED", "UCL", "LCL", "Cpk"):
         assert shown in text, shown
     assert lines[-1].startswith("q Quit")
+
+
+def test_the_selection_stays_on_its_characteristic_from_one_body_to_the_next() -> None:
+    """H02.X selected while undecided (third row); in the next body it conforms and its row
+    moves down: the cursor and the trend follow it."""
+    after = [*BODIES[1:], {**BODIES[-2], "body": BODIES[-1]["body"] + 1}]
+
+    async def scenario() -> None:
+        app = FrozenTui()
+        async with app.run_test(size=(80, 24)) as pilot:
+            await pilot.press("7")
+            pane = app.query_one(BodiesPane)
+            table: DataTable[Any] = app.query_one("#bodies-table", DataTable)
+            await until(pilot, lambda: table.row_count > 0 and pane.selected == "H01.Z", 10.0)
+            await pilot.press("down", "down")
+            await until(pilot, lambda: pane.selected == "H02.X", 10.0)
+            app.frozen_history = {**HISTORY, "bodies": after}
+            app.refresh_all()
+            await until(pilot, lambda: pane.head.plain.startswith("Body 100416 "), 10.0)
+            await until(pilot, lambda: table.cursor_row == pane.keys.index("H02.X"), 10.0)
+            assert table.cursor_row > 2 and pane.selected == "H02.X"
+            trend = str(app.query_one("#body-trend", Static).render())
+            assert trend.startswith("H02.X last 25")
+
+    asyncio.run(scenario())
