@@ -54,7 +54,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.stats import chi2 as chi2_dist
 
-from calib.attribution import NONE, SEVERAL, step_groups
+from calib.attribution import NONE, SEVERAL, maintenance_groups, step_groups
 from calib.model import EXTRA_NAMES, INDEX, SystemModel, unit_of
 
 F64 = NDArray[np.float64]
@@ -90,12 +90,24 @@ class Hypothesis:
 
 
 def hypotheses(model: SystemModel, targets: Sequence[str]) -> tuple[Hypothesis, ...]:
-    """The model's knock groups (calib.attribution.step_groups, without "nothing" and the full
-    set) and each sphere alone."""
+    """The groups a knock moves (calib.attribution.step_groups, without "nothing" and the
+    full set) and each sphere alone."""
     groups = [g for g in step_groups(model) if g.name not in (NONE, SEVERAL)]
     return (
         *(Hypothesis(g.name, g.label, g.params) for g in groups),
         *(Hypothesis(f"{SPHERE}{t}", f"sphere {t} alone", target=t) for t in sorted(targets)),
+    )
+
+
+def beyond_hypotheses(model: SystemModel) -> tuple[Hypothesis, ...]:
+    """The groups only a change beyond a knock moves (calib.attribution.maintenance_groups
+    less the knocks': J2's encoder zero with J3 coupled), tested on request (`fit`): among the
+    knocks' its spare parameter would let noise pick it over J2's zero alone."""
+    knocks = {g.name for g in step_groups(model)}
+    return tuple(
+        Hypothesis(g.name, g.label, g.params)
+        for g in maintenance_groups(model)
+        if g.name not in knocks
     )
 
 
@@ -212,7 +224,9 @@ class CellState:
         self.P = 0.5 * (P + P.T)
         self.d = np.zeros(self.L)
         self.hyps = hypotheses(model, targets)
-        self._extra = tuple(sorted({p for h in self.hyps for p in h.params} - set(self.active)))
+        self.beyond = beyond_hypotheses(model)
+        every = self.hyps + self.beyond
+        self._extra = tuple(sorted({p for h in every for p in h.params} - set(self.active)))
         self.q_per_h = np.array([self._drift_sd(n) ** 2 for n in self.active])
         self.t_s = t0_s  # the time (d, P) describe
         self.rows: list[_Row] = []
@@ -281,7 +295,7 @@ class CellState:
         Jn = J[0]
         col = {n: k for k, n in enumerate(names)}
         G: dict[str, F64] = {}
-        for h in self.hyps:
+        for h in self.hyps + self.beyond:
             if h.target is not None:
                 G[h.name] = -np.eye(3) if obs.target == h.target else np.zeros((3, 3))
             else:
@@ -360,7 +374,7 @@ class CellState:
     def fit(self, name: str, onset: int = 0) -> JumpFit | None:
         """Hypothesis `name` alone, fitted on the window from measurement `onset` on (a test
         of one hypothesis named before: its p-value needs no correction for the others)."""
-        h = next((h for h in self.hyps if h.name == name), None)
+        h = next((h for h in self.hyps + self.beyond if h.name == name), None)
         n = len(self.rows)
         if h is None or not 0 <= onset < n:
             return None

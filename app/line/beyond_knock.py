@@ -73,22 +73,36 @@ def beyond(a: Attribution, visible_mm: float, bound_mm: float) -> bool:
 
 def step_text(a: Attribution, visible_mm: float, bound_mm: float) -> str:
     """The `maintenance` alarm's text for a step beyond a knock."""
-    head = (
-        f"a change of {visible_mm:.2f} mm at the measured spheres, beyond a knock's"
-        f" {bound_mm:g} mm: {a.text()}"
-    )
     fit = a.chosen
     if a.choice == SEVERAL or fit is None:
-        return (
-            f"{head}; not one group: more than one thing changed; bodies are not measured"
-            " with this cell: commission again (`rvis commission --restart`), or run the"
-            " maintenance procedure of what was done to the cell (`rvis maintain sensor|axis N"
-            "|fixture`)"
-        )
-    group = fit.group.name
+        return several_text(visible_mm, bound_mm, a.text())
+    return change_text(
+        fit.group.name, fit.group.label, a.text(), fit.size_text(), visible_mm, bound_mm
+    )
+
+
+def several_text(visible_mm: float, bound_mm: float, found: str = "") -> str:
+    """The `maintenance` alarm's text for a change beyond a knock no one group explains."""
+    head = (
+        f"a change of {visible_mm:.2f} mm at the measured spheres, beyond a knock's {bound_mm:g} mm"
+    )
     return (
-        f"{head}; likely {event_of(group)} ({fit.group.label} {fit.size_text()}); bodies are"
-        f" not measured with this cell: run `{procedure_of(group)}`"
+        f"{head}{': ' + found if found else ''}; not one group: more than one thing changed;"
+        " bodies are not measured with this cell: commission again (`rvis commission"
+        " --restart`), or run the maintenance procedure of what was done to the cell (`rvis"
+        " maintain sensor|axis N|fixture`)"
+    )
+
+
+def change_text(
+    group: str, label: str, found: str, size: str, visible_mm: float, bound_mm: float
+) -> str:
+    """The `maintenance` alarm's text for a change of one group (`label`) beyond a knock:
+    `found` what the test found, `size` the change in the group's own terms."""
+    return (
+        f"a change of {visible_mm:.2f} mm at the measured spheres, beyond a knock's"
+        f" {bound_mm:g} mm: {found}; likely {event_of(group)} ({label} {size}); bodies are not"
+        f" measured with this cell: run `{procedure_of(group)}`"
     )
 
 
@@ -113,11 +127,17 @@ def sphere_text(name: str, residuals_mm: dict[str, list[float]], bound_mm: float
     """The `maintenance` alarm's text when one sphere moved alone."""
     own = residuals_mm[name]
     others = max(e for t, v in residuals_mm.items() if t != name for e in v)
+    evidence = f"{len(own)} measurements; the other spheres within {others:.2f} mm"
+    return sphere_moved_text(name, sum(own) / len(own), evidence, bound_mm)
+
+
+def sphere_moved_text(name: str, moved_mm: float, evidence: str, bound_mm: float) -> str:
+    """The `maintenance` alarm's text when one sphere moved alone by `moved_mm`."""
+    bound = "beyond a knock's" if moved_mm > bound_mm else "within a knock's"
     return (
-        f"sphere {name} moved {sum(own) / len(own):.2f} mm on its own ({len(own)} measurements;"
-        f" the other spheres within {others:.2f} mm), beyond a knock's {bound_mm:g} mm: likely"
-        " the sphere replaced or its stand moved; bodies are not measured with this cell: run"
-        " `rvis maintain fixture`"
+        f"sphere {name} moved {moved_mm:.2f} mm on its own ({evidence}), {bound} {bound_mm:g}"
+        " mm: the sphere knocked, replaced or its stand moved; the cell's reference is no"
+        " longer where it was measured: run `rvis maintain fixture`"
     )
 
 

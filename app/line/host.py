@@ -92,6 +92,7 @@ class LineHost(Protocol):
     change_from_id: int
     maintained_from_id: int  # the first measurement after a maintenance's hand-over (0: none)
     step: Step | None
+    episode: dict[str, Any] | None  # a jump found by the one estimator (app.line.jumps)
     u_seed: list[float]
     accuracy: Accuracy | None
     accuracy_suspect_id: int | None

@@ -25,12 +25,14 @@ the parameters in force are off, and, while a jump is not corrected, its innovat
 
 from __future__ import annotations
 
+import logging
 import math
 from typing import Any
 
 import numpy as np
 
 from app.formats.params import document_covariance, plain_document, set_covariance
+from app.line.beyond_knock import BLIND_WINDOWS, change_text, several_text, sphere_moved_text
 from app.line.host import LineHost
 from app.line.states import AlarmCode, suspect_json
 from app.line.step_fit import StepCorrection, volume_views
@@ -63,10 +65,18 @@ class JumpWatch:
     def __init__(self, svc: LineHost) -> None:
         self.svc = svc
         self.state: CellState | None = None
-        self.episode: dict[str, Any] | None = None  # persisted (to_json)
         self.verdict: Verdict | None = None
         self._floor_mm: float | None = None
         self._moments: list[float] = []  # s_u's evidence, carried from version to version
+
+    @property
+    def episode(self) -> dict[str, Any] | None:
+        """The jump in hand (the service's decision state, persisted: to_json)."""
+        return self.svc.episode
+
+    @episode.setter
+    def episode(self, value: dict[str, Any] | None) -> None:
+        self.svc.episode = value
 
     # -- the estimator ---------------------------------------------------------------------
     def settings(self) -> EstimatorSettings:
@@ -182,14 +192,21 @@ class JumpWatch:
         self.verdict = self.state.add(self._observation(row))
 
     # -- what the service does -------------------------------------------------------------
+    def opened(self) -> None:
+        """Right after a window's measurements: a jump found in them opens its episode (its
+        suspect interval, before the window's statement)."""
+        v, ep = self.verdict, self.episode
+        fresh = ep is None or ep.get("corrected_version") is not None
+        if v is not None and v.detected and v.best is not None and fresh:
+            self._open(v)
+
     def act(self) -> None:
         """Between windows: an episode opened, corrected or closed as the verdict says."""
         v, ep = self.verdict, self.episode
         if v is None:
             return
         if v.detected and v.best is not None:
-            if ep is None or ep.get("corrected_version") is not None:
-                self._open(v)
+            self.opened()
             self._isolate(v)
         elif ep is not None and ep.get("corrected_version") == self.svc.version:
             self._confirm()
@@ -205,18 +222,25 @@ class JumpWatch:
         p = "p < 1e-12" if best.p_value < 1e-12 else f"p {best.p_value:.1g}"
         text = f"step of the cell since measurement {onset} ({p})"
         with svc.store.batch():
+            fields = {
+                "t_start": t_start,
+                "last_good_id": int(before[0]["id"]) if before else None,
+                "onset_id": onset,
+                "params_version": svc.version,
+                "text": text,
+            }
+            adopted = svc.accuracy_suspect_id
             if ep is not None and ep.get("suspect_id") is not None and _open(svc, ep):
                 sid = int(ep["suspect_id"])  # the correction did not hold: the same interval
+            elif adopted is not None and svc.store.suspect(adopted) is not None:
+                # the cell could not vouch since before it was found: one interval for one
+                # event, from the earlier of the two starts
+                sid, svc.accuracy_suspect_id = adopted, None
+                row = svc.store.suspect(sid) or {}
+                start = min(t_start, float(row.get("t_start", t_start)))
+                svc.store.update_suspect(sid, **{**fields, "t_start": start, "group_name": None})
             else:
-                sid = svc.store.open_suspect(
-                    {
-                        "t_start": t_start,
-                        "last_good_id": int(before[0]["id"]) if before else None,
-                        "onset_id": onset,
-                        "params_version": svc.version,
-                        "text": text,
-                    }
-                )
+                sid = svc.store.open_suspect(fields)
             self.episode = {
                 "onset_id": onset,
                 "suspect_id": sid,
@@ -228,43 +252,102 @@ class JumpWatch:
             }
             svc.drift_onset_id = onset  # the rolling set from the onset on
             svc.save_state()
-        svc.alarm(AlarmCode.DRIFT_STEP, f"{text}: finding what moved", "high")
         svc.bus.emit("suspect_interval", suspect_json(svc.store.suspect(sid) or {}))
+        svc.alarm(AlarmCode.DRIFT_STEP, f"{text}: finding what moved", "high")
 
     def _isolate(self, v: Verdict) -> None:
+        """What the verdict says moved: beyond a knock, the maintenance hold; a sphere alone,
+        the same; one group, its correction once determined; none after `jump_settle`
+        measurements, a full recalibration."""
         svc, ep, best = self.svc, self.episode, v.best
-        assert ep is not None and best is not None
+        assert ep is not None and best is not None and self.state is not None
         r = svc.settings.recalib
+        if best.onset_ref < int(ep["onset_id"]):  # dated earlier with more measurements
+            self._redate(ep, best.onset_ref)
         n_after = len(svc.store.measurements(since_id=best.onset_ref - 1))
-        seen_mm = self._seen_mm(best)
-        if v.isolated == SEVERAL:
-            if n_after >= r.jump_settle and not svc.force_recal and ep["group"] != SEVERAL:
-                ep["group"] = SEVERAL
-                svc.force_recal = True
-                self._describe(ep, SEVERAL, None, "no single group explains it: full recalibration")
+        seen_mm = self._innovation_mm(best.onset)
+        if seen_mm > r.maintenance_step_mm:
+            self._beyond(ep, v, seen_mm)
             return
         h = best.hypothesis
-        if h.target is not None or seen_mm > r.maintenance_step_mm:
-            what = h.label if h.target is not None else f"{h.label}, beyond a knock"
-            self._describe(ep, h.name, seen_mm, f"{what} {best.size_text()}")
+        if v.isolated != SEVERAL and h.target is not None:
+            self._describe(ep, h.name, seen_mm, f"{h.label} {best.size_text()}")
+            evidence = f"since measurement {best.onset_ref}, the others where they were"
+            size = float(np.linalg.norm(best.theta))
             svc.maintenance_needed(
-                f"{what}: {best.size_text()} ({seen_mm:.2f} mm at the spheres) since"
-                f" measurement {best.onset_ref}; the maintenance procedure that fits"
+                sphere_moved_text(h.target, size, evidence, r.maintenance_step_mm)
             )
             return
-        if 3 * len(self.state.rows[best.onset :]) - best.dof < REDUNDANCY if self.state else True:
-            return  # the estimate checked by one measurement more than it needs, first
-        if not self._determined(best, seen_mm):
-            if n_after >= r.jump_settle and not svc.force_recal and ep["group"] != SEVERAL:
-                ep["group"] = SEVERAL
-                svc.force_recal = True
-                self._describe(
-                    ep, SEVERAL, seen_mm, f"{h.label}? not determined: full recalibration"
-                )
+        ready = v.isolated != SEVERAL and 3 * len(self.state.rows[best.onset :]) - best.dof >= (
+            REDUNDANCY  # the estimate checked by one measurement more than it needs
+        )
+        if ready and self._determined(best, self._seen_mm(best)):
+            self._describe(ep, h.name, self._seen_mm(best), f"{h.label} {best.size_text()}")
+            if svc.pending_calibration is None and not svc.recalibrator.busy:
+                svc.recal_done(self._correction(best, n_after))
             return
-        self._describe(ep, h.name, seen_mm, f"{h.label} {best.size_text()}")
-        if svc.pending_calibration is None and not svc.recalibrator.busy:
-            svc.recal_done(self._correction(best, n_after))
+        if n_after >= r.jump_settle and not svc.force_recal and ep["group"] != SEVERAL:
+            svc.force_recal = True
+            guess = "no single group explains it" if v.isolated == SEVERAL else f"{h.label}?"
+            self._describe(ep, SEVERAL, seen_mm, f"{guess}: a full recalibration")
+
+    def _beyond(self, ep: dict[str, Any], v: Verdict, seen_mm: float) -> None:
+        """A change beyond a knock: the maintenance hold, naming what moved when one group
+        (the knocks' or J2's encoder zero) explains it decisively, else more than one thing."""
+        svc, st, best = self.svc, self.state, v.best
+        assert st is not None and best is not None
+        bound = svc.settings.recalib.maintenance_step_mm
+        fits = list(v.fits)
+        fits += [f for h in st.beyond if (f := st.fit(h.name, best.onset)) is not None]
+        fits.sort(key=lambda f: f.score, reverse=True)
+        top = fits[0] if fits else None
+        decisive = top is not None and (
+            len(fits) == 1 or top.score - fits[1].score >= st.settings.margin
+        )
+        waited = svc.counters["windows"] - int(ep["window"]) + 1 >= BLIND_WINDOWS
+        if not (decisive or waited):  # more measurements name what moved; meanwhile the
+            self._describe(ep, "", seen_mm, "beyond a knock: finding what moved")  # interval
+            return
+        if top is not None and decisive and top.hypothesis.target is not None:
+            h = top.hypothesis
+            self._describe(ep, h.name, seen_mm, f"{h.label} {top.size_text()}")
+            evidence = f"since measurement {top.onset_ref}, the others where they were"
+            moved = float(np.linalg.norm(top.theta))
+            svc.maintenance_needed(sphere_moved_text(str(h.target), moved, evidence, bound))
+            return
+        if top is not None and decisive:
+            h = top.hypothesis
+            found = f"{h.label} moved {top.size_text()} ({seen_mm:.2f} mm at the measured spheres)"
+            self._describe(ep, h.name, seen_mm, f"{h.label} {top.size_text()}")
+            svc.maintenance_needed(
+                change_text(h.name, h.label, found, top.size_text(), seen_mm, bound)
+            )
+            return
+        self._describe(ep, SEVERAL, seen_mm, "more than one thing changed")
+        svc.maintenance_needed(several_text(seen_mm, bound))
+
+    def _redate(self, ep: dict[str, Any], onset: int) -> None:
+        """The episode's onset moved back to measurement `onset`: its interval from the last
+        measurement before it, and the rolling set from it."""
+        svc = self.svc
+        before = svc.store.measurements(before_id=onset, last=1)
+        fields: dict[str, Any] = {"onset_id": onset}
+        if before:
+            fields |= {"t_start": float(before[0]["t"]), "last_good_id": int(before[0]["id"])}
+        with svc.store.batch():
+            ep["onset_id"] = onset
+            svc.drift_onset_id = onset
+            if _open(svc, ep):
+                svc.store.update_suspect(int(ep["suspect_id"]), **fields)
+            svc.save_state()
+
+    def _innovation_mm(self, onset: int) -> float:
+        """The RMS innovation of the window's measurements from `onset` on [mm]: how far the
+        measured centres moved from where the parameters in force put them."""
+        assert self.state is not None
+        rows = self.state.rows[onset:]
+        d = self.state.d[: self.state.L]
+        return _rms([float(np.linalg.norm(r.v0 - r.H @ d)) for r in rows])
 
     def _seen_mm(self, fit: JumpFit) -> float:
         """The jump's RMS move of the measured centres since its onset [mm]."""
@@ -276,7 +359,10 @@ class JumpWatch:
         return float(np.sqrt(np.mean([m @ m for m in moves])))
 
     def _describe(self, ep: dict[str, Any], group: str, seen_mm: float | None, what: str) -> None:
+        """What moved, in the episode, its interval, its alarm and an event (`jump`)."""
         svc = self.svc
+        if ep.get("group") == group and ep.get("what") == what:
+            return
         ep["group"], ep["what"] = group, what
         fields: dict[str, Any] = {"group_name": group, "text": f"{ep['text']}: {what}"}
         if seen_mm is not None:
@@ -286,6 +372,11 @@ class JumpWatch:
             for alarm in svc.store.active_alarms(code=AlarmCode.DRIFT_STEP):
                 svc.store.update_alarm_message(int(alarm["id"]), f"{ep['text']}: {what}")
             svc.save_state()
+        svc.bus.emit(
+            "jump",
+            {"group": group, "text": what, "onset_id": ep["onset_id"], "size_mm": seen_mm},
+            level=logging.WARNING,
+        )
 
     def _correction(self, fit: JumpFit, n_after: int) -> StepCorrection:
         """The jump's group moved by its estimate, gated by the change bounds."""
@@ -449,11 +540,19 @@ class JumpWatch:
         return self.episode is not None and self.episode.get("group") != SEVERAL
 
     # -- the decision state ------------------------------------------------------------------
-    def to_json(self) -> dict[str, Any] | None:
-        return None if self.episode is None else dict(self.episode)
+    def to_json(self) -> dict[str, Any]:
+        """The episode and the evidence about s_u carried into the version in force (its own
+        comes again from replaying its measurements at a start)."""
+        return {
+            "episode": None if self.episode is None else dict(self.episode),
+            "carried_moments": list(self._moments),
+        }
 
     def load_json(self, doc: dict[str, Any] | None) -> None:
-        self.episode = None if doc is None else dict(doc)
+        doc = doc or {}
+        ep = doc.get("episode")
+        self.episode = None if ep is None else dict(ep)
+        self._moments = [float(m) for m in doc.get("carried_moments") or []]
 
 
 def _open(svc: LineHost, ep: dict[str, Any]) -> bool:

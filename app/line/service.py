@@ -185,6 +185,7 @@ class Service:
         self.visit_ids: dict[int, int] = {}  # slot -> the measurement id of its last visit
         self.change_from_id = 0  # a change from a visit before this id spans a known step
         self.step: Step | None = None  # a flagged step: attribution, correction (app.line.step)
+        self.episode: dict[str, Any] | None = None  # a jump's (app.line.jumps)
         # what the cell states about its accuracy (app.line.accuracy): the version in force's
         # seed residuals, the statement after the last window, an open accuracy interval
         self.u_seed: list[float] = []

@@ -118,6 +118,8 @@ class WindowLoop:
         self._watch_blind(first_id)
         svc.counters["overruns"] += report.overrun
         svc.counters["withdrawn"] += bool(report.withdrawn)
+        if self.jumps is not None:  # a jump in the window's measurements: its interval first
+            self.jumps.opened()
         self._state_accuracy(t_open)
         svc.save_state()
         acc = svc.accuracy

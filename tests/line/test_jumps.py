@@ -1,0 +1,116 @@
+"""The one estimator on the service (`[service] detector = "glr"`, app.line.jumps): a knock of
+each kind during service is found, named, corrected and its suspect interval recorded from the
+last measurement before it to the correction; in approve mode the correction waits for the
+engineer; a sphere knocked alone holds the cell for its procedure. The cell knows the truth
+(the validation positions)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from app.config.line import RecalibSettings
+from fakes.truth import Knock
+from tests.line.helpers import knock_line, true_rms
+
+GROUP_OF = {"sensor": "sensor", "fixture": "fixture", "joint": "J2", "J3": "J3"}
+
+
+def _is(kind: str, **fields: Any) -> Any:
+    return lambda e: e["event"] == kind and all(e.get(k) == v for k, v in fields.items())
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["sensor", "fixture", "joint", "J3"])
+def test_a_knock_is_found_named_corrected_and_its_interval_recorded(
+    tmp_path: Path, kind: str
+) -> None:
+    ln, x_good, val = knock_line(tmp_path, RecalibSettings(estimator="batch", detector="glr"))
+    try:
+        before = true_rms(ln, val, x_good)
+        ln.start()
+        ln.windows(3, timeout_s=20.0)
+        last_before = ln.service.store.last_measurement_id()
+        ln.cell.set_timeline(ln.clock, knock=Knock.of_kind(kind, ln.clock.monotonic()))
+        knocked = true_rms(ln, val, x_good)
+        opened = ln.wait(_is("suspect_interval", state="open"), 20.0)
+        alarm = ln.wait(_is("alarm", code="drift_step"), 5.0)
+        n_window = ln.service.counters["windows"]
+        named = ln.wait(lambda e: e["event"] == "jump" and e["group"] == GROUP_OF[kind], 30.0)
+        applied = ln.wait(_is("parameters_applied"), 20.0)
+        windows_to_apply = ln.service.counters["windows"] - n_window
+        closed = ln.wait(_is("suspect_interval", state="closed"), 30.0)
+        store = ln.service.store
+        cal = store.calibration(applied["calibration_id"])
+        applied_t = {a["version"]: a["t"] for a in store.applied()}
+        row = store.measurements_by_id([last_before])[0]
+        status = ln.service.status()
+        alarms = [a for a in store.alarms() if a["code"] == "drift_step"]
+        after = true_rms(ln, val, ln.service.x)
+        ln.stop()
+        assert knocked > 2.0 * before, (before, knocked)
+        assert alarm["priority"] == "high" and alarm["message"].startswith("step of the cell")
+        assert windows_to_apply <= 2
+        assert cal is not None and cal["document"]["estimator"]["kind"] == "step"
+        assert cal["document"]["estimator"]["group"] == GROUP_OF[kind]
+        assert after <= 1.3 * before + 0.01, (before, knocked, after)
+        # the interval: from the last measurement before the knock to the correction's apply
+        assert closed["id"] == opened["id"] and closed["group"] == GROUP_OF[kind]
+        assert closed["last_good_id"] == last_before and closed["t_start"] == row["t"]
+        assert closed["end_reason"] == "step" and closed["end_version"] == applied["version"]
+        assert closed["t_end"] == applied_t[applied["version"]]
+        assert 0.05 < closed["size_mm"] < 3.0
+        assert named["text"] in alarms[-1]["message"]  # the alarm names what moved
+        assert alarms[-1]["t_cleared"] is not None
+        assert status["suspect_intervals"][-1]["state"] == "closed" and status["jump"] is None
+    finally:
+        ln.close()
+
+
+@pytest.mark.slow
+def test_in_approve_mode_the_correction_waits_for_the_engineer(tmp_path: Path) -> None:
+    recalib = RecalibSettings(mode="approve", estimator="batch", detector="glr")
+    ln, x_good, val = knock_line(tmp_path, recalib)
+    try:
+        ln.start()
+        ln.windows(3, timeout_s=20.0)
+        ln.cell.set_timeline(ln.clock, knock=Knock.of_kind("sensor", ln.clock.monotonic()))
+        pending = ln.wait(_is("calibration", status="pending"), 40.0)
+        ln.windows(1, timeout_s=20.0)
+        status = ln.service.status()
+        assert status["jump"] is not None and status["jump"]["group"] == "sensor"
+        assert status["suspect_intervals"][-1]["state"] == "open"
+        assert status["pending_calibration"] == pending["id"]
+        reply = ln.service.request("approve", {"calibration": pending["id"]}).result(10.0)
+        assert reply["ok"], reply
+        closed = ln.wait(_is("suspect_interval", state="closed"), 40.0)
+        after = true_rms(ln, val, ln.service.x)
+        before = true_rms(ln, val, x_good)
+        ln.stop()
+        assert closed["end_version"] == reply["version"] and closed["end_reason"] == "step"
+        assert after <= 1.3 * before + 0.01, (before, after)
+    finally:
+        ln.close()
+
+
+@pytest.mark.slow
+def test_a_sphere_knocked_alone_holds_the_cell_for_its_procedure(tmp_path: Path) -> None:
+    ln, _, _ = knock_line(tmp_path, RecalibSettings(estimator="batch", detector="glr"))
+    try:
+        ln.start()
+        ln.windows(3, timeout_s=20.0)
+        ln.cell.set_timeline(ln.clock, knock=Knock.of_kind("sphere", ln.clock.monotonic()))
+        held = ln.wait(_is("alarm", code="maintenance"), 40.0)
+        store = ln.service.store
+        interval = store.suspects()[-1]
+        moved = ln.cell._sphere_knocked
+        corrections = [c for c in store.calibrations() if (c["document"] or {}).get("estimator")]
+        ln.stop()
+        assert moved is not None
+        assert f"sphere {moved[0]} moved" in held["message"]
+        assert interval["group_name"] == f"sphere:{moved[0]}" and interval["t_end"] is None
+        assert not corrections  # no parameter moved for a sphere that did
+    finally:
+        ln.close()
