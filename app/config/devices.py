@@ -155,8 +155,8 @@ def url_problem(family: str, url: str) -> str:
 @dataclass(frozen=True)
 class ResultsSection(Section):
     """The bodies' results as the plant's SPC system reads them (AQDEF, docs/inspection.md):
-    the station written as the machine's number and description (K1081, K1082), and the folder
-    the service writes each body's file into."""
+    the station written as the machine's number and description (K1081, K1082), the folder
+    the service writes each body's file into, and how long the bodies are kept."""
 
     name = "results"
     station: str = opt("rvis")
@@ -164,3 +164,7 @@ class ResultsSection(Section):
     # the folder the plant's SPC import watches: the service writes a `.dfq` file a body there
     # (app/line/body_export.py); "" none; a relative path is under the state directory
     dir: str = opt("")
+    # the bodies (their evaluations, values and raw data) older than this many days are deleted
+    # by the service's retention pass, with the files it wrote of them into `dir`; 0 keeps them.
+    # A body stays while an open suspect interval holds it or a file of it waits to be written
+    keep_days: float = opt(365.0, lo=0, hi=36500)

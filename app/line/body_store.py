@@ -33,6 +33,10 @@ EVALUATION_FIELDS = (
 )  # fmt: skip
 
 
+#: a body id as its file's name spells it (app.line.body_export.file_name: str() of the id)
+_NAME = "COALESCE(CAST(body_id AS TEXT), 'None')"
+
+
 def _joints(text: str) -> F64:
     import numpy as np
 
@@ -210,6 +214,63 @@ class BodyRecords:
                 "UPDATE body_evaluations SET exported_t = ? WHERE body = ? AND evaluation = ?",
                 (t, body_row, evaluation),
             )
+
+    def expired_bodies(
+        self, before_t: float, *, keep_unexported: bool, limit: int = 2000
+    ) -> list[dict[str, Any]]:
+        """The bodies measured before `before_t` that retention may delete, oldest first (at
+        most `limit`): none measured inside a suspect interval still open (at or after its
+        start), and with `keep_unexported` none with an evaluation whose file waits to be
+        written (app.line.body_export). Each: id, body_id, part and `files`, the evaluations
+        whose files were written and are still theirs (no later body of the same part and id,
+        measured again, has written a file of that name since)."""
+        pending = (
+            " AND NOT EXISTS (SELECT 1 FROM body_evaluations e"
+            " WHERE e.body = b.id AND e.exported_t IS NULL)"
+            if keep_unexported
+            else ""
+        )
+        rows = self._rows(
+            "SELECT b.id, b.body_id, b.part, (SELECT GROUP_CONCAT(e.evaluation)"
+            " FROM body_evaluations e WHERE e.body = b.id AND e.exported_t IS NOT NULL)"
+            " AS exported FROM bodies b WHERE b.t < ? AND NOT EXISTS (SELECT 1 FROM"
+            " suspect_intervals s WHERE s.t_end IS NULL AND b.t >= s.t_start)"
+            f"{pending} ORDER BY b.id LIMIT ?",
+            (before_t, limit),
+        )
+        if not rows:
+            return []
+        names = sorted({str(r["body_id"]) for r in rows})
+        later: dict[tuple[str, str], list[tuple[int, int]]] = {}
+        for o in self._rows(
+            f"SELECT id, part, {_NAME} AS name, evaluation FROM bodies"
+            f" WHERE id > ? AND {_NAME} IN ({', '.join('?' * len(names))})",
+            (rows[0]["id"], *names),
+        ):
+            later.setdefault((o["part"], o["name"]), []).append((int(o["id"]), o["evaluation"]))
+        for r in rows:
+            exported = [int(e) for e in str(r.pop("exported") or "").split(",") if e]
+            again = [e for i, e in later.get((r["part"], str(r["body_id"])), []) if i > r["id"]]
+            r["files"] = sorted(e for e in exported if not again or e > max(again))
+        return rows
+
+    def delete_bodies(self, rows: Sequence[int], batch: int = 200) -> int:
+        """Delete the bodies `rows` with their evaluations, values and raw data, `batch` bodies
+        a transaction (the service's writers wait for one short transaction at most); returns
+        how many bodies."""
+        rows = list(rows)
+        for i in range(0, len(rows), batch):
+            chunk = rows[i : i + batch]
+            marks = ", ".join("?" * len(chunk))
+            with self._tx() as db:
+                for table, key in (
+                    ("body_values", "body"),
+                    ("body_raw", "body"),
+                    ("body_evaluations", "body"),
+                    ("bodies", "id"),
+                ):
+                    db.execute(f"DELETE FROM {table} WHERE {key} IN ({marks})", chunk)
+        return len(rows)
 
     def body_raw(self, body_row: int) -> Iterator[dict[str, Any]]:
         """A body's raw data per feature: feature, q_deg (6,), temp_c, sheet and edges (n, 3)

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from app.config.cell import RobotSection, SensorSection, gates_of
+from app.config.devices import ResultsSection
 from app.config.line import (
     DriftSettings,
     LineSettings,
@@ -46,9 +47,11 @@ class ServiceSettings:
     # the robot's ISO 9283 pose repeatability RP ([robot] repeatability_mm), by which a
     # body's views are chosen (app.inspect.views)
     repeatability_mm: float = RobotSection.repeatability_mm
-    # [results]: the folder each body's AQDEF file goes to (None: none), the station
+    # [results]: the folder each body's AQDEF file goes to (None: none), the station, the days
+    # the bodies are kept (0: for ever)
     results_dir: Path | None = None
     station: tuple[str, str] = ("rvis", "rvis in-line inspection cell")
+    results_keep_days: float = ResultsSection.keep_days
 
 
 def from_cell(cfg: Any, state_dir: str | Path | None = None) -> ServiceSettings:
@@ -76,6 +79,7 @@ def from_cell(cfg: Any, state_dir: str | Path | None = None) -> ServiceSettings:
         repeatability_mm=float(cfg.robot.repeatability_mm),
         results_dir=_results_dir(cfg, state_dir),
         station=(str(cfg.results.station), str(cfg.results.station_description)),
+        results_keep_days=float(cfg.results.keep_days),
     )
 
 

@@ -25,6 +25,7 @@ from app.line.accuracy import (
 )
 from app.line.beyond_knock import BLIND_WINDOWS, blind_text
 from app.line.body_cycle import BodyCycle
+from app.line.body_export import retain_bodies
 from app.line.decisions import Decisions
 from app.line.faults import Faults
 from app.line.host import LineHost
@@ -429,3 +430,4 @@ class WindowLoop:
             n = svc.store.prune_rejected_documents(t - s.rejected_keep_days * 86400.0)
             if n:
                 svc.log.info("retention: documents of %d rejected calibrations dropped", n)
+        retain_bodies(svc.store, svc.settings, t, svc.log)  # [results] keep_days
