@@ -371,6 +371,49 @@ class CellState:
         threshold = self.settings.false_alarm / max(tests, 1)
         return self._decide(fits, threshold, nis, float(w @ w), n)
 
+    def held_out_p(self, name: str, onset: int) -> float:
+        """Hypothesis `name`'s jump from measurement `onset` on, fitted without the newest
+        measurement, predicting that one: the p-value of its innovation (chi-square, 3 dof)
+        under the jump, with the jump's, the state's and the measurement's own covariance (0
+        when fewer than two measurements follow the onset)."""
+        if len(self.rows) - onset < 2:
+            return 0.0
+        last = self.rows.pop()
+        try:
+            fit = self.fit(name, onset)
+        finally:
+            self.rows.append(last)
+        if fit is None:
+            return 0.0
+        L = self.L
+        G = last.G[name]
+        r = last.v0 - last.H @ self.d[:L] - G @ fit.theta
+        k = L + 3 * last.slot
+        S = (
+            G @ fit.cov @ G.T
+            + last.H @ self.P[:L, :L] @ last.H.T
+            + self.P[k : k + 3, k : k + 3]
+            + self.settings.sigma_mm**2 * np.eye(3)
+        )
+        return float(chi2_dist.sf(float(r @ np.linalg.solve(S, r)), 3))
+
+    def group_posterior(self, name: str) -> JumpFit | None:
+        """Group `name`'s deviation as the state holds it (its posterior, the window's
+        measurements included) as a fit: theta the deviation, cov its covariance, and the
+        statistic theta' cov^-1 theta of "it is where the parameters in force put it"."""
+        h = next((h for h in self.hyps + self.beyond if h.name == name), None)
+        if h is None or h.target is not None or not self.rows:
+            return None
+        cols = [self.active.index(p) for p in h.params if p in self.active]
+        if len(cols) != len(h.params):
+            return None
+        d, P = self.posterior()
+        theta, cov = d[cols], P[np.ix_(cols, cols)]
+        inv, rank = _pinv_rank(cov)
+        z = float(theta @ inv @ theta)
+        p = float(chi2_dist.sf(z, max(rank, 1)))
+        return JumpFit(h, 0, self.rows[0].obs.ref, z, rank, p, 0.0, theta, cov)
+
     def fit(self, name: str, onset: int = 0) -> JumpFit | None:
         """Hypothesis `name` alone, fitted on the window from measurement `onset` on (a test
         of one hypothesis named before: its p-value needs no correction for the others)."""

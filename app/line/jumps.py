@@ -55,6 +55,9 @@ REDUNDANCY = 3
 #: the p-value below which the episode's group, fitted again after its correction, is refined
 REFINE_P = 0.01
 REFINE_MAX = 2  # refinements of one episode
+HALF_JUMP = 0.5  # a correction's predicted error (3-D) at most this share of the jump
+HELD_OUT_P = 0.01  # the newest measurement's p-value under the jump fitted without it
+REFINE_WATCH = 24  # measurements after its interval closed an episode's group is watched
 #: the calibration document's estimator kind of a jump's correction (app.line.versions)
 KIND = "step"
 
@@ -196,7 +199,7 @@ class JumpWatch:
         """Right after a window's measurements: a jump found in them opens its episode (its
         suspect interval, before the window's statement)."""
         v, ep = self.verdict, self.episode
-        fresh = ep is None or ep.get("corrected_version") is not None
+        fresh = ep is None or ep.get("corrected_version") is not None or bool(ep.get("closed"))
         if v is not None and v.detected and v.best is not None and fresh:
             self._open(v)
 
@@ -206,8 +209,12 @@ class JumpWatch:
         if v is None:
             return
         if v.detected and v.best is not None:
+            if ep is not None and ep.get("closed"):
+                self.episode = None  # a new jump: a new episode
             self.opened()
             self._isolate(v)
+        elif ep is not None and ep.get("closed"):
+            self._watch(ep)
         elif ep is not None and ep.get("corrected_version") == self.svc.version:
             self._confirm()
         self.verdict = None
@@ -281,7 +288,7 @@ class JumpWatch:
         ready = v.isolated != SEVERAL and 3 * len(self.state.rows[best.onset :]) - best.dof >= (
             REDUNDANCY  # the estimate checked by one measurement more than it needs
         )
-        if ready and self._determined(best, self._seen_mm(best)):
+        if ready and self._determined(best, self._seen_mm(best)) and self._holds(best):
             self._describe(ep, h.name, self._seen_mm(best), f"{h.label} {best.size_text()}")
             if svc.pending_calibration is None and not svc.recalibrator.busy:
                 svc.recal_done(self._correction(best, n_after))
@@ -458,41 +465,74 @@ class JumpWatch:
         # dates the interval's end there (the bodies measured since were measured right)
         t = svc.clock.time()
         t_end = float(ep.get("corrected_t", t))
+        st = self.state
+        held_out = [] if st is None else [float(np.linalg.norm(r.v0)) for r in st.rows]
+        evidence = (
+            f"; back on version {svc.version}: {len(held_out)} measurement(s) since, no jump,"
+            f" held-out RMS {_rms(held_out):.3f} mm, U95 {u95:.3f} mm <= limit"
+            f" {svc.settings.recalib.accuracy_limit_mm:.3f} mm"
+        )
         with svc.store.batch():
             sid = int(ep["suspect_id"])
             if _open(svc, ep):
+                text = str((svc.store.suspect(sid) or {}).get("text", ""))
                 svc.store.update_suspect(
-                    sid, t_end=t_end, end_reason=str(ep.get("kind", KIND)), end_version=svc.version
+                    sid,
+                    t_end=t_end,
+                    end_reason=str(ep.get("kind", KIND)),
+                    end_version=svc.version,
+                    text=text + evidence,
                 )
-            self.episode = None  # (the rolling set stays after the onset until a recalibration
-            # trained there is in force: app.line.versions)
+            # its group watched a while for a refinement (the rolling set stays after the
+            # onset until a recalibration trained there is in force: app.line.versions)
+            ep |= {"closed": True, "watch_left": REFINE_WATCH}
             svc.clear_alarms(AlarmCode.DRIFT_STEP, t)
             svc.save_state()
         svc.bus.emit("suspect_interval", suspect_json(svc.store.suspect(sid) or {}))
 
     def _refine(self, ep: dict[str, Any]) -> bool:
-        """The episode's group's residual jump on the corrected version, applied when shown
-        and determined (`_confirm`); whether it was."""
+        """The episode's group as the estimator sees it on the corrected version (its
+        posterior, every measurement since the correction): still off (p < REFINE_P, a test of
+        the one group named before) and determined, its refinement is applied; whether it
+        was."""
         svc, st = self.svc, self.state
         group = str(ep.get("group", ""))
         if st is None or not group or group == SEVERAL or group.startswith(SPHERE):
             return False
         if int(ep.get("refined", 0)) >= REFINE_MAX or svc.pending_calibration is not None:
             return False
-        fit = st.fit(group)
+        fit = st.group_posterior(group)
         if fit is None or fit.p_value >= REFINE_P or 3 * len(st.rows) - fit.dof < REDUNDANCY:
             return False
         if not self._determined(fit, self._seen_mm(fit)):
             return False
         ep["refined"] = int(ep.get("refined", 0)) + 1
-        ep["corrected_version"] = None  # the refinement's version becomes it
+        if not ep.get("closed"):
+            ep["corrected_version"] = None  # the refinement's version becomes it
         svc.recal_done(self._correction(fit, len(st.rows)))
         return True
+
+    def _watch(self, ep: dict[str, Any]) -> None:
+        """An episode whose interval closed: its group watched for a refinement for
+        REFINE_WATCH measurements more, then the episode is over."""
+        if self._refine(ep):
+            return
+        ep["watch_left"] = int(ep.get("watch_left", REFINE_WATCH)) - 1
+        if ep["watch_left"] <= 0:
+            self.episode = None
+        self.svc.save_state()
+
+    def _holds(self, fit: JumpFit) -> bool:
+        """The jump fitted without the newest measurement predicts that one (p >= HELD_OUT_P):
+        a correction checked on a measurement it was not fitted to."""
+        assert self.state is not None
+        return self.state.held_out_p(fit.hypothesis.name, fit.onset) >= HELD_OUT_P
 
     def _determined(self, fit: JumpFit, seen_mm: float) -> bool:
         """The jump's estimate predicts the points in the measuring volume at the schedule's
         configurations within `[service] step_max_std_mm`, or, beside a large jump, within
-        `step_std_fraction` of it (most of it removed now, the rest refined)."""
+        HALF_JUMP of it: the correction leaves at most half the error it removes (the rest is
+        refined as measurements come, `_refine`)."""
         assert self.state is not None
         r = self.svc.settings.recalib
         q, c = volume_views(
@@ -500,7 +540,7 @@ class JumpWatch:
             self.svc.settings.measuring_volume_mm,
         )
         std_mm = self.state.predicted_std_mm(fit, q, c)
-        return std_mm <= max(r.step_max_std_mm, r.step_std_fraction * seen_mm / math.sqrt(3.0))
+        return std_mm <= max(r.step_max_std_mm, HALF_JUMP * seen_mm / math.sqrt(3.0))
 
     # -- the statement ---------------------------------------------------------------------
     def statement_u95_mm(self) -> float | None:
@@ -537,7 +577,8 @@ class JumpWatch:
 
     def handling(self) -> bool:
         """An episode is open and not given up to a full recalibration."""
-        return self.episode is not None and self.episode.get("group") != SEVERAL
+        ep = self.episode
+        return ep is not None and not ep.get("closed") and ep.get("group") != SEVERAL
 
     # -- the decision state ------------------------------------------------------------------
     def to_json(self) -> dict[str, Any]:

@@ -125,10 +125,11 @@ def test_a_jump_is_found_named_dated_and_sized(world: World, kind: str) -> None:
             found = v
             found_at = i
         # named, and determined with a measurement to spare (what the service corrects on)
-        if v.detected and v.isolated not in ("", SEVERAL) and v.best is not None:
-            if 3 * (i - v.best.onset_ref + 1) - v.best.dof >= 3:
-                named = v
-                break
+        best = v.best
+        named_here = v.detected and v.isolated not in ("", SEVERAL) and best is not None
+        if named_here and best is not None and 3 * (i - best.onset_ref + 1) - best.dof >= 3:
+            named = v
+            break
     assert found is not None and found_at - seen < 3, (found_at, seen)
     assert named is not None and named.best is not None, "never named"
     assert named.isolated == group, (named.isolated, named.best.size_text())

@@ -23,7 +23,7 @@ def test_a_knock_is_flagged_and_the_recalibration_restores_the_accuracy(
     """3 windows (24 measurements) before the knock: only the residual charts watch (their
     baseline is one schedule cycle); 6 windows: the change charts watch too (a second visit of
     every configuration and 16 differences) and the step is theirs."""
-    ln, x_good, val = knock_line(tmp_path, None)
+    ln, x_good, val = knock_line(tmp_path, RecalibSettings(estimator="batch", detector="charts"))
     try:
         before = true_rms(ln, val, x_good)
         ln.start()
@@ -63,7 +63,7 @@ def test_the_sequential_estimator_follows_a_knock(tmp_path: Path, schedule: str)
     covariance is widened (the attributed group's) before the post-knock measurements reach it
     (they wait until the step is attributed), and the parameters it proposes, gated and
     applied, bring the true accuracy back."""
-    recalib = RecalibSettings(estimator="sequential", schedule=schedule)
+    recalib = RecalibSettings(estimator="sequential", schedule=schedule, detector="charts")
     ln, x_good, val = knock_line(tmp_path, recalib)
     try:
         before = true_rms(ln, val, x_good)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -26,6 +27,9 @@ from fakes.truth import Knock
 from tests.line.helpers import knock_line, true_errors_mm, true_rms
 
 GROUP_OF = {"sensor": "sensor", "fixture": "fixture", "joint": "J2"}
+#: these tests are the drift charts' and the step handler's (`[service] detector = "charts"`);
+#: the one estimator's are tests/line/test_jumps.py
+CHARTS = RecalibSettings(estimator="batch", detector="charts")
 
 
 def _is(kind: str, **fields: Any) -> Any:
@@ -86,7 +90,7 @@ def test_a_knock_is_attributed_corrected_at_once_and_its_suspect_interval_record
     # this cell is calibrated to 0.04 mm (no warm-up): 1.2x of that leaves the correction
     # 0.027 mm in 3-D: the first correction (the default 0.02 mm per coordinate over the
     # measuring volume) may take a little more, the refinement one window later the rest
-    ln, x_good, val = knock_line(tmp_path, None)
+    ln, x_good, val = knock_line(tmp_path, CHARTS)
     try:
         before = true_rms(ln, val, x_good)
         ln.start()
@@ -146,7 +150,7 @@ def test_a_knock_is_attributed_corrected_at_once_and_its_suspect_interval_record
 
 @pytest.mark.slow
 def test_in_approve_mode_the_correction_waits_and_the_interval_stays_open(tmp_path: Path) -> None:
-    ln, x_good, val = knock_line(tmp_path, RecalibSettings(mode="approve", estimator="batch"))
+    ln, x_good, val = knock_line(tmp_path, replace(CHARTS, mode="approve"))
     try:
         ln.start()
         ln.windows(6, timeout_s=20.0)
@@ -282,7 +286,7 @@ def test_the_sequential_estimator_follows_the_attributed_group_without_waiting(
     the sensor group's covariance is widened and the candidate is due as soon as the filter
     predicts the schedule's views again (no full schedule cycle); the interval closes when the
     measurements taken with it show the cell back."""
-    ln, x_good, val = knock_line(tmp_path, RecalibSettings(estimator="sequential"))
+    ln, x_good, val = knock_line(tmp_path, replace(CHARTS, estimator="sequential"))
     seq = ln.service.sequential
     assert seq is not None
     # the estimator's state as the attribution left it, taken in the service's thread: read
@@ -342,7 +346,7 @@ def test_a_flag_that_the_attribution_explains_by_nothing_is_dropped_as_drift(
     """A false step (here flagged by hand on a cell that did not move): on probation the
     windows measure for its attribution, nothing moved is chosen, and no suspect interval nor
     high alarm is left; the recalibration is brought forward as for drift."""
-    ln, _, _ = knock_line(tmp_path, None)
+    ln, _, _ = knock_line(tmp_path, CHARTS)
     try:
         ln.start()
         ln.windows(6, timeout_s=20.0)
