@@ -16,7 +16,9 @@ One fake per address in a network namespace: GVCP's port 3956 is bound once per 
 second fake (another test process, another worktree's suite) would take its packets. `start()`
 therefore waits for a lock of the address in its network namespace (an flock in the temporary
 folder, named by the namespace and the address, with the holder's pid in it) and `close()` gives
-it back: processes take turns instead of stealing each other's frames. Processes in different
+it back: processes take turns instead of stealing each other's frames. One that waits names the
+holder with its command line (fakes/holders.py), and a bind that fails names the process that
+holds the port, when /proc shows it. Processes in different
 network namespaces (the test suite's workers, tests/netns.py) each have a loopback of their own
 and do not wait for each other.
 
@@ -44,6 +46,7 @@ from typing import Any, Self
 import numpy as np
 
 from fakes.clock import VirtualClock
+from fakes.holders import flock_holder, process_text, udp_port_holder
 from fakes.world import World
 
 _FILL = ctypes.CFUNCTYPE(
@@ -83,6 +86,8 @@ def _aravis() -> tuple[Any, ctypes.CDLL]:
 
 #: How long start() waits for another process's fake on the same address to close.
 ADDRESS_WAIT_S = 600.0
+#: GigE Vision's control port (GVCP), bound once per address
+GVCP_PORT = 3956
 
 
 def _network_namespace() -> str:
@@ -116,18 +121,18 @@ class _AddressLock:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
                 break
             except BlockingIOError:
-                holder = os.pread(fd, 16, 0).decode(errors="replace").strip() or "?"
                 if deadline is not None and time.monotonic() > deadline:
+                    holder = _holder(fd)
                     os.close(fd)
                     raise RuntimeError(
-                        f"{self.path}: another fake GigE camera (pid {holder}) holds the address"
+                        f"{self.path}: another fake GigE camera ({holder}) holds the address"
                     ) from None
                 if not said and on_wait is not None:
                     said = True
                     on_wait(
                         f"waiting for the simulated GigE camera's address {self.address}"
-                        f" (GVCP port 3956, one camera per address), in use by another"
-                        f" simulation (pid {holder}): this one goes on when that one ends"
+                        f" (GVCP port {GVCP_PORT}, one camera per address), in use by another"
+                        f" simulation, {_holder(fd)}: this one goes on when that one ends"
                     )
                 time.sleep(0.05)  # another process's test is using the camera: wait its turn
         os.ftruncate(fd, 0)
@@ -140,6 +145,14 @@ class _AddressLock:
                 os.ftruncate(self._fd, 0)
             os.close(self._fd)
             self._fd = None
+
+
+def _holder(fd: int) -> str:
+    """The process holding the address lock open as `fd`, in words: the pid it wrote (or, not
+    written yet, the flock's holder in /proc/locks) with its command line."""
+    written = os.pread(fd, 16, 0).decode(errors="replace").strip()
+    pid = int(written) if written.isdigit() else flock_holder(fd)
+    return "pid unknown" if pid is None else process_text(pid)
 
 
 def _gpointer(obj: Any) -> int:
@@ -187,7 +200,9 @@ class GvCamera:
         if not self._gv.is_running():
             self._gv = None
             self._lock.release()
-            raise RuntimeError(f"GvFakeCamera could not bind {self.address}")
+            pid = udp_port_holder(self.address, GVCP_PORT)
+            held = "" if pid is None else f" (UDP port {GVCP_PORT} held by {process_text(pid)})"
+            raise RuntimeError(f"GvFakeCamera could not bind {self.address}{held}")
         self._fake = self._gv.get_fake_camera()
         if self.sensor_wh is not None:
             w, h = self.sensor_wh

@@ -17,7 +17,8 @@ pass: the mirror settling at its new angle.
 
 With ``link=`` (a path), ``.port`` is a symlink to the pty, re-pointed on ``replug()``: the stable
 name udev gives a USB serial device (/dev/serial/by-id/...), so the driver can reopen the same
-port after the board has been away. Without it, ``.port`` is the pty itself.
+port after the board has been away. A link left there by a killed process is replaced, never
+followed. Without it, ``.port`` is the pty itself.
 
     with ScpiDac() as dac:
         galvo = ScpiGalvo(dac.port)
@@ -44,6 +45,21 @@ class _Vanished(Exception):
 
 class _Muted(Exception):
     """A "mute" fault: the unit is swallowed without an answer."""
+
+
+def _replace_link(link: str, target: str) -> None:
+    """Point the symlink `link` at `target` atomically (the driver never sees it missing). A
+    link left by a process killed before it could remove it is replaced, never followed (it
+    may name a pty that is another program's now: nothing is written or renamed there); a
+    file or folder in the link's place is refused."""
+    fresh = link + ".new"
+    for path in (link, fresh):
+        if os.path.lexists(path) and not os.path.islink(path):
+            raise FileExistsError(f"{path}: not a symlink (the DAC's stable name goes there)")
+    with contextlib.suppress(FileNotFoundError):
+        os.unlink(fresh)  # a symlink: unlink removes the link, never what it points to
+    os.symlink(target, fresh)
+    os.replace(fresh, link)  # rename(2) replaces the link itself
 
 
 class ScpiDac(ScpiInstrument):
@@ -119,11 +135,7 @@ class ScpiDac(ScpiInstrument):
         if self._link is None:
             self.port = pty
         else:
-            fresh = self._link + ".new"
-            with contextlib.suppress(FileNotFoundError):
-                os.unlink(fresh)
-            os.symlink(pty, fresh)
-            os.replace(fresh, self._link)  # atomic: the driver never sees a missing link
+            _replace_link(self._link, pty)
             self.port = self._link
         self._stop_r, self._stop_w = os.pipe()
         self._thread = threading.Thread(

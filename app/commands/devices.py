@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -220,8 +220,9 @@ def run_trace(args: argparse.Namespace) -> int:
 
 
 def run_sim(args: argparse.Namespace) -> int:
-    """Until Ctrl-C, SIGTERM or `quit`: exit 0 (as `rvis run`); a Ctrl-C while the devices
-    start is an interruption (130)."""
+    """Until Ctrl-C, SIGTERM or `quit`: exit 0 (as `rvis run`); a Ctrl-C or SIGTERM while the
+    devices start (waiting for another simulation's camera, say) is an interruption (130), the
+    devices started so far closed and the galvo's link removed."""
     import sys
     import threading
 
@@ -236,34 +237,41 @@ def run_sim(args: argparse.Namespace) -> int:
     def say(text: str) -> None:
         print(f"rvis devices sim: {text}", file=sys.stderr, flush=True)
 
-    with LineDevices(
-        cfg,
-        args.dir,
-        seed=seed,
-        scale=args.scale,
-        camera_address=args.camera_address,
-        progress=say,
-    ) as devices:
+    stop, up = threading.Event(), threading.Event()
+    with (
+        _stopped_by_signals(stop, interrupt=lambda: not up.is_set()),
+        LineDevices(
+            cfg,
+            args.dir,
+            seed=seed,
+            scale=args.scale,
+            camera_address=args.camera_address,
+            progress=say,
+        ) as devices,
+    ):
+        up.set()
         status = devices.status()
         if args.json:
             print(json.dumps(status), flush=True)
         else:
             _print_devices(status, _state_dir_of(args.cell) or args.dir)
-        stop = threading.Event()
-        with _stopped_by_signals(stop):
-            while not (stop.is_set() or devices.quit.is_set()):
-                stop.wait(0.5)  # the main thread stays where a signal handler can run
+        while not (stop.is_set() or devices.quit.is_set()):
+            stop.wait(0.5)  # the main thread stays where a signal handler can run
         say("stopping the devices")
     return 0
 
 
 @contextmanager
-def _stopped_by_signals(stop: Any) -> Iterator[None]:
-    """SIGTERM and SIGINT set `stop` meanwhile (the handlers before are put back after)."""
+def _stopped_by_signals(stop: Any, interrupt: Callable[[], bool]) -> Iterator[None]:
+    """SIGTERM and SIGINT set `stop` meanwhile, and while `interrupt()` says so (the devices
+    still starting) raise KeyboardInterrupt where the main thread is, so that what started is
+    closed; the handlers before are put back after."""
     import signal
 
     def on_signal(signum: int, frame: object) -> None:
         stop.set()
+        if interrupt():
+            raise KeyboardInterrupt
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)}
     try:

@@ -132,9 +132,15 @@ def devices_cell(cfg: CellConfig, urls: dict[str, str], seed: int, scale: float)
 def check_folder(folder: DevicesDir) -> None:
     """Refuse a folder whose cell file is not one this module wrote (a commissioned state
     directory: its cell file is the record of the cell), a folder with a plan or sensor file
-    but none of its cell files, or a path that is not a folder."""
+    but none of its cell files, a path that is not a folder, or a file where the galvo's link
+    goes (a link left by a killed devices process is fine: it is replaced, never followed)."""
     if folder.root.exists() and not folder.root.is_dir():
         raise InputError("not a folder", file=folder.root)
+    if os.path.lexists(folder.galvo) and not folder.galvo.is_symlink():
+        raise InputError(
+            "not the galvo's link of `rvis devices sim` (a file in its place): move it away",
+            file=folder.galvo,
+        )
     try:
         first = folder.cell.read_text(encoding="utf-8").splitlines()[:1]
     except FileNotFoundError:
@@ -216,7 +222,13 @@ class LineDevices:
             clock="scaled",
             scale=self.scale,
             camera_address=self.camera_address,
-            galvo_link=str(self.folder.galvo.resolve()),
+            # absolute (the service runs elsewhere), the folder resolved but not the link: a
+            # link left by a killed devices process names a pty that is not ours any more
+            galvo_link=str(self.folder.root.resolve() / GALVO_LINK_NAME),
+            # a person's command waits for another simulation's camera as long as it runs, and
+            # says at once for which process
+            camera_wait_s=None,
+            camera_on_wait=self.progress,
         )
         self.progress(
             f"starting the devices of the simulated cell (seed {self.seed}; the GigE fake camera"

@@ -64,3 +64,16 @@ def test_the_command_refuses_a_commissioned_folder_in_one_line(
     assert len(err.strip().splitlines()) == 1
     assert main(["devices", "sim", "--dir", str(tmp_path / "new"), "--scale", "0"]) == 2
     assert "field '--scale': must be > 0" in capsys.readouterr().err
+
+
+def test_a_file_where_the_galvo_link_goes_is_refused_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The galvo's link replaces a link (one a killed devices process left), never a file."""
+    (tmp_path / "galvo").write_text("a person's notes", encoding="utf-8")
+    assert main(["devices", "sim", "--dir", str(tmp_path)]) == 2
+    assert capsys.readouterr().err.splitlines() == [
+        f"rvis devices: error: {tmp_path / 'galvo'}: not the galvo's link of `rvis devices sim`"
+        " (a file in its place): move it away"
+    ]
+    assert (tmp_path / "galvo").read_text(encoding="utf-8") == "a person's notes"

@@ -16,6 +16,7 @@ import queue
 import signal
 import subprocess
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -42,7 +43,8 @@ warmup_k = 0.0
 
 class DevicesProcess:
     """`rvis devices sim --json` as a child process: its first stdout line is its status once
-    every device is up and the folder written."""
+    every device is up and the folder written; its stderr lines (what it says to a person)
+    are read as they come."""
 
     def __init__(self, folder: Path, cell: Path) -> None:
         argv = [*RVIS, "devices", "sim", "--json", "--dir", str(folder), "--cell", str(cell)]
@@ -57,22 +59,51 @@ class DevicesProcess:
             text=True,
         )
         self._lines: queue.Queue[str] = queue.Queue()
+        self._said: queue.Queue[str] = queue.Queue()
+        self._err: list[str] = []
         self.stderr: str | None = None
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
+        self._err_reader = threading.Thread(target=self._read_err, daemon=True)
+        self._err_reader.start()
 
     def _read(self) -> None:
         assert self.proc.stdout is not None
         for line in self.proc.stdout:
             self._lines.put(line)
+        self._lines.put("")  # the end: no status comes any more
+
+    def _read_err(self) -> None:
+        assert self.proc.stderr is not None
+        for line in self.proc.stderr:
+            self._err.append(line)
+            self._said.put(line)
+        self._said.put("")
 
     def ready(self, timeout_s: float = 120.0) -> dict[str, Any]:
         try:
             line = self._lines.get(timeout=timeout_s)
         except queue.Empty:
             raise AssertionError(f"devices not up in {timeout_s} s") from None
+        if not line:
+            self._err_reader.join(30)
+            raise AssertionError(f"the devices ended ({self.proc.wait(30)}): {''.join(self._err)}")
         doc: dict[str, Any] = json.loads(line)
         return doc
+
+    def said(self, text: str, timeout_s: float = 120.0) -> str:
+        """The first stderr line from now on that holds `text`."""
+        deadline = time.monotonic() + timeout_s
+        while (left := deadline - time.monotonic()) > 0:
+            try:
+                line = self._said.get(timeout=left)
+            except queue.Empty:
+                break
+            if not line:
+                break  # ended
+            if text in line:
+                return line
+        raise AssertionError(f"no {text!r} in {timeout_s} s; it said: {''.join(self._err)}")
 
     def ctl(self, *words: str) -> dict[str, Any]:
         out = rvis("devices", "ctl", "--json", "--dir", str(self.folder), *words)
@@ -91,11 +122,17 @@ class DevicesProcess:
             code = self.proc.wait(60)
         if self.stderr is None:
             assert self.proc.stderr is not None and self.proc.stdout is not None
-            self.stderr = self.proc.stderr.read()
+            self._err_reader.join(30)
+            self.stderr = "".join(self._err)
             self.proc.stderr.close()
             self._reader.join(30)
             self.proc.stdout.close()
         return code, self.stderr
+
+    def terminate(self, timeout_s: float = 60.0) -> int:
+        """SIGTERM, as a supervisor stops it; its exit status."""
+        os.killpg(self.proc.pid, signal.SIGTERM)
+        return self.proc.wait(timeout_s)
 
 
 @pytest.fixture
