@@ -216,7 +216,7 @@ class BodyRecords:
             )
 
     def expired_bodies(
-        self, before_t: float, *, keep_unexported: bool, limit: int = 2000
+        self, before_t: float, *, keep_unexported: bool, limit: int = 1000
     ) -> list[dict[str, Any]]:
         """The bodies measured before `before_t` that retention may delete, oldest first (at
         most `limit`): none measured inside a suspect interval still open (at or after its

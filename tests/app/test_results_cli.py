@@ -148,3 +148,48 @@ def test_capability_over_the_bodies_not_suspect(
     sd = float(np.std([10.02, 10.001], ddof=1))
     assert x["cp"] == pytest.approx(1.0 / (6 * sd))
     assert x["cpk"] == pytest.approx((10.5 - 10.0105) / (3 * sd))
+
+
+def test_a_restored_backup_holds_the_bodies_and_exports_the_same_files(
+    state: StateDir, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Retention (issue 49 item 6): the bodies, their evaluations, values and raw points are in
+    `rvis.db`, which `rvis state backup` copies with the feature plan; `rvis results export`
+    from the restored directory writes the same files, byte for byte."""
+    (state.root / "features.toml").write_text('part = "P-1"\ndescription = "two features"\n')
+    store = Store(state.db)
+    points = np.arange(30.0).reshape(10, 3) * 0.25
+    raw = [{"feature": "H01", "q_deg": [1.0] * 6, "temp_c": 21.5, "sheet": points,
+            "edges": points[:4], "refused": ""}]  # fmt: skip
+    store.add_body(
+        {"t": T0 + 500.0, "body_id": "WDB-7", "part": "P-1"}, _evaluation(T0 + 500.0),
+        [VALUE, NOT_MEASURED], raw,
+    )  # fmt: skip
+    store.close()
+    backup, restored = tmp_path / "backup", StateDir(tmp_path / "restored")
+    assert main(["state", "backup", str(backup), "--state-dir", str(state.root)]) == 0
+    assert main(["state", "restore", str(backup), "--state-dir", str(restored.root)]) == 0
+    capsys.readouterr()
+
+    def held(paths: StateDir) -> list[Any]:
+        s = Store.read_only(paths.db)
+        try:
+            return [
+                (b, s.body_evaluations(b["id"]), s.body_values(b["id"], 0),
+                 [{k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in r.items()}
+                  for r in s.body_raw(b["id"])])
+                for b in s.bodies()
+            ]  # fmt: skip
+        finally:
+            s.close()
+
+    before, after = held(state), held(restored)
+    assert after == before and len(after) == 4 and after[3][3][0]["sheet"] == points.tolist()
+    for fmt in ("dfq", "csv", "json"):
+        outs = []
+        for paths in (state, restored):
+            out = tmp_path / f"{fmt}-{paths.root.name}"
+            argv = ["results", "export", "--format", fmt, "--out", str(out)]
+            assert main([*argv, "--state-dir", str(paths.root)]) == 0
+            outs.append((out / f"results.{fmt}").read_bytes())
+        assert outs[0] == outs[1] and b"WDB-7" in outs[0], fmt
