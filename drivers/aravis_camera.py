@@ -110,6 +110,11 @@ class AravisCamera(Camera):
             trace.rx(f"{what}: {_short(result)}")
         return result
 
+    @property
+    def lost(self) -> bool:
+        """A control request timed out: the camera is gone for this object (close and open)."""
+        return self._lost
+
     def _check_not_lost(self, what: str) -> None:
         if self._lost:
             raise DeviceConnectionError(f"{self.name}: {what}: camera lost; close and reopen it")

@@ -89,6 +89,12 @@ class Device(ABC):
     def is_open(self) -> bool:
         return self._is_open
 
+    @property
+    def lost(self) -> bool:
+        """The device went away and this object cannot use it again until it is closed and
+        opened again (a backend that reconnects by itself never is: False)."""
+        return False
+
     def open(self) -> Self:
         """Connect to the device (idempotent). Returns self."""
         with self._lock:

@@ -169,6 +169,7 @@ class Operator:
                 " itself when it answers (no reset needed)"
             )
         self._storage_back()
+        self._reopen_lost()
         try:
             svc.station.robot.reset()
             svc.station.plc.set_signals(busy=False, done=False, fault=False)
@@ -182,6 +183,23 @@ class Operator:
         home = svc.measurer.at_home()
         note = "" if home else "; the robot comes home in the next window"
         return {"message": f"reset{note}", "state": svc.state.value}
+
+    def _reopen_lost(self) -> None:
+        """Before a reset: a device lost while running (a camera switched off and on) is opened
+        again; CommandError naming it while it does not open (the robot is not sent out to
+        fault on it again)."""
+        svc = self.svc
+        failed = svc.station.reopen_lost()
+        if not failed:
+            return
+        for exc in failed.values():
+            svc.note_device_error(exc)
+        family, exc = next(iter(failed.items()))
+        raise CommandError(
+            f"{family} ({svc.station.urls.get(family, '')}) was lost and does not open again"
+            f" ({type(exc).__name__}: {exc}): reset again once it answers; a restart is needed"
+            " if it still does not"
+        )
 
     def _storage_back(self) -> None:
         """Before a reset: the alarms raised while the storage failed are stored now and the

@@ -10,7 +10,8 @@ drivers.errors.DeviceError). With `defer_unreachable=True` (the service, `rvis r
 that is configured right but cannot be reached (any DeviceError but DeviceConfigError) is kept
 built and unopened instead: `unreachable` names it with its error, the others are open, and
 `open_unreachable()` tries it again (the service's retries with back-off). A wrong URL or
-option is still a DeviceConfigError at once.
+option is still a DeviceConfigError at once. `reopen_lost()` closes and opens again a device
+lost while running (a camera that went away: the operator's reset).
 """
 
 from __future__ import annotations
@@ -121,6 +122,22 @@ class Station:
                 still[family] = _stamp(exc, device)
         self.unreachable = still  # replaced whole: the status reply reads it from its thread
         return dict(still)
+
+    def reopen_lost(self) -> dict[str, DeviceError]:
+        """Close and open again every device that was lost while running (`Device.lost`: a
+        camera that went away) or left closed by a reopen that failed, in ORDER (not those
+        unreachable since the start: `open_unreachable`); the ones that do not open, with
+        their errors (empty: every device is open)."""
+        failed: dict[str, DeviceError] = {}
+        for family, device in self.devices().items():
+            if family in self.unreachable or not (device.lost or not device.is_open):
+                continue
+            device.close()
+            try:
+                device.open()
+            except DeviceError as exc:
+                failed[family] = _stamp(exc, device)
+        return failed
 
     def devices(self) -> dict[str, Device]:
         out: dict[str, Device | None] = {

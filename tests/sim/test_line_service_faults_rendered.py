@@ -9,7 +9,8 @@ lost once is re-triggered by the camera driver and is not a fault.
 
 The line is shortened for speed (8-frame sweeps, an 8 s clamp period, the fault in the first
 window); it runs in virtual time, as fast as the renderer. The galvo error and the camera
-timeout (the same path, two grab timeouts longer) are marked slow: `-m "not slow"` leaves them
+timeout (the same path, two grab timeouts longer) and the camera switched off and on (opened
+again by the operator's reset) are marked slow: `-m "not slow"` leaves them
 out of a quick run; the test command runs them."""
 
 from __future__ import annotations
@@ -107,3 +108,26 @@ def test_a_frame_lost_once_is_retriggered_and_is_not_a_fault(run: SimulatedLineR
     assert not [e for e in events if e["event"] == "alarm"]
     assert run.service.counters["overruns"] == 0  # this window had room for the extra timeout
     all_announced_stored(run, events)
+
+
+@pytest.mark.slow  # about 12 s
+def test_a_camera_switched_off_and_on_is_opened_again_by_the_reset(run: SimulatedLineRun) -> None:
+    """`devices ctl stop camera` / `start camera` (issue 51): the Aravis driver marks the
+    camera that went away lost; the operator's reset opens it again (refused while it does not
+    answer), and the robot goes out and measures instead of faulting again."""
+    _until(run, lambda e: e["event"] == "measurement" and e["status"] == "ok")
+    run.line.stop_device("camera")
+    events = _until(run, lambda e: e["event"] == "alarm" and e["code"] == "device_fault")
+    assert events[-1]["message"].startswith("camera (aravis://")
+    refused = run.service.request("reset").result(timeout=WAIT_S)
+    assert not refused["ok"] and refused["error"].startswith("camera (aravis://"), refused
+    assert "a restart is needed" in refused["error"]
+    assert run.service.state == State.FAULT
+    run.line.start_device("camera")
+    reply = run.service.request("reset").result(timeout=WAIT_S)
+    assert reply["ok"], reply
+    # (the robot, stopped out, comes home in the first window)
+    more = _until(run, lambda e: e["event"] == "alarm" or e.get("status") == "ok")
+    assert more[-1]["event"] == "measurement", more[-1]  # not faulted again
+    assert run.service.status()["devices"]["camera"]["state"] == "ok"
+    all_announced_stored(run, events + more)
