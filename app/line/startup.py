@@ -254,6 +254,9 @@ class Startup:
     def _hold_fault(self, alarm: dict[str, Any]) -> None:
         """Restarted with a fault alarm in force: stay in FAULT until an operator's reset."""
         svc = self.svc
+        # the device of a held device fault failed in the process before: every device was
+        # opened afresh since and answered, so none is shown at fault ("": none, not unknown)
+        svc.fault_family = ""
         svc.set_state(State.FAULT)
         fault_stop(svc)
         svc.log.warning(

@@ -200,3 +200,30 @@ def test_a_full_database_faults_the_cell_until_space_is_back_and_a_reset(tmp_pat
         assert "state_storage" in stored  # the alarm reached the database once it could
     finally:
         ln.close()
+
+
+def test_a_device_fault_held_from_before_a_restart_leaves_the_devices_ok(tmp_path: Path) -> None:
+    """A fault alarm in force when the service stopped is held at its restart until a reset
+    (issue 51): the devices were opened afresh and answer, so none of them is shown "fault"
+    (every one was, with no error, before); the held alarm says what happened before."""
+    ln = make_line(tmp_path, seed=SEED)
+    t = ln.clock.time()
+    message = "camera (aravis://127.0.0.1): DeviceTimeout: grab: no frame"
+    ln.service.store.raise_alarm(t, "device_fault", message, "urgent")  # from the last run
+    ln.start()
+    try:
+        ln.wait(lambda e: e["event"] == "state" and e["to"] == "fault", 15.0)
+        status = ln.service.status()
+        assert status["state"] == "fault"
+        assert [a["message"] for a in status["alarms"]] == [message]
+        devices = status["devices"]
+        assert {family: d["state"] for family, d in devices.items()} == {
+            "plc": "ok",
+            "robot": "ok",
+        }
+        assert all(d["last_error"] is None for d in devices.values())
+        reply = ln.service.request("reset").result(10)
+        assert reply["ok"], reply
+        ln.windows(1)
+    finally:
+        ln.close()
