@@ -13,7 +13,8 @@ slot a window (`[line] step_slots_per_window = 1`) so that bodies are measured w
 interval is open and computed again after (a second file each); the charts' detector (`[service]
 detector = charts`: which detector finds the knock does not matter to the files, and the
 estimator's costs 3x the CPU a window); the line's own calibration, no commissioning. 24 s
-alone, 43 s beside another test on the 2-core machine. Seed 23, named before it was run (the scenario was tried on seed 11)."""
+alone, 43 s beside another test on the 2-core machine. Seed 23, named before it was run (the
+scenario was tried on seed 11)."""
 
 from __future__ import annotations
 
