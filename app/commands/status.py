@@ -64,6 +64,7 @@ def offline_status(state_dir: Path) -> dict[str, Any]:
             "measurements": store.counts(),
             "schedule": {"position": store.schedule_position()[0]},
             "alarms": alarms,
+            "accuracy": _last_accuracy(store),
             "suspect_intervals": [suspect_json(r) for r in store.suspects(last=5)],
             "maintenance": maintenance_json(
                 active, store.maintenance(last=RECORDS_IN_STATUS), state.root
@@ -72,6 +73,22 @@ def offline_status(state_dir: Path) -> dict[str, Any]:
     finally:
         store.close()
     return out
+
+
+def _last_accuracy(store: Any) -> dict[str, Any] | None:
+    """The last U95 the service stated (its saved state's statement, as the running service's
+    reply gives it; a state saved by an older rvis: the U95 its last window stored) with the
+    window it was stated for (`window_utc`, null when not known); None before any."""
+    from app.line.states import utc_text
+
+    stated = store.last_statement()
+    acc = (store.load_state() or {}).get("accuracy")
+    if acc is None and stated is None:
+        return None
+    if acc is None:
+        acc = {"u95_mm": stated["u95_mm"], "n": None, "basis": None, "limit_mm": None}
+    same = stated is not None and stated["u95_mm"] == acc["u95_mm"]
+    return {**acc, "window_utc": utc_text(float(stated["t"])) if same else None}
 
 
 def _held(state: Any, pid: int) -> dict[str, Any]:

@@ -125,16 +125,23 @@ def bodies_text(bodies: Sequence[Any]) -> str:
 
 
 def accuracy_text(status: dict[str, Any]) -> str:
-    """The U95 the cell states for a point measured now, against its limit, in words."""
+    """The U95 the cell states for a point measured now, against its limit, in words; with no
+    service running, the last one it stated (`window_utc`: the window it was stated for)."""
     acc = status.get("accuracy")
     if not acc:
         return "not stated yet (no window measured)"
     u95, limit = acc.get("u95_mm"), acc.get("limit_mm")
+    last = ""
+    if status.get("state") == "not running":
+        when = acc.get("window_utc")
+        last = f" (the last window's{f', {when}' if when else ''}; the service is not running)"
     if u95 is None:
-        return f"U95 unknown (no evidence yet): cannot vouch for {limit:.3f} mm"
+        return f"U95 unknown (no evidence yet): cannot vouch for {limit:.3f} mm{last}"
+    if limit is None:  # stored by a service that did not save its statement
+        return f"U95 {u95:.3f} mm{last}"
     word = "vouched for" if acc.get("vouched") else "CANNOT VOUCH"
     n, basis = acc.get("n"), acc.get("basis")
-    return f"U95 {u95:.3f} mm ({n} residuals, {basis}), limit {limit:.3f} mm: {word}"
+    return f"U95 {u95:.3f} mm ({n} residuals, {basis}), limit {limit:.3f} mm: {word}{last}"
 
 
 #: what lifts the hold on automatic applies after a rollback in auto mode (app.line.operator)

@@ -676,6 +676,15 @@ class Store(BodyRecords):
                 (u95_mm,),
             )
 
+    def last_statement(self) -> dict[str, Any] | None:
+        """The last window a U95 was stated for: {t, u95_mm} (None: none yet)."""
+        if self.version() <= WINDOWS_SCHEMA:  # u95_mm came with the next one
+            return None
+        rows = self._rows(
+            "SELECT t, u95_mm FROM windows WHERE u95_mm IS NOT NULL ORDER BY id DESC LIMIT 1"
+        )
+        return rows[0] if rows else None
+
     def vouched_since(self, t_from: float, limit_mm: float) -> float | None:
         """The open time of the first window at or after `t_from` from which on every window's
         stated U95 is within `limit_mm` (`t_from` itself when all are; None when the last

@@ -118,6 +118,29 @@ def test_status_without_a_service_reads_the_database_only(state: StateDir) -> No
     assert run.heavy() == set()
 
 
+def test_status_without_a_service_states_the_last_accuracy_stored(state: StateDir) -> None:
+    """Issue 51: once the service stopped, status said "accuracy not stated yet" and gave
+    `accuracy: null`, though every window's U95 is stored: the last statement (the service's
+    saved state), with the window it was stated for."""
+    store = Store(state.db)
+    statement = {"u95_mm": 0.052, "n": 24, "basis": "held-out", "limit_mm": 0.1, "vouched": True}
+    store.save_state(1.8e9 + 125.0, {"accuracy": statement})
+    store.state_window_u95(0.052)  # the last window's (1.8e9 + 120)
+    store.close()
+    run = rvis("status", "--json", "--state-dir", str(state.root))
+    assert run.code == 0, run.err
+    assert json.loads(run.out)["accuracy"] == {
+        **statement,
+        "window_utc": "2027-01-15T08:02:00+00:00",
+    }
+    text = rvis("status", "--state-dir", str(state.root)).out
+    assert (
+        "accuracy            U95 0.052 mm (24 residuals, held-out), limit 0.100 mm: vouched for"
+        " (the last window's, 2027-01-15T08:02:00+00:00; the service is not running)"
+    ) in text.splitlines()
+    assert run.heavy() == set()
+
+
 def test_status_while_a_service_starts_and_on_a_file(state: StateDir, tmp_path: Path) -> None:
     """Issue 40: while a service holds the directory's lock and its socket is not up yet (the
     simulated line computes its world for ~20 s) status said "not running"; on a file it
