@@ -354,22 +354,43 @@ class CellState:
         if n == 0:
             return Verdict(False, "", None, None, math.nan, 1.0)
         v, Sigma, _ = self._window()
-        L = np.asarray(np.linalg.cholesky(Sigma), dtype=np.float64)
-        w = _solve_lower(L, v)  # whitened innovations
-        nis = float(w @ w) / (3 * n)
+        from scipy.linalg import cho_factor, cho_solve
+
+        factor = cho_factor(Sigma, lower=True, check_finite=False)
+        W = cho_solve(factor, np.eye(3 * n), check_finite=False).reshape(n, 3, n, 3)
+        Wv = cho_solve(factor, v, check_finite=False)
+        chi2_all = float(v @ Wv)
+        nis = chi2_all / (3 * n)
         fits: list[JumpFit] = []
-        tests = 0
         for h in self.hyps:
-            best: JumpFit | None = None
-            for k in range(n):
-                fit = self._fit(h, k, L, w, n)
-                tests += 1
-                if fit is not None and (best is None or fit.score > best.score):
-                    best = fit
+            best = self._best_onset(h, W, Wv.reshape(n, 3), n)
             if best is not None:
                 fits.append(best)
-        threshold = self.settings.false_alarm / max(tests, 1)
-        return self._decide(fits, threshold, nis, float(w @ w), n)
+        threshold = self.settings.false_alarm / max(n * len(self.hyps), 1)
+        return self._decide(fits, threshold, nis, chi2_all, n)
+
+    def _best_onset(self, h: Hypothesis, W: F64, Wv: F64, n: int) -> JumpFit | None:
+        """Hypothesis `h` at every onset k of the window at once: with the signature blocks
+        G_i (3, d), a_k = sum_{i >= k} G_i' (S^-1 v)_i and F_k = sum_{i, j >= k} G_i' S^-1_ij
+        G_j (suffix sums); the onset with the best score."""
+        Gb = np.stack([r.G[h.name] for r in self.rows])  # (n, 3, d)
+        C = np.einsum("iad,iajb,jbe->ijde", Gb, W, Gb)  # (n, n, d, d)
+        F = C[::-1, ::-1].cumsum(0).cumsum(1)[::-1, ::-1]
+        a = np.einsum("iad,ia->id", Gb, Wv)[::-1].cumsum(0)[::-1]  # (n, d)
+        seen = np.abs(Gb).reshape(n, -1).max(axis=1)[::-1].cumsum()[::-1] > 0
+        best: JumpFit | None = None
+        for k in range(n):
+            if not seen[k]:
+                break
+            Fp, rank = _pinv_rank(F[k, k])
+            if rank == 0:
+                continue
+            llr = float(a[k] @ Fp @ a[k])
+            score = llr - rank * math.log(max(3 * (n - k), 2))
+            if best is None or score > best.score:
+                p = float(chi2_dist.sf(llr, rank))
+                best = JumpFit(h, k, self.rows[k].obs.ref, llr, rank, p, score, Fp @ a[k], Fp)
+        return best
 
     def held_out_p(self, name: str, onset: int) -> float:
         """Hypothesis `name`'s jump from measurement `onset` on, fitted without the newest
