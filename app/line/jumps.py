@@ -1,26 +1,25 @@
 """The cell's state as one estimator on the service: `JumpWatch`, a collaborator of
-app.line.service.Service that sees it as app.line.host.LineHost (`[service] detector = "glr"`).
+app.line.service.Service that sees it as app.line.host.LineHost (`[service] detector = "glr"`;
+docs/estimator.md).
 
-The estimator (calib.cellstate) starts from the version in force (its covariance the prior, its
-commissioning's workspace validation the floor of the unmodelled term: a new cell is no special
-case), takes every good sphere measurement (`observe`, in the measurement's transaction) and
-tests the window for a jump. Between windows (`act`) the service does what the test says:
+The estimator (app.line.estimate: calib.cellstate's filter built from the version in force)
+takes every good sphere measurement (`observe`, in the measurement's transaction) and tests
+its window for a jump. Right after a window's measurements a jump found opens its *episode*
+(`opened`); between windows (`act`) the service does what the test says:
 
-- a jump detected: an *episode* opens: the suspect interval from the last measurement before
-  the dated onset, the high `drift_step` alarm, the rolling set from the onset on;
-- isolated to one group within a knock's bounds: its correction (the jump estimated with its
-  covariance) is gated (calib.gates change bounds) and applied as a new version; a sphere
-  alone, or a jump beyond `[service] maintenance_step_mm` at the spheres: the `maintenance`
-  hold; no decisive group after `jump_settle` measurements: a full re-identification on the
-  measurements since the onset, and the alarm says so;
-- the episode ends when `jump_confirm` measurements on the corrected version raise no jump and
-  the cell vouches for its U95 again: the interval closes (its end reason the kind of the
-  version that corrected it: "step" for the jump's correction, "batch" for a recalibration).
-
-`statement_u95_mm` is the U95 of a point measured now, with the parameters in force, at the
-window's poses: k (2.80, the 95 % quantile of a 3-D error's norm) times the per-coordinate
-sqrt((|H d|^2 + tr(H P H')) / 3 + s_u^2 + sigma^2), d and P the estimator's posterior of how far
-the parameters in force are off, and, while a jump is not corrected, its innovations.
+- a jump detected: the suspect interval from the last measurement before the dated onset, the
+  high `drift_step` alarm, the rolling set from the onset on;
+- named to one group within a knock's bounds: its correction (the jump estimated with its
+  covariance), checked (redundant, determined, predicting a measurement it was not fitted to)
+  and gated (calib.gates change bounds), applied as a new version; beyond
+  `[service] maintenance_step_mm`, or one sphere alone: the `maintenance` hold with the
+  procedure that fits; no decisive group after `jump_settle` measurements: a full
+  re-identification on the measurements since the onset, and the alarm says so;
+- the episode's interval closes when `jump_confirm` measurements on the corrected version raise
+  no jump and the cell vouches for its U95 again, dated when the correction came into force
+  (its end reason the kind of the version: "step" for the jump's correction, "batch" for a
+  recalibration); its group is watched a while after and refined from the estimator's
+  posterior when still off.
 """
 
 from __future__ import annotations
@@ -33,6 +32,7 @@ import numpy as np
 
 from app.formats.params import document_covariance, plain_document, set_covariance
 from app.line.beyond_knock import BLIND_WINDOWS, change_text, several_text, sphere_moved_text
+from app.line.estimate import CellEstimate
 from app.line.host import LineHost
 from app.line.states import AlarmCode, suspect_json
 from app.line.step_fit import StepCorrection, volume_views
@@ -40,14 +40,11 @@ from calib.attribution import SEVERAL
 from calib.cellstate import (
     SPHERE,
     CellState,
-    EstimatorSettings,
     JumpFit,
-    Observation,
     Verdict,
 )
 from calib.gates import change_failures
-from calib.model import EXTRA_NAMES, INDEX, unit_of
-from calib.uncertainty import norm_quantile
+from calib.model import INDEX
 
 #: equations after the onset beyond the jump's degrees of freedom before it is corrected (one
 #: measurement's: the estimate is checked by data it was not determined by alone)
@@ -67,10 +64,34 @@ class JumpWatch:
 
     def __init__(self, svc: LineHost) -> None:
         self.svc = svc
-        self.state: CellState | None = None
-        self.verdict: Verdict | None = None
-        self._floor_mm: float | None = None
-        self._moments: list[float] = []  # s_u's evidence, carried from version to version
+        self.estimate = CellEstimate(svc)
+
+    @property
+    def state(self) -> CellState | None:
+        return self.estimate.state
+
+    @property
+    def verdict(self) -> Verdict | None:
+        return self.estimate.verdict
+
+    @verdict.setter
+    def verdict(self, value: Verdict | None) -> None:
+        self.estimate.verdict = value
+
+    def restart(self) -> None:
+        """The estimator from the version in force (app.line.estimate)."""
+        self.estimate.restart()
+
+    def observe(self, row: dict[str, Any]) -> None:
+        """A good measurement (its stored row with its id) into the estimator, tested."""
+        self.estimate.observe(row)
+
+    def statement_u95_mm(self) -> float | None:
+        """The U95 of a point measured now (app.line.estimate), with the innovations of a jump
+        found and not corrected yet."""
+        ep = self.episode
+        uncorrected = ep is not None and ep.get("corrected_version") is None
+        return self.estimate.statement_u95_mm(int(ep["onset_id"]) if uncorrected and ep else None)
 
     @property
     def episode(self) -> dict[str, Any] | None:
@@ -80,119 +101,6 @@ class JumpWatch:
     @episode.setter
     def episode(self, value: dict[str, Any] | None) -> None:
         self.svc.episode = value
-
-    # -- the estimator ---------------------------------------------------------------------
-    def settings(self) -> EstimatorSettings:
-        r = self.svc.settings.recalib
-        floor = self._floor() if self._floor_mm is None else self._floor_mm
-        self._floor_mm = floor
-        return EstimatorSettings(
-            sigma_mm=r.jump_sigma_mm,
-            unmodelled_mm=floor,
-            drift_mm_per_h=r.jump_drift_mm_per_h,
-            drift_rad_per_h=r.jump_drift_rad_per_h,
-            window=r.jump_window,
-            false_alarm=r.jump_false_alarm,
-        )
-
-    def _floor(self) -> float:
-        """The unmodelled term's floor, from the commissioning's workspace validation: one
-        coordinate of its errors' mean square less the measurement's own noise, which the
-        statement holds apart. For the version it validated, all of it (the statement never
-        claims better than the workspace showed: its covariance at the spheres' views does
-        not hold the error across the workspace); for a later version, what no
-        recalibration removes: less the validated version's parameter covariance at the
-        schedule's views as well. Without a validation, `[service] jump_unmodelled_mm`."""
-        svc = self.svc
-        sigma = svc.settings.recalib.jump_sigma_mm
-        current = svc.params.current_document()
-        for doc in (current, svc.params.document(1)):
-            errors = ((doc or {}).get("validation") or {}).get("errors_mm")
-            if not errors or doc is None:
-                continue
-            ms = float(np.mean(np.square(np.asarray(errors, float)))) / 3.0 - sigma**2
-            got = document_covariance(doc, svc.params.current_path)
-            if doc is not current and got is not None:
-                ms -= self._variance_at_schedule(got[0], got[1])
-            return math.sqrt(max(0.0, ms))
-        return float(svc.settings.recalib.jump_unmodelled_mm)
-
-    def _variance_at_schedule(self, names: list[str], cov: np.ndarray) -> float:
-        """One coordinate's variance [mm^2] of a sphere's centre from parameters `names` with
-        covariance `cov`, the mean over the schedule's views: trace(H cov H') / 3."""
-        svc = self.svc
-        keep = [k for k, n in enumerate(names) if n in INDEX]
-        q = np.array([s.q_deg for s in svc.schedule.slots]).reshape(-1, 6)
-        if not keep or not len(q):
-            return 0.0
-        T = svc.model.fk(svc.x, q)
-        p = np.array([svc.spheres[s.target] for s in svc.schedule.slots]).reshape(-1, 3)
-        c = np.einsum("kji,kj->ki", T[:, :3, :3], p - T[:, :3, 3])  # in the sensor frame
-        H = svc.model.point_jacobian(svc.x, q, c, [names[k] for k in keep])
-        C = cov[np.ix_(keep, keep)]
-        return float(np.mean(np.einsum("kil,lm,kim->k", H, C, H)) / 3.0)
-
-    def restart(self) -> None:
-        """The estimator from the version in force, the measurements since it is in force
-        replayed (a restarted service resumes where it stopped)."""
-        svc = self.svc
-        self._floor_mm = None  # the floor depends on the version (`_floor`)
-        if self.state is not None:
-            self._moments = self.state.moments()
-        active = svc.model.default_active()
-        P0 = self._prior(active)
-        rows = [r for r in svc.store.measurements(last=4 * svc.settings.recalib.jump_window)]
-        mine = [r for r in rows if r.get("params_version") == svc.version]
-        t0 = float(mine[0]["t"]) if mine else svc.clock.time()
-        self.state = CellState(
-            svc.model, svc.x, active, P0, list(svc.spheres), self.settings(), t0_s=t0
-        )
-        self.state.learned(self._moments)
-        self.verdict = None
-        for r in mine:
-            self.verdict = self.state.add(self._observation(r), test=r is mine[-1])
-
-    def _prior(self, active: tuple[str, ...]) -> np.ndarray:
-        """The covariance of the version in force on `active` (a parameter it has none for: the
-        prior of `[service] seq_prior_mm` and `seq_prior_rad`, the nominal's tolerances; the
-        extra terms tight)."""
-        svc = self.svc
-        r = svc.settings.recalib
-
-        def default(name: str) -> float:
-            if name in EXTRA_NAMES:
-                return 1e-12
-            return (r.seq_prior_mm if unit_of(name) == "mm" else r.seq_prior_rad) ** 2
-
-        P = np.diag([default(n) for n in active])
-        doc = svc.params.current_document()
-        got = None if doc is None else document_covariance(doc, svc.params.current_path)
-        if got is not None:
-            names, C = got
-            ia = [k for k, n in enumerate(active) if n in names]
-            ic = [names.index(active[k]) for k in ia]
-            P[np.ix_(ia, ia)] = C[np.ix_(ic, ic)]
-        return P
-
-    def _observation(self, row: dict[str, Any]) -> Observation:
-        svc = self.svc
-        temp = row.get("temp_c")
-        return Observation(
-            int(row["id"]),
-            float(row["t"]),
-            str(row["target"]),
-            svc.spheres[str(row["target"])],
-            np.asarray(row["q_deg"], float),
-            np.asarray(row["c_sensor_mm"], float),
-            None if temp is None else float(temp),
-        )
-
-    def observe(self, row: dict[str, Any]) -> None:
-        """A good measurement (its stored row with its id) into the estimator, tested."""
-        if self.state is None:
-            self.restart()
-            return
-        self.verdict = self.state.add(self._observation(row))
 
     # -- what the service does -------------------------------------------------------------
     def opened(self) -> None:
@@ -542,33 +450,9 @@ class JumpWatch:
         std_mm = self.state.predicted_std_mm(fit, q, c)
         return std_mm <= max(r.step_max_std_mm, HALF_JUMP * seen_mm / math.sqrt(3.0))
 
-    # -- the statement ---------------------------------------------------------------------
-    def statement_u95_mm(self) -> float | None:
-        """U95 [mm] of a point measured now at the window's poses (module docstring); None
-        before any measurement of the version in force."""
-        st = self.state
-        if st is None or not st.rows:
-            return None
-        d, P = st.posterior()
-        s = st.settings
-        # the parameters in force are off by d (the estimator's posterior) with covariance P
-        var = [
-            (float((r.H @ d) @ (r.H @ d)) + float(np.trace(r.H @ P @ r.H.T))) / 3.0
-            + st.s_u_mm**2
-            + s.sigma_mm**2
-            for r in st.rows
-        ]
-        u2 = float(np.mean(var))
-        ep = self.episode
-        if ep is not None and ep.get("corrected_version") is None:
-            after = [r for r in st.rows if r.obs.ref >= int(ep["onset_id"])]
-            if after:
-                u2 += float(np.mean([(r.v0 - r.H @ d) @ (r.v0 - r.H @ d) / 3.0 for r in after]))
-        return norm_quantile() * math.sqrt(u2)
-
     def n_rows(self) -> int:
         """The measurements the estimator's window holds."""
-        return 0 if self.state is None else len(self.state.rows)
+        return self.estimate.n_rows()
 
     def interval_open(self) -> bool:
         """An episode's suspect interval is open."""
@@ -586,14 +470,14 @@ class JumpWatch:
         comes again from replaying its measurements at a start)."""
         return {
             "episode": None if self.episode is None else dict(self.episode),
-            "carried_moments": list(self._moments),
+            "carried_moments": self.estimate.to_json(),
         }
 
     def load_json(self, doc: dict[str, Any] | None) -> None:
         doc = doc or {}
         ep = doc.get("episode")
         self.episode = None if ep is None else dict(ep)
-        self._moments = [float(m) for m in doc.get("carried_moments") or []]
+        self.estimate.load_json(doc.get("carried_moments"))
 
 
 def _open(svc: LineHost, ep: dict[str, Any]) -> bool:

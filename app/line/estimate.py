@@ -1,0 +1,188 @@
+"""The one estimator on the service: `CellEstimate`, calib.cellstate's filter and jump test
+built from the version in force and fed the service's measurements (app.line.jumps decides what
+the service does with its verdicts).
+
+- **Prior**: the version in force's covariance (a parameter it has none for: the nominal's
+  tolerances, `[service] seq_prior_mm` and `seq_prior_rad`); a new cell's is its
+  commissioning's.
+- **Unmodelled term's floor**: from the commissioning's workspace validation (`_floor`).
+- **Restart**: on every version in force, the measurements since it is in force replayed, the
+  evidence about the unmodelled term carried from the version before (and across a restart of
+  the service: `to_json`).
+- **Statement**: the U95 of a point measured now with the parameters in force, at the window's
+  poses: k (2.80, the 95 % quantile of a 3-D error's norm) times the per-coordinate
+  sqrt((|H d|^2 + tr(H P H')) / 3 + s_u^2 + sigma^2), d and P the estimator's posterior of how
+  far the parameters in force are off, and, while a jump is not corrected, its innovations.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from app.formats.params import document_covariance
+from app.line.host import LineHost
+from calib.cellstate import CellState, EstimatorSettings, Observation, Verdict
+from calib.model import EXTRA_NAMES, INDEX, unit_of
+from calib.uncertainty import norm_quantile
+
+
+class CellEstimate:
+    """The estimator of the service `svc` (module docstring): `state` (None before the first
+    start), the last measurement's `verdict` (None once acted on)."""
+
+    def __init__(self, svc: LineHost) -> None:
+        self.svc = svc
+        self.state: CellState | None = None
+        self.verdict: Verdict | None = None
+        self._floor_mm: float | None = None
+        self._moments: list[float] = []  # s_u's evidence, carried from version to version
+
+    def settings(self) -> EstimatorSettings:
+        r = self.svc.settings.recalib
+        floor = self._floor() if self._floor_mm is None else self._floor_mm
+        self._floor_mm = floor
+        return EstimatorSettings(
+            sigma_mm=r.jump_sigma_mm,
+            unmodelled_mm=floor,
+            drift_mm_per_h=r.jump_drift_mm_per_h,
+            drift_rad_per_h=r.jump_drift_rad_per_h,
+            window=r.jump_window,
+            false_alarm=r.jump_false_alarm,
+        )
+
+    def _floor(self) -> float:
+        """The unmodelled term's floor, from the commissioning's workspace validation: one
+        coordinate of its errors' mean square less the measurement's own noise, which the
+        statement holds apart. For the version it validated, all of it (the statement never
+        claims better than the workspace showed: its covariance at the spheres' views does
+        not hold the error across the workspace); for a later version, what no
+        recalibration removes: less the validated version's parameter covariance at the
+        schedule's views as well. Without a validation, `[service] jump_unmodelled_mm`."""
+        svc = self.svc
+        sigma = svc.settings.recalib.jump_sigma_mm
+        current = svc.params.current_document()
+        for doc in (current, svc.params.document(1)):
+            errors = ((doc or {}).get("validation") or {}).get("errors_mm")
+            if not errors or doc is None:
+                continue
+            ms = float(np.mean(np.square(np.asarray(errors, float)))) / 3.0 - sigma**2
+            got = document_covariance(doc, svc.params.current_path)
+            if doc is not current and got is not None:
+                ms -= self._variance_at_schedule(got[0], got[1])
+            return math.sqrt(max(0.0, ms))
+        return float(svc.settings.recalib.jump_unmodelled_mm)
+
+    def _variance_at_schedule(self, names: list[str], cov: np.ndarray) -> float:
+        """One coordinate's variance [mm^2] of a sphere's centre from parameters `names` with
+        covariance `cov`, the mean over the schedule's views: trace(H cov H') / 3."""
+        svc = self.svc
+        keep = [k for k, n in enumerate(names) if n in INDEX]
+        q = np.array([s.q_deg for s in svc.schedule.slots]).reshape(-1, 6)
+        if not keep or not len(q):
+            return 0.0
+        T = svc.model.fk(svc.x, q)
+        p = np.array([svc.spheres[s.target] for s in svc.schedule.slots]).reshape(-1, 3)
+        c = np.einsum("kji,kj->ki", T[:, :3, :3], p - T[:, :3, 3])  # in the sensor frame
+        H = svc.model.point_jacobian(svc.x, q, c, [names[k] for k in keep])
+        C = cov[np.ix_(keep, keep)]
+        return float(np.mean(np.einsum("kil,lm,kim->k", H, C, H)) / 3.0)
+
+    def restart(self) -> None:
+        """The estimator from the version in force, the measurements since it is in force
+        replayed (a restarted service resumes where it stopped)."""
+        svc = self.svc
+        self._floor_mm = None  # the floor depends on the version (`_floor`)
+        if self.state is not None:
+            self._moments = self.state.moments()
+        active = svc.model.default_active()
+        P0 = self._prior(active)
+        rows = [r for r in svc.store.measurements(last=4 * svc.settings.recalib.jump_window)]
+        mine = [r for r in rows if r.get("params_version") == svc.version]
+        t0 = float(mine[0]["t"]) if mine else svc.clock.time()
+        self.state = CellState(
+            svc.model, svc.x, active, P0, list(svc.spheres), self.settings(), t0_s=t0
+        )
+        self.state.learned(self._moments)
+        self.verdict = None
+        for r in mine:
+            self.verdict = self.state.add(self._observation(r), test=r is mine[-1])
+
+    def _prior(self, active: tuple[str, ...]) -> np.ndarray:
+        """The covariance of the version in force on `active` (a parameter it has none for: the
+        prior of `[service] seq_prior_mm` and `seq_prior_rad`, the nominal's tolerances; the
+        extra terms tight)."""
+        svc = self.svc
+        r = svc.settings.recalib
+
+        def default(name: str) -> float:
+            if name in EXTRA_NAMES:
+                return 1e-12
+            return (r.seq_prior_mm if unit_of(name) == "mm" else r.seq_prior_rad) ** 2
+
+        P = np.diag([default(n) for n in active])
+        doc = svc.params.current_document()
+        got = None if doc is None else document_covariance(doc, svc.params.current_path)
+        if got is not None:
+            names, C = got
+            ia = [k for k, n in enumerate(active) if n in names]
+            ic = [names.index(active[k]) for k in ia]
+            P[np.ix_(ia, ia)] = C[np.ix_(ic, ic)]
+        return P
+
+    def _observation(self, row: dict[str, Any]) -> Observation:
+        svc = self.svc
+        temp = row.get("temp_c")
+        return Observation(
+            int(row["id"]),
+            float(row["t"]),
+            str(row["target"]),
+            svc.spheres[str(row["target"])],
+            np.asarray(row["q_deg"], float),
+            np.asarray(row["c_sensor_mm"], float),
+            None if temp is None else float(temp),
+        )
+
+    def observe(self, row: dict[str, Any]) -> None:
+        """A good measurement (its stored row with its id) into the estimator, tested."""
+        if self.state is None:
+            self.restart()
+            return
+        self.verdict = self.state.add(self._observation(row))
+
+    def statement_u95_mm(self, jump_onset_id: int | None = None) -> float | None:
+        """U95 [mm] of a point measured now at the window's poses (module docstring), with the
+        innovations since `jump_onset_id` (a jump found and not corrected yet); None before any
+        measurement of the version in force."""
+        st = self.state
+        if st is None or not st.rows:
+            return None
+        d, P = st.posterior()
+        s = st.settings
+        # the parameters in force are off by d (the estimator's posterior) with covariance P
+        var = [
+            (float((r.H @ d) @ (r.H @ d)) + float(np.trace(r.H @ P @ r.H.T))) / 3.0
+            + st.s_u_mm**2
+            + s.sigma_mm**2
+            for r in st.rows
+        ]
+        u2 = float(np.mean(var))
+        if jump_onset_id is not None:
+            after = [r for r in st.rows if r.obs.ref >= jump_onset_id]
+            if after:
+                u2 += float(np.mean([(r.v0 - r.H @ d) @ (r.v0 - r.H @ d) / 3.0 for r in after]))
+        return norm_quantile() * math.sqrt(u2)
+
+    def n_rows(self) -> int:
+        """The measurements the estimator's window holds."""
+        return 0 if self.state is None else len(self.state.rows)
+
+    def to_json(self) -> list[float]:
+        """The evidence about s_u carried into the version in force (its own comes again from
+        replaying its measurements at a start)."""
+        return list(self._moments)
+
+    def load_json(self, moments: list[float] | None) -> None:
+        self._moments = [float(m) for m in moments or []]
