@@ -278,6 +278,7 @@ def run_sim(args: argparse.Namespace) -> int:
                         args.windows or 10**9, on_window=None if args.json else progress
                     )
                 except KeyboardInterrupt:
+                    sim.mark_suspect()
                     summary = sim.summary
                 finally:
                     signal.signal(signal.SIGTERM, previous)

@@ -14,6 +14,7 @@ sensor model in use (rendered) or the true centres (geometric), mapped with the 
 
 from __future__ import annotations
 
+import bisect
 import contextlib
 import dataclasses
 import queue
@@ -71,9 +72,12 @@ class WindowRecord:
     version: int
     t_open_h: float = float("nan")  # when the window opened (the version was in force then)
     # the U95 [mm] the service stated for the window's bodies (None: none stated), and whether
-    # they are in a suspect interval (known once the run ended: app.sim.shift.mark_suspect)
+    # they are in a suspect interval (known once the run ended: a later interval may reach
+    # back; `rvis run --sim`: the window's body is one `rvis state suspects` lists, by
+    # SimulatedLineRun.mark_suspect; the shift's scoring: app.sim.shift.mark_suspect)
     u95_mm: float | None = None
     suspect: bool = False
+    body: int | str | None = None  # the body the PLC clamped in the window (None: none read)
     within_u95: float | None = None  # the share of validation points whose true error <= U95
     p95_mm: float = float("nan")  # the 95th percentile of the validation points' true errors
 
@@ -388,6 +392,7 @@ class SimulatedLineRun:
             },
         }
         self.summary = SimRunSummary()
+        self._t_open: list[float] = []  # the clock time each record's window began
         self.held_for_maintenance = False  # the service raised `maintenance`: it holds
         self._versions: dict[int, F64] = {}
         self._stack = contextlib.ExitStack()
@@ -606,6 +611,7 @@ class SimulatedLineRun:
                         s.records.append(record)
                         if on_window is not None:
                             on_window(record)
+        self.mark_suspect()
         if self.held_for_maintenance:  # no window comes: the service stops here
             held = self.service.store.active_alarms(code=AlarmCode.MAINTENANCE)
             s.maintenance = str(held[-1]["message"]) if held else None
@@ -616,6 +622,19 @@ class SimulatedLineRun:
             self._held_or_gone(silence_s)
         s.true_rmse_final_mm = self.true_rmse_mm(self.service.x)
         return s
+
+    def mark_suspect(self) -> None:
+        """Each window record's body (the window the PLC opened last before the service's
+        window began) and whether it is suspect: `rvis state suspects` lists it (an interval
+        may reach back, so once the windows are run)."""
+        store = self.service.store
+        listed = {b for s in store.suspects() for b in s["bodies"]}
+        rows = [(float(w["t"]), w["body_id"]) for w in store.windows()]
+        times = [t for t, _ in rows]
+        for record, t_open in zip(self.summary.records, self._t_open, strict=True):
+            k = bisect.bisect_right(times, t_open) - 1
+            record.body = rows[k][1] if k >= 0 else None
+            record.suspect = record.body is not None and record.body in listed
 
     def _count(self, event: dict[str, Any]) -> None:
         s, kind = self.summary, event["event"]
@@ -658,8 +677,10 @@ class SimulatedLineRun:
             within_u95=None if u95 is None or not len(e) else float(np.mean(norms <= u95)),
             p95_mm=float(np.percentile(norms, 95)) if len(e) else float("nan"),
         )
+        t_open = float(event.get("t_open", event["t"]))
+        self._t_open.append(t_open)  # the window's body: `mark_suspect`
         if "t_open" in event:
-            record.t_open_h = (event["t_open"] - epoch) / 3600.0
+            record.t_open_h = (t_open - epoch) / 3600.0
         return record
 
     def _x_of(self, version: int) -> F64:

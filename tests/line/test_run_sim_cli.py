@@ -99,3 +99,24 @@ def test_a_restarted_simulated_line_continues_its_world(
     assert second[0] >= first[-1] and second[-1] > second[0]  # warm as left, warming on
     assert len(bodies) == 2 * len(bodies_1) == 8
     assert len(set(bodies)) == len(bodies) and bodies == sorted(bodies)
+
+
+def test_the_summary_says_which_windows_bodies_are_suspect_as_state_suspects_does(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 51: the summary's timeline gave `"suspect": false` for every window while `rvis
+    state suspects` put most of those bodies in suspect intervals. Each window names its body
+    (the PLC's id) and is suspect exactly when `rvis state suspects` lists that body; a limit
+    no statement meets makes every window's body suspect, the first one's included."""
+    state = tmp_path / "state"
+    state.mkdir()
+    (state / "cell.toml").write_text("[service]\naccuracy_limit_mm = 0.01\n")
+    run = ["run", "--sim", "--geometric", "--windows", "5", "--json", "--state-dir", str(state)]
+    assert main(run) == 0
+    timeline = json.loads(capsys.readouterr().out)["timeline"]
+    assert main(["state", "suspects", "--json", "--state-dir", str(state)]) == 0
+    listed = {b for s in json.loads(capsys.readouterr().out) for b in s["bodies"]}
+    bodies = [r["body"] for r in timeline]
+    assert len(set(bodies)) == 5 and None not in bodies
+    assert {r["body"] for r in timeline if r["suspect"]} == listed & set(bodies)
+    assert all(r["suspect"] for r in timeline)
