@@ -34,6 +34,10 @@ if TYPE_CHECKING:
     from drivers.clock import Clock
 
 F64 = NDArray[np.float64]
+#: the provenance of a new state directory's first version made of the service's starting
+#: parameters (nominal, or `rvis run --params`): no calibration of this cell (app.line.startup
+#: writes it, app.line.uncommissioned reads it)
+INITIAL_SOURCE = "initial parameters"
 
 
 def atomic_write_json(path: Path, doc: dict[str, Any]) -> None:

@@ -33,7 +33,7 @@ from app.line.decisions import Decisions
 from app.line.faults import Faults, fault_stop
 from app.line.host import LineHost
 from app.line.operator import Operator
-from app.line.params_store import ParamsStore, first_in_force
+from app.line.params_store import INITIAL_SOURCE, ParamsStore, first_in_force
 from app.line.states import FAULT_CODES, AlarmCode, State, utc_text
 from app.line.store import Store
 from calib.compliance import CompliantModel
@@ -82,7 +82,7 @@ def load_in_force(
             # a rigid commissioning's vector, its temperature unknown here (the reference
             # temperature's; `rvis run --params` carries a file at its own)
             x0 = model.carried(x0)
-        doc = plain_document(model, x0, "initial parameters")
+        doc = plain_document(model, x0, INITIAL_SOURCE)
         if initial_residuals is not None:
             given = dict(initial_residuals)
             validation = given.pop("validation_errors_mm", None)

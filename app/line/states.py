@@ -126,7 +126,14 @@ def bodies_text(bodies: Sequence[Any]) -> str:
 
 def accuracy_text(status: dict[str, Any]) -> str:
     """The U95 the cell states for a point measured now, against its limit, in words; with no
-    service running, the last one it stated (`window_utc`: the window it was stated for)."""
+    service running, the last one it stated (`window_utc`: the window it was stated for); on a
+    cell not commissioned, that it is not and when its first calibration comes."""
+    first = status.get("uncommissioned")  # the running service's: when the first calibration
+    # comes (app.line.uncommissioned)
+    return _stated(status) + (f"; not commissioned: {first['text']}" if first else "")
+
+
+def _stated(status: dict[str, Any]) -> str:
     acc = status.get("accuracy")
     if not acc:
         return "not stated yet (no window measured)"

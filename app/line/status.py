@@ -11,6 +11,7 @@ from app.line.maintenance_state import RECORDS_IN_STATUS, maintenance_json, proc
 from app.line.opcua import FEED_NAME
 from app.line.states import AlarmCode, suspect_json, utc_text
 from app.line.store import StorageError
+from app.line.uncommissioned import uncommissioned
 
 SUSPECTS_IN_STATUS = 5  # the status reply's last suspect intervals
 
@@ -115,6 +116,7 @@ def _status(svc: LineHost) -> dict[str, Any]:
         "step": step_text(svc, maintenance),
         # the U95 of a point measured now, vouched for or not (app.line.accuracy)
         "accuracy": None if svc.accuracy is None else svc.accuracy.to_json(),
+        "uncommissioned": uncommissioned(svc),  # no calibration of the cell yet: when it comes
         # the `maintenance` alarm in force, a procedure running, the last done
         "maintenance": maintenance,
         "devices": _device_status(svc),
