@@ -33,7 +33,9 @@ person (the start line, the batch summary) go to stderr."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -223,6 +225,7 @@ def run_sim(args: argparse.Namespace) -> int:
     from app.line.statedir import StateDir
     from app.sim.line_run import SimulatedLineRun, WindowRecord
     from app.sim.shift import time_text
+    from app.sim.world_record import simulated_world
 
     cfg = _cell(args)
     state_dir = Path(args.state_dir or cfg.service.state_dir)
@@ -231,8 +234,12 @@ def run_sim(args: argparse.Namespace) -> int:
     commissioned = None
     if args.cell is None and args.state_dir:
         commissioned = _existing(StateDir(state_dir).cell)
+    # as commissioned (the cell file), as the directory's first run recorded, or as told
     seed = sim_seed(args.seed, cfg, commissioned)
-    geometric = bool(args.geometric or cfg.simulation.geometric)  # as commissioned, or told
+    geometric = bool(args.geometric or cfg.simulation.geometric)
+    paths = StateDir(state_dir)
+    if commissioned is None:
+        seed, geometric = simulated_world(paths, args.seed, args.geometric, (seed, geometric))
     if plan is not None and not plan.is_file():
         raise InputError("plan file not found", file=plan)
     batch = args.windows is not None
@@ -251,6 +258,7 @@ def run_sim(args: argparse.Namespace) -> int:
     try:
         with (
             hold_state(state_dir, group),
+            _recorded(paths, seed, geometric),
             SimulatedLineRun(
                 cfg,
                 state_dir,
@@ -295,6 +303,16 @@ def run_sim(args: argparse.Namespace) -> int:
         if handler is not None:
             logging.getLogger(SIM_LOGGER if batch else "rvis").removeHandler(handler)
     return 0
+
+
+@contextlib.contextmanager
+def _recorded(paths: Any, seed: int, geometric: bool) -> Iterator[None]:
+    """Under the state's lock: a new directory records the simulated cell it runs
+    (app/sim/world_record.py)."""
+    from app.sim.world_record import record_world
+
+    record_world(paths, seed, geometric)
+    yield
 
 
 #: The logger of `rvis run --sim`'s own lines (sim_window, sim_summary), JSON on stdout.

@@ -26,6 +26,9 @@ permissions, the one-service lock and the free space under it (DESIGN.md section
         maintenance/NNNN-<event>/ `rvis maintain`: one procedure's journal, results, report
                                  (maintenance.md, maintenance.json), the files it handed over
         rvis-sim.log             `rvis tui --sim`: the simulated service's log
+        simulation.json          the simulated cell a directory `rvis run --sim` made runs
+                                 (its seed and measuring path; a commissioned one's cell.toml
+                                 says it)
 
 This module is the one place that spells these names (tests/test_layers.py holds every other
 module of app/ to it): the service, `rvis state backup|restore|check`, `rvis status`, the TUI
@@ -61,6 +64,7 @@ PLAN_NAME = "plan.json"
 CELL_NAME = "cell.toml"
 SENSOR_NAME = "sensor.toml"
 FEATURES_NAME = "features.toml"  # the part type's feature plan (docs/inspection.md)
+SIMULATION_NAME = "simulation.json"  # the simulated cell a `rvis run --sim` directory runs
 SIM_LOG_NAME = "rvis-sim.log"
 PARAMS_DIR = "params"
 CURRENT_NAME = "current.json"  # in params/
@@ -236,6 +240,12 @@ class StateDir:
         return self.root / SIM_LOG_NAME
 
     @property
+    def simulation(self) -> Path:
+        """The simulated cell (seed, path) of a directory `rvis run --sim` made
+        (app/sim/world_record.py)."""
+        return self.root / SIMULATION_NAME
+
+    @property
     def features(self) -> Path:
         """The part type's feature plan: with it the service measures the clamped bodies."""
         return self.root / FEATURES_NAME
@@ -261,6 +271,7 @@ class StateDir:
             self.current,
             *self.commissioned,
             self.features,
+            self.simulation,
             *(p for d in tree if d.is_dir() for p in sorted(d.rglob("*"))),
             self.opcua_cert,
             self.opcua_key,

@@ -120,3 +120,25 @@ def test_the_summary_says_which_windows_bodies_are_suspect_as_state_suspects_doe
     assert len(set(bodies)) == 5 and None not in bodies
     assert {r["body"] for r in timeline if r["suspect"]} == listed & set(bodies)
     assert all(r["suspect"] for r in timeline)
+
+
+def test_a_simulated_directory_keeps_its_seed_and_path(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 51: a directory made by `rvis run --sim --geometric --seed 44`, run again without
+    --seed, ran another world (seed 0, rendered) on seed 44's parameters: 4.8 mm off and held
+    for maintenance. As a commissioned directory does, it keeps its seed and measuring path,
+    and another --seed is refused in one line (exit 2)."""
+    state = tmp_path / "state"
+    first = ["run", "--sim", "--geometric", "--seed", "44", "--windows", "1"]
+    assert main([*first, "--json", "--state-dir", str(state)]) == 0
+    capsys.readouterr()
+    again = ["run", "--sim", "--windows", "1", "--state-dir", str(state)]
+    assert main(again) == 0
+    assert "rvis run --sim: seed 44, geometric measurements" in capsys.readouterr().err
+    assert main([*again, "--seed", "0"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "seed 44" in err[0] and "--seed 0 is another cell" in err[0]
+    with sqlite3.connect(state / "rvis.db") as db:
+        started = db.execute("SELECT COUNT(*) FROM events WHERE kind = 'started'").fetchone()
+    assert started[0] == 2  # the refused run started nothing
