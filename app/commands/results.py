@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     if args.verb == "show":
         if not recs:
             raise InputError(f"no body {args.body!r} measured here", field="BODY")
-        print(json.dumps(recs[-1], indent=1) if args.json else _show_text(recs[-1]))
+        print(json.dumps(recs[-1], indent=1) if args.json else show_text(recs[-1]))
         return 0
     return _export(args, recs, args.format, args.out)
 
@@ -161,7 +161,9 @@ def _list_text(recs: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def _show_text(r: dict[str, Any]) -> str:
+def show_text(r: dict[str, Any]) -> str:
+    """One body's record (app.line.body_results) in words: its values with their U95 and
+    decisions (`rvis results show`, `rvis state body`)."""
     head = (
         f"body {r['body']} ({r['part']}), measured {r['time_utc']} with parameters version"
         f" {r['params_version']}: {'OK' if r['ok'] else 'NOK'}; the cell stated U95"

@@ -1,5 +1,5 @@
-"""`rvis state backup|restore|check`: the service's state directory as something an operator
-can carry (docs/operations.md).
+"""`rvis state backup|restore|check|suspects|body`: the service's state directory as something
+an operator can carry (docs/operations.md).
 
 - `backup DEST`: a consistent copy while the service runs (SQLite's online backup of `rvis.db`,
   then what `StateDir.carried()` names: the parameter history, `current.json`, the plan, the
@@ -12,6 +12,10 @@ can carry (docs/operations.md).
   trustworthy measurement before a step to the apply of its correction, when the calibration in
   force was wrong, with its estimated size and the bodies measured then (their ids as the line
   PLC gives them, `[line] plc_body_id`), for the inspection software to re-measure or flag.
+- `body BODY [--json]`: how sure the measurement of one body is (app/commands/state_body.py):
+  the window it was clamped in, the parameters version in force then, the U95 the cell stated
+  for its bodies, the suspect intervals it falls in, and its values with their U95 when the
+  cell measured it.
 - `check`: read-only findings about a state directory (integrity, schema, parameters against the
   history and the database, the files the commissioning wrote, permissions, free space, the
   lock holder, the sizes); exit 1 when something is wrong. With an operators' group (`--cell`'s
@@ -59,6 +63,9 @@ def register(sub: Any) -> None:
         " (90m, 8h, 2d); default: all",
     )
     s.add_argument("--json", action="store_true", help="print the intervals as JSON")
+    bd = verbs.add_parser("body", help="how sure the measurement of one body is (read-only)")
+    bd.add_argument("body", help="the body's id (as the PLC gave it)")
+    bd.add_argument("--json", action="store_true", help="print the answer as JSON")
     p.set_defaults(func=run)
 
 
@@ -74,6 +81,12 @@ def run(args: argparse.Namespace) -> int:
         since = None if args.since is None else parse_since(args.since, time.time())
         rows = suspects(state, since)
         print(json.dumps(rows, indent=1) if args.json else _suspects_table(rows))
+        return 0
+    if args.verb == "body":
+        from app.commands.state_body import body_answer, body_text
+
+        doc = body_answer(state, args.body, time.time())
+        print(json.dumps(doc, indent=1) if args.json else body_text(doc))
         return 0
     if args.verb == "restore":
         restore(Path(args.backup), state)

@@ -703,6 +703,16 @@ class Store(BodyRecords):
                 self._db.execute("SELECT MIN(t) FROM windows WHERE t > ?", (worse,)).fetchone()[0]
             )
 
+    def windows_of(self, body_id: Any) -> list[dict[str, Any]]:
+        """The clamp windows the body `body_id` was clamped in (a number or its text), in time
+        order, each with the U95 stated for its bodies."""
+        if self.version() < WINDOWS_SCHEMA:
+            return []
+        return self._rows(
+            "SELECT * FROM windows WHERE CAST(body_id AS TEXT) = CAST(? AS TEXT) ORDER BY t, id",
+            (body_id,),
+        )
+
     def windows(self) -> list[dict[str, Any]]:
         """Every clamp window recorded, in time order (t, body_id)."""
         if self.version() < WINDOWS_SCHEMA:

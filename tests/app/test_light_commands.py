@@ -253,6 +253,39 @@ def test_state_check_and_suspects_read_the_database_only(state: StateDir) -> Non
     assert run.heavy() == set()
 
 
+def test_state_body_says_how_sure_the_measurement_of_a_body_is(state: StateDir) -> None:
+    """Issue 51: no command answered "how sure is the measurement of body 100008?": the
+    window it was clamped in, the parameters version in force then, the U95 the cell stated
+    for its bodies, the suspect intervals it falls in (a body never measured here: one line,
+    exit 2)."""
+    store = Store(state.db)
+    store.add_applied(1.8e9 - 3600.0, 3, None, "auto", None)
+    store.state_window_u95(0.052)  # the last window's: body 100008
+    store.close()
+    run = rvis("state", "body", "100008", "--json", "--state-dir", str(state.root))
+    assert run.code == 0, run.err
+    doc = json.loads(run.out)
+    assert doc["body"] == 100008
+    assert doc["windows"] == [
+        {"t_utc": "2027-01-15T08:02:00+00:00", "params_version": 3, "u95_mm": 0.052}
+    ]
+    assert [(s["id"], s["size_mm"]) for s in doc["suspect_intervals"]] == [(1, 0.31)]
+    assert doc["suspect"] is True and doc["measured"] is None
+    assert run.heavy() == set()
+    text = rvis("state", "body", "100008", "--state-dir", str(state.root)).out.splitlines()
+    assert text[0] == (
+        "body 100008: clamped in the window of 2027-01-15T08:02:00+00:00, parameters version 3;"
+        " the cell stated U95 0.052 mm for a point measured then"
+    )
+    assert text[1].startswith("SUSPECT: in suspect interval #1 (2027-01-15T08:00:00+00:00 .. open,")
+    clean = rvis("state", "body", "100006", "--state-dir", str(state.root)).out.splitlines()
+    assert clean[-1] == "not in a suspect interval"
+    run = rvis("state", "body", "999", "--state-dir", str(state.root))
+    assert run.code == 2 and run.err == [
+        "rvis state: error: field 'BODY': no body '999' clamped or measured here"
+    ]
+
+
 #: the `maintenance` alarm's text the service raised for axis 3's zero moved (seed 6, the
 #: simulated line's `maintenance_kind = "axis"`; app.line.beyond_knock.step_text)
 AXIS3_TEXT = (
