@@ -111,7 +111,7 @@ class AravisCamera(Camera):
         return result
 
     @property
-    def lost(self) -> bool:
+    def needs_reopen(self) -> bool:
         """A control request timed out: the camera is gone for this object (close and open)."""
         return self._lost
 

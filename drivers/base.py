@@ -90,7 +90,7 @@ class Device(ABC):
         return self._is_open
 
     @property
-    def lost(self) -> bool:
+    def needs_reopen(self) -> bool:
         """The device went away and this object cannot use it again until it is closed and
         opened again (a backend that reconnects by itself never is: False)."""
         return False

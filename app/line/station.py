@@ -124,13 +124,13 @@ class Station:
         return dict(still)
 
     def reopen_lost(self) -> dict[str, DeviceError]:
-        """Close and open again every device that was lost while running (`Device.lost`: a
-        camera that went away) or left closed by a reopen that failed, in ORDER (not those
+        """Close and open again every device that was lost while running (`Device.needs_reopen`:
+        a camera that went away) or left closed by a reopen that failed, in ORDER (not those
         unreachable since the start: `open_unreachable`); the ones that do not open, with
         their errors (empty: every device is open)."""
         failed: dict[str, DeviceError] = {}
         for family, device in self.devices().items():
-            if family in self.unreachable or not (device.lost or not device.is_open):
+            if family in self.unreachable or (device.is_open and not device.needs_reopen):
                 continue
             device.close()
             try:
