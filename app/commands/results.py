@@ -83,6 +83,8 @@ def run(args: argparse.Namespace) -> int:
     if args.verb == "show":
         if not recs:
             raise InputError(f"no body {args.body!r} measured here", field="BODY")
+        from app.line.body_results import show_text
+
         print(json.dumps(recs[-1], indent=1) if args.json else show_text(recs[-1]))
         return 0
     return _export(args, recs, args.format, args.out)
@@ -157,35 +159,5 @@ def _list_text(recs: list[dict[str, Any]]) -> str:
             f"{r['body']!s:<12} {r['time_utc']:<25} {'OK' if r['ok'] else 'NOK':<6}"
             f" {r['n_nok']:>3} {r['n_undecided']:>3} {r['n_not_measured']:>3}"
             f" {r['params_version']!s:>7}  {'; '.join(note)}"
-        )
-    return "\n".join(lines)
-
-
-def show_text(r: dict[str, Any]) -> str:
-    """One body's record (app.line.body_results) in words: its values with their U95 and
-    decisions (`rvis results show`, `rvis state body`)."""
-    head = (
-        f"body {r['body']} ({r['part']}), measured {r['time_utc']} with parameters version"
-        f" {r['params_version']}: {'OK' if r['ok'] else 'NOK'}; the cell stated U95"
-        f" {r['statement_u95_mm']:.3f} mm for a point measured then"
-        if r["statement_u95_mm"] is not None
-        else f"body {r['body']} ({r['part']}), measured {r['time_utc']}: no statement"
-    )
-    if r["suspect_interval"] is not None:
-        head += f"; SUSPECT: measured inside suspect interval {r['suspect_interval']}"
-    if r["reevaluated"]:
-        head += f"; computed again after a correction (evaluation {r['evaluation']})"
-    lines = [head, f"{'characteristic':<10} {'nominal':>10} {'measured':>10} {'dev':>8}"
-             f" {'U95':>7}  decision"]  # fmt: skip
-    for v in r["values"]:
-        key = f"{v['feature']}.{v['characteristic']}"
-        if v["measured_mm"] is None:
-            lines.append(f"{key:<10} {v['nominal_mm']:>10.3f} {'-':>10} {'-':>8} {'-':>7}"
-                         f"  not measured: {v['reason']}")  # fmt: skip
-            continue
-        dev = v["measured_mm"] - v["nominal_mm"]
-        lines.append(
-            f"{key:<10} {v['nominal_mm']:>10.3f} {v['measured_mm']:>10.3f} {dev:>+8.3f}"
-            f" {v['u95_mm']:>7.3f}  {v['decision']}"
         )
     return "\n".join(lines)

@@ -67,7 +67,7 @@ def _in_force(applied: list[tuple[float, int]], t: float) -> int | None:
 
 def body_text(doc: dict[str, Any]) -> str:
     """The answer in words: each window, each interval, the values."""
-    from app.commands.results import show_text
+    from app.line.body_results import show_text
 
     lines = []
     for w in doc["windows"]:

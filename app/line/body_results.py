@@ -7,6 +7,7 @@ that interval's correction: measure the body again, or leave the value out of th
 
     records(store, since_t=None, body_id=None, last=None) -> [{"body", "time_utc", ..., "values"}]
     csv_text(records) -> the values as CSV, a row each
+    show_text(record) -> one body's record in words (`rvis results show`, `rvis state body`)
 """
 
 from __future__ import annotations
@@ -105,3 +106,33 @@ def capability(recs: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
             }
         )  # fmt: skip
     return out
+
+
+def show_text(r: dict[str, Any]) -> str:
+    """One body's record (app.line.body_results) in words: its values with their U95 and
+    decisions (`rvis results show`, `rvis state body`)."""
+    head = (
+        f"body {r['body']} ({r['part']}), measured {r['time_utc']} with parameters version"
+        f" {r['params_version']}: {'OK' if r['ok'] else 'NOK'}; the cell stated U95"
+        f" {r['statement_u95_mm']:.3f} mm for a point measured then"
+        if r["statement_u95_mm"] is not None
+        else f"body {r['body']} ({r['part']}), measured {r['time_utc']}: no statement"
+    )
+    if r["suspect_interval"] is not None:
+        head += f"; SUSPECT: measured inside suspect interval {r['suspect_interval']}"
+    if r["reevaluated"]:
+        head += f"; computed again after a correction (evaluation {r['evaluation']})"
+    lines = [head, f"{'characteristic':<10} {'nominal':>10} {'measured':>10} {'dev':>8}"
+             f" {'U95':>7}  decision"]  # fmt: skip
+    for v in r["values"]:
+        key = f"{v['feature']}.{v['characteristic']}"
+        if v["measured_mm"] is None:
+            lines.append(f"{key:<10} {v['nominal_mm']:>10.3f} {'-':>10} {'-':>8} {'-':>7}"
+                         f"  not measured: {v['reason']}")  # fmt: skip
+            continue
+        dev = v["measured_mm"] - v["nominal_mm"]
+        lines.append(
+            f"{key:<10} {v['nominal_mm']:>10.3f} {v['measured_mm']:>10.3f} {dev:>+8.3f}"
+            f" {v['u95_mm']:>7.3f}  {v['decision']}"
+        )
+    return "\n".join(lines)
