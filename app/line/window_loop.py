@@ -108,7 +108,10 @@ class WindowLoop:
         svc = self.svc
         svc.set_state(State.MEASURING)
         n = svc.counters["windows"] + 1
-        t_open = svc.clock.time()  # within a poll of the window's rising edge
+        # the window's rising edge (the time its row holds), not now: a real clock has moved on
+        # while the row was committed, and an interval from now would leave out its body
+        opened = svc.watch.opened_t
+        t_open = svc.clock.time() - (0.0 if opened is None else svc.clock.monotonic() - opened)
         first_id = svc.store.last_measurement_id() + 1  # the window's first measurement
         try:
             report = svc.cycle.run_window(n)

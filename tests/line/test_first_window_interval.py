@@ -4,27 +4,20 @@ window opened, so `rvis state suspects` left out its body.
 
 The window's row is stored at the PLC's rising edge (app/line/cycle.py `WindowWatch.poll` ->
 `WindowLoop._store_clamped`); `WindowLoop._window` then reads the clock again for the window's
-`t_open` (app/line/window_loop.py), which a real clock has moved on by the time the row is
-committed; an interval with no measurement before it starts at that `t_open`
-(`WindowLoop._state_accuracy`), after its own window. On the virtual clock nothing passes in
-between: here the row's commit takes a millisecond, as SQLite's synchronous commit does on a
-disk."""
+`t_open` (app/line/window_loop.py), which a real clock had moved on by the time the row was
+committed; an interval with no measurement before it started at that `t_open`
+(`WindowLoop._state_accuracy`), after its own window. Now `t_open` is the rising edge's. On
+the virtual clock nothing passes in between: here the row's commit takes a millisecond, as
+SQLite's synchronous commit does on a disk."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import pytest
-
 from app.config.line import RecalibSettings
 from tests.line.helpers import line_settings, make_line
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="app/line/window_loop.py WindowLoop._window: t_open is read after the window's row"
-    " is committed, not the rising edge's time the row holds (left to window_loop.py's owner)",
-)
 def test_the_first_windows_body_is_in_the_interval_it_opens(tmp_path: Path) -> None:
     ln = make_line(
         tmp_path,
