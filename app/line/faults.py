@@ -30,25 +30,24 @@ class Faults:
         self._space_check_t = -float("inf")
 
     def alarm(self, code: str, message: str, priority: str = "high") -> int:
-        """Raise an alarm (stored; kept in memory while the storage fails); its id."""
+        """Raise an alarm (stored; kept in memory while the storage fails); its id. The event
+        carries its state as stored: `shelved` (with the reason and until when) while its code
+        is shelved (ISA-18.2 shelves the alarm, app.line.store.Store.raise_alarm)."""
         svc = self.svc
         t = svc.clock.time()
         try:
             alarm_id = svc.store.raise_alarm(t, code, message, priority)
         except StorageError:
             alarm_id = self._unstored_alarm(code, message, priority)
-        svc.bus.emit(
-            "alarm",
-            {
-                "id": alarm_id,
-                "code": code,
-                "message": message,
-                "priority": priority,
-                "state": "raised",
-            },
-            level=logging.WARNING,
-            t=t,
-        )
+        row = None
+        if alarm_id > 0:  # stored
+            with contextlib.suppress(StorageError):
+                row = svc.store.alarm(alarm_id)
+        data = {"id": alarm_id, "code": code, "message": message, "priority": priority}
+        data["state"] = "raised" if row is None else str(row["state"])
+        if data["state"] == "shelved" and row is not None:
+            data.update(reason=row["shelve_reason"], until_utc=utc_text(row["shelved_until"]))
+        svc.bus.emit("alarm", data, level=logging.WARNING, t=t)
         return alarm_id
 
     def clear_alarms(self, code: str, t: float | None = None) -> int:

@@ -458,14 +458,24 @@ class Store(BodyRecords):
 
     # -- alarms, events, audit ----------------------------------------------------------------
     def raise_alarm(self, t: float, code: str, message: str, priority: str = "high") -> int:
-        """A new alarm, unless one with this code is active already (returns its id)."""
+        """A new alarm, unless one with this code is active already (returns its id). ISA-18.2
+        shelves the alarm, not one occurrence: while an earlier one of this code is shelved
+        until after `t`, the new one is raised shelved until then, for the same reason."""
         live = self.active_alarms(code=code)
         if live:
             return int(live[0]["id"])
+        shelf = self._rows(
+            "SELECT shelved_until, shelve_reason FROM alarms WHERE code = ? AND shelved_until > ?"
+            " ORDER BY id DESC LIMIT 1",
+            (code, t),
+        )
+        until, reason = (
+            (shelf[0]["shelved_until"], shelf[0]["shelve_reason"]) if shelf else (None, None)
+        )
         return self._insert(
-            "INSERT INTO alarms (code, priority, message, state, t_raised)"
-            " VALUES (?, ?, ?, 'raised', ?)",
-            (code, priority, message, t),
+            "INSERT INTO alarms (code, priority, message, state, t_raised, shelved_until,"
+            " shelve_reason) VALUES (?, ?, ?, ?, ?, ?, ?)",
+            (code, priority, message, "raised" if until is None else "shelved", t, until, reason),
         )
 
     def update_alarm_message(self, alarm_id: int, message: str) -> None:

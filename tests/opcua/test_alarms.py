@@ -227,3 +227,54 @@ def test_every_alarm_condition_is_there_from_the_start(
     for code, (state, retain, _) in conditions.items():
         if code not in active:
             assert state is False and retain is False, code
+
+
+def test_a_shelved_alarm_raised_again_stays_shelved_for_its_time(
+    line: SimulatedLineRun, servers: Servers
+) -> None:
+    """ISA-18.2 shelves the alarm, not one occurrence of it: shelved for 5 minutes, cleared,
+    and raised again 4 s later (the service's clock), it is raised shelved until the same time
+    (OPC UA: TimedShelved, SuppressedOrShelved) and comes back only when that time is up
+    (before: the new occurrence came back Unshelved)."""
+    svc, clock = line.service, line.clock
+    code = "params_rebuilt"  # raised only at a start: the running line leaves it alone
+    assert code not in {a["code"] for a in svc.status()["alarms"]}
+    bus = svc.bus.subscribe()
+    try:
+
+        async def scenario() -> tuple[int, Any]:
+            async with Client(servers.read_only) as client:
+                handler = Catcher()
+                sub = await client.create_subscription(20, handler)
+                await sub.subscribe_events(client.nodes.server, ua.ObjectIds.AlarmConditionType)
+                first = svc.alarm(code, "parameters rebuilt", "medium")
+                args = {"alarm": first, "reason": "sensor cleaned", "minutes": 5}
+                reply = await asyncio.to_thread(lambda: svc.request("shelve", args).result(30))
+                assert reply["ok"], reply
+                await handler.event(_is(code, SuppressedOrShelved=True))
+                svc.clear_alarms(code)
+                await handler.event(_is(code, ActiveState__Id=False))
+                later = threading.Event()
+                clock.call_at(clock.monotonic() + 4.0, later.set)
+                assert await asyncio.to_thread(later.wait, 10)
+                second = svc.alarm(code, "parameters rebuilt again", "medium")
+                _, raised = await handler.event(_is(code, ActiveState__Id=True))
+                return second, raised
+
+        second, raised = asyncio.run(scenario())
+        row = _alarm(line, second)
+        shelved = [a for a in svc.store.alarms() if a["code"] == code and a["id"] < second]
+        assert row["state"] == "shelved", row
+        assert row["shelved_until"] == shelved[-1]["shelved_until"]
+        assert row["shelve_reason"] == "sensor cleaned"
+        assert raised.SuppressedOrShelved is True
+        assert _field(raised, "ShelvingState/CurrentState").Text == "TimedShelved"
+        # it comes back when its time is up, not before
+        while True:
+            event = bus.get(timeout=30)
+            if event["event"] == "alarm_unshelved" and event.get("id") == second:
+                break
+        assert svc.clock.time() >= row["shelved_until"]
+    finally:
+        svc.bus.unsubscribe(bus)
+        svc.clear_alarms(code)
