@@ -24,7 +24,8 @@ import numpy as np
 
 from app.formats.params import document_covariance
 from app.line.host import LineHost
-from calib.cellstate import CellState, EstimatorSettings, Observation, Verdict
+from calib.cellstate import CellState, EstimatorSettings, Observation
+from calib.hypotheses import Verdict
 from calib.model import EXTRA_NAMES, INDEX, unit_of
 from calib.uncertainty import norm_quantile
 

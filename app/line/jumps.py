@@ -37,13 +37,9 @@ from app.line.host import LineHost
 from app.line.states import AlarmCode, suspect_json
 from app.line.step_fit import StepCorrection, volume_views
 from calib.attribution import SEVERAL
-from calib.cellstate import (
-    SPHERE,
-    CellState,
-    JumpFit,
-    Verdict,
-)
+from calib.cellstate import CellState
 from calib.gates import change_failures
+from calib.hypotheses import SPHERE, JumpFit, Verdict
 from calib.model import INDEX
 
 #: equations after the onset beyond the jump's degrees of freedom before it is corrected (one

@@ -14,7 +14,8 @@ from numpy.typing import NDArray
 from app.config import CellConfig
 from calib import candidates
 from calib.attribution import SEVERAL
-from calib.cellstate import CellState, EstimatorSettings, Observation, Verdict
+from calib.cellstate import CellState, EstimatorSettings, Observation
+from calib.hypotheses import Verdict
 from calib.model import BASE_NAMES, INDEX, PAPER_30, SENSOR_NAMES, SystemModel
 from calib.transforms import apply
 
