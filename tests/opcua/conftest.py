@@ -11,7 +11,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -62,6 +62,14 @@ def line(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SimulatedLineRun]
     ):
         run.start_service()
         yield run
+
+
+@pytest.fixture(scope="module")
+def own_url(line: SimulatedLineRun) -> Iterator[str]:
+    """An OPC UA server of the module's own (the package's servers are left in peace)."""
+    url, settings = own_server(line)
+    with OpcUaServer(line.service, settings):
+        yield url
 
 
 @dataclass(frozen=True)
@@ -151,11 +159,21 @@ class Records(logging.Handler):
         super().__init__(logging.DEBUG)
         self.records: list[logging.LogRecord] = []
         self.refused = threading.Event()
+        self._more = threading.Condition()
 
     def emit(self, record: logging.LogRecord) -> None:
-        self.records.append(record)
+        with self._more:
+            self.records.append(record)
+            self._more.notify_all()
         if "refused" in record.getMessage():
             self.refused.set()
+
+    def wait_for(self, done: Callable[[list[str]], bool], timeout_s: float) -> bool:
+        """Whether done(the messages so far) holds within `timeout_s` (looked at each record)."""
+        with self._more:
+            return self._more.wait_for(
+                lambda: done([r.getMessage() for r in self.records]), timeout_s
+            )
 
 
 @pytest.fixture

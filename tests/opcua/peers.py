@@ -1,6 +1,7 @@
 """Peers of the OPC UA port, for the tests and the hostile-peer bench (bench/opcua_hostile.py):
-raw messages, a peer that holds connections and reopens each one the server closes, and a
-well-behaved asyncua client that connects, creates a session and reads.
+raw messages, a peer that holds connections (raw, or asyncua sessions created or activated) and
+reopens each one the server closes, and a well-behaved asyncua client that connects, creates a
+session and reads.
 
 Every loop here is bounded in time and in count and talks only to the address it is given.
 """
@@ -17,8 +18,10 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from asyncua import Client, ua
+from asyncua.client.ua_client import UaClientState
 from asyncua.common.connection import SecureConnection, TransportLimits
-from asyncua.crypto import security_policies
+from asyncua.common.utils import create_nonce
+from asyncua.crypto import security_policies, uacrypto
 from asyncua.crypto.cert_gen import setup_self_signed_certificate
 from asyncua.ua.ua_binary import struct_to_binary
 from cryptography.x509.oid import ExtendedKeyUsageOID
@@ -41,13 +44,16 @@ def hello_message(url: str, size_claimed: int | None = None) -> bytes:
     return struct.pack("<3scI", b"HEL", b"F", size) + body
 
 
-def open_none_channel_message() -> bytes:
-    """An OpenSecureChannel request with SecurityPolicy None (as a discovery client sends)."""
-    connection = SecureConnection(security_policies.SecurityPolicyNone(), TransportLimits())
+def open_channel_message(policy: security_policies.SecurityPolicy | None = None) -> bytes:
+    """An OpenSecureChannel request (SecurityPolicy None, as a discovery client sends, unless
+    `policy`: signed and encrypted by it, its certificate the sender's). The same bytes open a
+    channel on every connection (a server keeps no record of the nonces it was sent)."""
+    policy = policy or security_policies.SecurityPolicyNone()
+    connection = SecureConnection(policy, TransportLimits())
     request = ua.OpenSecureChannelRequest()
-    request.Parameters.SecurityMode = ua.MessageSecurityMode.None_
+    request.Parameters.SecurityMode = policy.Mode
     request.Parameters.RequestedLifetime = 3_600_000
-    request.Parameters.ClientNonce = b""
+    request.Parameters.ClientNonce = create_nonce(policy.secure_channel_nonce_length)
     data: bytes = connection.message_to_binary(
         struct_to_binary(request), message_type=ua.MessageType.SecureOpen, request_id=1
     )
@@ -71,17 +77,29 @@ def read_until_closed(s: socket.socket, timeout_s: float = 10.0) -> bytes:
     return answer
 
 
+async def basic256sha256(
+    cert: Path, key: Path, server_cert: Path
+) -> security_policies.SecurityPolicy:
+    """The client side of Basic256Sha256 Sign & Encrypt with this certificate and key."""
+    return security_policies.SecurityPolicyBasic256Sha256(
+        await uacrypto.load_certificate(server_cert),
+        await uacrypto.load_certificate(cert),
+        await uacrypto.load_private_key(key),
+        ua.MessageSecurityMode.SignAndEncrypt,
+    )
+
+
 class Holder:
     """A hostile peer: holds `count` connections to `url` (spread over the `sources` addresses,
-    a Hello sent on each when `hello`, nothing else) and reopens each one the server closes, at
-    once, until `stop()` (at most MAX_OPENS connections). `evicted` is set at the first
-    connection the server closes."""
+    `send` sent on each: nothing, a Hello, a Hello and an OpenSecureChannel; nothing after) and
+    reopens each one the server closes, at once, until `stop()` (at most MAX_OPENS
+    connections). `evicted` is set at the first connection the server closes."""
 
     def __init__(
-        self, url: str, count: int, *, sources: Sequence[str] = ("127.0.0.1",), hello: bool = False
+        self, url: str, count: int, *, sources: Sequence[str] = ("127.0.0.1",), send: bytes = b""
     ) -> None:
         self.address = split_url(url)
-        self.url, self.count, self.sources, self.hello = url, count, tuple(sources), hello
+        self.url, self.count, self.sources, self.send = url, count, tuple(sources), send
         self.opens = 0
         self.closed_by_server = 0
         self.connect_failures = 0
@@ -106,12 +124,12 @@ class Holder:
         source = self.sources[k % len(self.sources)]
         try:
             s = socket.create_connection(self.address, timeout=2, source_address=(source, 0))
-            if self.hello:
-                s.sendall(hello_message(self.url))
         except OSError:
             self.connect_failures += 1
             return
         self.opens += 1
+        with contextlib.suppress(OSError):  # closed by the server meanwhile: seen below
+            s.sendall(self.send)
         s.setblocking(False)
         selector.register(s, selectors.EVENT_READ, k)
 
@@ -139,6 +157,99 @@ class Holder:
             for key in list(selector.get_map().values()):
                 with contextlib.suppress(OSError):
                     key.fileobj.close()  # type: ignore[union-attr]
+
+
+class SessionHolder:
+    """A hostile peer of asyncua sessions: holds `count` sessions to `url` (spread over the
+    `sources` addresses), each created and, when `activate`, activated (anonymous), then idle;
+    reopens each one the server closes until `stop()` (at most MAX_OPENS). `full` is set once
+    `count` are held at the same time, `evicted` at the first one the server closes."""
+
+    def __init__(
+        self,
+        url: str,
+        count: int,
+        *,
+        sources: Sequence[str] = ("127.0.0.1",),
+        activate: bool = True,
+        timeout_s: float = 10.0,
+    ) -> None:
+        self.url, self.count, self.sources = url, count, tuple(sources)
+        self.activate, self.timeout_s = activate, timeout_s
+        self.opens = 0
+        self.held = 0
+        self.closed_by_server = 0
+        self.failures = 0
+        self.full = threading.Event()
+        self.evicted = threading.Event()
+        self._stop: asyncio.Event | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._thread = threading.Thread(target=asyncio.run, args=(self._run(),), daemon=True)
+
+    def __enter__(self) -> SessionHolder:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def stop(self) -> None:
+        loop, stop = self._loop, self._stop
+        if loop is not None and stop is not None:
+            loop.call_soon_threadsafe(stop.set)
+        self._thread.join(30)
+
+    async def _run(self) -> None:
+        self._loop, self._stop = asyncio.get_running_loop(), asyncio.Event()
+        tasks = [asyncio.create_task(self._hold(k)) for k in range(self.count)]
+        await self._stop.wait()
+        for task in tasks:
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        await asyncio.sleep(0.1)  # the transports' closing callbacks run before the loop ends
+
+    async def _hold(self, k: int) -> None:
+        """One session after another from `sources[k]`, each held until the server closes it."""
+        assert self._stop is not None
+        while not self._stop.is_set() and self.opens < MAX_OPENS:
+            self.opens += 1
+            client = Client(self.url, timeout=self.timeout_s)
+            closed = asyncio.Event()
+            try:
+                await self._open(client, self.sources[k % len(self.sources)], closed)
+                self.held += 1
+                if self.held >= self.count:
+                    self.full.set()
+                try:
+                    await closed.wait()
+                finally:
+                    self.held -= 1
+                self.closed_by_server += 1
+                self.evicted.set()
+            except (OSError, TimeoutError, ua.UaError):
+                self.failures += 1
+                await asyncio.sleep(0.1)  # refused: not in a tight loop
+            finally:
+                client.uaclient.disconnect_socket()
+
+    async def _open(self, client: Client, source: str, closed: asyncio.Event) -> None:
+        uaclient = client.uaclient
+        host, port = split_url(self.url)
+        uaclient._set_state(UaClientState.CONNECTING)  # asyncua's connect_socket, bound here
+        await asyncio.wait_for(
+            asyncio.get_running_loop().create_connection(
+                uaclient._make_protocol, host, port, local_addr=(source, 0)
+            ),
+            self.timeout_s,
+        )
+        uaclient._set_state(UaClientState.SOCKET_OPEN)
+        assert uaclient.protocol is not None
+        uaclient.protocol.on_connection_lost = lambda _exc: closed.set()
+        await client.send_hello()
+        await client.open_secure_channel()
+        await client.create_session()
+        if self.activate:
+            await client.activate_session()
 
 
 async def client_certificate(folder: Path, name: str) -> tuple[Path, Path]:

@@ -24,7 +24,15 @@ from app.line.opcua.server import OpcUaServer
 from app.line.statedir import StateDir
 from app.sim.line_run import SimulatedLineRun
 from tests.opcua.conftest import ROOT, child, machine_node, own_server
-from tests.opcua.peers import client_certificate
+from tests.opcua.peers import (
+    basic256sha256,
+    client_certificate,
+    error_code,
+    hello_message,
+    open_channel_message,
+    read_until_closed,
+    split_url,
+)
 
 
 @pytest.mark.parametrize(
@@ -91,7 +99,7 @@ def test_a_secure_server_trusts_only_the_certificates_in_its_folder(
     with OpcUaServer(line.service, settings):
         assert paths.opcua_cert.is_file()
         assert stat.S_IMODE(paths.opcua_key.stat().st_mode) == 0o600
-        with pytest.raises(ua.uaerrors.BadCertificateUntrusted):
+        with pytest.raises(ua.uaerrors.BadSecurityChecksFailed):  # at its OpenSecureChannel
             asyncio.run(_read_state(url, cert, key, paths.opcua_cert))
         rejected = list(paths.opcua_rejected.glob("*.der"))
         assert [p.read_bytes() for p in rejected] == [cert.read_bytes()]
@@ -101,6 +109,27 @@ def test_a_secure_server_trusts_only_the_certificates_in_its_folder(
         rejected[0].rename(paths.opcua_trusted / rejected[0].name)  # an administrator trusts it
         state = asyncio.run(_read_state(url, cert, key, paths.opcua_cert))
     assert state in ("idle", "measuring")
+
+
+def test_an_untrusted_certificate_is_refused_when_it_opens_the_secure_channel(
+    line: SimulatedLineRun, tmp_path: Path
+) -> None:
+    """OPC 10000-6 6.7.4: the receiver checks that the sender's certificate is trusted first
+    and answers Bad_SecurityChecksFailed (before: asyncua opened the channel with any
+    certificate and refused only its CreateSession). The certificate is kept in rejected/."""
+    url, settings = own_server(line, security_policy="Basic256Sha256")
+    paths = StateDir(line.service.settings.state_dir)
+    cert, key = asyncio.run(client_certificate(tmp_path, "intruder"))
+    with OpcUaServer(line.service, settings):
+        policy = asyncio.run(basic256sha256(cert, key, paths.opcua_cert))
+        with socket.create_connection(split_url(url)) as s:
+            s.sendall(hello_message(url) + open_channel_message(policy))
+            answer = read_until_closed(s)
+    assert answer[:4] == b"ACKF"
+    assert answer[28:32] == b"ERRF", answer[28:32]  # no OpenSecureChannel response
+    assert error_code(answer[28:]) == ua.StatusCodes.BadSecurityChecksFailed
+    rejected = [p.read_bytes() for p in paths.opcua_rejected.glob("*.der")]
+    assert cert.read_bytes() in rejected
 
 
 @pytest.mark.parametrize(

@@ -288,7 +288,7 @@ def main() -> int:
         os.nice(NICE)
     out = Out(sys.stdout.buffer)
     sys.stdout = sys.stderr  # a stray print must not break the channel
-    from app.line.opcua.guard import QuietAsyncua
+    from app.line.opcua.refusals import QuietAsyncua
 
     handler = ToService(out)
     handler.addFilter(QuietAsyncua())  # a peer's connections cannot flood the service's log

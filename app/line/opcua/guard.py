@@ -17,22 +17,20 @@ and one log line, then closes the connection:
 So a connection holds at most one chunk (64 KiB by default) here and RECEIVE_BUFFER_BYTES in
 the kernel, and the messages it assembles are bounded by `limits()`.
 
-The connections (`admit`): at most MAX_PER_PEER from one peer address and MAX_CONNECTIONS in
-all. A connection that would pass either cap takes the place of the least advanced one without
-an activated session (of that peer, or of the whole server: no Hello yet < Hello < secure
-channel < session not activated, a connection in its first HELLO_GRACE_S counted as one whose
-Hello came; then the peer with the most connections, then the oldest), which gets
-Bad_TcpServerTooBusy (after a hold: `evict`); the new one is refused only when every one has an
-activated session. So a peer that holds sockets and reopens each one the server closes keeps
-evicting its own idle sockets, never a client that is further on. A connection must send its
-Hello within HELLO_S, have its secure channel open within CHANNEL_S and its session activated
-within ACTIVATION_S of its accept (Bad_Timeout). A server that offers only a signing-and-
-encrypting policy refuses an OpenSecureChannel with SecurityPolicy None
-(Bad_SecurityPolicyRejected), so it never opens an unencrypted channel (asyncua 2.1.0 falls
-back to its None policy).
+The connections and sessions (app.line.opcua.admission): at most MAX_PER_PEER from one peer
+address and MAX_CONNECTIONS in all, each of them; a connection or an activated session beyond a
+cap takes the place of the one (pending, or activated) heard from least recently of that peer
+or of the peer with the most, which gets Bad_TcpServerTooBusy after a hold (`evict`). A
+connection must send its Hello within HELLO_S, have its secure channel open within CHANNEL_S and
+its session activated within ACTIVATION_S of its accept (Bad_Timeout). A server that offers only
+a signing-and-encrypting policy refuses an OpenSecureChannel with SecurityPolicy None
+(Bad_SecurityPolicyRejected), so it never opens an unencrypted channel (asyncua 2.1.0 falls back
+to its None policy), and one whose sender certificate is not trusted (Bad_SecurityChecksFailed,
+OPC 10000-6 6.7.4: before decrypting anything; asyncua checks the certificate only at
+CreateSession).
 
-Every refusal is counted (`REFUSALS.counts`) and logged at most once per LOG_EVERY_S per peer
-host (with the number refused meanwhile), asyncua's own records of a peer's connection too
+Every refusal is counted and logged by app.line.opcua.refusals (at most one line per peer host
+per 10 s, and a few lines in all), asyncua's own records of a peer's connection too
 (`QuietAsyncua`, on the server process's log handler), so a flood cannot flood the log.
 `install(server)` puts the guard in front of an asyncua Server before its start.
 """
@@ -40,14 +38,11 @@ host (with the number refused meanwhile), asyncua's own records of a peer's conn
 from __future__ import annotations
 
 import asyncio
-import logging
 import math
 import random
 import socket
 import struct
 import time
-from collections import Counter
-from collections.abc import Sequence
 from typing import Any
 
 from asyncua import Server, ua
@@ -58,24 +53,22 @@ from asyncua.server import binary_server_asyncio
 from asyncua.server import server as server_module
 from asyncua.ua.ua_binary import header_from_binary, struct_from_binary, uatcp_to_binary
 
-log = logging.getLogger("rvis.line.opcua")
+from app.line.opcua.admission import MAX_CONNECTIONS, admit, seat_session
+from app.line.opcua.refusals import REFUSALS, host_of
+from app.line.opcua.security import TrustValidator
 
 HEADER = struct.Struct("<3scI")  # MessageType, ChunkType, MessageSize (OPC 10000-6, 7.1.2)
 HELLO_MAX_BYTES = 8 + 5 * 4 + 4 + 4096  # header, 5 UInt32, the endpoint URL (<= 4096 bytes)
 CHUNK_BYTES = 65535  # the receive and send buffers (asyncua's default)
 MAX_MESSAGE_BYTES = 4 * 1024 * 1024  # a request of rvis's clients is a few kB
 RECEIVE_BUFFER_BYTES = 2 * 65536  # two chunks in flight (the kernel's, per connection)
-MAX_CONNECTIONS = 64  # a cell's clients: SCADA, MES, a historian, engineering tools
-MAX_PER_PEER = 16  # from one address (every client on the cell's computer is one: 127.0.0.1)
 HELLO_S = 2.0  # a connection that sent no Hello is closed this long after its accept
-HELLO_GRACE_S = 0.5  # ... and is evicted as one without a Hello only after this
 CHANNEL_S = 5.0  # ... without an open secure channel (an RSA handshake takes milliseconds)
 ACTIVATION_S = 10.0  # ... without an activated session
 MAX_HELD = 4 * MAX_CONNECTIONS  # evicted connections held open (unread) for HOLD_S
 HOLD_S = (1.0, 3.0)  # [s] the range an evicted connection's hold is drawn from
 _HOLD = random.Random(39)  # seeded: the same draws in every run
-LOG_EVERY_S = 10.0
-# how far a connection got (the least advanced is evicted first)
+# how far a connection got
 CONNECTED, HELLO, CHANNEL, SESSION, ACTIVE = range(5)
 DEADLINES = ((HELLO_S, HELLO, "no Hello"), (CHANNEL_S, CHANNEL, "no secure channel"),
              (ACTIVATION_S, ACTIVE, "no activated session"))  # fmt: skip
@@ -94,72 +87,7 @@ def limits() -> TransportLimits:
     )
 
 
-class Throttle:
-    """At most one line per key per LOG_EVERY_S: `due(key)` is None while it is quiet, else the
-    number of lines held back since the last one."""
-
-    def __init__(self) -> None:
-        self._last: dict[str, tuple[float, int]] = {}
-
-    def due(self, key: str) -> int | None:
-        now = time.monotonic()
-        last, quiet = self._last.get(key, (-math.inf, 0))
-        if now - last < LOG_EVERY_S:
-            self._last[key] = (last, quiet + 1)
-            return None
-        self._last[key] = (now, 0)
-        if len(self._last) > 1024:  # many keys: forget the quiet ones
-            self._last = {k: v for k, v in self._last.items() if now - v[0] < LOG_EVERY_S}
-        return quiet
-
-
-class RefusalLog:
-    """Every refusal counted by its status (`counts`); one log line per peer host per
-    LOG_EVERY_S (with how many were refused meanwhile)."""
-
-    def __init__(self) -> None:
-        self._throttle = Throttle()
-        self.counts: Counter[str] = Counter()
-
-    def note(self, host: str, text: str, kind: str = "refused") -> None:
-        self.counts[kind] += 1
-        quiet = self._throttle.due(host)
-        if quiet is None:
-            return
-        more = f" ({quiet} more refused from {host} in the last {LOG_EVERY_S:g} s)" if quiet else ""
-        log.warning("OPC UA connection from %s refused: %s%s", host, text, more)
-
-
-REFUSALS = RefusalLog()
 HELD: set[GuardedProtocol] = set()  # evicted, not read, closed after HOLD_S
-
-
-class QuietAsyncua(logging.Filter):
-    """asyncua's records in the server process, rate-limited like the guard's: one about a
-    peer's connection (its first argument the peer's address, as in "Refusing connection from
-    %s: at max_connections=%s") goes to REFUSALS; any other at most once per message per
-    LOG_EVERY_S, with the number held back."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self._throttle = Throttle()
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        if not record.name.startswith("asyncua"):
-            return True
-        args = record.args if isinstance(record.args, tuple) else ()
-        if args and isinstance(args[0], tuple):
-            REFUSALS.note(_host(args[0]), f"asyncua: {record.getMessage()}", "asyncua")
-            return False
-        quiet = self._throttle.due(f"{record.name}:{record.msg}")
-        if quiet is None:
-            return False
-        if quiet:
-            record.msg = (
-                f"{record.getMessage()} ({quiet} more like it in the last {LOG_EVERY_S:g} s)"
-            )
-            record.args = None
-        return True
 
 
 def error_message(code: int, reason: str) -> bytes:
@@ -178,20 +106,12 @@ class GuardedProtocol(binary_server_asyncio.OPCUAProtocol):
         self._hello = False
         self._refused = False
         self.host = ""
-        self.accepted_at = time.monotonic()
+        self.heard_at = time.monotonic()  # its last message (admission: the least heard goes)
         self._deadline: asyncio.TimerHandle | None = None
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        self.host = _host(transport.get_extra_info("peername"))
-        clients = [c for c in self.clients if isinstance(c, GuardedProtocol)]
-        full = admit(clients, self.host)
-        if full:
-            self._refused = True
-            REFUSALS.note(self.host, f"BadTcpServerTooBusy: {full}", "too busy")
-            assert isinstance(transport, asyncio.WriteTransport)
-            transport.write(error_message(ua.StatusCodes.BadTcpServerTooBusy, full[:200]))
-            transport.close()
-            return
+        self.host = host_of(transport.get_extra_info("peername"))
+        admit([c for c in self.clients if isinstance(c, GuardedProtocol)], self.host)
         super().connection_made(transport)
         self._deadline = asyncio.get_running_loop().call_later(HELLO_S, self._check, 0)
 
@@ -213,13 +133,9 @@ class GuardedProtocol(binary_server_asyncio.OPCUAProtocol):
             return CHANNEL
         return ACTIVE if session.is_activated() else SESSION
 
-    def rank(self, now: float) -> int:
-        """`progress()` as eviction sees it: in its first HELLO_GRACE_S a connection counts as
-        one whose Hello came (it may be on its way: a client's Hello follows its connect at
-        once, but the server reads it only after the accepts queued before it)."""
-        progress = self.progress()
-        young = now - self.accepted_at < HELLO_GRACE_S
-        return HELLO if progress == CONNECTED and young else progress
+    def active(self) -> bool:
+        """Whether its session is activated."""
+        return self.progress() == ACTIVE
 
     def _check(self, stage: int) -> None:
         """Closed when it did not get as far as DEADLINES[stage] asks by then."""
@@ -233,10 +149,11 @@ class GuardedProtocol(binary_server_asyncio.OPCUAProtocol):
             self._deadline = asyncio.get_running_loop().call_later(wait_s, self._check, stage + 1)
 
     def evict(self, why: str) -> None:
-        """Its slot given to a new connection at once. The socket itself is held, unread, for
-        HOLD_S (drawn at random, so that the evicted do not come back all at once; MAX_HELD such
-        at most, beyond closed at once), and only then gets ERR and is closed: a peer that
-        reopens every connection the server closes cannot make the evictions run in a loop."""
+        """Its place given to a newer connection or session at once. The socket itself is
+        held, unread, for HOLD_S (drawn at random, so that the evicted do not come back all at
+        once; MAX_HELD such at most, beyond closed at once), and only then gets ERR and is
+        closed: a peer that reopens every connection the server closes cannot make the
+        evictions run in a loop."""
         if self in self.clients:
             self.clients.remove(self)
         if len(HELD) >= MAX_HELD or self.transport is None:
@@ -255,7 +172,7 @@ class GuardedProtocol(binary_server_asyncio.OPCUAProtocol):
 
     def _release(self) -> None:
         HELD.discard(self)
-        self._close(ua.StatusCodes.BadTcpServerTooBusy, "evicted for a new connection")
+        self._close(ua.StatusCodes.BadTcpServerTooBusy, "evicted for a newer client")
 
     def data_received(self, data: bytes) -> None:
         if self._refused or self.transport is None:
@@ -273,6 +190,7 @@ class GuardedProtocol(binary_server_asyncio.OPCUAProtocol):
             del self._pending[:size]
             header = header_from_binary(frame)
             self._hello = True
+            self.heard_at = time.monotonic()
             try:
                 self.messages.put_nowait((header, frame))
             except asyncio.QueueFull:
@@ -305,7 +223,7 @@ class GuardedProtocol(binary_server_asyncio.OPCUAProtocol):
 
     def refuse(self, code: int, text: str, kind: str = "message") -> None:
         """ERR with `code`, one (rate-limited) log line, and the connection closed."""
-        REFUSALS.note(_host(self.peer_name), f"{ua.StatusCode(code).name}: {text}", kind)
+        REFUSALS.note(host_of(self.peer_name), f"{ua.StatusCode(code).name}: {text}", kind)
         self._close(code, text)
 
     def _close(self, code: int, text: str) -> None:
@@ -318,54 +236,41 @@ class GuardedProtocol(binary_server_asyncio.OPCUAProtocol):
     async def _process_one_msg(self, header: Any, buf: Buffer) -> bool:
         if self._refused:
             return False
-        if header.MessageType == ua.MessageType.SecureOpen and self._unsecured_open(header, buf):
-            self.refuse(
-                ua.StatusCodes.BadSecurityPolicyRejected,
-                "an OpenSecureChannel with SecurityPolicy None on a secure-only endpoint",
-                "policy",
-            )
+        refusal = self._open_refusal(header, buf)
+        if refusal is not None:
+            self.refuse(*refusal)
             return False
+        was_active = self.active()
         try:
-            return bool(await super()._process_one_msg(header, buf))
+            going = bool(await super()._process_one_msg(header, buf))
         except Exception as exc:  # undecodable or out of sequence: never a traceback
             self.refuse(ua.StatusCodes.BadDecodingError, f"{type(exc).__name__}: {exc}")
             return False
+        if not was_active and self.active() and self in self.clients:
+            seat_session([c for c in self.clients if isinstance(c, GuardedProtocol)], self)
+        return going
 
-    def _unsecured_open(self, header: Any, buf: Buffer) -> bool:
-        """Whether this OpenSecureChannel asks for SecurityPolicy None (a new channel) when
-        the server does not offer it."""
+    def _open_refusal(self, header: Any, buf: Buffer) -> tuple[int, str, str] | None:
+        """Why an OpenSecureChannel for a new channel is refused before asyncua reads it (None:
+        it is not): SecurityPolicy None when the server does not offer it; a sender
+        certificate that is not trusted, checked before anything is decrypted (OPC 10000-6
+        6.7.4: Bad_SecurityChecksFailed, the reason only in the log)."""
+        if header.MessageType != ua.MessageType.SecureOpen:
+            return None
         if self.processor is None or self.processor._connection.is_open():
-            return False
-        if any(p.matches(SecurityPolicyNone.URI) for p in self.policies):
-            return False
+            return None  # a renewal: the channel's certificate was checked at its opening
         algorithm = struct_from_binary(ua.AsymmetricAlgorithmHeader, buf.copy(header.body_size))
-        return bool(algorithm.SecurityPolicyURI == SecurityPolicyNone.URI)
-
-
-def admit(clients: Sequence[GuardedProtocol], host: str) -> str:
-    """Room for a new connection from `host` among `clients` ("": admitted, the least advanced
-    connection without an activated session evicted when a cap is reached; else why not)."""
-    mine = [c for c in clients if c.host == host]
-    if len(mine) >= MAX_PER_PEER:
-        pool, why = mine, f"{host} holds {len(mine)} connections (at most {MAX_PER_PEER} a peer)"
-    elif len(clients) >= MAX_CONNECTIONS:
-        pool, why = (
-            list(clients),
-            f"the server holds {len(clients)} connections (at most {MAX_CONNECTIONS})",
-        )
-    else:
-        return ""
-    idle = [c for c in pool if c.progress() < ACTIVE]
-    if not idle:
-        return f"{why}, each with an activated session"
-    per_host = Counter(c.host for c in clients)
-    now = time.monotonic()
-    min(idle, key=lambda c: (c.rank(now), -per_host[c.host], c.accepted_at)).evict(why)
-    return ""
-
-
-def _host(peer: Any) -> str:
-    return str(peer[0]) if isinstance(peer, tuple) and peer else str(peer)
+        if algorithm.SecurityPolicyURI == SecurityPolicyNone.URI:
+            if any(p.matches(SecurityPolicyNone.URI) for p in self.policies):
+                return None
+            why = "an OpenSecureChannel with SecurityPolicy None on a secure-only endpoint"
+            return ua.StatusCodes.BadSecurityPolicyRejected, why, "policy"
+        validator = self.iserver.certificate_validator
+        if isinstance(validator, TrustValidator):
+            why = validator.channel_refusal(algorithm.SenderCertificate)
+            if why:
+                return ua.StatusCodes.BadSecurityChecksFailed, why, "certificate"
+        return None
 
 
 class GuardedBinaryServer(binary_server_asyncio.BinaryServer):
@@ -393,6 +298,7 @@ def install(server: Server) -> None:
     its BinaryServer inside `start()` by the name in its server module: that name is pointed at
     the guarded one (this process serves nothing else)."""
     server.limits = limits()
-    server.iserver.max_connections = MAX_CONNECTIONS  # never reached: `admit` makes room
+    # never reached: `admit` lets in MAX_CONNECTIONS + SPARE at most
+    server.iserver.max_connections = 2 * MAX_CONNECTIONS
     server.iserver.max_pending_activation_seconds = 0  # the guard's DEADLINES instead
     server_module.BinaryServer = GuardedBinaryServer

@@ -5,8 +5,10 @@
   (`opcua/server-cert.der`, key `opcua/server-key.pem` 0600; made again when expired or when
   the application URI changed). A client is accepted only with a certificate in
   `opcua/trusted/` (DER or PEM, the exact certificate: the usual OPC UA trust list; CA chains
-  are not followed); a refused one is written to `opcua/rejected/` so that an administrator
-  can move it to `trusted/` (it takes effect at the client's next connection).
+  are not followed), checked when the client opens its secure channel (the transport guard
+  asks `TrustValidator.channel_refusal`) and again at CreateSession; a refused one is written to
+  `opcua/rejected/` (MAX_REJECTED at most, the oldest removed) so that an administrator can
+  move it to `trusted/` (it takes effect at the client's next connection).
 - Anonymous sessions: on loopback always; beyond loopback only with `[opcua] allow_anonymous`
   (still over a trusted, encrypted channel). Otherwise a session needs an X509 user identity
   that is in `trusted/`. No user names and passwords.
@@ -47,6 +49,7 @@ log = logging.getLogger("rvis.line.opcua")
 
 CERT_DAYS = 5 * 365
 KEY_MODE = 0o600
+MAX_REJECTED = 100  # certificates kept in rejected/ (a peer can send any number)
 _CALLER: contextvars.ContextVar[str] = contextvars.ContextVar("opcua_caller", default="unknown")
 _CALL = ua.NodeId(ua.ObjectIds.CallRequest_Encoding_DefaultBinary)
 #: every request of a client that only reads: asyncua's user requests but Write
@@ -95,21 +98,59 @@ def common_name(der: bytes) -> str:
     return str(names[0].value) if names else cert.fingerprint(uacrypto.hashes.SHA1()).hex()
 
 
+def _listing(folder: Path) -> tuple[tuple[str, int, int], ...]:
+    """The files of `folder` as (name, mtime [ns], size): a change to any makes another."""
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return ()
+    out = []
+    for entry in entries:
+        try:
+            st = entry.stat()
+        except OSError:
+            continue
+        out.append((entry.name, st.st_mtime_ns, st.st_size))
+    return tuple(sorted(out))
+
+
+def first_certificate(data: bytes) -> bytes:
+    """The first certificate of a DER chain (a SenderCertificate may carry its issuers after it;
+    `data` itself when its length cannot be read)."""
+    if len(data) < 2 or data[0] != 0x30:
+        return data
+    if data[1] < 0x80:
+        return data[: 2 + data[1]]
+    n = data[1] & 0x7F
+    return data[: 2 + n + int.from_bytes(data[2 : 2 + n], "big")]
+
+
 class TrustList:
-    """The trusted client certificates (read at each connection), the rejected ones kept."""
+    """The trusted client certificates (read again whenever the folder changed, so a
+    certificate moved there takes effect at the next connection), the rejected ones kept."""
 
     def __init__(self, paths: StateDir) -> None:
         self.trusted, self.rejected = paths.opcua_trusted, paths.opcua_rejected
+        self._read: tuple[tuple[tuple[str, int, int], ...], frozenset[bytes]] | None = None
 
     def contains(self, der: bytes) -> bool:
-        return der in _der_files(self.trusted)
+        listing = _listing(self.trusted)
+        if self._read is None or self._read[0] != listing:
+            self._read = (listing, frozenset(_der_files(self.trusted)))
+        return der in self._read[1]
 
     def reject(self, der: bytes) -> None:
+        """`der` kept in rejected/ (once; at most MAX_REJECTED there, the oldest removed)."""
         name = x509.load_der_x509_certificate(der).fingerprint(uacrypto.hashes.SHA1()).hex()
         path = self.rejected / f"{common_name(der)} [{name}].der".replace("/", "_")
+        if path.is_file():
+            return
         try:
             self.rejected.mkdir(parents=True, exist_ok=True)
             path.write_bytes(der)
+            kept = sorted(self.rejected.glob("*.der"), key=lambda p: p.stat().st_mtime_ns)
+            for old in kept[:-MAX_REJECTED]:
+                old.unlink(missing_ok=True)
         except OSError as exc:
             log.warning("cannot keep the rejected certificate in %s: %s", self.rejected, exc)
 
@@ -141,7 +182,8 @@ class TrustedUsers:
 
 
 class TrustValidator:
-    """The client certificate at session creation: time range, application URI, trusted."""
+    """The client certificate when it opens its secure channel (`channel_refusal`: trusted) and
+    at session creation (time range, application URI, trusted)."""
 
     def __init__(self, trust: TrustList) -> None:
         self.trust = trust
@@ -164,6 +206,21 @@ class TrustValidator:
             )
             self.trust.reject(der)
             raise
+
+    def channel_refusal(self, sender: bytes | None) -> str:
+        """Why an OpenSecureChannel with this SenderCertificate is refused ("": it is not): a
+        certificate not in trusted/ (kept in rejected/), an unreadable one, none."""
+        if not sender:
+            return "an OpenSecureChannel without a sender certificate"
+        der = first_certificate(sender)
+        try:
+            name = common_name(der)
+        except ValueError as exc:
+            return f"an unreadable sender certificate: {exc}"
+        if self.trust.contains(der):
+            return ""
+        self.trust.reject(der)
+        return f"certificate {name!r} is not trusted (not in {self.trust.trusted.name}/)"
 
 
 POLICY_TYPES = {
