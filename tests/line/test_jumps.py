@@ -1,8 +1,8 @@
 """The one estimator on the service (`[service] detector = "glr"`, app.line.jumps): a knock of
 each kind during service is found, named, corrected and its suspect interval recorded from the
 last measurement before it to the correction; in approve mode the correction waits for the
-engineer; a sphere knocked alone holds the cell for its procedure. The cell knows the truth
-(the validation positions)."""
+engineer, across a restart of the service; a sphere knocked alone holds the cell for its
+procedure. The cell knows the truth (the validation positions)."""
 
 from __future__ import annotations
 
@@ -12,8 +12,16 @@ from typing import Any
 import pytest
 
 from app.config.line import RecalibSettings
+from fakes.devices import ClampCycle
 from fakes.truth import Knock
-from tests.line.helpers import knock_line, true_rms
+from tests.line.helpers import (
+    ISOTROPIC_NOISE,
+    SCALE,
+    knock_line,
+    line_settings,
+    make_line,
+    true_rms,
+)
 
 GROUP_OF = {"sensor": "sensor", "fixture": "fixture", "joint": "J2", "J3": "J3"}
 
@@ -115,3 +123,44 @@ def test_a_sphere_knocked_alone_holds_the_cell_for_its_procedure(tmp_path: Path)
         assert not corrections  # no parameter moved for a sphere that did
     finally:
         ln.close()
+
+
+@pytest.mark.slow
+def test_an_episode_waiting_for_its_approve_survives_a_restart(tmp_path: Path) -> None:
+    """The correction proposed (approve mode), the service stopped and started again on the
+    same state directory (the cell still knocked): the same jump in hand, its interval open,
+    its correction still pending; approved, the interval closes at it."""
+    recalib = RecalibSettings(mode="approve", estimator="batch", detector="glr")
+    ln, _, _ = knock_line(tmp_path, recalib)
+    try:
+        ln.start()
+        ln.windows(3, timeout_s=20.0)
+        ln.cell.set_timeline(ln.clock, knock=Knock.of_kind("sensor", ln.clock.monotonic()))
+        pending = ln.wait(_is("calibration", status="pending"), 40.0)
+        before = ln.service.status()
+    finally:
+        ln.close()
+    assert before["jump"] is not None and before["jump"]["group"] == "sensor"
+    cycle = ClampCycle(period_s=40.0, window_s=32.0, beat_s=0.5, time_scale=SCALE)
+    again = make_line(
+        tmp_path / "state",
+        cycle=cycle,
+        line=line_settings(window_s=32.0, slots_per_window=8),
+        recalib=recalib,
+        **ISOTROPIC_NOISE,
+    )
+    try:  # the same cell, knocked from its start (the knock's direction is the cell's seed's)
+        again.cell.set_timeline(again.clock, knock=Knock.of_kind("sensor", 0.0))
+        assert again.service.status()["jump"] == before["jump"]  # from the database, at once
+        again.start()
+        again.wait(_is("started"), 20.0)
+        status = again.service.status()
+        assert status["suspect_intervals"][-1]["state"] == "open"
+        assert status["pending_calibration"] == pending["id"]
+        reply = again.service.request("approve", {"calibration": pending["id"]}).result(10.0)
+        assert reply["ok"], reply
+        closed = again.wait(_is("suspect_interval", state="closed"), 40.0)
+        assert closed["id"] == before["suspect_intervals"][-1]["id"]
+        assert closed["end_version"] == reply["version"]
+    finally:
+        again.close()
