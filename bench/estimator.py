@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import math
 import statistics
 import sys
@@ -48,6 +49,8 @@ def shift(task: tuple[int, str, float, float]) -> dict[str, Any]:
     from app.sim.shift import ShiftSettings, run_shift
 
     seed, kind, knock_h, hours = task
+    logging.getLogger("rvis").addHandler(logging.NullHandler())  # the figures, not the records
+    logging.getLogger("rvis").propagate = False
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.process_time()
         r = run_shift(
