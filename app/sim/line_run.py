@@ -626,10 +626,14 @@ class SimulatedLineRun:
     def mark_suspect(self) -> None:
         """Each window record's body (the window the PLC opened last before the service's
         window began) and whether it is suspect: `rvis state suspects` lists it (an interval
-        may reach back, so once the windows are run)."""
-        store = self.service.store
-        listed = {b for s in store.suspects() for b in s["bodies"]}
-        rows = [(float(w["t"]), w["body_id"]) for w in store.windows()]
+        may reach back, so once the windows are run). Read from the state directory's database
+        (a service stopped by a signal meanwhile has closed its own connection)."""
+        store = Store.read_only(self.service.paths.db)
+        try:
+            listed = {b for s in store.suspects() for b in s["bodies"]}
+            rows = [(float(w["t"]), w["body_id"]) for w in store.windows()]
+        finally:
+            store.close()
         times = [t for t, _ in rows]
         for record, t_open in zip(self.summary.records, self._t_open, strict=True):
             k = bisect.bisect_right(times, t_open) - 1

@@ -51,7 +51,10 @@ def read_world(state: StateDir) -> dict[str, Any] | None:
     """The directory's record (None: none); InputError naming the file when it is damaged."""
     from app.formats.files import read_json
 
-    if not state.simulation.is_file():
+    try:
+        if not state.simulation.is_file():
+            return None
+    except OSError:  # a directory this user cannot read: the service's start says so
         return None
     doc = read_json(state.simulation)
     seed, geometric = doc.get("seed"), doc.get("geometric")
