@@ -180,7 +180,10 @@ def status_lines(status: dict[str, Any]) -> list[str]:
     from app.line.states import accuracy_text
 
     lines.append(f"accuracy            {accuracy_text(status)}")
-    lines += _drift_lines(status.get("drift"))
+    if status.get("detector", "charts") == "charts":
+        lines += _drift_lines(status.get("drift"))
+    else:
+        lines.append(f"step                {_jump_text(status.get('jump'))}")
     lines.append(f"measurements        {m.get('ok', 0)} ok, {m.get('rejected', 0)} rejected")
     counters = status.get("counters")
     if counters:
@@ -212,6 +215,18 @@ def _device_lines(devices: dict[str, Any] | None) -> list[str]:
         if d.get("last_error")
     ]
     return out
+
+
+def _jump_text(ep: dict[str, Any] | None) -> str:
+    """The one estimator's jump in hand (app.line.jumps), in words."""
+    if not ep:
+        return "none found (the one estimator watches every measurement)"
+    what = ep.get("what") or "finding what moved"
+    if ep.get("closed"):
+        return f"{ep.get('text', '')}: {what}; corrected, its group watched"
+    done = ep.get("corrected_version")
+    state = f"corrected by version {done}, confirming" if done else "correcting"
+    return f"{ep.get('text', '')}: {what}; {state}"
 
 
 def _drift_lines(drift: dict[str, Any] | None) -> list[str]:

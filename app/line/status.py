@@ -124,6 +124,7 @@ def _status(svc: LineHost) -> dict[str, Any]:
         "pending": _pending_status(svc),
         "now_utc": utc_text(svc.clock.time()),  # the service's clock (sim: ahead)
         "flagged_step": None if svc.step is None else svc.step.to_json(),
+        "detector": svc.settings.recalib.detector,  # what watches for a knock
         "jump": svc.episode,  # a jump the one estimator found, in hand (app.line.jumps)
         "suspect_intervals": [
             suspect_json(r) for r in svc.store.suspects(last=SUSPECTS_IN_STATUS)

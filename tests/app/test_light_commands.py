@@ -224,6 +224,15 @@ def test_plain_status_says_the_step_temperature_devices_and_drift(
     service.status = {**service.status, "cell_temp_c": None}
     assert "cell temperature    unknown" in rvis("status", "--state-dir", str(state.root)).out
     assert run.heavy() == set()
+    # the one estimator watching (no drift charts): the jump in hand, in words
+    jump = {"text": "step of the cell since measurement 31 (p < 1e-12)", "what": "sensor mount"}
+    service.status = {**service.status, "detector": "glr", "jump": jump | {"corrected_version": 4}}
+    lines = rvis("status", "--state-dir", str(state.root)).out.splitlines()
+    assert not [x for x in lines if x.startswith("drift ")]
+    assert (
+        "step                step of the cell since measurement 31 (p < 1e-12): sensor mount;"
+        " corrected by version 4, confirming" in lines
+    )
 
 
 def test_ctl_without_a_service(state: StateDir) -> None:
