@@ -27,7 +27,7 @@ a signing-and-encrypting policy refuses an OpenSecureChannel with SecurityPolicy
 (Bad_SecurityPolicyRejected), so it never opens an unencrypted channel (asyncua 2.1.0 falls back
 to its None policy), and one whose sender certificate is not trusted (Bad_SecurityChecksFailed,
 OPC 10000-6 6.7.4: before decrypting anything; asyncua checks the certificate only at
-CreateSession).
+CreateSession); a refused OpenSecureChannel's socket is held like an evicted one.
 
 Every refusal is counted and logged by app.line.opcua.refusals (at most one line per peer host
 per 10 s, and a few lines in all), asyncua's own records of a peer's connection too
@@ -149,17 +149,20 @@ class GuardedProtocol(binary_server_asyncio.OPCUAProtocol):
             self._deadline = asyncio.get_running_loop().call_later(wait_s, self._check, stage + 1)
 
     def evict(self, why: str) -> None:
-        """Its place given to a newer connection or session at once. The socket itself is
-        held, unread, for HOLD_S (drawn at random, so that the evicted do not come back all at
-        once; MAX_HELD such at most, beyond closed at once), and only then gets ERR and is
-        closed: a peer that reopens every connection the server closes cannot make the
-        evictions run in a loop."""
+        """Its place given to a newer connection or session at once; the socket held before
+        its ERR (`refuse(..., hold=True)`)."""
+        self.refuse(ua.StatusCodes.BadTcpServerTooBusy, f"evicted: {why}", "evicted", hold=True)
+
+    def _hold(self, code: int, text: str) -> None:
+        """Out of the connections at once, then held, unread, for HOLD_S (drawn at random, so
+        that the held do not come back all at once; MAX_HELD such at most, beyond closed at
+        once), and only then ERR and closed: a peer that reopens every connection the server
+        closes cannot make the evictions (or the refusals of its channels) run in a loop."""
         if self in self.clients:
             self.clients.remove(self)
         if len(HELD) >= MAX_HELD or self.transport is None:
-            self.refuse(ua.StatusCodes.BadTcpServerTooBusy, f"evicted: {why}", "evicted")
+            self._close(code, text)
             return
-        REFUSALS.note(self.host, f"BadTcpServerTooBusy: evicted: {why}", "evicted")
         self._refused = True
         self._pending.clear()
         self.transport.pause_reading()
@@ -167,12 +170,12 @@ class GuardedProtocol(binary_server_asyncio.OPCUAProtocol):
         if self._deadline is not None:
             self._deadline.cancel()
         self._deadline = asyncio.get_running_loop().call_later(
-            _HOLD.uniform(*HOLD_S), self._release
+            _HOLD.uniform(*HOLD_S), self._release, code, text
         )
 
-    def _release(self) -> None:
+    def _release(self, code: int, text: str) -> None:
         HELD.discard(self)
-        self._close(ua.StatusCodes.BadTcpServerTooBusy, "evicted for a newer client")
+        self._close(code, text)
 
     def data_received(self, data: bytes) -> None:
         if self._refused or self.transport is None:
@@ -221,10 +224,14 @@ class GuardedProtocol(binary_server_asyncio.OPCUAProtocol):
         negotiated = getattr(processor, "_limits", None) if processor is not None else None
         return int(getattr(negotiated, "max_recv_buffer", CHUNK_BYTES) or CHUNK_BYTES)
 
-    def refuse(self, code: int, text: str, kind: str = "message") -> None:
-        """ERR with `code`, one (rate-limited) log line, and the connection closed."""
+    def refuse(self, code: int, text: str, kind: str = "message", hold: bool = False) -> None:
+        """ERR with `code`, one (rate-limited) log line, and the connection closed (after a
+        hold when `hold`)."""
         REFUSALS.note(host_of(self.peer_name), f"{ua.StatusCode(code).name}: {text}", kind)
-        self._close(code, text)
+        if hold:
+            self._hold(code, text)
+        else:
+            self._close(code, text)
 
     def _close(self, code: int, text: str) -> None:
         self._refused = True
@@ -237,8 +244,8 @@ class GuardedProtocol(binary_server_asyncio.OPCUAProtocol):
         if self._refused:
             return False
         refusal = self._open_refusal(header, buf)
-        if refusal is not None:
-            self.refuse(*refusal)
+        if refusal is not None:  # held too: a peer reopening at once would loop on it
+            self.refuse(*refusal, hold=True)
             return False
         was_active = self.active()
         try:

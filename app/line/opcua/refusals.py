@@ -104,9 +104,11 @@ class RefusalLog:
         late_s = now - (self._window_t + LOG_EVERY_S)  # the summary waits for a refusal
         window = f"{LOG_EVERY_S:g} s"
         when = f"the last {window}" if late_s < 1 else f"the {window} to {late_s:.0f} s ago"
+        n = len(self._untold)
         log.warning(
-            "OPC UA connections refused from %d more addresses in %s: %d refused in all (%s)",
-            len(self._untold),
+            "OPC UA connections refused from %d more address%s in %s: %d refused in all (%s)",
+            n,
+            "" if n == 1 else "es",
             when,
             sum(self._untold.values()),
             named,
