@@ -52,6 +52,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.linalg import cho_factor, cho_solve
 from scipy.stats import chi2 as chi2_dist
 
 from calib.attribution import SEVERAL
@@ -158,12 +159,8 @@ class CellState:
         """The estimate of the full parameter vector now (the window's measurements included)."""
         d, _ = self.posterior()
         x = self.x_ref.copy()
-        x[[self.model_index(n) for n in self.active]] += d[: self.L]
+        x[[INDEX[n] for n in self.active]] += d[: self.L]
         return x
-
-    @staticmethod
-    def model_index(name: str) -> int:
-        return INDEX[name]
 
     def _drift_sd(self, name: str) -> float:
         s = self.settings
@@ -270,33 +267,33 @@ class CellState:
         n = len(self.rows)
         if n == 0:
             return Verdict(False, "", None, None, math.nan, 1.0)
-        v, Sigma, _ = self._window()
-        from scipy.linalg import cho_factor, cho_solve
-
-        factor = cho_factor(Sigma, lower=True, check_finite=False)
-        W = cho_solve(factor, np.eye(3 * n), check_finite=False).reshape(n, 3, n, 3)
-        Wv = cho_solve(factor, v, check_finite=False)
-        chi2_all = float(v @ Wv)
-        nis = chi2_all / (3 * n)
-        fits: list[JumpFit] = []
-        for h in self.hyps:
-            best = self._best_onset(h, W, Wv.reshape(n, 3), n)
-            if best is not None:
-                fits.append(best)
+        W, Wv, chi2_all = self._inverse()
+        fits = [f for h in self.hyps if (f := self._best_onset(h, W, Wv, range(n))) is not None]
         threshold = self.settings.false_alarm / max(n * len(self.hyps), 1)
-        return self._decide(fits, threshold, nis, chi2_all, n)
+        return self._decide(fits, threshold, chi2_all / (3 * n), chi2_all, n)
 
-    def _best_onset(self, h: Hypothesis, W: F64, Wv: F64, n: int) -> JumpFit | None:
-        """Hypothesis `h` at every onset k of the window at once: with the signature blocks
+    def _inverse(self) -> tuple[F64, F64, float]:
+        """The window's inverse covariance in blocks (n, 3, n, 3), it times the innovations
+        (n, 3), and the innovations' chi-square under no jump."""
+        n = len(self.rows)
+        v, Sigma, _ = self._window()
+        factor = cho_factor(Sigma, lower=True, check_finite=False)
+        W = cho_solve(factor, np.eye(3 * n), check_finite=False)
+        Wv = cho_solve(factor, v, check_finite=False)
+        return W.reshape(n, 3, n, 3), Wv.reshape(n, 3), float(v @ Wv)
+
+    def _best_onset(self, h: Hypothesis, W: F64, Wv: F64, onsets: Sequence[int]) -> JumpFit | None:
+        """Hypothesis `h` at the onsets k of the window (at once: with the signature blocks
         G_i (3, d), a_k = sum_{i >= k} G_i' (S^-1 v)_i and F_k = sum_{i, j >= k} G_i' S^-1_ij
-        G_j (suffix sums); the onset with the best score."""
+        G_j, suffix sums); the onset with the best score (None: none shows it)."""
+        n = len(self.rows)
         Gb = np.stack([r.G[h.name] for r in self.rows])  # (n, 3, d)
         C = np.einsum("iad,iajb,jbe->ijde", Gb, W, Gb)  # (n, n, d, d)
         F = C[::-1, ::-1].cumsum(0).cumsum(1)[::-1, ::-1]
         a = np.einsum("iad,ia->id", Gb, Wv)[::-1].cumsum(0)[::-1]  # (n, d)
         seen = np.abs(Gb).reshape(n, -1).max(axis=1)[::-1].cumsum()[::-1] > 0
         best: JumpFit | None = None
-        for k in range(n):
+        for k in onsets:
             if not seen[k]:
                 break
             Fp, rank = _pinv_rank(F[k, k])
@@ -359,31 +356,8 @@ class CellState:
         n = len(self.rows)
         if h is None or not 0 <= onset < n:
             return None
-        v, Sigma, _ = self._window()
-        L = np.asarray(np.linalg.cholesky(Sigma), dtype=np.float64)
-        return self._fit(h, onset, L, _solve_lower(L, v), n)
-
-    def _fit(self, h: Hypothesis, k: int, L: F64, w: F64, n: int) -> JumpFit | None:
-        G = np.concatenate(
-            [
-                r.G[h.name] if i >= k else np.zeros_like(r.G[h.name])
-                for i, r in enumerate(self.rows)
-            ],
-            axis=0,
-        )
-        if not np.any(G):
-            return None
-        Gw = _solve_lower(L, G)
-        a = Gw.T @ w
-        F = Gw.T @ Gw
-        Fp, rank = _pinv_rank(F)
-        if rank == 0:
-            return None
-        llr = float(a @ Fp @ a)
-        m = 3 * (n - k)
-        p = float(chi2_dist.sf(llr, rank))
-        score = llr - rank * math.log(max(m, 2))
-        return JumpFit(h, k, self.rows[k].obs.ref, llr, rank, p, score, Fp @ a, Fp)
+        W, Wv, _ = self._inverse()
+        return self._best_onset(h, W, Wv, [onset])
 
     def _decide(
         self, fits: list[JumpFit], threshold: float, nis: float, chi2_all: float, n: int
@@ -453,16 +427,10 @@ class CellState:
             r.v0 = r.v0 - r.G[h.name] @ fit.theta
         if h.target is None:
             cols = [self.active.index(p) for p in h.params if p in self.active]
-            idx = [self.model_index(p) for p in h.params]
+            idx = [INDEX[p] for p in h.params]
             self.x_ref[idx] += fit.theta
             self.P[np.ix_(cols, cols)] += fit.cov[: len(cols), : len(cols)]
         self.rows = keep
-
-
-def _solve_lower(L: F64, b: F64) -> F64:
-    from scipy.linalg import solve_triangular
-
-    return np.asarray(solve_triangular(L, b, lower=True, check_finite=False))
 
 
 def _pinv_rank(F: F64, rtol: float = 1e-9) -> tuple[F64, int]:
