@@ -141,7 +141,7 @@ class JumpWatch:
                 "text": text,
             }
             adopted = svc.accuracy_suspect_id
-            if ep is not None and ep.get("suspect_id") is not None and _open(svc, ep):
+            if ep is not None and ep.get("suspect_id") is not None and _interval_open(svc, ep):
                 sid = int(ep["suspect_id"])  # the correction did not hold: the same interval
             elif adopted is not None and svc.store.suspect(adopted) is not None:
                 # the cell could not vouch since before it was found: one interval for one
@@ -175,7 +175,7 @@ class JumpWatch:
         r = svc.settings.recalib
         if best.onset_ref < int(ep["onset_id"]):  # dated earlier with more measurements
             self._redate(ep, best.onset_ref)
-        n_after = len(svc.store.measurements(since_id=best.onset_ref - 1))
+        n_after = len(self.state.rows[best.onset :])  # the onset is in the window
         seen_mm = self._innovation_mm(best.onset)
         if seen_mm > r.maintenance_step_mm:
             self._beyond(ep, v, seen_mm)
@@ -189,11 +189,11 @@ class JumpWatch:
                 sphere_moved_text(h.target, size, evidence, r.maintenance_step_mm)
             )
             return
-        ready = v.isolated != SEVERAL and 3 * len(self.state.rows[best.onset :]) - best.dof >= (
-            REDUNDANCY  # the estimate checked by one measurement more than it needs
-        )
-        if ready and self._determined(best, self._seen_mm(best)) and self._holds(best):
-            self._describe(ep, h.name, self._seen_mm(best), f"{h.label} {best.size_text()}")
+        # the estimate checked by one measurement more than it needs
+        ready = v.isolated != SEVERAL and 3 * n_after - best.dof >= REDUNDANCY
+        moved_mm = self._seen_mm(best)
+        if ready and self._determined(best, moved_mm) and self._holds(best):
+            self._describe(ep, h.name, moved_mm, f"{h.label} {best.size_text()}")
             if svc.pending_calibration is None and not svc.recalibrator.busy:
                 svc.recal_done(self._correction(best, n_after))
             return
@@ -248,7 +248,7 @@ class JumpWatch:
         with svc.store.batch():
             ep["onset_id"] = onset
             svc.drift_onset_id = onset
-            if _open(svc, ep):
+            if _interval_open(svc, ep):
                 svc.store.update_suspect(int(ep["suspect_id"]), **fields)
             svc.save_state()
 
@@ -378,7 +378,7 @@ class JumpWatch:
         )
         with svc.store.batch():
             sid = int(ep["suspect_id"])
-            if _open(svc, ep):
+            if _interval_open(svc, ep):
                 text = str((svc.store.suspect(sid) or {}).get("text", ""))
                 svc.store.update_suspect(
                     sid,
@@ -453,7 +453,7 @@ class JumpWatch:
     def interval_open(self) -> bool:
         """An episode's suspect interval is open."""
         ep = self.episode
-        return ep is not None and _open(self.svc, ep)
+        return ep is not None and _interval_open(self.svc, ep)
 
     def handling(self) -> bool:
         """An episode is open and not given up to a full recalibration."""
@@ -476,7 +476,7 @@ class JumpWatch:
         self.estimate.load_json(doc.get("carried_moments"))
 
 
-def _open(svc: LineHost, ep: dict[str, Any]) -> bool:
+def _interval_open(svc: LineHost, ep: dict[str, Any]) -> bool:
     row = svc.store.suspect(int(ep["suspect_id"]))
     return row is not None and row["t_end"] is None
 
