@@ -78,15 +78,23 @@ def test_a_knock_is_found_named_corrected_and_its_interval_recorded(
         ln.close()
 
 
+APPROVE = RecalibSettings(mode="approve", estimator="batch", detector="glr")
+
+
+def _proposed(ln: Any) -> dict[str, Any]:
+    """Three windows, then a sensor knock: the `calibration` event of its correction, pending
+    the engineer's approve."""
+    ln.start()
+    ln.windows(3, timeout_s=20.0)
+    ln.cell.set_timeline(ln.clock, knock=Knock.of_kind("sensor", ln.clock.monotonic()))
+    return ln.wait(_is("calibration", status="pending"), 40.0)
+
+
 @pytest.mark.slow
 def test_in_approve_mode_the_correction_waits_for_the_engineer(tmp_path: Path) -> None:
-    recalib = RecalibSettings(mode="approve", estimator="batch", detector="glr")
-    ln, x_good, val = knock_line(tmp_path, recalib)
+    ln, x_good, val = knock_line(tmp_path, APPROVE)
     try:
-        ln.start()
-        ln.windows(3, timeout_s=20.0)
-        ln.cell.set_timeline(ln.clock, knock=Knock.of_kind("sensor", ln.clock.monotonic()))
-        pending = ln.wait(_is("calibration", status="pending"), 40.0)
+        pending = _proposed(ln)
         ln.windows(1, timeout_s=20.0)
         status = ln.service.status()
         assert status["jump"] is not None and status["jump"]["group"] == "sensor"
@@ -130,13 +138,9 @@ def test_an_episode_waiting_for_its_approve_survives_a_restart(tmp_path: Path) -
     """The correction proposed (approve mode), the service stopped and started again on the
     same state directory (the cell still knocked): the same jump in hand, its interval open,
     its correction still pending; approved, the interval closes at it."""
-    recalib = RecalibSettings(mode="approve", estimator="batch", detector="glr")
-    ln, _, _ = knock_line(tmp_path, recalib)
+    ln, _, _ = knock_line(tmp_path, APPROVE)
     try:
-        ln.start()
-        ln.windows(3, timeout_s=20.0)
-        ln.cell.set_timeline(ln.clock, knock=Knock.of_kind("sensor", ln.clock.monotonic()))
-        pending = ln.wait(_is("calibration", status="pending"), 40.0)
+        pending = _proposed(ln)
         before = ln.service.status()
     finally:
         ln.close()
@@ -146,7 +150,7 @@ def test_an_episode_waiting_for_its_approve_survives_a_restart(tmp_path: Path) -
         tmp_path / "state",
         cycle=cycle,
         line=line_settings(window_s=32.0, slots_per_window=8),
-        recalib=recalib,
+        recalib=APPROVE,
         **ISOTROPIC_NOISE,
     )
     try:  # the same cell, knocked from its start (the knock's direction is the cell's seed's)

@@ -206,7 +206,9 @@ class SessionHolder:
         for task in tasks:
             task.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
-        await asyncio.sleep(0.1)  # the transports' closing callbacks run before the loop ends
+        await asyncio.sleep(
+            0.1
+        )  # sleep-ok: the transports' closing callbacks run before the loop ends
 
     async def _hold(self, k: int) -> None:
         """One session after another from `sources[k]`, each held until the server closes it."""
@@ -228,7 +230,7 @@ class SessionHolder:
                 self.evicted.set()
             except (OSError, TimeoutError, ua.UaError):
                 self.failures += 1
-                await asyncio.sleep(0.1)  # refused: not in a tight loop
+                await asyncio.sleep(0.1)  # sleep-ok: a refused peer retries, not in a tight loop
             finally:
                 client.uaclient.disconnect_socket()
 
