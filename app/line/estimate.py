@@ -100,7 +100,7 @@ class CellEstimate:
             self._moments = self.state.moments()
         active = svc.model.default_active()
         P0 = self._prior(active)
-        rows = [r for r in svc.store.measurements(last=4 * svc.settings.recalib.jump_window)]
+        rows = svc.store.measurements(last=4 * svc.settings.recalib.jump_window)
         mine = [r for r in rows if r.get("params_version") == svc.version]
         t0 = float(mine[0]["t"]) if mine else svc.clock.time()
         self.state = CellState(
