@@ -169,12 +169,16 @@ class WindowLoop:
         if body.writer is None:
             return
         written, why = body.export()
-        self._alarm_while(
-            AlarmCode.RESULTS_DIR,
-            why,
-            f"results directory not writable ({why}): the bodies' files wait in the database"
-            " and are written when it is",
-        )
+        active = bool(svc.store.active_alarms(AlarmCode.RESULTS_DIR))
+        if why and not active:
+            svc.alarm(
+                AlarmCode.RESULTS_DIR,
+                f"results directory not writable ({why}): the bodies' files wait in the"
+                " database and are written when it is",
+                "medium",
+            )
+        elif not why and active:
+            svc.clear_alarms(AlarmCode.RESULTS_DIR)
         if written:
             svc.bus.emit("results_written", {"files": written})
 
@@ -369,23 +373,17 @@ class WindowLoop:
         why = svc.watch.temperature()[1]
         if bool(why) == self._temperature_bad:
             return  # nothing changed since the last poll: no query
-        self._alarm_while(
-            AlarmCode.TEMPERATURE,
-            why,
-            f"{why}: no cell temperature; measurements are stored without one and the thermal"
-            " term is left out until a plausible value returns",
-        )
-        self._temperature_bad = bool(why)
-
-    def _alarm_while(self, code: AlarmCode, why: str, message: str) -> None:
-        """`code`'s medium alarm raised (`message`) while there is a reason `why`, cleared once
-        there is none."""
-        svc = self.svc
-        active = bool(svc.store.active_alarms(code=code))
+        active = svc.store.active_alarms(code=AlarmCode.TEMPERATURE)
         if why and not active:
-            svc.alarm(code, message, "medium")
+            svc.alarm(
+                AlarmCode.TEMPERATURE,
+                f"{why}: no cell temperature; measurements are stored without one and the"
+                " thermal term is left out until a plausible value returns",
+                "medium",
+            )
         elif not why and active:
-            svc.clear_alarms(code)
+            svc.clear_alarms(AlarmCode.TEMPERATURE)
+        self._temperature_bad = bool(why)
 
     def _store_clamped(self) -> None:
         """The windows the PLC opened since the last poll, each with the body clamped in it
