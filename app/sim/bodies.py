@@ -39,6 +39,7 @@ from fakes.body import (
 )
 from fakes.cell import SimulatedCell
 from fakes.line import SimLine
+from fakes.render_sensor import TrueSensor
 from fakes.render_sheet import render_feature_sweep
 from vision.sensor_model import SensorModel
 from vision.stripe import extract_sweep
@@ -105,16 +106,32 @@ class SimulatedBodies:
         T_body_feature[:3, 3] = f.position_mm
         T_camera_feature = np.linalg.inv(T_part_sensor) @ self.T_part_body @ T_body_feature
         nominal = self.plan.feature(f.id)
-        commands = np.asarray(view.commands_v, dtype=float)
-        frames = render_feature_sweep(
-            T_camera_feature, f.kind, f.size_mm, nominal.thickness_mm, self.cell.sensor, rng,
-            commands,
-        )  # fmt: skip
         assert self.vision_model is not None
-        points, frame_of = triangulate_sweep(
-            extract_sweep(frames, "fast"), commands, self.vision_model
-        )
-        return [points[frame_of == k] for k in range(len(commands))]
+        return rendered_profiles(
+            T_camera_feature, f.kind, f.size_mm, nominal.thickness_mm, self.cell.sensor,
+            self.vision_model, rng, np.asarray(view.commands_v, dtype=float),
+        )  # fmt: skip
+
+
+def rendered_profiles(
+    T_camera_feature: F64,
+    kind: str,
+    size_mm: tuple[float, ...],
+    thickness_mm: float,
+    sensor: TrueSensor,
+    model: SensorModel,
+    rng: np.random.Generator,
+    commands_v: F64,
+) -> list[F64]:
+    """The rendered path of one sweep: the true sensor records the sweep at commands_v over the
+    feature posed at T_camera_feature (fakes.render_sheet), and the vision pipeline turns the
+    frames into its profiles in the sensor frame with `model` (stripe extraction,
+    triangulation), as the real sensor's SweepFeatureSensor does."""
+    frames = render_feature_sweep(
+        T_camera_feature, kind, size_mm, thickness_mm, sensor, rng, commands_v
+    )
+    points, frame_of = triangulate_sweep(extract_sweep(frames, "fast"), commands_v, model)
+    return [points[frame_of == k] for k in range(len(commands_v))]
 
 
 def true_value(body: TrueBody, c: Characteristic, plan: FeaturePlan) -> float:
