@@ -171,13 +171,17 @@ def _run(ctx: Any, journal: Any, as_json: bool, say: Any) -> int:
 
 
 def _finish(journal: Any, as_json: bool, code: int) -> int:
-    from app.commission.report import to_json, write_report
+    """The report written; its JSON printed (`--json`), else its headline and where it is."""
+    from app.commission.report import counts_text, headline, headline_lines, to_json, write_report
     from app.formats.files import dumps_json
 
     md, _ = write_report(journal)
     if as_json:
         print(dumps_json(to_json(journal), indent=2))
     else:
+        print(counts_text(journal))
+        for line in headline_lines(headline(journal))[2:-1]:  # the bullets, as plain text
+            print(line.replace("**", "").replace("`", ""))
         print(f"report: {md}")
     return code
 

@@ -70,7 +70,7 @@ def register(subparsers: Any) -> None:
     mea.set_defaults(func=run_measure)
     ver = sub.add_parser(
         "verify",
-        help="the sensor's acceptance test on the cell (VDI/VDE 2634-2: PF, PS, SD)",
+        help="the sensor's acceptance test on the cell (adapted from VDI/VDE 2634-2: PF, PS, SD)",
         description="Measure one of the cell's spheres at 9 positions across the sensor's "
         "measuring volume (the robot moves the sensor without turning it) and hold the "
         "probing errors form PF and size PS and the sphere-spacing error SD to [sensor] "

@@ -58,6 +58,38 @@ POSITIONS = (
 )
 
 
+#: why the step does not run on the simulated line's geometric path (no images, no sweep's
+#: points: PF and PS have nothing to be measured on)
+GEOMETRIC_NOT_RUN = (
+    "geometric path: the simulated sensor measures no images, so PF, PS and SD cannot be"
+    " measured (a rendered run measures them: `rvis sensor verify --sim`)"
+)
+
+#: what the report says of the test: how it departs from VDI/VDE 2634-2, the figures, the
+#: frame of the positions (the step's results `method`, `legend`)
+METHOD = (
+    "adapted from VDI/VDE 2634 Part 2: one of the cell's certified spheres (not a ball bar"
+    " or a plate of spheres) is moved by the robot to 9 positions across the sensor's"
+    " measuring volume, the sensor keeping its orientation; SD's reference distance is the"
+    " robot's motion on the calibrated model (not a calibrated length), so SD's limit is"
+    " widened by the robot's share: the 95 % quantile of the largest |SD| the robot's pose"
+    " repeatability alone gives at the views measured (ISO 14253-1: a limit checked with an"
+    " uncertain reference); PF and PS, which no robot motion enters, are held to their"
+    " limits as set"
+)
+LEGEND = {
+    "PF": "probing error form: the range of the radial distances of a sweep's points from"
+    " the least-squares sphere with free radius (at most 0.3 % of the points left out); the"
+    " largest over the positions",
+    "PS": "probing error size: the free-fit diameter minus the certified diameter; the"
+    " largest magnitude over the positions",
+    "SD": "sphere-spacing error: the measured minus the reference distance between the"
+    " sphere's centres at two positions; the largest magnitude over the pairs",
+    "positions": "x_mm, y_mm, z_mm: where the sphere's centre was put, in the sensor frame"
+    " (origin at the camera's projection centre, z along the optical axis toward the"
+    " scene, x along the image's columns, y along its rows)",
+}
+
 #: the checks of the figures, as the report and the journal name them (`figure_checks` adds
 #: what each is the largest of, and where)
 CHECK_NAMES = {
@@ -168,7 +200,7 @@ def verify(ctx: Context, x_full: F64, sensor_model: SensorModel) -> StepResult:
         return r
     sensor = ctx.sphere_sensor(sensor_model)
     if isinstance(sensor, GeometricSensor):  # the simulated line's fast path: no images
-        r.results["not applicable"] = "the geometric sensor measures no images (run rendered)"
+        r.not_run = GEOMETRIC_NOT_RUN
         return r
     taken = measure_views(ctx, [(target, q) for q in qs], sensor, "acceptance")
     n = len(POSITIONS)
@@ -214,11 +246,14 @@ def verify(ctx: Context, x_full: F64, sensor_model: SensorModel) -> StepResult:
     r.files.append(ACCEPTANCE_FILE)
     f = acc.figures
     r.results = {
+        "method": METHOD,
+        "legend": dict(LEGEND),
         "sphere": target,
         "pf_mm": f["PF"],
         "ps_mm": f["PS"],
         "sd_mm": f["SD"],
         "sd_pairs": len(acc.sd_mm),
+        "sd_limit_mm": limits.of("SD"),
         "sd_robot_mm": sd_robot,
         "robot_repeatability_mm": cell.robot.repeatability_mm,
         "message": acc.message,

@@ -116,11 +116,14 @@ def holds(name: str, ok: bool, detail: str = "") -> Check:
 @dataclass
 class StepResult:
     """What a step returns: its checks, the figures the report shows, the files it wrote
-    (relative to the commission folder)."""
+    (relative to the commission folder); `not_run`: why the step did not run here (a step
+    that cannot run on this path, e.g. the acceptance's rendered sweeps on the simulated
+    line's geometric path): journalled and reported as "not run", never as passed."""
 
     checks: list[Check] = field(default_factory=list)
     results: dict[str, Any] = field(default_factory=dict)
     files: list[str] = field(default_factory=list)
+    not_run: str = ""
 
     @property
     def passed(self) -> bool:

@@ -1,6 +1,7 @@
 """The commissioning's journal, `STATE_DIR/commission/journal.json`: how it was started (the
 set-up: cell file, simulated or not, seed) and every step run so far with its checks, results
-and files, replaced atomically after each step. A step counts as done once it passed; a failed
+and files, replaced atomically after each step. A step counts as done once it passed, or once it
+found it cannot run on this path (`not run`, with its reason: never counted as passed); a failed
 or interrupted step runs again next time.
 
 A step is journalled as `started` before it runs: found so at the next run, it was interrupted
@@ -23,6 +24,10 @@ from app.line.statedir import JOURNAL_NAME
 
 PASSED, FAILED, STARTED = "passed", "failed", "started"
 INTERRUPTED = "interrupted"  # an earlier run found `started`
+#: a step that cannot run on this path (StepResult.not_run, its reason in the results under
+#: NOT_RUN_KEY): done, so the procedure goes on, but counted and reported apart from passed
+NOT_RUN = "not run"
+NOT_RUN_KEY = "not_run"
 
 
 @dataclass(frozen=True)
@@ -84,9 +89,20 @@ class Journal:
         record = self.steps.get(name)
         return record is not None and record.status == PASSED
 
+    def not_run(self, name: str) -> str | None:
+        """Why step `name` did not run (None: it ran, or has not been reached)."""
+        record = self.steps.get(name)
+        if record is None or record.status != NOT_RUN:
+            return None
+        return str(record.results.get(NOT_RUN_KEY) or "not applicable here")
+
+    def done(self, name: str) -> bool:
+        """Passed, or found not to run on this path: the procedure goes on past it."""
+        return self.passed(name) or self.not_run(name) is not None
+
     def next_step(self) -> str | None:
-        """The first step not passed yet (None: all passed)."""
-        return next((s for s in self.procedure.names if not self.passed(s)), None)
+        """The first step not done yet (None: every step passed or could not run here)."""
+        return next((s for s in self.procedure.names if not self.done(s)), None)
 
     def start(self, name: str, started_utc: str) -> None:
         """Journal that step `name` starts now (its earlier runs kept)."""

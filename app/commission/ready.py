@@ -47,6 +47,8 @@ def ready(ctx: Context) -> StepResult:
     write_text(state.cell, dumps_cell(cell, f"written by rvis commission from {ctx.cfg.source}"))
     version = _apply_once(ctx)
     r.results["version"] = version
+    # the limit the service holds the cell's U95 to, as written into cell.toml
+    r.results["accuracy_limit_mm"] = cell.service.accuracy_limit_mm
     # `rvis run --state-dir S` reads S/cell.toml, S/plan.json and S/sensor.toml
     r.results["run"] = f"rvis run --state-dir {shlex.quote(str(state.root))}"
     if ctx.truth is not None:  # the simulated line: its own devices, the same cell (seed)

@@ -1,7 +1,11 @@
 """The commissioning report, `commission/commission.md` and `commission/commission.json`,
-rewritten from the journal after every step: what was set up, each step's checks against their
-limits (with their units; shares in per cent with their counts), its figures and files, how
-many times it ran and why it ran again (an earlier run interrupted or failed), and what is left.
+rewritten from the journal after every step: what was set up, the steps passed and those that
+did not run here (counted apart, with why), the headline figures (the cell's U95 and what it
+is, the limit the service holds it to, VDA 5's ratio or why none, a tolerance that may be a
+half-range questioned, the workspace RMSE, the sensor acceptance), each step's checks against
+their limits (with their units; shares in per cent with their counts), its figures and files,
+how many times it ran and why it ran again (an earlier run interrupted or failed), and what is
+left.
 
 Figures are written whole, nested ones as sub-lists or tables; figures in millimetres (named
 `..._mm`) to a tenth of a micrometre, as the checks state them. The simulated line's truth
@@ -16,7 +20,15 @@ from pathlib import Path
 from typing import Any
 
 from app.commission.checks import MM, Check
-from app.commission.journal import INTERRUPTED, STARTED, Journal, StepRecord
+from app.commission.journal import (
+    FAILED,
+    INTERRUPTED,
+    NOT_RUN,
+    NOT_RUN_KEY,
+    STARTED,
+    Journal,
+    StepRecord,
+)
 from app.formats.files import dumps_json, write_text
 
 
@@ -36,10 +48,12 @@ def limit_of(c: Check) -> str:
 
 def check_line(c: Check) -> str:
     """A check as the console prints it: "ok   name: value (limit)", "FAIL ...", or the
-    figure alone when it is stated, not checked."""
+    figure alone when it is stated, not checked; a yes/no check (`holds`: its limit "yes")
+    without its limit ("FAIL every sphere in the export: missing P3, P4", not "... (yes)")."""
     if not c.checked:
         return f"     {c.name}: {format_value(c)}"
-    return f"{'ok  ' if c.ok else 'FAIL'} {c.name}: {format_value(c)} ({c.limit})"
+    limit = "" if c.limit == "yes" else f" ({c.limit})"
+    return f"{'ok  ' if c.ok else 'FAIL'} {c.name}: {format_value(c)}{limit}"
 
 
 def verdict(c: Check) -> str:
@@ -126,6 +140,13 @@ def status_of(rec: StepRecord) -> str:
     return INTERRUPTED if rec.status == STARTED else rec.status
 
 
+def status_text(rec: StepRecord) -> str:
+    """The status with a step's reason for not running ("not run: geometric path: ...")."""
+    if rec.status == NOT_RUN:
+        return f"{NOT_RUN}: {rec.results.get(NOT_RUN_KEY) or 'not applicable here'}"
+    return status_of(rec)
+
+
 def _runs(rec: StepRecord) -> str:
     """ "Run 3 times: interrupted (started ...), failed (started ...: checks ...), then passed."."""
     if not rec.earlier:
@@ -152,10 +173,116 @@ def _again(journal: Journal) -> str:
     return f"Run again: {', '.join(parts)}." if parts else ""
 
 
+def counts_text(journal: Journal) -> str:
+    """ "9 of 10 steps passed, 1 not run (acceptance)": passed and not run counted apart."""
+    names = journal.procedure.names
+    passed = [s for s in names if journal.passed(s)]
+    not_run = [s for s in names if journal.not_run(s) is not None]
+    head = f"{len(passed)} of {len(names)} steps passed"
+    return head + (f", {len(not_run)} not run ({', '.join(not_run)})" if not_run else "")
+
+
+def headline(journal: Journal) -> dict[str, Any]:
+    """The figures a reader wants first, from the steps that give them: the steps passed and
+    not run; the cell's U95 and what it is, the limit the service holds it to and its basis,
+    the tolerance as read and VDA 5's ratio (or why none), a tolerance questioned as a
+    possible half-range (the workspace step, app/commission/workspace.py; the limit as the
+    ready step wrote it when it ran); the workspace RMSE; the sensor acceptance's outcome;
+    a maintenance's workspace RMS before and after ({} of a procedure with none of them)."""
+    names = journal.procedure.names
+    out: dict[str, Any] = {
+        "steps": len(names),
+        "passed": sum(journal.passed(s) for s in names),
+        "not_run": {s: why for s in names if (why := journal.not_run(s)) is not None},
+    }
+    ws = journal.steps.get("workspace")
+    if ws is not None and ws.status != STARTED and "u95_mm" in ws.results:
+        w = ws.results
+        out |= {k: w[k] for k in _HEADLINE_KEYS if k in w}
+        ready = journal.steps.get("ready")
+        if ready is not None and "accuracy_limit_mm" in ready.results:
+            out["accuracy_limit_mm"] = ready.results["accuracy_limit_mm"]  # as written
+        out["workspace_rmse_mm"] = w.get("rmse_mm")
+        out["workspace_rmse_95_interval_mm"] = w.get("rmse_95_interval_mm")
+        out["workspace_positions"] = f"{w.get('measured')} of {w.get('positions')}"
+        if "true_rmse_mm" in w:
+            out["true_rmse_mm"] = w["true_rmse_mm"]
+    acc = journal.steps.get("acceptance")
+    if acc is not None and acc.status != STARTED:
+        if acc.status == NOT_RUN:
+            out["acceptance"] = f"not run: {acc.results.get(NOT_RUN_KEY)}"
+        elif "message" in acc.results:
+            verdict = "failed" if acc.status == FAILED else "passed"
+            out["acceptance"] = f"{verdict}: {acc.results['message']}"
+    return out
+
+
+#: the workspace step's results the headline repeats
+_HEADLINE_KEYS = (
+    "u95_mm",
+    "u95_what",
+    "accuracy_limit_mm",
+    "accuracy_limit_basis",
+    "tolerance_mm",
+    "tolerance",
+    "vda5_ratio",
+    "vda5_ratio_not_stated",
+    "tolerance_question",
+    "workspace_change",
+    "workspace_shown_worse",
+)
+
+
+def headline_lines(h: dict[str, Any]) -> list[str]:
+    """The headline as the report's first section (Markdown bullets; [] without figures)."""
+    lines = []
+    if "u95_mm" in h:
+        lines.append(f"- **U95 {h['u95_mm']:{MM}} mm**: {h['u95_what']}.")
+        lines.append(
+            f"- **Limit the service holds it to: {h['accuracy_limit_mm']:{MM}} mm**"
+            f" (`[service] accuracy_limit_mm`): {h['accuracy_limit_basis']}; a window whose U95"
+            " is above it is not vouched for (its bodies suspect)."
+        )
+        if "vda5_ratio" in h:
+            lines.append(
+                f"- **VDA 5 capability 2 U95 / T: {100 * h['vda5_ratio']:.1f} %** (at most 30 %);"
+                f" tolerance {h['tolerance']}."
+            )
+        else:
+            lines.append(
+                f"- **VDA 5 capability: not stated**: {h.get('vda5_ratio_not_stated')};"
+                f" tolerance {h['tolerance']}."
+            )
+        if "tolerance_question" in h:
+            lines.append(f"- **WARNING: {h['tolerance_question']}.**")
+        lo, hi = h.get("workspace_rmse_95_interval_mm") or (None, None)
+        interval = f" (95 % interval {lo:{MM}}-{hi:{MM}} mm)" if lo is not None else ""
+        truth = (
+            f"; the simulated cell's truth {h['true_rmse_mm']:{MM}} mm ({SIMULATION_ONLY})"
+            if "true_rmse_mm" in h
+            else ""
+        )
+        lines.append(
+            f"- Workspace RMSE {h['workspace_rmse_mm']:{MM}} mm{interval} at"
+            f" {h['workspace_positions']} positions{truth}."
+        )
+        if "workspace_change" in h:
+            warn = "**WARNING: " if h.get("workspace_shown_worse") else ""
+            lines.append(f"- {warn}{h['workspace_change']}{'**' if warn else ''}.")
+        if h["u95_mm"] > h["accuracy_limit_mm"]:
+            lines.append(
+                "- **WARNING: U95 is above the limit: the service starts this cell unable to"
+                " vouch for its windows (their bodies suspect) until its own measurements bring"
+                " U95 under the limit.**"
+            )
+    if "acceptance" in h:
+        lines.append(f"- Sensor acceptance: {h['acceptance']}.")
+    return ["## Headline", "", *lines, ""] if lines else []
+
+
 def markdown(journal: Journal) -> str:
     proc = journal.procedure
     names, titles = proc.names, proc.titles
-    done = [s for s in names if journal.passed(s)]
     nxt = journal.next_step()
     setup = ", ".join(f"{k} {v}" for k, v in journal.setup.items())
     lines = [
@@ -163,9 +290,9 @@ def markdown(journal: Journal) -> str:
         "",
         f"Set-up: {setup}.",
         "",
-        f"**{len(done)} of {len(names)} steps passed**"
-        + (f"; {proc.done}." if nxt is None else f"; next: `{nxt}`."),
+        f"**{counts_text(journal)}**" + (f"; {proc.done}." if nxt is None else f"; next: `{nxt}`."),
         "",
+        *headline_lines(headline(journal)),
         *([again, ""] if (again := _again(journal)) else []),
         "| # | step | status | checks passed | seconds | runs |",
         "|---|------|--------|---------------|---------|------|",
@@ -173,29 +300,34 @@ def markdown(journal: Journal) -> str:
     for i, name in enumerate(names, start=1):
         rec = journal.steps.get(name)
         if rec is None:
-            lines.append(f"| {i} | {name} | not run | | | |")
+            lines.append(f"| {i} | {name} | not run yet | | | |")
             continue
         checked = [c for c in rec.checks if c.checked]
         ok = sum(c.ok for c in checked)
+        counted = "-" if rec.status == NOT_RUN else f"{ok}/{len(checked)}"
         lines.append(
-            f"| {i} | {name} | {status_of(rec)} | {ok}/{len(checked)} | {rec.seconds:.1f} |"
+            f"| {i} | {name} | {cell(status_text(rec))} | {counted} | {rec.seconds:.1f} |"
             f" {len(rec.earlier) + 1} |"
         )
     for i, name in enumerate(names, start=1):
         rec = journal.steps.get(name)
         if rec is None:
             continue
-        lines += ["", f"## {i}. {titles[name]} ({name}): {status_of(rec)}", ""]
+        lines += ["", f"## {i}. {titles[name]} ({name}): {status_text(rec)}", ""]
         if rec.status == STARTED:
             lines.append(f"Started {rec.started_utc}; interrupted (no outcome): it runs again.")
+        elif rec.status == NOT_RUN:
+            lines.append(f"Started {rec.started_utc}, {rec.seconds:.1f} s; nothing checked.")
         else:
             lines.append(f"Started {rec.started_utc}, {rec.seconds:.1f} s.")
         if rec.earlier:
             lines.append(_runs(rec))
-        lines += ["", "| check | value | limit | ok |", "|---|---|---|---|"]
-        lines += [check_row(c) for c in rec.checks]
-        if rec.results:
-            lines += ["", *_results(rec.results)]
+        if rec.checks:
+            lines += ["", "| check | value | limit | ok |", "|---|---|---|---|"]
+            lines += [check_row(c) for c in rec.checks]
+        results = {k: v for k, v in rec.results.items() if k != NOT_RUN_KEY}
+        if results:
+            lines += ["", *_results(results)]
         if rec.files:
             lines += ["", "Files: " + ", ".join(f"`{f}`" for f in rec.files)]
     return "\n".join(lines) + "\n"
@@ -207,6 +339,7 @@ def to_json(journal: Journal) -> dict[str, Any]:
         "setup": journal.setup,
         "complete": journal.next_step() is None,
         "next_step": journal.next_step(),
+        "headline": headline(journal),
         "steps": [journal.steps[s].to_json() for s in names if s in journal.steps],
     }
 

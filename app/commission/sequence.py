@@ -8,7 +8,14 @@ from datetime import UTC, datetime
 
 from app.commission.checks import StepResult, holds
 from app.commission.context import Context, Declined
-from app.commission.journal import FAILED, PASSED, Journal, StepRecord
+from app.commission.journal import (
+    FAILED,
+    NOT_RUN,
+    NOT_RUN_KEY,
+    PASSED,
+    Journal,
+    StepRecord,
+)
 from app.commission.report import check_line, write_report
 from drivers.errors import DeviceError
 
@@ -23,6 +30,9 @@ def run_sequence(ctx: Context, journal: Journal) -> str | None:
         name = step.name
         if journal.passed(name):
             ctx.say(f"step {i}/{n} {name}: passed earlier")
+            continue
+        if (why := journal.not_run(name)) is not None:
+            ctx.say(f"step {i}/{n} {name}: not run earlier ({why})")
             continue
         ctx.ask(f"step {i}/{n} {name}: {step.title}: start?")
         ctx.say(f"step {i}/{n} {name}: {step.title} ...")
@@ -43,6 +53,9 @@ def run_sequence(ctx: Context, journal: Journal) -> str | None:
         if ctx.robot_s > robot0:  # the robot's time in the step (its motions and sweeps)
             result.results["robot_s"] = round(ctx.robot_s - robot0, 3)
         status = PASSED if result.passed else FAILED
+        if result.not_run and result.passed:  # it could not run here: said so, not "passed"
+            status = NOT_RUN
+            result.results[NOT_RUN_KEY] = result.not_run
         record = StepRecord(
             name,
             status,
@@ -56,7 +69,8 @@ def run_sequence(ctx: Context, journal: Journal) -> str | None:
         write_report(journal)
         for c in result.checks:
             ctx.say(f"    {check_line(c)}")
-        ctx.say(f"step {i}/{n} {name}: {status} in {seconds:.1f} s")
+        why = f": {result.not_run}" if status == NOT_RUN else ""
+        ctx.say(f"step {i}/{n} {name}: {status}{why} in {seconds:.1f} s")
         if status == FAILED:
             return name
     return None

@@ -34,7 +34,7 @@ STEPS = (
     CommissionStep("calibration", "First calibration", measuring.calibration),
     CommissionStep(
         "acceptance",
-        "Sensor acceptance (VDI/VDE 2634-2: PF, PS, SD)",
+        "Sensor acceptance (adapted from VDI/VDE 2634-2: PF, PS, SD)",
         acceptance.acceptance_step,
     ),
     CommissionStep(

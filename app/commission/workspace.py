@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -36,13 +37,75 @@ from app.formats.params import from_json
 from app.workspace import workspace_points
 from calib import candidates
 from calib.identify import Measurements
-from calib.uncertainty import VDA5_MAX_RATIO, accuracy_limit_mm, u95_mm
+from calib.uncertainty import DEFAULT_TOLERANCE_MM, VDA5_MAX_RATIO, accuracy_limit_mm, u95_mm
 from calib.validation import rmse
 
-#: VDA 5's usual limit of a measurement process's capability ratio 2U/T
-
-
 F64 = NDArray[np.float64]
+
+#: what the workspace step's `u95_mm` is (the report's headline says it with the figure)
+U95_WHAT = (
+    "the expanded uncertainty (95 %) of a point measured now, 3-D: the distance from a"
+    " point the cell measures to its true place is within it for 95 % of points; the upper"
+    " 95 % bound from the workspace positions' end-to-end errors (tracker against rvis, one"
+    " error per position): the accuracy statement the in-line service starts from"
+)
+
+
+def tolerance_note(tolerance_mm: float) -> str:
+    """What `[commission] tolerance_mm` is taken to be: the full range T of the features'
+    tolerance (+-0.5 mm is 1.0), or (0) not given."""
+    if tolerance_mm <= 0:
+        return (
+            "not given ([commission] tolerance_mm 0): no VDA 5 ratio is stated; the limit"
+            f" assumes T = {DEFAULT_TOLERANCE_MM:g} mm (+-{DEFAULT_TOLERANCE_MM / 2:g} mm)"
+        )
+    return (
+        f"T = {tolerance_mm:g} mm, the full range of the features' tolerance"
+        f" (+-{tolerance_mm / 2:g} mm; +-0.5 mm is 1.0)"
+    )
+
+
+def tolerance_question(tolerance_mm: float, u95: float) -> str:
+    """A tolerance_mm that may be a half-range, questioned ("" when it is not): whenever the
+    cell's U95 fails VDA 5 against it (2 U95 / T above 30 %), the reading of T decides the
+    verdict, and a half-range entered as T (0.5 for +-0.5 mm) doubles the ratio; the text
+    says what the ratio would be if T were twice the value given. A passing ratio is not
+    questioned (a half-range there makes the limit stricter, not the verdict wrong), but the
+    report always states T as +-T/2 (`tolerance_note`)."""
+    if tolerance_mm <= 0 or not np.isfinite(u95):
+        return ""
+    ratio = 2.0 * u95 / tolerance_mm
+    if ratio <= VDA5_MAX_RATIO:
+        return ""
+    doubled = ratio / 2.0
+    verdict = "would pass" if doubled <= VDA5_MAX_RATIO else "would still fail"
+    return (
+        f"check tolerance_mm: {tolerance_mm:g} mm is read as the full range T"
+        f" (+-{tolerance_mm / 2:g} mm), and the cell's U95 {u95:.4f} mm fails VDA 5 against it"
+        f" (2 U95 / T = {100 * ratio:.0f} % > {100 * VDA5_MAX_RATIO:.0f} %); if the features'"
+        f" tolerance is +-{tolerance_mm:g} mm, set tolerance_mm = {2 * tolerance_mm:g}"
+        f" (2 U95 / T = {100 * doubled:.0f} %: {verdict})"
+    )
+
+
+def accuracy_results(
+    u95: float, tolerance_mm: float, limit: tuple[float, str] | None = None
+) -> dict[str, Any]:
+    """The step's accuracy statement: the cell's U95 and what it is, the tolerance as read,
+    VDA 5's ratio 2 U95 / T or why none is stated, the question of a tolerance that may be a
+    half-range, and the limit the service holds U95 to with its basis (`limit`: the one in
+    force, else the one the commissioning writes: calib.uncertainty.accuracy_limit_mm, as the
+    ready step computes it)."""
+    out: dict[str, Any] = {"u95_mm": u95, "u95_what": U95_WHAT, "tolerance_mm": tolerance_mm}
+    out["tolerance"] = tolerance_note(tolerance_mm)
+    if tolerance_mm > 0:
+        out["vda5_ratio"] = 2.0 * u95 / tolerance_mm
+        if question := tolerance_question(tolerance_mm, u95):
+            out["tolerance_question"] = question
+    else:
+        out["vda5_ratio_not_stated"] = "no [commission] tolerance_mm (the features' tolerance)"
+    value, why = limit if limit is not None else accuracy_limit_mm(tolerance_mm, u95)
+    return out | {"accuracy_limit_mm": value, "accuracy_limit_basis": why}
 
 
 def rms_interval(d_mm: F64, rng: np.random.Generator, n_boot: int = 2000) -> tuple[float, float]:
@@ -79,7 +142,10 @@ def workspace_evidence_mm(path: Path) -> list[float]:
 
 
 def workspace_validation(
-    ctx: Context, positions: int | None = None, views_per_position: int = 1
+    ctx: Context,
+    positions: int | None = None,
+    views_per_position: int = 1,
+    limit: tuple[float, str] | None = None,
 ) -> StepResult:
     """Place, track and measure the validation sphere at each workspace position (`[commission]
     workspace_positions`, or `positions`), from `views_per_position` views each: the first a
@@ -87,7 +153,9 @@ def workspace_validation(
     view to view while the sphere stays put, then home. Each view is a stop of its own, so
     its error has its own share of the robot's repeatability (most of a calibrated cell's
     error): a position's views sample the error at a few seconds of robot time each where a
-    new position costs the trip from home and back and the engineer's placement."""
+    new position costs the trip from home and back and the engineer's placement. `limit`:
+    the accuracy limit in force with its basis (a maintenance keeps the commissioning's),
+    else the one the commissioning will write (`accuracy_results`)."""
     cell = ctx.cell()
     c = cell.commission
     if positions is not None:
@@ -176,12 +244,7 @@ def workspace_validation(
     # position's systematic share: counted as one, the bound errs on the safe side), and VDA
     # 5's 2U/T against the plant's tolerance when it is given
     u95 = u95_mm(by_position)
-    r.results["u95_mm"] = u95
-    if c.tolerance_mm > 0:
-        r.results["tolerance_mm"] = c.tolerance_mm
-        r.results["vda5_ratio"] = 2.0 * u95 / c.tolerance_mm
-        limit, why = accuracy_limit_mm(c.tolerance_mm, u95)
-        r.results |= {"accuracy_limit_mm": limit, "accuracy_limit_basis": why}
+    r.results |= accuracy_results(u95, c.tolerance_mm, limit)
     if ctx.truth is not None:  # the simulated line: the end-to-end truth at its 100 positions
         r.results["true_rmse_mm"] = ctx.truth.true_rmse_mm(model, x, ctx.sensor_model())
     # the error's figures with the check, in mm to 0.1 um; only the RMS has a limit

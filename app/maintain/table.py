@@ -28,7 +28,7 @@ _STEPS = {
         CommissionStep("handeye", "The sensor's mount on the spheres (hand-eye)", m.reidentify),
         CommissionStep(
             "acceptance",
-            "Sensor acceptance (VDI/VDE 2634-2: PF, PS, SD)",
+            "Sensor acceptance (adapted from VDI/VDE 2634-2: PF, PS, SD)",
             acceptance.acceptance_step,
         ),
         _WORKSPACE,

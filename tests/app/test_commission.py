@@ -114,7 +114,10 @@ def test_commissioning_resumes_after_a_kill_and_leaves_a_cell_ready_to_run(
     out = capsys.readouterr().out
     assert "step 6/10 calibration: passed earlier" in out and "step 10/10 ready: passed" in out
     report = json.loads((paths.commission / "commission.json").read_text())
-    assert report["complete"] and all(s["status"] == "passed" for s in report["steps"])
+    # the acceptance cannot run on the geometric path: said so, not counted as passed
+    statuses = {s["name"]: s["status"] for s in report["steps"]}
+    assert report["complete"] and statuses.pop("acceptance") == "not run"
+    assert all(status == "passed" for status in statuses.values())
     md = (paths.commission / "commission.md").read_text()  # each step that ran again says so
     started = journal["steps"][-1]["started_utc"]
     assert f"Run 2 times: interrupted (started {started}), then passed." in md
@@ -157,7 +160,7 @@ def test_commissioning_resumes_after_a_kill_and_leaves_a_cell_ready_to_run(
     assert (
         "Run again: calibration (after 1 interrupted run), validation (after 1 failed run)." in md
     )
-    assert "not applicable" in steps["acceptance"]["results"]  # no images on this path
+    assert steps["acceptance"]["results"]["not_run"].startswith("geometric path")  # no images
     assert steps["calibration"]["results"]["measurements"] == 24
     # the simulated PLC writes the cell temperature, and the commissioning cell says so: each
     # measurement carries it (a PLC that does not would give none, never 0 degC)
@@ -166,7 +169,17 @@ def test_commissioning_resumes_after_a_kill_and_leaves_a_cell_ready_to_run(
     temps = [float(r.rsplit(",", 1)[1]) for r in rows[1:]]
     assert all(15.0 < t < 30.0 for t in temps)
     md = (paths.commission / "commission.md").read_text()
-    assert "**10 of 10 steps passed**" in md and "| validation RMSE |" in md
+    assert "**9 of 10 steps passed, 1 not run (acceptance)**" in md and "| validation RMSE |" in md
+    assert "| 7 | acceptance | not run: geometric path" in md
+    # the headline, before the steps: the cell's U95 with what it is, the limit in force (as
+    # the ready step wrote it), VDA 5's ratio against the tolerance read as its full range
+    head = md.split("| # | step |")[0]
+    assert f"**U95 {ws['u95_mm']:.4f} mm**: the expanded uncertainty (95 %) of a point" in head
+    limit = load_cell(paths.cell).service.accuracy_limit_mm
+    assert f"**Limit the service holds it to: {limit:.4f} mm**" in head
+    assert f"**VDA 5 capability 2 U95 / T: {100 * ws['vda5_ratio']:.1f} %**" in head
+    assert "T = 1 mm, the full range of the features' tolerance (+-0.5 mm" in head
+    assert report["headline"]["accuracy_limit_mm"] == limit
 
     # the state directory, read the way the service reads it
     cfg = load_cell(paths.cell)
