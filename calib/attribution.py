@@ -152,6 +152,20 @@ class GroupFit:
         }
 
 
+def likelihood_words(margin: float) -> str:
+    """The BIC margin of the choice over the runner-up in words an operator reads (the figure
+    itself stays in `Attribution.to_json`'s `margin`), on Kass and Raftery's scale of 2 ln K
+    (1995): above 10 very strong evidence, 6-10 strong, 2-6 positive, below 2 not worth more
+    than a mention."""
+    if margin > 10:
+        return "far less likely"
+    if margin > 6:
+        return "much less likely"
+    if margin > 2:
+        return "less likely"
+    return "about as likely"
+
+
 @dataclass(frozen=True)
 class Attribution:
     """The candidates' fits (lowest BIC first, undetermined last), the `choice` (a group name
@@ -181,7 +195,8 @@ class Attribution:
         return rest[0] if rest else None
 
     def text(self) -> str:
-        """One line for an alarm: "sensor mount moved 0.31 mm / 0.050 deg, 3 measurements"."""
+        """One line for an alarm: "sensor mount moved 0.31 mm / 0.050 deg, 3 measurements;
+        part frame far less likely" (the BIC margin in words: `likelihood_words`)."""
         n = f"{self.n} measurement{'s' * (self.n != 1)}"
         c = self.chosen
         if self.choice == NONE:
@@ -192,7 +207,7 @@ class Attribution:
             why += "" if best is None else f"/{best.dof})"
             return f"several groups moved{why}, {n}: waiting for the full recalibration"
         other = self.runner_up
-        vs = "" if other is None else f"; next {other.group.label} by BIC {self.margin:.0f}"
+        vs = "" if other is None else f"; {other.group.label} {likelihood_words(self.margin)}"
         return f"{c.group.label} moved {c.size_text()}, {n}{vs}"
 
     def to_json(self) -> dict[str, object]:

@@ -114,3 +114,30 @@ def shown_worse(
     if sd == 0.0:
         return mean > 0.0
     return mean / (sd / math.sqrt(n)) > float(t_dist.ppf(confidence, n - 1))
+
+
+def larger_rms_bound(n: int, n_reference: int, confidence: float = CONFIDENCE) -> float:
+    """The ratio of the RMS of n 3-D error norms to that of n_reference others above which the
+    first are shown to have the larger per-coordinate sigma at `confidence`: sqrt of the F
+    distribution's quantile with 3 n and 3 n_reference degrees of freedom (each norm^2 carries
+    3); inf without errors on either side."""
+    from scipy.stats import f as f_dist
+
+    if n == 0 or n_reference == 0:
+        return math.inf
+    return math.sqrt(float(f_dist.ppf(confidence, 3 * n, 3 * n_reference)))
+
+
+def shown_larger_than(
+    norms_mm: Sequence[float], reference_mm: Sequence[float], confidence: float = CONFIDENCE
+) -> bool:
+    """The norms of n 3-D errors show a larger per-coordinate sigma than those of another,
+    independent set at `confidence` (a one-sided F test of their mean squares, unpaired: the
+    workspace validation after a maintenance against the one before it, at other positions)."""
+    if not norms_mm or not reference_mm:
+        return False
+    ms = math.fsum(float(e) ** 2 for e in norms_mm) / len(norms_mm)
+    ms_ref = math.fsum(float(e) ** 2 for e in reference_mm) / len(reference_mm)
+    if ms_ref == 0.0:
+        return ms > 0.0
+    return math.sqrt(ms / ms_ref) > larger_rms_bound(len(norms_mm), len(reference_mm), confidence)

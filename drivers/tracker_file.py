@@ -1,8 +1,8 @@
 """Tracker exports imported from CSV: ``tracker+file://targets.csv``.
 
 Header ``target,x_mm,y_mm,z_mm`` (the Targets CSV of DESIGN.md), optionally followed by
-``rms_mm,time_utc,temperature_c,pressure_hpa``. Points are in the part frame. A bad file is a
-DeviceConfigError naming the file, line (header = line 1) and field.
+``rms_mm,time_utc,temperature_c,pressure_hpa``. Points are in the part frame. A bad file is an
+ExportError (a DeviceConfigError) naming the file, line (header = line 1) and field.
 """
 
 from __future__ import annotations
@@ -22,21 +22,37 @@ REQUIRED = ("target", "x_mm", "y_mm", "z_mm")
 OPTIONAL_NUMBERS = ("rms_mm", "temperature_c", "pressure_hpa")
 
 
+class ExportError(DeviceConfigError):
+    """A bad tracker export: its message "file:line: field 'f': reason", and each part apart
+    (`path`, `line`, `field`: None where the problem has none; `reason`), so that a caller can
+    name the file the user gave rather than a copy of it."""
+
+    def __init__(
+        self, path: Path, reason: str, line: int | None = None, field: str | None = None
+    ) -> None:
+        self.path, self.reason, self.line, self.field = path, reason, line, field
+        where = str(path) if line is None else f"{path}:{line}"
+        super().__init__(
+            f"{where}: {reason}" if field is None else f"{where}: field '{field}': {reason}"
+        )
+
+
 def read_targets_csv(path: Path) -> dict[str, TrackerMeasurement]:
-    """Parse a tracker export; DeviceConfigError with file, line and field on any problem."""
+    """Parse a tracker export; ExportError (a DeviceConfigError) with file, line and field on
+    any problem."""
     try:
         text = path.read_text(encoding="utf-8-sig")
     except (OSError, UnicodeDecodeError) as exc:
-        raise DeviceConfigError(f"{path}: cannot read: {exc}") from exc
+        raise ExportError(path, f"cannot read: {exc}") from exc
     rows = csv.DictReader(text.splitlines())
     missing = [f for f in REQUIRED if f not in (rows.fieldnames or [])]
     if missing:
-        raise DeviceConfigError(f"{path}:1: field '{missing[0]}': missing from the header")
+        raise ExportError(path, "missing from the header", 1, missing[0])
     out: dict[str, TrackerMeasurement] = {}
     for line, row in enumerate(rows, start=2):
         out.update([_row(path, line, row, out)])
     if not out:
-        raise DeviceConfigError(f"{path}: no targets")
+        raise ExportError(path, "no targets")
     return out
 
 
@@ -50,17 +66,16 @@ def _row(
         try:
             value = float(raw)  # type: ignore[arg-type]
         except (TypeError, ValueError) as exc:
-            msg = f"{path}:{line}: field '{field}': not a number: {raw!r}"
-            raise DeviceConfigError(msg) from exc
+            raise ExportError(path, f"not a number: {raw!r}", line, field) from exc
         if not math.isfinite(value):
-            raise DeviceConfigError(f"{path}:{line}: field '{field}': not finite")
+            raise ExportError(path, "not finite", line, field)
         return value
 
     target = (row.get("target") or "").strip()
     if not target:
-        raise DeviceConfigError(f"{path}:{line}: field 'target': empty")
+        raise ExportError(path, "empty", line, "target")
     if target in seen:
-        raise DeviceConfigError(f"{path}:{line}: field 'target': duplicate {target!r}")
+        raise ExportError(path, f"duplicate {target!r}", line, "target")
     point = np.array([number("x_mm"), number("y_mm"), number("z_mm")])
     return target, TrackerMeasurement(
         target,

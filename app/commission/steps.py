@@ -28,7 +28,7 @@ from app.meta import provenance
 from app.planning import plan_to_json, run_plan
 from drivers import open_tracker
 from drivers.errors import DeviceError
-from drivers.tracker_file import OPTIONAL_NUMBERS, REQUIRED
+from drivers.tracker_file import OPTIONAL_NUMBERS, REQUIRED, ExportError, read_targets_csv
 from vision.errors import SensorFileError
 from vision.sensor_model import dumps_sensor_model, load_sensor_model
 
@@ -126,6 +126,7 @@ def spheres(ctx: Context) -> StepResult:
     ids = list(ctx.cfg.spheres_part_mm)
     export = ctx.path(TRACKER_EXPORT_FILE)
     if ctx.targets_file is not None:
+        _read_export(ctx.targets_file)  # a bad file named as the user gave it, not our copy
         export.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(ctx.targets_file, export)
         r.results["source"] = f"tracker export {ctx.targets_file}"
@@ -138,12 +139,14 @@ def spheres(ctx: Context) -> StepResult:
     r.files.append(export.name)
     try:
         tracker = open_tracker(f"tracker+file://{export}", max_rms_mm=1e6)
+    except ExportError as exc:
+        raise InputError(exc.reason, file=exc.path, line=exc.line, field=exc.field) from exc
     except DeviceError as exc:
         raise InputError(str(exc), file=export) from exc
     with tracker:
         known = set(tracker.targets())
         missing = [t for t in ids if t not in known]
-        r.checks.append(holds("every sphere in the export", not missing, ", ".join(missing)))
+        r.checks.append(export_check(ids, missing))
         found = {t: tracker.measure(t) for t in ids if t in known}
     positions = {t: m.point_mm for t, m in found.items()}
     r.results["spheres"] = {}
@@ -168,6 +171,22 @@ def spheres(ctx: Context) -> StepResult:
         write_targets(ctx.path(TARGETS_FILE), positions)
         r.files.append(TARGETS_FILE)
     return r
+
+
+def _read_export(path: Path) -> None:
+    """A tracker export read as the tracker+file:// driver reads it; InputError naming the
+    file once, with its line and field."""
+    try:
+        read_targets_csv(path)
+    except ExportError as exc:
+        raise InputError(exc.reason, file=path, line=exc.line, field=exc.field) from exc
+
+
+def export_check(ids: list[str], missing: list[str]) -> Check:
+    """Every sphere of the cell file in the tracker's export: "missing P3, P4" (of "all of P1,
+    P2, P3, P4") or "all 4"."""
+    value = f"missing {', '.join(missing)}" if missing else f"all {len(ids)}"
+    return Check("every sphere in the export", value, f"all of {', '.join(ids)}", not missing)
 
 
 def _measure_export(ctx: Context, ids: list[str], export: Path) -> None:

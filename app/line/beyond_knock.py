@@ -29,6 +29,8 @@ the alarm and closes the interval at its new version.
 
 from __future__ import annotations
 
+import math
+
 from calib.attribution import NONE, SEVERAL, Attribution
 
 #: windows in a row with every view rejected that mean the spheres are out of the sensor's
@@ -72,13 +74,20 @@ def beyond(a: Attribution, visible_mm: float, bound_mm: float) -> bool:
 
 
 def step_text(a: Attribution, visible_mm: float, bound_mm: float) -> str:
-    """The `maintenance` alarm's text for a step beyond a knock."""
+    """The `maintenance` alarm's text for a step beyond a knock: in an operator's words (the
+    attribution's BIC and chi2 stay in its event's JSON, `Attribution.to_json`)."""
     fit = a.chosen
+    n = f"{a.n} measurement{'s' * (a.n != 1)}"
     if a.choice == SEVERAL or fit is None:
-        return several_text(visible_mm, bound_mm, a.text())
-    return change_text(
-        fit.group.name, fit.group.label, a.text(), fit.size_text(), visible_mm, bound_mm
-    )
+        return several_text(visible_mm, bound_mm, f"no one group explains the {n}")
+    if len(fit.group.params) == 6:
+        size = f"{fit.translation_mm:.2f} mm / {fit.rotation_deg:.3f} deg"
+    else:
+        size = ", ".join(
+            f"{name} {math.degrees(v):+.4f} deg"
+            for name, v in zip(fit.group.params, fit.step, strict=True)
+        )
+    return change_text(fit.group.name, fit.group.label, n, size, visible_mm, bound_mm)
 
 
 def several_text(visible_mm: float, bound_mm: float, found: str = "") -> str:
@@ -94,15 +103,31 @@ def several_text(visible_mm: float, bound_mm: float, found: str = "") -> str:
     )
 
 
+#: what a 6-DoF group's own size ("3.205 mm / 0.9910 deg") is, said beside it: it is not
+#: the move at the measured spheres, the figure the bound is on (near one point of the field
+#: of view a sensor's shift and tilt are confounded; their effect at the spheres is not)
+_OWN_TERMS = {
+    "sensor": "the sensor frame's shift at its origin / its tilt, as fitted",
+    "fixture": "the part frame's shift at its origin / its turn, as fitted",
+}
+
+
 def change_text(
     group: str, label: str, found: str, size: str, visible_mm: float, bound_mm: float
 ) -> str:
-    """The `maintenance` alarm's text for a change of one group (`label`) beyond a knock:
-    `found` what the test found, `size` the change in the group's own terms."""
+    """The `maintenance` alarm's text for a change of one group (`label`) beyond a knock, each
+    magnitude once and said what it is: `size` the change in the group's own terms (a 6-DoF
+    group's shift / turn named as such), `visible_mm` the move of the measured spheres (what
+    the bound `bound_mm` is on); `found` what the test found beyond them (the measurements it
+    rests on), left out where it repeats `size`. The `likely ...` clause carries both figures
+    (app.line.maintenance_state reads it)."""
+    own = f" ({_OWN_TERMS.get(group, 'its shift / turn')})" if " mm / " in size else ""
+    extra = f", {found}" if found and size not in found else ""
     return (
-        f"a change of {visible_mm:.2f} mm at the measured spheres, beyond a knock's"
-        f" {bound_mm:g} mm: {found}; likely {event_of(group)} ({label} {size}); bodies are not"
-        f" measured with this cell: run `{procedure_of(group)}`"
+        f"a change beyond a knock; likely {event_of(group)}: {label} moved {size}{own},"
+        f" {visible_mm:.2f} mm at the measured spheres where a knock moves them at most"
+        f" {bound_mm:g} mm{extra}; bodies are not measured with this cell: run"
+        f" `{procedure_of(group)}`"
     )
 
 

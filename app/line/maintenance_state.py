@@ -56,20 +56,28 @@ def need_of(alarm: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
+#: a journal's statuses of a step done: passed, or found not to run on this path (the
+#: acceptance on the geometric path; app/commission/journal.py)
+_DONE = ("passed", "not run")
+
+
 def progress_of(folder: Path) -> dict[str, Any]:
-    """How far a procedure's journal got: the steps passed (names, in order), the step to run
-    next and its status in the journal (`started`: running now or interrupted; `failed`; None:
-    not run yet). The next step is the first one journalled and not passed, else the report's
-    `next_step` (the journal lists only the steps run so far)."""
+    """How far a procedure's journal got: the steps passed (names, in order), those that could
+    not run on this path (`not_run`), the step to run next and its status in the journal
+    (`started`: running now or interrupted; `failed`; None: not run yet). The next step is the
+    first one journalled and not done, else the report's `next_step` (the journal lists only
+    the steps run so far)."""
     journal = _read(folder / JOURNAL_NAME)
     steps = [s for s in journal.get("steps") or () if isinstance(s, dict)]
     passed = [str(s.get("name")) for s in steps if s.get("status") == "passed"]
-    current = next((s for s in steps if s.get("status") != "passed"), None)
+    not_run = [str(s.get("name")) for s in steps if s.get("status") == "not run"]
+    current = next((s for s in steps if s.get("status") not in _DONE), None)
     if current is not None:
         nxt, status = current.get("name"), current.get("status")
     else:
         nxt, status = _read(folder / MAINTENANCE_REPORT_JSON).get("next_step"), None
-    return {"steps_passed": len(passed), "passed": passed, "next_step": nxt, "next_status": status}
+    out = {"steps_passed": len(passed), "passed": passed, "next_step": nxt, "next_status": status}
+    return out | ({"not_run": not_run} if not_run else {})
 
 
 def _read(path: Path) -> dict[str, Any]:
@@ -164,6 +172,8 @@ def progress_text(progress: Mapping[str, Any] | None) -> str:
         return "its journal unknown"
     k, nxt = progress.get("steps_passed", 0), progress.get("next_step")
     head = f"{k} step{'' if k == 1 else 's'} passed"
+    if progress.get("not_run"):
+        head += f", {len(progress['not_run'])} not run ({', '.join(progress['not_run'])})"
     if nxt is None:
         return f"{head}, none run yet" if not k else f"{head}, every step passed"
     status = progress.get("next_status")
@@ -181,17 +191,31 @@ def running_text(r: Mapping[str, Any]) -> str:
 
 def done_text(r: Mapping[str, Any]) -> str:
     """`axis (axis 3) done <utc>, by <who>, version 1 -> 2 (workspace validation RMS 0.060
-    -> 0.079 mm)`."""
+    -> 0.079 mm, worse by 0.019 mm, +32 %)`: the change said, not left to the reader."""
 
-    def rms(doc: Any) -> str:
+    def rms(doc: Any) -> float | None:
         value = (doc or {}).get("validation_rmse_mm")
-        return "-" if not isinstance(value, int | float) else f"{value:.3f}"
+        return float(value) if isinstance(value, int | float) else None
 
+    before, after = rms(r.get("before")), rms(r.get("after"))
+    figures = " -> ".join("-" if v is None else f"{v:.3f}" for v in (before, after))
     return (
         f"{record_event(r)} done {r.get('end_utc')}, by {r.get('who')},"
         f" version {r.get('version_before') or '-'} -> {r.get('version_after') or '-'}"
-        f" (workspace validation RMS {rms(r.get('before'))} -> {rms(r.get('after'))} mm)"
+        f" (workspace validation RMS {figures} mm{change_words(before, after)})"
     )
+
+
+def change_words(before: float | None, after: float | None) -> str:
+    """ ", worse by 0.019 mm, +32 %" / ", better by ..." / ", unchanged" ("" without both)."""
+    if before is None or after is None:
+        return ""
+    delta = after - before
+    if round(abs(delta), 3) == 0:
+        return ", unchanged"
+    way = "worse" if delta > 0 else "better"
+    share = f", {100 * delta / before:+.0f} %" if before > 0 else ""
+    return f", {way} by {abs(delta):.3f} mm{share}"
 
 
 def maintenance_lines(m: Mapping[str, Any] | None) -> list[str]:

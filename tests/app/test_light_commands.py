@@ -360,7 +360,7 @@ def test_status_says_the_cell_needs_maintenance_and_which(state: StateDir) -> No
     )
     assert (
         "last maintenance    fixture done 2023-11-14T22:43:20+00:00, by anna, version 1 -> 2"
-        " (workspace validation RMS 0.061 -> 0.064 mm)" in lines
+        " (workspace validation RMS 0.061 -> 0.064 mm, worse by 0.003 mm, +5 %)" in lines
     )
     assert not any(line.startswith("in maintenance") for line in lines)
     assert run.heavy() == set()

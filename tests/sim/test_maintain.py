@@ -86,6 +86,18 @@ def test_a_procedure_hands_the_cell_back_with_its_history(
     assert (folder / MAINTENANCE_REPORT_JSON).is_file()
     steps = {s["name"]: s for s in report["steps"]}
     version = steps["handover"]["results"]["version"]
+    # what the report says (issue 51 item 2): the views seen of those asked (was "24 of 8"
+    # for a sensor's, its extra views counted against the plan's alone), the standard
+    # uncertainties with their units, the workspace RMS before and after in words
+    identified = steps["handeye" if kind == "sensor" else "reidentify"]
+    (seen,) = [c for c in identified["checks"] if c["name"] == "views seen"]
+    k, n = map(int, seen["value"].split(" of "))
+    assert k <= n == identified["results"]["views"]["asked"], seen
+    if identified["results"]["identified"]:
+        units = {key.rsplit("_", 1)[1] for key in identified["results"]["standard_uncertainty"]}
+        assert units <= {"mm", "deg"} and "std" not in identified["results"]
+    change = report["headline"]["workspace_change"]
+    assert change.startswith("workspace RMS ") and " from 8 positions after and " in change
     # the history kept, the new version in force from the maintenance, the alarm cleared, the
     # suspect interval closed at the hand-over, the record complete
     store = _store(state)
