@@ -75,7 +75,7 @@ def accuracy_limit_mm(tolerance_mm: float, own_u95_mm: float | None) -> tuple[fl
     return own, (
         f"{HEALTHY_MARGIN:g} x the cell's own U95 {own_u95_mm:.3f} mm (VDA 5's {vda:.3f} mm for a"
         f" tolerance of {t:g} mm would hold a healthy cell at its limit; 2 U95 / T"
-        f" {2 * own_u95_mm / t:.0%})"
+        f" {200 * own_u95_mm / t:.0f} %)"
     )
 
 

@@ -249,10 +249,7 @@ def headline_lines(h: dict[str, Any]) -> list[str]:
                 f" tolerance {h['tolerance']}."
             )
         else:
-            lines.append(
-                f"- **VDA 5 capability: not stated**: {h.get('vda5_ratio_not_stated')};"
-                f" tolerance {h['tolerance']}."
-            )
+            lines.append(f"- **VDA 5 capability: not stated**: {h.get('vda5_ratio_not_stated')}.")
         if "tolerance_question" in h:
             lines.append(f"- **WARNING: {h['tolerance_question']}.**")
         lo, hi = h.get("workspace_rmse_95_interval_mm") or (None, None)

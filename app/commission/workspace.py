@@ -56,8 +56,8 @@ def tolerance_note(tolerance_mm: float) -> str:
     tolerance (+-0.5 mm is 1.0), or (0) not given."""
     if tolerance_mm <= 0:
         return (
-            "not given ([commission] tolerance_mm 0): no VDA 5 ratio is stated; the limit"
-            f" assumes T = {DEFAULT_TOLERANCE_MM:g} mm (+-{DEFAULT_TOLERANCE_MM / 2:g} mm)"
+            "not given ([commission] tolerance_mm 0); the limit assumes"
+            f" T = {DEFAULT_TOLERANCE_MM:g} mm (+-{DEFAULT_TOLERANCE_MM / 2:g} mm)"
         )
     return (
         f"T = {tolerance_mm:g} mm, the full range of the features' tolerance"
@@ -103,7 +103,11 @@ def accuracy_results(
         if question := tolerance_question(tolerance_mm, u95):
             out["tolerance_question"] = question
     else:
-        out["vda5_ratio_not_stated"] = "no [commission] tolerance_mm (the features' tolerance)"
+        out["vda5_ratio_not_stated"] = (
+            "no tolerance given ([commission] tolerance_mm: the full range of the features'"
+            " tolerance, +-0.5 mm is 1.0); the limit assumes"
+            f" T = {DEFAULT_TOLERANCE_MM:g} mm (+-{DEFAULT_TOLERANCE_MM / 2:g} mm)"
+        )
     value, why = limit if limit is not None else accuracy_limit_mm(tolerance_mm, u95)
     return out | {"accuracy_limit_mm": value, "accuracy_limit_basis": why}
 

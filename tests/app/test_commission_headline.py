@@ -95,9 +95,9 @@ def test_without_a_tolerance_the_report_says_why_no_vda5_ratio(tmp_path: Path) -
     _workspace(journal, 0.08, 0.0)
     head = markdown(journal).split("| # | step |")[0]
     assert (
-        "**VDA 5 capability: not stated**: no [commission] tolerance_mm (the features'"
-        " tolerance); tolerance not given ([commission] tolerance_mm 0): no VDA 5 ratio is"
-        " stated; the limit assumes T = 1 mm (+-0.5 mm)." in head
+        "- **VDA 5 capability: not stated**: no tolerance given ([commission] tolerance_mm: the"
+        " full range of the features' tolerance, +-0.5 mm is 1.0); the limit assumes T = 1 mm"
+        " (+-0.5 mm).\n" in head
     )
     # the limit the ready step writes without a tolerance: VDA 5's for T = 1 mm, or 1.5x the
     # cell's own U95 when that is higher (calib.uncertainty.accuracy_limit_mm)
