@@ -234,12 +234,6 @@ def _shift_options(g: argparse.ArgumentParser) -> None:
         metavar="N",
         help="knock in the N-th window instead of at --knock-at-h (one shift)",
     )
-    g.add_argument(
-        "--detector",
-        choices=("glr", "charts"),
-        help="what watches the cell for a knock (default [service] detector): the one"
-        " estimator's jump test or the drift charts and the step handler",
-    )
     g.add_argument("--seed", type=int_at_least(0), default=0, help="seed of one shift (0)")
     g.add_argument(
         "--scale",
@@ -406,7 +400,6 @@ def _shift_settings(args: argparse.Namespace, knock_h: float, hours: float) -> S
             slots_per_window=args.slots_per_window,
             model=args.model,
             estimator=None if args.estimator in (None, "compare") else args.estimator,
-            detector=args.detector,
         )
     except ValueError as exc:
         raise InputError(str(exc), field="--hours/--knock-at-h/--scale") from exc
@@ -423,7 +416,6 @@ def _shift_command(args: argparse.Namespace, scale: float | None, out: Path, whe
         + (f" --slots-per-window {args.slots_per_window}" if args.slots_per_window else "")
         + (" --rendered" if args.rendered else "")
         + (f" --estimator {args.estimator}" if args.estimator else "")
-        + (f" --detector {args.detector}" if args.detector else "")
         + (f" --model {args.model}" if args.model else "")
     )
 

@@ -180,10 +180,9 @@ def status_lines(status: dict[str, Any]) -> list[str]:
     from app.line.states import accuracy_text
 
     lines.append(f"accuracy            {accuracy_text(status)}")
-    if status.get("detector", "charts") == "charts":
-        lines += _drift_lines(status.get("drift"))
-    else:
+    if "spheres" in status:  # the running service's
         lines.append(f"step                {_jump_text(status.get('jump'))}")
+        lines += _sphere_lines(status["spheres"])
     lines.append(f"measurements        {m.get('ok', 0)} ok, {m.get('rejected', 0)} rejected")
     counters = status.get("counters")
     if counters:
@@ -229,34 +228,28 @@ def _jump_text(ep: dict[str, Any] | None) -> str:
     return f"{ep.get('text', '')}: {what}; {state}"
 
 
-def _drift_lines(drift: dict[str, Any] | None) -> list[str]:
-    """`drift  EWMA of the residual, mm: all 0.013, P1 0.012 ...; drifting: none`."""
-    if not drift:
+def _sphere_lines(spheres: dict[str, Any]) -> list[str]:
+    """`spheres  residual of the newest measurement, mm: P1 0.041, P2 - ...` (the estimator's
+    window: app.line.estimate)."""
+    if not spheres:
         return []
 
-    def mm(chart: dict[str, Any]) -> str:
-        if chart.get("learning"):
-            return "learning"  # no baseline yet: the self-starting chart watches
-        value = chart.get("ewma_mm")
-        return f"{value:.3f}" if isinstance(value, int | float) and value == value else "-"
+    def mm(v: Any) -> str:
+        return f"{v:.3f}" if isinstance(v, int | float) else "-"
 
-    names = sorted(drift, key=lambda k: (k != "*", k))
-    charts = ", ".join(f"{'all' if k == '*' else k} {mm(drift[k])}" for k in names)
-    drifting = [("all" if k == "*" else k) for k in names if drift[k].get("drifting")]
+    newest = ", ".join(f"{k} {mm(v.get('residual_mm'))}" for k, v in sorted(spheres.items()))
+    left = ", ".join(f"{k} {mm(v.get('posterior_rms_mm'))}" for k, v in sorted(spheres.items()))
     return [
-        f"drift               EWMA of the residual, mm: {charts};"
-        f" drifting: {', '.join(drifting) or 'none'}"
+        f"spheres             residual of the newest measurement, mm: {newest}",
+        f"                    RMS left by the estimator, mm: {left}",
     ]
 
 
 def _suspect_lines(status: dict[str, Any]) -> list[str]:
-    """The step in progress and the last suspect intervals (`rvis state suspects` lists all)."""
+    """The last suspect intervals (`rvis state suspects` lists all)."""
     from app.line.states import bodies_text
 
-    step = status.get("flagged_step")
     out = []
-    if step:
-        out.append(f"step                {step.get('status')}: {step.get('text')}")
     intervals = status.get("suspect_intervals") or []
     out.append(f"suspect intervals   {len(intervals) or 'none'} (the last {len(intervals)})")
     for r in intervals:

@@ -6,12 +6,15 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import logging
 import math
 from pathlib import Path
 from typing import Any, get_type_hints
 
 from app.config.section import SectionProblem, range_problem
 from app.errors import InputError
+
+_log = logging.getLogger("rvis.config")
 
 
 def _is_number(value: Any) -> bool:
@@ -37,7 +40,13 @@ class SectionReader:
         fields = {f.name: f for f in dataclasses.fields(cls)}
         hints = get_type_hints(cls)
         out: dict[str, Any] = {}
+        retired: dict[str, str] = getattr(cls, "retired", {})
         for key, value in values.items():
+            if key in retired and key not in fields:
+                line = self.lines.get((cls.name, key))
+                at = f"{self.path}:{line}" if line else self.path
+                _log.warning("%s: [%s] %s is no longer read (%s)", at, cls.name, key, retired[key])
+                continue
             if key not in fields:
                 raise self.fail(cls.name, key, "unknown key" + _hint(key, tuple(fields)))
             out[key] = self._value(cls.name, key, value, hints[key], fields[key].metadata)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import ClassVar
 
 from app.config.section import Section, opt
 from app.line.opcua.endpoint import SECURITY_POLICIES, endpoint_problem
@@ -47,8 +48,9 @@ class LineSettings(Section):
     body_window_s: float = opt(38.0, gt=0, hi=3600)
     margin_s: float = opt(0.5, lo=0, hi=60)  # kept free at the end of every window
     slots_per_window: int = opt(1, lo=1, hi=100)
-    # after a step is flagged and until it is corrected: up to this many slots in a window
-    # (those that fit its time budget), to determine what moved at once (app/line/step.py)
+    # while a jump no single group explains waits for its full re-identification: up to this
+    # many slots in a window (those that fit its time budget), a schedule cycle soon
+    # (app/line/slot_choice.py)
     step_slots_per_window: int = opt(6, lo=1, hi=100)
     # the PLC writes the cell temperature in its word 2 (off: the word is not read; a PLC
     # program that predates it leaves 0 there, which is not 0 degC)
@@ -87,19 +89,23 @@ class SweepSettings(Section):
         return self.n_frames * self.frame_s
 
 
+#: why a key an older rvis read is no longer read (accepted with a warning: app.config.check)
+CHARTS_RETIRED = "the drift charts, replaced by the one estimator: docs/estimator.md"
+
+
 @dataclass(frozen=True)
 class DriftSettings(Section):
-    """Drift charts of the residuals (REFERENCE.md): EWMA (lambda, limit L sigma) and upper
-    CUSUM (slack k, decision h, in sigmas), sigma learned from baseline_n measurements after
-    each applied calibration (with a floor for noise-free baselines)."""
+    """The chart of the sensor's own PS (app/line/sensor_watch.py, REFERENCE.md): EWMA
+    (lambda) and upper CUSUM (decision h, in sigmas), sigma learned from its first baseline_n
+    measurements."""
 
     name = "drift"
+    retired: ClassVar[dict[str, str]] = {
+        k: CHARTS_RETIRED for k in ("ewma_l", "cusum_k", "min_sigma_mm")
+    }
     ewma_lambda: float = opt(0.2, gt=0, hi=1)
-    ewma_l: float = opt(3.0, gt=0, hi=10)
-    cusum_k: float = opt(0.5, lo=0, hi=5)
     cusum_h: float = opt(5.0, gt=0, hi=50)
     baseline_n: int = opt(16, lo=2, hi=1000)
-    min_sigma_mm: float = opt(0.01, gt=0, hi=10)
 
 
 #: the rolling set's size by the model identified ([service] rolling_size = 0): about 5
@@ -152,55 +158,16 @@ class RecalibSettings(Section):
     # "cycle": the plan's configurations in turn; "adaptive" (sequential only): the most
     # informative configuration that fits the window
     schedule: str = opt("cycle", choices=("cycle", "adaptive"))
-    # a step (a knock): attribute it to one rigid group and correct that group at once
-    # (app/line/step.py, app/line/step_handler.py)
-    step_correction: bool = opt(True)
-    step_min_measurements: int = opt(3, lo=2, hi=1000)  # after the change point, 1 held out
-    step_min_margin: float = opt(10.0, lo=0, hi=1e6)  # BIC of the runner-up minus the choice's
-    # the correction's predicted uncertainty over the measuring volume at the schedule's
-    # configurations (per coordinate; 0.02: added in 3-D to a pre-knock error of 0.05-0.07 mm it
-    # stays within 1.2x of it; 0.015 waited 2 windows longer for a sensor knock, shift campaign)
-    # 0.035: on the robot that repeats as its data sheet says (RP 0.07 mm) a sensor correction in
-    # a new cell's first cycle stayed above 0.02 until the attribution gave up (README)
+    # a jump's correction is applied once its predicted uncertainty over the measuring volume
+    # at the schedule's configurations (per coordinate) is at most this, or at most half the
+    # jump it corrects (app/line/jumps.py); the rest is refined as measurements come
     step_max_std_mm: float = opt(0.035, gt=0, hi=10)
-    # ... or at most this fraction of the step it corrects (3-D, the step's RMS at the measured
-    # spheres, noise removed): a correction that removes most of a large step is applied while
-    # it is not yet fine, and refined as more measurements come (0: the absolute bound alone).
-    # Measured (bench/accuracy_coverage.py, knocks at 0.1-0.35 h of a new cell): a sensor knock
-    # in the first schedule cycle decided on 4-6 pairs instead of "several"; attributed right
-    # 34 -> 36 of 36 on seeds 21-24 and 28 -> 30 on 25-28, back within 6 windows 31 -> 32 and
-    # 22 -> 24, windows above the limit 113 -> 100 and 151 -> 126, coverage unchanged
-    step_std_fraction: float = opt(0.33, lo=0, hi=1)
-    # a flag is a step (not drift) when the attribution decides for a group and the change it
-    # sees, noise removed, is at least this large (RMS at the measured spheres)
-    step_min_mm: float = opt(0.05, lo=0, hi=100)
     # a step seen larger than this at the measured spheres is beyond a knock (a sensor
     # replaced, an axis remastered, a fixture renewed): the cell holds in FAULT with the
     # `maintenance` alarm and asks for the procedure that fits (app/line/beyond_knock.py);
     # knocks the fast correction is for move the spheres by up to about 1 mm
     maintenance_step_mm: float = opt(1.5, gt=0, hi=1000)
-    # after the first correction one more window refines it (auto mode, batch estimator; 0:
-    # none). Any value > 0 turns it on: since the recovery test judges where the interval ends,
-    # the size no longer decides it (kept so that existing cell files stay valid)
-    step_refine_mm: float = opt(0.03, lo=0, hi=10)
-    # after a correction the suspect interval stays open (and the windows measure for the step)
-    # until the held-out residuals measured with it are shown back (an equivalence test,
-    # app/line/step.py recovery_test): the upper confidence bound of their RMS at most
-    # max((1 + recovery_margin) x, + recovery_tolerance_mm) the RMS before the step, the step's
-    # repeated looks together at recovery_confidence, each on at least
-    # recovery_min_measurements of them. 0.02 mm: what one window of residuals cannot resolve
-    # under the line's noise (docs/results/shift-knocks/configurations.md), and the fast
-    # correction's own predicted uncertainty (step_max_std_mm)
-    recovery_confidence: float = opt(0.95, gt=0, hi=0.999)
-    recovery_min_measurements: int = opt(6, lo=1, hi=1000)
-    recovery_margin: float = opt(0.25, gt=0, hi=10)  # relative: RMS within 1.25x
-    recovery_tolerance_mm: float = opt(0.02, lo=0, hi=10)  # absolute: RMS within + 0.02 mm
 
-    # what watches the cell for a jump (a knock): "glr", the one estimator (app/line/jumps.py,
-    # calib/cellstate.py: a filter on the parameters with a likelihood ratio test per group
-    # that can move), or "charts", the drift charts and the step handler (app/line/drift.py,
-    # app/line/step_handler.py; kept to compare with while they are replaced)
-    detector: str = opt("glr", choices=("glr", "charts"))
     # one coordinate of a sphere centre's own noise: the sensor's and the robot's repeatability
     jump_sigma_mm: float = opt(0.02, gt=0, hi=10)
     # the unmodelled term's floor without a commissioning's workspace validation (one coordinate)
@@ -283,6 +250,22 @@ class ServiceSection(OperationsSettings, InlineGateSettings, RecalibSettings):
     above in one (each consumer takes its part with app.config.section.project)."""
 
     name = "service"
+    retired: ClassVar[dict[str, str]] = {
+        k: CHARTS_RETIRED
+        for k in (
+            "detector",
+            "step_correction",
+            "step_min_measurements",
+            "step_min_margin",
+            "step_std_fraction",
+            "step_min_mm",
+            "step_refine_mm",
+            "recovery_confidence",
+            "recovery_min_measurements",
+            "recovery_margin",
+            "recovery_tolerance_mm",
+        )
+    }
 
     def cross_checks(self) -> Iterator[tuple[str, str]]:
         yield from RecalibSettings.cross_checks(self)

@@ -1,19 +1,15 @@
 """What the cell states about its own accuracy after each window: the expanded uncertainty U95
-(calib.uncertainty) of a point measured now, from the in-line check standard, and whether the
-cell can vouch for it within the plant's limit (`[service] accuracy_limit_mm`).
+of a point measured now, and whether the cell can vouch for it within the plant's limit
+(`[service] accuracy_limit_mm`, by default from VDA 5 and the cell's own commissioned U95:
+`limit_in_force`).
 
-The evidence is the residuals of the sphere measurements taken with the parameters in force (not
-trained on them: held out), the last `n_max` of them (a schedule cycle: every configuration);
-while fewer were measured, the version's own seed tops them up (the training residuals of its
-calibration scaled to prediction errors, as the drift charts are seeded: app.line.drift). A
-flagged step changes the evidence: only the measurements from its change point on count (the
-seed and the measurements before it describe a cell that is no longer there), so U95 grows at
-once with the first measurement after a knock, and comes down with the measurements of the
-correction in force; while they are fewer than a cycle, a fast correction's predicted
-uncertainty (the level before the step and the correction's covariance) stands for it as long
-as they do not contradict it (`with_prediction`). A window whose U95 is above the limit (or
-unknown: no evidence yet) is one the cell cannot vouch for: it opens (or keeps open) an
-accuracy suspect interval, closed by the first window vouched for again.
+The statement after a window is the one estimator's (app.line.estimate: the parameters'
+posterior through the model, the unmodelled term and the measurement's noise; basis
+"estimator"). Before the first measurement of a version the version's own seed speaks for it
+(`statement` of `document_seed`'s norms, or of its calibration's rolling set scaled to
+prediction errors: app.line.versions), as the U95 of the bodies measured then. A window whose U95
+is above the limit (or unknown) is one the cell cannot vouch for: it opens (or keeps open) an
+accuracy suspect interval, closed by the first window vouched for again (app.line.window_loop).
 """
 
 from __future__ import annotations
@@ -25,17 +21,13 @@ from dataclasses import dataclass
 from typing import Any
 
 from app.config.line import RecalibSettings
-from app.line.drift import prediction_inflation
-from calib.uncertainty import accuracy_limit_mm, norm_quantile, shown_larger, u95_mm
+from app.line.residual import prediction_inflation
+from calib.uncertainty import accuracy_limit_mm, u95_mm
 
 #: the `group_name` of an accuracy suspect interval (a step's names the group that moved)
 ACCURACY_GROUP = "accuracy"
 #: the end_reason of an interval closed because the cell vouches for its U95 within the limit
 VOUCHED = "vouched"
-#: the basis of a statement after a step: the measurements after it, or a fast correction's
-#: predicted uncertainty that they do not contradict
-AFTER_STEP = "after step"
-PREDICTED = "predicted"
 #: the basis of a statement from the one estimator (app.line.jumps)
 ESTIMATOR = "estimator"
 
@@ -75,69 +67,10 @@ class Accuracy:
         )
 
 
-def evidence(
-    rows: Sequence[Mapping[str, Any]],
-    version: int,
-    onset_id: int | None,
-    seed_mm: Sequence[float],
-    n_max: int,
-) -> tuple[list[float], str]:
-    """(residual norms [mm], basis) that speak for the parameters `version` now (module
-    docstring): the good measurements `rows` (id order) taken with it, from `onset_id` on when
-    a step is flagged, the last `n_max`; topped up with `seed_mm` without a step (`seed_count`
-    of them, the newest)."""
-    held = [
-        float(r["residual_mm"])
-        for r in rows
-        if r.get("residual_mm") is not None
-        and int(r["params_version"]) == version
-        and (onset_id is None or int(r["id"]) >= onset_id)
-    ][-n_max:]
-    if onset_id is not None:
-        return held, AFTER_STEP if held else "none"
-    top = list(seed_mm)[-seed_count(len(seed_mm), len(held), n_max) :] if len(held) < n_max else []
-    if not held:
-        return top, "seed" if top else "none"
-    return top + held, "held-out+seed" if top else "held-out"
-
-
-def seed_count(n_seed: int, n_held: int, n_max: int) -> int:
-    """How many of a seed of `n_seed` norms top up `n_held` held-out ones (< n_max): the seed
-    speaks for the version as a schedule cycle would, and the held-out residuals displace it
-    in proportion as they fill the cycle; a seed of at most `n_max` norms tops the held-out up
-    to `n_max` (its newest), a longer one (a commissioning's workspace validation at more
-    positions than a cycle has slots) counts whole at first, the share of it the cycle has
-    not filled yet after (a validation of 50 positions: 48 of them beside 1 held-out norm, 25
-    beside 12)."""
-    return max(n_max - n_held, math.ceil(n_seed * (n_max - n_held) / n_max))
-
-
 def statement(norms_mm: Sequence[float], basis: str, limit_mm: float) -> Accuracy:
     """The Accuracy of these residual norms."""
     u = u95_mm(norms_mm)
     return Accuracy(None if math.isnan(u) else u, len(norms_mm), basis, limit_mm)
-
-
-def with_prediction(
-    acc: Accuracy, norms_mm: Sequence[float], sigma_mm: float | None, n_max: int
-) -> Accuracy:
-    """After a fast correction of a step: its predicted uncertainty instead of the post-step
-    residuals' bound while they are few. `sigma_mm`: the correction's predicted sigma per
-    coordinate (the upper bound of the cell's level before the step, the evidence of a cycle
-    then, combined in quadrature with the correction's own predicted std over the measuring
-    volume: GUM's combination of the two independent terms), None without one; `norms_mm`:
-    the residuals measured with it in force after the step (`acc`'s evidence). The prediction
-    stands while they are at least one and fewer than a cycle (`n_max`), do not show a larger
-    sigma (calib.uncertainty.shown_larger, 95 %) and do not bound it lower themselves; else
-    `acc`. Basis "predicted"."""
-    if sigma_mm is None or acc.basis != AFTER_STEP or not 0 < len(norms_mm) < n_max:
-        return acc
-    if shown_larger(norms_mm, sigma_mm):
-        return acc
-    u = norm_quantile() * sigma_mm
-    if acc.u95_mm is not None and acc.u95_mm <= u:
-        return acc
-    return Accuracy(u, len(norms_mm), PREDICTED, acc.limit_mm)
 
 
 def limit_in_force(

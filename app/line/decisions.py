@@ -3,8 +3,8 @@ app.line.service.Service that sees it as app.line.host.LineHost (as app.line.ope
 commands do).
 
 Between windows: whether a recalibration is due (every `every_n` good measurements, asked for,
-or brought forward by the drift charts or a flagged step), on which measurements (the rolling
-set, after the step's change point when one is flagged; `rolling_set`), and what becomes of
+or brought forward by a jump the estimator found: app.line.jumps), on which measurements (the
+rolling set, after the jump's onset when there is one; `rolling_set`), and what becomes of
 its result: rejected, applied at once (`applies_automatically`: auto mode and no hold after a
 rollback) or pending an engineer's approve. The batch identification runs in the background
 (app.line.recalib.Recalibrator); a calibration in flight when the service stopped runs again
@@ -15,19 +15,17 @@ at start (`resubmit`). The sequential estimator proposes its filter's state inst
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from app.line.correction import JumpCorrection
 from app.line.host import LineHost
 from app.line.inline_seq import SequentialCandidate
 from app.line.recalib import RecalJob, RecalOutcome, as_measurements, select_rolling
 from app.line.slot_choice import lost_views
-from app.line.step import StepStatus
-from app.line.step_fit import StepCorrection
 from app.line.store import StorageError
 from app.line.versions import Versions
 
@@ -59,8 +57,7 @@ class Decisions:
         r = svc.settings.recalib
         if svc.force_recal or svc.new_since_recal >= r.every_n:
             return True
-        flagged = svc.drift_onset_id is not None or svc.drift_due
-        return flagged and svc.new_since_recal >= r.holdout_size
+        return svc.jump_onset_id is not None and svc.new_since_recal >= r.holdout_size
 
     def maybe_recalibrate(self) -> None:
         """Between windows: a recalibration started (or the sequential estimator's candidate
@@ -75,7 +72,7 @@ class Decisions:
             return
         if svc.recalibrator.busy or svc.pending_calibration is not None or not self._recal_due():
             return
-        since = 0 if svc.drift_onset_id is None else svc.drift_onset_id - 1
+        since = 0 if svc.jump_onset_id is None else svc.jump_onset_id - 1
         since = max(since, svc.maintained_from_id - 1)  # none of the cell before a maintenance
         attempt = (self._good_rows, since)
         if attempt == self._incomplete:
@@ -115,34 +112,13 @@ class Decisions:
         q = np.array([q for q, _ in visits]).reshape(-1, 6)
         return q, np.array([c for _, c in visits]).reshape(-1, 3)
 
-    def _undecided(self) -> bool:
-        """A step still attributed after a schedule's worth of measurements since its change
-        point (its group's correction never passed its gates: a new cell's few references):
-        the full recalibration on them decides, as for several groups (no dead end)."""
-        svc = self.svc
-        step = svc.step
-        if step is None or step.status != StepStatus.ATTRIBUTING:
-            return False
-        n = len(svc.schedule)
-        return len(svc.store.measurements(status="ok", since_id=step.onset_id - 1, last=n)) >= n
-
     def rolling_set(self) -> tuple[Rows, Rows] | None:
         """The (training, held-out) measurements a recalibration would use now: the last ones,
-        after the step's change point when one is flagged (None: not complete yet)."""
+        after a jump's onset when there is one (None: not complete yet)."""
         svc = self.svc
-        since = 0 if svc.drift_onset_id is None else svc.drift_onset_id - 1
+        since = 0 if svc.jump_onset_id is None else svc.jump_onset_id - 1
         since = max(since, svc.maintained_from_id - 1)  # none of the cell before a maintenance
         r = svc.settings.recalib
-        several = svc.step is not None and svc.step.status == StepStatus.SEVERAL
-        off = svc.accuracy is None or not svc.accuracy.vouched
-        if (several or self._undecided()) and off:
-            # no single group to correct (or none decided on a schedule's worth) and the cell
-            # cannot vouch for its accuracy: it waits for this calibration, on a schedule cycle
-            # of post-step measurements (the model's larger set follows; measured: 72 for the
-            # compliant model left such a new cell 35-56 windows off, 24 12-28). A cell that
-            # still vouches waits for the model's set (measured: 24 for the compliant model
-            # took a cell the drift charts flagged at 0.042 mm to 0.081 mm)
-            r = dataclasses.replace(r, rolling_size=min(r.rolling_n, len(svc.schedule)))
         rows = svc.store.measurements(
             status="ok", since_id=since, last=r.rolling_n + r.holdout_size
         )
@@ -150,20 +126,8 @@ class Decisions:
         # complete
         lost = lost_views(svc.store, svc.maintained_from_id - 1)
         slots = [x for x in svc.schedule.slots if x.index not in lost] or svc.schedule.slots
-        n_slots = len(slots)
-        if svc.step is not None and svc.step.status in (
-            StepStatus.REFINING,
-            StepStatus.RECOVERING,
-        ):
-            # a correction not yet shown back: as soon as the post-step measurements span half
-            # the schedule (the identification's rank and condition gates judge the rest; the
-            # recovery test judges its measurements). Once a fast correction is shown back the
-            # whole schedule is asked for (measured: a half-schedule calibration then made a
-            # good correction worse, 0.065 -> 0.085 mm), which the windows, still measuring for
-            # the step, gather in a few windows
-            n_slots = (n_slots + 1) // 2
         targets = tuple(dict.fromkeys(x.target for x in slots))
-        return select_rolling(rows, n_slots, targets, r)
+        return select_rolling(rows, len(slots), targets, r)
 
     def trained_on(
         self, chosen: tuple[Sequence[Mapping[str, Any]], Sequence[Mapping[str, Any]]]
@@ -197,9 +161,9 @@ class Decisions:
         chosen = self.rolling_set()
         r = svc.settings.recalib
         if chosen is None:
-            if svc.drift_onset_id is not None:
+            if svc.jump_onset_id is not None:
                 return (
-                    f"it waits for the measurements after the step (from #{svc.drift_onset_id}"
+                    f"it waits for the measurements after the jump (from #{svc.jump_onset_id}"
                     f"; {r.rolling_n + r.holdout_size} needed, every sphere)"
                 )
             return f"it waits for a complete rolling set ({r.rolling_n + r.holdout_size})"
@@ -246,7 +210,7 @@ class Decisions:
             {"n": len(train), "first_id": job.first_id, "last_id": job.last_id},
         )
 
-    def recal_done(self, out: RecalOutcome | SequentialCandidate | StepCorrection) -> None:
+    def recal_done(self, out: RecalOutcome | SequentialCandidate | JumpCorrection) -> None:
         """A calibration's result: recorded (pending or rejected), then applied at once
         (`applies_automatically`) or left pending an engineer's approve."""
         svc = self.svc
@@ -279,7 +243,7 @@ class Decisions:
         return self.svc.settings.recalib.mode == "auto" and self.svc.auto_hold is None
 
     def _add_calibration(
-        self, out: RecalOutcome | SequentialCandidate | StepCorrection, status: str
+        self, out: RecalOutcome | SequentialCandidate | JumpCorrection, status: str
     ) -> int:
         svc = self.svc
         return svc.store.add_calibration(

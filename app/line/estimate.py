@@ -176,6 +176,30 @@ class CellEstimate:
                 u2 += float(np.mean([(r.v0 - r.H @ d) @ (r.v0 - r.H @ d) / 3.0 for r in after]))
         return norm_quantile() * math.sqrt(u2)
 
+    def spheres(self) -> dict[str, dict[str, Any]]:
+        """Per sphere, its measurements in the estimator's window: how many (`n`), the newest's
+        residual against the parameters in force (`residual_mm`, its centre's distance from
+        where they put it), and their RMS residual against the estimator's posterior
+        (`posterior_rms_mm`: what is left once the estimator's drift is taken off)."""
+        st = self.state
+        out: dict[str, dict[str, Any]] = {
+            k: {"n": 0, "residual_mm": None, "posterior_rms_mm": None} for k in self.svc.spheres
+        }
+        if st is None or not st.rows:
+            return out
+        d = st.posterior()[0]
+        left: dict[str, list[float]] = {}
+        for r in st.rows:
+            k = r.obs.target
+            if k not in out:
+                continue
+            out[k]["n"] += 1
+            out[k]["residual_mm"] = float(np.linalg.norm(r.v0))
+            left.setdefault(k, []).append(float(np.linalg.norm(r.v0 - r.H @ d)))
+        for k, e in left.items():
+            out[k]["posterior_rms_mm"] = math.sqrt(float(np.mean(np.square(e))))
+        return out
+
     def n_rows(self) -> int:
         """The measurements the estimator's window holds."""
         return 0 if self.state is None else len(self.state.rows)

@@ -1,5 +1,5 @@
 """What the service's collaborators use of it: `LineHost`, the service as the operator's
-commands (app.line.operator), the step handling (app.line.step_handler), the status reply
+commands (app.line.operator), the one estimator (app.line.jumps), the status reply
 (app.line.status), the start (app.line.startup), the loop (app.line.window_loop), the slot
 choice (app.line.slot_choice), the measurements' record (app.line.recording), the
 recalibration decisions (app.line.decisions), the versions put in force (app.line.versions)
@@ -19,8 +19,8 @@ from numpy.typing import NDArray
 
 from app.line.accuracy import Accuracy
 from app.line.body_cycle import BodyCycle
+from app.line.correction import JumpCorrection
 from app.line.cycle import Cycle, WindowWatch
-from app.line.drift import DriftMonitor
 from app.line.events import EventBus
 from app.line.inline_seq import InlineSequential, SequentialCandidate
 from app.line.measure import SphereMeasurer
@@ -33,8 +33,6 @@ from app.line.settings import ServiceSettings
 from app.line.statedir import StateDir
 from app.line.states import State
 from app.line.station import Station
-from app.line.step import Step
-from app.line.step_fit import StepCorrection
 from app.line.store import StorageError, Store
 from app.line.sweeps import SweepArchive
 from calib.model import SystemModel
@@ -57,7 +55,6 @@ class LineHost(Protocol):
     store: Store
     params: ParamsStore
     bus: EventBus
-    drift: DriftMonitor
     recalibrator: Recalibrator
     sequential: InlineSequential | None
     watch: WindowWatch
@@ -85,13 +82,10 @@ class LineHost(Protocol):
     force_recal: bool
     new_since_recal: int
     recal_ids: dict[str, list[int]] | None  # the calibration in flight
-    drift_onset_id: int | None
-    drift_due: bool
+    jump_onset_id: int | None  # a jump's onset: the rolling set from it on
     last_visit: dict[int, tuple[F64, F64]]  # slot -> (q_deg, c_sensor_mm)
     visit_ids: dict[int, int]  # slot -> the measurement id of its last visit
-    change_from_id: int
     maintained_from_id: int  # the first measurement after a maintenance's hand-over (0: none)
-    step: Step | None
     episode: dict[str, Any] | None  # a jump found by the one estimator (app.line.jumps)
     u_seed: list[float]
     accuracy: Accuracy | None
@@ -133,6 +127,8 @@ class LineHost(Protocol):
 
     def maintenance_needed(self, message: str) -> None: ...
 
+    def sphere_residuals(self) -> dict[str, dict[str, Any]]: ...
+
     def rolling_set(
         self,
     ) -> tuple[list[Mapping[str, Any]], list[Mapping[str, Any]]] | None: ...
@@ -141,7 +137,7 @@ class LineHost(Protocol):
 
     def applies_automatically(self) -> bool: ...
 
-    def recal_done(self, out: RecalOutcome | SequentialCandidate | StepCorrection) -> None: ...
+    def recal_done(self, out: RecalOutcome | SequentialCandidate | JumpCorrection) -> None: ...
 
     def apply_calibration(self, cal_id: int, uid: int | None, source: str) -> int: ...
 

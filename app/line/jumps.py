@@ -30,17 +30,15 @@ from typing import Any
 
 import numpy as np
 
-from app.formats.params import document_covariance, plain_document, set_covariance
+from app.formats.params import document_covariance
 from app.line.beyond_knock import BLIND_WINDOWS, change_text, several_text, sphere_moved_text
+from app.line.correction import KIND, JumpCorrection, jump_correction, volume_views
 from app.line.estimate import CellEstimate
 from app.line.host import LineHost
 from app.line.states import AlarmCode, suspect_json
-from app.line.step_fit import StepCorrection, volume_views
 from calib.attribution import SEVERAL
 from calib.cellstate import CellState
-from calib.gates import change_failures
 from calib.hypotheses import SPHERE, JumpFit, Verdict
-from calib.model import INDEX
 
 #: equations after the onset beyond the jump's degrees of freedom before it is corrected (one
 #: measurement's: the estimate is checked by data it was not determined by alone)
@@ -51,8 +49,6 @@ REFINE_MAX = 2  # refinements of one episode
 HALF_JUMP = 0.5  # a correction's predicted error (3-D) at most this share of the jump
 HELD_OUT_P = 0.01  # the newest measurement's p-value under the jump fitted without it
 REFINE_WATCH = 24  # measurements after its interval closed an episode's group is watched
-#: the calibration document's estimator kind of a jump's correction (app.line.versions)
-KIND = "step"
 
 
 class JumpWatch:
@@ -124,14 +120,19 @@ class JumpWatch:
         self.verdict = None
 
     def _open(self, v: Verdict) -> None:
-        svc, best = self.svc, v.best
+        best = v.best
         assert best is not None
-        onset = best.onset_ref
+        p = "p < 1e-12" if best.p_value < 1e-12 else f"p {best.p_value:.1g}"
+        self._open_at(best.onset_ref, f"step of the cell since measurement {best.onset_ref} ({p})")
+
+    def _open_at(self, onset: int, text: str) -> None:
+        """The episode of a change since measurement `onset`: its suspect interval (the open one
+        of a correction that did not hold, or an accuracy interval adopted), the high
+        `drift_step` alarm, the rolling set from the onset on."""
+        svc = self.svc
         before = svc.store.measurements(before_id=onset, last=1)
         t_start = float(before[0]["t"]) if before else float(svc.clock.time())
         ep = self.episode
-        p = "p < 1e-12" if best.p_value < 1e-12 else f"p {best.p_value:.1g}"
-        text = f"step of the cell since measurement {onset} ({p})"
         with svc.store.batch():
             fields = {
                 "t_start": t_start,
@@ -161,7 +162,7 @@ class JumpWatch:
                 "clean": 0,
                 "text": text,
             }
-            svc.drift_onset_id = onset  # the rolling set from the onset on
+            svc.jump_onset_id = onset  # the rolling set from the onset on
             svc.save_state()
         svc.bus.emit("suspect_interval", suspect_json(svc.store.suspect(sid) or {}))
         svc.alarm(AlarmCode.DRIFT_STEP, f"{text}: finding what moved", "high")
@@ -237,6 +238,19 @@ class JumpWatch:
         self._describe(ep, SEVERAL, seen_mm, "more than one thing changed")
         svc.maintenance_needed(several_text(seen_mm, bound))
 
+    def hold_blind(self, onset_id: int, message: str) -> None:
+        """No view saw its sphere for BLIND_WINDOWS windows since measurement `onset_id`
+        (app.line.window_loop): a change far beyond a knock, its episode's interval from there
+        (an open one goes on), the cell held for the maintenance `message` says."""
+        ep = self.episode
+        if ep is None or ep.get("closed") or not _interval_open(self.svc, ep):
+            self.episode = None
+            self._open_at(onset_id, f"no sphere seen since measurement {onset_id}")
+        ep = self.episode
+        assert ep is not None
+        self._describe(ep, "", None, "beyond a knock: no sphere where the parameters put it")
+        self.svc.maintenance_needed(message)
+
     def _redate(self, ep: dict[str, Any], onset: int) -> None:
         """The episode's onset moved back to measurement `onset`: its interval from the last
         measurement before it, and the rolling set from it."""
@@ -247,7 +261,7 @@ class JumpWatch:
             fields |= {"t_start": float(before[0]["t"]), "last_good_id": int(before[0]["id"])}
         with svc.store.batch():
             ep["onset_id"] = onset
-            svc.drift_onset_id = onset
+            svc.jump_onset_id = onset
             if _interval_open(svc, ep):
                 svc.store.update_suspect(int(ep["suspect_id"]), **fields)
             svc.save_state()
@@ -289,54 +303,16 @@ class JumpWatch:
             level=logging.WARNING,
         )
 
-    def _correction(self, fit: JumpFit, n_after: int) -> StepCorrection:
-        """The jump's group moved by its estimate, gated by the change bounds."""
+    def _correction(self, fit: JumpFit, n_after: int) -> JumpCorrection:
+        """The jump's group moved by its estimate, gated by the change bounds (the version in
+        force's covariance and workspace validation carried: app.line.correction)."""
         svc, state = self.svc, self.state
         assert state is not None
-        h = fit.hypothesis
-        x_new = state.x_ref.copy()
-        x_new[[INDEX[p] for p in h.params]] += fit.theta
-        failures = change_failures(h.params, x_new, state.x_ref, svc.settings.gates)
-        doc = plain_document(svc.model, x_new, f"rvis run (jump correction: {h.label})")
-        base = self._version_covariance()
-        if base is not None:
-            names, C = base
-            cols = [names.index(p) for p in h.params if p in names]
-            C = C.copy()
-            C[np.ix_(cols, cols)] += fit.cov[: len(cols), : len(cols)]
-            set_covariance(doc, names, C)
-        validation = (svc.params.current_document() or {}).get("validation")
-        if validation:  # the same calibration with one group moved: its workspace evidence
-            doc["validation"] = {**validation, "inherited_from_version": svc.version}
-        doc["estimator"] = {
-            "kind": KIND,
-            "group": h.name,
-            "onset_id": fit.onset_ref,
-            "jump": [float(t) for t in fit.theta],
-            "jump_std": [float(s) for s in fit.std],
-            "llr": fit.llr,
-        }
-        doc["success"] = not failures
-        rows = state.rows[fit.onset :]
-        before = [float(np.linalg.norm(r.v0)) for r in rows]
-        after = [float(np.linalg.norm(r.v0 - r.G[h.name] @ fit.theta)) for r in rows]
-        last = rows[-1].obs.ref if rows else fit.onset_ref
-        return StepCorrection(
-            not failures,
-            tuple(failures),
-            doc,
-            _rms(after),
-            after[-1] if after else math.nan,
-            before[-1] if before else math.nan,
-            n_after,
-            fit.onset_ref,
-            last,
-        )
-
-    def _version_covariance(self) -> tuple[list[str], np.ndarray] | None:
-        svc = self.svc
         doc = svc.params.current_document()
-        return None if doc is None else document_covariance(doc, svc.params.current_path)
+        cov = None if doc is None else document_covariance(doc, svc.params.current_path)
+        return jump_correction(
+            svc.model, state, fit, n_after, svc.settings.gates, doc, cov, svc.version
+        )
 
     def in_force(self, kind: str) -> None:
         """A version became current: the estimator restarts on it; a jump's correction (or a

@@ -29,7 +29,6 @@ from app.line.host import LineHost
 from app.line.roles import ENGINEER, LIFTS_HOLD, NEEDS
 from app.line.states import FAULT_CODES, HOLD_LIFT, State, utc_text
 from app.line.status import alarm_event
-from app.line.step import StepStatus
 from app.line.store import StorageError
 from drivers.errors import DeviceError
 
@@ -264,9 +263,6 @@ class Operator:
         cal_id = self._pending_id(args)
         svc.store.decide_calibration(cal_id, "rejected", svc.clock.time(), uid)
         svc.pending_calibration = None
-        if svc.step is not None and svc.step.status == StepStatus.PROPOSED:
-            svc.step.move(StepStatus.ATTRIBUTING)  # its correction refused: the next one, with more
-            svc.save_state()
         return {"message": f"calibration {cal_id} rejected"}
 
     def _cmd_rollback(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:

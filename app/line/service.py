@@ -12,8 +12,8 @@ the cause, and nothing moves until `reset`. After a reset the robot comes home i
 window. `stop()` (SIGTERM) lets a running window finish (the robot comes home), then returns.
 
 Operations (DESIGN.md section 6): what the decisions depend on (progress towards the next
-calibration, the drift charts with their baselines and change point, the calibration in
-flight, pause, counters, the last visit of every slot) is one snapshot in the database, written
+calibration, a jump's episode and onset, the calibration in flight, pause, counters, the last
+visit of every slot) is one snapshot in the database, written
 in the transaction of the measurement, apply or command that changed it, and restored at start:
 a restarted service carries on as if it had never stopped (a calibration killed in flight runs
 again on the same measurements; one killed in its apply is completed). `params/current.json` is
@@ -27,11 +27,10 @@ traceback, alarmed (`internal_error`), puts the cell in FAULT, and `run()` retur
 alarm and stays in FAULT until an operator resets it.
 
 A device that cannot be reached at start does not end the process: the service starts in
-FAULT with a `device_unreachable` alarm and tries to open it again (app.line.startup). A step (a
-knock) flagged by the drift charts opens a suspect interval and is attributed to the rigid group
-that moved after every window, with a fast correction of that group (app.line.step_handler; the
-numbers in app/line/step.py and calib/attribution.py); until it is corrected the windows measure
-the slots that serve the attribution (app.line.slot_choice).
+FAULT with a `device_unreachable` alarm and tries to open it again (app.line.startup). Every
+good measurement goes into one estimator of the cell's state, which tests it for a jump (a
+knock): a jump found opens a suspect interval, is named to the group that moved and corrected
+(app.line.jumps; the method in docs/estimator.md).
 
 `Service` holds the state (the decision state's snapshot and restore are here) and the life
 cycle (`run`, `stop`, `crash`); its collaborators see it as app.line.host.LineHost:
@@ -39,10 +38,10 @@ cycle (`run`, `stop`, `crash`); its collaborators see it as app.line.host.LineHo
     app.line.startup       the parameters in force at start; the start, devices retried
     app.line.window_loop   the loop's passes: poll, watches, a window, between windows
     app.line.slot_choice   which slot a window measures next
-    app.line.recording     a measurement recorded, its drift charts, a step flagged
+    app.line.recording     a measurement recorded, into the estimator
+    app.line.jumps         the one estimator: a jump found, named, corrected, its interval
     app.line.decisions     when a recalibration runs, on what, whether its result is applied
-    app.line.versions      a version put in force: charts, seeds, drift alarms, a step's end
-    app.line.step_handler  a flagged step's attribution, correction and suspect interval
+    app.line.versions      a version put in force: the estimator restarts, the U95 seed
     app.line.faults        alarms raised and cleared, FAULT entered, device errors noted
     app.line.operator      the operator's commands;  app.line.status: the status reply
 """
@@ -63,9 +62,9 @@ from numpy.typing import ArrayLike, NDArray
 from app.line.accuracy import Accuracy, limit_in_force
 from app.line.body_cycle import BodyCycle, BodySetup
 from app.line.body_export import ResultsWriter
+from app.line.correction import JumpCorrection
 from app.line.cycle import Cycle, WindowWatch
 from app.line.decisions import Decisions, Rows
-from app.line.drift import DriftMonitor
 from app.line.events import EventBus
 from app.line.faults import Faults
 from app.line.inline_seq import InlineSequential, SequentialCandidate
@@ -82,12 +81,9 @@ from app.line.settings import ServiceSettings
 from app.line.slot_choice import SlotChoice
 from app.line.startup import Startup, load_in_force
 from app.line.statedir import StateDir
-from app.line.states import AlarmCode, State
+from app.line.states import RETIRED_CODES, AlarmCode, State
 from app.line.station import Station
 from app.line.status import status_reply
-from app.line.step import Step
-from app.line.step_fit import StepCorrection
-from app.line.step_handler import StepHandler
 from app.line.store import StorageError, Store
 from app.line.sweeps import SweepArchive
 from app.line.versions import Versions
@@ -152,7 +148,6 @@ class Service:
         self.model, self.x, self.version = loaded.model, loaded.x, loaded.version
         recalib, self.limit_basis = limit_in_force(s.recalib, self.params.document(1))
         self.settings = s = dataclasses.replace(s, recalib=recalib)
-        self.drift = DriftMonitor(s.drift, residual_baseline_n=len(schedule))
         d = s.drift
         self.sensor_watch = SensorWatch(s.max_ps_mm, d.ewma_lambda, d.cusum_h, d.baseline_n)
         self.sensor_watch.replay([r["quality"] for r in self.store.measurements(last=500)])
@@ -179,12 +174,9 @@ class Service:
         # a rollback in auto mode: automatic applies held until an engineer's resume or
         # approve ({"version", "uid", "since_utc"}; None: not held)
         self.auto_hold: dict[str, Any] | None = None
-        self.drift_onset_id: int | None = None  # first measurement after a flagged step
-        self.drift_due = False  # the residual charts signalled: recalibrate soon
+        self.jump_onset_id: int | None = None  # a jump's onset: the rolling set from it on
         self.last_visit: dict[int, tuple[F64, F64]] = {}  # slot -> (q_deg, c_sensor_mm)
         self.visit_ids: dict[int, int] = {}  # slot -> the measurement id of its last visit
-        self.change_from_id = 0  # a change from a visit before this id spans a known step
-        self.step: Step | None = None  # a flagged step: attribution, correction (app.line.step)
         self.episode: dict[str, Any] | None = None  # a jump's (app.line.jumps)
         # what the cell states about its accuracy (app.line.accuracy): the version in force's
         # seed residuals, the statement after the last window, an open accuracy interval
@@ -214,13 +206,11 @@ class Service:
         # the collaborators (module docstring), each seeing the service as app.line.host.LineHost
         self.faults = Faults(self)
         self.operator = Operator(self)  # the operator's commands (app.line.operator)
-        self.step_handler = StepHandler(self)  # a flagged step's handling (app.line.step_handler)
-        # the one estimator and its jump test (app.line.jumps), or the drift charts' steps
-        self.jumps = JumpWatch(self) if s.recalib.detector == "glr" else None
-        self.versions = Versions(self, self.step_handler, self.jumps)
+        self.jumps = JumpWatch(self)  # the one estimator and its jump test (app.line.jumps)
+        self.versions = Versions(self, self.jumps)
         self.decisions = Decisions(self, self.versions)
-        self.slot_choice = SlotChoice(self, self.step_handler)
-        self.recording = Recording(self, self.step_handler, self.decisions, self.jumps)
+        self.slot_choice = SlotChoice(self)
+        self.recording = Recording(self, self.decisions, self.jumps)
         self.cycle = Cycle(
             self.watch,
             self.measurer,
@@ -230,15 +220,14 @@ class Service:
             choose=self.slot_choice.choose,
             slots_wanted=self.slot_choice.slots_wanted,
         )
-        self.loop = WindowLoop(
-            self, self.operator, self.faults, self.step_handler, self.decisions, self.jumps
-        )
+        self.loop = WindowLoop(self, self.operator, self.faults, self.decisions, self.jumps)
         self.startup = Startup(
             self, self.operator, self.faults, self.decisions, loaded.start_alarms
         )
         self.restore()
-        if self.jumps is not None:
-            self.jumps.restart()
+        for code in RETIRED_CODES:  # raised by an older rvis: nothing would clear them
+            self.clear_alarms(code)
+        self.jumps.restart()
         if loaded.recovered is not None:  # an apply the database does not know yet
             self.in_force(*loaded.recovered, "recovered", None)
 
@@ -257,23 +246,19 @@ class Service:
             "auto_hold": self.auto_hold,
             "force_recal": self.force_recal,
             "new_since_recal": self.new_since_recal,
-            "drift_onset_id": self.drift_onset_id,
-            "drift_due": self.drift_due,
+            "jump_onset_id": self.jump_onset_id,
             "counters": dict(self.counters),
             "recal_ids": self.recal_ids,
             "last_visit": {
                 str(k): [q.tolist(), c.tolist()] for k, (q, c) in self.last_visit.items()
             },
             "visit_ids": {str(k): v for k, v in self.visit_ids.items()},
-            "change_from_id": self.change_from_id,
-            "step": None if self.step is None else self.step.to_json(),
-            "drift": self.drift.to_json(),
             "sequential_step": None if self.sequential is None else self.sequential.step_json(),
             "u_seed": self.u_seed,
             "accuracy_suspect_id": self.accuracy_suspect_id,
             "accuracy": None if self.accuracy is None else self.accuracy.to_json(),
             "maintained_from_id": self.maintained_from_id,
-            "jumps": None if self.jumps is None else self.jumps.to_json(),
+            "jumps": self.jumps.to_json(),
         }
 
     def save_state(self) -> None:
@@ -283,13 +268,14 @@ class Service:
         """The decision state from the database (at start, and after a storage fault)."""
         doc = self.store.load_state()
         if doc is None:  # a state directory of an older rvis: what the rows tell
-            self.versions.restore_drift()
+            self.versions.restore()
             return
         self.paused = bool(doc["paused"])
         self.auto_hold = doc.get("auto_hold")  # a state saved before the hold: not held
         self.force_recal = bool(doc["force_recal"])
         self.new_since_recal = int(doc["new_since_recal"])
-        self.drift_onset_id, self.drift_due = doc["drift_onset_id"], bool(doc["drift_due"])
+        # (a state saved before the one estimator names it drift_onset_id)
+        self.jump_onset_id = doc.get("jump_onset_id", doc.get("drift_onset_id"))
         self.counters.update({k: int(v) for k, v in doc["counters"].items()})
         self.recal_ids = doc["recal_ids"]
         self.last_visit = {
@@ -297,9 +283,6 @@ class Service:
             for k, (q, c) in doc["last_visit"].items()
         }
         self.visit_ids = {int(k): int(v) for k, v in doc.get("visit_ids", {}).items()}
-        self.change_from_id = int(doc.get("change_from_id", 0))
-        self.step = Step.from_json(doc.get("step"))
-        self.drift.load_json(doc["drift"])
         if self.sequential is not None:
             self.sequential.load_step_json(doc.get("sequential_step"))
         # a state saved before the accuracy statement: the seed of the version in force
@@ -312,8 +295,7 @@ class Service:
                 acc["u95_mm"], int(acc["n"]), str(acc["basis"]), float(acc["limit_mm"])
             )
         self.maintained_from_id = int(doc.get("maintained_from_id", 0))
-        if self.jumps is not None:
-            self.jumps.load_json(doc.get("jumps"))
+        self.jumps.load_json(doc.get("jumps"))
         if doc["params_version"] != self.version and self._handed_over():
             self._after_maintenance()
 
@@ -332,13 +314,11 @@ class Service:
         """The first start after a maintenance procedure handed the cell back (a new sensor,
         an axis's zero, the spheres' places, the plan's views re-aimed): the measurements
         before it say nothing of the cell now. The step is over (its interval was closed by the
-        hand-over), the views start afresh (no last visit to compare with, none lost), the
-        drift charts self-start, the U95 is seeded by the procedure's workspace validation."""
-        self.step, self.drift_onset_id, self.drift_due = None, None, False
+        hand-over), the views start afresh (none lost), the estimator starts from the handed
+        over version, the U95 is seeded by the procedure's workspace validation."""
+        self.episode, self.jump_onset_id = None, None
         self.last_visit, self.visit_ids = {}, {}
-        last_id = self.store.last_measurement_id()
-        self.change_from_id = self.maintained_from_id = last_id + 1
-        self.drift.reset([])
+        self.maintained_from_id = self.store.last_measurement_id() + 1
         self.u_seed = self.versions.version_seed()
         self.accuracy, self.accuracy_suspect_id = None, None
         self.recal_ids, self.new_since_recal = None, 0
@@ -349,6 +329,10 @@ class Service:
         """A change beyond a knock (app.line.beyond_knock): FAULT with the `maintenance`
         alarm until a maintenance procedure hands the cell back (or an engineer resets it)."""
         self.faults.enter_fault(AlarmCode.MAINTENANCE, message)
+
+    def sphere_residuals(self) -> dict[str, dict[str, Any]]:
+        """Per sphere, its measurements in the estimator's window (app.line.estimate)."""
+        return self.jumps.estimate.spheres()
 
     # -- life cycle ---------------------------------------------------------------------------
     def stop(self) -> None:
@@ -466,7 +450,7 @@ class Service:
         """Why a recalibration asked for now does not start at once, in words ("": it does)."""
         return self.decisions.recal_wait()
 
-    def recal_done(self, out: RecalOutcome | SequentialCandidate | StepCorrection) -> None:
+    def recal_done(self, out: RecalOutcome | SequentialCandidate | JumpCorrection) -> None:
         """A calibration's result: recorded, then applied at once or left pending."""
         self.decisions.recal_done(out)
 

@@ -111,8 +111,8 @@ def _status(svc: LineHost) -> dict[str, Any]:
         "calibration": _calibration_status(svc),
         "alarms": [alarm_status(a) for a in alarms],
         "cell_temp_c": svc.cell_temp_c,
-        "drift": svc.drift.state(),
-        "drift_change": svc.drift.change_state(),
+        # per sphere, its measurements in the one estimator's window (app.line.estimate)
+        "spheres": svc.sphere_residuals(),
         "step": step_text(svc, maintenance),
         # the U95 of a point measured now, vouched for or not (app.line.accuracy)
         "accuracy": None if svc.accuracy is None else svc.accuracy.to_json(),
@@ -123,8 +123,6 @@ def _status(svc: LineHost) -> dict[str, Any]:
         "device_retry": svc.device_retry,
         "pending": _pending_status(svc),
         "now_utc": utc_text(svc.clock.time()),  # the service's clock (sim: ahead)
-        "flagged_step": None if svc.step is None else svc.step.to_json(),
-        "detector": svc.settings.recalib.detector,  # what watches for a knock
         "jump": svc.episode,  # a jump the one estimator found, in hand (app.line.jumps)
         "suspect_intervals": [
             suspect_json(r) for r in svc.store.suspects(last=SUSPECTS_IN_STATUS)

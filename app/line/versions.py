@@ -4,12 +4,11 @@ commands do).
 
 A calibration applied is written as the next version (its document names the calibration, so
 that an apply killed half-way is completed at the next start); a version in force (applied,
-rolled back to, recovered at start) is reloaded, the drift charts restart (reseeded with the
-new parameters' residuals after a batch calibration; their baselines kept after a sequential
-or step one), the U95 seed follows (app.line.accuracy), and the drift alarms and a flagged
-step close when the calibration was trained after the step's change point (a step's suspect
-interval when its residuals say the cell is back: app.line.step_handler). At start the charts
-and the last visits come from the stored measurements when the database holds no decision state.
+rolled back to, recovered at start) is reloaded, the estimator restarts on it (app.line.jumps:
+a jump's correction or a recalibration during its episode is the episode's corrected version),
+the U95 seed follows (app.line.accuracy); a version trained after a jump's onset clears its
+alarm, and its rolling set ends when that was a full calibration. At start the last visits come
+from the stored measurements when the database holds no decision state.
 """
 
 from __future__ import annotations
@@ -20,22 +19,19 @@ from typing import Any
 import numpy as np
 
 from app.line.accuracy import document_seed
-from app.line.drift import prediction_inflation, residual_mm
 from app.line.host import LineHost
 from app.line.jumps import JumpWatch
+from app.line.residual import prediction_inflation, residual_mm
 from app.line.states import AlarmCode
-from app.line.step import StepStatus
-from app.line.step_handler import StepHandler, suspect_open
 from app.line.store import StorageError
 
 
 class Versions:
-    """Calibrations applied and versions put in force, on the service `svc`; a step's
-    correction in force goes to `steps` (its suspect interval closes when it is shown back)."""
+    """Calibrations applied and versions put in force, on the service `svc`; the estimator
+    (`jumps`) restarts on each."""
 
-    def __init__(self, svc: LineHost, steps: StepHandler, jumps: JumpWatch | None = None) -> None:
+    def __init__(self, svc: LineHost, jumps: JumpWatch) -> None:
         self.svc = svc
-        self.steps = steps
         self.jumps = jumps
 
     def apply_calibration(self, cal_id: int, uid: int | None, source: str) -> int:
@@ -53,10 +49,10 @@ class Versions:
         return version
 
     def in_force(self, version: int, cal_id: int | None, source: str, uid: int | None) -> None:
-        """Parameters `version` are current: reload them, restart the drift charts (seeded with
-        the new parameters' residuals); the drift alarm and onset are cleared when the
-        calibration was trained on measurements after the onset only. The database learns it
-        in one transaction (the calibration's decision, the applied row, the decision state)."""
+        """Parameters `version` are current: reload them, the estimator restarts on them, the
+        U95 seed follows; a version trained on measurements after a jump's onset only clears
+        its alarm, and its rolling set when it was a full calibration. The database learns it in one
+        transaction (the calibration's decision, the applied row, the decision state)."""
         svc = self.svc
         current = svc.current_params()
         assert current is not None
@@ -69,42 +65,26 @@ class Versions:
             svc.store.add_applied(t, version, cal_id, source, uid)
             svc.pending_calibration = None
             kind = _kind(None if cal is None else cal["document"])
-            if kind in ("sequential", "step"):
-                # the filter's residuals on the rows it was fed are optimistic by an unknown
-                # factor: keep the baselines (measured: reseeding gave 21 low alarms in 4 h);
-                # a step correction restores the residuals of before the step
-                svc.drift.restart()
-                svc.u_seed = []
-            else:
-                seed = self.drift_seed(cal)
-                svc.drift.reset(seed)
-                svc.u_seed = self.u_seed(cal, seed)
+            # the filter's and a jump correction's residuals on the rows they were fed are
+            # optimistic by an unknown factor: no seed from them
+            svc.u_seed = [] if kind in ("sequential", "step") else self.u_seed(cal, self.seed(cal))
             if svc.sequential is not None and kind != "sequential":
                 svc.sequential.restart(svc.model, svc.x, svc.params.current_document())
-            onset, svc.drift_due = svc.drift_onset_id, False
-            svc.clear_alarms(AlarmCode.DRIFT, t)
+            onset = svc.jump_onset_id
             first_id = None if cal is None else int(cal["first_id"] or 0)
-            after_step = first_id is not None and onset is not None and first_id >= onset
-            recovering = after_step and suspect_open(svc)
-            if recovering:  # the interval closes when the residuals say the cell is back
-                self.steps.corrected(t, version, cal, kind)
-            elif onset is None or after_step:
+            after_onset = first_id is not None and onset is not None and first_id >= onset
+            if onset is None or after_onset:
                 svc.clear_alarms(AlarmCode.DRIFT_STEP, t)
-                if kind != "step":  # a full calibration trained after the step: it is over
-                    svc.drift_onset_id, svc.step = None, None
-                elif svc.step is not None and svc.step.status == StepStatus.PROPOSED:
-                    # its interval closed before (the cell vouched for its accuracy): the
-                    # correction is in force, the full recalibration follows
-                    svc.step.move(StepStatus.CORRECTED)
-            if self.jumps is not None:
-                self.jumps.in_force(kind)
+                if kind != "step":  # a full calibration trained after the onset: it is over
+                    svc.jump_onset_id = None
+            self.jumps.in_force(kind)
             svc.save_state()
         svc.bus.emit(
             "parameters_applied",
             {"version": version, "calibration_id": cal_id, "source": source, "uid": uid},
         )
 
-    def drift_seed(self, cal: dict[str, Any] | None) -> list[tuple[str, float]]:
+    def seed(self, cal: dict[str, Any] | None) -> list[tuple[str, float]]:
         """Residuals of the parameters in force on recent good measurements: the rolling set of
         batch calibration `cal` (its training rows scaled to prediction errors), else the
         last schedule cycle and hold-out."""
@@ -144,7 +124,7 @@ class Versions:
 
     def u_seed(self, cal: dict[str, Any] | None, seed: Sequence[tuple[str, float]]) -> list[float]:
         """The U95 seed of the version in force (app.line.accuracy): its batch calibration's
-        rolling set scaled to prediction errors (`seed`, the drift charts' own), none for a
+        rolling set scaled to prediction errors (`seed`), none for a
         sequential or step one (their residuals are optimistic by an unknown factor), the
         identification residuals its document carries when no calibration here made it
         (its workspace validation counts whole: app.line.accuracy.seed_count; a rolling set
@@ -157,15 +137,14 @@ class Versions:
     def version_seed(self) -> list[float]:
         """The U95 seed of the version in force (`u_seed`)."""
         cal = self.applied_calibration()
-        return self.u_seed(cal, self.drift_seed(cal) if cal is not None else ())
+        return self.u_seed(cal, self.seed(cal) if cal is not None else ())
 
-    def restore_drift(self) -> None:
-        """After a restart: the residual charts from the stored measurements, the last visits."""
+    def restore(self) -> None:
+        """After a restart with no decision state stored: the U95 seed and the last visits
+        from the stored measurements."""
         svc = self.svc
         cal = self.applied_calibration()
-        seed = self.drift_seed(cal)
-        svc.drift.reset(seed)
-        svc.u_seed = self.u_seed(cal, seed)
+        svc.u_seed = self.u_seed(cal, self.seed(cal))
         for r in svc.store.measurements(last=2 * len(svc.schedule)):
             if 0 <= r["slot"] < len(svc.schedule):
                 q = np.asarray(r["q_deg"], float)
@@ -175,7 +154,7 @@ class Versions:
 
 def _kind(document: Mapping[str, Any] | None) -> str:
     """Where a calibration came from: "sequential" (app.line.inline_seq), "step" (a fast
-    correction, app.line.step_fit) or "batch"."""
+    correction, app.line.correction) or "batch"."""
     kind = (document or {}).get("estimator", {}).get("kind")
     return str(kind) if kind in ("sequential", "step") else "batch"
 

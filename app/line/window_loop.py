@@ -5,7 +5,8 @@ One pass (`step`): the operator's queued commands, the PLC polled (its heartbeat
 temperature and the windows it opened watched), shelved alarms past their time unshelved; then
 a window when a fresh one opens and the cell is IDLE (app.line.cycle.Cycle measures it; the
 cell states its accuracy after it), else what comes between windows: the background
-recalibration collected, a flagged step attributed, a recalibration started when due
+recalibration collected, a jump the estimator found acted on (app.line.jumps), a
+recalibration started when due
 (app.line.decisions), the free space looked at and old events pruned; then it waits a poll. A
 device's error is a FAULT, a storage failure the `state_storage` FAULT (app.line.faults).
 """
@@ -14,15 +15,7 @@ from __future__ import annotations
 
 import logging
 
-from app.line.accuracy import (
-    ACCURACY_GROUP,
-    ESTIMATOR,
-    VOUCHED,
-    Accuracy,
-    evidence,
-    statement,
-    with_prediction,
-)
+from app.line.accuracy import ACCURACY_GROUP, ESTIMATOR, VOUCHED, Accuracy, statement
 from app.line.beyond_knock import BLIND_WINDOWS, blind_text
 from app.line.body_cycle import BodyCycle
 from app.line.body_export import retain_bodies
@@ -33,8 +26,6 @@ from app.line.jumps import JumpWatch
 from app.line.operator import Operator
 from app.line.states import AlarmCode, State, suspect_json
 from app.line.status import alarm_event
-from app.line.step import StepStatus
-from app.line.step_handler import StepHandler, suspect_open
 from app.line.store import StorageError
 from drivers.errors import DeviceError
 
@@ -51,13 +42,11 @@ class WindowLoop:
         svc: LineHost,
         operator: Operator,
         faults: Faults,
-        steps: StepHandler,
         decisions: Decisions,
-        jumps: JumpWatch | None = None,
+        jumps: JumpWatch,
     ) -> None:
         self.svc = svc
-        self.operator, self.faults, self.steps, self.decisions = operator, faults, steps, decisions
-        self.jumps = jumps
+        self.operator, self.faults, self.decisions, self.jumps = operator, faults, decisions, jumps
         self._unvouched = 0  # windows in a row the cell could not vouch for its U95
         self._retention_t = -float("inf")
         self._temperature_bad: bool | None = None  # known after the first poll
@@ -122,8 +111,7 @@ class WindowLoop:
         self._watch_blind(first_id)
         svc.counters["overruns"] += report.overrun
         svc.counters["withdrawn"] += bool(report.withdrawn)
-        if self.jumps is not None:  # a jump in the window's measurements: its interval first
-            self.jumps.opened()
+        self.jumps.opened()  # a jump in the window's measurements: its interval first
         self._state_accuracy(t_open)
         svc.save_state()
         acc = svc.accuracy
@@ -253,42 +241,25 @@ class WindowLoop:
         self._blind.append((first_id, len(far)))
         if len(self._blind) < BLIND_WINDOWS or svc.state == State.FAULT:
             return
-        onset_id = self._blind[0][0]
-        step = svc.step
-        if step is None or (step.status != StepStatus.PROBATION and not suspect_open(svc)):
-            svc.step = None  # a step over (or none): this change is a new one
-            self.steps.open_step(onset_id, onset_id, attribute=False)
-        elif step.suspect_id is None:  # on probation: its interval opens now
-            self.steps.open_suspect(step)
-        step = svc.step
-        assert step is not None
-        step.move(StepStatus.MAINTENANCE)
-        svc.save_state()
-        svc.maintenance_needed(blind_text(len(self._blind), sum(n for _, n in self._blind)))
+        text = blind_text(len(self._blind), sum(n for _, n in self._blind))
+        self.jumps.hold_blind(self._blind[0][0], text)
 
     def _state_accuracy(self, t_open: float) -> None:
-        """After a window: the U95 of a point measured now from the evidence (app.line.accuracy),
+        """After a window: the U95 of a point measured now from the estimator (app.line.jumps),
         stated for the window's bodies; a window the cell cannot vouch for within the limit
         opens an accuracy suspect interval (from when it opened), the first one vouched for
         again closes it."""
         svc = self.svc
-        n_max = len(svc.schedule)
-        rows = svc.store.measurements(last=4 * n_max)
-        norms, basis = evidence(rows, svc.version, svc.drift_onset_id, svc.u_seed, n_max)
+        rows = svc.store.measurements(last=4 * len(svc.schedule))
         limit = svc.settings.recalib.accuracy_limit_mm
-        acc = statement(norms, basis, limit)
-        step = svc.step  # a fast correction's predicted uncertainty, for its version
-        if step is not None and step.predicted_version == svc.version:
-            acc = with_prediction(acc, norms, step.predicted_sigma_mm, n_max)
-        if self.jumps is not None:  # the estimator's statement
-            acc = Accuracy(self.jumps.statement_u95_mm(), self.jumps.n_rows(), ESTIMATOR, limit)
+        acc = Accuracy(self.jumps.statement_u95_mm(), self.jumps.n_rows(), ESTIMATOR, limit)
         svc.accuracy = acc
         self._watch_vouched(acc)
         with svc.store.batch():
             svc.store.state_window_u95(acc.u95_mm)
             open_id = svc.accuracy_suspect_id
-            # (a step's open interval speaks for these windows already)
-            if not acc.vouched and open_id is None and not self._step_open():
+            # (a jump's open interval speaks for these windows already)
+            if not acc.vouched and open_id is None and not self.jumps.interval_open():
                 # from the last measurement before this window (the last one vouched for) on
                 before = [r for r in rows if r["t"] < t_open]
                 first_id = int(before[-1]["id"]) + 1 if before else svc.store.last_measurement_id()
@@ -318,10 +289,6 @@ class WindowLoop:
         if opened is not None:
             svc.bus.emit("suspect_interval", suspect_json(opened))
 
-    def _step_open(self) -> bool:
-        """A step's (or a jump's) suspect interval is open: it speaks for the windows."""
-        return suspect_open(self.svc) or (self.jumps is not None and self.jumps.interval_open())
-
     def _watch_vouched(self, acc: Accuracy) -> None:
         """`[service] accuracy_alarm_windows` windows in a row the cell cannot vouch for its
         U95 within the limit: the `accuracy` alarm, and a full recalibration unless a jump's
@@ -335,7 +302,7 @@ class WindowLoop:
         self._unvouched += 1
         if self._unvouched != svc.settings.recalib.accuracy_alarm_windows:
             return
-        handled = self.jumps is not None and self.jumps.handling()
+        handled = self.jumps.handling()
         action = "a jump's correction is under way" if handled else "recalibrating"
         if not handled:
             svc.force_recal = True
@@ -405,9 +372,7 @@ class WindowLoop:
         if outcome is not None:
             self.decisions.recal_done(outcome)
         if svc.state in (State.IDLE, State.PAUSED):
-            if self.jumps is not None:
-                self.jumps.act()
-            self.steps.attribute_step()
+            self.jumps.act()
             self.decisions.maybe_recalibrate()
         self.faults.check_space()
         self._retain()

@@ -602,7 +602,7 @@ def handover(ctx: Context) -> StepResult:
                 store.add_applied(t, version, None, MAINTENANCE_SOURCE, None)
         assert version is not None
         closed = _close_suspects(store, t, version)
-        codes = (AlarmCode.MAINTENANCE, AlarmCode.DRIFT_STEP, AlarmCode.DRIFT, AlarmCode.VIEW_LOST)
+        codes = (AlarmCode.MAINTENANCE, AlarmCode.DRIFT_STEP, AlarmCode.VIEW_LOST)
         for code in codes:
             store.clear_alarms(t, code)
         after = {"validation_rmse_mm": _rms(errors), "version": version}

@@ -48,7 +48,6 @@ class ShiftSettings:
     estimator: str | None = None  # "batch" | "sequential"; None: the cell's [service] estimator
     model: str | None = None  # "rigid" | "compliant"; None: the cell's [service] model
     schedule: str | None = None  # "cycle" | "adaptive" (sequential); None: the cell's
-    detector: str | None = None  # "glr" | "charts"; None: the cell's [service] detector
     recovered_ratio: float = 1.2  # "back": error with the service <= this x its pre-knock level
     pre_knock_windows: int = 10  # windows before the knock whose median sets the pre-knock level
     # the knock's episode ends at the last window above the ratio before this many windows in a
@@ -64,8 +63,6 @@ class ShiftSettings:
             raise ValueError("estimator must be batch or sequential")
         if self.model not in (None, "rigid", "compliant"):
             raise ValueError("model must be rigid or compliant")
-        if self.detector not in (None, "glr", "charts"):
-            raise ValueError("detector must be glr or charts")
         if self.schedule not in (None, "cycle", "adaptive"):
             raise ValueError("schedule must be cycle or adaptive")
         if self.recovered_ratio < 1 or self.pre_knock_windows < 1 or self.episode_gap_windows < 1:
@@ -265,8 +262,6 @@ def shift_config(cfg: CellConfig, s: ShiftSettings) -> CellConfig:
         service = dataclasses.replace(service, estimator=s.estimator)
     if s.schedule is not None:
         service = dataclasses.replace(service, schedule=s.schedule)
-    if s.detector is not None:
-        service = dataclasses.replace(service, detector=s.detector)
     if s.model is not None:  # the commissioning keeps the cell's [calibration] model
         service = dataclasses.replace(service, model=s.model)
     return dataclasses.replace(cfg, simline=simline, line=line, service=service)

@@ -205,11 +205,13 @@ def maintenance_rows(rows: list[dict[str, Any]]) -> list[tuple[str, ...]]:
 
 
 def knock_text(status: dict[str, Any]) -> str:
-    """The step in progress or the last suspect interval, in one line ('none' when neither)."""
-    step = status.get("flagged_step")
-    if step and step.get("status") not in ("corrected", None):
-        what = step.get("text") or f"step at measurement {step.get('onset_id')}"
-        return f"{str(step.get('status')).upper()}: {what}"
+    """The jump in hand (the one estimator's, app.line.jumps) or the last suspect interval, in
+    one line ('none' when neither)."""
+    jump = status.get("jump")
+    if jump and not jump.get("closed"):
+        what = jump.get("what") or "finding what moved"
+        state = "CORRECTED" if jump.get("corrected_version") else "CORRECTING"
+        return f"{state}: {jump.get('text') or 'a jump'}: {what}"
     intervals = status.get("suspect_intervals") or []
     if not intervals:
         return "none"

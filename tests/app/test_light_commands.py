@@ -183,11 +183,10 @@ def test_status_and_ctl_through_the_socket(state: StateDir, service: _Service) -
     ]
 
 
-def test_plain_status_says_the_step_temperature_devices_and_drift(
+def test_plain_status_says_the_step_temperature_devices_and_spheres(
     state: StateDir, service: _Service
 ) -> None:
     """Issue 30 item 10: what only `--json` said, in words too."""
-    chart = {"mu_mm": 0.01, "sigma_mm": 0.002, "cusum_mm": 0.0}
     service.status = {
         "state": "idle",
         "step": "waiting for a window",
@@ -201,11 +200,9 @@ def test_plain_status_says_the_step_temperature_devices_and_drift(
                 "last_error_utc": "2026-11-25T06:00:00Z",
             },
         },
-        "drift": {
-            "*": {**chart, "ewma_mm": 0.0131, "drifting": False},
-            "P2": {**chart, "ewma_mm": 0.0412, "drifting": True},
-            "P1": {**chart, "ewma_mm": None, "drifting": False},
-            "P3": {**chart, "ewma_mm": None, "learning": True, "drifting": False},
+        "spheres": {
+            "P1": {"n": 3, "residual_mm": 0.0412, "posterior_rms_mm": 0.0213},
+            "P2": {"n": 0, "residual_mm": None, "posterior_rms_mm": None},
         },
         "measurements": {"ok": 12, "rejected": 1},
         "alarms": [],
@@ -217,18 +214,15 @@ def test_plain_status_says_the_step_temperature_devices_and_drift(
     assert "cell temperature    23.5 degC" in lines
     assert "devices             robot ok, plc no heartbeat" in lines
     assert "  plc: last error PlcTimeout: no answer (2026-11-25T06:00:00Z)" in lines
-    assert (
-        "drift               EWMA of the residual, mm: all 0.013, P1 -, P2 0.041, P3 learning;"
-        " drifting: P2" in lines
-    )
+    assert "spheres             residual of the newest measurement, mm: P1 0.041, P2 -" in lines
+    assert "                    RMS left by the estimator, mm: P1 0.021, P2 -" in lines
     service.status = {**service.status, "cell_temp_c": None}
     assert "cell temperature    unknown" in rvis("status", "--state-dir", str(state.root)).out
     assert run.heavy() == set()
-    # the one estimator watching (no drift charts): the jump in hand, in words
+    # the jump in hand, in words
     jump = {"text": "step of the cell since measurement 31 (p < 1e-12)", "what": "sensor mount"}
-    service.status = {**service.status, "detector": "glr", "jump": jump | {"corrected_version": 4}}
+    service.status = {**service.status, "jump": jump | {"corrected_version": 4}}
     lines = rvis("status", "--state-dir", str(state.root)).out.splitlines()
-    assert not [x for x in lines if x.startswith("drift ")]
     assert (
         "step                step of the cell since measurement 31 (p < 1e-12): sensor mount;"
         " corrected by version 4, confirming" in lines

@@ -93,21 +93,21 @@ def test_no_alarm_code_is_a_bare_string() -> None:
 @pytest.mark.parametrize(
     "source",
     [
-        'self.alarm("drift", "text", "low")',
-        'svc.store.clear_alarms(t, "drift")',
-        'self.clear_alarms("drift", t)',
-        'self.store.active_alarms(code="drift")',
-        'self.store.raise_alarm(t, "drift", "text", "low")',
-        'self.faults.enter_fault("drift", "text")',
-        'start_alarms.append(("drift", "text", "high"))',
-        'self.bus.emit("alarm_cleared", {"code": "drift"})',
+        'self.alarm("sensor", "text", "low")',
+        'svc.store.clear_alarms(t, "sensor")',
+        'self.clear_alarms("sensor", t)',
+        'self.store.active_alarms(code="sensor")',
+        'self.store.raise_alarm(t, "sensor", "text", "low")',
+        'self.faults.enter_fault("sensor", "text")',
+        'start_alarms.append(("sensor", "text", "high"))',
+        'self.bus.emit("alarm_cleared", {"code": "sensor"})',
     ],
 )
 def test_the_scan_finds_a_bare_code_in_each_kind_of_call(source: str) -> None:
     named, bare = scan(source, "x.py")
-    assert bare == ["x.py:1 'drift'"] and named == {}
-    named, bare = scan(source.replace('"drift"', "AlarmCode.DRIFT", 1), "x.py")
-    assert bare == [] and named == {"drift": ["x.py:1"]}
+    assert bare == ["x.py:1 'sensor'"] and named == {}
+    named, bare = scan(source.replace('"sensor"', "AlarmCode.SENSOR", 1), "x.py")
+    assert bare == [] and named == {"sensor": ["x.py:1"]}
 
 
 def test_the_list_is_the_named_codes_and_the_fault_codes() -> None:

@@ -35,7 +35,7 @@ def _is(kind: str, **fields: Any) -> Any:
 def test_a_knock_is_found_named_corrected_and_its_interval_recorded(
     tmp_path: Path, kind: str
 ) -> None:
-    ln, x_good, val = knock_line(tmp_path, RecalibSettings(estimator="batch", detector="glr"))
+    ln, x_good, val = knock_line(tmp_path, RecalibSettings(estimator="batch"))
     try:
         before = true_rms(ln, val, x_good)
         ln.start()
@@ -78,7 +78,7 @@ def test_a_knock_is_found_named_corrected_and_its_interval_recorded(
         ln.close()
 
 
-APPROVE = RecalibSettings(mode="approve", estimator="batch", detector="glr")
+APPROVE = RecalibSettings(mode="approve", estimator="batch")
 
 
 def _proposed(ln: Any) -> dict[str, Any]:
@@ -114,7 +114,7 @@ def test_in_approve_mode_the_correction_waits_for_the_engineer(tmp_path: Path) -
 
 @pytest.mark.slow
 def test_a_sphere_knocked_alone_holds_the_cell_for_its_procedure(tmp_path: Path) -> None:
-    ln, _, _ = knock_line(tmp_path, RecalibSettings(estimator="batch", detector="glr"))
+    ln, _, _ = knock_line(tmp_path, RecalibSettings(estimator="batch"))
     try:
         ln.start()
         ln.windows(3, timeout_s=20.0)

@@ -62,18 +62,17 @@ async def published(client: Client, spheres: list[str]) -> dict[str, Any]:
     for name in EXPECTED:
         out[name] = plain(await (await child(client, m, name)).read_data_value(False))
     for sphere in spheres:
-        label = "All" if sphere == "*" else sphere
-        for name in ("DriftEwmaMm", "Drifting"):
-            node = await child(client, m, "Spheres", label, name)
+        for name in ("ResidualMm", "PosteriorRmsMm"):
+            node = await child(client, m, "Spheres", sphere, name)
             out[f"{sphere}.{name}"] = plain(await node.read_data_value(False))
     return out
 
 
 def expected(status: dict[str, Any]) -> dict[str, Any]:
     out = {name: get(status) for name, get in EXPECTED.items()}
-    for sphere, chart in status["drift"].items():
-        out[f"{sphere}.DriftEwmaMm"] = chart["ewma_mm"]
-        out[f"{sphere}.Drifting"] = chart["drifting"]
+    for sphere, seen in status["spheres"].items():
+        out[f"{sphere}.ResidualMm"] = seen["residual_mm"]
+        out[f"{sphere}.PosteriorRmsMm"] = seen["posterior_rms_mm"]
     return out
 
 
@@ -107,11 +106,11 @@ def test_variables_follow_the_windows_and_equal_rvis_status(
             async with asyncio.timeout(30):  # a calibration may still land while paused
                 while True:
                     status = await asyncio.to_thread(rvis_status, line)
-                    ours = await published(client, list(status["drift"]))
+                    ours = await published(client, list(status["spheres"]))
                     if expected(status) == ours:
                         break
             assert status["state"] == "paused" and status["counters"]["windows"] >= 3
-            assert status["drift"] and ours["Windows"] == status["counters"]["windows"]
+            assert status["spheres"] and ours["Windows"] == status["counters"]["windows"]
 
             # timestamped with the service's clock (the simulated line runs ahead of the wall)
             ts = (await state.read_data_value()).SourceTimestamp

@@ -43,7 +43,6 @@ def test_rvis_state_suspects_names_exactly_the_bodies_clamped_inside_the_interva
             estimator="batch",
             accuracy_limit_mm=0.3,
             step_max_std_mm=0.02,
-            step_std_fraction=0.0,
         ),
         line=dataclasses.replace(cfg.line, slots_per_window=8, plc_body_id=fmt),
         simline=dataclasses.replace(

@@ -75,7 +75,7 @@ STATUS: dict[str, Any] = {
         "vouched": True,
     },
     "counters": {"windows": 412, "overruns": 0, "withdrawn": 3},
-    "flagged_step": None,
+    "jump": None,
     "suspect_intervals": [
         {
             "id": 2,

@@ -75,9 +75,11 @@ def test_the_overview_names_the_knock_and_lists_the_suspect_intervals() -> None:
         "group": "sensor",
         "text": "sensor mount moved",
     }
-    attributing = {"flagged_step": {"status": "attributing", "text": "step flagged at 9"}}
-    assert "ATTRIBUTING: step flagged at 9" in view.overview_text(attributing)
-    corrected = {"flagged_step": {"status": "corrected"}, "suspect_intervals": [interval]}
+    found = {"jump": {"text": "step of the cell since measurement 9", "what": "sensor mount"}}
+    assert "CORRECTING: step of the cell since measurement 9: sensor mount" in (
+        view.overview_text(found)
+    )
+    corrected = {"jump": {"closed": True}, "suspect_intervals": [interval]}
     assert "last suspect interval 11-23 07:41:12 - OPEN, 0.226 mm (sensor)" in (
         view.overview_text(corrected)
     )

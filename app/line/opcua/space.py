@@ -10,7 +10,7 @@ rvis's own variables, and how a status reply of the service becomes their values
             MachineryOperationMode (Machinery)       MachineryOperationModeStateMachineType
                                                      (HasAddIn)
             ServiceState, Step, CalibrationVersion, ... (rvis)   VARIABLES below
-            Spheres/<id>/DriftEwmaMm, Drifting (rvis)
+            Spheres/<id>/ResidualMm, PosteriorRmsMm (rvis)
             LastBody/BodyId, Ok, ... (rvis)          the last body's result; each body's
                                                      BodyResultEventType (app.line.opcua.results)
             Alarms/<code> (rvis)                     AlarmConditionType (app.line.opcua.alarms)
@@ -266,21 +266,25 @@ VARIABLES = (
 
 
 def sphere_vars(sphere: str) -> tuple[Var, ...]:
-    """The drift chart of one sphere ("*": all spheres together, published as `All`)."""
+    """One sphere's measurements in the one estimator's window (app.line.estimate)."""
     return (
         Var(
-            "DriftEwmaMm",
-            ("drift", sphere, "ewma_mm"),
+            "ResidualMm",
+            ("spheres", sphere, "residual_mm"),
             ua.VariantType.Double,
-            "EWMA of the sphere's residual against its known centre",
+            "the newest measurement's distance from where the parameters in force put the"
+            " sphere's centre",
             unit="mm",
             eu_range=(0.0, 1.0),
         ),
         Var(
-            "Drifting",
-            ("drift", sphere, "drifting"),
-            ua.VariantType.Boolean,
-            "the residual chart signalled since the last applied calibration",
+            "PosteriorRmsMm",
+            ("spheres", sphere, "posterior_rms_mm"),
+            ua.VariantType.Double,
+            "RMS residual of the sphere's measurements in the estimator's window once its"
+            " estimate of the cell's drift is taken off",
+            unit="mm",
+            eu_range=(0.0, 1.0),
         ),
     )
 
@@ -384,8 +388,8 @@ class AddressSpace:
             ua.QualifiedName("Spheres", self.ns),
             ua.ObjectIds.FolderType,
         )
-        for sphere in [*spheres, "*"]:
-            label = "All" if sphere == "*" else sphere
+        for sphere in spheres:
+            label = sphere
             obj = await self._add(
                 folder,
                 self._id(name, "Spheres", label),
