@@ -86,6 +86,8 @@ def _scalar(value: Any, key: str = "") -> str:
         return "-"
     if isinstance(value, float):
         return f"{value:{MM}}" if key.endswith("_mm") else f"{value:.6g}"
+    if isinstance(value, list | tuple) and not value:
+        return "none"
     if isinstance(value, list | tuple) and all(not isinstance(v, dict | list) for v in value):
         return ", ".join(_scalar(v, key) for v in value)
     if isinstance(value, dict | list | tuple):

@@ -38,6 +38,7 @@ def _workspace(journal: Journal, u95: float, tolerance_mm: float, **more: Any) -
         "views": 20,
         "rmse_mm": 0.0387,
         "rmse_95_interval_mm": [0.0332, 0.0436],
+        "rejected": [],
         **accuracy_results(u95, tolerance_mm),
         **more,
     }
@@ -67,6 +68,7 @@ def test_the_headline_states_u95_with_what_it_is_its_limit_and_vda5_first(
     assert "T = 1 mm, the full range of the features' tolerance (+-0.5 mm; +-0.5 mm is 1.0)" in head
     assert "Workspace RMSE 0.0387 mm (95 % interval 0.0332-0.0436 mm) at 20 of 20 positions" in head
     assert "WARNING" not in md
+    assert "- rejected: none\n" in md  # an empty list said so (was "- rejected: ")
     h = to_json(journal)["headline"]
     assert h["u95_mm"] == 0.0812 and h["accuracy_limit_mm"] == 0.15
     assert h["vda5_ratio"] == 2 * 0.0812 / 1.0 and "3-D" in h["u95_what"]
