@@ -154,7 +154,6 @@ class RecalibSettings(Section):
     # imported version): the sequential estimator's and the jump test's (app/line/jumps.py)
     seq_prior_mm: float = opt(0.5, gt=0, hi=100)
     seq_prior_rad: float = opt(1e-3, gt=0, hi=1)
-    seq_max_std_mm: float = opt(0.025, gt=0, hi=10)  # after a step: before a candidate
     # "cycle": the plan's configurations in turn; "adaptive" (sequential only): the most
     # informative configuration that fits the window
     schedule: str = opt("cycle", choices=("cycle", "adaptive"))
@@ -264,6 +263,7 @@ class ServiceSection(OperationsSettings, InlineGateSettings, RecalibSettings):
             "recovery_min_measurements",
             "recovery_margin",
             "recovery_tolerance_mm",
+            "seq_max_std_mm",
         )
     }
 

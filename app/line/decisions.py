@@ -65,7 +65,7 @@ class Decisions:
         svc = self.svc
         if svc.sequential is not None:  # "calibrate now" proposes the filter's state at once
             forced = svc.force_recal and svc.sequential.can_propose()
-            due = forced or svc.sequential.due(self._visited_views)
+            due = forced or svc.sequential.due()
             if svc.pending_calibration is None and due:
                 svc.force_recal = False
                 self.recal_done(svc.sequential.candidate(svc.model, svc.x))
@@ -105,12 +105,6 @@ class Decisions:
             }
             svc.save_state()
         self._submit(train, holdout)
-
-    def _visited_views(self) -> tuple[F64, F64]:
-        """The schedule's configurations measured so far (K, 6) and their last centres (K, 3)."""
-        visits = list(self.svc.last_visit.values())
-        q = np.array([q for q, _ in visits]).reshape(-1, 6)
-        return q, np.array([c for _, c in visits]).reshape(-1, 3)
 
     def rolling_set(self) -> tuple[Rows, Rows] | None:
         """The (training, held-out) measurements a recalibration would use now: the last ones,

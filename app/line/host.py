@@ -84,7 +84,6 @@ class LineHost(Protocol):
     recal_ids: dict[str, list[int]] | None  # the calibration in flight
     jump_onset_id: int | None  # a jump's onset: the rolling set from it on
     last_visit: dict[int, tuple[F64, F64]]  # slot -> (q_deg, c_sensor_mm)
-    visit_ids: dict[int, int]  # slot -> the measurement id of its last visit
     maintained_from_id: int  # the first measurement after a maintenance's hand-over (0: none)
     episode: dict[str, Any] | None  # a jump found by the one estimator (app.line.jumps)
     u_seed: list[float]

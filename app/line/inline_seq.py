@@ -8,17 +8,9 @@ updates the estimate is a candidate, gated like a batch one (finite; change from
 in force within the in-line bounds; held-out RMS <= max_holdout_ratio x that of the parameters in
 force) and, when it passes, applied (auto) or left for approval, exactly as a batch candidate.
 
-A step flagged by the drift charts (a knock) widens the covariance at once (`widen`), before
-the post-step measurements reach the estimator (they are held out first; the held-out ones from
-before the step are dropped), so that the estimate follows the new cell instead of rejecting it
-until `knock_after` rejections in a row. The next candidate then waits for a full schedule cycle
-of updates after the step and for the estimate's own covariance to predict the schedule's views
-to `seq_max_std_mm` per coordinate. Both are needed. A few configurations cannot pin 30 widened
-parameters: measured, 8 updates after a 0.3 mm knock gave a candidate that passed the held-out
-gate and was 0.37 mm off at the validation positions (its predicted uncertainty near 1 mm). The
-covariance alone is optimistic: it knows the sensor noise, not what the model leaves out (the
-rigid model's gravity compliance); measured, a candidate whose predicted uncertainty was 0.019
-mm after about 20 post-step updates was 0.065 mm off, the next ones 0.054 and 0.046. When
+A jump the one estimator finds (app.line.jumps) is corrected as a version of its own; the
+filter restarts from every version it did not make.
+When
 parameters are applied by another route (the initial ones, a rollback) the estimator restarts
 from them, with the covariance of their identification when the document has one.
 """
@@ -26,7 +18,7 @@ from them, with the covariance of their identification when the document has one
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -86,14 +78,8 @@ class InlineSequential:
         settings: RecalibSettings,
         gates: Gates,
         spheres: Mapping[str, F64],
-        n_slots: int,
     ) -> None:
-        """`n_slots`: the schedule's length."""
         self.settings, self.gates, self.spheres = settings, gates, spheres
-        self.n_slots = n_slots
-        self.after_step = False
-        self.holding = False  # a step flagged, not attributed yet: post-step rows wait
-        self.group_step = False  # the suspected group widened: candidates without waiting
         self.queue: deque[Mapping[str, Any]] = deque()
         self.est: SequentialEstimator | None = None
         self.accepted_since = 0
@@ -128,55 +114,9 @@ class InlineSequential:
             )
         self.accepted_since, self.innovations, self.first_id = 0, [], None
 
-    def widen(self, onset_id: int) -> None:
-        """A step was flagged at measurement `onset_id`: the parameters may have jumped. The
-        held-out rows before it are dropped (stale), the covariance widened, and the next
-        candidate waits until the estimate predicts the schedule's views well again."""
-        if self.est is None:
-            return
-        self.queue = deque(r for r in self.queue if int(r["id"]) >= onset_id)
-        self.est.widen()
-        self.accepted_since, self.innovations, self.first_id = 0, [], None
-        self.after_step, self.holding, self.group_step = True, False, False
-        self._drain()
-
-    def hold(self, onset_id: int) -> None:
-        """A step was flagged at measurement `onset_id`, what moved is not known yet: the
-        held-out rows before it are dropped (stale) and the rows after it wait in the queue
-        (fed to a filter that has not been widened, the gate would reject them) until
-        `widen_group` or `widen`."""
-        self.queue = deque(r for r in self.queue if int(r["id"]) >= onset_id)
-        self.holding = True
-
-    def widen_group(self, names: Sequence[str]) -> None:
-        """The step was attributed to one group (app.line.step): only its covariance grows
-        (the process noise of a knock, `seq_knock_mm` / `seq_knock_rad`), the rows after the
-        step are fed at once, all but the newest (held out), and a candidate is due as soon
-        as the estimate predicts the schedule's views within `seq_max_std_mm`: no full
-        schedule cycle is waited for, the other parameters are as well known as before."""
-        if self.est is None:
-            return
-        self.est.widen(names)
-        self.accepted_since, self.innovations, self.first_id = 0, [], None
-        self.holding, self.group_step, self.after_step = False, True, True
-        self._drain()
-
-    def _holdout(self) -> int:
-        return 1 if self.group_step else self.settings.holdout_size
-
     def _drain(self) -> None:
-        while not self.holding and len(self.queue) > self._holdout():
+        while len(self.queue) > self.settings.holdout_size:
             self._feed(self.queue.popleft())
-
-    def step_json(self) -> dict[str, bool]:
-        """The step flags (the service's decision state)."""
-        return {"after_step": self.after_step, "holding": self.holding, "group": self.group_step}
-
-    def load_step_json(self, doc: Mapping[str, Any] | None) -> None:
-        doc = doc or {}
-        self.after_step = bool(doc.get("after_step", False))
-        self.holding = bool(doc.get("holding", False))
-        self.group_step = bool(doc.get("group", False))
 
     def offer(self, row: Mapping[str, Any]) -> None:
         """A good measurement row (as stored); the oldest beyond the hold-out is fed."""
@@ -214,33 +154,15 @@ class InlineSequential:
         return slots[self.est.choose_next(q, np.array(c))]
 
     def can_propose(self) -> bool:
-        """A candidate can be made now (an operator's "calibrate now"): the filter runs, has
-        held-out rows to gate it on and is not holding rows for a step being attributed."""
-        return (
-            self.est is not None
-            and self.first_id is not None
-            and bool(self.queue)
-            and (not self.holding)
-        )
+        """A candidate can be made now (an operator's "calibrate now"): the filter runs and
+        has held-out rows to gate it on."""
+        return self.est is not None and self.first_id is not None and bool(self.queue)
 
-    def due(self, views: Callable[[], tuple[F64, F64]]) -> bool:
-        """A candidate is due: `seq_apply_every` accepted updates since the last one; after a
-        step, a full schedule cycle of them and the estimate's predicted point uncertainty at
-        the schedule's views, `views()` -> (K, 6) joints with their last measured centres
-        (K, 3) (asked only then), at most `seq_max_std_mm` per coordinate."""
-        if self.est is None or not self.queue or self.holding:
+    def due(self) -> bool:
+        """A candidate is due: `seq_apply_every` accepted updates since the last one."""
+        if self.est is None or not self.queue:
             return False
-        if self.group_step:
-            if self.accepted_since < 1:
-                return False
-        elif self.accepted_since < self.settings.seq_apply_every:
-            return False
-        if not self.after_step:
-            return True
-        if not self.group_step and self.accepted_since < self.n_slots:
-            return False
-        q, c = views()
-        return len(q) > 0 and self.est.predicted_std_mm(q, c) <= self.settings.seq_max_std_mm
+        return self.accepted_since >= self.settings.seq_apply_every
 
     def candidate(self, model: SystemModel, x_current: F64) -> SequentialCandidate:
         """The estimate now, gated against the parameters in force on the held-out rows."""
@@ -281,6 +203,4 @@ class InlineSequential:
             int(self.queue[-1]["id"]),
         )
         self.accepted_since, self.innovations, self.first_id = 0, [], None
-        if out.passed:
-            self.after_step = self.group_step = False
         return out

@@ -70,7 +70,7 @@ class Recording:
             row_id = svc.store.add_measurement(row)
             if reading is not None and e is not None:
                 self.decisions.counted()
-                self._visited(slot, reading.c_sensor_mm, row_id)
+                svc.last_visit[slot.index] = (slot.q_deg.copy(), reading.c_sensor_mm.copy())
                 self.jumps.observe({**row, "id": row_id})
                 if svc.sequential is not None:
                     svc.sequential.offer({**row, "id": row_id})
@@ -100,10 +100,3 @@ class Recording:
         ps = SensorWatch.ps_of(quality)
         if ps is not None and (text := self.svc.sensor_watch.update(ps)):
             self.svc.alarm(AlarmCode.SENSOR, text, "high")
-
-    def _visited(self, slot: Slot, c_sensor_mm: F64, row_id: int) -> None:
-        """The slot's last visit (its configuration, centre and measurement id): what the
-        sequential estimator's adaptive schedule and the views' bookkeeping read."""
-        svc = self.svc
-        svc.last_visit[slot.index] = (slot.q_deg.copy(), np.asarray(c_sensor_mm, float).copy())
-        svc.visit_ids[slot.index] = row_id

@@ -154,7 +154,7 @@ class Service:
         self.recalibrator = recalibrator or Recalibrator()
         self.sequential: InlineSequential | None = None
         if s.recalib.estimator == "sequential":
-            self.sequential = InlineSequential(s.recalib, s.gates, self.spheres, len(schedule))
+            self.sequential = InlineSequential(s.recalib, s.gates, self.spheres)
             self.sequential.restart(self.model, self.x, self.params.current_document())
         self.watch = WindowWatch(station.plc, self.clock, s.line)
         self.measurer = SphereMeasurer(station.robot, sensor, s.line)
@@ -176,7 +176,6 @@ class Service:
         self.auto_hold: dict[str, Any] | None = None
         self.jump_onset_id: int | None = None  # a jump's onset: the rolling set from it on
         self.last_visit: dict[int, tuple[F64, F64]] = {}  # slot -> (q_deg, c_sensor_mm)
-        self.visit_ids: dict[int, int] = {}  # slot -> the measurement id of its last visit
         self.episode: dict[str, Any] | None = None  # a jump's (app.line.jumps)
         # what the cell states about its accuracy (app.line.accuracy): the version in force's
         # seed residuals, the statement after the last window, an open accuracy interval
@@ -252,8 +251,6 @@ class Service:
             "last_visit": {
                 str(k): [q.tolist(), c.tolist()] for k, (q, c) in self.last_visit.items()
             },
-            "visit_ids": {str(k): v for k, v in self.visit_ids.items()},
-            "sequential_step": None if self.sequential is None else self.sequential.step_json(),
             "u_seed": self.u_seed,
             "accuracy_suspect_id": self.accuracy_suspect_id,
             "accuracy": None if self.accuracy is None else self.accuracy.to_json(),
@@ -282,9 +279,6 @@ class Service:
             int(k): (np.asarray(q, float), np.asarray(c, float))
             for k, (q, c) in doc["last_visit"].items()
         }
-        self.visit_ids = {int(k): int(v) for k, v in doc.get("visit_ids", {}).items()}
-        if self.sequential is not None:
-            self.sequential.load_step_json(doc.get("sequential_step"))
         # a state saved before the accuracy statement: the seed of the version in force
         seed = doc.get("u_seed")
         self.u_seed = [float(e) for e in seed] if seed is not None else self.versions.version_seed()
@@ -317,7 +311,7 @@ class Service:
         hand-over), the views start afresh (none lost), the estimator starts from the handed
         over version, the U95 is seeded by the procedure's workspace validation."""
         self.episode, self.jump_onset_id = None, None
-        self.last_visit, self.visit_ids = {}, {}
+        self.last_visit = {}
         self.maintained_from_id = self.store.last_measurement_id() + 1
         self.u_seed = self.versions.version_seed()
         self.accuracy, self.accuracy_suspect_id = None, None

@@ -149,7 +149,6 @@ class Versions:
             if 0 <= r["slot"] < len(svc.schedule):
                 q = np.asarray(r["q_deg"], float)
                 svc.last_visit[int(r["slot"])] = (q, np.asarray(r["c_sensor_mm"], float))
-                svc.visit_ids[int(r["slot"])] = int(r["id"])
 
 
 def _kind(document: Mapping[str, Any] | None) -> str:
