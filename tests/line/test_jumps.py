@@ -1,8 +1,9 @@
-"""The one estimator on the service (`[service] detector = "glr"`, app.line.jumps): a knock of
-each kind during service is found, named, corrected and its suspect interval recorded from the
-last measurement before it to the correction; in approve mode the correction waits for the
-engineer, across a restart of the service; a sphere knocked alone holds the cell for its
-procedure. The cell knows the truth (the validation positions)."""
+"""The one estimator on the service (app.line.jumps): a knock of each kind during service is
+found, named, corrected and its suspect interval recorded from the last measurement before it
+to the correction; in approve mode the correction waits for the engineer, across a restart of
+the service; a sphere knocked alone holds the cell for its procedure; a knock after a restart
+and after a rollback is found and corrected as in a run that never stopped. The cell knows the
+truth (the validation positions)."""
 
 from __future__ import annotations
 
@@ -168,3 +169,74 @@ def test_an_episode_waiting_for_its_approve_survives_a_restart(tmp_path: Path) -
         assert closed["end_version"] == reply["version"]
     finally:
         again.close()
+
+
+def _restarted(tmp_path: Path, recalib: RecalibSettings) -> Any:
+    """The knock line's state directory served again by a new service (a restart)."""
+    cycle = ClampCycle(period_s=40.0, window_s=32.0, beat_s=0.5, time_scale=SCALE)
+    return make_line(
+        tmp_path / "state",
+        cycle=cycle,
+        line=line_settings(window_s=32.0, slots_per_window=8),
+        recalib=recalib,
+        **ISOTROPIC_NOISE,
+    )
+
+
+def _found_and_corrected(ln: Any, val: Any, x_good: Any, kind: str) -> None:
+    """A knock of `kind` now: flagged within a window, named, corrected within two more, its
+    interval closed at the correction, the cell back near its level before."""
+    before = true_rms(ln, val, x_good)
+    ln.cell.set_timeline(ln.clock, knock=Knock.of_kind(kind, ln.clock.monotonic()))
+    n = ln.service.counters["windows"]
+    ln.wait(_is("alarm", code="drift_step"), 20.0)
+    flagged = ln.service.counters["windows"] - n
+    ln.wait(lambda e: e["event"] == "jump" and e["group"] == GROUP_OF[kind], 30.0)
+    applied = ln.wait(_is("parameters_applied"), 20.0)
+    corrected = ln.service.counters["windows"] - n
+    closed = ln.wait(_is("suspect_interval", state="closed"), 30.0)
+    after = true_rms(ln, val, ln.service.x)
+    assert flagged <= 1 and corrected <= 3, (flagged, corrected)
+    assert closed["group"] == GROUP_OF[kind] and closed["end_version"] == applied["version"]
+    assert after <= 1.3 * before + 0.01, (before, after)
+
+
+@pytest.mark.slow
+def test_a_knock_after_a_restart_is_found_and_corrected(tmp_path: Path) -> None:
+    """The service stopped and started again on its state directory (the estimator replays
+    the version's measurements), then a fixture knock: found, named, corrected as in a run
+    that never stopped."""
+    recalib = RecalibSettings(estimator="batch")
+    ln, x_good, val = knock_line(tmp_path, recalib)
+    try:
+        ln.start()
+        ln.windows(3, timeout_s=20.0)
+    finally:
+        ln.close()
+    again = _restarted(tmp_path, recalib)
+    try:
+        again.start()
+        again.windows(1, timeout_s=20.0)
+        _found_and_corrected(again, val, x_good, "fixture")
+    finally:
+        again.close()
+
+
+@pytest.mark.slow
+def test_a_knock_after_a_rollback_is_found_and_corrected(tmp_path: Path) -> None:
+    """An in-line version, the engineer's rollback to the commissioning's (auto mode holds
+    the automatic applies) and resume (the hold lifted), then a sensor knock: the estimator
+    restarted on the rolled-back version finds, names and corrects it."""
+    ln, x_good, val = knock_line(tmp_path, RecalibSettings(estimator="batch", every_n=16))
+    try:
+        ln.start()
+        ln.wait(_is("parameters_applied"), 60.0)  # the first in-line recalibration
+        rolled = ln.service.request("rollback", {"version": 1}).result(20.0)
+        assert rolled["ok"] and rolled["held"], rolled
+        resumed = ln.service.request("resume").result(20.0)
+        assert resumed["ok"] and not resumed["held"], resumed
+        ln.windows(1, timeout_s=20.0)
+        assert ln.service.version == 1 and ln.service.auto_hold is None
+        _found_and_corrected(ln, val, x_good, "sensor")
+    finally:
+        ln.close()
