@@ -4,8 +4,18 @@ they name; the Machinery operation mode of a status reply."""
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 from app.line.beyond_knock import blind_text
-from app.line.maintenance_state import maintenance_json, need_of, needed_text, operation_mode
+from app.line.maintenance_state import (
+    maintenance_json,
+    need_of,
+    needed_text,
+    operation_mode,
+    progress_of,
+    progress_text,
+)
 
 
 def test_the_blind_alarm_names_every_procedure() -> None:
@@ -48,3 +58,22 @@ def test_a_record_left_running_before_a_later_hand_over_is_not_in_maintenance() 
     third = {**row, "id": 3, "status": "running"}
     m = maintenance_json([], [first, second, third], None)
     assert m["running"]["id"] == 3 and "progress" not in m["running"]  # no folder read
+
+
+def test_a_step_not_run_is_done_but_not_counted_as_passed(tmp_path: Path) -> None:
+    """A sensor procedure on the geometric path: its acceptance journalled "not run" (issue 51
+    item 2); the progress goes on past it and says so."""
+    step = {"started_utc": "2027-01-15T08:05:00+00:00", "seconds": 1.0, "checks": [], "files": []}
+    steps = [
+        {**step, "name": name, "status": "passed", "results": {}}
+        for name in ("devices", "prepare", "sensor", "handeye")
+    ]
+    steps.append({**step, "name": "acceptance", "status": "not run", "results": {}})
+    steps.append({**step, "name": "workspace", "status": "started", "results": {}})
+    (tmp_path / "journal.json").write_text(json.dumps({"steps": steps}))
+    progress = progress_of(tmp_path)
+    assert progress["steps_passed"] == 4 and progress["not_run"] == ["acceptance"]
+    assert (progress["next_step"], progress["next_status"]) == ("workspace", "started")
+    assert progress_text(progress) == (
+        "4 steps passed, 1 not run (acceptance), next: workspace (started)"
+    )
