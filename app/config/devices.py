@@ -125,9 +125,12 @@ class CommissionSection(Section):
     maintenance_fov_views: int = opt(16, lo=0, hi=100)
     validation_target: str = opt("VAL")
     max_workspace_rmse_mm: float = opt(0.2, gt=0, hi=100)
-    # the plant's tolerance T of the body features measured (0: not given): the report states
-    # VDA 5's capability ratio 2 U95 / T of the commissioned cell (at most 30 %), and the state
-    # directory's [service] accuracy_limit_mm becomes 0.15 T (U95 at 30 % of T)
+    # the plant's tolerance T of the body features measured, its full range (+-0.5 mm is 1.0;
+    # 0: not given): the report states VDA 5's capability ratio 2 U95 / T of the commissioned
+    # cell (at most 30 %; a T the cell's U95 fails is questioned as a possible half-range), and
+    # the state directory's [service] accuracy_limit_mm becomes 0.15 T (U95 at 30 % of T; T = 1
+    # mm when not given), or 1.5x the cell's own U95 when that is higher
+    # (calib.uncertainty.accuracy_limit_mm)
     tolerance_mm: float = opt(0.0, lo=0, hi=1000)
     seed: int = opt(0, lo=0, hi=2**32 - 1)
 
