@@ -105,7 +105,7 @@ def _service_settings(args: argparse.Namespace) -> tuple[float, str | None]:
     """The cell file's [service] min_free_mb and operators_group; without `--cell` the
     default and None (no file loaded: the directory's own group is checked)."""
     if args.cell is None:
-        from app.line.statedir import MIN_FREE_MB
+        from app.state_defaults import MIN_FREE_MB
 
         return MIN_FREE_MB, None
     from app.config import load_cell

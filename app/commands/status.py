@@ -27,11 +27,11 @@ def register(sub: Any) -> None:
 
 def state_dir_of(args: argparse.Namespace) -> Path:
     """`--state-dir`, else the cell file's [service] state_dir (the file read and checked
-    whole), else the default (app.line.statedir.DEFAULT_ROOT, no cell file loaded)."""
+    whole), else the default (app.state_defaults.DEFAULT_ROOT, no cell file loaded)."""
     if args.state_dir:
         return Path(args.state_dir)
     if args.cell is None:
-        from app.line.statedir import DEFAULT_ROOT
+        from app.state_defaults import DEFAULT_ROOT
 
         return Path(DEFAULT_ROOT)
     from app.config import load_cell

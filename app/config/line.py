@@ -15,9 +15,9 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import ClassVar
 
+from app.config.endpoint import SECURITY_POLICIES, endpoint_problem
 from app.config.section import Section, opt
-from app.line.opcua.endpoint import SECURITY_POLICIES, endpoint_problem
-from app.line.statedir import DEFAULT_ROOT, MIN_FREE_MB
+from app.state_defaults import DEFAULT_ROOT, MIN_FREE_MB
 from calib import datasheet
 from calib.gate_limits import INLINE
 

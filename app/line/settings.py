@@ -21,7 +21,7 @@ from app.config.line import (
     SweepSettings,
 )
 from app.config.section import project
-from app.line.statedir import DEFAULT_ROOT
+from app.state_defaults import DEFAULT_ROOT
 from calib.gate_limits import INLINE, Gates
 
 __all__ = ["ServiceSettings", "from_cell"]

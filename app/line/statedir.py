@@ -108,10 +108,7 @@ def version_of(name: str) -> int | None:
 
 #: The state directory when neither the cell file nor `--state-dir` names one ([service]
 #: state_dir's default), and the free space [MiB] below which it is low ([service]
-#: min_free_mb's default: the `low_disk` alarm, a `rvis state check` problem). Here, where the
-#: commands that only read the directory find them without loading the cell file's sections.
-DEFAULT_ROOT = "rvis-state"
-MIN_FREE_MB = 200.0
+#: min_free_mb's default: the `low_disk` alarm, a `rvis state check` problem): app.state_defaults
 
 DIR_MODE, DIR_MODE_GROUP = 0o750, 0o2770  # setgid: new files take the operators' group
 UMASK, UMASK_GROUP = 0o027, 0o007  # files 0640 (0660 with the group)

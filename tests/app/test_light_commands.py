@@ -21,8 +21,9 @@ from typing import Any
 import pytest
 
 from app.line.control import ControlServer
-from app.line.statedir import DEFAULT_ROOT, StateDir
+from app.line.statedir import StateDir
 from app.line.store import Store
+from app.state_defaults import DEFAULT_ROOT
 
 ROOT = Path(__file__).resolve().parents[2]
 #: what these commands never need: numerics, vision, UI, OPC UA, Modbus (top-level packages)

@@ -18,8 +18,8 @@ import pytest
 from asyncua import Client, ua
 from asyncua.crypto import security_policies
 
+from app.config.endpoint import cannot_listen, endpoint_problem
 from app.errors import InputError
-from app.line.opcua.endpoint import cannot_listen, endpoint_problem
 from app.line.opcua.server import OpcUaServer
 from app.line.statedir import StateDir
 from app.sim.line_run import SimulatedLineRun

@@ -42,8 +42,8 @@ from datetime import datetime
 from types import SimpleNamespace
 from typing import IO, TYPE_CHECKING, Any, cast
 
+from app.config.endpoint import FIELD, cannot_listen
 from app.errors import InputError
-from app.line.opcua.endpoint import FIELD, cannot_listen
 from app.line.statedir import StateDir
 
 if TYPE_CHECKING:

@@ -38,8 +38,8 @@ from cryptography import x509
 from cryptography.hazmat.primitives.serialization import Encoding
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
+from app.config.endpoint import is_loopback, split_endpoint
 from app.errors import InputError
-from app.line.opcua.endpoint import is_loopback, split_endpoint
 from app.line.statedir import StateDir
 
 if TYPE_CHECKING:

@@ -40,9 +40,9 @@ import time
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
+from app.config.endpoint import FIELD, cannot_listen, endpoint_problem
 from app.config.line import OpcUaSettings
 from app.errors import InputError
-from app.line.opcua.endpoint import FIELD, cannot_listen, endpoint_problem
 from app.line.opcua.feed import STATE_OF, TICK, FeedQueue, is_alarm, is_body
 
 if TYPE_CHECKING:
