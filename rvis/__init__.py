@@ -12,9 +12,9 @@ registers a module called `app`, `calib`, `vision`, `drivers` or `fakes`. A prog
 own `app` package imports `rvis` and its own `app` side by side, in either order.
 """
 
-from __future__ import annotations
+from __future__ import annotations as _annotations
 
-from typing import TYPE_CHECKING
+import typing as _typing
 
 __all__ = [
     "MODEL_NAME",
@@ -27,7 +27,7 @@ __all__ = [
     "load_parameters",
 ]
 
-if TYPE_CHECKING:  # the same objects, as the type checker sees them
+if _typing.TYPE_CHECKING:  # the same objects, as the type checker sees them
     from app.api import MODEL_NAME, MODEL_VERSION, Calibration, command_xyzwpr, load_parameters
     from app.errors import InputError
     from calib.compensate import Compensation, CompensationSettings

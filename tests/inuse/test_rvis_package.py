@@ -128,6 +128,8 @@ def test_rvis_exports_the_api() -> None:
         ["MODEL_NAME", "MODEL_VERSION", "Calibration", "Compensation", "CompensationSettings",
          "InputError", "command_xyzwpr", "load_parameters"]
     )  # fmt: skip
+    # no other public name (issue 51: TYPE_CHECKING and annotations were)
+    assert sorted(n for n in dir(rvis) if not n.startswith("_")) == sorted(rvis.__all__)
     assert rvis.Calibration.__module__ == "rvis._impl.app.api"
     assert rvis.MODEL_NAME == "fanuc-m710ic50-mdh30"
     assert rvis.Calibration is not Calibration  # a separate copy, by design
