@@ -36,6 +36,8 @@ from typing import Any
 
 from app.errors import InputError, RvisError
 from app.line.body_store import BodyRecords
+from app.line.interval_store import IntervalRecords
+from app.line.log_store import LogRecords, dumps
 from app.line.schema import MIGRATIONS
 
 
@@ -48,9 +50,6 @@ class DatabaseDamaged(InputError):
 
 
 SCHEMA_VERSION = len(MIGRATIONS)
-SUSPECTS_SCHEMA = 4  # the version that has suspect_intervals
-WINDOWS_SCHEMA = 5  # the version that has windows (the bodies)
-MAINTENANCE_SCHEMA = 7  # the version that has maintenance
 # SQLite primary result codes: BUSY, LOCKED, NOMEM, READONLY, IOERR, FULL, CANTOPEN, PROTOCOL
 _STORAGE_CODES = frozenset({5, 6, 7, 8, 10, 13, 14, 15})
 _DAMAGED_CODES = frozenset({11, 26})  # CORRUPT, NOTADB
@@ -58,7 +57,6 @@ _DAMAGED = (
     "the state database is damaged; rvis does not modify it: restore a copy made with"
     " `rvis state backup`, or move it aside to start a new history"
 )
-ACTIVE_ALARM_STATES = ("raised", "acked", "shelved")
 
 
 def _calibration_row(r: dict[str, Any]) -> dict[str, Any]:
@@ -74,62 +72,7 @@ def _measurement_row(r: dict[str, Any]) -> dict[str, Any]:
     return r
 
 
-def _dumps(value: Any) -> str:
-    return json.dumps(value, separators=(",", ":"))
-
-
-def suspect_rows(
-    db: sqlite3.Connection,
-    *,
-    since_t: float | None = None,
-    last: int | None = None,
-    suspect_id: int | None = None,
-) -> list[dict[str, Any]]:
-    """Suspect intervals in time order, each with `bodies`: the ids of the bodies clamped in
-    the windows that opened inside it (from t_start to t_end, an open one up to now), in
-    order, each once; in one query. Those still open or ending at or after `since_t` (all
-    when None), only the `last` n when given, or only `suspect_id`. None in a database of an
-    older rvis (read before a service of this one migrated it); no bodies before the windows
-    table. Every reader of suspect intervals comes here (the store, the TUI's history)."""
-    version = int(db.execute("PRAGMA user_version").fetchone()[0])
-    if version < SUSPECTS_SCHEMA:
-        return []
-    where: list[str] = []
-    args: list[Any] = []
-    if since_t is not None:
-        where.append("(t_end IS NULL OR t_end >= ?)")
-        args.append(since_t)
-    if suspect_id is not None:
-        where.append("id = ?")
-        args.append(suspect_id)
-    sql = "SELECT * FROM suspect_intervals"
-    sql += f" WHERE {' AND '.join(where)}" if where else ""
-    sql += " ORDER BY t_start DESC, id DESC"
-    if last is not None:
-        sql += " LIMIT ?"
-        args.append(last)
-    if version < WINDOWS_SCHEMA:
-        sql = f"SELECT s.*, NULL AS body FROM ({sql}) AS s ORDER BY s.t_start, s.id"
-    else:
-        sql = (
-            f"SELECT s.*, w.body_id AS body FROM ({sql}) AS s LEFT JOIN windows AS w"
-            " ON w.body_id IS NOT NULL AND w.t >= s.t_start"
-            " AND (s.t_end IS NULL OR w.t <= s.t_end)"
-            " ORDER BY s.t_start, s.id, w.t, w.id"
-        )
-    out: dict[int, dict[str, Any]] = {}
-    cur = db.execute(sql, args)
-    names = [d[0] for d in cur.description]
-    for r in cur.fetchall():
-        row = dict(zip(names, r, strict=True))
-        body = row.pop("body")
-        interval = out.setdefault(int(row["id"]), {**row, "bodies": []})
-        if body is not None and body not in interval["bodies"]:
-            interval["bodies"].append(body)
-    return list(out.values())
-
-
-class Store(BodyRecords):
+class Store(BodyRecords, LogRecords, IntervalRecords):
     """`Store(path)` opens (creating and migrating) the database; thread-safe; close() it."""
 
     def __init__(self, path: str | Path, *, read_only: bool = False) -> None:
@@ -285,6 +228,12 @@ class Store(BodyRecords):
         with self._lock, self._typed_errors():
             return [dict(r) for r in self._db.execute(sql, tuple(args)).fetchall()]
 
+    @contextmanager
+    def _reading(self) -> Iterator[sqlite3.Connection]:
+        """The connection for a read of several statements (under the lock, errors typed)."""
+        with self._lock, self._typed_errors():
+            yield self._db
+
     def _insert(self, sql: str, args: Sequence[Any]) -> int:
         with self._tx() as db:
             row_id = db.execute(sql, tuple(args)).lastrowid
@@ -307,11 +256,11 @@ class Store(BodyRecords):
                     row["window"],
                     row["slot"],
                     row["target"],
-                    _dumps(list(row["q_deg"])),
-                    None if row["c_sensor_mm"] is None else _dumps(list(row["c_sensor_mm"])),
+                    dumps(list(row["q_deg"])),
+                    None if row["c_sensor_mm"] is None else dumps(list(row["c_sensor_mm"])),
                     row["status"],
                     row.get("reason", ""),
-                    _dumps(row.get("quality", {})),
+                    dumps(row.get("quality", {})),
                     row.get("params_version"),
                     row.get("residual_mm"),
                     row.get("temp_c"),
@@ -414,9 +363,9 @@ class Store(BodyRecords):
                 row.get("rms_mm"),
                 row.get("holdout_rms_mm"),
                 row.get("current_holdout_rms_mm"),
-                _dumps(row.get("gates", [])),
+                dumps(row.get("gates", [])),
                 row["reason"],
-                None if row.get("document") is None else _dumps(row["document"]),
+                None if row.get("document") is None else dumps(row["document"]),
             ),
         )
 
@@ -456,334 +405,13 @@ class Store(BodyRecords):
     def applied(self) -> list[dict[str, Any]]:
         return self._rows("SELECT * FROM applied ORDER BY id")
 
-    # -- alarms, events, audit ----------------------------------------------------------------
-    def raise_alarm(self, t: float, code: str, message: str, priority: str = "high") -> int:
-        """A new alarm, unless one with this code is active already (returns its id). ISA-18.2
-        shelves the alarm, not one occurrence: while an earlier one of this code is shelved
-        until after `t`, the new one is raised shelved until then, for the same reason."""
-        live = self.active_alarms(code=code)
-        if live:
-            return int(live[0]["id"])
-        shelf = self._rows(
-            "SELECT shelved_until, shelve_reason FROM alarms WHERE code = ? AND shelved_until > ?"
-            " ORDER BY id DESC LIMIT 1",
-            (code, t),
-        )
-        until, reason = (
-            (shelf[0]["shelved_until"], shelf[0]["shelve_reason"]) if shelf else (None, None)
-        )
-        return self._insert(
-            "INSERT INTO alarms (code, priority, message, state, t_raised, shelved_until,"
-            " shelve_reason) VALUES (?, ?, ?, ?, ?, ?, ?)",
-            (code, priority, message, "raised" if until is None else "shelved", t, until, reason),
-        )
-
-    def update_alarm_message(self, alarm_id: int, message: str) -> None:
-        """What an active alarm says, as more is known (e.g. what a flagged step moved)."""
-        with self._tx() as db:
-            db.execute("UPDATE alarms SET message = ? WHERE id = ?", (message, alarm_id))
-
-    def ack_alarm(self, alarm_id: int, t: float, uid: int | None) -> bool:
-        """Acknowledge an alarm nobody has acknowledged yet: a raised one (it becomes acked)
-        or one that cleared meanwhile (ISA-18.2's "returned to normal, unacknowledged": it
-        stays cleared, acknowledged now). False when there is none such."""
-        with self._tx() as db:
-            n = db.execute(
-                "UPDATE alarms SET t_acked = ?, acked_uid = ?,"
-                " state = CASE state WHEN 'raised' THEN 'acked' ELSE state END"
-                " WHERE id = ? AND t_acked IS NULL AND state IN ('raised', 'cleared')",
-                (t, uid, alarm_id),
-            ).rowcount
-        return n == 1
-
-    def shelve_alarm(self, alarm_id: int, until_t: float, reason: str) -> bool:
-        with self._tx() as db:
-            n = db.execute(
-                "UPDATE alarms SET state = 'shelved', shelved_until = ?, shelve_reason = ?"
-                " WHERE id = ? AND state IN ('raised', 'acked')",
-                (until_t, reason, alarm_id),
-            ).rowcount
-        return n == 1
-
-    def unshelve_expired(self, t: float) -> list[int]:
-        """Shelved alarms whose time is up are raised again; their ids (a read when none)."""
-        due = self._rows(
-            "SELECT id FROM alarms WHERE state = 'shelved' AND shelved_until <= ?", (t,)
-        )
-        ids = [int(r["id"]) for r in due]
-        if ids:
-            with self._tx() as db:
-                db.executemany(
-                    "UPDATE alarms SET state = 'raised' WHERE id = ? AND state = 'shelved'",
-                    [(i,) for i in ids],
-                )
-        return ids
-
-    def clear_alarms(self, t: float, code: str | None = None) -> int:
-        """Clear the active alarms (of one code); returns how many."""
-        sql = "UPDATE alarms SET state = 'cleared', t_cleared = ? WHERE state != 'cleared'"
-        args: tuple[Any, ...] = (t,)
-        if code is not None:
-            sql, args = sql + " AND code = ?", (t, code)
-        with self._tx() as db:
-            return int(db.execute(sql, args).rowcount)
-
-    def active_alarms(self, code: str | None = None) -> list[dict[str, Any]]:
-        sql = "SELECT * FROM alarms WHERE state IN ('raised', 'acked', 'shelved')"
-        args: tuple[Any, ...] = ()
-        if code is not None:
-            sql, args = sql + " AND code = ?", (code,)
-        return self._rows(sql + " ORDER BY id", args)
-
-    def alarms(self) -> list[dict[str, Any]]:
-        return self._rows("SELECT * FROM alarms ORDER BY id")
-
-    def alarm(self, alarm_id: int) -> dict[str, Any] | None:
-        """One alarm by id (None: no such row)."""
-        rows = self._rows("SELECT * FROM alarms WHERE id = ?", (alarm_id,))
-        return rows[0] if rows else None
-
-    def add_event(self, t: float, kind: str, data: dict[str, Any]) -> int:
-        return self._insert(
-            "INSERT INTO events (t, kind, data) VALUES (?, ?, ?)", (t, kind, _dumps(data))
-        )
-
-    def prune_events(self, before_t: float, batch: int = 2000) -> int:
-        """Delete events older than `before_t`, `batch` rows a transaction (the service's
-        writers wait for one short transaction at most); returns how many."""
-        total = 0
-        while True:
-            with self._tx() as db:
-                n = db.execute(
-                    "DELETE FROM events WHERE id IN"
-                    " (SELECT id FROM events WHERE t < ? ORDER BY id LIMIT ?)",
-                    (before_t, batch),
-                ).rowcount
-            total += int(n)
-            if n < batch:
-                return total
-
-    def prune_rejected_documents(self, before_t: float) -> int:
-        """Drop the full documents of calibrations rejected before `before_t` (their gates,
-        figures and reason stay); returns how many."""
-        with self._tx() as db:
-            return int(
-                db.execute(
-                    "UPDATE calibrations SET document = NULL"
-                    " WHERE status = 'rejected' AND t < ? AND document IS NOT NULL",
-                    (before_t,),
-                ).rowcount
-            )
-
-    def events(self, kind: str | None = None) -> list[dict[str, Any]]:
-        where, args = ("WHERE kind = ?", (kind,)) if kind else ("", ())
-        rows = self._rows(f"SELECT * FROM events {where} ORDER BY id", args)
-        for r in rows:
-            r["data"] = json.loads(r["data"])
-        return rows
-
-    def add_action(
-        self, t: float, uid: int | None, cmd: str, args: dict[str, Any], ok: bool, detail: str
-    ) -> int:
-        return self._insert(
-            "INSERT INTO actions (t, uid, cmd, args, ok, detail) VALUES (?, ?, ?, ?, ?, ?)",
-            (t, uid, cmd, _dumps(args), int(ok), detail),
-        )
-
-    def actions(self) -> list[dict[str, Any]]:
-        rows = self._rows("SELECT * FROM actions ORDER BY id")
-        for r in rows:
-            r["args"] = json.loads(r["args"])
-            r["ok"] = bool(r["ok"])
-        return rows
-
-    def probe_write(self, n_bytes: int = 256 * 1024) -> None:
-        """Commit a row of `n_bytes` and delete it: StorageError unless the storage takes
-        writes again (a full disk shows at commit, when the pages reach the WAL)."""
-        with self._tx() as db:
-            db.execute(
-                "INSERT INTO events (t, kind, data) VALUES (0, 'storage_probe', zeroblob(?))",
-                (n_bytes,),
-            )
-        with self._tx() as db:
-            db.execute("DELETE FROM events WHERE kind = 'storage_probe'")
-
-    # -- suspect intervals ----------------------------------------------------------------------
-    def open_suspect(self, row: dict[str, Any]) -> int:
-        """A new open interval: t_start, last_good_id, onset_id, params_version, size_mm,
-        group_name, text."""
-        return self._insert(
-            "INSERT INTO suspect_intervals (t_start, last_good_id, onset_id, params_version,"
-            " size_mm, group_name, text) VALUES (?, ?, ?, ?, ?, ?, ?)",
-            (
-                row["t_start"],
-                row.get("last_good_id"),
-                row["onset_id"],
-                row.get("params_version"),
-                row.get("size_mm"),
-                row.get("group_name"),
-                row.get("text", ""),
-            ),
-        )
-
-    _SUSPECT_FIELDS = frozenset(
-        {
-            "t_start",
-            "last_good_id",
-            "size_mm",
-            "group_name",
-            "text",
-            "t_end",
-            "end_reason",
-            "end_version",
-            "calibration_id",
-            "onset_id",
-            "params_version",
-            "reevaluated",
-            "decisions_changed",
-            "not_reevaluated",
-        }
-    )
-
-    def update_suspect(self, suspect_id: int, **fields: Any) -> None:
-        """Set some of: t_start and last_good_id (the step located more precisely), size_mm,
-        group_name, text, t_end, end_reason, end_version, calibration_id (closing it: t_end
-        and end_reason); reevaluated, decisions_changed and not_reevaluated (its bodies
-        computed again with the correction)."""
-        unknown = set(fields) - self._SUSPECT_FIELDS
-        if unknown:
-            raise ValueError(f"unknown suspect interval fields {sorted(unknown)}")
-        sets = ", ".join(f"{k} = ?" for k in fields)
-        with self._tx() as db:
-            db.execute(
-                f"UPDATE suspect_intervals SET {sets} WHERE id = ?", (*fields.values(), suspect_id)
-            )
-
-    def suspect(self, suspect_id: int) -> dict[str, Any] | None:
-        """One interval with its bodies (`suspect_rows`), None: no such one."""
-        with self._lock, self._typed_errors():
-            rows = suspect_rows(self._db, suspect_id=suspect_id)
-        return rows[0] if rows else None
-
-    def suspects(
-        self, since_t: float | None = None, last: int | None = None
-    ) -> list[dict[str, Any]]:
-        """Intervals in time order with their bodies (`suspect_rows`): those still open or
-        ending at or after `since_t` (all when None); only the `last` n when given."""
-        with self._lock, self._typed_errors():
-            return suspect_rows(self._db, since_t=since_t, last=last)
-
-    # -- clamp windows and their bodies -----------------------------------------------------------
-    def add_window(self, t: float, body_id: int | str | None) -> int:
-        """A clamp window that opened at `t` with the body the PLC clamped in it (None: none)."""
-        return self._insert("INSERT INTO windows (t, body_id) VALUES (?, ?)", (t, body_id))
-
-    def state_window_u95(self, u95_mm: float | None) -> None:
-        """The U95 [mm] stated for the bodies of the last window recorded (app.line.accuracy)."""
-        with self._tx() as db:
-            db.execute(
-                "UPDATE windows SET u95_mm = ? WHERE id = (SELECT MAX(id) FROM windows)",
-                (u95_mm,),
-            )
-
-    def last_statement(self) -> dict[str, Any] | None:
-        """The last window a U95 was stated for: {t, u95_mm} (None: none yet)."""
-        if self.version() <= WINDOWS_SCHEMA:  # u95_mm came with the next one
-            return None
-        rows = self._rows(
-            "SELECT t, u95_mm FROM windows WHERE u95_mm IS NOT NULL ORDER BY id DESC LIMIT 1"
-        )
-        return rows[0] if rows else None
-
-    def vouched_since(self, t_from: float, limit_mm: float) -> float | None:
-        """The open time of the first window at or after `t_from` from which on every window's
-        stated U95 is within `limit_mm` (`t_from` itself when all are; None when the last
-        one's is not, or no window was recorded)."""
-        with self._lock, self._typed_errors():
-            last = self._db.execute("SELECT MAX(t) FROM windows").fetchone()[0]
-            worse = self._db.execute(
-                "SELECT MAX(t) FROM windows WHERE t >= ? AND (u95_mm IS NULL OR u95_mm > ?)",
-                (t_from, limit_mm),
-            ).fetchone()[0]
-            if last is None or worse == last:
-                return None
-            if worse is None:
-                return t_from
-            return float(
-                self._db.execute("SELECT MIN(t) FROM windows WHERE t > ?", (worse,)).fetchone()[0]
-            )
-
-    def windows_of(self, body_id: Any) -> list[dict[str, Any]]:
-        """The clamp windows the body `body_id` was clamped in (a number or its text), in time
-        order, each with the U95 stated for its bodies."""
-        if self.version() < WINDOWS_SCHEMA:
-            return []
-        return self._rows(
-            "SELECT * FROM windows WHERE CAST(body_id AS TEXT) = CAST(? AS TEXT) ORDER BY t, id",
-            (body_id,),
-        )
-
-    def windows(self) -> list[dict[str, Any]]:
-        """Every clamp window recorded, in time order (t, body_id)."""
-        if self.version() < WINDOWS_SCHEMA:
-            return []
-        return self._rows("SELECT * FROM windows ORDER BY t, id")
-
-    # -- maintenance procedures (app/maintain/) ---------------------------------------------------
-    def start_maintenance(self, row: dict[str, Any]) -> int:
-        """A procedure begins: t_start, event, axis, who, folder, version_before, before."""
-        return self._insert(
-            "INSERT INTO maintenance (t_start, event, axis, who, folder, status, version_before,"
-            " before) VALUES (?, ?, ?, ?, ?, 'running', ?, ?)",
-            (
-                row["t_start"],
-                row["event"],
-                row.get("axis"),
-                row["who"],
-                row["folder"],
-                row.get("version_before"),
-                _dumps(row.get("before", {})),
-            ),
-        )
-
-    def finish_maintenance(
-        self, maintenance_id: int, t_end: float, version_after: int, after: dict[str, Any]
-    ) -> None:
-        """The procedure handed the cell back with version_after and its figures."""
-        with self._tx() as db:
-            db.execute(
-                "UPDATE maintenance SET t_end = ?, status = 'done', version_after = ?, after = ?"
-                " WHERE id = ?",
-                (t_end, version_after, _dumps(after), maintenance_id),
-            )
-
-    def abandon_maintenance(self, maintenance_id: int, t_end: float, reason: str) -> None:
-        """A running procedure given up (begun again): no version handed over."""
-        with self._tx() as db:
-            db.execute(
-                "UPDATE maintenance SET t_end = ?, status = 'abandoned', after = ?"
-                " WHERE id = ? AND status = 'running'",
-                (t_end, _dumps({"reason": reason}), maintenance_id),
-            )
-
-    def maintenance(self, last: int | None = None) -> list[dict[str, Any]]:
-        """The maintenance records in time order (the `last` n when given); none in a
-        database of an older rvis."""
-        if self.version() < MAINTENANCE_SCHEMA:
-            return []
-        sql = "SELECT * FROM maintenance ORDER BY id DESC"
-        rows = self._rows(sql + (" LIMIT ?" if last is not None else ""), (last,) if last else ())
-        for r in rows:
-            r["before"], r["after"] = json.loads(r["before"]), json.loads(r["after"])
-        return rows[::-1]
-
     # -- the service's decision state ---------------------------------------------------------
     def save_state(self, t: float, doc: dict[str, Any]) -> None:
         with self._tx() as db:
             db.execute(
                 "INSERT INTO service_state (id, t, doc) VALUES (1, ?, ?)"
                 " ON CONFLICT (id) DO UPDATE SET t = excluded.t, doc = excluded.doc",
-                (t, _dumps(doc)),
+                (t, dumps(doc)),
             )
 
     def load_state(self) -> dict[str, Any] | None:

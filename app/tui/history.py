@@ -15,7 +15,8 @@ from typing import Any
 
 from app.inspect.spc import BASELINE_BODIES, BASELINE_N, IndividualsChart, add_values
 from app.line.body_results import records
-from app.line.store import StorageError, Store, suspect_rows
+from app.line.interval_store import suspect_rows
+from app.line.store import StorageError, Store
 
 
 def _utc(t: Any) -> str:
