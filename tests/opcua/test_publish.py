@@ -361,7 +361,7 @@ def test_the_machine_found_by_the_official_types(line: SimulatedLineRun, servers
     assert (got["mode"], got["mode_id"]) == ("Processing", ua.NodeId(5026, got["ns_m"]))
 
 
-#: the `maintenance` alarm's text for axis 3's zero moved (app.line.beyond_knock.step_text)
+#: the `maintenance` alarm's text for axis 3's zero moved (app.line.beyond_knock.change_text)
 AXIS3_TEXT = (
     "a change of 9.91 mm at the measured spheres, beyond a knock's 1.5 mm: J3 zero moved 0.4935"
     " deg (9.91 mm at the measured spheres), 3 measurements; likely the motor or encoder of"
