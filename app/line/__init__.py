@@ -6,7 +6,8 @@ station       every device opened from its URL, with the safety guard
 measure       the one piece of line code that measures one sphere
 schedule      the plan's configurations cycled; the slot that fits the remaining window
 cycle         one clamp window: wait -> busy -> move -> sweep -> vision -> store -> home -> done
-drift         EWMA and CUSUM of each measurement's residual against its known sphere
+estimate      the one estimator of the cell's state (calib.cellstate) from the version in force
+jumps         what the service does with a jump it finds: named, corrected, its interval
 recalib       rolling set -> identification in a worker process -> gates -> pending calibration
 params_store  the applied parameters file: atomic write, numbered history, rollback
 store         SQLite: schema, migrations, the only code that writes SQL

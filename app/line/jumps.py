@@ -1,6 +1,5 @@
 """The cell's state as one estimator on the service: `JumpWatch`, a collaborator of
-app.line.service.Service that sees it as app.line.host.LineHost (`[service] detector = "glr"`;
-docs/estimator.md).
+app.line.service.Service that sees it as app.line.host.LineHost (docs/estimator.md).
 
 The estimator (app.line.estimate: calib.cellstate's filter built from the version in force)
 takes every good sphere measurement (`observe`, in the measurement's transaction) and tests

@@ -1,7 +1,7 @@
 """Recalibration: rolling measurement set -> identification in a worker process -> gates.
 
 The set is the last `rolling_size` good measurements before the `holdout_size` most recent ones
-(only measurements after the last drift onset when drift was flagged); it must hold every sphere
+(only measurements after a jump's onset while one is in hand); it must hold every sphere
 and every configuration of the schedule. The identification (calib.identify, starting from the
 parameters in force) runs in a separate process, so the cycle never waits for it; `poll()`
 collects the outcome between windows. On the simulated line's virtual time (`cost_s` and the
