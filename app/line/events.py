@@ -71,7 +71,8 @@ class EventBus:
     """emit(kind, data): one row in the events table, one log line, one message per
     subscriber (a subscriber that does not keep up is dropped or loses its oldest messages,
     never blocks the service). An event that cannot be stored (a storage fault) is still
-    logged and streamed, marked `"stored": false`."""
+    logged and streamed, marked `"stored": false`. publish(kind, data): the log line and the
+    messages of an event the store wrote with its change (an alarm's clearing)."""
 
     def __init__(self, store: Store, clock: Clock, max_queue: int = 1000) -> None:
         self.store, self.clock, self.max_queue = store, clock, max_queue
@@ -118,6 +119,15 @@ class EventBus:
             self.store.add_event(t, kind, data)
         except StorageError:
             data = {**data, "stored": False}
+        self.publish(kind, data, level=level, t=t)
+
+    def publish(
+        self, kind: str, data: dict[str, Any], *, level: int = logging.INFO, t: float | None = None
+    ) -> None:
+        """An event the store has written already (with the change it records, in one
+        transaction: an alarm's clearing, app.line.log_store.LogRecords.clear_alarms): logged
+        and streamed as `emit` does, not stored again."""
+        t = self.clock.time() if t is None else t
         log.log(level, kind, extra={"event": kind, "data": data})
         message = {"event": kind, "t": t, **data}
         with self._lock:

@@ -2,7 +2,7 @@
 sees it as app.line.host.LineHost (as app.line.operator's commands do).
 
 An alarm is stored, or kept in memory while the state storage fails (`unstored_alarms`, a
-negative id), and each change is one event carrying the alarm (app.line.status.alarm_event).
+negative id), and each change is one event carrying the alarm (app.line.states.alarm_event).
 FAULT stops the robot, sets the PLC's fault bit and raises an urgent alarm, each best effort: a
 device's error (the alarm names the device and its URL when the error is one device's), a
 storage failure (`state_storage`, nothing acknowledged that was not committed) or whatever the
@@ -16,7 +16,7 @@ import logging
 
 from app.line.host import LineHost
 from app.line.states import AlarmCode, State, utc_text
-from app.line.status import alarm_event, device_of
+from app.line.status import device_of
 from app.line.store import StorageError
 
 SPACE_CHECK_S = 60.0  # how often the free space under the state directory is looked at
@@ -51,16 +51,16 @@ class Faults:
         return alarm_id
 
     def clear_alarms(self, code: str, t: float | None = None) -> int:
-        """Clear the active alarms of `code` (stored), each an `alarm_cleared` event with its
-        id (OPC UA: that occurrence of the condition ends); how many."""
+        """Clear the active alarms of `code`, each an `alarm_cleared` event with its id (OPC
+        UA: that occurrence of the condition ends), written with it by the store's one writer
+        of a clearing (app.line.log_store.LogRecords.clear_alarms, which a maintenance
+        procedure's hand-over uses too) and then logged and streamed; how many."""
         svc = self.svc
         t = svc.clock.time() if t is None else t
-        live = svc.store.active_alarms(code=code)
-        if live:
-            svc.store.clear_alarms(t, code)
-        for a in live:
-            svc.bus.emit("alarm_cleared", alarm_event(a, "cleared"), t=t)
-        return len(live)
+        events = svc.store.clear_alarms(t, code)  # the rows and their events, one transaction
+        for data in events:
+            svc.bus.publish("alarm_cleared", data, t=t)
+        return len(events)
 
     def _unstored_alarm(self, code: str, message: str, priority: str) -> int:
         unstored = self.svc.unstored_alarms

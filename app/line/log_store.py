@@ -10,6 +10,9 @@ from collections.abc import Sequence
 from contextlib import AbstractContextManager
 from typing import Any
 
+from app.line.states import alarm_event
+
+
 def dumps(value: Any) -> str:
     """A value as the store keeps JSON: compact."""
     return json.dumps(value, separators=(",", ":"))
@@ -90,14 +93,31 @@ class LogRecords:
                 )
         return ids
 
-    def clear_alarms(self, t: float, code: str | None = None) -> int:
-        """Clear the active alarms (of one code); returns how many."""
-        sql = "UPDATE alarms SET state = 'cleared', t_cleared = ? WHERE state != 'cleared'"
-        args: tuple[Any, ...] = (t,)
+    def clear_alarms(self, t: float, code: str | None = None) -> list[dict[str, Any]]:
+        """Clear the active alarms (of one code) at `t`: the one writer of a clearing (the
+        service's faults, a maintenance procedure's hand-over), each alarm cleared with its
+        `alarm_cleared` event (app.line.states.alarm_event) in the same transaction, so that a
+        consumer following the events learns every clearing the rows show. Returns the
+        events' data in the order of the alarms (empty: none was active; nothing written)."""
+        sql = "SELECT * FROM alarms WHERE state IN ('raised', 'acked', 'shelved')"
+        args: tuple[Any, ...] = ()
         if code is not None:
-            sql, args = sql + " AND code = ?", (t, code)
+            sql, args = sql + " AND code = ?", (code,)
+        sql += " ORDER BY id"
+        if not self._rows(sql, args):
+            return []
         with self._tx() as db:
-            return int(db.execute(sql, args).rowcount)
+            live = [dict(r) for r in db.execute(sql, args).fetchall()]
+            db.executemany(
+                "UPDATE alarms SET state = 'cleared', t_cleared = ? WHERE id = ?",
+                [(t, a["id"]) for a in live],
+            )
+            events = [alarm_event(a, "cleared") for a in live]
+            db.executemany(
+                "INSERT INTO events (t, kind, data) VALUES (?, 'alarm_cleared', ?)",
+                [(t, dumps(e)) for e in events],
+            )
+        return events
 
     def active_alarms(self, code: str | None = None) -> list[dict[str, Any]]:
         sql = "SELECT * FROM alarms WHERE state IN ('raised', 'acked', 'shelved')"

@@ -27,8 +27,7 @@ from typing import Any
 
 from app.line.host import LineHost
 from app.line.roles import ENGINEER, LIFTS_HOLD, NEEDS
-from app.line.states import FAULT_CODES, HOLD_LIFT, State, utc_text
-from app.line.status import alarm_event
+from app.line.states import FAULT_CODES, HOLD_LIFT, State, alarm_event, utc_text
 from app.line.store import StorageError
 from drivers.errors import DeviceError
 

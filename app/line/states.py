@@ -1,7 +1,8 @@
 """The in-line service's vocabulary, shared by the service and its collaborators (the
 operator's commands, the step handling, the status reply) and by the commands that read its
 database (`rvis status`, `rvis state suspects`): its states, the alarms that hold the cell in
-FAULT, the UTC text of the service's clock and a suspect interval as JSON. Light: no numerics."""
+FAULT, the UTC text of the service's clock, an alarm and a suspect interval as JSON. Light: no
+numerics."""
 
 from __future__ import annotations
 
@@ -83,6 +84,21 @@ ALARM_CODES: dict[str, str] = {code.value: code.kind for code in AlarmCode}
 def utc_text(t: float) -> str:
     """ISO 8601 UTC of a clock time (seconds since the epoch)."""
     return datetime.fromtimestamp(t, UTC).isoformat(timespec="seconds")
+
+
+def alarm_status(a: Mapping[str, Any]) -> dict[str, Any]:
+    """An alarm as the status reply carries it (the message also as `text`)."""
+    out = {k: a[k] for k in ("id", "code", "priority", "message", "state")}
+    out["text"] = a["message"]
+    out["raised_utc"] = utc_text(a["t_raised"])
+    return out
+
+
+def alarm_event(a: Mapping[str, Any], state: str, **more: Any) -> dict[str, Any]:
+    """An alarm's change as the events carry it (`alarm`, `alarm_acked`, `alarm_shelved`,
+    `alarm_unshelved`, `alarm_cleared`): the alarm's fields with its state after the change,
+    so that a consumer (the OPC UA server) applies each change in order without a query."""
+    return {**alarm_status(a), "state": state, **more}
 
 
 def suspect_json(row: Mapping[str, Any]) -> dict[str, Any]:

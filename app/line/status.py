@@ -9,7 +9,8 @@ from typing import Any
 from app.line.host import LineHost
 from app.line.maintenance_state import RECORDS_IN_STATUS, maintenance_json, procedures_text
 from app.line.opcua import FEED_NAME
-from app.line.states import AlarmCode, suspect_json, utc_text
+from app.line.states import AlarmCode, alarm_status, suspect_json, utc_text
+from app.line.states import alarm_event as alarm_event  # where app.line.window_loop reads it
 from app.line.store import StorageError
 from app.line.uncommissioned import uncommissioned
 
@@ -34,21 +35,6 @@ def status_reply(svc: LineHost) -> dict[str, Any]:
             "storage_error": str(exc),
             **_opcua_status(svc),
         }
-
-
-def alarm_status(a: dict[str, Any]) -> dict[str, Any]:
-    """An alarm as the status reply carries it (the message also as `text`)."""
-    out = {k: a[k] for k in ("id", "code", "priority", "message", "state")}
-    out["text"] = a["message"]
-    out["raised_utc"] = utc_text(a["t_raised"])
-    return out
-
-
-def alarm_event(a: dict[str, Any], state: str, **more: Any) -> dict[str, Any]:
-    """An alarm's change as the event bus carries it (`alarm`, `alarm_acked`, `alarm_shelved`,
-    `alarm_unshelved`, `alarm_cleared`): the alarm's fields with its state after the change,
-    so that a consumer (the OPC UA server) applies each change in order without a query."""
-    return {**alarm_status(a), "state": state, **more}
 
 
 def step_text(svc: LineHost, maintenance: Mapping[str, Any] | None = None) -> str:

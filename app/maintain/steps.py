@@ -601,15 +601,19 @@ def handover(ctx: Context) -> StepResult:
             if ours and version is not None:
                 store.add_applied(t, version, None, MAINTENANCE_SOURCE, None)
         assert version is not None
-        closed = _close_suspects(store, t, version)
-        codes = (AlarmCode.MAINTENANCE, AlarmCode.DRIFT_STEP, AlarmCode.VIEW_LOST)
-        for code in codes:
-            store.clear_alarms(t, code)
         after = {"validation_rmse_mm": _rms(errors), "version": version}
-        if m.record_id is not None:
-            store.finish_maintenance(m.record_id, t, version, after)
-        what = {"event": m.event, "axis": m.axis, "version": version, "folder": folder}
-        store.add_event(t, "maintenance", what)
+        with store.batch():  # the rest of the hand-over: all or nothing
+            closed = _close_suspects(store, t, version)
+            # the service's alarms cleared by the one writer of alarm state, each with its
+            # `alarm_cleared` event (a consumer following the events learns it, as when the
+            # service clears one)
+            store.clear_alarms(t, AlarmCode.MAINTENANCE)
+            store.clear_alarms(t, AlarmCode.DRIFT_STEP)
+            store.clear_alarms(t, AlarmCode.VIEW_LOST)
+            if m.record_id is not None:
+                store.finish_maintenance(m.record_id, t, version, after)
+            what = {"event": m.event, "axis": m.axis, "version": version, "folder": folder}
+            store.add_event(t, "maintenance", what)
         applied = [a["version"] for a in store.applied()]
     finally:
         store.close()

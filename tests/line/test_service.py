@@ -160,9 +160,15 @@ def test_a_lost_plc_heartbeat_raises_an_alarm_and_uses_no_window(
     ln.plc.wait_edges(2)
     assert ln.robot.motion_durations_s == [] and ln.service.counters["windows"] == 0
     ln.plc.heartbeat_frozen = False
-    ln.wait(lambda e: e["event"] == "alarm_cleared")
+    cleared = ln.wait(lambda e: e["event"] == "alarm_cleared")
     ln.windows(1)
     ln.stop()
+    # the clearing streamed is the one stored with it, once (app.line.log_store's one writer)
+    store = Store.read_only(tmp_path / "rvis.db")
+    (event,) = [e for e in store.events("alarm_cleared") if e["data"]["code"] == "plc_heartbeat"]
+    store.close()
+    assert event["data"] == {k: v for k, v in cleared.items() if k not in ("event", "t")}
+    assert event["t"] == cleared["t"]
 
 
 def test_a_restart_resumes_the_schedule_and_keeps_the_parameters(

@@ -105,7 +105,7 @@ def test_an_alarm_that_cleared_unacknowledged_can_still_be_acknowledged(tmp_path
     unacknowledged; acknowledging it records who and when, and it stays cleared."""
     store = Store(tmp_path / "rvis.db")
     a = store.raise_alarm(1.0, "plc_heartbeat", "PLC heartbeat lost", "high")
-    assert store.clear_alarms(2.0, "plc_heartbeat") == 1
+    assert len(store.clear_alarms(2.0, "plc_heartbeat")) == 1
     assert store.ack_alarm(a, 3.0, uid=1000)
     assert not store.ack_alarm(a, 4.0, uid=1001)  # once
     (row,) = store.alarms()
@@ -121,7 +121,7 @@ def test_alarm_life_cycle(tmp_path: Path) -> None:
     assert store.ack_alarm(a, 3.0, uid=1000) and not store.ack_alarm(a, 4.0, uid=1000)
     assert store.shelve_alarm(a, 100.0, "maintenance")
     assert store.active_alarms()[0]["state"] == "shelved"
-    assert store.clear_alarms(5.0, "drift") == 1
+    assert len(store.clear_alarms(5.0, "drift")) == 1
     assert store.active_alarms() == []
     (row,) = store.alarms()
     assert (row["acked_uid"], row["shelve_reason"], row["state"]) == (
@@ -129,6 +129,31 @@ def test_alarm_life_cycle(tmp_path: Path) -> None:
         "maintenance",
         "cleared",
     )
+    store.close()
+
+
+def test_a_clearing_is_written_with_its_event_in_one_transaction(tmp_path: Path) -> None:
+    """The one writer of a clearing (the service's faults and a maintenance hand-over use it):
+    each alarm cleared with its `alarm_cleared` event carrying it, or neither (issue 51 item 4:
+    the hand-over cleared the rows alone, and a consumer of the events never learnt it)."""
+    store = Store(tmp_path / "rvis.db")
+    a = store.raise_alarm(1.0, "maintenance", "held for maintenance", "urgent")
+    b = store.raise_alarm(1.5, "low_disk", "90 MB free", "medium")
+    assert store.clear_alarms(2.0, "spc") == []  # none active: nothing written
+    (data,) = store.clear_alarms(3.0, "maintenance")
+    assert (data["id"], data["code"], data["state"]) == (a, "maintenance", "cleared")
+    (event,) = store.events("alarm_cleared")
+    assert event["t"] == 3.0 and event["data"] == data
+    # a failure in the transaction leaves the alarm active and no event
+    store._db.execute(
+        "CREATE TEMP TRIGGER fail BEFORE INSERT ON events"
+        " BEGIN SELECT RAISE(ABORT, 'no events'); END"
+    )
+    with pytest.raises(sqlite3.IntegrityError):
+        store.clear_alarms(4.0)
+    store._db.execute("DROP TRIGGER fail")
+    assert [x["id"] for x in store.active_alarms()] == [b]
+    assert len(store.events("alarm_cleared")) == 1
     store.close()
 
 
