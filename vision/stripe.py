@@ -47,7 +47,11 @@ class StripeSettings:
 @dataclass(frozen=True, eq=False)
 class StripePoints:
     """Valid stripe points of one frame: u_px, v_px, peak_dn (above background), width_px (RMS),
-    all shape=(n,); and how many rows each rejection reason removed."""
+    all shape=(n,); and how many rows each rejection reason removed; flux_dn (n,): the row's
+    light in the centroid window, summed above background (None: not measured). Where an edge
+    cuts the stripe across its width the row's flux falls while its peak stays (the peak pixel
+    is still on the face): its share of an uncut row's is the share of the stripe the face
+    lights (vision.sheet)."""
 
     u_px: F64
     v_px: F64
@@ -56,6 +60,7 @@ class StripePoints:
     n_saturated: int = 0
     n_multi_peak: int = 0
     n_too_wide: int = 0
+    flux_dn: F64 | None = None
 
     def __len__(self) -> int:
         return int(self.u_px.shape[0])
@@ -96,7 +101,7 @@ def _top_code(frame: NDArray[np.generic], settings: StripeSettings) -> int:
 
 def _empty() -> StripePoints:
     z = np.zeros(0)
-    return StripePoints(z, z, z, z)
+    return StripePoints(z, z, z, z, flux_dn=z)
 
 
 def _hot_columns(frame: NDArray[np.generic], level: float) -> tuple[int, int] | None:
@@ -207,6 +212,7 @@ def _centroids(peaks: list[_Peaks | None], s: StripeSettings) -> list[StripePoin
     centre = moments[:, 1] / wsum
     width = np.sqrt(np.maximum(moments[:, 2] / wsum - centre**2, 0.0))
     edge_bright = np.maximum(win[:, 0], win[:, -1]) - bg > 0.5 * peak
+    flux = (win - bg[:, None]).sum(axis=1, dtype=np.float64)
     wide = (width > s.max_width_px) | edge_bright
     good = ~(saturated | multi | wide) & (moments[:, 0] > 0)
     n = len(real)
@@ -219,8 +225,11 @@ def _centroids(peaks: list[_Peaks | None], s: StripeSettings) -> list[StripePoin
     v = np.split(np.concatenate([p.rows for p in real])[good].astype(np.float64), cut)
     pk = np.split(peak[good].astype(np.float64), cut)
     wd = np.split(width[good], cut)
+    fx = np.split(flux[good], cut)
+    n_sat, n_multi, n_wide = (t.tolist() for t in tallies[1:])
     out = iter(
-        StripePoints(u[i], v[i], pk[i], wd[i], *(int(t[i]) for t in tallies[1:])) for i in range(n)
+        StripePoints(u[i], v[i], pk[i], wd[i], n_sat[i], n_multi[i], n_wide[i], fx[i])
+        for i in range(n)
     )
     return [next(out) if p is not None else _empty() for p in peaks]
 
@@ -315,6 +324,7 @@ def extract_precise(
         n_saturated=fast.n_saturated,
         n_multi_peak=fast.n_multi_peak,
         n_too_wide=fast.n_too_wide,
+        flux_dn=None if fast.flux_dn is None else fast.flux_dn[good],
     )
 
 
