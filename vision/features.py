@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from vision.errors import FeatureRefused
-from vision.sheet import Plane, SheetSettings, edge_points, fit_plane
+from vision.sheet import LIT_COLUMNS, Plane, SheetSettings, edge_points, fit_plane
 
 F64 = NDArray[np.float64]
 KINDS = ("hole", "slot", "surface")
@@ -109,11 +109,12 @@ def measure_feature(
     axis: F64 | None = None,
     settings: FeatureSettings | None = None,
 ) -> FeatureFit:
-    """Measure a feature of `kind` (KINDS) from its sweep's profiles (each (n_i, 3), ordered
-    along the stripe), near its nominal centre nominal_mm (3,) with nominal normal (3,) and
-    nominal size (hole: diameter; slot: width, length; surface: none) and a slot's nominal
-    long axis (3,): `fit_feature` of `extract_points`. Raises FeatureRefused (typed reason) or
-    ValueError for a wrong kind."""
+    """Measure a feature of `kind` (KINDS) from its sweep's profiles (each (n_i, 3) points
+    ordered along the stripe, or (n_i, 7) points with their light:
+    vision.triangulate.triangulate_profiles), near its nominal centre nominal_mm (3,) with
+    nominal normal (3,) and nominal size (hole: diameter; slot: width, length; surface: none)
+    and a slot's nominal long axis (3,): `fit_feature` of `extract_points`. Raises
+    FeatureRefused (typed reason) or ValueError for a wrong kind."""
     points = extract_points(kind, profiles, nominal_mm, normal, size_mm, settings)
     return fit_feature(kind, points, nominal_mm, normal, size_mm, axis, settings)
 
@@ -133,18 +134,18 @@ def extract_points(
     if kind not in KINDS:
         raise ValueError(f"kind: expected one of {KINDS}, got {kind!r}")
     nominal_mm, normal = np.asarray(nominal_mm, float), _unit(np.asarray(normal, float))
-    profs = [np.asarray(p, float).reshape(-1, 3) for p in profiles]
+    profs = [_profile(p) for p in profiles]
     if sum(len(p) for p in profs) == 0:
         raise FeatureRefused("no_points", "the sweep gave no stripe point")
     if kind == "surface":
-        pts = np.concatenate(profs)
+        pts = np.concatenate([p[:, :3] for p in profs])
         local = pts[_radial(pts, nominal_mm, normal) <= s.surface_radius_mm]
         plane = fit_plane(local, normal, _surface_sheet(s))
         on = local[np.abs(plane.distance_mm(local)) <= _surface_sheet(s).plane_tol_mm]
         return FeaturePoints(_sample(on), np.zeros((0, 3)))
     reach = 0.5 * max(size_mm) + s.search_margin_mm
-    near = [p[_radial(p, nominal_mm, normal) <= reach + 8.0] for p in profs]
-    every = np.concatenate(near)
+    near = [p[_radial(p[:, :3], nominal_mm, normal) <= reach + 8.0] for p in profs]
+    every = np.concatenate([p[:, :3] for p in near])
     plane = fit_plane(every, normal, s.sheet)
     edges = edge_points(near, plane, s.sheet)
     edges = edges[_radial(edges, nominal_mm, normal) <= reach]
@@ -260,6 +261,15 @@ def _surface_point(points: F64, nominal: F64, normal: F64, s: FeatureSettings) -
         "surface", nominal + t * normal, plane.normal, (), np.zeros(3), t, cov, (), 0, 1.0,
         plane.rms_mm, plane.rms_mm,
     )  # fmt: skip
+
+
+def _profile(p: F64) -> F64:
+    """A profile as an array: (n, 3) points, or (n, LIT_COLUMNS) points with their light."""
+    a = np.asarray(p, float)
+    if a.ndim == 2 and a.shape[1] == LIT_COLUMNS:
+        return a
+    out: F64 = a.reshape(-1, 3)
+    return out
 
 
 def _sample(points: F64) -> F64:

@@ -11,6 +11,23 @@ that leave the plane), the edge lies between the last point on the face and wher
 would have been: the last point plus half a sample step along the stripe (a stripe sampled every
 step s finds an edge, on average, s/2 before it). That is the sub-pixel location on the sheet's
 top edge, what a CMM probes; the points on the bore's wall never become edge points.
+
+A profile measured from images (vision.triangulate.triangulate_profiles: each point with the
+stripe's width along its image row and its row's flux) says more, and needs it. Where the edge
+crosses the stripe at a slant, the rows near it are cut across the stripe's width: a cut row's
+centroid moves to its lit side, its point leaves the face along its image row (by up to the
+plane tolerance; in the plane 10-30 um off the stripe's line), and rows whose centre is already
+in the opening still pass as the face's; the optics' blur lends the first row past an edge a
+dim, centred copy of the last one; the bore's wall, where it is lit and seen, continues the
+stripe below the face. A row is the face's while its centre is, that is while at least half of
+its light is there: its flux at least HALF_LIGHT of the face's median row (the speckle's median,
+not its mean: a row at half the light is then as likely above as below), and its point no
+further off the face than a cut through the stripe's centre moves it (HALF_CUT_SHIFT widths) by
+more than SCATTER_K times the points' own scatter (further is the wall). Of a run's END_WINDOW
+rows from its end inwards, the outermost such row, moved in by one row for each row inside it
+that is not (so that a row the speckle dims and one it brightens past the edge cancel); that
+row's point moved along its image row back onto the face (where the stripe's centre is in that
+row), plus half a step, is the edge point. Profiles of points alone keep the rule above.
 """
 
 from __future__ import annotations
@@ -117,31 +134,93 @@ def _lsq_plane(points_mm: F64, normal_hint: F64) -> Plane:
     return Plane(c, n, float(np.sqrt(np.mean(d**2))), len(points_mm))
 
 
+#: a row is the face's while its flux is at least this share of the face's median row's
+HALF_LIGHT = 0.5
+#: how many of a run's points, from its end inwards, the half-light rule reads
+END_WINDOW = 16
+#: how far (in the stripe's widths) an edge through a Gaussian stripe's centre moves its
+#: centroid: sqrt(2 / pi); a row cut less moves less
+HALF_CUT_SHIFT = float(np.sqrt(2.0 / np.pi))
+#: beyond that, plus this many times the points' own scatter off the face, a row is not the
+#: face's whatever its light (the bore's wall below it)
+SCATTER_K = 2.0
+#: the columns of a profile with its light (vision.triangulate.PROFILE_COLUMNS)
+LIT_COLUMNS = 7
+
+
 def edge_points(
     profiles: Sequence[F64], plane: Plane, settings: SheetSettings | None = None
 ) -> F64:
     """The edge points (m, 3) on the sheet's top face where the stripes break (module
     docstring): each profile's runs of points on the face, their ends inside the profile
     (never the profile's own ends: the field of view's border is no edge), each moved half a
-    step on along the stripe, away from its run."""
+    step on along the stripe, away from its run. Profiles (n_i, 3) of points, or (n_i, 7) of
+    points with their light (vision.triangulate.triangulate_profiles): the end is then the
+    outermost row that is still the face's (module docstring)."""
     s = settings or SheetSettings()
     out: list[F64] = []
     for prof in profiles:
-        on = np.abs(plane.distance_mm(prof)) <= s.plane_tol_mm
+        points = prof[:, :3]
+        on = np.abs(plane.distance_mm(points)) <= s.plane_tol_mm
         idx = np.flatnonzero(on)
         if len(idx) < 4:
             continue
         # the step in the sheet's plane: the noise along the camera's ray (mostly along the
         # normal) would lengthen it, and the half step would then overshoot the edge
-        diffs = np.diff(prof[idx], axis=0)
-        steps = np.linalg.norm(diffs - np.outer(diffs @ plane.normal, plane.normal), axis=1)
+        steps = _in_plane(np.diff(points[idx], axis=0), plane)
         step = float(np.median(steps))
-        along = prof[idx[-1]] - prof[idx[0]]
+        along = points[idx[-1]] - points[idx[0]]
         along -= (along @ plane.normal) * plane.normal
         along /= np.linalg.norm(along)
         # a run ends where the next point on the face is not the next sample or is far away
         gap = max(s.gap_steps * step, s.min_gap_mm)
-        for b in np.flatnonzero((np.diff(idx) > 1) | (steps > gap)):
-            out.append(prof[idx[b]] + 0.5 * step * along)
-            out.append(prof[idx[b + 1]] - 0.5 * step * along)
+        breaks = np.flatnonzero((np.diff(idx) > 1) | (steps > gap))
+        if prof.shape[1] >= LIT_COLUMNS:
+            out.extend(_lit_ends(prof, idx, breaks, plane, along))
+            continue
+        for b in breaks:
+            out.append(points[idx[b]] + 0.5 * step * along)
+            out.append(points[idx[b + 1]] - 0.5 * step * along)
     return np.array(out).reshape(-1, 3)
+
+
+def _in_plane(d: F64, plane: Plane) -> F64:
+    """Lengths (n,) of vectors d (n, 3) projected onto the plane."""
+    out: F64 = np.linalg.norm(d - np.outer(d @ plane.normal, plane.normal), axis=1)
+    return out
+
+
+def _lit_ends(
+    prof: F64, idx: NDArray[np.intp], breaks: NDArray[np.intp], plane: Plane, along: F64
+) -> list[F64]:
+    """The edge points of a profile with its light (module docstring) at the ends of its runs
+    of points on the face idx (indices into prof) that `breaks` (indices into idx) end."""
+    points, width_mm, flux = prof[:, :3], prof[:, 3:6], prof[:, 6]
+    off = plane.distance_mm(points)
+    # each point moved along its image row onto the face: where the stripe's centre is in
+    # its row (a row parallel to the face is left as it is)
+    climb = width_mm @ plane.normal
+    flat = np.abs(climb) < 1e-9
+    face = points - np.where(flat, 0.0, off / np.where(flat, 1.0, climb))[:, None] * width_mm
+    step = float(np.median(_in_plane(np.diff(face[idx], axis=0), plane)))
+    # the face's: at least half the light of its median row, and no further off the face than
+    # a cut through the stripe's centre moves it, plus the points' scatter
+    scatter = 1.4826 * float(np.median(np.abs(off[idx])))
+    reach = HALF_CUT_SHIFT * float(np.median(np.abs(climb[idx]))) + SCATTER_K * scatter
+    lit = (flux >= HALF_LIGHT * float(np.median(flux[idx]))) & (np.abs(off) <= reach)
+    ends = np.r_[breaks, len(idx) - 1]
+    out: list[F64] = []
+    for j, b in enumerate(breaks):
+        first = 0 if j == 0 else int(breaks[j - 1]) + 1
+        # the run that ends at b (outwards: +along) and the one that starts at b + 1 (-along),
+        # each from its end inwards
+        ending = np.arange(b, max(first, b - END_WINDOW + 1) - 1, -1)
+        starting = np.arange(b + 1, min(int(ends[j + 1]), b + END_WINDOW) + 1)
+        for rows, outwards in ((idx[ending], along), (idx[starting], -along)):
+            the_face_s = lit[rows]
+            if not the_face_s.any():
+                continue
+            k = int(np.argmax(the_face_s))  # the outermost
+            not_inside = int(np.count_nonzero(~the_face_s[k:]))
+            out.append(face[rows[k]] + (0.5 - not_inside) * step * outwards)
+    return out

@@ -20,6 +20,7 @@ from fakes.render_sensor import TrueSensor, default_true_sensor
 from vision.errors import FeatureRefused
 from vision.features import FeatureFit, measure_feature
 from vision.sensor_model import default_sensor_model
+from vision.sheet import Plane, edge_points
 
 F64 = NDArray[np.float64]
 SEEDS = range(8)
@@ -159,3 +160,40 @@ def test_no_points_is_refused() -> None:
     assert info.value.reason == "no_points"
     with pytest.raises(ValueError, match="kind"):
         measure_feature("stud", [np.ones((5, 3))], np.zeros(3), np.array([0, 0, 1.0]), (8.0,))
+
+
+def _lit_profile(dark_at: int | None = None) -> F64:
+    """One stripe's profile with its light (vision.triangulate.triangulate_profiles's columns)
+    across an opening from y = 0 to y = 2 mm in the sheet z = 0, a row every 28 um, the
+    stripe's width along its image row (0.02, 0, 0.05) mm: the face's rows (flux 100) up to
+    y = -0.018; its last row cut across the stripe by the edge (70 % of its light, its centre
+    0.3 widths towards the lit side); past the edge a row cut more (40 %, 0.8 widths: its centre
+    in the opening) and the blur's dim copy of the last one (15 %, centred); on the far side the
+    bore's wall lit 0.1 mm below the face, then the face from y = 2.012. dark_at: a face row
+    that many rows in from the edge darkened to 30 % (the speckle)."""
+    step, width_mm = 0.028, np.array([0.02, 0.0, 0.05])
+
+    def row(y: float, flux: float, shift: float = 0.0, below_mm: float = 0.0) -> F64:
+        at = np.array([0.0, y, -below_mm]) + shift * width_mm
+        return np.r_[at, width_mm, flux]
+
+    near = [row(-0.018 - k * step, 30.0 if k == dark_at else 100.0) for k in range(49, 0, -1)]
+    cut = [row(-0.018, 70.0, 0.3), row(0.010, 40.0, 0.8), row(0.038, 15.0)]
+    far = [row(1.984, 90.0, below_mm=0.1)] + [row(2.012 + k * step, 100.0) for k in range(50)]
+    return np.array(near + cut + far)
+
+
+def test_the_edge_is_where_the_stripe_s_rows_stop_being_half_lit() -> None:
+    plane = Plane(np.zeros(3), np.array([0.0, 0.0, 1.0]), 0.0, 100)
+    lit = edge_points([_lit_profile()], plane)
+    # the last half-lit row, moved along its image row back onto the face, plus half a row;
+    # the wall's row is lit but no cut moves a row that far below the face
+    assert np.allclose(lit, [[0.0, -0.004, 0.0], [0.0, 1.998, 0.0]], atol=1e-9)
+    # the points alone: the run ends at the blur's copy, 52 um into the opening, and starts
+    # on the wall, 28 um into it
+    alone = edge_points([_lit_profile()[:, :3]], plane)
+    assert np.allclose(alone[:, 1], [0.052, 1.970], atol=1e-9)
+    # a row the speckle darkens inside the run counts against the rows past it (as one it
+    # brightens past the edge counts for them): the edge one row in
+    darkened = edge_points([_lit_profile(dark_at=5)], plane)
+    assert np.allclose(darkened[:, 1], [-0.032, 1.998], atol=1e-9)
