@@ -36,7 +36,9 @@ F64 = NDArray[np.float64]
 
 class FeatureSensor(Protocol):
     """Moves the robot to a view's joints and sweeps the galvo over the feature: the stripe
-    profiles (each (n_i, 3), ordered along the stripe) in the sensor frame."""
+    profiles (each (n_i, 3), ordered along the stripe) in the sensor frame, or (n_i, 7) with
+    each point's light (vision.triangulate.triangulate_profiles: the edge from the stripe's
+    light, vision.sheet)."""
 
     def profiles(self, view: FeatureView) -> list[F64]: ...
 

@@ -13,8 +13,9 @@ k in the body's own frame. Two paths:
 - rendered: the true sensor records the sweep over the true sheet, its opening and its
   thickness (fakes.render_sheet), and the vision pipeline turns the frames into profiles with
   the calibrated sensor model (`vision_model`: stripe extraction, triangulation), as the real
-  sensor's SweepFeatureSensor does. The frames are rendered in this process: the simulated
-  line's GigE camera renders spheres only, so a body's sweep does not pass through it.
+  sensor's SweepFeatureSensor does, each point with its light (`rendered_profiles`). The
+  frames are rendered in this process: the simulated line's GigE camera renders spheres
+  only, so a body's sweep does not pass through it.
 """
 
 from __future__ import annotations
@@ -39,11 +40,12 @@ from fakes.body import (
 )
 from fakes.cell import SimulatedCell
 from fakes.line import SimLine
+from fakes.render_noise import NoiseSettings
 from fakes.render_sensor import TrueSensor
 from fakes.render_sheet import render_feature_sweep
 from vision.sensor_model import SensorModel
 from vision.stripe import extract_sweep
-from vision.triangulate import triangulate_sweep
+from vision.triangulate import triangulate_profiles
 
 F64 = NDArray[np.float64]
 
@@ -122,16 +124,19 @@ def rendered_profiles(
     model: SensorModel,
     rng: np.random.Generator,
     commands_v: F64,
+    *,
+    noise: NoiseSettings | None = None,
 ) -> list[F64]:
     """The rendered path of one sweep: the true sensor records the sweep at commands_v over the
-    feature posed at T_camera_feature (fakes.render_sheet), and the vision pipeline turns the
-    frames into its profiles in the sensor frame with `model` (stripe extraction,
-    triangulation), as the real sensor's SweepFeatureSensor does."""
+    feature posed at T_camera_feature (fakes.render_sheet; `noise`: the camera's and the
+    laser's, the default's when None), and the vision pipeline turns the frames into its
+    profiles in the sensor frame with `model` (stripe extraction, triangulation): each point
+    with its light (vision.triangulate.triangulate_profiles), which puts the edge where the
+    stripe's rows stop being the top face's."""
     frames = render_feature_sweep(
-        T_camera_feature, kind, size_mm, thickness_mm, sensor, rng, commands_v
+        T_camera_feature, kind, size_mm, thickness_mm, sensor, rng, commands_v, noise=noise
     )
-    points, frame_of = triangulate_sweep(extract_sweep(frames, "fast"), commands_v, model)
-    return [points[frame_of == k] for k in range(len(commands_v))]
+    return triangulate_profiles(extract_sweep(frames, "fast"), commands_v, model)
 
 
 def true_value(body: TrueBody, c: Characteristic, plan: FeaturePlan) -> float:

@@ -4,10 +4,13 @@ opening) at the working distance, rolled 15 degrees about their normal and tilte
 degrees, their profiles made as the line's rendered path makes them (app.sim.bodies) with the
 true sensor's model, and measured in the sensor frame against the geometry they were drawn with.
 
-The edge comes out where the stripe's rows stop being the top face's, to within the sampling's
-own scatter: the sizes within 5 um whatever the tilt (the stripe's speckle moves a single sweep's
-diameter or width by about 3 um, 1 sd; the slot's length, from the few stripes across its round
-ends, by about 10 um)."""
+The bounds are what the rendering supports (20 seeds of these six sweeps, docs/results/body.md):
+the camera's rows sample the edge every 28 um and the laser's speckle decides which row is the
+last one the face half lights, so one sweep's diameter or width scatters by 3-5 um (1 sd; at
+most 12.5 um off over the 120 sweeps), a slot's length by 10-12 um (its few stripes across the
+round ends; at most 28.5 um), the centre by up to 17 um; the mean of the six sweeps' diameters
+and widths was within 2.5 um (-1.7 to +2.5 um) and their mean centre within 7 um. With the edge
+inside the opening, as it was before, that mean was -12 to -17 um (-15 um for these six)."""
 
 from __future__ import annotations
 
@@ -18,13 +21,19 @@ from numpy.typing import NDArray
 from app.sim.bodies import rendered_profiles
 from app.sim.cell import true_sensor_model
 from fakes.render_sensor import TrueSensor
-from vision.features import measure_feature
+from vision.features import FeatureFit, measure_feature
 
 F64 = NDArray[np.float64]
 THICKNESS_MM = 1.2
 ROLL_DEG = 15.0
-#: the bounds [mm]: a diameter or a width, a slot's length, the centre in the sheet's plane
-SIZE_MM, LENGTH_MM, CENTRE_MM = 0.005, 0.025, 0.010
+TILTS_DEG = (0.0, 5.0, 10.0)
+FEATURES = (("hole", (12.0,)), ("slot", (8.0, 20.0)))
+#: one sweep's bounds [mm]: a diameter or a width, a slot's length, the centre in the plane
+SIZE_MM, LENGTH_MM, CENTRE_MM = 0.013, 0.030, 0.020
+#: the six sweeps' mean diameter and width error, and their mean centre [mm]
+MEAN_SIZE_MM, MEAN_CENTRE_MM = 0.005, 0.007
+
+Case = tuple[str, float]
 
 
 def _pose(tilt_deg: float) -> F64:
@@ -50,24 +59,51 @@ def _commands(true: TrueSensor, half_mm: float, n: int) -> F64:
     return out
 
 
-@pytest.mark.xfail(reason="issue 48: the rendered edge comes out inside the opening", strict=False)
-@pytest.mark.parametrize("tilt_deg", [0.0, 5.0, 10.0])
-@pytest.mark.parametrize(("kind", "size"), [("hole", (12.0,)), ("slot", (8.0, 20.0))])
-def test_the_rendered_edge_is_the_top_face_s_whatever_the_tilt(
-    true_sensor: TrueSensor, kind: str, size: tuple[float, ...], tilt_deg: float
-) -> None:
+def measure_rendered(
+    true: TrueSensor, kind: str, size: tuple[float, ...], tilt_deg: float, seed: int
+) -> tuple[F64, F64]:
+    """One sweep of the rendered path: the size's error (as size_mm) and the centre's in the
+    feature's plane (2,) [mm]."""
     T = _pose(tilt_deg)
     R, t = T[:3, :3], T[:3, 3]
-    cmds = _commands(true_sensor, 0.5 * max(size) + 3.0, 40)
+    cmds = _commands(true, 0.5 * max(size) + 3.0, 40)
     profiles = rendered_profiles(
-        T, kind, size, THICKNESS_MM, true_sensor, true_sensor_model(true_sensor),
-        np.random.default_rng(5), cmds,
+        T, kind, size, THICKNESS_MM, true, true_sensor_model(true), np.random.default_rng(seed),
+        cmds,
     )  # fmt: skip
-    fit = measure_feature(kind, profiles, t, R[:, 2], size, R[:, 0])
-    got = np.array(fit.size_mm) - np.array(size)
-    centre = R.T @ (fit.centre_mm - t)
-    print(f"{kind} at {tilt_deg:g} deg: size {1e3 * got} um, centre {1e3 * centre} um")
-    assert abs(got[0]) <= SIZE_MM
+    fit: FeatureFit = measure_feature(kind, profiles, t, R[:, 2], size, R[:, 0])
+    return np.array(fit.size_mm) - np.array(size), (R.T @ (fit.centre_mm - t))[:2]
+
+
+@pytest.fixture(scope="module")
+def sweeps(true_sensor: TrueSensor) -> dict[Case, tuple[F64, F64]]:
+    """The six sweeps (seed 5): (kind, tilt) -> (size error, centre) [mm]."""
+    out = {
+        (kind, tilt): measure_rendered(true_sensor, kind, size, tilt, 5)
+        for kind, size in FEATURES
+        for tilt in TILTS_DEG
+    }
+    for (kind, tilt), (err, centre) in out.items():
+        print(f"{kind} at {tilt:g} deg: size {1e3 * err} um, centre {1e3 * centre} um")
+    return out
+
+
+def test_the_rendered_sizes_are_not_biased_by_the_tilt(
+    sweeps: dict[Case, tuple[F64, F64]],
+) -> None:
+    widths = np.array([err[0] for err, _ in sweeps.values()])
+    assert abs(widths.mean()) <= MEAN_SIZE_MM
+    centres = np.array([c for _, c in sweeps.values()])
+    assert np.hypot(*centres.mean(axis=0)) <= MEAN_CENTRE_MM
+
+
+@pytest.mark.parametrize("tilt_deg", TILTS_DEG)
+@pytest.mark.parametrize("kind", ["hole", "slot"])
+def test_each_rendered_sweep_is_within_the_sampling_s_scatter(
+    sweeps: dict[Case, tuple[F64, F64]], kind: str, tilt_deg: float
+) -> None:
+    err, centre = sweeps[(kind, tilt_deg)]
+    assert abs(err[0]) <= SIZE_MM
     if kind == "slot":
-        assert abs(got[1]) <= LENGTH_MM
-    assert np.hypot(centre[0], centre[1]) <= CENTRE_MM
+        assert abs(err[1]) <= LENGTH_MM
+    assert np.hypot(*centre) <= CENTRE_MM
