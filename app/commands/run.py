@@ -183,6 +183,7 @@ def _sensor_model(args: argparse.Namespace, state_dir: Path) -> Any:
 def _serve_station(
     station: Any, cfg: Any, settings: Any, plan: Path, x0: Any, sensor_model: Any
 ) -> int:
+    from app.line.body_cycle import sweep_bodies
     from app.line.launch import build_service, json_logs, serve
     from app.line.measure import SweepSensor
     from vision.sensor_model import default_sensor_model
@@ -190,14 +191,19 @@ def _serve_station(
     with station:
         if station.camera is None or station.galvo is None:
             raise InputError("the service needs a camera and a galvo", field="devices")
+        model = sensor_model or default_sensor_model()
         sensor = SweepSensor(
             station.camera,
             station.galvo,
-            sensor_model or default_sensor_model(),
+            model,
             settings.sweep,
             keep_frames=settings.ops.raw_sweeps_keep > 0,
         )
-        service = build_service(cfg, station, sensor, settings, plan, x0)
+        # the part type's features when the state directory has a plan (features.toml)
+        bodies = sweep_bodies(
+            settings.state_dir, cfg.T_part_base, station.camera, station.galvo, model
+        )
+        service = build_service(cfg, station, sensor, settings, plan, x0, bodies=bodies)
         json_logs()
         return _exit(serve(service))
 

@@ -48,7 +48,7 @@ from app.inspect.values import Value
 from app.inspect.views import InspectionPlan, plan_views, reaimed
 from app.line.body_export import ResultsWriter
 from app.line.cycle import WindowWatch, Withdrawal
-from app.line.measure import SphereMeasurer
+from app.line.measure import SphereMeasurer, SweepFeatureSensor
 from app.line.statedir import StateDir
 from app.line.store import Store
 from app.motion import motion_time_s
@@ -74,6 +74,18 @@ def feature_plan(state_root: Path, T_part_base: F64) -> FeaturePlan | None:
     2), None without one: the cell measures no body."""
     path = StateDir(state_root).features
     return load_features(path, T_part_base) if path.is_file() else None
+
+
+def sweep_bodies(
+    state_root: Path, T_part_base: F64, camera: Any, galvo: Any, sensor_model: SensorModel
+) -> BodySetup | None:
+    """A real cell's bodies: the state directory's feature plan measured with the sensor's
+    sweeps (app.line.measure.SweepFeatureSensor: the camera and galvo the spheres are measured
+    with); None without a plan."""
+    plan = feature_plan(state_root, T_part_base)
+    if plan is None:
+        return None
+    return BodySetup(plan, SweepFeatureSensor(camera, galvo, sensor_model), sensor_model)
 
 
 @dataclass

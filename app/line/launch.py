@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from app.line.body_cycle import BodySetup
 from app.line.control import ControlServer
 from app.line.events import JsonLineFormatter
 from app.line.measure import SphereSensor
@@ -85,16 +86,25 @@ def build_service(
     x_initial: ArrayLike | None = None,
     *,
     clock: Clock | None = None,
+    bodies: BodySetup | None = None,
 ) -> Service:
     """The service of a resolved cell configuration (app.config.CellConfig): the plan's
     schedule, the cell's spheres, its model ([service] model: rigid or compliant, with the
     thermal term) (x_initial: the starting parameters when the state directory has none yet;
-    default nominal)."""
+    default nominal); `bodies`: the part type's features it measures (None: none)."""
     schedule = Schedule.from_plan(plan_path, settings.line)
     model = cfg.service_model()
     x0 = model.nominal_x() if x_initial is None else np.asarray(x_initial, dtype=float)
     return Service(
-        station, sensor, schedule, cfg.spheres_part_mm, model, x0, clock=clock, settings=settings
+        station,
+        sensor,
+        schedule,
+        cfg.spheres_part_mm,
+        model,
+        x0,
+        clock=clock,
+        settings=settings,
+        bodies=bodies,
     )
 
 

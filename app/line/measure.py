@@ -168,7 +168,8 @@ class SphereMeasurer:
 class SweepFeatureSensor:
     """A body feature's sweep on a real sensor (app.inspect.measure.FeatureSensor): one grab at
     each of the view's mirror commands, the stripe of each frame extracted and triangulated
-    into one profile (sensor frame, in the camera's row order); the galvo parked at 0 V after.
+    into one profile (sensor frame, in the camera's row order, each point with its light:
+    vision.triangulate.triangulate_profiles); the galvo parked at 0 V after.
     The robot is already at the view."""
 
     def __init__(
@@ -185,7 +186,7 @@ class SweepFeatureSensor:
 
     def profiles(self, view: Any) -> list[F64]:
         from vision.stripe import extract_sweep
-        from vision.triangulate import triangulate_sweep
+        from vision.triangulate import triangulate_profiles
 
         commands = np.asarray(view.commands_v, dtype=float)
         frames = []
@@ -195,6 +196,5 @@ class SweepFeatureSensor:
                 frames.append(self.camera.grab(self.grab_timeout_s).image)
         finally:
             set_galvo_volts(self.galvo, 0.0)
-        stripes = extract_sweep(frames, self.mode)
-        points, frame_of = triangulate_sweep(stripes, commands, self.sensor_model)
-        return [points[frame_of == k] for k in range(len(commands))]
+        # each point with its light: the edge where the stripe's rows stop being the face's
+        return triangulate_profiles(extract_sweep(frames, self.mode), commands, self.sensor_model)
