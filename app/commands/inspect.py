@@ -99,15 +99,18 @@ def run_plan(args: argparse.Namespace) -> int:
     if args.json:
         print(dumps_json(doc, indent=2))
     else:
-        for v in route_table(route):
+        for v, view in zip(route_table(route), route.views, strict=True):
             print(
                 f"  {v['feature']:<8} tilt {v['tilt_deg']:4.0f} deg  repeat sd"
                 f" {v['repeat_sd_mm']:.3f} mm  motion {v['motion_s']:.2f} s  sweep"
-                f" {v['sweep_s']:.2f} s"
+                f" {v['sweep_s']:.2f} s" + (f"  {view.stops} stops" if view.stops > 1 else "")
             )
+        several = sum(v.stops > 1 for v in route.views)
         print(
-            f"{len(route.views)} of {len(plan.features)} features planned; route"
-            f" {route.route_s:.1f} s from home and back ({doc['per_feature_s']} s per feature)"
+            f"{len(route.views)} of {len(plan.features)} features planned"
+            + (f" ({several} from several stops: the robot's repeatability)" if several else "")
+            + f"; route {route.route_s:.1f} s from home and back"
+            f" ({doc['per_feature_s']} s per feature)"
         )
     for fid, why in route.unreachable.items():
         print(f"feature {fid}: no view: {why}", file=sys.stderr)

@@ -17,6 +17,8 @@ the simulated line the geometric path (app.sim.bodies), on a real cell the camer
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol
@@ -29,7 +31,13 @@ from app.inspect.plan import Feature, FeaturePlan
 from app.inspect.values import Value, feature_values, not_measured
 from app.inspect.views import FeatureView, InspectionPlan
 from vision.errors import FeatureRefused
-from vision.features import FeaturePoints, FeatureSettings, extract_points, fit_feature
+from vision.features import (
+    FeatureFit,
+    FeaturePoints,
+    FeatureSettings,
+    extract_points,
+    fit_feature,
+)
 
 F64 = NDArray[np.float64]
 
@@ -47,13 +55,15 @@ class FeatureSensor(Protocol):
 class RawFeature:
     """What a feature's values are computed from: the view's joints q_deg (6,), the cell's
     temperature [degC] (None: not known) and the feature's points in the sensor frame, or why
-    the sweep gave none (`refused`: a FeatureRefused's text)."""
+    the sweep gave none (`refused`: a FeatureRefused's text); `stop`: which of the view's
+    stops (app.inspect.views: a feature measured from several is their fits' mean)."""
 
     feature: str
     q_deg: F64
     temp_c: float | None
     points: FeaturePoints | None
     refused: str = ""
+    stop: int = 0
 
 
 @dataclass(frozen=True)
@@ -77,9 +87,11 @@ def extract(
     profiles: Sequence[F64],
     temp_c: float | None = None,
     settings: FeatureSettings | None = None,
+    stop: int = 0,
 ) -> RawFeature:
-    """The raw data of one feature from its sweep's profiles (sensor frame) at q_deg: its
-    points, found around the nominal as `cal` puts it in the sensor frame."""
+    """The raw data of one feature from its sweep's profiles (sensor frame) at q_deg (its
+    view's `stop`-th): its points, found around the nominal as `cal` puts it in the sensor
+    frame."""
     T = cal.sensor_pose(q_deg, temp_c)[0]
     R, t = T[:3, :3], T[:3, 3]
     nominal_s, normal_s = R.T @ (feature.position_mm - t), R.T @ feature.normal
@@ -88,32 +100,78 @@ def extract(
             feature.type, profiles, nominal_s, normal_s, feature.size_mm, settings
         )
     except FeatureRefused as exc:
-        return RawFeature(feature.id, q_deg, temp_c, None, str(exc))
-    return RawFeature(feature.id, q_deg, temp_c, points)
+        return RawFeature(feature.id, q_deg, temp_c, None, str(exc), stop)
+    return RawFeature(feature.id, q_deg, temp_c, points, stop=stop)
 
 
 def evaluate(
     cal: Calibration,
     feature: Feature,
-    raw: RawFeature,
+    raw: RawFeature | Sequence[RawFeature],
     statement_u95_mm: float,
     settings: FeatureSettings | None = None,
 ) -> list[Value]:
     """The values of one feature from its raw data with the calibration `cal` (module
-    docstring)."""
-    if raw.points is None:
-        return not_measured(feature, raw.refused)
-    T = cal.sensor_pose(raw.q_deg, raw.temp_c)[0]
-    try:
-        fit = fit_feature(
-            feature.type, raw.points.transformed(T), feature.position_mm, feature.normal,
-            feature.size_mm, feature.axis if feature.type == "slot" else None, settings,
-        )  # fmt: skip
-    except FeatureRefused as exc:
-        return not_measured(feature, str(exc))
+    docstring): from several stops, the mean of their fits (each stop's robot error is its
+    own: the fit's own covariance and a size's sd fall with their number); a stop the vision
+    refused is left out, all refused: "not measured" with the first one's reason."""
+    raws = [raw] if isinstance(raw, RawFeature) else list(raw)
+    fits, refused, at = [], [], None
+    for r in raws:
+        if r.points is None:
+            refused.append(r.refused)
+            continue
+        T = cal.sensor_pose(r.q_deg, r.temp_c)[0]
+        try:
+            fits.append(
+                fit_feature(
+                    feature.type,
+                    r.points.transformed(T),
+                    feature.position_mm,
+                    feature.normal,
+                    feature.size_mm,
+                    feature.axis if feature.type == "slot" else None,
+                    settings,
+                )
+            )
+        except FeatureRefused as exc:
+            refused.append(str(exc))
+            continue
+        at = at or (r.q_deg, T)
+    if not fits or at is None:
+        return not_measured(feature, refused[0] if refused else "no sweep")
+    fit = mean_fit(fits)
+    q_deg, T = at
     c_sensor = T[:3, :3].T @ (fit.centre_mm - T[:3, 3])
-    cov = calibration_cov(cal, raw.q_deg, c_sensor)
+    cov = calibration_cov(cal, q_deg, c_sensor)
     return feature_values(feature, fit, cov, statement_u95_mm)
+
+
+def mean_fit(fits: Sequence[FeatureFit]) -> FeatureFit:
+    """The mean of one feature's fits from independent stops: centre, normal, sizes and a
+    surface point's deviation averaged; the fit's own covariance and the sizes' sd divided by
+    their number (the robot's error at each stop is part of what the fits' scatter holds
+    apart: the cell's statement keeps the parameters' share, app.inspect.values)."""
+    if len(fits) == 1:
+        return fits[0]
+    n = len(fits)
+    normal = np.mean([f.normal for f in fits], axis=0)
+    return dataclasses.replace(
+        fits[0],
+        centre_mm=np.mean([f.centre_mm for f in fits], axis=0),
+        normal=normal / np.linalg.norm(normal),
+        size_mm=tuple(float(v) for v in np.mean([f.size_mm for f in fits], axis=0))
+        if fits[0].size_mm
+        else (),
+        deviation_mm=float(np.mean([f.deviation_mm for f in fits])),
+        cov_centre_mm2=np.mean([f.cov_centre_mm2 for f in fits], axis=0) / n,
+        sd_size_mm=tuple(
+            float(v) / math.sqrt(n) for v in np.mean([f.sd_size_mm for f in fits], axis=0)
+        )
+        if fits[0].sd_size_mm
+        else (),
+        n_edge_points=sum(f.n_edge_points for f in fits),
+    )
 
 
 def calibration_cov(cal: Calibration, q_deg: F64, c_sensor_mm: F64) -> F64:
@@ -138,11 +196,12 @@ def measure_body(
 ) -> BodyResult:
     """Every feature of `plan` on the clamped body, along the route, the cell at temp_c
     [degC] (None: not known); a feature without a view is "not measured" (no view)."""
-    raw: dict[str, RawFeature] = {}
+    raw: list[RawFeature] = []
     for v in views.views:
         f = plan.feature(v.feature)
-        raw[v.feature] = extract(cal, f, v.q_deg, sensor.profiles(v), temp_c)
-    return evaluate_body(body, cal, plan, list(raw.values()), statement_u95_mm, views.unreachable)
+        for k in range(v.stops):  # each a stop of its own (the sensor's robot moves there)
+            raw.append(extract(cal, f, v.q_deg, sensor.profiles(v), temp_c, stop=k))
+    return evaluate_body(body, cal, plan, raw, statement_u95_mm, views.unreachable)
 
 
 def evaluate_body(
@@ -155,13 +214,15 @@ def evaluate_body(
 ) -> BodyResult:
     """A body's values from its raw data (plan order; a feature without raw data is "not
     measured" with the reason in `unreachable`, or "no view")."""
-    by_id = {r.feature: r for r in raw}
+    by_id: dict[str, list[RawFeature]] = {}
+    for r in raw:
+        by_id.setdefault(r.feature, []).append(r)
     values: list[Value] = []
     for f in plan.features:
-        r = by_id.get(f.id)
-        if r is None:
+        stops = by_id.get(f.id)
+        if not stops:
             why = (unreachable or {}).get(f.id, "no view in the plan")
             values.extend(not_measured(f, f"no view: {why}"))
         else:
-            values.extend(evaluate(cal, f, r, statement_u95_mm))
+            values.extend(evaluate(cal, f, stops, statement_u95_mm))
     return BodyResult(body, tuple(values), tuple(raw))

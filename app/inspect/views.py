@@ -20,6 +20,14 @@ calib.repeatability) gives the feature's position along its worst axis, those wi
 `repeat_slack` of the best are kept, and the route takes the one nearest the previous view. A
 feature with no view is named, never dropped (`InspectionPlan.unreachable`).
 
+Stops: a type-1 study asks s <= 0.2 T / (6 Cg) of one measurement (0.025 mm for T = 1 mm at
+Cg 1.33), and the robot's repeatability alone can take a feature's best view past it. Such a
+feature is measured from several stops (`stops_wanted`: as many as bring the robot's share
+within `repeat_share` of it, at most `max_stops`), the robot backing off along the sensor's
+axis and returning between them (a new stop: a new pose error), the fits averaged
+(app.inspect.measure). The cell takes an extra stop only while the rest of the route still
+fits the body's window (`rest_s`, app.line.body_cycle): every feature's first stop comes first.
+
 The sweep: the mirror commands that put the stripe, on the sheet at the working distance, at
 evenly spaced positions across the feature's width plus a margin (the sensor model's laser
 planes, vision.sensor_model), `frames` of them.
@@ -28,6 +36,7 @@ planes, vision.sensor_model), `frames` of them.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -59,7 +68,10 @@ class ViewSettings:
     within this share of the best one's are kept, at most max_candidates (module docstring);
     margin_mm: the sweep's reach beyond the feature's outline (the sheet's plane needs points
     around it); frames per sweep; frame_s per frame (galvo, exposure, transfer);
-    surface_span_mm: a surface point's sweep."""
+    surface_span_mm: a surface point's sweep. Stops (module docstring): a feature the robot
+    repeats worse at its view than `repeat_share` of what a type-1 study's Cg of `cg_target`
+    allows its position tolerance is measured from up to `max_stops` stops, the robot backing
+    off `retreat_mm` along the sensor's axis between them."""
 
     working_distance_mm: float = 120.0
     max_tilt_deg: float = 30.0
@@ -70,6 +82,10 @@ class ViewSettings:
     frames: int = 40
     frame_s: float = 0.025
     surface_span_mm: float = 10.0
+    cg_target: float = 1.33
+    repeat_share: float = 0.8
+    max_stops: int = 3
+    retreat_mm: float = 20.0
 
 
 @dataclass(frozen=True)
@@ -88,6 +104,10 @@ class FeatureView:
     sweep_s: float = 0.0
     repeat_sd_mm: float = 0.0
     T_part_sensor: F64 = field(default_factory=lambda: np.eye(4))  # the pose it plans
+    stops: int = 1  # sweeps from as many stops, averaged (module docstring)
+    q_retreat_deg: F64 | None = None  # where the robot backs off to between two stops
+    retreat_s: float = 0.0  # the motion time there and back
+    rest_s: float = 0.0  # the route after this view's first stop: the later views and home
 
 
 @dataclass(frozen=True)
@@ -148,7 +168,61 @@ def plan_views(
         prev = q
     total = sum(v.motion_s + v.sweep_s for v in views)
     total += motion_time_s(prev, home, line)
+    views, total = _with_stops(views, plan, model, x, line, s, total)
     return InspectionPlan(tuple(views), unreachable, total)
+
+
+def stops_wanted(view: FeatureView, feature: Feature, s: ViewSettings) -> int:
+    """How many stops the feature's view asks for: the robot's standard deviation there on
+    its worst axis (`repeat_sd_mm`) against `repeat_share` of what a type-1 study's Cg of
+    `cg_target` allows the narrowest position tolerance, 0.2 T / (6 Cg); averaged over n stops
+    it falls by sqrt(n). At most `max_stops`."""
+    widths = [hi - lo for c in feature.characteristics() if c.kind == "position"
+              for lo, hi in [c.tol_mm]]  # fmt: skip
+    if not widths or view.repeat_sd_mm <= 0.0:
+        return 1
+    allowed = s.repeat_share * 0.2 * min(widths) / (6.0 * s.cg_target)
+    return int(min(s.max_stops, max(1, math.ceil((view.repeat_sd_mm / allowed) ** 2))))
+
+
+def _with_stops(
+    views: list[FeatureView],
+    plan: FeaturePlan,
+    model: SystemModel,
+    x: F64,
+    line: LineSettings,
+    s: ViewSettings,
+    total_s: float,
+) -> tuple[list[FeatureView], float]:
+    """The views with their stops (`stops_wanted`), each extra stop a back-off along the
+    sensor's axis and the sweep again, and what the route takes after each view's first stop
+    (`rest_s`: the cell measures an extra stop only while the rest of the route still fits the
+    body's window, app.line.body_cycle); the route's time with every stop."""
+    out = list(views)
+    for k, v in enumerate(out):
+        n = stops_wanted(v, plan.feature(v.feature), s)
+        if n < 2:
+            continue
+        back = v.T_part_sensor @ _shift_z(-s.retreat_mm)
+        fit = refine(model, x, back[None], v.q_deg[None], max_iter=10)
+        if not fit.converged[0]:
+            continue
+        q_r = fit.q_deg[0]
+        retreat = 2.0 * motion_time_s(v.q_deg, q_r, line)
+        total_s += (n - 1) * (retreat + v.sweep_s)
+        out[k] = dataclasses.replace(v, stops=n, q_retreat_deg=q_r, retreat_s=retreat)
+    home = np.asarray(line.home_deg, dtype=float)
+    rest = motion_time_s(out[-1].q_deg, home, line) if out else 0.0
+    for k in range(len(out) - 1, -1, -1):
+        out[k] = dataclasses.replace(out[k], rest_s=rest)
+        rest += out[k].motion_s + out[k].sweep_s
+    return out, total_s
+
+
+def _shift_z(dz_mm: float) -> F64:
+    T = np.eye(4)
+    T[2, 3] = dz_mm
+    return T
 
 
 def reaimed(route: InspectionPlan, model: SystemModel, x: F64) -> InspectionPlan | None:
@@ -284,6 +358,7 @@ def route_table(plan: InspectionPlan) -> list[dict[str, object]]:
             "motion_s": round(v.motion_s, 3),
             "sweep_s": round(v.sweep_s, 3),
             "repeat_sd_mm": round(v.repeat_sd_mm, 4),
+            "stops": v.stops,
         }
         for v in plan.views
     ]

@@ -137,7 +137,7 @@ def worst_value(values: tuple[Value, ...] | list[Value]) -> dict[str, Any]:
 def raw_rows(raw: tuple[RawFeature, ...]) -> list[dict[str, Any]]:
     return [
         {
-            "feature": r.feature, "q_deg": r.q_deg, "temp_c": r.temp_c,
+            "feature": r.feature, "stop": r.stop, "q_deg": r.q_deg, "temp_c": r.temp_c,
             "sheet": None if r.points is None else r.points.sheet_mm,
             "edges": None if r.points is None else r.points.edges_mm, "refused": r.refused,
         }
@@ -152,7 +152,11 @@ def raw_of(rows: Any) -> list[RawFeature]:
         if r["sheet"] is not None:
             edges = r["edges"] if r["edges"] is not None else np.zeros((0, 3))
             points = FeaturePoints(r["sheet"], edges)
-        out.append(RawFeature(r["feature"], r["q_deg"], r["temp_c"], points, r["refused"]))
+        out.append(
+            RawFeature(
+                r["feature"], r["q_deg"], r["temp_c"], points, r["refused"], int(r.get("stop", 0))
+            )
+        )
     return out
 
 
@@ -233,15 +237,7 @@ class BodyCycle:
                 if why:
                     skipped[v.feature] = why
                     continue
-                try:
-                    self.measurer.move_to(v.q_deg)
-                except DeviceError:
-                    if not guard.withdrawn:
-                        raise
-                    skipped[v.feature] = f"the body withdrawn ({guard.why})"
-                    continue
-                profiles = self.sensor.profiles(v)
-                raw.append(extract(cal, self.plan.feature(v.feature), v.q_deg, profiles, temp_c))
+                raw += self._stops(v, cal, temp_c, end_t, guard, skipped)
         if guard.error is not None:
             raise guard.error
         if guard.withdrawn and self.measurer.robot.fault is not None:
@@ -260,6 +256,42 @@ class BodyCycle:
             guard.why if guard.withdrawn else "", self.clock.monotonic() - t0,
             worst_value(result.values),
         )  # fmt: skip
+
+    def _stops(
+        self,
+        v: Any,
+        cal: Calibration,
+        temp_c: float | None,
+        end_t: float,
+        guard: Withdrawal,
+        skipped: dict[str, str],
+    ) -> list[RawFeature]:
+        """The feature's sweeps from its view's stops (app.inspect.views: between two, the
+        robot backs off along the sensor's axis and returns, a new stop), while the body's
+        window leaves time for the next; the body withdrawn during the first: none."""
+        out: list[RawFeature] = []
+        feature = self.plan.feature(v.feature)
+        for k in range(v.stops):
+            if k and (not self._time_for_stop(v, end_t) or v.q_retreat_deg is None):
+                break
+            try:
+                if k:
+                    self.measurer.move_to(v.q_retreat_deg)
+                self.measurer.move_to(v.q_deg)
+            except DeviceError:
+                if not guard.withdrawn:
+                    raise
+                if not out:
+                    skipped[v.feature] = f"the body withdrawn ({guard.why})"
+                break
+            profiles = self.sensor.profiles(v)
+            out.append(extract(cal, feature, v.q_deg, profiles, temp_c, stop=k))
+        return out
+
+    def _time_for_stop(self, view: Any, end_t: float) -> bool:
+        """Another stop of `view` leaves the rest of the route (every later feature's first
+        stop, then home: `rest_s`) its time in the body's window."""
+        return self.clock.monotonic() + view.retreat_s + view.sweep_s + view.rest_s <= end_t
 
     def _cannot(self, view: Any, end_t: float, guard: Withdrawal) -> str:
         """Why the robot does not go to this view now ("" when it does)."""

@@ -94,11 +94,12 @@ class BodyRecords:
             row = int(cur.lastrowid or 0)
             self._write_evaluation(db, row, 0, evaluation, values)
             db.executemany(
-                "INSERT INTO body_raw (body, feature, q_deg, temp_c, sheet, edges, refused)"
-                " VALUES (?, ?, ?, ?, ?, ?, ?)",
+                "INSERT INTO body_raw (body, feature, stop, q_deg, temp_c, sheet, edges, refused)"
+                " VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
                 [
                     (
-                        row, r["feature"], json.dumps([float(a) for a in r["q_deg"]]),
+                        row, r["feature"], int(r.get("stop", 0)),
+                        json.dumps([float(a) for a in r["q_deg"]]),
                         r.get("temp_c"), points_blob(r.get("sheet")), points_blob(r.get("edges")),
                         r.get("refused", ""),
                     )
@@ -273,15 +274,16 @@ class BodyRecords:
         return len(rows)
 
     def body_raw(self, body_row: int) -> Iterator[dict[str, Any]]:
-        """A body's raw data per feature: feature, q_deg (6,), temp_c, sheet and edges (n, 3)
-        or None, refused."""
+        """A body's raw data per feature and stop: feature, stop, q_deg (6,), temp_c, sheet and
+        edges (n, 3) or None, refused."""
         for r in self._rows(
-            "SELECT feature, q_deg, temp_c, sheet, edges, refused FROM body_raw"
+            "SELECT feature, stop, q_deg, temp_c, sheet, edges, refused FROM body_raw"
             " WHERE body = ? ORDER BY rowid",
             (body_row,),
         ):
             yield {
                 "feature": r["feature"],
+                "stop": int(r["stop"]),
                 "q_deg": _joints(r["q_deg"]),
                 "temp_c": r["temp_c"],
                 "sheet": points_of(r["sheet"]),

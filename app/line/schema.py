@@ -123,4 +123,16 @@ MIGRATIONS: tuple[tuple[str, ...], ...] = (
             sheet BLOB, edges BLOB, refused TEXT NOT NULL DEFAULT '',
             PRIMARY KEY (body, feature))""",
     ),
+    # 9 -> 10: a feature's raw data per stop (app.inspect.views: a feature the robot repeats
+    # worse than its tolerance allows is measured from several stops, their fits averaged)
+    (
+        "ALTER TABLE body_raw RENAME TO body_raw_9",
+        """CREATE TABLE body_raw (
+            body INTEGER NOT NULL, feature TEXT NOT NULL, stop INTEGER NOT NULL DEFAULT 0,
+            q_deg TEXT NOT NULL, temp_c REAL, sheet BLOB, edges BLOB,
+            refused TEXT NOT NULL DEFAULT '', PRIMARY KEY (body, feature, stop))""",
+        """INSERT INTO body_raw (body, feature, stop, q_deg, temp_c, sheet, edges, refused)
+            SELECT body, feature, 0, q_deg, temp_c, sheet, edges, refused FROM body_raw_9""",
+        "DROP TABLE body_raw_9",
+    ),
 )

@@ -4,9 +4,11 @@ feature and field with exit 2; a feature without a view named with exit 3, never
 
 from __future__ import annotations
 
+import itertools
 import json
 import subprocess
 import sys
+from math import ceil
 from pathlib import Path
 
 import numpy as np
@@ -14,10 +16,12 @@ import pytest
 
 from app.config import CellConfig
 from app.errors import InputError
+from app.inspect.measure import mean_fit
 from app.inspect.plan import features_toml, load_features
 from app.inspect.values import decide
-from app.inspect.views import plan_views
+from app.inspect.views import ViewSettings, plan_views, stops_wanted
 from app.sim.part import default_part
+from vision.features import FeatureFit
 from vision.sensor_model import default_sensor_model
 
 GOOD = """format = "rvis-features/1"
@@ -196,3 +200,51 @@ def test_a_new_version_re_aims_the_route_instead_of_planning_again(cfg: CellConf
         assert not np.allclose(v.q_deg, old.q_deg)  # moved to the new parameters ...
         assert np.allclose(model.fk(x2, v.q_deg[None])[0], v.T_part_sensor, atol=1e-6)
         assert np.array_equal(v.commands_v, old.commands_v)  # ... the same sweep
+
+
+def test_a_feature_the_robot_repeats_too_little_for_is_measured_from_several_stops(
+    cfg: CellConfig,
+) -> None:
+    """A type-1 study asks s <= 0.2 T / (6 x 1.33) of one measurement: a view whose robot
+    share is above 0.8 of that gets as many stops as bring it within (at most 3), each a
+    back-off along the sensor's axis; the others one. Each view knows the rest of the route
+    after its first stop (the cell's time for an extra stop)."""
+    model = cfg.model()
+    x = model.nominal_x()
+    plan = default_part(cfg)
+    s = ViewSettings()
+    route = plan_views(cfg.line, 0.07, model, x, plan, default_sensor_model())
+    for v in route.views:
+        f = plan.feature(v.feature)
+        width = min(hi - lo for c in f.characteristics() if c.kind == "position"
+                    for lo, hi in [c.tol_mm])  # fmt: skip
+        allowed = 0.8 * 0.2 * width / (6 * 1.33)
+        wanted = min(3, max(1, ceil((v.repeat_sd_mm / allowed) ** 2)))
+        assert v.stops == stops_wanted(v, f, s) == wanted
+        if v.stops > 1:
+            assert v.q_retreat_deg is not None and v.retreat_s > 0
+            T = model.fk(x, v.q_retreat_deg[None])[0]
+            back = T[:3, :3].T @ (f.position_mm - T[:3, 3])
+            assert np.allclose(back, [0.0, 0.0, 140.0], atol=1e-2)  # backed off 20 mm
+    assert any(v.stops > 1 for v in route.views) and any(v.stops == 1 for v in route.views)
+    rests = [v.rest_s for v in route.views]
+    assert all(a > b for a, b in itertools.pairwise(rests)) and rests[-1] > 0
+    first = sum(v.motion_s + v.sweep_s for v in route.views) + rests[-1]
+    extra = sum((v.stops - 1) * (v.retreat_s + v.sweep_s) for v in route.views)
+    assert route.route_s == pytest.approx(first + extra)
+
+
+def test_the_fits_of_several_stops_are_averaged() -> None:
+    """Each stop's fit its own robot error: their mean, the fit's own covariance and a size's
+    standard deviation divided by their number."""
+    fits = [
+        FeatureFit("hole", np.array([1.0, 2.0, 0.0]), np.array([0.0, 0.0, 1.0]), (12.01,),
+                   np.zeros(3), 0.0, np.eye(3) * 4e-6, (0.003,), 40, 0.9, 0.01, 0.01),
+        FeatureFit("hole", np.array([1.02, 1.98, 0.0]), np.array([0.0, 0.0, 1.0]), (11.99,),
+                   np.zeros(3), 0.0, np.eye(3) * 4e-6, (0.003,), 38, 0.9, 0.01, 0.01),
+    ]  # fmt: skip
+    m = mean_fit(fits)
+    assert np.allclose(m.centre_mm, [1.01, 1.99, 0.0]) and m.size_mm == pytest.approx((12.0,))
+    assert np.allclose(m.cov_centre_mm2, np.eye(3) * 2e-6)
+    assert m.sd_size_mm == pytest.approx((0.003 / np.sqrt(2),)) and m.n_edge_points == 78
+    assert mean_fit(fits[:1]) is fits[0]

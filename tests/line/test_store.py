@@ -71,7 +71,7 @@ def test_a_version_1_database_gains_the_temperature_column_and_keeps_its_rows(
     db.commit()
     db.close()
     store = Store(tmp_path / "rvis.db")  # an older service's state directory
-    assert store.version() == SCHEMA_VERSION == 9
+    assert store.version() == SCHEMA_VERSION == 10
     (old,) = store.measurements()
     assert old["c_sensor_mm"] == [1, 2, 3] and old["temp_c"] is None
     store.add_measurement({**_row(1), "temp_c": 23.45})
@@ -291,7 +291,7 @@ def test_a_version_4_database_gains_the_windows_and_keeps_its_suspect_intervals(
     assert old.windows() == []
     old.close()
     store = Store(tmp_path / "rvis.db")
-    assert store.version() == SCHEMA_VERSION == 9
+    assert store.version() == SCHEMA_VERSION == 10
     (row,) = store.suspects()
     assert (row["t_end"], row["text"], row["bodies"]) == (160.0, "sensor mount moved", [])
     store.add_window(120.0, 100001)
@@ -311,7 +311,7 @@ def test_a_version_5_database_gains_the_windows_u95_and_keeps_its_windows(tmp_pa
     db.commit()
     db.close()
     store = Store(tmp_path / "rvis.db")
-    assert store.version() == SCHEMA_VERSION == 9
+    assert store.version() == SCHEMA_VERSION == 10
     store.add_window(2.0, 8)
     store.state_window_u95(0.093)
     assert [(w["body_id"], w["u95_mm"]) for w in store.windows()] == [(7, None), (8, 0.093)]
@@ -362,7 +362,7 @@ def test_a_body_is_stored_with_its_raw_data_and_evaluated_again_beside(tmp_path:
     db.commit()
     db.close()
     store = Store(tmp_path / "rvis.db")
-    assert store.version() == SCHEMA_VERSION == 9 and len(store.windows()) == 1
+    assert store.version() == SCHEMA_VERSION == 10 and len(store.windows()) == 1
     value = {
         "feature": "H01", "characteristic": "X", "kind": "position", "nominal_mm": 10.0,
         "lower_mm": 9.5, "upper_mm": 10.5, "measured_mm": 10.02, "u95_mm": 0.06,
@@ -376,6 +376,9 @@ def test_a_body_is_stored_with_its_raw_data_and_evaluated_again_beside(tmp_path:
          "edges": sheet[:2], "refused": ""},
         {"feature": "H02", "q_deg": np.ones(6), "temp_c": None, "sheet": None, "edges": None,
          "refused": "plane: 3 points on the sheet"},
+        # migration 9 -> 10: a feature measured from a second stop (app.inspect.views)
+        {"feature": "H01", "stop": 1, "q_deg": np.arange(6.0), "temp_c": 21.5,
+         "sheet": sheet + 1.0, "edges": sheet[:2], "refused": ""},
     ]  # fmt: skip
     row = store.add_body(
         {"t": 5.0, "body_id": 100012, "part": "P", "window": 2}, first, [value], raw
@@ -394,8 +397,10 @@ def test_a_body_is_stored_with_its_raw_data_and_evaluated_again_beside(tmp_path:
     assert store.body_values(row)[0]["measured_mm"] == 10.7
     assert store.body_values(row, 0)[0]["measured_mm"] == 10.02
     assert [e["evaluation"] for e in store.body_evaluations(row)] == [0, 1]
-    h01, h02 = store.body_raw(row)
+    h01, h02, h01b = store.body_raw(row)
     assert np.array_equal(h01["sheet"], sheet) and np.array_equal(h01["q_deg"], np.arange(6.0))
     assert h02["sheet"] is None and h02["refused"].startswith("plane")
+    assert (h01["stop"], h02["stop"], h01b["stop"]) == (0, 0, 1)
+    assert np.array_equal(h01b["sheet"], sheet + 1.0)
     assert store.bodies(since_t=6.0) == []
     store.close()
