@@ -208,6 +208,36 @@ def _result(
     )
 
 
+def held_sensitivity(
+    model: SystemModel, data: Measurements, x: F64, fitted: Sequence[str], held: Sequence[str]
+) -> F64:
+    """G = d(fitted) / d(held) (len(fitted), len(held)) of the least-squares fit of `fitted` on
+    `data` with `held` fixed, at its solution x: moving the held values by da moves the fit's
+    solution by G da, G = -(J_b^T J_b)^-1 J_b^T J_a, J_b and J_a the stacked residuals'
+    Jacobians in the fitted and the held parameters (equal weights, as `identify`'s; the
+    pseudo-inverse cut as its covariance's)."""
+    Jb = stacked_jacobian(model, x, data, fitted)
+    Ja = stacked_jacobian(model, x, data, held)
+    out: F64 = -np.linalg.pinv(Jb, rcond=1e-12) @ Ja
+    return out
+
+
+def with_held(cov_held: F64, cov_fit: F64, gain: F64) -> F64:
+    """The joint covariance of [held; fitted] for a fit conditional on held values that are
+    themselves estimates (covariance `cov_held`): `cov_fit` the fit's own (as if the held
+    values were exact), `gain` its `held_sensitivity`. The fitted block is cov_fit + G C_aa
+    G^T, the cross block G C_aa (b = f(data, a), linearised: the fit's noise independent of
+    the held values' errors)."""
+    k = cov_held.shape[0]
+    ga = gain @ cov_held
+    out = np.zeros((k + cov_fit.shape[0],) * 2)
+    out[:k, :k] = cov_held
+    out[k:, k:] = cov_fit + ga @ gain.T
+    out[k:, :k] = ga
+    out[:k, k:] = ga.T
+    return out
+
+
 def kabsch(a: F64, b: F64) -> tuple[F64, F64] | None:
     """(R, t) minimising sum |R a_i + t - b_i|^2 (Kabsch/Horn, proper rotation), for point sets
     (n, 3); None when b spans less than a plane (fewer than 3 distinct, non-collinear points)."""

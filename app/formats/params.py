@@ -6,6 +6,7 @@ temperature), at which a rigid version's lengths are the arm's (`carried_from_js
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, fields
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -17,7 +18,7 @@ from app.errors import InputError
 from app.formats.files import read_json
 from calib.compliance import CompliantModel, CompliantSettings, carry, select_model
 from calib.gates import GateReport
-from calib.identify import IdentificationResult
+from calib.identify import IdentificationResult, with_held
 from calib.model import ALL_NAMES, INDEX, PAPER_30, SystemModel, group_of, unit_of
 from calib.robot import JointLimits
 
@@ -321,25 +322,28 @@ def document_covariance(data: dict[str, Any], path: str | Path) -> tuple[list[st
     return [str(n) for n in active], c * np.outer(std, std)
 
 
-def with_held_covariance(doc: dict[str, Any], before: dict[str, Any], path: str | Path) -> None:
+def with_held_covariance(
+    doc: dict[str, Any],
+    before: dict[str, Any],
+    path: str | Path,
+    gain: Callable[[list[str]], F64],
+) -> None:
     """A document identified on a group with the rest held at `before` (a maintenance
     procedure's): its covariance widened to every parameter `before` has one for, the held
-    ones' block taken from `before`, the group's own from `doc`, none between them (the
-    group's estimate is conditional on the held values: their uncertainty is not propagated
-    into it). In place; nothing when either has no covariance."""
+    ones' block taken from `before`, the group's its fit's own plus what the held values'
+    uncertainty carries into it (calib.identify.with_held: the group's estimate follows the
+    held values, by `gain(held)`, d(group)/d(held) in `doc`'s active order: calib.identify.
+    held_sensitivity), and the covariance between them. In place; nothing when either has no
+    covariance."""
     new, old = document_covariance(doc, path), document_covariance(before, path)
     if new is None or old is None:
         return
     names_n, cov_n = new
     names_o, cov_o = old
     held = [n for n in names_o if n not in names_n]
-    names = held + names_n
-    k = len(held)
-    cov = np.zeros((len(names), len(names)))
     io = [names_o.index(n) for n in held]
-    cov[:k, :k] = cov_o[np.ix_(io, io)]
-    cov[k:, k:] = cov_n
-    set_covariance(doc, names, cov)
+    cov = with_held(cov_o[np.ix_(io, io)], cov_n, gain(held))
+    set_covariance(doc, held + names_n, cov)
 
 
 def set_covariance(doc: dict[str, Any], names: list[str], cov: F64) -> None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -51,8 +52,8 @@ from app.planning import read_plan
 from calib import candidates
 from calib.attribution import NONE, StepGroup, attribute
 from calib.errors import InsufficientData, NotIdentifiable
-from calib.gates import check_identification
-from calib.identify import identify
+from calib.gates import GateReport, check_identification
+from calib.identify import IdentificationResult, Measurements, held_sensitivity, identify
 from calib.model import BASE_NAMES, SENSOR_NAMES, unit_of
 from calib.uncertainty import larger_rms_bound, shown_larger_than
 from calib.validation import rmse
@@ -323,11 +324,7 @@ def reidentify(ctx: Context) -> StepResult:
     doc = read_json(ctx.path(PARAMS_BEFORE_FILE))
     if result is not None:
         report = check_identification(result, x_before, cell.calibration.gates())
-        doc = to_json(model, result, report, provenance())
-        # the parameters held keep their uncertainty from the version before (the per-point
-        # U95 of `app.api.Calibration` counts them, not the changed group's alone)
-        before = ctx.path(PARAMS_BEFORE_FILE)
-        with_held_covariance(doc, read_json(before), before)
+        doc = group_document(model, data, result, report, ctx.path(PARAMS_BEFORE_FILE))
         condition = result.observability.condition
         r.checks.append(at_most("condition", condition, cell.calibration.max_condition))
         r.checks.append(holds("quality gates", report.passed, report.reason or "passed"))
@@ -350,6 +347,27 @@ def reidentify(ctx: Context) -> StepResult:
     if ctx.truth is not None:
         r.results["true_rmse_mm"] = ctx.truth.true_rmse_mm(model, x_new, ctx.sensor_model())
     return r
+
+
+def group_document(
+    model: Any,
+    data: Measurements,
+    result: IdentificationResult,
+    report: GateReport | None,
+    before: Path,
+) -> dict[str, Any]:
+    """The parameters document of a group identified on `data` with the rest held at the
+    version before (the file `before`): the parameters held keep their uncertainty from the
+    version before, and the group's carries theirs (its estimate follows the values held:
+    calib.identify.held_sensitivity), so that the per-point U95 of `app.api.Calibration`
+    counts every parameter's, not the changed group's fit alone."""
+    doc = to_json(model, result, report, provenance())
+
+    def gain(held: list[str]) -> F64:
+        return held_sensitivity(model, data, result.x, result.active, held)
+
+    with_held_covariance(doc, read_json(before), before, gain)
+    return doc
 
 
 def std_with_units(names: Sequence[str], std: Iterable[float]) -> dict[str, float]:
