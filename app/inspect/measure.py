@@ -29,7 +29,8 @@ from numpy.typing import NDArray
 from app.api import Calibration
 from app.inspect.plan import Feature, FeaturePlan
 from app.inspect.values import Value, feature_values, not_measured
-from app.inspect.views import FeatureView, InspectionPlan
+from app.inspect.views import JOINT_OFFSETS, FeatureView, InspectionPlan
+from calib.repeatability import joint_sigma_rad
 from vision.errors import FeatureRefused
 from vision.features import (
     FeatureFit,
@@ -110,10 +111,13 @@ def evaluate(
     raw: RawFeature | Sequence[RawFeature],
     statement_u95_mm: float,
     settings: FeatureSettings | None = None,
+    repeatability_mm: float = 0.0,
 ) -> list[Value]:
     """The values of one feature from its raw data with the calibration `cal` (module
     docstring): from several stops, the mean of their fits (each stop's robot error is its
-    own: the fit's own covariance and a size's sd fall with their number); a stop the vision
+    own: the fit's own covariance and a size's sd fall with their number, and the robot's
+    repeatability at the view, the data sheet's RP `repeatability_mm` through the model,
+    counts once over their number in the statement: app.inspect.values); a stop the vision
     refused is left out, all refused: "not measured" with the first one's reason."""
     raws = [raw] if isinstance(raw, RawFeature) else list(raw)
     fits, refused, at = [], [], None
@@ -144,7 +148,12 @@ def evaluate(
     q_deg, T = at
     c_sensor = T[:3, :3].T @ (fit.centre_mm - T[:3, 3])
     cov = calibration_cov(cal, q_deg, c_sensor)
-    return feature_values(feature, fit, cov, statement_u95_mm)
+    repeat = None
+    if len(fits) > 1 and repeatability_mm > 0.0:
+        sigma_rad = joint_sigma_rad(cal.model, cal.x, repeatability_mm)
+        J = cal.model.point_jacobian(cal.x, q_deg[None], c_sensor[None], JOINT_OFFSETS)[0]
+        repeat = sigma_rad**2 * (J @ J.T)
+    return feature_values(feature, fit, cov, statement_u95_mm, len(fits), repeat)
 
 
 def mean_fit(fits: Sequence[FeatureFit]) -> FeatureFit:
@@ -193,6 +202,7 @@ def measure_body(
     sensor: FeatureSensor,
     statement_u95_mm: float,
     temp_c: float | None = None,
+    repeatability_mm: float = 0.0,
 ) -> BodyResult:
     """Every feature of `plan` on the clamped body, along the route, the cell at temp_c
     [degC] (None: not known); a feature without a view is "not measured" (no view)."""
@@ -201,7 +211,9 @@ def measure_body(
         f = plan.feature(v.feature)
         for k in range(v.stops):  # each a stop of its own (the sensor's robot moves there)
             raw.append(extract(cal, f, v.q_deg, sensor.profiles(v), temp_c, stop=k))
-    return evaluate_body(body, cal, plan, raw, statement_u95_mm, views.unreachable)
+    return evaluate_body(
+        body, cal, plan, raw, statement_u95_mm, views.unreachable, repeatability_mm
+    )
 
 
 def evaluate_body(
@@ -211,6 +223,7 @@ def evaluate_body(
     raw: Sequence[RawFeature],
     statement_u95_mm: float,
     unreachable: dict[str, str] | None = None,
+    repeatability_mm: float = 0.0,
 ) -> BodyResult:
     """A body's values from its raw data (plan order; a feature without raw data is "not
     measured" with the reason in `unreachable`, or "no view")."""
@@ -224,5 +237,7 @@ def evaluate_body(
             why = (unreachable or {}).get(f.id, "no view in the plan")
             values.extend(not_measured(f, f"no view: {why}"))
         else:
-            values.extend(evaluate(cal, f, stops, statement_u95_mm))
+            values.extend(
+                evaluate(cal, f, stops, statement_u95_mm, repeatability_mm=repeatability_mm)
+            )
     return BodyResult(body, tuple(values), tuple(raw))

@@ -94,10 +94,18 @@ def cell_sigma_mm(statement_u95_mm: float) -> float:
 
 
 def feature_values(
-    feature: Feature, fit: FeatureFit, cov_cal_mm2: F64, statement_u95_mm: float
+    feature: Feature,
+    fit: FeatureFit,
+    cov_cal_mm2: F64,
+    statement_u95_mm: float,
+    stops: int = 1,
+    cov_repeat_mm2: F64 | None = None,
 ) -> list[Value]:
     """The values of `feature` from its fit in the part frame; cov_cal_mm2 (3, 3): the
-    calibration's covariance at the feature's centre; statement_u95_mm: the cell's."""
+    calibration's covariance at the feature's centre; statement_u95_mm: the cell's (one
+    stop's). A fit averaged over `stops` stops (app.inspect.measure.mean_fit): the robot's
+    repeatability at the view, cov_repeat_mm2 (3, 3), is one stop's in the statement and
+    1/stops of it in the mean: the statement less the difference (never below nothing)."""
     sigma2 = cell_sigma_mm(statement_u95_mm) ** 2
     out = []
     sizes = iter(zip(fit.size_mm, fit.sd_size_mm, strict=True))
@@ -113,7 +121,10 @@ def feature_values(
             else:
                 e = np.eye(3)["XYZ".index(c.name)]
                 measured = float(fit.centre_mm["XYZ".index(c.name)])
-            var = max(sigma2, float(e @ cov_cal_mm2 @ e)) + float(e @ fit.cov_centre_mm2 @ e)
+            cell2 = sigma2
+            if stops > 1 and cov_repeat_mm2 is not None:
+                cell2 -= (1.0 - 1.0 / stops) * min(float(e @ cov_repeat_mm2 @ e), sigma2)
+            var = max(cell2, float(e @ cov_cal_mm2 @ e)) + float(e @ fit.cov_centre_mm2 @ e)
             u95 = K95 * math.sqrt(var)
         dev = measured - c.nominal_mm
         out.append(Value(c, measured, dev, u95, decide(dev, c.tol_mm, u95)))

@@ -244,8 +244,9 @@ class BodyCycle:
             self.measurer.robot.reset()  # our own abort latched it
         self.measurer.go_home()
         result = evaluate_body(
-            str(body_id), cal, self.plan, raw, _or_none(statement_u95_mm), skipped
-        )
+            str(body_id), cal, self.plan, raw, _or_none(statement_u95_mm), skipped,
+            self.repeatability_mm,
+        )  # fmt: skip
         row = self._store(result, window, t_start, body_id, version, statement_u95_mm, temp_c)
         self._chart(body_id, [v.as_dict() for v in result.values])
         s = summary(result.values)
@@ -419,8 +420,9 @@ class BodyCycle:
         }
         raw = raw_of(self.store.body_raw(int(body["id"])))
         result = evaluate_body(
-            str(body["body_id"]), cal, self.plan, raw, _or_none(statement_u95_mm)
-        )
+            str(body["body_id"]), cal, self.plan, raw, _or_none(statement_u95_mm), None,
+            self.repeatability_mm,
+        )  # fmt: skip
         values = [v.as_dict() for v in result.values]
         changed = sum(
             before.get((v["feature"], v["characteristic"])) != v["decision"] for v in values

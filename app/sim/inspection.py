@@ -80,6 +80,7 @@ class InspectionCell:
             self.bodies,
             self.statement_u95_mm,
             self.temp_c,
+            self.cfg.robot.repeatability_mm,
         )
 
 

@@ -18,7 +18,7 @@ from app.config import CellConfig
 from app.errors import InputError
 from app.inspect.measure import mean_fit
 from app.inspect.plan import features_toml, load_features
-from app.inspect.values import decide
+from app.inspect.values import decide, feature_values
 from app.inspect.views import ViewSettings, plan_views, stops_wanted
 from app.sim.part import default_part
 from vision.features import FeatureFit
@@ -248,3 +248,25 @@ def test_the_fits_of_several_stops_are_averaged() -> None:
     assert np.allclose(m.cov_centre_mm2, np.eye(3) * 2e-6)
     assert m.sd_size_mm == pytest.approx((0.003 / np.sqrt(2),)) and m.n_edge_points == 78
     assert mean_fit(fits[:1]) is fits[0]
+
+
+def test_a_value_from_several_stops_counts_the_robots_repeatability_once_over_their_number(
+    cfg: CellConfig,
+) -> None:
+    """The cell's statement holds one stop's robot error; a mean over n stops holds 1/n of
+    it: its U95 is the statement's less (1 - 1/n) of the robot's variance along the value's
+    axis (never below the calibration's own share, never below nothing)."""
+    f = default_part(cfg).features[0]
+    fit = FeatureFit("hole", f.position_mm.copy(), f.normal, f.size_mm, np.zeros(3), 0.0,
+                     np.zeros((3, 3)), (0.002,), 40, 0.9, 0.01, 0.01)  # fmt: skip
+    one = {v.characteristic.name: v.u95_mm for v in feature_values(f, fit, np.zeros((3, 3)), 0.08)}
+    rep = np.diag([0.02, 0.01, 0.0]) ** 2
+    two = {
+        v.characteristic.name: v.u95_mm
+        for v in feature_values(f, fit, np.zeros((3, 3)), 0.08, 2, rep)
+    }
+    sigma2 = (0.08 / 2.795483) ** 2
+    for name, r2 in (("X", 0.02**2), ("Y", 0.01**2), ("Z", 0.0)):
+        assert two[name] == pytest.approx(1.959964 * np.sqrt(sigma2 - 0.5 * r2), rel=1e-4)
+        assert (two[name] or 0.0) <= (one[name] or 0.0)
+    assert two["D"] == one["D"]  # a size: within one view, no pose error

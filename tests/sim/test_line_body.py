@@ -121,7 +121,8 @@ def test_the_stored_raw_data_give_the_stored_values_again(line_run: dict[str, An
     # stop's raw data its own (app.inspect.views); computed again as one
     stops = {(r.feature, r.stop) for r in raw}
     assert any(k > 0 for _, k in stops) and len(stops) == len(raw)
-    again = evaluate_body(str(b["body_id"]), cal, plan, raw, b["statement_u95_mm"])
+    rp = cfg.robot.repeatability_mm
+    again = evaluate_body(str(b["body_id"]), cal, plan, raw, b["statement_u95_mm"], None, rp)
     stored = store.body_values(b["id"], 0)
     store.close()
     for v, s in zip(again.values, stored, strict=True):
