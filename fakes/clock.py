@@ -13,13 +13,15 @@ that makes time pass then (the window watch, the fault scheduler). One thread pa
 time, and that is enforced: a thread that would make time pass while another one is doing so
 gets ``ConcurrentMover`` (a callback that makes time pass from within the passing, in the same
 thread, is fine). No lock is held while a paced clock waits for the wall clock. The rendered
-line is the exception (``strict=False``): its fake camera charges each frame from Aravis's
-thread while the service drives the DAC, whose server thread charges the mirror's settling, so
-there a second mover waits for its turn (the order of two turns then depends on the threads).
-So the outcome of a (geometric) run depends on the seed and the settings alone, not on how fast
-the machine computed. With ``pace=`` (sim s per real s) each passing also waits for the wall
-clock, for a person who watches; what happens is the same, only later (a machine too slow for
-the pace lags behind).
+line's clock is not strict (``strict=False``): its fake camera charges each frame from Aravis's
+thread and the DAC's server thread the mirror's settling, and a second mover would wait for its
+turn (``turns_waited`` counts such waits) instead of failing. None comes on a sweep: the service
+waits for the DAC's answer, then for the frame, so the turns come in the program's order. So the
+outcome of a run, geometric or rendered, depends on the seed and the settings alone, not on how
+fast the machine computed (the rendered one as long as no driver's timeout, kept in real
+seconds, runs out: docs/simulated-line.md "Time"). With ``pace=`` (sim s per real s) each
+passing also waits for the wall clock, for a person who watches; what happens is the same, only
+later (a machine too slow for the pace lags behind).
 
 ``ScaledClock(scale)`` runs ``scale`` sim seconds per real second (60: one sim minute per real
 second) from sim time 0 at construction (or at ``start()``, with ``started=False``: it stands at
@@ -103,6 +105,10 @@ class VirtualClock:
         self._seq = itertools.count()
         self._anchor: tuple[float, float] | None = None  # pacing: (real s, sim s) in step
         self.passed_s = 0.0  # sim seconds made to pass by elapse/sleep/wait (not advance)
+        # passings that waited for another thread's turn (not strict): 0 when every passing
+        # came after the one before it ended, as on the rendered line's sweeps (the service
+        # waits for the DAC's answer, then for the frame), so their order is the program's
+        self.turns_waited = 0
 
     @property
     def scale(self) -> float:
@@ -133,6 +139,8 @@ class VirtualClock:
                     f"thread {me.name!r} cannot make time pass: thread {self._owner.name!r} is "
                     "making it pass (one thread at a time)"
                 )
+            if self._owner is not None and self._owner is not me:
+                self.turns_waited += 1
             while self._owner is not None and self._owner is not me:
                 self._turn.wait()
             self._owner = me

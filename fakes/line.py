@@ -167,7 +167,9 @@ class SimLine:
             self.clock = ScaledClock(s.scale, s.start_epoch, started=False)
         else:
             # the rendered line's camera (Aravis's thread) and DAC (its server thread) charge
-            # their durations while the service passes time: there movers take turns
+            # their durations from threads of their own: not strict, a second mover would
+            # wait for its turn (none does on a sweep: the service waits for each answer;
+            # `turns_waited`, tests/sim/test_rendered_seed.py)
             strict = not self.settings.camera
             self.clock = self.virtual = VirtualClock(s.start_epoch, pace=s.scale, strict=strict)
         self._stack = ExitStack()
