@@ -77,9 +77,11 @@ def test_the_held_block_comes_from_before_the_group_carries_it() -> None:
 
 def test_nothing_changes_without_a_covariance_before() -> None:
     doc = _doc(["c"], np.array([[0.04]]), ["a", "c"])
-    with_held_covariance(
-        doc, {"parameters": []}, "params-before.json", lambda held: 1 / 0
-    )  # never asked
+
+    def never(held: list[str]) -> np.ndarray:
+        raise AssertionError("asked for a gain without a covariance before")
+
+    with_held_covariance(doc, {"parameters": []}, "params-before.json", never)
     assert doc["active"] == ["c"]
 
 
