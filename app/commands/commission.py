@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from app.commands import add_command
-from app.commands.args import int_at_least, say_waiting
+from app.commands.args import int_at_least
 from app.errors import InputError
 
 
@@ -41,6 +41,7 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from app.commands.guided import commissioning_context, confirmation, finish, printer
     from app.config import load_cell
     from app.line.launch import hold_state
 
@@ -53,8 +54,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("folder not found", file=args.sensor_data)
     cfg = load_cell(args.cell)
     state_dir = args.state_dir or Path(cfg.service.state_dir)
-    say = _printer(sys.stderr if args.json else sys.stdout)
-    confirm = _confirmation(args.yes, say)
+    say = printer(sys.stderr if args.json else sys.stdout)
+    confirm = confirmation(args.yes, say)
     seed = cfg.simulation.seed if args.seed is None else args.seed
     setup = {"cell": cfg.source, "simulated": args.sim}
     if args.sim:
@@ -73,88 +74,13 @@ def run(args: argparse.Namespace) -> int:
         journal = Journal(state.commission, setup)
         if journal.next_step() is None:
             say(f"commissioned already: {state.commission_report}")
-            return _finish(journal, args.json, 0)
-        ctx = _context(args, cfg, state, seed, confirm, say, stack)
+            return finish(journal, args.json, 0)
+        ctx = commissioning_context(args, cfg, state, seed, confirm, say, stack)
         return _run(ctx, journal, args.json, say)
 
 
-def _context(
-    args: argparse.Namespace,
-    cfg: Any,
-    state: Any,
-    seed: int,
-    confirm: Any,
-    say: Any,
-    stack: ExitStack,
-) -> Any:
-    from app.commission.context import Context
-
-    sim = None
-    urls = cfg.devices.urls()
-    if args.sim:
-        from app.sim.commission import SimCommissioning
-        from app.sim.line_run import with_simulated_plc
-
-        sim = stack.enter_context(
-            SimCommissioning(cfg, seed, geometric=args.geometric, waiting=say_waiting)
-        )
-        urls = sim.urls
-        cfg = with_simulated_plc(cfg)
-    trace = cfg.devices.wire_trace(state.wire_trace, every_device=True if sim else None)
-    station = open_devices(cfg, urls, trace, stack)
-    if sim is not None:
-        sim.station = station
-    return Context(
-        cfg=cfg,
-        state=state,
-        station=station,
-        confirm=confirm,
-        say=say,
-        sensor_file=args.sensor,
-        sensor_data=args.sensor_data,
-        targets_file=args.targets,
-        **(sim.context_fields() if sim else real_fields(cfg, station)),
-    )
-
-
-def open_devices(cfg: Any, urls: dict[str, str], trace: Any, stack: ExitStack) -> Any:
-    """The devices of a guided procedure (app.commission.context.open_station), closed with
-    `stack`; a configuration error is bad input (exit 2), an unreachable device one line."""
-    from app.commission.context import open_station
-    from app.errors import RvisError
-    from drivers.errors import DeviceConfigError, DeviceError
-
-    try:
-        station = open_station(cfg, urls, trace)
-    except DeviceConfigError as exc:
-        raise InputError(str(exc), file=cfg.source, field="devices") from exc
-    except DeviceError as exc:
-        raise RvisError(f"cannot open the devices: {type(exc).__name__}: {exc}") from exc
-    stack.callback(station.close)
-    return station
-
-
-def real_fields(cfg: Any, station: Any) -> dict[str, Any]:
-    """What a guided procedure's Context takes on a real cell: the sweep through camera and
-    galvo, targets captured by the camera (the engineer places the spheres; no truth)."""
-    from app.commission.capture import CameraCapture
-
-    return {"sphere_sensor": _real_sensor(cfg, station), "capture": CameraCapture()}
-
-
-def _real_sensor(cfg: Any, station: Any) -> Any:
-    from app.line.measure import SweepSensor
-    from app.line.settings import from_cell
-
-    def factory(model: Any) -> Any:
-        if station.camera is None or station.galvo is None:
-            raise InputError("measuring needs a camera and a galvo", field="devices")
-        return SweepSensor(station.camera, station.galvo, model, from_cell(cfg).sweep)
-
-    return factory
-
-
 def _run(ctx: Any, journal: Any, as_json: bool, say: Any) -> int:
+    from app.commands.guided import finish
     from app.commission.context import Declined
     from app.commission.sequence import run_sequence
 
@@ -162,53 +88,9 @@ def _run(ctx: Any, journal: Any, as_json: bool, say: Any) -> int:
         failed = run_sequence(ctx, journal)
     except Declined as exc:
         say(f"stopped: not confirmed: {exc}; run `rvis commission` again to continue")
-        return _finish(journal, as_json, 1)
+        return finish(journal, as_json, 1)
     if failed is not None:
         say(f"step {failed} failed its checks: fix the cause and run `rvis commission` again")
-        return _finish(journal, as_json, 3)
+        return finish(journal, as_json, 3)
     say(f"commissioned: {ctx.state.root} is ready: {journal.steps['ready'].results['run']}")
-    return _finish(journal, as_json, 0)
-
-
-def _finish(journal: Any, as_json: bool, code: int) -> int:
-    """The report written; its JSON printed (`--json`), else its headline and where it is."""
-    from app.commission.report import counts_text, headline, headline_lines, to_json, write_report
-    from app.formats.files import dumps_json
-
-    md, _ = write_report(journal)
-    if as_json:
-        print(dumps_json(to_json(journal), indent=2))
-    else:
-        print(counts_text(journal))
-        for line in headline_lines(headline(journal))[2:-1]:  # the bullets, as plain text
-            print(line.replace("**", "").replace("`", ""))
-        print(f"report: {md}")
-    return code
-
-
-def _printer(stream: Any) -> Any:
-    def say(text: str) -> None:
-        print(text, file=stream, flush=True)
-
-    return say
-
-
-def _confirmation(yes: bool, say: Any) -> Any:
-    if yes:
-
-        def confirm_all(question: str) -> bool:
-            say(f"  {question} yes (--yes)")
-            return True
-
-        return confirm_all
-    if not sys.stdin.isatty():
-        raise InputError("confirming each step and motion needs a terminal (or --yes)")
-
-    def ask(question: str) -> bool:
-        try:
-            answer = input(f"  {question} [y/N] ")
-        except EOFError:
-            return False
-        return answer.strip().lower() in ("y", "yes")
-
-    return ask
+    return finish(journal, as_json, 0)

@@ -42,7 +42,7 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from app.commands.commission import _confirmation, _finish, _printer
+    from app.commands.guided import confirmation, finish, printer
     from app.config import load_cell
     from app.line.launch import hold_state
     from app.line.statedir import StateDir
@@ -63,8 +63,8 @@ def run(args: argparse.Namespace) -> int:
             file=state_dir,
         )
     cfg = load_cell(args.cell or paths.cell)
-    say = _printer(sys.stderr if args.json else sys.stdout)
-    confirm = _confirmation(args.yes, say)
+    say = printer(sys.stderr if args.json else sys.stdout)
+    confirm = confirmation(args.yes, say)
     setup: dict[str, Any] = {"event": args.event, "axis": axis, "simulated": args.sim}
     if args.sim:
         setup["seed"] = sim_seed(args.seed, cfg, paths.cell)
@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
         journal = Journal(folder, setup, procedure(args.event, axis))
         if journal.next_step() is None:
             say(f"handed back already: {folder}")
-            return _finish(journal, args.json, 0)
+            return finish(journal, args.json, 0)
         ctx = _context(args, cfg, state, setup, axis, record, folder, confirm, say, stack)
         return _run(ctx, journal, args.json, say)
 
@@ -115,7 +115,7 @@ def _context(
     stack: ExitStack,
 ) -> Any:
 
-    from app.commands.commission import open_devices, real_fields
+    from app.commands.guided import open_devices, real_fields
     from app.maintain.steps import MaintenanceContext
 
     sim = None
@@ -160,7 +160,7 @@ def _context(
 
 
 def _run(ctx: Any, journal: Any, as_json: bool, say: Any) -> int:
-    from app.commands.commission import _finish
+    from app.commands.guided import finish
     from app.commission.context import Declined
     from app.commission.sequence import run_sequence
 
@@ -168,10 +168,10 @@ def _run(ctx: Any, journal: Any, as_json: bool, say: Any) -> int:
         failed = run_sequence(ctx, journal)
     except Declined as exc:
         say(f"stopped: not confirmed: {exc}; run `rvis maintain` again to continue")
-        return _finish(journal, as_json, 1)
+        return finish(journal, as_json, 1)
     if failed is not None:
         say(f"step {failed} failed its checks: fix the cause and run `rvis maintain` again")
-        return _finish(journal, as_json, 3)
+        return finish(journal, as_json, 3)
     run = journal.steps["handover"].results.get("run", "rvis run")
     say(f"handed back: {ctx.state.root} is ready for `{run}`")
-    return _finish(journal, as_json, 0)
+    return finish(journal, as_json, 0)

@@ -150,7 +150,7 @@ def run_verify(args: argparse.Namespace) -> int:
     """`rvis sensor verify`: the acceptance step of the commissioning, alone."""
     from contextlib import ExitStack
 
-    from app.commands.commission import _confirmation, _context, _printer
+    from app.commands.guided import commissioning_context, confirmation, printer
     from app.commission.acceptance import verify
     from app.commission.checks import StepResult
     from app.commission.report import check_line
@@ -172,13 +172,13 @@ def run_verify(args: argparse.Namespace) -> int:
         if not Path(path).is_file():
             raise InputError(f"no {what}: commission the cell first (rvis commission)", file=path)
     sensor_model, x = load_sensor_model(sensor_path), from_json(params_path)[1]
-    say = _printer(sys.stderr if args.json else sys.stdout)
+    say = printer(sys.stderr if args.json else sys.stdout)
     seed = sim_seed(args.seed, cfg, None if args.cell else cell_path)
     opts = argparse.Namespace(
         sim=args.sim, geometric=False, sensor=None, sensor_data=None, targets=None
     )
     with hold_state(state_dir, str(cfg.service.operators_group)) as state, ExitStack() as stack:
-        ctx = _context(opts, cfg, state, seed, _confirmation(args.yes, say), say, stack)
+        ctx = commissioning_context(opts, cfg, state, seed, confirmation(args.yes, say), say, stack)
         ctx.out_dir = state.verify
         ctx.out_dir.mkdir(exist_ok=True)
         from app.commission.context import Declined

@@ -160,12 +160,12 @@ def test_a_procedure_stopped_half_way_continues_where_it_stopped(
     run again, it continues there with the same record and folder."""
     state = _with_event(commissioned, tmp_path / "state", "axis", 3)
     assert _line(state, 30).maintenance
-    import app.commands.commission as commission
+    import app.commands.guided as guided
 
     def decline_workspace(yes: bool, say: Any) -> Any:
         return lambda question: "workspace" not in question
 
-    monkeypatch.setattr(commission, "_confirmation", decline_workspace)
+    monkeypatch.setattr(guided, "confirmation", decline_workspace)
     base = ["maintain", "axis", "3", "--sim", "--state-dir", str(state.root)]
     assert main(base) == 1
     monkeypatch.undo()
