@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from app.sim.shift import ShiftResult, _plot_shift, _write_three, time_text
+from app.sim.shift import ShiftResult, plot_shift, time_text, write_report_files
 
 
 def _median(values: Sequence[float | int | None]) -> float | None:
@@ -243,7 +243,7 @@ def plot_campaign(results: Mapping[str, Sequence[ShiftResult]], path: Path) -> N
         ax.set_ylabel("true RMS error / pre-knock level")
         ax.set_yscale("log")
 
-    _plot_shift(path, 0.5, draw, own_axes=True)
+    plot_shift(path, 0.5, draw, own_axes=True)
 
 
 def _plot_hours(
@@ -322,4 +322,4 @@ def write_campaign(
     shift alone, in the order of `results`' runs)."""
     doc = campaign_doc(results, commands)
     md = campaign_markdown(results, command, commands)
-    return _write_three(out, "shift-knocks", md, doc, lambda png: plot_campaign(results, png))
+    return write_report_files(out, "shift-knocks", md, doc, lambda png: plot_campaign(results, png))

@@ -584,7 +584,7 @@ def markdown(result: ShiftResult, command: str) -> str:
     return "\n".join(lines)
 
 
-def _plot_shift(
+def plot_shift(
     path: Path, knock_at_h: float, draw: Callable[[Any], None], *, own_axes: bool = False
 ) -> None:
     """The shift's figure: `draw(ax)` puts the curves, this the knock, axes and legend
@@ -620,10 +620,10 @@ def plot(result: ShiftResult, path: Path) -> None:
         if applied:
             ax.plot(applied, [0.0] * len(applied), "g^", ms=5, label="calibration applied")
 
-    _plot_shift(path, result.settings.knock_at_h, draw)
+    plot_shift(path, result.settings.knock_at_h, draw)
 
 
-def _write_three(
+def write_report_files(
     out: Path, stem: str, md: str, doc: Any, draw: Callable[[Path], None]
 ) -> list[Path]:
     """`<stem>.md`, `<stem>.json` and `<stem>.png` in `out` (the figure by `draw(path)`)."""
@@ -638,7 +638,7 @@ def _write_three(
 def write_outputs(result: ShiftResult, out: Path, command: str, stem: str = "shift") -> list[Path]:
     """`<stem>.md`, `<stem>.json` and `<stem>.png` in `out`."""
     md = markdown(result, command).replace("(shift.png)", f"({stem}.png)")
-    return _write_three(out, stem, md, result.to_json(), lambda png: plot(result, png))
+    return write_report_files(out, stem, md, result.to_json(), lambda png: plot(result, png))
 
 
 def estimator_rows(results: dict[str, ShiftResult]) -> list[dict[str, Any]]:
@@ -721,10 +721,12 @@ def plot_estimators(results: dict[str, ShiftResult], path: Path) -> None:
         for name, res in results.items():
             ax.plot([r.t_h for r in res.records], [r.rmse_mm for r in res.records], label=name)
 
-    _plot_shift(path, first.settings.knock_at_h, draw)
+    plot_shift(path, first.settings.knock_at_h, draw)
 
 
 def write_estimators(results: dict[str, ShiftResult], out: Path, command: str) -> list[Path]:
     """`shift-estimators.md`, `.json` and `.png` in `out`."""
     md, doc = estimators_markdown(results, command), {"rows": estimator_rows(results)}
-    return _write_three(out, "shift-estimators", md, doc, lambda png: plot_estimators(results, png))
+    return write_report_files(
+        out, "shift-estimators", md, doc, lambda png: plot_estimators(results, png)
+    )
