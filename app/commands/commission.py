@@ -41,7 +41,13 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from app.commands.guided import commissioning_context, confirmation, finish, printer
+    from app.commands.guided import (
+        commissioning_context,
+        confirmation,
+        finish,
+        printer,
+        run_procedure,
+    )
     from app.config import load_cell
     from app.line.launch import hold_state
 
@@ -76,21 +82,11 @@ def run(args: argparse.Namespace) -> int:
             say(f"commissioned already: {state.commission_report}")
             return finish(journal, args.json, 0)
         ctx = commissioning_context(args, cfg, state, seed, confirm, say, stack)
-        return _run(ctx, journal, args.json, say)
+        return run_procedure(
+            ctx, journal, args.json, say, command="rvis commission", done=_commissioned
+        )
 
 
-def _run(ctx: Any, journal: Any, as_json: bool, say: Any) -> int:
-    from app.commands.guided import finish
-    from app.commission.context import Declined
-    from app.commission.sequence import run_sequence
-
-    try:
-        failed = run_sequence(ctx, journal)
-    except Declined as exc:
-        say(f"stopped: not confirmed: {exc}; run `rvis commission` again to continue")
-        return finish(journal, as_json, 1)
-    if failed is not None:
-        say(f"step {failed} failed its checks: fix the cause and run `rvis commission` again")
-        return finish(journal, as_json, 3)
-    say(f"commissioned: {ctx.state.root} is ready: {journal.steps['ready'].results['run']}")
-    return finish(journal, as_json, 0)
+def _commissioned(ctx: Any, journal: Any) -> str:
+    """The line `rvis commission` says when every step passed."""
+    return f"commissioned: {ctx.state.root} is ready: {journal.steps['ready'].results['run']}"

@@ -3,8 +3,9 @@
 
 How the engineer is told (`printer`) and asked (`confirmation`), the devices a procedure opens
 (`open_devices`, `real_fields`, and the commissioning's whole Context: `commissioning_context`),
-and a procedure's report at the end (`finish`). The
-procedures themselves are app/commission/ and app/maintain/.
+the run of a procedure's steps (`run_procedure`) and its report at the end (`finish`). The
+procedures themselves are app/commission/ and app/maintain/; each command keeps its own
+arguments, its own Context and the line it says when every step passed.
 """
 
 from __future__ import annotations
@@ -59,6 +60,34 @@ def confirmation(yes: bool, say: Say) -> Confirm:
         return answer.strip().lower() in ("y", "yes")
 
     return ask
+
+
+def run_procedure(
+    ctx: Context,
+    journal: Journal,
+    as_json: bool,
+    say: Say,
+    *,
+    command: str,
+    done: Callable[[Context, Journal], str],
+) -> int:
+    """Runs the procedure's steps from the first one not passed (app.commission.sequence),
+    then `finish`es with its exit code: 1 when the engineer declined a step or a motion, 3 when
+    a step failed its checks (each said with `command`, e.g. "rvis commission", to run again),
+    0 when every step passed, after the line `done(ctx, journal)` gives."""
+    from app.commission.context import Declined
+    from app.commission.sequence import run_sequence
+
+    try:
+        failed = run_sequence(ctx, journal)
+    except Declined as exc:
+        say(f"stopped: not confirmed: {exc}; run `{command}` again to continue")
+        return finish(journal, as_json, 1)
+    if failed is not None:
+        say(f"step {failed} failed its checks: fix the cause and run `{command}` again")
+        return finish(journal, as_json, 3)
+    say(done(ctx, journal))
+    return finish(journal, as_json, 0)
 
 
 def finish(journal: Journal, as_json: bool, code: int) -> int:

@@ -42,7 +42,7 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from app.commands.guided import confirmation, finish, printer
+    from app.commands.guided import confirmation, finish, printer, run_procedure
     from app.config import load_cell
     from app.line.launch import hold_state
     from app.line.statedir import StateDir
@@ -80,7 +80,9 @@ def run(args: argparse.Namespace) -> int:
             say(f"handed back already: {folder}")
             return finish(journal, args.json, 0)
         ctx = _context(args, cfg, state, setup, axis, record, folder, confirm, say, stack)
-        return _run(ctx, journal, args.json, say)
+        return run_procedure(
+            ctx, journal, args.json, say, command="rvis maintain", done=_handed_back
+        )
 
 
 def _axis(args: argparse.Namespace) -> int | None:
@@ -159,19 +161,7 @@ def _context(
     )
 
 
-def _run(ctx: Any, journal: Any, as_json: bool, say: Any) -> int:
-    from app.commands.guided import finish
-    from app.commission.context import Declined
-    from app.commission.sequence import run_sequence
-
-    try:
-        failed = run_sequence(ctx, journal)
-    except Declined as exc:
-        say(f"stopped: not confirmed: {exc}; run `rvis maintain` again to continue")
-        return finish(journal, as_json, 1)
-    if failed is not None:
-        say(f"step {failed} failed its checks: fix the cause and run `rvis maintain` again")
-        return finish(journal, as_json, 3)
+def _handed_back(ctx: Any, journal: Any) -> str:
+    """The line `rvis maintain` says when every step passed (the cell handed back)."""
     run = journal.steps["handover"].results.get("run", "rvis run")
-    say(f"handed back: {ctx.state.root} is ready for `{run}`")
-    return finish(journal, as_json, 0)
+    return f"handed back: {ctx.state.root} is ready for `{run}`"
