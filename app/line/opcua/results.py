@@ -26,7 +26,8 @@ from typing import Any
 from asyncua import Node, Server, ua
 from asyncua.common.event_objects import BaseEvent
 
-from app.line.opcua.space import AddressSpace, Var, data_value, eu_information, lookup, stamped
+from app.line.opcua.space import AddressSpace, stamped
+from app.line.opcua.variables import Var, data_value, eu_information, lookup
 
 EVENT_TYPE = "BodyResultEventType"
 LAST_BODY = "LastBody"
