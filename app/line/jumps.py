@@ -56,6 +56,9 @@ class JumpWatch:
     def __init__(self, svc: LineHost) -> None:
         self.svc = svc
         self.estimate = CellEstimate(svc)
+        # per sphere, its measurements in the estimator's window (CellEstimate.spheres), as of
+        # the last measurement or start: replaced whole, read by any thread
+        self.spheres: dict[str, dict[str, Any]] = {}
 
     @property
     def state(self) -> CellState | None:
@@ -72,10 +75,14 @@ class JumpWatch:
     def restart(self) -> None:
         """The estimator from the version in force (app.line.estimate)."""
         self.estimate.restart()
+        self.spheres = self.estimate.spheres()
 
     def observe(self, row: dict[str, Any]) -> None:
-        """A good measurement (its stored row with its id) into the estimator, tested."""
+        """A good measurement (its stored row with its id) into the estimator, tested; the
+        spheres' summary taken here, in the loop's thread (the status reply reads it from
+        others: the estimator's arrays change while a measurement goes in)."""
         self.estimate.observe(row)
+        self.spheres = self.estimate.spheres()
 
     def statement_u95_mm(self) -> float | None:
         """The U95 of a point measured now (app.line.estimate), with the innovations of a jump

@@ -325,8 +325,9 @@ class Service:
         self.faults.enter_fault(AlarmCode.MAINTENANCE, message)
 
     def sphere_residuals(self) -> dict[str, dict[str, Any]]:
-        """Per sphere, its measurements in the estimator's window (app.line.estimate)."""
-        return self.jumps.estimate.spheres()
+        """Per sphere, its measurements in the estimator's window (app.line.estimate), as the
+        loop's thread last summed them up (any thread may ask)."""
+        return self.jumps.spheres
 
     # -- life cycle ---------------------------------------------------------------------------
     def stop(self) -> None:

@@ -109,7 +109,8 @@ def _status(svc: LineHost) -> dict[str, Any]:
         "device_retry": svc.device_retry,
         "pending": _pending_status(svc),
         "now_utc": utc_text(svc.clock.time()),  # the service's clock (sim: ahead)
-        "jump": svc.episode,  # a jump the one estimator found, in hand (app.line.jumps)
+        # a jump the one estimator found, in hand (app.line.jumps): a copy (the loop changes it)
+        "jump": None if svc.episode is None else dict(svc.episode),
         "suspect_intervals": [
             suspect_json(r) for r in svc.store.suspects(last=SUSPECTS_IN_STATUS)
         ],  # the last ones, oldest first; the open one has no end yet
