@@ -57,7 +57,7 @@ class JumpWatch:
         self.svc = svc
         self.estimate = CellEstimate(svc)
         # per sphere, its measurements in the estimator's window (CellEstimate.spheres), as of
-        # the last measurement or start: replaced whole, read by any thread
+        # the last window or start: replaced whole, read by any thread
         self.spheres: dict[str, dict[str, Any]] = {}
 
     @property
@@ -78,11 +78,8 @@ class JumpWatch:
         self.spheres = self.estimate.spheres()
 
     def observe(self, row: dict[str, Any]) -> None:
-        """A good measurement (its stored row with its id) into the estimator, tested; the
-        spheres' summary taken here, in the loop's thread (the status reply reads it from
-        others: the estimator's arrays change while a measurement goes in)."""
+        """A good measurement (its stored row with its id) into the estimator, tested."""
         self.estimate.observe(row)
-        self.spheres = self.estimate.spheres()
 
     def statement_u95_mm(self) -> float | None:
         """The U95 of a point measured now (app.line.estimate), with the innovations of a jump
@@ -99,6 +96,11 @@ class JumpWatch:
     @episode.setter
     def episode(self, value: dict[str, Any] | None) -> None:
         self.svc.episode = value
+
+    def summarise(self) -> None:
+        """The spheres' summary, once a window in the loop's thread (the status reply reads
+        it from others: the estimator's arrays change while a measurement goes in)."""
+        self.spheres = self.estimate.spheres()
 
     # -- what the service does -------------------------------------------------------------
     def opened(self) -> None:

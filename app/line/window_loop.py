@@ -112,6 +112,7 @@ class WindowLoop:
         svc.counters["overruns"] += report.overrun
         svc.counters["withdrawn"] += bool(report.withdrawn)
         self.jumps.opened()  # a jump in the window's measurements: its interval first
+        self.jumps.summarise()
         self._state_accuracy(t_open)
         svc.save_state()
         acc = svc.accuracy
