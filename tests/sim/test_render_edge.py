@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 from app.sim.bodies import rendered_profiles
 from app.sim.cell import true_sensor_model
 from fakes.render_sensor import TrueSensor
+from tests.sim.test_render_sheet import feature_pose, sweep_commands
 from vision.features import FeatureFit, measure_feature
 
 F64 = NDArray[np.float64]
@@ -37,26 +38,7 @@ Case = tuple[str, float]
 
 
 def _pose(tilt_deg: float) -> F64:
-    """T_camera_feature: the feature 120 mm in front of the camera, its normal towards it,
-    rolled about its normal, tilted about its y axis (towards the laser's side) and slightly
-    off-centre."""
-    a, r = np.radians(tilt_deg), np.radians(ROLL_DEG)
-    Ry = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
-    Rz = np.array([[np.cos(r), -np.sin(r), 0], [np.sin(r), np.cos(r), 0], [0, 0, 1]])
-    T = np.eye(4)
-    T[:3, :3] = np.diag([1.0, -1.0, -1.0]) @ Ry @ Rz
-    T[:3, 3] = [0.4, -0.3, 120.0]
-    return T
-
-
-def _commands(true: TrueSensor, half_mm: float, n: int) -> F64:
-    """n mirror commands whose laser planes cross 120 mm deep evenly over 0.4 +- half_mm."""
-    grid = np.linspace(-6.0, 6.0, 1201)
-    normals, offsets = true.laser_planes(grid)
-    x_at = (offsets - normals[:, 2] * 120.0) / normals[:, 0]
-    order = np.argsort(x_at)
-    out: F64 = np.interp(np.linspace(0.4 - half_mm, 0.4 + half_mm, n), x_at[order], grid[order])
-    return out
+    return feature_pose(tilt_deg, ROLL_DEG)
 
 
 def measure_rendered(
@@ -66,7 +48,7 @@ def measure_rendered(
     feature's plane (2,) [mm]."""
     T = _pose(tilt_deg)
     R, t = T[:3, :3], T[:3, 3]
-    cmds = _commands(true, 0.5 * max(size) + 3.0, 40)
+    cmds = sweep_commands(true, 0.5 * max(size) + 3.0, 40)
     profiles = rendered_profiles(
         T, kind, size, THICKNESS_MM, true, true_sensor_model(true), np.random.default_rng(seed),
         cmds,

@@ -25,18 +25,21 @@ F64 = NDArray[np.float64]
 THICKNESS_MM = 1.2
 
 
-def _pose(tilt_deg: float) -> F64:
+def feature_pose(tilt_deg: float, roll_deg: float = 0.0) -> F64:
     """T_camera_feature: the feature 120 mm in front of the camera, its normal towards it,
-    tilted about the feature's y axis (towards the laser's side) and slightly off-centre."""
-    a = np.radians(tilt_deg)
+    rolled about its normal, tilted about its y axis (towards the laser's side) and slightly
+    off-centre."""
+    a, r = np.radians(tilt_deg), np.radians(roll_deg)
     Ry = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    Rz = np.array([[np.cos(r), -np.sin(r), 0], [np.sin(r), np.cos(r), 0], [0, 0, 1]])
     T = np.eye(4)
-    T[:3, :3] = np.diag([1.0, -1.0, -1.0]) @ Ry
+    T[:3, :3] = np.diag([1.0, -1.0, -1.0]) @ Ry @ Rz
     T[:3, 3] = [0.4, -0.3, 120.0]
     return T
 
 
-def _commands(true: TrueSensor, half_mm: float, n: int) -> F64:
+def sweep_commands(true: TrueSensor, half_mm: float, n: int) -> F64:
+    """n mirror commands whose laser planes cross 120 mm deep evenly over 0.4 +- half_mm."""
     grid = np.linspace(-6.0, 6.0, 1201)
     normals, offsets = true.laser_planes(grid)
     x_at = (offsets - normals[:, 2] * 120.0) / normals[:, 0]
@@ -55,10 +58,10 @@ def _commands(true: TrueSensor, half_mm: float, n: int) -> F64:
 def test_a_rendered_feature_is_measured_where_it_was_rendered(
     true_sensor: TrueSensor, kind: str, size: tuple[float, ...], tol_centre: float, tol_size: float
 ) -> None:
-    T = _pose(12.0)
+    T = feature_pose(12.0)
     R, t = T[:3, :3], T[:3, 3]
     half = 0.5 * max(size, default=8.0) + 3.0
-    cmds = _commands(true_sensor, half, 40 if size else 12)
+    cmds = sweep_commands(true_sensor, half, 40 if size else 12)
     profiles = rendered_profiles(
         T, kind, size, THICKNESS_MM, true_sensor, true_sensor_model(true_sensor),
         np.random.default_rng(5), cmds,
@@ -74,8 +77,8 @@ def test_a_rendered_feature_is_measured_where_it_was_rendered(
 def test_the_wall_is_seen_through_the_opening_and_nothing_behind_it(
     true_sensor: TrueSensor,
 ) -> None:
-    flat, X, _ = feature_surface(_pose(12.0), "hole", (12.0,), THICKNESS_MM, true_sensor)
-    T = _pose(12.0)
+    flat, X, _ = feature_surface(feature_pose(12.0), "hole", (12.0,), THICKNESS_MM, true_sensor)
+    T = feature_pose(12.0)
     Xf = (X - T[:3, 3]) @ T[:3, :3]
     r = np.hypot(Xf[:, 0], Xf[:, 1])
     top = np.abs(Xf[:, 2]) < 1e-9
@@ -107,10 +110,10 @@ def test_a_real_cells_feature_sweep_puts_the_edge_by_the_light(true_sensor: True
     """The real sensor's sweep (`SweepFeatureSensor`, what `rvis run` measures bodies with)
     gives each point its light, as the simulated line's rendered path does: a slot's width
     and length within one sweep's scatter of the geometry rendered, the galvo parked after."""
-    T = _pose(10.0)
+    T = feature_pose(10.0)
     R, t = T[:3, :3], T[:3, 3]
     size = (8.0, 20.0)
-    cmds = _commands(true_sensor, 0.5 * max(size) + 3.0, 40)
+    cmds = sweep_commands(true_sensor, 0.5 * max(size) + 3.0, 40)
     frames = render_feature_sweep(
         T, "slot", size, THICKNESS_MM, true_sensor, np.random.default_rng(5), cmds
     )
