@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from app.api import Calibration
 from app.inspect.plan import Feature, FeaturePlan
-from app.inspect.values import Value, feature_values, not_measured
+from app.inspect.values import NO_NOISE, StopNoise, Value, feature_values, not_measured
 from app.inspect.views import JOINT_OFFSETS, FeatureView, InspectionPlan
 from calib.repeatability import joint_sigma_rad
 from vision.errors import FeatureRefused
@@ -111,14 +111,16 @@ def evaluate(
     raw: RawFeature | Sequence[RawFeature],
     statement_u95_mm: float,
     settings: FeatureSettings | None = None,
-    repeatability_mm: float = 0.0,
+    noise: StopNoise = NO_NOISE,
+    clamp_sd_mm: float = 0.0,
 ) -> list[Value]:
     """The values of one feature from its raw data with the calibration `cal` (module
     docstring): from several stops, the mean of their fits (each stop's robot error is its
-    own: the fit's own covariance and a size's sd fall with their number, and the robot's
-    repeatability at the view, the data sheet's RP `repeatability_mm` through the model,
-    counts once over their number in the statement: app.inspect.values); a stop the vision
-    refused is left out, all refused: "not measured" with the first one's reason."""
+    own: the fit's own covariance and a size's sd fall with their number, and so does the
+    robot's repeatability at the view, the data sheet's RP `noise.repeatability_mm` through the
+    model, which takes the place of the statement's own measurement noise:
+    app.inspect.values; clamp_sd_mm: the fixture's clamping repeatability, the plan's); a stop
+    the vision refused is left out, all refused: "not measured" with the first one's reason."""
     raws = [raw] if isinstance(raw, RawFeature) else list(raw)
     fits, refused, at = [], [], None
     for r in raws:
@@ -149,11 +151,14 @@ def evaluate(
     c_sensor = T[:3, :3].T @ (fit.centre_mm - T[:3, 3])
     cov = calibration_cov(cal, q_deg, c_sensor)
     repeat = None
-    if len(fits) > 1 and repeatability_mm > 0.0:
-        sigma_rad = joint_sigma_rad(cal.model, cal.x, repeatability_mm)
+    if noise.repeatability_mm > 0.0:
+        sigma_rad = joint_sigma_rad(cal.model, cal.x, noise.repeatability_mm)
         J = cal.model.point_jacobian(cal.x, q_deg[None], c_sensor[None], JOINT_OFFSETS)[0]
         repeat = sigma_rad**2 * (J @ J.T)
-    return feature_values(feature, fit, cov, statement_u95_mm, len(fits), repeat)
+    return feature_values(
+        feature, fit, cov, statement_u95_mm, len(fits), repeat, noise.statement_noise_mm,
+        clamp_sd_mm,
+    )  # fmt: skip
 
 
 def mean_fit(fits: Sequence[FeatureFit]) -> FeatureFit:
@@ -202,7 +207,7 @@ def measure_body(
     sensor: FeatureSensor,
     statement_u95_mm: float,
     temp_c: float | None = None,
-    repeatability_mm: float = 0.0,
+    noise: StopNoise = NO_NOISE,
 ) -> BodyResult:
     """Every feature of `plan` on the clamped body, along the route, the cell at temp_c
     [degC] (None: not known); a feature without a view is "not measured" (no view)."""
@@ -211,9 +216,7 @@ def measure_body(
         f = plan.feature(v.feature)
         for k in range(v.stops):  # each a stop of its own (the sensor's robot moves there)
             raw.append(extract(cal, f, v.q_deg, sensor.profiles(v), temp_c, stop=k))
-    return evaluate_body(
-        body, cal, plan, raw, statement_u95_mm, views.unreachable, repeatability_mm
-    )
+    return evaluate_body(body, cal, plan, raw, statement_u95_mm, views.unreachable, noise)
 
 
 def evaluate_body(
@@ -223,7 +226,7 @@ def evaluate_body(
     raw: Sequence[RawFeature],
     statement_u95_mm: float,
     unreachable: dict[str, str] | None = None,
-    repeatability_mm: float = 0.0,
+    noise: StopNoise = NO_NOISE,
 ) -> BodyResult:
     """A body's values from its raw data (plan order; a feature without raw data is "not
     measured" with the reason in `unreachable`, or "no view")."""
@@ -237,7 +240,6 @@ def evaluate_body(
             why = (unreachable or {}).get(f.id, "no view in the plan")
             values.extend(not_measured(f, f"no view: {why}"))
         else:
-            values.extend(
-                evaluate(cal, f, stops, statement_u95_mm, repeatability_mm=repeatability_mm)
-            )
+            u = statement_u95_mm
+            values.extend(evaluate(cal, f, stops, u, noise=noise, clamp_sd_mm=plan.clamp_sd_mm))
     return BodyResult(body, tuple(values), tuple(raw))

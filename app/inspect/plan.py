@@ -4,6 +4,7 @@ tolerances (`features.toml` beside the cell file; its schema in docs/inspection.
     format = "rvis-features/1"
     part = "SIM-BIW-01"                    # part number (AQDEF K1001)
     description = "simulated body side"    # (K1002)
+    clamp_sd_mm = 0.012                    # the fixture's clamping repeatability (optional)
 
     [[feature]]
     id = "H01"
@@ -15,6 +16,11 @@ tolerances (`features.toml` beside the cell file; its schema in docs/inspection.
     position_tol_mm = [-0.5, 0.5]          # hole and slot: X, Y, Z each
     size_tol_mm = [-0.2, 0.2]              # hole: D; slot: W and L
     # surface: normal_tol_mm = [-0.7, 0.7] for N, the deviation along the normal
+
+`clamp_sd_mm`: the fixture's clamping repeatability for this part type, one standard deviation
+[mm] per axis at the features (a clamping study's, or the fixture's specification): a body's
+values are in the fixture's frame, a CMM's in the body's own, so each value's U95 holds it
+(app.inspect.values); 0 when not given, and the U95 then leaves the clamping out.
 
 Characteristics (`Characteristic`): a hole's X, Y, Z (its centre along the part frame's axes) and
 D; a slot's X, Y, Z, W and L; a surface point's N. Tolerances are deviations from the nominal
@@ -129,12 +135,14 @@ class Feature:
 
 @dataclass(frozen=True)
 class FeaturePlan:
-    """A part type: part number, description, its features in file order, and the file."""
+    """A part type: part number, description, its features in file order, the file, and the
+    fixture's clamping repeatability [mm] (module docstring)."""
 
     part: str
     description: str
     features: tuple[Feature, ...]
     source: str = ""
+    clamp_sd_mm: float = 0.0
 
     def characteristics(self) -> list[Characteristic]:
         return [c for f in self.features for c in f.characteristics()]
@@ -155,7 +163,7 @@ def load_features(path: str | Path, T_part_base: F64 | None = None) -> FeaturePl
         raise InputError(
             f"format: expected {FORMAT!r}, got {doc.get('format')!r}", file=path, field="format"
         )
-    unknown = sorted(set(doc) - {"format", "part", "description", "feature"})
+    unknown = sorted(set(doc) - {"format", "part", "description", "clamp_sd_mm", "feature"})
     if unknown:
         raise InputError(f"unknown key {unknown[0]!r}", file=path, field=unknown[0])
     rows = doc.get("feature")
@@ -181,7 +189,26 @@ def load_features(path: str | Path, T_part_base: F64 | None = None) -> FeaturePl
     part = str(doc.get("part", "")).strip()
     if not part:
         raise InputError("part: expected the part number", file=path, field="part")
-    return FeaturePlan(part, str(doc.get("description", "")), tuple(features), str(path))
+    clamp = doc.get("clamp_sd_mm", 0.0)
+    if isinstance(clamp, bool) or not isinstance(clamp, int | float) or not 0 <= clamp < 10:
+        raise InputError(
+            f"clamp_sd_mm: expected a number of mm from 0 to 10, got {clamp!r}",
+            file=path,
+            line=_top_line(text, "clamp_sd_mm"),
+            field="clamp_sd_mm",
+        )
+    description = str(doc.get("description", ""))
+    return FeaturePlan(part, description, tuple(features), str(path), float(clamp))
+
+
+def _top_line(text: str, key: str) -> int | None:
+    """The line of a top-level `key = ...` (before the first [[feature]])."""
+    for k, line in enumerate(text.splitlines(), start=1):
+        if line.strip().startswith("[["):
+            return None
+        if re.match(rf"\s*{re.escape(key)}\s*=", line):
+            return k
+    return None
 
 
 class _Where:
@@ -296,6 +323,8 @@ def features_toml(plan: FeaturePlan) -> str:
         f"part = {_q(plan.part)}",
         f"description = {_q(plan.description)}",
     ]
+    if plan.clamp_sd_mm > 0:
+        out.append(f"clamp_sd_mm = {plan.clamp_sd_mm:g}")
     for f in plan.features:
         out += ["", "[[feature]]", f"id = {_q(f.id)}", f"type = {_q(f.type)}"]
         out.append(f"position_mm = {_vec(f.position_mm)}")

@@ -2,19 +2,32 @@
 per ISO 14253-1.
 
 The U95 of a value along a direction e of the part frame (a position X, Y, Z: the axis; a
-surface point's N: the nominal normal) is k sqrt(max(sigma_cell^2, e' C_cal e) + e' C_fit e), k
-the two-sided 95 % factor of one coordinate (1.96):
+surface point's N: the nominal normal) is k sqrt(max(sigma_cell^2 - sigma_m^2, e' C_cal e) +
+e' C_rep e / n + e' C_fit e + s_clamp^2), k the two-sided 95 % factor of one coordinate (1.96):
 - sigma_cell: the cell's statement for a point measured now (a U95 of the 3-D error's norm, the
-  in-line check standard's or the commissioning's workspace validation's), per coordinate:
-  U95 / 2.80 (calib.uncertainty.norm_quantile). It is measured on points whose truth is known,
-  so it holds every error a point measured now has: the parameters' at the point, the robot's
-  repeatability at the stop, the sphere's sensing, what the model leaves out;
+  one estimator's or the commissioning's workspace validation's), per coordinate: U95 / 2.80
+  (calib.uncertainty.norm_quantile). It holds every error of a point measured now: the
+  parameters' at the point, what the model leaves out, and the measurement's own noise;
+- sigma_m: that own noise of the statement's measurement, per coordinate (`StopNoise`: the
+  estimator's `[service] jump_sigma_mm`, a sphere centre's: the robot's repeatability at the
+  sphere's stop and the sphere's sensing). It is the sphere's, not the feature's: the value
+  replaces it with its own, the two terms after the max. sigma_cell^2 - sigma_m^2 is what
+  every point measured now shares, wherever it is measured;
 - C_cal (3, 3): the identification's covariance propagated to the feature's centre at its view
   (J P J', as `rvis.Calibration.u95_mm` propagates it): the parameters' part alone, but at this
-  pose. Added to sigma_cell it would count the parameters twice; the larger of the two stands,
-  so a pose where the parameters are less certain than on average is never understated;
+  pose. Added to the statement's share it would count the parameters twice; the larger of the
+  two stands, so a pose where the parameters are less certain than on average is never
+  understated;
+- C_rep (3, 3): the robot's repeatability at the feature's view (the data sheet's RP as joint
+  errors through the model, app.inspect.views), over the n stops whose fits are averaged (each
+  stop's robot error is its own). The views are chosen where the robot repeats best, so this
+  is often less than a sphere's stop's; without RP (0) the statement's sigma_m stands in, once
+  a stop;
 - C_fit (3, 3): the feature fit's own covariance (vision.features): the feature's sensing,
-  which the sphere's does not contain.
+  which the sphere's does not contain;
+- s_clamp: the fixture's clamping repeatability (the feature plan's `clamp_sd_mm`): the
+  value is in the fixture's frame, the body's truth (a CMM's) in its own; the spheres stand in
+  the cell and hold none of it.
 A size (D, W, L) is a distance within one view: the pose's error moves both edges alike, so
 its U95 is k sqrt(sd_fit^2 + 2 u_edge^2): the fit's own sd holds the edge points' random
 placement within a stripe sample; u_edge is the type-B uncertainty of what stays systematic on
@@ -46,6 +59,21 @@ K95 = 1.959964
 #: at the working distance), as a uniform distribution's
 EDGE_U_MM = 0.0036 / math.sqrt(3.0)  # 0.002 mm
 DECISIONS = ("conforming", "nonconforming", "undecided", "not measured")
+
+
+@dataclass(frozen=True)
+class StopNoise:
+    """The measurement's own noise in a value's U95 (module docstring): the robot's
+    repeatability, the data sheet's ISO 9283 RP [mm] (0: not known), and the cell's statement's
+    own measurement noise per coordinate [mm] (sigma_m: the estimator's `[service]
+    jump_sigma_mm`; 0: the statement holds none apart)."""
+
+    repeatability_mm: float = 0.0
+    statement_noise_mm: float = 0.0
+
+
+#: no noise held apart: the statement as it is, once a stop
+NO_NOISE = StopNoise()
 
 
 @dataclass(frozen=True)
@@ -100,13 +128,17 @@ def feature_values(
     statement_u95_mm: float,
     stops: int = 1,
     cov_repeat_mm2: F64 | None = None,
+    statement_noise_mm: float = 0.0,
+    clamp_sd_mm: float = 0.0,
 ) -> list[Value]:
-    """The values of `feature` from its fit in the part frame; cov_cal_mm2 (3, 3): the
-    calibration's covariance at the feature's centre; statement_u95_mm: the cell's (one
-    stop's). A fit averaged over `stops` stops (app.inspect.measure.mean_fit): the robot's
-    repeatability at the view, cov_repeat_mm2 (3, 3), is one stop's in the statement and
-    1/stops of it in the mean: the statement less the difference (never below nothing)."""
+    """The values of `feature` from its fit in the part frame (module docstring); cov_cal_mm2
+    (3, 3): the calibration's covariance at the feature's centre; statement_u95_mm: the
+    cell's, statement_noise_mm its own measurement's noise per coordinate; a fit averaged over
+    `stops` stops (app.inspect.measure.mean_fit), cov_repeat_mm2 (3, 3): the robot's
+    repeatability at one stop of the view (None: not known, the statement's noise stands in);
+    clamp_sd_mm: the fixture's clamping repeatability (the plan's)."""
     sigma2 = cell_sigma_mm(statement_u95_mm) ** 2
+    noise2 = min(statement_noise_mm**2, sigma2)
     out = []
     sizes = iter(zip(fit.size_mm, fit.sd_size_mm, strict=True))
     for c in feature.characteristics():
@@ -121,10 +153,13 @@ def feature_values(
             else:
                 e = np.eye(3)["XYZ".index(c.name)]
                 measured = float(fit.centre_mm["XYZ".index(c.name)])
-            cell2 = sigma2
-            if stops > 1 and cov_repeat_mm2 is not None:
-                cell2 -= (1.0 - 1.0 / stops) * min(float(e @ cov_repeat_mm2 @ e), sigma2)
-            var = max(cell2, float(e @ cov_cal_mm2 @ e)) + float(e @ fit.cov_centre_mm2 @ e)
+            own = noise2 if cov_repeat_mm2 is None else float(e @ cov_repeat_mm2 @ e)
+            var = (
+                max(sigma2 - noise2, float(e @ cov_cal_mm2 @ e))
+                + own / stops
+                + float(e @ fit.cov_centre_mm2 @ e)
+                + clamp_sd_mm**2
+            )
             u95 = K95 * math.sqrt(var)
         dev = measured - c.nominal_mm
         out.append(Value(c, measured, dev, u95, decide(dev, c.tol_mm, u95)))

@@ -44,7 +44,7 @@ from app.inspect.spc import (
     attribute,
     grouped_texts,
 )
-from app.inspect.values import Value
+from app.inspect.values import StopNoise, Value
 from app.inspect.views import InspectionPlan, plan_views, reaimed
 from app.line.body_export import ResultsWriter
 from app.line.cycle import WindowWatch, Withdrawal
@@ -169,13 +169,15 @@ class BodyCycle:
         watch: WindowWatch,
         measurer: SphereMeasurer,
         store: Store,
-        repeatability_mm: float,
+        noise: StopNoise,
         writer: ResultsWriter | None = None,
     ) -> None:
-        """writer: the results directory's (app.line.body_export; None: none)."""
+        """noise: the robot's repeatability and the statement's own measurement noise
+        (app.inspect.values); writer: the results directory's (app.line.body_export; None:
+        none)."""
         self.plan, self.sensor, self.sensor_model = setup.plan, setup.sensor, setup.sensor_model
         self.watch, self.measurer, self.store = watch, measurer, store
-        self.repeatability_mm = repeatability_mm
+        self.noise = noise
         self.writer = writer
         self.clock, self.line, self.plc = watch.clock, watch.line, watch.plc
         self._views: tuple[int, InspectionPlan] | None = None
@@ -206,9 +208,8 @@ class BodyCycle:
             return self._views[1]
         route = None if self._views is None else reaimed(self._views[1], cal.model, cal.x)
         if route is None:
-            route = plan_views(
-                self.line, self.repeatability_mm, cal.model, cal.x, self.plan, self.sensor_model
-            )
+            rp = self.noise.repeatability_mm
+            route = plan_views(self.line, rp, cal.model, cal.x, self.plan, self.sensor_model)
         self._views = (version, route)
         return route
 
@@ -245,7 +246,7 @@ class BodyCycle:
         self.measurer.go_home()
         result = evaluate_body(
             str(body_id), cal, self.plan, raw, _or_none(statement_u95_mm), skipped,
-            self.repeatability_mm,
+            self.noise,
         )  # fmt: skip
         row = self._store(result, window, t_start, body_id, version, statement_u95_mm, temp_c)
         self._chart(body_id, [v.as_dict() for v in result.values])
@@ -421,7 +422,7 @@ class BodyCycle:
         raw = raw_of(self.store.body_raw(int(body["id"])))
         result = evaluate_body(
             str(body["body_id"]), cal, self.plan, raw, _or_none(statement_u95_mm), None,
-            self.repeatability_mm,
+            self.noise,
         )  # fmt: skip
         values = [v.as_dict() for v in result.values]
         changed = sum(

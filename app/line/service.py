@@ -59,6 +59,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from app.inspect.values import StopNoise
 from app.line.accuracy import Accuracy, limit_in_force
 from app.line.body_cycle import BodyCycle, BodySetup
 from app.line.body_export import ResultsWriter
@@ -164,8 +165,9 @@ class Service:
             writer = None
             if s.results_dir is not None:
                 writer = ResultsWriter(s.results_dir, s.station, bodies.plan.description)
+            noise = StopNoise(s.repeatability_mm, s.recalib.jump_sigma_mm)
             self.body_cycle = BodyCycle(
-                bodies, self.watch, self.measurer, self.store, s.repeatability_mm, writer
+                bodies, self.watch, self.measurer, self.store, noise, writer
             )
         self.state = State.STARTING
         self.paused = False

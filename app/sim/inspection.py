@@ -38,6 +38,7 @@ from app.errors import RvisError
 from app.formats.files import read_json
 from app.inspect.measure import BodyResult, measure_body
 from app.inspect.plan import Characteristic, FeaturePlan, load_features
+from app.inspect.values import StopNoise
 from app.inspect.views import InspectionPlan, plan_views
 from app.line.launch import hold_state
 from app.line.statedir import StateDir
@@ -80,7 +81,7 @@ class InspectionCell:
             self.bodies,
             self.statement_u95_mm,
             self.temp_c,
-            self.cfg.robot.repeatability_mm,
+            StopNoise(self.cfg.robot.repeatability_mm, self.cfg.service.jump_sigma_mm),
         )
 
 

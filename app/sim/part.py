@@ -23,7 +23,7 @@ from app.config import CellConfig
 from app.formats.files import write_text
 from app.inspect.plan import Feature, FeaturePlan, features_toml
 from app.line.statedir import StateDir
-from fakes.body import NominalFeature
+from fakes.body import ClampSettings, NominalFeature
 
 F64 = NDArray[np.float64]
 PART_NUMBER = "SIM-BIW-01"
@@ -78,7 +78,23 @@ def default_part(cfg: CellConfig) -> FeaturePlan:
                 tols,
             )
         )
-    return FeaturePlan(PART_NUMBER, "simulated body side, 24 features", tuple(features))
+    return FeaturePlan(
+        PART_NUMBER,
+        "simulated body side, 24 features",
+        tuple(features),
+        clamp_sd_mm=clamp_sd_mm(np.array([f.position_mm for f in features]), ClampSettings()),
+    )
+
+
+def clamp_sd_mm(p_mm: F64, s: ClampSettings) -> float:
+    """The simulated fixture's clamping repeatability at features p_mm (n, 3), one standard
+    deviation per axis [mm], as a plant states its fixture's (the feature plan's
+    `clamp_sd_mm`): the translation's, and the rotation about the features' centroid at their
+    RMS distance from it (a rotation of sd r per axis moves a point at distance L by r L
+    sqrt(2/3) per axis on average)."""
+    lever = float(np.sqrt(np.mean(np.sum((p_mm - p_mm.mean(axis=0)) ** 2, axis=1))))
+    rot = s.rotation_sd_rad * lever * float(np.sqrt(2.0 / 3.0))
+    return round(float(np.hypot(s.translation_sd_mm, rot)), 4)
 
 
 def _uses(kind: str, tol: str) -> bool:

@@ -71,6 +71,23 @@ def test_the_simulated_part_type_reads_back_equal(cfg: CellConfig, tmp_path: Pat
     for a, b in zip(plan.features, back.features, strict=True):
         assert a.id == b.id and a.type == b.type and a.size_mm == b.size_mm
         assert np.allclose(a.position_mm, b.position_mm) and a.tolerances == b.tolerances
+    # the simulated fixture's clamping repeatability, as a plant states its fixture's
+    assert back.clamp_sd_mm == plan.clamp_sd_mm and 0.01 <= plan.clamp_sd_mm < 0.02
+
+
+@pytest.mark.parametrize("bad", ["-0.01", '"small"', "true", "12"])
+def test_a_bad_clamping_repeatability_is_named_with_its_line(
+    cfg: CellConfig, tmp_path: Path, bad: str
+) -> None:
+    text = good(cfg).replace(
+        'description = "two features"\n', f'description = "two"\nclamp_sd_mm = {bad}\n'
+    )
+    assert load_features(_write(tmp_path, good(cfg))).clamp_sd_mm == 0.0  # not given: none
+    path = _write(tmp_path, text)
+    with pytest.raises(InputError) as info:
+        load_features(path, cfg.T_part_base)
+    assert info.value.field == "clamp_sd_mm" and info.value.line == 4
+    assert str(path) in str(info.value) and "from 0 to 10" in str(info.value)
 
 
 @pytest.mark.parametrize(
@@ -250,23 +267,37 @@ def test_the_fits_of_several_stops_are_averaged() -> None:
     assert mean_fit(fits[:1]) is fits[0]
 
 
-def test_a_value_from_several_stops_counts_the_robots_repeatability_once_over_their_number(
+def test_a_value_holds_its_own_stops_repeatability_in_place_of_the_statements_noise(
     cfg: CellConfig,
 ) -> None:
-    """The cell's statement holds one stop's robot error; a mean over n stops holds 1/n of
-    it: its U95 is the statement's less (1 - 1/n) of the robot's variance along the value's
-    axis (never below the calibration's own share, never below nothing)."""
+    """The cell's statement holds its own measurement's noise (a sphere's stop: sigma_m); a
+    feature's value holds its view's robot repeatability over its n stops in its place: its
+    U95 is k sqrt(sigma_cell^2 - sigma_m^2 + r^2 / n) along each axis; with neither known, the
+    statement as it is; the fixture's clamping repeatability adds to a position's."""
     f = default_part(cfg).features[0]
     fit = FeatureFit("hole", f.position_mm.copy(), f.normal, f.size_mm, np.zeros(3), 0.0,
                      np.zeros((3, 3)), (0.002,), 40, 0.9, 0.01, 0.01)  # fmt: skip
-    one = {v.characteristic.name: v.u95_mm for v in feature_values(f, fit, np.zeros((3, 3)), 0.08)}
-    rep = np.diag([0.02, 0.01, 0.0]) ** 2
-    two = {
-        v.characteristic.name: v.u95_mm
-        for v in feature_values(f, fit, np.zeros((3, 3)), 0.08, 2, rep)
-    }
+
+    def u95(stops: int, rep: np.ndarray | None, noise_mm: float) -> dict[str, float | None]:
+        values = feature_values(f, fit, np.zeros((3, 3)), 0.08, stops, rep, noise_mm)
+        return {v.characteristic.name: v.u95_mm for v in values}
+
     sigma2 = (0.08 / 2.795483) ** 2
-    for name, r2 in (("X", 0.02**2), ("Y", 0.01**2), ("Z", 0.0)):
-        assert two[name] == pytest.approx(1.959964 * np.sqrt(sigma2 - 0.5 * r2), rel=1e-4)
-        assert (two[name] or 0.0) <= (one[name] or 0.0)
+    plain = u95(1, None, 0.0)
+    assert plain["X"] == pytest.approx(1.959964 * np.sqrt(sigma2), rel=1e-4)
+    rep = np.diag([0.03, 0.01, 0.0]) ** 2
+    one, two = u95(1, rep, 0.02), u95(2, rep, 0.02)
+    for name, r2 in (("X", 0.03**2), ("Y", 0.01**2), ("Z", 0.0)):
+        for n, got in ((1, one), (2, two)):
+            want = 1.959964 * np.sqrt(sigma2 - 0.02**2 + r2 / n)
+            assert got[name] == pytest.approx(want, rel=1e-4)
+    # a view that repeats worse than the sphere's stop states more than the cell, a better one
+    # less; the same noise without the view's repeatability: the statement once a stop
+    assert (one["X"] or 0.0) > (plain["X"] or 0.0) > (one["Y"] or 0.0)
+    assert u95(1, None, 0.02)["X"] == pytest.approx(plain["X"])
+    # the fixture's clamping repeatability: in every position value, in no size
+    clamped = feature_values(f, fit, np.zeros((3, 3)), 0.08, 1, None, 0.0, 0.01)
+    got = {v.characteristic.name: v.u95_mm for v in clamped}
+    assert got["X"] == pytest.approx(1.959964 * np.sqrt(sigma2 + 0.01**2), rel=1e-4)
+    assert got["D"] == plain["D"]
     assert two["D"] == one["D"]  # a size: within one view, no pose error

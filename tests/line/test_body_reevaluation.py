@@ -12,6 +12,7 @@ import numpy as np
 
 from app.config.line import LineSettings
 from app.inspect.plan import Feature, FeaturePlan
+from app.inspect.values import StopNoise
 from app.line.body_cycle import BodyCycle, BodySetup
 from app.line.store import Store
 from vision.sensor_model import default_sensor_model
@@ -40,7 +41,7 @@ def test_an_interval_with_nothing_to_compute_again_is_handled_once(tmp_path: Pat
     feature = Feature("H1", "hole", z, np.array([0.0, 0.0, 1.0]), z, (8.0,), 0.8, tols)
     setup = BodySetup(FeaturePlan("P", "", (feature,)), SimpleNamespace(), default_sensor_model())
     watch = SimpleNamespace(clock=None, line=LineSettings(), plc=None)
-    cycle = BodyCycle(setup, watch, None, store, 0.07)  # type: ignore[arg-type]
+    cycle = BodyCycle(setup, watch, None, store, StopNoise(0.07, 0.02))  # type: ignore[arg-type]
 
     def no_file(version: int) -> Path:
         raise AssertionError("no body to compute again: no parameters file read")

@@ -18,6 +18,7 @@ import pytest
 from app.api import Calibration
 from app.config import load_cell
 from app.inspect.measure import evaluate_body
+from app.inspect.values import StopNoise
 from app.line.body_cycle import raw_of
 from app.line.body_export import file_name
 from app.line.launch import hold_state
@@ -121,8 +122,8 @@ def test_the_stored_raw_data_give_the_stored_values_again(line_run: dict[str, An
     # stop's raw data its own (app.inspect.views); computed again as one
     stops = {(r.feature, r.stop) for r in raw}
     assert any(k > 0 for _, k in stops) and len(stops) == len(raw)
-    rp = cfg.robot.repeatability_mm
-    again = evaluate_body(str(b["body_id"]), cal, plan, raw, b["statement_u95_mm"], None, rp)
+    noise = StopNoise(cfg.robot.repeatability_mm, cfg.service.jump_sigma_mm)
+    again = evaluate_body(str(b["body_id"]), cal, plan, raw, b["statement_u95_mm"], None, noise)
     stored = store.body_values(b["id"], 0)
     store.close()
     for v, s in zip(again.values, stored, strict=True):
