@@ -3,7 +3,8 @@ app.line.service.Service that sees it as app.line.host.LineHost (as app.line.ope
 commands do); app.line.cycle.Cycle asks it for each visit of a window.
 
 The next slot of the plan that fits (with adaptive scheduling, the one most informative for the
-sequential estimator). A view rejected VIEW_LOST_TRIES times in a row is left out of the windows
+sequential estimator); more of them in a window while a jump is not corrected yet
+(`slots_wanted`). A view rejected VIEW_LOST_TRIES times in a row is left out of the windows
 (`view_lost` alarm) while others fit.
 """
 
@@ -62,8 +63,17 @@ class SlotChoice:
         return [s for s in slots if s.index not in lost] or slots
 
     def slots_wanted(self) -> int:
-        """Slots this window may measure."""
-        return self.svc.settings.line.slots_per_window
+        """Slots this window may measure: `[line] slots_per_window`; while a jump found by the
+        one estimator is not corrected yet (its episode open, app.line.jumps) or a full
+        recalibration waits for a change no single group explains, up to `[line]
+        step_slots_per_window` (those that fit the window's time): the correction's
+        evidence, or the schedule's cycle for the full one, in fewer windows."""
+        svc, line = self.svc, self.svc.settings.line
+        ep = svc.episode
+        waiting = ep is not None and not ep.get("closed") and ep.get("corrected_version") is None
+        if waiting or svc.force_recal:
+            return max(line.step_slots_per_window, line.slots_per_window)
+        return line.slots_per_window
 
 
 def lost_views(store: Store, since_id: int = 0) -> set[int]:
