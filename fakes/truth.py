@@ -251,6 +251,8 @@ class Warmup:
 #: "joint" is the J2 zero (as J2); Jn any axis's zero; "sphere" one sphere alone
 JOINT_KNOCKS = ("J1", "J2", "J3", "J4", "J5", "J6")
 KNOCK_KINDS = ("sensor", "fixture", "joint", *JOINT_KNOCKS, "sphere")
+#: a simulated shift without a knock (`rvis experiment shift --knock none`)
+NO_KNOCK = "none"
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,7 @@ from app.sim.accuracy import AccuracySettings, run_accuracy
 from app.sim.accuracy import summary_text as accuracy_text
 from app.sim.paper import run_experiment, summary_text
 from fakes.truth import KNOCK_KINDS as KNOCKS
+from fakes.truth import NO_KNOCK
 
 if TYPE_CHECKING:
     from app.sim.shift import ShiftResult, ShiftSettings
@@ -221,12 +222,12 @@ def _shift_options(g: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--knock",
-        choices=(*KNOCKS, "all"),
+        choices=(*KNOCKS, "all", NO_KNOCK),
         default="sensor",
         help="what the knock moves: the sensor mount (0.3 mm, 0.05 deg; default), the"
         " spheres' frame (0.5 mm, 0.03 deg), an axis's zero (J1..J6, joint = J2: 0.01 deg),"
         " one sphere alone (sphere: 0.5 mm); all: sensor, fixture and joint in turn (with"
-        " --seeds: a campaign, shift-knocks.md)",
+        " --seeds: a campaign, shift-knocks.md); none: a shift without a knock (one shift)",
     )
     g.add_argument(
         "--knock-at-window",
@@ -267,6 +268,12 @@ def run(args: argparse.Namespace) -> int:
         return run_compensation_experiment(args)
     if args.name == "shift":
         if args.seeds is not None or args.knock == "all" or len(args.knock_at_h) > 1:
+            if args.knock == NO_KNOCK:
+                raise InputError(
+                    "a campaign runs each shift without its knock too: --knock none is one"
+                    " shift (no --seeds, one --knock-at-h)",
+                    field="--knock",
+                )
             return run_knock_campaign(args)
         return run_shift_experiment(args)
     if args.name == "paper-compare":
@@ -341,6 +348,10 @@ def run_shift_experiment(args: argparse.Namespace) -> int:
     cfg = load_cell(args.cell)
     if args.knock_at_window is not None:  # the N-th window opens at (N - 1) periods
         args.knock_at_h = [(args.knock_at_window - 1) * cfg.simline.period_s / 3600.0]
+    if args.knock == NO_KNOCK:
+        if args.after_h is not None or args.knock_at_window is not None:
+            raise InputError("--knock none: no knock to time; give --hours", field="--knock")
+        args.knock_at_h = [0.0]
     ((knock_h, hours),) = _knock_hours(args)
     settings = _shift_settings(args, knock_h, hours)
     out = Path(args.out or f"runs/shift-{time.strftime('%Y%m%d-%H%M%S')}")
@@ -356,7 +367,8 @@ def run_shift_experiment(args: argparse.Namespace) -> int:
                 flush=True,
             )
 
-    print(f"rvis experiment shift: {hours:g} h, knock at {knock_h:g} h -> {out}/")
+    knock = f"knock at {knock_h:g} h" if settings.knocked else "no knock"
+    print(f"rvis experiment shift: {hours:g} h, {knock} -> {out}/")
     runs = {  # the name in the comparison -> (estimator, schedule)
         "batch": ("batch", "cycle"),
         "sequential": ("sequential", "cycle"),

@@ -28,7 +28,7 @@ from app.line.accuracy import ACCURACY_GROUP
 from app.line.statedir import StateDir
 from app.line.store import Store
 from app.sim.line_run import SimRunSummary, SimulatedLineRun, WindowRecord
-from fakes.truth import KNOCK_KINDS, Knock
+from fakes.truth import KNOCK_KINDS, NO_KNOCK, Knock
 
 
 @dataclass(frozen=True)
@@ -39,7 +39,9 @@ class ShiftSettings:
 
     hours: float = 8.0
     knock_at_h: float = 4.0
-    knock: str = "sensor"  # what the knock moves: sensor | fixture | joint (fakes.truth.Knock)
+    # what the knock moves: sensor | fixture | joint | ... (fakes.truth.Knock), or NO_KNOCK (no
+    # knock: knock_at_h is not used)
+    knock: str = "sensor"
     knock_mm: float | None = None  # None: the kind's size (Knock.of_kind)
     knock_deg: float | None = None
     geometric: bool = True
@@ -69,11 +71,17 @@ class ShiftSettings:
             raise ValueError(
                 "recovered_ratio >= 1, pre_knock_windows >= 1 and episode_gap_windows >= 1"
             )
-        if self.knock not in KNOCK_KINDS:
-            raise ValueError(f"knock must be one of {', '.join(KNOCK_KINDS)}")
+        if self.knock not in (*KNOCK_KINDS, NO_KNOCK):
+            raise ValueError(f"knock must be one of {', '.join((*KNOCK_KINDS, NO_KNOCK))}")
+
+    @property
+    def knocked(self) -> bool:
+        return self.knock != NO_KNOCK
 
     def knock_size(self) -> tuple[float, float]:
-        """(shift [mm], tilt or slip [deg]) of the knock."""
+        """(shift [mm], tilt or slip [deg]) of the knock (none: 0, 0)."""
+        if not self.knocked:
+            return 0.0, 0.0
         kind = Knock.of_kind(self.knock, 0.0)
         mm = kind.shift_mm if self.knock_mm is None else self.knock_mm
         deg = kind.tilt_deg if self.knock_deg is None else self.knock_deg
@@ -217,7 +225,7 @@ class ShiftResult:
             baseline_mm=doc.get("baseline_mm"),
             accuracy_limit_mm=float(doc.get("accuracy_limit_mm", math.nan)),
         )
-        result.attribution = attributed_group(result.suspects, 3600.0 * result.settings.knock_at_h)
+        result.attribution = attributed_group(result.suspects, knock_s(result.settings))
         evaluate(result)
         return result
 
@@ -250,10 +258,10 @@ def shift_config(cfg: CellConfig, s: ShiftSettings) -> CellConfig:
     knock_mm, knock_deg = s.knock_size()
     simline = dataclasses.replace(
         cfg.simline,
-        knock_at_s=s.knock_at_h * 3600.0,
+        knock_at_s=s.knock_at_h * 3600.0 if s.knocked else -1.0,
         knock_mm=knock_mm,
         knock_deg=knock_deg,
-        knock_kind=s.knock,
+        knock_kind=s.knock if s.knocked else cfg.simline.knock_kind,
     )
     line, service = cfg.line, cfg.service
     if s.slots_per_window is not None:
@@ -323,7 +331,7 @@ def run_shift(
         ]
     finally:
         store.close()
-    result.attribution = attributed_group(result.suspects, 3600.0 * s.knock_at_h)
+    result.attribution = attributed_group(result.suspects, knock_s(s))
     result.real_s = time.perf_counter() - t0
     evaluate(result)
     return result
@@ -332,6 +340,12 @@ def run_shift(
 def _opened_s(r: WindowRecord, window_s: float) -> float:
     """When the window opened [sim s] (older runs: the record's time less a window)."""
     return r.t_open_h * 3600.0 if math.isfinite(r.t_open_h) else r.t_h * 3600.0 - window_s
+
+
+def knock_s(s: ShiftSettings) -> float:
+    """When the shift's knock came [s into the shift]; a shift without one: 0 (a step found in
+    it is a false one, named as a knock's would be)."""
+    return 3600.0 * s.knock_at_h if s.knocked else 0.0
 
 
 def attributed_group(suspects: list[dict[str, Any]], knock_s: float) -> str | None:
@@ -356,6 +370,8 @@ def evaluate(result: ShiftResult) -> None:
     """Knock window, windows to the drift alarm, pre-knock level and windows to recovery."""
     s, recs = result.settings, result.records
     mark_suspect(result)
+    if not s.knocked:
+        return
     after = [r.window for r in recs if r.t_h * 3600.0 - result.window_s >= s.knock_at_h * 3600.0]
     if not after:
         return
@@ -473,6 +489,20 @@ def _windows_text(n: int | None, limit: int) -> str:
 def summary_lines(result: ShiftResult) -> list[str]:
     """The shift's must-show figures, one per line."""
     s, sm = result.settings, result.summary
+    if not s.knocked:
+        return [
+            f"no knock; a step attributed to: {result.attribution or 'nothing'} (target nothing)",
+            f"suspect intervals: {_spans(result) or 'none'}",
+            stated_accuracy_text(result),
+            _alarms_text(result),
+            f"overruns: {sm.overruns} (target 0); windows {sm.windows}, measurements"
+            f" {sm.measurements} ({sm.rejected} rejected), calibrations applied"
+            f" {sm.calibrations_applied}, rejected {sm.calibrations_rejected}",
+            f"true RMSE at the end: {sm.true_rmse_final_mm:.4f} mm with the service,"
+            f" {result.records[-1].rmse_commissioning_mm:.4f} mm without recalibration"
+            if result.records
+            else "no window ran",
+        ]
     mm, deg = s.knock_size()
     axis = "J2" if s.knock == "joint" else s.knock
     what = {"sensor": "the sensor mount", "fixture": "the spheres' frame"}.get(
@@ -523,20 +553,23 @@ def _suspects_text(result: ShiftResult) -> str:
     sc = result.suspect_score
     if sc is None:
         return "suspect intervals: no knock window"
-    spans = ", ".join(
-        f"{x['t_start_s'] / 3600:.3f}-"
-        + ("open" if x["t_end_s"] is None else f"{x['t_end_s'] / 3600:.3f}")
-        + f" h ({x['size_mm'] or 0:.3f} mm)"
-        for x in result.suspects
-    )
     return (
-        f"suspect intervals: {spans or 'none'}; they cover {len(sc.covered)} windows after the"
-        f" knock, {len(sc.bad)} were above {result.settings.recovered_ratio:g}x (recall"
+        f"suspect intervals: {_spans(result) or 'none'}; they cover {len(sc.covered)} windows"
+        f" after the knock, {len(sc.bad)} were above {result.settings.recovered_ratio:g}x (recall"
         f" {100 * sc.recall:.0f} %, target 100 %), {sc.extra} covered that were not"
         f" ({100 * sc.extra_share:.0f} % of the covered, target <= 10 %); over the knock's"
         f" episode ({_episode_span(result.knock_window, sc.episode_end)}):"
         f" {len(sc.episode_covered)} of {len(sc.episode_bad)} above covered (recall"
         f" {100 * sc.episode_recall:.0f} %, target >= 95 %)"
+    )
+
+
+def _spans(result: ShiftResult) -> str:
+    return ", ".join(
+        f"{x['t_start_s'] / 3600:.3f}-"
+        + ("open" if x["t_end_s"] is None else f"{x['t_end_s'] / 3600:.3f}")
+        + f" h ({x['size_mm'] or 0:.3f} mm)"
+        for x in result.suspects
     )
 
 

@@ -108,7 +108,14 @@ def test_shift_settings_refuse_a_knock_outside_the_shift() -> None:
 
 @pytest.mark.parametrize(
     "argv",
-    [["--knock-at-h", "9"], ["--hours", "0"], ["--scale", "-1"], ["--geometric", "--rendered"]],
+    [
+        ["--knock-at-h", "9"],
+        ["--hours", "0"],
+        ["--scale", "-1"],
+        ["--geometric", "--rendered"],
+        ["--knock", "none", "--seeds", "2"],
+        ["--knock", "none", "--knock-at-window", "3"],
+    ],
 )
 def test_bad_shift_options_exit_2(
     argv: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]
@@ -116,6 +123,24 @@ def test_bad_shift_options_exit_2(
     code = main(["experiment", "shift", "--out", str(tmp_path / "x"), *argv])
     assert code == 2 and "rvis" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+def test_a_shift_without_a_knock_keeps_the_shifts_fields(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`--knock none` (issue 50 item 6): the knock's fields empty, the windows' as with one."""
+    out = tmp_path / "quiet"
+    assert (
+        main(["experiment", "shift", "--knock", "none", "--hours", "0.1", "--out", str(out)]) == 0
+    )
+    assert "no knock" in capsys.readouterr().out
+    doc = json.loads((out / "shift.json").read_text())
+    assert doc["knock_window"] is None and doc["flagged_after_windows"] is None
+    assert doc["attribution"] is None and doc["step_alarm_windows"] == []
+    assert doc["settings"]["knock"] == "none" and doc["accuracy_limit_mm"] > 0
+    timeline = doc["summary"]["timeline"]
+    assert len(timeline) == 6 and not any(w["suspect"] for w in timeline)
+    assert {"rmse_mm", "p95_mm", "u95_mm", "within_u95", "suspect"} <= set(timeline[0])
 
 
 def test_the_estimator_comparison_runs_each_way_on_the_same_cell(
