@@ -21,6 +21,9 @@ the alarm and closes the interval at its new version.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
 #: windows in a row with every view rejected that mean the spheres are out of the sensor's
 #: reach from every view the plan has (a change beyond a knock)
 BLIND_WINDOWS = 3
@@ -34,6 +37,29 @@ _EVENT = {
     "sensor": "a sensor replaced or re-mounted",
     "fixture": "the sphere fixture renewed or the part frame moved",
 }
+
+
+@dataclass(frozen=True)
+class MaintenanceNeed:
+    """What the `maintenance` alarm says: its text, and the same as fields stored beside it
+    (the alarm's `detail`, which app.line.maintenance_state reads: never parsed back out of
+    the text): `what` moved (a clause), the `procedures` that fit (commands), the `group`
+    named ("" when none is: more than one thing, or no sphere seen), the change at the
+    measured spheres [mm] (None: not known)."""
+
+    text: str
+    what: str
+    procedures: tuple[str, ...]
+    group: str = ""
+    moved_mm: float | None = None
+
+    def detail(self) -> dict[str, Any]:
+        return {
+            "what": self.what,
+            "procedures": list(self.procedures),
+            "group": self.group,
+            "moved_mm": self.moved_mm,
+        }
 
 
 def _axis(group: str) -> str:
@@ -55,17 +81,19 @@ def event_of(group: str) -> str:
     return _EVENT.get(group, "")
 
 
-def several_text(visible_mm: float, bound_mm: float, found: str = "") -> str:
-    """The `maintenance` alarm's text for a change beyond a knock no one group explains."""
-    head = (
+def several_need(visible_mm: float, bound_mm: float, found: str = "") -> MaintenanceNeed:
+    """The need for a change beyond a knock no one group explains."""
+    what = (
         f"a change of {visible_mm:.2f} mm at the measured spheres, beyond a knock's {bound_mm:g} mm"
+        + (f": {found}" if found else "")
     )
-    return (
-        f"{head}{': ' + found if found else ''}; not one group: more than one thing changed;"
-        " bodies are not measured with this cell: commission again (`rvis commission"
-        " --restart`), or run the maintenance procedure of what was done to the cell (`rvis"
-        " maintain sensor|axis N|fixture`)"
+    procedures = ("rvis commission --restart", "rvis maintain sensor|axis N|fixture")
+    text = (
+        f"{what}; not one group: more than one thing changed;"
+        f" bodies are not measured with this cell: commission again (`{procedures[0]}`), or run"
+        f" the maintenance procedure of what was done to the cell (`{procedures[1]}`)"
     )
+    return MaintenanceNeed(text, what, procedures, "", visible_mm)
 
 
 #: what a 6-DoF group's own size ("3.205 mm / 0.9910 deg") is, said beside it: it is not
@@ -77,43 +105,56 @@ _OWN_TERMS = {
 }
 
 
-def change_text(
+def change_need(
     group: str, label: str, found: str, size: str, visible_mm: float, bound_mm: float
-) -> str:
-    """The `maintenance` alarm's text for a change of one group (`label`) beyond a knock, each
-    magnitude once and said what it is: `size` the change in the group's own terms (a 6-DoF
-    group's shift / turn named as such), `visible_mm` the move of the measured spheres (what
-    the bound `bound_mm` is on); `found` what the test found beyond them (the measurements it
-    rests on), left out where it repeats `size`. The `likely ...` clause carries both figures
-    (app.line.maintenance_state reads it)."""
+) -> MaintenanceNeed:
+    """The need for a change of one group (`label`) beyond a knock, each magnitude once and
+    said what it is: `size` the change in the group's own terms (a 6-DoF group's shift / turn
+    named as such), `visible_mm` the move of the measured spheres (what the bound `bound_mm`
+    is on); `found` what the test found beyond them (the measurements it rests on), left out
+    where it repeats `size`. `what` carries both figures."""
     own = f" ({_OWN_TERMS.get(group, 'its shift / turn')})" if " mm / " in size else ""
     extra = f", {found}" if found and size not in found else ""
-    return (
-        f"a change beyond a knock; likely {event_of(group)}: {label} moved {size}{own},"
+    what = (
+        f"likely {event_of(group)}: {label} moved {size}{own},"
         f" {visible_mm:.2f} mm at the measured spheres where a knock moves them at most"
-        f" {bound_mm:g} mm{extra}; bodies are not measured with this cell: run"
-        f" `{procedure_of(group)}`"
+        f" {bound_mm:g} mm{extra}"
     )
+    procedure = procedure_of(group)
+    text = (
+        f"a change beyond a knock; {what}; bodies are not measured with this cell: run"
+        f" `{procedure}`"
+    )
+    return MaintenanceNeed(text, what, (procedure,) if procedure else (), group, visible_mm)
 
 
-def sphere_moved_text(name: str, moved_mm: float, evidence: str, bound_mm: float) -> str:
-    """The `maintenance` alarm's text when one sphere moved alone by `moved_mm`."""
+def sphere_moved_need(
+    name: str, moved_mm: float, evidence: str, bound_mm: float
+) -> MaintenanceNeed:
+    """The need when one sphere moved alone by `moved_mm`."""
     bound = "beyond a knock's" if moved_mm > bound_mm else "within a knock's"
-    return (
+    what = (
         f"sphere {name} moved {moved_mm:.2f} mm on its own ({evidence}), {bound} {bound_mm:g}"
-        " mm: the sphere knocked, replaced or its stand moved; the cell's reference is no"
-        " longer where it was measured: run `rvis maintain fixture`"
+        " mm: the sphere knocked, replaced or its stand moved"
     )
+    procedure = "rvis maintain fixture"
+    text = f"{what}; the cell's reference is no longer where it was measured: run `{procedure}`"
+    return MaintenanceNeed(text, what, (procedure,), name, moved_mm)
 
 
-def blind_text(windows: int, rejected: int) -> str:
-    """The `maintenance` alarm's text when no view sees its sphere any more."""
-    return (
+def blind_need(windows: int, rejected: int) -> MaintenanceNeed:
+    """The need when no view sees its sphere any more."""
+    what = (
         f"no sphere seen where the parameters put it in {windows} windows in a row ({rejected}"
         " views rejected or off by more than a knock): the"
         " spheres are more than the measuring volume from where the parameters put them, a"
         " change far beyond a knock (an axis's motor or encoder replaced, a sensor replaced,"
-        " the fixture moved); bodies are not measured with this cell: run the maintenance"
-        " procedure of what was done (`rvis maintain axis N`, `rvis maintain sensor`, `rvis"
-        " maintain fixture`), or commission again"
+        " the fixture moved)"
     )
+    procedures = ("rvis maintain axis N", "rvis maintain sensor", "rvis maintain fixture")
+    text = (
+        f"{what}; bodies are not measured with this cell: run the maintenance"
+        f" procedure of what was done (`{procedures[0]}`, `{procedures[1]}`, `{procedures[2]}`),"
+        " or commission again"
+    )
+    return MaintenanceNeed(text, what, procedures)

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import contextlib
 import logging
+from collections.abc import Mapping
+from typing import Any
 
 from app.line.host import LineHost
 from app.line.states import AlarmCode, State, utc_text
@@ -29,21 +31,35 @@ class Faults:
         self.svc = svc
         self._space_check_t = -float("inf")
 
-    def alarm(self, code: str, message: str, priority: str = "high") -> int:
+    def alarm(
+        self,
+        code: str,
+        message: str,
+        priority: str = "high",
+        detail: Mapping[str, Any] | None = None,
+    ) -> int:
         """Raise an alarm (stored; kept in memory while the storage fails); its id. The event
         carries its state as stored: `shelved` (with the reason and until when) while its code
-        is shelved (ISA-18.2 shelves the alarm, app.line.store.Store.raise_alarm)."""
+        is shelved (ISA-18.2 shelves the alarm, app.line.store.Store.raise_alarm); `detail`:
+        its structured fields beside the text (app.line.states.alarm_detail)."""
         svc = self.svc
         t = svc.clock.time()
         try:
-            alarm_id = svc.store.raise_alarm(t, code, message, priority)
+            alarm_id = svc.store.raise_alarm(t, code, message, priority, detail)
         except StorageError:
-            alarm_id = self._unstored_alarm(code, message, priority)
+            alarm_id = self._unstored_alarm(code, message, priority, detail)
         row = None
         if alarm_id > 0:  # stored
             with contextlib.suppress(StorageError):
                 row = svc.store.alarm(alarm_id)
-        data = {"id": alarm_id, "code": code, "message": message, "priority": priority}
+        data: dict[str, Any] = {
+            "id": alarm_id,
+            "code": code,
+            "message": message,
+            "priority": priority,
+        }
+        if detail:
+            data["detail"] = dict(detail)
         data["state"] = "raised" if row is None else str(row["state"])
         if data["state"] == "shelved" and row is not None:
             data.update(reason=row["shelve_reason"], until_utc=utc_text(row["shelved_until"]))
@@ -62,7 +78,9 @@ class Faults:
             svc.bus.publish("alarm_cleared", data, t=t)
         return len(events)
 
-    def _unstored_alarm(self, code: str, message: str, priority: str) -> int:
+    def _unstored_alarm(
+        self, code: str, message: str, priority: str, detail: Mapping[str, Any] | None
+    ) -> int:
         unstored = self.svc.unstored_alarms
         for a in unstored:
             if a["code"] == code:
@@ -76,6 +94,7 @@ class Faults:
                 "message": message,
                 "state": "raised",
                 "t_raised": self.svc.clock.time(),
+                "detail": None if detail is None else dict(detail),
             }
         )
         return alarm_id
@@ -133,12 +152,12 @@ class Faults:
         where = "" if family is None else f"{family} ({svc.station.urls.get(family, '')}): "
         self.enter_fault(AlarmCode.DEVICE_FAULT, f"{where}{type(exc).__name__}: {exc}")
 
-    def enter_fault(self, code: str, message: str) -> None:
+    def enter_fault(self, code: str, message: str, detail: Mapping[str, Any] | None = None) -> None:
         """FAULT: stop the robot, set the PLC fault bit, raise the alarm (each best effort)."""
         svc = self.svc
         svc.set_state(State.FAULT)
         fault_stop(svc)
-        self.alarm(code, message, "urgent")
+        self.alarm(code, message, "urgent", detail)
 
 
 def fault_stop(svc: LineHost) -> None:

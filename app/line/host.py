@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.line.accuracy import Accuracy
+from app.line.beyond_knock import MaintenanceNeed
 from app.line.body_cycle import BodyCycle
 from app.line.correction import JumpCorrection
 from app.line.cycle import Cycle, WindowWatch
@@ -124,7 +125,7 @@ class LineHost(Protocol):
 
     def note_device_error(self, exc: BaseException) -> str | None: ...
 
-    def maintenance_needed(self, message: str) -> None: ...
+    def maintenance_needed(self, need: MaintenanceNeed) -> None: ...
 
     def sphere_residuals(self) -> dict[str, dict[str, Any]]: ...
 

@@ -30,7 +30,13 @@ from typing import Any
 import numpy as np
 
 from app.formats.params import document_covariance
-from app.line.beyond_knock import BLIND_WINDOWS, change_text, several_text, sphere_moved_text
+from app.line.beyond_knock import (
+    BLIND_WINDOWS,
+    MaintenanceNeed,
+    change_need,
+    several_need,
+    sphere_moved_need,
+)
 from app.line.correction import KIND, JumpCorrection, jump_correction, volume_views
 from app.line.estimate import CellEstimate
 from app.line.host import LineHost
@@ -195,7 +201,7 @@ class JumpWatch:
             evidence = f"since measurement {best.onset_ref}, the others where they were"
             size = float(np.linalg.norm(best.theta))
             svc.maintenance_needed(
-                sphere_moved_text(h.target, size, evidence, r.maintenance_step_mm)
+                sphere_moved_need(h.target, size, evidence, r.maintenance_step_mm)
             )
             return
         # the estimate checked by one measurement more than it needs
@@ -233,23 +239,23 @@ class JumpWatch:
             self._describe(ep, h.name, seen_mm, f"{h.label} {top.size_text()}")
             evidence = f"since measurement {top.onset_ref}, the others where they were"
             moved = float(np.linalg.norm(top.theta))
-            svc.maintenance_needed(sphere_moved_text(str(h.target), moved, evidence, bound))
+            svc.maintenance_needed(sphere_moved_need(str(h.target), moved, evidence, bound))
             return
         if top is not None and decisive:
             h = top.hypothesis
             found = f"{h.label} moved {top.size_text()} ({seen_mm:.2f} mm at the measured spheres)"
             self._describe(ep, h.name, seen_mm, f"{h.label} {top.size_text()}")
             svc.maintenance_needed(
-                change_text(h.name, h.label, found, top.size_text(), seen_mm, bound)
+                change_need(h.name, h.label, found, top.size_text(), seen_mm, bound)
             )
             return
         self._describe(ep, SEVERAL, seen_mm, "more than one thing changed")
-        svc.maintenance_needed(several_text(seen_mm, bound))
+        svc.maintenance_needed(several_need(seen_mm, bound))
 
-    def hold_blind(self, onset_id: int, message: str) -> None:
+    def hold_blind(self, onset_id: int, need: MaintenanceNeed) -> None:
         """No view saw its sphere for BLIND_WINDOWS windows since measurement `onset_id`
         (app.line.window_loop): a change far beyond a knock, its episode's interval from there
-        (an open one goes on), the cell held for the maintenance `message` says."""
+        (an open one goes on), the cell held for the maintenance `need` says."""
         ep = self.episode
         if ep is None or ep.get("closed") or not _interval_open(self.svc, ep):
             self.episode = None
@@ -257,7 +263,7 @@ class JumpWatch:
         ep = self.episode
         assert ep is not None
         self._describe(ep, "", None, "beyond a knock: no sphere where the parameters put it")
-        self.svc.maintenance_needed(message)
+        self.svc.maintenance_needed(need)
 
     def _redate(self, ep: dict[str, Any], onset: int) -> None:
         """The episode's onset moved back to measurement `onset`: its interval from the last

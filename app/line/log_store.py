@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import json
 import sqlite3
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from contextlib import AbstractContextManager
 from typing import Any
 
@@ -31,10 +31,18 @@ class LogRecords:
     def _insert(self, sql: str, args: Sequence[Any]) -> int:
         raise NotImplementedError
 
-    def raise_alarm(self, t: float, code: str, message: str, priority: str = "high") -> int:
+    def raise_alarm(
+        self,
+        t: float,
+        code: str,
+        message: str,
+        priority: str = "high",
+        detail: Mapping[str, Any] | None = None,
+    ) -> int:
         """A new alarm, unless one with this code is active already (returns its id). ISA-18.2
         shelves the alarm, not one occurrence: while an earlier one of this code is shelved
-        until after `t`, the new one is raised shelved until then, for the same reason."""
+        until after `t`, the new one is raised shelved until then, for the same reason.
+        `detail`: its structured fields beside the text (app.line.states.alarm_detail)."""
         live = self.active_alarms(code=code)
         if live:
             return int(live[0]["id"])
@@ -46,10 +54,11 @@ class LogRecords:
         until, reason = (
             (shelf[0]["shelved_until"], shelf[0]["shelve_reason"]) if shelf else (None, None)
         )
+        state = "raised" if until is None else "shelved"
         return self._insert(
             "INSERT INTO alarms (code, priority, message, state, t_raised, shelved_until,"
-            " shelve_reason) VALUES (?, ?, ?, ?, ?, ?, ?)",
-            (code, priority, message, "raised" if until is None else "shelved", t, until, reason),
+            " shelve_reason, detail) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+            (code, priority, message, state, t, until, reason, dumps(detail) if detail else None),
         )
 
     def update_alarm_message(self, alarm_id: int, message: str) -> None:

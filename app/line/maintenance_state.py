@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from app.line.statedir import JOURNAL_NAME, MAINTENANCE_REPORT_JSON
-from app.line.states import AlarmCode, utc_text
+from app.line.states import AlarmCode, alarm_detail, utc_text
 
 #: the maintenance records a status reply carries (the newest ones)
 RECORDS_IN_STATUS = 5
@@ -39,19 +39,35 @@ MODE_NONE, MODE_MAINTENANCE, MODE_PROCESSING = "None", "Maintenance", "Processin
 
 
 def need_of(alarm: Mapping[str, Any]) -> dict[str, Any]:
-    """The `maintenance` alarm as a need: its id, state, when raised, what moved (the text's
-    `likely ...` clause, else its first clause) and the procedures its text names."""
+    """The `maintenance` alarm as a need: its id, state, when raised, what moved and the
+    procedures that fit, from the fields stored beside its text (app.line.beyond_knock.
+    MaintenanceNeed: `detail`, with the group named and the change at the spheres); an alarm
+    from before them (a database of an older rvis): its text's `likely ...` clause, else its
+    first, and the commands it quotes."""
     text = str(alarm.get("message") or alarm.get("text") or "")
-    clauses = [c.strip() for c in text.split("; ")]
-    likely = [c for c in clauses if c.startswith("likely ")]
-    what = likely[0] if likely else clauses[0]
+    detail = alarm_detail(alarm)
+    if detail is not None and "what" in detail:
+        fields = {
+            "what": str(detail["what"]),
+            "procedures": [str(p) for p in detail.get("procedures") or ()],
+            "group": detail.get("group") or None,
+            "moved_mm": detail.get("moved_mm"),
+        }
+    else:
+        clauses = [c.strip() for c in text.split("; ")]
+        likely = [c for c in clauses if c.startswith("likely ")]
+        fields = {
+            "what": likely[0] if likely else clauses[0],
+            "procedures": _COMMAND.findall(text),
+            "group": None,
+            "moved_mm": None,
+        }
     t = alarm.get("t_raised")
     return {
         "alarm_id": alarm.get("id"),
         "state": alarm.get("state"),
         "raised_utc": alarm.get("raised_utc") or (None if t is None else utc_text(float(t))),
-        "what": what,
-        "procedures": _COMMAND.findall(text),
+        **fields,
         "text": text,
     }
 

@@ -210,7 +210,9 @@ class Operator:
             svc.store.probe_write()
             with svc.store.batch():
                 for a in svc.unstored_alarms:
-                    svc.store.raise_alarm(a["t_raised"], a["code"], a["message"], a["priority"])
+                    svc.store.raise_alarm(
+                        a["t_raised"], a["code"], a["message"], a["priority"], a.get("detail")
+                    )
                 svc.store.save_state(svc.clock.time(), svc.store.load_state() or svc.snapshot())
         except StorageError as exc:
             free = svc.paths.free_mb()

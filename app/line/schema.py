@@ -135,4 +135,8 @@ MIGRATIONS: tuple[tuple[str, ...], ...] = (
             SELECT body, feature, 0, q_deg, temp_c, sheet, edges, refused FROM body_raw_9""",
         "DROP TABLE body_raw_9",
     ),
+    # 10 -> 11: an alarm's structured fields beside its text (JSON; NULL: none): the
+    # maintenance need's what moved and the procedures that fit (app.line.beyond_knock), read
+    # back as fields, not parsed out of the message
+    ("ALTER TABLE alarms ADD COLUMN detail TEXT",),
 )

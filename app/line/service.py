@@ -61,6 +61,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from app.inspect.values import StopNoise
 from app.line.accuracy import Accuracy, limit_in_force
+from app.line.beyond_knock import MaintenanceNeed
 from app.line.body_cycle import BodyCycle, BodySetup
 from app.line.body_export import ResultsWriter
 from app.line.correction import JumpCorrection
@@ -321,10 +322,11 @@ class Service:
         self.log.info("started after maintenance: version %d in force", self.version)
         self.save_state()
 
-    def maintenance_needed(self, message: str) -> None:
+    def maintenance_needed(self, need: MaintenanceNeed) -> None:
         """A change beyond a knock (app.line.beyond_knock): FAULT with the `maintenance`
-        alarm until a maintenance procedure hands the cell back (or an engineer resets it)."""
-        self.faults.enter_fault(AlarmCode.MAINTENANCE, message)
+        alarm (its text, and its fields beside it) until a maintenance procedure hands the
+        cell back (or an engineer resets it)."""
+        self.faults.enter_fault(AlarmCode.MAINTENANCE, need.text, need.detail())
 
     def sphere_residuals(self) -> dict[str, dict[str, Any]]:
         """Per sphere, its measurements in the estimator's window (app.line.estimate), as the

@@ -6,6 +6,7 @@ numerics."""
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping, Sequence
 from datetime import UTC, datetime
 from enum import StrEnum
@@ -86,11 +87,27 @@ def utc_text(t: float) -> str:
     return datetime.fromtimestamp(t, UTC).isoformat(timespec="seconds")
 
 
+def alarm_detail(a: Mapping[str, Any]) -> dict[str, Any] | None:
+    """An alarm's structured fields beside its text (the store's JSON `detail`, or a dict
+    already), None without any or when unreadable."""
+    detail = a.get("detail")
+    if isinstance(detail, str):
+        try:
+            detail = json.loads(detail)
+        except ValueError:
+            return None
+    return dict(detail) if isinstance(detail, dict) else None
+
+
 def alarm_status(a: Mapping[str, Any]) -> dict[str, Any]:
-    """An alarm as the status reply carries it (the message also as `text`)."""
+    """An alarm as the status reply carries it (the message also as `text`; `detail`: its
+    structured fields, when it has any)."""
     out = {k: a[k] for k in ("id", "code", "priority", "message", "state")}
     out["text"] = a["message"]
     out["raised_utc"] = utc_text(a["t_raised"])
+    detail = alarm_detail(a)
+    if detail is not None:
+        out["detail"] = detail
     return out
 
 

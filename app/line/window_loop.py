@@ -16,7 +16,7 @@ from __future__ import annotations
 import logging
 
 from app.line.accuracy import ACCURACY_GROUP, ESTIMATOR, VOUCHED, Accuracy, statement
-from app.line.beyond_knock import BLIND_WINDOWS, blind_text
+from app.line.beyond_knock import BLIND_WINDOWS, blind_need
 from app.line.body_cycle import BodyCycle
 from app.line.body_export import retain_bodies
 from app.line.decisions import Decisions
@@ -242,8 +242,8 @@ class WindowLoop:
         self._blind.append((first_id, len(far)))
         if len(self._blind) < BLIND_WINDOWS or svc.state == State.FAULT:
             return
-        text = blind_text(len(self._blind), sum(n for _, n in self._blind))
-        self.jumps.hold_blind(self._blind[0][0], text)
+        need = blind_need(len(self._blind), sum(n for _, n in self._blind))
+        self.jumps.hold_blind(self._blind[0][0], need)
 
     def _state_accuracy(self, t_open: float) -> None:
         """After a window: the U95 of a point measured now from the estimator (app.line.jumps),

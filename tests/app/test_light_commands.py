@@ -291,7 +291,8 @@ def test_state_body_says_how_sure_the_measurement_of_a_body_is(state: StateDir) 
 
 
 #: the `maintenance` alarm's text the service raised for axis 3's zero moved (seed 6, the
-#: simulated line's `maintenance_kind = "axis"`; app.line.beyond_knock.change_text)
+#: simulated line's `maintenance_kind = "axis"`; app.line.beyond_knock.change_need's text, as
+#: an older rvis stored it: no fields beside it)
 AXIS3_TEXT = (
     "a change of 9.91 mm at the measured spheres, beyond a knock's 1.5 mm: J3 zero moved 0.4935"
     " deg (9.91 mm at the measured spheres), 3 measurements; next sphere fixture / part frame"

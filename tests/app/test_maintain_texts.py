@@ -21,7 +21,7 @@ from app.commission.steps import spheres
 from app.commission.workspace import accuracy_results
 from app.config import load_cell
 from app.errors import InputError
-from app.line.beyond_knock import change_text
+from app.line.beyond_knock import change_need
 from app.line.maintenance_state import done_text, maintenance_lines
 from app.maintain.steps import compare_workspace, std_with_units
 from app.maintain.table import procedure
@@ -151,7 +151,8 @@ def test_a_change_beyond_a_knock_says_each_size_once_and_what_it_is() -> None:
     it."""
     size = "10.236 mm / 0.1843 deg"
     found = f"sensor mount moved {size} (9.91 mm at the measured spheres)"
-    text = change_text("sensor", "sensor mount", found, size, 9.9123, 1.5)
+    need = change_need("sensor", "sensor mount", found, size, 9.9123, 1.5)
+    text = need.text
     assert text.count("10.236") == 1 and text.count("9.91") == 1
     assert (
         "likely a sensor replaced or re-mounted: sensor mount moved 10.236 mm / 0.1843 deg (the"
@@ -159,8 +160,14 @@ def test_a_change_beyond_a_knock_says_each_size_once_and_what_it_is() -> None:
         " spheres where a knock moves them at most 1.5 mm;" in text
     )
     assert text.endswith("run `rvis maintain sensor`")
+    # the same as fields (the alarm's detail): what moved, the procedure, the group, the size
+    assert need.what.startswith("likely a sensor replaced") and need.what in text
+    assert need.procedures == ("rvis maintain sensor",) and need.group == "sensor"
+    assert need.moved_mm == 9.9123
     joint = "dtheta3 +0.4935 deg"
-    text = change_text("J3", "J3 zero", f"J3 zero moved {joint} (9.91 mm ...)", joint, 9.91, 1.5)
+    text = change_need(
+        "J3", "J3 zero", f"J3 zero moved {joint} (9.91 mm ...)", joint, 9.91, 1.5
+    ).text
     assert "J3 zero moved dtheta3 +0.4935 deg, 9.91 mm at the measured spheres" in text
     assert text.count("9.91") == 1 and "shift" not in text
 

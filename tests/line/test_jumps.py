@@ -125,9 +125,14 @@ def test_a_sphere_knocked_alone_holds_the_cell_for_its_procedure(tmp_path: Path)
         interval = store.suspects()[-1]
         moved = ln.cell._sphere_knocked
         corrections = [c for c in store.calibrations() if (c["document"] or {}).get("estimator")]
+        needed = ln.service.status()["maintenance"]["needed"]
         ln.stop()
         assert moved is not None
         assert f"sphere {moved[0]} moved" in held["message"]
+        # what moved and the procedure as fields (the alarm's detail), not parsed from its text
+        assert held["detail"]["group"] == moved[0] and needed["group"] == moved[0]
+        assert needed["procedures"] == ["rvis maintain fixture"] == held["detail"]["procedures"]
+        assert needed["what"].startswith(f"sphere {moved[0]} moved") and needed["moved_mm"] > 0
         assert interval["group_name"] == f"sphere:{moved[0]}" and interval["t_end"] is None
         assert not corrections  # no parameter moved for a sphere that did
     finally:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from app.line.beyond_knock import blind_text
+from app.line.beyond_knock import blind_need, several_need
 from app.line.maintenance_state import (
     maintenance_json,
     need_of,
@@ -19,7 +19,7 @@ from app.line.maintenance_state import (
 
 
 def test_the_blind_alarm_names_every_procedure() -> None:
-    text = blind_text(3, 9)
+    text = blind_need(3, 9).text
     need = need_of({"id": 7, "code": "maintenance", "message": text, "t_raised": 1.8e9})
     assert need["procedures"] == [
         "rvis maintain axis N",
@@ -33,6 +33,30 @@ def test_the_blind_alarm_names_every_procedure() -> None:
     assert needed_text(need).endswith(
         "; run `rvis maintain axis N` or `rvis maintain sensor` or `rvis maintain fixture`"
     )
+
+
+def test_the_need_is_read_from_the_alarms_fields_not_its_text() -> None:
+    """The service stores the need's fields beside the alarm's text (the alarm's `detail`, a
+    JSON column): read back as they were written, whatever the text says; an alarm from an
+    older database (no fields) is read from its text as before."""
+    written = several_need(12.345, 1.5, "J2 zero moved 0.5 deg")
+    row = {
+        "id": 3,
+        "code": "maintenance",
+        "message": "an operator's words",
+        "t_raised": 1.8e9,
+        "detail": json.dumps(written.detail()),
+    }
+    need = need_of(row)
+    assert need["what"] == written.what and need["what"].endswith(": J2 zero moved 0.5 deg")
+    assert need["procedures"] == [
+        "rvis commission --restart",
+        "rvis maintain sensor|axis N|fixture",
+    ]
+    assert need["moved_mm"] == 12.345 and need["group"] is None
+    assert need["text"] == "an operator's words"
+    old = need_of({**row, "detail": None, "message": written.text})
+    assert old["what"] == written.what and old["procedures"] == list(written.procedures)
 
 
 def test_the_operation_mode_of_a_status_reply() -> None:

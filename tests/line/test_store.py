@@ -3,6 +3,7 @@ writer: every acknowledged row is there and the file is intact)."""
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import sqlite3
@@ -71,7 +72,7 @@ def test_a_version_1_database_gains_the_temperature_column_and_keeps_its_rows(
     db.commit()
     db.close()
     store = Store(tmp_path / "rvis.db")  # an older service's state directory
-    assert store.version() == SCHEMA_VERSION == 10
+    assert store.version() == SCHEMA_VERSION == 11
     (old,) = store.measurements()
     assert old["c_sensor_mm"] == [1, 2, 3] and old["temp_c"] is None
     store.add_measurement({**_row(1), "temp_c": 23.45})
@@ -291,7 +292,7 @@ def test_a_version_4_database_gains_the_windows_and_keeps_its_suspect_intervals(
     assert old.windows() == []
     old.close()
     store = Store(tmp_path / "rvis.db")
-    assert store.version() == SCHEMA_VERSION == 10
+    assert store.version() == SCHEMA_VERSION == 11
     (row,) = store.suspects()
     assert (row["t_end"], row["text"], row["bodies"]) == (160.0, "sensor mount moved", [])
     store.add_window(120.0, 100001)
@@ -311,7 +312,7 @@ def test_a_version_5_database_gains_the_windows_u95_and_keeps_its_windows(tmp_pa
     db.commit()
     db.close()
     store = Store(tmp_path / "rvis.db")
-    assert store.version() == SCHEMA_VERSION == 10
+    assert store.version() == SCHEMA_VERSION == 11
     store.add_window(2.0, 8)
     store.state_window_u95(0.093)
     assert [(w["body_id"], w["u95_mm"]) for w in store.windows()] == [(7, None), (8, 0.093)]
@@ -362,7 +363,7 @@ def test_a_body_is_stored_with_its_raw_data_and_evaluated_again_beside(tmp_path:
     db.commit()
     db.close()
     store = Store(tmp_path / "rvis.db")
-    assert store.version() == SCHEMA_VERSION == 10 and len(store.windows()) == 1
+    assert store.version() == SCHEMA_VERSION == 11 and len(store.windows()) == 1
     value = {
         "feature": "H01", "characteristic": "X", "kind": "position", "nominal_mm": 10.0,
         "lower_mm": 9.5, "upper_mm": 10.5, "measured_mm": 10.02, "u95_mm": 0.06,
@@ -403,4 +404,33 @@ def test_a_body_is_stored_with_its_raw_data_and_evaluated_again_beside(tmp_path:
     assert (h01["stop"], h02["stop"], h01b["stop"]) == (0, 0, 1)
     assert np.array_equal(h01b["sheet"], sheet + 1.0)
     assert store.bodies(since_t=6.0) == []
+    store.close()
+
+
+def test_a_version_10_database_gains_the_alarms_detail_and_keeps_its_alarms(
+    tmp_path: Path,
+) -> None:
+    """An older service's `maintenance` alarm keeps its text (read as before, app.line.
+    maintenance_state); a new one carries its fields beside it, read back as written."""
+    db = sqlite3.connect(tmp_path / "rvis.db")
+    for step in MIGRATIONS[:10]:
+        for sql in step:
+            db.execute(sql)
+    db.execute(
+        "INSERT INTO alarms (code, priority, message, state, t_raised)"
+        " VALUES ('maintenance', 'urgent', 'a change; likely x; run `rvis maintain sensor`',"
+        " 'raised', 1.0)"
+    )
+    db.execute("PRAGMA user_version = 10")
+    db.commit()
+    db.close()
+    store = Store(tmp_path / "rvis.db")
+    assert store.version() == SCHEMA_VERSION == 11
+    (old,) = store.active_alarms()
+    assert old["detail"] is None and old["message"].startswith("a change")
+    store.clear_alarms(2.0)
+    detail = {"what": "likely y", "procedures": ["rvis maintain fixture"], "group": "fixture"}
+    new = store.raise_alarm(3.0, "maintenance", "text", "urgent", detail)
+    row = store.alarm(new)
+    assert row is not None and json.loads(row["detail"]) == detail
     store.close()

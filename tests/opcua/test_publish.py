@@ -17,6 +17,7 @@ from typing import Any
 import pytest
 from asyncua import Client, ua
 
+from app.line.beyond_knock import change_need
 from app.line.opcua.space import NS_DI, NS_MACHINERY
 from app.sim.line_run import SimulatedLineRun
 from tests.opcua.conftest import MACHINE, ROOT, Catcher, Servers, child, machine_node, rvis
@@ -361,12 +362,9 @@ def test_the_machine_found_by_the_official_types(line: SimulatedLineRun, servers
     assert (got["mode"], got["mode_id"]) == ("Processing", ua.NodeId(5026, got["ns_m"]))
 
 
-#: the `maintenance` alarm's text for axis 3's zero moved (app.line.beyond_knock.change_text)
-AXIS3_TEXT = (
-    "a change of 9.91 mm at the measured spheres, beyond a knock's 1.5 mm: J3 zero moved 0.4935"
-    " deg (9.91 mm at the measured spheres), 3 measurements; likely the motor or encoder of"
-    " axis 3 replaced (its zero moved) (J3 zero 0.4935 deg (9.91 mm at the measured spheres));"
-    " bodies are not measured with this cell: run `rvis maintain axis 3`"
+#: the `maintenance` need for axis 3's zero moved, as app.line.jumps makes it
+AXIS3 = change_need(
+    "J3", "J3 zero", "J3 zero moved 0.4935 deg, 3 measurements", "0.4935 deg", 9.91, 1.5
 )
 
 
@@ -402,7 +400,7 @@ def test_a_cell_held_for_maintenance_reads_out_of_service_in_maintenance_mode(
             await until(state, "OutOfService")
             assert (await mode.read_value()).Text == "Processing"
             # what the service's step handling does for a change beyond a knock
-            await asyncio.to_thread(line.service.maintenance_needed, AXIS3_TEXT)
+            await asyncio.to_thread(line.service.maintenance_needed, AXIS3)
             await until(mode, "Maintenance")
             assert (await state.read_value()).Text == "OutOfService"
             mode_id = await (await mode.get_child("0:Id")).read_value()
@@ -411,7 +409,7 @@ def test_a_cell_held_for_maintenance_reads_out_of_service_in_maintenance_mode(
             assert state_id == ua.NodeId(5004, ns_m)  # OutOfService
             assert await step.read_value() == "held for maintenance: run `rvis maintain axis 3`"
             need = line.service.status()["maintenance"]["needed"]  # what `rvis status` shows
-            assert need["procedures"] == ["rvis maintain axis 3"] and need["text"] == AXIS3_TEXT
+            assert need["procedures"] == ["rvis maintain axis 3"] and need["text"] == AXIS3.text
             await asyncio.to_thread(ask, "reset")
             await until(mode, "Processing")
             await asyncio.to_thread(ask, "resume")

@@ -166,7 +166,8 @@ def test_the_overview_says_maintenance_needed_and_the_history_lists_the_procedur
     assert HistoryReader(tmp_path / "none.db").maintenance() == []
 
 
-#: a `maintenance` alarm's text (app.line.beyond_knock.change_text's form)
+#: a `maintenance` alarm's text (app.line.beyond_knock.change_need's), as an older rvis stored
+#: it: no fields beside it
 AXIS3_TEXT = (
     "a change of 9.91 mm at the measured spheres, beyond a knock's 1.5 mm: J3 zero moved 0.4935"
     " deg, 3 measurements; likely the motor or encoder of axis 3 replaced (its zero moved) (J3"
