@@ -63,17 +63,23 @@ class SlotChoice:
         return [s for s in slots if s.index not in lost] or slots
 
     def slots_wanted(self) -> int:
-        """Slots this window may measure: `[line] slots_per_window`; while a jump found by the
-        one estimator is not corrected yet (its episode open, app.line.jumps) or a full
-        recalibration waits for a change no single group explains, up to `[line]
-        step_slots_per_window` (those that fit the window's time): the correction's
-        evidence, or the schedule's cycle for the full one, in fewer windows."""
-        svc, line = self.svc, self.svc.settings.line
-        ep = svc.episode
-        waiting = ep is not None and not ep.get("closed") and ep.get("corrected_version") is None
-        if waiting or svc.force_recal:
-            return max(line.step_slots_per_window, line.slots_per_window)
-        return line.slots_per_window
+        """Slots this window may measure (`slots_wanted`)."""
+        return slots_wanted(self.svc)
+
+
+def slots_wanted(svc: LineHost) -> int:
+    """Slots a window of the service `svc` may measure now: `[line] slots_per_window`; while
+    a jump found by the one estimator is not corrected yet (its episode open, app.line.jumps)
+    or a full recalibration is wanted (a change no single group explains, an accuracy the cell
+    cannot vouch for, an engineer's "calibrate now"), up to `[line] step_slots_per_window`
+    (those that fit the window's time): the correction's evidence, or the schedule's cycle for
+    the full one, in fewer windows."""
+    line = svc.settings.line
+    ep = svc.episode
+    waiting = ep is not None and not ep.get("closed") and ep.get("corrected_version") is None
+    if waiting or svc.force_recal:
+        return max(line.step_slots_per_window, line.slots_per_window)
+    return line.slots_per_window
 
 
 def lost_views(store: Store, since_id: int = 0) -> set[int]:

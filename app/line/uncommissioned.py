@@ -16,6 +16,7 @@ from typing import Any
 
 from app.line.host import LineHost
 from app.line.params_store import INITIAL_SOURCE
+from app.line.slot_choice import slots_wanted
 
 
 def uncommissioned(svc: LineHost) -> dict[str, Any] | None:
@@ -53,7 +54,9 @@ def uncommissioned(svc: LineHost) -> dict[str, Any] | None:
 
 
 def _windows(svc: LineHost, measurements: int) -> int:
-    return math.ceil(measurements / svc.settings.line.slots_per_window)
+    """About how many windows, at the slots a window measures now (app.line.slot_choice;
+    at most: fewer may fit a window's time)."""
+    return math.ceil(measurements / slots_wanted(svc))
 
 
 _IDENTIFIED: dict[Path, bool] = {}  # a version's file never changes

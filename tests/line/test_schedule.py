@@ -3,14 +3,17 @@ time, and the slot choice that fits the remaining window."""
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 from collections.abc import Sequence
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from app.config.line import LineSettings
 from app.line.schedule import Schedule, Slot
+from app.line.slot_choice import slots_wanted
 from app.motion import motion_time_s, shortest_route
 from drivers.safety import SafetyGuard
 
@@ -94,3 +97,28 @@ def test_shortest_route_visits_each_view_once_and_is_never_longer_than_the_given
     order = shortest_route(along, home, line)
     j1 = [along[j][0] - home[0] for j in order]
     assert j1 in ([20.0, 40.0, 60.0, 80.0, 100.0], [100.0, 80.0, 60.0, 40.0, 20.0])
+
+
+@pytest.mark.parametrize(
+    ("episode", "force_recal", "want"),
+    [
+        (None, False, 1),
+        ({"corrected_version": None}, False, 6),  # a jump found, its correction not in force
+        ({"corrected_version": 4}, False, 1),  # corrected: watched on the usual slots
+        ({"corrected_version": None, "closed": True}, False, 1),
+        (None, True, 6),  # a full recalibration wanted: the schedule's cycle sooner
+    ],
+)
+def test_a_window_measures_more_slots_while_a_jump_or_a_full_recalibration_waits(
+    episode: dict[str, object] | None, force_recal: bool, want: int
+) -> None:
+    """Issue 50: up to `[line] step_slots_per_window` while the one estimator's jump is not
+    corrected or a full recalibration is wanted, else `slots_per_window`."""
+    line = LineSettings(slots_per_window=1, step_slots_per_window=6)
+    svc = SimpleNamespace(
+        settings=SimpleNamespace(line=line), episode=episode, force_recal=force_recal
+    )
+    assert slots_wanted(svc) == want
+    wide = dataclasses.replace(line, slots_per_window=8)
+    svc.settings = SimpleNamespace(line=wide)
+    assert slots_wanted(svc) == 8  # never fewer than usual

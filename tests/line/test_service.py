@@ -6,6 +6,7 @@ a restart that resumes the schedule. Waits are on events and conditions, never s
 from __future__ import annotations
 
 import dataclasses
+import itertools
 from pathlib import Path
 
 import numpy as np
@@ -39,10 +40,13 @@ def test_windows_are_measured_stored_and_done_only_after_the_commit(
     lines.append(ln)
     reports = ln.start().windows(4)
     ln.stop()
-    assert [r["measured"] for r in reports] == [1, 1, 1, 1]
+    # a slot a window; more once the nominal parameters' accuracy, which the cell cannot
+    # vouch for, asks for a full recalibration (app.line.slot_choice.slots_wanted)
+    measured = [r["measured"] for r in reports]
+    assert measured[:3] == [1, 1, 1] and measured[3] >= 1
     assert not any(r["overrun"] or r["withdrawn"] for r in reports)
-    # every done edge saw its measurement (and all before it) already committed
-    assert ln.plc.rows_at_done[:4] == [1, 2, 3, 4]
+    # every done edge saw its window's measurements (and all before them) already committed
+    assert ln.plc.rows_at_done[:4] == list(itertools.accumulate(measured))
     flags = [(o.busy, o.done, o.fault) for o in ln.plc.history]
     assert flags[:4] == [(True, False, False), (False, True, False)] * 2
     store = Store.read_only(tmp_path / "rvis.db")
