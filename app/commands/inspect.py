@@ -93,6 +93,7 @@ def run_plan(args: argparse.Namespace) -> int:
         "per_feature_s": round(route.route_s / max(len(route.views), 1), 2),
         "views": route_table(route),
         "unreachable": route.unreachable,
+        "clamp_sd_mm": plan.clamp_sd_mm,
     }
     if args.out:
         write_json(args.out, doc)
@@ -111,6 +112,12 @@ def run_plan(args: argparse.Namespace) -> int:
             + (f" ({several} from several stops: the robot's repeatability)" if several else "")
             + f"; route {route.route_s:.1f} s from home and back"
             f" ({doc['per_feature_s']} s per feature)"
+        )
+        print(
+            f"the fixture's clamping repeatability {plan.clamp_sd_mm:g} mm in every position's U95"
+            if plan.clamp_sd_mm > 0
+            else "the fixture's clamping repeatability not given (clamp_sd_mm): the values' U95"
+            " leave the clamping out"
         )
     for fid, why in route.unreachable.items():
         print(f"feature {fid}: no view: {why}", file=sys.stderr)

@@ -196,6 +196,8 @@ def test_rvis_inspect_plan_names_the_feature_it_cannot_reach(
     assert "feature H01: no view" in r.stderr
     doc = json.loads(out.read_text())
     assert [v["feature"] for v in doc["views"]] == ["P01"] and "H01" in doc["unreachable"]
+    # a plan without the fixture's clamping repeatability: said, not silently left out
+    assert doc["clamp_sd_mm"] == 0.0 and "clamping repeatability not given" in r.stdout
     bad = _write(tmp_path, good(cfg).replace('type = "hole"', 'type = "stud"'))
     r = _run("--params", str(params), "--sensor", str(sensor), "--features", str(bad))
     assert r.returncode == 2 and "Traceback" not in r.stderr
