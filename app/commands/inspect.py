@@ -73,7 +73,7 @@ def run_plan(args: argparse.Namespace) -> int:
     from app.formats.files import write_json
     from app.formats.jsontext import dumps_json
     from app.inspect.plan import load_features
-    from app.inspect.views import plan_views, route_table
+    from app.inspect.views import in_window, plan_views, route_table
 
     cfg, params, sensor_path, features = _inputs(args)
     plan = load_features(features, cfg.T_part_base)
@@ -86,6 +86,7 @@ def run_plan(args: argparse.Namespace) -> int:
             flush=True,
         )
     route = plan_views(cfg.line, cfg.robot.repeatability_mm, cal.model, cal.x, plan, sensor)
+    fit = in_window(route, cfg.line)
     doc = {
         "part": plan.part,
         "features": len(plan.features),
@@ -94,6 +95,7 @@ def run_plan(args: argparse.Namespace) -> int:
         "views": route_table(route),
         "unreachable": route.unreachable,
         "clamp_sd_mm": plan.clamp_sd_mm,
+        "in_window": fit.as_dict(),
     }
     if args.out:
         write_json(args.out, doc)
@@ -111,7 +113,14 @@ def run_plan(args: argparse.Namespace) -> int:
             f"{len(route.views)} of {len(plan.features)} features planned"
             + (f" ({several} from several stops: the robot's repeatability)" if several else "")
             + f"; route {route.route_s:.1f} s from home and back"
-            f" ({doc['per_feature_s']} s per feature)"
+            + (" with every stop" if several else "")
+            + f" ({doc['per_feature_s']} s per feature)"
+        )
+        cut = f", {fit.features_cut} features cut: no time left" if fit.features_cut else ""
+        print(
+            f"in the body's window ([line] body_window_s {fit.window_s:g} s): {fit.robot_s:.1f} s,"
+            f" {fit.extra_stops} of {fit.extra_stops_wanted} extra stops{cut} (an extra stop"
+            " while the rest of the route still fits)"
         )
         print(
             f"the fixture's clamping repeatability {plan.clamp_sd_mm:g} mm in every position's U95"

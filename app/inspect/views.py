@@ -346,6 +346,44 @@ def sweep_commands(sensor: SensorModel, f: Feature, c_sensor_mm: F64, s: ViewSet
     return out
 
 
+@dataclass(frozen=True)
+class WindowFit:
+    """What of a route one body's window holds, as the cycle decides it (app.line.body_cycle)
+    on the plan's times: the extra stops taken of those wanted, the features cut (no time left
+    for even their first stop), and the robot's time [s] from home and back."""
+
+    window_s: float
+    extra_stops: int
+    extra_stops_wanted: int
+    features_cut: int
+    robot_s: float
+
+    def as_dict(self) -> dict[str, float | int]:
+        return dataclasses.asdict(self)
+
+
+def in_window(route: InspectionPlan, line: LineSettings) -> WindowFit:
+    """The route in `[line] body_window_s` (`WindowFit`): a view is gone to while its first
+    stop and the way home fit, an extra stop taken while the rest of the route (every later
+    view's first stop, then home: `rest_s`) still fits after it."""
+    window = float(line.body_window_s)
+    home = np.asarray(line.home_deg, dtype=float)
+    t, extra, cut, q = 0.0, 0, 0, home
+    for v in route.views:
+        go = motion_time_s(q, v.q_deg, line)
+        if t + go + v.sweep_s + motion_time_s(v.q_deg, home, line) > window:
+            cut += 1
+            continue
+        t, q = t + go + v.sweep_s, v.q_deg
+        for _ in range(1, v.stops):
+            if v.q_retreat_deg is None or t + v.retreat_s + v.sweep_s + v.rest_s > window:
+                break
+            t += v.retreat_s + v.sweep_s
+            extra += 1
+    wanted = sum(v.stops - 1 for v in route.views)
+    return WindowFit(window, extra, wanted, cut, t + motion_time_s(q, home, line))
+
+
 def route_table(plan: InspectionPlan) -> list[dict[str, object]]:
     """The views as rows for a report (JSON-ready)."""
     return [

@@ -4,6 +4,7 @@ feature and field with exit 2; a feature without a view named with exit 3, never
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import json
 import subprocess
@@ -19,7 +20,15 @@ from app.errors import InputError
 from app.inspect.measure import mean_fit
 from app.inspect.plan import features_toml, load_features
 from app.inspect.values import decide, feature_values
-from app.inspect.views import ViewSettings, plan_views, stops_wanted
+from app.inspect.views import (
+    FeatureView,
+    InspectionPlan,
+    ViewSettings,
+    in_window,
+    plan_views,
+    stops_wanted,
+)
+from app.motion import motion_time_s
 from app.sim.part import default_part
 from vision.features import FeatureFit
 from vision.sensor_model import default_sensor_model
@@ -303,3 +312,36 @@ def test_a_value_holds_its_own_stops_repeatability_in_place_of_the_statements_no
     assert got["X"] == pytest.approx(1.959964 * np.sqrt(sigma2 + 0.01**2), rel=1e-4)
     assert got["D"] == plain["D"]
     assert two["D"] == one["D"]  # a size: within one view, no pose error
+
+
+def test_the_bodys_window_holds_the_first_stops_then_the_extra_ones_that_leave_the_rest_time(
+    cfg: CellConfig,
+) -> None:
+    """`in_window` as the cycle decides on the plan's times (app.line.body_cycle): every
+    view's first stop while it and the way home fit, an extra stop while the rest of the
+    route still fits after it; a window too short cuts the last views."""
+    line = dataclasses.replace(cfg.line, body_window_s=100.0)
+    home = np.asarray(line.home_deg, dtype=float)
+    qs = [home + np.array([10.0 * (k + 1), 0, 0, 0, 0, 0]) for k in range(3)]
+    legs = [motion_time_s(a, b, line) for a, b in zip([home, *qs[:-1]], qs, strict=True)]
+    back = motion_time_s(qs[-1], home, line)
+    views: list[FeatureView] = []
+    rest = back
+    for k in (2, 1, 0):
+        views.insert(
+            0,
+            FeatureView(f"F{k}", qs[k], np.zeros(3), np.zeros(2), 0.0, legs[k], 1.0,
+                        stops=2, q_retreat_deg=qs[k], retreat_s=1.5, rest_s=rest),
+        )  # fmt: skip
+        rest += legs[k] + 1.0
+    route = InspectionPlan(tuple(views), {}, 0.0)
+    first = sum(legs) + 3 * 1.0 + back
+    fit = in_window(route, line)
+    assert (fit.extra_stops, fit.extra_stops_wanted, fit.features_cut) == (3, 3, 0)
+    assert fit.robot_s == pytest.approx(first + 3 * 2.5)
+    # room for the first stops and one extra stop only: the first view's
+    tight = in_window(route, dataclasses.replace(line, body_window_s=first + 3.0))
+    assert (tight.extra_stops, tight.features_cut) == (1, 0)
+    # not even the last view's first stop
+    short = in_window(route, dataclasses.replace(line, body_window_s=first - 0.5))
+    assert short.features_cut == 1 and short.extra_stops == 0
