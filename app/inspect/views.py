@@ -362,21 +362,35 @@ class WindowFit:
         return dataclasses.asdict(self)
 
 
+def first_stop_s(q_from_deg: F64, view: FeatureView, line: LineSettings) -> float:
+    """The time [s] to go from q_from_deg to `view`, sweep its first stop and be home: the
+    cycle goes to a view only while this fits the body's window (app.line.body_cycle)."""
+    home = np.asarray(line.home_deg, dtype=float)
+    go = motion_time_s(q_from_deg, view.q_deg, line)
+    return go + view.sweep_s + motion_time_s(view.q_deg, home, line)
+
+
+def extra_stop_s(view: FeatureView) -> float:
+    """The time [s] another stop of `view` leaves the rest of the route: backing off and back,
+    the sweep, then every later view's first stop and home (`rest_s`); the cycle takes it only
+    while this fits the body's window."""
+    return view.retreat_s + view.sweep_s + view.rest_s
+
+
 def in_window(route: InspectionPlan, line: LineSettings) -> WindowFit:
-    """The route in `[line] body_window_s` (`WindowFit`): a view is gone to while its first
-    stop and the way home fit, an extra stop taken while the rest of the route (every later
-    view's first stop, then home: `rest_s`) still fits after it."""
+    """The route in `[line] body_window_s` (`WindowFit`), on the plan's times by the cycle's
+    rule: a view is gone to while `first_stop_s` fits, an extra stop taken while
+    `extra_stop_s` fits."""
     window = float(line.body_window_s)
     home = np.asarray(line.home_deg, dtype=float)
     t, extra, cut, q = 0.0, 0, 0, home
     for v in route.views:
-        go = motion_time_s(q, v.q_deg, line)
-        if t + go + v.sweep_s + motion_time_s(v.q_deg, home, line) > window:
+        if t + first_stop_s(q, v, line) > window:
             cut += 1
             continue
-        t, q = t + go + v.sweep_s, v.q_deg
+        t, q = t + motion_time_s(q, v.q_deg, line) + v.sweep_s, v.q_deg
         for _ in range(1, v.stops):
-            if v.q_retreat_deg is None or t + v.retreat_s + v.sweep_s + v.rest_s > window:
+            if v.q_retreat_deg is None or t + extra_stop_s(v) > window:
                 break
             t += v.retreat_s + v.sweep_s
             extra += 1

@@ -45,13 +45,18 @@ from app.inspect.spc import (
     grouped_texts,
 )
 from app.inspect.values import StopNoise, Value
-from app.inspect.views import InspectionPlan, plan_views, reaimed
+from app.inspect.views import (
+    InspectionPlan,
+    extra_stop_s,
+    first_stop_s,
+    plan_views,
+    reaimed,
+)
 from app.line.body_export import ResultsWriter
 from app.line.cycle import WindowWatch, Withdrawal
 from app.line.measure import SphereMeasurer, SweepFeatureSensor
 from app.line.statedir import StateDir
 from app.line.store import Store
-from app.motion import motion_time_s
 from drivers.errors import DeviceError
 from vision.features import FeaturePoints
 from vision.sensor_model import SensorModel
@@ -293,16 +298,13 @@ class BodyCycle:
     def _time_for_stop(self, view: Any, end_t: float) -> bool:
         """Another stop of `view` leaves the rest of the route (every later feature's first
         stop, then home: `rest_s`) its time in the body's window."""
-        return self.clock.monotonic() + view.retreat_s + view.sweep_s + view.rest_s <= end_t
+        return self.clock.monotonic() + extra_stop_s(view) <= end_t
 
     def _cannot(self, view: Any, end_t: float, guard: Withdrawal) -> str:
         """Why the robot does not go to this view now ("" when it does)."""
         if guard.withdrawn:
             return f"the body withdrawn ({guard.why})"
-        q_now = self.measurer.robot.joints_deg()
-        home = np.asarray(self.line.home_deg, dtype=float)
-        need = motion_time_s(q_now, view.q_deg, self.line) + view.sweep_s
-        need += motion_time_s(view.q_deg, home, self.line)
+        need = first_stop_s(self.measurer.robot.joints_deg(), view, self.line)
         if self.clock.monotonic() + need > end_t:
             window = self.line.body_window_s
             return f"no time left in the body's window ([line] body_window_s {window:g} s)"

@@ -489,19 +489,22 @@ def _windows_text(n: int | None, limit: int) -> str:
 def summary_lines(result: ShiftResult) -> list[str]:
     """The shift's must-show figures, one per line."""
     s, sm = result.settings, result.summary
+    tail = [
+        stated_accuracy_text(result),
+        _alarms_text(result),
+        f"overruns: {sm.overruns} (target 0); windows {sm.windows}, measurements {sm.measurements}"
+        f" ({sm.rejected} rejected), calibrations applied {sm.calibrations_applied}, rejected"
+        f" {sm.calibrations_rejected}",
+        f"true RMSE at the end: {sm.true_rmse_final_mm:.4f} mm with the service,"
+        f" {result.records[-1].rmse_commissioning_mm:.4f} mm without recalibration"
+        if result.records
+        else "no window ran",
+    ]
     if not s.knocked:
         return [
             f"no knock; a step attributed to: {result.attribution or 'nothing'} (target nothing)",
             f"suspect intervals: {_spans(result) or 'none'}",
-            stated_accuracy_text(result),
-            _alarms_text(result),
-            f"overruns: {sm.overruns} (target 0); windows {sm.windows}, measurements"
-            f" {sm.measurements} ({sm.rejected} rejected), calibrations applied"
-            f" {sm.calibrations_applied}, rejected {sm.calibrations_rejected}",
-            f"true RMSE at the end: {sm.true_rmse_final_mm:.4f} mm with the service,"
-            f" {result.records[-1].rmse_commissioning_mm:.4f} mm without recalibration"
-            if result.records
-            else "no window ran",
+            *tail,
         ]
     mm, deg = s.knock_size()
     axis = "J2" if s.knock == "joint" else s.knock
@@ -518,15 +521,7 @@ def summary_lines(result: ShiftResult) -> list[str]:
         f"back within {s.recovered_ratio:g}x of the pre-knock error"
         f" ({result.pre_knock_rmse_mm:.4f} mm) after {_windows_text(result.recovered_after, 3)}",
         _suspects_text(result),
-        stated_accuracy_text(result),
-        _alarms_text(result),
-        f"overruns: {sm.overruns} (target 0); windows {sm.windows}, measurements {sm.measurements}"
-        f" ({sm.rejected} rejected), calibrations applied {sm.calibrations_applied}, rejected"
-        f" {sm.calibrations_rejected}",
-        f"true RMSE at the end: {sm.true_rmse_final_mm:.4f} mm with the service,"
-        f" {result.records[-1].rmse_commissioning_mm:.4f} mm without recalibration"
-        if result.records
-        else "no window ran",
+        *tail,
     ]
 
 
