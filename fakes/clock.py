@@ -141,6 +141,7 @@ class VirtualClock:
                 )
             if self._owner is not None and self._owner is not me:
                 self.turns_waited += 1
+                self._turn.notify_all()  # `wait_turns`' waiters see the count
             while self._owner is not None and self._owner is not me:
                 self._turn.wait()
             self._owner = me
@@ -153,6 +154,11 @@ class VirtualClock:
                 if self._depth == 0:
                     self._owner = None
                     self._turn.notify_all()
+
+    def wait_turns(self, n: int, timeout_s: float) -> bool:
+        """Wait (real time) until `turns_waited` is at least n; whether it is."""
+        with self._turn:
+            return self._turn.wait_for(lambda: self.turns_waited >= n, timeout_s)
 
     # -- callbacks at a sim time --------------------------------------------------------------
     def call_at(self, t: float, fn: Callable[[], None]) -> _Timer:

@@ -246,9 +246,7 @@ def test_a_clock_that_is_not_strict_makes_a_second_mover_wait_its_turn() -> None
     second = threading.Thread(target=second_mover, name="second")
     second.start()
     assert clock.monotonic() == 1.0 and not done.is_set()  # the first holds the turn
-    deadline = time.monotonic() + 10
-    while clock.turns_waited == 0 and time.monotonic() < deadline:
-        time.sleep(0.001)  # until the second waits for its turn (counted)
+    assert clock.wait_turns(1, timeout_s=10)  # the second waits for its turn (counted)
     assert clock.turns_waited == 1 and not done.is_set()
     release.set()
     assert done.wait(10)
