@@ -271,6 +271,11 @@ def _check_database(state: Any, problems: list[str]) -> dict[str, Any]:
         problems.append(f"{state.db}: missing")
         return {}
     out: dict[str, Any] = {"path": str(state.db), "bytes": state.db.stat().st_size}
+    if out["bytes"] and not _sqlite_header(state.db):
+        # damaged whatever a write-ahead log beside it still holds (SQLite reads the pages the
+        # log has from the log, and may find no fault before the log is folded in)
+        problems.append(f"{state.db}: damaged: not an SQLite database file (its header)")
+        return out
     try:
         out.update(_database_summary(state.db))
         store = Store.read_only(state.db)
@@ -286,6 +291,16 @@ def _check_database(state: Any, problems: list[str]) -> dict[str, Any]:
     if out["schema"] > SCHEMA_VERSION:
         problems.append(f"{state.db}: schema {out['schema']} is newer than this rvis's")
     return out
+
+
+def _sqlite_header(path: Path) -> bool:
+    """The file starts as an SQLite database file does (unreadable: said to, the open says
+    why)."""
+    try:
+        with path.open("rb") as f:
+            return f.read(16) == b"SQLite format 3\x00"
+    except OSError:
+        return True
 
 
 def _check_parameters(state: Any, db: dict[str, Any], problems: list[str]) -> dict[str, Any]:

@@ -343,6 +343,34 @@ def test_state_check_names_what_is_wrong(tmp_path: Path, cell: Path) -> None:
     assert missing.returncode == 2 and "no such state directory" in missing.stderr
 
 
+def test_a_damaged_database_file_is_named_whatever_its_write_ahead_log_holds(
+    tmp_path: Path,
+) -> None:
+    """Garbage over `rvis.db` while a write-ahead log beside it still holds every page (a
+    reader kept it from being folded in): SQLite reads the pages from the log and finds no
+    fault, but the file is damaged, and `state check` says so from its header."""
+    from app.commands.state import check
+    from app.line.statedir import StateDir
+    from app.line.store import Store
+
+    state = StateDir(tmp_path / "state")
+    state.root.mkdir()
+    store = Store(state.db)
+    reader = sqlite3.connect(state.db)
+    reader.execute("BEGIN")
+    reader.execute("SELECT count(*) FROM measurements").fetchall()  # holds the log
+    store.close()
+    wal, shm = (state.db.with_name(state.db.name + s) for s in ("-wal", "-shm"))
+    kept = {p: p.read_bytes() for p in (wal, shm)}
+    assert len(kept[wal]) > 0
+    reader.close()
+    state.db.write_bytes(b"garbage" * 1000)
+    for p, data in kept.items():
+        p.write_bytes(data)
+    problems = check(state, 0.0, "")["problems"]
+    assert any("rvis.db: damaged" in p for p in problems), problems
+
+
 def _children(pid: int) -> list[int]:
     """The child processes of `pid`, whichever of its threads started them."""
     tasks = Path(f"/proc/{pid}/task")
