@@ -14,6 +14,7 @@ world (fakes/truth.py, which may not import this package) models its true robot 
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -23,6 +24,9 @@ from calib import datasheet, robot
 from calib.model import SystemModel
 
 F64 = NDArray[np.float64]
+
+#: the physical joints' offsets: a stop's joint errors enter the model as these do
+JOINT_OFFSETS = tuple(f"dtheta{i}" for i in range(1, 7))
 
 
 def controller_offsets_deg(dtheta_rad: ArrayLike) -> F64:
@@ -45,9 +49,37 @@ def joint_sigma_rad(model: SystemModel, x: F64, rp_mm: float, *, draws: int = 20
     dq = controller_offsets_deg(np.vstack([h * np.eye(6), -h * np.eye(6)]))
     p = model.fk(x, q + dq, flange=True)[:, :3, 3]
     J = (p[:6] - p[6:]).T / (2 * h)
-    e = np.random.default_rng(9283).normal(0.0, 1.0, (draws, 6)) @ J.T
+    e = _unit_draws(draws) @ J.T
     distance = np.linalg.norm(e - e.mean(axis=0), axis=1)
     return float(rp_mm / (distance.mean() + 3.0 * distance.std()))
+
+
+def stop_sd_mm(
+    model: SystemModel, x: F64, q_deg: ArrayLike, p_part_mm: ArrayLike, rp_mm: float
+) -> float:
+    """One coordinate's standard deviation [mm] of points fixed in the part frame, p_part_mm
+    (n, 3), each measured from a stop of its own at q_deg (n, 6) by a robot whose pose
+    repeatability is the data sheet's RP rp_mm (joint_sigma_rad at every physical joint): the
+    root of the mean over the n views of sigma^2 trace(J J') / 3, J the point's Jacobian in
+    the joints' offsets. 0 for an exact robot or no view."""
+    q = np.atleast_2d(np.asarray(q_deg, dtype=float))
+    if rp_mm == 0 or q.size == 0:
+        return 0.0
+    p = np.broadcast_to(np.asarray(p_part_mm, dtype=float), (len(q), 3))
+    sigma = joint_sigma_rad(model, x, rp_mm)
+    T = model.fk(x, q)
+    c = np.einsum("kji,kj->ki", T[:, :3, :3], p - T[:, :3, 3])  # in the sensor frame
+    J = model.point_jacobian(x, q, c, JOINT_OFFSETS)  # (n, 3, 6)
+    return float(sigma * math.sqrt(float(np.mean(np.sum(J**2, axis=(1, 2)))) / 3.0))
+
+
+@functools.lru_cache(maxsize=4)
+def _unit_draws(draws: int) -> F64:
+    """The seeded standard-normal joint errors (draws, 6) of joint_sigma_rad, drawn once (read
+    only: every call sees the same stops)."""
+    z = np.random.default_rng(9283).normal(0.0, 1.0, (draws, 6))
+    z.flags.writeable = False
+    return z
 
 
 def stop_errors_deg(rng: np.random.Generator, sigma_rad: float, shape: tuple[int, ...]) -> F64:

@@ -128,9 +128,12 @@ def fit_plane(
 
 def _lsq_plane(points_mm: F64, normal_hint: F64) -> Plane:
     c = points_mm.mean(axis=0)
-    _, _, vt = np.linalg.svd(points_mm - c, full_matrices=False)
-    n = vt[2] if vt[2] @ normal_hint >= 0 else -vt[2]
-    d = (points_mm - c) @ n
+    centred = points_mm - c
+    # the normal: the scatter matrix's eigenvector of the least eigenvalue (the last right
+    # singular vector of the centred points, at a third of an SVD's cost on many points)
+    _, vecs = np.linalg.eigh(centred.T @ centred)
+    n = vecs[:, 0] if vecs[:, 0] @ normal_hint >= 0 else -vecs[:, 0]
+    d = centred @ n
     return Plane(c, n, float(np.sqrt(np.mean(d**2))), len(points_mm))
 
 

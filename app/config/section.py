@@ -7,6 +7,7 @@ built, from a file or in code (`Section.__post_init__`), with the same words.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Iterator, Mapping
 from dataclasses import field
@@ -110,7 +111,13 @@ class Section(Mapping[str, Any]):
 
     @classmethod
     def _keys(cls) -> tuple[str, ...]:
-        return tuple(f.name for f in dataclasses.fields(cls))  # type: ignore[arg-type]
+        return _field_names(cls)
+
+
+@functools.cache
+def _field_names(cls: type[Any]) -> tuple[str, ...]:
+    """A section class's field names, read once (a mapping's every lookup asks for them)."""
+    return tuple(f.name for f in dataclasses.fields(cls))
 
 
 def project(cls: type[Any], section: Mapping[str, Any]) -> Any:
