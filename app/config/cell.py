@@ -96,6 +96,10 @@ class SensorSection(Section):
     half_fov_y_mm: float = opt(13.5, gt=0, hi=1000)
     half_depth_mm: float = opt(5.0, gt=0, hi=1000)
     sphere_radius_mm: float = opt(15.0, gt=0, hi=500)
+    # one coordinate's sd of a sphere centre from one sweep with the robot standing (the
+    # sensor's own share of a measurement's noise; the estimator adds the robot's RP through
+    # the model: [service] jump_sigma_mm)
+    centre_sd_mm: float = opt(0.005, lo=0, hi=1)
     # the acceptance test (VDI/VDE 2634-2, vision/acceptance.py): the largest magnitudes of the
     # probing errors form PF and size PS and of the sphere-spacing error SD [mm]; the in-line
     # chart of PS (app/line/sensor_watch.py) raises the `sensor` alarm beyond max_ps_mm. PF, the

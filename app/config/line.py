@@ -167,8 +167,10 @@ class RecalibSettings(Section):
     # knocks the fast correction is for move the spheres by up to about 1 mm
     maintenance_step_mm: float = opt(1.5, gt=0, hi=1000)
 
-    # one coordinate of a sphere centre's own noise: the sensor's and the robot's repeatability
-    jump_sigma_mm: float = opt(0.02, gt=0, hi=10)
+    # one coordinate of a sphere centre's own noise: the sensor's and the robot's repeatability;
+    # 0 (the default): derived at the service's start, [sensor] centre_sd_mm and [robot]
+    # repeatability_mm through the model at the schedule's views (app.line.estimate)
+    jump_sigma_mm: float = opt(0.0, lo=0, hi=10)
     # the unmodelled term's floor without a commissioning's workspace validation (one coordinate)
     jump_unmodelled_mm: float = opt(0.03, lo=0, hi=10)
     # slow drift as a random walk of the parameters, per sqrt(hour)

@@ -29,8 +29,8 @@ from numpy.typing import NDArray
 from app.api import Calibration
 from app.inspect.plan import Feature, FeaturePlan
 from app.inspect.values import NO_NOISE, StopNoise, Value, feature_values, not_measured
-from app.inspect.views import JOINT_OFFSETS, FeatureView, InspectionPlan
-from calib.repeatability import joint_sigma_rad
+from app.inspect.views import FeatureView, InspectionPlan
+from calib.repeatability import JOINT_OFFSETS, joint_sigma_rad
 from vision.errors import FeatureRefused
 from vision.features import (
     FeatureFit,

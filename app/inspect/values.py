@@ -9,8 +9,8 @@ e' C_rep e / n + e' C_fit e + s_clamp^2), k the two-sided 95 % factor of one coo
   (calib.uncertainty.norm_quantile). It holds every error of a point measured now: the
   parameters' at the point, what the model leaves out, and the measurement's own noise;
 - sigma_m: that own noise of the statement's measurement, per coordinate (`StopNoise`: the
-  estimator's `[service] jump_sigma_mm`, a sphere centre's: the robot's repeatability at the
-  sphere's stop and the sphere's sensing). It is the sphere's, not the feature's: the value
+  estimator's, app.line.estimate.sphere_sigma_mm, a sphere centre's: the robot's
+  repeatability at the sphere's stop and the sphere's sensing). It is the sphere's, not the feature's: the value
   replaces it with its own, the two terms after the max. sigma_cell^2 - sigma_m^2 is what
   every point measured now shares, wherever it is measured;
 - C_cal (3, 3): the identification's covariance propagated to the feature's centre at its view
@@ -65,8 +65,8 @@ DECISIONS = ("conforming", "nonconforming", "undecided", "not measured")
 class StopNoise:
     """The measurement's own noise in a value's U95 (module docstring): the robot's
     repeatability, the data sheet's ISO 9283 RP [mm] (0: not known), and the cell's statement's
-    own measurement noise per coordinate [mm] (sigma_m: the estimator's `[service]
-    jump_sigma_mm`; 0: the statement holds none apart)."""
+    own measurement noise per coordinate [mm] (sigma_m: the estimator's,
+    app.line.estimate.sphere_sigma_mm; 0: the statement holds none apart)."""
 
     repeatability_mm: float = 0.0
     statement_noise_mm: float = 0.0

@@ -49,13 +49,11 @@ from calib import ik
 from calib.candidates import flange_poses, look_rotations
 from calib.ik_refine import refine
 from calib.model import SystemModel
-from calib.repeatability import joint_sigma_rad
+from calib.repeatability import JOINT_OFFSETS, joint_sigma_rad
 from calib.transforms import inverse
 from vision.sensor_model import SensorModel
 
 F64 = NDArray[np.float64]
-#: the physical joints' offsets: a stop's joint errors enter the model as these do
-JOINT_OFFSETS = tuple(f"dtheta{i}" for i in range(1, 7))
 #: a slot's long axis turned this far off the sweep direction [deg] (module docstring)
 SLOT_ROLL_DEG = 15.0
 

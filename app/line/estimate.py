@@ -5,6 +5,10 @@ the service does with its verdicts).
 - **Prior**: the version in force's covariance (a parameter it has none for: the nominal's
   tolerances, `[service] seq_prior_mm` and `seq_prior_rad`); a new cell's is its
   commissioning's.
+- **A measurement's own noise**: `sphere_sigma_mm`, the sensor's and the robot's repeatability
+  through the model at the schedule's views (or `[service] jump_sigma_mm` when set), resolved
+  once at the service's start; what the statement holds apart from its other terms, and what a
+  body's value takes out of it (app.inspect.values).
 - **Unmodelled term's floor**: from the commissioning's workspace validation (`_floor`).
 - **Restart**: on every version in force, the measurements since it is in force replayed, the
   evidence about the unmodelled term carried from the version before (and across a restart of
@@ -18,16 +22,45 @@ the service does with its verdicts).
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from app.formats.params import document_covariance
 from app.line.host import LineHost
+from app.line.schedule import Schedule
+from app.line.settings import ServiceSettings
 from calib.cellstate import CellState, EstimatorSettings, Observation
 from calib.hypotheses import Verdict
-from calib.model import EXTRA_NAMES, INDEX, unit_of
+from calib.model import EXTRA_NAMES, INDEX, SystemModel, unit_of
+from calib.repeatability import stop_sd_mm
 from calib.uncertainty import norm_quantile
+
+#: the least noise a sphere measurement is given [mm] (an exact robot and sensor: the filter
+#: needs some)
+MIN_SIGMA_MM = 0.001
+
+
+def sphere_sigma_mm(
+    settings: ServiceSettings,
+    model: SystemModel,
+    x: NDArray[np.float64],
+    schedule: Schedule,
+    spheres: Mapping[str, NDArray[np.float64]],
+) -> float:
+    """One coordinate of a sphere measurement's own noise [mm]: `[service] jump_sigma_mm` when
+    set (> 0); else the root sum of squares of the sensor's own ([sensor] centre_sd_mm) and the
+    robot's repeatability at a stop, the data sheet's RP ([robot] repeatability_mm) through the
+    model at the schedule's views (calib.repeatability.stop_sd_mm); at least MIN_SIGMA_MM."""
+    if settings.recalib.jump_sigma_mm > 0.0:
+        return float(settings.recalib.jump_sigma_mm)
+    slots = list(schedule.slots)
+    q = np.array([s.q_deg for s in slots]).reshape(-1, 6)
+    p = np.array([spheres[s.target] for s in slots]).reshape(-1, 3)
+    robot = stop_sd_mm(model, x, q, p, settings.repeatability_mm)
+    return max(math.hypot(robot, settings.sensor_centre_sd_mm), MIN_SIGMA_MM)
 
 
 class CellEstimate:

@@ -67,6 +67,7 @@ from app.line.body_export import ResultsWriter
 from app.line.correction import JumpCorrection
 from app.line.cycle import Cycle, WindowWatch
 from app.line.decisions import Decisions, Rows
+from app.line.estimate import sphere_sigma_mm
 from app.line.events import EventBus
 from app.line.faults import Faults
 from app.line.inline_seq import InlineSequential, SequentialCandidate
@@ -149,6 +150,8 @@ class Service:
             raise
         self.model, self.x, self.version = loaded.model, loaded.x, loaded.version
         recalib, self.limit_basis = limit_in_force(s.recalib, self.params.document(1))
+        sigma = sphere_sigma_mm(s, self.model, self.x, schedule, self.spheres)
+        recalib = dataclasses.replace(recalib, jump_sigma_mm=sigma)  # resolved once, at start
         self.settings = s = dataclasses.replace(s, recalib=recalib)
         d = s.drift
         self.sensor_watch = SensorWatch(s.max_ps_mm, d.ewma_lambda, d.cusum_h, d.baseline_n)

@@ -47,6 +47,9 @@ class ServiceSettings:
     # the robot's ISO 9283 pose repeatability RP ([robot] repeatability_mm), by which a
     # body's views are chosen (app.inspect.views)
     repeatability_mm: float = RobotSection.repeatability_mm
+    # a sphere centre's sd from one sweep, the sensor's own ([sensor] centre_sd_mm): with RP,
+    # a sphere measurement's noise (app.line.estimate.sphere_sigma_mm)
+    sensor_centre_sd_mm: float = SensorSection.centre_sd_mm
     # [results]: the folder each body's AQDEF file goes to (None: none), the station, the days
     # the bodies are kept (0: for ever)
     results_dir: Path | None = None
@@ -77,6 +80,7 @@ def from_cell(cfg: Any, state_dir: str | Path | None = None) -> ServiceSettings:
         ),
         max_ps_mm=float(cfg.sensor.max_ps_mm),
         repeatability_mm=float(cfg.robot.repeatability_mm),
+        sensor_centre_sd_mm=float(cfg.sensor.centre_sd_mm),
         results_dir=_results_dir(cfg, state_dir),
         station=(str(cfg.results.station), str(cfg.results.station_description)),
         results_keep_days=float(cfg.results.keep_days),

@@ -40,7 +40,10 @@ from app.inspect.measure import BodyResult, measure_body
 from app.inspect.plan import Characteristic, FeaturePlan, load_features
 from app.inspect.values import StopNoise
 from app.inspect.views import InspectionPlan, plan_views
+from app.line.estimate import sphere_sigma_mm
 from app.line.launch import hold_state
+from app.line.schedule import Schedule
+from app.line.settings import from_cell
 from app.line.statedir import StateDir
 from app.line.store import Store
 from app.sim.bodies import SimulatedBodies, true_value
@@ -68,6 +71,7 @@ class InspectionCell:
     views: InspectionPlan
     statement_u95_mm: float
     bodies: SimulatedBodies
+    sigma_mm: float  # a sphere measurement's own noise, the statement's (sphere_sigma_mm)
     temp_c: float | None = None
     line: dict[str, Any] = field(default_factory=dict)
 
@@ -81,7 +85,7 @@ class InspectionCell:
             self.bodies,
             self.statement_u95_mm,
             self.temp_c,
-            StopNoise(self.cfg.robot.repeatability_mm, self.cfg.service.jump_sigma_mm),
+            StopNoise(self.cfg.robot.repeatability_mm, self.sigma_mm),
         )
 
 
@@ -143,7 +147,9 @@ def inspection_cell(
         line, rp = cfg_c.line, cfg_c.robot.repeatability_mm
         views = plan_views(line, rp, cal.model, cal.x, plan, sensor_model)
         bodies = SimulatedBodies(world, plan, process, ClampSettings(), vision)
-        return InspectionCell(seed, state, cfg_c, cal, plan, views, statement, bodies, temp)
+        schedule = Schedule.from_plan(state.plan, line)
+        sigma = sphere_sigma_mm(from_cell(cfg_c), cal.model, cal.x, schedule, cfg_c.spheres_part_mm)
+        return InspectionCell(seed, state, cfg_c, cal, plan, views, statement, bodies, sigma, temp)
 
     if line_windows == 0:
         doc = read_json(state.commission_report.with_suffix(".json"))

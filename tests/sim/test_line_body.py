@@ -61,10 +61,11 @@ def line_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any
         run.run_windows(WINDOWS, on_event=events.append)
         history = list(run.line.plc.history)
         first_body = run.line.settings.first_body
+        sigma_mm = run.service.settings.recalib.jump_sigma_mm  # resolved at its start
         epoch = run.clock.start_epoch
     yield {
         "state": state, "events": events, "history": history, "first_body": first_body,
-        "epoch": epoch, "cfg": cfg,
+        "epoch": epoch, "cfg": cfg, "sigma_mm": sigma_mm,
     }  # fmt: skip
 
 
@@ -122,7 +123,7 @@ def test_the_stored_raw_data_give_the_stored_values_again(line_run: dict[str, An
     # stop's raw data its own (app.inspect.views); computed again as one
     stops = {(r.feature, r.stop) for r in raw}
     assert any(k > 0 for _, k in stops) and len(stops) == len(raw)
-    noise = StopNoise(cfg.robot.repeatability_mm, cfg.service.jump_sigma_mm)
+    noise = StopNoise(cfg.robot.repeatability_mm, line_run["sigma_mm"])
     again = evaluate_body(str(b["body_id"]), cal, plan, raw, b["statement_u95_mm"], None, noise)
     stored = store.body_values(b["id"], 0)
     store.close()

@@ -17,6 +17,9 @@ import pytest
 
 from app.config import CellConfig
 from app.config.cell import SimulationSection
+from app.line.estimate import sphere_sigma_mm
+from app.line.schedule import Schedule
+from app.line.settings import from_cell
 from app.sim.cell import make_cell, render_and_measure
 from fakes.cell import SimSettings, SimulatedCell
 from fakes.line_truth import LineTruth, validation_positions
@@ -251,3 +254,37 @@ def test_the_acceptance_states_the_robot_s_share_of_sd_as_the_true_robot_makes_i
         for _ in range(200)
     ]
     assert 0.03 <= np.mean(np.array(worst) > share) <= 0.10
+
+
+def test_the_noise_the_estimator_gives_a_sphere_measurement_is_the_simulated_cells(
+    cfg: CellConfig, line_cell: SimulatedCell, view_of: ViewOf
+) -> None:
+    """A sphere measurement's own noise, as the service derives it at its start (issue 50 item
+    3: the sensor's and the robot's repeatability through the model; app.line.estimate), is
+    the spread the simulated cell gives N stops at each of four views (its sensor's noise and
+    its robot's, which the service knows only from the data sheet), within 15 %. The hand-set
+    0.02 mm it replaces was 20 % short, and the statement's unmodelled term held the rest."""
+    model = cfg.model()
+    spheres = {t: cfg.spheres_part_mm[t] for t in ("P1", "P2", "P3", "P4")}
+    q = {t: view_of(line_cell, t) for t in spheres}
+    settings = dataclasses.replace(
+        from_cell(cfg),
+        repeatability_mm=float(cfg.simulation.repeatability_mm),
+        sensor_centre_sd_mm=float(cfg.simulation.sensor_noise_mm),
+    )
+    schedule = Schedule({t: q[t][None] for t in spheres}, settings.line)
+    derived = sphere_sigma_mm(settings, model, model.nominal_x(), schedule, spheres)
+    spread = [
+        np.mean((c - c.mean(axis=0)) ** 2)
+        for c in (
+            np.array([line_cell.measure_point(q[t], p) for _ in range(N_STOPS // 2)])
+            for t, p in spheres.items()
+        )
+    ]
+    assert derived == pytest.approx(float(np.sqrt(np.mean(spread))), rel=0.15)
+    assert derived > 0.022
+    # a value set in the cell file is taken as it is
+    fixed = dataclasses.replace(
+        settings, recalib=dataclasses.replace(settings.recalib, jump_sigma_mm=0.03)
+    )
+    assert sphere_sigma_mm(fixed, model, model.nominal_x(), schedule, spheres) == 0.03
