@@ -10,9 +10,9 @@ e' C_rep e / n + e' C_fit e + s_clamp^2), k the two-sided 95 % factor of one coo
   parameters' at the point, what the model leaves out, and the measurement's own noise;
 - sigma_m: that own noise of the statement's measurement, per coordinate (`StopNoise`: the
   estimator's, app.line.estimate.sphere_sigma_mm, a sphere centre's: the robot's
-  repeatability at the sphere's stop and the sphere's sensing). It is the sphere's, not the feature's: the value
-  replaces it with its own, the two terms after the max. sigma_cell^2 - sigma_m^2 is what
-  every point measured now shares, wherever it is measured;
+  repeatability at the sphere's stop and the sphere's sensing). It is the sphere's, not the
+  feature's: the value replaces it with its own, the two terms after the max.
+  sigma_cell^2 - sigma_m^2 is what every point measured now shares, wherever it is measured;
 - C_cal (3, 3): the identification's covariance propagated to the feature's centre at its view
   (J P J', as `rvis.Calibration.u95_mm` propagates it): the parameters' part alone, but at this
   pose. Added to the statement's share it would count the parameters twice; the larger of the

@@ -312,6 +312,24 @@ def true_errors_mm(
     return truth.errors_mm(model, x, v.q_deg, c, v.p_part_mm, temp)
 
 
+def robot_floor_mm(line: SimLine, draws: int = 50) -> float:
+    """The robot's floor [mm]: the RMS error of the line's validation positions measured with
+    exact parameters by a perfect sensor, the true robot's stops alone (each position from
+    `draws` seeded stops of its repeatability): what no calibration gets below."""
+    v, cell = line.truth.validation, line.truth.cell
+    rng = np.random.default_rng([cell.settings.seed, 9283])
+    exact = cell.centre_in_sensor(v.q_deg, v.p_part_mm, 0.0)
+    sq = [
+        np.sum(
+            (cell.centre_in_sensor(v.q_deg + cell.repeatability.draw_deg(rng, len(v.q_deg)),
+                                   v.p_part_mm, 0.0) - exact) ** 2,
+            axis=1,
+        )
+        for _ in range(draws)
+    ]  # fmt: skip
+    return float(np.sqrt(np.mean(sq)))
+
+
 def true_rmse_mm(
     line: SimLine, truth: EndToEndTruth, model: Any, x: F64, t_s: float | None = None
 ) -> float:

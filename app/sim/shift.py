@@ -27,7 +27,7 @@ from app.formats.files import dumps_json
 from app.line.accuracy import ACCURACY_GROUP
 from app.line.statedir import StateDir
 from app.line.store import Store
-from app.sim.line_run import SimRunSummary, SimulatedLineRun, WindowRecord
+from app.sim.line_run import SimRunSummary, SimulatedLineRun, WindowRecord, robot_floor_mm
 from fakes.truth import KNOCK_KINDS, NO_KNOCK, Knock
 
 
@@ -189,6 +189,7 @@ class ShiftResult:
     flagged_after: int | None = None  # windows from the knock to the first drift alarm
     pre_knock_rmse_mm: float = math.nan
     accuracy_limit_mm: float = math.nan  # [service] accuracy_limit_mm of the run
+    floor_mm: float = math.nan  # the robot's floor (app.sim.line_run.robot_floor_mm)
     recovered_after: int | None = None  # windows from the knock until back within the ratio
     real_s: float = 0.0
     # suspect intervals (sim s from the line's start) and how they cover the windows whose true
@@ -224,6 +225,7 @@ class ShiftResult:
             suspects=list(doc.get("suspects", [])),
             baseline_mm=doc.get("baseline_mm"),
             accuracy_limit_mm=float(doc.get("accuracy_limit_mm", math.nan)),
+            floor_mm=float(doc.get("floor_mm", math.nan)),
         )
         result.attribution = attributed_group(result.suspects, knock_s(result.settings))
         evaluate(result)
@@ -239,6 +241,7 @@ class ShiftResult:
             "flagged_after_windows": self.flagged_after,
             "pre_knock_rmse_mm": self.pre_knock_rmse_mm,
             "accuracy_limit_mm": self.accuracy_limit_mm,
+            "floor_mm": self.floor_mm,
             "recovered_after_windows": self.recovered_after,
             "drift_alarm_windows": self.drift_alarm_windows,
             "step_alarm_windows": self.step_alarm_windows,
@@ -321,6 +324,7 @@ def run_shift(
     ) as run:
         result = ShiftResult(s, seed, s.scale, run.summary, window_s=cfg.simline.window_s)
         result.accuracy_limit_mm = run.service.settings.recalib.accuracy_limit_mm
+        result.floor_mm = robot_floor_mm(run.line)
         run.run_windows(n_windows(cfg, s), on_window=on_window, on_event=_EventLog(result))
         epoch = run.clock.start_epoch
     store = Store(StateDir(state_dir).db)  # (a service held for maintenance has closed its own)
