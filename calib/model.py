@@ -266,6 +266,14 @@ class SystemModel:
         model has no thermal term: cell temperatures `temp_c` (N,) [degC] are ignored."""
         return apply(self.fk(x, q_deg), np.asarray(c_sensor_mm, dtype=float))
 
+    def points_sensor(self, x: F64, q_deg: ArrayLike, p_part_mm: ArrayLike) -> F64:
+        """Points fixed in the part frame, p_part_mm (N, 3) or (3,), in the sensor frame of
+        each pose q_deg (N, 6): the inverse of `points_part` (N, 3)."""
+        T = self.fk(x, q_deg)
+        p = np.broadcast_to(np.asarray(p_part_mm, dtype=float), (len(T), 3))
+        out: F64 = np.einsum("kji,kj->ki", T[:, :3, :3], p - T[:, :3, 3])
+        return out
+
     # -- identification Jacobian ------------------------------------------------------------
     def point_jacobian(
         self,

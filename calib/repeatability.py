@@ -65,10 +65,8 @@ def stop_sd_mm(
     q = np.atleast_2d(np.asarray(q_deg, dtype=float))
     if rp_mm == 0 or q.size == 0:
         return 0.0
-    p = np.broadcast_to(np.asarray(p_part_mm, dtype=float), (len(q), 3))
     sigma = joint_sigma_rad(model, x, rp_mm)
-    T = model.fk(x, q)
-    c = np.einsum("kji,kj->ki", T[:, :3, :3], p - T[:, :3, 3])  # in the sensor frame
+    c = model.points_sensor(x, q, p_part_mm)
     J = model.point_jacobian(x, q, c, JOINT_OFFSETS)  # (n, 3, 6)
     return float(sigma * math.sqrt(float(np.mean(np.sum(J**2, axis=(1, 2)))) / 3.0))
 

@@ -276,8 +276,7 @@ def _options(
     target = model.T_part_base(x) @ F[idx] @ model.T_flange_sensor(x)
     fit = refine(model, x, target, sols.q_deg[keep], max_iter=10)
     ok = np.flatnonzero(fit.converged)
-    T = model.fk(x, fit.q_deg[ok])
-    c_s = np.einsum("kji,kj->ki", T[:, :3, :3], f.position_mm - T[:, :3, 3])
+    c_s = model.points_sensor(x, fit.q_deg[ok], f.position_mm)
     return [
         (fit.q_deg[j], c_s[n], float(tilt_of[idx[j]]), float(sd[keep[j]])) for n, j in enumerate(ok)
     ]

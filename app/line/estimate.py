@@ -117,9 +117,8 @@ class CellEstimate:
         q = np.array([s.q_deg for s in svc.schedule.slots]).reshape(-1, 6)
         if not keep or not len(q):
             return 0.0
-        T = svc.model.fk(svc.x, q)
         p = np.array([svc.spheres[s.target] for s in svc.schedule.slots]).reshape(-1, 3)
-        c = np.einsum("kji,kj->ki", T[:, :3, :3], p - T[:, :3, 3])  # in the sensor frame
+        c = svc.model.points_sensor(svc.x, q, p)
         H = svc.model.point_jacobian(svc.x, q, c, [names[k] for k in keep])
         C = cov[np.ix_(keep, keep)]
         return float(np.mean(np.einsum("kil,lm,kim->k", H, C, H)) / 3.0)

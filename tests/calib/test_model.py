@@ -134,3 +134,16 @@ def test_fk_batch_shape_and_no_mutation() -> None:
     q = np.zeros((7, 6))
     assert model.fk(x, q).shape == (7, 4, 4)
     np.testing.assert_array_equal(x, x_copy)
+
+
+def test_points_sensor_inverts_points_part() -> None:
+    """A point fixed in the part frame, taken into each pose's sensor frame and back, is where
+    it was; one point for many poses or one per pose."""
+    rng = np.random.default_rng(5)
+    model = SystemModel(pose(rot_z(0.3), [1.0, 2.0, 3.0]), pose(rot_z(0.1), [0.0, 0.0, 130.0]))
+    x = model.nominal_x() + rng.normal(0.0, 1e-3, model.nominal_x().shape)
+    q = random_q(rng, 5)
+    p = rng.uniform(-500.0, 500.0, (5, 3))
+    np.testing.assert_allclose(model.points_part(x, q, model.points_sensor(x, q, p)), p, atol=1e-9)
+    one = model.points_sensor(x, q, p[0])
+    np.testing.assert_allclose(model.points_part(x, q, one), np.tile(p[0], (5, 1)), atol=1e-9)
