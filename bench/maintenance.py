@@ -21,7 +21,10 @@ the procedures were not tuned on, and the issue's must-show per event:
     .venv/bin/python bench/maintenance.py [--seeds 21,22,23,24] [--events sensor,axis,fixture]
         [--axis 3] [--at-h 1.5] [--json FILE]
 
-`--events fixture:P2`: the fixture event with only sphere P2 replaced.
+`--events fixture:P2`: the fixture event with only sphere P2 replaced; `fixture:frame`: the
+fixture renewed moving the part frame against the robot's base (the spheres keep their places
+in it: the tracker sees no change, the robot sees every sphere moved, and the procedure must
+identify the part frame).
 
 Prints a row per run and the totals; a seed whose simulated cell fails its commissioning is
 another cell's story: said and skipped.
@@ -45,9 +48,13 @@ from app.sim.maintenance import MaintenanceRun, run_maintenance
 
 
 def one(event: str, seed: int, axis: int, at_h: float) -> dict[str, Any] | str:
-    """One run; event "fixture:P2": only sphere P2 replaced."""
+    """One run; event "fixture:P2": only sphere P2 replaced; "fixture:frame": the renewal moves
+    the part frame."""
     kind, _, sphere = event.partition(":")
-    run = MaintenanceRun(kind, seed, axis, 3600.0 * at_h, sphere=sphere)
+    frame = sphere == "frame"
+    run = MaintenanceRun(
+        kind, seed, axis, 3600.0 * at_h, sphere="" if frame else sphere, frame=frame
+    )
     with tempfile.TemporaryDirectory() as tmp:
         try:
             return run_maintenance(load_cell(None), Path(tmp), run)

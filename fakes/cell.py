@@ -223,6 +223,7 @@ class SimulatedCell:
         self._zero_change_rad = np.zeros(6)  # a motor or encoder replaced: the URDF offsets
         self._robots: dict[tuple[bool, bool], TrueRobot] = {}  # (knocked, serviced) -> robot
         self._spheres_serviced: dict[str, F64] = {}  # a fixture renewed: the spheres after it
+        self._T_part_serviced: F64 | None = None  # a fixture renewed moving the part frame
         self._sphere_knocked: tuple[str, F64] | None = None  # a sphere knocked alone
         self._sensor_serviced: TrueSensor | None = None  # a sensor replaced: the new one
         self._noise = np.random.default_rng([s.seed, 1])
@@ -302,6 +303,7 @@ class SimulatedCell:
         self.maintenance = maintenance
         self._T_swap, self._zero_change_rad = np.eye(4), np.zeros(6)
         self._spheres_serviced, self._sensor_serviced, self._robots = {}, None, {}
+        self._T_part_serviced = None
         if maintenance is None:
             return
         rng = np.random.default_rng([self.settings.seed, 6])
@@ -309,6 +311,9 @@ class SimulatedCell:
             self._T_swap = maintenance.pose_change(rng)
         elif maintenance.kind == "axis":
             self._zero_change_rad = maintenance.zero_change_rad(rng)
+        elif maintenance.frame:
+            moved = maintenance.fixture_move(rng, np.mean(list(self._spheres.values()), axis=0))
+            self._T_part_serviced = np.asarray(np.linalg.inv(moved), dtype=np.float64)
         else:
             self._spheres_serviced = maintenance.spheres_moved(rng, dict(self._spheres))
 
@@ -339,6 +344,17 @@ class SimulatedCell:
             "mount_tilt_deg": tilt,
             "zero_change_deg": np.degrees(dq).tolist(),
             "spheres_moved_mm": moved,
+            "frame_moved_mm": self._frame_moved_mm(),
+        }
+
+    def _frame_moved_mm(self) -> dict[str, float]:
+        """How far a fixture renewal that moved the part frame moved each sphere against the
+        robot's base [mm] (empty: the frame stayed)."""
+        if self._T_part_serviced is None:
+            return {}
+        M = np.linalg.inv(self._T_part_serviced)  # T_partBefore_partAfter
+        return {
+            k: float(np.linalg.norm(M[:3, :3] @ v + M[:3, 3] - v)) for k, v in self._spheres.items()
         }
 
     def _knocked(self, t_world_s: float) -> bool:
@@ -407,6 +423,8 @@ class SimulatedCell:
         time t_s (default: now)."""
         t = self._at(t_s)
         T_pw = self._T_part_knocked if self._knocked(t) else self.T_part_world
+        if self._T_part_serviced is not None and self._serviced(t):
+            T_pw = self._T_part_serviced @ T_pw  # T_partAfter_partBefore
         T_wt = self._robot_at(t).T_world_tool0(q_deg, self._temp(t))
         out: F64 = T_pw @ T_wt @ self._mount(t)
         return out

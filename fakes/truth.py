@@ -357,7 +357,10 @@ class Maintenance:
     - ``fixture``: the sphere fixture renewed: the spheres move in the part frame (the body's
       frame, which the validation points keep), all of them by a rigid move of ``shift_mm`` and
       ``tilt_deg`` about their centroid, or, with ``sphere``, that one sphere replaced and
-      standing ``shift_mm`` away from where it stood.
+      standing ``shift_mm`` away from where it stood; with ``frame``, the fixture renewed moves
+      the part frame itself against the robot's base by that rigid move (the spheres, the
+      bodies and the validation points with it: a tracker registered to the fixture sees the
+      spheres where they stood, the robot sees all of them moved).
 
     Sizes left None are drawn from the seed within `MAINTENANCE_SIZES`; directions and signs
     from the seed passed to the methods (the same seed, the same event in every process)."""
@@ -368,12 +371,15 @@ class Maintenance:
     sphere: str = ""
     shift_mm: float | None = None
     tilt_deg: float | None = None
+    frame: bool = False
 
     def __post_init__(self) -> None:
         if self.kind not in MAINTENANCE_KINDS:
             raise ValueError(f"maintenance kind must be one of {', '.join(MAINTENANCE_KINDS)}")
         if not 1 <= self.axis <= 6:
             raise ValueError("maintenance axis must be 1..6")
+        if self.frame and (self.kind != "fixture" or self.sphere):
+            raise ValueError("frame: the whole fixture's renewal only (no sphere)")
 
     def sizes(self, rng: np.random.Generator) -> tuple[float, float]:
         """(shift [mm], tilt or zero change [deg]) of the event, drawn where not given."""
@@ -412,6 +418,12 @@ class Maintenance:
             mm, _ = self.sizes(rng)
             out[self.sphere] = out[self.sphere] + mm * _unit_vector(rng)
             return out
-        c = np.mean(list(out.values()), axis=0)
-        M = homogeneous(np.eye(3), c) @ self.pose_change(rng) @ homogeneous(np.eye(3), -c)
+        M = self.fixture_move(rng, np.mean(list(out.values()), axis=0))
         return {k: M[:3, :3] @ v + M[:3, 3] for k, v in out.items()}
+
+    def fixture_move(self, rng: np.random.Generator, centroid_part_mm: ArrayLike) -> F64:
+        """The ``fixture`` kind's rigid move (4, 4) in the part frame, about the spheres'
+        centroid: where the spheres go, or (``frame``) T_partBefore_partAfter."""
+        c = np.asarray(centroid_part_mm, dtype=float)
+        out: F64 = homogeneous(np.eye(3), c) @ self.pose_change(rng) @ homogeneous(np.eye(3), -c)
+        return out

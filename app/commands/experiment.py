@@ -152,6 +152,11 @@ def _maintenance_options(g: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--sphere", default="", help="--event fixture: only this sphere replaced (default: all)"
     )
+    g.add_argument(
+        "--frame",
+        action="store_true",
+        help="--event fixture: the renewal moves the part frame against the robot's base",
+    )
     g.add_argument("--seed", type=int_at_least(0), default=0, help="the cell's seed (0)")
     g.add_argument("--at-h", type=float, default=1.5, help="the event's hour of world time (1.5)")
     g.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")
@@ -174,12 +179,19 @@ def run_maintenance_experiment(args: argparse.Namespace) -> int:
             f"one of the cell's spheres ({known}), with --event fixture",
             field="--sphere",
         )
+    if args.frame and (args.event != "fixture" or args.sphere):
+        raise InputError("with --event fixture and no --sphere", field="--frame")
     out = Path(args.out)
     if out.exists() and any(out.iterdir()):
         raise InputError("the output folder is not empty", file=out)
     out.mkdir(parents=True, exist_ok=True)
     run = MaintenanceRun(
-        args.event, args.seed, axis=args.axis, at_s=3600.0 * args.at_h, sphere=args.sphere
+        args.event,
+        args.seed,
+        axis=args.axis,
+        at_s=3600.0 * args.at_h,
+        sphere=args.sphere,
+        frame=args.frame,
     )
     row = run_maintenance(cfg, out, run)
     path = write_rows(out, [row])

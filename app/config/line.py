@@ -346,12 +346,15 @@ class SimLineSection(Section):
     knock_kind: str = opt("sensor", choices=SIM_KNOCK_KINDS)
     # a maintenance event at world time maintenance_at_s (< 0: none), beyond a knock
     # (fakes.truth.Maintenance): a sensor replaced, the motor or encoder of maintenance_axis
-    # replaced, the sphere fixture renewed (maintenance_sphere: only that sphere replaced);
-    # maintenance_mm and maintenance_deg its size (0: drawn from the seed within the kind's)
+    # replaced, the sphere fixture renewed (maintenance_sphere: only that sphere replaced;
+    # maintenance_frame: the renewal moves the part frame against the robot's base, the
+    # spheres keeping their places in it); maintenance_mm and maintenance_deg its size (0:
+    # drawn from the seed within the kind's)
     maintenance_at_s: float = opt(-1.0, lo=-1, hi=1e7)
     maintenance_kind: str = opt("sensor", choices=("sensor", "axis", "fixture"))
     maintenance_axis: int = opt(2, lo=1, hi=6)
     maintenance_sphere: str = opt("")
+    maintenance_frame: bool = opt(False)
     maintenance_mm: float = opt(0.0, lo=0, hi=100)
     maintenance_deg: float = opt(0.0, lo=0, hi=10)
     n_validation: int = opt(100, lo=1, hi=10000)

@@ -158,6 +158,7 @@ def maintenance_of(cfg: CellConfig) -> Maintenance | None:
         axis=s.maintenance_axis,
         sphere=s.maintenance_sphere,
         shift_mm=s.maintenance_mm or None,
+        frame=s.maintenance_frame,
         tilt_deg=s.maintenance_deg or None,
     )
 

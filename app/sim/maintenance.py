@@ -56,6 +56,7 @@ class MaintenanceRun:
     axis: int = 3
     at_s: float = 5400.0
     sphere: str = ""  # fixture: only this sphere replaced ("": the fixture, all of them)
+    frame: bool = False  # fixture: the renewal moves the part frame (fakes.truth.Maintenance)
     after_windows: int = 100
     # the line runs at most until this many windows after the event's (held sooner)
     held_within: int = 20
@@ -66,6 +67,8 @@ class MaintenanceRun:
             raise ValueError("event must be sensor, axis or fixture")
         if not 1 <= self.axis <= 6:
             raise ValueError("axis must be 1..6")
+        if self.frame and (self.event != "fixture" or self.sphere):
+            raise ValueError("frame: the whole fixture's renewal only")
 
 
 def run_maintenance(cfg: CellConfig, out: Path, run: MaintenanceRun) -> dict[str, Any]:
@@ -102,6 +105,7 @@ def run_maintenance(cfg: CellConfig, out: Path, run: MaintenanceRun) -> dict[str
         "event": run.event,
         "axis": run.axis if run.event == "axis" else None,
         "sphere": run.sphere or None,
+        "frame": run.frame,
         "seed": run.seed,
         "at_s": run.at_s,
         "event_window": k,
@@ -148,6 +152,7 @@ def _with_event(cfg: CellConfig, run: MaintenanceRun) -> CellConfig:
         maintenance_kind=run.event,
         maintenance_axis=run.axis,
         maintenance_sphere=run.sphere,
+        maintenance_frame=run.frame,
     )
     return dataclasses.replace(cfg, simline=simline)
 

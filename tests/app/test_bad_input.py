@@ -273,3 +273,11 @@ def test_experiment_maintenance_refuses_a_sphere_it_cannot_replace(
         code, _, err = cli([*args, "--out", str(out)])
         assert code == 2 and "--sphere" in one_line(err) and "P1, P2, P3, P4" in err
         assert not out.exists()  # nothing made for a refused run
+    # the part frame moved by a renewal: the whole fixture's, nothing else
+    for extra in (
+        ["--event", "sensor", "--frame"],
+        ["--event", "fixture", "--sphere", "P2", "--frame"],
+    ):
+        out = tmp_path / "frame"
+        code, _, err = cli(["experiment", "maintenance", *extra, "--out", str(out)])
+        assert code == 2 and "--frame" in one_line(err) and not out.exists()

@@ -38,12 +38,18 @@ def commissioned(tmp_path_factory: pytest.TempPathFactory) -> StateDir:
     return state
 
 
-def _with_event(src: StateDir, dst: Path, kind: str, axis: int = 3) -> StateDir:
+def _with_event(
+    src: StateDir, dst: Path, kind: str, axis: int = 3, frame: bool = False
+) -> StateDir:
     shutil.copytree(src.root, dst)
     state = StateDir(dst)
     cfg = load_cell(state.cell)
     simline = dataclasses.replace(
-        cfg.simline, maintenance_at_s=AT_S, maintenance_kind=kind, maintenance_axis=axis
+        cfg.simline,
+        maintenance_at_s=AT_S,
+        maintenance_kind=kind,
+        maintenance_axis=axis,
+        maintenance_frame=frame,
     )
     service = dataclasses.replace(cfg.service, state_dir=str(dst.resolve()))
     cfg = dataclasses.replace(cfg, simline=simline, service=service)
@@ -62,11 +68,18 @@ def _store(state: StateDir) -> Store:
 
 
 @GIGE_CAMERA
-@pytest.mark.parametrize(("kind", "axis"), [("axis", 2), ("sensor", 3), ("fixture", 3)])
+@pytest.mark.parametrize(
+    ("kind", "axis", "frame"),
+    [("axis", 2, False), ("sensor", 3, False), ("fixture", 3, False), ("fixture", 3, True)],
+)
 def test_a_procedure_hands_the_cell_back_with_its_history(
-    commissioned: StateDir, tmp_path: Path, kind: str, axis: int, capsys: Any
+    commissioned: StateDir, tmp_path: Path, kind: str, axis: int, frame: bool, capsys: Any
 ) -> None:
-    state = _with_event(commissioned, tmp_path / "state", kind, axis)
+    """Each event; the fixture renewed twice: moving the spheres in the part frame (the
+    tracker finds them, the chain as it was) and moving the part frame itself against the
+    robot's base (issue 51 item 4: the tracker sees no change, the robot sees every sphere
+    moved, and the procedure identifies the part frame)."""
+    state = _with_event(commissioned, tmp_path / "state", kind, axis, frame)
     before = _line(state, 30)
     assert before.maintenance, "the service did not hold the cell"
     truth_before = [r.rmse_mm for r in before.records if r.t_open_h * 3600.0 < AT_S]
@@ -126,12 +139,18 @@ def test_a_procedure_hands_the_cell_back_with_its_history(
     if kind == "axis":
         found = steps["reidentify"]["results"]["zero_change_deg"]
         assert found == pytest.approx(truth["zero_change_deg"][axis - 1], abs=0.005)
+    if kind == "fixture":
+        got = steps["reidentify"]["results"]
+        moved = truth["frame_moved_mm"]
+        assert (got["group"] == "fixture") == frame, got
+        if frame:  # the part frame's move, from the spheres' moves (1-2.5 mm) to 0.1 mm
+            assert min(moved.values()) - 0.1 < got["translation_mm"] < max(moved.values()) + 0.1
     # the service measures again on the same directory, not held, at the level the version
     # before the event has at the same times in the world without the event (the procedure's
     # simulation runs in virtual time: the world moves on by its motions and sweeps alone, the
     # same on a loaded machine as on an idle one)
     cfg = load_cell(state.cell)
-    run = MaintenanceRun(kind, SEED, axis=axis, at_s=AT_S, after_windows=12)
+    run = MaintenanceRun(kind, SEED, axis=axis, at_s=AT_S, after_windows=12, frame=frame)
     after, unchanged = _line_after(cfg, state, run, _version_x(cfg, state, version - 1))
     assert not after.maintenance and len(after.records) == 12
     assert after.rejected == 0
