@@ -2,7 +2,8 @@
 `rvis sensor verify` (the commissioning's acceptance step alone).
 
 How the engineer is told (`printer`) and asked (`confirmation`), the devices a procedure opens
-(`open_devices`, `real_fields`, and the commissioning's whole Context: `commissioning_context`),
+(`open_devices`, `real_fields`, a guided procedure's Context fields: `guided_fields`, and the
+commissioning's whole Context: `commissioning_context`),
 the run of a procedure's steps (`run_procedure`) and its report at the end (`finish`). The
 procedures themselves are app/commission/ and app/maintain/; each command keeps its own
 arguments, its own Context and the line it says when every step passed.
@@ -121,6 +122,28 @@ def commissioning_context(
     `args.sensor_data` and `args.targets` as given."""
     from app.commission.context import Context
 
+    fields = guided_fields(args, cfg, state, seed, args.geometric, confirm, say, stack)
+    return Context(**fields)
+
+
+def guided_fields(
+    args: argparse.Namespace,
+    cfg: Any,
+    state: Any,
+    seed: int,
+    geometric: bool,
+    confirm: Confirm,
+    say: Say,
+    stack: ExitStack,
+    *,
+    every_device_traced: bool = True,
+    **sim_world: Any,
+) -> dict[str, Any]:
+    """A guided procedure's Context fields (the commissioning's, a maintenance's), its devices
+    opened (closed with `stack`): the simulated line's (`args.sim`, on `seed`, `geometric`;
+    `sim_world`: where its world continues, SimCommissioning's world_s, start_epoch, world) or
+    the cell's own; the simulated line's wire trace of every device or of none
+    (`every_device_traced`); `args.sensor`, `args.sensor_data` and `args.targets` as given."""
     sim = None
     urls = cfg.devices.urls()
     if args.sim:
@@ -128,25 +151,27 @@ def commissioning_context(
         from app.sim.line_run import with_simulated_plc
 
         sim = stack.enter_context(
-            SimCommissioning(cfg, seed, geometric=args.geometric, waiting=say_waiting)
+            SimCommissioning(cfg, seed, geometric=geometric, waiting=say_waiting, **sim_world)
         )
         urls = sim.urls
         cfg = with_simulated_plc(cfg)
-    trace = cfg.devices.wire_trace(state.wire_trace, every_device=True if sim else None)
+    trace = None
+    if every_device_traced:
+        trace = cfg.devices.wire_trace(state.wire_trace, every_device=True if sim else None)
     station = open_devices(cfg, urls, trace, stack)
     if sim is not None:
         sim.station = station
-    return Context(
-        cfg=cfg,
-        state=state,
-        station=station,
-        confirm=confirm,
-        say=say,
-        sensor_file=args.sensor,
-        sensor_data=args.sensor_data,
-        targets_file=args.targets,
+    return {
+        "cfg": cfg,
+        "state": state,
+        "station": station,
+        "confirm": confirm,
+        "say": say,
+        "sensor_file": args.sensor,
+        "sensor_data": args.sensor_data,
+        "targets_file": args.targets,
         **(sim.context_fields() if sim else real_fields(cfg, station)),
-    )
+    }
 
 
 def open_devices(cfg: Any, urls: dict[str, str], trace: Any, stack: ExitStack) -> Any:

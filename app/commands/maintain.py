@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from app.commands import add_command
-from app.commands.args import int_at_least, say_waiting, sim_seed
+from app.commands.args import int_at_least, sim_seed
 from app.errors import InputError
 
 
@@ -116,48 +116,24 @@ def _context(
     say: Any,
     stack: ExitStack,
 ) -> Any:
-
-    from app.commands.guided import open_devices, real_fields
+    """The procedure's Context: the commissioning's fields (app.commands.guided), the
+    simulated line's world continuing where the service left it."""
+    from app.commands.guided import guided_fields
     from app.maintain.steps import MaintenanceContext
 
-    sim = None
-    urls = cfg.devices.urls()
+    world: dict[str, Any] = {}
     if args.sim:
-        from app.sim.commission import SimCommissioning
-        from app.sim.line_run import continued_epoch, with_simulated_plc, world_of
+        from app.sim.line_run import continued_epoch, world_of
 
         epoch, world_s = continued_epoch(state.root)
-        geometric = bool(cfg.simulation.geometric)
-        sim = stack.enter_context(
-            SimCommissioning(
-                cfg,
-                setup["seed"],
-                geometric=geometric,
-                waiting=say_waiting,
-                world_s=world_s,
-                start_epoch=epoch,
-                world=world_of(cfg, state.root),
-            )
-        )
-        urls = sim.urls
-        cfg = with_simulated_plc(cfg)
-    station = open_devices(cfg, urls, None, stack)
-    if sim is not None:
-        sim.station = station
+        world = {"world_s": world_s, "start_epoch": epoch, "world": world_of(cfg, state.root)}
+    geometric = bool(cfg.simulation.geometric)
+    fields = guided_fields(
+        args, cfg, state, int(setup.get("seed", 0)), geometric, confirm, say, stack,
+        every_device_traced=False, **world,
+    )  # fmt: skip
     return MaintenanceContext(
-        cfg=cfg,
-        state=state,
-        station=station,
-        confirm=confirm,
-        say=say,
-        sensor_file=args.sensor,
-        sensor_data=args.sensor_data,
-        targets_file=args.targets,
-        **(sim.context_fields() if sim else real_fields(cfg, station)),
-        out_dir=folder,
-        event=args.event,
-        axis=axis,
-        record_id=record,
+        **fields, out_dir=folder, event=args.event, axis=axis, record_id=record
     )
 
 
