@@ -334,8 +334,10 @@ def test_the_machine_found_by_the_official_types(line: SimulatedLineRun, servers
             for prop in ("Manufacturer", "SerialNumber", "ProductInstanceUri", "Model"):
                 out[prop] = await (await ident.get_child(f"{ns_di}:{prop}")).read_value()
             current = await state.get_child("0:CurrentState")
-            state_id = await (await current.get_child("0:Id")).read_value()
-            out["state"] = (await current.read_value()).Text
+            # the text and its Id in one Read: the line runs on, and two reads may straddle a
+            # change of state (Executing read, then NotExecuting's Id)
+            text, state_id = await client.read_values([current, await current.get_child("0:Id")])
+            out["state"] = text.Text
             out["state_node"] = (await client.get_node(state_id).read_browse_name()).Name
             out["state_id"] = state_id
             current = await mode.get_child("0:CurrentState")

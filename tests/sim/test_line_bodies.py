@@ -28,23 +28,18 @@ KNOCK_AT_S = 244.0  # between the 6th window's close (240 s) and the 7th's openi
 def test_rvis_state_suspects_names_exactly_the_bodies_clamped_inside_the_interval(
     cfg: CellConfig, tmp_path: Path, capsys: pytest.CaptureFixture[str], fmt: str, first: Any
 ) -> None:
-    # long windows of 8 slots: the change charts watch after 3 windows, a knock is corrected
-    # within 4 windows of its flag; no warm-up (its drift is not the knock); the batch
-    # estimator, whose interval spans several bodies (the sequential one closed it after one);
-    # the plant's accuracy limit well above the commissioned cell's U95 (0.14-0.15 mm with the
-    # robot's repeatability, at the default limit), so that the knock's is the only interval
+    # two slots a window, also while a jump is open: the jump's evidence comes over several
+    # windows, so that its interval spans several bodies (with 8 slots a window the knock is
+    # found and corrected within its own window: an interval of one body, which names nothing
+    # to tell apart); no warm-up (its drift is not the knock); the batch estimator; the
+    # plant's accuracy limit well above the commissioned cell's U95, so that the knock's is
+    # the only interval
     knocked = dataclasses.replace(
         cfg,
-        # the step gate of before (0.02 mm, not widened by the step's size): the fast
-        # correction waits a window more, so that the interval spans several bodies (at the
-        # default 0.035 it closes after one)
-        service=dataclasses.replace(
-            cfg.service,
-            estimator="batch",
-            accuracy_limit_mm=0.3,
-            step_max_std_mm=0.02,
+        service=dataclasses.replace(cfg.service, estimator="batch", accuracy_limit_mm=0.3),
+        line=dataclasses.replace(
+            cfg.line, slots_per_window=2, step_slots_per_window=2, plc_body_id=fmt
         ),
-        line=dataclasses.replace(cfg.line, slots_per_window=8, plc_body_id=fmt),
         simline=dataclasses.replace(
             cfg.simline, warmup_k=0.0, period_s=40.0, window_s=32.0, knock_at_s=KNOCK_AT_S
         ),
