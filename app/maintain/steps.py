@@ -276,7 +276,8 @@ def reidentify(ctx: Context) -> StepResult:
             mine = [k for k in seen_ok if views.targets[k] == sphere]
             todo += _subset(views, 2, rigid, xr, params, seen=todo, among=mine)
     todo = sorted(todo)
-    asked = 0  # the views the first look measures (with a sensor's extra ones)
+    asked = len(todo)  # the plan's views the first look measures
+    extra = 0  # a sensor's extra views beside them (`_with_fov_views`)
     taken = Taken()
     seen_at: list[int] = []
     x_new, result, group = x_start, None, _group(m, model)
@@ -288,7 +289,7 @@ def reidentify(ctx: Context) -> StepResult:
         if attempt == 0 and m.event == "sensor":
             chosen = _with_fov_views(ctx, chosen, views, [todo[j] for j in order], rigid, xr)
         if attempt == 0:
-            asked = len(chosen)
+            extra = len(chosen) - asked
         got = measure_views(ctx, chosen, sensor, "maintenance", via_home=False, end_home=False)
         seen_at += [k for k in todo if any(np.array_equal(q[k], v) for v in got.q_deg)]
         _extend(taken, got)
@@ -314,11 +315,15 @@ def reidentify(ctx: Context) -> StepResult:
     ctx.home()
     taken.write(ctx.path(MAINTENANCE_MEASUREMENTS_FILE))
     r.files.append(MAINTENANCE_MEASUREMENTS_FILE)
-    # the views seen of those the first look asked for: a second look measures at most as
-    # many as the first missed, in their place (so "24 of 24", never "24 of 8")
-    seen = len(taken.targets)
+    # the plan's views seen of those the first look asked for (a second look measures at most
+    # as many as the first missed, in their place): the gate; a sensor's extra views, aimed
+    # at the field of view's edges on the mount before it was identified, are counted apart
+    # and gate nothing (the fit's condition and gates judge what they added)
+    seen = len(set(seen_at))
     r.checks.append(count_at_least("views seen", seen, asked, asked * (1 - limit)))
     r.results["views"] = {"asked": asked, "seen": seen, "rejected": len(taken.rejected)}
+    if extra:
+        r.results["views"] |= {"extra_asked": extra, "extra_seen": len(taken.targets) - seen}
     e = model.points_part(x_new, data.q_deg, data.c_sensor_mm, temp_c=data.temp_c)
     residual = rmse(e - data.p_part_mm)
     doc = read_json(ctx.path(PARAMS_BEFORE_FILE))
