@@ -56,9 +56,7 @@ def sphere_sigma_mm(
     model at the schedule's views (calib.repeatability.stop_sd_mm); at least MIN_SIGMA_MM."""
     if settings.recalib.jump_sigma_mm > 0.0:
         return float(settings.recalib.jump_sigma_mm)
-    slots = list(schedule.slots)
-    q = np.array([s.q_deg for s in slots]).reshape(-1, 6)
-    p = np.array([spheres[s.target] for s in slots]).reshape(-1, 3)
+    q, p = schedule.views(spheres)
     robot = stop_sd_mm(model, x, q, p, settings.repeatability_mm)
     return max(math.hypot(robot, settings.sensor_centre_sd_mm), MIN_SIGMA_MM)
 
@@ -114,10 +112,9 @@ class CellEstimate:
         covariance `cov`, the mean over the schedule's views: trace(H cov H') / 3."""
         svc = self.svc
         keep = [k for k, n in enumerate(names) if n in INDEX]
-        q = np.array([s.q_deg for s in svc.schedule.slots]).reshape(-1, 6)
+        q, p = svc.schedule.views(svc.spheres)
         if not keep or not len(q):
             return 0.0
-        p = np.array([svc.spheres[s.target] for s in svc.schedule.slots]).reshape(-1, 3)
         c = svc.model.points_sensor(svc.x, q, p)
         H = svc.model.point_jacobian(svc.x, q, c, [names[k] for k in keep])
         C = cov[np.ix_(keep, keep)]

@@ -55,6 +55,13 @@ class Schedule:
         _, q_by_target, _ = read_plan(path)
         return cls(q_by_target, line)
 
+    def views(self, spheres_part_mm: Mapping[str, ArrayLike]) -> tuple[F64, F64]:
+        """Every slot's configuration (n, 6) [deg] and its sphere's centre in the part frame
+        (n, 3) [mm], in cycle order."""
+        q = np.array([s.q_deg for s in self.slots], dtype=np.float64).reshape(-1, 6)
+        p = np.array([spheres_part_mm[s.target] for s in self.slots], dtype=np.float64)
+        return q, p.reshape(-1, 3)
+
     def __len__(self) -> int:
         return len(self.slots)
 

@@ -81,7 +81,7 @@ from app.line.roles import Roles
 from app.line.schedule import Schedule
 from app.line.sensor_watch import SensorWatch
 from app.line.settings import ServiceSettings
-from app.line.slot_choice import SlotChoice
+from app.line.slot_choice import SlotChoice, slots_wanted
 from app.line.startup import Startup, load_in_force
 from app.line.statedir import StateDir
 from app.line.states import RETIRED_CODES, AlarmCode, State
@@ -223,7 +223,7 @@ class Service:
             self.recording.position,
             self.recording.record,
             choose=self.slot_choice.choose,
-            slots_wanted=self.slot_choice.slots_wanted,
+            slots_wanted=lambda: slots_wanted(self),
         )
         self.loop = WindowLoop(self, self.operator, self.faults, self.decisions, self.jumps)
         self.startup = Startup(

@@ -62,10 +62,6 @@ class SlotChoice:
             )
         return [s for s in slots if s.index not in lost] or slots
 
-    def slots_wanted(self) -> int:
-        """Slots this window may measure (`slots_wanted`)."""
-        return slots_wanted(self.svc)
-
 
 def slots_wanted(svc: LineHost) -> int:
     """Slots a window of the service `svc` may measure now: `[line] slots_per_window`; while

@@ -320,14 +320,10 @@ def robot_floor_mm(line: SimLine, draws: int = 50) -> float:
     v, cell = line.truth.validation, line.truth.cell
     rng = np.random.default_rng([cell.settings.seed, 9283])
     exact = cell.centre_in_sensor(v.q_deg, v.p_part_mm, 0.0)
-    sq = [
-        np.sum(
-            (cell.centre_in_sensor(v.q_deg + cell.repeatability.draw_deg(rng, len(v.q_deg)),
-                                   v.p_part_mm, 0.0) - exact) ** 2,
-            axis=1,
-        )
-        for _ in range(draws)
-    ]  # fmt: skip
+    sq = []
+    for _ in range(draws):
+        stops = v.q_deg + cell.repeatability.draw_deg(rng, len(v.q_deg))
+        sq.append(np.sum((cell.centre_in_sensor(stops, v.p_part_mm, 0.0) - exact) ** 2, axis=1))
     return float(np.sqrt(np.mean(sq)))
 
 

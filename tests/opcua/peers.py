@@ -206,9 +206,8 @@ class SessionHolder:
         for task in tasks:
             task.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
-        await asyncio.sleep(
-            0.1
-        )  # sleep-ok: the transports' closing callbacks run before the loop ends
+        # the transports' closing callbacks run before the loop ends: nothing to wait on
+        await asyncio.sleep(0.1)  # sleep-ok
 
     async def _hold(self, k: int) -> None:
         """One session after another from `sources[k]`, each held until the server closes it."""

@@ -105,7 +105,15 @@ def test_a_procedure_hands_the_cell_back_with_its_history(
     identified = steps["handeye" if kind == "sensor" else "reidentify"]
     (seen,) = [c for c in identified["checks"] if c["name"] == "views seen"]
     k, n = map(int, seen["value"].split(" of "))
-    assert k <= n == identified["results"]["views"]["asked"], seen
+    views = identified["results"]["views"]
+    assert k <= n == views["asked"], seen
+    if kind == "sensor":
+        # the gate is on the plan's views; the extra views at the field of view's edges, aimed
+        # on the mount before it is identified, are counted apart (gating on all of them
+        # failed the procedure on 4 of 4 of the maintenance campaign's seeds: 50942a4)
+        per_sphere = load_cell(state.cell).commission.maintenance_views_per_sphere
+        assert n == per_sphere * 4 and views["extra_asked"] > 0, views
+        assert 0 <= views["extra_seen"] <= views["extra_asked"], views
     if identified["results"]["identified"]:
         units = {key.rsplit("_", 1)[1] for key in identified["results"]["standard_uncertainty"]}
         assert units <= {"mm", "deg"} and "std" not in identified["results"]
