@@ -17,7 +17,7 @@ drift charts' tuning seeds, never cited as a reason here):
   limit >= 98 % suspect, of the suspect ones <= 10 % with a true p95 below 0.8x the limit.
 
     .venv/bin/python bench/estimator.py [--seeds 301,302,303,304] [--kinds ...]
-        [--windows 1,2,4,8,30] [--hours-at 2] [--jobs 2] [--json FILE]
+        [--windows 1,2,4,8,30] [--hours-at 2] [--jobs 2] [--json FILE] [--cell FILE]
 
 Each row is one seeded shift in virtual time (a seed is a result); the figures per kind are
 over the seeds and knock times, the CPU time of the whole campaign is printed.
@@ -45,6 +45,14 @@ KINDS = ("sensor", "fixture", "J1", "J2", "J3", "sphere")
 EXPECTED = {"sensor": "sensor", "fixture": "fixture", "J1": "fixture", "J2": "J2", "J3": "J3"}
 
 
+CELL: str | None = None  # --cell: the cell file over the embedded cell (None: the embedded)
+
+
+def _use_cell(path: str | None) -> None:
+    global CELL
+    CELL = path
+
+
 def shift(task: tuple[int, str, float, float]) -> dict[str, Any]:
     """One shift: (seed, knock kind, knock hour, hours) -> its figures."""
     from app.config import load_cell
@@ -56,7 +64,7 @@ def shift(task: tuple[int, str, float, float]) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.process_time()
         r = run_shift(
-            load_cell(None),
+            load_cell(CELL),
             Path(tmp) / "state",
             ShiftSettings(hours=hours, knock_at_h=knock_h, knock=kind),
             seed=seed,
@@ -157,7 +165,9 @@ def main() -> int:
     p.add_argument("--quiet-hours", type=float, default=8.0, help="knock-free shift (0: none)")
     p.add_argument("--jobs", type=int, default=2)
     p.add_argument("--json", type=Path)
+    p.add_argument("--cell", help="a cell file over the embedded cell (its settings)")
     a = p.parse_args()
+    _use_cell(a.cell)
     seeds = [int(s) for s in a.seeds.split(",")]
     period_h = 60.0 / 3600.0  # [simline] period_s of the embedded cell
     times = [(int(w) - 1) * period_h for w in a.windows.split(",") if w]
@@ -166,7 +176,7 @@ def main() -> int:
     if a.quiet_hours > 0:  # the knock at the shift's very end: a knock-free shift before it
         tasks += [(s, "sensor", a.quiet_hours - 0.001, a.quiet_hours) for s in seeds]
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(a.jobs) as pool:
+    with ProcessPoolExecutor(a.jobs, initializer=_use_cell, initargs=(a.cell,)) as pool:
         rows = list(pool.map(shift, tasks))
     wall = time.perf_counter() - t0
     knocks = [r for r, t in zip(rows, tasks, strict=True) if t[3] != a.quiet_hours]

@@ -128,7 +128,7 @@ class CellState:
         P0: ArrayLike,
         targets: Sequence[str],
         settings: EstimatorSettings | None = None,
-        t0_s: float = 0.0,
+        t0_s: float | None = None,
     ) -> None:
         self.model = model
         self.x_ref = np.asarray(x_ref, float).copy()
@@ -146,7 +146,8 @@ class CellState:
         every = self.hyps + self.beyond
         self._extra = tuple(sorted({p for h in every for p in h.params} - set(self.active)))
         self.q_per_h = np.array([self._drift_sd(n) ** 2 for n in self.active])
-        self.t_s = t0_s  # the time (d, P) describe
+        # the time (d, P) describe (None: the first measurement's)
+        self.t_s = t0_s
         self.rows: list[_Row] = []
         self._slots: list[F64] = []
         self.s_u_mm = self.settings.unmodelled_mm
@@ -194,6 +195,7 @@ class CellState:
         """One measurement: into the window (the oldest folded into the state beyond it), and
         the jump test on the window (`test`; a replay tests its last one only)."""
         row = self._row(obs)
+        self.t_s = self._t0(obs.t_s)
         self.rows.append(row)
         while len(self.rows) > self.settings.window:
             self._fold(self.rows.pop(0))
@@ -231,8 +233,12 @@ class CellState:
         IKH = np.eye(len(self.d)) - K @ H
         self.P = IKH @ self.P @ IKH.T + K @ R @ K.T
 
+    def _t0(self, t_s: float) -> float:
+        """The time (d, P) describe (`t_s` when none yet)."""
+        return t_s if self.t_s is None else self.t_s
+
     def _predict(self, t_s: float) -> None:
-        dt_h = max(0.0, (t_s - self.t_s) / 3600.0)
+        dt_h = max(0.0, (t_s - self._t0(t_s)) / 3600.0)
         if dt_h > 0.0:
             self.P[: self.L, : self.L] += np.diag(self.q_per_h * dt_h)
             self.t_s = t_s
@@ -245,7 +251,8 @@ class CellState:
         n = len(self.rows)
         H = np.concatenate([self._H(r) for r in self.rows], axis=0)
         v = np.concatenate([r.v0 for r in self.rows]) - H @ self.d
-        tau_h = np.array([max(0.0, (r.obs.t_s - self.t_s) / 3600.0) for r in self.rows])
+        t0 = self._t0(self.rows[0].obs.t_s)
+        tau_h = np.array([max(0.0, (r.obs.t_s - t0) / 3600.0) for r in self.rows])
         Sigma = H @ self.P @ H.T + s.sigma_mm**2 * np.eye(3 * n)
         Hp = H[:, : self.L]
         tmin = np.minimum.outer(tau_h, tau_h)  # (n, n)

@@ -17,7 +17,7 @@ from scipy.optimize import least_squares
 
 from calib.errors import InsufficientData
 from calib.model import BASE_NAMES, INDEX, SystemModel, check_active
-from calib.observability import Observability, require_full_rank
+from calib.observability import Observability, observability, require_full_rank
 from calib.transforms import matrix_to_rotvec
 
 F64 = NDArray[np.float64]
@@ -176,18 +176,22 @@ def _result(
     x: F64,
     x_start: F64,
     sol: object,
+    given: F64 | None = None,
 ) -> IdentificationResult:
     res = residuals(model, x, data)
     J = stacked_jacobian(model, x, data, names)
     dof = max(res.size - len(names), 1)
     s2 = float(np.sum(res**2)) / dof
-    _, sv, Vt = np.linalg.svd(J, full_matrices=False)
-    inv_sv2 = np.where(sv > 1e-12 * sv[0], 1.0 / sv**2, 0.0)
-    cov = (Vt.T * inv_sv2) @ Vt * s2
+    cov = given
+    if cov is None:
+        _, sv, Vt = np.linalg.svd(J, full_matrices=False)
+        inv_sv2 = np.where(sv > 1e-12 * sv[0], 1.0 / sv**2, 0.0)
+        cov = (Vt.T * inv_sv2) @ Vt * s2
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     denom = np.outer(std, std)
     corr = np.divide(cov, denom, out=np.zeros_like(cov), where=denom > 0)
-    obs = require_full_rank(J, names)
+    # an estimate made elsewhere holds its prior: `data` alone need not determine it
+    obs = require_full_rank(J, names) if given is None else observability(J, max(len(res), 1))
     e = np.linalg.norm(res, axis=1)
     return IdentificationResult(
         x=x,
@@ -206,6 +210,35 @@ def _result(
         nfev=int(getattr(sol, "nfev", 0)),
         temp_c=None if data.temp_c is None else float(np.mean(data.temp_c)),
     )
+
+
+@dataclass(frozen=True)
+class _Given:
+    """What `_result` reads of a solver's outcome, for an estimate made elsewhere."""
+
+    success: bool = True
+    status: int = 1
+    message: str = "the estimator's posterior"
+    nfev: int = 0
+
+
+def posterior_result(
+    model: SystemModel,
+    data: Measurements,
+    x: F64,
+    active: Sequence[str],
+    cov: F64,
+    x_start: F64,
+) -> IdentificationResult:
+    """An estimate made elsewhere as an identification's outcome on `data`: the in-line
+    estimator's posterior (calib.cellstate: x, the full vector, and `cov` of its `active`
+    parameters, which holds what came before `data` as well as `data`), with its residuals on
+    `data`, their RMS and the observability `data` alone gives (the gates read them)."""
+    names = tuple(active)
+    cov = np.asarray(cov, float)
+    if cov.shape != (len(names), len(names)):
+        raise ValueError(f"cov must be {len(names)}x{len(names)}, got {cov.shape}")
+    return _result(model, data, names, np.asarray(x, float), x_start, _Given(), 0.5 * (cov + cov.T))
 
 
 def held_sensitivity(

@@ -122,12 +122,34 @@ def measure_views(
     return taken
 
 
+def calibration_views(
+    cell: Any, planned: dict[str, F64], positions: dict[str, F64]
+) -> list[tuple[str, F64]]:
+    """The calibration step's views: each sphere's planned configurations, then random views
+    of it (calib.candidates, on the nominal model, seeded by [commission] seed) up to
+    `[commission] calibration_views_per_sphere`."""
+    rigid = cell.model()
+    rng = np.random.default_rng([cell.commission.seed, 29])
+    want = cell.commission.calibration_views_per_sphere
+    views = []
+    for target, q_list in planned.items():
+        views += [(target, q) for q in q_list]
+        more = want - len(q_list)
+        if more > 0 and target in positions:
+            sample = candidates.random_configurations(
+                rigid, rigid.nominal_x(), positions[target], more, rng
+            )
+            views += [(target, q) for q in sample.q_deg]
+    return views
+
+
 def calibration(ctx: Context) -> StepResult:
-    """Measure the plan's configurations, identify the parameters, and hold them to the
-    quality gates of [calibration] (converged, rank, RMS, condition, change from nominal)."""
+    """Measure the plan's configurations and random views beyond them (`calibration_views`),
+    identify the parameters of the model the service runs, and hold them to the quality gates
+    of [calibration] (converged, rank, RMS, condition, change from nominal)."""
     cell = ctx.cell()
     _, qs, _ = read_plan(ctx.path(PLAN_FILE))
-    views = [(t, q) for t, q_list in qs.items() for q in q_list]
+    views = calibration_views(cell, qs, ctx.spheres_part_mm())
     taken = measure_views(ctx, views, ctx.sphere_sensor(ctx.sensor_model()), "calibration")
     taken.write(ctx.path(CALIBRATION_MEASUREMENTS_FILE))
     positions = ctx.spheres_part_mm()
@@ -138,7 +160,7 @@ def calibration(ctx: Context) -> StepResult:
         share_at_most("views rejected by vision", len(taken.rejected), len(views), limit)
     )
     r.results["rejected"] = taken.rejected
-    model = cell.identification_model()
+    model = cell.commissioning_model()
     try:
         result = identify(model, taken.data(positions))
     except InsufficientData as exc:

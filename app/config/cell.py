@@ -296,10 +296,18 @@ class CellConfig:
         return SystemModel(self.T_part_base, self.T_flange_sensor, self.limits)
 
     def identification_model(self) -> Any:
-        """The model `rvis identify`, the plan and the commissioning fit: rigid, or compliant
-        ([calibration] model) with the section's payload and thermal settings
-        (calib.compliance)."""
+        """The model `rvis identify` and the plan fit: rigid, or compliant ([calibration]
+        model) with the section's payload and thermal settings (calib.compliance)."""
         return self._model_of(self.calibration.model)
+
+    def commissioning_model(self) -> Any:
+        """The model the commissioning identifies ([commission] model): [calibration] model,
+        or ("service") the one the in-line service runs, whose first version and estimator's
+        prior its parameters are (compliant when either section says so)."""
+        if self.commission.model == "calibration":
+            return self.identification_model()
+        kinds = (self.calibration.model, self.service.model)
+        return self._model_of("compliant" if "compliant" in kinds else "rigid")
 
     def service_model(self) -> Any:
         """The model the in-line service identifies ([service] model), with [calibration]'s

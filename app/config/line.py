@@ -126,6 +126,13 @@ class RecalibSettings(Section):
     rolling_size: int = opt(0, lo=0, hi=100000)
     holdout_size: int = opt(4, lo=1, hi=1000)
     every_n: int = opt(24, lo=1, hi=100000)  # new measurements between recalibrations
+    # a recalibration's candidate: "rolling", the rolling set identified alone; "posterior",
+    # the one estimator's posterior (the version in force its prior, every measurement since
+    # folded in: docs/estimator.md), the rolling set's identification only while a jump is in
+    # hand. Not the default yet: with a commissioning of the service's model from 18 views a
+    # sphere it met the 8 h target on 3 of 4 judging seeds, and a knock's correction then
+    # leaves the cell further above its level before the knock (docs/results/estimator.md)
+    candidate: str = opt("rolling", choices=("rolling", "posterior"))
     max_nfev: int = opt(200, lo=10, hi=10000)
     # the plant's limit for the U95 of a point measured now: a window whose U95 is above it is
     # in a suspect interval. 0: by calib.uncertainty.accuracy_limit_mm, VDA 5's 2U/T <= 30 % for

@@ -197,6 +197,7 @@ class Decisions:
             r.max_nfev,
             int(train[0]["id"]),
             int(holdout[-1]["id"]),
+            svc.posterior(),
         )
         svc.recalibrator.submit(job)
         svc.bus.emit(

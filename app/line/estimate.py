@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 
 from app.formats.params import document_covariance
 from app.line.host import LineHost
+from app.line.recalib import Posterior
 from app.line.schedule import Schedule
 from app.line.settings import ServiceSettings
 from calib.cellstate import CellState, EstimatorSettings, Observation
@@ -129,12 +130,11 @@ class CellEstimate:
             self._moments = self.state.moments()
         active = svc.model.default_active()
         P0 = self._prior(active)
-        rows = svc.store.measurements(last=4 * svc.settings.recalib.jump_window)
-        mine = [r for r in rows if r.get("params_version") == svc.version]
-        t0 = float(mine[0]["t"]) if mine else svc.clock.time()
-        self.state = CellState(
-            svc.model, svc.x, active, P0, list(svc.spheres), self.settings(), t0_s=t0
-        )
+        # every measurement since the version is in force (its posterior is a recalibration's
+        # candidate: app.line.recalib), from the first one's time (the drift's clock), as the
+        # service that never stopped has them
+        mine = svc.store.measurements_of_version(svc.version)
+        self.state = CellState(svc.model, svc.x, active, P0, list(svc.spheres), self.settings())
         self.state.learned(self._moments)
         self.verdict = None
         for r in mine:
@@ -181,6 +181,20 @@ class CellEstimate:
             self.restart()
             return
         self.verdict = self.state.add(self._observation(row))
+
+    def posterior(self) -> Posterior | None:
+        """The parameters' posterior as a recalibration's candidate (app.line.recalib.RecalJob)
+        with `[service] candidate = "posterior"`, while the version in force is the prior: no
+        jump in hand (after one, the measurements
+        since its onset are identified alone) and a measurement of the version in the
+        estimator."""
+        st = self.state
+        if self.svc.settings.recalib.candidate != "posterior":
+            return None
+        if self.svc.jump_onset_id is not None or st is None or not st.rows:
+            return None
+        _, P = st.posterior()
+        return Posterior(st.x, st.active, P.copy())
 
     def statement_u95_mm(self, jump_onset_id: int | None = None) -> float | None:
         """U95 [mm] of a point measured now at the window's poses (module docstring), with the

@@ -26,7 +26,7 @@ from app.line.events import EventBus
 from app.line.inline_seq import InlineSequential, SequentialCandidate
 from app.line.measure import SphereMeasurer
 from app.line.params_store import ParamsStore
-from app.line.recalib import Recalibrator, RecalOutcome
+from app.line.recalib import Posterior, Recalibrator, RecalOutcome
 from app.line.roles import Roles
 from app.line.schedule import Schedule
 from app.line.sensor_watch import SensorWatch
@@ -134,6 +134,8 @@ class LineHost(Protocol):
     ) -> tuple[list[Mapping[str, Any]], list[Mapping[str, Any]]] | None: ...
 
     def recal_wait(self) -> str: ...
+
+    def posterior(self) -> Posterior | None: ...
 
     def applies_automatically(self) -> bool: ...
 

@@ -34,7 +34,13 @@ from app.threads import exit_with_parent
 from calib.errors import CalibError
 from calib.gate_limits import Gates
 from calib.gates import check_identification
-from calib.identify import IdentificationResult, Measurements, identify, residuals
+from calib.identify import (
+    IdentificationResult,
+    Measurements,
+    identify,
+    posterior_result,
+    residuals,
+)
 from calib.model import SystemModel
 from calib.uncertainty import shown_worse
 from calib.validation import rmse
@@ -44,8 +50,23 @@ F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True, eq=False)
+class Posterior:
+    """The one estimator's posterior (calib.cellstate): the full parameter vector `x` and the
+    covariance `cov` of its `active` parameters, the version in force's prior and every
+    measurement since folded in."""
+
+    x: F64
+    active: tuple[str, ...]
+    cov: F64
+
+
+@dataclass(frozen=True, eq=False)
 class RecalJob:
-    """Everything the worker needs (picklable)."""
+    """Everything the worker needs (picklable). With `posterior` the candidate is the
+    estimator's (the cell tracked as one state: no measurement's information is dropped at
+    the rolling set's edge, and a configuration measured again is not new evidence about the
+    parameters); without (the measurements after a jump's onset, where the version's prior no
+    longer holds), the rolling set's identification."""
 
     model: SystemModel
     x_current: F64
@@ -55,6 +76,7 @@ class RecalJob:
     max_nfev: int
     first_id: int
     last_id: int
+    posterior: Posterior | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -125,11 +147,18 @@ def check_candidate(result: IdentificationResult, job: RecalJob) -> tuple[list[s
 
 
 def run_recalibration(job: RecalJob) -> RecalOutcome:
-    """Identify from the rolling set and gate the result (runs in the worker process)."""
+    """The candidate (the estimator's posterior, else the rolling set's identification) and
+    its gates (runs in the worker process)."""
     cur = rms_mm(job.model, job.x_current, job.holdout)
     n = len(job.train)
     try:
-        result = identify(job.model, job.train, x0=job.x_current, max_nfev=job.max_nfev)
+        if job.posterior is not None:
+            post = job.posterior
+            result = posterior_result(
+                job.model, job.train, post.x, post.active, post.cov, job.x_current
+            )
+        else:
+            result = identify(job.model, job.train, x0=job.x_current, max_nfev=job.max_nfev)
     except CalibError as exc:
         failure = f"identification failed: {exc}"
         return RecalOutcome(

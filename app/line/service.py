@@ -75,7 +75,7 @@ from app.line.jumps import JumpWatch
 from app.line.measure import SphereMeasurer, SphereSensor
 from app.line.operator import Operator
 from app.line.params_store import MAINTENANCE_SOURCE, ParamsStore
-from app.line.recalib import Recalibrator, RecalOutcome
+from app.line.recalib import Posterior, Recalibrator, RecalOutcome
 from app.line.recording import Recording
 from app.line.roles import Roles
 from app.line.schedule import Schedule
@@ -330,6 +330,11 @@ class Service:
         alarm (its text, and its fields beside it) until a maintenance procedure hands the
         cell back (or an engineer resets it)."""
         self.faults.enter_fault(AlarmCode.MAINTENANCE, need.text, need.detail())
+
+    def posterior(self) -> Posterior | None:
+        """The one estimator's posterior as a recalibration's candidate (None: identify the
+        rolling set: app.line.estimate.CellEstimate.posterior)."""
+        return self.jumps.estimate.posterior()
 
     def sphere_residuals(self) -> dict[str, dict[str, Any]]:
         """Per sphere, its measurements in the estimator's window (app.line.estimate), as the

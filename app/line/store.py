@@ -315,6 +315,16 @@ class Store(BodyRecords, LogRecords, IntervalRecords):
                 done.add(slot)
         return {slot: k for slot, k in streak.items() if k >= n}
 
+    def measurements_of_version(self, version: int) -> list[dict[str, Any]]:
+        """The good rows measured with parameters `version`, since it was last put in force
+        (the newest run of them: read back from the newest row to the first of another
+        version), in id order."""
+        other = self._rows(
+            "SELECT id FROM measurements WHERE params_version IS NOT ? ORDER BY id DESC LIMIT 1",
+            (version,),
+        )
+        return self.measurements(since_id=int(other[0]["id"]) if other else 0)
+
     def measurements_by_id(self, ids: Sequence[int]) -> list[dict[str, Any]]:
         """The rows of these ids in id order (any status)."""
         marks = ",".join("?" * len(ids))

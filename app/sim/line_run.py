@@ -262,16 +262,22 @@ def commissioning(
 def commissioned(
     cfg: CellConfig, seed: int, truth: EndToEndTruth | None = None
 ) -> tuple[IdentificationResult, F64]:
-    """The offline calibration of the cold cell (4 spheres x 6 random views) with the cell's
-    model ([calibration] model; the cold cell's temperature with every view), and the errors'
+    """The offline calibration of the cold cell (4 spheres x `[commission]
+    calibration_views_per_sphere` random views) with the commissioning's model
+    (CellConfig.commissioning_model; the cold cell's temperature with every view), and the errors'
     norms (n,) [mm] its workspace validation measures: the validation sphere at `[commission]
     workspace_positions` random positions no calibration view used, each tracked (with the
     tracker's noise) and measured from one view (app/commission/workspace.py measures the same
     on the devices). With `truth`, each view is measured through its sensor model (the centre
     it reports plus the sensor noise; views its vision checks reject left out), as the line
     will measure. One simulation of the cell for both."""
-    sim = simulated_sets(cfg, seed, n_validation=cfg.commission.workspace_positions)
-    model = cfg.identification_model()
+    sim = simulated_sets(
+        cfg,
+        seed,
+        n_each=max(cfg.commission.calibration_views_per_sphere, cfg.calibration.configs_per_sphere),
+        n_validation=cfg.commission.workspace_positions,
+    )
+    model = cfg.commissioning_model()
     data = _cold(as_the_line_measures(sim.calibration, truth), sim.cell.temp_c)
     result = identify(model, data)
     val = _cold(as_the_line_measures(sim.validation, truth), sim.cell.temp_c)
@@ -380,7 +386,7 @@ class SimulatedLineRun:
         # the model the service identifies and the true error is computed in: [service] model,
         # or the commissioning's compliant one under a rigid [service] model (the service keeps
         # a compliant version's compliance: calib.compliance.carry)
-        commission_model = cfg.identification_model()
+        commission_model = cfg.commissioning_model()
         compliant = isinstance(commission_model, CompliantModel)
         self.model = commission_model if compliant else cfg.service_model()
         if not geometric and sensor_model is None:

@@ -23,7 +23,8 @@ pytestmark = GIGE_CAMERA
 
 
 #: the shortest rendered commissioning that passes: 12 frames a sweep, 5 configurations a
-#: sphere (20 calibration views), one validation view a sphere, 3 workspace positions; the
+#: sphere and no random views beyond them (20 calibration views), one validation view a sphere,
+#: 3 workspace positions; the
 #: robot repeats exactly (issue 38 item 9): the sensor acceptance's SD takes the robot's motion
 #: between its 9 stops as the reference, and the M-710iC/50's repeatability (RP 0.07 mm) puts
 #: SD at 0.060 mm against the 0.015 mm limit, a failure of the test's design, not of the sensor
@@ -32,6 +33,7 @@ RENDERED_SHORT = (
     CELL
     + "[sweep]\nn_frames = 12\n[calibration]\nconfigs_per_sphere = 5\n"
     + "[commission]\nvalidation_views = 1\nworkspace_positions = 3\n"
+    + "calibration_views_per_sphere = 5\n"
     + "[simulation]\nrepeatability_mm = 0.0\n"
 )
 RENDERED = ["commission", "--sim", "--yes", "--state-dir"]

@@ -8,7 +8,7 @@ import pytest
 
 from app.config import CellConfig
 from calib.errors import InsufficientData, NotIdentifiable
-from calib.identify import Measurements, identify, residuals
+from calib.identify import Measurements, identify, posterior_result, residuals
 from calib.model import PAPER_30
 from calib.observability import observability
 from calib.validation import ErrorStats
@@ -111,3 +111,27 @@ def test_robust_loss_beats_least_squares_on_outliers(cfg: CellConfig) -> None:
     # the outliers stand out in the robust residuals
     worst = np.argsort(-np.linalg.norm(robust.residuals_mm, axis=1))[:3]
     assert set(worst) == {2, 9, 17}
+
+
+def test_a_posterior_is_an_identification_outcome_with_its_own_covariance(
+    cfg: CellConfig,
+) -> None:
+    """The in-line estimator's posterior as a recalibration's candidate: its x and covariance
+    as given, its residuals and RMS on the data the gates read, and no rank asked of data it
+    need not determine alone (the prior holds the rest)."""
+    cal, _ = simulated(0, 100)
+    m, model = cal.measurements, cfg.model()
+    fit = identify(model, m)
+    cov = np.diag(np.linspace(1e-4, 4e-4, len(fit.active)))
+    got = posterior_result(model, m, fit.x, fit.active, cov, model.nominal_x())
+    np.testing.assert_array_equal(got.x, fit.x)
+    np.testing.assert_allclose(got.std, np.sqrt(np.diag(cov)))
+    np.testing.assert_allclose(got.corr, np.eye(len(fit.active)), atol=1e-12)
+    assert got.rms_mm == pytest.approx(fit.rms_mm) and got.success
+    np.testing.assert_allclose(got.residuals_mm, residuals(model, fit.x, m))
+    first = [m.targets.index(t) for t in sorted(set(m.targets))]
+    degenerate = m.subset(np.repeat(first, 6))  # identify would refuse these alone
+    alone = posterior_result(model, degenerate, fit.x, fit.active, cov, model.nominal_x())
+    assert alone.observability.rank < len(fit.active)
+    with pytest.raises(ValueError):
+        posterior_result(model, m, fit.x, fit.active, cov[:-1, :-1], model.nominal_x())
