@@ -105,9 +105,10 @@ class CommissionSection(Section):
     # sphere (0: the plan's alone). A new cell's first hour runs on them: on tuning seed 61
     # the compliant model from the plan's 6 views a sphere alone, and with random ones up to
     # 12 and 18, left that hour 1.65, 1.33 and 1.25x the robot's floor (the rigid model
-    # 1.6-1.8x whatever the count). "service" and 18 are not the defaults yet: with them a
-    # knock's correction leaves the cell further above its (better) level before the knock
-    # (docs/results/estimator.md, "The commissioning and the posterior")
+    # 1.6-1.8x whatever the count; docs/results/estimator.md, "The commissioning and the
+    # posterior"). "calibration" and 0 (the paper's commissioning) stay the defaults until a
+    # knock's correction holds the better cell's level: with "service" and 18 the windows
+    # after a correction sit at 1.2-1.3x the level before the knock (tests/sim/test_shift.py)
     model: str = opt("calibration", choices=("calibration", "service"))
     calibration_views_per_sphere: int = opt(0, lo=0, hi=1000)
     validation_views: int = opt(3, lo=1, hi=100)

@@ -129,9 +129,9 @@ class RecalibSettings(Section):
     # a recalibration's candidate: "rolling", the rolling set identified alone; "posterior",
     # the one estimator's posterior (the version in force its prior, every measurement since
     # folded in: docs/estimator.md), the rolling set's identification only while a jump is in
-    # hand. Not the default yet: with a commissioning of the service's model from 18 views a
-    # sphere it met the 8 h target on 3 of 4 judging seeds, and a knock's correction then
-    # leaves the cell further above its level before the knock (docs/results/estimator.md)
+    # hand. It needs the commissioning of the service's model ([commission] model, 18 views a
+    # sphere): on a rigid commissioning's prior it made a shift worse. Not the default yet
+    # (docs/results/estimator.md, "The commissioning and the posterior")
     candidate: str = opt("rolling", choices=("rolling", "posterior"))
     max_nfev: int = opt(200, lo=10, hi=10000)
     # the plant's limit for the U95 of a point measured now: a window whose U95 is above it is

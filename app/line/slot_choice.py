@@ -65,14 +65,17 @@ class SlotChoice:
 
 def slots_wanted(svc: LineHost) -> int:
     """Slots a window of the service `svc` may measure now: `[line] slots_per_window`; while
-    a jump found by the one estimator is not corrected yet (its episode open, app.line.jumps)
-    or a full recalibration is wanted (a change no single group explains, an accuracy the cell
+    a jump found by the one estimator has its episode open (not corrected yet, or corrected
+    and not yet confirmed, or its group watched for a refinement: app.line.jumps) or a full
+    recalibration is wanted (a change no single group explains, an accuracy the cell
     cannot vouch for, an engineer's "calibrate now"), up to `[line] step_slots_per_window`
     (those that fit the window's time): the correction's evidence, or the schedule's cycle for
     the full one, in fewer windows."""
     line = svc.settings.line
-    ep = svc.episode
-    waiting = ep is not None and not ep.get("closed") and ep.get("corrected_version") is None
+    # from a jump found until its episode is over: its correction's evidence, then the
+    # measurements that confirm or refine it (app.line.jumps: the interval's close, the
+    # group's watch), in fewer windows
+    waiting = svc.episode is not None
     if waiting or svc.force_recal:
         return max(line.step_slots_per_window, line.slots_per_window)
     return line.slots_per_window

@@ -93,8 +93,11 @@ def test_each_clamped_body_is_measured_stored_and_told_to_the_plc(line_run: dict
     assert [o.body_nok for o in done][: len(bodies)] == [not e["ok"] for e in as_measured]
     covered, n, errors = 0, 0, []
     for b in bodies:
-        if b["t"] - line_run["epoch"] > KNOCK_AT_S:
-            continue  # the knocked ones: the next test
+        if b["t"] - line_run["epoch"] > KNOCK_AT_S - PERIOD_S:
+            # the knocked ones (the next test), and the one clamped when the knock came: its
+            # features measured after the knock are off by it (it counted as before the knock
+            # until a statement tight enough for its 0.15-0.3 mm showed it)
+            continue
         values = store.body_values(b["id"], 0)
         assert len(values) == len(plan.characteristics())
         truth = shop.body(b["body_id"] - line_run["first_body"])
