@@ -167,7 +167,14 @@ def run_recalibration(job: RecalJob) -> RecalOutcome:
     failures, cand, cur = check_candidate(result, job)
     report = check_identification(result, job.x_current, job.gates)
     doc = to_json(
-        job.model, result, report, {"source": "rvis run", "ids": [job.first_id, job.last_id]}
+        job.model,
+        result,
+        report,
+        {
+            "source": "rvis run",
+            "ids": [job.first_id, job.last_id],
+            "candidate": "rolling" if job.posterior is None else "posterior",
+        },
     )
     return RecalOutcome(
         not failures,

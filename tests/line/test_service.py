@@ -10,6 +10,7 @@ import itertools
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from app.config import load_cell
 from app.config.line import RecalibSettings
@@ -61,10 +62,18 @@ def test_windows_are_measured_stored_and_done_only_after_the_commit(
     assert np.allclose(ln.robot.joints_deg(), ln.service.measurer.home_deg)
 
 
+@pytest.mark.parametrize("candidate", ["rolling", "posterior"])
 def test_recalibration_applied_between_windows_lowers_the_true_error(
-    tmp_path: Path, lines: list[Line]
+    tmp_path: Path, lines: list[Line], candidate: str
 ) -> None:
-    ln = make_line(tmp_path, cycle=LONG, line=line_settings(window_s=32.0, slots_per_window=8))
+    """The first recalibration, the rolling set identified alone or the one estimator's
+    posterior (the nominal model's tolerances its prior), lowers the true error tenfold."""
+    ln = make_line(
+        tmp_path,
+        cycle=LONG,
+        line=line_settings(window_s=32.0, slots_per_window=8),
+        recalib=RecalibSettings(candidate=candidate),
+    )
     lines.append(ln)
     cfg = load_cell(None)
     val = validation_set(ln.cell, cfg, ln.model, ln.model.nominal_x(), 30, np.random.default_rng(1))
@@ -86,6 +95,8 @@ def test_recalibration_applied_between_windows_lowers_the_true_error(
     assert after < 0.2 and after < before / 10, (before, after)
     current = ln.service.params.current()
     assert current is not None and np.array_equal(current[2], x_new)
+    doc = ln.service.params.current_document() or {}
+    assert doc["provenance"]["candidate"] == candidate, doc["provenance"]
 
 
 def test_a_withdrawn_window_aborts_and_brings_the_robot_home(
