@@ -115,7 +115,8 @@ def figures(doc: dict[str, Any], kind: str, cpu_s: float) -> dict[str, Any]:
         "suspect_low": len(low),
         "alarms": doc["summary"]["alarms"],
         "alarm_windows_before": [w for w in doc["drift_alarm_windows"] if k is None or w < k],
-        "suspect_before": sum(r["suspect"] for r in tl if k is not None and r["window"] < k),
+        # a knock-free shift (its knock after the last window: no knock window) is all before
+        "suspect_before": sum(r["suspect"] for r in tl if k is None or r["window"] < k),
         "limit_mm": limit,
         "floor_mm": floor,
         # the true RMS over the first hour and over the windows before the knock (a knock-free
