@@ -158,10 +158,15 @@ class CellState:
     @property
     def x(self) -> F64:
         """The estimate of the full parameter vector now (the window's measurements included)."""
-        d, _ = self.posterior()
+        return self.estimate()[0]
+
+    def estimate(self) -> tuple[F64, F64]:
+        """The full parameter vector now and the covariance of the active parameters (the
+        posterior with the window's measurements included), from one posterior."""
+        d, P = self.posterior()
         x = self.x_ref.copy()
         x[[INDEX[n] for n in self.active]] += d[: self.L]
-        return x
+        return x, P
 
     def _drift_sd(self, name: str) -> float:
         s = self.settings

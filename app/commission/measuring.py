@@ -30,6 +30,7 @@ from app.commission.files import (
     VALIDATION_ERRORS_FILE,
     VALIDATION_MEASUREMENTS_FILE,
 )
+from app.config import CellConfig
 from app.formats.files import (
     ERROR_COLUMNS,
     write_csv,
@@ -123,7 +124,7 @@ def measure_views(
 
 
 def calibration_views(
-    cell: Any, planned: dict[str, F64], positions: dict[str, F64]
+    cell: CellConfig, planned: dict[str, F64], positions: dict[str, F64]
 ) -> list[tuple[str, F64]]:
     """The calibration step's views: each sphere's planned configurations, then random views
     of it (calib.candidates, on the nominal model, seeded by [commission] seed) up to
@@ -145,14 +146,14 @@ def calibration_views(
 
 def calibration(ctx: Context) -> StepResult:
     """Measure the plan's configurations and random views beyond them (`calibration_views`),
-    identify the parameters of the model the service runs, and hold them to the quality gates
-    of [calibration] (converged, rank, RMS, condition, change from nominal)."""
+    identify the commissioning's model (CellConfig.commissioning_model), and hold it to the
+    quality gates of [calibration] (converged, rank, RMS, condition, change from nominal)."""
     cell = ctx.cell()
     _, qs, _ = read_plan(ctx.path(PLAN_FILE))
-    views = calibration_views(cell, qs, ctx.spheres_part_mm())
+    positions = ctx.spheres_part_mm()
+    views = calibration_views(cell, qs, positions)
     taken = measure_views(ctx, views, ctx.sphere_sensor(ctx.sensor_model()), "calibration")
     taken.write(ctx.path(CALIBRATION_MEASUREMENTS_FILE))
-    positions = ctx.spheres_part_mm()
     write_targets(ctx.path(CALIBRATION_TARGETS_FILE), positions)
     r = StepResult(files=[CALIBRATION_MEASUREMENTS_FILE, CALIBRATION_TARGETS_FILE])
     limit = cell.commission.max_rejected_fraction

@@ -184,17 +184,16 @@ class CellEstimate:
 
     def posterior(self) -> Posterior | None:
         """The parameters' posterior as a recalibration's candidate (app.line.recalib.RecalJob)
-        with `[service] candidate = "posterior"`, while the version in force is the prior: no
-        jump in hand (after one, the measurements
-        since its onset are identified alone) and a measurement of the version in the
-        estimator."""
+        with `[service] candidate = "posterior"`, while the version in force is its prior: no
+        jump in hand (after one, the measurements since its onset are identified alone) and a
+        measurement of the version in the estimator."""
         st = self.state
         if self.svc.settings.recalib.candidate != "posterior":
             return None
         if self.svc.jump_onset_id is not None or st is None or not st.rows:
             return None
-        _, P = st.posterior()
-        return Posterior(st.x, st.active, P.copy())
+        x, P = st.estimate()
+        return Posterior(x, st.active, P.copy())
 
     def statement_u95_mm(self, jump_onset_id: int | None = None) -> float | None:
         """U95 [mm] of a point measured now at the window's poses (module docstring), with the

@@ -75,8 +75,7 @@ def slots_wanted(svc: LineHost) -> int:
     # from a jump found until its episode is over: its correction's evidence, then the
     # measurements that confirm or refine it (app.line.jumps: the interval's close, the
     # group's watch), in fewer windows
-    waiting = svc.episode is not None
-    if waiting or svc.force_recal:
+    if svc.episode is not None or svc.force_recal:
         return max(line.step_slots_per_window, line.slots_per_window)
     return line.slots_per_window
 

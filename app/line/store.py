@@ -319,11 +319,19 @@ class Store(BodyRecords, LogRecords, IntervalRecords):
         """The good rows measured with parameters `version`, since it was last put in force
         (the newest run of them: read back from the newest row to the first of another
         version), in id order."""
-        other = self._rows(
-            "SELECT id FROM measurements WHERE params_version IS NOT ? ORDER BY id DESC LIMIT 1",
+        last = self._rows(
+            "SELECT id FROM measurements WHERE params_version = ? ORDER BY id DESC LIMIT 1",
             (version,),
         )
-        return self.measurements(since_id=int(other[0]["id"]) if other else 0)
+        if not last:
+            return []
+        newest = int(last[0]["id"])
+        other = self._rows(
+            "SELECT id FROM measurements WHERE params_version IS NOT ? AND id < ?"
+            " ORDER BY id DESC LIMIT 1",
+            (version, newest),
+        )
+        return self.measurements(since_id=int(other[0]["id"]) if other else 0, before_id=newest + 1)
 
     def measurements_by_id(self, ids: Sequence[int]) -> list[dict[str, Any]]:
         """The rows of these ids in id order (any status)."""

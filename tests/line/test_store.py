@@ -434,3 +434,25 @@ def test_a_version_10_database_gains_the_alarms_detail_and_keeps_its_alarms(
     row = store.alarm(new)
     assert row is not None and json.loads(row["detail"]) == detail
     store.close()
+
+
+def test_a_versions_measurements_are_its_newest_run_of_good_rows(tmp_path: Path) -> None:
+    """The estimator's replay on a restart (app.line.estimate): every good row measured with
+    the version in force since it was last put in force, however many (the window's bound
+    does not cut it), its rejected rows left out; a version put in force again (a rollback)
+    starts a new run."""
+    store = Store(tmp_path / "rvis.db")
+    versions = [1] * 3 + [2] * 200 + [1] * 5
+    ids = []
+    for k, v in enumerate(versions):
+        status = "rejected" if k % 7 == 0 else "ok"
+        c = None if status == "rejected" else [1.0, 2.0, 130.0]
+        ids.append(store.add_measurement(_row(k) | {"params_version": v, "status": status,
+                                                     "c_sensor_mm": c}))  # fmt: skip
+    good = [i for i, k in zip(ids, range(len(versions)), strict=True) if k % 7]
+    run2 = [i for i, v in zip(ids, versions, strict=True) if v == 2 and i in good]
+    assert [r["id"] for r in store.measurements_of_version(2)] == run2  # before the rollback
+    last1 = [i for i in ids[-5:] if i in good]
+    assert [r["id"] for r in store.measurements_of_version(1)] == last1  # after the rollback
+    assert store.measurements_of_version(3) == []
+    store.close()
