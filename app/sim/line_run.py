@@ -58,6 +58,10 @@ from vision.sensor_model import SensorModel
 F64 = NDArray[np.float64]
 
 
+#: silences of `events_until`'s timeout in a row while this process computes, before a hang
+BUSY_SILENCES = 10
+
+
 @dataclass
 class WindowRecord:
     """The line after one window: sim time [h], temperature, true RMSE of the parameters in
@@ -571,14 +575,22 @@ class SimulatedLineRun:
     ) -> Iterator[dict[str, Any]]:
         """The service's events until `stop(event)` is true. After timeout_s of silence:
         TimeoutError (a service that hangs), unless `quiet_ok()` says the silence is the
-        service's own (held in FAULT or paused until an operator acts: keep waiting)."""
+        service's own (held in FAULT or paused until an operator acts: keep waiting), or this
+        process spent a tenth of it computing (a body rendered on a loaded machine: a hung
+        service spends none), at most BUSY_SILENCES times in a row."""
+        busy = 0
         while True:
+            cpu0 = time.process_time()
             try:
                 event = self.events.get(timeout=timeout_s)
             except queue.Empty:
                 if quiet_ok():
                     continue
+                if time.process_time() - cpu0 >= 0.1 * timeout_s and busy < BUSY_SILENCES:
+                    busy += 1
+                    continue
                 raise TimeoutError(f"no event from the service in {timeout_s:g} s") from None
+            busy = 0
             yield event
             if stop(event):
                 return
