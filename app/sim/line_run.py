@@ -84,6 +84,7 @@ class WindowRecord:
     body: int | str | None = None  # the body the PLC clamped in the window (None: none read)
     within_u95: float | None = None  # the share of validation points whose true error <= U95
     p95_mm: float = float("nan")  # the 95th percentile of the validation points' true errors
+    targets: list[str] = field(default_factory=list)  # the spheres the window measured
 
 
 @dataclass
@@ -713,6 +714,7 @@ class SimulatedLineRun:
             u95_mm=u95,
             within_u95=None if u95 is None or not len(e) else float(np.mean(norms <= u95)),
             p95_mm=float(np.percentile(norms, 95)) if len(e) else float("nan"),
+            targets=[self.service.schedule.slots[int(i)].target for i in event.get("slots", ())],
         )
         t_open = float(event.get("t_open", event["t"]))
         self._t_open.append(t_open)  # the window's body: `mark_suspect`
