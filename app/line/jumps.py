@@ -18,11 +18,7 @@ its window for a jump. Right after a window's measurements a jump found opens it
   no jump and the cell vouches for its U95 again, dated when the correction came into force
   (its end reason the kind of the version: "step" for the jump's correction, "batch" for a
   recalibration); its group is watched a while after and refined from the estimator's
-  posterior when still off;
-- a refinement after the interval closed is evidence that the correction's parameters were
-  still off (the group tested again on the measurements since, p < REFINE_P): when it comes into
-  force the interval ends there instead, with it as its end version, and its bodies are computed
-  again with it (app.line.body_cycle.reevaluate_pending).
+  posterior when still off.
 """
 
 from __future__ import annotations
@@ -337,34 +333,11 @@ class JumpWatch:
         full recalibration during an episode) is now the episode's corrected version."""
         self.restart()
         ep = self.episode
-        if ep is not None and ep.pop("refining", False) and kind == KIND:
-            self._extend(ep)
         if ep is not None and ep.get("corrected_version") is None:
             ep["corrected_version"] = self.svc.version
             ep["corrected_t"] = self.svc.clock.time()
             ep["kind"] = kind  # the interval's end reason: "step" (the jump's) or "batch"
             ep["clean"] = 0
-
-    def _extend(self, ep: dict[str, Any]) -> None:
-        """The refinement of a closed episode is in force: the parameters before it were still
-        off, so its interval ends now, with this version as its end version, and its bodies
-        are to be computed again with it (the earlier re-evaluation's rows stay beside)."""
-        svc = self.svc
-        sid = int(ep["suspect_id"])
-        row = svc.store.suspect(sid)
-        if row is None or row["t_end"] is None:
-            return
-        text = f"{row.get('text', '')}; refined on version {svc.version} (the group still off)"
-        svc.store.update_suspect(
-            sid,
-            t_end=svc.clock.time(),
-            end_version=svc.version,
-            text=text,
-            reevaluated=None,
-            decisions_changed=None,
-            not_reevaluated=None,
-        )
-        svc.bus.emit("suspect_interval", suspect_json(svc.store.suspect(sid) or {}))
 
     def _confirm(self) -> None:
         """A measurement on the corrected version with no jump. The episode's group, fitted
@@ -430,8 +403,6 @@ class JumpWatch:
         ep["refined"] = int(ep.get("refined", 0)) + 1
         if not ep.get("closed"):
             ep["corrected_version"] = None  # the refinement's version becomes it
-        else:
-            ep["refining"] = True  # its interval ends when it is in force (`_extend`)
         svc.recal_done(self._correction(fit, len(st.rows)))
         return True
 
