@@ -99,18 +99,17 @@ class CommissionSection(Section):
     max_target_rms_mm: float = opt(0.05, gt=0, hi=10)
     max_sphere_offset_mm: float = opt(50.0, gt=0, hi=1e4)
     max_rejected_fraction: float = opt(0.1, lo=0, hi=1)
-    # the calibration step: `model` "calibration" identifies [calibration] model (the paper's
-    # rigid 30), "service" the model the service runs (CellConfig.commissioning_model); with
-    # calibration_views_per_sphere > 0, random views beyond the plan's up to that many a
-    # sphere (0: the plan's alone). A new cell's first hour runs on them: on tuning seed 61
-    # the compliant model from the plan's 6 views a sphere alone, and with random ones up to
-    # 12 and 18, left that hour 1.65, 1.33 and 1.25x the robot's floor (the rigid model
-    # 1.6-1.8x whatever the count; docs/results/estimator.md, "The commissioning and the
-    # posterior"). "calibration" and 0 (the paper's commissioning) stay the defaults until a
-    # knock's correction holds the better cell's level: with "service" and 18 the windows
-    # after a correction sit at 1.2-1.3x the level before the knock (tests/sim/test_shift.py)
-    model: str = opt("calibration", choices=("calibration", "service"))
-    calibration_views_per_sphere: int = opt(0, lo=0, hi=1000)
+    # the calibration step: `model` "service" identifies the model the service runs
+    # (CellConfig.commissioning_model: its first version is the estimator's prior),
+    # "calibration" [calibration] model (the paper's rigid 30); calibration_views_per_sphere
+    # > 0: random views beyond the plan's up to that many a sphere (0: the plan's alone). A new
+    # cell's first hour runs on them: on tuning seed 61 the compliant model from the plan's 6
+    # views a sphere alone, and with random ones up to 12 and 18, left that hour 1.65, 1.33
+    # and 1.25x the robot's floor (the rigid model 1.6-1.8x whatever the count;
+    # docs/results/estimator.md, "The commissioning and the posterior"). The paper's
+    # commissioning is `model = "calibration"` with 0
+    model: str = opt("service", choices=("calibration", "service"))
+    calibration_views_per_sphere: int = opt(18, lo=0, hi=1000)
     validation_views: int = opt(3, lo=1, hi=100)
     max_validation_rmse_mm: float = opt(0.2, gt=0, hi=100)
     # the paper's validation (section 4, eq. 19): a sphere on a tracker nest at this many

@@ -126,13 +126,14 @@ class RecalibSettings(Section):
     rolling_size: int = opt(0, lo=0, hi=100000)
     holdout_size: int = opt(4, lo=1, hi=1000)
     every_n: int = opt(24, lo=1, hi=100000)  # new measurements between recalibrations
-    # a recalibration's candidate: "rolling", the rolling set identified alone; "posterior",
-    # the one estimator's posterior (the version in force its prior, every measurement since
-    # folded in: docs/estimator.md), the rolling set's identification only while a jump is in
-    # hand. It needs the commissioning of the service's model ([commission] model, 18 views a
-    # sphere): on a rigid commissioning's prior it made a shift worse. Not the default yet
-    # (docs/results/estimator.md, "The commissioning and the posterior")
-    candidate: str = opt("rolling", choices=("rolling", "posterior"))
+    # a recalibration's candidate: "posterior", the one estimator's posterior (the version in
+    # force its prior, every measurement since folded in: docs/estimator.md), the rolling set's
+    # identification only while a jump is in hand; "rolling", the rolling set identified alone
+    # (each recalibration then forgets what came before it). The posterior needs the
+    # commissioning of the service's model ([commission] model, the default): on a rigid
+    # commissioning's prior it made a shift worse (docs/results/estimator.md, "The
+    # commissioning and the posterior")
+    candidate: str = opt("posterior", choices=("rolling", "posterior"))
     max_nfev: int = opt(200, lo=10, hi=10000)
     # the plant's limit for the U95 of a point measured now: a window whose U95 is above it is
     # in a suspect interval. 0: by calib.uncertainty.accuracy_limit_mm, VDA 5's 2U/T <= 30 % for

@@ -89,7 +89,7 @@ def test_commissioning_resumes_after_a_kill_and_leaves_a_cell_ready_to_run(
     cell, state = tmp_path / "cell.toml", tmp_path / "state"
     paths = StateDir(state)
     cell.write_text(CELL)
-    kill_at(_commission(cell, state), "calibration view 3/24")
+    kill_at(_commission(cell, state), "calibration view 3/72")
     journal = json.loads((paths.commission / "journal.json").read_text())
     first = {s["name"]: s for s in journal["steps"] if s["status"] == "passed"}
     assert list(first) == ["devices", "stripe", "sensor", "spheres", "plan"]  # not calibration
@@ -161,11 +161,12 @@ def test_commissioning_resumes_after_a_kill_and_leaves_a_cell_ready_to_run(
         "Run again: calibration (after 1 interrupted run), validation (after 1 failed run)." in md
     )
     assert steps["acceptance"]["results"]["not_run"].startswith("geometric path")  # no images
-    assert steps["calibration"]["results"]["measurements"] == 24
+    # the plan's 24 views and random ones up to 18 a sphere
+    assert steps["calibration"]["results"]["measurements"] == 72
     # the simulated PLC writes the cell temperature, and the commissioning cell says so: each
     # measurement carries it (a PLC that does not would give none, never 0 degC)
     rows = (paths.commission / "calibration_measurements.csv").read_text().splitlines()
-    assert rows[0].endswith(",temp_c") and len(rows) == 25
+    assert rows[0].endswith(",temp_c") and len(rows) == 73
     temps = [float(r.rsplit(",", 1)[1]) for r in rows[1:]]
     assert all(15.0 < t < 30.0 for t in temps)
     md = (paths.commission / "commission.md").read_text()
