@@ -29,7 +29,7 @@ def test_silence_while_the_process_computes_is_waited_out() -> None:
     run = SimpleNamespace(events=queue.Queue())
 
     def busy_then_window() -> None:
-        end = time.process_time() + 0.4  # a rendered body: computing, no event meanwhile
+        end = time.process_time() + 1.0  # a rendered body: computing, no event meanwhile
         x = 0
         while time.process_time() < end:
             x += 1
@@ -38,6 +38,6 @@ def test_silence_while_the_process_computes_is_waited_out() -> None:
     worker = threading.Thread(target=busy_then_window)
     worker.start()
     try:
-        assert _events(run, 0.1) == [{"event": "window"}]
+        assert _events(run, 0.5) == [{"event": "window"}]
     finally:
         worker.join(timeout=10.0)
