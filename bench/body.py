@@ -122,7 +122,8 @@ def main() -> int:
         f" left as measured): RMS {re.get('rms_diff_before_mm')} -> {after} mm, ratio to steady"
         f" {None if after is None else round(after / steady_rms, 2)} (<= 1.5)"
     )
-    ran = [d for d in out["correlation"].values() if "line" in d]
+    # the robot's time from every correlation run (the knock's steady one too: `--seeds ""`)
+    ran = [d for d in [*out["correlation"].values(), steady] if "line" in d]
     per_body = [d["line"]["robot_s_per_body"] for d in ran]
     per_feature = [d["line"]["robot_s_per_feature"] for d in ran]
     med_f = statistics.median(per_feature)
