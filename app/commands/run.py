@@ -295,6 +295,8 @@ def run_sim(args: argparse.Namespace) -> int:
                 except KeyboardInterrupt:
                     sim.mark_suspect()
                     summary = sim.summary
+                    # the parameters in force when stopped, against the truth then
+                    summary.true_rmse_final_mm = sim.true_rmse_mm(sim.service.x)
                 finally:
                     signal.signal(signal.SIGTERM, previous)
             code = sim.service.exit_code
