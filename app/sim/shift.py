@@ -522,11 +522,25 @@ def summary_lines(result: ShiftResult) -> list[str]:
         f"knock of {what} ({size}) at {s.knock_at_h:g} h (window {result.knock_window}):"
         f" flagged by the drift alarm after {_windows_text(result.flagged_after, 3)},"
         f" attributed to: {result.attribution or 'nothing'}",
-        f"back within {s.recovered_ratio:g}x of the pre-knock error"
-        f" ({result.pre_knock_rmse_mm:.4f} mm) after {_windows_text(result.recovered_after, 3)}",
+        f"true RMS within the limit ({result.accuracy_limit_mm:g} mm) after"
+        f" {_windows_text(_within_limit_after(result), 6)}; back within"
+        f" {s.recovered_ratio:g}x of the pre-knock error ({result.pre_knock_rmse_mm:.4f} mm)"
+        f" after {_windows_text(result.recovered_after, 3)}",
         _suspects_text(result),
         *tail,
     ]
+
+
+def _within_limit_after(result: ShiftResult) -> int | None:
+    """Windows from the knock's to the first whose true RMS is within the accuracy limit
+    (issue 50's measure; None: none)."""
+    k = result.knock_window
+    within = [
+        r.window
+        for r in result.records
+        if k is not None and r.window >= k and r.rmse_mm <= result.accuracy_limit_mm
+    ]
+    return None if k is None or not within else within[0] - k + 1
 
 
 def stated_accuracy_text(result: ShiftResult) -> str:
