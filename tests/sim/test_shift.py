@@ -52,7 +52,12 @@ def test_a_knock_is_flagged_and_the_service_recovers(cfg: CellConfig, tmp_path: 
     assert doc["flagged_after_windows"] == result.flagged_after
     assert len(doc["summary"]["timeline"]) == 48
     assert png.stat().st_size > 10_000 and "| 0-1 |" in md.read_text()
-    assert any("flagged by the drift alarm after" in line for line in summary_lines(result))
+    lines = summary_lines(result)
+    assert any("flagged by the drift alarm after" in line for line in lines)
+    # issue 50's measure: the windows until the true RMS is within the limit, as the records say
+    limit = result.accuracy_limit_mm
+    back = next(r.window for r in recs if r.window >= k and r.rmse_mm <= limit) - k + 1
+    assert any(f"within the limit ({limit:g} mm) after {back} window" in line for line in lines)
 
 
 def _shift_doc(
