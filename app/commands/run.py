@@ -264,7 +264,6 @@ def run_sim(args: argparse.Namespace) -> int:
     try:
         with (
             hold_state(state_dir, group),
-            _features(state_dir, cfg),
             _recorded(paths, seed, geometric),
             SimulatedLineRun(
                 cfg,
@@ -312,17 +311,6 @@ def run_sim(args: argparse.Namespace) -> int:
         if handler is not None:
             logging.getLogger(SIM_LOGGER if batch else "rvis").removeHandler(handler)
     return 0
-
-
-@contextlib.contextmanager
-def _features(state_dir: Path, cfg: Any) -> Iterator[None]:
-    """The simulated part type's feature plan in the state directory, when it has none (held:
-    written under the state's lock): the simulated line measures its bodies by default, as
-    `rvis commission --sim` leaves it."""
-    from app.sim.part import ensure_features
-
-    ensure_features(state_dir, cfg)
-    yield
 
 
 @contextlib.contextmanager

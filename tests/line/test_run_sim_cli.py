@@ -29,11 +29,6 @@ def test_run_sim_geometric_windows_json(tmp_path: Path, capsys: pytest.CaptureFi
     assert rows == summary["measurements"]
     assert (state / "params" / "current.json").is_file()
     assert not (state / "rvis.sock").exists()  # the control socket is gone with the service
-    # the simulated part type's features put there, and its bodies measured (issue 48)
-    assert (state / "features.toml").is_file()
-    with sqlite3.connect(state / "rvis.db") as db:
-        values = db.execute("SELECT count(*) FROM body_values WHERE measured_mm IS NOT NULL")
-        assert values.fetchone()[0] > 0
 
 
 def test_sim_options_need_sim(capsys: pytest.CaptureFixture[str]) -> None:
