@@ -80,9 +80,6 @@ def figures(doc: dict[str, Any], kind: str, cpu_s: float) -> dict[str, Any]:
     tl = doc["summary"]["timeline"]
     limit = float(doc["accuracy_limit_mm"])
     k = doc["knock_window"]
-    within = [
-        r["window"] for r in tl if k is not None and r["window"] >= k and r["rmse_mm"] <= limit
-    ]
     covered = [r["within_u95"] for r in tl if r["within_u95"] is not None]
     ratio = [r["u95_mm"] / r["p95_mm"] for r in tl if r["u95_mm"] and r["p95_mm"] > 0]
     high = [r for r in tl if r["p95_mm"] > 1.2 * limit]
@@ -109,7 +106,7 @@ def figures(doc: dict[str, Any], kind: str, cpu_s: float) -> dict[str, Any]:
         "flagged_after": doc["flagged_after_windows"],
         "attribution": attributed,
         "attributed_right": right,
-        "within_limit_after": None if not within else within[0] - k + 1,
+        "within_limit_after": doc["within_limit_after_windows"],  # ShiftResult's
         "coverage": statistics.fmean(covered) if covered else math.nan,
         "u95_over_p95": statistics.median(ratio) if ratio else math.nan,
         "high": len(high),

@@ -205,6 +205,18 @@ class ShiftResult:
     def records(self) -> list[WindowRecord]:
         return self.summary.records
 
+    @property
+    def within_limit_after(self) -> int | None:
+        """Windows from the knock's to the first whose true RMS is within the accuracy limit
+        (issue 50's measure; None: no knock window, or none within)."""
+        k = self.knock_window
+        within = [
+            r.window
+            for r in self.records
+            if k is not None and r.window >= k and r.rmse_mm <= self.accuracy_limit_mm
+        ]
+        return None if k is None or not within else within[0] - k + 1
+
     @staticmethod
     def from_json(doc: dict[str, Any]) -> ShiftResult:
         """A result as `to_json` wrote it (to score or tabulate a finished run again)."""
@@ -243,6 +255,7 @@ class ShiftResult:
             "accuracy_limit_mm": self.accuracy_limit_mm,
             "floor_mm": self.floor_mm,
             "recovered_after_windows": self.recovered_after,
+            "within_limit_after_windows": self.within_limit_after,
             "drift_alarm_windows": self.drift_alarm_windows,
             "step_alarm_windows": self.step_alarm_windows,
             "applied_windows": self.applied_windows,
@@ -523,24 +536,12 @@ def summary_lines(result: ShiftResult) -> list[str]:
         f" flagged by the drift alarm after {_windows_text(result.flagged_after, 3)},"
         f" attributed to: {result.attribution or 'nothing'}",
         f"true RMS within the limit ({result.accuracy_limit_mm:g} mm) after"
-        f" {_windows_text(_within_limit_after(result), 6)}; back within"
+        f" {_windows_text(result.within_limit_after, 6)}; back within"
         f" {s.recovered_ratio:g}x of the pre-knock error ({result.pre_knock_rmse_mm:.4f} mm)"
         f" after {_windows_text(result.recovered_after, 3)}",
         _suspects_text(result),
         *tail,
     ]
-
-
-def _within_limit_after(result: ShiftResult) -> int | None:
-    """Windows from the knock's to the first whose true RMS is within the accuracy limit
-    (issue 50's measure; None: none)."""
-    k = result.knock_window
-    within = [
-        r.window
-        for r in result.records
-        if k is not None and r.window >= k and r.rmse_mm <= result.accuracy_limit_mm
-    ]
-    return None if k is None or not within else within[0] - k + 1
 
 
 def stated_accuracy_text(result: ShiftResult) -> str:

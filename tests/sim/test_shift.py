@@ -57,6 +57,7 @@ def test_a_knock_is_flagged_and_the_service_recovers(cfg: CellConfig, tmp_path: 
     # issue 50's measure: the windows until the true RMS is within the limit, as the records say
     limit = result.accuracy_limit_mm
     back = next(r.window for r in recs if r.window >= k and r.rmse_mm <= limit) - k + 1
+    assert result.within_limit_after == back and doc["within_limit_after_windows"] == back
     assert any(f"within the limit ({limit:g} mm) after {back} window" in line for line in lines)
 
 
