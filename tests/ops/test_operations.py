@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.ops.conftest import ROOT, ServiceProcess, count, rvis, status
+from tests.ops.conftest import ROOT, RVIS, ServiceProcess, count, rvis, status
 
 TMUX = shutil.which("tmux")
 SUBSCRIBER = """
@@ -438,4 +438,28 @@ def test_a_stop_signal_to_the_whole_group_during_a_calibration_is_a_clean_stop(
         assert code == 0, svc.errors()
     finally:
         if svc.alive:  # (a failed wait: the service is not left running for the next tests)
+            svc.kill9()
+
+
+def test_ctrl_c_in_a_counted_simulated_run_ends_with_its_figures(
+    tmp_path: Path, cell: Path
+) -> None:
+    """`rvis run --sim --windows N` stopped by Ctrl-C (SIGINT to the process group) after a few
+    windows: exit 0 and the summary of what ran, its true RMSE at the end a number (it was nan:
+    the parameters in force when stopped were never put against the truth)."""
+    argv = [*RVIS, "run", "--sim", "--geometric", "--windows", "100000", "--cell", str(cell)]
+    svc = ServiceProcess(tmp_path / "state", cell, argv)
+    try:
+        for _ in range(3):
+            svc.wait_log(lambda r: r.get("event") == "sim_window", 60.0)
+        os.killpg(svc.proc.pid, signal.SIGINT)
+        code = svc.wait_exit(60.0)
+        assert code == 0, svc.errors()
+        (line,) = [t for t in svc.stderr.splitlines() if "mm at the end" in t]
+        end = line.rsplit("true RMSE", 1)[1]
+        assert "nan" not in end, line
+        final = float(end.split(" mm at the start, ", 1)[1].split(" mm")[0])
+        assert 0.0 < final < 0.3, line
+    finally:
+        if svc.alive:
             svc.kill9()
