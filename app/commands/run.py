@@ -7,14 +7,15 @@ Without --cell and --plan, a state directory named by --state-dir supplies them
 (`STATE_DIR/cell.toml`, `STATE_DIR/plan.json`: what `rvis commission` leaves there), as it
 supplies the sensor calibration (`STATE_DIR/sensor.toml`) when --sensor is not given.
 
-`rvis run --sim [--geometric] [--seed N] [--windows N] [--json]`: the same service on the
-simulated line (app/sim/line_run.py): every device peer on loopback, reached through the real
-drivers, one simulated cell drifting with time ([simline] of the cell file: clamp cycle,
-warm-up, knock, the pace). Its time is virtual (passed by what is simulated: a seed gives one
-run). With --windows it runs as fast as the CPU, stops after N windows and prints a summary
-(windows, measurements, overruns, calibrations applied and rejected, alarms, true RMSE at the
-validation positions); without, paced at [simline] scale for a person who watches, it runs
-until SIGTERM or Ctrl-C.
+`rvis run --sim [--geometric] [--seed N] [--windows N] [--json] [--no-bodies]`: the same
+service on the simulated line (app/sim/line_run.py): every device peer on loopback, reached
+through the real drivers, one simulated cell drifting with time ([simline] of the cell file:
+clamp cycle, warm-up, knock, the pace), measuring its bodies by the simulated part type's
+feature plan (put in a state directory that has none; `--no-bodies`: spheres only). Its time
+is virtual (passed by what is simulated: a seed gives one run). With --windows it runs as fast
+as the CPU, stops after N windows and prints a summary (windows, measurements, overruns,
+calibrations applied and rejected, alarms, true RMSE at the validation positions); without,
+paced at [simline] scale for a person who watches, it runs until SIGTERM or Ctrl-C.
 
 `fake://` devices in the cell file are refused with one line pointing to `rvis devices sim`
 (the simulated line's devices as their own process, with a cell file naming them).
@@ -68,6 +69,11 @@ def register(sub: Any) -> None:
     p.add_argument("--seed", type=int_at_least(0), help="--sim: seed (default [simulation])")
     p.add_argument("--windows", type=int_at_least(1), help="--sim: stop after N windows")
     p.add_argument("--json", action="store_true", help="--sim --windows: summary as JSON")
+    p.add_argument(
+        "--no-bodies",
+        action="store_true",
+        help="--sim: spheres only (no feature plan put in the state directory, no body measured)",
+    )
     p.set_defaults(func=run)
 
 
@@ -83,8 +89,8 @@ def run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace) -> int:
     if args.sim:
         return run_sim(args)
-    if args.geometric or args.windows or args.seed is not None:
-        raise InputError("--geometric, --seed and --windows need --sim")
+    if args.geometric or args.windows or args.seed is not None or args.no_bodies:
+        raise InputError("--geometric, --seed, --windows and --no-bodies need --sim")
     from app.formats.params import carried_from_json
     from app.line.launch import hold_state
     from app.line.settings import from_cell
@@ -264,6 +270,7 @@ def run_sim(args: argparse.Namespace) -> int:
     try:
         with (
             hold_state(state_dir, group),
+            _features(state_dir, cfg, not args.no_bodies),
             _recorded(paths, seed, geometric),
             SimulatedLineRun(
                 cfg,
@@ -275,6 +282,7 @@ def run_sim(args: argparse.Namespace) -> int:
                 # a person watches a run without --windows: paced; a counted run as fast as it can
                 pace=None if batch else cfg.simline.scale,
                 waiting=say_waiting,
+                bodies=not args.no_bodies,
             ) as sim,
         ):
             with serving(sim.service):
@@ -314,6 +322,18 @@ def run_sim(args: argparse.Namespace) -> int:
 
 
 @contextlib.contextmanager
+def _features(state_dir: Path, cfg: Any, bodies: bool) -> Iterator[None]:
+    """The simulated part type's feature plan in the state directory, when it has none (held:
+    written under the state's lock): the simulated line measures its bodies by default, as
+    `rvis commission --sim` leaves it; `--no-bodies` (bodies False) writes none."""
+    from app.sim.part import ensure_features
+
+    if bodies:
+        ensure_features(state_dir, cfg)
+    yield
+
+
+@contextlib.contextmanager
 def _recorded(paths: Any, seed: int, geometric: bool) -> Iterator[None]:
     """Under the state's lock: a new directory records the simulated cell it runs
     (app/sim/world_record.py)."""
@@ -336,4 +356,14 @@ def _summary_text(s: Any) -> str:
         f"{len(s.alarms)}{': ' + '; '.join(s.alarms[:5]) if s.alarms else ''}; true RMSE "
         f"{s.true_rmse_start_mm:.4f} mm at the start, {s.true_rmse_final_mm:.4f} mm at the end"
         + (f"; held for maintenance: {s.maintenance}" if s.maintenance else "")
+        + (_bodies_text(s) if s.bodies else "")
+    )
+
+
+def _bodies_text(s: Any) -> str:
+    """The bodies a batch run measured, for a person (`rvis results list`: each one)."""
+    again = f", {s.bodies_reevaluated} evaluated again" if s.bodies_reevaluated else ""
+    return (
+        f"; {s.bodies} bodies measured: {s.bodies_nok} nok, {s.bodies_undecided} with a value"
+        f" undecided within its U95{again} (`rvis results list`)"
     )

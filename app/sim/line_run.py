@@ -101,6 +101,12 @@ class SimRunSummary:
     true_rmse_final_mm: float = float("nan")
     # the `maintenance` alarm's text when the service holds the cell for a procedure
     maintenance: str | None = None
+    # the bodies measured (their newest evaluation): how many, nonconforming, with a value
+    # undecided within its U95, evaluated again after a correction
+    bodies: int = 0
+    bodies_nok: int = 0
+    bodies_undecided: int = 0
+    bodies_reevaluated: int = 0
     records: list[WindowRecord] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
@@ -366,12 +372,15 @@ class SimulatedLineRun:
         pace: float | None = None,
         start_epoch: float | None = None,
         waiting: Callable[[str], None] | None = None,
+        bodies: bool = True,
     ) -> None:
         """sensor_model: the sensor calibration the rendered line measures with (default: the
         true sensor's, a perfect calibration); unused on the geometric path. pace: sim seconds
         per real second (None: as fast as the CPU); start_epoch: the Unix time of sim time 0
         (None: now, to the whole second); waiting: told in one line, at once, when the rendered
-        line's camera must wait for another simulation's (as long as that one runs)."""
+        line's camera must wait for another simulation's (as long as that one runs); bodies:
+        measure the bodies of the state directory's feature plan, if it has one (False: spheres
+        only, as `rvis run --sim --no-bodies`)."""
         cfg = with_simulated_plc(cfg)
         self.cfg, self.state_dir, self.seed = cfg, Path(state_dir), seed
         self.cell = make_cell(world_of(cfg, state_dir), seed=seed)
@@ -387,7 +396,7 @@ class SimulatedLineRun:
         self.pace = pace
         self._body_cpu_s = 0.0  # the rendered path's bodies: set with them (`_bodies`)
         self.settings = service_settings(cfg, self.state_dir)
-        self.geometric, self.plan = geometric, plan
+        self.geometric, self.plan, self.measures_bodies = geometric, plan, bodies
         # the model the service identifies and the true error is computed in: [service] model,
         # or the commissioning's compliant one under a rigid [service] model (the service keeps
         # a compliant version's compliance: calib.compliance.carry)
@@ -506,7 +515,7 @@ class SimulatedLineRun:
         from vision.sensor_model import default_sensor_model, load_sensor_model
 
         paths = StateDir(self.state_dir)
-        plan = feature_plan(paths.root, self.cfg.T_part_base)
+        plan = feature_plan(paths.root, self.cfg.T_part_base) if self.measures_bodies else None
         if plan is None:
             return None
         # a rendered body's sweeps take the CPU seconds each, with no event between them
@@ -660,14 +669,21 @@ class SimulatedLineRun:
     def mark_suspect(self) -> None:
         """Each window record's body (the window the PLC opened last before the service's
         window began) and whether it is suspect: `rvis state suspects` lists it (an interval
-        may reach back, so once the windows are run). Read from the state directory's database
-        (a service stopped by a signal meanwhile has closed its own connection)."""
+        may reach back, so once the windows are run), and the bodies' counts in the summary.
+        Read from the state directory's database (a service stopped by a signal meanwhile has
+        closed its own connection)."""
         store = Store.read_only(self.service.paths.db)
         try:
             listed = {b for s in store.suspects() for b in s["bodies"]}
             rows = [(float(w["t"]), w["body_id"]) for w in store.windows()]
+            bodies = store.bodies()
         finally:
             store.close()
+        s = self.summary
+        s.bodies = len(bodies)
+        s.bodies_nok = sum(not b["ok"] for b in bodies)
+        s.bodies_undecided = sum(b["n_undecided"] > 0 for b in bodies)
+        s.bodies_reevaluated = sum(b["evaluation"] > 0 for b in bodies)
         times = [t for t, _ in rows]
         for record, t_open in zip(self.summary.records, self._t_open, strict=True):
             k = bisect.bisect_right(times, t_open) - 1

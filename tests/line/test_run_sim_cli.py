@@ -29,6 +29,17 @@ def test_run_sim_geometric_windows_json(tmp_path: Path, capsys: pytest.CaptureFi
     assert rows == summary["measurements"]
     assert (state / "params" / "current.json").is_file()
     assert not (state / "rvis.sock").exists()  # the control socket is gone with the service
+    # the simulated part type's features put there, and its bodies measured (issue 48)
+    assert (state / "features.toml").is_file()
+    with sqlite3.connect(state / "rvis.db") as db:
+        values = db.execute("SELECT count(*) FROM body_values WHERE measured_mm IS NOT NULL")
+        assert values.fetchone()[0] > 0
+        evaluations = db.execute("SELECT ok, n_undecided FROM body_evaluations").fetchall()
+    # the summary counts the bodies the store holds (one evaluation each: no correction)
+    assert summary["bodies"] == len(evaluations) == 3
+    assert summary["bodies_nok"] == sum(not ok for ok, _ in evaluations)
+    assert summary["bodies_undecided"] == sum(n > 0 for _, n in evaluations)
+    assert summary["bodies_reevaluated"] == 0
 
 
 def test_sim_options_need_sim(capsys: pytest.CaptureFixture[str]) -> None:
@@ -142,3 +153,15 @@ def test_a_simulated_directory_keeps_its_seed_and_path(
     with sqlite3.connect(state / "rvis.db") as db:
         started = db.execute("SELECT COUNT(*) FROM events WHERE kind = 'started'").fetchone()
     assert started[0] == 2  # the refused run started nothing
+
+
+def test_run_sim_no_bodies_measures_spheres_only(tmp_path: Path) -> None:
+    """`--no-bodies`: no feature plan put in the state directory and no body measured; the
+    flag without --sim is refused like the other simulation options."""
+    state = tmp_path / "state"
+    run = ["run", "--sim", "--geometric", "--windows", "2", "--json", "--no-bodies"]
+    assert main([*run, "--state-dir", str(state)]) == 0
+    assert not (state / "features.toml").exists()
+    with sqlite3.connect(state / "rvis.db") as db:
+        assert db.execute("SELECT count(*) FROM body_values").fetchone()[0] == 0
+    assert main(["run", "--no-bodies", "--state-dir", str(state)]) == 2

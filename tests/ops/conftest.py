@@ -45,15 +45,16 @@ def _plant_signals() -> None:
 
 
 class ServiceProcess:
-    """`rvis run --sim --geometric` (or `argv`, without --state-dir) as a child process (its
-    own process group)."""
+    """`rvis run --sim --geometric --no-bodies` (or `argv`, without --state-dir) as a child
+    process (its own process group). Spheres only: these tests follow the sphere cycle (its
+    windows, a recalibration within a wait of wall time), which a body each window delays."""
 
     def __init__(self, state_dir: Path, cell: Path, argv: list[str] | None = None) -> None:
         self.state_dir, self.cell = state_dir, cell
         self.lines: queue.Queue[dict[str, Any]] = queue.Queue()
         self.logged_ids: list[int] = []  # measurements the service announced (committed first)
         self.stderr = ""
-        argv = argv or [*RVIS, "run", "--sim", "--geometric", "--cell", str(cell)]
+        argv = argv or [*RVIS, "run", "--sim", "--geometric", "--no-bodies", "--cell", str(cell)]
         self.proc = subprocess.Popen(
             [*argv, "--state-dir", str(state_dir)],
             stdout=subprocess.PIPE,
