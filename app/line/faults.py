@@ -1,12 +1,13 @@
 """The service's alarms and faults: `Faults`, a collaborator of app.line.service.Service that
 sees it as app.line.host.LineHost (as app.line.operator's commands do).
 
-An alarm is stored, or kept in memory while the state storage fails (`unstored_alarms`, a
-negative id), and each change is one event carrying the alarm (app.line.states.alarm_event).
-FAULT stops the robot, sets the PLC's fault bit and raises an urgent alarm, each best effort: a
-device's error (the alarm names the device and its URL when the error is one device's), a
-storage failure (`state_storage`, nothing acknowledged that was not committed) or whatever the
-caller names. The free space under the state directory is looked at once a minute (`low_disk`).
+An alarm is stored, or kept in memory while the state storage fails (the service's
+`fault.unstored_alarms`, app.line.fault_record: a negative id), and each change is one event
+carrying the alarm (app.line.states.alarm_event). FAULT stops the robot, sets the PLC's fault
+bit and raises an urgent alarm, each best effort: a device's error (the alarm names the device
+and its URL when the error is one device's), a storage failure (`state_storage`, nothing
+acknowledged that was not committed) or whatever the caller names. The free space under the
+state directory is looked at once a minute (`low_disk`).
 """
 
 from __future__ import annotations
@@ -81,7 +82,7 @@ class Faults:
     def _unstored_alarm(
         self, code: str, message: str, priority: str, detail: Mapping[str, Any] | None
     ) -> int:
-        unstored = self.svc.unstored_alarms
+        unstored = self.svc.fault.unstored_alarms
         for a in unstored:
             if a["code"] == code:
                 return int(a["id"])
@@ -102,9 +103,9 @@ class Faults:
     def storage_fault(self, exc: StorageError) -> None:
         """The state storage failed: FAULT with the robot stopped, nothing acknowledged."""
         svc = self.svc
-        if svc.state == State.FAULT and svc.storage_failed:
+        if svc.state == State.FAULT and svc.fault.storage_failed:
             return
-        svc.storage_failed = True
+        svc.fault.storage_failed = True
         free = svc.paths.free_mb()
         svc.log.error("state storage failed: %s", exc, extra={"event": "state_storage"})
         self.enter_fault(
@@ -138,7 +139,7 @@ class Faults:
         svc = self.svc
         family = device_of(exc, svc.station.devices())
         if family is not None:
-            svc.device_errors[family] = {
+            svc.fault.device_errors[family] = {
                 "error": f"{type(exc).__name__}: {exc}",
                 "utc": utc_text(svc.clock.time()),
             }
@@ -148,7 +149,7 @@ class Faults:
         """FAULT on a device's error; the alarm names the device and its URL when the error
         is one device's (`plc (plc+modbus://...): DeviceConnectionError: ...`)."""
         svc = self.svc
-        family = svc.fault_family = self.note_device_error(exc)
+        family = svc.fault.family = self.note_device_error(exc)
         where = "" if family is None else f"{family} ({svc.station.urls.get(family, '')}): "
         self.enter_fault(AlarmCode.DEVICE_FAULT, f"{where}{type(exc).__name__}: {exc}")
 

@@ -23,6 +23,7 @@ from app.line.body_cycle import BodyCycle
 from app.line.correction import JumpCorrection
 from app.line.cycle import Cycle, WindowWatch
 from app.line.events import EventBus
+from app.line.fault_record import FaultRecord
 from app.line.inline_seq import InlineSequential, SequentialCandidate
 from app.line.measure import SphereMeasurer
 from app.line.params_store import ParamsStore
@@ -91,12 +92,8 @@ class LineHost(Protocol):
     accuracy: Accuracy | None
     accuracy_suspect_id: int | None
 
-    # faults
-    storage_failed: bool
-    unstored_alarms: list[dict[str, Any]]  # raised while the storage failed
-    device_errors: dict[str, dict[str, str]]  # family -> its last error {"error", "utc"}
-    fault_family: str | None  # the device of the fault in force (None: unknown)
-    device_retry: dict[str, Any] | None  # a device unreachable at start: its retries
+    # faults: the storage's and the devices' (app.line.fault_record)
+    fault: FaultRecord
 
     @property
     def cell_temp_c(self) -> float | None: ...

@@ -204,12 +204,12 @@ class Operator:
         decision state is read back from the database (what was not committed never
         happened); CommandError while the storage still fails."""
         svc = self.svc
-        if not svc.storage_failed:
+        if not svc.fault.storage_failed:
             return
         try:
             svc.store.probe_write()
             with svc.store.batch():
-                for a in svc.unstored_alarms:
+                for a in svc.fault.unstored_alarms:
                     svc.store.raise_alarm(
                         a["t_raised"], a["code"], a["message"], a["priority"], a.get("detail")
                     )
@@ -220,8 +220,7 @@ class Operator:
                 f"the state storage still fails ({exc}; {free:.0f} MB free under"
                 f" {svc.paths.root}): free space or repair it, then reset again"
             ) from exc
-        svc.unstored_alarms.clear()
-        svc.storage_failed = False
+        svc.fault.stored_again()
         svc.restore()
 
     def _cmd_recalibrate(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:

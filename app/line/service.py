@@ -69,6 +69,7 @@ from app.line.cycle import Cycle, WindowWatch
 from app.line.decisions import Decisions, Rows
 from app.line.estimate import sphere_sigma_mm
 from app.line.events import EventBus
+from app.line.fault_record import FaultRecord
 from app.line.faults import Faults
 from app.line.inline_seq import InlineSequential, SequentialCandidate
 from app.line.jumps import JumpWatch
@@ -196,14 +197,9 @@ class Service:
         self.recal_ids: dict[str, list[int]] | None = None  # the calibration in flight
         self.exit_code = 0  # 1 after an internal error: the supervisor restarts the process
         self._crash: BaseException | None = None  # from another thread (crash())
-        self.unstored_alarms: list[dict[str, Any]] = []  # raised while the storage failed
-        self.storage_failed = False  # until a reset finds it writing again
+        self.fault = FaultRecord()  # the storage's and the devices' faults (its docstring)
         self._stop = threading.Event()
         self.wake = threading.Event()
-        self.device_errors: dict[str, dict[str, str]] = {}  # family -> {"error", "utc"}
-        self.fault_family: str | None = None  # the device of the fault in force (None: unknown)
-        # while a device unreachable at start is retried: {"attempts", "next_utc", "wait_s"}
-        self.device_retry: dict[str, Any] | None = None
         # called in the loop's thread after each window and what follows it between windows
         # (the simulated line holds the service there, its virtual time standing, to look)
         self.after_window: Callable[[], None] | None = None

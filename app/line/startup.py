@@ -197,13 +197,13 @@ class Startup:
         errors = dict(svc.station.unreachable)
         for exc in errors.values():
             svc.note_device_error(exc)
-        svc.fault_family = next(iter(errors))
+        svc.fault.family = next(iter(errors))
         self.faults.enter_fault(AlarmCode.DEVICE_UNREACHABLE, self._unreachable_text(errors))
         attempts = 0
         while True:
             wait_s = DEVICE_RETRY_S[min(attempts, len(DEVICE_RETRY_S) - 1)]
             due = svc.clock.monotonic() + wait_s
-            svc.device_retry = {
+            svc.fault.retry = {
                 "attempts": attempts,
                 "wait_s": wait_s,
                 "next_utc": utc_text(svc.clock.time() + wait_s),
@@ -222,7 +222,7 @@ class Startup:
             if not errors:
                 self._clear_unreachable(True, attempts)
                 return True
-            svc.fault_family = next(iter(errors))
+            svc.fault.family = next(iter(errors))
             unreachable = {f: f"{type(e).__name__}: {e}" for f, e in errors.items()}
             svc.bus.emit("device_retry", {"attempts": attempts, "unreachable": unreachable})
 
@@ -241,11 +241,11 @@ class Startup:
         """Every device is open: the `device_unreachable` alarm (if any) cleared, the PLC's
         fault bit it set taken back, the fault's device forgotten."""
         svc = self.svc
-        svc.device_retry = None
+        svc.fault.retry = None
         if not raised:
             return
         svc.clear_alarms(AlarmCode.DEVICE_UNREACHABLE)
-        svc.fault_family = None
+        svc.fault.family = None
         with contextlib.suppress(DeviceError):
             svc.station.plc.set_signals(busy=False, done=False, fault=False)
         if attempts is not None:
@@ -256,7 +256,7 @@ class Startup:
         svc = self.svc
         # the device of a held device fault failed in the process before: every device was
         # opened afresh since and answered, so none is shown at fault ("": none, not unknown)
-        svc.fault_family = ""
+        svc.fault.family = ""
         svc.set_state(State.FAULT)
         fault_stop(svc)
         svc.log.warning(

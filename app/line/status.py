@@ -28,7 +28,7 @@ def status_reply(svc: LineHost) -> dict[str, Any]:
             "paused": svc.paused,
             "params_version": svc.version,
             "counters": dict(svc.counters),
-            "alarms": [alarm_status(a) for a in svc.unstored_alarms],
+            "alarms": [alarm_status(a) for a in svc.fault.unstored_alarms],
             "step": step_text(svc),
             # the U95 of a point measured now, vouched for or not (app.line.accuracy)
             "accuracy": None if svc.accuracy is None else svc.accuracy.to_json(),
@@ -45,9 +45,9 @@ def step_text(svc: LineHost, maintenance: Mapping[str, Any] | None = None) -> st
         return f"held for maintenance: {procedures_text(need)}"
     if svc.recalibrator.busy:
         return "recalibrating"
-    if svc.station.unreachable and svc.device_retry is not None:
+    if svc.station.unreachable and svc.fault.retry is not None:
         names = ", ".join(svc.station.unreachable)
-        return f"waiting for {names} (unreachable): next try {svc.device_retry['next_utc']}"
+        return f"waiting for {names} (unreachable): next try {svc.fault.retry['next_utc']}"
     steps = {
         "MEASURING": "measuring in the window",
         "IDLE": "waiting for a window",
@@ -71,7 +71,7 @@ def device_of(exc: BaseException, devices: Mapping[str, object]) -> str | None:
 
 def _status(svc: LineHost) -> dict[str, Any]:
     w = svc.watch
-    alarms = svc.store.active_alarms() + svc.unstored_alarms
+    alarms = svc.store.active_alarms() + svc.fault.unstored_alarms
     maintenance = maintenance_json(
         alarms, svc.store.maintenance(last=RECORDS_IN_STATUS), svc.paths.root
     )
@@ -106,7 +106,7 @@ def _status(svc: LineHost) -> dict[str, Any]:
         # the `maintenance` alarm in force, a procedure running, the last done
         "maintenance": maintenance,
         "devices": _device_status(svc),
-        "device_retry": svc.device_retry,
+        "device_retry": svc.fault.retry,
         "pending": _pending_status(svc),
         "now_utc": utc_text(svc.clock.time()),  # the service's clock (sim: ahead)
         # a jump the one estimator found, in hand (app.line.jumps): a copy (the loop changes it)
@@ -138,11 +138,11 @@ def _device_status(svc: LineHost) -> dict[str, dict[str, Any]]:
             state = "unreachable"
         elif not device.is_open:
             state = "closed"
-        elif faulted and svc.fault_family in (None, family):
+        elif faulted and svc.fault.family in (None, family):
             state = "fault"
         elif family == "plc" and svc.watch.lost:
             state = "no heartbeat"
-        last = svc.device_errors.get(family, {})
+        last = svc.fault.device_errors.get(family, {})
         out[family] = {
             "url": svc.station.urls.get(family, ""),
             "state": state,

@@ -359,7 +359,7 @@ class WindowLoop:
         storage failure keeps them until a reset finds it writing again)."""
         svc = self.svc
         clamped = svc.watch.clamped
-        while clamped and not svc.storage_failed:
+        while clamped and not svc.fault.storage_failed:
             svc.store.add_window(*clamped[0])
             clamped.popleft()
 
