@@ -274,6 +274,24 @@ class CellState:
         K = np.linalg.solve(Sigma, PH.T).T
         return self.d[:L] + K @ v, self.P[:L, :L] - K @ PH.T
 
+    def point_cov_mm2(
+        self, q_deg: ArrayLike, c_sensor_mm: ArrayLike, temp_c: float | None = None
+    ) -> F64:
+        """The covariance (3, 3) [mm^2], in the part frame, of the error of a point seen at
+        c_sensor_mm from q_deg through the version in force, as the estimator has it now: the
+        parameters' offset d from the version (a bias not corrected, counted as a variance:
+        J d d' J'), their covariance J P J' and the unmodelled term s_u^2 I; the measurement's
+        own noise is not in it. Its trace / 3 plus sigma^2 is what the statement averages over
+        the window's poses (app.line.estimate), here at one pose and in every direction."""
+        d, P = self.posterior()
+        temp = None if temp_c is None else np.array([float(temp_c)])
+        q = np.asarray(q_deg, float).reshape(1, 6)
+        c = np.asarray(c_sensor_mm, float).reshape(1, 3)
+        J = self.model.point_jacobian(self.x_ref, q, c, self.active, temp)[0]
+        b = J @ d
+        out: F64 = np.outer(b, b) + J @ P @ J.T + self.s_u_mm**2 * np.eye(3)
+        return 0.5 * (out + out.T)
+
     def test(self) -> Verdict:
         """The GLR test on the window (module docstring)."""
         n = len(self.rows)

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -41,6 +41,12 @@ from vision.features import (
 )
 
 F64 = NDArray[np.float64]
+
+
+#: the shared error's covariance (3, 3) [mm^2] of a point measured now, seen at c_sensor_mm
+#: (3,) from q_deg (6,) at temp_c (app.line.estimate.CellEstimate.point_cov_mm2); None: the
+#: statement speaks
+PointCov = Callable[[F64, F64, float | None], F64 | None]
 
 
 class FeatureSensor(Protocol):
@@ -113,14 +119,16 @@ def evaluate(
     settings: FeatureSettings | None = None,
     noise: StopNoise = NO_NOISE,
     clamp_sd_mm: float = 0.0,
+    shared: PointCov | None = None,
 ) -> list[Value]:
     """The values of one feature from its raw data with the calibration `cal` (module
     docstring): from several stops, the mean of their fits (each stop's robot error is its
     own: the fit's own covariance and a size's sd fall with their number, and so does the
     robot's repeatability at the view, the data sheet's RP `noise.repeatability_mm` through the
     model, which takes the place of the statement's own measurement noise:
-    app.inspect.values; clamp_sd_mm: the fixture's clamping repeatability, the plan's); a stop
-    the vision refused is left out, all refused: "not measured" with the first one's reason."""
+    app.inspect.values; clamp_sd_mm: the fixture's clamping repeatability, the plan's; shared:
+    the estimator's shared error at the view, when it speaks); a stop the vision refused is
+    left out, all refused: "not measured" with the first one's reason."""
     raws = [raw] if isinstance(raw, RawFeature) else list(raw)
     fits, refused, at = [], [], None
     for r in raws:
@@ -155,9 +163,10 @@ def evaluate(
         sigma_rad = joint_sigma_rad(cal.model, cal.x, noise.repeatability_mm)
         J = cal.model.point_jacobian(cal.x, q_deg[None], c_sensor[None], JOINT_OFFSETS)[0]
         repeat = sigma_rad**2 * (J @ J.T)
+    at_view = None if shared is None else shared(q_deg, c_sensor, raws[0].temp_c)
     return feature_values(
         feature, fit, cov, statement_u95_mm, len(fits), repeat, noise.statement_noise_mm,
-        clamp_sd_mm,
+        clamp_sd_mm, at_view,
     )  # fmt: skip
 
 
@@ -227,9 +236,11 @@ def evaluate_body(
     statement_u95_mm: float,
     unreachable: dict[str, str] | None = None,
     noise: StopNoise = NO_NOISE,
+    shared: PointCov | None = None,
 ) -> BodyResult:
     """A body's values from its raw data (plan order; a feature without raw data is "not
-    measured" with the reason in `unreachable`, or "no view")."""
+    measured" with the reason in `unreachable`, or "no view"; shared: the estimator's shared
+    error at a view, `evaluate`)."""
     by_id: dict[str, list[RawFeature]] = {}
     for r in raw:
         by_id.setdefault(r.feature, []).append(r)
@@ -241,5 +252,7 @@ def evaluate_body(
             values.extend(not_measured(f, f"no view: {why}"))
         else:
             u = statement_u95_mm
-            values.extend(evaluate(cal, f, stops, u, noise=noise, clamp_sd_mm=plan.clamp_sd_mm))
+            values.extend(
+                evaluate(cal, f, stops, u, noise=noise, clamp_sd_mm=plan.clamp_sd_mm, shared=shared)
+            )
     return BodyResult(body, tuple(values), tuple(raw))

@@ -33,7 +33,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.api import Calibration
-from app.inspect.measure import BodyResult, FeatureSensor, RawFeature, evaluate_body, extract
+from app.inspect.measure import (
+    BodyResult,
+    FeatureSensor,
+    PointCov,
+    RawFeature,
+    evaluate_body,
+    extract,
+)
 from app.inspect.plan import FeaturePlan, load_features
 from app.inspect.spc import (
     BASELINE_BODIES,
@@ -225,9 +232,10 @@ class BodyCycle:
         cal: Calibration,
         statement_u95_mm: float | None,
         temp_c: float | None,
+        shared: PointCov | None = None,
     ) -> BodyReport:
         """Measure the body the PLC made ready, store it, tell the PLC; raises a DeviceError
-        for a fault."""
+        for a fault. shared: the estimator's shared error at a view (app.inspect.measure)."""
         route = self.views(version, cal)
         w = self.watch
         w.body_used_t = w.body_opened_t
@@ -251,7 +259,7 @@ class BodyCycle:
         self.measurer.go_home()
         result = evaluate_body(
             str(body_id), cal, self.plan, raw, _or_none(statement_u95_mm), skipped,
-            self.noise,
+            self.noise, shared,
         )  # fmt: skip
         row = self._store(result, window, t_start, body_id, version, statement_u95_mm, temp_c)
         self._chart(body_id, [v.as_dict() for v in result.values])

@@ -218,6 +218,18 @@ class CellEstimate:
                 u2 += float(np.mean([(r.v0 - r.H @ d) @ (r.v0 - r.H @ d) / 3.0 for r in after]))
         return norm_quantile() * math.sqrt(u2)
 
+    def point_cov_mm2(
+        self, q_deg: NDArray[np.float64], c_sensor_mm: NDArray[np.float64], temp_c: float | None
+    ) -> NDArray[np.float64] | None:
+        """The shared error's covariance (3, 3) [mm^2] of a point measured now at this pose
+        (calib.cellstate.CellState.point_cov_mm2: the parameters' offset and covariance through
+        the model there, the unmodelled term; a body's value adds its own noise); None before
+        any measurement of the version in force."""
+        st = self.state
+        if st is None or not st.rows:
+            return None
+        return st.point_cov_mm2(q_deg, c_sensor_mm, temp_c)
+
     def spheres(self) -> dict[str, dict[str, Any]]:
         """Per sphere, its measurements in the estimator's window: how many (`n`), the newest's
         residual against the parameters in force (`residual_mm`, its centre's distance from

@@ -28,6 +28,7 @@ import math
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from app.formats.params import document_covariance
 from app.line.beyond_knock import (
@@ -93,6 +94,17 @@ class JumpWatch:
         ep = self.episode
         uncorrected = ep is not None and ep.get("corrected_version") is None
         return self.estimate.statement_u95_mm(int(ep["onset_id"]) if uncorrected and ep else None)
+
+    def point_cov_mm2(
+        self, q_deg: NDArray[np.float64], c_sensor_mm: NDArray[np.float64], temp_c: float | None
+    ) -> NDArray[np.float64] | None:
+        """The shared error's covariance of a point measured now at this pose (app.line.
+        estimate); None while a jump found is not corrected (the statement, with its
+        innovations, speaks for the bodies then) or before any measurement of the version."""
+        ep = self.episode
+        if ep is not None and ep.get("corrected_version") is None:
+            return None
+        return self.estimate.point_cov_mm2(q_deg, c_sensor_mm, temp_c)
 
     @property
     def episode(self) -> dict[str, Any] | None:

@@ -133,16 +133,16 @@ class WindowLoop:
             svc.after_window()
 
     def _body(self, body: BodyCycle) -> None:
-        """A clamped body's features (app.line.body_cycle), with the parameters in force and
-        the cell's statement for a point measured now (the last window's, else the version's
-        own seed)."""
+        """A clamped body's features (app.line.body_cycle), with the parameters in force, the
+        cell's statement for a point measured now (the last window's, else the version's own
+        seed) and the estimator's shared error at each view (app.inspect.values)."""
         svc = self.svc
         svc.set_state(State.MEASURING)
         cal = body.calibration(svc.version, svc.params.version_path(svc.version))
         try:
             report = body.run_body(
                 svc.counters["windows"], svc.version, cal, self.statement_u95_mm(),
-                svc.cell_temp_c,
+                svc.cell_temp_c, self.jumps.point_cov_mm2,
             )  # fmt: skip
         except DeviceError as exc:
             self.faults.device_fault(exc)

@@ -312,6 +312,14 @@ def test_a_value_holds_its_own_stops_repeatability_in_place_of_the_statements_no
     assert got["X"] == pytest.approx(1.959964 * np.sqrt(sigma2 + 0.01**2), rel=1e-4)
     assert got["D"] == plain["D"]
     assert two["D"] == one["D"]  # a size: within one view, no pose error
+    # the estimator's shared error at the view, where it says more than the statement's share
+    # along a direction (a warming arm's error along Z is Z's, not a third of a norm)
+    shared = np.diag([0.002, 0.004, 0.05]) ** 2
+    at_view = feature_values(f, fit, np.zeros((3, 3)), 0.08, 1, None, 0.0, 0.01, shared)
+    got = {v.characteristic.name: v.u95_mm for v in at_view}
+    for name, var in (("X", sigma2), ("Y", sigma2), ("Z", 0.05**2)):
+        assert got[name] == pytest.approx(1.959964 * np.sqrt(var + 0.01**2), rel=1e-4)
+    assert got["D"] == plain["D"]
 
 
 def test_the_bodys_window_holds_the_first_stops_then_the_extra_ones_that_leave_the_rest_time(

@@ -162,6 +162,35 @@ def test_a_jump_taken_in_leaves_nothing_to_find(world: World) -> None:
     assert abs(moved - true) < np.radians(0.003), (np.degrees(moved), np.degrees(true))
 
 
+def test_a_points_error_at_a_new_pose_is_covered_by_the_estimators_covariance_there(
+    world: World,
+) -> None:
+    """`point_cov_mm2` (what a body's value takes as the shared part of its U95): at poses the
+    estimator never saw, the true error of a point through the version in force, per
+    coordinate, within 1.96 standard deviations of it for >= 95 % of the coordinates; its
+    trace / 3 plus the noise is the statement's variance at a measured pose."""
+    est = world.estimator()
+    for i in range(2 * SLOTS):
+        est.add(world.measure(i, world.x_true))
+    rng = np.random.default_rng(17)
+    z = []
+    for k in range(40):
+        p = world.spheres[sorted(world.spheres)[k % 4]] + rng.normal(0.0, 40.0, 3)
+        q = candidates.random_configurations(world.model, world.x_ref, p, 1, rng).q_deg[0]
+        c = apply(np.linalg.inv(world.model.fk(world.x_true, q.reshape(1, 6))[0]), p)
+        e = apply(world.model.fk(world.x_ref, q.reshape(1, 6))[0], c) - p
+        S = est.point_cov_mm2(q, c)
+        assert S.shape == (3, 3) and np.all(np.linalg.eigvalsh(S) > 0.0)
+        z += list(np.abs(e) / np.sqrt(np.diag(S)))
+    assert np.mean(np.asarray(z) <= 1.96) >= 0.95, np.percentile(z, [50, 95])
+    # at a measured pose: the statement's per-row variance (app.line.estimate), per coordinate
+    row = est.rows[-1]
+    d, P = est.posterior()
+    stated = ((row.H @ d) @ (row.H @ d) + np.trace(row.H @ P @ row.H.T)) / 3.0 + est.s_u_mm**2
+    S = est.point_cov_mm2(row.obs.q_deg, row.obs.c_sensor_mm)
+    assert np.trace(S) / 3.0 == pytest.approx(stated, rel=1e-9)
+
+
 def test_the_settings_refuse_what_cannot_work() -> None:
     with pytest.raises(ValueError):
         EstimatorSettings(sigma_mm=0.0)
