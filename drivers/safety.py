@@ -71,6 +71,30 @@ class JointLimits(JointBox):
             raise DeviceConfigError(f"joint speeds must be > 0, got {speed}")
         object.__setattr__(self, "speed_deg_s", speed)
 
+    def move_time_s(
+        self,
+        start_deg: ArrayLike,
+        end_deg: ArrayLike,
+        speed_frac: float,
+        accel_s: float = 0.0,
+        settle_s: float = 0.0,
+    ) -> float:
+        """Time [s] of a synchronised joint move at `speed_frac` of the joint speeds (programmed
+        speed x override), the slowest joint's: |dq| / v at constant speed (accel_s 0); with
+        each joint reaching its speed in accel_s (a trapezoid: |dq| / v + accel_s, a triangle
+        2 sqrt(|dq| accel_s / v) for a move too short to reach it), plus settle_s at its end (a
+        FINE stop). 0 for no motion."""
+        delta = np.abs(np.asarray(end_deg, float) - np.asarray(start_deg, float))
+        if not np.any(delta > 0):
+            return 0.0
+        v = np.asarray(self.speed_deg_s) * speed_frac
+        at_speed = delta / v
+        if accel_s > 0:
+            at_speed = np.where(
+                delta >= v * accel_s, at_speed + accel_s, 2.0 * np.sqrt(delta * accel_s / v)
+            )
+        return float(np.max(at_speed)) + settle_s
+
     @classmethod
     def m710ic50(cls) -> JointLimits:
         """FANUC M-710iC/50 controller-angle limits and speeds (REFERENCE.md): the fallback of
@@ -143,9 +167,7 @@ class SafetyGuard:
 
     def duration_s(self, start_deg: ArrayLike, end_deg: ArrayLike, speed_pct: float) -> float:
         """Time of a synchronised joint move at ``speed_pct`` percent of the joint speeds."""
-        delta = np.abs(np.asarray(end_deg, float) - np.asarray(start_deg, float))
-        speed = np.asarray(self.limits.speed_deg_s) * (speed_pct / 100.0)
-        return float(np.max(delta / speed))
+        return self.limits.move_time_s(start_deg, end_deg, speed_pct / 100.0)
 
     # -- internals ----------------------------------------------------------------------------
     @staticmethod

@@ -94,6 +94,11 @@ class SimLineSetup:
     n_validation: int = 100
     camera_readout_s: float = 0.033  # virtual clock: a frame's read-out after its exposure
     galvo_settle_s: float = 0.002  # virtual clock: the mirror settling after a command
+    # the simulated robot's motion (fakes.rmi_controller): each joint's time to its speed and
+    # the settling at a FINE stop, inside the planner's allowances ([line] accel_s 0.4,
+    # settle_s 0.2), as a real robot's would be measured to be
+    robot_accel_s: float = 0.3
+    robot_settle_s: float = 0.15
     # the DAC's stable name (a symlink re-pointed when it comes back, as udev's
     # /dev/serial/by-id/...): the galvo's URL names it; None: the pty itself
     galvo_link: str | None = None
@@ -178,7 +183,7 @@ class SimLine:
         seed = cell.settings.seed
         self.plc = LinePlc(self.settings.cycle, self.clock)
         self.plc.body_format = s.body_format
-        self.controller = RmiController(self.world, clock=self.clock)
+        self.controller = self._controller()
         self.tracker = TrackerService(
             self.world, seed=_derived_seed(seed, 6), noise_mm=cell.settings.tracker_noise_mm
         )
@@ -296,7 +301,7 @@ class SimLine:
         elif family == "robot":
             # a controller starts afresh (its motion worker was shut down with it)
             port = self.controller.port
-            self.controller = RmiController(self.world, clock=self.clock, port=port)
+            self.controller = self._controller(port)
             self._stack.enter_context(self.controller)
         else:
             if family == "plc":
@@ -304,6 +309,17 @@ class SimLine:
                 self.plc.restore_window()
             self._server(family).start()
         self.stopped.discard(family)
+
+    def _controller(self, port: int = 0) -> RmiController:
+        """The robot controller on `port` (0: a free one), moving as the setup's robot does."""
+        s = self.settings
+        return RmiController(
+            self.world,
+            clock=self.clock,
+            port=port,
+            accel_s=s.robot_accel_s,
+            settle_s=s.robot_settle_s,
+        )
 
     def _server(self, family: str) -> LinePlc | RmiController | TrackerService:
         """The TCP peer of a network device."""

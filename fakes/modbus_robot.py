@@ -100,8 +100,7 @@ class ModbusRobotServer(RegisterServer):
             self.status, self.error = STATUS_FAULT, ERR_LIMIT
             return
         start = self.world.joints_deg()
-        speeds = np.asarray(self.limits.speed_deg_s) * speed / 100.0
-        duration = float(np.max(np.abs(target - start) / speeds)) * self.time_scale
+        duration = self.limits.move_time_s(start, target, speed / 100.0) * self.time_scale
         self._motion = (start, target, now, duration, value)
         self.status = STATUS_MOVING
 

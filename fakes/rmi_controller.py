@@ -9,7 +9,9 @@ without it), FRC_SetUFrameUTool / FRC_GetUFrameUTool (UFrame 0..9, UTool 1..10),
 (``Value`` 1..100, RMIT-005 otherwise; kept across sessions like the controller's general
 override). Instructions, executed one after the other and answered when done: FRC_JointMotionJRep,
 FRC_JointRelativeJRep (SpeedType "Percent", Speed 1..100, TermType FINE/CNT/CR; a motion takes max
-|dq| / (speed x override) x time_scale seconds, moving the World's joints along the way; each
+|dq| / (speed x override) x time_scale seconds, more with ``accel_s`` (each joint's time to its
+speed: a trapezoid) and ``settle_s`` (at a FINE stop) when given (the simulated line's robot:
+fakes/line.py), moving the World's joints along the way; each
 duration is appended to ``motion_durations_s``; time follows ``clock``, real time by
 default: on a VirtualClock the motion's duration passes on the clock, off the event loop so
 that an FRC_Abort sent meanwhile is served, and the joints are set where the motion is when it
@@ -83,11 +85,16 @@ class RmiController(LineServer):
         limits: JointLimits | None = None,
         clock: SimClock | None = None,
         pose_of: PoseOf | None = None,
+        accel_s: float = 0.0,
+        settle_s: float = 0.0,
         **kw: Any,  # host, port: see LineServer
     ) -> None:
         super().__init__(**kw)
         self.world = world
         self.time_scale = float(time_scale)
+        # the motion's profile (drivers.safety.JointLimits.move_time_s): each joint's time to
+        # its speed, and the settling at a FINE stop; 0: at speed at once, no settling
+        self.accel_s, self.settle_s = float(accel_s), float(settle_s)
         self.clock: SimClock = clock if clock is not None else RealClock()
         self.limits = limits or JointLimits.m710ic50()
         self.pose_of = pose_of
@@ -393,9 +400,10 @@ class RmiController(LineServer):
         target = start + q if msg["Instruction"] == "FRC_JointRelativeJRep" else q
         if not bool(self.limits.contains(target[None])[0]):
             return rmi.INVALID_DESTINATION
-        speed_pct = float(msg["Speed"])
-        speeds = np.asarray(self.limits.speed_deg_s) * speed_pct * self.override_pct / 1e4
-        duration = float(np.max(np.abs(target - start) / speeds)) * self.time_scale
+        speed = float(msg["Speed"]) * self.override_pct / 1e4
+        settle_s = self.settle_s if msg.get("TermType") == "FINE" else 0.0
+        move_s = self.limits.move_time_s(start, target, speed, self.accel_s, settle_s)
+        duration = move_s * self.time_scale
         self.motion_durations_s.append(duration)
         if self._mover is not None:
             return await self._run_motion_virtual(start, target, duration, half_way)

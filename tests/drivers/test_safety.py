@@ -117,6 +117,23 @@ def test_duration_is_the_slowest_joint() -> None:
     assert t == pytest.approx(2.0)
 
 
+def test_a_move_with_acceleration_is_a_trapezoid_or_a_triangle_plus_its_settling() -> None:
+    """`move_time_s`: at its speed after accel_s (|dq| / v + accel_s), a move too short to
+    reach it a triangle (2 sqrt(|dq| accel_s / v)), the slowest joint's, then the settling."""
+    limits = JointLimits.m710ic50()
+    home = np.zeros(6)
+    long_move = np.array([90.0, 0, 0, 0, 0, 0])  # J1 at 175 deg/s x 0.5: 87.5 deg/s
+    assert limits.move_time_s(home, long_move, 0.5) == pytest.approx(90 / 87.5)
+    assert limits.move_time_s(home, long_move, 0.5, 0.3, 0.15) == pytest.approx(
+        90 / 87.5 + 0.3 + 0.15
+    )
+    short = np.array([5.0, 0, 0, 0, 0, 1.0])  # 5 deg < 87.5 x 0.3: J1 never at speed
+    want = 2.0 * np.sqrt(5.0 * 0.3 / 87.5)
+    assert limits.move_time_s(home, short, 0.5, 0.3) == pytest.approx(want)
+    assert want < 5.0 / 87.5 + 0.3  # never longer than the trapezoid's formula
+    assert limits.move_time_s(home, home, 0.5, 0.3, 0.15) == 0.0
+
+
 def test_the_drivers_fallback_limits_are_the_data_sheets() -> None:
     """The data sheet's home is calib/robot.py and the app's guard reads it through the cell
     file (app.line.station.cell_guard); drivers/ may not import calib/, so the fallback of a
