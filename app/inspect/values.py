@@ -45,7 +45,8 @@ an uncorrected bias (Phillips, Eberhardt and Parry, J. Res. NIST 102 (1997) 577)
 A size (D, W, L) is a distance within one view: the pose's error moves both edges alike, so
 its U95 is k sqrt(sd_fit^2 + 2 u_edge^2): the fit's own sd holds the edge points' random
 placement within a stripe sample; u_edge is the type-B uncertainty of what stays systematic on
-every edge point of one side (`EDGE_U_MM`).
+every edge point of one side (`[sensor] edge_u_mm`, default `EDGE_U_MM`: the sensor's, measured
+on certified bores as bench/edge.py measures the simulated rendered sensor's).
 
 Decision (ISO 14253-1): conformance proven when the value lies inside the tolerance shrunk by
 U on each side, nonconformance proven when it lies outside the tolerance widened by U, else
@@ -80,10 +81,12 @@ class StopNoise:
     """The measurement's own noise in a value's U95 (module docstring): the robot's
     repeatability, the data sheet's ISO 9283 RP [mm] (0: not known), and the cell's statement's
     own measurement noise per coordinate [mm] (sigma_m: the estimator's,
-    app.line.estimate.sphere_sigma_mm; 0: the statement holds none apart)."""
+    app.line.estimate.sphere_sigma_mm; 0: the statement holds none apart), and the sensor's
+    edge placement allowance per side in a size's U95 [mm]."""
 
     repeatability_mm: float = 0.0
     statement_noise_mm: float = 0.0
+    edge_u_mm: float = EDGE_U_MM  # the sensor's edge placement, per side ([sensor] edge_u_mm)
 
 
 #: no noise held apart: the statement as it is, once a stop
@@ -145,6 +148,7 @@ def feature_values(
     statement_noise_mm: float = 0.0,
     clamp_sd_mm: float = 0.0,
     shared_cov_mm2: F64 | None = None,
+    edge_u_mm: float = EDGE_U_MM,
 ) -> list[Value]:
     """The values of `feature` from its fit in the part frame (module docstring); cov_cal_mm2
     (3, 3): the calibration's covariance at the feature's centre; statement_u95_mm: the
@@ -152,7 +156,8 @@ def feature_values(
     `stops` stops (app.inspect.measure.mean_fit), cov_repeat_mm2 (3, 3): the robot's
     repeatability at one stop of the view (None: not known, the statement's noise stands in);
     clamp_sd_mm: the fixture's clamping repeatability (the plan's); shared_cov_mm2 (3, 3): the
-    estimator's shared error at the feature's view (None: the statement's share stands in)."""
+    estimator's shared error at the feature's view (None: the statement's share stands in);
+    edge_u_mm: the sensor's edge placement allowance per side, in a size's U95."""
     sigma2 = cell_sigma_mm(statement_u95_mm) ** 2
     noise2 = min(statement_noise_mm**2, sigma2)
     out = []
@@ -161,7 +166,7 @@ def feature_values(
         if c.kind == "size":
             size, sd = next(sizes)
             measured = size
-            u95 = K95 * math.sqrt(sd**2 + 2.0 * EDGE_U_MM**2)
+            u95 = K95 * math.sqrt(sd**2 + 2.0 * edge_u_mm**2)
         else:
             if c.name == "N":
                 e = feature.normal

@@ -15,7 +15,9 @@ import numpy as np
 import pytest
 
 from app.commands.cli import main
+from app.config import load_cell
 from app.line.statedir import StateDir
+from app.sim.commission import RENDERED_EDGE_U_MM
 from tests.app.test_commission import CELL, ROOT, kill_at
 from tests.groups import GIGE_CAMERA
 
@@ -66,6 +68,10 @@ def test_the_rendered_commissioning_measures_through_camera_and_galvo(rendered: 
     assert "not applicable" not in str(steps["acceptance"])  # images: the acceptance ran
     ws = steps["workspace"]
     assert ws["measured"] == ws["positions"] == 3 and ws["true_rmse_mm"] < 0.2
+    # the rendered sensor's edge allowance (bench/edge.py, certified bores) in the cell file
+    # the service reads, in place of the geometric rule's 0.002 mm
+    cell = load_cell(StateDir(rendered).cell)
+    assert cell.sensor.edge_u_mm == RENDERED_EDGE_U_MM > 0.002
 
 
 @pytest.mark.slow  # about 1.5 min: a rendered commissioning killed in its calibration, resumed

@@ -311,6 +311,11 @@ def test_a_value_holds_its_own_stops_repeatability_in_place_of_the_statements_no
     got = {v.characteristic.name: v.u95_mm for v in clamped}
     assert got["X"] == pytest.approx(1.959964 * np.sqrt(sigma2 + 0.01**2), rel=1e-4)
     assert got["D"] == plain["D"]
+    # the sensor's edge allowance ([sensor] edge_u_mm) in every size, in no position
+    edged = feature_values(f, fit, np.zeros((3, 3)), 0.08, 1, None, 0.0, edge_u_mm=0.005)
+    got = {v.characteristic.name: v.u95_mm for v in edged}
+    assert got["D"] == pytest.approx(1.959964 * np.sqrt(0.002**2 + 2 * 0.005**2), rel=1e-4)
+    assert got["X"] == plain["X"]
     assert two["D"] == one["D"]  # a size: within one view, no pose error
     # the estimator's shared error at the view, where it says more than the statement's share
     # along a direction (a warming arm's error along Z is Z's, not a third of a norm)

@@ -1,0 +1,141 @@
+"""The sensor's edge placement on certified bores, as an acceptance on a bore plate measures it:
+the type-B allowance per side (`[sensor] edge_u_mm`) that a size's U95 carries for what stays
+systematic in where the sensor puts a hole's or a slot's edge (app/inspect/values.py).
+
+A plate with holes (6, 12, 20 mm) and a slot (8 x 20 mm) of certified sizes, 1.2 mm sheet, is
+swept by the simulated rendered sensor (fakes.render_sheet: the camera's rows, the laser's
+speckle, the bore's wall) 120 mm in front of the camera, tilted 0-15 degrees towards the laser
+(as the line's views are, app.inspect.views) and rolled about its normal, each pose swept with
+`--seeds` independent noise draws, and measured as the line measures a body's feature (the
+profiles of app.sim.bodies.rendered_profiles, vision.features.measure_feature) with the sensor's
+own model. Per size: the error against the certificate and the fit's own sd. The allowance:
+
+    u_edge = sqrt(max(0, mean(err^2) - mean(sd_fit^2)) / 2)
+
+what the errors hold beyond the fit's own account of them, split over the two edges a size
+spans (a size's U95 is 1.96 sqrt(sd_fit^2 + 2 u_edge^2)); and the share of sizes that U95 would
+cover with it, against the 0.002 mm the geometric sensor's rule sets.
+
+    .venv/bin/python bench/edge.py [--seeds 4] [--json FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from app.inspect.values import EDGE_U_MM, K95
+from app.sim.bodies import rendered_profiles
+from app.sim.cell import true_sensor_model
+from fakes.render_sensor import TrueSensor, default_true_sensor
+from vision.errors import FeatureRefused
+from vision.features import measure_feature
+
+F64 = NDArray[np.float64]
+THICKNESS_MM = 1.2
+FEATURES = (("hole", (6.0,)), ("hole", (12.0,)), ("hole", (20.0,)), ("slot", (8.0, 20.0)))
+TILTS_DEG = (0.0, 5.0, 10.0, 15.0)
+ROLLS_DEG = (0.0, 30.0, 75.0)
+
+
+def pose(tilt_deg: float, roll_deg: float) -> F64:
+    """T_camera_feature: 120 mm in front of the camera, its normal towards it, rolled about its
+    normal, tilted towards the laser's side, slightly off-centre."""
+    a, r = math.radians(tilt_deg), math.radians(roll_deg)
+    Ry = np.array([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]])
+    Rz = np.array([[math.cos(r), -math.sin(r), 0], [math.sin(r), math.cos(r), 0], [0, 0, 1]])
+    T = np.eye(4)
+    T[:3, :3] = np.diag([1.0, -1.0, -1.0]) @ Ry @ Rz
+    T[:3, 3] = [0.4, -0.3, 120.0]
+    return T
+
+
+def commands(true: TrueSensor, half_mm: float, n: int) -> F64:
+    """n mirror commands whose laser planes cross 120 mm deep evenly over 0.4 +- half_mm."""
+    grid = np.linspace(-6.0, 6.0, 1201)
+    normals, offsets = true.laser_planes(grid)
+    x_at = (offsets - normals[:, 2] * 120.0) / normals[:, 0]
+    order = np.argsort(x_at)
+    out: F64 = np.interp(np.linspace(0.4 - half_mm, 0.4 + half_mm, n), x_at[order], grid[order])
+    return out
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--seeds", type=int, default=4)
+    p.add_argument("--json", type=Path)
+    args = p.parse_args()
+    true = default_true_sensor()
+    model = true_sensor_model(true)
+    rows: list[dict[str, Any]] = []
+    refused: dict[str, int] = {}
+    t0 = time.process_time()
+    for kind, size in FEATURES:
+        cmds = commands(true, 0.5 * max(size) + 3.0, 40)
+        for tilt in TILTS_DEG:
+            for roll in ROLLS_DEG:
+                T = pose(tilt, roll)
+                R, t = T[:3, :3], T[:3, 3]
+                for seed in range(args.seeds):
+                    rng = np.random.default_rng([seed, int(tilt), int(roll), int(10 * size[0])])
+                    profiles = rendered_profiles(
+                        T, kind, size, THICKNESS_MM, true, model, rng, cmds
+                    )
+                    try:
+                        fit = measure_feature(kind, profiles, t, R[:, 2], size, R[:, 0])
+                    except FeatureRefused as exc:  # as the line refuses it: no number
+                        why = str(exc).split(":")[0]
+                        refused[why] = refused.get(why, 0) + 1
+                        continue
+                    for k, (got, sd) in enumerate(zip(fit.size_mm, fit.sd_size_mm, strict=True)):
+                        names = ("D",) if kind == "hole" else ("W", "L")
+                        rows.append(
+                            {
+                                "feature": f"{kind} {'x'.join(f'{s:g}' for s in size)}",
+                                "size": names[k],
+                                "tilt_deg": tilt,
+                                "roll_deg": roll,
+                                "error_mm": float(got - size[k]),
+                                "sd_fit_mm": float(sd),
+                            }
+                        )
+    cpu = time.process_time() - t0
+    err = np.array([float(r["error_mm"]) for r in rows])
+    sds = np.array([float(r["sd_fit_mm"]) for r in rows])
+    u_edge = math.sqrt(max(0.0, float(np.mean(err**2) - np.mean(sds**2))) / 2.0)
+
+    def covered(u: float) -> float:
+        return float(np.mean(np.abs(err) <= K95 * np.sqrt(sds**2 + 2.0 * u**2)))
+
+    print(f"{len(rows)} sizes, sweeps refused: {refused or 'none'}, {cpu:.0f} s CPU")
+    print("| size | n | mean error um | RMS error um | RMS sd_fit um |")
+    print("|---|---|---|---|---|")
+    groups: dict[str, list[dict[str, Any]]] = {}
+    for r in rows:
+        groups.setdefault(f"{r['feature']} {r['size']}", []).append(r)
+    for label, g in groups.items():
+        e = np.array([float(r["error_mm"]) for r in g])
+        s = np.array([float(r["sd_fit_mm"]) for r in g])
+        print(
+            f"| {label} | {len(g)} | {1e3 * e.mean():+.1f} | {1e3 * math.sqrt(np.mean(e**2)):.1f}"
+            f" | {1e3 * math.sqrt(np.mean(s**2)):.1f} |"
+        )
+    print(
+        f"u_edge = {1e3 * u_edge:.1f} um a side (the geometric rule's {1e3 * EDGE_U_MM:.1f});"
+        f" sizes covered by their U95: {100 * covered(EDGE_U_MM):.1f} % with"
+        f" {1e3 * EDGE_U_MM:.1f} um, {100 * covered(u_edge):.1f} % with {1e3 * u_edge:.1f} um"
+    )
+    if args.json:
+        doc = {"u_edge_mm": u_edge, "refused": refused, "rows": rows, "cpu_s": cpu}
+        args.json.write_text(json.dumps(doc, indent=1))
+
+
+if __name__ == "__main__":
+    main()
