@@ -34,7 +34,8 @@ from numpy.typing import NDArray
 from app.inspect.values import EDGE_U_MM, K95
 from app.sim.bodies import rendered_profiles
 from app.sim.cell import true_sensor_model
-from fakes.render_sensor import TrueSensor, default_true_sensor
+from fakes.render_sensor import default_true_sensor
+from fakes.render_sheet import bench_commands, bench_pose
 from vision.errors import FeatureRefused
 from vision.features import measure_feature
 
@@ -43,28 +44,6 @@ THICKNESS_MM = 1.2
 FEATURES = (("hole", (6.0,)), ("hole", (12.0,)), ("hole", (20.0,)), ("slot", (8.0, 20.0)))
 TILTS_DEG = (0.0, 5.0, 10.0, 15.0)
 ROLLS_DEG = (0.0, 30.0, 75.0)
-
-
-def pose(tilt_deg: float, roll_deg: float) -> F64:
-    """T_camera_feature: 120 mm in front of the camera, its normal towards it, rolled about its
-    normal, tilted towards the laser's side, slightly off-centre."""
-    a, r = math.radians(tilt_deg), math.radians(roll_deg)
-    Ry = np.array([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]])
-    Rz = np.array([[math.cos(r), -math.sin(r), 0], [math.sin(r), math.cos(r), 0], [0, 0, 1]])
-    T = np.eye(4)
-    T[:3, :3] = np.diag([1.0, -1.0, -1.0]) @ Ry @ Rz
-    T[:3, 3] = [0.4, -0.3, 120.0]
-    return T
-
-
-def commands(true: TrueSensor, half_mm: float, n: int) -> F64:
-    """n mirror commands whose laser planes cross 120 mm deep evenly over 0.4 +- half_mm."""
-    grid = np.linspace(-6.0, 6.0, 1201)
-    normals, offsets = true.laser_planes(grid)
-    x_at = (offsets - normals[:, 2] * 120.0) / normals[:, 0]
-    order = np.argsort(x_at)
-    out: F64 = np.interp(np.linspace(0.4 - half_mm, 0.4 + half_mm, n), x_at[order], grid[order])
-    return out
 
 
 def main() -> None:
@@ -78,10 +57,10 @@ def main() -> None:
     refused: dict[str, int] = {}
     t0 = time.process_time()
     for kind, size in FEATURES:
-        cmds = commands(true, 0.5 * max(size) + 3.0, 40)
+        cmds = bench_commands(true, 0.5 * max(size) + 3.0, 40)
         for tilt in TILTS_DEG:
             for roll in ROLLS_DEG:
-                T = pose(tilt, roll)
+                T = bench_pose(tilt, roll)
                 R, t = T[:3, :3], T[:3, 3]
                 for seed in range(args.seeds):
                     rng = np.random.default_rng([seed, int(tilt), int(roll), int(10 * size[0])])

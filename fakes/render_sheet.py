@@ -130,3 +130,27 @@ def render_feature_sweep(
     flat, X, N = feature_surface(T_camera_feature, kind, size_mm, thickness_mm, sensor)
     normals, offsets = sensor.laser_planes(np.asarray(commands_v, dtype=float))
     return _render_frames(sensor, flat, X, N, normals, offsets, light, noise, rng)
+
+
+def bench_pose(tilt_deg: float, roll_deg: float = 0.0) -> F64:
+    """T_camera_feature of a feature on a bench: 120 mm in front of the camera, its normal
+    towards it, rolled about its normal, tilted about its y axis (towards the laser's side)
+    and slightly off-centre (the render tests', bench/edge.py's certified bores)."""
+    a, r = np.radians(tilt_deg), np.radians(roll_deg)
+    Ry = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    Rz = np.array([[np.cos(r), -np.sin(r), 0], [np.sin(r), np.cos(r), 0], [0, 0, 1]])
+    T = np.eye(4)
+    T[:3, :3] = np.diag([1.0, -1.0, -1.0]) @ Ry @ Rz
+    T[:3, 3] = [0.4, -0.3, 120.0]
+    return T
+
+
+def bench_commands(true: TrueSensor, half_mm: float, n: int) -> F64:
+    """n mirror commands whose laser planes cross 120 mm deep evenly over 0.4 +- half_mm (the
+    sweep across a `bench_pose` feature)."""
+    grid = np.linspace(-6.0, 6.0, 1201)
+    normals, offsets = true.laser_planes(grid)
+    x_at = (offsets - normals[:, 2] * 120.0) / normals[:, 0]
+    order = np.argsort(x_at)
+    out: F64 = np.interp(np.linspace(0.4 - half_mm, 0.4 + half_mm, n), x_at[order], grid[order])
+    return out

@@ -18,34 +18,20 @@ from app.sim.bodies import rendered_profiles
 from app.sim.cell import true_sensor_model
 from drivers.camera import Frame
 from fakes.render_sensor import TrueSensor
-from fakes.render_sheet import feature_surface, render_feature_sweep
+from fakes.render_sheet import (
+    bench_commands,
+    bench_pose,
+    feature_surface,
+    render_feature_sweep,
+)
 from vision.features import measure_feature
 
 F64 = NDArray[np.float64]
 THICKNESS_MM = 1.2
 
 
-def feature_pose(tilt_deg: float, roll_deg: float = 0.0) -> F64:
-    """T_camera_feature: the feature 120 mm in front of the camera, its normal towards it,
-    rolled about its normal, tilted about its y axis (towards the laser's side) and slightly
-    off-centre."""
-    a, r = np.radians(tilt_deg), np.radians(roll_deg)
-    Ry = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
-    Rz = np.array([[np.cos(r), -np.sin(r), 0], [np.sin(r), np.cos(r), 0], [0, 0, 1]])
-    T = np.eye(4)
-    T[:3, :3] = np.diag([1.0, -1.0, -1.0]) @ Ry @ Rz
-    T[:3, 3] = [0.4, -0.3, 120.0]
-    return T
-
-
-def sweep_commands(true: TrueSensor, half_mm: float, n: int) -> F64:
-    """n mirror commands whose laser planes cross 120 mm deep evenly over 0.4 +- half_mm."""
-    grid = np.linspace(-6.0, 6.0, 1201)
-    normals, offsets = true.laser_planes(grid)
-    x_at = (offsets - normals[:, 2] * 120.0) / normals[:, 0]
-    order = np.argsort(x_at)
-    out: F64 = np.interp(np.linspace(0.4 - half_mm, 0.4 + half_mm, n), x_at[order], grid[order])
-    return out
+#: the bench's pose and sweep (fakes.render_sheet), as tests/sim/test_render_edge.py uses them
+feature_pose, sweep_commands = bench_pose, bench_commands
 
 
 @pytest.mark.parametrize(
