@@ -67,6 +67,45 @@ class Accuracy:
         )
 
 
+@dataclass
+class AccuracyRecord:
+    """What the cell states about its accuracy, one record (the service's `accuracy`): the
+    version in force's seed residuals (`seed`, the statement before its first measurement),
+    the statement after the last window (`now`; None: none yet) and the accuracy suspect
+    interval it keeps open (`suspect_id`; None: none). Written by app.line.window_loop (after
+    each window), app.line.versions (a new version's seed) and app.line.jumps (an interval a
+    jump adopts); persisted with the decision state."""
+
+    seed: list[float] = dataclasses.field(default_factory=list)
+    now: Accuracy | None = None
+    suspect_id: int | None = None
+
+    def restart(self, seed: list[float]) -> None:
+        """A version whose measurements say nothing of the cell before it (a maintenance's
+        hand-over): its seed, no statement and no interval yet."""
+        self.seed, self.now, self.suspect_id = seed, None, None
+
+    def to_json(self) -> dict[str, Any]:
+        """Its fields in the decision state (the keys an earlier rvis wrote)."""
+        return {
+            "u_seed": self.seed,
+            "accuracy_suspect_id": self.suspect_id,
+            "accuracy": None if self.now is None else self.now.to_json(),
+        }
+
+    def load_json(self, doc: Mapping[str, Any], version_seed: list[float]) -> None:
+        """From the decision state (`to_json`'s keys; a state saved before the statement: the
+        seed of the version in force, `version_seed`)."""
+        seed = doc.get("u_seed")
+        self.seed = [float(e) for e in seed] if seed is not None else version_seed
+        self.suspect_id = doc.get("accuracy_suspect_id")
+        acc = doc.get("accuracy")
+        if acc is not None:
+            self.now = Accuracy(
+                acc["u95_mm"], int(acc["n"]), str(acc["basis"]), float(acc["limit_mm"])
+            )
+
+
 def statement(norms_mm: Sequence[float], basis: str, limit_mm: float) -> Accuracy:
     """The Accuracy of these residual norms."""
     u = u95_mm(norms_mm)

@@ -17,7 +17,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from app.line.accuracy import Accuracy
+from app.line.accuracy import AccuracyRecord
 from app.line.beyond_knock import MaintenanceNeed
 from app.line.body_cycle import BodyCycle
 from app.line.correction import JumpCorrection
@@ -88,9 +88,7 @@ class LineHost(Protocol):
     last_visit: dict[int, tuple[F64, F64]]  # slot -> (q_deg, c_sensor_mm)
     maintained_from_id: int  # the first measurement after a maintenance's hand-over (0: none)
     episode: dict[str, Any] | None  # a jump found by the one estimator (app.line.jumps)
-    u_seed: list[float]
-    accuracy: Accuracy | None
-    accuracy_suspect_id: int | None
+    accuracy: AccuracyRecord  # what the cell states about its accuracy (app.line.accuracy)
 
     # faults: the storage's and the devices' (app.line.fault_record)
     fault: FaultRecord

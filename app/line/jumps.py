@@ -167,13 +167,13 @@ class JumpWatch:
                 "params_version": svc.version,
                 "text": text,
             }
-            adopted = svc.accuracy_suspect_id
+            adopted = svc.accuracy.suspect_id
             if ep is not None and ep.get("suspect_id") is not None and _interval_open(svc, ep):
                 sid = int(ep["suspect_id"])  # the correction did not hold: the same interval
             elif adopted is not None and svc.store.suspect(adopted) is not None:
                 # the cell could not vouch since before it was found: one interval for one
                 # event, from the earlier of the two starts
-                sid, svc.accuracy_suspect_id = adopted, None
+                sid, svc.accuracy.suspect_id = adopted, None
                 row = svc.store.suspect(sid) or {}
                 start = min(t_start, float(row.get("t_start", t_start)))
                 svc.store.update_suspect(sid, **{**fields, "t_start": start, "group_name": None})

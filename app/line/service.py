@@ -60,7 +60,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from app.inspect.values import StopNoise
-from app.line.accuracy import Accuracy, limit_in_force
+from app.line.accuracy import AccuracyRecord, limit_in_force
 from app.line.beyond_knock import MaintenanceNeed
 from app.line.body_cycle import BodyCycle, BodySetup
 from app.line.body_export import ResultsWriter
@@ -184,11 +184,8 @@ class Service:
         self.jump_onset_id: int | None = None  # a jump's onset: the rolling set from it on
         self.last_visit: dict[int, tuple[F64, F64]] = {}  # slot -> (q_deg, c_sensor_mm)
         self.episode: dict[str, Any] | None = None  # a jump's (app.line.jumps)
-        # what the cell states about its accuracy (app.line.accuracy): the version in force's
-        # seed residuals, the statement after the last window, an open accuracy interval
-        self.u_seed: list[float] = []
-        self.accuracy: Accuracy | None = None
-        self.accuracy_suspect_id: int | None = None
+        # what the cell states about its accuracy (app.line.accuracy.AccuracyRecord)
+        self.accuracy = AccuracyRecord()
         # the measurements before this id were of the cell before a maintenance procedure: its
         # rolling sets and its views' rejections count from here (0: none)
         self.maintained_from_id = 0
@@ -253,9 +250,7 @@ class Service:
             "last_visit": {
                 str(k): [q.tolist(), c.tolist()] for k, (q, c) in self.last_visit.items()
             },
-            "u_seed": self.u_seed,
-            "accuracy_suspect_id": self.accuracy_suspect_id,
-            "accuracy": None if self.accuracy is None else self.accuracy.to_json(),
+            **self.accuracy.to_json(),
             "maintained_from_id": self.maintained_from_id,
             "jumps": self.jumps.to_json(),
         }
@@ -281,15 +276,8 @@ class Service:
             int(k): (np.asarray(q, float), np.asarray(c, float))
             for k, (q, c) in doc["last_visit"].items()
         }
-        # a state saved before the accuracy statement: the seed of the version in force
-        seed = doc.get("u_seed")
-        self.u_seed = [float(e) for e in seed] if seed is not None else self.versions.version_seed()
-        self.accuracy_suspect_id = doc.get("accuracy_suspect_id")
-        acc = doc.get("accuracy")
-        if acc is not None:
-            self.accuracy = Accuracy(
-                acc["u95_mm"], int(acc["n"]), str(acc["basis"]), float(acc["limit_mm"])
-            )
+        version_seed = [] if doc.get("u_seed") is not None else self.versions.version_seed()
+        self.accuracy.load_json(doc, version_seed)
         self.maintained_from_id = int(doc.get("maintained_from_id", 0))
         self.jumps.load_json(doc.get("jumps"))
         if doc["params_version"] != self.version and self._handed_over():
@@ -315,8 +303,7 @@ class Service:
         self.episode, self.jump_onset_id = None, None
         self.last_visit = {}
         self.maintained_from_id = self.store.last_measurement_id() + 1
-        self.u_seed = self.versions.version_seed()
-        self.accuracy, self.accuracy_suspect_id = None, None
+        self.accuracy.restart(self.versions.version_seed())
         self.recal_ids, self.new_since_recal = None, 0
         self.log.info("started after maintenance: version %d in force", self.version)
         self.save_state()

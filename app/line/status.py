@@ -31,7 +31,7 @@ def status_reply(svc: LineHost) -> dict[str, Any]:
             "alarms": [alarm_status(a) for a in svc.fault.unstored_alarms],
             "step": step_text(svc),
             # the U95 of a point measured now, vouched for or not (app.line.accuracy)
-            "accuracy": None if svc.accuracy is None else svc.accuracy.to_json(),
+            "accuracy": None if svc.accuracy.now is None else svc.accuracy.now.to_json(),
             "storage_error": str(exc),
             **_opcua_status(svc),
         }
@@ -101,7 +101,7 @@ def _status(svc: LineHost) -> dict[str, Any]:
         "spheres": svc.sphere_residuals(),
         "step": step_text(svc, maintenance),
         # the U95 of a point measured now, vouched for or not (app.line.accuracy)
-        "accuracy": None if svc.accuracy is None else svc.accuracy.to_json(),
+        "accuracy": None if svc.accuracy.now is None else svc.accuracy.now.to_json(),
         "uncommissioned": uncommissioned(svc),  # no calibration of the cell yet: when it comes
         # the `maintenance` alarm in force, a procedure running, the last done
         "maintenance": maintenance,

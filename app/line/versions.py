@@ -67,7 +67,8 @@ class Versions:
             kind = _kind(None if cal is None else cal["document"])
             # the filter's and a jump correction's residuals on the rows they were fed are
             # optimistic by an unknown factor: no seed from them
-            svc.u_seed = [] if kind in ("sequential", "step") else self.u_seed(cal, self.seed(cal))
+            no_seed = kind in ("sequential", "step")
+            svc.accuracy.seed = [] if no_seed else self.u_seed(cal, self.seed(cal))
             if svc.sequential is not None and kind != "sequential":
                 svc.sequential.restart(svc.model, svc.x, svc.params.current_document())
             onset = svc.jump_onset_id
@@ -144,7 +145,7 @@ class Versions:
         from the stored measurements."""
         svc = self.svc
         cal = self.applied_calibration()
-        svc.u_seed = self.u_seed(cal, self.seed(cal))
+        svc.accuracy.seed = self.u_seed(cal, self.seed(cal))
         for r in svc.store.measurements(last=2 * len(svc.schedule)):
             if 0 <= r["slot"] < len(svc.schedule):
                 q = np.asarray(r["q_deg"], float)

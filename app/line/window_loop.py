@@ -115,7 +115,7 @@ class WindowLoop:
         self.jumps.summarise()
         self._state_accuracy(t_open)
         svc.save_state()
-        acc = svc.accuracy
+        acc = svc.accuracy.now
         svc.bus.emit(
             "window",
             {
@@ -174,9 +174,9 @@ class WindowLoop:
     def statement_u95_mm(self) -> float | None:
         """The U95 the cell states for a point measured now (None: none)."""
         svc = self.svc
-        if svc.accuracy is not None and svc.accuracy.u95_mm is not None:
-            return svc.accuracy.u95_mm
-        seed = statement(svc.u_seed, "seed", svc.settings.recalib.accuracy_limit_mm)
+        if svc.accuracy.now is not None and svc.accuracy.now.u95_mm is not None:
+            return svc.accuracy.now.u95_mm
+        seed = statement(svc.accuracy.seed, "seed", svc.settings.recalib.accuracy_limit_mm)
         return seed.u95_mm
 
     def _bodies_after_window(self) -> None:
@@ -254,17 +254,17 @@ class WindowLoop:
         rows = svc.store.measurements(last=4 * len(svc.schedule))
         limit = svc.settings.recalib.accuracy_limit_mm
         acc = Accuracy(self.jumps.statement_u95_mm(), self.jumps.n_rows(), ESTIMATOR, limit)
-        svc.accuracy = acc
+        svc.accuracy.now = acc
         self._watch_vouched(acc)
         with svc.store.batch():
             svc.store.state_window_u95(acc.u95_mm)
-            open_id = svc.accuracy_suspect_id
+            open_id = svc.accuracy.suspect_id
             # (a jump's open interval speaks for these windows already)
             if not acc.vouched and open_id is None and not self.jumps.interval_open():
                 # from the last measurement before this window (the last one vouched for) on
                 before = [r for r in rows if r["t"] < t_open]
                 first_id = int(before[-1]["id"]) + 1 if before else svc.store.last_measurement_id()
-                svc.accuracy_suspect_id = sid = svc.store.open_suspect(
+                svc.accuracy.suspect_id = sid = svc.store.open_suspect(
                     {
                         "t_start": float(before[-1]["t"]) if before else t_open,
                         "last_good_id": int(before[-1]["id"]) if before else None,
@@ -284,7 +284,7 @@ class WindowLoop:
                     end_version=svc.version,
                     text=f"{row.get('text', '')}; vouched for again: {acc.text()}",
                 )
-                svc.accuracy_suspect_id, opened = None, svc.store.suspect(open_id)
+                svc.accuracy.suspect_id, opened = None, svc.store.suspect(open_id)
             else:
                 opened = None
         if opened is not None:
