@@ -36,9 +36,8 @@ statement is a norm averaged over the spheres' poses and directions (its trace /
 coordinate): the split above assumes the error the same in every direction and at every pose,
 while a drifting cell's error is not (a warming arm grows along its own axes). The larger of
 the two stands in the value: e' S e where the estimator sees more along e at this view than the
-statement's share. (Taken alone, e' S e understated: on judging seed 202's correlation the
-positions' coverage fell from 98.7 % to 94.9 %, the estimator at the spheres' poses not seeing
-all of the error at the body's.) The offset d is an estimate the version in force does not
+statement's share: the estimator sees the spheres' poses, and at the body's it may see less
+than there is (docs/results/body.md). The offset d is an estimate the version in force does not
 correct: it is counted as a variance (b^2 with b = e' J d), the root-sum-square way of stating
 an uncorrected bias (Phillips, Eberhardt and Parry, J. Res. NIST 102 (1997) 577).
 

@@ -209,13 +209,11 @@ class ShiftResult:
     def within_limit_after(self) -> int | None:
         """Windows from the knock's to the first whose true RMS is within the accuracy limit
         (issue 50's measure; None: no knock window, or none within)."""
-        k = self.knock_window
-        within = [
-            r.window
-            for r in self.records
-            if k is not None and r.window >= k and r.rmse_mm <= self.accuracy_limit_mm
-        ]
-        return None if k is None or not within else within[0] - k + 1
+        k, limit = self.knock_window, self.accuracy_limit_mm
+        if k is None:
+            return None
+        within = (r.window for r in self.records if r.window >= k and r.rmse_mm <= limit)
+        return next((w - k + 1 for w in within), None)
 
     @staticmethod
     def from_json(doc: dict[str, Any]) -> ShiftResult:

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 from app.sim.bodies import rendered_profiles
 from app.sim.cell import true_sensor_model
 from fakes.render_sensor import TrueSensor
-from tests.sim.test_render_sheet import feature_pose, sweep_commands
+from fakes.render_sheet import bench_commands, bench_pose
 from vision.features import FeatureFit, measure_feature
 
 F64 = NDArray[np.float64]
@@ -38,7 +38,7 @@ Case = tuple[str, float]
 
 
 def _pose(tilt_deg: float) -> F64:
-    return feature_pose(tilt_deg, ROLL_DEG)
+    return bench_pose(tilt_deg, ROLL_DEG)
 
 
 def measure_rendered(
@@ -48,7 +48,7 @@ def measure_rendered(
     feature's plane (2,) [mm]."""
     T = _pose(tilt_deg)
     R, t = T[:3, :3], T[:3, 3]
-    cmds = sweep_commands(true, 0.5 * max(size) + 3.0, 40)
+    cmds = bench_commands(true, 0.5 * max(size) + 3.0, 40)
     profiles = rendered_profiles(
         T, kind, size, THICKNESS_MM, true, true_sensor_model(true), np.random.default_rng(seed),
         cmds,

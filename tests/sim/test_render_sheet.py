@@ -30,10 +30,6 @@ F64 = NDArray[np.float64]
 THICKNESS_MM = 1.2
 
 
-#: the bench's pose and sweep (fakes.render_sheet), as tests/sim/test_render_edge.py uses them
-feature_pose, sweep_commands = bench_pose, bench_commands
-
-
 @pytest.mark.parametrize(
     ("kind", "size", "tol_centre", "tol_size"),
     # one sweep's scatter (the camera's rows sample the edge every 28 um, the speckle decides
@@ -44,10 +40,10 @@ feature_pose, sweep_commands = bench_pose, bench_commands
 def test_a_rendered_feature_is_measured_where_it_was_rendered(
     true_sensor: TrueSensor, kind: str, size: tuple[float, ...], tol_centre: float, tol_size: float
 ) -> None:
-    T = feature_pose(12.0)
+    T = bench_pose(12.0)
     R, t = T[:3, :3], T[:3, 3]
     half = 0.5 * max(size, default=8.0) + 3.0
-    cmds = sweep_commands(true_sensor, half, 40 if size else 12)
+    cmds = bench_commands(true_sensor, half, 40 if size else 12)
     profiles = rendered_profiles(
         T, kind, size, THICKNESS_MM, true_sensor, true_sensor_model(true_sensor),
         np.random.default_rng(5), cmds,
@@ -63,8 +59,8 @@ def test_a_rendered_feature_is_measured_where_it_was_rendered(
 def test_the_wall_is_seen_through_the_opening_and_nothing_behind_it(
     true_sensor: TrueSensor,
 ) -> None:
-    flat, X, _ = feature_surface(feature_pose(12.0), "hole", (12.0,), THICKNESS_MM, true_sensor)
-    T = feature_pose(12.0)
+    flat, X, _ = feature_surface(bench_pose(12.0), "hole", (12.0,), THICKNESS_MM, true_sensor)
+    T = bench_pose(12.0)
     Xf = (X - T[:3, 3]) @ T[:3, :3]
     r = np.hypot(Xf[:, 0], Xf[:, 1])
     top = np.abs(Xf[:, 2]) < 1e-9
@@ -96,10 +92,10 @@ def test_a_real_cells_feature_sweep_puts_the_edge_by_the_light(true_sensor: True
     """The real sensor's sweep (`SweepFeatureSensor`, what `rvis run` measures bodies with)
     gives each point its light, as the simulated line's rendered path does: a slot's width
     and length within one sweep's scatter of the geometry rendered, the galvo parked after."""
-    T = feature_pose(10.0)
+    T = bench_pose(10.0)
     R, t = T[:3, :3], T[:3, 3]
     size = (8.0, 20.0)
-    cmds = sweep_commands(true_sensor, 0.5 * max(size) + 3.0, 40)
+    cmds = bench_commands(true_sensor, 0.5 * max(size) + 3.0, 40)
     frames = render_feature_sweep(
         T, "slot", size, THICKNESS_MM, true_sensor, np.random.default_rng(5), cmds
     )
