@@ -63,9 +63,9 @@ def ready(ctx: Context) -> StepResult:
 
 def _commissioned_cell(ctx: Context) -> CellConfig:
     """The cell with the measured spheres, this state directory, on the simulated line its
-    seed and measuring path (and the rendered sensor's edge allowance, `[sensor] edge_u_mm`,
-    as bench/edge.py measured it on certified bores), and, when the stripe step chose one, its
-    exposure."""
+    seed and measuring path (and the rendered sensor's edge allowances, `[sensor] edge_u_mm`
+    and `edge_u_slot_mm`, as bench/edge.py measured them on certified bores and slots, where
+    larger than the cell file's), and, when the stripe step chose one, its exposure."""
     cell = ctx.cell()
     service = dataclasses.replace(cell.service, state_dir=str(ctx.state.root.resolve()))
     tolerance = ctx.cfg.commission.tolerance_mm
@@ -82,8 +82,12 @@ def _commissioned_cell(ctx: Context) -> CellConfig:
         )
         cell = dataclasses.replace(cell, simulation=simulation)
         edge = ctx.truth.sensor_edge_u_mm  # the simulated sensor's, from certified bores
-        if edge is not None and edge > cell.sensor.edge_u_mm:
-            sensor = dataclasses.replace(cell.sensor, edge_u_mm=edge)
+        if edge is not None:
+            sensor = dataclasses.replace(
+                cell.sensor,
+                edge_u_mm=max(cell.sensor.edge_u_mm, edge["hole"]),
+                edge_u_slot_mm=max(cell.sensor.edge_u_slot_mm, edge["slot"]),
+            )
             cell = dataclasses.replace(cell, sensor=sensor)
     stripe = ctx.path(STRIPE_FILE)
     if stripe.exists():

@@ -101,10 +101,12 @@ class SensorSection(Section):
     # the model: [service] jump_sigma_mm)
     centre_sd_mm: float = opt(0.005, lo=0, hi=1)
     # the type-B standard uncertainty per side [mm] of what stays systematic in where the
-    # sensor puts a hole's or a slot's edge, which a size's U95 carries (app/inspect/
-    # values.py): from the sensor's acceptance on certified bores (bench/edge.py measures the
-    # simulated sensor's); 0.002, a tenth of a row step as a uniform bound, when not measured
+    # sensor puts a round hole's edge (edge_u_mm) and a slot's (edge_u_slot_mm: its straight
+    # sides and end arcs), which a size's U95 carries (app/inspect/values.py): from the
+    # sensor's acceptance on certified bores and slots (bench/edge.py measures the simulated
+    # sensor's); 0.002, a tenth of a row step as a uniform bound, when not measured
     edge_u_mm: float = opt(0.002, lo=0, hi=1)
+    edge_u_slot_mm: float = opt(0.002, lo=0, hi=1)
     # the acceptance test (VDI/VDE 2634-2, vision/acceptance.py): the largest magnitudes of the
     # probing errors form PF and size PS and of the sphere-spacing error SD [mm]; the in-line
     # chart of PS (app/line/sensor_watch.py) raises the `sensor` alarm beyond max_ps_mm. PF, the

@@ -166,7 +166,7 @@ def evaluate(
     at_view = None if shared is None else shared(q_deg, c_sensor, raws[0].temp_c)
     return feature_values(
         feature, fit, cov, statement_u95_mm, len(fits), repeat, noise.statement_noise_mm,
-        clamp_sd_mm, at_view, noise.edge_u_mm,
+        clamp_sd_mm, at_view, noise.edge_u(feature.type),
     )  # fmt: skip
 
 

@@ -44,8 +44,10 @@ an uncorrected bias (Phillips, Eberhardt and Parry, J. Res. NIST 102 (1997) 577)
 A size (D, W, L) is a distance within one view: the pose's error moves both edges alike, so
 its U95 is k sqrt(sd_fit^2 + 2 u_edge^2): the fit's own sd holds the edge points' random
 placement within a stripe sample; u_edge is the type-B uncertainty of what stays systematic on
-every edge point of one side (`[sensor] edge_u_mm`, default `EDGE_U_MM`: the sensor's, measured
-on certified bores as bench/edge.py measures the simulated rendered sensor's).
+every edge point of one side, a round hole's (`[sensor] edge_u_mm`) or a slot's
+(`edge_u_slot_mm`: a slot's fit rests on two straight sides and two end arcs, where a circle's
+averages its edge all round), default `EDGE_U_MM`: the sensor's, measured on certified bores
+and slots as bench/edge.py measures the simulated rendered sensor's.
 
 Decision (ISO 14253-1): conformance proven when the value lies inside the tolerance shrunk by
 U on each side, nonconformance proven when it lies outside the tolerance widened by U, else
@@ -81,11 +83,17 @@ class StopNoise:
     repeatability, the data sheet's ISO 9283 RP [mm] (0: not known), and the cell's statement's
     own measurement noise per coordinate [mm] (sigma_m: the estimator's,
     app.line.estimate.sphere_sigma_mm; 0: the statement holds none apart), and the sensor's
-    edge placement allowance per side in a size's U95 [mm]."""
+    edge placement allowances per side in a size's U95 [mm]: a round hole's and a slot's
+    ([sensor] edge_u_mm, edge_u_slot_mm)."""
 
     repeatability_mm: float = 0.0
     statement_noise_mm: float = 0.0
-    edge_u_mm: float = EDGE_U_MM  # the sensor's edge placement, per side ([sensor] edge_u_mm)
+    edge_u_mm: float = EDGE_U_MM
+    edge_u_slot_mm: float = EDGE_U_MM
+
+    def edge_u(self, feature_type: str) -> float:
+        """The edge placement allowance per side [mm] of a feature of this type's sizes."""
+        return self.edge_u_slot_mm if feature_type == "slot" else self.edge_u_mm
 
 
 #: no noise held apart: the statement as it is, once a stop
@@ -156,7 +164,8 @@ def feature_values(
     repeatability at one stop of the view (None: not known, the statement's noise stands in);
     clamp_sd_mm: the fixture's clamping repeatability (the plan's); shared_cov_mm2 (3, 3): the
     estimator's shared error at the feature's view (None: the statement's share stands in);
-    edge_u_mm: the sensor's edge placement allowance per side, in a size's U95."""
+    edge_u_mm: the sensor's edge placement allowance per side for this feature's type, in a
+    size's U95 (StopNoise.edge_u)."""
     sigma2 = cell_sigma_mm(statement_u95_mm) ** 2
     noise2 = min(statement_noise_mm**2, sigma2)
     out = []

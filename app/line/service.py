@@ -170,7 +170,10 @@ class Service:
             writer = None
             if s.results_dir is not None:
                 writer = ResultsWriter(s.results_dir, s.station, bodies.plan.description)
-            noise = StopNoise(s.repeatability_mm, s.recalib.jump_sigma_mm, s.sensor_edge_u_mm)
+            noise = StopNoise(
+                s.repeatability_mm, s.recalib.jump_sigma_mm, s.sensor_edge_u_mm,
+                s.sensor_edge_u_slot_mm,
+            )  # fmt: skip
             self.body_cycle = BodyCycle(
                 bodies, self.watch, self.measurer, self.store, noise, writer
             )

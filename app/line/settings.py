@@ -50,8 +50,10 @@ class ServiceSettings:
     # a sphere centre's sd from one sweep, the sensor's own ([sensor] centre_sd_mm): with RP,
     # a sphere measurement's noise (app.line.estimate.sphere_sigma_mm)
     sensor_centre_sd_mm: float = SensorSection.centre_sd_mm
-    # the sensor's edge placement allowance in a size's U95 ([sensor] edge_u_mm)
+    # the sensor's edge placement allowances in a size's U95 ([sensor] edge_u_mm, a round
+    # hole's; edge_u_slot_mm, a slot's)
     sensor_edge_u_mm: float = SensorSection.edge_u_mm
+    sensor_edge_u_slot_mm: float = SensorSection.edge_u_slot_mm
     # [results]: the folder each body's AQDEF file goes to (None: none), the station, the days
     # the bodies are kept (0: for ever)
     results_dir: Path | None = None
@@ -84,6 +86,7 @@ def from_cell(cfg: Any, state_dir: str | Path | None = None) -> ServiceSettings:
         repeatability_mm=float(cfg.robot.repeatability_mm),
         sensor_centre_sd_mm=float(cfg.sensor.centre_sd_mm),
         sensor_edge_u_mm=float(cfg.sensor.edge_u_mm),
+        sensor_edge_u_slot_mm=float(cfg.sensor.edge_u_slot_mm),
         results_dir=_results_dir(cfg, state_dir),
         station=(str(cfg.results.station), str(cfg.results.station_description)),
         results_keep_days=float(cfg.results.keep_days),

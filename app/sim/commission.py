@@ -31,11 +31,12 @@ from fakes.line import SimLine
 from fakes.render_targets import render_calibration_set
 from vision.sensor_model import SensorModel, dumps_sensor_model
 
-#: the simulated rendered sensor's edge placement allowance per side [mm] (`[sensor]
-#: edge_u_mm`), as its acceptance on certified bores found it: `bench/edge.py --seeds 3`
-#: (holes of 6, 12 and 20 mm and an 8 x 20 mm slot, tilted 0-15 degrees and rolled, 174 sizes):
-#: 3.8 um, what the sizes' errors hold beyond their fits' own sd (docs/results/body.md)
-RENDERED_EDGE_U_MM = 0.0038
+#: the simulated rendered sensor's edge placement allowances per side [mm] by feature type
+#: (`[sensor] edge_u_mm`, a round hole's; `edge_u_slot_mm`, a slot's), as its acceptance on
+#: certified bores and slots found them: `bench/edge.py --seeds 3` (holes of 6, 12 and 20 mm
+#: and an 8 x 20 mm slot, tilted 0-15 degrees and rolled, 174 sizes): what the sizes' errors
+#: hold beyond their fits' own sd (docs/results/body.md)
+RENDERED_EDGE_U_MM = {"hole": 0.0019, "slot": 0.0057}
 
 F64 = NDArray[np.float64]
 
@@ -182,11 +183,12 @@ class SimCommissioning:
         }
 
     @property
-    def sensor_edge_u_mm(self) -> float | None:
-        """The simulated sensor's edge placement allowance per side [mm], as its acceptance on
-        certified bores found it (`[sensor] edge_u_mm`; None: the geometric path, whose edge
-        points are the true edge's plus noise)."""
-        return None if self.geometric else RENDERED_EDGE_U_MM
+    def sensor_edge_u_mm(self) -> dict[str, float] | None:
+        """The simulated sensor's edge placement allowances per side [mm] by feature type, as
+        its acceptance on certified bores and slots found them (`[sensor] edge_u_mm`,
+        `edge_u_slot_mm`; None: the geometric path, whose edge points are the true edge's plus
+        noise)."""
+        return None if self.geometric else dict(RENDERED_EDGE_U_MM)
 
     def true_rmse_mm(self, model: Any, x: F64, sensor_model: SensorModel) -> float:
         """The end-to-end true error [mm, RMS] of parameters x at the line's validation

@@ -85,7 +85,12 @@ class InspectionCell:
             self.bodies,
             self.statement_u95_mm,
             self.temp_c,
-            StopNoise(self.cfg.robot.repeatability_mm, self.sigma_mm, self.cfg.sensor.edge_u_mm),
+            StopNoise(
+                self.cfg.robot.repeatability_mm,
+                self.sigma_mm,
+                self.cfg.sensor.edge_u_mm,
+                self.cfg.sensor.edge_u_slot_mm,
+            ),
         )
 
 

@@ -19,7 +19,7 @@ from app.config import CellConfig
 from app.errors import InputError
 from app.inspect.measure import mean_fit
 from app.inspect.plan import features_toml, load_features
-from app.inspect.values import decide, feature_values
+from app.inspect.values import StopNoise, decide, feature_values
 from app.inspect.views import (
     FeatureView,
     InspectionPlan,
@@ -316,6 +316,11 @@ def test_a_value_holds_its_own_stops_repeatability_in_place_of_the_statements_no
     got = {v.characteristic.name: v.u95_mm for v in edged}
     assert got["D"] == pytest.approx(1.959964 * np.sqrt(0.002**2 + 2 * 0.005**2), rel=1e-4)
     assert got["X"] == plain["X"]
+    # a slot's allowance ([sensor] edge_u_slot_mm) for a slot's sizes, a hole's for a hole's
+    noise = StopNoise(edge_u_mm=0.002, edge_u_slot_mm=0.006)
+    assert (noise.edge_u("slot"), noise.edge_u("hole"), noise.edge_u("surface")) == (
+        0.006, 0.002, 0.002,
+    )  # fmt: skip
     assert two["D"] == one["D"]  # a size: within one view, no pose error
     # the estimator's shared error at the view, where it says more than the statement's share
     # along a direction (a warming arm's error along Z is Z's, not a third of a norm)
