@@ -49,31 +49,40 @@ class Decisions:
     def counted(self) -> None:
         """A good measurement recorded (in its transaction): one more towards the next
         recalibration, and a rolling set found incomplete is looked for again."""
-        self.svc.new_since_recal += 1
+        self.svc.decision.new_since_recal += 1
         self._good_rows += 1
 
     def _recal_due(self) -> bool:
         svc = self.svc
         r = svc.settings.recalib
-        if svc.force_recal or svc.new_since_recal >= r.every_n:
+        if svc.decision.force_recal or svc.decision.new_since_recal >= r.every_n:
             return True
-        return svc.jump_onset_id is not None and svc.new_since_recal >= r.holdout_size
+        return (
+            svc.decision.jump_onset_id is not None
+            and svc.decision.new_since_recal >= r.holdout_size
+        )
 
     def maybe_recalibrate(self) -> None:
         """Between windows: a recalibration started (or the sequential estimator's candidate
         proposed) when one is due and nothing waits for a decision."""
         svc = self.svc
         if svc.sequential is not None:  # "calibrate now" proposes the filter's state at once
-            forced = svc.force_recal and svc.sequential.can_propose()
+            forced = svc.decision.force_recal and svc.sequential.can_propose()
             due = forced or svc.sequential.due()
-            if svc.pending_calibration is None and due:
-                svc.force_recal = False
+            if svc.decision.pending_calibration is None and due:
+                svc.decision.force_recal = False
                 self.recal_done(svc.sequential.candidate(svc.model, svc.x))
             return
-        if svc.recalibrator.busy or svc.pending_calibration is not None or not self._recal_due():
+        if (
+            svc.recalibrator.busy
+            or svc.decision.pending_calibration is not None
+            or not self._recal_due()
+        ):
             return
-        since = 0 if svc.jump_onset_id is None else svc.jump_onset_id - 1
-        since = max(since, svc.maintained_from_id - 1)  # none of the cell before a maintenance
+        since = 0 if svc.decision.jump_onset_id is None else svc.decision.jump_onset_id - 1
+        since = max(
+            since, svc.decision.maintained_from_id - 1
+        )  # none of the cell before a maintenance
         attempt = (self._good_rows, since)
         if attempt == self._incomplete:
             return  # no good measurement since the rolling set was found incomplete
@@ -98,8 +107,8 @@ class Decisions:
                 )
             return
         with svc.store.batch():
-            svc.force_recal, svc.new_since_recal = False, 0
-            svc.recal_ids = {
+            svc.decision.force_recal, svc.decision.new_since_recal = False, 0
+            svc.decision.recal_ids = {
                 "train": [int(t["id"]) for t in train],
                 "holdout": [int(h["id"]) for h in holdout],
             }
@@ -110,15 +119,17 @@ class Decisions:
         """The (training, held-out) measurements a recalibration would use now: the last ones,
         after a jump's onset when there is one (None: not complete yet)."""
         svc = self.svc
-        since = 0 if svc.jump_onset_id is None else svc.jump_onset_id - 1
-        since = max(since, svc.maintained_from_id - 1)  # none of the cell before a maintenance
+        since = 0 if svc.decision.jump_onset_id is None else svc.decision.jump_onset_id - 1
+        since = max(
+            since, svc.decision.maintained_from_id - 1
+        )  # none of the cell before a maintenance
         r = svc.settings.recalib
         rows = svc.store.measurements(
             status="ok", since_id=since, last=r.rolling_n + r.holdout_size
         )
         # the views left out (app.line.slot_choice) are not waited for: a set without them is
         # complete
-        lost = lost_views(svc.store, svc.maintained_from_id - 1)
+        lost = lost_views(svc.store, svc.decision.maintained_from_id - 1)
         slots = [x for x in svc.schedule.slots if x.index not in lost] or svc.schedule.slots
         targets = tuple(dict.fromkeys(x.target for x in slots))
         return select_rolling(rows, len(slots), targets, r)
@@ -145,9 +156,9 @@ class Decisions:
         svc = self.svc
         if svc.sequential is not None:
             return ""
-        if svc.pending_calibration is not None:
+        if svc.decision.pending_calibration is not None:
             return (
-                f"it waits for the decision on calibration {svc.pending_calibration}"
+                f"it waits for the decision on calibration {svc.decision.pending_calibration}"
                 " (approve or reject it)"
             )
         if svc.recalibrator.busy:
@@ -155,9 +166,10 @@ class Decisions:
         chosen = self.rolling_set()
         r = svc.settings.recalib
         if chosen is None:
-            if svc.jump_onset_id is not None:
+            if svc.decision.jump_onset_id is not None:
+                onset = svc.decision.jump_onset_id
                 return (
-                    f"it waits for the measurements after the jump (from #{svc.jump_onset_id}"
+                    f"it waits for the measurements after the jump (from #{onset}"
                     f"; {r.rolling_n + r.holdout_size} needed, every sphere)"
                 )
             return f"it waits for a complete rolling set ({r.rolling_n + r.holdout_size})"
@@ -172,7 +184,7 @@ class Decisions:
         """A calibration that was in flight when the service stopped runs again (the same
         measurements, the parameters in force)."""
         svc = self.svc
-        ids = svc.recal_ids
+        ids = svc.decision.recal_ids
         if ids is None or svc.sequential is not None:
             return
         rows = {
@@ -212,7 +224,7 @@ class Decisions:
         status = "pending" if out.passed else "rejected"
         with svc.store.batch():
             cal_id = self._add_calibration(out, status)
-            svc.recal_ids = None
+            svc.decision.recal_ids = None
             svc.save_state()
         svc.bus.emit(
             "calibration",
@@ -230,12 +242,12 @@ class Decisions:
         if self.applies_automatically():
             self.versions.apply_calibration(cal_id, None, "auto")
         else:
-            svc.pending_calibration = cal_id
+            svc.decision.pending_calibration = cal_id
 
     def applies_automatically(self) -> bool:
         """A calibration that passes its gates is applied at once: auto mode, and no hold
         after a rollback (`auto_hold`); otherwise it waits for an engineer's approve."""
-        return self.svc.settings.recalib.mode == "auto" and self.svc.auto_hold is None
+        return self.svc.settings.recalib.mode == "auto" and self.svc.decision.auto_hold is None
 
     def _add_calibration(
         self, out: RecalOutcome | SequentialCandidate | JumpCorrection, status: str
@@ -261,7 +273,7 @@ class Decisions:
         """The identification worker failed: the calibration in flight recorded as rejected
         with the cause (not run again after the restart)."""
         svc = self.svc
-        ids = svc.recal_ids or {"train": [], "holdout": []}
+        ids = svc.decision.recal_ids or {"train": [], "holdout": []}
         with contextlib.suppress(StorageError), svc.store.batch():
             svc.store.add_calibration(
                 {
@@ -274,5 +286,5 @@ class Decisions:
                     "reason": f"the identification worker failed: {type(exc).__name__}: {exc}",
                 }
             )
-            svc.recal_ids = None
+            svc.decision.recal_ids = None
             svc.save_state()

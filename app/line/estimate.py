@@ -190,7 +190,7 @@ class CellEstimate:
         st = self.state
         if self.svc.settings.recalib.candidate != "posterior":
             return None
-        if self.svc.jump_onset_id is not None or st is None or not st.rows:
+        if self.svc.decision.jump_onset_id is not None or st is None or not st.rows:
             return None
         x, P = st.estimate()
         return Posterior(x, st.active, P.copy())

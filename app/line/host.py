@@ -22,6 +22,7 @@ from app.line.beyond_knock import MaintenanceNeed
 from app.line.body_cycle import BodyCycle
 from app.line.correction import JumpCorrection
 from app.line.cycle import Cycle, WindowWatch
+from app.line.decision_state import DecisionState
 from app.line.events import EventBus
 from app.line.fault_record import FaultRecord
 from app.line.inline_seq import InlineSequential, SequentialCandidate
@@ -77,17 +78,7 @@ class LineHost(Protocol):
 
     # the decision state (snapshot / restore)
     state: State
-    paused: bool
-    counters: dict[str, int]
-    pending_calibration: int | None
-    auto_hold: dict[str, Any] | None  # a rollback in auto mode holds automatic applies
-    force_recal: bool
-    new_since_recal: int
-    recal_ids: dict[str, list[int]] | None  # the calibration in flight
-    jump_onset_id: int | None  # a jump's onset: the rolling set from it on
-    last_visit: dict[int, tuple[F64, F64]]  # slot -> (q_deg, c_sensor_mm)
-    maintained_from_id: int  # the first measurement after a maintenance's hand-over (0: none)
-    episode: dict[str, Any] | None  # a jump found by the one estimator (app.line.jumps)
+    decision: DecisionState  # what it decided and remembers across a restart
     accuracy: AccuracyRecord  # what the cell states about its accuracy (app.line.accuracy)
 
     # faults: the storage's and the devices' (app.line.fault_record)

@@ -109,11 +109,11 @@ class JumpWatch:
     @property
     def episode(self) -> dict[str, Any] | None:
         """The jump in hand (the service's decision state, persisted: to_json)."""
-        return self.svc.episode
+        return self.svc.decision.episode
 
     @episode.setter
     def episode(self, value: dict[str, Any] | None) -> None:
-        self.svc.episode = value
+        self.svc.decision.episode = value
 
     def summarise(self) -> None:
         """The spheres' summary, once a window in the loop's thread (the status reply reads
@@ -184,11 +184,11 @@ class JumpWatch:
                 "suspect_id": sid,
                 "group": "",
                 "corrected_version": None,
-                "window": svc.counters["windows"],
+                "window": svc.decision.counters["windows"],
                 "clean": 0,
                 "text": text,
             }
-            svc.jump_onset_id = onset  # the rolling set from the onset on
+            svc.decision.jump_onset_id = onset  # the rolling set from the onset on
             svc.save_state()
         svc.bus.emit("suspect_interval", suspect_json(svc.store.suspect(sid) or {}))
         svc.alarm(AlarmCode.DRIFT_STEP, f"{text}: finding what moved", "high")
@@ -221,11 +221,11 @@ class JumpWatch:
         moved_mm = self._seen_mm(best)
         if ready and self._determined(best, moved_mm) and self._holds(best):
             self._describe(ep, h.name, moved_mm, f"{h.label} {best.size_text()}")
-            if svc.pending_calibration is None and not svc.recalibrator.busy:
+            if svc.decision.pending_calibration is None and not svc.recalibrator.busy:
                 svc.recal_done(self._correction(best, n_after))
             return
-        if n_after >= r.jump_settle and not svc.force_recal and ep["group"] != SEVERAL:
-            svc.force_recal = True
+        if n_after >= r.jump_settle and not svc.decision.force_recal and ep["group"] != SEVERAL:
+            svc.decision.force_recal = True
             guess = "no single group explains it" if v.isolated == SEVERAL else f"{h.label}?"
             self._describe(ep, SEVERAL, seen_mm, f"{guess}: a full recalibration")
 
@@ -242,7 +242,7 @@ class JumpWatch:
         decisive = top is not None and (
             len(fits) == 1 or top.score - fits[1].score >= st.settings.margin
         )
-        waited = svc.counters["windows"] - int(ep["window"]) + 1 >= BLIND_WINDOWS
+        waited = svc.decision.counters["windows"] - int(ep["window"]) + 1 >= BLIND_WINDOWS
         if not (decisive or waited):  # more measurements name what moved; meanwhile the
             self._describe(ep, "", seen_mm, "beyond a knock: finding what moved")  # interval
             return
@@ -287,7 +287,7 @@ class JumpWatch:
             fields |= {"t_start": float(before[0]["t"]), "last_good_id": int(before[0]["id"])}
         with svc.store.batch():
             ep["onset_id"] = onset
-            svc.jump_onset_id = onset
+            svc.decision.jump_onset_id = onset
             if _interval_open(svc, ep):
                 svc.store.update_suspect(int(ep["suspect_id"]), **fields)
             svc.save_state()
@@ -405,7 +405,7 @@ class JumpWatch:
         group = str(ep.get("group", ""))
         if st is None or not group or group == SEVERAL or group.startswith(SPHERE):
             return False
-        if int(ep.get("refined", 0)) >= REFINE_MAX or svc.pending_calibration is not None:
+        if int(ep.get("refined", 0)) >= REFINE_MAX or svc.decision.pending_calibration is not None:
             return False
         fit = st.group_posterior(group)
         if fit is None or fit.p_value >= REFINE_P or 3 * len(st.rows) - fit.dof < REDUNDANCY:

@@ -12,7 +12,7 @@ role does not allow is refused with the role it needs, and audited the same way.
     rollback version | ack alarm | shelve alarm reason [minutes]
 
 A rollback to the version in force is refused (nothing would change but the history). A
-rollback in auto mode holds automatic applies (`svc.auto_hold`, in the decision state): a
+rollback in auto mode holds automatic applies (`svc.decision.auto_hold`, in the decision state): a
 calibration that passes its gates waits as in approve mode, until an engineer approves one or
 resumes (`LIFTS_HOLD`; an operator's resume only resumes measuring); the reply and the status
 say so.
@@ -130,7 +130,7 @@ class Operator:
     # -- handlers (run in the service loop, between windows) -------------------------------
     def _cmd_pause(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
         svc = self.svc
-        svc.paused = True
+        svc.decision.paused = True
         svc.save_state()
         if svc.state == State.IDLE:
             svc.set_state(State.PAUSED)
@@ -140,21 +140,25 @@ class Operator:
         """Measure again; an engineer's resume also lifts the hold of a rollback (when no
         calibration waits for a decision: that one is approved or rejected first)."""
         svc = self.svc
-        hold, note = svc.auto_hold, ""
+        hold, note = svc.decision.auto_hold, ""
         if hold is not None:
-            pending = svc.pending_calibration
+            pending = svc.decision.pending_calibration
             if self.role != LIFTS_HOLD:
                 note = f"; {HOLD_LIFT} (uid {uid} is an {self.role})"
             elif pending is not None:
                 note = f"; automatic applies stay held: approve or reject calibration {pending}"
             else:
-                svc.auto_hold = None
+                svc.decision.auto_hold = None
                 note = "; automatic applies go on (the hold of the rollback lifted)"
-        svc.paused = False
+        svc.decision.paused = False
         svc.save_state()
         if svc.state == State.PAUSED:
             svc.set_state(State.IDLE)
-        return {"message": f"resumed{note}", "state": svc.state.value, "held": bool(svc.auto_hold)}
+        return {
+            "message": f"resumed{note}",
+            "state": svc.state.value,
+            "held": bool(svc.decision.auto_hold),
+        }
 
     def _cmd_reset(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
         svc = self.svc
@@ -177,7 +181,7 @@ class Operator:
         t = svc.clock.time()
         for code in FAULT_CODES:
             svc.clear_alarms(code, t)
-        svc.set_state(State.PAUSED if svc.paused else State.IDLE)
+        svc.set_state(State.PAUSED if svc.decision.paused else State.IDLE)
         home = svc.measurer.at_home()
         note = "" if home else "; the robot comes home in the next window"
         return {"message": f"reset{note}", "state": svc.state.value}
@@ -225,7 +229,7 @@ class Operator:
 
     def _cmd_recalibrate(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
         svc = self.svc
-        svc.force_recal = True
+        svc.decision.force_recal = True
         svc.save_state()
         wait = svc.recal_wait()
         return {
@@ -235,7 +239,7 @@ class Operator:
 
     def _pending_id(self, args: dict[str, Any]) -> int:
         svc = self.svc
-        pending = svc.pending_calibration
+        pending = svc.decision.pending_calibration
         if pending is None:
             raise CommandError("no calibration is pending: nothing to approve or reject")
         cal_id = _int(args, "calibration") if "calibration" in args else pending
@@ -246,11 +250,14 @@ class Operator:
     def _cmd_approve(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
         svc = self.svc
         cal_id = self._pending_id(args)
-        held, svc.auto_hold = svc.auto_hold, None  # approved: automatic applies go on
+        held, svc.decision.auto_hold = (
+            svc.decision.auto_hold,
+            None,
+        )  # approved: automatic applies go on
         try:
             version = svc.apply_calibration(cal_id, uid, "approved")
         except Exception:
-            svc.auto_hold = held
+            svc.decision.auto_hold = held
             raise
         note = "; automatic applies go on (the hold of the rollback lifted)" if held else ""
         return {
@@ -262,7 +269,7 @@ class Operator:
         svc = self.svc
         cal_id = self._pending_id(args)
         svc.store.decide_calibration(cal_id, "rejected", svc.clock.time(), uid)
-        svc.pending_calibration = None
+        svc.decision.pending_calibration = None
         return {"message": f"calibration {cal_id} rejected"}
 
     def _cmd_rollback(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:
@@ -277,13 +284,13 @@ class Operator:
         svc.params.rollback(version)
         if svc.settings.recalib.mode == "auto":  # saved with the apply (in_force)
             t = utc_text(svc.clock.time())
-            svc.auto_hold = {"version": version, "uid": uid, "since_utc": t}
+            svc.decision.auto_hold = {"version": version, "uid": uid, "since_utc": t}
         svc.in_force(version, None, "rollback", uid)
-        note = f"; {HOLD_LIFT}" if svc.auto_hold is not None else ""
+        note = f"; {HOLD_LIFT}" if svc.decision.auto_hold is not None else ""
         return {
             "message": f"parameters version {version} in force{note}",
             "version": version,
-            "held": svc.auto_hold is not None,
+            "held": svc.decision.auto_hold is not None,
         }
 
     def _cmd_ack(self, args: dict[str, Any], uid: int | None) -> dict[str, Any]:

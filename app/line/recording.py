@@ -70,7 +70,10 @@ class Recording:
             row_id = svc.store.add_measurement(row)
             if reading is not None and e is not None:
                 self.decisions.counted()
-                svc.last_visit[slot.index] = (slot.q_deg.copy(), reading.c_sensor_mm.copy())
+                svc.decision.last_visit[slot.index] = (
+                    slot.q_deg.copy(),
+                    reading.c_sensor_mm.copy(),
+                )
                 self.jumps.observe({**row, "id": row_id})
                 if svc.sequential is not None:
                     svc.sequential.offer({**row, "id": row_id})

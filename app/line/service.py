@@ -66,6 +66,7 @@ from app.line.body_cycle import BodyCycle, BodySetup
 from app.line.body_export import ResultsWriter
 from app.line.correction import JumpCorrection
 from app.line.cycle import Cycle, WindowWatch
+from app.line.decision_state import DecisionState
 from app.line.decisions import Decisions, Rows
 from app.line.estimate import sphere_sigma_mm
 from app.line.events import EventBus
@@ -178,23 +179,10 @@ class Service:
                 bodies, self.watch, self.measurer, self.store, noise, writer
             )
         self.state = State.STARTING
-        self.paused = False
-        self.counters = {"windows": 0, "overruns": 0, "withdrawn": 0}
-        self.pending_calibration: int | None = None
-        # a rollback in auto mode: automatic applies held until an engineer's resume or
-        # approve ({"version", "uid", "since_utc"}; None: not held)
-        self.auto_hold: dict[str, Any] | None = None
-        self.jump_onset_id: int | None = None  # a jump's onset: the rolling set from it on
-        self.last_visit: dict[int, tuple[F64, F64]] = {}  # slot -> (q_deg, c_sensor_mm)
-        self.episode: dict[str, Any] | None = None  # a jump's (app.line.jumps)
+        # what the service decided and remembers across a restart (app.line.decision_state)
+        self.decision = DecisionState()
         # what the cell states about its accuracy (app.line.accuracy.AccuracyRecord)
         self.accuracy = AccuracyRecord()
-        # the measurements before this id were of the cell before a maintenance procedure: its
-        # rolling sets and its views' rejections count from here (0: none)
-        self.maintained_from_id = 0
-        self.new_since_recal = 0
-        self.force_recal = False
-        self.recal_ids: dict[str, list[int]] | None = None  # the calibration in flight
         self.exit_code = 0  # 1 after an internal error: the supervisor restarts the process
         self._crash: BaseException | None = None  # from another thread (crash())
         self.fault = FaultRecord()  # the storage's and the devices' faults (its docstring)
@@ -243,18 +231,8 @@ class Service:
         return {
             "params_version": self.version,
             "last_measurement_id": self.store.last_measurement_id(),
-            "paused": self.paused,
-            "auto_hold": self.auto_hold,
-            "force_recal": self.force_recal,
-            "new_since_recal": self.new_since_recal,
-            "jump_onset_id": self.jump_onset_id,
-            "counters": dict(self.counters),
-            "recal_ids": self.recal_ids,
-            "last_visit": {
-                str(k): [q.tolist(), c.tolist()] for k, (q, c) in self.last_visit.items()
-            },
+            **self.decision.to_json(),
             **self.accuracy.to_json(),
-            "maintained_from_id": self.maintained_from_id,
             "jumps": self.jumps.to_json(),
         }
 
@@ -267,21 +245,9 @@ class Service:
         if doc is None:  # a state directory of an older rvis: what the rows tell
             self.versions.restore()
             return
-        self.paused = bool(doc["paused"])
-        self.auto_hold = doc.get("auto_hold")  # a state saved before the hold: not held
-        self.force_recal = bool(doc["force_recal"])
-        self.new_since_recal = int(doc["new_since_recal"])
-        # (a state saved before the one estimator names it drift_onset_id)
-        self.jump_onset_id = doc.get("jump_onset_id", doc.get("drift_onset_id"))
-        self.counters.update({k: int(v) for k, v in doc["counters"].items()})
-        self.recal_ids = doc["recal_ids"]
-        self.last_visit = {
-            int(k): (np.asarray(q, float), np.asarray(c, float))
-            for k, (q, c) in doc["last_visit"].items()
-        }
+        self.decision.load_json(doc)
         version_seed = [] if doc.get("u_seed") is not None else self.versions.version_seed()
         self.accuracy.load_json(doc, version_seed)
-        self.maintained_from_id = int(doc.get("maintained_from_id", 0))
         self.jumps.load_json(doc.get("jumps"))
         if doc["params_version"] != self.version and self._handed_over():
             self._after_maintenance()
@@ -303,11 +269,8 @@ class Service:
         before it say nothing of the cell now. The step is over (its interval was closed by the
         hand-over), the views start afresh (none lost), the estimator starts from the handed
         over version, the U95 is seeded by the procedure's workspace validation."""
-        self.episode, self.jump_onset_id = None, None
-        self.last_visit = {}
-        self.maintained_from_id = self.store.last_measurement_id() + 1
+        self.decision.after_maintenance(self.store.last_measurement_id() + 1)
         self.accuracy.restart(self.versions.version_seed())
-        self.recal_ids, self.new_since_recal = None, 0
         self.log.info("started after maintenance: version %d in force", self.version)
         self.save_state()
 
@@ -394,7 +357,7 @@ class Service:
         self.recalibrator.close()
         self.set_state(State.STOPPED)
         with contextlib.suppress(Exception):
-            self.bus.emit("stopped", {"counters": dict(self.counters)})
+            self.bus.emit("stopped", {"counters": dict(self.decision.counters)})
         self.operator.cancel_queued("service stopped")  # nobody will execute them
         self.store.close()
 

@@ -35,7 +35,7 @@ class SlotChoice:
         svc = self.svc
         slots = self._seen(slots)
         if svc.sequential is not None and svc.settings.recalib.schedule == "adaptive":
-            return svc.sequential.most_informative(svc.model, slots, svc.last_visit)
+            return svc.sequential.most_informative(svc.model, slots, svc.decision.last_visit)
         return slots[0]
 
     def _seen(self, slots: Sequence[Slot]) -> Sequence[Slot]:
@@ -46,7 +46,7 @@ class SlotChoice:
         from the views that still see their spheres. The first time a view is left out a
         `view_lost` alarm names it and what fixes it."""
         svc = self.svc
-        lost = lost_views(svc.store, svc.maintained_from_id - 1)
+        lost = lost_views(svc.store, svc.decision.maintained_from_id - 1)
         if not lost:
             return slots
         new = sorted(set(lost) - self._views_lost)
@@ -75,7 +75,7 @@ def slots_wanted(svc: LineHost) -> int:
     # from a jump found until its episode is over: its correction's evidence, then the
     # measurements that confirm or refine it (app.line.jumps: the interval's close, the
     # group's watch), in fewer windows
-    if svc.episode is not None or svc.force_recal:
+    if svc.decision.episode is not None or svc.decision.force_recal:
         return max(line.step_slots_per_window, line.slots_per_window)
     return line.slots_per_window
 

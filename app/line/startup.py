@@ -158,9 +158,9 @@ class Startup:
         )
         for code, message, priority in self.start_alarms:
             svc.alarm(code, message, priority)
-        svc.pending_calibration = svc.store.pending_calibration()
-        if svc.pending_calibration is not None and svc.applies_automatically():
-            svc.apply_calibration(svc.pending_calibration, None, "auto")  # killed before
+        svc.decision.pending_calibration = svc.store.pending_calibration()
+        if svc.decision.pending_calibration is not None and svc.applies_automatically():
+            svc.apply_calibration(svc.decision.pending_calibration, None, "auto")  # killed before
         self.decisions.resubmit()
         self.faults.check_space()
         if not self._await_devices():
@@ -181,7 +181,7 @@ class Startup:
                 AlarmCode.ROBOT_NOT_HOME, f"robot not at home at start (J = {q} deg)"
             )
             return
-        svc.set_state(State.PAUSED if svc.paused else State.IDLE)
+        svc.set_state(State.PAUSED if svc.decision.paused else State.IDLE)
 
     def _await_devices(self) -> bool:
         """Every device open (module docstring): at once, or after retries with back-off in

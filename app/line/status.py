@@ -25,9 +25,9 @@ def status_reply(svc: LineHost) -> dict[str, Any]:
     except StorageError as exc:
         return {
             "state": svc.state.value,
-            "paused": svc.paused,
+            "paused": svc.decision.paused,
             "params_version": svc.version,
-            "counters": dict(svc.counters),
+            "counters": dict(svc.decision.counters),
             "alarms": [alarm_status(a) for a in svc.fault.unstored_alarms],
             "step": step_text(svc),
             # the U95 of a point measured now, vouched for or not (app.line.accuracy)
@@ -77,13 +77,14 @@ def _status(svc: LineHost) -> dict[str, Any]:
     )
     return {
         "state": svc.state.value,
-        "paused": svc.paused,
+        "paused": svc.decision.paused,
         "params_version": svc.version,
-        "pending_calibration": svc.pending_calibration,
+        "pending_calibration": svc.decision.pending_calibration,
         "recalibrating": svc.recalibrator.busy,
         "mode": svc.settings.recalib.mode,
-        "auto_hold": svc.auto_hold,  # a rollback in auto mode: applies wait for an engineer
-        "counters": dict(svc.counters),
+        # a rollback in auto mode: applies wait for an engineer
+        "auto_hold": svc.decision.auto_hold,
+        "counters": dict(svc.decision.counters),
         "measurements": svc.store.counts(),
         "schedule": {"position": svc.store.schedule_position()[0], "slots": len(svc.schedule)},
         "plc": None
@@ -110,7 +111,7 @@ def _status(svc: LineHost) -> dict[str, Any]:
         "pending": _pending_status(svc),
         "now_utc": utc_text(svc.clock.time()),  # the service's clock (sim: ahead)
         # a jump the one estimator found, in hand (app.line.jumps): a copy (the loop changes it)
-        "jump": None if svc.episode is None else dict(svc.episode),
+        "jump": None if svc.decision.episode is None else dict(svc.decision.episode),
         "suspect_intervals": [
             suspect_json(r) for r in svc.store.suspects(last=SUSPECTS_IN_STATUS)
         ],  # the last ones, oldest first; the open one has no end yet
@@ -162,7 +163,7 @@ def _calibration_status(svc: LineHost) -> dict[str, Any]:
         rms = None if cal is None else cal["rms_mm"]
     return {
         "version": svc.version,
-        "pending": svc.pending_calibration,
+        "pending": svc.decision.pending_calibration,
         "applied_utc": None if last is None else utc_text(last["t"]),
         "rms_mm": rms,
     }
@@ -170,7 +171,7 @@ def _calibration_status(svc: LineHost) -> dict[str, Any]:
 
 def _pending_status(svc: LineHost) -> dict[str, Any] | None:
     """The calibration waiting for approval: fit, gates and each parameter's change."""
-    cal_id = svc.pending_calibration
+    cal_id = svc.decision.pending_calibration
     cal = None if cal_id is None else svc.store.calibration(cal_id)
     if cal is None:
         return None

@@ -25,11 +25,11 @@ def uncommissioned(svc: LineHost) -> dict[str, Any] | None:
     if _identified(svc.params.version_path(svc.version)):
         return None
     needed: int | None = None
-    if svc.recalibrator.busy or svc.recal_ids is not None:
+    if svc.recalibrator.busy or svc.decision.recal_ids is not None:
         text = "the first calibration is running"
-    elif svc.pending_calibration is not None:
+    elif svc.decision.pending_calibration is not None:
         text = (
-            f"the first calibration (calibration {svc.pending_calibration}) waits for an"
+            f"the first calibration (calibration {svc.decision.pending_calibration}) waits for an"
             " engineer's approve"
         )
     elif svc.sequential is not None:
@@ -37,7 +37,7 @@ def uncommissioned(svc: LineHost) -> dict[str, Any] | None:
     else:
         r = svc.settings.recalib
         rolling = r.rolling_n + r.holdout_size - int(svc.store.counts().get("ok", 0))
-        due = 0 if svc.force_recal else r.every_n - svc.new_since_recal
+        due = 0 if svc.decision.force_recal else r.every_n - svc.decision.new_since_recal
         needed = max(rolling, due, 0)
         if needed:
             text = (

@@ -63,7 +63,7 @@ class Versions:
             if cal is not None and cal["status"] == "pending":
                 svc.store.decide_calibration(int(cal["id"]), "applied", t, uid, version)
             svc.store.add_applied(t, version, cal_id, source, uid)
-            svc.pending_calibration = None
+            svc.decision.pending_calibration = None
             kind = _kind(None if cal is None else cal["document"])
             # the filter's and a jump correction's residuals on the rows they were fed are
             # optimistic by an unknown factor: no seed from them
@@ -71,13 +71,13 @@ class Versions:
             svc.accuracy.seed = [] if no_seed else self.u_seed(cal, self.seed(cal))
             if svc.sequential is not None and kind != "sequential":
                 svc.sequential.restart(svc.model, svc.x, svc.params.current_document())
-            onset = svc.jump_onset_id
+            onset = svc.decision.jump_onset_id
             first_id = None if cal is None else int(cal["first_id"] or 0)
             after_onset = first_id is not None and onset is not None and first_id >= onset
             if onset is None or after_onset:
                 svc.clear_alarms(AlarmCode.DRIFT_STEP, t)
                 if kind != "step":  # a full calibration trained after the onset: it is over
-                    svc.jump_onset_id = None
+                    svc.decision.jump_onset_id = None
             self.jumps.in_force(kind)
             svc.save_state()
         svc.bus.emit(
@@ -149,7 +149,7 @@ class Versions:
         for r in svc.store.measurements(last=2 * len(svc.schedule)):
             if 0 <= r["slot"] < len(svc.schedule):
                 q = np.asarray(r["q_deg"], float)
-                svc.last_visit[int(r["slot"])] = (q, np.asarray(r["c_sensor_mm"], float))
+                svc.decision.last_visit[int(r["slot"])] = (q, np.asarray(r["c_sensor_mm"], float))
 
 
 def _kind(document: Mapping[str, Any] | None) -> str:

@@ -84,10 +84,10 @@ class WindowLoop:
         self._unshelve()
         if svc.body_cycle is not None:
             svc.body_cycle.clear_result()
-            if svc.state == State.IDLE and not svc.paused and svc.watch.fresh_body():
+            if svc.state == State.IDLE and not svc.decision.paused and svc.watch.fresh_body():
                 self._body(svc.body_cycle)
                 return
-        if svc.state == State.IDLE and not svc.paused and svc.watch.fresh_window():
+        if svc.state == State.IDLE and not svc.decision.paused and svc.watch.fresh_window():
             self._window()
             return
         self._between_windows()
@@ -96,7 +96,7 @@ class WindowLoop:
     def _window(self) -> None:
         svc = self.svc
         svc.set_state(State.MEASURING)
-        n = svc.counters["windows"] + 1
+        n = svc.decision.counters["windows"] + 1
         # the window's rising edge (the time its row holds), not now: a real clock has moved on
         # while the row was committed, and an interval from now would leave out its body
         opened = svc.watch.opened_t
@@ -107,10 +107,10 @@ class WindowLoop:
         except DeviceError as exc:
             self.faults.device_fault(exc)
             return
-        svc.counters["windows"] = n
+        svc.decision.counters["windows"] = n
         self._watch_blind(first_id)
-        svc.counters["overruns"] += report.overrun
-        svc.counters["withdrawn"] += bool(report.withdrawn)
+        svc.decision.counters["overruns"] += report.overrun
+        svc.decision.counters["withdrawn"] += bool(report.withdrawn)
         self.jumps.opened()  # a jump in the window's measurements: its interval first
         self.jumps.summarise()
         self._state_accuracy(t_open)
@@ -126,7 +126,7 @@ class WindowLoop:
                 "vouched": acc is not None and acc.vouched,
             },
         )
-        svc.set_state(State.PAUSED if svc.paused else State.IDLE)
+        svc.set_state(State.PAUSED if svc.decision.paused else State.IDLE)
         self._between_windows()
         self._bodies_after_window()
         if svc.after_window is not None:
@@ -141,7 +141,7 @@ class WindowLoop:
         cal = body.calibration(svc.version, svc.params.version_path(svc.version))
         try:
             report = body.run_body(
-                svc.counters["windows"], svc.version, cal, self.statement_u95_mm(),
+                svc.decision.counters["windows"], svc.version, cal, self.statement_u95_mm(),
                 svc.cell_temp_c, self.jumps.point_cov_mm2,
             )  # fmt: skip
         except DeviceError as exc:
@@ -149,7 +149,7 @@ class WindowLoop:
             return
         svc.bus.emit("body", {**report.to_json(), "params_version": svc.version})
         self._export(body)
-        svc.set_state(State.PAUSED if svc.paused else State.IDLE)
+        svc.set_state(State.PAUSED if svc.decision.paused else State.IDLE)
 
     def _export(self, body: BodyCycle) -> None:
         """The bodies' files into the results directory; while it cannot be written the
@@ -306,7 +306,7 @@ class WindowLoop:
         handled = self.jumps.handling()
         action = "a jump's correction is under way" if handled else "recalibrating"
         if not handled:
-            svc.force_recal = True
+            svc.decision.force_recal = True
         svc.alarm(
             AlarmCode.ACCURACY,
             f"the cell has not vouched for its accuracy for {self._unvouched} windows"

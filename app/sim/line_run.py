@@ -499,7 +499,7 @@ class SimulatedLineRun:
         )
         self.service.after_window = self._hold
         # a restarted state directory's service counts its windows on: hold by this run's
-        self._windows_before = int(self.service.counters.get("windows", 0))
+        self._windows_before = int(self.service.decision.counters.get("windows", 0))
         self.events = self.service.bus.subscribe(every=True)
         if self.service.params.version_path(1).is_file():
             self.x_commissioning = self._x_of(1)
@@ -558,7 +558,7 @@ class SimulatedLineRun:
         windows asked for (its virtual time stands meanwhile)."""
         with self._gate:
             while (
-                self.service.counters["windows"] - self._windows_before >= self._hold_at
+                self.service.decision.counters["windows"] - self._windows_before >= self._hold_at
                 and not self._closing
             ):
                 self._held = True
@@ -608,7 +608,7 @@ class SimulatedLineRun:
     def _quiet_by_itself(self) -> bool:
         """The service is silent on purpose: in FAULT or paused, waiting for an operator."""
         alive = self.thread is not None and self.thread.is_alive()
-        return alive and (self.service.state == State.FAULT or self.service.paused)
+        return alive and (self.service.state == State.FAULT or self.service.decision.paused)
 
     def run_windows(
         self,

@@ -51,9 +51,9 @@ def test_commands_are_executed_and_audited_with_the_peer_uid(served: tuple[Line,
         assert c.request("pause") == {"id": 1, "ok": True, "message": "paused", "state": "paused"}
         assert ln.service.state == State.PAUSED
         ln.plc.wait_edges(2)  # paused: windows pass unused
-        windows = ln.service.counters["windows"]
+        windows = ln.service.decision.counters["windows"]
         ln.plc.wait_edges(1)
-        assert ln.service.counters["windows"] == windows
+        assert ln.service.decision.counters["windows"] == windows
         assert c.request("resume")["ok"]
         bad = c.request("ack", {"alarm": 99})
         assert bad == {"id": 3, "ok": False, "error": "no unacknowledged alarm 99"}

@@ -46,10 +46,10 @@ def test_a_knock_is_found_named_corrected_and_its_interval_recorded(
         knocked = true_rms(ln, val, x_good)
         opened = ln.wait(_is("suspect_interval", state="open"), 20.0)
         alarm = ln.wait(_is("alarm", code="drift_step"), 5.0)
-        n_window = ln.service.counters["windows"]
+        n_window = ln.service.decision.counters["windows"]
         named = ln.wait(lambda e: e["event"] == "jump" and e["group"] == GROUP_OF[kind], 30.0)
         applied = ln.wait(_is("parameters_applied"), 20.0)
-        windows_to_apply = ln.service.counters["windows"] - n_window
+        windows_to_apply = ln.service.decision.counters["windows"] - n_window
         closed = ln.wait(_is("suspect_interval", state="closed"), 30.0)
         store = ln.service.store
         cal = store.calibration(applied["calibration_id"])
@@ -193,12 +193,12 @@ def _found_and_corrected(ln: Any, val: Any, x_good: Any, kind: str) -> None:
     interval closed at the correction, the cell back near its level before."""
     before = true_rms(ln, val, x_good)
     ln.cell.set_timeline(ln.clock, knock=Knock.of_kind(kind, ln.clock.monotonic()))
-    n = ln.service.counters["windows"]
+    n = ln.service.decision.counters["windows"]
     ln.wait(_is("alarm", code="drift_step"), 20.0)
-    flagged = ln.service.counters["windows"] - n
+    flagged = ln.service.decision.counters["windows"] - n
     ln.wait(lambda e: e["event"] == "jump" and e["group"] == GROUP_OF[kind], 30.0)
     applied = ln.wait(_is("parameters_applied"), 20.0)
-    corrected = ln.service.counters["windows"] - n
+    corrected = ln.service.decision.counters["windows"] - n
     closed = ln.wait(_is("suspect_interval", state="closed"), 30.0)
     after = true_rms(ln, val, ln.service.x)
     assert flagged <= 1 and corrected <= 3, (flagged, corrected)
@@ -239,13 +239,13 @@ def test_a_knock_after_a_rollback_is_found_and_corrected(tmp_path: Path) -> None
         rolled = ln.service.request("rollback", {"version": 1}).result(20.0)
         assert rolled["ok"] and rolled["held"], rolled
         resumed = ln.service.request("resume").result(20.0)
-        pending = ln.service.pending_calibration
+        pending = ln.service.decision.pending_calibration
         if resumed["held"] and pending is not None:  # a calibration landed meanwhile: refused
             assert ln.service.request("reject", {"calibration": pending}).result(20.0)["ok"]
             resumed = ln.service.request("resume").result(20.0)
         assert resumed["ok"] and not resumed["held"], resumed
         ln.windows(1, timeout_s=20.0)
-        assert ln.service.version == 1 and ln.service.auto_hold is None
+        assert ln.service.version == 1 and ln.service.decision.auto_hold is None
         _found_and_corrected(ln, val, x_good, "sensor")
     finally:
         ln.close()

@@ -69,7 +69,7 @@ def test_a_rollback_to_the_version_in_force_is_refused_with_the_reason(
         "ok": False,
         "error": "parameters version 2 is in force already: nothing to roll back",
     }
-    assert len(ln.service.store.applied()) == applied and ln.service.auto_hold is None
+    assert len(ln.service.store.applied()) == applied and ln.service.decision.auto_hold is None
     assert command(ln, "rollback", {"version": 1}, **ENGINEER)["ok"]
     assert not command(ln, "rollback", {"version": 1}, **ENGINEER)["ok"]
     assert [a["version"] for a in ln.service.store.applied()][applied:] == [1]
@@ -94,9 +94,9 @@ def test_a_rollback_in_auto_mode_holds_until_an_engineer_resumes(
     ln = make_line(tmp_path)
     lines.append(ln)
     ln.service.roles = ROLES
-    assert ln.service.auto_hold is not None and ln.service.version == 1
+    assert ln.service.decision.auto_hold is not None and ln.service.version == 1
     candidate(ln)
-    cal = ln.service.pending_calibration
+    cal = ln.service.decision.pending_calibration
     assert cal is not None and ln.service.version == 1  # waits, as in approve mode
 
     resumed = command(ln, "resume", **OPERATOR)
@@ -104,13 +104,13 @@ def test_a_rollback_in_auto_mode_holds_until_an_engineer_resumes(
     assert resumed["message"] == f"resumed; {HOLD_LIFT} (uid 12345 is an operator)"
     resumed = command(ln, "resume", **ENGINEER)
     assert resumed["held"] and f"approve or reject calibration {cal}" in resumed["message"]
-    assert command(ln, "reject", **ENGINEER)["ok"] and ln.service.auto_hold is not None
+    assert command(ln, "reject", **ENGINEER)["ok"] and ln.service.decision.auto_hold is not None
     resumed = command(ln, "resume", **ENGINEER)
-    assert not resumed["held"] and ln.service.auto_hold is None
+    assert not resumed["held"] and ln.service.decision.auto_hold is None
     assert "automatic applies go on" in resumed["message"]
     assert "HELD" not in "\n".join(status_lines(ln.service.status()))
     candidate(ln)
-    assert ln.service.version == 3 and ln.service.pending_calibration is None
+    assert ln.service.version == 3 and ln.service.decision.pending_calibration is None
 
 
 def test_an_engineer_s_approve_lifts_the_hold(tmp_path: Path, lines: list[Line]) -> None:
@@ -122,7 +122,7 @@ def test_an_engineer_s_approve_lifts_the_hold(tmp_path: Path, lines: list[Line])
     assert (
         reply["ok"] and reply["version"] == 3 and "hold of the rollback lifted" in reply["message"]
     )
-    assert ln.service.auto_hold is None
+    assert ln.service.decision.auto_hold is None
     candidate(ln)
     assert ln.service.version == 4  # automatic again
 
@@ -147,7 +147,7 @@ def test_approve_or_reject_with_nothing_pending_says_so(tmp_path: Path, lines: l
         assert not reply["ok"], reply
         assert "no calibration is pending" in str(reply) and "None" not in str(reply)
     candidate(ln)
-    pending = ln.service.pending_calibration
+    pending = ln.service.decision.pending_calibration
     assert pending is not None
     reply = command(ln, "reject", {"calibration": pending + 5}, **ENGINEER)
     assert not reply["ok"] and f"calibration {pending} is" in str(reply)

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from app.config.line import LineSettings
+from app.line.decision_state import DecisionState
 from app.line.schedule import Schedule, Slot
 from app.line.slot_choice import slots_wanted
 from app.motion import motion_time_s, shortest_route
@@ -118,9 +119,8 @@ def test_a_window_measures_more_slots_while_a_jump_or_a_full_recalibration_waits
     """Issue 50: up to `[line] step_slots_per_window` while the one estimator's jump is not
     corrected or a full recalibration is wanted, else `slots_per_window`."""
     line = LineSettings(slots_per_window=1, step_slots_per_window=6)
-    svc = SimpleNamespace(
-        settings=SimpleNamespace(line=line), episode=episode, force_recal=force_recal
-    )
+    decision = DecisionState(episode=episode, force_recal=force_recal)
+    svc = SimpleNamespace(settings=SimpleNamespace(line=line), decision=decision)
     assert slots_wanted(svc) == want
     wide = dataclasses.replace(line, slots_per_window=8)
     svc.settings = SimpleNamespace(line=wide)

@@ -173,7 +173,7 @@ def test_a_lost_plc_heartbeat_raises_an_alarm_and_uses_no_window(
     alarm = ln.wait(lambda e: e["event"] == "alarm")
     assert alarm["code"] == "plc_heartbeat"
     ln.plc.wait_edges(2)
-    assert ln.robot.motion_durations_s == [] and ln.service.counters["windows"] == 0
+    assert ln.robot.motion_durations_s == [] and ln.service.decision.counters["windows"] == 0
     ln.plc.heartbeat_frozen = False
     cleared = ln.wait(lambda e: e["event"] == "alarm_cleared")
     ln.windows(1)
@@ -220,7 +220,7 @@ def test_approve_mode_waits_for_the_operator_and_rollback_restores(
     cal = ln.wait(lambda e: e["event"] == "calibration", 60.0)
     assert cal["status"] == "pending"
     ln.windows(1)
-    assert ln.service.version == 1 and ln.service.pending_calibration == cal["id"]
+    assert ln.service.version == 1 and ln.service.decision.pending_calibration == cal["id"]
     reply = ln.service.request("approve", uid=501).result(10)
     assert reply["ok"] and reply["version"] == 2
     assert ln.service.version == 2

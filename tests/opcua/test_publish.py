@@ -424,6 +424,6 @@ def test_a_cell_held_for_maintenance_reads_out_of_service_in_maintenance_mode(
     finally:  # the package's line left running normally, whatever failed
         if line.service.state.value == "fault":
             line.service.request("reset").result(30)
-        if line.service.paused:
+        if line.service.decision.paused:
             line.service.request("resume").result(30)
     assert line.service.state.value != "fault"

@@ -82,10 +82,10 @@ def test_plc_heartbeat_loss_raises_the_alarm_and_no_window_is_used(run: Simulate
     run.line.inject(Fault.PLC_HEARTBEAT_LOSS)
     events = _until(run, lambda e: e["event"] == "alarm" and e["code"] == "plc_heartbeat")
     q_lost = run.cell.joints_deg().copy()
-    n_windows = run.service.counters["windows"]
+    n_windows = run.service.decision.counters["windows"]
     later = run.line.schedule(Fault.WINDOW_WITHDRAWN, window=_plc_window_from_now(run, 3))
     assert later.wait(WAIT_S)
-    assert run.service.counters["windows"] <= n_windows + 1  # at most the one in progress
+    assert run.service.decision.counters["windows"] <= n_windows + 1  # at most the one in progress
     np.testing.assert_allclose(run.cell.joints_deg(), q_lost, atol=1e-9)
     run.line.clear(Fault.PLC_HEARTBEAT_LOSS)
     after = _until(run, lambda e: e["event"] == "window")
@@ -100,9 +100,9 @@ def test_a_window_withdrawn_early_aborts_and_goes_home(run: SimulatedLineRun) ->
     events = _until(run, lambda e: e["event"] == "window")
     events += _until(run, lambda e: e["event"] == "window")
     assert played.is_set()
-    assert run.service.counters["withdrawn"] == 1 and events[-1]["withdrawn"]
+    assert run.service.decision.counters["withdrawn"] == 1 and events[-1]["withdrawn"]
     assert run.service.state != State.FAULT and not run.line.plc.received.fault
     home = np.array(run.service.settings.line.home_deg)
     np.testing.assert_allclose(run.cell.joints_deg(), home, atol=0.05)
-    assert run.service.counters["overruns"] == 0
+    assert run.service.decision.counters["overruns"] == 0
     all_announced_stored(run, events)

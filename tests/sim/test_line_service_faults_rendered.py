@@ -106,7 +106,9 @@ def test_a_frame_lost_once_is_retriggered_and_is_not_a_fault(run: SimulatedLineR
     assert measured["status"] == "ok"
     assert run.service.state != State.FAULT and not run.line.plc.received.fault
     assert not [e for e in events if e["event"] == "alarm"]
-    assert run.service.counters["overruns"] == 0  # this window had room for the extra timeout
+    assert (
+        run.service.decision.counters["overruns"] == 0
+    )  # this window had room for the extra timeout
     all_announced_stored(run, events)
 
 

@@ -146,7 +146,7 @@ def test_approve_then_roll_back(service: SimulatedLineRun, skipper: IdleSkipper)
             await confirm(pilot, "c")
             await until(pilot, lambda: (app.status or {}).get("pending") is not None, WAIT_S)
             pending = (app.status or {})["pending"]
-            assert pending["id"] == svc.pending_calibration and pending["parameters"]
+            assert pending["id"] == svc.decision.pending_calibration and pending["parameters"]
             await confirm(pilot, "a")
             # the service's answer: the calibration applied, a new version in force (database)
             await until(pilot, lambda: _latest_applied(history)["source"] == "approved", WAIT_S)
