@@ -104,7 +104,12 @@ class DriftSettings(Section):
         k: CHARTS_RETIRED for k in ("ewma_l", "cusum_k", "min_sigma_mm")
     }
     ewma_lambda: float = opt(0.2, gt=0, hi=1)
-    cusum_h: float = opt(5.0, gt=0, hi=50)
+    # the CUSUM's decision interval [sigma]: with its slack of 0.5 sigma, the in-control run
+    # length of the two-sided chart is about exp(h + 1.166) - h - 2.166 measurements
+    # (Siegmund's approximation): 7e4 with 10, seven weeks at one sphere a minute; with 5 it
+    # was 470, a false `sensor` alarm about once an 8 h shift (seen on the rendered line); a
+    # shift of 1 sigma is signalled after about 2 (h + 0.166) = 20 measurements
+    cusum_h: float = opt(10.0, gt=0, hi=50)
     baseline_n: int = opt(16, lo=2, hi=1000)
 
 
