@@ -62,6 +62,7 @@ from app.inspect.views import (
 from app.line.body_export import ResultsWriter
 from app.line.cycle import WindowWatch, Withdrawal
 from app.line.measure import SphereMeasurer, SweepFeatureSensor
+from app.line.settings import ServiceSettings
 from app.line.statedir import StateDir
 from app.line.store import Store
 from drivers.errors import DeviceError
@@ -174,6 +175,27 @@ def raw_of(rows: Any) -> list[RawFeature]:
 
 class BodyCycle:
     """Measures clamped bodies (module docstring) for the service."""
+
+    @classmethod
+    def of(
+        cls,
+        setup: BodySetup,
+        s: ServiceSettings,
+        watch: WindowWatch,
+        measurer: SphereMeasurer,
+        store: Store,
+    ) -> BodyCycle:
+        """The cycle of a service with settings `s` (the sphere measurement's noise resolved):
+        the robot's repeatability, the statement's own noise and the sensor's edge allowances
+        in the values' U95, the results directory's writer when `[results] dir` is set."""
+        writer = None
+        if s.results_dir is not None:
+            writer = ResultsWriter(s.results_dir, s.station, setup.plan.description)
+        noise = StopNoise(
+            s.repeatability_mm, s.recalib.jump_sigma_mm, s.sensor_edge_u_mm,
+            s.sensor_edge_u_slot_mm,
+        )  # fmt: skip
+        return cls(setup, watch, measurer, store, noise, writer)
 
     def __init__(
         self,

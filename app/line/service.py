@@ -59,11 +59,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from app.inspect.values import StopNoise
 from app.line.accuracy import AccuracyRecord, limit_in_force
 from app.line.beyond_knock import MaintenanceNeed
 from app.line.body_cycle import BodyCycle, BodySetup
-from app.line.body_export import ResultsWriter
 from app.line.correction import JumpCorrection
 from app.line.cycle import Cycle, WindowWatch
 from app.line.decision_state import DecisionState
@@ -168,16 +166,7 @@ class Service:
         # the bodies' features in the cycle (app.line.body_cycle): with a feature plan
         self.body_cycle = None
         if bodies is not None:
-            writer = None
-            if s.results_dir is not None:
-                writer = ResultsWriter(s.results_dir, s.station, bodies.plan.description)
-            noise = StopNoise(
-                s.repeatability_mm, s.recalib.jump_sigma_mm, s.sensor_edge_u_mm,
-                s.sensor_edge_u_slot_mm,
-            )  # fmt: skip
-            self.body_cycle = BodyCycle(
-                bodies, self.watch, self.measurer, self.store, noise, writer
-            )
+            self.body_cycle = BodyCycle.of(bodies, s, self.watch, self.measurer, self.store)
         self.state = State.STARTING
         # what the service decided and remembers across a restart (app.line.decision_state)
         self.decision = DecisionState()
