@@ -259,8 +259,9 @@ def as_the_line_measures(data_set: DataSet, truth: EndToEndTruth | None) -> Meas
         return data
     c_true = data_set.truth_c_sensor_mm
     c_seen, ok = truth.centres(c_true)
-    data = dataclasses.replace(data, c_sensor_mm=data.c_sensor_mm + (c_seen - c_true))
-    return data.subset(np.flatnonzero(ok))
+    keep = np.flatnonzero(ok)  # a rejected view reports no centre (NaN): left out first
+    data = data.subset(keep)
+    return dataclasses.replace(data, c_sensor_mm=data.c_sensor_mm + (c_seen - c_true)[keep])
 
 
 def commissioning(

@@ -7,7 +7,8 @@ import pytest
 
 from app.config import CellConfig
 from app.config.line import SweepSettings
-from app.sim.cell import scaled_sensor_model, true_sensor_model
+from app.sim.cell import scaled_sensor_model, simulated_sets, true_sensor_model
+from app.sim.line_run import as_the_line_measures
 from app.sim.truth import EndToEndTruth, observe
 from calib.model import INDEX
 from fakes.render import render_sphere_sweep
@@ -127,3 +128,27 @@ def test_a_view_the_vision_rejects_is_left_out_and_named() -> None:
     _, ok = truth.centres(c)
     assert ok.tolist() == [True, False]
     assert list(truth.rejected()) == [1]
+
+
+def test_a_view_the_vision_rejects_is_left_out_of_the_line_measured_set(cfg: CellConfig) -> None:
+    """`as_the_line_measures` with a truth that rejects a view (its centre NaN): the other views
+    measured, shifted by what the sensor model reports, never a NaN in the set (a sensor
+    replaced and calibrated anew had a view of the cold cell's commissioning rejected and the
+    simulated line stopped at its start with "holds a NaN")."""
+    sets = simulated_sets(cfg, 3, n_each=2, n_validation=1)
+    c_true = sets.calibration.truth_c_sensor_mm
+    shift = np.array([0.01, -0.02, 0.03])
+
+    class Rejecting:
+        kinematic_only = False
+
+        def centres(self, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            ok = np.arange(len(c)) != 1
+            return np.where(ok[:, None], c + shift, np.nan), ok
+
+    got = as_the_line_measures(sets.calibration, Rejecting())  # type: ignore[arg-type]
+    data = sets.calibration.measurements
+    keep = [k for k in range(len(c_true)) if k != 1]
+    assert np.isfinite(got.c_sensor_mm).all() and len(got.c_sensor_mm) == len(keep)
+    assert np.allclose(got.c_sensor_mm, data.c_sensor_mm[keep] + shift)
+    assert np.array_equal(got.q_deg, data.q_deg[keep])
