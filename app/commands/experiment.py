@@ -160,6 +160,11 @@ def _maintenance_options(g: argparse.ArgumentParser) -> None:
     g.add_argument("--seed", type=int_at_least(0), default=0, help="the cell's seed (0)")
     g.add_argument("--at-h", type=float, default=1.5, help="the event's hour of world time (1.5)")
     g.add_argument("--cell", help="cell configuration TOML (default: the embedded cell)")
+    g.add_argument(
+        "--rendered",
+        action="store_true",
+        help="every sweep rendered and measured through images (default: geometric; slow)",
+    )
     g.add_argument("--out", required=True, help="output folder (a new one)")
 
 
@@ -192,6 +197,7 @@ def run_maintenance_experiment(args: argparse.Namespace) -> int:
         at_s=3600.0 * args.at_h,
         sphere=args.sphere,
         frame=args.frame,
+        geometric=not args.rendered,
     )
     row = run_maintenance(cfg, out, run)
     path = write_rows(out, [row])

@@ -1,6 +1,8 @@
 """`rvis experiment maintenance --event sensor|axis|fixture [--axis N] [--seed N] --out DIR`:
 a maintenance event and its procedure on the simulated line, end to end, as a plant lives it
-(issue 41). On the geometric path:
+(issue 41). On the geometric path, or (`--rendered`) with every sweep rendered and measured
+through the calibrated sensor model, the sensor's own calibration included where the
+procedure has one (a sensor replaced):
 
 1. the cell commissioned (`rvis commission --sim`'s steps, in DIR/state; its robot time);
 2. the in-line service runs on it (warm-up on) until the event happens at `at_s` of world time
@@ -43,6 +45,7 @@ from app.sim.commission import SimCommissioning
 from app.sim.commissioned import commission_simulated, quiet, run_steps, scripted_fields
 from app.sim.line_run import SimulatedLineRun, WindowRecord, continued_epoch, world_of
 from fakes.line import SimLine
+from vision.sensor_model import SensorModel, load_sensor_model
 
 
 @dataclass(frozen=True)
@@ -58,6 +61,7 @@ class MaintenanceRun:
     sphere: str = ""  # fixture: only this sphere replaced ("": the fixture, all of them)
     frame: bool = False  # fixture: the renewal moves the part frame (fakes.truth.Maintenance)
     after_windows: int = 100
+    geometric: bool = True  # False: the rendered path (spheres, bodies, the procedure's sweeps)
     # the line runs at most until this many windows after the event's (held sooner)
     held_within: int = 20
     before_windows: int = 10  # the truth before the event: the median over these windows
@@ -75,7 +79,7 @@ def run_maintenance(cfg: CellConfig, out: Path, run: MaintenanceRun) -> dict[str
     """The experiment (module docstring) in folder `out`; its row."""
     state = StateDir(out / "state")
     say = quiet
-    commissioning_robot_s = commission_simulated(cfg, state, run.seed)
+    commissioning_robot_s = commission_simulated(cfg, state, run.seed, run.geometric)
     cell = _with_event(load_cell(state.cell), run)
     write_text(state.cell, dumps_cell(cell, "rvis experiment maintenance: the event"))
     periods = math.ceil(run.at_s / cell.simline.period_s)
@@ -85,11 +89,12 @@ def run_maintenance(cfg: CellConfig, out: Path, run: MaintenanceRun) -> dict[str
     suspects = _suspects(state)
     n_measurements = _count_measurements(state)
     version_before = _last_version(state)
+    sensor_before = _sensor_model(state, run)  # the calibration the version before measured with
     m_robot_s, m_folder = _maintain(cell, state, run, say)
     report = read_json(m_folder / MAINTENANCE_REPORT_JSON)
     steps = {s["name"]: s for s in report["steps"]}
     x_before = _version_x(cell, state, version_before)
-    after, twin = _line_after(load_cell(state.cell), state, run, x_before)
+    after, twin = _line_after(load_cell(state.cell), state, run, x_before, sensor_before)
     versions = [int(a["version"]) for a in _applied(state)]
     kept = _suspects(state)
     rows = before.records
@@ -106,6 +111,7 @@ def run_maintenance(cfg: CellConfig, out: Path, run: MaintenanceRun) -> dict[str
         "axis": run.axis if run.event == "axis" else None,
         "sphere": run.sphere or None,
         "frame": run.frame,
+        "path": "geometric" if run.geometric else "rendered",
         "seed": run.seed,
         "at_s": run.at_s,
         "event_window": k,
@@ -157,40 +163,59 @@ def _with_event(cfg: CellConfig, run: MaintenanceRun) -> CellConfig:
     return dataclasses.replace(cfg, simline=simline)
 
 
+def _sensor_model(state: StateDir, run: MaintenanceRun) -> SensorModel | None:
+    """The sensor calibration the rendered line measures with: the state directory's, as
+    `rvis run --sim` loads it (None: the geometric path)."""
+    return None if run.geometric else load_sensor_model(state.sensor)
+
+
 def _line(cfg: CellConfig, state: StateDir, run: MaintenanceRun, windows: int) -> Any:
     """The service on the state directory for `windows` windows (or until it holds the cell
     for maintenance); the run's summary."""
     with (
         hold_state(state.root, str(cfg.service.operators_group)),
-        SimulatedLineRun(cfg, state.root, seed=run.seed, geometric=True, plan=state.plan) as sim,
-    ):
+        SimulatedLineRun(
+            cfg, state.root, seed=run.seed, geometric=run.geometric, plan=state.plan,
+            sensor_model=_sensor_model(state, run),
+        ) as sim,
+    ):  # fmt: skip
         return sim.run_windows(windows)
 
 
 def _line_after(
-    cfg: CellConfig, state: StateDir, run: MaintenanceRun, x_before: Any
+    cfg: CellConfig,
+    state: StateDir,
+    run: MaintenanceRun,
+    x_before: Any,
+    sensor_before: SensorModel | None,
 ) -> tuple[Any, list[float]]:
     """The service after the procedure for `after_windows` windows, and at each window the
     true error the version before the event would have in the world without the event (a
-    twin of the cell: same seed, clock, warm-up; no maintenance event)."""
+    twin of the cell: same seed, clock, warm-up; no maintenance event; on the rendered path
+    measured with the sensor calibration of before, `sensor_before`)."""
     from app.sim.cell import make_cell
     from app.sim.line_run import true_rmse_mm
+    from app.sim.truth import EndToEndTruth
     from fakes.line_truth import LineTruth
 
     twin_rms: list[float] = []
     with (
         hold_state(state.root, str(cfg.service.operators_group)),
-        SimulatedLineRun(cfg, state.root, seed=run.seed, geometric=True, plan=state.plan) as sim,
-    ):
+        SimulatedLineRun(
+            cfg, state.root, seed=run.seed, geometric=run.geometric, plan=state.plan,
+            sensor_model=_sensor_model(state, run),
+        ) as sim,
+    ):  # fmt: skip
         twin = make_cell(world_of(cfg, state.root), seed=run.seed)
         s = sim.line.settings
         twin.set_timeline(sim.clock, warmup=s.warmup, knock=s.knock, world_s=s.world_s)
         twin_line = _Twin(LineTruth(twin, sim.line.truth.validation))
+        twin_truth = EndToEndTruth(twin.sensor, sensor_before, sim.truth.commands_v)
 
         def at(record: WindowRecord) -> None:
             t_s = record.t_h * 3600.0
             line = cast(SimLine, twin_line)  # true_rmse_mm reads only its truth
-            twin_rms.append(true_rmse_mm(line, sim.truth, sim.model, x_before, t_s))
+            twin_rms.append(true_rmse_mm(line, twin_truth, sim.model, x_before, t_s))
 
         return sim.run_windows(run.after_windows, on_window=at), twin_rms
 
@@ -227,7 +252,7 @@ def _maintain(
             SimCommissioning(
                 cfg,
                 run.seed,
-                geometric=True,
+                geometric=run.geometric,
                 world_s=world_s,
                 start_epoch=epoch,
                 world=world_of(cfg, state.root),

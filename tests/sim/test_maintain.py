@@ -159,7 +159,7 @@ def test_a_procedure_hands_the_cell_back_with_its_history(
     # same on a loaded machine as on an idle one)
     cfg = load_cell(state.cell)
     run = MaintenanceRun(kind, SEED, axis=axis, at_s=AT_S, after_windows=12, frame=frame)
-    after, unchanged = _line_after(cfg, state, run, _version_x(cfg, state, version - 1))
+    after, unchanged = _line_after(cfg, state, run, _version_x(cfg, state, version - 1), None)
     assert not after.maintenance and len(after.records) == 12
     assert after.rejected == 0
     median_after = sorted(r.rmse_mm for r in after.records)[6]
