@@ -104,13 +104,18 @@ class DriftSettings(Section):
         k: CHARTS_RETIRED for k in ("ewma_l", "cusum_k", "min_sigma_mm")
     }
     ewma_lambda: float = opt(0.2, gt=0, hi=1)
-    # the CUSUM's decision interval [sigma]: with its slack of 0.5 sigma, the in-control run
-    # length of the two-sided chart is about exp(h + 1.166) - h - 2.166 measurements
-    # (Siegmund's approximation): 7e4 with 10, seven weeks at one sphere a minute; with 5 it
-    # was 470, a false `sensor` alarm about once an 8 h shift (seen on the rendered line); a
-    # shift of 1 sigma is signalled after about 2 (h + 0.166) = 20 measurements
+    # the CUSUM's decision interval [sigma] and the measurements its baseline (mean, sigma) is
+    # learned from: with its slack of 0.5 sigma and known parameters, the two-sided chart's
+    # in-control run length is about exp(h + 1.166) - h - 2.166 measurements (Siegmund): 7e4
+    # with 10, 470 with 5; a baseline learned from few values shortens it far more (its mean
+    # and sigma are off by a fraction of sigma for good: 50 in-control 8 h shifts at one
+    # sphere a minute, 480 values each, raised a false alarm in 37 with h 5 and 16 values, 13
+    # with 10 and 16, none with 10 and 100; tests/sim/test_sensor_watch.py). 100 values cover
+    # every view of a schedule four times (PS differs by a few um from view to view); a shift
+    # of 1 sigma is then signalled after about 15 measurements. Until the baseline is learned
+    # (1.7 h at one sphere a minute) the EWMA against the acceptance limit watches alone.
     cusum_h: float = opt(10.0, gt=0, hi=50)
-    baseline_n: int = opt(16, lo=2, hi=1000)
+    baseline_n: int = opt(100, lo=2, hi=1000)
 
 
 #: the rolling set's size by the model identified ([service] rolling_size = 0): about 5

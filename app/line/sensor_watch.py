@@ -10,10 +10,10 @@ longer fits the optics, the laser or the galvo), not the robot. Two signals, eac
 - the EWMA of PS (lambda of `[drift]`) beyond the acceptance limit `[sensor] max_ps_mm`: the
   sensor no longer meets its acceptance (a sensor commissioned with an error from the start
   shows here); re-armed when the EWMA is back within half the limit;
-- a two-sided CUSUM (k 0.5 sigma, h of `[drift]`: 10, an in-control run length of about 7e4
-  measurements) of PS against its own baseline (mean and sigma of the first `[drift]
-  baseline_n` values, sigma at least `MIN_SIGMA_MM`): a shift of the sensor within its limits;
-  learned again after a signal.
+- a two-sided CUSUM (k 0.5 sigma, h of `[drift]`: 10) of PS against its own baseline (mean
+  and sigma of the first `[drift] baseline_n` values, 100: every view of the schedule several
+  times; sigma at least `MIN_SIGMA_MM`): a shift of the sensor within its limits; learned
+  again after a signal. Its false alarms: app/config/line.py's DriftSettings.
 
 The watch is rebuilt at start from the stored measurements (`replay`), so a restarted service
 charts as one that never stopped. Measurements without a free fit (the geometric path) are not
@@ -43,7 +43,7 @@ class SensorWatch:
     limit_mm: float
     lam: float = 0.2
     h: float = 10.0
-    baseline_n: int = 16
+    baseline_n: int = 100
     n: int = 0
     ewma_mm: float = math.nan
     ewma_signalled: bool = False

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from app.config import CellConfig
+from app.config.line import DriftSettings
 from app.line.measure import SweepSensor
 from app.line.sensor_watch import SensorWatch
 from app.sim.cell import make_cell, scaled_sensor_model, true_sensor_model
@@ -82,6 +83,22 @@ def test_the_chart_signals_a_shift_within_the_limits_once() -> None:
     shifted = [watch.update(v) for v in rng.normal(0.009, 0.002, 10)]  # +8 um: 4 sigma
     signals = [s for s in shifted if s]
     assert len(signals) == 1 and "shifted from its baseline" in signals[0]
+
+
+def test_an_unchanged_sensor_charted_for_an_8_h_shift_raises_no_alarm_at_the_defaults() -> None:
+    """The chart's false alarms at `[drift]`'s defaults (h 10, a baseline of 100 values): of 50
+    shifts of 480 in-control PS values (8 h at one sphere a minute), at most 2 raise an alarm.
+    With the old defaults (h 5, a baseline of 16) most of them did (a false `sensor` alarm
+    seen on the rendered line with nothing changed): asserted, so the test tells them apart."""
+    d = DriftSettings()
+
+    def alarmed(h: float, baseline_n: int, seed: int) -> bool:
+        watch = SensorWatch(limit_mm=0.025, lam=d.ewma_lambda, h=h, baseline_n=baseline_n)
+        values = np.random.default_rng([seed, 480]).normal(0.008, 0.003, 480)
+        return any(watch.update(float(v)) for v in values)
+
+    assert sum(alarmed(d.cusum_h, d.baseline_n, seed) for seed in range(50)) <= 2
+    assert sum(alarmed(5.0, 16, seed) for seed in range(50)) >= 25
 
 
 def _same_chart(a: SensorWatch, b: SensorWatch) -> bool:
