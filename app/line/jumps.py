@@ -209,12 +209,7 @@ class JumpWatch:
             return
         h = best.hypothesis
         if v.isolated != SEVERAL and h.target is not None:
-            self._describe(ep, h.name, seen_mm, f"{h.label} {best.size_text()}")
-            evidence = f"since measurement {best.onset_ref}, the others where they were"
-            size = float(np.linalg.norm(best.theta))
-            svc.maintenance_needed(
-                sphere_moved_need(h.target, size, evidence, r.maintenance_step_mm)
-            )
+            self._sphere_moved(ep, best, seen_mm)
             return
         # the estimate checked by one measurement more than it needs
         ready = v.isolated != SEVERAL and 3 * n_after - best.dof >= REDUNDANCY
@@ -247,11 +242,7 @@ class JumpWatch:
             self._describe(ep, "", seen_mm, "beyond a knock: finding what moved")  # interval
             return
         if top is not None and decisive and top.hypothesis.target is not None:
-            h = top.hypothesis
-            self._describe(ep, h.name, seen_mm, f"{h.label} {top.size_text()}")
-            evidence = f"since measurement {top.onset_ref}, the others where they were"
-            moved = float(np.linalg.norm(top.theta))
-            svc.maintenance_needed(sphere_moved_need(str(h.target), moved, evidence, bound))
+            self._sphere_moved(ep, top, seen_mm)
             return
         if top is not None and decisive:
             h = top.hypothesis
@@ -263,6 +254,15 @@ class JumpWatch:
             return
         self._describe(ep, SEVERAL, seen_mm, "more than one thing changed")
         svc.maintenance_needed(several_need(seen_mm, bound))
+
+    def _sphere_moved(self, ep: dict[str, Any], fit: JumpFit, seen_mm: float) -> None:
+        """One sphere moved alone (`fit`'s hypothesis names it): the maintenance hold."""
+        h = fit.hypothesis
+        self._describe(ep, h.name, seen_mm, f"{h.label} {fit.size_text()}")
+        evidence = f"since measurement {fit.onset_ref}, the others where they were"
+        moved = float(np.linalg.norm(fit.theta))
+        bound = self.svc.settings.recalib.maintenance_step_mm
+        self.svc.maintenance_needed(sphere_moved_need(str(h.target), moved, evidence, bound))
 
     def hold_blind(self, onset_id: int, need: MaintenanceNeed) -> None:
         """No view saw its sphere for BLIND_WINDOWS windows since measurement `onset_id`
