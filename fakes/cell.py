@@ -247,13 +247,17 @@ class SimulatedCell:
 
     @property
     def sensor(self) -> TrueSensor:
-        """The true sensor now (camera + galvo laser; after a sensor's replacement the new
-        one); its pixel rays take ~1 s on first use."""
+        """The true sensor now (`sensor_at`)."""
+        return self.sensor_at(None)
+
+    def sensor_at(self, t_s: float | None) -> TrueSensor:
+        """The true sensor at sim time t_s (default: now; camera + galvo laser; after a
+        sensor's replacement the new one); its pixel rays take ~1 s on first use."""
         with self._render_lock:
             if self._sensor is None:
                 self._sensor = default_true_sensor()
             m = self.maintenance
-            if m is None or m.kind != "sensor" or not self._serviced(self._at(None)):
+            if m is None or m.kind != "sensor" or not self._serviced(self._at(t_s)):
                 return self._sensor
             if self._sensor_serviced is None:
                 rng = np.random.default_rng([self.settings.seed, 6, 1])

@@ -155,7 +155,6 @@ class Service:
         self.settings = s = dataclasses.replace(s, recalib=recalib)
         d = s.drift
         self.sensor_watch = SensorWatch(s.max_ps_mm, d.ewma_lambda, d.cusum_h, d.baseline_n)
-        self.sensor_watch.replay([r["quality"] for r in self.store.measurements(last=500)])
         self.recalibrator = recalibrator or Recalibrator()
         self.sequential: InlineSequential | None = None
         if s.recalib.estimator == "sequential":
@@ -203,6 +202,11 @@ class Service:
             self, self.operator, self.faults, self.decisions, loaded.start_alarms
         )
         self.restore()
+        # the PS chart rebuilt from the measurements since the last maintenance's hand-over (a
+        # replaced sensor charts against its own baseline, not the one before it)
+        since = max(0, self.decision.maintained_from_id - 1)
+        rows = self.store.measurements(since_id=since, last=500)
+        self.sensor_watch.replay([r["quality"] for r in rows])
         for code in RETIRED_CODES:  # raised by an older rvis: nothing would clear them
             self.clear_alarms(code)
         self.jumps.restart()

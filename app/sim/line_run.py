@@ -407,26 +407,17 @@ class SimulatedLineRun:
         if not geometric and sensor_model is None:
             sensor_model = true_sensor_model(self.cell.sensor)
         self.sensor_model = None if geometric else sensor_model
-        commands = self.settings.sweep.commands_v()
-        self.truth = EndToEndTruth(self.cell.sensor, self.sensor_model, commands)
-        # the cold cell's calibration, measured as the line measures (a commissioned state
-        # directory's first version replaces it once the service has read it)
-        done, validation_mm = commissioned(
-            cfg, seed, EndToEndTruth(self.cell.sensor, self.sensor_model, commands)
-        )
-        self.x_commissioning = carry(self.model, commission_model, done.x, done.temp_c)[1]
-        self.commissioning_residuals = {
-            "n_measurements": int(done.residuals_mm.shape[0]),
-            "rms_mm": done.rms_mm,
-            "n_parameters": len(done.active),
-            # what the commissioning's workspace step would have measured (app.line.accuracy)
-            "validation_errors_mm": validation_mm.tolist(),
-            # the identification's covariance: the estimator's prior (app.line.jumps)
-            "covariance": {
-                "active": list(done.active),
-                "cov": (done.corr * np.outer(done.std, done.std)).tolist(),
-            },
-        }
+        self._commands = self.settings.sweep.commands_v()
+        self._truths: dict[int, EndToEndTruth] = {}  # by the true sensor (`truth_at`)
+        first = StateDir(self.state_dir).version_file(1)
+        # the parameters the service starts from in a new state directory: the cold cell's
+        # calibration, measured as the line measures (a state directory with its first
+        # version, commissioned or run before, starts from what it holds: `load_in_force`)
+        self.commissioning_residuals: dict[str, Any] | None = None
+        if first.is_file():
+            self.x_commissioning = carried_from_json(self.model, first)[1]
+        else:
+            self.x_commissioning = self._cold_calibration(cfg, seed, commission_model)
         self.summary = SimRunSummary()
         self._t_open: list[float] = []  # the clock time each record's window began
         self.held_for_maintenance = False  # the service raised `maintenance`: it holds
@@ -506,6 +497,43 @@ class SimulatedLineRun:
             self.x_commissioning = self._x_of(1)
         self.summary.true_rmse_start_mm = self.true_rmse_mm(self.service.x)
 
+    def _cold_calibration(self, cfg: CellConfig, seed: int, commission_model: Any) -> F64:
+        """The cold cell's calibration (`commissioned`, the sensor as built measured with the
+        sensor model in use) in the run's model; its residuals, validation and covariance
+        kept for the new directory's first version (`commissioning_residuals`)."""
+        cold = EndToEndTruth(self.cell.sensor_at(0.0), self.sensor_model, self._commands)
+        done, validation_mm = commissioned(cfg, seed, cold)
+        self.commissioning_residuals = {
+            "n_measurements": int(done.residuals_mm.shape[0]),
+            "rms_mm": done.rms_mm,
+            "n_parameters": len(done.active),
+            # what the commissioning's workspace step would have measured (app.line.accuracy)
+            "validation_errors_mm": validation_mm.tolist(),
+            # the identification's covariance: the estimator's prior (app.line.jumps)
+            "covariance": {
+                "active": list(done.active),
+                "cov": (done.corr * np.outer(done.std, done.std)).tolist(),
+            },
+        }
+        x: F64 = carry(self.model, commission_model, done.x, done.temp_c)[1]
+        return x
+
+    def truth_at(self, t_s: float | None = None) -> EndToEndTruth:
+        """The end-to-end truth at sim time t_s (default: now): the true sensor the cell has
+        then (a sensor replaced by a maintenance event is another one) measured with the
+        sensor model the line measures with."""
+        sensor = self.cell.sensor_at(t_s)
+        truth = self._truths.get(id(sensor))
+        if truth is None:
+            truth = EndToEndTruth(sensor, self.sensor_model, self._commands)
+            self._truths[id(sensor)] = truth
+        return truth
+
+    @property
+    def truth(self) -> EndToEndTruth:
+        """The end-to-end truth now (`truth_at`)."""
+        return self.truth_at(None)
+
     def _bodies(self, line: SimLine) -> BodySetup | None:
         """The bodies the line clamps measured as the state directory's feature plan says (none
         without a plan), built by the seed's process, on the line's path (app.sim.bodies: the
@@ -536,7 +564,7 @@ class SimulatedLineRun:
     def true_rmse_mm(self, x: F64, t_s: float | None = None) -> float:
         """The end-to-end true error [mm, RMS] of parameters x at the validation positions at
         sim time t_s (default now)."""
-        return true_rmse_mm(self.line, self.truth, self.model, x, t_s)
+        return true_rmse_mm(self.line, self.truth_at(t_s), self.model, x, t_s)
 
     def start_service(self) -> None:
         self._loop_ended = False
@@ -718,7 +746,7 @@ class SimulatedLineRun:
         if version is None:
             version = self.service.version
         t_s = float(event["t"]) - epoch
-        e = true_errors_mm(self.line, self.truth, self.model, self._x_of(version), t_s)
+        e = true_errors_mm(self.line, self.truth_at(t_s), self.model, self._x_of(version), t_s)
         u95 = event.get("u95_mm")
         norms = np.linalg.norm(e, axis=1)
         record = WindowRecord(
