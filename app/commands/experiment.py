@@ -165,6 +165,11 @@ def _maintenance_options(g: argparse.ArgumentParser) -> None:
         action="store_true",
         help="every sweep rendered and measured through images (default: geometric; slow)",
     )
+    g.add_argument(
+        "--no-tracker",
+        action="store_true",
+        help="--event fixture: no tracker at hand (the spheres located by the robot)",
+    )
     g.add_argument("--out", required=True, help="output folder (a new one)")
 
 
@@ -186,6 +191,8 @@ def run_maintenance_experiment(args: argparse.Namespace) -> int:
         )
     if args.frame and (args.event != "fixture" or args.sphere):
         raise InputError("with --event fixture and no --sphere", field="--frame")
+    if args.no_tracker and args.event != "fixture":
+        raise InputError("with --event fixture", field="--no-tracker")
     out = Path(args.out)
     if out.exists() and any(out.iterdir()):
         raise InputError("the output folder is not empty", file=out)
@@ -198,6 +205,7 @@ def run_maintenance_experiment(args: argparse.Namespace) -> int:
         sphere=args.sphere,
         frame=args.frame,
         geometric=not args.rendered,
+        no_tracker=args.no_tracker,
     )
     row = run_maintenance(cfg, out, run)
     path = write_rows(out, [row])

@@ -12,6 +12,7 @@ checks, 1 when the engineer stopped it, 2 on bad input.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from contextlib import ExitStack
 from datetime import UTC, datetime
@@ -34,7 +35,15 @@ def register(sub: Any) -> None:
     source = p.add_mutually_exclusive_group()
     source.add_argument("--sensor", type=Path, help="sensor: its calibration made elsewhere")
     source.add_argument("--sensor-data", type=Path, help="sensor: targets recorded earlier")
-    p.add_argument("--targets", type=Path, help="fixture: the tracker's export of the spheres")
+    spheres = p.add_mutually_exclusive_group()
+    spheres.add_argument(
+        "--targets", type=Path, help="fixture: the tracker's export of the spheres"
+    )
+    spheres.add_argument(
+        "--no-tracker",
+        action="store_true",
+        help="fixture: no tracker at hand (the spheres located by the robot, not validated)",
+    )
     p.add_argument("--sim", action="store_true", help="on the simulated line (no hardware)")
     p.add_argument("--seed", type=int_at_least(0), help="--sim: the commissioned seed")
     p.add_argument("--json", action="store_true", help="print the report as JSON at the end")
@@ -55,6 +64,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("folder not found", file=args.sensor_data)
     if args.seed is not None and not args.sim:
         raise InputError("--seed needs --sim")
+    if args.no_tracker and args.event != "fixture":
+        raise InputError("--no-tracker is for a fixture renewed (`rvis maintain fixture`)")
     state_dir = args.state_dir or Path(load_cell(args.cell).service.state_dir)
     paths = StateDir(state_dir)
     if not paths.cell.is_file():
@@ -132,6 +143,8 @@ def _context(
         args, cfg, state, int(setup.get("seed", 0)), geometric, confirm, say, stack,
         every_device_traced=False, **world,
     )  # fmt: skip
+    if args.no_tracker:  # the cell's tracker left out: the procedure does without
+        fields["station"] = dataclasses.replace(fields["station"], tracker=None)
     return MaintenanceContext(
         **fields, out_dir=folder, event=args.event, axis=axis, record_id=record
     )

@@ -458,6 +458,8 @@ def workspace(ctx: Context) -> StepResult:
     version in force before (`compare_workspace`: said in words, a warning when shown worse)."""
     from app.commission.workspace import workspace_validation
 
+    if ctx.station.tracker is None:
+        return StepResult(not_run=NO_TRACKER)
     cell = ctx.cell()
     c = cell.commission
     in_force = float(cell.service.accuracy_limit_mm)
@@ -589,6 +591,58 @@ def _write_plan(ctx: Context, views: Views, q: F64, ok: np.ndarray) -> None:
     write_json(ctx.path(PLAN_FILE), doc)
 
 
+def spheres_located(ctx: Context) -> StepResult:
+    """A fixture renewed with no tracker at hand: each sphere located by the robot with the
+    version in force, from every view the plan has of it (aimed where the cell file had it:
+    a renewal moves a sphere by millimetres, within the measuring volume), its place the mean
+    of the views' centres in the part frame. The places carry the version in force's error at
+    those views and nothing independent checks them: the robot and the sensor did not change,
+    so the cell keeps the accuracy it had, and the workspace validation does not run
+    (NO_TRACKER). Checked: every sphere seen from two views or more, its views agreeing within
+    `[commission] max_target_rms_mm` (RMS about their mean), near the cell file's place."""
+    c = ctx.cfg.commission
+    model, x = from_json(ctx.path(PARAMS_BEFORE_FILE))
+    views = Views.of_plan(ctx)
+    taken = measure_views(
+        ctx,
+        list(zip(views.targets, views.q_deg, strict=True)),
+        ctx.sphere_sensor(ctx.sensor_model()),
+        "locate the spheres:",
+    )
+    temps = None if any(t is None for t in taken.temp_c) else np.array(taken.temp_c, float)
+    points = model.points_part(
+        x, np.array(taken.q_deg).reshape(-1, 6), np.array(taken.c_sensor_mm).reshape(-1, 3),
+        temp_c=temps,
+    )  # fmt: skip
+    before = read_targets(ctx.path(TARGETS_BEFORE_FILE))
+    r = StepResult()
+    r.results["source"] = "located by the robot with the version in force (no tracker)"
+    r.results["spheres"], positions, moved = {}, {}, {}
+    for t in before:
+        mine = points[[k for k, s in enumerate(taken.targets) if s == t]]
+        r.checks.append(at_least(f"{t} seen from", len(mine), 2, "views"))
+        if len(mine) < 2:
+            continue
+        p = mine.mean(axis=0)
+        spread = float(np.sqrt(np.mean(np.sum((mine - p) ** 2, axis=1))))
+        positions[t], moved[t] = p, float(np.linalg.norm(p - before[t]))
+        x_mm, y_mm, z_mm = map(float, p)
+        r.results["spheres"][t] = {
+            "x_mm": x_mm, "y_mm": y_mm, "z_mm": z_mm, "views": len(mine), "rms_mm": spread,
+            "offset_mm": moved[t],
+        }  # fmt: skip
+        r.checks.append(
+            at_most(f"{t} views' RMS about their mean", spread, c.max_target_rms_mm, "mm")
+        )
+        r.checks.append(at_most(f"{t} from the cell file", moved[t], c.max_sphere_offset_mm, "mm"))
+    r.results["moved_mm"] = moved
+    r.results["rejected"] = taken.rejected
+    if len(positions) == len(before):
+        write_targets(ctx.path(TARGETS_FILE), positions)
+        r.files.append(TARGETS_FILE)
+    return r
+
+
 # -- the hand-over --------------------------------------------------------------------------
 def handover(ctx: Context) -> StepResult:
     """The procedure's parameters as the next version (source maintenance, with its workspace
@@ -684,11 +738,23 @@ def _rms(errors: list[float]) -> float | None:
 
 
 # -- the fixture's spheres --------------------------------------------------------------------
+#: why the workspace validation does not run without a tracker
+NO_TRACKER = (
+    "no tracker at hand: the cell's accuracy after the procedure is not validated against an"
+    " independent reference (the accuracy statement's floor stays the commissioning's workspace"
+    " validation); measure the spheres with a tracker when one is at hand (`rvis maintain"
+    " fixture --targets FILE`)"
+)
+
+
 def spheres_moved(ctx: Context) -> StepResult:
     """The commissioning's spheres step (the tracker measures them again, TARGETS_FILE), and
-    how far each moved from where the cell file had it."""
+    how far each moved from where the cell file had it; with no tracker at hand (none in the
+    station and no export), the spheres located by the robot (`spheres_located`)."""
     from app.commission.steps import spheres
 
+    if ctx.targets_file is None and ctx.station.tracker is None:
+        return spheres_located(ctx)
     r = spheres(ctx)
     if not ctx.path(TARGETS_FILE).is_file():
         return r

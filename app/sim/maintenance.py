@@ -62,6 +62,7 @@ class MaintenanceRun:
     frame: bool = False  # fixture: the renewal moves the part frame (fakes.truth.Maintenance)
     after_windows: int = 100
     geometric: bool = True  # False: the rendered path (spheres, bodies, the procedure's sweeps)
+    no_tracker: bool = False  # fixture: no tracker at hand (the spheres located by the robot)
     # the line runs at most until this many windows after the event's (held sooner)
     held_within: int = 20
     before_windows: int = 10  # the truth before the event: the median over these windows
@@ -73,6 +74,8 @@ class MaintenanceRun:
             raise ValueError("axis must be 1..6")
         if self.frame and (self.event != "fixture" or self.sphere):
             raise ValueError("frame: the whole fixture's renewal only")
+        if self.no_tracker and self.event != "fixture":
+            raise ValueError("no_tracker: a fixture renewed only")
 
 
 def run_maintenance(cfg: CellConfig, out: Path, run: MaintenanceRun) -> dict[str, Any]:
@@ -112,6 +115,7 @@ def run_maintenance(cfg: CellConfig, out: Path, run: MaintenanceRun) -> dict[str
         "sphere": run.sphere or None,
         "frame": run.frame,
         "path": "geometric" if run.geometric else "rendered",
+        "no_tracker": run.no_tracker,
         "seed": run.seed,
         "at_s": run.at_s,
         "event_window": k,
@@ -259,8 +263,11 @@ def _maintain(
             )
         )
         folder, record = open_record(held, run.event, axis, restart=False, t=epoch, say=say)
+        fields = scripted_fields(sim, cfg, held, say)
+        if run.no_tracker:  # the procedure without the cell's tracker
+            fields["station"] = dataclasses.replace(fields["station"], tracker=None)
         ctx = MaintenanceContext(
-            **scripted_fields(sim, cfg, held, say),
+            **fields,
             out_dir=folder,
             event=run.event,
             axis=axis,

@@ -196,3 +196,20 @@ def test_no_bic_on_an_operators_screen() -> None:
     assert "BIC" not in a.text() and "12818" not in a.text()
     assert a.text().endswith("3 measurements; sphere fixture / part frame far less likely")
     assert a.to_json()["margin"] == 12818.0
+
+
+def test_no_tracker_is_refused_for_anything_but_a_fixture_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`--no-tracker` says the fixture's spheres are located by the robot: for a sensor or an
+    axis it means nothing, refused with exit 2 and one line; beside `--targets` argparse's
+    own refusal (exit 2)."""
+    from app.commands.cli import main
+
+    assert main(["maintain", "sensor", "--no-tracker", "--state-dir", str(tmp_path)]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "--no-tracker is for a fixture renewed" in line
+    export = _export(tmp_path / "mine.csv", ["P1,1,2,3"])
+    with pytest.raises(SystemExit) as info:
+        main(["maintain", "fixture", "--no-tracker", "--targets", str(export)])
+    assert info.value.code == 2

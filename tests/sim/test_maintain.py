@@ -169,6 +169,40 @@ def test_a_procedure_hands_the_cell_back_with_its_history(
     _a_knock_after_the_hand_over_is_found_named_and_corrected(state, median_after)
 
 
+@GIGE_CAMERA
+def test_a_fixture_renewed_with_no_tracker_is_located_by_the_robot(
+    commissioned: StateDir, tmp_path: Path, capsys: Any
+) -> None:
+    """Issue 51 item 4: the fixture renewed with no tracker at hand (`--no-tracker`). The
+    spheres are located by the robot with the version in force, each from the plan's views of
+    it: where they truly moved within 0.05 mm (what that version's error at those views
+    allows); the workspace validation does not run, and says why (never "passed"); the cell is
+    handed back and measures at the level the version before has without the event."""
+    state = _with_event(commissioned, tmp_path / "state", "fixture")
+    assert _line(state, 30).maintenance, "the service did not hold the cell"
+    args = ["maintain", "fixture", "--no-tracker", "--sim", "--state-dir", str(state.root)]
+    code = main([*args, "--yes", "--json"])
+    out = capsys.readouterr().out
+    report = json.loads(out[out.index("{") :])
+    assert code == 0 and report["complete"], report
+    steps = {s["name"]: s for s in report["steps"]}
+    located = steps["spheres"]["results"]
+    assert located["source"].startswith("located by the robot")
+    truth = _line_truth(state, "fixture")["spheres_moved_mm"]
+    assert set(located["moved_mm"]) == set(truth)
+    for sphere, moved_mm in truth.items():
+        assert located["moved_mm"][sphere] == pytest.approx(moved_mm, abs=0.05), sphere
+    assert steps["workspace"]["status"] == "not run", steps["workspace"]
+    assert "no tracker" in json.dumps(steps["workspace"]["results"])
+    version = steps["handover"]["results"]["version"]
+    cfg = load_cell(state.cell)
+    run = MaintenanceRun("fixture", SEED, at_s=AT_S, after_windows=8, no_tracker=True)
+    after, unchanged = _line_after(cfg, state, run, _version_x(cfg, state, version - 1), None)
+    assert not after.maintenance and len(after.records) == 8 and after.rejected == 0
+    median_after = sorted(r.rmse_mm for r in after.records)[4]
+    assert median_after < 1.5 * sorted(unchanged)[4], (median_after, unchanged)
+
+
 def _a_knock_after_the_hand_over_is_found_named_and_corrected(
     state: StateDir, level_mm: float
 ) -> None:
