@@ -109,7 +109,7 @@ class DriftSettings(Section):
     # in-control run length is about exp(h + 1.166) - h - 2.166 measurements (Siegmund): 7e4
     # with 10, 470 with 5; a baseline learned from few values shortens it far more (its mean
     # and sigma are off by a fraction of sigma for good: 50 in-control 8 h shifts at one
-    # sphere a minute, 480 values each, raised a false alarm in 37 with h 5 and 16 values, 13
+    # sphere a minute, 480 values each, raised a false alarm in 41 with h 5 and 16 values, 13
     # with 10 and 16, none with 10 and 100; tests/sim/test_sensor_watch.py). 100 values cover
     # every view of a schedule four times (PS differs by a few um from view to view); a shift
     # of 1 sigma is then signalled after about 15 measurements. Until the baseline is learned
