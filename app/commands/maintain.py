@@ -12,7 +12,6 @@ checks, 1 when the engineer stopped it, 2 on bad input.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 from contextlib import ExitStack
 from datetime import UTC, datetime
@@ -130,7 +129,7 @@ def _context(
     """The procedure's Context: the commissioning's fields (app.commands.guided), the
     simulated line's world continuing where the service left it."""
     from app.commands.guided import guided_fields
-    from app.maintain.steps import MaintenanceContext
+    from app.maintain.steps import MaintenanceContext, without_tracker
 
     world: dict[str, Any] = {}
     if args.sim:
@@ -143,8 +142,8 @@ def _context(
         args, cfg, state, int(setup.get("seed", 0)), geometric, confirm, say, stack,
         every_device_traced=False, **world,
     )  # fmt: skip
-    if args.no_tracker:  # the cell's tracker left out: the procedure does without
-        fields["station"] = dataclasses.replace(fields["station"], tracker=None)
+    if args.no_tracker:
+        fields = without_tracker(fields)
     return MaintenanceContext(
         **fields, out_dir=folder, event=args.event, axis=axis, record_id=record
     )

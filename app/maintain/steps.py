@@ -747,6 +747,12 @@ NO_TRACKER = (
 )
 
 
+def without_tracker(fields: dict[str, Any]) -> dict[str, Any]:
+    """A procedure's context fields with the cell's tracker left out (`--no-tracker`: none at
+    hand today; the fixture's spheres are then located by the robot)."""
+    return fields | {"station": dataclasses.replace(fields["station"], tracker=None)}
+
+
 def spheres_moved(ctx: Context) -> StepResult:
     """The commissioning's spheres step (the tracker measures them again, TARGETS_FILE), and
     how far each moved from where the cell file had it; with no tracker at hand (none in the

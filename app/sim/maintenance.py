@@ -39,7 +39,7 @@ from app.line.launch import hold_state
 from app.line.statedir import MAINTENANCE_REPORT_JSON, StateDir
 from app.line.store import Store
 from app.maintain.record import open_record
-from app.maintain.steps import MaintenanceContext
+from app.maintain.steps import MaintenanceContext, without_tracker
 from app.maintain.table import procedure
 from app.sim.commission import SimCommissioning
 from app.sim.commissioned import commission_simulated, quiet, run_steps, scripted_fields
@@ -264,8 +264,8 @@ def _maintain(
         )
         folder, record = open_record(held, run.event, axis, restart=False, t=epoch, say=say)
         fields = scripted_fields(sim, cfg, held, say)
-        if run.no_tracker:  # the procedure without the cell's tracker
-            fields["station"] = dataclasses.replace(fields["station"], tracker=None)
+        if run.no_tracker:
+            fields = without_tracker(fields)
         ctx = MaintenanceContext(
             **fields,
             out_dir=folder,
