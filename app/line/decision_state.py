@@ -75,6 +75,17 @@ class DecisionState:
         }
         self.maintained_from_id = int(doc.get("maintained_from_id", 0))
 
+    def maintained_since_id(self) -> int:
+        """The measurements of the cell as it is now are after this id: none from before the
+        last maintenance hand-over (0: every one)."""
+        return max(0, self.maintained_from_id - 1)
+
+    def rolling_since_id(self) -> int:
+        """A rolling set's measurements are after this id: from a jump's onset on, and none
+        from before the last maintenance hand-over."""
+        onset = 0 if self.jump_onset_id is None else self.jump_onset_id - 1
+        return max(onset, self.maintained_since_id())
+
     def after_maintenance(self, first_id: int) -> None:
         """A maintenance procedure handed the cell back: the measurements before `first_id`
         say nothing of the cell now. No jump in hand, no onset, no calibration in flight, the

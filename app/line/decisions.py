@@ -79,10 +79,7 @@ class Decisions:
             or not self._recal_due()
         ):
             return
-        since = 0 if svc.decision.jump_onset_id is None else svc.decision.jump_onset_id - 1
-        since = max(
-            since, svc.decision.maintained_from_id - 1
-        )  # none of the cell before a maintenance
+        since = svc.decision.rolling_since_id()
         attempt = (self._good_rows, since)
         if attempt == self._incomplete:
             return  # no good measurement since the rolling set was found incomplete
@@ -119,17 +116,14 @@ class Decisions:
         """The (training, held-out) measurements a recalibration would use now: the last ones,
         after a jump's onset when there is one (None: not complete yet)."""
         svc = self.svc
-        since = 0 if svc.decision.jump_onset_id is None else svc.decision.jump_onset_id - 1
-        since = max(
-            since, svc.decision.maintained_from_id - 1
-        )  # none of the cell before a maintenance
+        since = svc.decision.rolling_since_id()
         r = svc.settings.recalib
         rows = svc.store.measurements(
             status="ok", since_id=since, last=r.rolling_n + r.holdout_size
         )
         # the views left out (app.line.slot_choice) are not waited for: a set without them is
         # complete
-        lost = lost_views(svc.store, svc.decision.maintained_from_id - 1)
+        lost = lost_views(svc.store, svc.decision.maintained_since_id())
         slots = [x for x in svc.schedule.slots if x.index not in lost] or svc.schedule.slots
         targets = tuple(dict.fromkeys(x.target for x in slots))
         return select_rolling(rows, len(slots), targets, r)

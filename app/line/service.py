@@ -204,8 +204,7 @@ class Service:
         self.restore()
         # the PS chart rebuilt from the measurements since the last maintenance's hand-over (a
         # replaced sensor charts against its own baseline, not the one before it)
-        since = max(0, self.decision.maintained_from_id - 1)
-        rows = self.store.measurements(since_id=since, last=500)
+        rows = self.store.measurements(since_id=self.decision.maintained_since_id(), last=500)
         self.sensor_watch.replay([r["quality"] for r in rows])
         for code in RETIRED_CODES:  # raised by an older rvis: nothing would clear them
             self.clear_alarms(code)

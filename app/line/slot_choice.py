@@ -46,7 +46,7 @@ class SlotChoice:
         from the views that still see their spheres. The first time a view is left out a
         `view_lost` alarm names it and what fixes it."""
         svc = self.svc
-        lost = lost_views(svc.store, svc.decision.maintained_from_id - 1)
+        lost = lost_views(svc.store, svc.decision.maintained_since_id())
         if not lost:
             return slots
         new = sorted(set(lost) - self._views_lost)
