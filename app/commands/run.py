@@ -283,6 +283,7 @@ def run_sim(args: argparse.Namespace) -> int:
                 pace=None if batch else cfg.simline.scale,
                 waiting=say_waiting,
                 bodies=not args.no_bodies,
+                attended=True,  # `rvis ctl reset` on its socket clears a FAULT
             ) as sim,
         ):
             with serving(sim.service):

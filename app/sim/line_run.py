@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 
 from app.commission.files import TARGETS_FILE
 from app.config import CellConfig
-from app.errors import InputError
+from app.errors import InputError, RvisError
 from app.formats.files import read_targets
 from app.formats.params import carried_from_json
 from app.line.body_cycle import BodySetup
@@ -101,6 +101,8 @@ class SimRunSummary:
     true_rmse_final_mm: float = float("nan")
     # the `maintenance` alarm's text when the service holds the cell for a procedure
     maintenance: str | None = None
+    # the device fault's alarm when an unattended run ended in a FAULT nobody clears
+    fault: str | None = None
     # the bodies measured (their newest evaluation): how many, nonconforming, with a value
     # undecided within its U95, evaluated again after a correction
     bodies: int = 0
@@ -188,8 +190,21 @@ def geometric_sensor(line: SimLine, sweep_s: float = 0.0) -> GeometricSensor:
     return GeometricSensor(centre, sweep_s)
 
 
+class LineFaulted(RvisError):
+    """An unattended run's service sat in a FAULT that nothing in the run clears (its summary
+    holds what was measured up to it)."""
+
+    def __init__(self, summary: SimRunSummary) -> None:
+        self.summary = summary
+        super().__init__(
+            f"the simulated line's service faulted after window {summary.windows} and nobody"
+            f" resets an unattended run's line: {summary.fault}"
+        )
+
+
 class _Held(Exception):
-    """The service holds the cell for maintenance: no window will come."""
+    """The service holds the cell for maintenance, or sits in a FAULT nobody will clear: no
+    window will come."""
 
 
 def _held_for_maintenance(event: dict[str, Any]) -> bool:
@@ -374,6 +389,7 @@ class SimulatedLineRun:
         start_epoch: float | None = None,
         waiting: Callable[[str], None] | None = None,
         bodies: bool = True,
+        attended: bool = False,
     ) -> None:
         """sensor_model: the sensor calibration the rendered line measures with (default: the
         true sensor's, a perfect calibration); unused on the geometric path. pace: sim seconds
@@ -381,7 +397,10 @@ class SimulatedLineRun:
         (None: now, to the whole second); waiting: told in one line, at once, when the rendered
         line's camera must wait for another simulation's (as long as that one runs); bodies:
         measure the bodies of the state directory's feature plan, if it has one (False: spheres
-        only, as `rvis run --sim --no-bodies`)."""
+        only, as `rvis run --sim --no-bodies`); attended: someone can clear a FAULT (`rvis ctl
+        reset` on the service's socket), so `run_windows` waits through one; unattended (an
+        experiment) a FAULT the service does not leave by itself within a silence ends the run,
+        its alarm in the summary's `fault`."""
         cfg = with_simulated_plc(cfg)
         self.cfg, self.state_dir, self.seed = cfg, Path(state_dir), seed
         self.cell = make_cell(world_of(cfg, state_dir), seed=seed)
@@ -421,6 +440,7 @@ class SimulatedLineRun:
         self.summary = SimRunSummary()
         self._t_open: list[float] = []  # the clock time each record's window began
         self.held_for_maintenance = False  # the service raised `maintenance`: it holds
+        self.attended = attended
         self._versions: dict[int, F64] = {}
         self._stack = contextlib.ExitStack()
         self.thread: threading.Thread | None = None
@@ -663,13 +683,19 @@ class SimulatedLineRun:
             return s.windows >= n or event["event"] == "stopped" or _held_for_maintenance(event)
 
         def quiet() -> bool:
-            """Silent on purpose; held for maintenance since its start (a restart): done."""
-            if self._quiet_by_itself() and self.service.store.active_alarms(
-                code=AlarmCode.MAINTENANCE
-            ):
+            """Silent on purpose; held for maintenance since its start (a restart), or in a
+            FAULT with nobody to reset it (unattended): done."""
+            if not self._quiet_by_itself():
+                return False
+            if self.service.store.active_alarms(code=AlarmCode.MAINTENANCE):
                 self.held_for_maintenance = True
                 raise _Held
-            return self._quiet_by_itself()
+            if not self.attended and self.service.state == State.FAULT:
+                store = self.service.store
+                alarms = store.active_alarms(code=AlarmCode.DEVICE_FAULT) or store.active_alarms()
+                s.fault = str(alarms[-1]["message"]) if alarms else "FAULT"
+                raise _Held
+            return True
 
         if s.windows < n:
             with contextlib.suppress(_Held):
@@ -684,15 +710,18 @@ class SimulatedLineRun:
                         if on_window is not None:
                             on_window(record)
         self.mark_suspect()
-        if self.held_for_maintenance:  # no window comes: the service stops here
+        if self.held_for_maintenance or s.fault is not None:  # no window comes: it stops here
             held = self.service.store.active_alarms(code=AlarmCode.MAINTENANCE)
-            s.maintenance = str(held[-1]["message"]) if held else None
+            if self.held_for_maintenance:
+                s.maintenance = str(held[-1]["message"]) if held else None
             self.service.stop()
             with self._gate:
                 self._gate.wait_for(lambda: self._loop_ended, timeout=silence_s)
         else:
             self._held_or_gone(silence_s)
         s.true_rmse_final_mm = self.true_rmse_mm(self.service.x)
+        if s.fault is not None:
+            raise LineFaulted(s)
         return s
 
     def mark_suspect(self) -> None:

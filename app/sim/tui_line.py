@@ -46,8 +46,13 @@ def simulated_service(
     if settings.scale is not None:
         cfg = replace(cfg, simline=replace(cfg.simline, scale=settings.scale))
     seed = cfg.simulation.seed if settings.seed is None else settings.seed
-    run = SimulatedLineRun(
-        cfg, state_dir, seed=seed, geometric=settings.geometric, pace=cfg.simline.scale
+    run = SimulatedLineRun(  # attended: the operator's terminal resets a FAULT
+        cfg,
+        state_dir,
+        seed=seed,
+        geometric=settings.geometric,
+        pace=cfg.simline.scale,
+        attended=True,
     )
     if settings.mode is not None:
         run.settings = replace(

@@ -18,7 +18,7 @@ import pytest
 
 from app.config import CellConfig
 from app.line.states import State
-from app.sim.line_run import SimulatedLineRun
+from app.sim.line_run import LineFaulted, SimulatedLineRun
 from fakes.line_faults import Fault
 from tests.sim.fault_checks import all_announced_stored, faulted
 
@@ -106,3 +106,16 @@ def test_a_window_withdrawn_early_aborts_and_goes_home(run: SimulatedLineRun) ->
     np.testing.assert_allclose(run.cell.joints_deg(), home, atol=0.05)
     assert run.service.decision.counters["overruns"] == 0
     all_announced_stored(run, events)
+
+
+def test_a_fault_nobody_clears_ends_an_unattended_run(run: SimulatedLineRun) -> None:
+    """An experiment's line has no operator to reset a FAULT: the run ends with the device's
+    alarm in one line (it waited for ever before), the service stopped."""
+    run.line.schedule(Fault.CONTROLLER_ALARM, window=2, after_s=1.0)
+    with pytest.raises(LineFaulted, match=r"nobody resets.*DeviceFault") as ended:
+        run.run_windows(6)
+    assert ended.value.summary.windows < 6
+    assert ended.value.summary.fault is not None and "DeviceFault" in ended.value.summary.fault
+    assert run.thread is not None
+    run.thread.join(WAIT_S)
+    assert not run.thread.is_alive()
