@@ -221,26 +221,38 @@ def feature_profiles(
     a = R @ feature.axis
     b = np.cross(m, a)
     ratio = (np.arange(sensor.rows) - sensor.cy_px) / sensor.fy_px
+    normals, offsets = (np.asarray(v, float) for v in planes)
+    if not len(offsets):
+        return []
+    # every plane at once: the line each laser plane cuts the sheet's plane in (direction u,
+    # through x0, the least-norm solution of [n; m] X = [d, m.c]), where the camera's rows see it
+    u = np.cross(normals, m)
+    seen = np.linalg.norm(u, axis=1) >= 1e-9
+    u[seen] /= np.linalg.norm(u[seen], axis=1, keepdims=True)
+    nn, nm, mm = np.einsum("ij,ij->i", normals, normals), normals @ m, m @ m
+    det = nn * mm - nm**2
+    rhs = np.stack([offsets, np.full_like(offsets, m @ c)], axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w0 = (mm * rhs[:, 0] - nm * rhs[:, 1]) / det  # (A A^T)^-1 b, then x0 = A^T that
+        w1 = (nn * rhs[:, 1] - nm * rhs[:, 0]) / det
+        x0 = w0[:, None] * normals + w1[:, None] * m
+        s = (ratio * x0[:, 2:3] - x0[:, 1:2]) / (u[:, 1:2] - ratio * u[:, 2:3])
+        # each coordinate and the sheet's in-plane ones along the rows, (planes, rows) each
+        x, z = x0[:, 0:1] + s * u[:, 0:1], x0[:, 2:3] + s * u[:, 2:3]
+        keep = seen[:, None] & np.isfinite(z) & (z > sensor.z_range_mm[0])
+        keep &= z < sensor.z_range_mm[1]
+        keep &= np.abs(x) <= sensor.half_tan_x * np.where(keep, z, 1.0)
+        rel0 = x0 - c
+        along = (rel0 @ a)[:, None] + s * (u @ a)[:, None]
+        across = (rel0 @ b)[:, None] + s * (u @ b)[:, None]
+    keep &= ~_in_opening(feature, along, across)
     out: list[F64] = []
-    for n, d in zip(*planes, strict=True):
-        u = np.cross(n, m)
-        if np.linalg.norm(u) < 1e-9:
+    for x0_i, u_i, s_i, keep_i, seen_i in zip(x0, u, s, keep, seen, strict=True):
+        if not seen_i:
             out.append(np.zeros((0, 3)))
             continue
-        u = _unit(u)
-        # a point on both planes: least-norm solution of [n; m] X = [d, m.c]
-        A = np.vstack([n, m])
-        x0 = np.linalg.lstsq(A, np.array([d, m @ c]), rcond=None)[0]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s = (ratio * x0[2] - x0[1]) / (u[1] - ratio * u[2])
-        X = x0 + s[:, None] * u
-        z = X[:, 2]
-        keep = np.isfinite(z) & (z > sensor.z_range_mm[0]) & (z < sensor.z_range_mm[1])
-        keep &= np.abs(X[:, 0]) <= sensor.half_tan_x * np.where(keep, z, 1.0)
-        rel = X - c
-        keep &= ~_in_opening(feature, rel @ a, rel @ b)
-        X = X[keep]
-        out.append(X + _noise(rng, X, sensor))
+        X_i = x0_i + s_i[keep_i, None] * u_i
+        out.append(X_i + _noise(rng, X_i, sensor))
     return out
 
 
@@ -254,7 +266,7 @@ def _in_opening(f: TrueFeature, along: F64, across: F64) -> NDArray[np.bool_]:
         s = np.clip(along, -half, half)
         out = (along - s) ** 2 + across**2 < (0.5 * w) ** 2
         return out
-    return np.zeros(len(along), dtype=bool)
+    return np.zeros(np.shape(along), dtype=bool)
 
 
 def _noise(rng: np.random.Generator, X: F64, sensor: GeometricSensor) -> F64:

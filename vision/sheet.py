@@ -106,17 +106,21 @@ def fit_plane(
     scatter more than max_plane_rms_mm."""
     s = settings or SheetSettings()
     keep = np.ones(len(points_mm), dtype=bool)
-    plane = None
+    plane, settled = None, False
     for _ in range(iterations):
         if keep.sum() < max(3, s.min_plane_points):
             break
         plane = _lsq_plane(points_mm[keep], normal_hint)
-        keep = np.abs(plane.distance_mm(points_mm)) <= s.plane_tol_mm
+        kept, keep = keep, np.abs(plane.distance_mm(points_mm)) <= s.plane_tol_mm
+        if np.array_equal(keep, kept):  # the same points again: so would every pass be
+            settled = True
+            break
     if plane is None or keep.sum() < s.min_plane_points:
         raise FeatureRefused(
             "plane", f"{int(keep.sum())} points on the sheet, at least {s.min_plane_points}"
         )
-    plane = _lsq_plane(points_mm[keep], normal_hint)
+    if not settled:
+        plane = _lsq_plane(points_mm[keep], normal_hint)
     if plane.rms_mm > s.max_plane_rms_mm:
         raise FeatureRefused(
             "plane",

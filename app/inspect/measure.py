@@ -157,12 +157,11 @@ def evaluate(
     fit = mean_fit(fits)
     q_deg, T = at
     c_sensor = T[:3, :3].T @ (fit.centre_mm - T[:3, 3])
-    cov = calibration_cov(cal, q_deg, c_sensor)
+    cov, J_joints = _at_point(cal, q_deg, c_sensor, noise.repeatability_mm > 0.0)
     repeat = None
-    if noise.repeatability_mm > 0.0:
-        sigma_rad = joint_sigma_rad(cal.model, cal.x, noise.repeatability_mm)
-        J = cal.model.point_jacobian(cal.x, q_deg[None], c_sensor[None], JOINT_OFFSETS)[0]
-        repeat = sigma_rad**2 * (J @ J.T)
+    if J_joints is not None:
+        sigma_rad = _joint_sigma_rad(cal, noise.repeatability_mm)
+        repeat = sigma_rad**2 * (J_joints @ J_joints.T)
     at_view = None if shared is None else shared(q_deg, c_sensor, raws[0].temp_c)
     return feature_values(
         feature, fit, cov, statement_u95_mm, len(fits), repeat, noise.statement_noise_mm,
@@ -200,12 +199,40 @@ def mean_fit(fits: Sequence[FeatureFit]) -> FeatureFit:
 def calibration_cov(cal: Calibration, q_deg: F64, c_sensor_mm: F64) -> F64:
     """The identification's covariance at the point c_sensor_mm seen from q_deg (3, 3) [mm^2]
     (zero without one)."""
-    if cal.covariance is None:
-        return np.zeros((3, 3))
-    names, cov = cal.covariance
-    J = cal.model.point_jacobian(cal.x, q_deg[None], c_sensor_mm[None], names)[0]
-    out: F64 = J @ cov @ J.T
-    return out
+    return _at_point(cal, q_deg, c_sensor_mm, False)[0]
+
+
+def _at_point(
+    cal: Calibration, q_deg: F64, c_sensor_mm: F64, joints: bool
+) -> tuple[F64, F64 | None]:
+    """calibration_cov's covariance, and with joints the point's Jacobian (3, 6) in the joints'
+    offsets (else None): one Jacobian of the model for both."""
+    names, cov = cal.covariance if cal.covariance is not None else ([], None)
+    active = list(names) + [n for n in JOINT_OFFSETS if joints and n not in names]
+    if not active:
+        return np.zeros((3, 3)), None
+    J = cal.model.point_jacobian(cal.x, q_deg[None], c_sensor_mm[None], active)[0]
+    out: F64 = np.zeros((3, 3)) if cov is None else J[:, : len(names)] @ cov @ J[:, : len(names)].T
+    if not joints:
+        return out, None
+    return out, J[:, [active.index(n) for n in JOINT_OFFSETS]]
+
+
+#: joint_sigma_rad of the last calibrations seen (its 20 000 draws cost more than a feature's
+#: fit): by the model's identity (the model kept, so the identity is not reused), x and RP
+_SIGMA: dict[tuple[int, bytes, float], tuple[object, float]] = {}
+
+
+def _joint_sigma_rad(cal: Calibration, rp_mm: float) -> float:
+    key = (id(cal.model), np.asarray(cal.x, float).tobytes(), rp_mm)
+    hit = _SIGMA.get(key)
+    if hit is not None and hit[0] is cal.model:
+        return hit[1]
+    sigma = joint_sigma_rad(cal.model, cal.x, rp_mm)
+    if len(_SIGMA) >= 8:
+        _SIGMA.clear()
+    _SIGMA[key] = (cal.model, sigma)
+    return sigma
 
 
 def measure_body(
