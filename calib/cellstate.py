@@ -46,6 +46,7 @@ Pure numerics: nothing here knows the service.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -53,6 +54,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.linalg import cho_factor, cho_solve
+from scipy.special import chdtrc
 from scipy.stats import chi2 as chi2_dist
 
 from calib.attribution import SEVERAL
@@ -322,19 +324,29 @@ class CellState:
         F = C[::-1, ::-1].cumsum(0).cumsum(1)[::-1, ::-1]
         a = np.einsum("iad,ia->id", Gb, Wv)[::-1].cumsum(0)[::-1]  # (n, d)
         seen = np.abs(Gb).reshape(n, -1).max(axis=1)[::-1].cumsum()[::-1] > 0
-        best: JumpFit | None = None
-        for k in onsets:
-            if not seen[k]:
-                break
-            Fp, rank = _pinv_rank(F[k, k])
-            if rank == 0:
-                continue
-            llr = float(a[k] @ Fp @ a[k])
-            score = llr - rank * math.log(max(3 * (n - k), 2))
-            if best is None or score > best.score:
-                p = float(chi2_dist.sf(llr, rank))
-                best = JumpFit(h, k, self.rows[k].obs.ref, llr, rank, p, score, Fp @ a[k], Fp)
-        return best
+        ks = list(itertools.takewhile(lambda k: bool(seen[k]), onsets))
+        if not ks:
+            return None
+        # every onset's statistic at once (F_k's eigen-decomposition, its pseudo-inverse's
+        # rank and a_k' F_k^+ a_k), then the best onset's fit as _pinv_rank gives it
+        Fk = F[ks, ks]
+        vals, vecs = np.linalg.eigh(0.5 * (Fk + Fk.transpose(0, 2, 1)))
+        keep = vals > RTOL_PINV * np.maximum(vals.max(axis=1, initial=0.0), 1e-300)[:, None]
+        ranks = keep.sum(axis=1)
+        proj = np.einsum("mde,md->me", vecs, a[ks])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            llrs = np.where(keep, proj**2 / vals, 0.0).sum(axis=1)
+        scores = llrs - ranks * np.log(np.maximum(3 * (n - np.asarray(ks)), 2))
+        scores[ranks == 0] = -np.inf
+        if not np.isfinite(scores).any():
+            return None
+        m = int(np.argmax(scores))
+        k = ks[m]
+        Fp, rank = _pinv_rank(F[k, k])
+        llr = float(a[k] @ Fp @ a[k])
+        score = llr - rank * math.log(max(3 * (n - k), 2))
+        p = float(chdtrc(rank, llr))
+        return JumpFit(h, k, self.rows[k].obs.ref, llr, rank, p, score, Fp @ a[k], Fp)
 
     def held_out_p(self, name: str, onset: int) -> float:
         """Hypothesis `name`'s jump from measurement `onset` on, fitted without the newest
@@ -360,7 +372,7 @@ class CellState:
             + self.P[k : k + 3, k : k + 3]
             + self.settings.sigma_mm**2 * np.eye(3)
         )
-        return float(chi2_dist.sf(float(r @ np.linalg.solve(S, r)), 3))
+        return float(chdtrc(3, float(r @ np.linalg.solve(S, r))))
 
     def group_posterior(self, name: str) -> JumpFit | None:
         """Group `name`'s deviation as the state holds it (its posterior, the window's
@@ -376,7 +388,7 @@ class CellState:
         theta, cov = d[cols], P[np.ix_(cols, cols)]
         inv, rank = _pinv_rank(cov)
         z = float(theta @ inv @ theta)
-        p = float(chi2_dist.sf(z, max(rank, 1)))
+        p = float(chdtrc(max(rank, 1), z))
         return JumpFit(h, 0, self.rows[0].obs.ref, z, rank, p, 0.0, theta, cov)
 
     def fit(self, name: str, onset: int = 0) -> JumpFit | None:
@@ -463,7 +475,11 @@ class CellState:
         self.rows = keep
 
 
-def _pinv_rank(F: F64, rtol: float = 1e-9) -> tuple[F64, int]:
+#: eigenvalues below this share of the largest count as zero in a pseudo-inverse
+RTOL_PINV = 1e-9
+
+
+def _pinv_rank(F: F64, rtol: float = RTOL_PINV) -> tuple[F64, int]:
     """The pseudo-inverse of a symmetric PSD matrix and its numerical rank."""
     vals, vecs = np.linalg.eigh(0.5 * (F + F.T))
     keep = vals > rtol * max(float(vals.max(initial=0.0)), 1e-300)
