@@ -320,7 +320,7 @@ class CellState:
         G_j, suffix sums); the onset with the best score (None: none shows it)."""
         n = len(self.rows)
         Gb = np.stack([r.G[h.name] for r in self.rows])  # (n, 3, d)
-        C = np.einsum("iad,iajb,jbe->ijde", Gb, W, Gb)  # (n, n, d, d)
+        C = np.einsum("iad,iajb,jbe->ijde", Gb, W, Gb, optimize=True)  # (n, n, d, d)
         F = C[::-1, ::-1].cumsum(0).cumsum(1)[::-1, ::-1]
         a = np.einsum("iad,ia->id", Gb, Wv)[::-1].cumsum(0)[::-1]  # (n, d)
         seen = np.abs(Gb).reshape(n, -1).max(axis=1)[::-1].cumsum()[::-1] > 0
