@@ -256,10 +256,8 @@ class LineDevices:
             f"{MARK} (seed {self.seed}, {self.scale:g} sim s per real s, pid {os.getpid()}):\n"
             f"the simulated line's devices; control: rvis devices ctl --dir {self.folder.root}"
         )
-        text = dumps_cell(cfg, header)
-        write_text(self.folder.cell, text)
         write_text(self.folder.sensor, dumps_sensor_model(true_sensor_model(line.cell.sensor)))
-        self.progress(f"planning for {self.folder.cell} (fixed placement)")
+        self.progress(f"planning for {self.folder.root}'s cell (fixed placement)")
         model = cfg.identification_model()
         x = model.nominal_x()
         result = run_plan(cfg, model, x, placement="fixed")
@@ -268,6 +266,9 @@ class LineDevices:
             "provenance": provenance(result.settings.seed),
         }
         write_json(self.folder.plan, doc)
+        # the cell file last: once it is there, so is all the service needs (a script that
+        # waits for it starts `rvis run --cell` then, as a person does at the printed line)
+        write_text(self.folder.cell, dumps_cell(cfg, header))
 
     def _stop_stale_socket(self) -> None:
         """A socket file left by a killed devices process is removed; one that answers is
