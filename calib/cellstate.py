@@ -50,6 +50,7 @@ import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -99,7 +100,7 @@ class EstimatorSettings:
     drift_rad_per_h: float = 1e-5
     drift_extra_per_h: float = 0.0
     window: int = 36
-    false_alarm: float = 1e-4
+    false_alarm: float = 1e-5
     margin: float = 2.0 * math.log(20.0)
 
     def __post_init__(self) -> None:
@@ -151,6 +152,8 @@ class CellState:
         # the time (d, P) describe (None: the first measurement's)
         self.t_s = t0_s
         self.rows: list[_Row] = []
+        self._window_memo: tuple[Any, ...] | None = None  # `_window`'s, `_memo`
+        self._posterior_memo: tuple[Any, ...] | None = None
         self._slots: list[F64] = []
         self.s_u_mm = self.settings.unmodelled_mm
         self._moments: list[float] = []  # first visits' estimates of s_u^2 (no jump)
@@ -251,9 +254,27 @@ class CellState:
             self.t_s = t_s
 
     # -- the window -----------------------------------------------------------------------------
+    def _same_window(self, memo: tuple[Any, ...] | None) -> bool:
+        """`memo` (from `_memo`) was computed on the window and state as they are now: the same
+        rows (the objects), time, d and P."""
+        return (
+            memo is not None
+            and memo[0] == (self.t_s, self.d.tobytes(), self.P.tobytes())
+            and len(memo[1]) == len(self.rows)
+            and all(a is b for a, b in zip(memo[1], self.rows, strict=True))
+        )
+
+    def _memo(self, value: Any) -> tuple[Any, ...]:
+        return ((self.t_s, self.d.tobytes(), self.P.tobytes()), list(self.rows), value)
+
     def _window(self) -> tuple[F64, F64, F64]:
         """The window's innovations v (3n,) against the state at its start, their covariance
-        Sigma (3n, 3n) under no jump and the stacked H (3n, L + 3K)."""
+        Sigma (3n, 3n) under no jump and the stacked H (3n, L + 3K) (computed once for a
+        window and state: the test, the posterior and the statement each ask for it)."""
+        if self._same_window(self._window_memo):
+            assert self._window_memo is not None
+            out: tuple[F64, F64, F64] = self._window_memo[2]
+            return out
         s = self.settings
         n = len(self.rows)
         H = np.concatenate([self._H(r) for r in self.rows], axis=0)
@@ -264,17 +285,25 @@ class CellState:
         Hp = H[:, : self.L]
         tmin = np.minimum.outer(tau_h, tau_h)  # (n, n)
         Sigma += ((Hp * self.q_per_h) @ Hp.T) * np.kron(tmin, np.ones((3, 3)))
-        return v, 0.5 * (Sigma + Sigma.T), H
+        out = (v, 0.5 * (Sigma + Sigma.T), H)
+        for a in out:
+            a.flags.writeable = False
+        self._window_memo = self._memo(out)
+        return out
 
     def posterior(self) -> tuple[F64, F64]:
         """The parameters' (d, P) given the window's measurements too (no jump)."""
         L = self.L
         if not self.rows:
             return self.d[:L], self.P[:L, :L]
-        v, Sigma, H = self._window()
-        PH = self.P[:L] @ H.T
-        K = np.linalg.solve(Sigma, PH.T).T
-        return self.d[:L] + K @ v, self.P[:L, :L] - K @ PH.T
+        if not self._same_window(self._posterior_memo):
+            v, Sigma, H = self._window()
+            PH = self.P[:L] @ H.T
+            K = np.linalg.solve(Sigma, PH.T).T
+            self._posterior_memo = self._memo((self.d[:L] + K @ v, self.P[:L, :L] - K @ PH.T))
+        assert self._posterior_memo is not None
+        d, P = self._posterior_memo[2]
+        return d.copy(), P.copy()
 
     def point_cov_mm2(
         self, q_deg: ArrayLike, c_sensor_mm: ArrayLike, temp_c: float | None = None
