@@ -28,11 +28,14 @@ from app.sim.line_run import SimulatedLineRun
 from tests.ports import free_port
 
 # 60 s clamp cycles paced at x300 (the clients watch it live): a window every 0.2 s; no warm-up:
-# the cell temperature is constant
+# the cell temperature is constant; the PLC polled every 2 s of line time, not every second (a
+# poll is a Modbus exchange: at x300, 150 a second of wall time, while every test of the package
+# runs)
 CELL = """
 [simline]
 scale = 300.0
 warmup_k = 0.0
+poll_s = 2.0
 [opcua]
 machine_name = "cell-7"
 serial_number = "SN-0007"
