@@ -21,6 +21,7 @@ drift charts' tuning seeds, never cited as a reason here):
 
     .venv/bin/python bench/estimator.py [--seeds 301,302,303,304] [--kinds ...]
         [--windows 1,2,4,8,30] [--hours-at 2] [--jobs 2] [--json FILE] [--cell FILE]
+        [--quiet-seeds 311,312,313,314]  # knock-free 8 h shifts on other seeds (QUIET_SEEDS)
 
 Each row is one seeded shift in virtual time (a seed is a result); the figures per kind are
 over the seeds and knock times, the CPU time of the whole campaign is printed.
@@ -43,6 +44,9 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 JUDGING_SEEDS = (301, 302, 303, 304)  # named before any run of them
+# named 2026-11-30 before any run of them: knock-free 8 h shifts after jump_false_alarm went from
+# 1e-4 to 1e-5 (seed 301's knock-free shift raised a step alarm at 1e-4: a tuning seed for it)
+QUIET_SEEDS = (311, 312, 313, 314)
 TUNING_SEEDS = (61, 62)  # the estimator's development seeds
 KINDS = ("sensor", "fixture", "J1", "J2", "J3", "sphere")
 EXPECTED = {"sensor": "sensor", "fixture": "fixture", "J1": "fixture", "J2": "J2", "J3": "J3"}
@@ -175,6 +179,7 @@ def main() -> int:
     p.add_argument("--windows", default="1,2,4,8,30", help="knock in these windows")
     p.add_argument("--hours-at", default="2", help="and at these hours")
     p.add_argument("--quiet-hours", type=float, default=8.0, help="knock-free shift (0: none)")
+    p.add_argument("--quiet-seeds", help="the knock-free shifts' seeds (default: --seeds)")
     p.add_argument("--jobs", type=int, default=2)
     p.add_argument("--json", type=Path)
     p.add_argument("--cell", help="a cell file over the embedded cell (its settings)")
@@ -186,7 +191,8 @@ def main() -> int:
     times += [float(h) for h in a.hours_at.split(",") if h]
     tasks = [(s, k, t, round(t + 1.0, 6)) for s in seeds for k in a.kinds.split(",") for t in times]
     if a.quiet_hours > 0:  # the knock at the shift's very end: a knock-free shift before it
-        tasks += [(s, "sensor", a.quiet_hours - 0.001, a.quiet_hours) for s in seeds]
+        quiet_seeds = [int(s) for s in (a.quiet_seeds or a.seeds).split(",")]
+        tasks += [(s, "sensor", a.quiet_hours - 0.001, a.quiet_hours) for s in quiet_seeds]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(a.jobs, initializer=_use_cell, initargs=(a.cell,)) as pool:
         rows = list(pool.map(shift, tasks))

@@ -196,8 +196,9 @@ class RecalibSettings(Section):
     jump_drift_rad_per_h: float = opt(1e-5, lo=0, hi=0.1)
     jump_window: int = opt(36, lo=4, hi=1000)  # measurements the jump test looks at
     # the rate of a jump detected per measurement when nothing jumped (Bonferroni over the
-    # groups and onsets tested: an upper bound)
-    jump_false_alarm: float = opt(1e-4, gt=0, hi=0.1)
+    # groups and onsets tested: an upper bound); an 8 h shift tests about 480 measurements, so
+    # 1e-5 bounds a shift's false alarm at 0.5 % (1e-4: 5 %, one in 20 shifts)
+    jump_false_alarm: float = opt(1e-5, gt=0, hi=0.1)
     # measurements after the onset with no decisive group: a full recalibration instead
     jump_settle: int = opt(6, lo=1, hi=1000)
     # measurements on the corrected version without a jump (and the cell vouching) that end the
