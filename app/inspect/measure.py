@@ -120,6 +120,7 @@ def evaluate(
     noise: StopNoise = NO_NOISE,
     clamp_sd_mm: float = 0.0,
     shared: PointCov | None = None,
+    sigma_rad: float | None = None,
 ) -> list[Value]:
     """The values of one feature from its raw data with the calibration `cal` (module
     docstring): from several stops, the mean of their fits (each stop's robot error is its
@@ -127,8 +128,9 @@ def evaluate(
     robot's repeatability at the view, the data sheet's RP `noise.repeatability_mm` through the
     model, which takes the place of the statement's own measurement noise:
     app.inspect.values; clamp_sd_mm: the fixture's clamping repeatability, the plan's; shared:
-    the estimator's shared error at the view, when it speaks); a stop the vision refused is
-    left out, all refused: "not measured" with the first one's reason."""
+    the estimator's shared error at the view, when it speaks; sigma_rad: the joints' sigma
+    for `noise.repeatability_mm`, when the caller has it); a stop the vision refused is left
+    out, all refused: "not measured" with the first one's reason."""
     raws = [raw] if isinstance(raw, RawFeature) else list(raw)
     fits, refused, at = [], [], None
     for r in raws:
@@ -160,7 +162,8 @@ def evaluate(
     cov, J_joints = _at_point(cal, q_deg, c_sensor, noise.repeatability_mm > 0.0)
     repeat = None
     if J_joints is not None:
-        sigma_rad = _joint_sigma_rad(cal, noise.repeatability_mm)
+        if sigma_rad is None:
+            sigma_rad = joint_sigma_rad(cal.model, cal.x, noise.repeatability_mm)
         repeat = sigma_rad**2 * (J_joints @ J_joints.T)
     at_view = None if shared is None else shared(q_deg, c_sensor, raws[0].temp_c)
     return feature_values(
@@ -218,23 +221,6 @@ def _at_point(
     return out, J[:, [active.index(n) for n in JOINT_OFFSETS]]
 
 
-#: joint_sigma_rad of the last calibrations seen (its 20 000 draws cost more than a feature's
-#: fit): by the model's identity (the model kept, so the identity is not reused), x and RP
-_SIGMA: dict[tuple[int, bytes, float], tuple[object, float]] = {}
-
-
-def _joint_sigma_rad(cal: Calibration, rp_mm: float) -> float:
-    key = (id(cal.model), np.asarray(cal.x, float).tobytes(), rp_mm)
-    hit = _SIGMA.get(key)
-    if hit is not None and hit[0] is cal.model:
-        return hit[1]
-    sigma = joint_sigma_rad(cal.model, cal.x, rp_mm)
-    if len(_SIGMA) >= 8:
-        _SIGMA.clear()
-    _SIGMA[key] = (cal.model, sigma)
-    return sigma
-
-
 def measure_body(
     body: str,
     cal: Calibration,
@@ -272,14 +258,25 @@ def evaluate_body(
     for r in raw:
         by_id.setdefault(r.feature, []).append(r)
     values: list[Value] = []
+    # the joints' sigma once a body (its 20 000 draws cost more than a feature's fit)
+    rp = noise.repeatability_mm
+    sigma_rad = joint_sigma_rad(cal.model, cal.x, rp) if rp > 0.0 else None
     for f in plan.features:
         stops = by_id.get(f.id)
         if not stops:
             why = (unreachable or {}).get(f.id, "no view in the plan")
             values.extend(not_measured(f, f"no view: {why}"))
         else:
-            u = statement_u95_mm
             values.extend(
-                evaluate(cal, f, stops, u, noise=noise, clamp_sd_mm=plan.clamp_sd_mm, shared=shared)
+                evaluate(
+                    cal,
+                    f,
+                    stops,
+                    statement_u95_mm,
+                    noise=noise,
+                    clamp_sd_mm=plan.clamp_sd_mm,
+                    shared=shared,
+                    sigma_rad=sigma_rad,
+                )
             )
     return BodyResult(body, tuple(values), tuple(raw))

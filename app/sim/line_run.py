@@ -711,8 +711,8 @@ class SimulatedLineRun:
                             on_window(record)
         self.mark_suspect()
         if self.held_for_maintenance or s.fault is not None:  # no window comes: it stops here
-            held = self.service.store.active_alarms(code=AlarmCode.MAINTENANCE)
             if self.held_for_maintenance:
+                held = self.service.store.active_alarms(code=AlarmCode.MAINTENANCE)
                 s.maintenance = str(held[-1]["message"]) if held else None
             self.service.stop()
             with self._gate:
