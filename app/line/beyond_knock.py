@@ -1,22 +1,14 @@
-"""A change beyond a knock's bounds (issue 41): what the service says when it stops correcting
-and asks for maintenance (app.line.jumps decides when).
+"""A change beyond a knock's bounds: what the service says when it stops correcting and asks
+for maintenance (app.line.jumps decides when).
 
-A knock (a sensor mount nudged by tenths of a millimetre, a fixture bumped, an encoder zero
-slipping by hundredths of a degree) moves the measured spheres by up to about a millimetre:
-the service names it and corrects it in-line (app/line/jumps.py). A maintenance event moves
-them further: a sensor replaced (a new mount pose of millimetres, its own camera and laser), a
-motor or encoder replaced (a zero off by up to a degree: centimetres at the spheres), a sphere
-fixture renewed (spheres millimetres from where they stood). The plan's views then no longer
-see every sphere (the measuring volume's depth is +-5 mm), a correction from a handful of
-measurements of the views still seen is not what a plant should measure bodies with, and the
-new sensor's own calibration is not something the spheres can give. So a jump seen larger than
-`[service] maintenance_step_mm` at the measured spheres, one sphere moved alone, or
-`BLIND_WINDOWS` windows in a row in which no view saw its sphere where the parameters put it
-hold the cell in FAULT with the `maintenance` alarm (a fault code: the PLC's fault bit is set,
-bodies are not measured with this cell), the jump's suspect interval open from its last
-trustworthy measurement, no correction applied; the texts here say what moved, how much, and
-which procedure fits (`rvis maintain ...`, app/maintain/). The procedure's hand-over clears
-the alarm and closes the interval at its new version.
+A knock moves the measured spheres by up to about a millimetre and is corrected in-line. A
+sensor replaced, a motor or encoder replaced or the sphere fixture renewed moves them further:
+the plan's views may no longer see every sphere, and a correction from the few still seen is not
+what a plant should measure bodies with. A jump larger than `[service] maintenance_step_mm` at
+the measured spheres, one sphere moved alone, or `BLIND_WINDOWS` windows in a row with no sphere
+where the parameters put it hold the cell in FAULT with the `maintenance` alarm (no body
+measured, the interval open, no correction applied); the texts here say what moved, how much,
+and which procedure fits (`rvis maintain ...`, app/maintain/), whose hand-over clears it.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """A jump's correction as the service records it (app.line.jumps), and the points of the
 measuring volume at which its uncertainty is predicted.
 
-A correction is a calibration like a recalibration's (app.line.recalib.RecalOutcome): it is
+A correction is a calibration like a recalibration's (an app.line.recalib.RecalOutcome): it is
 gated, stored (pending or rejected) and applied as a version of kind "step" (its document's
 `estimator.kind`)."""
 
@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from app.formats.params import plain_document, set_covariance
+from app.line.recalib import RecalOutcome
 from calib.cellstate import CellState
 from calib.gate_limits import Gates
 from calib.gates import change_failures
@@ -25,21 +25,6 @@ from calib.model import INDEX, SystemModel
 F64 = NDArray[np.float64]
 #: the calibration document's estimator kind of a jump's correction (app.line.versions)
 KIND = "step"
-
-
-@dataclass(frozen=True, eq=False)
-class JumpCorrection:
-    """A jump's correction to gate and apply: the fields the service stores for a calibration."""
-
-    passed: bool
-    failures: tuple[str, ...]
-    document: dict[str, Any]
-    rms_mm: float  # of the measurements since the onset with the jump taken off
-    holdout_rms_mm: float  # the newest of them
-    current_holdout_rms_mm: float  # the newest with the parameters in force
-    n_measurements: int
-    first_id: int
-    last_id: int
 
 
 def volume_points_mm(volume_mm: Sequence[float]) -> F64:
@@ -69,7 +54,7 @@ def jump_correction(
     current: Mapping[str, Any] | None,
     covariance: tuple[list[str], F64] | None,
     version: int,
-) -> JumpCorrection:
+) -> RecalOutcome:
     """The parameters the estimator is referenced to (`state.x_ref`) with the jump's group moved
     by `fit`'s estimate, gated by the in-line change bounds; its document carries the version in
     force's covariance (`covariance`: names, matrix) with the jump's own added, and the version's
@@ -100,9 +85,10 @@ def jump_correction(
     rows = state.rows[fit.onset :]
     before = [float(np.linalg.norm(r.v0)) for r in rows]
     after = [float(np.linalg.norm(r.v0 - r.G[h.name] @ fit.theta)) for r in rows]
-    return JumpCorrection(
+    return RecalOutcome(
         not failures,
         tuple(failures),
+        x_new,
         doc,
         float(np.sqrt(np.mean(np.square(after)))) if after else math.nan,
         after[-1] if after else math.nan,

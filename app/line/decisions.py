@@ -21,7 +21,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from app.line.correction import JumpCorrection
 from app.line.host import LineHost
 from app.line.inline_seq import SequentialCandidate
 from app.line.recalib import RecalJob, RecalOutcome, as_measurements, select_rolling
@@ -211,7 +210,7 @@ class Decisions:
             {"n": len(train), "first_id": job.first_id, "last_id": job.last_id},
         )
 
-    def recal_done(self, out: RecalOutcome | SequentialCandidate | JumpCorrection) -> None:
+    def recal_done(self, out: RecalOutcome | SequentialCandidate) -> None:
         """A calibration's result: recorded (pending or rejected), then applied at once
         (`applies_automatically`) or left pending an engineer's approve."""
         svc = self.svc
@@ -243,9 +242,7 @@ class Decisions:
         after a rollback (`auto_hold`); otherwise it waits for an engineer's approve."""
         return self.svc.settings.recalib.mode == "auto" and self.svc.decision.auto_hold is None
 
-    def _add_calibration(
-        self, out: RecalOutcome | SequentialCandidate | JumpCorrection, status: str
-    ) -> int:
+    def _add_calibration(self, out: RecalOutcome | SequentialCandidate, status: str) -> int:
         svc = self.svc
         return svc.store.add_calibration(
             {

@@ -16,7 +16,8 @@ the service does with its verdicts).
 - **Statement**: the U95 of a point measured now with the parameters in force, at the window's
   poses: k (2.80, the 95 % quantile of a 3-D error's norm) times the per-coordinate
   sqrt((|H d|^2 + tr(H P H')) / 3 + s_u^2 + sigma^2), d and P the estimator's posterior of how
-  far the parameters in force are off, and, while a jump is not corrected, its innovations.
+  far the parameters in force are off, and, while a jump is not corrected, its innovations;
+  before the version's first measurement, d = 0 and P its prior at the schedule's views.
 """
 
 from __future__ import annotations
@@ -70,16 +71,16 @@ class CellEstimate:
         self.svc = svc
         self.state: CellState | None = None
         self.verdict: Verdict | None = None
-        self._floor_mm: float | None = None
         self._moments: list[float] = []  # s_u's evidence, carried from version to version
+        # per sphere, its measurements in the window (`summarise`), as of the last window or
+        # start: replaced whole, read by any thread
+        self.sphere_summary: dict[str, dict[str, Any]] = {}
 
     def settings(self) -> EstimatorSettings:
         r = self.svc.settings.recalib
-        floor = self._floor() if self._floor_mm is None else self._floor_mm
-        self._floor_mm = floor
         return EstimatorSettings(
             sigma_mm=r.jump_sigma_mm,
-            unmodelled_mm=floor,
+            unmodelled_mm=self._floor(),
             drift_mm_per_h=r.jump_drift_mm_per_h,
             drift_rad_per_h=r.jump_drift_rad_per_h,
             window=r.jump_window,
@@ -125,7 +126,6 @@ class CellEstimate:
         """The estimator from the version in force, the measurements since it is in force
         replayed (a restarted service resumes where it stopped)."""
         svc = self.svc
-        self._floor_mm = None  # the floor depends on the version (`_floor`)
         if self.state is not None:
             self._moments = self.state.moments()
         active = svc.model.default_active()
@@ -139,6 +139,7 @@ class CellEstimate:
         self.verdict = None
         for r in mine:
             self.verdict = self.state.add(self._observation(r), test=r is mine[-1])
+        self.summarise()
 
     def _prior(self, active: tuple[str, ...]) -> np.ndarray:
         """The covariance of the version in force on `active` (a parameter it has none for: the
@@ -163,17 +164,11 @@ class CellEstimate:
         return P
 
     def _observation(self, row: dict[str, Any]) -> Observation:
-        svc = self.svc
-        temp = row.get("temp_c")
-        return Observation(
-            int(row["id"]),
-            float(row["t"]),
-            str(row["target"]),
-            svc.spheres[str(row["target"])],
-            np.asarray(row["q_deg"], float),
-            np.asarray(row["c_sensor_mm"], float),
-            None if temp is None else float(temp),
-        )
+        target, temp = str(row["target"]), row.get("temp_c")
+        q, c = (np.asarray(row[k], float) for k in ("q_deg", "c_sensor_mm"))
+        p = self.svc.spheres[target]
+        t_c = None if temp is None else float(temp)
+        return Observation(int(row["id"]), float(row["t"]), target, p, q, c, t_c)
 
     def observe(self, row: dict[str, Any]) -> None:
         """A good measurement (its stored row with its id) into the estimator, tested."""
@@ -197,13 +192,17 @@ class CellEstimate:
 
     def statement_u95_mm(self, jump_onset_id: int | None = None) -> float | None:
         """U95 [mm] of a point measured now at the window's poses (module docstring), with the
-        innovations since `jump_onset_id` (a jump found and not corrected yet); None before any
-        measurement of the version in force."""
+        innovations since `jump_onset_id` (a jump found and not corrected yet); before any
+        measurement of the version in force, its prior at the schedule's views (d = 0); None
+        before the estimator's start."""
         st = self.state
-        if st is None or not st.rows:
+        if st is None:
             return None
-        d, P = st.posterior()
         s = st.settings
+        if not st.rows:
+            prior = self._variance_at_schedule(list(st.active), st.P[: st.L, : st.L])
+            return norm_quantile() * math.sqrt(prior + st.s_u_mm**2 + s.sigma_mm**2)
+        d, P = st.posterior()
         # the parameters in force are off by d (the estimator's posterior) with covariance P
         var = [
             (float((r.H @ d) @ (r.H @ d)) + float(np.trace(r.H @ P @ r.H.T))) / 3.0
@@ -218,29 +217,20 @@ class CellEstimate:
                 u2 += float(np.mean([(r.v0 - r.H @ d) @ (r.v0 - r.H @ d) / 3.0 for r in after]))
         return norm_quantile() * math.sqrt(u2)
 
-    def point_cov_mm2(
-        self, q_deg: NDArray[np.float64], c_sensor_mm: NDArray[np.float64], temp_c: float | None
-    ) -> NDArray[np.float64] | None:
-        """The shared error's covariance (3, 3) [mm^2] of a point measured now at this pose
-        (calib.cellstate.CellState.point_cov_mm2: the parameters' offset and covariance through
-        the model there, the unmodelled term; a body's value adds its own noise); None before
-        any measurement of the version in force."""
-        st = self.state
-        if st is None or not st.rows:
-            return None
-        return st.point_cov_mm2(q_deg, c_sensor_mm, temp_c)
-
-    def spheres(self) -> dict[str, dict[str, Any]]:
-        """Per sphere, its measurements in the estimator's window: how many (`n`), the newest's
-        residual against the parameters in force (`residual_mm`, its centre's distance from
-        where they put it), and their RMS residual against the estimator's posterior
-        (`posterior_rms_mm`: what is left once the estimator's drift is taken off)."""
+    def summarise(self) -> None:
+        """`sphere_summary`: per sphere, its measurements in the window: how many (`n`), the
+        newest's residual against the parameters in force (`residual_mm`, its centre's distance
+        from where they put it), and their RMS residual against the estimator's posterior
+        (`posterior_rms_mm`: what is left once the estimator's drift is taken off). Once a
+        window in the loop's thread (the status reply reads it from others: the arrays change
+        while a measurement goes in)."""
         st = self.state
         out: dict[str, dict[str, Any]] = {
             k: {"n": 0, "residual_mm": None, "posterior_rms_mm": None} for k in self.svc.spheres
         }
+        self.sphere_summary = out
         if st is None or not st.rows:
-            return out
+            return
         d = st.posterior()[0]
         left: dict[str, list[float]] = {}
         for r in st.rows:
@@ -252,7 +242,6 @@ class CellEstimate:
             left.setdefault(k, []).append(float(np.linalg.norm(r.v0 - r.H @ d)))
         for k, e in left.items():
             out[k]["posterior_rms_mm"] = math.sqrt(float(np.mean(np.square(e))))
-        return out
 
     def n_rows(self) -> int:
         """The measurements the estimator's window holds."""

@@ -20,7 +20,6 @@ from numpy.typing import NDArray
 from app.line.accuracy import AccuracyRecord
 from app.line.beyond_knock import MaintenanceNeed
 from app.line.body_cycle import BodyCycle
-from app.line.correction import JumpCorrection
 from app.line.cycle import Cycle, WindowWatch
 from app.line.decision_state import DecisionState
 from app.line.events import EventBus
@@ -125,7 +124,7 @@ class LineHost(Protocol):
 
     def applies_automatically(self) -> bool: ...
 
-    def recal_done(self, out: RecalOutcome | SequentialCandidate | JumpCorrection) -> None: ...
+    def recal_done(self, out: RecalOutcome | SequentialCandidate) -> None: ...
 
     def apply_calibration(self, cal_id: int, uid: int | None, source: str) -> int: ...
 

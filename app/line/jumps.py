@@ -38,9 +38,10 @@ from app.line.beyond_knock import (
     several_need,
     sphere_moved_need,
 )
-from app.line.correction import KIND, JumpCorrection, jump_correction, volume_views
+from app.line.correction import KIND, jump_correction, volume_views
 from app.line.estimate import CellEstimate
 from app.line.host import LineHost
+from app.line.recalib import RecalOutcome
 from app.line.states import AlarmCode, suspect_json
 from calib.attribution import SEVERAL
 from calib.cellstate import CellState
@@ -63,9 +64,6 @@ class JumpWatch:
     def __init__(self, svc: LineHost) -> None:
         self.svc = svc
         self.estimate = CellEstimate(svc)
-        # per sphere, its measurements in the estimator's window (CellEstimate.spheres), as of
-        # the last window or start: replaced whole, read by any thread
-        self.spheres: dict[str, dict[str, Any]] = {}
 
     @property
     def state(self) -> CellState | None:
@@ -75,36 +73,30 @@ class JumpWatch:
     def verdict(self) -> Verdict | None:
         return self.estimate.verdict
 
-    @verdict.setter
-    def verdict(self, value: Verdict | None) -> None:
-        self.estimate.verdict = value
-
-    def restart(self) -> None:
-        """The estimator from the version in force (app.line.estimate)."""
-        self.estimate.restart()
-        self.spheres = self.estimate.spheres()
-
-    def observe(self, row: dict[str, Any]) -> None:
-        """A good measurement (its stored row with its id) into the estimator, tested."""
-        self.estimate.observe(row)
-
     def statement_u95_mm(self) -> float | None:
         """The U95 of a point measured now (app.line.estimate), with the innovations of a jump
         found and not corrected yet."""
         ep = self.episode
-        uncorrected = ep is not None and ep.get("corrected_version") is None
-        return self.estimate.statement_u95_mm(int(ep["onset_id"]) if uncorrected and ep else None)
+        onset = int(ep["onset_id"]) if ep is not None and self._uncorrected() else None
+        return self.estimate.statement_u95_mm(onset)
 
     def point_cov_mm2(
         self, q_deg: NDArray[np.float64], c_sensor_mm: NDArray[np.float64], temp_c: float | None
     ) -> NDArray[np.float64] | None:
-        """The shared error's covariance of a point measured now at this pose (app.line.
-        estimate); None while a jump found is not corrected (the statement, with its
-        innovations, speaks for the bodies then) or before any measurement of the version."""
-        ep = self.episode
-        if ep is not None and ep.get("corrected_version") is None:
+        """The shared error's covariance (3, 3) [mm^2] of a point measured now at this pose
+        (calib.cellstate.CellState.point_cov_mm2: the parameters' offset and covariance through
+        the model there, the unmodelled term; a body's value adds its own noise); None while a
+        jump found is not corrected (the statement, with its innovations, speaks for the bodies
+        then) or before any measurement of the version in force."""
+        st = self.state
+        if self._uncorrected() or st is None or not st.rows:
             return None
-        return self.estimate.point_cov_mm2(q_deg, c_sensor_mm, temp_c)
+        return st.point_cov_mm2(q_deg, c_sensor_mm, temp_c)
+
+    def _uncorrected(self) -> bool:
+        """A jump found and not corrected yet."""
+        ep = self.episode
+        return ep is not None and ep.get("corrected_version") is None
 
     @property
     def episode(self) -> dict[str, Any] | None:
@@ -115,11 +107,6 @@ class JumpWatch:
     def episode(self, value: dict[str, Any] | None) -> None:
         self.svc.decision.episode = value
 
-    def summarise(self) -> None:
-        """The spheres' summary, once a window in the loop's thread (the status reply reads
-        it from others: the estimator's arrays change while a measurement goes in)."""
-        self.spheres = self.estimate.spheres()
-
     # -- what the service does -------------------------------------------------------------
     def opened(self) -> None:
         """Right after a window's measurements: a jump found in them opens its episode (its
@@ -127,7 +114,9 @@ class JumpWatch:
         v, ep = self.verdict, self.episode
         fresh = ep is None or ep.get("corrected_version") is not None or bool(ep.get("closed"))
         if v is not None and v.detected and v.best is not None and fresh:
-            self._open(v)
+            k, p = v.best.onset_ref, v.best.p_value
+            pv = "p < 1e-12" if p < 1e-12 else f"p {p:.1g}"
+            self._open_at(k, f"step of the cell since measurement {k} ({pv})")
 
     def act(self) -> None:
         """Between windows: an episode opened, corrected or closed as the verdict says."""
@@ -143,32 +132,20 @@ class JumpWatch:
             self._watch(ep)
         elif ep is not None and ep.get("corrected_version") == self.svc.version:
             self._confirm()
-        self.verdict = None
-
-    def _open(self, v: Verdict) -> None:
-        best = v.best
-        assert best is not None
-        p = "p < 1e-12" if best.p_value < 1e-12 else f"p {best.p_value:.1g}"
-        self._open_at(best.onset_ref, f"step of the cell since measurement {best.onset_ref} ({p})")
+        self.estimate.verdict = None
 
     def _open_at(self, onset: int, text: str) -> None:
         """The episode of a change since measurement `onset`: its suspect interval (the open one
         of a correction that did not hold, or an accuracy interval adopted), the high
         `drift_step` alarm, the rolling set from the onset on."""
         svc = self.svc
-        before = svc.store.measurements(before_id=onset, last=1)
-        t_start = float(before[0]["t"]) if before else float(svc.clock.time())
+        fields: dict[str, Any] = {"t_start": svc.clock.time(), "last_good_id": None}
+        fields |= self._since(onset) | {"params_version": svc.version, "text": text}
+        t_start = float(fields["t_start"])
         ep = self.episode
         with svc.store.batch():
-            fields = {
-                "t_start": t_start,
-                "last_good_id": int(before[0]["id"]) if before else None,
-                "onset_id": onset,
-                "params_version": svc.version,
-                "text": text,
-            }
             adopted = svc.accuracy.suspect_id
-            if ep is not None and ep.get("suspect_id") is not None and _interval_open(svc, ep):
+            if ep is not None and _interval_open(svc, ep):
                 sid = int(ep["suspect_id"])  # the correction did not hold: the same interval
             elif adopted is not None and svc.store.suspect(adopted) is not None:
                 # the cell could not vouch since before it was found: one interval for one
@@ -211,10 +188,12 @@ class JumpWatch:
         if v.isolated != SEVERAL and h.target is not None:
             self._sphere_moved(ep, best, seen_mm)
             return
-        # the estimate checked by one measurement more than it needs
+        # the estimate checked by one measurement more than it needs, and the jump fitted
+        # without the newest measurement predicting that one (p >= HELD_OUT_P)
         ready = v.isolated != SEVERAL and 3 * n_after - best.dof >= REDUNDANCY
         moved_mm = self._seen_mm(best)
-        if ready and self._determined(best, moved_mm) and self._holds(best):
+        determined = ready and self._determined(best, moved_mm)
+        if determined and self.state.held_out_p(h.name, best.onset) >= HELD_OUT_P:
             self._describe(ep, h.name, moved_mm, f"{h.label} {best.size_text()}")
             if svc.decision.pending_calibration is None and not svc.recalibrator.busy:
                 svc.recal_done(self._correction(best, n_after))
@@ -281,16 +260,21 @@ class JumpWatch:
         """The episode's onset moved back to measurement `onset`: its interval from the last
         measurement before it, and the rolling set from it."""
         svc = self.svc
-        before = svc.store.measurements(before_id=onset, last=1)
-        fields: dict[str, Any] = {"onset_id": onset}
-        if before:
-            fields |= {"t_start": float(before[0]["t"]), "last_good_id": int(before[0]["id"])}
+        fields = self._since(onset)
         with svc.store.batch():
             ep["onset_id"] = onset
             svc.decision.jump_onset_id = onset
             if _interval_open(svc, ep):
                 svc.store.update_suspect(int(ep["suspect_id"]), **fields)
             svc.save_state()
+
+    def _since(self, onset: int) -> dict[str, Any]:
+        """An interval's start at a change since measurement `onset`: the last measurement
+        before it, its time and id (none: the onset alone)."""
+        before = self.svc.store.measurements(before_id=onset, last=1)
+        if not before:
+            return {"onset_id": onset}
+        return {"onset_id": onset, "t_start": before[0]["t"], "last_good_id": before[0]["id"]}
 
     def _innovation_mm(self, onset: int) -> float:
         """The RMS innovation of the window's measurements from `onset` on [mm]: how far the
@@ -329,7 +313,7 @@ class JumpWatch:
             level=logging.WARNING,
         )
 
-    def _correction(self, fit: JumpFit, n_after: int) -> JumpCorrection:
+    def _correction(self, fit: JumpFit, n_after: int) -> RecalOutcome:
         """The jump's group moved by its estimate, gated by the change bounds (the version in
         force's covariance and workspace validation carried: app.line.correction)."""
         svc, state = self.svc, self.state
@@ -343,9 +327,9 @@ class JumpWatch:
     def in_force(self, kind: str) -> None:
         """A version became current: the estimator restarts on it; a jump's correction (or a
         full recalibration during an episode) is now the episode's corrected version."""
-        self.restart()
+        self.estimate.restart()
         ep = self.episode
-        if ep is not None and ep.get("corrected_version") is None:
+        if ep is not None and self._uncorrected():
             ep["corrected_version"] = self.svc.version
             ep["corrected_t"] = self.svc.clock.time()
             ep["kind"] = kind  # the interval's end reason: "step" (the jump's) or "batch"
@@ -428,12 +412,6 @@ class JumpWatch:
             self.episode = None
         self.svc.save_state()
 
-    def _holds(self, fit: JumpFit) -> bool:
-        """The jump fitted without the newest measurement predicts that one (p >= HELD_OUT_P):
-        a correction checked on a measurement it was not fitted to."""
-        assert self.state is not None
-        return self.state.held_out_p(fit.hypothesis.name, fit.onset) >= HELD_OUT_P
-
     def _determined(self, fit: JumpFit, seen_mm: float) -> bool:
         """The jump's estimate predicts the points in the measuring volume at the schedule's
         configurations within `[service] step_max_std_mm`, or, beside a large jump, within
@@ -448,14 +426,9 @@ class JumpWatch:
         std_mm = self.state.predicted_std_mm(fit, q, c)
         return std_mm <= max(r.step_max_std_mm, HALF_JUMP * seen_mm / math.sqrt(3.0))
 
-    def n_rows(self) -> int:
-        """The measurements the estimator's window holds."""
-        return self.estimate.n_rows()
-
     def interval_open(self) -> bool:
         """An episode's suspect interval is open."""
-        ep = self.episode
-        return ep is not None and _interval_open(self.svc, ep)
+        return _interval_open(self.svc, self.episode)
 
     def handling(self) -> bool:
         """An episode is open and not given up to a full recalibration."""
@@ -466,19 +439,18 @@ class JumpWatch:
     def to_json(self) -> dict[str, Any]:
         """The episode and the evidence about s_u carried into the version in force (its own
         comes again from replaying its measurements at a start)."""
-        return {
-            "episode": None if self.episode is None else dict(self.episode),
-            "carried_moments": self.estimate.to_json(),
-        }
+        ep = self.episode
+        return {"episode": ep and dict(ep), "carried_moments": self.estimate.to_json()}
 
     def load_json(self, doc: dict[str, Any] | None) -> None:
-        doc = doc or {}
-        ep = doc.get("episode")
+        ep = (doc or {}).get("episode")
         self.episode = None if ep is None else dict(ep)
-        self.estimate.load_json(doc.get("carried_moments"))
+        self.estimate.load_json((doc or {}).get("carried_moments"))
 
 
-def _interval_open(svc: LineHost, ep: dict[str, Any]) -> bool:
+def _interval_open(svc: LineHost, ep: dict[str, Any] | None) -> bool:
+    if ep is None or ep.get("suspect_id") is None:
+        return False
     row = svc.store.suspect(int(ep["suspect_id"]))
     return row is not None and row["t_end"] is None
 

@@ -3,10 +3,11 @@ app.line.service.Service that sees it as app.line.host.LineHost (as app.line.ope
 commands do); app.line.cycle.Cycle hands it each visit's reading.
 
 One row per visit (good or rejected) in the transaction of the decision state it changes, with
-its residual under the parameters in force (app.line.residual). A good measurement goes into the
-one estimator, which tests it for a jump (app.line.jumps), counts towards the next
-recalibration (app.line.decisions) and, with the sequential estimator, is offered to it; its PS
-is charted (app.line.sensor_watch: the sensor changed, not the robot) and its raw sweep kept.
+its residual under the parameters in force (the measured centre's distance from the sphere's
+known one). A good measurement goes into the one estimator, which tests it for a jump
+(app.line.jumps), counts towards the next recalibration (app.line.decisions) and, with the
+sequential estimator, is offered to it; its PS is charted (app.line.sensor_watch: the sensor
+changed, not the robot) and its raw sweep kept.
 """
 
 from __future__ import annotations
@@ -20,7 +21,6 @@ from app.line.decisions import Decisions
 from app.line.host import LineHost
 from app.line.jumps import JumpWatch
 from app.line.measure import Reading
-from app.line.residual import residual_mm
 from app.line.schedule import Slot
 from app.line.sensor_watch import SensorWatch
 from app.line.states import AlarmCode
@@ -49,8 +49,9 @@ class Recording:
         e = None
         temp_c = svc.cell_temp_c
         if reading is not None:
-            p = svc.spheres[slot.target]
-            e = residual_mm(svc.model, svc.x, slot.q_deg, reading.c_sensor_mm, p, temp_c)
+            t = None if temp_c is None else np.array([temp_c])
+            p = svc.model.points_part(svc.x, slot.q_deg[None], reading.c_sensor_mm[None], temp_c=t)
+            e = float(np.linalg.norm(p[0] - svc.spheres[slot.target]))
         row = {
             "t": svc.clock.time(),
             "window": window,
@@ -74,7 +75,7 @@ class Recording:
                     slot.q_deg.copy(),
                     reading.c_sensor_mm.copy(),
                 )
-                self.jumps.observe({**row, "id": row_id})
+                self.jumps.estimate.observe({**row, "id": row_id})
                 if svc.sequential is not None:
                     svc.sequential.offer({**row, "id": row_id})
             svc.save_state()

@@ -41,7 +41,7 @@ cycle (`run`, `stop`, `crash`); its collaborators see it as app.line.host.LineHo
     app.line.recording     a measurement recorded, into the estimator
     app.line.jumps         the one estimator: a jump found, named, corrected, its interval
     app.line.decisions     when a recalibration runs, on what, whether its result is applied
-    app.line.versions      a version put in force: the estimator restarts, the U95 seed
+    app.line.versions      a version put in force: the estimator restarts on it
     app.line.faults        alarms raised and cleared, FAULT entered, device errors noted
     app.line.operator      the operator's commands;  app.line.status: the status reply
 """
@@ -62,7 +62,6 @@ from numpy.typing import ArrayLike, NDArray
 from app.line.accuracy import AccuracyRecord, limit_in_force
 from app.line.beyond_knock import MaintenanceNeed
 from app.line.body_cycle import BodyCycle, BodySetup
-from app.line.correction import JumpCorrection
 from app.line.cycle import Cycle, WindowWatch
 from app.line.decision_state import DecisionState
 from app.line.decisions import Decisions, Rows
@@ -119,8 +118,8 @@ class Service:
         """`initial_residuals`: the identification residuals of `x_initial` (n_measurements,
         rms_mm, n_parameters) and, when its commissioning validated it across the workspace,
         `validation_errors_mm` (the norms), and `covariance` ({"active", "cov"}: the
-        identification's), written into a new directory's first version (its U95 seed,
-        app.line.accuracy.document_seed; the estimator's prior, app.line.jumps). `bodies`: the
+        identification's), written into a new directory's first version (the estimator's prior
+        and its unmodelled term's floor, app.line.estimate). `bodies`: the
         part type's plan and the feature sensor (app.line.body_cycle.body_setup; None: the cell
         measures no body)."""
         self.settings = s = settings or ServiceSettings()
@@ -208,7 +207,7 @@ class Service:
         self.sensor_watch.replay([r["quality"] for r in rows])
         for code in RETIRED_CODES:  # raised by an older rvis: nothing would clear them
             self.clear_alarms(code)
-        self.jumps.restart()
+        self.jumps.estimate.restart()
         if loaded.recovered is not None:  # an apply the database does not know yet
             self.in_force(*loaded.recovered, "recovered", None)
 
@@ -238,8 +237,7 @@ class Service:
             self.versions.restore()
             return
         self.decision.load_json(doc)
-        version_seed = [] if doc.get("u_seed") is not None else self.versions.version_seed()
-        self.accuracy.load_json(doc, version_seed)
+        self.accuracy.load_json(doc)
         self.jumps.load_json(doc.get("jumps"))
         if doc["params_version"] != self.version and self._handed_over():
             self._after_maintenance()
@@ -260,9 +258,9 @@ class Service:
         an axis's zero, the spheres' places, the plan's views re-aimed): the measurements
         before it say nothing of the cell now. The step is over (its interval was closed by the
         hand-over), the views start afresh (none lost), the estimator starts from the handed
-        over version, the U95 is seeded by the procedure's workspace validation."""
+        over version (its U95 from its covariance and the procedure's workspace validation)."""
         self.decision.after_maintenance(self.store.last_measurement_id() + 1)
-        self.accuracy.restart(self.versions.version_seed())
+        self.accuracy.restart()
         self.log.info("started after maintenance: version %d in force", self.version)
         self.save_state()
 
@@ -280,7 +278,7 @@ class Service:
     def sphere_residuals(self) -> dict[str, dict[str, Any]]:
         """Per sphere, its measurements in the estimator's window (app.line.estimate), as the
         loop's thread last summed them up (any thread may ask)."""
-        return self.jumps.spheres
+        return self.jumps.estimate.sphere_summary
 
     # -- life cycle ---------------------------------------------------------------------------
     def stop(self) -> None:
@@ -398,7 +396,7 @@ class Service:
         """Why a recalibration asked for now does not start at once, in words ("": it does)."""
         return self.decisions.recal_wait()
 
-    def recal_done(self, out: RecalOutcome | SequentialCandidate | JumpCorrection) -> None:
+    def recal_done(self, out: RecalOutcome | SequentialCandidate) -> None:
         """A calibration's result: recorded, then applied at once or left pending."""
         self.decisions.recal_done(out)
 

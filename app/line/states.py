@@ -185,7 +185,7 @@ def _stated(status: dict[str, Any]) -> str:
         return f"U95 {u95:.3f} mm{last}"
     word = "vouched for" if acc.get("vouched") else "CANNOT VOUCH"
     n, basis = acc.get("n"), acc.get("basis")
-    return f"U95 {u95:.3f} mm ({n} residuals, {basis}), limit {limit:.3f} mm: {word}{last}"
+    return f"U95 {u95:.3f} mm ({n} measurements, {basis}), limit {limit:.3f} mm: {word}{last}"
 
 
 #: what lifts the hold on automatic applies after a rollback in auto mode (app.line.operator)

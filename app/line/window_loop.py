@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import logging
 
-from app.line.accuracy import ACCURACY_GROUP, ESTIMATOR, VOUCHED, Accuracy, statement
+from app.line.accuracy import ACCURACY_GROUP, ESTIMATOR, VOUCHED, Accuracy
 from app.line.beyond_knock import BLIND_WINDOWS, blind_need
 from app.line.body_cycle import BodyCycle
 from app.line.body_export import retain_bodies
@@ -112,7 +112,7 @@ class WindowLoop:
         svc.decision.counters["overruns"] += report.overrun
         svc.decision.counters["withdrawn"] += bool(report.withdrawn)
         self.jumps.opened()  # a jump in the window's measurements: its interval first
-        self.jumps.summarise()
+        self.jumps.estimate.summarise()
         self._state_accuracy(t_open)
         svc.save_state()
         acc = svc.accuracy.now
@@ -134,8 +134,8 @@ class WindowLoop:
 
     def _body(self, body: BodyCycle) -> None:
         """A clamped body's features (app.line.body_cycle), with the parameters in force, the
-        cell's statement for a point measured now (the last window's, else the version's own
-        seed) and the estimator's shared error at each view (app.inspect.values)."""
+        cell's statement for a point measured now (the last window's, else the estimator's from
+        the version's prior) and the estimator's shared error at each view (app.inspect.values)."""
         svc = self.svc
         svc.set_state(State.MEASURING)
         cal = body.calibration(svc.version, svc.params.version_path(svc.version))
@@ -173,11 +173,10 @@ class WindowLoop:
 
     def statement_u95_mm(self) -> float | None:
         """The U95 the cell states for a point measured now (None: none)."""
-        svc = self.svc
-        if svc.accuracy.now is not None and svc.accuracy.now.u95_mm is not None:
-            return svc.accuracy.now.u95_mm
-        seed = statement(svc.accuracy.seed, "seed", svc.settings.recalib.accuracy_limit_mm)
-        return seed.u95_mm
+        now = self.svc.accuracy.now
+        if now is not None and now.u95_mm is not None:
+            return now.u95_mm
+        return self.jumps.statement_u95_mm()
 
     def _bodies_after_window(self) -> None:
         """Now that the cell measured itself: the bodies of suspect intervals corrected since
@@ -253,7 +252,9 @@ class WindowLoop:
         svc = self.svc
         rows = svc.store.measurements(last=4 * len(svc.schedule))
         limit = svc.settings.recalib.accuracy_limit_mm
-        acc = Accuracy(self.jumps.statement_u95_mm(), self.jumps.n_rows(), ESTIMATOR, limit)
+        acc = Accuracy(
+            self.jumps.statement_u95_mm(), self.jumps.estimate.n_rows(), ESTIMATOR, limit
+        )
         svc.accuracy.now = acc
         self._watch_vouched(acc)
         with svc.store.batch():

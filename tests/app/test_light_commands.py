@@ -124,7 +124,7 @@ def test_status_without_a_service_states_the_last_accuracy_stored(state: StateDi
     `accuracy: null`, though every window's U95 is stored: the last statement (the service's
     saved state), with the window it was stated for."""
     store = Store(state.db)
-    statement = {"u95_mm": 0.052, "n": 24, "basis": "held-out", "limit_mm": 0.1, "vouched": True}
+    statement = {"u95_mm": 0.052, "n": 24, "basis": "estimator", "limit_mm": 0.1, "vouched": True}
     store.save_state(1.8e9 + 125.0, {"accuracy": statement})
     store.state_window_u95(0.052)  # the last window's (1.8e9 + 120)
     store.close()
@@ -136,7 +136,7 @@ def test_status_without_a_service_states_the_last_accuracy_stored(state: StateDi
     }
     text = rvis("status", "--state-dir", str(state.root)).out
     assert (
-        "accuracy            U95 0.052 mm (24 residuals, held-out), limit 0.100 mm: vouched for"
+        "accuracy            U95 0.052 mm (24 measurements, estimator), limit 0.100 mm: vouched for"
         " (the last window's, 2027-01-15T08:02:00+00:00; the service is not running)"
     ) in text.splitlines()
     assert run.heavy() == set()

@@ -1,45 +1,61 @@
-"""A version's U95 seed (its commissioning's workspace validation, else its training residuals
-scaled to prediction errors), the statement of a set of residual norms, and whether the cell
-vouches for the limit (the window's statement is the one estimator's: tests/line/test_jumps.py,
-tests/calib/test_cellstate.py)."""
+"""What the cell states before a version's first measurement: the one estimator's U95 from the
+version's prior at the schedule's views (no seed of residuals beside it), and whether the cell
+vouches for the limit (the window's statement after measurements: tests/line/test_jumps.py,
+tests/calib/test_cellstate.py; its coverage of the true errors: bench/estimator.py)."""
 
 from __future__ import annotations
 
+import math
+from dataclasses import replace
+from pathlib import Path
+
 import numpy as np
-import pytest
 
-from app.line.accuracy import document_seed, statement
-
-
-def _rows(residuals: list[float], version: int, first_id: int = 1) -> list[dict[str, object]]:
-    return [
-        {"id": first_id + k, "residual_mm": e, "params_version": version}
-        for k, e in enumerate(residuals)
-    ]
+from app.config.line import RecalibSettings
+from app.line.accuracy import ESTIMATOR, Accuracy
+from calib.uncertainty import norm_quantile
+from tests.line.helpers import make_line
 
 
 def test_no_evidence_is_not_vouched_for() -> None:
-    acc = statement([], "none", 0.15)
-    assert (acc.u95_mm, acc.basis, acc.vouched) == (None, "none", False)
-    assert "unknown" in acc.text()
+    acc = Accuracy(None, 0, ESTIMATOR, 0.15)
+    assert not acc.vouched and "unknown" in acc.text()
+    assert Accuracy(0.149, 3, ESTIMATOR, 0.15).vouched
+    assert not Accuracy(0.151, 3, ESTIMATOR, 0.15).vouched
 
 
-def test_a_cycle_of_good_evidence_is_vouched_for() -> None:
-    acc = statement([0.03] * 24, "held-out", 0.15)
-    # norms of 0.03 mm: sigma 0.017 mm per coordinate, U95 about 1.6 x 0.03 plus the bound
-    assert acc.u95_mm is not None and 0.048 < acc.u95_mm < 0.07 and acc.vouched
+def _prior_u95(tmp_path: Path, recalib: RecalibSettings) -> tuple[float | None, float]:
+    """(the service's statement before any measurement, the same from the prior by hand: its
+    covariance through the model at every view of the schedule, the unmodelled term and the
+    measurement's noise)."""
+    ln = make_line(tmp_path, recalib=recalib)
+    try:
+        svc = ln.service
+        stated = svc.loop.statement_u95_mm()
+        st = svc.jumps.state
+        assert st is not None and not st.rows
+        q, p = svc.schedule.views(svc.spheres)
+        c = svc.model.points_sensor(svc.x, q, p)
+        H = svc.model.point_jacobian(svc.x, q, c, list(st.active))
+        P = st.P[: st.L, : st.L]
+        per_view = np.einsum("kil,lm,kim->k", H, P, H) / 3.0
+        s = st.settings
+        by_hand = norm_quantile() * math.sqrt(
+            float(np.mean(per_view)) + st.s_u_mm**2 + s.sigma_mm**2
+        )
+        return stated, by_hand
+    finally:
+        ln.close()
 
 
-def test_a_commissioned_version_is_seeded_by_its_workspace_validation() -> None:
-    """A version no calibration here made states from its commissioning's workspace validation
-    when its document carries it (prediction errors where the line measures: the simulated
-    line's commissioning parameters are 0.098 mm off at the validation points while their
-    training residuals, scaled, say 0.055), else from its training residuals scaled."""
-    residuals = {"n_measurements": 24, "rms_mm": 0.035, "n_parameters": 30}
-    doc: dict[str, object] = {"residuals": residuals, "n_parameters": 30}
-    scaled = document_seed(doc)
-    assert len(scaled) == 24 and scaled[0] == pytest.approx(0.035 * np.sqrt(102 / 42))
-    errors = [0.05, 0.12, 0.08, 0.2]
-    assert document_seed({**doc, "validation": {"errors_mm": errors}}) == errors
-    assert document_seed({**doc, "validation": {"errors_mm": []}}) == scaled
-    assert document_seed(None) == []
+def test_a_version_states_its_prior_before_its_first_measurement(tmp_path: Path) -> None:
+    """The nominal parameters (no covariance: the prior of `[service] seq_prior_mm` and
+    `seq_prior_rad`) state millimetres and cannot vouch; a tighter prior states less."""
+    wide = RecalibSettings(estimator="batch")
+    stated, by_hand = _prior_u95(tmp_path / "wide", wide)
+    assert stated is not None and abs(stated - by_hand) <= 1e-9 * by_hand
+    assert stated > 1.0 and not Accuracy(stated, 0, ESTIMATOR, 0.15).vouched
+    tight = replace(wide, seq_prior_mm=0.05, seq_prior_rad=1e-4)
+    stated_tight, by_hand_tight = _prior_u95(tmp_path / "tight", tight)
+    assert stated_tight is not None and abs(stated_tight - by_hand_tight) <= 1e-9 * by_hand_tight
+    assert stated_tight < 0.5 * stated

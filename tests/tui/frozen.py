@@ -70,7 +70,7 @@ STATUS: dict[str, Any] = {
     "accuracy": {
         "u95_mm": 0.0934,
         "n": 24,
-        "basis": "held-out",
+        "basis": "estimator",
         "limit_mm": 0.15,
         "vouched": True,
     },
