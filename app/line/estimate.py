@@ -92,9 +92,11 @@ class CellEstimate:
         coordinate of its errors' mean square less the measurement's own noise, which the
         statement holds apart. For the version it validated, all of it (the statement never
         claims better than the workspace showed: its covariance at the spheres' views does
-        not hold the error across the workspace); for a later version, what no
-        recalibration removes: less the validated version's parameter covariance at the
-        schedule's views as well. Without a validation, `[service] jump_unmodelled_mm`."""
+        not hold the error across the workspace); for a later version, less what the
+        recalibrations since removed: the validated version's parameter variance at the
+        schedule's views less the version in force's (a posterior from a few measurements
+        more removed little, and its statement stays where the validated version's was).
+        Without a validation, `[service] jump_unmodelled_mm`."""
         svc = self.svc
         sigma = svc.settings.recalib.jump_sigma_mm
         current = svc.params.current_document()
@@ -103,11 +105,16 @@ class CellEstimate:
             if not errors or doc is None:
                 continue
             ms = float(np.mean(np.square(np.asarray(errors, float)))) / 3.0 - sigma**2
-            got = document_covariance(doc, svc.params.current_path)
-            if doc is not current and got is not None:
-                ms -= self._variance_at_schedule(got[0], got[1])
+            if doc is not current:
+                ms -= max(0.0, self._variance_of(doc) - self._variance_of(current))
             return math.sqrt(max(0.0, ms))
         return float(svc.settings.recalib.jump_unmodelled_mm)
+
+    def _variance_of(self, doc: dict[str, Any] | None) -> float:
+        """A version's parameter variance at the schedule's views (`_variance_at_schedule`; 0
+        without a covariance)."""
+        got = None if doc is None else document_covariance(doc, self.svc.params.current_path)
+        return 0.0 if got is None else self._variance_at_schedule(got[0], got[1])
 
     def _variance_at_schedule(self, names: list[str], cov: np.ndarray) -> float:
         """One coordinate's variance [mm^2] of a sphere's centre from parameters `names` with
