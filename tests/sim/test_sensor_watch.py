@@ -8,12 +8,11 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from app.config import CellConfig
+from app.config import CellConfig, load_cell
 from app.config.line import DriftSettings
 from app.line.measure import SweepSensor
 from app.line.sensor_watch import SensorWatch
@@ -35,44 +34,56 @@ def _short_line(cfg: CellConfig) -> CellConfig:
     return dataclasses.replace(cfg, simline=simline, sweep=sweep, drift=drift)
 
 
-def _measure(cfg: CellConfig, tmp: Path, focal_scale: float) -> tuple[list[str], list[str]]:
-    """The `sensor` alarms' texts and the measurements' statuses: 8 measurements with the true
-    calibration, then 6 after the sensor's optics changed by `focal_scale` against it (the
-    calibration in use no longer fits: the model the sweeps are measured with is swapped)."""
-    cfg = _short_line(cfg)
+UNCHANGED, CHANGED = 14, 6  # measurements with the true calibration, then with the changed optics
+
+
+@pytest.fixture(scope="module")
+def watched(tmp_path_factory: pytest.TempPathFactory) -> list[tuple[str, str]]:
+    """One rendered run: UNCHANGED measurements with the true calibration, then CHANGED after
+    the sensor's optics changed by 0.1 % in focal length against it (the calibration in use no
+    longer fits: the model the sweeps are measured with is swapped). Each measurement's phase
+    ("unchanged" or "changed") and status, and each `sensor` alarm's phase and text."""
+    cfg = _short_line(load_cell(None))
     true = true_sensor_model(make_cell(cfg, seed=5).sensor)
-    alarms: list[str] = []
-    seen: list[str] = []
+    out: list[tuple[str, str]] = []
+    n = 0
     deadline = time.monotonic() + WAIT_S
-    with SimulatedLineRun(cfg, tmp / "state", seed=5, sensor_model=true) as run:
+    with SimulatedLineRun(
+        cfg, tmp_path_factory.mktemp("watch") / "state", seed=5, sensor_model=true
+    ) as run:
         run.start_service()
-        stop = lambda e: len(seen) >= 14 or time.monotonic() > deadline  # noqa: E731
+        stop = lambda e: n >= UNCHANGED + CHANGED or time.monotonic() > deadline  # noqa: E731
         for e in run.events_until(stop, WAIT_S):
             if e["event"] == "measurement":
-                seen.append(e["status"])
-                if len(seen) == 8:
+                n += 1
+            # an alarm after the n-th measurement is that measurement's
+            phase = "unchanged" if n <= UNCHANGED else "changed"
+            if e["event"] == "measurement":
+                out.append((phase, "measurement " + e["status"]))
+                if n == UNCHANGED:
                     sensor = run.service.measurer.sensor
                     assert isinstance(sensor, SweepSensor)
-                    sensor.sensor_model = scaled_sensor_model(true, focal_scale)
+                    sensor.sensor_model = scaled_sensor_model(true, 1.001)
             elif e["event"] == "alarm" and e["code"] == "sensor":
-                alarms.append(e["message"])
-    return alarms, seen
+                out.append((phase, "alarm " + e["message"]))
+    return out
+
+
+@GIGE_CAMERA
+def test_an_unchanged_sensor_raises_none(watched: list[tuple[str, str]]) -> None:
+    unchanged = [what for phase, what in watched if phase == "unchanged"]
+    assert unchanged == ["measurement ok"] * UNCHANGED
 
 
 @GIGE_CAMERA
 def test_a_change_of_the_sensor_by_0_1_percent_raises_the_sensor_alarm(
-    cfg: CellConfig, tmp_path: Path
+    watched: list[tuple[str, str]],
 ) -> None:
-    alarms, seen = _measure(cfg, tmp_path, 1.001)
-    assert len(seen) == 14 and seen.count("ok") >= 12
-    (text,) = alarms
+    changed = [what for phase, what in watched if phase == "changed"]
+    statuses = [w for w in changed if w.startswith("measurement ")]
+    assert len(statuses) == CHANGED and statuses.count("measurement ok") >= CHANGED - 2
+    (text,) = [w for w in changed if w.startswith("alarm ")]
     assert "not the robot" in text and "shifted from its baseline" in text
-
-
-@GIGE_CAMERA
-def test_an_unchanged_sensor_raises_none(cfg: CellConfig, tmp_path: Path) -> None:
-    alarms, seen = _measure(cfg, tmp_path, 1.0)
-    assert seen == ["ok"] * 14 and alarms == []
 
 
 def test_the_chart_signals_a_shift_within_the_limits_once() -> None:
