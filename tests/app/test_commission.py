@@ -83,6 +83,7 @@ def kill_at(argv: list[str], marker: str, timeout_s: float = 600.0) -> list[str]
     return lines
 
 
+@pytest.mark.slow
 def test_commissioning_resumes_after_a_kill_and_leaves_a_cell_ready_to_run(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

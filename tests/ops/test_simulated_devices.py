@@ -26,7 +26,7 @@ import pytest
 from tests.groups import GIGE_CAMERA
 from tests.ops.conftest import ROOT, RVIS, ServiceProcess, _plant_signals, rvis, status
 
-pytestmark = GIGE_CAMERA
+pytestmark = [GIGE_CAMERA, pytest.mark.slow]
 
 PERIOD_S, WINDOW_S = 6.0, 4.0  # the clamp cycle on the devices' clock (1 sim s per real s)
 CELL = f"""

@@ -19,6 +19,8 @@ from app.line.states import AlarmCode, State
 from app.line.store import Store
 from app.sim.line_run import SimulatedLineRun
 
+pytestmark = pytest.mark.slow
+
 AT_S = 660.0  # inside the 12th period of 60 s: its window is the first after the event
 
 

@@ -14,6 +14,7 @@ from app.commands.cli import main
 SEED = "3"
 
 
+@pytest.mark.slow
 def test_correlation_reports_each_characteristic_against_the_truth(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -36,6 +37,7 @@ def test_correlation_reports_each_characteristic_against_the_truth(
     assert "reevaluated" not in doc  # no knock
 
 
+@pytest.mark.slow
 def test_gauge_reports_cg_and_cgk_per_characteristic(tmp_path: Path) -> None:
     out = tmp_path / "g"
     argv = ["experiment", "gauge", "--seed", SEED, "--repeats", "4", "--geometric"]

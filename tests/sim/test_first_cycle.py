@@ -15,6 +15,8 @@ import pytest
 from app.config import CellConfig
 from app.sim.shift import ShiftSettings, run_shift
 
+pytestmark = pytest.mark.slow
+
 GROUP = {"sensor": "sensor", "fixture": "fixture", "joint": "J2"}
 
 

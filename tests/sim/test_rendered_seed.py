@@ -14,12 +14,14 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from app.config import CellConfig
 from app.line.store import Store
 from app.sim.line_run import SimulatedLineRun
 from tests.groups import GIGE_CAMERA
 
-pytestmark = GIGE_CAMERA
+pytestmark = [GIGE_CAMERA, pytest.mark.slow]
 
 SEED = 5
 WINDOWS = 4

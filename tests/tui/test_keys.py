@@ -49,6 +49,7 @@ async def focuses_by_tab(pilot: Pilot[None], app: FrozenTui, pane: str) -> list[
     raise AssertionError(f"Tab never came round in {pane}: {seen}")
 
 
+@pytest.mark.slow
 def test_the_screen_keys_switch_panes_from_every_focus() -> None:
     """From each pane, after 0, 1, 2 ... Tabs (a filter box left with Escape first), the key
     of another pane shows that pane (on the previous build the key did nothing after Tab Tab
