@@ -485,24 +485,6 @@ class CellState:
         var = np.einsum("kil,lm,kim->k", G, fit.cov, G) / 3.0
         return float(np.sqrt(np.mean(var)))
 
-    # -- after a jump ---------------------------------------------------------------------------
-    def absorb(self, fit: JumpFit) -> None:
-        """Take a jump as found: the group's parameters moved by theta from the onset (the
-        state widened by theta's covariance), a sphere's move into its own centre. The window
-        keeps the measurements from the onset on, with the jump removed from them."""
-        h = fit.hypothesis
-        keep = self.rows[fit.onset :]
-        for r in self.rows[: fit.onset]:
-            self._fold(r)
-        for r in keep:
-            r.v0 = r.v0 - r.G[h.name] @ fit.theta
-        if h.target is None:
-            cols = [self.active.index(p) for p in h.params if p in self.active]
-            idx = [INDEX[p] for p in h.params]
-            self.x_ref[idx] += fit.theta
-            self.P[np.ix_(cols, cols)] += fit.cov[: len(cols), : len(cols)]
-        self.rows = keep
-
 
 #: eigenvalues below this share of the largest count as zero in a pseudo-inverse
 RTOL_PINV = 1e-9
