@@ -90,31 +90,29 @@ class CellEstimate:
     def _floor(self) -> float:
         """The unmodelled term's floor, from the commissioning's workspace validation: one
         coordinate of its errors' mean square less the measurement's own noise, which the
-        statement holds apart. For the version it validated, all of it (the statement never
-        claims better than the workspace showed: its covariance at the spheres' views does
-        not hold the error across the workspace); for a later version, less what the
-        recalibrations since removed: the validated version's parameter variance at the
-        schedule's views less the version in force's (a posterior from a few measurements
-        more removed little, and its statement stays where the validated version's was).
-        Without a validation, `[service] jump_unmodelled_mm`."""
+        statement holds apart. For the version it validated, all of it (its covariance at the
+        spheres' views does not hold the error across the workspace); for a later version,
+        less what the recalibrations since removed: the validated version's parameter variance
+        at the schedule's views less the version in force's (a posterior from a few more
+        measurements states what the validated version did). Without a validation,
+        `[service] jump_unmodelled_mm`."""
         svc = self.svc
         sigma = svc.settings.recalib.jump_sigma_mm
         current = svc.params.current_document()
+
+        def variance(doc: dict[str, Any] | None) -> float:  # 0: no covariance
+            got = None if doc is None else document_covariance(doc, svc.params.current_path)
+            return 0.0 if got is None else self._variance_at_schedule(*got)
+
         for doc in (current, svc.params.document(1)):
             errors = ((doc or {}).get("validation") or {}).get("errors_mm")
             if not errors or doc is None:
                 continue
             ms = float(np.mean(np.square(np.asarray(errors, float)))) / 3.0 - sigma**2
             if doc is not current:
-                ms -= max(0.0, self._variance_of(doc) - self._variance_of(current))
+                ms -= max(0.0, variance(doc) - variance(current))
             return math.sqrt(max(0.0, ms))
         return float(svc.settings.recalib.jump_unmodelled_mm)
-
-    def _variance_of(self, doc: dict[str, Any] | None) -> float:
-        """A version's parameter variance at the schedule's views (`_variance_at_schedule`; 0
-        without a covariance)."""
-        got = None if doc is None else document_covariance(doc, self.svc.params.current_path)
-        return 0.0 if got is None else self._variance_at_schedule(got[0], got[1])
 
     def _variance_at_schedule(self, names: list[str], cov: np.ndarray) -> float:
         """One coordinate's variance [mm^2] of a sphere's centre from parameters `names` with
@@ -152,15 +150,10 @@ class CellEstimate:
         """The covariance of the version in force on `active` (a parameter it has none for: the
         prior of `[service] seq_prior_mm` and `seq_prior_rad`, the nominal's tolerances; the
         extra terms tight)."""
-        svc = self.svc
-        r = svc.settings.recalib
-
-        def default(name: str) -> float:
-            if name in EXTRA_NAMES:
-                return 1e-12
-            return (r.seq_prior_mm if unit_of(name) == "mm" else r.seq_prior_rad) ** 2
-
-        P = np.diag([default(n) for n in active])
+        svc, r = self.svc, self.svc.settings.recalib
+        mm2, rad2 = r.seq_prior_mm**2, r.seq_prior_rad**2
+        var = [1e-12 if n in EXTRA_NAMES else mm2 if unit_of(n) == "mm" else rad2 for n in active]
+        P = np.diag(var)
         doc = svc.params.current_document()
         got = None if doc is None else document_covariance(doc, svc.params.current_path)
         if got is not None:
