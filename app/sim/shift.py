@@ -5,7 +5,7 @@ of the sensor mount, the spheres' frame or the J2 zero (`knock`); the in-line se
 through the real drivers (SimulatedLineRun).
 After every window the true error at the validation positions is recorded twice: with the
 parameters in force (the service) and with the commissioning parameters (no recalibration).
-From that timeline: after how many windows the drift alarm flagged the knock, how many windows
+From that timeline: after how many windows the step alarm flagged the knock, how many windows
 until the error with the service is back within `recovered_ratio` x its pre-knock level, the
 overruns; a table per hour (shift.md), the timeline (shift.json) and a plot (shift.png).
 """
@@ -186,7 +186,7 @@ class ShiftResult:
     rejected_windows: list[int] = field(default_factory=list)
     window_s: float = 20.0  # the clamp window's length [sim s]
     knock_window: int | None = None  # the first window opened after the knock
-    flagged_after: int | None = None  # windows from the knock to the first drift alarm
+    flagged_after: int | None = None  # windows from the knock to the first step alarm
     pre_knock_rmse_mm: float = math.nan
     accuracy_limit_mm: float = math.nan  # [service] accuracy_limit_mm of the run
     floor_mm: float = math.nan  # the robot's floor (app.sim.line_run.robot_floor_mm)
@@ -382,7 +382,7 @@ def _minus(t: float | None, epoch: float) -> float | None:
 
 
 def evaluate(result: ShiftResult) -> None:
-    """Knock window, windows to the drift alarm, pre-knock level and windows to recovery."""
+    """Knock window, windows to the step alarm, pre-knock level and windows to recovery."""
     s, recs = result.settings, result.records
     mark_suspect(result)
     if not s.knocked:
@@ -531,7 +531,7 @@ def summary_lines(result: ShiftResult) -> list[str]:
     )
     return [
         f"knock of {what} ({size}) at {s.knock_at_h:g} h (window {result.knock_window}):"
-        f" flagged by the drift alarm after {_windows_text(result.flagged_after, 3)},"
+        f" flagged by the step alarm after {_windows_text(result.flagged_after, 3)},"
         f" attributed to: {result.attribution or 'nothing'}",
         f"true RMS within the limit ({result.accuracy_limit_mm:g} mm) after"
         f" {_windows_text(result.within_limit_after, 6)}; back within"
@@ -590,18 +590,12 @@ def _episode_span(knock_window: int | None, end: int | None) -> str:
 
 
 def _alarms_text(result: ShiftResult) -> str:
-    """Alarm episodes (windows with a new alarm) before and after the knock, by priority."""
+    """Step alarm episodes (windows with a new one) before and after the knock."""
     k = result.knock_window or 10**9
-
-    def episodes(windows: list[int], before: bool) -> int:
-        return len({w for w in windows if (w < k) == before})
-
-    low = [w for w in result.drift_alarm_windows if w not in set(result.step_alarm_windows)]
-    return (
-        f"drift alarms (windows with one) before the knock: {episodes(low, True)} low (slow"
-        f" drift), {episodes(result.step_alarm_windows, True)} high (step); after it:"
-        f" {episodes(low, False)} low, {episodes(result.step_alarm_windows, False)} high"
-    )
+    steps = set(result.step_alarm_windows)
+    before = len({w for w in steps if w < k})
+    after = len(steps) - before
+    return f"step alarms (windows with one) before the knock: {before}; after it: {after}"
 
 
 def markdown(result: ShiftResult, command: str) -> str:

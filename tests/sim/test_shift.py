@@ -53,7 +53,7 @@ def test_a_knock_is_flagged_and_the_service_recovers(cfg: CellConfig, tmp_path: 
     assert len(doc["summary"]["timeline"]) == 48
     assert png.stat().st_size > 10_000 and "| 0-1 |" in md.read_text()
     lines = summary_lines(result)
-    assert any("flagged by the drift alarm after" in line for line in lines)
+    assert any("flagged by the step alarm after" in line for line in lines)
     # issue 50's measure: the windows until the true RMS is within the limit, as the records say
     limit = result.accuracy_limit_mm
     back = next(r.window for r in recs if r.window >= k and r.rmse_mm <= limit) - k + 1
