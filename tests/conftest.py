@@ -53,10 +53,9 @@ def simulated(seed: int, n_validation: int = 60, **overrides: bool) -> tuple[Dat
 _SHARED_SCOPES = ("class", "module", "package")
 
 
-def _shared_fixture_scope(item: pytest.Item) -> tuple[str, str] | None:
-    """The xdist group of a test that uses a class-, module- or package-scoped fixture (its
-    module, or the fixture's package: built once on one worker, not once on each), with the
-    fixture's scope."""
+def _shared_fixture_group(item: pytest.Item) -> str | None:
+    """The xdist group of a test that uses a class-, module- or package-scoped fixture: its
+    module, or the fixture's package (built once on one worker, not once on each)."""
     info: Any = getattr(item, "_fixtureinfo", None)
     if info is None:
         return None
@@ -64,18 +63,9 @@ def _shared_fixture_scope(item: pytest.Item) -> tuple[str, str] | None:
         defs = info.name2fixturedefs.get(name)
         if defs and defs[-1].scope in _SHARED_SCOPES:
             if defs[-1].scope == "package":
-                return defs[-1].baseid or ".", "package"
-            return item.nodeid.split("::")[0], defs[-1].scope
+                return defs[-1].baseid or "."
+            return item.nodeid.split("::")[0]
     return None
-
-
-def _order(item: pytest.Item, scope: str | None) -> int:
-    """When a worker gets the test: a package's shared fixture first (its tests run one after
-    another on one worker: the longest chain), then the tests marked slow and those of a shared
-    module fixture (a rendered cell, a commissioned line), then the rest."""
-    if scope == "package":
-        return 0
-    return 1 if scope is not None or item.get_closest_marker("slow") is not None else 2
 
 
 def _group_names(item: pytest.Item) -> list[str]:
@@ -108,20 +98,19 @@ def pytest_collection_modifyitems(
 ) -> Generator[None, None, None]:
     """On a pytest-xdist worker: the tests of a shared fixture grouped (tests/groups.py), the
     GigE camera's tests in one group unless the worker has a network namespace of its own, and
-    the long ones first (`_order`), so that no worker starts one at the end while the other has
+    the tests marked slow first, so that no worker starts one at the end while the other has
     finished (xdist hands tests out in collection order). A serial run keeps the file order."""
     worker = hasattr(config, "workerinput")
     if worker:
         one_camera = config.stash.get(_SHARED_NETWORK, None) is not None
-        order: dict[str, int] = {}
         for item in items:
-            shared = _shared_fixture_scope(item)
-            order[item.nodeid] = _order(item, None if shared is None else shared[1])
             if one_camera and item.get_closest_marker("gige_camera") is not None:
                 item.add_marker(pytest.mark.xdist_group("gige-camera"))
-            elif item.get_closest_marker("xdist_group") is None and shared is not None:
-                item.add_marker(pytest.mark.xdist_group(shared[0]))
-        items.sort(key=lambda item: order[item.nodeid])
+            elif item.get_closest_marker("xdist_group") is None:
+                group = _shared_fixture_group(item)
+                if group is not None:
+                    item.add_marker(pytest.mark.xdist_group(group))
+        items.sort(key=lambda item: item.get_closest_marker("slow") is None)
     yield  # the other plugins', xdist's among them
     if worker and config.getvalue("loadgroup"):
         _suffix_groups(items)
