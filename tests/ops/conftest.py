@@ -87,7 +87,17 @@ class ServiceProcess:
                 break
             if pred(line):
                 return line
-        raise AssertionError(f"no such log line in {timeout_s} s (alive: {self.alive})")
+        raise AssertionError(f"no such log line in {timeout_s} s ({self._fate()})")
+
+    def _fate(self) -> str:
+        """Alive, or how the service ended: its exit code and the end of its stderr (what a
+        failed wait needs to be diagnosed)."""
+        code = self.proc.poll()
+        if code is None:
+            return "alive: True"
+        if self.proc.stderr is not None and not self.proc.stderr.closed:
+            self.stderr += self.proc.stderr.read().decode(errors="replace")
+        return f"alive: False, exit {code}, stderr: {self.stderr[-2000:]!r}"
 
     def wait_windows(self, n: int, timeout_s: float = 30.0) -> None:
         for _ in range(n):
@@ -133,7 +143,7 @@ class ServiceProcess:
     def _close(self) -> None:
         assert self.proc.stdout is not None and self.proc.stderr is not None
         self._reader.join(30)
-        self.stderr = self.proc.stderr.read().decode(errors="replace")
+        self.stderr += self.proc.stderr.read().decode(errors="replace")
         self.proc.stdout.close()
         self.proc.stderr.close()
 
