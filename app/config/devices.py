@@ -103,11 +103,12 @@ class CommissionSection(Section):
     # (CellConfig.commissioning_model: its first version is the estimator's prior),
     # "calibration" [calibration] model (the paper's rigid 30); calibration_views_per_sphere
     # > 0: random views beyond the plan's up to that many a sphere (0: the plan's alone). A new
-    # cell's first hour runs on them: on tuning seed 61 the compliant model from the plan's 6
-    # views a sphere alone, and with random ones up to 12 and 18, left that hour 1.65, 1.33
-    # and 1.25x the robot's floor (the rigid model 1.6-1.8x whatever the count;
-    # docs/results/estimator.md, "The commissioning and the posterior"). The paper's
-    # commissioning is `model = "calibration"` with 0
+    # cell's first hour runs on them: on tuning seeds 61-68 the compliant model from 18 views a
+    # sphere left that hour 1.17-1.37x the robot's floor, from 36 views 1.05-1.23x (the rigid
+    # model 1.6-1.8x whatever the count), but 36 views doubled the sensor acceptance's SD with
+    # a true sensor on seeds 0-3 (0.04-0.07 -> 0.06-0.14 mm, one over its limit): not the
+    # default (docs/results/estimator.md, "The first hour"). The paper's commissioning is
+    # `model = "calibration"` with 0
     model: str = opt("service", choices=("calibration", "service"))
     calibration_views_per_sphere: int = opt(18, lo=0, hi=1000)
     validation_views: int = opt(3, lo=1, hi=100)
@@ -115,9 +116,10 @@ class CommissionSection(Section):
     # the paper's validation (section 4, eq. 19): a sphere on a tracker nest at this many
     # workspace positions, each measured by the tracker (target `validation_target`) and by
     # rvis from a view the calibration did not use; its RMS error held to max_workspace_rmse_mm.
-    # Its errors are the in-line service's evidence for a new cell's U95 until the line's own
-    # replace them (app.line.accuracy `seed_count`): 50 positions bound sigma within 1.11x, 20
-    # within 1.18x (docs/results/accuracy-first-window.md weighs the 30 more tracker positions)
+    # Its errors bound the unmodelled term of every statement the in-line service makes (the
+    # upper 95 % bound of their sigma, calib.uncertainty.sigma_upper_mm; app.line.estimate):
+    # 50 positions bound sigma within 1.11x, 20 within 1.18x
+    # (docs/results/accuracy-first-window.md weighs the 30 more tracker positions)
     workspace_positions: int = opt(20, lo=3, hi=1000)
     # `rvis maintain` (app/maintain/): the same validation at fewer positions, each measured
     # from maintenance_workspace_views views (the first from home, the others a short motion

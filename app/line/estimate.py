@@ -9,7 +9,8 @@ the service does with its verdicts).
   through the model at the schedule's views (or `[service] jump_sigma_mm` when set), resolved
   once at the service's start; what the statement holds apart from its other terms, and what a
   body's value takes out of it (app.inspect.values).
-- **Unmodelled term's floor**: from the commissioning's workspace validation (`_floor`).
+- **Unmodelled term's floor**: from the commissioning's workspace validation, the upper 95 %
+  bound of its errors' sigma (`_floor`).
 - **Restart**: on every version in force, the measurements since it is in force replayed, the
   evidence about the unmodelled term carried from the version before (and across a restart of
   the service: `to_json`).
@@ -38,7 +39,7 @@ from calib.cellstate import CellState, EstimatorSettings, Observation
 from calib.hypotheses import Verdict
 from calib.model import EXTRA_NAMES, INDEX, SystemModel, unit_of
 from calib.repeatability import stop_sd_mm
-from calib.uncertainty import norm_quantile
+from calib.uncertainty import norm_quantile, sigma_upper_mm
 
 #: the least noise a sphere measurement is given [mm] (an exact robot and sensor: the filter
 #: needs some)
@@ -89,12 +90,15 @@ class CellEstimate:
 
     def _floor(self) -> float:
         """The unmodelled term's floor, from the commissioning's workspace validation: one
-        coordinate of its errors' mean square less the measurement's own noise, which the
-        statement holds apart. For the version it validated, all of it (its covariance at the
-        spheres' views does not hold the error across the workspace); for a later version,
-        less what the recalibrations since removed: the validated version's parameter variance
-        at the schedule's views less the version in force's (a posterior from a few more
-        measurements states what the validated version did). Without a validation,
+        coordinate's variance of its errors, their upper one-sided 95 % bound (the bound the
+        commissioning states its U95 from, calib.uncertainty.sigma_upper_mm: 20 positions know
+        it to about +-18 %, and the statement holds in every run, not on average over cells),
+        less the measurement's own noise, which the statement holds apart. For the version it
+        validated, all of it (its covariance at the spheres' views does not hold the error
+        across the workspace); for a later version, less what the recalibrations since removed:
+        the validated version's parameter variance at the schedule's views less the version in
+        force's (a posterior from a few more measurements states what the validated version
+        did). Without a validation,
         `[service] jump_unmodelled_mm`."""
         svc = self.svc
         sigma = svc.settings.recalib.jump_sigma_mm
@@ -108,7 +112,7 @@ class CellEstimate:
             errors = ((doc or {}).get("validation") or {}).get("errors_mm")
             if not errors or doc is None:
                 continue
-            ms = float(np.mean(np.square(np.asarray(errors, float)))) / 3.0 - sigma**2
+            ms = sigma_upper_mm([float(e) for e in errors]) ** 2 - sigma**2
             if doc is not current:
                 ms -= max(0.0, variance(doc) - variance(current))
             return math.sqrt(max(0.0, ms))

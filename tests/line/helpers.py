@@ -164,11 +164,13 @@ def make_line(
     robot_class: type[FakeRobot] = FakeRobot,
     model: SystemModel | None = None,
     plan: dict[str, F64] | None = None,
+    initial_residuals: dict[str, Any] | None = None,
     **cell_overrides: Any,
 ) -> Line:
     """A service on fakes; its model rigid unless given ([service] model: compliant by default
     in a cell file), and its estimator the batch one unless `recalib` says otherwise; its
-    schedule `plan` (default `plan_for(seed)`)."""
+    schedule `plan` (default `plan_for(seed)`); `initial_residuals` as Service's (the initial
+    version's covariance and workspace validation)."""
     cfg = load_cell(None)
     cell = make_cell(cfg, seed, **cell_overrides)
     model = model or cfg.model()
@@ -205,6 +207,7 @@ def make_line(
         x0,
         clock=clock,
         settings=settings,
+        initial_residuals=initial_residuals,
     )
     return Line(cell, model, robot, plc, service, clock)
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from app.config.line import RecalibSettings
 from app.line.accuracy import ESTIMATOR, Accuracy
-from calib.uncertainty import norm_quantile
+from calib.uncertainty import norm_quantile, sigma_upper_mm
 from tests.line.helpers import make_line
 
 
@@ -59,3 +59,24 @@ def test_a_version_states_its_prior_before_its_first_measurement(tmp_path: Path)
     stated_tight, by_hand_tight = _prior_u95(tmp_path / "tight", tight)
     assert stated_tight is not None and abs(stated_tight - by_hand_tight) <= 1e-9 * by_hand_tight
     assert stated_tight < 0.5 * stated
+
+
+def test_the_floor_is_the_upper_bound_of_the_validation_s_sigma(tmp_path: Path) -> None:
+    """A version validated at 20 workspace positions: the unmodelled term's floor is the upper
+    one-sided 95 % bound of their sigma per coordinate (the commissioning's own), less the
+    measurement's noise; above the plain mean square's, which a cell's 20 positions know only to
+    about +-18 %."""
+    errors = list(np.random.default_rng(5).rayleigh(0.03, 20) * 1.2)
+    ln = make_line(
+        tmp_path, recalib=RecalibSettings(estimator="batch"),
+        initial_residuals={"validation_errors_mm": errors},
+    )  # fmt: skip
+    try:
+        st = ln.service.jumps.state
+        assert st is not None
+        sigma2 = st.settings.sigma_mm**2
+        bound = math.sqrt(sigma_upper_mm(errors) ** 2 - sigma2)
+        plain = math.sqrt(float(np.mean(np.square(errors))) / 3.0 - sigma2)
+        assert abs(st.s_u_mm - bound) <= 1e-12 and bound > 1.1 * plain
+    finally:
+        ln.close()
