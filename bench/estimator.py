@@ -22,6 +22,9 @@ drift charts' tuning seeds, never cited as a reason here):
     .venv/bin/python bench/estimator.py [--seeds 301,302,303,304] [--kinds ...]
         [--windows 1,2,4,8,30] [--hours-at 2] [--jobs 2] [--json FILE] [--cell FILE]
         [--quiet-seeds 311,312,313,314]  # knock-free 8 h shifts on other seeds (QUIET_SEEDS)
+        [--before-knock restart|rollback]  # the service restarted, or the engineer's rollback
+        # and resume, three windows before each knock (knocks in window 4 or later; a rollback
+        # needs an earlier version: --windows '' --hours-at 2)
 
 Each row is one seeded shift in virtual time (a seed is a result); the figures per kind are
 over the seeds and knock times, the CPU time of the whole campaign is printed.
@@ -63,12 +66,27 @@ def _use_cell(path: str | None) -> None:
     CELL = path
 
 
+BEFORE = "none"  # --before-knock: what happens three windows before each knock
+
+
+def _use_before(before: str) -> None:
+    global BEFORE
+    BEFORE = before
+
+
+def _setup(cell: str | None, before: str) -> None:
+    _use_cell(cell)
+    _use_before(before)
+
+
 def shift(task: tuple[int, str, float, float]) -> dict[str, Any]:
-    """One shift: (seed, knock kind, knock hour, hours) -> its figures."""
+    """One shift: (seed, knock kind, knock hour, hours) -> its figures (a knock-free shift's
+    knock at its very end: no restart or rollback before it)."""
     from app.config import load_cell
     from app.sim.shift import ShiftSettings, run_shift
 
     seed, kind, knock_h, hours = task
+    before = BEFORE if knock_h + 0.01 < hours else "none"
     logging.getLogger("rvis").addHandler(logging.NullHandler())  # the figures, not the records
     logging.getLogger("rvis").propagate = False
     with tempfile.TemporaryDirectory() as tmp:
@@ -76,7 +94,7 @@ def shift(task: tuple[int, str, float, float]) -> dict[str, Any]:
         r = run_shift(
             load_cell(CELL),
             Path(tmp) / "state",
-            ShiftSettings(hours=hours, knock_at_h=knock_h, knock=kind),
+            ShiftSettings(hours=hours, knock_at_h=knock_h, knock=kind, before_knock=before),
             seed=seed,
         )
         cpu = time.process_time() - t0
@@ -186,8 +204,16 @@ def main() -> int:
     p.add_argument("--jobs", type=int, default=2)
     p.add_argument("--json", type=Path)
     p.add_argument("--cell", help="a cell file over the embedded cell (its settings)")
+    p.add_argument(
+        "--before-knock",
+        choices=("none", "restart", "rollback"),
+        default="none",
+        help="three windows before each knock (app.sim.shift.BEFORE_KNOCK): knocks in window 4"
+        " or later; a rollback after the first in-line recalibration (--windows '')",
+    )
     a = p.parse_args()
     _use_cell(a.cell)
+    _use_before(a.before_knock)
     seeds = [int(s) for s in a.seeds.split(",")]
     period_h = 60.0 / 3600.0  # [simline] period_s of the embedded cell
     times = [(int(w) - 1) * period_h for w in a.windows.split(",") if w]
@@ -197,13 +223,15 @@ def main() -> int:
         quiet_seeds = [int(s) for s in (a.quiet_seeds or a.seeds).split(",")]
         tasks += [(s, "sensor", a.quiet_hours - 0.001, a.quiet_hours) for s in quiet_seeds]
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(a.jobs, initializer=_use_cell, initargs=(a.cell,)) as pool:
+    with ProcessPoolExecutor(a.jobs, initializer=_setup, initargs=(a.cell, a.before_knock)) as pool:
         rows = list(pool.map(shift, tasks))
     wall = time.perf_counter() - t0
     knocks = [r for r, t in zip(rows, tasks, strict=True) if t[3] != a.quiet_hours]
     quiet = [r for r, t in zip(rows, tasks, strict=True) if t[3] == a.quiet_hours]
+    before = "" if a.before_knock == "none" else f", a {a.before_knock} 3 windows before each knock"
     print(
-        f"seeds {seeds}; {len(knocks)} knocked shifts, {len(quiet)} knock-free; wall {wall:.0f} s"
+        f"seeds {seeds}; {len(knocks)} knocked shifts{before}, {len(quiet)} knock-free;"
+        f" wall {wall:.0f} s"
     )
     print("\n".join(table(knocks)))
     for r in quiet:

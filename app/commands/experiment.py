@@ -261,6 +261,14 @@ def _shift_options(g: argparse.ArgumentParser) -> None:
         metavar="N",
         help="knock in the N-th window instead of at --knock-at-h (one shift)",
     )
+    g.add_argument(
+        "--before-knock",
+        choices=("none", "restart", "rollback"),
+        default="none",
+        help="three windows before the knock: the service restarted on its state directory,"
+        " or the engineer's rollback to the version before the one in force and the hold"
+        " lifted (after the first in-line recalibration); none (default) (one shift)",
+    )
     g.add_argument("--seed", type=int_at_least(0), default=0, help="seed of one shift (0)")
     g.add_argument(
         "--scale",
@@ -380,6 +388,13 @@ def run_shift_experiment(args: argparse.Namespace) -> int:
         args.knock_at_h = [0.0]
     ((knock_h, hours),) = _knock_hours(args)
     settings = _shift_settings(args, knock_h, hours)
+    if settings.before_knock != "none":
+        from app.sim.shift import event_window
+
+        try:
+            event_window(cfg, settings)
+        except ValueError as exc:
+            raise InputError(str(exc), field="--before-knock") from exc
     out = Path(args.out or f"runs/shift-{time.strftime('%Y%m%d-%H%M%S')}")
     if (out / "state").exists():
         raise InputError("the output folder already holds a shift's state", file=out / "state")
@@ -438,6 +453,7 @@ def _shift_settings(args: argparse.Namespace, knock_h: float, hours: float) -> S
             slots_per_window=args.slots_per_window,
             model=args.model,
             estimator=None if args.estimator in (None, "compare") else args.estimator,
+            before_knock=getattr(args, "before_knock", "none"),
         )
     except ValueError as exc:
         raise InputError(str(exc), field="--hours/--knock-at-h/--scale") from exc

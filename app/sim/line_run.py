@@ -486,6 +486,15 @@ class SimulatedLineRun:
             sensor = SweepSensor(
                 station.camera, station.galvo, self.sensor_model, self.settings.sweep
             )
+        self._station, self._sensor, self._body_setup = station, sensor, self._bodies(line)
+        self._new_service()
+        if self.service.params.version_path(1).is_file():
+            self.x_commissioning = self._x_of(1)
+        self.summary.true_rmse_start_mm = self.true_rmse_mm(self.service.x)
+
+    def _new_service(self) -> None:
+        """A service on the run's station, sensor and bodies, from the state directory (its
+        schedule from the plan, or the seed's random one; where it stopped: the store's)."""
         if self.plan is not None:
             schedule = Schedule.from_plan(self.plan, self.settings.line)
         else:
@@ -493,12 +502,11 @@ class SimulatedLineRun:
             schedule = Schedule(
                 random_schedule(self.cfg, self.cell, self.seed, n_each), self.settings.line
             )
-        bodies = self._bodies(line)
         recalibrator = Recalibrator(cost_s=self.cfg.simline.identification_s, clock=self.clock)
         recalibrator.prestart()
         self.service = Service(
-            station,
-            sensor,
+            self._station,
+            self._sensor,
             schedule,
             self.cfg.spheres_part_mm,
             self.model,
@@ -507,15 +515,31 @@ class SimulatedLineRun:
             settings=self.settings,
             recalibrator=recalibrator,
             initial_residuals=self.commissioning_residuals,
-            bodies=bodies,
+            bodies=self._body_setup,
         )
         self.service.after_window = self._hold
         # a restarted state directory's service counts its windows on: hold by this run's
-        self._windows_before = int(self.service.decision.counters.get("windows", 0))
+        done = int(self.service.decision.counters.get("windows", 0))
+        self._windows_before = done - self.summary.windows
         self.events = self.service.bus.subscribe(every=True)
-        if self.service.params.version_path(1).is_file():
-            self.x_commissioning = self._x_of(1)
-        self.summary.true_rmse_start_mm = self.true_rmse_mm(self.service.x)
+
+    def restart_service(self) -> None:
+        """The service held after its window stopped and started again on its state directory
+        (a process restart: the estimator replays the version's measurements), the world, its
+        clock and the devices going on; the next `run_windows` counts on from this run's."""
+        self.close_service()
+        self._closing = self._held = False
+        self.thread = None
+        self._new_service()
+
+    def close_service(self) -> None:
+        """Stop the service (it holds after its window: let it go) and wait for its loop."""
+        if self.thread is not None and self.thread.is_alive():
+            self.service.stop()
+            with self._gate:
+                self._closing = True
+                self._gate.notify_all()
+            self.thread.join(60)
 
     def _cold_calibration(self, cfg: CellConfig, seed: int, commission_model: Any) -> F64:
         """The cold cell's calibration (`commissioned`, the sensor as built measured with the
@@ -804,10 +828,5 @@ class SimulatedLineRun:
         return self._versions[version]
 
     def close(self) -> None:
-        if self.thread is not None and self.thread.is_alive():
-            self.service.stop()
-            with self._gate:
-                self._closing = True
-                self._gate.notify_all()
-            self.thread.join(60)
+        self.close_service()
         self._stack.close()

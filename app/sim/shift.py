@@ -30,6 +30,11 @@ from app.line.store import Store
 from app.sim.line_run import SimRunSummary, SimulatedLineRun, WindowRecord, robot_floor_mm
 from fakes.truth import KNOCK_KINDS, NO_KNOCK, Knock
 
+#: what may happen before a shift's knock (ShiftSettings.before_knock), and how many windows
+#: before the knock's window (the rollback's hold is lifted in the window after it)
+BEFORE_KNOCK = ("none", "restart", "rollback")
+BEFORE_KNOCK_WINDOWS = 3
+
 
 @dataclass(frozen=True)
 class ShiftSettings:
@@ -55,6 +60,12 @@ class ShiftSettings:
     # the knock's episode ends at the last window above the ratio before this many windows in a
     # row back within it (SuspectScore.episode_end)
     episode_gap_windows: int = 10
+    # what happens BEFORE_KNOCK_WINDOWS windows before the knock (issue 50: a knock after a
+    # restart and after a rollback is found as in a new cell): "none"; "restart", the service
+    # stopped and started again on its state directory; "rollback", the engineer's rollback to
+    # the version before the one in force and the hold on automatic applies lifted (it needs
+    # one: a knock after the first in-line recalibration)
+    before_knock: str = "none"
 
     def __post_init__(self) -> None:
         if not (self.hours > 0 and 0 <= self.knock_at_h < self.hours):
@@ -73,6 +84,10 @@ class ShiftSettings:
             )
         if self.knock not in (*KNOCK_KINDS, NO_KNOCK):
             raise ValueError(f"knock must be one of {', '.join((*KNOCK_KINDS, NO_KNOCK))}")
+        if self.before_knock not in BEFORE_KNOCK:
+            raise ValueError(f"before_knock must be one of {', '.join(BEFORE_KNOCK)}")
+        if self.before_knock != "none" and not self.knocked:
+            raise ValueError(f"a {self.before_knock} before the knock needs a knock")
 
     @property
     def knocked(self) -> bool:
@@ -336,7 +351,18 @@ def run_shift(
         result = ShiftResult(s, seed, s.scale, run.summary, window_s=cfg.simline.window_s)
         result.accuracy_limit_mm = run.service.settings.recalib.accuracy_limit_mm
         result.floor_mm = robot_floor_mm(run.line)
-        run.run_windows(n_windows(cfg, s), on_window=on_window, on_event=_EventLog(result))
+        log = _EventLog(result)
+
+        def windows(n: int) -> None:
+            run.run_windows(n, on_window=on_window, on_event=log)
+
+        if s.before_knock != "none":
+            windows(event_window(cfg, s))
+            if s.before_knock == "restart":
+                run.restart_service()
+            else:
+                _roll_back(run, windows)
+        windows(n_windows(cfg, s))
         epoch = run.clock.start_epoch
     store = Store(StateDir(state_dir).db)  # (a service held for maintenance has closed its own)
     try:
@@ -350,6 +376,45 @@ def run_shift(
     result.real_s = time.perf_counter() - t0
     evaluate(result)
     return result
+
+
+def event_window(cfg: CellConfig, s: ShiftSettings) -> int:
+    """The window after which `s.before_knock` happens: BEFORE_KNOCK_WINDOWS before the first
+    window opened after the knock (ValueError: the knock comes too early for one)."""
+    knock_window = math.floor(s.knock_at_h * 3600.0 / cfg.simline.period_s) + 1
+    k = knock_window - BEFORE_KNOCK_WINDOWS
+    if k < 1:
+        raise ValueError(
+            f"a {s.before_knock} before the knock needs the knock in window"
+            f" {BEFORE_KNOCK_WINDOWS + 1} or later (it comes in window {knock_window})"
+        )
+    return k
+
+
+def _roll_back(run: SimulatedLineRun, windows: Callable[[int], None]) -> None:
+    """The engineer's rollback to the version before the one in force and the operator's
+    resume (the hold on automatic applies lifted; a calibration that landed meanwhile rejected
+    first), carried out by the service in its next window (`windows(n)` runs the line to its
+    n-th); ValueError without an earlier version."""
+    applied = [int(r["version"]) for r in run.service.store.applied()]
+    earlier = [v for v in applied if v != run.service.version]
+    if not earlier:
+        raise ValueError(
+            "a rollback needs an earlier version: a knock after the first recalibration"
+        )
+    svc = run.service
+    replies = [svc.request("rollback", {"version": earlier[-1]}), svc.request("resume")]
+    windows(run.summary.windows + 1)
+    answers = [f.result(60.0) for f in replies]
+    if answers[-1].get("held") and svc.decision.pending_calibration is not None:
+        replies = [
+            svc.request("reject", {"calibration": svc.decision.pending_calibration}),
+            svc.request("resume"),
+        ]
+        windows(run.summary.windows + 1)
+        answers = [f.result(60.0) for f in replies]
+    if not all(a.get("ok") for a in answers) or answers[-1].get("held"):
+        raise RuntimeError(f"the rollback before the knock was not carried out: {answers}")
 
 
 def _opened_s(r: WindowRecord, window_s: float) -> float:

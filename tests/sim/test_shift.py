@@ -121,6 +121,8 @@ def test_shift_settings_refuse_a_knock_outside_the_shift() -> None:
         ["--geometric", "--rendered"],
         ["--knock", "none", "--seeds", "2"],
         ["--knock", "none", "--knock-at-window", "3"],
+        ["--knock-at-window", "3", "--before-knock", "restart"],
+        ["--knock", "none", "--hours", "1", "--before-knock", "rollback"],
     ],
 )
 def test_bad_shift_options_exit_2(
@@ -361,3 +363,24 @@ def test_a_campaigns_shifts_run_the_estimator_and_model_the_command_names() -> N
     plain = ["experiment", "shift", "--knock-at-h", "0.5"]
     s = _shift_settings(build_parser(plain).parse_args(plain), 0.5, 8.0)
     assert s.estimator is None and s.model is None  # the cell file's
+
+
+@pytest.mark.slow
+def test_a_knock_after_a_restart_is_flagged_and_named(cfg: CellConfig, tmp_path: Path) -> None:
+    """The service restarted on its state directory three windows before a fixture knock (the
+    world and its clock go on): one run's windows, two starts in the service's history, the
+    knock flagged within 3 windows, named, and the true RMS within the limit within 6."""
+    settings = ShiftSettings(
+        hours=0.25, knock_at_h=6 / 60.0, knock="fixture", before_knock="restart"
+    )
+    result = run_shift(cfg, tmp_path / "state", settings, seed=5)
+    assert [r.window for r in result.records] == list(range(1, 16))
+    store = Store.read_only(tmp_path / "state" / "rvis.db")
+    try:
+        kinds = [e["kind"] for e in store.events()]
+    finally:
+        store.close()
+    assert kinds.count("started") == 2 and kinds.count("stopped") == 2
+    assert result.knock_window == 7 and result.attribution == "fixture"
+    assert result.flagged_after is not None and result.flagged_after <= 3
+    assert result.within_limit_after is not None and result.within_limit_after <= 6
