@@ -20,6 +20,8 @@ the procedures were not tuned on, and the issue's must-show per event:
 
     .venv/bin/python bench/maintenance.py [--seeds 21,22,23,24] [--events sensor,axis,fixture]
         [--axis 3] [--at-h 1.5] [--json FILE]
+        [--knocks sensor,fixture,J1,J2,J3 [--after-windows 12]]  # issue 50: after each
+        # hand-over a knock in the line's 4th window: flagged <= 3, named, within the limit <= 6
 
 `--events fixture:P2`: the fixture event with only sphere P2 replaced; `fixture:frame`: the
 fixture renewed moving the part frame against the robot's base (the spheres keep their places
@@ -47,14 +49,17 @@ from app.errors import RvisError
 from app.sim.maintenance import MaintenanceRun, run_maintenance
 
 
-def one(event: str, seed: int, axis: int, at_h: float) -> dict[str, Any] | str:
+def one(
+    event: str, seed: int, axis: int, at_h: float, knock: str = "", after_windows: int = 100
+) -> dict[str, Any] | str:
     """One run; event "fixture:P2": only sphere P2 replaced; "fixture:frame": the renewal moves
-    the part frame."""
+    the part frame; `knock`: a knock in the 4th window after the hand-over."""
     kind, _, sphere = event.partition(":")
     frame = sphere == "frame"
     run = MaintenanceRun(
-        kind, seed, axis, 3600.0 * at_h, sphere="" if frame else sphere, frame=frame
-    )
+        kind, seed, axis, 3600.0 * at_h, sphere="" if frame else sphere, frame=frame,
+        knock=knock, after_windows=after_windows,
+    )  # fmt: skip
     with tempfile.TemporaryDirectory() as tmp:
         try:
             return run_maintenance(load_cell(None), Path(tmp), run)
@@ -115,7 +120,16 @@ def main() -> None:
     p.add_argument("--at-h", type=float, default=1.5)
     p.add_argument("--json", type=Path)
     p.add_argument("--rows", type=Path, help="tabulate the rows of an earlier --json, run nothing")
+    p.add_argument(
+        "--knocks",
+        help="after each hand-over a knock of each of these kinds (sensor,fixture,J1,J2,J3) in"
+        " the line's 4th window: flagged <= 3 windows after it, named, within the limit <= 6",
+    )
+    p.add_argument("--after-windows", type=int, default=100)
     a = p.parse_args()
+    if a.knocks:
+        knocks(a)
+        return
     if a.rows is not None:
         doc = json.loads(a.rows.read_text())
         totals(doc["rows"] if isinstance(doc, dict) else doc)
@@ -157,6 +171,45 @@ def main() -> None:
                 flush=True,
             )
     totals(rows)
+    print(f"{len(rows)} runs in {time.monotonic() - t0:.0f} s")
+    if a.json:
+        a.json.write_text(json.dumps(rows, indent=1, default=str))
+
+
+EXPECTED = {"sensor": "sensor", "fixture": "fixture", "J1": "fixture", "J2": "J2", "J3": "J3"}
+
+
+def knocks(a: argparse.Namespace) -> None:
+    """Knocks after a hand-over (issue 50): a row per event, seed and knock kind."""
+    rows: list[dict[str, Any]] = []
+    t0 = time.monotonic()
+    print(f"{'event':10} {'seed':>4} {'knock':8} {'flagged':>7} {'named':8} {'within':>6} verdict")
+    for event in a.events.split(","):
+        for seed in (int(s) for s in a.seeds.split(",")):
+            for knock in a.knocks.split(","):
+                r = one(event, seed, a.axis, a.at_h, knock, a.after_windows)
+                if isinstance(r, str) or not r["procedure_passed"]:
+                    why = r if isinstance(r, str) else "the procedure failed"
+                    print(f"{event:10} {seed:>4} {knock:8} skipped: {why}")
+                    continue
+                f, n = r["knock_flagged_after_windows"], r["knock_attribution"]
+                w = r["knock_within_limit_after_windows"]
+                ok = {
+                    "flagged<=3": f is not None and f <= 3,
+                    "named": n == EXPECTED.get(knock, knock),
+                    "within<=6": w is not None and w <= 6,
+                }
+                r["knock_verdicts"] = ok
+                rows.append(r)
+                failed = [k for k, v in ok.items() if not v]
+                said = "all" if not failed else "MISSED " + ", ".join(failed)
+                fs, ws = ("-" if v is None else str(v) for v in (f, w))
+                print(
+                    f"{event:10} {seed:>4} {knock:8} {fs:>7} {n or '-':8} {ws:>6} {said}",
+                    flush=True,
+                )
+    for k in ("flagged<=3", "named", "within<=6"):
+        print(f"{k:12} {sum(r['knock_verdicts'][k] for r in rows)}/{len(rows)}")
     print(f"{len(rows)} runs in {time.monotonic() - t0:.0f} s")
     if a.json:
         a.json.write_text(json.dumps(rows, indent=1, default=str))

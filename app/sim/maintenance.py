@@ -45,6 +45,7 @@ from app.sim.commission import SimCommissioning
 from app.sim.commissioned import commission_simulated, quiet, run_steps, scripted_fields
 from app.sim.line_run import SimulatedLineRun, WindowRecord, continued_epoch, world_of
 from fakes.line import SimLine
+from fakes.truth import KNOCK_KINDS, Knock
 from vision.sensor_model import SensorModel, load_sensor_model
 
 
@@ -66,6 +67,10 @@ class MaintenanceRun:
     # the line runs at most until this many windows after the event's (held sooner)
     held_within: int = 20
     before_windows: int = 10  # the truth before the event: the median over these windows
+    # a knock (fakes.truth.KNOCK_KINDS) in the line's `knock_window`-th window after the
+    # hand-over ("": none; issue 50: a knock after a hand-over found as in a new cell)
+    knock: str = ""
+    knock_window: int = 4
 
     def __post_init__(self) -> None:
         if self.event not in ("sensor", "axis", "fixture"):
@@ -76,6 +81,8 @@ class MaintenanceRun:
             raise ValueError("frame: the whole fixture's renewal only")
         if self.no_tracker and self.event != "fixture":
             raise ValueError("no_tracker: a fixture renewed only")
+        if self.knock not in ("", *KNOCK_KINDS) or self.knock_window < 1:
+            raise ValueError(f"knock: one of {', '.join(KNOCK_KINDS)}, in window 1 or later")
 
 
 def run_maintenance(cfg: CellConfig, out: Path, run: MaintenanceRun) -> dict[str, Any]:
@@ -97,7 +104,9 @@ def run_maintenance(cfg: CellConfig, out: Path, run: MaintenanceRun) -> dict[str
     report = read_json(m_folder / MAINTENANCE_REPORT_JSON)
     steps = {s["name"]: s for s in report["steps"]}
     x_before = _version_x(cell, state, version_before)
-    after, twin = _line_after(load_cell(state.cell), state, run, x_before, sensor_before)
+    cell_after = _with_knock(load_cell(state.cell), state, run)
+    log = _KnockLog()
+    after, twin = _line_after(cell_after, state, run, x_before, sensor_before, log)
     versions = [int(a["version"]) for a in _applied(state)]
     kept = _suspects(state)
     rows = before.records
@@ -152,6 +161,63 @@ def run_maintenance(cfg: CellConfig, out: Path, run: MaintenanceRun) -> dict[str
         "measurements_kept": _count_measurements(state) >= n_measurements,
         "suspect_intervals_kept": len(kept) >= len(suspects),
         "truth": _truth(cell, run),
+        **_knock_row(run, after.records, log),
+    }
+
+
+def _with_knock(cfg: CellConfig, state: StateDir, run: MaintenanceRun) -> CellConfig:
+    """The cell with `run.knock` a second into the line's `knock_window`-th period after the
+    hand-over (the world's time goes on from where the procedure left it)."""
+    if not run.knock:
+        return cfg
+    world_s = continued_epoch(state.root)[1]
+    kind = Knock.of_kind(run.knock, 0.0)
+    simline = dataclasses.replace(
+        cfg.simline,
+        knock_at_s=world_s + (run.knock_window - 1) * cfg.simline.period_s + 1.0,
+        knock_mm=kind.shift_mm,
+        knock_deg=kind.tilt_deg,
+        knock_kind=run.knock,
+    )
+    return dataclasses.replace(cfg, simline=simline)
+
+
+@dataclass
+class _KnockLog:
+    """The line's step alarms and jumps after the hand-over, by the window they came in."""
+
+    windows: int = 0
+    limit_mm: float = math.nan
+    step_windows: list[int] = dataclasses.field(default_factory=list)
+    jumps: list[tuple[int, str]] = dataclasses.field(default_factory=list)
+
+    def __call__(self, event: dict[str, Any]) -> None:
+        kind = event["event"]
+        if kind == "window":
+            self.windows += 1
+        elif kind == "alarm" and event.get("code") == "drift_step":
+            self.step_windows.append(self.windows + 1)
+        elif kind == "jump":
+            self.jumps.append((self.windows + 1, str(event.get("group"))))
+
+
+def _knock_row(run: MaintenanceRun, records: list[WindowRecord], log: _KnockLog) -> dict[str, Any]:
+    """A knock after the hand-over: flagged after how many windows (the step alarm), the
+    group the service found moved (its first jump from the knock's window on), and the windows
+    until the true RMS was within the accuracy limit (both counted from the knock's window)."""
+    if not run.knock:
+        return {}
+    k = run.knock_window
+    flagged = [w - k + 1 for w in log.step_windows if w >= k]
+    named = [g for w, g in log.jumps if w >= k]
+    within = [r.window - k + 1 for r in records if r.window >= k and r.rmse_mm <= log.limit_mm]
+    return {
+        "knock": run.knock,
+        "knock_window": k,
+        "knock_flagged_after_windows": flagged[0] if flagged else None,
+        "knock_attribution": named[0] if named else None,
+        "knock_within_limit_after_windows": within[0] if within else None,
+        "accuracy_limit_mm": log.limit_mm,
     }
 
 
@@ -192,6 +258,7 @@ def _line_after(
     run: MaintenanceRun,
     x_before: Any,
     sensor_before: SensorModel | None,
+    on_event: _KnockLog | None = None,
 ) -> tuple[Any, list[float]]:
     """The service after the procedure for `after_windows` windows, and at each window the
     true error the version before the event would have in the world without the event (a
@@ -221,7 +288,9 @@ def _line_after(
             line = cast(SimLine, twin_line)  # true_rmse_mm reads only its truth
             twin_rms.append(true_rmse_mm(line, twin_truth, sim.model, x_before, t_s))
 
-        return sim.run_windows(run.after_windows, on_window=at), twin_rms
+        if on_event is not None:
+            on_event.limit_mm = sim.service.settings.recalib.accuracy_limit_mm
+        return sim.run_windows(run.after_windows, on_window=at, on_event=on_event), twin_rms
 
 
 @dataclass

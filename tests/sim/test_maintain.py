@@ -293,3 +293,25 @@ def test_maintain_refuses_what_it_cannot_do(tmp_path: Path, capsys: Any) -> None
     assert main(["maintain", "fixture", "--state-dir", str(tmp_path / "none")]) == 2
     err = capsys.readouterr().err
     assert "rvis commission" in err and err.count("\n") == 2  # one line each
+
+
+def test_a_knock_after_the_hand_over_is_scored_from_its_window() -> None:
+    """The row of a knock after a hand-over (bench/maintenance.py --knocks): the step alarm and
+    the jump counted from the knock's window, the first window within the limit from it; a
+    wrong kind is refused."""
+    from app.sim.line_run import WindowRecord
+    from app.sim.maintenance import _knock_row, _KnockLog
+
+    with pytest.raises(ValueError, match="knock"):
+        MaintenanceRun("axis", 1, knock="J9")
+    log = _KnockLog(limit_mm=0.15)
+    events = [{"event": "window"}] * 3 + [{"event": "alarm", "code": "drift_step"}]
+    events += [{"event": "window"}, {"event": "window"}, {"event": "jump", "group": "J2"}]
+    for e in events:
+        log(e)
+    rms = [0.04, 0.04, 0.04, 0.3, 0.3, 0.2, 0.1, 0.05]
+    records = [WindowRecord(k + 1, 0.0, 20.0, e, e, 1) for k, e in enumerate(rms)]
+    row = _knock_row(MaintenanceRun("axis", 1, knock="J2", knock_window=4), records, log)
+    assert row["knock_flagged_after_windows"] == 1 and row["knock_attribution"] == "J2"
+    assert row["knock_within_limit_after_windows"] == 4
+    assert _knock_row(MaintenanceRun("axis", 1), records, log) == {}
