@@ -9,14 +9,15 @@ the service does with its verdicts).
   through the model at the schedule's views (or `[service] jump_sigma_mm` when set), resolved
   once at the service's start; what the statement holds apart from its other terms, and what a
   body's value takes out of it (app.inspect.values).
-- **Unmodelled term's floor**: from the commissioning's workspace validation, the upper 95 %
-  bound of its errors' sigma (`_floor`).
+- **Unmodelled term's floor**: from the commissioning's workspace validation (`_floor`): its
+  mean square in the filter and the jump test, its upper 95 % bound in the statement.
 - **Restart**: on every version in force, the measurements since it is in force replayed, the
   evidence about the unmodelled term carried from the version before (and across a restart of
   the service: `to_json`).
 - **Statement**: the U95 of a point measured now with the parameters in force, at the window's
   poses: k (2.80, the 95 % quantile of a 3-D error's norm) times the per-coordinate
-  sqrt((|H d|^2 + tr(H P H')) / 3 + s_u^2 + sigma^2), d and P the estimator's posterior of how
+  sqrt((|H d|^2 + tr(H P H')) / 3 + s_u^2 + sigma^2), s_u at least the floor's bound, d and P
+  the estimator's posterior of how
   far the parameters in force are off, and, while a jump is not corrected, its innovations;
   before the version's first measurement, d = 0 and P its prior at the schedule's views.
 """
@@ -73,6 +74,7 @@ class CellEstimate:
         self.state: CellState | None = None
         self.verdict: Verdict | None = None
         self._moments: list[float] = []  # s_u's evidence, carried from version to version
+        self._stated_floor_mm2 = 0.0  # the statement's floor of s_u^2 (`_floor(bound=True)`)
         # per sphere, its measurements in the window (`summarise`), as of the last window or
         # start: replaced whole, read by any thread
         self.sphere_summary: dict[str, dict[str, Any]] = {}
@@ -88,18 +90,20 @@ class CellEstimate:
             false_alarm=r.jump_false_alarm,
         )
 
-    def _floor(self) -> float:
+    def _floor(self, bound: bool = False) -> float:
         """The unmodelled term's floor, from the commissioning's workspace validation: one
-        coordinate's variance of its errors, their upper one-sided 95 % bound (the bound the
-        commissioning states its U95 from, calib.uncertainty.sigma_upper_mm: 20 positions know
-        it to about +-18 %, and the statement holds in every run, not on average over cells),
-        less the measurement's own noise, which the statement holds apart. For the version it
-        validated, all of it (its covariance at the spheres' views does not hold the error
-        across the workspace); for a later version, less what the recalibrations since removed:
-        the validated version's parameter variance at the schedule's views less the version in
-        force's (a posterior from a few more measurements states what the validated version
-        did). Without a validation,
-        `[service] jump_unmodelled_mm`."""
+        coordinate's variance of its errors (their mean square; with `bound`, its upper
+        one-sided 95 % bound, calib.uncertainty.sigma_upper_mm, the bound the commissioning
+        states its U95 from), less the measurement's own noise, which the statement holds apart.
+        For the version it validated, all of it (its covariance at the spheres' views does not
+        hold the error across the workspace); for a later version, less what the
+        recalibrations since removed: the validated version's parameter variance at the
+        schedule's views less the version in force's (a posterior from a few more measurements
+        states what the validated version did). Without a validation, `[service]
+        jump_unmodelled_mm`. The filter and the jump test take the mean square (the best
+        estimate: a bound there slowed the detection of a J3 slip by a window), the statement
+        the bound (20 positions know the mean square to about +-18 %: a statement from it
+        covered fewer than 95 % of the points in 11 of 144 runs; from the bound, in 1)."""
         svc = self.svc
         sigma = svc.settings.recalib.jump_sigma_mm
         current = svc.params.current_document()
@@ -112,7 +116,9 @@ class CellEstimate:
             errors = ((doc or {}).get("validation") or {}).get("errors_mm")
             if not errors or doc is None:
                 continue
-            ms = sigma_upper_mm([float(e) for e in errors]) ** 2 - sigma**2
+            norms = [float(e) for e in errors]
+            ms = sigma_upper_mm(norms) ** 2 if bound else float(np.mean(np.square(norms))) / 3.0
+            ms -= sigma**2
             if doc is not current:
                 ms -= max(0.0, variance(doc) - variance(current))
             return math.sqrt(max(0.0, ms))
@@ -144,6 +150,7 @@ class CellEstimate:
         # service that never stopped has them
         mine = svc.store.measurements_of_version(svc.version)
         self.state = CellState(svc.model, svc.x, active, P0, list(svc.spheres), self.settings())
+        self._stated_floor_mm2 = self._floor(bound=True) ** 2
         self.state.learned(self._moments)
         self.verdict = None
         for r in mine:
@@ -203,23 +210,24 @@ class CellEstimate:
         if st is None:
             return None
         s = st.settings
+        u2 = max(st.s_u_mm**2, self._stated_floor_mm2)  # the unmodelled term, as stated
         if not st.rows:
             prior = self._variance_at_schedule(list(st.active), st.P[: st.L, : st.L])
-            return norm_quantile() * math.sqrt(prior + st.s_u_mm**2 + s.sigma_mm**2)
+            return norm_quantile() * math.sqrt(prior + u2 + s.sigma_mm**2)
         d, P = st.posterior()
         # the parameters in force are off by d (the estimator's posterior) with covariance P
         var = [
             (float((r.H @ d) @ (r.H @ d)) + float(np.trace(r.H @ P @ r.H.T))) / 3.0
-            + st.s_u_mm**2
+            + u2
             + s.sigma_mm**2
             for r in st.rows
         ]
-        u2 = float(np.mean(var))
+        total = float(np.mean(var))
         if jump_onset_id is not None:
             after = [r for r in st.rows if r.obs.ref >= jump_onset_id]
             if after:
-                u2 += float(np.mean([(r.v0 - r.H @ d) @ (r.v0 - r.H @ d) / 3.0 for r in after]))
-        return norm_quantile() * math.sqrt(u2)
+                total += float(np.mean([(r.v0 - r.H @ d) @ (r.v0 - r.H @ d) / 3.0 for r in after]))
+        return norm_quantile() * math.sqrt(total)
 
     def summarise(self) -> None:
         """`sphere_summary`: per sphere, its measurements in the window: how many (`n`), the

@@ -61,10 +61,13 @@ def test_a_version_states_its_prior_before_its_first_measurement(tmp_path: Path)
     assert stated_tight < 0.5 * stated
 
 
-def test_the_floor_is_the_upper_bound_of_the_validation_s_sigma(tmp_path: Path) -> None:
-    """A version validated at 20 workspace positions: the unmodelled term's floor is the upper
-    one-sided 95 % bound of their sigma per coordinate (the commissioning's own), less the
-    measurement's noise; above the plain mean square's, which a cell's 20 positions know only to
+def test_the_statement_s_floor_is_the_upper_bound_of_the_validation_s_sigma(
+    tmp_path: Path,
+) -> None:
+    """A version validated at 20 workspace positions: the filter's unmodelled term starts at
+    their mean square per coordinate less the measurement's noise (the best estimate, what the
+    jump test weighs innovations by); the statement's at its upper one-sided 95 % bound (the
+    commissioning's own), which a cell's 20 positions need: they know the mean square only to
     about +-18 %."""
     errors = list(np.random.default_rng(5).rayleigh(0.03, 20) * 1.2)
     ln = make_line(
@@ -72,11 +75,20 @@ def test_the_floor_is_the_upper_bound_of_the_validation_s_sigma(tmp_path: Path) 
         initial_residuals={"validation_errors_mm": errors},
     )  # fmt: skip
     try:
-        st = ln.service.jumps.state
-        assert st is not None
+        svc = ln.service
+        st = svc.jumps.state
+        assert st is not None and not st.rows
         sigma2 = st.settings.sigma_mm**2
-        bound = math.sqrt(sigma_upper_mm(errors) ** 2 - sigma2)
         plain = math.sqrt(float(np.mean(np.square(errors))) / 3.0 - sigma2)
-        assert abs(st.s_u_mm - bound) <= 1e-12 and bound > 1.1 * plain
+        bound = math.sqrt(sigma_upper_mm(errors) ** 2 - sigma2)
+        assert abs(st.s_u_mm - plain) <= 1e-12 and bound > 1.1 * plain
+        q, p = svc.schedule.views(svc.spheres)
+        c = svc.model.points_sensor(svc.x, q, p)
+        H = svc.model.point_jacobian(svc.x, q, c, list(st.active))
+        P = st.P[: st.L, : st.L]
+        prior = float(np.mean(np.einsum("kil,lm,kim->k", H, P, H))) / 3.0
+        by_hand = norm_quantile() * math.sqrt(prior + bound**2 + sigma2)
+        stated = svc.loop.statement_u95_mm()
+        assert stated is not None and abs(stated - by_hand) <= 1e-9 * by_hand
     finally:
         ln.close()
