@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 import tempfile
 import time
@@ -181,6 +182,8 @@ EXPECTED = {"sensor": "sensor", "fixture": "fixture", "J1": "fixture", "J2": "J2
 
 def knocks(a: argparse.Namespace) -> None:
     """Knocks after a hand-over (issue 50): a row per event, seed and knock kind."""
+    logging.getLogger("rvis").addHandler(logging.NullHandler())  # the rows, not the records
+    logging.getLogger("rvis").propagate = False
     rows: list[dict[str, Any]] = []
     t0 = time.monotonic()
     print(f"{'event':10} {'seed':>4} {'knock':8} {'flagged':>7} {'named':8} {'within':>6} verdict")
