@@ -521,6 +521,11 @@ def run_knock_campaign(args: argparse.Namespace) -> int:
 
     if args.estimator == "compare":
         raise InputError("a campaign runs one estimator", field="--estimator")
+    if getattr(args, "before_knock", "none") != "none":
+        raise InputError(
+            "one shift only (a campaign with one: bench/estimator.py --before-knock)",
+            field="--before-knock",
+        )
     plan = _knock_hours(args)
     bases = {h: _shift_settings(args, h, hours) for h, hours in plan}
     cfg = load_cell(args.cell)

@@ -123,6 +123,7 @@ def test_shift_settings_refuse_a_knock_outside_the_shift() -> None:
         ["--knock", "none", "--knock-at-window", "3"],
         ["--knock-at-window", "3", "--before-knock", "restart"],
         ["--knock", "none", "--hours", "1", "--before-knock", "rollback"],
+        ["--seeds", "2", "--knock-at-window", "8", "--before-knock", "restart"],
     ],
 )
 def test_bad_shift_options_exit_2(
