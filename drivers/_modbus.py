@@ -137,7 +137,7 @@ class ModbusLink:
             self.trace.tx(f"{self.where} unit {self.unit} fc3 read {address} count {count}")
         try:
             rr = self._client.read_holding_registers(address, count=count, device_id=self.unit)
-        except ModbusException as exc:
+        except (ModbusException, OSError) as exc:
             raise self._noted(self._translate(exc)) from exc
         if rr.isError():
             raise self._noted(_exception(self.where, f"read {address}+{count}", self.unit, rr))
@@ -155,7 +155,7 @@ class ModbusLink:
             self.trace.tx(f"{self.where} unit {self.unit} fc16 write {address}: {words}")
         try:
             rr = self._client.write_registers(address, words, device_id=self.unit)
-        except ModbusException as exc:
+        except (ModbusException, OSError) as exc:
             raise self._noted(self._translate(exc)) from exc
         if rr.isError():
             raise self._noted(_exception(self.where, f"write {address}", self.unit, rr))
@@ -168,9 +168,11 @@ class ModbusLink:
             self.trace.note(f"{self.where} {type(exc).__name__}: {exc}")
         return exc
 
-    def _translate(self, exc: ModbusException) -> DeviceError:
+    def _translate(self, exc: ModbusException | OSError) -> DeviceError:
+        """A pymodbus error, or the socket's own that pymodbus lets through (a reset by the
+        peer mid-exchange: an internal error of the service until 2026-11-30), as rvis's."""
         self._client.close()  # resynchronise the transaction ids on the next connect
-        if isinstance(exc, ConnectionException):
+        if isinstance(exc, ConnectionException | OSError):
             return DeviceConnectionError(f"{self.where}: {exc}")
         if isinstance(exc, ModbusIOException):
             return DeviceTimeout(f"{self.where}: no valid reply: {exc}")
