@@ -9,7 +9,7 @@ the service does with its verdicts).
   through the model at the schedule's views (or `[service] jump_sigma_mm` when set), resolved
   once at the service's start; what the statement holds apart from its other terms, and what a
   body's value takes out of it (app.inspect.values).
-- **Unmodelled term's floor**: from the commissioning's workspace validation (`_floor`): its
+- **Unmodelled term's floor**: from the commissioning's workspace validation (`_floors`): its
   mean square in the filter and the jump test, its upper 95 % bound in the statement.
 - **Restart**: on every version in force, the measurements since it is in force replayed, the
   evidence about the unmodelled term carried from the version before (and across a restart of
@@ -74,26 +74,26 @@ class CellEstimate:
         self.state: CellState | None = None
         self.verdict: Verdict | None = None
         self._moments: list[float] = []  # s_u's evidence, carried from version to version
-        self._stated_floor_mm2 = 0.0  # the statement's floor of s_u^2 (`_floor(bound=True)`)
+        self._stated_floor_mm2 = 0.0  # the statement's floor of s_u^2 (`_floors`)
         # per sphere, its measurements in the window (`summarise`), as of the last window or
         # start: replaced whole, read by any thread
         self.sphere_summary: dict[str, dict[str, Any]] = {}
 
-    def settings(self) -> EstimatorSettings:
+    def settings(self, unmodelled_mm: float) -> EstimatorSettings:
         r = self.svc.settings.recalib
         return EstimatorSettings(
             sigma_mm=r.jump_sigma_mm,
-            unmodelled_mm=self._floor(),
+            unmodelled_mm=unmodelled_mm,
             drift_mm_per_h=r.jump_drift_mm_per_h,
             drift_rad_per_h=r.jump_drift_rad_per_h,
             window=r.jump_window,
             false_alarm=r.jump_false_alarm,
         )
 
-    def _floor(self, bound: bool = False) -> float:
+    def _floors(self) -> tuple[float, float]:
         """The unmodelled term's floor, from the commissioning's workspace validation: one
-        coordinate's variance of its errors (their mean square; with `bound`, its upper
-        one-sided 95 % bound, calib.uncertainty.sigma_upper_mm, the bound the commissioning
+        coordinate's variance of its errors (their mean square, and its upper one-sided 95 %
+        bound, calib.uncertainty.sigma_upper_mm, the bound the commissioning
         states its U95 from), less the measurement's own noise, which the statement holds apart.
         For the version it validated, all of it (its covariance at the spheres' views does not
         hold the error across the workspace); for a later version, less what the
@@ -103,7 +103,8 @@ class CellEstimate:
         jump_unmodelled_mm`. The filter and the jump test take the mean square (the best
         estimate: a bound there slowed the detection of a J3 slip by a window), the statement
         the bound (20 positions know the mean square to about +-18 %: a statement from it
-        covered fewer than 95 % of the points in 11 of 144 runs; from the bound, in 1)."""
+        covered fewer than 95 % of the points in 11 of 144 runs; from the bound, in none). Both
+        as one coordinate's sigma [mm]: (the mean square's, the bound's)."""
         svc = self.svc
         sigma = svc.settings.recalib.jump_sigma_mm
         current = svc.params.current_document()
@@ -117,12 +118,14 @@ class CellEstimate:
             if not errors or doc is None:
                 continue
             norms = [float(e) for e in errors]
-            ms = sigma_upper_mm(norms) ** 2 if bound else float(np.mean(np.square(norms))) / 3.0
-            ms -= sigma**2
+            less = sigma**2
             if doc is not current:
-                ms -= max(0.0, variance(doc) - variance(current))
-            return math.sqrt(max(0.0, ms))
-        return float(svc.settings.recalib.jump_unmodelled_mm)
+                less += max(0.0, variance(doc) - variance(current))
+            mean_sq = float(np.mean(np.square(norms))) / 3.0
+            bound_sq = sigma_upper_mm(norms) ** 2
+            return math.sqrt(max(0.0, mean_sq - less)), math.sqrt(max(0.0, bound_sq - less))
+        given = float(svc.settings.recalib.jump_unmodelled_mm)
+        return given, given
 
     def _variance_at_schedule(self, names: list[str], cov: np.ndarray) -> float:
         """One coordinate's variance [mm^2] of a sphere's centre from parameters `names` with
@@ -149,8 +152,11 @@ class CellEstimate:
         # candidate: app.line.recalib), from the first one's time (the drift's clock), as the
         # service that never stopped has them
         mine = svc.store.measurements_of_version(svc.version)
-        self.state = CellState(svc.model, svc.x, active, P0, list(svc.spheres), self.settings())
-        self._stated_floor_mm2 = self._floor(bound=True) ** 2
+        floor, stated = self._floors()
+        self.state = CellState(
+            svc.model, svc.x, active, P0, list(svc.spheres), self.settings(floor)
+        )
+        self._stated_floor_mm2 = stated**2
         self.state.learned(self._moments)
         self.verdict = None
         for r in mine:
