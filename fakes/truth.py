@@ -29,14 +29,27 @@ LINK_MASS_KG = (60.0, 45.0, 6.0)
 GRAVITY_M_S2 = 9.81
 
 
+def _rot_k(axis: F64) -> F64:
+    """The cross-product matrix (3, 3) of a unit axis (3,)."""
+    return np.array(
+        [[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]], dtype=float
+    )
+
+
 def _rot(axis: F64, angle: F64) -> F64:
     """Rotations (..., 3, 3) about a unit axis (3,) by angles (...) [rad] (Rodrigues)."""
     a = np.asarray(angle, dtype=float)[..., None, None]
-    K = np.array(
-        [[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]], dtype=float
-    )
+    K = _rot_k(axis)
     out: F64 = np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * (K @ K)
     return out
+
+
+def _cross(a: F64, b: F64) -> F64:
+    """a x b over the last axis, as np.cross computes it (a1 b2 - a2 b1, ...), without its
+    overhead on small arrays."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
 
 
 def _rpy(rpy: ArrayLike) -> F64:
@@ -101,17 +114,30 @@ class TrueRobot:
         out: F64 = u + self.zero_offset_rad
         return out
 
+    @functools.cached_property
+    def _chain(self) -> tuple[F64, F64, F64, F64]:
+        """What every pose shares: the joint origins' rotations (6, 3, 3), each joint axis's
+        cross-product matrix K and K @ K (6, 3, 3) (Rodrigues, as `_rot` builds them) and
+        tool0's rotation as a pose (4, 4)."""
+        R = np.stack([_rpy(rpy) for rpy in self.origin_rpy_rad])
+        K = np.stack([_rot_k(axis) for axis in URDF_AXES])
+        return R, K, K @ K, homogeneous(_rpy(TOOL0_RPY_RAD), np.zeros(3))
+
     def link_frames(self, q_urdf: F64, temp_c: float) -> F64:
         """World-frame poses (N, 7, 4, 4) of link_1..link_6 and tool0 [mm]."""
         scale = 1.0 + self.expansion_per_k * (temp_c - self.reference_temp_c)
         n = q_urdf.shape[0]
+        R, K, KK, tool0 = self._chain
+        origins = homogeneous(R, self.origin_xyz_mm * scale)
+        # each joint's rotation by its angles, as `_rot` computes it
+        a = np.asarray(q_urdf, dtype=float)[..., None, None]
+        joints = homogeneous(np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * KK, np.zeros(3))
         T = np.broadcast_to(homogeneous(np.eye(3), [0, 0, -WORLD_Z_MM]), (n, 4, 4)).copy()
         frames = np.zeros((n, 7, 4, 4))
         for j in range(6):
-            origin = homogeneous(_rpy(self.origin_rpy_rad[j]), self.origin_xyz_mm[j] * scale)
-            T = T @ origin @ homogeneous(_rot(URDF_AXES[j], q_urdf[:, j]), np.zeros(3))
+            T = T @ origins[j] @ joints[:, j]
             frames[:, j] = T
-        frames[:, 6] = T @ homogeneous(_rpy(TOOL0_RPY_RAD), np.zeros(3))
+        frames[:, 6] = T @ tool0
         return frames
 
     def T_world_tool0(self, q_deg: ArrayLike, temp_c: float = 20.0) -> F64:
@@ -140,8 +166,7 @@ class TrueRobot:
         ):
             axis = axis_frame[:, :3, :3] @ URDF_AXES[col]
             tau = sum(
-                np.einsum("ni,ni->n", np.cross((c - origin) / 1000.0, m * g), axis)
-                for m, c in masses
+                np.einsum("ni,ni->n", _cross((c - origin) / 1000.0, m * g), axis) for m, c in masses
             )
             dq[:, col] = k * tau
         return dq
