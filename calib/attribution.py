@@ -30,11 +30,11 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.stats import chi2 as chi2_dist
 
 from calib.errors import InsufficientData
 from calib.identify import Measurements
 from calib.model import BASE_NAMES, INDEX, SENSOR_NAMES, SystemModel, check_active, unit_of
+from calib.uncertainty import chi2_ppf
 
 F64 = NDArray[np.float64]
 SEVERAL = "several"
@@ -118,7 +118,7 @@ class GroupFit:
         """chi2 plausible for dof (an exact fit, dof 0, cannot be tested: True)."""
         if not self.determined:
             return False
-        return self.dof == 0 or self.chi2 <= float(chi2_dist.ppf(P_CONSISTENT, self.dof))
+        return self.dof == 0 or self.chi2 <= chi2_ppf(P_CONSISTENT, self.dof)
 
     def size_text(self) -> str:
         """The step in its own terms, then where it matters: how far it moves the measured

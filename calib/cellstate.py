@@ -56,11 +56,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.linalg import cho_factor, cho_solve
 from scipy.special import chdtrc
-from scipy.stats import chi2 as chi2_dist
 
 from calib.attribution import SEVERAL
 from calib.hypotheses import Hypothesis, JumpFit, Verdict, beyond_hypotheses, hypotheses
 from calib.model import EXTRA_NAMES, INDEX, SystemModel, unit_of
+from calib.uncertainty import chi2_ppf
 
 F64 = NDArray[np.float64]
 #: the rest of the window's statistic after the best jump must stay below this chi-square
@@ -442,9 +442,7 @@ class CellState:
         if not detected:
             return Verdict(False, "", best, second, nis, threshold, tuple(ranked))
         rest_dof = 3 * n - best.dof
-        explains = rest_dof <= 0 or chi2_all - best.llr <= float(
-            chi2_dist.ppf(P_EXPLAINS, rest_dof)
-        )
+        explains = rest_dof <= 0 or chi2_all - best.llr <= chi2_ppf(P_EXPLAINS, rest_dof)
         decisive = second is None or best.score - second.score >= self.settings.margin
         isolated = best.hypothesis.name if (explains and decisive) else SEVERAL
         return Verdict(True, isolated, best, second, nis, threshold, tuple(ranked))

@@ -13,7 +13,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import least_squares
 
 from calib.errors import InsufficientData
 from calib.model import BASE_NAMES, INDEX, SystemModel, check_active
@@ -153,6 +152,8 @@ def identify(
 
     def jacobian(xa: F64) -> F64:
         return stacked_jacobian(model, full(xa), data, names)
+
+    from scipy.optimize import least_squares  # here: about half a second to import
 
     method = "lm" if loss == "linear" else "trf"
     sol = least_squares(

@@ -11,8 +11,8 @@ sigma sqrt(chi2.ppf(0.95, 3)) = 2.80 sigma, i.e. 1.62x its RMS (REFERENCE.md: an
 near 1.6x the true RMS). So U95 = 2.80 sigma_upper, plus, in quadrature per coordinate, the terms
 that the evidence does not contain (`extra_sigma_mm`).
 
-Pure numbers (scipy's chi-square quantiles); which residuals are evidence is the caller's
-(app.line.accuracy).
+Pure numbers (scipy's chi-square quantiles, `chi2_ppf`); which residuals are evidence is the
+caller's (app.line.accuracy).
 """
 
 from __future__ import annotations
@@ -25,24 +25,29 @@ CONFIDENCE = 0.95
 COVERAGE = 0.95
 
 
+def chi2_ppf(p: float, dof: float) -> float:
+    """The `p` quantile of chi-square with `dof` degrees of freedom: what scipy.stats.chi2.ppf
+    computes (2 gammaincinv(dof / 2, p)), from scipy.special alone (scipy.stats takes about a
+    second to import, in every process that states an uncertainty)."""
+    from scipy.special import gammaincinv
+
+    return 2.0 * float(gammaincinv(0.5 * dof, p))
+
+
 def sigma_upper_mm(norms_mm: Sequence[float], confidence: float = CONFIDENCE) -> float:
     """The upper one-sided `confidence` bound of the per-coordinate standard deviation [mm] from
     the norms of n 3-D errors (module docstring); nan without any."""
-    from scipy.stats import chi2
-
     n = len(norms_mm)
     if n == 0:
         return math.nan
     ss = math.fsum(float(e) ** 2 for e in norms_mm)
-    return math.sqrt(ss / float(chi2.ppf(1.0 - confidence, 3 * n)))
+    return math.sqrt(ss / chi2_ppf(1.0 - confidence, 3 * n))
 
 
 def norm_quantile(coverage: float = COVERAGE) -> float:
     """The `coverage` quantile of the norm of a 3-D error, in per-coordinate sigmas (2.80 for
     95 %)."""
-    from scipy.stats import chi2
-
-    return math.sqrt(float(chi2.ppf(coverage, 3)))
+    return math.sqrt(chi2_ppf(coverage, 3))
 
 
 def u95_mm(norms_mm: Sequence[float], extra_sigma_mm: float = 0.0) -> float:
@@ -85,13 +90,11 @@ def shown_larger(
     """The norms of n 3-D errors show a per-coordinate standard deviation larger than
     `sigma_mm` at `confidence` (sum(e^2) / sigma^2 above chi2.ppf(confidence, 3n)): a stated
     sigma the evidence contradicts. None measured: not shown."""
-    from scipy.stats import chi2
-
     n = len(norms_mm)
     if n == 0:
         return False
     ss = math.fsum(float(e) ** 2 for e in norms_mm)
-    return ss / sigma_mm**2 > float(chi2.ppf(confidence, 3 * n))
+    return ss / sigma_mm**2 > chi2_ppf(confidence, 3 * n)
 
 
 def shown_worse(

@@ -35,7 +35,6 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import least_squares
 
 from vision.errors import CalibrationFailed
 from vision.sensor_model import CameraModel, LaserModel, rotate_about_axis
@@ -257,6 +256,8 @@ def _refine_laser(
     x0 = np.concatenate([np.zeros(5), start.angle_poly_rad[1:4]])
     r0 = residuals(x0)
     scale = max(1.4826 * float(np.median(np.abs(r0 - np.median(r0)))), 1e-4)
+    from scipy.optimize import least_squares  # here: about half a second to import
+
     fit = least_squares(residuals, x0, loss="soft_l1", f_scale=2.0 * scale, x_scale="jac")
     u, n0, p, poly = model(fit.x)
     n0 = n0 - u * (u @ n0)

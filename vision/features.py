@@ -25,7 +25,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import least_squares
 
 from vision.errors import FeatureRefused
 from vision.sheet import LIT_COLUMNS, Plane, SheetSettings, edge_points, fit_plane
@@ -318,6 +317,8 @@ def _fit_slot(uv: F64, axis_uv: F64, nominal: Sequence[float]) -> tuple[F64, F64
 
 
 def _robust_lsq(resid, x0: F64, pts: F64) -> tuple[F64, F64, float]:  # type: ignore[no-untyped-def]
+    from scipy.optimize import least_squares  # here: about half a second to import
+
     keep = np.ones(len(pts), dtype=bool)
     for _ in range(2):
         fit = least_squares(resid, x0, args=(pts[keep],), method="lm", xtol=1e-12, ftol=1e-12)
