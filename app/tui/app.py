@@ -21,7 +21,6 @@ from textual.dom import NoScreen
 from textual.screen import ModalScreen
 from textual.widgets import (
     DataTable,
-    Footer,
     Label,
     Sparkline,
     Static,
@@ -122,7 +121,7 @@ class RvisTui(App[None]):
                 yield DataTable(id="log-table", cursor_type="row")
             with TabPane("7 Body", id="bodies"):
                 yield BodiesPane()
-        yield Footer(compact=True, show_command_palette=False)
+        yield keys.KeysFooter(compact=True, show_command_palette=False)
 
     def on_mount(self) -> None:
         self.register_theme(ISA101)

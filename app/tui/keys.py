@@ -9,11 +9,14 @@ While a dialog asks, only its own keys answer (app.tui.app.RvisTui.check_action)
 
 from __future__ import annotations
 
-from typing import ClassVar
+from collections.abc import Hashable
+from typing import Any, ClassVar
 
+from textual.app import ComposeResult
 from textual.binding import Binding, BindingType
 from textual.message import Message
-from textual.widgets import Input
+from textual.screen import Screen
+from textual.widgets import Footer, Input
 
 PANES = ("overview", "measurements", "calibrations", "alarms", "devices", "log", "bodies")
 #: the widget a pane's key gives the focus to: its table (up/down select a row at once; the
@@ -67,3 +70,35 @@ class FilterInput(Input):
 
     def action_leave(self) -> None:
         self.post_message(self.Left(self))
+
+
+def _keys_shown(screen: Screen[Any]) -> tuple[Hashable, ...]:
+    """What the footer shows of a screen's keys: each shown binding's key, action, words, group
+    and whether it is enabled."""
+    return tuple(
+        (b.key, b.action, b.description, enabled, tooltip, id(b.group))
+        for (_, b, enabled, tooltip) in screen.active_bindings.values()
+        if b.show
+    )
+
+
+class KeysFooter(Footer):
+    """The footer of the keys, composed again only when the keys it shows change. Textual's
+    Footer composes a new row of key widgets at every bindings update, several times in a pane
+    switch (the focus leaves, the tabs change, the table takes it): about 0.8 s of CPU a switch,
+    most of it in these widgets' styles, for the same keys."""
+
+    _shown: tuple[Hashable, ...] | None = None
+
+    def compose(self) -> ComposeResult:
+        if self._bindings_ready:
+            self._shown = _keys_shown(self.screen)
+        yield from super().compose()
+
+    def bindings_changed(self, screen: Screen[Any]) -> None:
+        shown = _keys_shown(screen)
+        if self._bindings_ready and screen is self.screen and shown == self._shown:
+            return
+        super().bindings_changed(screen)
+        if screen.app.app_focus and self.is_attached and screen is self.screen:
+            self._shown = shown  # composed after the next refresh (or newer, by then)
