@@ -199,7 +199,7 @@ class Child:
         from app.line.opcua import guard, security
         from app.line.opcua.alarms import Conditions
         from app.line.opcua.results import BodyResults
-        from app.line.opcua.space import AddressSpace, clock_utc
+        from app.line.opcua.space import AddressSpace, clock_utc, reference_types_fixed
 
         s = self.settings
         server = Server(user_manager=security.user_manager(s, self.paths))
@@ -213,9 +213,10 @@ class Child:
         machine = await self.space.build(sorted(self.spheres), self.revision, clock_utc(self.t))
         ack = self._acknowledge if s.allow_ack else None
         self.conditions = Conditions(server, self.space.ns, machine, ack)
-        await self.conditions.setup()  # (the machine an event notifier: the results' too)
         self.results = BodyResults(server, self.space)
-        await self.results.setup(clock_utc(self.t))
+        with reference_types_fixed(server):  # objects and variables only from here
+            await self.conditions.setup()  # (the machine an event notifier: the results' too)
+            await self.results.setup(clock_utc(self.t))
         guard.install(server)
         return server
 
