@@ -87,7 +87,10 @@ def test_a_rendered_commissioning_killed_in_its_calibration_resumes_with_the_sam
     cell = tmp_path / "cell.toml"
     cell.write_text(RENDERED_SHORT)
     reference, killed = rendered, tmp_path / "killed"
-    argv = [*RENDERED[:-1], "--cell", str(cell), "--state-dir"]
+    # the sensor calibrated from the reference's recorded targets (the same images, not
+    # rendered again: 8 s of a loaded worker), as an engineer gives them with --sensor-data
+    recorded = StateDir(reference).commission / "sensor-data"
+    argv = [*RENDERED[:-1], "--cell", str(cell), "--sensor-data", str(recorded), "--state-dir"]
     kill_at([*argv, str(killed)], "calibration view 10/20 ", 600)
     journal = json.loads((StateDir(killed).commission / "journal.json").read_text())
     assert journal["steps"][-1]["name"] == "calibration"
