@@ -38,9 +38,15 @@ def _rot_k(axis: F64) -> F64:
 
 def _rot(axis: F64, angle: F64) -> F64:
     """Rotations (..., 3, 3) about a unit axis (3,) by angles (...) [rad] (Rodrigues)."""
-    a = np.asarray(angle, dtype=float)[..., None, None]
     K = _rot_k(axis)
-    out: F64 = np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * (K @ K)
+    return _rodrigues(K, K @ K, angle)
+
+
+def _rodrigues(K: F64, KK: F64, angle: ArrayLike) -> F64:
+    """I + sin(a) K + (1 - cos(a)) K^2 for angles (...) [rad] and an axis's cross-product
+    matrix K and its square KK (each (3, 3), or stacked to broadcast with the angles)."""
+    a = np.asarray(angle, dtype=float)[..., None, None]
+    out: F64 = np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * KK
     return out
 
 
@@ -117,7 +123,7 @@ class TrueRobot:
     @functools.cached_property
     def _chain(self) -> tuple[F64, F64, F64, F64]:
         """What every pose shares: the joint origins' rotations (6, 3, 3), each joint axis's
-        cross-product matrix K and K @ K (6, 3, 3) (Rodrigues, as `_rot` builds them) and
+        cross-product matrix K and K @ K (6, 3, 3) (`_rodrigues`'s) and
         tool0's rotation as a pose (4, 4)."""
         R = np.stack([_rpy(rpy) for rpy in self.origin_rpy_rad])
         K = np.stack([_rot_k(axis) for axis in URDF_AXES])
@@ -129,9 +135,7 @@ class TrueRobot:
         n = q_urdf.shape[0]
         R, K, KK, tool0 = self._chain
         origins = homogeneous(R, self.origin_xyz_mm * scale)
-        # each joint's rotation by its angles, as `_rot` computes it
-        a = np.asarray(q_urdf, dtype=float)[..., None, None]
-        joints = homogeneous(np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * KK, np.zeros(3))
+        joints = homogeneous(_rodrigues(K, KK, q_urdf), np.zeros(3))  # (N, 6, 4, 4)
         T = np.broadcast_to(homogeneous(np.eye(3), [0, 0, -WORLD_Z_MM]), (n, 4, 4)).copy()
         frames = np.zeros((n, 7, 4, 4))
         for j in range(6):

@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 
 import pytest
+from textual.app import ComposeResult
 from textual.pilot import Pilot
 from textual.widgets import DataTable
 from textual.widgets._footer import FooterKey
@@ -189,7 +190,7 @@ def test_the_footer_is_composed_again_only_when_its_keys_change(
     composed: list[int] = []
     compose = KeysFooter.compose
 
-    def counted(footer: KeysFooter):  # type: ignore[no-untyped-def]
+    def counted(footer: KeysFooter) -> ComposeResult:
         composed.append(1)
         return compose(footer)
 
