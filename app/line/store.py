@@ -316,22 +316,28 @@ class Store(BodyRecords, LogRecords, IntervalRecords):
         return {slot: k for slot, k in streak.items() if k >= n}
 
     def measurements_of_version(self, version: int) -> list[dict[str, Any]]:
-        """The good rows measured with parameters `version`, since it was last put in force
-        (the newest run of them: read back from the newest row to the first of another
-        version), in id order."""
-        last = self._rows(
-            "SELECT id FROM measurements WHERE params_version = ? ORDER BY id DESC LIMIT 1",
-            (version,),
-        )
-        if not last:
+        """The good rows measured with parameters `version` since it was last put in force, in
+        id order: its newest run of rows (read back from its newest row to the first of
+        another version), or none when another version measured after that run (the version
+        put in force again, by a rollback: its old run is another period of the cell's, and the
+        estimator that replayed it would take the cell then for the cell now)."""
+        last = self._rows("SELECT MAX(id) AS id FROM measurements WHERE params_version = ?",
+                          (version,))  # fmt: skip
+        if last[0]["id"] is None:
             return []
         newest = int(last[0]["id"])
-        other = self._rows(
-            "SELECT id FROM measurements WHERE params_version IS NOT ? AND id < ?"
-            " ORDER BY id DESC LIMIT 1",
+        after = self._rows(
+            "SELECT id FROM measurements WHERE params_version IS NOT ? AND id > ? LIMIT 1",
             (version, newest),
         )
-        return self.measurements(since_id=int(other[0]["id"]) if other else 0, before_id=newest + 1)
+        if after:
+            return []
+        other = self._rows(
+            "SELECT MAX(id) AS id FROM measurements WHERE params_version IS NOT ? AND id < ?",
+            (version, newest),
+        )
+        since = other[0]["id"]
+        return self.measurements(since_id=int(since or 0), before_id=newest + 1)
 
     def measurements_by_id(self, ids: Sequence[int]) -> list[dict[str, Any]]:
         """The rows of these ids in id order (any status)."""

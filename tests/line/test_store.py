@@ -440,19 +440,27 @@ def test_a_versions_measurements_are_its_newest_run_of_good_rows(tmp_path: Path)
     """The estimator's replay on a restart (app.line.estimate): every good row measured with
     the version in force since it was last put in force, however many (the window's bound
     does not cut it), its rejected rows left out; a version put in force again (a rollback)
-    starts a new run."""
+    starts a new run, empty until it measures (its old run is another period of the cell's)."""
     store = Store(tmp_path / "rvis.db")
-    versions = [1] * 3 + [2] * 200 + [1] * 5
-    ids = []
-    for k, v in enumerate(versions):
-        status = "rejected" if k % 7 == 0 else "ok"
-        c = None if status == "rejected" else [1.0, 2.0, 130.0]
-        ids.append(store.add_measurement(_row(k) | {"params_version": v, "status": status,
-                                                     "c_sensor_mm": c}))  # fmt: skip
-    good = [i for i, k in zip(ids, range(len(versions)), strict=True) if k % 7]
-    run2 = [i for i, v in zip(ids, versions, strict=True) if v == 2 and i in good]
-    assert [r["id"] for r in store.measurements_of_version(2)] == run2  # before the rollback
-    last1 = [i for i in ids[-5:] if i in good]
-    assert [r["id"] for r in store.measurements_of_version(1)] == last1  # after the rollback
+    ids: list[int] = []
+
+    def measure(versions: list[int]) -> None:
+        for v in versions:
+            k = len(ids)
+            status = "rejected" if k % 7 == 0 else "ok"
+            c = None if status == "rejected" else [1.0, 2.0, 130.0]
+            ids.append(store.add_measurement(_row(k) | {"params_version": v, "status": status,
+                                                         "c_sensor_mm": c}))  # fmt: skip
+
+    def good(first: int) -> list[int]:
+        return [i for k, i in enumerate(ids) if k >= first and k % 7]
+
+    measure([1] * 3)
+    measure([2] * 200)
+    assert [r["id"] for r in store.measurements_of_version(2)] == good(3)  # in force
+    # the rollback to 1: its run of 3 rows is before 2's, none since it is in force again
+    assert store.measurements_of_version(1) == []
+    measure([1] * 5)
+    assert [r["id"] for r in store.measurements_of_version(1)] == good(203)
     assert store.measurements_of_version(3) == []
     store.close()
