@@ -143,7 +143,7 @@ def extract_points(
         on = local[np.abs(plane.distance_mm(local)) <= _surface_sheet(s).plane_tol_mm]
         return FeaturePoints(_sample(on), np.zeros((0, 3)))
     reach = 0.5 * max(size_mm) + s.search_margin_mm
-    near = [p[_radial(p[:, :3], nominal_mm, normal) <= reach + 8.0] for p in profs]
+    near = _near(profs, nominal_mm, normal, reach + 8.0)
     every = np.concatenate([p[:, :3] for p in near])
     plane = fit_plane(every, normal, s.sheet)
     edges = edge_points(near, plane, s.sheet)
@@ -277,6 +277,18 @@ def _sample(points: F64) -> F64:
         return points
     out: F64 = points[np.linspace(0, len(points) - 1, SHEET_SAMPLE).astype(int)]
     return out
+
+
+def _near(profs: list[F64], nominal: F64, normal: F64, reach_mm: float) -> list[F64]:
+    """Each profile's points within reach_mm of the line through nominal along normal (the
+    profiles as one array: a sweep's tens of profiles at once)."""
+    if len({p.shape[1] for p in profs}) != 1:
+        return [p[_radial(p[:, :3], nominal, normal) <= reach_mm] for p in profs]
+    every = np.concatenate(profs)
+    keep = _radial(every[:, :3], nominal, normal) <= reach_mm
+    # the points kept before each profile's first row and after its last
+    kept = np.r_[0, np.cumsum(keep)][np.r_[0, np.cumsum([len(p) for p in profs])]]
+    return np.split(every[keep], kept[1:-1])
 
 
 def _radial(points: F64, nominal: F64, normal: F64) -> F64:

@@ -165,30 +165,59 @@ def edge_points(
     points with their light (vision.triangulate.triangulate_profiles): the end is then the
     outermost row that is still the face's (module docstring)."""
     s = settings or SheetSettings()
-    out: list[F64] = []
-    for prof in profiles:
-        points = prof[:, :3]
-        on = np.abs(plane.distance_mm(points)) <= s.plane_tol_mm
-        idx = np.flatnonzero(on)
-        if len(idx) < 4:
-            continue
-        # the step in the sheet's plane: the noise along the camera's ray (mostly along the
-        # normal) would lengthen it, and the half step would then overshoot the edge
-        steps = _in_plane(np.diff(points[idx], axis=0), plane)
-        step = float(np.median(steps))
-        along = points[idx[-1]] - points[idx[0]]
-        along -= (along @ plane.normal) * plane.normal
-        along /= np.linalg.norm(along)
-        # a run ends where the next point on the face is not the next sample or is far away
-        gap = max(s.gap_steps * step, s.min_gap_mm)
-        breaks = np.flatnonzero((np.diff(idx) > 1) | (steps > gap))
-        if prof.shape[1] >= LIT_COLUMNS:
-            out.extend(_lit_ends(prof, idx, breaks, plane, along))
-            continue
-        for b in breaks:
-            out.append(points[idx[b]] + 0.5 * step * along)
-            out.append(points[idx[b + 1]] - 0.5 * step * along)
-    return np.array(out).reshape(-1, 3)
+    profs = list(profiles)
+    if not profs:
+        return np.zeros((0, 3))
+    # every profile at once: its points on the face (idx, global rows), the steps between
+    # neighbours on the face within a profile (pairs j: idx[j] -> idx[j + 1]), its median step
+    lens = np.array([len(p) for p in profs])
+    points = np.concatenate([p[:, :3] for p in profs])
+    owner = np.repeat(np.arange(len(profs)), lens)
+    idx = np.flatnonzero(np.abs(plane.distance_mm(points)) <= s.plane_tol_mm)
+    used = np.bincount(owner[idx], minlength=len(profs)) >= 4
+    idx = idx[used[owner[idx]]]
+    pid = owner[idx]
+    j = np.flatnonzero(pid[1:] == pid[:-1])
+    steps = _in_plane(points[idx[j + 1]] - points[idx[j]], plane)
+    step = _medians(steps, pid[j], len(profs))
+    # the step in the sheet's plane: the noise along the camera's ray (mostly along the
+    # normal) would lengthen it, and the half step would then overshoot the edge
+    first = np.searchsorted(pid, np.arange(len(profs)))
+    last = np.searchsorted(pid, np.arange(len(profs)), side="right") - 1
+    along = np.zeros((len(profs), 3))
+    for k in np.flatnonzero(used).tolist():  # one by one: the same unit vectors to the bit
+        a = points[idx[last[k]]] - points[idx[first[k]]]
+        a -= (a @ plane.normal) * plane.normal
+        along[k] = a / np.linalg.norm(a)
+    # a run ends where the next point on the face is not the next sample or is far away
+    gap = np.maximum(s.gap_steps * step, s.min_gap_mm)
+    b = j[(idx[j + 1] - idx[j] > 1) | (steps > gap[pid[j]])]
+    if any(p.shape[1] >= LIT_COLUMNS for p in profs):
+        out: list[F64] = []
+        starts = np.r_[0, np.cumsum(lens)]
+        for k in np.unique(pid[b]):
+            mine = idx[first[k] : last[k] + 1]
+            local = b[pid[b] == k] - first[k]  # indices into mine
+            out.extend(_lit_ends(profs[k], mine - starts[k], local, plane, along[k]))
+        return np.array(out).reshape(-1, 3)
+    half = (0.5 * step[pid[b]])[:, None] * along[pid[b]]
+    ends = np.stack([points[idx[b]] + half, points[idx[b + 1]] - half], axis=1)
+    out_mm: F64 = ends.reshape(-1, 3)
+    return out_mm
+
+
+def _medians(values: F64, group: NDArray[np.intp], n: int) -> F64:
+    """Each group's median of values (n,) (np.median's: the mean of the two middle values
+    of an even count); NaN for a group with none. `group` (m,) ascending."""
+    count = np.bincount(group, minlength=n)
+    start = np.r_[0, np.cumsum(count)[:-1]]
+    rows = np.full((n, max(int(count.max(initial=0)), 1)), np.inf)
+    rows[group, np.arange(len(values)) - start[group]] = values
+    rows.sort(axis=1)
+    k = np.arange(n)
+    pick = np.c_[rows[k, np.maximum(count - 1, 0) // 2], rows[k, count // 2]]
+    out: F64 = np.where(count > 0, (pick[:, 0] + pick[:, 1]) / 2.0, np.nan)
+    return out
 
 
 def _in_plane(d: F64, plane: Plane) -> F64:

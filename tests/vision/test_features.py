@@ -197,3 +197,23 @@ def test_the_edge_is_where_the_stripe_s_rows_stop_being_half_lit() -> None:
     # brightens past the edge counts for them): the edge one row in
     darkened = edge_points([_lit_profile(dark_at=5)], plane)
     assert np.allclose(darkened[:, 1], [-0.032, 1.998], atol=1e-9)
+
+
+@pytest.mark.parametrize("lit", [False, True])
+def test_a_sweeps_edge_points_are_each_profiles_own(lit: bool) -> None:
+    """edge_points takes a sweep's profiles at once: each profile's steps, median and runs are
+    its own (no step from one profile's last point to the next one's first), in the profiles'
+    order, whatever profiles with too few points on the face (none, 3) sit between them."""
+    plane = Plane(np.zeros(3), np.array([0.0, 0.0, 1.0]), 0.0, 100)
+    rng = np.random.default_rng(5)
+    base = _lit_profile() if lit else _lit_profile()[:, :3]
+    profiles = []
+    for k in range(6):
+        p = base.copy()
+        p[:, 0] += k * 0.5
+        p[:, 2] += rng.normal(0.0, 0.003, len(p))  # each its own scatter and so its own median
+        profiles.append(p[:: 1 + k % 2])  # every other row: another step
+    profiles[2:2] = [base[:0], base[:3]]
+    each = [edge_points([p], plane) for p in profiles]
+    assert [len(e) for e in each] == [2, 2, 0, 0, 2, 2, 2, 2]
+    assert np.array_equal(edge_points(profiles, plane), np.concatenate(each))
