@@ -1,6 +1,6 @@
 """The paper's validation (Yu, Chen & Xi 2018, section 4, eq. 19), the protocol a plant audits:
 a sphere on a tracker nest placed at N positions spread over the workspace (`[commission]
-workspace_positions`, default 100 as the paper), each measured by the laser tracker
+workspace_positions`, default 20; the paper used 100), each measured by the laser tracker
 (`[commission] validation_target`, the nest's reflector) and by rvis from a configuration it
 chooses on the calibrated model (a random reachable view: none the calibration used). The error
 of each position is the distance between the point rvis computes in the part frame and the

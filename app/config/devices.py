@@ -117,11 +117,10 @@ class CommissionSection(Section):
     # workspace positions, each measured by the tracker (target `validation_target`) and by
     # rvis from a view the calibration did not use; its RMS error held to max_workspace_rmse_mm.
     # Its errors bound the unmodelled term of every statement the in-line service makes (the
-    # upper 95 % bound of their sigma, calib.uncertainty.sigma_upper_mm; app.line.estimate)
-    # and are its prior's evidence: the paper's 100 positions bound sigma within 1.07x, 20
-    # within 1.18x, which put a healthy cell's statement up to 1.68x its true 95th percentile
-    # (docs/results/estimator.md, "The paper's 100 validation positions")
-    workspace_positions: int = opt(100, lo=3, hi=1000)
+    # upper 95 % bound of their sigma, calib.uncertainty.sigma_upper_mm; app.line.estimate):
+    # 50 positions bound sigma within 1.11x, 20 within 1.18x
+    # (docs/results/accuracy-first-window.md weighs the 30 more tracker positions)
+    workspace_positions: int = opt(20, lo=3, hi=1000)
     # `rvis maintain` (app/maintain/): the same validation at fewer positions, each measured
     # from maintenance_workspace_views views (the first from home, the others a short motion
     # away: each view a stop of its own, with its own share of the robot's repeatability);
