@@ -87,9 +87,7 @@ class Observation:
 class EstimatorSettings:
     """sigma_mm: one coordinate of a measurement's own noise (sensor, robot repeatability);
     unmodelled_mm: the prior of s_u (one coordinate of the model's error at a configuration),
-    estimated online from the innovations when `learn_unmodelled`, pooled with the prior's
-    `unmodelled_dof` degrees of freedom (a validation's n errors: 3 n; 0: the innovations
-    alone); drift_mm_per_h,
+    estimated online from the innovations when `learn_unmodelled`; drift_mm_per_h,
     drift_rad_per_h, drift_extra_per_h: the random walk's standard deviation per sqrt(hour) of
     lengths, angles and the extra terms; window: measurements the jump test looks at;
     false_alarm: the rate per measurement of a detection when nothing jumped; margin: the
@@ -97,7 +95,6 @@ class EstimatorSettings:
 
     sigma_mm: float = 0.02
     unmodelled_mm: float = 0.03
-    unmodelled_dof: float = 0.0
     learn_unmodelled: bool = True
     drift_mm_per_h: float = 0.02
     drift_rad_per_h: float = 1e-5
@@ -109,8 +106,6 @@ class EstimatorSettings:
     def __post_init__(self) -> None:
         if not (self.sigma_mm > 0.0 and self.unmodelled_mm >= 0.0 and self.window >= 2):
             raise ValueError("sigma_mm must be > 0, unmodelled_mm >= 0, window >= 2")
-        if self.unmodelled_dof < 0.0:
-            raise ValueError("unmodelled_dof must be >= 0")
         if not 0.0 < self.false_alarm < 1.0 or self.margin < 0.0:
             raise ValueError("false_alarm must be in (0, 1), margin >= 0")
 
@@ -460,29 +455,20 @@ class CellState:
         """Evidence about s_u^2 from before (`moments`), taken as this estimator's own."""
         self._moments = [float(m) for m in moments][-4 * self.settings.window :]
         if self._moments and self.settings.learn_unmodelled:
-            self.s_u_mm = self._pooled_mm()
+            est = float(np.mean(self._moments))
+            self.s_u_mm = math.sqrt(max(self.settings.unmodelled_mm**2, est))
 
     def _learn(self, row: _Row) -> None:
         """s_u^2 from the innovations by moments, of the measurements that leave the window
         with no jump found in it: a squared innovation less what the state and the noise
-        account for (`_pooled_mm`)."""
+        account for (never below the prior's square)."""
         s, L = self.settings, self.L
         resid = row.v0 - row.H @ self.d[:L]
         expect = float(np.trace(row.H @ self.P[:L, :L] @ row.H.T)) + 3 * s.sigma_mm**2
         self._moments.append((float(resid @ resid) - expect) / 3.0)
         self._moments = self._moments[-4 * s.window :]
-        self.s_u_mm = self._pooled_mm()
-
-    def _pooled_mm(self) -> float:
-        """s_u: the moments (3 degrees of freedom each) pooled with the prior's square
-        (`unmodelled_dof` of them), never below the prior's square. One measurement's moment
-        is a chi-square's scatter: alone it would set s_u from a single innovation as the
-        window first fills."""
-        s, n = self.settings, len(self._moments)
-        pooled = (s.unmodelled_dof * s.unmodelled_mm**2 + 3.0 * float(np.sum(self._moments))) / (
-            s.unmodelled_dof + 3.0 * n
-        )
-        return math.sqrt(max(s.unmodelled_mm**2, pooled))
+        est = float(np.mean(self._moments))
+        self.s_u_mm = math.sqrt(max(s.unmodelled_mm**2, est))
 
     def predicted_std_mm(self, fit: JumpFit, q_deg: ArrayLike, c_sensor_mm: ArrayLike) -> float:
         """How well the jump's estimate predicts a point at K views (configurations (K, 6),

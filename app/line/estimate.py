@@ -79,19 +79,18 @@ class CellEstimate:
         # start: replaced whole, read by any thread
         self.sphere_summary: dict[str, dict[str, Any]] = {}
 
-    def settings(self, unmodelled_mm: float, unmodelled_dof: float = 0.0) -> EstimatorSettings:
+    def settings(self, unmodelled_mm: float) -> EstimatorSettings:
         r = self.svc.settings.recalib
         return EstimatorSettings(
             sigma_mm=r.jump_sigma_mm,
             unmodelled_mm=unmodelled_mm,
-            unmodelled_dof=unmodelled_dof,
             drift_mm_per_h=r.jump_drift_mm_per_h,
             drift_rad_per_h=r.jump_drift_rad_per_h,
             window=r.jump_window,
             false_alarm=r.jump_false_alarm,
         )
 
-    def _floors(self) -> tuple[float, float, float]:
+    def _floors(self) -> tuple[float, float]:
         """The unmodelled term's floor, from the commissioning's workspace validation: one
         coordinate's variance of its errors (their mean square, and its upper one-sided 95 %
         bound, calib.uncertainty.sigma_upper_mm, the bound the commissioning
@@ -105,8 +104,7 @@ class CellEstimate:
         estimate: a bound there slowed the detection of a J3 slip by a window), the statement
         the bound (20 positions know the mean square to about +-18 %: a statement from it
         covered fewer than 95 % of the points in 11 of 144 runs; from the bound, in none). Both
-        as one coordinate's sigma [mm]: (the mean square's, the bound's, the mean square's
-        degrees of freedom: 3 a position, which the filter pools the innovations with)."""
+        as one coordinate's sigma [mm]: (the mean square's, the bound's)."""
         svc = self.svc
         sigma = svc.settings.recalib.jump_sigma_mm
         current = svc.params.current_document()
@@ -125,13 +123,9 @@ class CellEstimate:
                 less += max(0.0, variance(doc) - variance(current))
             mean_sq = float(np.mean(np.square(norms))) / 3.0
             bound_sq = sigma_upper_mm(norms) ** 2
-            mean_mm, bound_mm = (
-                math.sqrt(max(0.0, mean_sq - less)),
-                math.sqrt(max(0.0, bound_sq - less)),
-            )
-            return mean_mm, bound_mm, 3.0 * len(norms)
+            return math.sqrt(max(0.0, mean_sq - less)), math.sqrt(max(0.0, bound_sq - less))
         given = float(svc.settings.recalib.jump_unmodelled_mm)
-        return given, given, 0.0
+        return given, given
 
     def _variance_at_schedule(self, names: list[str], cov: np.ndarray) -> float:
         """One coordinate's variance [mm^2] of a sphere's centre from parameters `names` with
@@ -158,9 +152,9 @@ class CellEstimate:
         # candidate: app.line.recalib), from the first one's time (the drift's clock), as the
         # service that never stopped has them
         mine = svc.store.measurements_of_version(svc.version)
-        floor, stated, dof = self._floors()
+        floor, stated = self._floors()
         self.state = CellState(
-            svc.model, svc.x, active, P0, list(svc.spheres), self.settings(floor, dof)
+            svc.model, svc.x, active, P0, list(svc.spheres), self.settings(floor)
         )
         self._stated_floor_mm2 = stated**2
         self.state.learned(self._moments)

@@ -207,29 +207,3 @@ def test_the_settings_refuse_what_cannot_work() -> None:
         EstimatorSettings(false_alarm=1.0)
     with pytest.raises(ValueError):
         EstimatorSettings(window=1)
-
-
-def test_the_unmodelled_term_pools_the_innovations_with_the_priors_degrees_of_freedom(
-    world: World,
-) -> None:
-    """s_u^2: the prior's square with its degrees of freedom (a validation of 100 positions:
-    300) and each innovation's moment with 3, never below the prior's square. One innovation
-    as the window first fills moves it little; a run of them moves it most of the way; with no
-    prior degrees of freedom the moments alone set it (the first one alone, as before)."""
-    prior_mm, dof = 0.01, 300.0
-    one = [50.0 * prior_mm**2]  # one squared innovation's moment, 50x the prior's square
-    many = [4.0 * prior_mm**2] * 144  # four windows' worth at 4x
-
-    def s_u(moments: list[float], prior_dof: float) -> float:
-        st = world.estimator(unmodelled_dof=prior_dof)
-        st.learned(moments)
-        return st.s_u_mm
-
-    pooled_one = np.sqrt((dof * prior_mm**2 + 3 * sum(one)) / (dof + 3 * len(one)))
-    assert s_u(one, dof) == pytest.approx(pooled_one, rel=1e-12) and pooled_one < 1.25 * prior_mm
-    pooled_many = np.sqrt((dof * prior_mm**2 + 3 * sum(many)) / (dof + 3 * len(many)))
-    assert s_u(many, dof) == pytest.approx(pooled_many, rel=1e-12) and pooled_many > 1.6 * prior_mm
-    assert s_u(one, 0.0) == pytest.approx(np.sqrt(one[0]), rel=1e-12)
-    assert s_u([0.25 * prior_mm**2] * 10, dof) == prior_mm  # never below the prior
-    with pytest.raises(ValueError, match="unmodelled_dof"):
-        EstimatorSettings(unmodelled_dof=-1.0)
