@@ -317,27 +317,18 @@ class Store(BodyRecords, LogRecords, IntervalRecords):
 
     def measurements_of_version(self, version: int) -> list[dict[str, Any]]:
         """The good rows measured with parameters `version` since it was last put in force, in
-        id order: its newest run of rows (read back from its newest row to the first of
-        another version), or none when another version measured after that run (the version
-        put in force again, by a rollback: its old run is another period of the cell's, and the
-        estimator that replayed it would take the cell then for the cell now)."""
-        last = self._rows("SELECT MAX(id) AS id FROM measurements WHERE params_version = ?",
-                          (version,))  # fmt: skip
-        if last[0]["id"] is None:
-            return []
-        newest = int(last[0]["id"])
-        after = self._rows(
-            "SELECT id FROM measurements WHERE params_version IS NOT ? AND id > ? LIMIT 1",
-            (version, newest),
-        )
-        if after:
+        id order: the newest run of rows when the newest row is the version's (read back to the
+        first row of another version); none when the newest row is another version's (the
+        version put in force again, by a rollback: its old run is another period of the cell's,
+        and the estimator that replayed it would take the cell then for the cell now)."""
+        newest = self._rows("SELECT id, params_version FROM measurements ORDER BY id DESC LIMIT 1")
+        if not newest or newest[0]["params_version"] != version:
             return []
         other = self._rows(
-            "SELECT MAX(id) AS id FROM measurements WHERE params_version IS NOT ? AND id < ?",
-            (version, newest),
+            "SELECT MAX(id) AS id FROM measurements WHERE params_version IS NOT ?", (version,)
         )
         since = other[0]["id"]
-        return self.measurements(since_id=int(since or 0), before_id=newest + 1)
+        return self.measurements(since_id=int(since or 0), before_id=int(newest[0]["id"]) + 1)
 
     def measurements_by_id(self, ids: Sequence[int]) -> list[dict[str, Any]]:
         """The rows of these ids in id order (any status)."""
