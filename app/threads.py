@@ -8,7 +8,9 @@ planning). rvis parallelises over processes instead.
 
 from __future__ import annotations
 
+import multiprocessing
 import os
+from multiprocessing.context import ForkServerContext
 
 BLAS_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
@@ -25,7 +27,6 @@ def exit_with_parent() -> None:
     the process that started the pool ends, however it ends. A pool worker whose parent is
     killed (SIGKILL, the OOM killer) waits on its call queue for ever, and the forkserver that
     forked it stays as long as it lives: each killed service left one of each behind."""
-    import multiprocessing
     import multiprocessing.connection
     import threading
 
@@ -38,3 +39,20 @@ def exit_with_parent() -> None:
         os._exit(0)
 
     threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
+
+
+#: modules the forkserver imports once at its start (`forkserver_context`)
+_PRELOAD: set[str] = set()
+
+
+def forkserver_context(*preload: str) -> ForkServerContext:
+    """The forkserver start method (no threads or sockets of the caller are inherited), with
+    the modules `preload` imported by the forkserver when it starts: the workers it forks have
+    them loaded instead of importing them each (0.2-0.3 s of CPU a worker; a simulated line
+    starts a recalibration worker per run). A module named after the forkserver started is
+    imported by each worker as before; one that fails to import is too (the forkserver
+    ignores it)."""
+    ctx = multiprocessing.get_context("forkserver")
+    _PRELOAD.update(preload)
+    ctx.set_forkserver_preload(["__main__", *sorted(_PRELOAD)])
+    return ctx

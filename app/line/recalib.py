@@ -16,7 +16,6 @@ max_holdout_ratio).
 
 from __future__ import annotations
 
-import multiprocessing
 import signal
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import Executor, Future, ProcessPoolExecutor
@@ -30,7 +29,7 @@ from numpy.typing import NDArray
 
 from app.config.line import RecalibSettings
 from app.formats.params import to_json
-from app.threads import exit_with_parent
+from app.threads import exit_with_parent, forkserver_context
 from calib.errors import CalibError
 from calib.gate_limits import Gates
 from calib.gates import check_identification
@@ -231,7 +230,7 @@ def process_executor() -> Executor:
     deaf to the stop signals meant for the service."""
     return ProcessPoolExecutor(
         1,
-        mp_context=multiprocessing.get_context("forkserver"),
+        mp_context=forkserver_context(__name__),
         initializer=_ignore_stop_signals,
     )
 

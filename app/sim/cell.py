@@ -18,7 +18,6 @@ measurement noise, as it does on the line.
 
 from __future__ import annotations
 
-import multiprocessing
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import Executor, ProcessPoolExecutor
@@ -31,7 +30,7 @@ from numpy.typing import NDArray
 
 from app.config import CellConfig
 from app.errors import InputError
-from app.threads import exit_with_parent
+from app.threads import exit_with_parent, forkserver_context
 from app.workspace import workspace_points
 from calib import candidates
 from calib.identify import Measurements
@@ -259,7 +258,7 @@ class RenderedMeasurement:
             self._pool_sensor = cell.sensor
             self._pool = ProcessPoolExecutor(
                 self.workers,
-                mp_context=multiprocessing.get_context("forkserver"),
+                mp_context=forkserver_context(__name__),
                 initializer=_init_worker,
                 initargs=(replace(cell.sensor), self.sensor_model, self.mode),
             )  # no ray cache
