@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
+import pytest
 
 from fakes.render import (
     Lighting,
@@ -12,7 +15,7 @@ from fakes.render import (
     sphere_hits,
 )
 from fakes.render_noise import NoiseSettings, _form, dark_frame
-from fakes.render_sensor import TrueSensor
+from fakes.render_sensor import TrueSensor, _rays, _rays_of, replaced_sensor
 
 
 def test_pixel_rays_invert_the_projection(true_sensor: TrueSensor) -> None:
@@ -20,6 +23,39 @@ def test_pixel_rays_invert_the_projection(true_sensor: TrueSensor) -> None:
     v, u = np.mgrid[0:966:37, 0:1296:41]
     uv = true_sensor.project(rays[v, u] * 125.0)
     assert np.abs(uv - np.stack([u, v], axis=-1)).max() < 1e-8
+
+
+def test_pixel_rays_read_from_the_cache_are_the_computed_ones(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A camera's rays are computed once a machine (the user's cache folder): read back, they
+    are the computed ones to the bit, read-only; another camera has its own; a damaged file is
+    computed again; a folder that cannot be written is no error."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+
+    def other() -> TrueSensor:
+        return replaced_sensor(TrueSensor(), np.random.default_rng(5))
+
+    _rays_of.cache_clear()
+    try:
+        first = [TrueSensor().pixel_rays, other().pixel_rays]
+        files = sorted((tmp_path / "cache" / "rvis").glob("pixel-rays-*.npy"))
+        assert len(files) == 2
+        files[0].write_bytes(b"damaged")
+        _rays_of.cache_clear()
+        again = [TrueSensor().pixel_rays, other().pixel_rays]
+        key = _rays_of.cache_info()
+        assert key.misses == 2
+        for a, b, sensor in zip(first, again, (TrueSensor(), other()), strict=True):
+            assert np.array_equal(a, b) and not b.flags.writeable
+            fields = (sensor.fx_px, sensor.fy_px, sensor.cx_px, sensor.cy_px, *sensor.dist)
+            assert np.array_equal(b, _rays((*fields, 1296.0, 966.0)))
+        assert not np.array_equal(first[0], first[1])
+        monkeypatch.setenv("XDG_CACHE_HOME", "/proc/no-such-folder")
+        _rays_of.cache_clear()
+        assert np.array_equal(TrueSensor().pixel_rays, first[0])
+    finally:
+        _rays_of.cache_clear()
 
 
 def _bilinear(grid: np.ndarray, uv: np.ndarray) -> np.ndarray:
