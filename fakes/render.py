@@ -510,20 +510,22 @@ def render_chessboard(
     flat_idx, X, t, cosang = _plane_hits(sensor, T_camera_target)
     R, p0 = T_camera_target[:3, :3], T_camera_target[:3, 3]
     local = (X - p0) @ R  # target coordinates
-    half_px_mm = 0.5 * t / sensor.fx_px / np.sqrt(np.maximum(np.abs(cosang), 0.2))
     cols, rows = pattern
+    # the squares from -1 .. n_sq along each axis; the plate is white outside the pattern, so
+    # the squares' shading is computed on the pattern's pixels only
+    ph_u, ph_v = local[:, 0] / square_mm + 1.0, local[:, 1] / square_mm + 1.0
+    on = np.flatnonzero((ph_u > 0) & (ph_u < cols + 1) & (ph_v > 0) & (ph_v < rows + 1))
+    half_px_mm = 0.5 * t[on] / sensor.fx_px / np.sqrt(np.maximum(np.abs(cosang[on]), 0.2))
 
-    def ramp(x: F64, n_sq: int) -> F64:
-        ph = x / square_mm + 1.0  # squares from -1 .. n_sq
+    def ramp(ph: F64) -> F64:
         frac = ph - np.floor(ph)
         edge = np.minimum(frac, 1.0 - frac) * square_mm
         sign = np.where(np.floor(ph) % 2 == 0, 1.0, -1.0)
-        inside = (ph > 0) & (ph < n_sq)
-        return np.asarray(np.where(inside, sign * np.clip(edge / half_px_mm, 0.0, 1.0), np.nan))
+        return np.asarray(sign * np.clip(edge / half_px_mm, 0.0, 1.0))
 
-    su, sv = ramp(local[:, 0], cols + 1), ramp(local[:, 1], rows + 1)
-    val = 0.5 + 0.5 * su * sv
-    albedo = np.where(np.isnan(val), white, black + (white - black) * val)
+    val = 0.5 + 0.5 * ramp(ph_u[on]) * ramp(ph_v[on])
+    albedo = np.full(len(flat_idx), white)
+    albedo[on] = black + (white - black) * val
     irr = np.zeros(sensor.height_px * sensor.width_px, dtype=np.float32)
     irr[flat_idx] = albedo
     frame = form_image(irr.reshape(sensor.height_px, sensor.width_px), noise, rng)
