@@ -446,8 +446,11 @@ class SimulatedCell:
     # -- instruments ---------------------------------------------------------------------
     def sees(self, q_deg: ArrayLike, p_part_mm: ArrayLike) -> bool:
         """Whether the sphere at p_part_mm lies in the measuring volume from q_deg."""
-        c = self.centre_in_sensor(np.atleast_2d(q_deg)[:1], p_part_mm)[0]
-        return bool(self.spec.volume.contains(c)[0])
+        return bool(self.sees_each(np.atleast_2d(q_deg)[:1], p_part_mm)[0])
+
+    def sees_each(self, q_deg: ArrayLike, p_part_mm: ArrayLike) -> NDArray[np.bool_]:
+        """`sees` for each of the configurations (N, 6) at once (N,)."""
+        return np.asarray(self.spec.volume.contains(self.centre_in_sensor(q_deg, p_part_mm)))
 
     def _visible_centre(
         self, q_deg: ArrayLike, p_part_mm: ArrayLike, error_deg: F64 | None = None

@@ -329,7 +329,7 @@ def random_schedule(cfg: CellConfig, cell: SimulatedCell, seed: int, n_each: int
     out = {}
     for tid, p in cfg.spheres_part_mm.items():
         q = candidates.random_configurations(model, x0, p, 4 * n_each, rng).q_deg
-        out[tid] = np.array([qi for qi in q if cell.sees(qi, p)][:n_each])
+        out[tid] = q[cell.sees_each(q, p)][:n_each] if len(q) else np.array([])
     return out
 
 
