@@ -1,5 +1,5 @@
 """Shared fixtures: the default cell and simulated data sets (seeded, cached per session), and how
-the tests are shared out between pytest-xdist's workers (`scripts/test` runs `-n 3 --dist
+the tests are shared out between pytest-xdist's workers (`scripts/test` runs `-n 5 --dist
 loadgroup` on 2 cores; a session fixture is built once per worker, a worker being a process of its
 own, in a network namespace of its own where it may: tests/netns.py)."""
 
