@@ -14,7 +14,7 @@ drift charts' tuning seeds, never cited as a reason here):
   campaign says whether it was flagged at that measurement (`seen_after`);
 - 8 h knock-free shifts: no alarm; their true RMS over the first hour <= 1.3x the robot's
   floor and over the 8 h <= 1.15x it (the floor: the RMS error of the validation points
-  measured with exact parameters, the true robot's stops alone: app.sim.line_run.robot_floor_mm);
+  measured with exact parameters, the true robot's stops alone: app.sim.truth.robot_floor_mm);
 - in every run, per point (the validation positions): the stated U95 covering >= 95 % of the
   true errors, the median U95 / true p95 <= 1.5; of the windows whose true p95 is above 1.2x the
   limit >= 98 % suspect, of the suspect ones <= 10 % with a true p95 below 0.8x the limit.

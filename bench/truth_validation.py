@@ -57,8 +57,8 @@ def kinematic_rmse_mm(state: Path, seed: int) -> float:
     from app.config import load_cell
     from app.formats.params import from_json
     from app.sim.cell import make_cell
-    from app.sim.line_run import simline_settings, true_rmse_mm
-    from app.sim.truth import EndToEndTruth
+    from app.sim.line_run import simline_settings
+    from app.sim.truth import EndToEndTruth, true_rmse_mm
     from fakes.line import SimLine
 
     cfg = load_cell(None)

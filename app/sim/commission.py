@@ -25,8 +25,8 @@ from app.config.line import SweepSettings
 from app.formats.sweeps import write_image, write_sweep
 from app.line.measure import SphereSensor, SweepSensor
 from app.sim.cell import make_cell
-from app.sim.line_run import geometric_sensor, simline_settings, true_rmse_mm
-from app.sim.truth import EndToEndTruth
+from app.sim.line_run import geometric_sensor, simline_settings
+from app.sim.truth import EndToEndTruth, true_rmse_mm
 from fakes.line import SimLine
 from fakes.render_targets import render_calibration_set
 from vision.sensor_model import SensorModel, dumps_sensor_model

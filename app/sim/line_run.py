@@ -43,13 +43,12 @@ from app.line.statedir import StateDir
 from app.line.states import AlarmCode, State
 from app.line.station import Station, cell_guard
 from app.line.store import Store
-from app.sim.cell import DataSet, make_cell, simulated_sets, true_sensor_model
-from app.sim.truth import EndToEndTruth
-from calib import candidates
+from app.sim.cell import make_cell, true_sensor_model
+from app.sim.cold_calibration import commissioned, random_schedule
+from app.sim.truth import EndToEndTruth, true_errors_mm, true_rmse_mm
 from calib.compliance import CompliantModel, carry
-from calib.identify import IdentificationResult, Measurements, identify
 from calib.validation import rmse
-from fakes.cell import NotVisible, SimulatedCell
+from fakes.cell import NotVisible
 from fakes.clock import VirtualClock
 from fakes.line import SimLine, SimLineSetup
 from fakes.truth import Knock, Maintenance, Warmup
@@ -263,109 +262,6 @@ def service_settings(cfg: CellConfig, state_dir: Path) -> ServiceSettings:
         heartbeat_timeout_s=max(s.line.heartbeat_timeout_s, 4.0 * poll_s),
     )
     return replace(s, line=line)
-
-
-def as_the_line_measures(data_set: DataSet, truth: EndToEndTruth | None) -> Measurements:
-    """A simulated data set's measurements as the line measures them: with `truth`, each view
-    through its sensor model (the centre it reports plus the sensor noise; views its vision
-    checks reject left out); without, the geometric path's."""
-    data = data_set.measurements
-    if truth is None or truth.kinematic_only:
-        return data
-    c_true = data_set.truth_c_sensor_mm
-    c_seen, ok = truth.centres(c_true)
-    keep = np.flatnonzero(ok)  # a rejected view reports no centre (NaN): left out first
-    data = data.subset(keep)
-    return dataclasses.replace(data, c_sensor_mm=data.c_sensor_mm + (c_seen - c_true)[keep])
-
-
-def commissioning(
-    cfg: CellConfig, seed: int, truth: EndToEndTruth | None = None
-) -> IdentificationResult:
-    """The offline calibration of the cold cell (`commissioned`)."""
-    return commissioned(cfg, seed, truth)[0]
-
-
-def commissioned(
-    cfg: CellConfig, seed: int, truth: EndToEndTruth | None = None
-) -> tuple[IdentificationResult, F64]:
-    """The offline calibration of the cold cell (4 spheres x `[commission]
-    calibration_views_per_sphere` random views) with the commissioning's model
-    (CellConfig.commissioning_model; the cold cell's temperature with every view), and the errors'
-    norms (n,) [mm] its workspace validation measures: the validation sphere at `[commission]
-    workspace_positions` random positions no calibration view used, each tracked (with the
-    tracker's noise) and measured from one view (app/commission/workspace.py measures the same
-    on the devices). With `truth`, each view is measured through its sensor model (the centre
-    it reports plus the sensor noise; views its vision checks reject left out), as the line
-    will measure. One simulation of the cell for both."""
-    sim = simulated_sets(
-        cfg,
-        seed,
-        n_each=max(cfg.commission.calibration_views_per_sphere, cfg.calibration.configs_per_sphere),
-        n_validation=cfg.commission.workspace_positions,
-    )
-    model = cfg.commissioning_model()
-    data = _cold(as_the_line_measures(sim.calibration, truth), sim.cell.temp_c)
-    result = identify(model, data)
-    val = _cold(as_the_line_measures(sim.validation, truth), sim.cell.temp_c)
-    p = model.points_part(result.x, val.q_deg, val.c_sensor_mm, temp_c=val.temp_c)
-    norms: F64 = np.linalg.norm(p - val.p_part_mm, axis=1)
-    return result, norms
-
-
-def _cold(data: Measurements, temp_c: float) -> Measurements:
-    """`data` with the cold cell's temperature at every view that carries none."""
-    if data.temp_c is not None:
-        return data
-    return dataclasses.replace(data, temp_c=np.full(len(data), temp_c))
-
-
-def random_schedule(cfg: CellConfig, cell: SimulatedCell, seed: int, n_each: int) -> dict[str, F64]:
-    """n_each random views per sphere that the nominal model plans and the cell sees (the
-    schedule when no plan file is given)."""
-    model = cfg.model()
-    x0 = model.nominal_x()
-    rng = np.random.default_rng([seed, 9])
-    out = {}
-    for tid, p in cfg.spheres_part_mm.items():
-        q = candidates.random_configurations(model, x0, p, 4 * n_each, rng).q_deg
-        out[tid] = q[cell.sees_each(q, p)][:n_each] if len(q) else np.array([])
-    return out
-
-
-def true_errors_mm(
-    line: SimLine, truth: EndToEndTruth, model: Any, x: F64, t_s: float | None = None
-) -> F64:
-    """The end-to-end true errors (m, 3) [mm] of `model` with parameters x at the line's
-    validation positions at sim time t_s (default now; the cell's temperature as the PLC reads
-    it): each position's sphere observed by the true sensor, measured through the sensor model
-    in use (`truth`), mapped with x."""
-    v = line.truth.validation
-    c = line.truth.validation_centres_sensor_mm(t_s)
-    temp = np.full(len(v.q_deg), line.truth.temp_c(t_s))
-    return truth.errors_mm(model, x, v.q_deg, c, v.p_part_mm, temp)
-
-
-def robot_floor_mm(line: SimLine, draws: int = 50) -> float:
-    """The robot's floor [mm]: the RMS error of the line's validation positions measured with
-    exact parameters by a perfect sensor, the true robot's stops alone (each position from
-    `draws` seeded stops of its repeatability): what no calibration gets below."""
-    v, cell = line.truth.validation, line.truth.cell
-    rng = np.random.default_rng([cell.settings.seed, 9283])
-    exact = cell.centre_in_sensor(v.q_deg, v.p_part_mm, 0.0)
-    sq = []
-    for _ in range(draws):
-        stops = v.q_deg + cell.repeatability.draw_deg(rng, len(v.q_deg))
-        sq.append(np.sum((cell.centre_in_sensor(stops, v.p_part_mm, 0.0) - exact) ** 2, axis=1))
-    return float(np.sqrt(np.mean(sq)))
-
-
-def true_rmse_mm(
-    line: SimLine, truth: EndToEndTruth, model: Any, x: F64, t_s: float | None = None
-) -> float:
-    """RMS [mm] of `true_errors_mm` (NaN when no view is accepted)."""
-    e = true_errors_mm(line, truth, model, x, t_s)
-    return rmse(e) if len(e) else float("nan")
 
 
 class SimulatedLineRun:

@@ -265,8 +265,7 @@ def _line_after(
     twin of the cell: same seed, clock, warm-up; no maintenance event; on the rendered path
     measured with the sensor calibration of before, `sensor_before`)."""
     from app.sim.cell import make_cell
-    from app.sim.line_run import true_rmse_mm
-    from app.sim.truth import EndToEndTruth
+    from app.sim.truth import EndToEndTruth, true_rmse_mm
     from fakes.line_truth import LineTruth
 
     twin_rms: list[float] = []

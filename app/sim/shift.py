@@ -27,7 +27,8 @@ from app.formats.files import dumps_json
 from app.line.accuracy import ACCURACY_GROUP
 from app.line.statedir import StateDir
 from app.line.store import Store
-from app.sim.line_run import SimRunSummary, SimulatedLineRun, WindowRecord, robot_floor_mm
+from app.sim.line_run import SimRunSummary, SimulatedLineRun, WindowRecord
+from app.sim.truth import robot_floor_mm
 from fakes.truth import KNOCK_KINDS, NO_KNOCK, Knock
 
 #: what may happen before a shift's knock (ShiftSettings.before_knock), and how many windows
@@ -204,7 +205,7 @@ class ShiftResult:
     flagged_after: int | None = None  # windows from the knock to the first step alarm
     pre_knock_rmse_mm: float = math.nan
     accuracy_limit_mm: float = math.nan  # [service] accuracy_limit_mm of the run
-    floor_mm: float = math.nan  # the robot's floor (app.sim.line_run.robot_floor_mm)
+    floor_mm: float = math.nan  # the robot's floor (app.sim.truth.robot_floor_mm)
     recovered_after: int | None = None  # windows from the knock until back within the ratio
     real_s: float = 0.0
     # suspect intervals (sim s from the line's start) and how they cover the windows whose true

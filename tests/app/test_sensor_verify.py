@@ -18,7 +18,7 @@ from app.formats.params import plain_document
 from app.line.params_store import ParamsStore
 from app.line.statedir import StateDir
 from app.sim.cell import make_cell, scaled_sensor_model, true_sensor_model
-from app.sim.line_run import commissioning
+from app.sim.cold_calibration import commissioning
 from tests.groups import GIGE_CAMERA
 from vision.sensor_model import save_sensor_model
 

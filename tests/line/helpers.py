@@ -27,7 +27,7 @@ from app.line.service import Service
 from app.line.settings import ServiceSettings
 from app.line.station import Station
 from app.sim.cell import make_cell, validation_set
-from app.sim.line_run import random_schedule
+from app.sim.cold_calibration import random_schedule
 from calib.identify import IdentificationResult, Measurements, identify
 from calib.model import SystemModel
 from drivers.plc import decode_inputs, decode_outputs, encode_inputs

@@ -8,7 +8,7 @@ import pytest
 from app.config import CellConfig
 from app.config.line import SweepSettings
 from app.sim.cell import scaled_sensor_model, simulated_sets, true_sensor_model
-from app.sim.line_run import as_the_line_measures
+from app.sim.cold_calibration import as_the_line_measures
 from app.sim.truth import EndToEndTruth, observe
 from calib.model import INDEX
 from fakes.render import render_sphere_sweep
