@@ -372,12 +372,8 @@ def run_accuracy_command(args: argparse.Namespace, cfg: CellConfig, out: Path) -
 
 def run_shift_experiment(args: argparse.Namespace) -> int:
     from app.sim.line_run import WindowRecord
-    from app.sim.shift import (
-        run_shift,
-        summary_lines,
-        write_estimators,
-        write_outputs,
-    )
+    from app.sim.shift import run_shift
+    from app.sim.shift_report import summary_lines, write_estimators, write_outputs
 
     cfg = load_cell(args.cell)
     if args.knock_at_window is not None:  # the N-th window opens at (N - 1) periods
@@ -501,7 +497,8 @@ class _CampaignShift:
 def _run_campaign_shift(cfg: CellConfig, task: _CampaignShift) -> ShiftResult:
     """Run one shift of a campaign and write its shift.md/.json/.png (in a worker process
     with --jobs N: a module-level function, its arguments and result picklable)."""
-    from app.sim.shift import run_shift, write_outputs
+    from app.sim.shift import run_shift
+    from app.sim.shift_report import write_outputs
 
     result = run_shift(cfg, task.folder / "state", task.settings, seed=task.seed)
     write_outputs(result, task.folder, task.header)
@@ -517,7 +514,8 @@ def run_knock_campaign(args: argparse.Namespace) -> int:
     time) and independent, and the campaign is assembled in the same order, so the outputs are
     those of --jobs 1 apart from the wall times."""
     from app.sim.knocks import write_campaign
-    from app.sim.shift import evaluate, summary_lines, write_outputs
+    from app.sim.shift import evaluate
+    from app.sim.shift_report import summary_lines, write_outputs
 
     if args.estimator == "compare":
         raise InputError("a campaign runs one estimator", field="--estimator")

@@ -236,7 +236,7 @@ def run_sim(args: argparse.Namespace) -> int:
     from app.line.launch import hold_state, json_logs, serving
     from app.line.statedir import StateDir
     from app.sim.line_run import SimulatedLineRun, WindowRecord
-    from app.sim.shift import time_text
+    from app.sim.shift_report import time_text
     from app.sim.world_record import simulated_world
 
     cfg = _cell(args)

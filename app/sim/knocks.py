@@ -14,7 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from app.sim.shift import ShiftResult, plot_shift, time_text, write_report_files
+from app.sim.shift import ShiftResult
+from app.sim.shift_report import plot_shift, time_text, write_report_files
 
 
 def _median(values: Sequence[float | int | None]) -> float | None:
