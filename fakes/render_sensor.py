@@ -11,11 +11,13 @@ Frame: the camera frame (OpenCV convention), which is also the sensor frame S.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import inspect
 import math
 import os
+import threading
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -174,9 +176,9 @@ def _cache_file(key: tuple[float, ...]) -> Path | None:
 def _save(path: Path, rays: NDArray[np.float64]) -> None:
     """`rays` to `path` whole or not at all (a temporary file renamed), the folder kept to its
     CACHE_FILES newest; a folder it cannot write is no error (the next process computes)."""
+    tmp = path.with_name(f"{path.stem}.{os.getpid()}.{threading.get_ident()}.tmp")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp")
         with tmp.open("wb") as f:
             np.save(f, rays, allow_pickle=False)
         os.replace(tmp, path)
@@ -184,7 +186,8 @@ def _save(path: Path, rays: NDArray[np.float64]) -> None:
         for stale in old[:-CACHE_FILES]:
             stale.unlink(missing_ok=True)
     except OSError:
-        return
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)  # a full disk leaves no half file behind
 
 
 def default_true_sensor() -> TrueSensor:
