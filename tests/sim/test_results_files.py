@@ -1,7 +1,8 @@
 """The bodies' AQDEF files of a 200-body simulated run (issue 49's must-show, items 1 and 6): the
 service on the simulated line writes one `.dfq` a body and evaluation into the results
-directory; an independent AQDEF reader (aqdefreader, PyPI) reads every value, limit, unit and
-time back equal to the database's, and the body id from K0014; a value not measured carries
+directory; an independent AQDEF reader (aqdefreader, PyPI) reads every value, limit and unit
+back equal to the database's, the time (DD.MM.YYYY, on a clock that starts on 4 March) and the
+body id from K0014 as the file's lines say them; a value not measured carries
 attribute 255, a value measured inside a suspect interval 129; the results directory made
 unwritable for 20 bodies and given back: all 20 bodies' files appear, none twice; a backup of
 the state restored gives the same export.
@@ -57,6 +58,10 @@ def _part_type(state: StateDir, cfg: Any) -> None:
     write_text(state.features, features_toml(dataclasses.replace(plan, features=picked)))
 
 
+#: the line's clock starts on 4 March (a day up to 12: its day and month told apart in every file)
+START = datetime(2026, 3, 4, 6, 0, tzinfo=UTC).timestamp()
+
+
 def _bodies_in(events: list[dict[str, Any]]) -> list[Any]:
     return [e["body_id"] for e in events if e["event"] == "body"]
 
@@ -78,7 +83,9 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
     folder = state.root / "results"
     with hold_state(state.root):
         _part_type(state, cfg)
-        with SimulatedLineRun(cfg, state.root, seed=SEED, geometric=True) as line:
+        with SimulatedLineRun(
+            cfg, state.root, seed=SEED, geometric=True, start_epoch=START
+        ) as line:
             line.run_windows(AWAY[0], on_event=events.append)
             before = {p.name for p in folder.iterdir()}
             mark = len(events)
@@ -178,7 +185,11 @@ def test_200_bodies_files_read_back_equal_to_the_database(run: dict[str, Any]) -
             assert float(c.get_data("K2111")) == pytest.approx(v["upper_mm"], abs=EXACT_MM)
             assert c.get_data("K2142") == "mm"
             (m,) = c.get_measurements()
-            assert m.datetime == at, name
+            # the time as AQDEF writes it (DD.MM.YYYY/HH:MM:SS), read from the line: aqdefreader
+            # parses it with dateutil's month first, a day up to 12 as the month (1 December
+            # read as 12 January: a run on the wall clock that crossed into December)
+            times = [ln for ln in lines if ln.startswith(f"K0004/{n} ")]
+            assert times == [f"K0004/{n} {at:%d.%m.%Y/%H:%M:%S}"], name
             ids = [ln for ln in lines if ln.startswith(f"K0014/{n} ")]
             assert ids == [f"K0014/{n} {b['body_id']}"], name
             if v["measured_mm"] is None:
