@@ -125,7 +125,7 @@ def _rays_of(key: tuple[float, ...]) -> NDArray[np.float64]:
             rays = np.load(path, allow_pickle=False)
         except (OSError, ValueError):
             rays = None
-    if rays is None or rays.shape != (int(key[10]), int(key[9]), 3):
+    if rays is None or rays.shape != (int(key[-1]), int(key[-2]), 3):
         rays = _rays(key)
         if path is not None:
             _save(path, rays)
@@ -160,14 +160,26 @@ def _rays(key: tuple[float, ...]) -> NDArray[np.float64]:
 CACHE_FILES = 8
 
 
+@functools.cache
+def _computation() -> str | None:
+    """The source of the rays' computation, `_rays` and `TrueSensor._distort`, read once a
+    process (None where it cannot be read)."""
+    try:
+        return inspect.getsource(_rays) + inspect.getsource(TrueSensor._distort)
+    except (OSError, TypeError):
+        return None
+
+
 def _cache_file(key: tuple[float, ...]) -> Path | None:
     """The camera's rays in `$XDG_CACHE_HOME/rvis` (default ~/.cache/rvis), named by the
-    camera and the source of `_rays` and `TrueSensor._distort` (a changed computation is not
-    read from an older file); None without a home."""
+    camera and the computation's source (a changed computation is not read from an older
+    file); None without a home or a source."""
+    source = _computation()
     try:
-        source = inspect.getsource(_rays) + inspect.getsource(TrueSensor._distort)
         root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "rvis"
-    except (OSError, RuntimeError):
+    except RuntimeError:
+        return None
+    if source is None:
         return None
     digest = hashlib.sha256((repr(key) + source).encode()).hexdigest()[:20]
     return root / f"pixel-rays-{digest}.npy"

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fakes import render_sensor
 from fakes.render import (
     Lighting,
     _render_frames,
@@ -48,8 +49,17 @@ def test_pixel_rays_read_from_the_cache_are_the_computed_ones(
         assert len(files) == 2
         files[0].write_bytes(b"damaged")
         _rays_of.cache_clear()
+        computed: list[tuple[float, ...]] = []
+
+        def counted(key: tuple[float, ...]) -> np.ndarray:
+            computed.append(key)
+            return _rays(key)
+
+        # (the files' names come from the computation's source, read before this)
+        monkeypatch.setattr(render_sensor, "_rays", counted)
         again = [camera().pixel_rays, other().pixel_rays]
-        assert _rays_of.cache_info().misses == 2
+        # the damaged file's camera computed again, the other one's rays read from its file
+        assert _rays_of.cache_info().misses == 2 and len(computed) == 1
         for a, b, sensor in zip(first, again, (camera(), other()), strict=True):
             assert np.array_equal(a, b) and not b.flags.writeable and b.shape == (48, 64, 3)
             fields = (sensor.fx_px, sensor.fy_px, sensor.cx_px, sensor.cy_px, *sensor.dist)
@@ -60,7 +70,7 @@ def test_pixel_rays_read_from_the_cache_are_the_computed_ones(
         assert not np.array_equal(first[0], first[1])
         monkeypatch.setenv("XDG_CACHE_HOME", "/proc/no-such-folder")
         _rays_of.cache_clear()
-        assert np.array_equal(camera().pixel_rays, first[0])
+        assert np.array_equal(camera().pixel_rays, first[0]) and len(computed) == 2
     finally:
         _rays_of.cache_clear()
 
