@@ -303,7 +303,7 @@ def collect(
             options = np.asarray(q_by_target[tid]).reshape(-1, 6)
         else:
             options = candidates.random_configurations(model, x, p, 3 * n_each, rng).q_deg
-        queue[tid] = list(options[cell.sees_each(options, p)]) if len(options) else []
+        queue[tid] = list(options[cell.sees_each(options, p)])
     got: dict[str, list[tuple[F64, F64]]] = {tid: [] for tid in points_part_mm}
     rejected: list[Rejection] = []
     budget = np.inf if max_total is None else max_total

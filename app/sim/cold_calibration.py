@@ -83,5 +83,5 @@ def random_schedule(cfg: CellConfig, cell: SimulatedCell, seed: int, n_each: int
     out = {}
     for tid, p in cfg.spheres_part_mm.items():
         q = candidates.random_configurations(model, x0, p, 4 * n_each, rng).q_deg
-        out[tid] = q[cell.sees_each(q, p)][:n_each] if len(q) else np.array([])
+        out[tid] = q[cell.sees_each(q, p)][:n_each]
     return out
