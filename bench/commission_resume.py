@@ -150,7 +150,7 @@ def main() -> int:
         n = _views(out / "reference")
         for k in args.views:
             state = out / f"kill-{k}"
-            killed_s, lost_before = run_and_kill(cell, state, f"calibration view {k}/{n} ")
+            killed_s, lost_before = run_and_kill(cell, state, f"to calibration view {k}/{n} ")
             code, seconds, lost = run_to_end(cell, state)
             kill = f"view {k}/{n}, {killed_s:.0f} s into the step"
             runs.append({"folder": state.name, "kill": kill, "exit": code, "seconds": seconds,
@@ -190,9 +190,8 @@ def _row(out: Path, run: dict[str, Any], ref: dict[str, Any]) -> dict[str, Any]:
 
 
 def _views(state: Path) -> int:
-    """The calibration step's number of views (measured and rejected)."""
-    cal = figures(state)["calibration"]
-    return int(cal["measurements"]) + len(cal["rejected"])
+    """The calibration step's number of views (the plan's, measured or rejected)."""
+    return int(figures(state)["calibration"]["views"])
 
 
 if __name__ == "__main__":

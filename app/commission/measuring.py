@@ -1,7 +1,9 @@
-"""The commissioning steps that move the robot and measure spheres: the first calibration from
-the planned configurations, and its validation against the tracker's sphere positions from
-views the calibration has not seen. Every configuration is reached from home and left back
-home, as the service will do between clamping cycles; every motion is confirmed (Context.move).
+"""The commissioning steps that move the robot and measure spheres: the pre-calibration from
+random views (the paper's section 4.1: the model the plan is made on), the first calibration
+from the planned configurations and those random views, and its validation against the
+tracker's sphere positions from views the calibration has not seen. Every configuration is
+reached from home and left back home, as the service will do between clamping cycles; every
+motion is confirmed (Context.move).
 """
 
 from __future__ import annotations
@@ -27,12 +29,15 @@ from app.commission.files import (
     PARAMS_FILE,
     PARAMS_REJECTED_FILE,
     PLAN_FILE,
+    PRECALIBRATION_MEASUREMENTS_FILE,
+    PRECALIBRATION_PARAMS_FILE,
     VALIDATION_ERRORS_FILE,
     VALIDATION_MEASUREMENTS_FILE,
 )
 from app.config import CellConfig
 from app.formats.files import (
     ERROR_COLUMNS,
+    read_measurements,
     write_csv,
     write_json,
     write_measurements,
@@ -123,54 +128,47 @@ def measure_views(
     return taken
 
 
-def calibration_views(
-    cell: CellConfig, planned: dict[str, F64], positions: dict[str, F64]
-) -> list[tuple[str, F64]]:
-    """The calibration step's views: each sphere's planned configurations, then random views
-    of it (calib.candidates, on the nominal model, seeded by [commission] seed) up to
-    `[commission] calibration_views_per_sphere`."""
+def precalibration_views_per_sphere(cell: CellConfig) -> int:
+    """The pre-calibration's random views a sphere: those the first calibration takes beyond
+    the plan's (`[commission] calibration_views_per_sphere` less `[calibration]
+    configs_per_sphere`), and at least as many as the plan's (the paper's 6 random views a
+    sphere, section 5.1)."""
+    n_plan = cell.calibration.configs_per_sphere
+    return max(cell.commission.calibration_views_per_sphere - n_plan, n_plan)
+
+
+def precalibration_views(cell: CellConfig, positions: dict[str, F64]) -> list[tuple[str, F64]]:
+    """The pre-calibration's views: `precalibration_views_per_sphere` random views of each
+    sphere (calib.candidates on the nominal model, seeded by [commission] seed)."""
     rigid = cell.model()
     rng = np.random.default_rng([cell.commission.seed, 29])
-    want = cell.commission.calibration_views_per_sphere
+    n = precalibration_views_per_sphere(cell)
     views = []
-    for target, q_list in planned.items():
-        views += [(target, q) for q in q_list]
-        more = want - len(q_list)
-        if more > 0 and target in positions:
-            sample = candidates.random_configurations(
-                rigid, rigid.nominal_x(), positions[target], more, rng
-            )
-            views += [(target, q) for q in sample.q_deg]
+    for target, p in positions.items():
+        sample = candidates.random_configurations(rigid, rigid.nominal_x(), p, n, rng)
+        views += [(target, q) for q in sample.q_deg]
     return views
 
 
-def calibration(ctx: Context) -> StepResult:
-    """Measure the plan's configurations and random views beyond them (`calibration_views`),
-    identify the commissioning's model (CellConfig.commissioning_model), and hold it to the
-    quality gates of [calibration] (converged, rank, RMS, condition, change from nominal)."""
+def _identified(
+    ctx: Context, r: StepResult, taken: Taken, passed_file: str, rejected_file: str | None
+) -> None:
+    """Identify the commissioning's model (CellConfig.commissioning_model) from `taken`, hold
+    it to the quality gates of [calibration] and write it to `passed_file` when it passed,
+    else to `rejected_file` (None: not written); its figures and checks into `r`."""
     cell = ctx.cell()
-    _, qs, _ = read_plan(ctx.path(PLAN_FILE))
-    positions = ctx.spheres_part_mm()
-    views = calibration_views(cell, qs, positions)
-    taken = measure_views(ctx, views, ctx.sphere_sensor(ctx.sensor_model()), "calibration")
-    taken.write(ctx.path(CALIBRATION_MEASUREMENTS_FILE))
-    write_targets(ctx.path(CALIBRATION_TARGETS_FILE), positions)
-    r = StepResult(files=[CALIBRATION_MEASUREMENTS_FILE, CALIBRATION_TARGETS_FILE])
-    limit = cell.commission.max_rejected_fraction
-    r.checks.append(
-        share_at_most("views rejected by vision", len(taken.rejected), len(views), limit)
-    )
-    r.results["rejected"] = taken.rejected
     model = cell.commissioning_model()
     try:
-        result = identify(model, taken.data(positions))
+        result = identify(model, taken.data(ctx.spheres_part_mm()))
     except InsufficientData as exc:
         r.checks.append(holds("identification", False, str(exc)))
-        return r
+        return
     report = check_identification(result, model.nominal_x(), cell.calibration.gates())
     doc = to_json(model, result, report, provenance())
-    write_json(ctx.path(PARAMS_FILE if report.passed else PARAMS_REJECTED_FILE), doc)
-    r.files.append(PARAMS_FILE if report.passed else PARAMS_REJECTED_FILE)
+    name = passed_file if report.passed else rejected_file
+    if name is not None:
+        write_json(ctx.path(name), doc)
+        r.files.append(name)
     g = cell.calibration
     r.results |= {
         "measurements": len(taken.targets),
@@ -185,6 +183,75 @@ def calibration(ctx: Context) -> StepResult:
         at_most("condition", result.observability.condition, g.max_condition),
         holds("quality gates", report.passed, report.reason or "passed"),
     ]
+
+
+def _rejected_check(cell: CellConfig, r: StepResult, taken: Taken, n_views: int) -> None:
+    limit = cell.commission.max_rejected_fraction
+    r.checks.append(share_at_most("views rejected by vision", len(taken.rejected), n_views, limit))
+    r.results |= {"views": n_views, "rejected": taken.rejected}
+
+
+def precalibration(ctx: Context) -> StepResult:
+    """The paper's pre-calibration (section 4.1): random views of every sphere
+    (`precalibration_views`), the commissioning's model identified from them and held to the
+    quality gates of [calibration]: the hand-eye and the base the plan's inverse kinematics
+    needs, so that the planned views see their sphere on the cell as built. Its views are
+    the first calibration's random ones."""
+    cell = ctx.cell()
+    views = precalibration_views(cell, ctx.spheres_part_mm())
+    sensor = ctx.sphere_sensor(ctx.sensor_model())
+    taken = measure_views(ctx, views, sensor, "pre-calibration")
+    taken.write(ctx.path(PRECALIBRATION_MEASUREMENTS_FILE))
+    r = StepResult(files=[PRECALIBRATION_MEASUREMENTS_FILE])
+    _rejected_check(cell, r, taken, len(views))
+    _identified(ctx, r, taken, PRECALIBRATION_PARAMS_FILE, None)
+    return r
+
+
+def precalibrated_x(ctx: Context) -> F64:
+    """The pre-calibration's parameters of the rigid model (the plan's IK needs no more)."""
+    _, x = from_json(ctx.path(PRECALIBRATION_PARAMS_FILE))
+    return x[: len(ctx.cell().model().nominal_x())]
+
+
+def _precalibration_taken(ctx: Context, planned: dict[str, F64]) -> Taken:
+    """The pre-calibration's measurements the first calibration takes beyond the plan's:
+    `[commission] calibration_views_per_sphere` a sphere with the plan's (0: none)."""
+    rows = read_measurements(ctx.path(PRECALIBRATION_MEASUREMENTS_FILE))
+    want = ctx.cell().commission.calibration_views_per_sphere
+    temps = [None] * len(rows.targets) if rows.temp_c is None else list(map(float, rows.temp_c))
+    taken = Taken()
+    count: dict[str, int] = {}
+    for k, target in enumerate(rows.targets):
+        room = want - len(planned.get(target, ())) if want > 0 else 0
+        if count.get(target, 0) >= room:
+            continue
+        count[target] = count.get(target, 0) + 1
+        taken.targets.append(target)
+        taken.q_deg.append(rows.q_deg[k])
+        taken.c_sensor_mm.append(rows.c_sensor_mm[k])
+        taken.temp_c.append(temps[k])
+    return taken
+
+
+def calibration(ctx: Context) -> StepResult:
+    """Measure the plan's configurations, identify the commissioning's model
+    (CellConfig.commissioning_model) from them and the pre-calibration's random views
+    (`_precalibration_taken`), and hold it to the quality gates of [calibration] (converged,
+    rank, RMS, condition, change from nominal)."""
+    cell = ctx.cell()
+    _, qs, _ = read_plan(ctx.path(PLAN_FILE))
+    positions = ctx.spheres_part_mm()
+    views = [(target, q) for target, q_list in qs.items() for q in q_list]
+    taken = measure_views(ctx, views, ctx.sphere_sensor(ctx.sensor_model()), "calibration")
+    r = StepResult(files=[CALIBRATION_MEASUREMENTS_FILE, CALIBRATION_TARGETS_FILE])
+    _rejected_check(cell, r, taken, len(views))
+    random = _precalibration_taken(ctx, qs)
+    for name in ("targets", "q_deg", "c_sensor_mm", "temp_c"):
+        getattr(taken, name).extend(getattr(random, name))
+    taken.write(ctx.path(CALIBRATION_MEASUREMENTS_FILE))
+    write_targets(ctx.path(CALIBRATION_TARGETS_FILE), positions)
+    _identified(ctx, r, taken, PARAMS_FILE, PARAMS_REJECTED_FILE)
     return r
 
 

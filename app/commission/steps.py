@@ -15,11 +15,13 @@ from app.commission.checks import Check, StepResult, at_least, at_most, holds, r
 from app.commission.context import Context
 from app.commission.files import (
     PLAN_FILE,
+    PRECALIBRATION_PARAMS_FILE,
     SENSOR_DATA_DIR,
     SENSOR_FILE,
     TARGETS_FILE,
     TRACKER_EXPORT_FILE,
 )
+from app.commission.measuring import precalibrated_x
 from app.devicecheck import describe_and_probe
 from app.errors import InputError
 from app.formats.files import write_csv, write_json, write_targets, write_text
@@ -206,13 +208,19 @@ def _measure_export(ctx: Context, ids: list[str], export: Path) -> None:
 
 def plan(ctx: Context) -> StepResult:
     """The measurement configurations at the measured sphere positions (placement fixed: the
-    spheres stand where they are): full rank, condition within [calibration] max_condition,
-    better than random views at the same positions, every sphere its configurations."""
+    spheres stand where they are), planned on the pre-calibration's parameters (the paper's
+    order: its hand-eye and base put each planned view's sphere where the plan aims in the
+    cell as built): full rank, condition within [calibration] max_condition, better than
+    random views at the same positions, every sphere its configurations."""
     cell = ctx.cell()
     model = cell.model()
-    x = model.nominal_x()
+    x = precalibrated_x(ctx)
     result = run_plan(cell, model, x, placement="fixed")
-    doc = {**plan_to_json(cell, model, x, result), "provenance": provenance(result.settings.seed)}
+    doc = {
+        **plan_to_json(cell, model, x, result),
+        "planned_on": PRECALIBRATION_PARAMS_FILE,  # the parameters its IK used
+        "provenance": provenance(result.settings.seed),
+    }
     write_json(ctx.path(PLAN_FILE), doc)
     obs, rnd = result.observability, result.random_observability
     n = cell.calibration.configs_per_sphere
@@ -220,6 +228,7 @@ def plan(ctx: Context) -> StepResult:
     r.results = {
         "planned": {"O1": obs.indices["O1"], "condition": obs.condition, "rank": obs.rank},
         "random": {"O1": rnd.indices["O1"], "condition": rnd.condition, "rank": rnd.rank},
+        "planned_on": "the pre-calibration's parameters",
         "seconds": result.seconds,
     }
     r.checks.append(at_least("rank", obs.rank, len(result.settings.active)))

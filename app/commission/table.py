@@ -30,6 +30,7 @@ STEPS = (
     CommissionStep("stripe", "Laser stripe seen by the camera", stripe.stripe),
     CommissionStep("sensor", "Sensor calibration", steps.sensor),
     CommissionStep("spheres", "Sphere positions from the tracker", steps.spheres),
+    CommissionStep("precalibration", "Pre-calibration from random views", measuring.precalibration),
     CommissionStep("plan", "Measurement plan", steps.plan),
     CommissionStep("calibration", "First calibration", measuring.calibration),
     CommissionStep(

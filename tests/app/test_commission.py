@@ -90,10 +90,10 @@ def test_commissioning_resumes_after_a_kill_and_leaves_a_cell_ready_to_run(
     cell, state = tmp_path / "cell.toml", tmp_path / "state"
     paths = StateDir(state)
     cell.write_text(CELL)
-    kill_at(_commission(cell, state), "calibration view 3/72")
+    kill_at(_commission(cell, state), "to calibration view 3/24")
     journal = json.loads((paths.commission / "journal.json").read_text())
     first = {s["name"]: s for s in journal["steps"] if s["status"] == "passed"}
-    assert list(first) == ["devices", "stripe", "sensor", "spheres", "plan"]  # not calibration
+    assert list(first) == ["devices", "stripe", "sensor", "spheres", "precalibration", "plan"]
     assert journal["steps"][-1]["name"] == "calibration"
     assert journal["steps"][-1]["status"] == "started"  # found so next time: interrupted
     assert not paths.current.exists()
@@ -102,9 +102,9 @@ def test_commissioning_resumes_after_a_kill_and_leaves_a_cell_ready_to_run(
     assert main(_commission(cell, state)) == 3
     out = capsys.readouterr().out
     for i, name in enumerate(first, start=1):
-        assert f"step {i}/10 {name}: passed earlier" in out
-    assert "step 6/10 calibration: passed" in out and "step 8/10 validation: failed" in out
-    assert "FAIL validation RMSE" in out and "step 9/10" not in out
+        assert f"step {i}/11 {name}: passed earlier" in out
+    assert "step 7/11 calibration: passed" in out and "step 9/11 validation: failed" in out
+    assert "FAIL validation RMSE" in out and "step 10/11" not in out
     report = json.loads((paths.commission / "commission.json").read_text())
     assert report["next_step"] == "validation" and not report["complete"]
     steps = {s["name"]: s for s in report["steps"]}
@@ -113,7 +113,7 @@ def test_commissioning_resumes_after_a_kill_and_leaves_a_cell_ready_to_run(
     cell.write_text(CELL + TOLERANCE)
     assert main(_commission(cell, state)) == 0
     out = capsys.readouterr().out
-    assert "step 6/10 calibration: passed earlier" in out and "step 10/10 ready: passed" in out
+    assert "step 7/11 calibration: passed earlier" in out and "step 11/11 ready: passed" in out
     report = json.loads((paths.commission / "commission.json").read_text())
     # the acceptance cannot run on the geometric path: said so, not counted as passed
     statuses = {s["name"]: s["status"] for s in report["steps"]}
@@ -162,8 +162,14 @@ def test_commissioning_resumes_after_a_kill_and_leaves_a_cell_ready_to_run(
         "Run again: calibration (after 1 interrupted run), validation (after 1 failed run)." in md
     )
     assert steps["acceptance"]["results"]["not_run"].startswith("geometric path")  # no images
-    # the plan's 24 views and random ones up to 18 a sphere
-    assert steps["calibration"]["results"]["measurements"] == 72
+    # the paper's order: a pre-calibration from 12 random views a sphere, the plan made on its
+    # parameters (each planned view sees its sphere: none rejected), the first calibration
+    # from the plan's 24 views and those random ones, up to 18 a sphere
+    pre = steps["precalibration"]["results"]
+    assert pre["measurements"] + len(pre["rejected"]) == 48 and "passed" in pre["gates"]
+    assert plan["planned_on"] == "the pre-calibration's parameters"
+    assert steps["calibration"]["results"]["rejected"] == []
+    assert steps["calibration"]["results"]["measurements"] == 24 + pre["measurements"] == 72
     # the simulated PLC writes the cell temperature, and the commissioning cell says so: each
     # measurement carries it (a PLC that does not would give none, never 0 degC)
     rows = (paths.commission / "calibration_measurements.csv").read_text().splitlines()
@@ -171,8 +177,8 @@ def test_commissioning_resumes_after_a_kill_and_leaves_a_cell_ready_to_run(
     temps = [float(r.rsplit(",", 1)[1]) for r in rows[1:]]
     assert all(15.0 < t < 30.0 for t in temps)
     md = (paths.commission / "commission.md").read_text()
-    assert "**9 of 10 steps passed, 1 not run (acceptance)**" in md and "| validation RMSE |" in md
-    assert "| 7 | acceptance | not run: geometric path" in md
+    assert "**10 of 11 steps passed, 1 not run (acceptance)**" in md and "| validation RMSE |" in md
+    assert "| 8 | acceptance | not run: geometric path" in md
     # the headline, before the steps: the cell's U95 with what it is, the limit in force (as
     # the ready step wrote it), VDA 5's ratio against the tolerance read as its full range
     head = md.split("| # | step |")[0]
@@ -238,7 +244,7 @@ def test_the_engineer_stops_it_and_a_journal_of_another_set_up_is_refused(
     monkeypatch.setattr(sys, "stdin", Terminal("y\nn\n"))  # start step 1, not step 2
     assert main(argv) == 1
     out = capsys.readouterr().out
-    assert "step 1/10 devices: passed" in out and "stopped: not confirmed" in out
+    assert "step 1/11 devices: passed" in out and "stopped: not confirmed" in out
     report = json.loads((StateDir(state).commission / "commission.json").read_text())
     assert report["next_step"] == "stripe"
 

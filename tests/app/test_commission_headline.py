@@ -53,7 +53,7 @@ def test_the_headline_states_u95_with_what_it_is_its_limit_and_vda5_first(
     tmp_path: Path,
 ) -> None:
     journal = Journal(tmp_path, SETUP)
-    for name in ("devices", "stripe", "sensor", "spheres", "plan", "calibration"):
+    for name in ("devices", "stripe", "sensor", "spheres", "precalibration", "plan", "calibration"):
         _finish(journal, name, holds(f"{name} ok", True))
     _workspace(journal, 0.0812, 1.0, true_rmse_mm=0.0423)
     _finish(journal, "ready", holds("cell.toml reads back", True), accuracy_limit_mm=0.15)
@@ -174,7 +174,7 @@ def test_the_acceptance_says_it_is_adapted_how_with_a_legend_and_the_frame(
     message = "PF 117.4 um ..., within 150.0 um; SD +3.4 um ..., within +-119.0 um"
     _finish(journal, "acceptance", method=METHOD, legend=dict(LEGEND), message=message)
     md = markdown(journal)
-    assert "## 7. Sensor acceptance (adapted from VDI/VDE 2634-2: PF, PS, SD)" in md
+    assert "## 8. Sensor acceptance (adapted from VDI/VDE 2634-2: PF, PS, SD)" in md
     assert f"- method: {METHOD}" in md
     assert f"  - SD: {LEGEND['SD']}" in md and f"  - positions: {LEGEND['positions']}" in md
     assert f"- Sensor acceptance: passed: {message}." in md.split("| # | step |")[0]
