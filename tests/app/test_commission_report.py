@@ -147,7 +147,7 @@ def test_figures_stated_without_a_limit_are_not_counted_as_checks(tmp_path: Path
     assert "| workspace RMSE | 0.0387 mm | <= 0.2000 mm | yes |" in md
     assert "| workspace error, mean | 0.0367 mm | - | - |" in md
     assert "| workspace error, largest (V007) | 0.0608 mm | - | - |" in md
-    assert "| 9 | workspace | passed | 1/1 | 1.5 | 1 |" in md
+    assert "| 10 | workspace | passed | 1/1 | 1.5 | 1 |" in md
     assert check_line(stated("workspace error, mean", 0.0366635, "mm", MM)) == (
         "     workspace error, mean: 0.0367 mm"
     )
