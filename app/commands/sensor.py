@@ -181,13 +181,17 @@ def run_verify(args: argparse.Namespace) -> int:
         ctx = commissioning_context(opts, cfg, state, seed, confirmation(args.yes, say), say, stack)
         ctx.out_dir = state.verify
         ctx.out_dir.mkdir(exist_ok=True)
+        from app.commission.checks import holds
         from app.commission.context import Declined
+        from drivers.errors import DeviceError
 
         try:
             result: StepResult = verify(ctx, x, sensor_model)
         except Declined as exc:
             say(f"stopped: not confirmed: {exc}")
             return 1
+        except DeviceError as exc:  # as the commissioning's step records it: a failed check
+            result = StepResult(checks=[holds("devices", False, f"{type(exc).__name__}: {exc}")])
     if args.json:
         doc = {"passed": result.passed, "results": result.results}
         doc["checks"] = [c.__dict__ for c in result.checks]

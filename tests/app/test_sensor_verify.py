@@ -2,13 +2,14 @@
 calibration in use measured at 9 positions across the measuring volume through rendered sweeps;
 a calibration whose scale is 0.1 % off fails its acceptance (exit 3, PS named: SD's reference is
 the robot's motion, whose repeatability, RP 0.07 mm, widens SD's limit by about 0.1 mm, more than
-the scale error's 0.03 mm), and a directory with nothing commissioned is a one-line input
-error."""
+the scale error's 0.03 mm, and decides SD's verdict for the true sensor and the scaled one
+alike), and a directory with nothing commissioned is a one-line input error."""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -45,11 +46,22 @@ def test_a_sensor_with_a_scale_error_fails_its_acceptance(
     save_sensor_model(scaled, tmp_path / "scaled.toml")
     capsys.readouterr()
     argv = ["sensor", "verify", "--sim", "--yes", "--state-dir", str(commissioned), "--json"]
+    main(argv)  # the true sensor, at the same views and the robot's same stops
+    exact = json.loads(capsys.readouterr().out)
     assert main([*argv, "--sensor", str(tmp_path / "scaled.toml")]) == 3
     doc = json.loads(capsys.readouterr().out)
     failed = [c["name"] for c in doc["checks"] if not c["ok"]]
-    assert len(failed) == 1 and failed[0].startswith("probing error size |PS|, the largest of 9")
-    assert doc["results"]["ps_mm"] < -0.015  # the sphere measured smaller
+    assert failed[0].startswith("probing error size |PS|, the largest of 9")
+    assert doc["results"]["ps_mm"] < -0.015 < 0.015 > abs(exact["results"]["ps_mm"])
+    # SD does not see the 0.1 % (about 0.03 mm at the volume's spacings): the robot's stops
+    # decide its verdict, the true sensor's and the scaled one's alike. On this cell they put
+    # even the true sensor over the widened limit (SD 0.138 mm against 0.119): a perfect
+    # sensor fails SD at 2-4 % of the robot's stops (docs/commissioning.md, step 8), the open
+    # question of an SD reference no stop error enters
+    sd_exact, sd_scaled = exact["results"]["sd_mm"], doc["results"]["sd_mm"]
+    assert abs(sd_scaled - sd_exact) < 0.03
+    exact_failed = [c["name"] for c in exact["checks"] if not c["ok"]]
+    assert failed[1:] == exact_failed  # anything else failed for the true sensor too
     # SD stated with the robot's share of it, the limit widened by that share
     results = doc["results"]
     assert results["robot_repeatability_mm"] == 0.07
@@ -77,3 +89,22 @@ def test_nothing_commissioned_is_an_input_error(
     err = capsys.readouterr().err.strip()
     assert "sensor.toml" in err and "commission the cell first" in err
     assert len(err.splitlines()) == 1
+
+
+def test_a_camera_lost_in_the_middle_fails_the_acceptance_with_the_reason(
+    commissioned: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A device error in the middle of `rvis sensor verify` (the camera's frames stop coming)
+    is the commissioning step's failed "devices" check, exit 3 with the reason: no traceback."""
+    from app.line.measure import SweepSensor
+    from drivers.errors import DeviceTimeout
+
+    def no_frame(self: SweepSensor) -> Any:
+        raise DeviceTimeout("aravis://127.0.0.1: no frame within 1 s")
+
+    monkeypatch.setattr(SweepSensor, "grab_sweep", no_frame)
+    argv = ["sensor", "verify", "--sim", "--yes", "--state-dir", str(commissioned), "--json"]
+    assert main(argv) == 3
+    doc = json.loads(capsys.readouterr().out)
+    (failed,) = (c for c in doc["checks"] if not c["ok"])
+    assert failed["name"] == "devices" and failed["value"].startswith("DeviceTimeout: aravis://")
