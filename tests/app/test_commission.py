@@ -162,18 +162,18 @@ def test_commissioning_resumes_after_a_kill_and_leaves_a_cell_ready_to_run(
         "Run again: calibration (after 1 interrupted run), validation (after 1 failed run)." in md
     )
     assert steps["acceptance"]["results"]["not_run"].startswith("geometric path")  # no images
-    # the paper's order: a pre-calibration from 12 random views a sphere, the plan made on its
+    # the paper's order: a pre-calibration from 30 random views a sphere, the plan made on its
     # parameters (each planned view sees its sphere: none rejected), the first calibration
-    # from the plan's 24 views and those random ones, up to 18 a sphere
+    # from the plan's 24 views and those random ones, up to 36 a sphere
     pre = steps["precalibration"]["results"]
-    assert pre["measurements"] + len(pre["rejected"]) == 48 and "passed" in pre["gates"]
+    assert pre["measurements"] + len(pre["rejected"]) == 120 and "passed" in pre["gates"]
     assert plan["planned_on"] == "the pre-calibration's parameters"
     assert steps["calibration"]["results"]["rejected"] == []
-    assert steps["calibration"]["results"]["measurements"] == 24 + pre["measurements"] == 72
+    assert steps["calibration"]["results"]["measurements"] == 24 + pre["measurements"] == 144
     # the simulated PLC writes the cell temperature, and the commissioning cell says so: each
     # measurement carries it (a PLC that does not would give none, never 0 degC)
     rows = (paths.commission / "calibration_measurements.csv").read_text().splitlines()
-    assert rows[0].endswith(",temp_c") and len(rows) == 73
+    assert rows[0].endswith(",temp_c") and len(rows) == 145
     temps = [float(r.rsplit(",", 1)[1]) for r in rows[1:]]
     assert all(15.0 < t < 30.0 for t in temps)
     md = (paths.commission / "commission.md").read_text()
