@@ -79,6 +79,13 @@ class Taken:
             temps,
         )
 
+    def extend(self, other: Taken) -> None:
+        """`other`'s measurements after these (its rejections and notes are its own)."""
+        self.targets += other.targets
+        self.q_deg += other.q_deg
+        self.c_sensor_mm += other.c_sensor_mm
+        self.temp_c += other.temp_c
+
     def write(self, path: object) -> None:
         temps = None if any(t is None for t in self.temp_c) else np.array(self.temp_c)
         q, c = np.array(self.q_deg).reshape(-1, 6), np.array(self.c_sensor_mm).reshape(-1, 3)
@@ -151,15 +158,19 @@ def precalibration_views(cell: CellConfig, positions: dict[str, F64]) -> list[tu
 
 
 def _identified(
-    ctx: Context, r: StepResult, taken: Taken, passed_file: str, rejected_file: str | None
+    ctx: Context,
+    cell: CellConfig,
+    r: StepResult,
+    data: Measurements,
+    passed_file: str,
+    rejected_file: str | None,
 ) -> None:
-    """Identify the commissioning's model (CellConfig.commissioning_model) from `taken`, hold
+    """Identify the commissioning's model (CellConfig.commissioning_model) from `data`, hold
     it to the quality gates of [calibration] and write it to `passed_file` when it passed,
     else to `rejected_file` (None: not written); its figures and checks into `r`."""
-    cell = ctx.cell()
     model = cell.commissioning_model()
     try:
-        result = identify(model, taken.data(ctx.spheres_part_mm()))
+        result = identify(model, data)
     except InsufficientData as exc:
         r.checks.append(holds("identification", False, str(exc)))
         return
@@ -171,7 +182,7 @@ def _identified(
         r.files.append(name)
     g = cell.calibration
     r.results |= {
-        "measurements": len(taken.targets),
+        "measurements": len(data),
         "rms_mm": result.rms_mm,
         "max_mm": result.max_mm,
         "rank": result.observability.rank,
@@ -198,13 +209,14 @@ def precalibration(ctx: Context) -> StepResult:
     needs, so that the planned views see their sphere on the cell as built. Its views are
     the first calibration's random ones."""
     cell = ctx.cell()
-    views = precalibration_views(cell, ctx.spheres_part_mm())
+    positions = ctx.spheres_part_mm()
+    views = precalibration_views(cell, positions)
     sensor = ctx.sphere_sensor(ctx.sensor_model())
     taken = measure_views(ctx, views, sensor, "pre-calibration")
     taken.write(ctx.path(PRECALIBRATION_MEASUREMENTS_FILE))
     r = StepResult(files=[PRECALIBRATION_MEASUREMENTS_FILE])
     _rejected_check(cell, r, taken, len(views))
-    _identified(ctx, r, taken, PRECALIBRATION_PARAMS_FILE, None)
+    _identified(ctx, cell, r, taken.data(positions), PRECALIBRATION_PARAMS_FILE, None)
     return r
 
 
@@ -214,11 +226,11 @@ def precalibrated_x(ctx: Context) -> F64:
     return x[: len(ctx.cell().model().nominal_x())]
 
 
-def _precalibration_taken(ctx: Context, planned: dict[str, F64]) -> Taken:
+def _precalibration_taken(ctx: Context, cell: CellConfig, planned: dict[str, F64]) -> Taken:
     """The pre-calibration's measurements the first calibration takes beyond the plan's:
     `[commission] calibration_views_per_sphere` a sphere with the plan's (0: none)."""
     rows = read_measurements(ctx.path(PRECALIBRATION_MEASUREMENTS_FILE))
-    want = ctx.cell().commission.calibration_views_per_sphere
+    want = cell.commission.calibration_views_per_sphere
     temps = [None] * len(rows.targets) if rows.temp_c is None else list(map(float, rows.temp_c))
     taken = Taken()
     count: dict[str, int] = {}
@@ -246,12 +258,10 @@ def calibration(ctx: Context) -> StepResult:
     taken = measure_views(ctx, views, ctx.sphere_sensor(ctx.sensor_model()), "calibration")
     r = StepResult(files=[CALIBRATION_MEASUREMENTS_FILE, CALIBRATION_TARGETS_FILE])
     _rejected_check(cell, r, taken, len(views))
-    random = _precalibration_taken(ctx, qs)
-    for name in ("targets", "q_deg", "c_sensor_mm", "temp_c"):
-        getattr(taken, name).extend(getattr(random, name))
+    taken.extend(_precalibration_taken(ctx, cell, qs))
     taken.write(ctx.path(CALIBRATION_MEASUREMENTS_FILE))
     write_targets(ctx.path(CALIBRATION_TARGETS_FILE), positions)
-    _identified(ctx, r, taken, PARAMS_FILE, PARAMS_REJECTED_FILE)
+    _identified(ctx, cell, r, taken.data(positions), PARAMS_FILE, PARAMS_REJECTED_FILE)
     return r
 
 
