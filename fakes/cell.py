@@ -155,6 +155,9 @@ REFERENCE_EXPOSURE_US = 10_000.0
 #: rendering) while the sphere has moved less than this in the sensor frame [mm]: during a sweep
 #: the robot stands still and only the warm-up moves the sphere, by nanometres per frame.
 SCENE_REUSE_MM = 1e-4
+#: the renderer's frames: 12-bit digital numbers, full scale 4095
+FRAME_BITS = 12
+FULL_SCALE_DN = (1 << FRAME_BITS) - 1
 
 
 @dataclass(frozen=True, eq=False)
@@ -615,6 +618,22 @@ class SimulatedCell:
     ) -> F64:
         """As `render_frame`, for a mirror command in volts (the DAC's output): the true
         mirror angle follows the true sensor's command-to-angle polynomial."""
+        counts, full_scale = self.render_counts_v(width, height, exposure_us, gain_db, command_v)
+        out: F64 = counts.astype(np.float64) / float(full_scale)
+        return out
+
+    def render_counts(
+        self, width: int, height: int, exposure_us: float, gain_db: float, galvo_v: float | None
+    ) -> tuple[NDArray[np.uint16], int]:
+        """`render_frame`'s frame as the renderer's 12-bit digital numbers and their full scale
+        (4095): the frame is these divided by it (fakes/world.py, `frame_in_format`)."""
+        command_v = 0.0 if galvo_v is None else float(galvo_v)
+        return self.render_counts_v(width, height, exposure_us, gain_db, command_v)
+
+    def render_counts_v(
+        self, width: int, height: int, exposure_us: float, gain_db: float, command_v: float
+    ) -> tuple[NDArray[np.uint16], int]:
+        """As `render_counts`, for a mirror command in volts."""
         sensor = self.sensor
         if width > sensor.width_px or height > sensor.height_px:
             raise ValueError(
@@ -622,7 +641,7 @@ class SimulatedCell:
             )
         exposure = exposure_us / REFERENCE_EXPOSURE_US
         gain = 10.0 ** (gain_db / 20.0)
-        base = NoiseSettings(bits=12)
+        base = NoiseSettings(bits=FRAME_BITS)
         noise = replace(
             base, full_well_e=base.full_well_e / gain, ambient_e=base.ambient_e * exposure
         )
@@ -645,8 +664,7 @@ class SimulatedCell:
                     stripe_truth=False,
                     scene=scene,
                 )[0][0]
-        out: F64 = frame[:height, :width].astype(np.float64) / 4095.0
-        return out
+        return np.asarray(frame[:height, :width], dtype=np.uint16), FULL_SCALE_DN
 
     def warm_up(self) -> None:
         """Render one frame of a sphere and throw it away (no noise drawn from the cell's

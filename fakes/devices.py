@@ -37,7 +37,7 @@ from drivers.robot import FloatArray, Robot, RobotStatus
 from drivers.tracker import Tracker, TrackerMeasurement, TrackerStatus
 from drivers.url import DeviceUrl
 from fakes.clock import VirtualClock
-from fakes.world import World
+from fakes.world import World, frame_in_format
 
 SENSOR_WH = (1296, 966)  # Basler acA1300-30um, Sony ICX445
 
@@ -223,10 +223,9 @@ class FakeCamera(Camera):
         assert s.region is not None
         x, y, w, h = s.region
         galvo_v = self.galvo.volts() if self.galvo is not None and self.galvo.is_open else None
-        full = self.world.render_frame(*SENSOR_WH, s.exposure_us, s.gain_db, galvo_v)
         top = {"Mono8": 255, "Mono12": 4095, "Mono16": 65535}[s.pixel_format]
-        scaled = np.round(np.clip(full[y : y + h, x : x + w], 0, 1) * top)
-        image = scaled.astype(np.uint8) if top == 255 else scaled.astype(np.uint16)
+        full = frame_in_format(self.world, SENSOR_WH, s.exposure_us, s.gain_db, galvo_v, top)
+        image = np.ascontiguousarray(full[y : y + h, x : x + w])
         self._frame_id += 1
         return Frame(image, self._frame_id, time.time_ns(), s.exposure_us, s.gain_db)
 

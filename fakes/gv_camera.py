@@ -47,7 +47,7 @@ import numpy as np
 
 from fakes.clock import VirtualClock
 from fakes.holders import flock_holder, process_text, udp_port_holder
-from fakes.world import World
+from fakes.world import World, frame_in_format
 
 _FILL = ctypes.CFUNCTYPE(
     None, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_uint32, ctypes.c_uint32, ctypes.c_uint32
@@ -266,22 +266,23 @@ class GvCamera:
             ptr = self._lib.arv_buffer_get_data(buffer, ctypes.byref(ctypes.c_size_t()))
             if self.clock is not None:
                 self.clock.elapse(exposure_us * 1e-6 + self.readout_s)
-            image = self._render(w, h, float(exposure_us), float(gain))
-            top, dtype = (255, np.uint8) if bits == 8 else (65535, np.dtype("<u2"))
-            values = np.round(np.clip(image, 0.0, 1.0) * top).astype(dtype)
+            top = 255 if bits == 8 else 65535
+            values = self._render(w, h, float(exposure_us), float(gain), top)
             raw = (ctypes.c_uint8 * (w * h * (bits // 8))).from_address(ptr)
-            np.frombuffer(raw, dtype=dtype)[:] = values.ravel()
+            np.frombuffer(raw, dtype=values.dtype)[:] = values.ravel()
             self.frames_filled += 1
             if self._lose:
                 self._drop_packets()
         except Exception:
             self.failed = True
 
-    def _render(self, w: int, h: int, exposure_us: float, gain: float) -> Any:
+    def _render(self, w: int, h: int, exposure_us: float, gain: float, top: int) -> Any:
+        """The world's frame in the pixel format of maximum value `top`, w x h from the
+        region's offset."""
         assert self.world is not None and self._fake is not None
         if self.sensor_wh is None:
-            return self.world.render_frame(w, h, exposure_us, gain, None)
-        full = self.world.render_frame(*self.sensor_wh, exposure_us, gain, None)
+            return frame_in_format(self.world, (w, h), exposure_us, gain, None, top)
+        full = frame_in_format(self.world, self.sensor_wh, exposure_us, gain, None, top)
         x = int(self._fake.read_register(_OFFSET_X)[1])
         y = int(self._fake.read_register(_OFFSET_Y)[1])
         return full[y : y + h, x : x + w]

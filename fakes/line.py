@@ -156,6 +156,11 @@ class _LineWorld:
     ) -> F64:
         return self.cell.render_frame_v(width, height, exposure_us, gain_db, self.dac.volts)
 
+    def render_counts(
+        self, width: int, height: int, exposure_us: float, gain_db: float, galvo_deg: float | None
+    ) -> tuple[NDArray[np.uint16], int]:
+        return self.cell.render_counts_v(width, height, exposure_us, gain_db, self.dac.volts)
+
 
 class SimLine:
     """Every peer of the line on loopback, driven by one simulated cell (module docstring)."""

@@ -18,13 +18,19 @@ thread-safe for these calls):
   now, shape (height, width), float64 in [0, 1] (the fake camera quantises it to the pixel
   format). ``galvo_v`` is the galvo command in DAC volts (None when no galvo is attached); the
   world's true sensor turns it into the mirror angle with its own model.
+- ``render_counts(...)`` (optional, same arguments): a world that renders integer digital
+  numbers gives them as they are, with their full scale: ``(counts, full_scale)``, the frame
+  being ``counts / full_scale``. The fake cameras quantise through `frame_in_format`, which
+  maps such counts through a table: the same numbers as from ``render_frame``, without a
+  floating-point frame in between (1.25 million pixels a frame).
 """
 
 from __future__ import annotations
 
 import threading
 from collections.abc import Mapping, Sequence
-from typing import Protocol, runtime_checkable
+from functools import lru_cache
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -45,6 +51,36 @@ class World(Protocol):
     def render_frame(
         self, width: int, height: int, exposure_us: float, gain_db: float, galvo_v: float | None
     ) -> FloatArray: ...
+
+
+def frame_in_format(
+    world: World,
+    size_wh: tuple[int, int],
+    exposure_us: float,
+    gain_db: float,
+    galvo_v: float | None,
+    top: int,
+) -> NDArray[Any]:
+    """The world's frame of size_wh (width, height) quantised to a camera's pixel format of
+    maximum value `top` (255: uint8, else uint16): round(clip(frame, 0, 1) * top). Through the
+    world's `render_counts` and a table where it has it (module docstring)."""
+    dtype = np.dtype(np.uint8) if top == 255 else np.dtype("<u2")
+    counts = getattr(world, "render_counts", None)
+    if counts is not None:
+        dn, full_scale = counts(*size_wh, exposure_us, gain_db, galvo_v)
+        return np.take(_count_table(int(full_scale), top, dtype.str), dn)
+    frame = world.render_frame(*size_wh, exposure_us, gain_db, galvo_v)
+    return np.round(np.clip(frame, 0.0, 1.0) * top).astype(dtype)
+
+
+@lru_cache(maxsize=8)
+def _count_table(full_scale: int, top: int, dtype: str) -> NDArray[Any]:
+    """round(clip(n / full_scale, 0, 1) * top) for every count n: the frame's values as the
+    camera quantises them (the same division as the floating-point frame's)."""
+    n = np.arange(full_scale + 1, dtype=np.float64)
+    table = np.round(np.clip(n / float(full_scale), 0.0, 1.0) * top).astype(dtype)
+    table.flags.writeable = False
+    return table
 
 
 class StaticWorld:

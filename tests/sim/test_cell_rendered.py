@@ -28,6 +28,7 @@ from fakes.cell import CellSpec, SimulatedCell
 from fakes.devices import FakeCamera, FakeGalvo
 from fakes.render import render_sphere_sweep
 from fakes.render_sensor import TrueSensor, default_true_sensor
+from fakes.world import frame_in_format
 from vision.stripe import extract_stripe
 
 TOL_MM = 0.010
@@ -216,3 +217,26 @@ def test_a_frame_s_noise_belongs_to_the_frame_not_to_the_frames_before_it(
     other = frame(redraw)
     assert not np.array_equal(other, first)
     assert np.abs(other - first).mean() < 0.01  # the same scene, only the noise differs
+
+
+def test_the_cameras_quantise_the_cells_counts_as_they_would_its_frame(
+    cfg: CellConfig, sensor: TrueSensor
+) -> None:
+    """The fake cameras take the cell's 12-bit counts through a table (`frame_in_format`)
+    instead of its floating-point frame: every pixel format's values are those of the frame
+    rounded as before, on a lit frame and a dark one, full and cropped, at another exposure."""
+    cell = make_cell(cfg, seed=7, sensor=sensor)
+    cell.set_joints_deg(views_of(cell, cfg, "P2", 1, seed=5)[0])
+    for volts, (w, h), exposure_us, gain_db in (
+        (0.0, (1296, 966), 10000.0, 0.0),
+        (-2.0, (640, 480), 7000.0, 3.0),
+        (2.5, (1296, 966), 10000.0, 0.0),  # the stripe off the sphere: a dark frame
+    ):
+        frame = cell.render_frame_v(w, h, exposure_us, gain_db, volts)
+        for top in (255, 4095, 65535):
+            got = frame_in_format(cell, (w, h), exposure_us, gain_db, volts, top)
+            want = np.round(np.clip(frame, 0.0, 1.0) * top)
+            assert got.dtype == (np.uint8 if top == 255 else np.uint16)
+            np.testing.assert_array_equal(got, want)
+    lit = frame_in_format(cell, (1296, 966), 10000.0, 0.0, 0.0, 4095)
+    assert (lit > 200).sum() > 1000  # the stripe is in it
