@@ -18,6 +18,7 @@ Public functions (all lengths mm in the sensor frame S = camera frame, commands 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -102,21 +103,26 @@ def _surface_terms(sensor: TrueSensor, X: F64, N: F64, light: Lighting) -> tuple
 
 
 class _Tiles:
-    """Surface points grouped by 16 x 16 pixel tiles, with each tile's bounding box [mm]."""
+    """Surface points grouped by 16 x 16 pixel tiles, with each tile's bounding box [mm].
+    `order`: the points' order by tile (stable: row by row within a tile)."""
 
     SIZE = 16
 
     def __init__(self, flat_idx: NDArray[np.intp], X: F64, width_px: int) -> None:
-        rows, cols = np.divmod(flat_idx, width_px)
-        per_row = -(-width_px // self.SIZE)
-        tid = (rows // self.SIZE) * per_row + cols // self.SIZE
-        if tid.size and tid.max() < 65536:
-            tid = tid.astype(np.uint16)  # radix sort
-        self.order = np.argsort(tid, kind="stable")
-        t = tid[self.order]
+        self.order, t = _tile_order(flat_idx, width_px)
+        self._bound(t, X[self.order])
+
+    @classmethod
+    def of_ordered(cls, tile_ids: NDArray[np.integer[Any]], Xs: F64) -> _Tiles:
+        """The tiles of points already in tile order (`_tile_order`'s ids and points)."""
+        tiles = cls.__new__(cls)
+        tiles.order = np.arange(len(Xs))
+        tiles._bound(tile_ids, Xs)
+        return tiles
+
+    def _bound(self, t: NDArray[np.integer[Any]], Xs: F64) -> None:
         self.starts = np.flatnonzero(np.r_[True, t[1:] != t[:-1]]) if t.size else np.zeros(0, int)
         self.ends = np.r_[self.starts[1:], t.size].astype(np.intp)
-        Xs = X[self.order]
         self.lo = np.minimum.reduceat(Xs, self.starts, axis=0) if t.size else np.zeros((0, 3))
         self.hi = np.maximum.reduceat(Xs, self.starts, axis=0) if t.size else np.zeros((0, 3))
 
@@ -131,6 +137,20 @@ class _Tiles:
         lengths = self.ends[hit] - self.starts[hit]
         shift = np.repeat(self.starts[hit] - np.r_[0, np.cumsum(lengths)[:-1]], lengths)
         return np.asarray(np.arange(int(lengths.sum())) + shift, dtype=np.intp)
+
+
+def _tile_order(
+    flat_idx: NDArray[np.intp], width_px: int
+) -> tuple[NDArray[np.intp], NDArray[np.integer[Any]]]:
+    """The pixels' order by 16 x 16 tile (stable) and their tile ids in that order."""
+    size = _Tiles.SIZE
+    rows, cols = np.divmod(flat_idx, width_px)
+    per_row = -(-width_px // size)
+    tid = (rows // size) * per_row + cols // size
+    if tid.size and tid.max() < 65536:
+        tid = tid.astype(np.uint16)  # radix sort
+    order = np.argsort(tid, kind="stable")
+    return order, tid[order]
 
 
 def _render_frames(
@@ -223,6 +243,15 @@ def sphere_hits(
 ) -> tuple[NDArray[np.intp], F64]:
     """Pixels that see the sphere (flat indices into the frame) and the surface points they
     see [mm]; with roi, rays are cast only inside the sphere's image box (`_sphere_box`)."""
+    flat_idx, rays, local, t = _sphere_rays(sensor, c_sensor_mm, radius_mm, roi)
+    return flat_idx, rays[local] * t[:, None]
+
+
+def _sphere_rays(
+    sensor: TrueSensor, c_sensor_mm: F64, radius_mm: float, roi: bool = True
+) -> tuple[NDArray[np.intp], F64, NDArray[np.intp], F64]:
+    """`sphere_hits` before its points: the pixels' flat indices, the rays cast (n, 3), which
+    of them hit (`local`) and their distance to the hit [mm] (X = rays[local] * t)."""
     c = np.asarray(c_sensor_mm, dtype=np.float64)
     h, w = sensor.height_px, sensor.width_px
     rs, cs = _sphere_box(sensor, c, radius_mm) if roi else (slice(0, h), slice(0, w))
@@ -233,7 +262,7 @@ def sphere_hits(
     t = b[local] - np.sqrt(disc[local])
     bw = cs.stop - cs.start
     flat_idx = (rs.start + local // bw) * w + cs.start + local % bw
-    return flat_idx, rays[local] * t[:, None]
+    return flat_idx, rays, local, t
 
 
 def _circle_polyline(
@@ -336,11 +365,13 @@ class SphereScene:
 def sphere_scene(sensor: TrueSensor, c_sensor_mm: F64, radius_mm: float) -> SphereScene:
     """The scene of the sphere of centre c_sensor_mm (3,) [mm] in S and radius radius_mm."""
     c = np.array(c_sensor_mm, dtype=np.float64)
-    flat_idx, X = sphere_hits(sensor, c, radius_mm)
+    flat_idx, rays, local, t = _sphere_rays(sensor, c, radius_mm)
+    order, tile_ids = _tile_order(flat_idx, sensor.width_px)
+    # the points gathered in tile order at once (the same values as sphere_hits's, reordered)
+    X = np.take(rays, local[order], axis=0) * t[order][:, None]
     N = (X - c) / radius_mm
-    tiles = _Tiles(flat_idx, X, sensor.width_px)
-    o = tiles.order
-    return SphereScene(c, float(radius_mm), flat_idx[o], X[o], N[o], tiles)
+    tiles = _Tiles.of_ordered(tile_ids, X)
+    return SphereScene(c, float(radius_mm), flat_idx[order], X, N, tiles)
 
 
 def render_sphere_sweep(
