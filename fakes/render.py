@@ -457,7 +457,10 @@ def _plane_hits(sensor: TrueSensor, T_camera_target: F64) -> tuple[NDArray[np.in
     rays = sensor.pixel_rays.reshape(-1, 3)
     denom = rays @ n
     t = (p0 @ n) / np.where(np.abs(denom) > 1e-9, denom, np.nan)
-    flat_idx = np.flatnonzero(t > 0)
+    hit = t > 0
+    if hit.all():  # the plane fills the frame (a target): no gather
+        return np.arange(len(t)), rays * t[:, None], t, denom
+    flat_idx = np.flatnonzero(hit)
     X = rays[flat_idx] * t[flat_idx, None]
     return flat_idx, X, t[flat_idx], denom[flat_idx]
 
