@@ -24,7 +24,6 @@ from app.config.cell import SpheresSection
 from app.config.line import LineSettings, SweepSettings
 from app.formats.files import read_targets
 from app.line.measure import SphereSensor
-from app.line.settings import from_cell
 from app.line.statedir import StateDir
 from app.line.station import Station, cell_guard
 from app.motion import motion_time_s
@@ -95,12 +94,11 @@ class Context:
     @property
     def line(self) -> LineSettings:
         """The cell's [line] settings with the commissioning speed."""
-        line = from_cell(self.cfg).line
-        return dataclasses.replace(line, speed_pct=float(self.cfg.commission.speed_pct))
+        return dataclasses.replace(self.cfg.line, speed_pct=float(self.cfg.commission.speed_pct))
 
     @property
     def sweep(self) -> SweepSettings:
-        return from_cell(self.cfg).sweep
+        return self.cfg.sweep
 
     def move(self, q_deg: ArrayLike, what: str) -> None:
         """Move the robot to `q_deg` once the engineer has confirmed it."""
