@@ -1,12 +1,24 @@
 """SPC of the bodies' characteristics that knows gauge from process (issue 49 item 5).
 
 An individuals chart per characteristic, as plants run them: the centre and sigma from the
-first `BASELINE_N` values (sigma from the average moving range / 1.128), then the Western
-Electric run rules on each new value:
+first `BASELINE_N` values (sigma from the average moving range / 1.128), drawn with their
+3-sigma limits (`limits_mm`). The cell charts every characteristic of every body at once (74 on
+the simulated part type), so its alarm counts its false alarms per body, not per chart: with
+the Western Electric rules on each chart (one value beyond 3 sigma, 2 of 3 beyond 2 sigma, 8 in
+a row on one side) 74 charts of a perfectly stable process signalled 1.1 times a body
+(docs/results/body.md). The alarm's two rules, on the baseline's mean m and standard deviation
+s (n = BASELINE_N values), each a Student t statistic with n - 1 degrees of freedom for a stable
+normal process however far m and s are from the truth (a new value, or the mean of RECENT_N
+new ones, against m):
 
-    rule 1  one value beyond 3 sigma
-    rule 5  2 of 3 values in a row beyond 2 sigma on the same side
-    rule 4  8 values in a row on the same side of the centre
+    rule 1  |x - m| / (s sqrt(1 + 1/n))                 > L
+    rule 2  |mean of the last 8 - m| / (s sqrt(1/8 + 1/n)) > L   (a sustained shift)
+
+L = `alarm_limit(family)`: each rule's two-sided tail is half of `ALPHA_BODY` (a Shewhart
+chart's one false alarm in 370) shared over the body's `family` of charts (Bonferroni): on a
+stable process the expected false alarms are one in 370 bodies, whatever the number of
+characteristics (5.7 for 74 charts, 4.0 for one). Rule 2 looks back over `RECENT_N` values
+only, so a restarted service that replays its last bodies decides as one that never stopped.
 
 A chart that signalled stays quiet until `QUIET_N` values in a row break no rule (one excursion,
 one signal). Whose is the signal, looked at after the cell's next window (it measures itself
@@ -23,22 +35,34 @@ import math
 from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from functools import cache
 from typing import Any
+
+from scipy.special import stdtrit
 
 BASELINE_N = 20
 #: the first bodies a chart is replayed from hold its baseline (a feature not measured in a few
 #: of them included): the service's charts at a start, the operator's view of their limits
 BASELINE_BODIES = 2 * BASELINE_N
-#: the control limits: centre +- this many sigma (rule 1)
+#: the limits the charts are drawn with: centre +- this many sigma
 LIMIT_SIGMA = 3.0
+#: the alarm's expected false alarms a body of a stable process, over all its charts and rules
+ALPHA_BODY = 0.0027
 QUIET_N = 8
-#: the values a chart's run rules look back over
+#: the values a chart's rule 2 averages and a signal's bodies look back over
 RECENT_N = 8
 RULES = {
-    1: "a value beyond 3 sigma",
-    5: "2 of 3 values beyond 2 sigma on one side",
-    4: "8 values in a row on one side of the centre",
+    1: "a value beyond its alarm limit",
+    2: f"the mean of its last {RECENT_N} values beyond its alarm limit",
 }
+
+
+@cache
+def alarm_limit(family: int, n: int = BASELINE_N) -> float:
+    """L, the rules' limit on their t statistics (module docstring) for a chart among `family`
+    charted at once, its baseline of n values."""
+    tail = ALPHA_BODY / 2.0 / max(int(family), 1)
+    return float(stdtrit(n - 1, 1.0 - tail / 2.0))
 
 
 @dataclass
@@ -63,12 +87,14 @@ class Signal:
 
 @dataclass
 class IndividualsChart:
-    """One characteristic's chart (module docstring)."""
+    """One characteristic's chart (module docstring), one of `family` charted at once."""
 
     key: str
+    family: int = 1
     baseline: list[float] = field(default_factory=list)
     centre: float = math.nan
     sigma: float = math.nan
+    sd: float = math.nan  # the baseline's standard deviation (the alarm's s)
     recent: deque[tuple[float, Any]] = field(default_factory=lambda: deque(maxlen=RECENT_N))
     quiet: int = QUIET_N
 
@@ -88,13 +114,14 @@ class IndividualsChart:
             self.quiet = 0
             return None
         self.quiet = 0
-        n = {1: 1, 5: 3, 4: 8}[rule]
+        n = {1: 1, 2: RECENT_N}[rule]
         bodies = [b for _, b in list(self.recent)[-n:]]
         return Signal(self.key, rule, bodies, self.centre, self.sigma)
 
     @property
     def limits_mm(self) -> tuple[float, float]:
-        """The lower and upper control limits (nan before the baseline is complete)."""
+        """The chart's drawn lower and upper control limits, 3 sigma (nan before the baseline
+        is complete)."""
         return self.centre - LIMIT_SIGMA * self.sigma, self.centre + LIMIT_SIGMA * self.sigma
 
     def _limits(self) -> None:
@@ -102,17 +129,18 @@ class IndividualsChart:
         self.centre = sum(b) / len(b)
         mr = [abs(y - x) for x, y in itertools.pairwise(b)]
         self.sigma = max(sum(mr) / len(mr) / 1.128, 1e-6)
+        var = sum((x - self.centre) ** 2 for x in b) / (len(b) - 1)
+        self.sd = max(math.sqrt(var), 1e-6)
 
     def _rule(self) -> int | None:
-        z = [(v - self.centre) / self.sigma for v, _ in self.recent]
-        if abs(z[-1]) > LIMIT_SIGMA:
+        n, limit = len(self.baseline), alarm_limit(self.family)
+        last, _ = self.recent[-1]
+        if abs(last - self.centre) / (self.sd * math.sqrt(1.0 + 1.0 / n)) > limit:
             return 1
-        last3 = z[-3:]
-        for side in (1.0, -1.0):
-            if len(last3) == 3 and sum(side * x > 2.0 for x in last3) >= 2:
-                return 5
-        if len(z) == 8 and (all(x > 0 for x in z) or all(x < 0 for x in z)):
-            return 4
+        if len(self.recent) == RECENT_N:
+            mean = sum(v for v, _ in self.recent) / RECENT_N
+            if abs(mean - self.centre) / (self.sd * math.sqrt(1.0 / RECENT_N + 1.0 / n)) > limit:
+                return 2
         return None
 
 
@@ -125,13 +153,17 @@ def add_values(
     charts: dict[str, IndividualsChart], body: Any, values: Iterable[dict[str, Any]]
 ) -> list[Signal]:
     """A body's stored values (feature, characteristic, measured_mm) each into its chart (made
-    when it is the first), those not measured left out; the signals they raise."""
+    when it is the first, one of a family of as many charts as the body has values), those not
+    measured left out; the signals they raise."""
+    values = list(values)
+    family = len(values)  # every characteristic of the body, measured or not: charted at once
     signals = []
     for v in values:
         if v["measured_mm"] is None:
             continue
         key = chart_key(v)
-        signal = charts.setdefault(key, IndividualsChart(key)).add(float(v["measured_mm"]), body)
+        chart = charts.setdefault(key, IndividualsChart(key, family))
+        signal = chart.add(float(v["measured_mm"]), body)
         if signal is not None:
             signals.append(signal)
     return signals
