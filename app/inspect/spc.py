@@ -38,8 +38,6 @@ from dataclasses import dataclass, field
 from functools import cache
 from typing import Any
 
-from scipy.special import stdtrit
-
 BASELINE_N = 20
 #: the first bodies a chart is replayed from hold its baseline (a feature not measured in a few
 #: of them included): the service's charts at a start, the operator's view of their limits
@@ -61,6 +59,8 @@ RULES = {
 def alarm_limit(family: int, n: int = BASELINE_N) -> float:
     """L, the rules' limit on their t statistics (module docstring) for a chart among `family`
     charted at once, its baseline of n values."""
+    from scipy.special import stdtrit  # here: `rvis state` reads this module without numpy
+
     tail = ALPHA_BODY / 2.0 / max(int(family), 1)
     return float(stdtrit(n - 1, 1.0 - tail / 2.0))
 
