@@ -17,7 +17,7 @@ new ones, against m):
 L = `alarm_limit(family)`: each rule's two-sided tail is half of `ALPHA_BODY` (a Shewhart
 chart's one false alarm in 370) shared over the body's `family` of charts (Bonferroni): on a
 stable process the expected false alarms are one in 370 bodies, whatever the number of
-characteristics (5.7 for 74 charts, 4.0 for one). Rule 2 looks back over `RECENT_N` values
+characteristics (5.7 for 74 charts, 3.75 for one). Rule 2 looks back over `RECENT_N` values
 only, so a restarted service that replays its last bodies decides as one that never stopped.
 
 A chart that signalled stays quiet until `QUIET_N` values in a row break no rule (one excursion,
@@ -133,7 +133,8 @@ class IndividualsChart:
         self.sd = max(math.sqrt(var), 1e-6)
 
     def _rule(self) -> int | None:
-        n, limit = len(self.baseline), alarm_limit(self.family)
+        n = len(self.baseline)
+        limit = alarm_limit(self.family, n)
         last, _ = self.recent[-1]
         if abs(last - self.centre) / (self.sd * math.sqrt(1.0 + 1.0 / n)) > limit:
             return 1
