@@ -45,7 +45,7 @@ from app.line.station import Station, cell_guard
 from app.line.store import Store
 from app.sim.cell import make_cell, true_sensor_model
 from app.sim.cold_calibration import commissioned, random_schedule
-from app.sim.truth import EndToEndTruth, true_errors_mm, true_rmse_mm
+from app.sim.truth import EndToEndTruth, true_errors_each_mm, true_rmse_mm
 from calib.compliance import CompliantModel, carry
 from calib.validation import rmse
 from fakes.cell import NotVisible
@@ -695,7 +695,13 @@ class SimulatedLineRun:
         if version is None:
             version = self.service.version
         t_s = float(event["t"]) - epoch
-        e = true_errors_mm(self.line, self.truth_at(t_s), self.model, self._x_of(version), t_s)
+        e, e_commissioning = true_errors_each_mm(
+            self.line,
+            self.truth_at(t_s),
+            self.model,
+            [self._x_of(version), self.x_commissioning],
+            t_s,
+        )
         u95 = event.get("u95_mm")
         norms = np.linalg.norm(e, axis=1)
         record = WindowRecord(
@@ -703,7 +709,7 @@ class SimulatedLineRun:
             t_h=t_s / 3600.0,
             temp_c=truth.temp_c(t_s),
             rmse_mm=rmse(e) if len(e) else float("nan"),
-            rmse_commissioning_mm=self.true_rmse_mm(self.x_commissioning, t_s),
+            rmse_commissioning_mm=rmse(e_commissioning) if len(e_commissioning) else float("nan"),
             version=version,
             u95_mm=u95,
             within_u95=None if u95 is None or not len(e) else float(np.mean(norms <= u95)),

@@ -169,10 +169,19 @@ def true_errors_mm(
     validation positions at sim time t_s (default now; the cell's temperature as the PLC reads
     it): each position's sphere observed by the true sensor, measured through the sensor model
     in use (`truth`), mapped with x."""
+    return true_errors_each_mm(line, truth, model, [x], t_s)[0]
+
+
+def true_errors_each_mm(
+    line: SimLine, truth: EndToEndTruth, model: Any, xs: Sequence[F64], t_s: float | None = None
+) -> list[F64]:
+    """`true_errors_mm` of each parameter vector in xs on one observation of the validation
+    positions (the robot's stops there at t_s drawn once, as the parameters are compared on the
+    same measurements)."""
     v = line.truth.validation
     c = line.truth.validation_centres_sensor_mm(t_s)
     temp = np.full(len(v.q_deg), line.truth.temp_c(t_s))
-    return truth.errors_mm(model, x, v.q_deg, c, v.p_part_mm, temp)
+    return [truth.errors_mm(model, x, v.q_deg, c, v.p_part_mm, temp) for x in xs]
 
 
 def robot_floor_mm(line: SimLine, draws: int = 50) -> float:
