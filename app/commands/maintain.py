@@ -129,7 +129,8 @@ def _context(
     """The procedure's Context: the commissioning's fields (app.commands.guided), the
     simulated line's world continuing where the service left it."""
     from app.commands.guided import guided_fields
-    from app.maintain.steps import MaintenanceContext, without_tracker
+    from app.maintain.context import MaintenanceContext
+    from app.maintain.fixture import without_tracker
 
     world: dict[str, Any] = {}
     if args.sim:

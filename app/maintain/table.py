@@ -7,6 +7,7 @@ from __future__ import annotations
 from app.commission import acceptance, steps
 from app.commission.table import CommissionStep, Procedure
 from app.line.statedir import MAINTENANCE_REPORT_JSON, MAINTENANCE_REPORT_MD
+from app.maintain import fixture, handover, reidentify, workspace
 from app.maintain import steps as m
 
 EVENTS = ("sensor", "axis", "fixture")
@@ -16,16 +17,18 @@ _PREPARE = CommissionStep("prepare", "The version in force, plan, sensor and sph
 _WORKSPACE = CommissionStep(
     "workspace",
     "Validation at workspace positions against the tracker (the paper's)",
-    m.workspace,
+    workspace.workspace,
 )
-_HANDOVER = CommissionStep("handover", "Handed back to `rvis run`", m.handover)
+_HANDOVER = CommissionStep("handover", "Handed back to `rvis run`", handover.handover)
 
 _STEPS = {
     "sensor": (
         _DEVICES,
         _PREPARE,
         CommissionStep("sensor", "The new sensor's calibration", steps.sensor),
-        CommissionStep("handeye", "The sensor's mount on the spheres (hand-eye)", m.reidentify),
+        CommissionStep(
+            "handeye", "The sensor's mount on the spheres (hand-eye)", reidentify.reidentify
+        ),
         CommissionStep(
             "acceptance",
             "Sensor acceptance (adapted from VDI/VDE 2634-2: PF, PS, SD)",
@@ -38,16 +41,18 @@ _STEPS = {
         _DEVICES,
         _PREPARE,
         CommissionStep("zero", "The axis's zero, from one view", m.zero),
-        CommissionStep("reidentify", "The axis's zero on the spheres", m.reidentify),
+        CommissionStep("reidentify", "The axis's zero on the spheres", reidentify.reidentify),
         _WORKSPACE,
         _HANDOVER,
     ),
     "fixture": (
         _DEVICES,
         _PREPARE,
-        CommissionStep("spheres", "Sphere positions from the tracker, again", m.spheres_moved),
         CommissionStep(
-            "reidentify", "The plan at the spheres' places; the part frame", m.reidentify
+            "spheres", "Sphere positions from the tracker, again", fixture.spheres_moved
+        ),
+        CommissionStep(
+            "reidentify", "The plan at the spheres' places; the part frame", reidentify.reidentify
         ),
         _WORKSPACE,
         _HANDOVER,

@@ -38,8 +38,9 @@ from app.formats.files import read_json, write_json, write_text
 from app.line.launch import hold_state
 from app.line.statedir import MAINTENANCE_REPORT_JSON, StateDir
 from app.line.store import Store
+from app.maintain.context import MaintenanceContext
+from app.maintain.fixture import without_tracker
 from app.maintain.record import open_record
-from app.maintain.steps import MaintenanceContext, without_tracker
 from app.maintain.table import procedure
 from app.sim.commission import SimCommissioning
 from app.sim.commissioned import commission_simulated, quiet, run_steps, scripted_fields

@@ -15,7 +15,7 @@ from app.api import Calibration
 from app.config import load_cell
 from app.formats.files import write_json
 from app.formats.params import covariance_of, document_covariance, to_json, with_held_covariance
-from app.maintain.steps import group_document
+from app.maintain.reidentify import group_document
 from calib.identify import Measurements, identify
 from calib.model import BASE_NAMES, INDEX, SENSOR_NAMES
 from calib.uncertainty import norm_quantile

@@ -16,7 +16,8 @@ from app.formats.params import plain_document
 from app.line.statedir import StateDir
 from app.line.states import AlarmCode
 from app.line.store import Store
-from app.maintain.steps import MaintenanceContext, handover
+from app.maintain.context import MaintenanceContext
+from app.maintain.handover import handover
 from fakes.clock import VirtualClock
 
 T_HELD = 100.0  # when the service raised the alarms

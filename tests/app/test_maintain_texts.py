@@ -23,8 +23,9 @@ from app.config import load_cell
 from app.errors import InputError
 from app.line.beyond_knock import change_need
 from app.line.maintenance_state import done_text, maintenance_lines
-from app.maintain.steps import compare_workspace, std_with_units
+from app.maintain.reidentify import std_with_units
 from app.maintain.table import procedure
+from app.maintain.workspace import compare_workspace
 from calib.attribution import Attribution, GroupFit, StepGroup
 from calib.model import BASE_NAMES, SENSOR_NAMES
 
@@ -94,7 +95,7 @@ BEFORE = [0.057] * 20
 
 
 def test_a_handover_whose_workspace_got_worse_says_so_and_by_how_much(tmp_path: Path) -> None:
-    """Was: 0.057 -> 0.070 mm passed without remark. The rule (app.maintain.steps.
+    """Was: 0.057 -> 0.070 mm passed without remark. The rule (app.maintain.workspace.
     compare_workspace): stated, never failed (the figure before is the version in force's own,
     at its time and temperature); shown worse at 95 % (F test of the two sets' mean squares),
     the report warns; the absolute `max_workspace_rmse_mm` is what fails a hand-over."""
