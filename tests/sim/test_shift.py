@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 
 from app.commands.cli import build_parser, main
-from app.commands.experiment import _knock_hours, hours_list
+from app.commands.experiment_shift import hours_list, knock_hours
 from app.config import CellConfig
 from app.line.store import Store
 from app.sim.shift import ShiftSettings, SuspectScore, episode_end, run_shift
@@ -231,9 +231,9 @@ def test_knock_hours_parse_as_a_list() -> None:
     args = build_parser(["experiment"]).parse_args(
         ["experiment", "shift", "--knock-at-h", "0.5,2.5", "--after-h", "1"]
     )
-    assert _knock_hours(args) == [(0.5, 1.5), (2.5, 3.5)]
+    assert knock_hours(args) == [(0.5, 1.5), (2.5, 3.5)]
     args = build_parser(["experiment"]).parse_args(["experiment", "shift", "--knock-at-h", "0.5,2"])
-    assert _knock_hours(args) == [(0.5, 8.0), (2.0, 8.0)]
+    assert knock_hours(args) == [(0.5, 8.0), (2.0, 8.0)]
 
 
 @pytest.mark.parametrize(
@@ -347,16 +347,16 @@ def test_a_campaign_over_two_knock_hours_in_two_jobs(
 def test_a_campaigns_shifts_run_the_estimator_and_model_the_command_names() -> None:
     """`--estimator` and `--model` reach every shift of a campaign (they once reached only the
     single shift: a campaign "with the sequential estimator" ran the cell file's)."""
-    from app.commands.experiment import _shift_settings
+    from app.commands.experiment_shift import shift_settings
 
     argv = ["experiment", "shift", "--knock-at-h", "0.5,0.75", "--after-h", "1"]
     argv += ["--knock", "all", "--seeds", "2", "--estimator", "sequential", "--model", "compliant"]
     args = build_parser(argv).parse_args(argv)
-    for knock_h, hours in _knock_hours(args):
-        s = _shift_settings(args, knock_h, hours)
+    for knock_h, hours in knock_hours(args):
+        s = shift_settings(args, knock_h, hours)
         assert (s.estimator, s.model, s.knock_at_h) == ("sequential", "compliant", knock_h)
     plain = ["experiment", "shift", "--knock-at-h", "0.5"]
-    s = _shift_settings(build_parser(plain).parse_args(plain), 0.5, 8.0)
+    s = shift_settings(build_parser(plain).parse_args(plain), 0.5, 8.0)
     assert s.estimator is None and s.model is None  # the cell file's
 
 
