@@ -57,7 +57,7 @@ def kinematic_rmse_mm(state: Path, seed: int) -> float:
     from app.config import load_cell
     from app.formats.params import from_json
     from app.sim.cell import make_cell
-    from app.sim.line_run import simline_settings
+    from app.sim.line_setup import simline_settings
     from app.sim.truth import EndToEndTruth, true_rmse_mm
     from fakes.line import SimLine
 

@@ -136,7 +136,7 @@ def shift_options(g: argparse.ArgumentParser) -> None:
 
 
 def run_shift_experiment(args: argparse.Namespace) -> int:
-    from app.sim.line_run import WindowRecord
+    from app.sim.line_records import WindowRecord
     from app.sim.shift import run_shift
     from app.sim.shift_report import summary_lines, write_estimators, write_outputs
 

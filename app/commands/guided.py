@@ -148,7 +148,7 @@ def guided_fields(
     urls = cfg.devices.urls()
     if args.sim:
         from app.sim.commission import SimCommissioning
-        from app.sim.line_run import with_simulated_plc
+        from app.sim.line_setup import with_simulated_plc
 
         sim = stack.enter_context(
             SimCommissioning(cfg, seed, geometric=geometric, waiting=say_waiting, **sim_world)

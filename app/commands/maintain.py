@@ -109,7 +109,7 @@ def _now(sim: bool, state: Any) -> float:
     """The time now: the wall clock's, or the simulated line's continued past its history."""
     if not sim:
         return datetime.now(UTC).timestamp()
-    from app.sim.line_run import continued_epoch
+    from app.sim.line_setup import continued_epoch
 
     return continued_epoch(state.root)[0]
 
@@ -134,7 +134,7 @@ def _context(
 
     world: dict[str, Any] = {}
     if args.sim:
-        from app.sim.line_run import continued_epoch, world_of
+        from app.sim.line_setup import continued_epoch, world_of
 
         epoch, world_s = continued_epoch(state.root)
         world = {"world_s": world_s, "start_epoch": epoch, "world": world_of(cfg, state.root)}

@@ -235,7 +235,8 @@ def run_sim(args: argparse.Namespace) -> int:
     from app.formats.jsontext import dumps_json, finite_json
     from app.line.launch import hold_state, json_logs, serving
     from app.line.statedir import StateDir
-    from app.sim.line_run import SimulatedLineRun, WindowRecord
+    from app.sim.line_records import WindowRecord
+    from app.sim.line_run import SimulatedLineRun
     from app.sim.shift_report import time_text
     from app.sim.world_record import simulated_world
 

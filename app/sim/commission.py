@@ -25,7 +25,7 @@ from app.config.line import SweepSettings
 from app.formats.sweeps import write_image, write_sweep
 from app.line.measure import SphereSensor, SweepSensor
 from app.sim.cell import make_cell
-from app.sim.line_run import geometric_sensor, simline_settings
+from app.sim.line_setup import geometric_sensor, simline_settings
 from app.sim.truth import EndToEndTruth, true_rmse_mm
 from fakes.line import SimLine
 from fakes.render_targets import render_calibration_set
@@ -104,7 +104,7 @@ class SimCommissioning:
         opens them (app.commission.context.open_station), and the cell file with the line's
         PLC settings; the station closes with this object."""
         from app.commission.context import open_station
-        from app.sim.line_run import with_simulated_plc
+        from app.sim.line_setup import with_simulated_plc
 
         cfg = with_simulated_plc(cfg)
         station = open_station(cfg, self.urls, trace)

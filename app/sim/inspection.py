@@ -49,7 +49,8 @@ from app.line.store import Store
 from app.sim.bodies import SimulatedBodies, true_value
 from app.sim.cell import make_cell
 from app.sim.commissioned import commission_simulated
-from app.sim.line_run import SimulatedLineRun, world_of
+from app.sim.line_run import SimulatedLineRun
+from app.sim.line_setup import world_of
 from app.sim.part import ensure_features, nominal_features
 from fakes.body import BodyShop, BuildProcess, ClampSettings
 from fakes.cell import SimulatedCell

@@ -113,7 +113,7 @@ def devices_cell(cfg: CellConfig, urls: dict[str, str], seed: int, scale: float)
     """The cell file of the simulated line's devices: `cfg` with the devices' URLs, the clamp
     window in wall seconds at `scale` sim seconds per real second, the words the simulated PLC
     writes (app.sim.line_run.with_simulated_plc) and the seed."""
-    from app.sim.line_run import with_simulated_plc
+    from app.sim.line_setup import with_simulated_plc
 
     cfg = with_simulated_plc(cfg)
     devices = dataclasses.replace(
@@ -215,7 +215,7 @@ class LineDevices:
 
     def _start_line(self) -> SimLine:
         from app.sim.cell import make_cell
-        from app.sim.line_run import simline_settings
+        from app.sim.line_setup import simline_settings
 
         setup = dataclasses.replace(
             simline_settings(self.cfg, geometric=False),

@@ -10,6 +10,8 @@ and measures the schedule's configurations in the clamp windows. After every win
 error of the parameters in force is evaluated at the line's validation positions (the truth is
 known here, never to the service): the one truth of app/sim/truth.py, points measured through the
 sensor model in use (rendered) or the true centres (geometric), mapped with the parameters.
+The line's set-up from the cell file and the state directory is app/sim/line_setup.py; what a
+run reports (a record per window, the summary) app/sim/line_records.py.
 """
 
 from __future__ import annotations
@@ -21,37 +23,40 @@ import queue
 import threading
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from app.commission.files import TARGETS_FILE
 from app.config import CellConfig
-from app.errors import InputError, RvisError
-from app.formats.files import read_targets
+from app.errors import InputError
 from app.formats.params import carried_from_json
 from app.line.body_cycle import BodySetup
-from app.line.measure import GeometricSensor, Rejected, SphereSensor, SweepSensor
+from app.line.measure import SphereSensor, SweepSensor
 from app.line.recalib import Recalibrator
 from app.line.schedule import Schedule
 from app.line.service import Service
-from app.line.settings import ServiceSettings, from_cell
 from app.line.statedir import StateDir
 from app.line.states import AlarmCode, State
 from app.line.station import Station, cell_guard
 from app.line.store import Store
 from app.sim.cell import make_cell, true_sensor_model
 from app.sim.cold_calibration import commissioned, random_schedule
+from app.sim.line_records import LineFaulted, SimRunSummary, WindowRecord
+from app.sim.line_setup import (
+    continued_epoch,
+    geometric_sensor,
+    service_settings,
+    simline_settings,
+    with_simulated_plc,
+    world_of,
+)
 from app.sim.truth import EndToEndTruth, true_errors_each_mm, true_rmse_mm
 from calib.compliance import CompliantModel, carry
 from calib.validation import rmse
-from fakes.cell import NotVisible
 from fakes.clock import VirtualClock
-from fakes.line import SimLine, SimLineSetup
-from fakes.truth import Knock, Maintenance, Warmup
+from fakes.line import SimLine
 from vision.sensor_model import SensorModel
 
 F64 = NDArray[np.float64]
@@ -59,146 +64,6 @@ F64 = NDArray[np.float64]
 
 #: silences of `events_until`'s timeout in a row while this process computes, before a hang
 BUSY_SILENCES = 10
-
-
-@dataclass
-class WindowRecord:
-    """The line after one window: sim time [h], temperature, true RMSE of the parameters in
-    force and of the commissioning parameters [mm], the parameters version, and the sim time
-    [h] the window opened."""
-
-    window: int
-    t_h: float
-    temp_c: float
-    rmse_mm: float
-    rmse_commissioning_mm: float
-    version: int
-    t_open_h: float = float("nan")  # when the window opened (the version was in force then)
-    # the U95 [mm] the service stated for the window's bodies (None: none stated), and whether
-    # they are in a suspect interval (known once the run ended: a later interval may reach
-    # back; `rvis run --sim`: the window's body is one `rvis state suspects` lists, by
-    # SimulatedLineRun.mark_suspect; the shift's scoring: app.sim.shift.mark_suspect)
-    u95_mm: float | None = None
-    suspect: bool = False
-    body: int | str | None = None  # the body the PLC clamped in the window (None: none read)
-    within_u95: float | None = None  # the share of validation points whose true error <= U95
-    p95_mm: float = float("nan")  # the 95th percentile of the validation points' true errors
-    targets: list[str] = field(default_factory=list)  # the spheres the window measured
-
-
-@dataclass
-class SimRunSummary:
-    windows: int = 0
-    measurements: int = 0
-    rejected: int = 0
-    overruns: int = 0
-    withdrawn: int = 0
-    calibrations_applied: int = 0
-    calibrations_rejected: int = 0
-    alarms: list[str] = field(default_factory=list)
-    true_rmse_start_mm: float = float("nan")
-    true_rmse_final_mm: float = float("nan")
-    # the `maintenance` alarm's text when the service holds the cell for a procedure
-    maintenance: str | None = None
-    # the device fault's alarm when an unattended run ended in a FAULT nobody clears
-    fault: str | None = None
-    # the bodies measured (their newest evaluation): how many, nonconforming, with a value
-    # undecided within its U95, evaluated again after a correction
-    bodies: int = 0
-    bodies_nok: int = 0
-    bodies_undecided: int = 0
-    bodies_reevaluated: int = 0
-    records: list[WindowRecord] = field(default_factory=list)
-
-    def to_json(self) -> dict[str, Any]:
-        return {k: v for k, v in self.__dict__.items() if k != "records"} | {
-            "timeline": [r.__dict__ for r in self.records]
-        }
-
-
-def simline_settings(
-    cfg: CellConfig,
-    *,
-    geometric: bool,
-    pace: float | None = None,
-    start_epoch: float | None = None,
-) -> SimLineSetup:
-    """The simulated line of the cell file's [simline], in virtual time paced at `pace` sim
-    seconds per real second (None: as fast as the CPU)."""
-    s = cfg.simline
-    knock = None
-    if s.knock_at_s >= 0:
-        knock = Knock(s.knock_at_s, s.knock_mm, s.knock_deg, s.knock_kind)
-    return SimLineSetup(
-        maintenance=maintenance_of(cfg),
-        scale=pace,
-        start_epoch=start_epoch,
-        period_s=s.period_s,
-        window_s=s.window_s,
-        body_s=s.body_phase_s,
-        beat_s=s.beat_s,
-        warmup=Warmup(s.warmup_k, s.warmup_tau_s, s.warmup_start_s) if s.warmup_k else None,
-        knock=knock,
-        camera=not geometric,
-        n_validation=s.n_validation,
-        camera_readout_s=s.camera_readout_s,
-        galvo_settle_s=s.galvo_settle_s,
-        body_format="serial8" if cfg.line.plc_body_id == "serial8" else "u32",
-    )
-
-
-def world_of(cfg: CellConfig, state_dir: str | Path) -> CellConfig:
-    """The cell file with the simulated world's own sphere places: a commissioned directory's
-    are what its commissioning's tracker measured (`commission/targets.csv`, the world's to
-    its noise), which a maintenance's hand-over never changes; the cell file's own are the
-    service's belief (after a fixture's renewal, the spheres' new places: the world must not
-    move them a second time)."""
-    path = StateDir(state_dir).commission / TARGETS_FILE
-    if not path.is_file():
-        return cfg
-    return dataclasses.replace(cfg, spheres_part_mm=read_targets(path))
-
-
-def maintenance_of(cfg: CellConfig) -> Maintenance | None:
-    """The cell file's maintenance event of the simulated world ([simline] maintenance_*)."""
-    s = cfg.simline
-    if s.maintenance_at_s < 0:
-        return None
-    return Maintenance(
-        s.maintenance_at_s,
-        s.maintenance_kind,
-        axis=s.maintenance_axis,
-        sphere=s.maintenance_sphere,
-        shift_mm=s.maintenance_mm or None,
-        frame=s.maintenance_frame,
-        tilt_deg=s.maintenance_deg or None,
-    )
-
-
-def geometric_sensor(line: SimLine, sweep_s: float = 0.0) -> GeometricSensor:
-    """The simulated line's geometric sensor: the true centre plus the sensor's noise; out of
-    the sensor's view (a knocked sensor, a moved sphere) a rejected measurement, as the
-    rendered path's vision checks reject it."""
-
-    def centre(target: str) -> Any:
-        try:
-            return line.geometric_centre(target, sweep_s)
-        except NotVisible as exc:
-            raise Rejected(f"NotVisible: {exc}") from exc
-
-    return GeometricSensor(centre, sweep_s)
-
-
-class LineFaulted(RvisError):
-    """An unattended run's service sat in a FAULT that nothing in the run clears (its summary
-    holds what was measured up to it)."""
-
-    def __init__(self, summary: SimRunSummary) -> None:
-        self.summary = summary
-        super().__init__(
-            f"the simulated line's service faulted after window {summary.windows} and nobody"
-            f" resets an unattended run's line: {summary.fault}"
-        )
 
 
 class _Held(Exception):
@@ -209,59 +74,6 @@ class _Held(Exception):
 def _held_for_maintenance(event: dict[str, Any]) -> bool:
     """The service raised the `maintenance` alarm: the cell holds until a procedure."""
     return event["event"] == "alarm" and event.get("code") == AlarmCode.MAINTENANCE
-
-
-def continued_epoch(state_dir: Path, start_epoch: float | None = None) -> tuple[float, float]:
-    """(the Unix time a simulated line's clock starts at, the world's time then [s]).
-
-    The clock starts at `start_epoch` (default now), or just after the last time the state
-    directory's database records when that is later (a run before ran ahead). The world
-    continues where the last run left it: its time is the span from the first simulated
-    line's start on this directory (its first `started` event) to the end of its history (the
-    world stands while no line runs), 0 on a new directory."""
-    now = time.time() if start_epoch is None else start_epoch
-    db = StateDir(state_dir).db
-    if not db.is_file():
-        return now, 0.0
-    store = Store.read_only(db)
-    try:
-        last = store.last_time()
-        started = store.events("started")
-    finally:
-        store.close()
-    if last is None:
-        return now, 0.0
-    world_s = last + 1.0 - float(started[0]["t"]) if started else 0.0
-    return max(now, last + 1.0), max(world_s, 0.0)
-
-
-def with_simulated_plc(cfg: CellConfig) -> CellConfig:
-    """The cell as the simulated line's devices are: its PLC writes the cell temperature in
-    word 2 (`[line] plc_temperature` on, whatever the cell file says) and counts bodies, the
-    body number in words 3-4 (`[line] plc_body_id` "u32" unless the cell file says "serial8":
-    then the simulated PLC writes serials), and leaves each body [simline] body_s for its
-    features (`[line] body_window_s`)."""
-    body = "u32" if cfg.line.plc_body_id == "none" else cfg.line.plc_body_id
-    line = dataclasses.replace(cfg.line, plc_temperature=True, plc_body_id=body)
-    if cfg.simline.body_phase_s > 0:  # the body's phase as the simulated PLC runs it
-        line = dataclasses.replace(line, body_window_s=cfg.simline.body_phase_s)
-    return dataclasses.replace(cfg, line=line)
-
-
-def service_settings(cfg: CellConfig, state_dir: Path) -> ServiceSettings:
-    """The cell's service settings on the simulated line: the clamp window's length, the PLC
-    poll of [simline] poll_s (in virtual time every poll is a real exchange: it sets how fast
-    a run goes) and a window margin that takes in a rising edge seen up to a poll late."""
-    s = from_cell(cfg, state_dir)
-    poll_s = cfg.simline.poll_s
-    line = replace(
-        s.line,
-        window_s=cfg.simline.window_s,
-        margin_s=s.line.margin_s + poll_s,
-        poll_s=poll_s,
-        heartbeat_timeout_s=max(s.line.heartbeat_timeout_s, 4.0 * poll_s),
-    )
-    return replace(s, line=line)
 
 
 class SimulatedLineRun:
@@ -620,7 +432,7 @@ class SimulatedLineRun:
         if s.windows < n:
             with contextlib.suppress(_Held):
                 for event in self.events_until(done, silence_s, quiet):
-                    self._count(event)
+                    self.summary.count(event)
                     self.held_for_maintenance |= _held_for_maintenance(event)
                     if on_event is not None:
                         on_event(event)
@@ -667,23 +479,6 @@ class SimulatedLineRun:
             k = bisect.bisect_right(times, t_open) - 1
             record.body = rows[k][1] if k >= 0 else None
             record.suspect = record.body is not None and record.body in listed
-
-    def _count(self, event: dict[str, Any]) -> None:
-        s, kind = self.summary, event["event"]
-        if kind == "window":
-            s.windows += 1
-            s.overruns += bool(event.get("overrun"))
-            s.withdrawn += bool(event.get("withdrawn"))
-        elif kind == "measurement":
-            ok = event.get("status", "ok") == "ok"
-            s.measurements += ok
-            s.rejected += not ok
-        elif kind == "parameters_applied" and event.get("source") == "auto":
-            s.calibrations_applied += 1
-        elif kind == "calibration" and event.get("status") == "rejected":
-            s.calibrations_rejected += 1
-        elif kind == "alarm":
-            s.alarms.append(str(event.get("message") or event.get("code")))
 
     def _record(self, event: dict[str, Any]) -> WindowRecord:
         """The line after a window, at the sim time of its event: the true error of the

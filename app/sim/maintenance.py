@@ -44,7 +44,9 @@ from app.maintain.record import open_record
 from app.maintain.table import procedure
 from app.sim.commission import SimCommissioning
 from app.sim.commissioned import commission_simulated, quiet, run_steps, scripted_fields
-from app.sim.line_run import SimulatedLineRun, WindowRecord, continued_epoch, world_of
+from app.sim.line_records import WindowRecord
+from app.sim.line_run import SimulatedLineRun
+from app.sim.line_setup import continued_epoch, world_of
 from fakes.line import SimLine
 from fakes.truth import KNOCK_KINDS, Knock
 from vision.sensor_model import SensorModel, load_sensor_model
@@ -449,7 +451,7 @@ def _step(doc: dict[str, Any], name: str) -> dict[str, Any]:
 def _truth(cfg: CellConfig, run: MaintenanceRun) -> dict[str, Any]:
     """What the event changed, as the simulated cell knows it."""
     from app.sim.cell import make_cell
-    from app.sim.line_run import maintenance_of
+    from app.sim.line_setup import maintenance_of
     from fakes.clock import VirtualClock
 
     cell = make_cell(cfg, seed=run.seed)  # the cell file as commissioned: the world's spheres

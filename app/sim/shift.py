@@ -27,7 +27,8 @@ from app.config import CellConfig
 from app.line.accuracy import ACCURACY_GROUP
 from app.line.statedir import StateDir
 from app.line.store import Store
-from app.sim.line_run import SimRunSummary, SimulatedLineRun, WindowRecord
+from app.sim.line_records import SimRunSummary, WindowRecord
+from app.sim.line_run import SimulatedLineRun
 from app.sim.truth import robot_floor_mm
 from fakes.truth import KNOCK_KINDS, NO_KNOCK, Knock
 

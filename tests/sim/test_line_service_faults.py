@@ -18,7 +18,8 @@ import pytest
 
 from app.config import CellConfig
 from app.line.states import State
-from app.sim.line_run import LineFaulted, SimulatedLineRun
+from app.sim.line_records import LineFaulted
+from app.sim.line_run import SimulatedLineRun
 from fakes.line_faults import Fault
 from tests.sim.fault_checks import all_announced_stored, faulted
 

@@ -22,7 +22,8 @@ from app.line.statedir import MAINTENANCE_REPORT_JSON, StateDir
 from app.line.states import AlarmCode
 from app.line.store import Store
 from app.sim.commissioned import commission_simulated
-from app.sim.line_run import SimulatedLineRun, continued_epoch
+from app.sim.line_run import SimulatedLineRun
+from app.sim.line_setup import continued_epoch
 from app.sim.maintenance import MaintenanceRun, _line_after, _version_x
 from tests.groups import GIGE_CAMERA
 
@@ -239,7 +240,7 @@ def _a_knock_after_the_hand_over_is_found_named_and_corrected(
 
 def _line_truth(state: StateDir, kind: str) -> dict[str, Any]:
     from app.sim.cell import make_cell
-    from app.sim.line_run import maintenance_of
+    from app.sim.line_setup import maintenance_of
     from fakes.clock import VirtualClock
 
     cfg = load_cell(state.cell)
@@ -299,7 +300,7 @@ def test_a_knock_after_the_hand_over_is_scored_from_its_window() -> None:
     """The row of a knock after a hand-over (bench/maintenance.py --knocks): the step alarm and
     the jump counted from the knock's window, the first window within the limit from it; a
     wrong kind is refused."""
-    from app.sim.line_run import WindowRecord
+    from app.sim.line_records import WindowRecord
     from app.sim.maintenance import _knock_row, _KnockLog
 
     with pytest.raises(ValueError, match="knock"):

@@ -27,7 +27,7 @@ import pytest
 from app.commands.cli import main
 from app.config import load_cell
 from app.sim.cell import make_cell
-from app.sim.line_run import simline_settings
+from app.sim.line_setup import simline_settings
 from fakes.line import SimLine
 from tests.groups import GIGE_CAMERA
 from tests.ports import free_port
