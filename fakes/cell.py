@@ -25,12 +25,11 @@ at the current joints and the current galvo command. Its image noise is seeded b
 itself (the cell's seed, the joints, the mirror command, exposure and gain, and how many times
 this cell rendered that frame before), not drawn from one stream: a frame never depends on how
 many frames were grabbed before it, so a commissioning step resumed in a new process (killed
-mid-step) renders the very frames an uninterrupted run renders.
+mid-step) renders the very frames an uninterrupted run renders (fakes/cell_camera.py).
 """
 
 from __future__ import annotations
 
-import hashlib
 import threading
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
@@ -38,17 +37,14 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from fakes.cell_camera import CameraFrames, digest
 from fakes.clock import Clock
 from fakes.render import (
     Frames,
-    Lighting,
-    SphereScene,
     SweepTruth,
     default_sweep_commands,
     render_sphere_sweep,
-    sphere_scene,
 )
-from fakes.render_noise import NoiseSettings, dark_frame
 from fakes.render_sensor import TrueSensor, default_true_sensor, replaced_sensor
 from fakes.truth import (
     M710IC50_RP_MM,
@@ -149,15 +145,6 @@ class SimSettings:
 #: sphere anywhere in the measuring volume about every 1.3 mm (bench/vision.py, tests).
 SWEEP_FRAMES = 24
 SWEEP_SPAN_V = 3.2
-#: Exposure [us] at which the renderer's laser power and ambient light are specified.
-REFERENCE_EXPOSURE_US = 10_000.0
-#: A camera frame reuses the previous frame's sphere scene (the costly, laser-independent part of
-#: rendering) while the sphere has moved less than this in the sensor frame [mm]: during a sweep
-#: the robot stands still and only the warm-up moves the sphere, by nanometres per frame.
-SCENE_REUSE_MM = 1e-4
-#: the renderer's frames: 12-bit digital numbers, full scale 4095
-FRAME_BITS = 12
-FULL_SCALE_DN = (1 << FRAME_BITS) - 1
 
 
 @dataclass(frozen=True, eq=False)
@@ -239,13 +226,11 @@ class SimulatedCell:
         self._stop_error_deg = np.zeros(6)  # the World path's current stop's error
         self._render_lock = threading.Lock()
         self._sweeps = 0  # sweeps handed out: the index in each sweep's noise seed
-        self._frames_seen: dict[int, int] = {}  # a frame's key -> times rendered (_frame_rng)
-        self._last_frame: tuple[int, int] = (-1, 0)  # the key and draw index rendered last
         # a new draw of every frame's noise (0: the first): a commissioning step run again
         # after it failed sees new noise, as a real camera's, where one resumed after a kill
         # (same draw) renders the frames of an uninterrupted run
         self.noise_draw = 0
-        self._scene: SphereScene | None = None
+        self.frames = CameraFrames(self, self._render_lock)  # what the camera sees
         self.sweep_commands_v = default_sweep_commands(SWEEP_FRAMES, SWEEP_SPAN_V)
 
     @property
@@ -633,96 +618,14 @@ class SimulatedCell:
     def render_counts_v(
         self, width: int, height: int, exposure_us: float, gain_db: float, command_v: float
     ) -> tuple[NDArray[np.uint16], int]:
-        """As `render_counts`, for a mirror command in volts."""
-        sensor = self.sensor
-        if width > sensor.width_px or height > sensor.height_px:
-            raise ValueError(
-                f"frame {width}x{height} exceeds the sensor's {sensor.width_px}x{sensor.height_px}"
-            )
-        exposure = exposure_us / REFERENCE_EXPOSURE_US
-        gain = 10.0 ** (gain_db / 20.0)
-        base = NoiseSettings(bits=FRAME_BITS)
-        noise = replace(
-            base, full_well_e=base.full_well_e / gain, ambient_e=base.ambient_e * exposure
-        )
-        light = replace(Lighting(), power=Lighting().power * exposure * gain)
-        c = self._sphere_in_view()
-        with self._render_lock:
-            rng = self._frame_rng(command_v, exposure_us, gain_db)
-            if c is None:
-                frame = dark_frame((sensor.height_px, sensor.width_px), noise, rng)
-            else:
-                scene = self._scene_of(sensor, c)
-                frame = render_sphere_sweep(
-                    scene.c_sensor_mm,
-                    scene.radius_mm,
-                    sensor,
-                    rng,
-                    commands_v=np.array([command_v]),
-                    noise=noise,
-                    light=light,
-                    stripe_truth=False,
-                    scene=scene,
-                )[0][0]
-        return np.asarray(frame[:height, :width], dtype=np.uint16), FULL_SCALE_DN
+        """As `render_counts`, for a mirror command in volts (fakes/cell_camera.py)."""
+        return self.frames.counts_v(width, height, exposure_us, gain_db, command_v)
 
     def warm_up(self) -> None:
-        """Render one frame of a sphere and throw it away (no noise drawn from the cell's
-        frames, no scene kept): the one-time costs of the first rendering (about 0.3 s) are
-        paid now, not by the camera's first frame at a sphere, which a loaded machine would
-        deliver after the driver's timeout (a commissioning resumed at its calibration)."""
-        sensor = self.sensor
-        scene = sphere_scene(sensor, np.array([0.0, 0.0, 130.0]), self.spec.sphere_radius_mm)
-        with self._render_lock:
-            render_sphere_sweep(
-                scene.c_sensor_mm,
-                scene.radius_mm,
-                sensor,
-                np.random.default_rng(0),
-                commands_v=np.array([0.0]),
-                noise=NoiseSettings(bits=12),
-                light=Lighting(),
-                stripe_truth=False,
-                scene=scene,
-            )
+        """The camera's first rendering paid now (`CameraFrames.warm_up`)."""
+        self.frames.warm_up()
 
-    def _frame_rng(
-        self, command_v: float, exposure_us: float, gain_db: float
-    ) -> np.random.Generator:
-        """The noise of the frame at the current joints (module docstring): seeded by the
-        cell's seed, the frame's key (joints to 0.1 deg, command to 1 uV, exposure to 0.01 us,
-        gain to 0.001 dB) and how many times the key was rendered before, other frames in
-        between (a frame rendered again straight after itself, as a lost frame the camera
-        driver re-triggers, keeps its noise: whether a frame is lost depends on the machine's
-        load, which must not change the images). Under _render_lock.
-        The joints' grid is coarse on purpose: views of one step are degrees apart, and a view
-        planned again in a resumed run differs from the first plan in its last bits (the
-        parameters it is planned on do), which a fine grid would sometimes round to another
-        key, another noise."""
-        key = np.concatenate(
-            [
-                np.round(self.joints_deg() * 10.0),
-                np.round([command_v * 1e6, exposure_us * 100.0, gain_db * 1e3]),
-            ]
-        ).astype(np.int64)
-        digest = _digest(key)
-        last, n = self._last_frame
-        if digest != last:
-            n = self._frames_seen.get(digest, 0)
-            self._frames_seen[digest] = n + 1
-            self._last_frame = (digest, n)
-        draw = [self.noise_draw] if self.noise_draw else []
-        return np.random.default_rng([self.settings.seed, 4, digest, n, *draw])
-
-    def _scene_of(self, sensor: TrueSensor, c_sensor_mm: F64) -> SphereScene:
-        """The sphere scene at c_sensor_mm: the last one if the sphere moved less than
-        SCENE_REUSE_MM since (the frame's centre then lags the truth by less than that)."""
-        last = self._scene
-        if last is None or np.max(np.abs(last.c_sensor_mm - c_sensor_mm)) >= SCENE_REUSE_MM:
-            last = self._scene = sphere_scene(sensor, c_sensor_mm, self.spec.sphere_radius_mm)
-        return last
-
-    def _sphere_in_view(self) -> F64 | None:
+    def sphere_in_view(self) -> F64 | None:
         """True centre in the sensor frame [mm] of the nearest sphere wholly in front of the
         sensor (the spheres stand metres apart: at most one is ever in the field of view)."""
         q = self.attained_deg()
@@ -740,10 +643,6 @@ class SimulatedCell:
         return out
 
 
-def _digest(key: NDArray[np.int64]) -> int:
-    return int.from_bytes(hashlib.blake2b(key.tobytes(), digest_size=8).digest(), "little")
-
-
 def _joints_key(q_deg: F64) -> int:
-    """A stop's key: its controller joints to 0.1 deg (the frames' grid, `_frame_rng`)."""
-    return _digest(np.round(q_deg * 10.0).astype(np.int64))
+    """A stop's key: its controller joints to 0.1 deg (the frames' grid: fakes/cell_camera.py)."""
+    return digest(np.round(q_deg * 10.0).astype(np.int64))

@@ -37,12 +37,12 @@ def test_the_camera_reuses_the_scene_only_while_the_sphere_stands_still(
     q = view_of(line_cell, "P1")
     line_cell.set_joints_deg(q)
     line_cell.render_frame_v(1296, 966, 10_000.0, 0.0, 0.0)
-    first = line_cell._scene
+    first = line_cell.frames.scene
     line_cell.render_frame_v(1296, 966, 10_000.0, 0.0, 0.3)
-    assert line_cell._scene is first and first is not None
+    assert line_cell.frames.scene is first and first is not None
     # where the robot stands: the commanded joints plus this stop's repeatability error
     truth = line_cell.centre_in_sensor(line_cell.attained_deg(), cfg.spheres_part_mm["P1"])[0]
     np.testing.assert_allclose(first.c_sensor_mm, truth, atol=1e-4)
     line_cell.set_joints_deg(q + np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.01]))  # J6: 0.01 deg
     line_cell.render_frame_v(1296, 966, 10_000.0, 0.0, 0.0)
-    assert line_cell._scene is not first
+    assert line_cell.frames.scene is not first
