@@ -22,7 +22,7 @@ from typing import Any
 import pytest
 
 from app.commands.cli import main
-from app.commands.state import check
+from app.commands.state_check import check
 from app.line.launch import hold_state
 from app.line.statedir import StateDir, group_fix_command, group_strays, prepare
 from app.tui.history import HistoryReader

@@ -14,7 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from app.commands.state import backup, check, restore
+from app.commands.state_backup import backup, restore
+from app.commands.state_check import check
 from app.formats.params import plain_document
 from app.line.params_store import ParamsStore
 from app.line.statedir import StateDir

@@ -12,7 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from app.commands.state import backup, check, restore
+from app.commands.state_backup import backup, restore
+from app.commands.state_check import check
 from app.config import load_cell
 from app.formats.files import dumps_json
 from app.formats.params import plain_document

@@ -195,7 +195,8 @@ def test_backup_and_restore_keep_the_cells_opcua_identity(
 ) -> None:
     """`rvis state backup|restore` carry the server's certificate, its key (0600) and the
     trusted clients; `rvis state check` flags a key others can read."""
-    from app.commands.state import backup, check, restore
+    from app.commands.state_backup import backup, restore
+    from app.commands.state_check import check
     from app.line.opcua.security import server_certificate
     from app.line.opcua.server import application_uri
 

@@ -349,7 +349,7 @@ def test_a_damaged_database_file_is_named_whatever_its_write_ahead_log_holds(
     """Garbage over `rvis.db` while a write-ahead log beside it still holds every page (a
     reader kept it from being folded in): SQLite reads the pages from the log and finds no
     fault, but the file is damaged, and `state check` says so from its header."""
-    from app.commands.state import check
+    from app.commands.state_check import check
     from app.line.statedir import StateDir
     from app.line.store import Store
 
