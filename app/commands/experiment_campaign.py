@@ -63,8 +63,8 @@ def run_knock_campaign(args: argparse.Namespace) -> int:
     time) and independent, and the campaign is assembled in the same order, so the outputs are
     those of --jobs 1 apart from the wall times."""
     from app.sim.knocks import write_campaign
-    from app.sim.shift import evaluate
     from app.sim.shift_report import summary_lines, write_outputs
+    from app.sim.shift_score import evaluate
 
     if args.estimator == "compare":
         raise InputError("a campaign runs one estimator", field="--estimator")

@@ -30,7 +30,7 @@ class WindowRecord:
     # the U95 [mm] the service stated for the window's bodies (None: none stated), and whether
     # they are in a suspect interval (known once the run ended: a later interval may reach
     # back; `rvis run --sim`: the window's body is one `rvis state suspects` lists, by
-    # SimulatedLineRun.mark_suspect; the shift's scoring: app.sim.shift.mark_suspect)
+    # SimulatedLineRun.mark_suspect; the shift's scoring: app.sim.shift_score.mark_suspect)
     u95_mm: float | None = None
     suspect: bool = False
     body: int | str | None = None  # the body the PLC clamped in the window (None: none read)

@@ -7,8 +7,8 @@ After every window the true error at the validation positions is recorded twice:
 parameters in force (the service) and with the commissioning parameters (no recalibration).
 From that timeline: after how many windows the step alarm flagged the knock, how many windows
 until the error with the service is back within `recovered_ratio` x its pre-knock level, the
-overruns; a table per hour (shift.md), the timeline (shift.json) and a plot (shift.png):
-app.sim.shift_report.
+overruns (app/sim/shift_score.py); a table per hour (shift.md), the timeline (shift.json) and a
+plot (shift.png): app.sim.shift_report.
 """
 
 from __future__ import annotations
@@ -21,14 +21,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from app.config import CellConfig
-from app.line.accuracy import ACCURACY_GROUP
 from app.line.statedir import StateDir
 from app.line.store import Store
 from app.sim.line_records import SimRunSummary, WindowRecord
 from app.sim.line_run import SimulatedLineRun
+from app.sim.shift_score import SuspectScore, attributed_group, evaluate, knock_s
 from app.sim.truth import robot_floor_mm
 from fakes.truth import KNOCK_KINDS, NO_KNOCK, Knock
 
@@ -111,82 +109,6 @@ DEMO_SHIFT = ShiftSettings(hours=0.75, knock_at_h=0.25, slots_per_window=2)
 #: When a simulated shift starts (Monday 2025-01-06 06:00 UTC): part of its settings, so that
 #: a seed reproduces the times stored in its state directory too, not only the outcome.
 SHIFT_START_EPOCH = 1736143200.0
-
-
-@dataclass(frozen=True)
-class SuspectScore:
-    """The suspect intervals against the truth, per window from the knock on: `bad` windows
-    (the true error of the parameters in force in the window above recovered_ratio x the
-    pre-knock level), `covered` ones (the window opened inside an interval: the parameters in
-    force then were the suspect ones), and any window covered before the knock (a false
-    step).
-
-    The knock's *episode* runs from the knock's window to `episode_end`: the last bad window
-    before the error stays back within the ratio for `episode_gap_windows` windows in a row (or
-    the shift ends). The bad windows later (a full recalibration's spread, the warm-up's drift
-    hours after the knock) are not the knock's: `episode_recall` leaves them out, `recall`
-    (every bad window to the end of the shift) does not."""
-
-    bad: tuple[int, ...]
-    covered: tuple[int, ...]
-    covered_before_knock: tuple[int, ...]
-    episode_end: int | None = None  # None: no bad window after the knock
-    # the bad windows the knock caused: also above the ratio x the error the same seed had in
-    # that window without the knock (the counterfactual, `ShiftResult.baseline_mm`); None:
-    # no counterfactual, every bad window counts
-    caused: tuple[int, ...] | None = None
-
-    @property
-    def recall(self) -> float:
-        """Share of the bad windows covered, to the end of the shift (1 when none was bad)."""
-        if not self.bad:
-            return 1.0
-        return len(set(self.bad) & set(self.covered)) / len(self.bad)
-
-    @property
-    def episode_bad(self) -> tuple[int, ...]:
-        """The bad windows of the knock's episode (the knock's window to `episode_end`; with a
-        counterfactual, those the knock caused)."""
-        end = self.episode_end
-        bad = self.bad if self.caused is None else self.caused
-        return () if end is None else tuple(w for w in bad if w <= end)
-
-    @property
-    def episode_covered(self) -> tuple[int, ...]:
-        """The episode's bad windows that were covered."""
-        return tuple(sorted(set(self.episode_bad) & set(self.covered)))
-
-    @property
-    def episode_recall(self) -> float:
-        """Share of the episode's bad windows covered (1 when none was bad)."""
-        bad = self.episode_bad
-        return len(self.episode_covered) / len(bad) if bad else 1.0
-
-    @property
-    def extra(self) -> int:
-        """Windows covered that were not bad (after the knock) or before it."""
-        return len(set(self.covered) - set(self.bad)) + len(self.covered_before_knock)
-
-    @property
-    def extra_share(self) -> float:
-        """extra / all covered windows (0 when none)."""
-        n = len(self.covered) + len(self.covered_before_knock)
-        return self.extra / n if n else 0.0
-
-    def to_json(self) -> dict[str, Any]:
-        return {
-            "bad": list(self.bad),
-            "covered": list(self.covered),
-            "covered_before_knock": list(self.covered_before_knock),
-            "recall": self.recall,
-            "extra": self.extra,
-            "extra_share": self.extra_share,
-            "episode_end": self.episode_end,
-            "episode_bad": list(self.episode_bad),
-            "episode_covered": list(self.episode_covered),
-            "episode_recall": self.episode_recall,
-            "caused": None if self.caused is None else list(self.caused),
-        }
 
 
 @dataclass
@@ -419,118 +341,5 @@ def _roll_back(run: SimulatedLineRun, windows: Callable[[int], None]) -> None:
         raise RuntimeError(f"the rollback before the knock was not carried out: {answers}")
 
 
-def _opened_s(r: WindowRecord, window_s: float) -> float:
-    """When the window opened [sim s] (older runs: the record's time less a window)."""
-    return r.t_open_h * 3600.0 if math.isfinite(r.t_open_h) else r.t_h * 3600.0 - window_s
-
-
-def knock_s(s: ShiftSettings) -> float:
-    """When the shift's knock came [s into the shift]; a shift without one: 0 (a step found in
-    it is a false one, named as a knock's would be)."""
-    return 3600.0 * s.knock_at_h if s.knocked else 0.0
-
-
-def attributed_group(suspects: list[dict[str, Any]], knock_s: float) -> str | None:
-    """What the service found moved for the knock at `knock_s` [s into the shift]: the group
-    of the first step interval (a confirmed step) not over before it; None when no step was
-    confirmed. (Before: the last interval's, which named a drift the charts flagged later in
-    the warm-up, "several", for a knock corrected right.)"""
-    steps = [
-        s
-        for s in suspects
-        if s.get("group_name") != ACCURACY_GROUP
-        and (s.get("t_end_s") is None or s["t_end_s"] >= knock_s)
-    ]
-    return str(steps[0]["group_name"]) if steps else None
-
-
 def _minus(t: float | None, epoch: float) -> float | None:
     return None if t is None else t - epoch
-
-
-def evaluate(result: ShiftResult) -> None:
-    """Knock window, windows to the step alarm, pre-knock level and windows to recovery."""
-    s, recs = result.settings, result.records
-    mark_suspect(result)
-    if not s.knocked:
-        return
-    after = [r.window for r in recs if r.t_h * 3600.0 - result.window_s >= s.knock_at_h * 3600.0]
-    if not after:
-        return
-    k = result.knock_window = after[0]
-    alarms = [w for w in result.drift_alarm_windows if w >= k]
-    result.flagged_after = alarms[0] - k + 1 if alarms else None
-    before = [r.rmse_mm for r in recs if r.window < k][-s.pre_knock_windows :]
-    if not before:
-        return
-    result.pre_knock_rmse_mm = float(np.median(before))
-    limit = s.recovered_ratio * result.pre_knock_rmse_mm
-    back = [r.window for r in recs if r.window >= k and r.rmse_mm <= limit]
-    result.recovered_after = back[0] - k + 1 if back else None
-    result.suspect_score = score_suspects(result, limit)
-
-
-def mark_suspect(result: ShiftResult) -> None:
-    """Each window's `suspect`: it opened inside a suspect interval (a step's, or one the cell
-    could not vouch for its U95 within the limit in), or its stated U95 is above the limit or
-    none was stated."""
-    limit = result.accuracy_limit_mm
-    for r in result.records:
-        t = _opened_s(r, result.window_s)
-        inside = any(
-            s["t_start_s"] <= t and (s["t_end_s"] is None or t < s["t_end_s"])
-            for s in result.suspects
-        )
-        unvouched = r.u95_mm is None or (math.isfinite(limit) and r.u95_mm > limit)
-        r.suspect = inside or unvouched
-
-
-def score_suspects(result: ShiftResult, limit_mm: float) -> SuspectScore:
-    """Which windows the suspect intervals cover (at the time each window opened, when the
-    parameters whose true error it records were in force) against those whose true error
-    exceeds `limit_mm`."""
-    k = result.knock_window or 10**9
-
-    def covered(t_s: float) -> bool:
-        return any(
-            s["t_start_s"] < t_s and (s["t_end_s"] is None or t_s < s["t_end_s"])
-            for s in result.suspects
-        )
-
-    recs = result.records
-    bad = tuple(r.window for r in recs if r.window >= k and r.rmse_mm > limit_mm)
-    caused = None
-    base = result.baseline_mm
-    if base is not None:
-        ratio = result.settings.recovered_ratio
-        caused = tuple(
-            r.window
-            for r in recs
-            if r.window in bad and (r.window > len(base) or r.rmse_mm > ratio * base[r.window - 1])
-        )
-    return SuspectScore(
-        bad=bad,
-        covered=tuple(
-            r.window for r in recs if r.window >= k and covered(_opened_s(r, result.window_s))
-        ),
-        covered_before_knock=tuple(
-            r.window for r in recs if r.window < k and covered(_opened_s(r, result.window_s))
-        ),
-        episode_end=episode_end(
-            bad if caused is None else caused, result.settings.episode_gap_windows
-        ),
-        caused=caused,
-    )
-
-
-def episode_end(bad: tuple[int, ...], gap: int) -> int | None:
-    """The last of the knock's bad windows (`bad`: ascending, from the knock's window on): the
-    last one before `gap` windows in a row that were not bad; None when none was bad."""
-    if not bad:
-        return None
-    end = bad[0]
-    for w in bad[1:]:
-        if w - end - 1 >= gap:
-            break
-        end = w
-    return end

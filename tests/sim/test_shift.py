@@ -19,8 +19,9 @@ from app.commands.cli import build_parser, main
 from app.commands.experiment_shift import hours_list, knock_hours
 from app.config import CellConfig
 from app.line.store import Store
-from app.sim.shift import ShiftSettings, SuspectScore, episode_end, run_shift
+from app.sim.shift import ShiftSettings, run_shift
 from app.sim.shift_report import summary_lines, write_outputs
+from app.sim.shift_score import SuspectScore, episode_end
 
 
 def test_a_knock_is_flagged_and_the_service_recovers(cfg: CellConfig, tmp_path: Path) -> None:
