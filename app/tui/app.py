@@ -30,7 +30,7 @@ from textual.widgets import (
 from textual.worker import Worker
 
 from app.line.statedir import StateDir
-from app.tui import keys, view
+from app.tui import alarm_view, history_view, keys, view
 from app.tui.bodies import BodiesPane
 from app.tui.body_view import TREND_N
 from app.tui.client import Event, ServiceClient, ServiceUnavailable
@@ -299,27 +299,27 @@ class RvisTui(App[None]):
     def _show_history(self, hist: dict[str, list[dict[str, Any]]]) -> None:
         """Draw the parts of the history that were read (those of the visible pane)."""
         if "measurements" in hist:
-            self._fill("measurements-table", view.measurement_rows(hist["measurements"]))
+            self._fill("measurements-table", history_view.measurement_rows(hist["measurements"]))
         if "calibrations" in hist:
-            self._fill("calibrations-table", view.calibration_rows(hist["calibrations"]))
+            self._fill("calibrations-table", history_view.calibration_rows(hist["calibrations"]))
         if "applied" in hist:
-            self._fill("versions-table", view.version_rows(hist["applied"]))
+            self._fill("versions-table", history_view.version_rows(hist["applied"]))
         if "maintenance" in hist:
             self._fill("maintenance-table", view.maintenance_rows(hist["maintenance"]))
         if "alarms" in hist:
             alarms = hist["alarms"] or list((self.status or {}).get("alarms") or [])
             self._alarms = sorted(alarms, key=lambda a: a.get("id", 0), reverse=True)
-            self._fill("alarms-table", view.alarm_rows(self._alarms))
+            self._fill("alarms-table", alarm_view.alarm_rows(self._alarms))
             self._show_alarm_detail()
         if "events" in hist:
-            self._fill("log-table", view.log_rows(hist["events"]))
+            self._fill("log-table", history_view.log_rows(hist["events"]))
         if "bodies" in hist:
             self.query_one(BodiesPane).show(hist["bodies"], hist["charts"], self._fill)
         if "recent" in hist:
             self._show_drift(hist["recent"])
         if "suspects" in hist:
             self._suspects = hist["suspects"]
-            self._fill("suspects-table", view.suspect_rows(self._suspects))
+            self._fill("suspects-table", history_view.suspect_rows(self._suspects))
             self._show_suspect_detail(self.query_one("#suspects-table", DataTable))
 
     def on_data_table_row_highlighted(self, event: DataTable.RowHighlighted) -> None:
@@ -338,14 +338,14 @@ class RvisTui(App[None]):
         except NoScreen:  # a highlight that arrives as the app shuts down
             return
         for detail in screen.query("#suspect-detail").results(Static):
-            detail.update(Text(view.suspect_detail(selected)))
+            detail.update(Text(history_view.suspect_detail(selected)))
 
     def _show_alarm_detail(self) -> None:
         """The selected alarm whole under the table: its text, who acknowledged it, when."""
         table: DataTable[Any] = self.query_one("#alarms-table", DataTable)
         row = table.cursor_row
         selected = self._alarms[row] if 0 <= row < len(self._alarms) else None
-        self.query_one("#alarm-detail", Static).update(Text(view.alarm_detail(selected)))
+        self.query_one("#alarm-detail", Static).update(Text(alarm_view.alarm_detail(selected)))
 
     def _fill(self, table_id: str, rows: Sequence[Sequence[Any]]) -> None:
         """Replace a table's rows (unless unchanged), keeping the cursor on the same row index."""

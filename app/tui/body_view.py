@@ -24,7 +24,8 @@ from rich.text import Text
 
 from app.inspect.spc import BASELINE_N, chart_key
 from app.line.body_results import capability
-from app.tui.view import PRIORITY_STYLE, num, time_text
+from app.tui.alarm_view import PRIORITY_STYLE
+from app.tui.view import num, time_text
 
 #: the bodies the trend and the capability look back over
 TREND_N = 25

@@ -10,7 +10,7 @@ import pytest
 
 from app.config.line import LineSettings
 from app.line.cycle import WindowWatch
-from app.tui import view
+from app.tui import history_view, view
 from drivers.errors import DeviceTimeout
 from fakes.clock import VirtualClock
 from fakes.devices import FakePlc
@@ -99,7 +99,7 @@ def test_a_plc_that_answers_states_the_line() -> None:
 
 def test_a_device_retry_reads_as_a_line_in_the_log() -> None:
     detail = {"attempts": 2, "unreachable": {"plc": "DeviceConnectionError: x: cannot connect"}}
-    text = view.event_text("device_retry", detail)
+    text = history_view.event_text("device_retry", detail)
     assert text == "try 2: plc unreachable (DeviceConnectionError: x: cannot connect)"
 
 

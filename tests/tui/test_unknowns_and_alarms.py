@@ -7,7 +7,7 @@ from __future__ import annotations
 import asyncio
 from pathlib import Path
 
-from app.tui import view
+from app.tui import alarm_view, view
 from app.tui.app import RvisTui
 from tests.tui.frozen import FrozenTui
 from tests.tui.helpers import press, text_of, until
@@ -76,7 +76,7 @@ def test_the_status_line_and_the_overview_say_the_window_alike() -> None:
 
 
 def test_the_alarm_rows_say_who_acknowledged_and_an_unacknowledged_clear() -> None:
-    rows = view.alarm_rows(
+    rows = alarm_view.alarm_rows(
         [
             {"id": 1, "priority": "low", "state": "cleared", "t_acked": None, "text": "x"},
             {

@@ -7,7 +7,7 @@ import json
 from datetime import UTC, datetime
 from pathlib import Path
 
-from app.tui import view
+from app.tui import history_view, view
 
 WALL = datetime(2026, 11, 23, 9, 30, tzinfo=UTC)
 
@@ -30,7 +30,7 @@ def test_ages_count_on_the_services_clock_not_the_terminals() -> None:
 
 def test_the_log_shows_each_event_as_a_line_for_people() -> None:
     def line(kind: str, data: dict[str, object]) -> str:
-        return view.log_rows(
+        return history_view.log_rows(
             [{"utc": "2026-11-23T09:00:00", "kind": kind, "detail": json.dumps(data)}]
         )[0][2]
 
@@ -63,7 +63,7 @@ def test_the_log_shows_each_event_as_a_line_for_people() -> None:
         "measurement",
         {"target": "P2", "slot": 5, "status": "ok", "residual_mm": 0.0412, "reason": ""},
     )
-    assert view.event_text("window", "not json") == "not json"
+    assert history_view.event_text("window", "not json") == "not json"
 
 
 def test_the_overview_names_the_knock_and_lists_the_suspect_intervals() -> None:
@@ -84,18 +84,18 @@ def test_the_overview_names_the_knock_and_lists_the_suspect_intervals() -> None:
         view.overview_text(corrected)
     )
     assert "Knock     none" in view.overview_text({})
-    rows = view.suspect_rows([{**interval, "start_utc": "2026-11-23T07:41:12"}])
+    rows = history_view.suspect_rows([{**interval, "start_utc": "2026-11-23T07:41:12"}])
     assert rows == [("2", "2026-11-23 07:41:12", "OPEN", "0.226", "none", "sensor mount moved")]
     # the bodies measured inside: how many, the first and the last in the row, all on selection
     bodies = {**interval, "bodies": [100412, 100413, 100414]}
-    assert view.suspect_rows([bodies])[0][4] == "3: 100412 .. 100414"
-    assert view.suspect_rows([{**interval, "bodies": ["B0100412"]}])[0][4] == "1: B0100412"
+    assert history_view.suspect_rows([bodies])[0][4] == "3: 100412 .. 100414"
+    assert history_view.suspect_rows([{**interval, "bodies": ["B0100412"]}])[0][4] == "1: B0100412"
     assert "bodies 3: 100412 .. 100414" in view.overview_text({"suspect_intervals": [bodies]})
-    assert view.suspect_detail(bodies) == (
+    assert history_view.suspect_detail(bodies) == (
         "#2 from 2026-11-23 07:41:12 to now (OPEN): 3 bodies: 100412, 100413, 100414"
     )
-    assert "no bodies known" in view.suspect_detail(interval)
-    assert view.suspect_detail(None) == "no suspect interval selected"
+    assert "no bodies known" in history_view.suspect_detail(interval)
+    assert history_view.suspect_detail(None) == "no suspect interval selected"
 
 
 def test_the_overview_says_maintenance_needed_and_the_history_lists_the_procedures(
