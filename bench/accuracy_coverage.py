@@ -46,7 +46,8 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from app.config import load_cell
-from app.sim.shift import ShiftSettings, run_shift
+from app.sim.shift import run_shift
+from app.sim.shift_result import ShiftSettings
 from calib.uncertainty import u95_mm
 
 GROUP = {"sensor": "sensor", "fixture": "fixture", "joint": "J2"}

@@ -87,7 +87,8 @@ def shift(task: tuple[int, str, float, float]) -> dict[str, Any]:
     """One shift: (seed, knock kind, knock hour, hours) -> its figures (a knock-free shift's
     knock at its very end: no restart or rollback before it)."""
     from app.config import load_cell
-    from app.sim.shift import ShiftSettings, run_shift
+    from app.sim.shift import run_shift
+    from app.sim.shift_result import ShiftSettings
 
     seed, kind, knock_h, hours = task
     before = BEFORE if knock_h + 0.01 < hours else "none"

@@ -9,7 +9,7 @@ from __future__ import annotations
 import hashlib
 import threading
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -17,9 +17,6 @@ from numpy.typing import NDArray
 from fakes.render import Lighting, SphereScene, render_sphere_sweep, sphere_scene
 from fakes.render_noise import NoiseSettings, dark_frame
 from fakes.render_sensor import TrueSensor
-
-if TYPE_CHECKING:
-    from fakes.cell import SimulatedCell
 
 F64 = NDArray[np.float64]
 
@@ -34,12 +31,27 @@ FRAME_BITS = 12
 FULL_SCALE_DN = (1 << FRAME_BITS) - 1
 
 
+class FramedCell(Protocol):
+    """What the camera's frames need of the simulated cell (fakes.cell.SimulatedCell)."""
+
+    noise_draw: int
+    settings: Any  # its seed
+    spec: Any  # its spheres' radius
+
+    @property
+    def sensor(self) -> TrueSensor: ...
+
+    def joints_deg(self) -> F64: ...
+
+    def sphere_in_view(self) -> F64 | None: ...
+
+
 class CameraFrames:
     """The frames of `cell`'s camera, rendered under `lock` (the cell's, which its true sensor
     and sweeps share): the frames rendered so far per key (their noise draws) and the last
     sphere scene (`scene`, reused while the sphere stands still)."""
 
-    def __init__(self, cell: SimulatedCell, lock: threading.Lock) -> None:
+    def __init__(self, cell: FramedCell, lock: threading.Lock) -> None:
         self.cell, self.lock = cell, lock
         self._seen: dict[int, int] = {}  # a frame's key -> times rendered (_rng)
         self._last: tuple[int, int] = (-1, 0)  # the key and draw index rendered last

@@ -120,8 +120,9 @@ def line_part(cfg: CellConfig, out: Path, seed: int) -> None:
     """A few dozen windows of the in-line service on the simulated line with a knock
     (geometric, high time scale): line.png/.md/.json in the run folder, two lines in
     report.md."""
-    from app.sim.shift import DEMO_SHIFT, run_shift
+    from app.sim.shift import run_shift
     from app.sim.shift_report import summary_lines, write_outputs
+    from app.sim.shift_result import DEMO_SHIFT
 
     print(
         "\nline part: the in-line service on the simulated line, a knock at"

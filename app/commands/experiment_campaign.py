@@ -16,7 +16,7 @@ from app.config import CellConfig, load_cell
 from app.errors import InputError
 
 if TYPE_CHECKING:
-    from app.sim.shift import ShiftResult, ShiftSettings
+    from app.sim.shift_result import ShiftResult, ShiftSettings
 
 
 def _campaign_when(args: argparse.Namespace, plan: list[tuple[float, float]]) -> str:

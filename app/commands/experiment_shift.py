@@ -18,7 +18,7 @@ from fakes.truth import KNOCK_KINDS as KNOCKS
 from fakes.truth import NO_KNOCK
 
 if TYPE_CHECKING:
-    from app.sim.shift import ShiftSettings
+    from app.sim.shift_result import ShiftSettings
 
 
 DEFAULT_HOURS = 8.0  # `--hours` when neither it nor --after-h is given
@@ -200,7 +200,7 @@ def run_shift_experiment(args: argparse.Namespace) -> int:
 
 
 def shift_settings(args: argparse.Namespace, knock_h: float, hours: float) -> ShiftSettings:
-    from app.sim.shift import ShiftSettings
+    from app.sim.shift_result import ShiftSettings
 
     if args.geometric and args.rendered:
         raise InputError("choose --geometric or --rendered", field="--rendered")

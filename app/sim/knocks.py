@@ -14,8 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from app.sim.shift import ShiftResult
 from app.sim.shift_report import plot_shift, time_text, write_report_files
+from app.sim.shift_result import ShiftResult
+from app.sim.shift_score import scored_from_json
 
 
 def _median(values: Sequence[float | int | None]) -> float | None:
@@ -286,7 +287,7 @@ def load_campaign(path: Path) -> dict[str, list[ShiftResult]]:
     import json
 
     doc = json.loads(path.read_text(encoding="utf-8"))
-    return {k: [ShiftResult.from_json(r) for r in runs] for k, runs in doc["runs"].items()}
+    return {k: [scored_from_json(r) for r in runs] for k, runs in doc["runs"].items()}
 
 
 def campaign_doc(

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from app.formats.files import dumps_json
-from app.sim.shift import ShiftResult
+from app.sim.shift_result import ShiftResult
 
 
 def hourly_rows(result: ShiftResult) -> list[dict[str, float]]:

@@ -5,92 +5,13 @@ the suspect intervals scored against the windows whose true error was above the 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from app.line.accuracy import ACCURACY_GROUP
 from app.sim.line_records import WindowRecord
-
-if TYPE_CHECKING:
-    from app.sim.shift import ShiftResult, ShiftSettings
-
-
-@dataclass(frozen=True)
-class SuspectScore:
-    """The suspect intervals against the truth, per window from the knock on: `bad` windows
-    (the true error of the parameters in force in the window above recovered_ratio x the
-    pre-knock level), `covered` ones (the window opened inside an interval: the parameters in
-    force then were the suspect ones), and any window covered before the knock (a false
-    step).
-
-    The knock's *episode* runs from the knock's window to `episode_end`: the last bad window
-    before the error stays back within the ratio for `episode_gap_windows` windows in a row (or
-    the shift ends). The bad windows later (a full recalibration's spread, the warm-up's drift
-    hours after the knock) are not the knock's: `episode_recall` leaves them out, `recall`
-    (every bad window to the end of the shift) does not."""
-
-    bad: tuple[int, ...]
-    covered: tuple[int, ...]
-    covered_before_knock: tuple[int, ...]
-    episode_end: int | None = None  # None: no bad window after the knock
-    # the bad windows the knock caused: also above the ratio x the error the same seed had in
-    # that window without the knock (the counterfactual, `ShiftResult.baseline_mm`); None:
-    # no counterfactual, every bad window counts
-    caused: tuple[int, ...] | None = None
-
-    @property
-    def recall(self) -> float:
-        """Share of the bad windows covered, to the end of the shift (1 when none was bad)."""
-        if not self.bad:
-            return 1.0
-        return len(set(self.bad) & set(self.covered)) / len(self.bad)
-
-    @property
-    def episode_bad(self) -> tuple[int, ...]:
-        """The bad windows of the knock's episode (the knock's window to `episode_end`; with a
-        counterfactual, those the knock caused)."""
-        end = self.episode_end
-        bad = self.bad if self.caused is None else self.caused
-        return () if end is None else tuple(w for w in bad if w <= end)
-
-    @property
-    def episode_covered(self) -> tuple[int, ...]:
-        """The episode's bad windows that were covered."""
-        return tuple(sorted(set(self.episode_bad) & set(self.covered)))
-
-    @property
-    def episode_recall(self) -> float:
-        """Share of the episode's bad windows covered (1 when none was bad)."""
-        bad = self.episode_bad
-        return len(self.episode_covered) / len(bad) if bad else 1.0
-
-    @property
-    def extra(self) -> int:
-        """Windows covered that were not bad (after the knock) or before it."""
-        return len(set(self.covered) - set(self.bad)) + len(self.covered_before_knock)
-
-    @property
-    def extra_share(self) -> float:
-        """extra / all covered windows (0 when none)."""
-        n = len(self.covered) + len(self.covered_before_knock)
-        return self.extra / n if n else 0.0
-
-    def to_json(self) -> dict[str, Any]:
-        return {
-            "bad": list(self.bad),
-            "covered": list(self.covered),
-            "covered_before_knock": list(self.covered_before_knock),
-            "recall": self.recall,
-            "extra": self.extra,
-            "extra_share": self.extra_share,
-            "episode_end": self.episode_end,
-            "episode_bad": list(self.episode_bad),
-            "episode_covered": list(self.episode_covered),
-            "episode_recall": self.episode_recall,
-            "caused": None if self.caused is None else list(self.caused),
-        }
+from app.sim.shift_result import ShiftResult, ShiftSettings, SuspectScore
 
 
 def opened_s(r: WindowRecord, window_s: float) -> float:
@@ -204,3 +125,12 @@ def episode_end(bad: tuple[int, ...], gap: int) -> int | None:
             break
         end = w
     return end
+
+
+def scored_from_json(doc: dict[str, Any]) -> ShiftResult:
+    """A shift's result read back from its JSON (`ShiftResult.to_json`), with what the service
+    found moved and its figures against the truth computed again."""
+    result = ShiftResult.from_json(doc)
+    result.attribution = attributed_group(result.suspects, knock_s(result.settings))
+    evaluate(result)
+    return result

@@ -13,7 +13,8 @@ from pathlib import Path
 import pytest
 
 from app.config import CellConfig
-from app.sim.shift import ShiftSettings, run_shift
+from app.sim.shift import run_shift
+from app.sim.shift_result import ShiftSettings
 
 pytestmark = pytest.mark.slow
 

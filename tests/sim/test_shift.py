@@ -19,8 +19,10 @@ from app.commands.cli import build_parser, main
 from app.commands.experiment_shift import hours_list, knock_hours
 from app.config import CellConfig
 from app.line.store import Store
-from app.sim.shift import ShiftSettings, run_shift
+from app.sim.knocks import load_campaign, run_row
+from app.sim.shift import run_shift
 from app.sim.shift_report import summary_lines, write_outputs
+from app.sim.shift_result import ShiftSettings
 from app.sim.shift_score import SuspectScore, episode_end
 
 
@@ -343,6 +345,10 @@ def test_a_campaign_over_two_knock_hours_in_two_jobs(
     assert "| sensor | **all** | 2 |" in md
     assert _without_wall_time(docs[1]) == _without_wall_time(doc)
     assert mds[1] == md
+    # the campaign's runs read back and scored again give the figures written
+    again = load_campaign(tmp_path / "jobs-1" / "shift-knocks.json")["sensor"]
+    assert [run_row(r)["episode_recall"] for r in again] == [r["episode_recall"] for r in runs]
+    assert [r.to_json() for r in again] == doc["runs"]["sensor"]
 
 
 def test_a_campaigns_shifts_run_the_estimator_and_model_the_command_names() -> None:

@@ -12,7 +12,8 @@ from pathlib import Path
 import pytest
 
 from app.config import CellConfig
-from app.sim.shift import ShiftSettings, run_shift
+from app.sim.shift import run_shift
+from app.sim.shift_result import ShiftSettings
 
 GROUP_OF = {"sensor": "sensor", "fixture": "fixture", "joint": "J2"}
 
