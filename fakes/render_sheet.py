@@ -24,7 +24,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from fakes.render import Frames, Lighting, _render_frames
+from fakes.render import Frames, Lighting, render_frames
 from fakes.render_noise import NoiseSettings
 from fakes.render_sensor import TrueSensor
 
@@ -129,7 +129,7 @@ def render_feature_sweep(
     light = light or Lighting(albedo=0.6, glint_gain=0.05)
     flat, X, N = feature_surface(T_camera_feature, kind, size_mm, thickness_mm, sensor)
     normals, offsets = sensor.laser_planes(np.asarray(commands_v, dtype=float))
-    return _render_frames(sensor, flat, X, N, normals, offsets, light, noise, rng)
+    return render_frames(sensor, flat, X, N, normals, offsets, light, noise, rng)
 
 
 def bench_pose(tilt_deg: float, roll_deg: float = 0.0) -> F64:

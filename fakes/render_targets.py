@@ -13,7 +13,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from fakes.render import Frames, default_sweep_commands, render_chessboard, render_plane_sweep
+from fakes.render import Frames, default_sweep_commands
+from fakes.render_plane import render_chessboard, render_plane_sweep
 from fakes.render_sensor import TrueSensor
 
 F64 = NDArray[np.float64]

@@ -11,12 +11,12 @@ import pytest
 from fakes import render_sensor
 from fakes.render import (
     Lighting,
-    _render_frames,
-    render_chessboard,
+    render_frames,
     render_sphere_sweep,
     sphere_hits,
 )
 from fakes.render_noise import NoiseSettings, _form, dark_frame
+from fakes.render_plane import render_chessboard
 from fakes.render_sensor import TrueSensor, _rays, _rays_of
 
 
@@ -191,7 +191,7 @@ def test_tile_culling_changes_no_pixel(true_sensor: TrueSensor) -> None:
     idx, X = sphere_hits(true_sensor, c, 15.0)
     normals, offsets = true_sensor.laser_planes(np.linspace(-3.2, 3.2, 6))
     frames = [
-        _render_frames(
+        render_frames(
             true_sensor,
             idx,
             X,
