@@ -22,18 +22,26 @@ from drivers.errors import DeviceError
 
 def run_sequence(ctx: Context, journal: Journal) -> str | None:
     """Run the steps from the first one not passed; the name of the step that failed its
-    checks (None: every step passed). Context.Declined propagates (nothing recorded for the
-    step the engineer stopped)."""
+    checks (None: every step passed). A step done earlier after one that runs now runs again
+    (a journal begun by an older rvis whose procedure lacked a step: what came after it was
+    made without it). Context.Declined propagates (nothing recorded for the step the engineer
+    stopped)."""
     steps = journal.procedure.steps
     n = len(steps)
+    ran: str | None = None  # the first step run now: the steps after it run again
     for i, step in enumerate(steps, start=1):
         name = step.name
-        if journal.passed(name):
+        if ran is not None and journal.done(name):
+            # done earlier on what the step before it had given then (a journal of an older
+            # rvis, with a step that was not in its procedure): its inputs may have changed
+            ctx.say(f"step {i}/{n} {name}: done earlier, runs again after step {ran}")
+        elif journal.passed(name):
             ctx.say(f"step {i}/{n} {name}: passed earlier")
             continue
-        if (why := journal.not_run(name)) is not None:
+        elif (why := journal.not_run(name)) is not None:
             ctx.say(f"step {i}/{n} {name}: not run earlier ({why})")
             continue
+        ran = ran or name
         ctx.ask(f"step {i}/{n} {name}: {step.title}: start?")
         ctx.say(f"step {i}/{n} {name}: {step.title} ...")
         started = datetime.now(UTC).isoformat(timespec="seconds")
