@@ -4,6 +4,7 @@ runs again on its rows; storage faults are typed faults the service survives."""
 
 from __future__ import annotations
 
+import queue
 import sqlite3
 from collections.abc import Callable
 from concurrent.futures import Executor, Future
@@ -91,9 +92,18 @@ def run_line(state_dir: Path, windows: int, executor: type[Executor] = InlineExe
         repeatability_mm=0.0,
     )
     ln.service.recalibrator = Recalibrator(executor)
+    # after each window (its recalibration submitted, if one was due): is one in flight?
+    in_flight: queue.Queue[bool] = queue.Queue()
+    ln.service.after_window = lambda: in_flight.put(ln.service.decision.recal_ids is not None)
     try:
         ln.start()
         ln.windows(windows, timeout_s=30.0)
+        last = [in_flight.get(timeout=30.0) for _ in range(windows)][-1]
+        if last and executor is InlineExecutor:
+            # its decision, the loop's next pass: stopped before it, the run would leave it
+            # for its next start to run again (the test below), and the two runs would differ
+            # by when the stop came, not by what they decided
+            ln.wait(lambda e: e["event"] == "calibration", 30.0)
     finally:
         ln.close()
 
