@@ -111,7 +111,8 @@ def database_summary(db: Path) -> dict[str, Any]:
 
 def restore(backup_dir: Path, state: Any) -> list[str]:
     """A backup into `state` (a StateDir): refused while a service holds it or when it has a
-    database of its own; the files put back besides the database."""
+    database of its own; the files put back besides the database (a cell file that names
+    another state directory made to name this one: `point_cell_here`)."""
     from app.line.statedir import StateDir, holder_pid
 
     copy = StateDir(backup_dir)
@@ -132,9 +133,49 @@ def restore(backup_dir: Path, state: Any) -> list[str]:
     old_umask = os.umask(0o027)
     try:
         files = _copy_carried(copy, state)
+        point_cell_here(state)
         tmp = state.db.with_name(f".{state.db.name}.restore")
         shutil.copyfile(copy.db, tmp)
         os.replace(tmp, state.db)  # the database last: a half restore has none
     finally:
         os.umask(old_umask)
     return files
+
+
+def named_state_dir(state: Any) -> Path | None:
+    """The state directory the cell file in `state` (a StateDir) names explicitly
+    (`[service] state_dir`, as `rvis commission` writes it); None when it names none."""
+    import tomllib
+
+    try:
+        doc = tomllib.loads(state.cell.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return None
+    named = (doc.get("service") or {}).get("state_dir")
+    return Path(named) if isinstance(named, str) and named else None
+
+
+def point_cell_here(state: Any) -> Path | None:
+    """A restored cell file that names another state directory (the one it was backed up
+    from, written there by `rvis commission`) rewritten to name this one, so that `--cell
+    DIR/cell.toml` finds this directory and not the old one; the old name (None: unchanged)."""
+    named = named_state_dir(state)
+    here = state.root.resolve()
+    if named is None or named.resolve() == here:
+        return None
+    import dataclasses
+
+    from app.config import load_cell
+    from app.config.write import dumps_cell
+    from app.formats.files import write_text
+
+    cfg = load_cell(state.cell)
+    cfg = dataclasses.replace(cfg, service=dataclasses.replace(cfg.service, state_dir=str(here)))
+    kept = []  # the file's leading comment (what wrote it)
+    for line in state.cell.read_text(encoding="utf-8").splitlines():
+        if not line.startswith("#"):
+            break
+        kept.append(line[1:].strip())
+    note = f"restored by rvis state restore: [service] state_dir was {named}"
+    write_text(state.cell, dumps_cell(cfg, "\n".join([*kept, note])))
+    return named

@@ -6,6 +6,7 @@ wrote are missing (the service would run with the design sensor model). Naming t
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -62,6 +63,43 @@ def test_a_backup_carries_the_commissioned_files_and_restores_them(
         assert (restored.root / rel).read_bytes() == path.read_bytes(), rel
     findings = check(restored, 0.0)
     assert findings["problems"] == [] and findings["commissioned"]["by_commissioning"]
+
+
+def test_a_restored_cell_file_names_the_directory_it_was_restored_into(
+    commissioned: StateDir, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The cell file `rvis commission` wrote names its state directory (`[service]
+    state_dir`): restored elsewhere, it named the old one, so that a command given `--cell
+    NEW/cell.toml` read or wrote the old directory. Restore makes it name the new one (the rest
+    of the file as it was), and check says when a cell file names another directory."""
+    from app.commands.cli import main
+    from app.config import load_cell
+    from app.config.write import dumps_cell
+
+    cfg = load_cell(None)
+    cfg = dataclasses.replace(
+        cfg, service=dataclasses.replace(cfg.service, state_dir=str(commissioned.root.resolve()))
+    )
+    commissioned.cell.write_text(dumps_cell(cfg, "written by rvis commission from cell.toml"))
+    assert check(commissioned, 0.0)["problems"] == []
+    backup(commissioned, tmp_path / "backup")
+    restored = StateDir(tmp_path / "elsewhere")
+    argv = ["state", "restore", str(tmp_path / "backup"), "--state-dir", str(restored.root)]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    here = restored.root.resolve()
+    assert f"cell.toml: [service] state_dir {commissioned.root.resolve()} -> {here}" in out
+    again = load_cell(restored.cell)
+    assert Path(again.service.state_dir) == here
+    moved = dataclasses.replace(cfg, service=dataclasses.replace(cfg.service, state_dir=str(here)))
+    assert dumps_cell(again) == dumps_cell(moved)  # the rest of the file as it was
+    text = restored.cell.read_text()
+    assert text.startswith("# written by rvis commission from cell.toml\n# restored by rvis")
+    assert check(restored, 0.0)["problems"] == []
+    # a cell file naming another directory (moved by hand): check names it
+    commissioned.cell.write_text(dumps_cell(cfg).replace(str(commissioned.root.resolve()), "/x"))
+    problems = check(commissioned, 0.0)["problems"]
+    assert any("state_dir names /x, not this directory" in p for p in problems)
 
 
 def test_check_names_a_missing_commissioned_sensor_file(commissioned: StateDir) -> None:
