@@ -30,7 +30,7 @@ from scipy.optimize import brentq
 from app.config import load_cell
 from app.sim.bodies import rendered_profiles
 from app.sim.cell import make_cell, render_and_measure, true_sensor_model
-from fakes.cell import NotVisible
+from fakes.cell_spec import NotVisible
 from fakes.render_sensor import TrueSensor
 from fakes.render_sheet import bench_commands, bench_pose
 from vision.errors import FeatureRefused

@@ -31,13 +31,13 @@ mid-step) renders the very frames an uninterrupted run renders (fakes/cell_camer
 from __future__ import annotations
 
 import threading
-from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from fakes.cell_camera import CameraFrames, digest
+from fakes.cell_spec import CellSpec, NotVisible, SimSettings
 from fakes.clock import Clock
 from fakes.render import (
     Frames,
@@ -47,7 +47,6 @@ from fakes.render import (
 )
 from fakes.render_sensor import TrueSensor, default_true_sensor, replaced_sensor
 from fakes.truth import (
-    M710IC50_RP_MM,
     Knock,
     Maintenance,
     Repeatability,
@@ -58,88 +57,6 @@ from fakes.truth import (
 )
 
 F64 = NDArray[np.float64]
-
-#: The paper's sphere positions in the robot base frame [mm] (Table 1: pre-calibration).
-PAPER_TABLE1_BASE_MM: dict[str, tuple[float, float, float]] = {
-    "P1": (-647.14, 1254.27, -289.37),
-    "P2": (1742.87, 1138.35, -260.87),
-    "P3": (1428.57, -1347.92, 102.31),
-    "P4": (-704.45, -1265.87, 680.54),
-}
-#: The paper's optimised positions (Table 2) [mm], robot base frame.
-PAPER_TABLE2_BASE_MM: dict[str, tuple[float, float, float]] = {
-    "P1": (1072.73, 1394.23, -288.43),
-    "P2": (-823.53, 806.94, -261.44),
-    "P3": (-1207.93, -1377.56, 101.86),
-    "P4": (946.27, -1043.51, 682.61),
-}
-
-
-class NotVisible(Exception):
-    """The sphere is outside the sensor's measuring volume from this configuration."""
-
-
-@dataclass(frozen=True)
-class MeasuringVolume:
-    """Where a sphere centre must lie in the sensor frame to be measured [mm]: laterally
-    inside the field of view, in depth within the depth of field around the ideal standoff."""
-
-    half_x_mm: float = 18.5
-    half_y_mm: float = 13.5
-    z_min_mm: float = 125.0
-    z_max_mm: float = 135.0
-
-    def contains(self, c_sensor_mm: F64) -> NDArray[np.bool_]:
-        c = np.atleast_2d(c_sensor_mm)
-        inside: NDArray[np.bool_] = (
-            (np.abs(c[:, 0]) <= self.half_x_mm)
-            & (np.abs(c[:, 1]) <= self.half_y_mm)
-            & (c[:, 2] >= self.z_min_mm)
-            & (c[:, 2] <= self.z_max_mm)
-        )
-        return inside
-
-
-@dataclass(frozen=True)
-class CellSpec:
-    """The nominal cell as designed: what the engineer believes (plain numbers, no model)."""
-
-    T_part_base: F64
-    T_flange_sensor: F64
-    spheres_part_mm: Mapping[str, F64]
-    sphere_radius_mm: float = 15.0
-    volume: MeasuringVolume = field(default_factory=MeasuringVolume)
-
-
-@dataclass(frozen=True)
-class SimSettings:
-    """Seeded error and noise settings of the simulated cell.
-
-    repeatability_mm: the robot's pose repeatability, ISO 9283 RP [mm] (default the FANUC
-    M-710iC/50 data sheet's +-0.07 mm; `fakes.truth.Repeatability` derives each stop's joint
-    errors from it); 0 for a perfectly repeating robot, where a test needs an exact world.
-
-    sensor_noise_mm: the geometric sensor's own noise, Gaussian per axis of the sensor frame
-    [mm]. 5 um: a laser-line probe repeats a sphere centre to a few um (REFERENCE.md), the
-    rendered path's vision to 1-2 um. Before the robot had its repeatability this was 20 um, a
-    stand-in for sensor and robot together; the robot now brings 22 um RMS per axis at the
-    sphere itself (15-34 um by view: 14-22 um at the flange, more at the standoff point through
-    the flange's turn), and 20 um more from the sensor would count the robot twice (30 um per
-    axis). With 5 um the geometric centre's non-repeatable error is 23 um per axis: the old
-    stand-in's size, now with the robot's shape (a pose error, not isotropic noise)."""
-
-    seed: int = 0
-    tracker_noise_mm: float = 0.01
-    sensor_noise_mm: float = 0.005
-    repeatability_mm: float = M710IC50_RP_MM
-    compliance: bool = True
-    thermal: bool = True
-    temp_c: float = 20.0
-    base_error_mm: float = 1.0
-    base_error_rad: float = 5e-4
-    mount_error_mm: float = 0.5
-    mount_error_rad: float = 2e-3
-
 
 #: Mirror commands [V] of one measurement sweep: 24 frames over +-3.2 V put the stripe on a
 #: sphere anywhere in the measuring volume about every 1.3 mm (bench/vision.py, tests).

@@ -346,7 +346,7 @@ class SimLine:
         """The true centre (3,) [mm] of sphere `target_id` in the true sensor frame at the
         robot's current joints and the sim time at the end of the sweep, plus the cell's sensor
         noise. sweep_s: the sweep's duration, which passes on a VirtualClock first (no camera
-        charges it on this path). Raises fakes.cell.NotVisible outside the measuring volume."""
+        charges it on this path). Raises fakes.cell_spec.NotVisible outside the measuring volume."""
         if self.virtual is not None:
             self.virtual.elapse(sweep_s)
         return self.cell.measure_target(target_id)

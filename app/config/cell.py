@@ -134,7 +134,7 @@ class SimulationSection(Section):
     # --sim` on its directory measures the same way unless told
     geometric: bool = opt(False)
     tracker_noise_mm: float = opt(0.01, lo=0, hi=10)
-    # the defaults of these two are fakes.cell.SimSettings' (its docstring says why; a test
+    # the defaults of these two are fakes.cell_spec.SimSettings' (its docstring says why; a test
     # pins them equal): the geometric sensor's own noise, the robot's ISO 9283 RP (0: exact)
     sensor_noise_mm: float = opt(0.005, lo=0, hi=10)
     repeatability_mm: float = opt(0.07, lo=0, hi=10)

@@ -36,7 +36,8 @@ from calib import candidates
 from calib.identify import Measurements
 from calib.model import SystemModel
 from calib.validation import rmse
-from fakes.cell import CellSpec, MeasuringVolume, SimSettings, SimulatedCell, SweepJob
+from fakes.cell import SimulatedCell, SweepJob
+from fakes.cell_spec import CellSpec, MeasuringVolume, SimSettings
 from fakes.render_sensor import TrueSensor
 from fakes.render_targets import render_calibration_set
 from vision.calibrate_sensor import calibrate_sensor

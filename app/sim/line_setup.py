@@ -20,7 +20,7 @@ from app.line.measure import GeometricSensor, Rejected
 from app.line.settings import ServiceSettings, from_cell
 from app.line.statedir import StateDir
 from app.line.store import Store
-from fakes.cell import NotVisible
+from fakes.cell_spec import NotVisible
 from fakes.line import SimLine, SimLineSetup
 from fakes.truth import Knock, Maintenance, Warmup
 

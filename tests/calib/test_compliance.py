@@ -25,7 +25,7 @@ from calib.compliance import (
 from calib.errors import NotIdentifiable
 from calib.identify import Measurements, identify, residuals
 from calib.model import EXTRA_NAMES, INDEX, PAPER_30, SystemModel, unit_of
-from fakes.cell import SimSettings
+from fakes.cell_spec import SimSettings
 from fakes.truth import LINK_MASS_KG, TrueRobot
 
 F = np.float64

@@ -31,7 +31,8 @@ from app.sim.cold_calibration import random_schedule
 from calib.identify import IdentificationResult, Measurements, identify
 from calib.model import SystemModel
 from drivers.plc import decode_inputs, decode_outputs, encode_inputs
-from fakes.cell import NotVisible, SimulatedCell
+from fakes.cell import SimulatedCell
+from fakes.cell_spec import NotVisible
 from fakes.clock import VirtualClock
 from fakes.devices import ClampCycle, FakePlc, FakeRobot
 

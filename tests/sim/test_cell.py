@@ -8,7 +8,7 @@ import pytest
 
 from app.config import CellConfig
 from app.sim.cell import make_cell
-from fakes.cell import NotVisible
+from fakes.cell_spec import NotVisible
 
 
 def random_q(cfg: CellConfig, n: int, seed: int) -> np.ndarray:

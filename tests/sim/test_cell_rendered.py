@@ -24,7 +24,8 @@ from app.sim.cell import (
 )
 from calib import candidates
 from drivers.camera import CameraSettings
-from fakes.cell import CellSpec, SimulatedCell
+from fakes.cell import SimulatedCell
+from fakes.cell_spec import CellSpec
 from fakes.devices import FakeCamera, FakeGalvo
 from fakes.render import render_sphere_sweep
 from fakes.render_sensor import TrueSensor, default_true_sensor

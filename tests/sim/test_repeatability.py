@@ -21,7 +21,8 @@ from app.line.estimate import sphere_sigma_mm
 from app.line.schedule import Schedule
 from app.line.settings import from_cell
 from app.sim.cell import make_cell, render_and_measure
-from fakes.cell import SimSettings, SimulatedCell
+from fakes.cell import SimulatedCell
+from fakes.cell_spec import SimSettings
 from fakes.line_truth import LineTruth, validation_positions
 from fakes.render_sensor import TrueSensor
 from fakes.truth import (
