@@ -350,7 +350,7 @@ SIM_LOGGER = "rvis.sim.run"
 
 
 def _summary_text(s: Any) -> str:
-    """A batch run's summary (app.sim.line_run.SimRunSummary) in words, for a person."""
+    """A batch run's summary (app.sim.line_records.SimRunSummary) in words, for a person."""
     return (
         f"{s.windows} windows, {s.measurements} measurements stored ({s.rejected} rejected), "
         f"{s.overruns} overruns, {s.withdrawn} withdrawn; calibrations applied "

@@ -112,7 +112,7 @@ class DevicesDir:
 def devices_cell(cfg: CellConfig, urls: dict[str, str], seed: int, scale: float) -> CellConfig:
     """The cell file of the simulated line's devices: `cfg` with the devices' URLs, the clamp
     window in wall seconds at `scale` sim seconds per real second, the words the simulated PLC
-    writes (app.sim.line_run.with_simulated_plc) and the seed."""
+    writes (app.sim.line_setup.with_simulated_plc) and the seed."""
     from app.sim.line_setup import with_simulated_plc
 
     cfg = with_simulated_plc(cfg)
