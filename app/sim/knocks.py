@@ -283,7 +283,8 @@ def _plot_hours(
 
 
 def load_campaign(path: Path) -> dict[str, list[ShiftResult]]:
-    """The runs of a campaign's `shift-knocks.json`, scored again (app.sim.shift_score.scored_from_json)."""
+    """The runs of a campaign's `shift-knocks.json`, each scored again
+    (app.sim.shift_score.scored_from_json)."""
     import json
 
     doc = json.loads(path.read_text(encoding="utf-8"))
