@@ -52,9 +52,8 @@ from app.sim.line_setup import (
     with_simulated_plc,
     world_of,
 )
-from app.sim.truth import EndToEndTruth, true_errors_each_mm, true_rmse_mm
+from app.sim.truth import EndToEndTruth, rmse_or_nan, true_errors_each_mm, true_rmse_mm
 from calib.compliance import CompliantModel, carry
-from calib.validation import rmse
 from fakes.clock import VirtualClock
 from fakes.line import SimLine
 from vision.sensor_model import SensorModel
@@ -503,8 +502,8 @@ class SimulatedLineRun:
             window=self.summary.windows,
             t_h=t_s / 3600.0,
             temp_c=truth.temp_c(t_s),
-            rmse_mm=rmse(e) if len(e) else float("nan"),
-            rmse_commissioning_mm=rmse(e_commissioning) if len(e_commissioning) else float("nan"),
+            rmse_mm=rmse_or_nan(e),
+            rmse_commissioning_mm=rmse_or_nan(e_commissioning),
             version=version,
             u95_mm=u95,
             within_u95=None if u95 is None or not len(e) else float(np.mean(norms <= u95)),

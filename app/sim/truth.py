@@ -158,8 +158,7 @@ class EndToEndTruth:
 
     def rmse_mm(self, *args: Any, **kwargs: Any) -> float:
         """RMS of the Euclidean errors of `errors_mm` (NaN when no view is accepted)."""
-        e = self.errors_mm(*args, **kwargs)
-        return rmse(e) if len(e) else float("nan")
+        return rmse_or_nan(self.errors_mm(*args, **kwargs))
 
 
 def true_errors_mm(
@@ -202,5 +201,9 @@ def true_rmse_mm(
     line: SimLine, truth: EndToEndTruth, model: Any, x: F64, t_s: float | None = None
 ) -> float:
     """RMS [mm] of `true_errors_mm` (NaN when no view is accepted)."""
-    e = true_errors_mm(line, truth, model, x, t_s)
-    return rmse(e) if len(e) else float("nan")
+    return rmse_or_nan(true_errors_mm(line, truth, model, x, t_s))
+
+
+def rmse_or_nan(errors_mm: F64) -> float:
+    """RMS [mm] of the Euclidean errors (m, 3); NaN for none (no view accepted)."""
+    return rmse(errors_mm) if len(errors_mm) else float("nan")
