@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from app.commands import add_command
-from app.commands.state_backup import backup, backup_text, named_state_dir, restore
+from app.commands.state_backup import backup, backup_text, restore
 from app.commands.state_check import check, check_report
 from app.commands.status import state_dir_of
 from app.errors import InputError
@@ -88,11 +88,12 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(doc, indent=1) if args.json else body_text(doc))
         return 0
     if args.verb == "restore":
-        named = named_state_dir(StateDir(args.backup))
-        restore(Path(args.backup), state)
+        restored = restore(Path(args.backup), state)
         print(f"restored {args.backup} into {state.root}")
-        if named is not None and named.resolve() != state.root.resolve():
-            print(f"  cell.toml: [service] state_dir {named} -> {state.root.resolve()}")
+        if restored.cell_named is not None:
+            print(
+                f"  cell.toml: [service] state_dir {restored.cell_named} -> {state.root.resolve()}"
+            )
         return 0
     min_free_mb, group = _service_settings(args)
     findings = check(state, min_free_mb, group)

@@ -9,7 +9,7 @@ import os
 import shutil
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from app.errors import InputError
 
@@ -109,10 +109,18 @@ def database_summary(db: Path) -> dict[str, Any]:
         store.close()
 
 
-def restore(backup_dir: Path, state: Any) -> list[str]:
+class Restored(NamedTuple):
+    """What `restore` put back: the files besides the database, and the state directory the
+    restored cell file named before it was made to name this one (None: it named none other)."""
+
+    files: list[str]
+    cell_named: Path | None
+
+
+def restore(backup_dir: Path, state: Any) -> Restored:
     """A backup into `state` (a StateDir): refused while a service holds it or when it has a
-    database of its own; the files put back besides the database (a cell file that names
-    another state directory made to name this one: `point_cell_here`)."""
+    database of its own (a cell file that names another state directory made to name this
+    one: `point_cell_here`)."""
     from app.line.statedir import StateDir, holder_pid
 
     copy = StateDir(backup_dir)
@@ -133,18 +141,19 @@ def restore(backup_dir: Path, state: Any) -> list[str]:
     old_umask = os.umask(0o027)
     try:
         files = _copy_carried(copy, state)
-        point_cell_here(state)
+        named = point_cell_here(state)
         tmp = state.db.with_name(f".{state.db.name}.restore")
         shutil.copyfile(copy.db, tmp)
         os.replace(tmp, state.db)  # the database last: a half restore has none
     finally:
         os.umask(old_umask)
-    return files
+    return Restored(files, named)
 
 
-def named_state_dir(state: Any) -> Path | None:
-    """The state directory the cell file in `state` (a StateDir) names explicitly
-    (`[service] state_dir`, as `rvis commission` writes it); None when it names none."""
+def names_another_state_dir(state: Any) -> Path | None:
+    """The other state directory the cell file in `state` (a StateDir) names explicitly
+    (`[service] state_dir`, as `rvis commission` writes it); None when it names this one or
+    none."""
     import tomllib
 
     try:
@@ -152,17 +161,19 @@ def named_state_dir(state: Any) -> Path | None:
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
         return None
     named = (doc.get("service") or {}).get("state_dir")
-    return Path(named) if isinstance(named, str) and named else None
+    if not isinstance(named, str) or not named or Path(named).resolve() == state.root.resolve():
+        return None
+    return Path(named)
 
 
 def point_cell_here(state: Any) -> Path | None:
     """A restored cell file that names another state directory (the one it was backed up
     from, written there by `rvis commission`) rewritten to name this one, so that `--cell
     DIR/cell.toml` finds this directory and not the old one; the old name (None: unchanged)."""
-    named = named_state_dir(state)
-    here = state.root.resolve()
-    if named is None or named.resolve() == here:
+    named = names_another_state_dir(state)
+    if named is None:
         return None
+    here = state.root.resolve()
     import dataclasses
 
     from app.config import load_cell

@@ -10,7 +10,7 @@ import stat
 from pathlib import Path
 from typing import Any
 
-from app.commands.state_backup import database_summary, named_state_dir
+from app.commands.state_backup import database_summary, names_another_state_dir
 from app.errors import InputError
 
 
@@ -110,8 +110,8 @@ def _check_commissioned(state: Any, db: dict[str, Any], problems: list[str]) -> 
     apply), the files its last step wrote for `rvis run`: without sensor.toml the service
     measures with the design sensor model, without cell.toml or plan.json it does not start
     as commissioned."""
-    named = named_state_dir(state)
-    if named is not None and named.resolve() != state.root.resolve():
+    named = names_another_state_dir(state)
+    if named is not None:
         problems.append(
             f"{state.cell}: [service] state_dir names {named}, not this directory: a command"
             f" given --cell {state.cell} would use that one (name this directory there; `rvis"
