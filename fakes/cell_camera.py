@@ -9,11 +9,12 @@ from __future__ import annotations
 import hashlib
 import threading
 from dataclasses import replace
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
+from fakes.cell_spec import CellSpec, SimSettings
 from fakes.render import Lighting, SphereScene, render_sphere_sweep, sphere_scene
 from fakes.render_noise import NoiseSettings, dark_frame
 from fakes.render_sensor import TrueSensor
@@ -35,8 +36,8 @@ class FramedCell(Protocol):
     """What the camera's frames need of the simulated cell (fakes.cell.SimulatedCell)."""
 
     noise_draw: int
-    settings: Any  # its seed
-    spec: Any  # its spheres' radius
+    settings: SimSettings  # its seed
+    spec: CellSpec  # its spheres' radius
 
     @property
     def sensor(self) -> TrueSensor: ...
